@@ -1,0 +1,23 @@
+"""SCPainter for Blender: insert realistic cars into recorded drives and re-render them from new camera paths.
+
+register() and unregister() only (DESIGN §2); everything else lives in scpainter_blender, operators and panels.
+"""
+
+import bpy
+
+from . import operators, panels
+from .scpainter_blender.scene import preferences
+
+_classes = (*preferences.classes, *operators.classes, *panels.classes)
+
+
+def register():
+    for cls in _classes:
+        bpy.utils.register_class(cls)
+    bpy.types.TOPBAR_MT_file_import.append(operators.import_vggt.menu_import)
+
+
+def unregister():
+    bpy.types.TOPBAR_MT_file_import.remove(operators.import_vggt.menu_import)
+    for cls in reversed(_classes):
+        bpy.utils.unregister_class(cls)

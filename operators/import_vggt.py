@@ -1,0 +1,108 @@
+"""File > Import > SCPainter VGGT (.npz): the reconstruction as coloured points plus the recorded camera."""
+
+from __future__ import annotations
+
+import bpy
+from bpy_extras.io_utils import ImportHelper
+
+from ..scpainter_blender.backend_client import BackendError
+from ..scpainter_blender.scene import importer, preferences
+
+
+class SCPAINTER_OT_import_vggt(bpy.types.Operator, ImportHelper):
+    """Import a VGGT predictions.npz as coloured points and the recorded camera, at metric scale"""
+
+    bl_idname = "scpainter.import_vggt"
+    bl_label = "Import VGGT Reconstruction"
+    bl_options = {"REGISTER", "UNDO", "PRESET"}
+
+    filename_ext = ".npz"
+    filter_glob: bpy.props.StringProperty(default="*.npz", options={"HIDDEN"})
+    confidence_percentile: bpy.props.FloatProperty(
+        name="Confidence Percentile", default=50.0, min=0.0, max=100.0, subtype="PERCENTAGE",
+        description="Drop the points below this percentile of the clip's confidence (VGGT demo semantics)")
+    point_source: bpy.props.EnumProperty(
+        name="Points From", default="depth",
+        items=[("depth", "Depth", "Unproject the depth maps with each frame's camera (VGGT's recommended branch)"),
+               ("world_points", "Point Map", "VGGT's world_points head")])
+    scale_mode: bpy.props.EnumProperty(
+        name="Metric Scale", default="FACTOR",
+        items=[("FACTOR", "Factor", "Metres per VGGT unit"),
+               ("TRAJECTORY", "Metric Trajectory", "Fit the camera path to a metric one (Umeyama)"),
+               ("CAMERA_HEIGHT", "Camera Height", "Known camera height over the road plane (RANSAC, backend)")])
+    scale_factor: bpy.props.FloatProperty(name="Scale Factor", default=1.0, min=1e-6, soft_max=1000.0,
+                                          description="Metres per VGGT unit")
+    trajectory_path: bpy.props.StringProperty(name="Trajectory", subtype="FILE_PATH",
+                                              description="Metric camera path (.npz world_to_camera, xyz or TUM text)")
+    camera_height: bpy.props.FloatProperty(name="Camera Height", default=1.6, min=0.01, unit="LENGTH",
+                                           description="Height of the camera over the road, metres")
+    point_radius: bpy.props.FloatProperty(name="Point Radius", default=0.03, min=0.0, unit="LENGTH")
+    current_frame_only: bpy.props.BoolProperty(name="Current Frame Only", default=False,
+                                               description="Show only the points of the current frame (± window)")
+    frame_window: bpy.props.IntProperty(name="Frame Window", default=0, min=0)
+
+    def draw(self, context):
+        col = self.layout.column()
+        col.use_property_split = True
+        for name in ("confidence_percentile", "point_source", "scale_mode"):
+            col.prop(self, name)
+        col.prop(self, {"FACTOR": "scale_factor", "TRAJECTORY": "trajectory_path",
+                        "CAMERA_HEIGHT": "camera_height"}[self.scale_mode])
+        for name in ("point_radius", "current_frame_only", "frame_window"):
+            col.prop(self, name)
+
+    def execute(self, context):
+        prefs = preferences.get(context)
+        opts = importer.ImportOptions(
+            confidence_percentile=self.confidence_percentile, point_source=self.point_source,
+            scale_mode=self.scale_mode, scale_factor=self.scale_factor, trajectory_path=self.trajectory_path,
+            camera_height=self.camera_height, backend_python=prefs.backend_python if prefs else "",
+            point_radius=self.point_radius, current_frame_only=self.current_frame_only,
+            frame_window=self.frame_window, frame_start=context.scene.frame_start)
+        try:
+            result = importer.import_vggt(context, self.filepath, opts)
+        except (ValueError, BackendError) as e:
+            self.report({"ERROR"}, str(e))
+            return {"CANCELLED"}
+        for w in result.warnings:
+            self.report({"WARNING"}, w)
+        for o in context.view_layer.objects.selected:
+            o.select_set(False)
+        context.view_layer.objects.active = result.points
+        result.points.select_set(True)
+        _show_attribute_colours(context)
+        fit = result.fit
+        self.report({"INFO"}, f"Imported {result.num_points:,} points and {result.camera.name!r} in "
+                              f"{result.timings['total']:.2f} s; scale {fit.scale:.4g} m/unit ({fit.method}, "
+                              f"residual {fit.residual_m:.3g} m)")
+        return {"FINISHED"}
+
+
+def _show_attribute_colours(context):
+    """Solid viewports show the point colours (a no-op in background mode, where there is no screen)."""
+    screen = getattr(context, "screen", None)
+    for area in screen.areas if screen else ():
+        if area.type == "VIEW_3D":
+            shading = area.spaces.active.shading
+            if shading.type == "SOLID":
+                shading.color_type = "ATTRIBUTE"
+
+
+class SCPAINTER_FH_vggt(bpy.types.FileHandler):
+    """Drag a predictions .npz into the 3D viewport to import it."""
+
+    bl_idname = "SCPAINTER_FH_vggt"
+    bl_label = "SCPainter VGGT"
+    bl_import_operator = "scpainter.import_vggt"
+    bl_file_extensions = ".npz"
+
+    @classmethod
+    def poll_drop(cls, context):
+        return context.area is not None and context.area.type == "VIEW_3D"
+
+
+def menu_import(self, context):
+    self.layout.operator(SCPAINTER_OT_import_vggt.bl_idname, text="SCPainter VGGT Reconstruction (.npz)")
+
+
+classes = (SCPAINTER_OT_import_vggt, SCPAINTER_FH_vggt)

@@ -1,0 +1,5 @@
+"""bpy panels: draw only."""
+
+from . import main
+
+classes = (*main.classes,)

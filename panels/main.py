@@ -1,0 +1,33 @@
+"""The "SCPainter" tab in the 3D viewport's sidebar."""
+
+from __future__ import annotations
+
+import bpy
+
+from ..scpainter_blender.scene import points
+
+
+class SCPAINTER_PT_main(bpy.types.Panel):
+    bl_label = "SCPainter"
+    bl_idname = "SCPAINTER_PT_main"
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = "SCPainter"
+
+    def draw(self, context):
+        layout = self.layout
+        layout.operator("scpainter.import_vggt", icon="IMPORT")
+        obj = context.active_object
+        if obj is None or "scpainter_kind" not in obj:
+            return
+        box = layout.box()
+        box.label(text=obj.name, icon="POINTCLOUD_DATA" if obj["scpainter_kind"] == "points" else "CAMERA_DATA")
+        box.label(text=f"Scale: {obj.get('scpainter_scale_method', '?')}, "
+                       f"residual {obj.get('scpainter_scale_residual_m', 0.0):.3g} m")
+        mod = points.points_modifier(obj)
+        if mod is not None:
+            for name in ("Point Radius", "Current Frame Only", "Frame Window"):
+                box.prop(mod, f'["{points._socket_identifier(mod.node_group, name)}"]', text=name)
+
+
+classes = (SCPAINTER_PT_main,)

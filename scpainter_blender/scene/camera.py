@@ -1,0 +1,77 @@
+"""The recorded camera: a Blender camera animated per frame with its OpenCV pose and exact intrinsics.
+
+Poses are keyed as location + quaternion (continuous signs), never Euler angles, so the path cannot flip between
+frames. Intrinsics: lens and shifts are keyed per frame (CONSTANT) only when they vary; fx != fy becomes the
+scene's pixel aspect, which is one value per scene, so a per-frame change of fx/fy is reported, not hidden.
+"""
+
+from __future__ import annotations
+
+import bpy
+import numpy as np
+
+from ..core import cameras
+from . import compat
+
+
+def create_recorded_camera(name: str, world_to_camera, K, width: int, height: int, frame_start: int,
+                           collection, sensor_width: float = 36.0):
+    """Camera object keyed at frames frame_start + i. Returns (object, settings of frame 0, warnings)."""
+    T = cameras.as_matrix4(world_to_camera)
+    K = np.asarray(K, np.float64)
+    S = len(T)
+    params = [cameras.blender_camera_from_K(K[i], width, height, sensor_width=sensor_width) for i in range(S)]
+    warnings = []
+    data = bpy.data.cameras.new(name)
+    p0 = params[0]
+    data.sensor_fit = p0.sensor_fit
+    data.sensor_width, data.sensor_height = p0.sensor_width, p0.sensor_height
+    data.lens, data.shift_x, data.shift_y = p0.lens, p0.shift_x, p0.shift_y
+    data.clip_start, data.clip_end = 0.05, 10000.0
+    obj = bpy.data.objects.new(name, data)
+    collection.objects.link(obj)
+
+    frames = frame_start + np.arange(S)
+    lens = np.array([p.lens for p in params])
+    shifts = np.array([[p.shift_x, p.shift_y] for p in params])
+    if S > 1 and (np.ptp(lens) > 1e-9 * lens[0] or np.ptp(shifts, axis=0).max() > 1e-12):
+        fc = compat.new_action_fcurves(data, f"{name} intrinsics")
+        compat.key_fcurve(fc, "lens", 0, frames, lens, "CONSTANT")
+        compat.key_fcurve(fc, "shift_x", 0, frames, shifts[:, 0], "CONSTANT")
+        compat.key_fcurve(fc, "shift_y", 0, frames, shifts[:, 1], "CONSTANT")
+    ratio = K[:, 0, 0] / K[:, 1, 1]
+    if np.ptp(ratio) > 1e-9:
+        err_px = float(np.max(np.abs(ratio / ratio[0] - 1.0)) * max(width, height) / 2)
+        warnings.append(f"fx/fy varies across frames (up to {err_px:.3g} px at the image edge); the scene's "
+                        "single pixel aspect uses frame 0")
+
+    M = cameras.blender_matrix_world(T)
+    loc = M[:, :3, 3]
+    quat = cameras.continuous_quaternions(cameras.rotation_to_quaternion(M[:, :3, :3]))
+    obj.rotation_mode = "QUATERNION"
+    obj.location = loc[0].tolist()
+    obj.rotation_quaternion = quat[0].tolist()
+    fc = compat.new_action_fcurves(obj, f"{name} path")
+    for i in range(3):
+        compat.key_fcurve(fc, "location", i, frames, loc[:, i])
+    for i in range(4):
+        compat.key_fcurve(fc, "rotation_quaternion", i, frames, quat[:, i])
+    return obj, p0, warnings
+
+
+def apply_render_settings(scene, cam: cameras.BlenderCamera):
+    """Resolution, 100 % scale and pixel aspect that make ``cam`` reproduce its K."""
+    r = scene.render
+    r.resolution_x, r.resolution_y, r.resolution_percentage = cam.resolution_x, cam.resolution_y, 100
+    r.pixel_aspect_x, r.pixel_aspect_y = cam.pixel_aspect_x, cam.pixel_aspect_y
+
+
+def K_of_camera_object(scene, cam_obj) -> np.ndarray:
+    """Our K for a Blender camera object with the scene's render settings (at the current frame)."""
+    d, r = cam_obj.data, scene.render
+    W = round(r.resolution_x * r.resolution_percentage / 100)
+    H = round(r.resolution_y * r.resolution_percentage / 100)
+    return cameras.K_from_blender_camera(cameras.BlenderCamera(
+        lens=d.lens, sensor_width=d.sensor_width, sensor_height=d.sensor_height, sensor_fit=d.sensor_fit,
+        shift_x=d.shift_x, shift_y=d.shift_y, resolution_x=W, resolution_y=H,
+        pixel_aspect_x=r.pixel_aspect_x, pixel_aspect_y=r.pixel_aspect_y))

@@ -1,0 +1,42 @@
+"""The few Blender APIs that moved between 4.2 and 5.0, each behind one helper (DESIGN §6).
+
+* Keyframes: from 4.4 they live in action slots and channelbags, and ``Action.fcurves`` is gone in 5.0.
+"""
+
+from __future__ import annotations
+
+import bpy
+
+#: Actions with slots and channelbags (4.4+).
+HAS_ACTION_SLOTS = bpy.app.version >= (4, 4, 0)
+
+_INTERPOLATION = {"CONSTANT": 0, "LINEAR": 1, "BEZIER": 2}
+
+
+def new_action_fcurves(id_data, action_name: str):
+    """A fresh action assigned to ``id_data``; returns the collection to create its F-curves in."""
+    ad = id_data.animation_data or id_data.animation_data_create()
+    action = bpy.data.actions.new(action_name)
+    ad.action = action
+    if HAS_ACTION_SLOTS:
+        from bpy_extras import anim_utils
+
+        slot = action.slots.new(id_type=id_data.id_type, name=id_data.name)
+        ad.action_slot = slot
+        return anim_utils.action_ensure_channelbag_for_slot(action, slot).fcurves
+    return action.fcurves
+
+
+def key_fcurve(fcurves, data_path: str, index: int, frames, values, interpolation: str = "LINEAR"):
+    """One F-curve with a key at each frame, written in bulk with foreach_set (no per-key Python)."""
+    import numpy as np
+
+    frames = np.asarray(frames, dtype=np.float32)
+    values = np.asarray(values, dtype=np.float32)
+    fc = fcurves.new(data_path, index=index)
+    kp = fc.keyframe_points
+    kp.add(len(frames))
+    kp.foreach_set("co", np.stack([frames, values], axis=1).ravel())
+    kp.foreach_set("interpolation", np.full(len(frames), _INTERPOLATION[interpolation], dtype=np.int32))
+    fc.update()
+    return fc

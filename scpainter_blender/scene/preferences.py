@@ -1,0 +1,38 @@
+"""Add-on preferences: where the backend runs and what it loads."""
+
+from __future__ import annotations
+
+import bpy
+
+#: The extension's package (``bl_ext.<repo>.scpainter`` when installed): two levels above this module.
+ADDON_PACKAGE = __package__.rsplit(".", 2)[0]
+
+
+class SCPAINTER_AP_preferences(bpy.types.AddonPreferences):
+    bl_idname = ADDON_PACKAGE
+
+    backend_python: bpy.props.StringProperty(
+        name="Backend Python", subtype="FILE_PATH",
+        description="Python interpreter with torch for the backend (empty: the one running Blender)")
+    checkpoint_dir: bpy.props.StringProperty(
+        name="Checkpoint Folder", subtype="DIR_PATH",
+        description="Local folder of the SCPainter / Stable Video Diffusion weights (nothing is downloaded)")
+    device: bpy.props.EnumProperty(
+        name="Device", default="AUTO",
+        items=[("AUTO", "Auto", "CUDA when available, else CPU"), ("CUDA", "CUDA", "First CUDA GPU"),
+               ("CPU", "CPU", "CPU only (slow)")])
+
+    def draw(self, context):
+        col = self.layout.column()
+        col.prop(self, "backend_python")
+        col.prop(self, "checkpoint_dir")
+        col.prop(self, "device")
+
+
+def get(context=None) -> SCPAINTER_AP_preferences | None:
+    context = context or bpy.context
+    addon = context.preferences.addons.get(ADDON_PACKAGE)
+    return addon.preferences if addon else None
+
+
+classes = (SCPAINTER_AP_preferences,)

@@ -505,3 +505,29 @@ def ground_candidates(pred: VGGTPredictions, confidence_percentile: float = 50.0
     if len(pts) > max_points:
         pts = pts[np.random.default_rng(seed).choice(len(pts), max_points, replace=False)]
     return pts
+
+
+def save_predictions(path, images, depth, depth_conf, extrinsic, intrinsic_vggt, world_points=None,
+                     world_points_conf=None) -> None:
+    """Write predictions exactly as VGGT's demo does (``np.savez``, float32, no batch axis), atomically.
+
+    ``images`` (S, 3, H, W) or (S, H, W, 3) in [0, 1]; ``depth`` (S, H, W) is saved as (S, H, W, 1);
+    ``extrinsic`` (S, 3, 4) world-to-camera; ``intrinsic_vggt`` in VGGT's pixel convention (see ours_K_to_vggt).
+    """
+    images = np.asarray(images, np.float32)
+    if images.shape[-1] == 3 and images.shape[1] != 3:
+        images = np.moveaxis(images, -1, 1)
+    depth = np.asarray(depth, np.float32)
+    if depth.ndim == 3:
+        depth = depth[..., None]
+    arrays = {"images": images, "depth": depth, "depth_conf": np.asarray(depth_conf, np.float32),
+              "extrinsic": cameras.as_matrix4(extrinsic)[:, :3, :].astype(np.float32),
+              "intrinsic": np.asarray(intrinsic_vggt, np.float32)}
+    if world_points is not None:
+        arrays["world_points"] = np.asarray(world_points, np.float32)
+    if world_points_conf is not None:
+        arrays["world_points_conf"] = np.asarray(world_points_conf, np.float32)
+    path = os.fspath(path)
+    tmp = path + ".tmp.npz"
+    np.savez(tmp, **arrays)
+    os.replace(tmp, path)

@@ -1,0 +1,17 @@
+# The two commands of the README: `make demo` (the main job on the built-in street) and `make test`.
+.PHONY: setup demo test bench clean-cache
+
+setup:
+	@bash tools/setup.sh
+
+demo: setup
+	.venv/bin/python tools/demo.py
+
+test: setup
+	.venv/bin/python -m pytest
+
+bench: setup
+	.venv/bin/python bench/bench_import.py
+
+clean-cache:
+	rm -rf .cache

@@ -1,0 +1,1 @@
+"""The ground-truth street: a procedural street rendered by Cycles, written in VGGT's layout (see dataset.py)."""

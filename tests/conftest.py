@@ -1,0 +1,68 @@
+"""Test session: the real bpy module, the add-on built and installed as Blender installs extensions.
+
+``BLENDER_USER_RESOURCES`` points at a private folder before bpy is imported, so no test touches a real Blender
+configuration. The ground-truth street is generated once and cached (``.cache/`` or ``$SCPAINTER_CACHE_DIR``).
+"""
+
+import os
+import sys
+import tempfile
+
+import pytest
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)
+
+from tools import blender_env  # noqa: E402
+
+_USER = blender_env.use_private_user_resources(tempfile.mkdtemp(prefix="scpainter-test-user-"))
+
+import bpy  # noqa: E402  (after BLENDER_USER_RESOURCES)
+
+
+def pytest_addoption(parser):
+    parser.addoption("--run-slow", action="store_true", help="run tests marked slow")
+
+
+def pytest_collection_modifyitems(config, items):
+    run_slow = config.getoption("--run-slow")
+    has_cuda = False
+    try:
+        import torch
+
+        has_cuda = torch.cuda.is_available()
+    except ImportError:
+        pass
+    for item in items:
+        if "slow" in item.keywords and not run_slow:
+            item.add_marker(pytest.mark.skip(reason="slow: run with --run-slow"))
+        if "gpu" in item.keywords and not has_cuda:
+            item.add_marker(pytest.mark.skip(reason="needs CUDA"))
+
+
+@pytest.fixture(scope="session")
+def extension_zip(tmp_path_factory):
+    """The extension built and validated by Blender's own tool."""
+    return blender_env.build_extension(str(tmp_path_factory.mktemp("dist")))
+
+
+@pytest.fixture(scope="session")
+def addon(extension_zip):
+    """The built zip installed into a local extension repository and enabled; yields its package name."""
+    pkg = blender_env.install_zip(extension_zip, os.path.join(_USER, "extensions", "scpainter_local"))
+    yield pkg
+
+
+@pytest.fixture
+def empty_scene(addon):
+    """A fresh empty scene with the add-on still enabled."""
+    bpy.ops.wm.read_homefile(use_empty=True)
+    return bpy.context.scene
+
+
+@pytest.fixture(scope="session")
+def street():
+    """The default ground-truth street (generated once, then cached between runs)."""
+    from scpainter_blender.street.dataset import ensure_street
+
+    return ensure_street()

@@ -1,0 +1,39 @@
+#!/usr/bin/env bash
+# Create .venv (Python 3.11) with the pinned requirements, and the system library open3d needs.
+# Idempotent: a stamp of requirements.txt's hash skips the pip step when nothing changed.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+PY="${PYTHON:-}"
+if [ -z "$PY" ]; then
+  for c in python3.11 python3; do
+    if command -v "$c" >/dev/null 2>&1 && "$c" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))'; then
+      PY="$c"; break
+    fi
+  done
+fi
+if [ -z "$PY" ]; then
+  echo "setup: Python 3.11 is required (the bpy 5.0.1 wheel is built for it); set PYTHON=/path/to/python3.11" >&2
+  exit 1
+fi
+
+# open3d links libusb-1.0 (Debian package libusb-1.0-0).
+if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
+  if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null 2>&1; then
+    echo "setup: installing libusb-1.0-0 for open3d" >&2
+    (apt-get install -y -q libusb-1.0-0 >/dev/null 2>&1 || { apt-get update -q >/dev/null 2>&1 && apt-get install -y -q libusb-1.0-0 >/dev/null; }) \
+      || echo "setup: could not install libusb-1.0-0; open3d's plane fit may fail to import" >&2
+  else
+    echo "setup: open3d needs libusb-1.0; run: sudo apt-get install -y libusb-1.0-0" >&2
+  fi
+fi
+
+if [ ! -x .venv/bin/python ]; then
+  "$PY" -m venv .venv
+fi
+stamp=".venv/.requirements-$(sha256sum requirements.txt | cut -c1-16)"
+if [ ! -f "$stamp" ]; then
+  .venv/bin/python -m pip install -q --disable-pip-version-check -r requirements.txt
+  rm -f .venv/.requirements-*
+  touch "$stamp"
+fi

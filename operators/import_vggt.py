@@ -85,7 +85,7 @@ def _show_attribute_colours(context):
         if area.type == "VIEW_3D":
             shading = area.spaces.active.shading
             if shading.type == "SOLID":
-                shading.color_type = "ATTRIBUTE"
+                shading.color_type = "VERTEX"  # shown as "Attribute" in the UI
 
 
 class SCPAINTER_FH_vggt(bpy.types.FileHandler):

@@ -56,6 +56,25 @@ def rigid_inverse(T) -> np.ndarray:
     return out
 
 
+def orthonormalize(world_to_camera) -> np.ndarray:
+    """Replace each rotation block by the nearest rotation (SVD), keeping the camera *centre* where it was.
+
+    Rotations stored in float32 (VGGT's) are orthonormal only to ~1e-7; with translations of 1e5 m that is
+    centimetres of error in every closed-form inverse. Projecting onto SO(3) once, in float64, makes all later
+    math exact. The centre -R^-1 t is preserved, which is what a camera path means.
+    """
+    T = as_matrix4(world_to_camera).copy()
+    R = T[..., :3, :3]
+    centre = -np.einsum("...ij,...j->...i", np.linalg.inv(R), T[..., :3, 3])
+    U, _, Vt = np.linalg.svd(R)
+    fix = np.ones(R.shape[:-2] + (3,))
+    fix[..., 2] = np.sign(np.linalg.det(U @ Vt))
+    Rn = (U * fix[..., None, :]) @ Vt
+    T[..., :3, :3] = Rn
+    T[..., :3, 3] = -np.einsum("...ij,...j->...i", Rn, centre)
+    return T
+
+
 def camera_centers(world_to_camera) -> np.ndarray:
     """Camera centres in world coordinates, (..., 3): c = -R^T t."""
     T = as_matrix4(world_to_camera)

@@ -52,7 +52,9 @@ class VGGTPredictions:
     images: np.ndarray            # (S, H, W, 3) float32, sRGB-encoded, [0, 1]
     depth: np.ndarray             # (S, H, W) float32, camera z in VGGT units
     depth_conf: np.ndarray        # (S, H, W) float32
-    world_to_camera: np.ndarray   # (S, 4, 4) float64, VGGT world -> OpenCV camera
+    world_to_camera: np.ndarray   # (S, 4, 4) float64, VGGT world -> OpenCV camera, as stored (float32 rotations
+    #                               are orthonormal to ~1e-7 only: unprojection uses them as VGGT does, camera
+    #                               placement goes through cameras.orthonormalize)
     intrinsic_vggt: np.ndarray    # (S, 3, 3) float64, VGGT's pixel convention
     world_points: np.ndarray | None = None        # (S, H, W, 3) float32, VGGT world
     world_points_conf: np.ndarray | None = None   # (S, H, W) float32
@@ -416,6 +418,8 @@ def load_metric_trajectory(path, num_frames: int | None = None):
         raise PredictionsError(path, "camera_centers", f"expected (N, 3), got {centres.shape}")
     if not np.all(np.isfinite(centres)) or (w2c is not None and not np.all(np.isfinite(w2c))):
         raise PredictionsError(path, None, "trajectory contains NaN or inf")
+    if w2c is not None:
+        w2c = cameras.orthonormalize(w2c)
     if num_frames is not None and len(centres) != num_frames:
         raise PredictionsError(path, None, f"has {len(centres)} poses but the clip has {num_frames} frames")
     return w2c, centres
@@ -428,7 +432,7 @@ def world_from_vggt_by_trajectory(vggt_world_to_camera, metric_world_to_camera=N
     With metric orientations the fit uses them as well (a straight drive then still fixes the roll); with centres
     alone it is Umeyama on centres and needs a path that is not a straight line.
     """
-    A = cameras.as_matrix4(vggt_world_to_camera)
+    A = cameras.orthonormalize(vggt_world_to_camera)
     if metric_world_to_camera is not None:
         fit = cameras.fit_similarity_to_cameras(A, metric_world_to_camera)
     else:

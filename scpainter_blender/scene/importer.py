@@ -99,7 +99,7 @@ def import_vggt(context, filepath: str, opts: ImportOptions | None = None) -> Im
     points_mod.set_input(mod, "Frame Window", int(opts.frame_window))
     t_points = time.perf_counter()
 
-    w2c = cameras.transform_world_to_camera(pred.world_to_camera, fit.world_from_vggt)
+    w2c = cameras.transform_world_to_camera(cameras.orthonormalize(pred.world_to_camera), fit.world_from_vggt)
     cam, p0, warnings = camera_mod.create_recorded_camera(f"{parent_name} recorded camera", w2c, pred.K,
                                                           pred.width, pred.height, opts.frame_start, coll)
     camera_mod.apply_render_settings(scene, p0)

@@ -14,7 +14,7 @@ import numpy as np
 NODE_GROUP = "SCPainter Points"
 MATERIAL = "SCPainter Points"
 NODE_GROUP_VERSION = 1
-COLOR_ATTRIBUTE = "color"
+COLOR_ATTRIBUTE = "point_color"  # not "color": Cycles does not find a point-cloud attribute of that name
 FRAME_ATTRIBUTE = "vggt_frame"
 
 # name -> (socket type, default, min)

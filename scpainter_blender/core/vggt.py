@@ -133,16 +133,18 @@ def _images_to_hwc(arr, path):
     if not np.issubdtype(hwc.dtype, np.floating):
         raise PredictionsError(path, "images", f"expected float in [0, 1] or uint8, got dtype {hwc.dtype}")
     hwc = hwc.astype(np.float32, copy=False)
-    if not np.all(np.isfinite(hwc)):
-        raise PredictionsError(path, "images", f"{int((~np.isfinite(hwc)).sum())} values are NaN or inf")
     lo, hi = float(hwc.min()), float(hwc.max())
+    if not (np.isfinite(lo) and np.isfinite(hi)):
+        raise PredictionsError(path, "images", f"{int((~np.isfinite(hwc)).sum())} values are NaN or inf")
     if lo < -1e-3 or hi > 1.0 + 1e-3:
         raise PredictionsError(path, "images", f"float values must lie in [0, 1], found [{lo:g}, {hi:g}] "
                                                "(uint8 images are accepted as they are)")
-    return np.clip(hwc, 0.0, 1.0)
+    return np.clip(hwc, 0.0, 1.0) if lo < 0.0 or hi > 1.0 else hwc
 
 
 def _check_finite(a, path, key):
+    if np.isfinite(a.min()) and np.isfinite(a.max()):  # NaN propagates through min/max: one cheap pass each
+        return
     bad = ~np.isfinite(a)
     if bad.any():
         frames = np.unique(np.nonzero(bad.reshape(bad.shape[0], -1))[0])
@@ -162,8 +164,11 @@ def _numeric(npz, path, key):
     return a
 
 
-def load_predictions(path) -> VGGTPredictions:
-    """Load and validate a VGGT ``predictions.npz``; raises PredictionsError naming the file and key."""
+def load_predictions(path, world_points: bool = True) -> VGGTPredictions:
+    """Load and validate a VGGT ``predictions.npz``; raises PredictionsError naming the file and key.
+
+    ``world_points=False`` skips the optional point-map arrays (half the file) when they will not be used.
+    """
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise PredictionsError(path, None, "file not found")
@@ -177,7 +182,8 @@ def load_predictions(path) -> VGGTPredictions:
         missing = [k for k in REQUIRED_KEYS if k not in npz.files]
         if missing:
             raise PredictionsError(path, missing[0], f"missing key(s) {missing}; the file has {sorted(npz.files)}")
-        arrays = {k: _numeric(npz, path, k) for k in REQUIRED_KEYS + OPTIONAL_KEYS if k in npz.files}
+        wanted = REQUIRED_KEYS + (OPTIONAL_KEYS if world_points else ())
+        arrays = {k: _numeric(npz, path, k) for k in wanted if k in npz.files}
     return predictions_from_arrays(arrays, path)
 
 

@@ -80,7 +80,7 @@ def import_vggt(context, filepath: str, opts: ImportOptions | None = None) -> Im
     opts = opts or ImportOptions()
     t0 = time.perf_counter()
     filepath = os.path.abspath(bpy.path.abspath(filepath))
-    pred = vggt.load_predictions(filepath)
+    pred = vggt.load_predictions(filepath, world_points=opts.point_source == "world_points")
     t_load = time.perf_counter()
     fit = metric_fit(pred, opts)
     t_fit = time.perf_counter()

@@ -287,10 +287,13 @@ def build_scene(params: StreetParams) -> dict:
         yaw = float(rng.uniform(-0.04, 0.04))
         obj.location = (x, float(y + rng.uniform(-2, 2)), 0.0)
         obj.rotation_euler = (0.0, 0.0, yaw)
+        verts = np.concatenate(builder.verts)
+        lo, hi = verts.min(axis=0), verts.max(axis=0)  # the box that holds every part, wheels included
         M = np.array(obj.matrix_basis, dtype=np.float64)
         box = M.copy()
-        box[:3, 3] += M[:3, :3] @ np.array([0.0, 0.0, 0.78])  # box centre: half the car's height over ground
-        cars.append({"name": obj.name, "instance": k + 1, "box_to_world": box.tolist(), "size": [1.8, 4.4, 1.56]})
+        box[:3, 3] = M[:3, :3] @ ((lo + hi) / 2) + M[:3, 3]
+        cars.append({"name": obj.name, "instance": k + 1, "box_to_world": box.tolist(),
+                     "size": (hi - lo).tolist()})
 
     sun = bpy.data.lights.new("sun", "SUN")
     sun.energy = 4.0
@@ -365,6 +368,9 @@ def _configure_colour(scene, params):
     c.caustics_reflective = c.caustics_refractive = False
     c.pixel_filter_type, c.filter_width = "BLACKMAN_HARRIS", 1.5
     scene.render.use_persistent_data = True
+    for prop in scene.render.bl_rna.properties:  # no render time or date in the PNGs: byte-identical reruns
+        if prop.identifier.startswith("use_stamp"):
+            setattr(scene.render, prop.identifier, False)
     scene.view_settings.view_transform = "AgX"
     s = scene.render.image_settings
     s.file_format, s.color_mode, s.color_depth = "PNG", "RGB", "8"
@@ -470,6 +476,7 @@ def write_predictions(out_dir, params, images, depth, K, w2c):
     m = _metres_per_unit(depth, K, w2c)
     first = cameras.rigid_inverse(w2c[0])
     ext = w2c @ first  # camera i from the first camera's frame, still metric
+    ext[0] = np.eye(4)  # exactly, not to rounding
     ext[:, :3, 3] /= m
     hit = np.isfinite(depth)
     far = float(depth[hit].max()) * 1.5 if hit.any() else 100.0

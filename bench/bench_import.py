@@ -1,0 +1,84 @@
+"""Import throughput: VGGT predictions -> Blender point cloud + camera, through the real operator.
+
+    .venv/bin/python bench/bench_import.py [--frames 20 100] [--out build/bench]
+
+Synthetic predictions at VGGT's working size (518 x 294, ~152 k pixels a frame), saved as VGGT's demo saves them
+(np.savez, with world_points). Reports the whole operator (load, unproject, filter, mesh, camera) and its phases,
+in points per second; prints a table and writes bench/results/import.json (or --json).
+"""
+
+import argparse
+import json
+import os
+import platform
+import sys
+import tempfile
+import time
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)
+
+from tools import blender_env  # noqa: E402
+
+
+def make_predictions(path, S, H=294, W=518, seed=0):
+    import numpy as np
+
+    rng = np.random.default_rng(seed)
+    ext = np.tile(np.eye(3, 4, dtype=np.float32), (S, 1, 1))
+    ext[:, 2, 3] = -np.arange(S, dtype=np.float32) * 0.05  # driving forward
+    intr = np.tile(np.array([[300, 0, W / 2], [0, 300, H / 2], [0, 0, 1]], np.float32), (S, 1, 1))
+    np.savez(path, images=rng.random((S, 3, H, W), dtype=np.float32),
+             depth=rng.uniform(0.2, 3.0, (S, H, W, 1)).astype(np.float32),
+             depth_conf=(1 + rng.exponential(2.0, (S, H, W))).astype(np.float32), extrinsic=ext, intrinsic=intr,
+             world_points=rng.normal(size=(S, H, W, 3)).astype(np.float32),
+             world_points_conf=(1 + rng.exponential(2.0, (S, H, W))).astype(np.float32))
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--frames", type=int, nargs="+", default=[20, 100])
+    p.add_argument("--percentiles", type=float, nargs="+", default=[0.0, 50.0])
+    p.add_argument("--repeats", type=int, default=2)
+    p.add_argument("--json", default=os.path.join(ROOT, "bench", "results", "import.json"))
+    args = p.parse_args(argv)
+    work = tempfile.mkdtemp(prefix="scpainter-bench-")
+    blender_env.use_private_user_resources(os.path.join(work, "user"))
+    import bpy
+
+    pkg = blender_env.install_zip(blender_env.build_extension(os.path.join(work, "dist")),
+                                  os.path.join(work, "user", "extensions", "scpainter_local"))
+    importer = sys.modules[pkg + ".scpainter_blender.scene.importer"]
+    rows = []
+    for S in args.frames:
+        path = os.path.join(work, f"pred_{S}.npz")
+        make_predictions(path, S)
+        for pct in args.percentiles:
+            best = None
+            for _ in range(args.repeats):
+                bpy.ops.wm.read_homefile(use_empty=True)
+                t = time.perf_counter()
+                assert bpy.ops.scpainter.import_vggt(filepath=path, confidence_percentile=pct) == {"FINISHED"}
+                op = time.perf_counter() - t
+                bpy.ops.wm.read_homefile(use_empty=True)
+                r = importer.import_vggt(bpy.context, path, importer.ImportOptions(confidence_percentile=pct))
+                row = {"frames": S, "percentile": pct, "points": r.num_points, "operator_s": op,
+                       **{f"{k}_s": v for k, v in r.timings.items()}}
+                if best is None or op < best["operator_s"]:
+                    best = row
+            best["points_per_s"] = best["points"] / best["operator_s"]
+            rows.append(best)
+    head = ["frames", "percentile", "points", "operator_s", "load_s", "unproject_s", "points_object_s",
+            "camera_s", "points_per_s"]
+    print(" | ".join(f"{h:>15}" for h in head))
+    for r in rows:
+        print(" | ".join(f"{r[h]:>15,.3f}" if isinstance(r[h], float) else f"{r[h]:>15,}" for h in head))
+    os.makedirs(os.path.dirname(args.json), exist_ok=True)
+    with open(args.json, "w") as f:
+        json.dump({"machine": {"cpus": os.cpu_count(), "platform": platform.platform(),
+                               "blender": bpy.app.version_string}, "rows": rows}, f, indent=1)
+    print(f"saved {args.json}")
+
+
+if __name__ == "__main__":
+    main()

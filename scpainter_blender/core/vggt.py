@@ -306,6 +306,9 @@ def point_cloud(pred: VGGTPredictions, confidence_percentile: float = 50.0, sour
     ``source`` is "depth" (unproject depth with each frame's K and extrinsic; VGGT's recommended branch) or
     "world_points" (VGGT's point head, filtered by ``world_points_conf``). Points with depth <= 0 are dropped.
     ``world_from_vggt`` (4x4 similarity) maps them into the output world, in float64.
+
+    Vectorised per frame with no per-point Python: the camera-to-world step and ``world_from_vggt`` are fused
+    into one affine map per frame, x_world = A (d · ray) + b, written straight into preallocated outputs.
     """
     if source == "depth":
         conf = pred.depth_conf
@@ -316,28 +319,46 @@ def point_cloud(pred: VGGTPredictions, confidence_percentile: float = 50.0, sour
     else:
         raise ValueError(f"source must be 'depth' or 'world_points', got {source!r}")
     thr = confidence_threshold(conf, confidence_percentile)
-    frames = range(pred.num_frames) if frames is None else list(frames)
-    if world_from_vggt is not None:
-        s, R, t = cameras.decompose_similarity(world_from_vggt)
-    K = pred.K
-    pos, col, fid, counts = [], [], [], []
+    frames = list(range(pred.num_frames) if frames is None else frames)
+    s, Rw, tw = (1.0, np.eye(3), np.zeros(3)) if world_from_vggt is None else \
+        cameras.decompose_similarity(world_from_vggt)
+    masks = []
     for i in frames:
-        keep = (conf[i] >= thr) & (conf[i] > 1e-5) & (pred.depth[i] > 0)
-        rows, cols = np.nonzero(keep)
-        if source == "depth":
-            p = unproject_pixels(pred.depth[i], K[i], pred.world_to_camera[i], rows, cols)
-        else:
-            p = pred.world_points[i][rows, cols].astype(np.float64)
-        if world_from_vggt is not None:
-            p = (s * p) @ R.T + t
-        pos.append(p)
-        col.append(pred.images[i][rows, cols])
-        fid.append(np.full(len(rows), i, dtype=np.int32))
-        counts.append(len(rows))
+        m = (conf[i] > 1e-5) & (pred.depth[i] > 0)
+        if np.isfinite(thr):
+            m &= conf[i] >= thr
+        masks.append(m)
+    counts = [int(m.sum()) for m in masks]
     offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-    if not pos:
-        return FramePoints(np.zeros((0, 3)), np.zeros((0, 3), np.float32), np.zeros(0, np.int32), offsets, thr)
-    return FramePoints(np.concatenate(pos), np.concatenate(col), np.concatenate(fid), offsets, thr)
+    N = int(offsets[-1])
+    pos = np.empty((N, 3), np.float64)
+    col = np.empty((N, 3), np.float32)
+    fid = np.empty(N, np.int32)
+    W = pred.width
+    K = pred.K
+    for k, i in enumerate(frames):
+        sl = slice(offsets[k], offsets[k + 1])
+        flat = np.flatnonzero(masks[k])  # once per frame; every array below is gathered with it
+        if source == "depth":
+            T = pred.world_to_camera[i]
+            A = s * Rw @ T[:3, :3].T          # camera -> VGGT world (R^T) -> output world (s Rw)
+            b = tw - A @ T[:3, 3]
+            d = pred.depth[i].reshape(-1).take(flat).astype(np.float64)
+            rows, cols = np.divmod(flat, W)
+            cam = np.empty((len(flat), 3))
+            cam[:, 0] = (cols + 0.5 - K[i, 0, 2]) / K[i, 0, 0] * d   # pixel centres at +0.5 (our K)
+            cam[:, 1] = (rows + 0.5 - K[i, 1, 2]) / K[i, 1, 1] * d
+            cam[:, 2] = d
+        else:
+            A, b = s * Rw, tw
+            cam = pred.world_points[i].reshape(-1, 3).take(flat, axis=0).astype(np.float64)
+        np.matmul(cam, A.T, out=pos[sl])
+        pos[sl] += b
+        img = pred.images[i]
+        for c in range(3):  # one channel plane at a time: contiguous when the file is CHW, as VGGT writes it
+            col[sl, c] = img[..., c].reshape(-1).take(flat)
+        fid[sl] = i
+    return FramePoints(pos, col, fid, offsets, thr)
 
 
 # --------------------------------------------------------------------------------------------------------------

@@ -1,6 +1,7 @@
 """The few Blender APIs that moved between 4.2 and 5.0, each behind one helper (DESIGN §6).
 
 * Keyframes: from 4.4 they live in action slots and channelbags, and ``Action.fcurves`` is gone in 5.0.
+* Node trees: before 5.0 a new material or world has none until ``use_nodes`` is set (deprecated in 5.0).
 """
 
 from __future__ import annotations
@@ -11,6 +12,15 @@ import bpy
 HAS_ACTION_SLOTS = bpy.app.version >= (4, 4, 0)
 
 _INTERPOLATION = {"CONSTANT": 0, "LINEAR": 1, "BEZIER": 2}
+
+
+def node_tree(id_data, clear: bool = False):
+    """The node tree of a material or world, created the way this Blender version needs."""
+    if id_data.node_tree is None:
+        id_data.use_nodes = True
+    if clear:
+        id_data.node_tree.nodes.clear()
+    return id_data.node_tree
 
 
 def new_action_fcurves(id_data, action_name: str):

@@ -12,6 +12,8 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
+from . import compat
+
 NODE_GROUP = "SCPainter Points"
 MATERIAL = "SCPainter Points"
 NODE_GROUP_VERSION = 1
@@ -34,10 +36,7 @@ def ensure_material() -> bpy.types.Material:
     if mat is not None:
         return mat
     mat = bpy.data.materials.new(MATERIAL)
-    if mat.node_tree is None:  # before 5.0 a new material has no node tree until use_nodes is set
-        mat.use_nodes = True
-    nt = mat.node_tree
-    nt.nodes.clear()
+    nt = compat.node_tree(mat, clear=True)
     attr = nt.nodes.new("ShaderNodeAttribute")
     attr.attribute_type = "GEOMETRY"
     attr.attribute_name = COLOR_ATTRIBUTE

@@ -20,6 +20,7 @@ import numpy as np
 from mathutils import Matrix
 
 from ..core import cameras, vggt
+from ..scene.compat import node_tree
 from .dataset import GENERATOR_VERSION, StreetParams, view_name
 
 # Street cross-section along x (metres): three lanes, parking strips, kerbs, sidewalks, building line.
@@ -100,9 +101,7 @@ class MeshBuilder:
 
 def _material(name):
     mat = bpy.data.materials.new(name)
-    if mat.node_tree is None:
-        mat.use_nodes = True
-    nt = mat.node_tree
+    nt = node_tree(mat)
     bsdf = next(n for n in nt.nodes if n.type == "BSDF_PRINCIPLED")
     return mat, nt, bsdf
 
@@ -163,10 +162,7 @@ def facade(name, wall, glass=(0.04, 0.06, 0.09), window=(1.6, 1.4)):
 
 def sky_world(name="SCPainter street sky"):
     world = bpy.data.worlds.new(name)
-    if world.node_tree is None:
-        world.use_nodes = True
-    nt = world.node_tree
-    nt.nodes.clear()
+    nt = node_tree(world, clear=True)
     tc = nt.nodes.new("ShaderNodeTexCoord")
     sep = nt.nodes.new("ShaderNodeSeparateXYZ")
     ramp = nt.nodes.new("ShaderNodeValToRGB")
@@ -187,9 +183,7 @@ def sky_world(name="SCPainter street sky"):
 
 def black_world():
     world = bpy.data.worlds.new("SCPainter black")
-    if world.node_tree is None:
-        world.use_nodes = True
-    bg = next(n for n in world.node_tree.nodes if n.type == "BACKGROUND")
+    bg = next(n for n in node_tree(world).nodes if n.type == "BACKGROUND")
     bg.inputs["Color"].default_value = (0, 0, 0, 1)
     bg.inputs["Strength"].default_value = 0.0
     return world
@@ -198,10 +192,7 @@ def black_world():
 def depth_override():
     """Emission of (camera z in metres, object pass index, 1): read back from a float EXR."""
     mat = bpy.data.materials.new("SCPainter depth override")
-    if mat.node_tree is None:
-        mat.use_nodes = True
-    nt = mat.node_tree
-    nt.nodes.clear()
+    nt = node_tree(mat, clear=True)
     camdata = nt.nodes.new("ShaderNodeCameraData")
     info = nt.nodes.new("ShaderNodeObjectInfo")
     comb = nt.nodes.new("ShaderNodeCombineColor")

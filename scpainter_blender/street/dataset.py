@@ -65,12 +65,15 @@ def cache_root() -> str:
 
 
 def cache_key(params: StreetParams) -> str:
-    """Hash of the parameters, the generator's source and the Blender version that renders it."""
+    """Hash of the parameters, the generator's source (and the core modules it uses) and its version."""
     h = hashlib.sha256(json.dumps(dataclasses.asdict(params), sort_keys=True).encode())
-    for name in sorted(os.listdir(HERE)):
-        if name.endswith(".py"):
-            with open(os.path.join(HERE, name), "rb") as f:
-                h.update(name.encode() + f.read())
+    package = os.path.dirname(HERE)
+    sources = [os.path.join(HERE, n) for n in sorted(os.listdir(HERE)) if n.endswith(".py")]
+    sources += [os.path.join(package, "core", "cameras.py"), os.path.join(package, "core", "vggt.py"),
+                os.path.join(package, "scene", "compat.py")]  # what the generator calls shapes its output too
+    for path in sources:
+        with open(path, "rb") as f:
+            h.update(os.path.relpath(path, package).encode() + f.read())
     h.update(str(GENERATOR_VERSION).encode())
     return h.hexdigest()[:16]
 

@@ -104,8 +104,6 @@ def test_imports_inside_the_extension_are_relative():
     """Blender installs the extension as bl_ext.<repo>.scpainter: absolute imports of our own modules break."""
     ours = {"scpainter_blender", "operators", "panels", "backend", "tools"}
     for rel in _py_files("__init__.py", "operators", "panels", "scpainter_blender"):
-        if rel.startswith("scpainter_blender/street/__main__"):
-            continue
         for name, level in _imports(rel):
             assert level or name.split(".")[0] not in ours, (rel, name)
 

@@ -1,0 +1,29 @@
+"""The README's main command (tools/demo.py), run as a user runs it, on the cached street."""
+
+import json
+import os
+import subprocess
+import sys
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def test_demo_writes_blend_and_preview(street, tmp_path):
+    out = tmp_path / "demo"
+    proc = subprocess.run([sys.executable, os.path.join(ROOT, "tools", "demo.py"), "--out", str(out),
+                           "--samples", "1"], capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    summary = json.loads(proc.stdout[proc.stdout.index("{"):])
+    assert os.path.getsize(summary["blend"]) > 1_000_000
+    assert os.path.getsize(summary["preview"]) > 10_000
+    assert summary["street"] == street.root
+    assert abs(summary["scale_error_percent"]) < 0.5  # camera-height scale against the street's truth
+    assert summary["points"] > 1_000_000
+    assert "Saved" in proc.stderr and summary["blend"] in proc.stderr
+
+    import bpy
+
+    bpy.ops.wm.open_mainfile(filepath=summary["blend"])  # the .blend opens with the import in it
+    kinds = sorted(o.get("scpainter_kind", "") for o in bpy.context.scene.objects)
+    assert kinds == ["points", "recorded_camera"]
+    bpy.ops.wm.read_homefile(use_empty=True)

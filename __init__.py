@@ -6,7 +6,7 @@ register() and unregister() only (DESIGN §2); everything else lives in scpainte
 import bpy
 
 from . import operators, panels
-from .scpainter_blender.scene import preferences
+from .scpainter_blender.scene import cli, preferences
 
 _classes = (*preferences.classes, *operators.classes, *panels.classes)
 
@@ -15,9 +15,11 @@ def register():
     for cls in _classes:
         bpy.utils.register_class(cls)
     bpy.types.TOPBAR_MT_file_import.append(operators.import_vggt.menu_import)
+    cli.register()
 
 
 def unregister():
+    cli.unregister()
     bpy.types.TOPBAR_MT_file_import.remove(operators.import_vggt.menu_import)
     for cls in reversed(_classes):
         bpy.utils.unregister_class(cls)

@@ -27,12 +27,13 @@ def pytest_addoption(parser):
 def pytest_collection_modifyitems(config, items):
     run_slow = config.getoption("--run-slow")
     has_cuda = False
-    try:
-        import torch
+    if any("gpu" in item.keywords for item in items):  # import torch only when a GPU test asks for it
+        try:
+            import torch
 
-        has_cuda = torch.cuda.is_available()
-    except ImportError:
-        pass
+            has_cuda = torch.cuda.is_available()
+        except ImportError:
+            pass
     for item in items:
         if "slow" in item.keywords and not run_slow:
             item.add_marker(pytest.mark.skip(reason="slow: run with --run-slow"))

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import glob
 import os
-import shutil
 import subprocess
 import sys
 import tempfile
@@ -72,23 +71,3 @@ def install_zip(zip_path: str, directory: str) -> str:
     if PACKAGE not in bpy.context.preferences.addons:
         raise RuntimeError(f"{PACKAGE} was installed but is not enabled")
     return PACKAGE
-
-
-def enable_from_source(directory: str) -> str:
-    """Enable the working tree itself as the extension (a link in a local repository): edits apply at once."""
-    import addon_utils
-    import bpy
-
-    ensure_repo(directory)
-    link = os.path.join(directory, "scpainter")
-    if not os.path.exists(link):
-        os.symlink(ROOT, link)
-    bpy.ops.preferences.addon_enable(module=PACKAGE)
-    if PACKAGE not in bpy.context.preferences.addons:
-        raise RuntimeError(f"enabling {PACKAGE} failed")
-    addon_utils.modules_refresh()
-    return PACKAGE
-
-
-def remove_dir(path):
-    shutil.rmtree(path, ignore_errors=True)

@@ -176,13 +176,18 @@ def create_point_cloud(name: str, positions, colors, frame, collection, radius: 
     origin = np.round(positions[:: max(1, N // 4096)].mean(axis=0)) if N else np.zeros(3)
     mesh = bpy.data.meshes.new(name)
     mesh.vertices.add(N)
-    mesh.attributes["position"].data.foreach_set("vector", _local_float32(positions, origin).ravel())
+    # write each attribute right after creating it: adding another may move the others' storage
+    if N:  # an empty mesh has no position attribute at all
+        mesh.attributes["position"].data.foreach_set("vector", _local_float32(positions, origin).ravel())
     col = mesh.color_attributes.new(COLOR_ATTRIBUTE, "FLOAT_COLOR", "POINT")
-    col.data.foreach_set("color", _linear_rgba(np.asarray(colors, np.float32)).ravel())
+    if N:
+        col.data.foreach_set("color", _linear_rgba(np.asarray(colors, np.float32)).ravel())
+    fa = mesh.attributes.new(FRAME_ATTRIBUTE, "INT", "POINT")
+    if N:
+        fa.data.foreach_set("value", np.asarray(frame, dtype=np.int32))
+    col = mesh.color_attributes[COLOR_ATTRIBUTE]
     mesh.color_attributes.active_color = col
     mesh.color_attributes.render_color_index = mesh.color_attributes.active_color_index
-    fa = mesh.attributes.new(FRAME_ATTRIBUTE, "INT", "POINT")
-    fa.data.foreach_set("value", np.asarray(frame, dtype=np.int32))
     mesh.update()
 
     obj = bpy.data.objects.new(name, mesh)

@@ -71,7 +71,7 @@ def test_import_matches_ground_truth(empty_scene, street):
     assert (scene.render.resolution_x, scene.render.resolution_y) == (pred.width, pred.height)
     assert scene.camera == cam
     assert cam.rotation_mode == "QUATERNION"
-    from scpainter_blender.scene.camera import K_of_camera_object  # noqa: the add-on's own copy is equivalent
+    from scpainter_blender.scene.camera import K_of_camera_object  # the repo's copy of the installed module
 
     for i in range(S):
         scene.frame_set(1 + i)
@@ -210,3 +210,19 @@ def test_import_menu_and_large_coordinates(empty_scene, tmp_path):
     obj.data.attributes["position"].data.foreach_get("vector", local)
     origin = np.array(obj.location, dtype=np.float64)  # float32 in Blender, but an integer here: exact
     assert np.abs(local.reshape(-1, 3) + origin - ref.positions).max() < 1e-3
+
+
+def test_empty_reconstruction_imports_camera_and_no_points(empty_scene, tmp_path):
+    """Every depth behind the camera: an empty point cloud (no crash), the camera still comes in."""
+    from tests_support import synthetic_predictions
+
+    arrays = synthetic_predictions()
+    arrays["depth"][:] = -1.0
+    path = str(tmp_path / "empty.npz")
+    np.savez(path, **arrays)
+    assert bpy.ops.scpainter.import_vggt(filepath=path) == {"FINISHED"}
+    pts = next(o for o in bpy.context.scene.objects if o.get("scpainter_kind") == "points")
+    assert len(pts.data.vertices) == 0
+    assert bpy.context.scene.camera.get("scpainter_kind") == "recorded_camera"
+    empty_scene.frame_set(2)
+    pts.evaluated_get(bpy.context.evaluated_depsgraph_get())  # the node tree evaluates on nothing

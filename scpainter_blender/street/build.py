@@ -20,6 +20,7 @@ import numpy as np
 from mathutils import Matrix
 
 from ..core import cameras, vggt
+from ..core.shapes import MeshBuilder, add_car
 from ..scene.compat import node_tree
 from .dataset import GENERATOR_VERSION, StreetParams, view_name
 
@@ -33,66 +34,22 @@ BEND_LENGTH = 20.0  # metres over which the path drifts curve_m sideways
 
 
 # --------------------------------------------------------------------------------------------------------------
-# Geometry: meshes built from numpy arrays (no bpy.ops, no context)
+# Geometry: core.shapes builds the arrays; this makes them Blender objects
 # --------------------------------------------------------------------------------------------------------------
 
-class MeshBuilder:
-    """Collects boxes and cylinders with per-face material slots, then makes one mesh object."""
-
-    BOX_FACES = [(0, 3, 2, 1), (4, 5, 6, 7), (0, 1, 5, 4), (2, 3, 7, 6), (3, 0, 4, 7), (1, 2, 6, 5)]
-
-    def __init__(self):
-        self.verts, self.faces, self.mats = [], [], []
-        self.materials = []
-        self.n = 0
-
-    def _slot(self, mat):
-        if mat not in self.materials:
-            self.materials.append(mat)
-        return self.materials.index(mat)
-
-    def box(self, center, size, mat):
-        c, s = np.asarray(center, float), np.asarray(size, float) / 2
-        signs = np.array([[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1],
-                          [-1, -1, 1], [1, -1, 1], [1, 1, 1], [-1, 1, 1]], float)
-        self.verts.append(c + signs * s)
-        slot = self._slot(mat)
-        for f in self.BOX_FACES:
-            self.faces.append([self.n + i for i in f])
-            self.mats.append(slot)
-        self.n += 8
-
-    def cylinder(self, center, radius, length, axis, mat, segments=16):
-        """Axis-aligned cylinder; ``axis`` 0, 1 or 2."""
-        a = np.linspace(0, 2 * np.pi, segments, endpoint=False)
-        ring = np.zeros((segments, 3))
-        others = [i for i in range(3) if i != axis]
-        ring[:, others[0]], ring[:, others[1]] = radius * np.cos(a), radius * np.sin(a)
-        lo, hi = ring.copy(), ring.copy()
-        lo[:, axis], hi[:, axis] = -length / 2, length / 2
-        self.verts.append(np.asarray(center, float) + np.concatenate([lo, hi]))
-        slot = self._slot(mat)
-        b = self.n
-        for i in range(segments):
-            j = (i + 1) % segments
-            self.faces.append([b + i, b + j, b + segments + j, b + segments + i])
-            self.mats.append(slot)
-        self.faces.append([b + i for i in reversed(range(segments))])
-        self.faces.append([b + segments + i for i in range(segments)])
-        self.mats += [slot, slot]
-        self.n += 2 * segments
-
-    def to_object(self, name, collection, pass_index=0):
-        mesh = bpy.data.meshes.new(name)
-        mesh.from_pydata(np.concatenate(self.verts).tolist(), [], self.faces)
-        for m in self.materials:
-            mesh.materials.append(m)
-        mesh.polygons.foreach_set("material_index", np.asarray(self.mats, np.int32))
-        mesh.update()
-        obj = bpy.data.objects.new(name, mesh)
-        obj.pass_index = pass_index
-        collection.objects.link(obj)
-        return obj
+def to_object(builder: MeshBuilder, name, collection, pass_index=0):
+    """One mesh object from a MeshBuilder whose material keys are Blender materials."""
+    verts, faces, mats = builder.arrays()
+    mesh = bpy.data.meshes.new(name)
+    mesh.from_pydata(verts.tolist(), [], faces)
+    for m in builder.materials:
+        mesh.materials.append(m)
+    mesh.polygons.foreach_set("material_index", mats)
+    mesh.update()
+    obj = bpy.data.objects.new(name, mesh)
+    obj.pass_index = pass_index
+    collection.objects.link(obj)
+    return obj
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -211,17 +168,6 @@ def depth_override():
 # The street
 # --------------------------------------------------------------------------------------------------------------
 
-def _car(builder, rng, paint, glass, tyre, length=4.4, width=1.8):
-    body_z0, body_h = 0.28, 0.72
-    builder.box((0, 0, body_z0 + body_h / 2), (width, length, body_h), paint)
-    cabin_len = length * rng.uniform(0.48, 0.56)
-    builder.box((0, -0.15 * length / 4.4, body_z0 + body_h + 0.27), (width * 0.88, cabin_len, 0.54), glass)
-    builder.box((0, -0.15 * length / 4.4, body_z0 + body_h + 0.56), (width * 0.86, cabin_len * 0.9, 0.04), paint)
-    for sx in (-1, 1):
-        for sy in (-1, 1):
-            builder.cylinder((sx * (width / 2 - 0.1), sy * (length / 2 - 0.8), 0.32), 0.32, 0.24, 0, tyre)
-
-
 def build_scene(params: StreetParams) -> dict:
     """Reset Blender and build the street; returns the parked cars' boxes (world metres) and the path length."""
     bpy.ops.wm.read_factory_settings(use_empty=True)
@@ -250,7 +196,7 @@ def build_scene(params: StreetParams) -> dict:
     for lane_x in (-1.75, 1.75):  # dashed lane marks, 3 m on, 6 m off
         for y in np.arange(y0, y1, 9.0):
             ground.box((lane_x, y + 1.5, 0.002), (0.15, 3.0, 0.004), mats["paint"])
-    ground.to_object("street ground", coll)
+    to_object(ground, "street ground", coll)
 
     buildings = MeshBuilder()
     for side in (-1, 1):
@@ -263,7 +209,7 @@ def build_scene(params: StreetParams) -> dict:
             mat = facade(f"facade {side} {y:.0f}", wall, window=(rng.uniform(1.3, 2.2), rng.uniform(1.2, 1.6)))
             buildings.box((side * (SIDEWALK_HALF + d / 2), y + w / 2, h / 2), (d, w - 0.3, h), mat)
             y += w
-    buildings.to_object("street buildings", coll)
+    to_object(buildings, "street buildings", coll)
 
     cars = []
     drive_len = params.num_frames * params.frame_spacing_m
@@ -272,14 +218,13 @@ def build_scene(params: StreetParams) -> dict:
         side = 1 if k % 2 == 0 else -1
         builder = MeshBuilder()
         paint = plain(f"car paint {k}", tuple(rng.uniform(0.05, 0.8, 3)), 0.35, 0.2)
-        _car(builder, rng, paint, mats["glass"], mats["tyre"])
-        obj = builder.to_object(f"parked car {k + 1}", coll, pass_index=k + 1)
+        add_car(builder, rng, paint, mats["glass"], mats["tyre"])
+        obj = to_object(builder, f"parked car {k + 1}", coll, pass_index=k + 1)
         x = side * (ROAD_HALF + PARKING_HALF) / 2
         yaw = float(rng.uniform(-0.04, 0.04))
         obj.location = (x, float(y + rng.uniform(-2, 2)), 0.0)
         obj.rotation_euler = (0.0, 0.0, yaw)
-        verts = np.concatenate(builder.verts)
-        lo, hi = verts.min(axis=0), verts.max(axis=0)  # the box that holds every part, wheels included
+        lo, hi = builder.bounds()  # the box that holds every part, wheels included
         M = np.array(obj.matrix_basis, dtype=np.float64)
         box = M.copy()
         box[:3, 3] = M[:3, :3] @ ((lo + hi) / 2) + M[:3, 3]

@@ -14,12 +14,14 @@ _classes = (*preferences.classes, *operators.classes, *panels.classes)
 def register():
     for cls in _classes:
         bpy.utils.register_class(cls)
-    bpy.types.TOPBAR_MT_file_import.append(operators.import_vggt.menu_import)
+    for draw in operators.menu_import:
+        bpy.types.TOPBAR_MT_file_import.append(draw)
     cli.register()
 
 
 def unregister():
     cli.unregister()
-    bpy.types.TOPBAR_MT_file_import.remove(operators.import_vggt.menu_import)
+    for draw in operators.menu_import:
+        bpy.types.TOPBAR_MT_file_import.remove(draw)
     for cls in reversed(_classes):
         bpy.utils.unregister_class(cls)

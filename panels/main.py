@@ -16,7 +16,9 @@ class SCPAINTER_PT_main(bpy.types.Panel):
 
     def draw(self, context):
         layout = self.layout
-        layout.operator("scpainter.import_vggt", icon="IMPORT")
+        col = layout.column(align=True)
+        col.operator("scpainter.import_vggt", icon="IMPORT")
+        col.operator("scpainter.import_gaussians", icon="IMPORT")
         obj = context.active_object
         if obj is None or "scpainter_kind" not in obj:
             return

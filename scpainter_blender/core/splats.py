@@ -289,23 +289,28 @@ def decode(ply: GaussianPly) -> Gaussians:
         return _decode(ply)
 
 
-def _decode(ply: GaussianPly) -> Gaussians:
-    N = len(ply)
-    sh_raw = np.concatenate([ply.f_dc[:, None, :], np.swapaxes(ply.f_rest, 1, 2)], axis=1)  # (N, K, 3)
-    finite = (np.isfinite(ply.xyz).all(1) & np.isfinite(sh_raw).all((1, 2)) & np.isfinite(ply.opacity)
-              & np.isfinite(ply.scale).all(1) & np.isfinite(ply.rot).all(1))
-    qn = np.linalg.norm(ply.rot.astype(np.float64), axis=1)
-    zero_q = finite & (qn < 1e-12)
-    scales = np.exp(ply.scale.astype(np.float64))
-    overflow = finite & ~zero_q & ~(scales <= np.finfo(np.float32).max).all(1)
-    keep = finite & ~zero_q & ~overflow
-    q = ply.rot[keep].astype(np.float64) / qn[keep, None]
-    opac = 1.0 / (1.0 + np.exp(-ply.opacity[keep].astype(np.float64)))
-    dropped = {"non_finite": int(N - finite.sum()), "zero_quaternion": int(zero_q.sum()),
+def valid_rows(ply: GaussianPly):
+    """(keep mask (N,), dropped counts by reason) — the rows decode() keeps."""
+    with np.errstate(invalid="ignore", over="ignore"):
+        finite = (np.isfinite(ply.xyz).all(1) & np.isfinite(ply.f_dc).all(1)
+                  & np.isfinite(ply.f_rest).all((1, 2)) & np.isfinite(ply.opacity)
+                  & np.isfinite(ply.scale).all(1) & np.isfinite(ply.rot).all(1))
+        zero_q = finite & (np.linalg.norm(ply.rot.astype(np.float64), axis=1) < 1e-12)
+        overflow = finite & ~zero_q & ~(np.exp(ply.scale.astype(np.float64)) <= np.finfo(np.float32).max).all(1)
+    dropped = {"non_finite": int(len(ply) - finite.sum()), "zero_quaternion": int(zero_q.sum()),
                "scale_overflow": int(overflow.sum())}
-    return Gaussians(means=ply.xyz[keep].copy(), scales=scales[keep].astype(np.float32), quats=q.astype(np.float32),
-                     opacities=opac.astype(np.float32), sh=sh_raw[keep].astype(np.float32),
-                     dropped={k: v for k, v in dropped.items() if v})
+    return finite & ~zero_q & ~overflow, {k: v for k, v in dropped.items() if v}
+
+
+def _decode(ply: GaussianPly) -> Gaussians:
+    keep, dropped = valid_rows(ply)
+    rot = ply.rot[keep].astype(np.float64)
+    q = rot / np.linalg.norm(rot, axis=1, keepdims=True)
+    opac = 1.0 / (1.0 + np.exp(-ply.opacity[keep].astype(np.float64)))
+    sh = np.concatenate([ply.f_dc[keep][:, None, :], np.swapaxes(ply.f_rest[keep], 1, 2)], axis=1)  # (N, K, 3)
+    return Gaussians(means=ply.xyz[keep].copy(), scales=np.exp(ply.scale[keep].astype(np.float64)).astype(np.float32),
+                     quats=q.astype(np.float32), opacities=opac.astype(np.float32), sh=sh.astype(np.float32),
+                     dropped=dropped)
 
 
 def encode(g: Gaussians, extra: dict | None = None) -> GaussianPly:

@@ -1,0 +1,76 @@
+"""Gaussian asset import and viewport-preview cost at 100 k and 500 k Gaussians.
+
+    .venv/bin/python bench/bench_gaussians.py [--counts 100000 500000]
+
+The procedural car saved as Amodal3R saves it, imported through the real operator; then the Geometry Nodes
+preview evaluated (the CPU side of what the viewport pays on every change of the asset) for sprites and for
+ellipsoids. GPU drawing is not measured: there is no display here.
+Prints a table and writes bench/results/gaussians.json.
+"""
+
+import argparse
+import json
+import os
+import platform
+import sys
+import tempfile
+import time
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)
+
+from tools import blender_env  # noqa: E402
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--counts", type=int, nargs="+", default=[100_000, 500_000])
+    p.add_argument("--json", default=os.path.join(ROOT, "bench", "results", "gaussians.json"))
+    args = p.parse_args(argv)
+    work = tempfile.mkdtemp(prefix="scpainter-bench-")
+    blender_env.use_private_user_resources(os.path.join(work, "user"))
+    import bpy
+
+    from scpainter_blender.core import shapes
+
+    pkg = blender_env.install_zip(blender_env.build_extension(os.path.join(work, "dist")),
+                                  os.path.join(work, "user", "extensions", "scpainter_local"))
+    gaussians = sys.modules[pkg + ".scpainter_blender.scene.gaussians"]
+    rows = []
+    for n in args.counts:
+        path = os.path.join(work, f"car_{n}.ply")
+        shapes.save_as_amodal3r(path, shapes.procedural_car_gaussians(count=n, seed=0))
+        bpy.ops.wm.read_homefile(use_empty=True)
+        t = time.perf_counter()
+        assert bpy.ops.scpainter.import_gaussians(filepath=path) == {"FINISHED"}
+        row = {"gaussians": n, "file_mb": os.path.getsize(path) / 1e6, "import_s": time.perf_counter() - t}
+        obj = bpy.context.active_object
+        mod, ident = gaussians.preview_input(obj, "Ellipsoids")
+        _, size = gaussians.preview_input(obj, "Size")
+        for mode, value in (("sprites", False), ("ellipsoids", True)):
+            mod[ident] = value
+            best = float("inf")
+            for k in range(3):
+                mod[size] = 2.0 + 0.01 * k  # a changed input: the modifier really runs again
+                obj.update_tag()
+                t = time.perf_counter()
+                geometry = obj.evaluated_get(bpy.context.evaluated_depsgraph_get()).evaluated_geometry()
+                count = sum(len(g.attributes["position"].data)
+                            for g in (geometry.pointcloud, geometry.instances_pointcloud()) if g)
+                best = min(best, time.perf_counter() - t)
+                assert count == n
+            row[f"{mode}_eval_s"] = best
+        rows.append(row)
+    head = ["gaussians", "file_mb", "import_s", "sprites_eval_s", "ellipsoids_eval_s"]
+    print(" | ".join(f"{h:>17}" for h in head))
+    for r in rows:
+        print(" | ".join(f"{r[h]:>17,.3f}" if isinstance(r[h], float) else f"{r[h]:>17,}" for h in head))
+    os.makedirs(os.path.dirname(args.json), exist_ok=True)
+    with open(args.json, "w") as f:
+        json.dump({"machine": {"cpus": os.cpu_count(), "platform": platform.platform(),
+                               "blender": bpy.app.version_string}, "rows": rows}, f, indent=1)
+    print(f"saved {args.json}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,148 @@
+"""bpy.ops.scpainter.import_gaussians on the procedural car saved as Amodal3R saves, and on edge cases."""
+
+import os
+
+import bpy
+import numpy as np
+import pytest
+
+from scpainter_blender.core import cameras as C
+from scpainter_blender.core import shapes, splats
+
+
+@pytest.fixture(scope="module")
+def car_file(tmp_path_factory):
+    path = str(tmp_path_factory.mktemp("assets") / "car_01.ply")
+    g = shapes.procedural_car_gaussians(count=4000, seed=3, paint=(0.8, 0.1, 0.1))
+    A = shapes.save_as_amodal3r(path, g)
+    return path, g, A
+
+
+def _attr(obj, name, width):
+    a = obj.data.attributes[name]
+    prop = {"FLOAT": "value", "FLOAT_VECTOR": "vector", "QUATERNION": "value", "INT": "value"}[a.data_type]
+    out = np.empty(len(obj.data.vertices) * width, np.float32 if a.data_type != "INT" else np.int32)
+    a.data.foreach_get(prop, out)
+    return out.reshape(-1, width) if width > 1 else out
+
+
+def _evaluated(obj):
+    geometry = obj.evaluated_get(bpy.context.evaluated_depsgraph_get()).evaluated_geometry()
+    cloud, inst = geometry.pointcloud, geometry.instances_pointcloud()
+    return (len(cloud.attributes["position"].data) if cloud else 0,
+            len(inst.attributes["position"].data) if inst else 0)
+
+
+def test_import_amodal3r_car(empty_scene, car_file):
+    path, g, A = car_file
+    assert bpy.ops.scpainter.import_gaussians(filepath=path) == {"FINISHED"}
+    obj = bpy.context.active_object
+    assert obj["scpainter_kind"] == "gaussian_asset" and obj["scpainter_axes"] == "TRELLIS"
+    assert obj["scpainter_source"] == os.path.abspath(path) and obj["scpainter_dropped"] == 0
+    raw = splats.read_ply(path)
+    N = len(raw)
+    assert len(obj.data.vertices) == N == 4000
+    # every file value kept, bit for bit
+    assert np.array_equal(_attr(obj, "sh_0", 3), raw.f_dc)
+    assert np.array_equal(_attr(obj, "opacity", 1), raw.opacity)
+    assert np.array_equal(_attr(obj, "scale", 3), raw.scale)
+    assert np.array_equal(_attr(obj, "rot", 4), raw.rot)
+    assert np.array_equal(_attr(obj, "ply_nx", 1), raw.extra["nx"])
+    # data frame: Z up, origin at the bottom centre; data_from_file maps the file onto it
+    pos = _attr(obj, "position", 3).astype(np.float64)
+    M = np.array(obj["scpainter_data_from_file"]).reshape(4, 4)
+    assert np.abs(raw.xyz @ M[:3, :3].T + M[:3, 3] - pos).max() < 1e-6
+    lo, hi = pos.min(0), pos.max(0)
+    assert abs(lo[2]) < 1e-7 and np.allclose((lo[:2] + hi[:2]) / 2, 0, atol=1e-6)
+    # the car's own shape comes back: up is up, its length along Y, scaled to 4.5 m by default
+    world = pos * np.array(obj.scale)
+    size = world.max(0) - world.min(0)
+    assert size[1] == pytest.approx(4.5, rel=1e-5) and size[1] > size[0] and size[2] < size[0]
+    s_file = np.cbrt(np.linalg.det(A[:3, :3]))
+    expected = (g.means - g.means.min(0) * [0, 0, 1] - ((g.means.min(0) + g.means.max(0)) / 2) * [1, 1, 0])
+    assert np.abs(pos - s_file * expected).max() < 1e-5
+    # display rotations are the car's own (Z-up) orientations; scales its σ in data units
+    q = _attr(obj, "gs_rotation", 4)
+    assert np.abs(np.einsum("ij,ij->i", q, g.quats)).min() > 1 - 1e-4
+    assert np.allclose(_attr(obj, "gs_scale", 3), s_file * g.scales, rtol=1e-4)
+    # preview: sprites by default, one per Gaussian; ellipsoids as instances
+    assert _evaluated(obj) == (N, 0)
+    mod = obj.modifiers["SCPainter Gaussians"]
+    from scpainter_blender.scene import points
+
+    points.set_input(mod, "Ellipsoids", True)
+    obj.update_tag()
+    assert _evaluated(obj) == (0, N)
+
+
+def test_render_shows_the_car_in_its_colour(empty_scene, car_file, tmp_path):
+    path, _, _ = car_file
+    bpy.ops.scpainter.import_gaussians(filepath=path, target_length=4.4)
+    scene = empty_scene
+    cam = bpy.data.objects.new("cam", bpy.data.cameras.new("cam"))
+    scene.collection.objects.link(cam)
+    scene.camera = cam
+    w2c = np.eye(4)  # looking at the car's side from 8 m along -X, horizontally
+    w2c[:3, :3] = [[0, 1, 0], [0, 0, -1], [-1, 0, 0]]
+    w2c[:3, 3] = -w2c[:3, :3] @ np.array([8.0, 0.0, 0.7])
+    from mathutils import Matrix
+
+    cam.matrix_world = Matrix(C.blender_matrix_world(w2c).tolist())
+    r = scene.render
+    r.engine, r.resolution_x, r.resolution_y, r.film_transparent = "CYCLES", 64, 40, True
+    scene.cycles.samples = 4
+    scene.view_settings.view_transform = "Standard"
+    r.image_settings.file_format, r.image_settings.color_mode = "PNG", "RGBA"
+    r.filepath = str(tmp_path / "car.png")
+    bpy.ops.render.render(write_still=True)
+    img = bpy.data.images.load(r.filepath)
+    px = np.array(img.pixels[:], np.float32).reshape(40, 64, 4)
+    solid = px[..., 3] > 0.9
+    assert solid.mean() > 0.15
+    body = px[solid][:, :3]
+    red = (body[:, 0] > 0.6) & (body[:, 1] < 0.3) & (body[:, 2] < 0.3)
+    assert red.mean() > 0.4  # most of the car's side is its red paint
+
+
+def test_bad_rows_dropped_and_counted(empty_scene, tmp_path):
+    g = shapes.procedural_car_gaussians(count=100, seed=0)
+    raw = splats.encode(g)
+    raw.rot[:3] = 0.0
+    raw.xyz[5, 0] = np.nan
+    raw.scale[7] = 200.0
+    path = str(tmp_path / "bad_rows.ply")
+    splats.write_ply(path, raw)
+    assert bpy.ops.scpainter.import_gaussians(filepath=path, axes="NONE") == {"FINISHED"}
+    obj = bpy.context.active_object
+    assert len(obj.data.vertices) == 95 and obj["scpainter_dropped"] == 5
+    assert obj["scpainter_axes"] == "NONE"
+    assert np.all(np.isfinite(_attr(obj, "gs_scale", 3)))
+
+
+def test_bad_files_report_and_create_nothing(empty_scene, tmp_path):
+    (tmp_path / "junk.ply").write_bytes(b"ply\nformat ascii 1.0\nend_header\n")
+    with pytest.raises(RuntimeError, match="junk.ply.*ascii"):
+        bpy.ops.scpainter.import_gaussians(filepath=str(tmp_path / "junk.ply"))
+    raw = splats.encode(shapes.procedural_car_gaussians(count=10, seed=0))
+    raw.rot[:] = 0.0
+    splats.write_ply(tmp_path / "allbad.ply", raw)
+    with pytest.raises(RuntimeError, match="no valid Gaussians"):
+        bpy.ops.scpainter.import_gaussians(filepath=str(tmp_path / "allbad.ply"))
+    assert len(bpy.data.objects) == 0
+
+
+def test_sh3_file_keeps_all_coefficients(empty_scene, tmp_path):
+    rng = np.random.default_rng(0)
+    N = 50
+    raw = splats.GaussianPly(xyz=rng.normal(0, 1, (N, 3)).astype(np.float32),
+                             f_dc=rng.normal(0, 1, (N, 3)).astype(np.float32),
+                             f_rest=rng.normal(0, 0.1, (N, 3, 15)).astype(np.float32),
+                             opacity=np.zeros(N, np.float32), scale=np.full((N, 3), -3, np.float32),
+                             rot=np.tile([1, 0, 0, 0], (N, 1)).astype(np.float32))
+    splats.write_ply(tmp_path / "inria.ply", raw)
+    assert bpy.ops.scpainter.import_gaussians(filepath=str(tmp_path / "inria.ply")) == {"FINISHED"}
+    obj = bpy.context.active_object
+    assert obj["scpainter_sh_degree"] == 3 and obj["scpainter_axes"] == "NONE"
+    for k in range(1, 16):  # coefficient k of red, green, blue = f_rest[:, c, k-1]
+        assert np.array_equal(_attr(obj, f"sh_{k}", 3), raw.f_rest[:, :, k - 1])
+    assert obj.scale[0] == pytest.approx(1.0)  # file units kept

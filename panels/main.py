@@ -19,6 +19,13 @@ class SCPAINTER_PT_main(bpy.types.Panel):
         col = layout.column(align=True)
         col.operator("scpainter.import_vggt", icon="IMPORT")
         col.operator("scpainter.import_gaussians", icon="IMPORT")
+        box = layout.box()
+        box.label(text="New Camera Path", icon="CAMERA_DATA")
+        row = box.row(align=True)
+        for shift in (3.0, 2.0, -2.0, -3.0):  # the paper's lateral shifts; + is left
+            label = f"{abs(shift):g} m {'L' if shift > 0 else 'R'}"
+            row.operator("scpainter.new_camera_path", text=label).shift = shift
+        box.operator("scpainter.new_camera_path", text="Custom Shift...").shift = 1.0
         obj = context.active_object
         if obj is None or "scpainter_kind" not in obj:
             return

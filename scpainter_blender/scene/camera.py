@@ -45,17 +45,7 @@ def create_recorded_camera(name: str, world_to_camera, K, width: int, height: in
         warnings.append(f"fx/fy varies across frames (up to {err_px:.3g} px at the image edge); the scene's "
                         "single pixel aspect uses frame 0")
 
-    M = cameras.blender_matrix_world(T)
-    loc = M[:, :3, 3]
-    quat = cameras.continuous_quaternions(cameras.rotation_to_quaternion(M[:, :3, :3]))
-    obj.rotation_mode = "QUATERNION"
-    obj.location = loc[0].tolist()
-    obj.rotation_quaternion = quat[0].tolist()
-    fc = compat.new_action_fcurves(obj, f"{name} path")
-    for i in range(3):
-        compat.key_fcurve(fc, "location", i, frames, loc[:, i])
-    for i in range(4):
-        compat.key_fcurve(fc, "rotation_quaternion", i, frames, quat[:, i])
+    key_camera_path(obj, T, frames, f"{name} path")
     return obj, p0, warnings
 
 
@@ -75,3 +65,59 @@ def K_of_camera_object(scene, cam_obj) -> np.ndarray:
         lens=d.lens, sensor_width=d.sensor_width, sensor_height=d.sensor_height, sensor_fit=d.sensor_fit,
         shift_x=d.shift_x, shift_y=d.shift_y, resolution_x=W, resolution_y=H,
         pixel_aspect_x=r.pixel_aspect_x, pixel_aspect_y=r.pixel_aspect_y))
+
+
+def world_to_camera_per_frame(scene, cam_obj, frames) -> np.ndarray:
+    """OpenCV world_to_camera (S, 4, 4) of a camera object at each frame, whatever drives it (keys, drivers,
+    constraints, parents): the scene is evaluated frame by frame; the current frame is restored after."""
+    current = scene.frame_current
+    out = np.empty((len(frames), 4, 4))
+    try:
+        for i, f in enumerate(frames):
+            scene.frame_set(int(f))
+            M = np.array(cam_obj.matrix_world, dtype=np.float64)
+            M[:3, :3] /= np.linalg.norm(M[:3, :3], axis=0)  # a scaled camera object still sees the same rays
+            out[i] = cameras.world_to_camera_from_blender(M)
+    finally:
+        scene.frame_set(current)
+    return out
+
+
+def key_camera_path(cam_obj, world_to_camera, frames, action_name: str):
+    """Key location + continuous quaternions of ``cam_obj`` at ``frames`` from OpenCV world_to_camera (S, 4, 4)."""
+    M = cameras.blender_matrix_world(world_to_camera)
+    quat = cameras.continuous_quaternions(cameras.rotation_to_quaternion(M[:, :3, :3]))
+    cam_obj.rotation_mode = "QUATERNION"
+    cam_obj.location = M[0, :3, 3].tolist()
+    cam_obj.rotation_quaternion = quat[0].tolist()
+    fc = compat.new_action_fcurves(cam_obj, action_name)
+    for i in range(3):
+        compat.key_fcurve(fc, "location", i, frames, M[:, i, 3])
+    for i in range(4):
+        compat.key_fcurve(fc, "rotation_quaternion", i, frames, quat[:, i])
+
+
+def shift_label(shift_m: float) -> str:
+    return f"{abs(shift_m):g} m {'left' if shift_m > 0 else 'right'}" if shift_m else "recorded"
+
+
+def create_camera_path(context, source, shift_m: float, name: str | None = None):
+    """A new camera following ``source`` (the recorded camera) shifted sideways, keyed at every scene frame.
+
+    ``shift_m`` > 0 moves left of the direction of travel, < 0 right (DESIGN §3 heading). The camera data is a
+    copy of the source's (same lens, sensor and shift keys), the new object becomes the scene's active camera.
+    """
+    scene = context.scene
+    frames = np.arange(scene.frame_start, scene.frame_end + 1)
+    w2c = world_to_camera_per_frame(scene, source, frames)
+    shifted = cameras.shift_trajectory(w2c, left_m=shift_m)
+    name = name or f"Camera path {shift_label(shift_m)}"
+    obj = bpy.data.objects.new(name, source.data.copy())
+    for coll in source.users_collection:
+        coll.objects.link(obj)
+    key_camera_path(obj, shifted, frames, f"{name} path")
+    obj["scpainter_kind"] = "camera_path"
+    obj["scpainter_shift_m"] = float(shift_m)
+    obj["scpainter_source_camera"] = source.name
+    scene.camera = obj
+    return obj

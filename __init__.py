@@ -6,7 +6,7 @@ register() and unregister() only (DESIGN §2); everything else lives in scpainte
 import bpy
 
 from . import operators, panels
-from .scpainter_blender.scene import cli, preferences
+from .scpainter_blender.scene import cli, preferences, props
 
 _classes = (*preferences.classes, *operators.classes, *panels.classes)
 
@@ -14,6 +14,7 @@ _classes = (*preferences.classes, *operators.classes, *panels.classes)
 def register():
     for cls in _classes:
         bpy.utils.register_class(cls)
+    props.register()
     for draw in operators.menu_import:
         bpy.types.TOPBAR_MT_file_import.append(draw)
     cli.register()
@@ -23,5 +24,6 @@ def unregister():
     cli.unregister()
     for draw in operators.menu_import:
         bpy.types.TOPBAR_MT_file_import.remove(draw)
+    props.unregister()
     for cls in reversed(_classes):
         bpy.utils.unregister_class(cls)

@@ -1,6 +1,6 @@
 """bpy operators: thin wrappers that read the context, call scpainter_blender, and report."""
 
-from . import camera_path, import_gaussians, import_vggt
+from . import camera_path, import_gaussians, import_vggt, job
 
-classes = (*import_vggt.classes, *import_gaussians.classes, *camera_path.classes)
+classes = (*import_vggt.classes, *import_gaussians.classes, *camera_path.classes, *job.classes)
 menu_import = (import_vggt.menu_import, import_gaussians.menu_import)

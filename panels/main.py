@@ -26,6 +26,10 @@ class SCPAINTER_PT_main(bpy.types.Panel):
             label = f"{abs(shift):g} m {'L' if shift > 0 else 'R'}"
             row.operator("scpainter.new_camera_path", text=label).shift = shift
         box.operator("scpainter.new_camera_path", text="Custom Shift...").shift = 1.0
+        box = layout.box()
+        box.label(text="Job", icon="FILE")
+        box.prop(context.scene, "scpainter_output_dir", text="")
+        box.operator("scpainter.export_job", icon="EXPORT")
         obj = context.active_object
         if obj is None or "scpainter_kind" not in obj:
             return

@@ -109,6 +109,8 @@ def import_vggt(context, filepath: str, opts: ImportOptions | None = None) -> Im
         scene.camera = cam
     for o, kind in ((obj, "points"), (cam, "recorded_camera")):
         _tag(o, kind, filepath, fit, opts)
+    obj["scpainter_num_frames"] = pred.num_frames
+    obj["scpainter_matrix_world_at_import"] = np.array(obj.matrix_basis, dtype=np.float64).ravel().tolist()
     cam["scpainter_intrinsics"] = pred.K.ravel().tolist()
     cam["scpainter_frame_start"] = int(opts.frame_start)
     t_end = time.perf_counter()

@@ -50,6 +50,7 @@ def test_register_unregister_register_leaves_nothing_behind(addon):
     addon_utils.disable(addon, default_set=True)
     assert _our_classes() == []
     assert _our_menu_entries() == []
+    assert not hasattr(bpy.types.Scene, "scpainter_output_dir")
     with pytest.raises((AttributeError, RuntimeError, KeyError)):
         bpy.ops.scpainter.import_vggt.get_rna_type()
     addon_utils.enable(addon, default_set=True)

@@ -1,0 +1,36 @@
+"""Export the scene as job.json, the backend's input (DESIGN §4.2)."""
+
+from __future__ import annotations
+
+import os
+
+import bpy
+
+from ..scpainter_blender.scene import job_export, preferences, props
+
+
+class SCPAINTER_OT_export_job(bpy.types.Operator):
+    """Write job.json for the frame range and the active camera into the scene's output folder"""
+
+    bl_idname = "scpainter.export_job"
+    bl_label = "Export Job"
+    bl_options = {"REGISTER"}
+
+    filepath: bpy.props.StringProperty(name="Job File", subtype="FILE_PATH", default="",
+                                       description="Where to write job.json (empty: the scene's output folder)")
+
+    def execute(self, context):
+        try:
+            path = bpy.path.abspath(self.filepath) if self.filepath else \
+                os.path.join(props.output_dir(context.scene), "job.json")
+            prefs = preferences.get(context)
+            job = job_export.export_job(context, path, checkpoint=bpy.path.abspath(prefs.checkpoint_dir)
+                                        if prefs and prefs.checkpoint_dir else "")
+        except ValueError as e:
+            self.report({"ERROR"}, str(e))
+            return {"CANCELLED"}
+        self.report({"INFO"}, f"Wrote {path}: {len(job['frames'])} frames, {len(job.get('assets', []))} assets")
+        return {"FINISHED"}
+
+
+classes = (SCPAINTER_OT_export_job,)

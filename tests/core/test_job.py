@@ -1,0 +1,73 @@
+"""core.job: the job.json contract, validated field by field with messages that name the field."""
+
+import copy
+import json
+
+import numpy as np
+import pytest
+
+from scpainter_blender.core import job as J
+
+
+def minimal(frames=(1, 2)):
+    return {"schema": J.SCHEMA, "resolution": [64, 32],
+            "frames": [{"frame": f, "K": [[50, 0, 32], [0, 50, 16], [0, 0, 1]], "world_to_camera": np.eye(4).tolist(),
+                        "source_frames": [0, 1]} for f in frames],
+            "scene": {"predictions": "recon/predictions.npz", "world_from_vggt": (2 * np.eye(4) - np.diag([0, 0, 0, 1])).tolist(),
+                      "confidence_percentile": 50.0,
+                      "removal_boxes": [{"box_to_world": np.eye(4).tolist(), "size": [4.5, 1.9, 1.6]}]},
+            "assets": [{"name": "car_01", "ply": "assets/car_01.ply",
+                        "object_to_world": {str(f): np.diag([3.0, 3, 3, 1]).tolist() for f in frames}}],
+            "output_dir": "out",
+            "generate": {"checkpoint": "/models/scpainter", "steps": 25, "window": 14, "overlap": 4, "seed": 0}}
+
+
+def test_valid_job_round_trip(tmp_path):
+    job = minimal()
+    J.save(tmp_path / "job.json", job)
+    assert J.load(tmp_path / "job.json") == json.loads(json.dumps(job))
+    assert J.resolve(tmp_path / "job.json", "assets/car_01.ply") == str(tmp_path / "assets" / "car_01.ply")
+    without = {k: v for k, v in job.items() if k not in ("scene", "assets", "generate")}
+    J.validate(without)
+
+
+@pytest.mark.parametrize("mutate,field", [
+    (lambda j: j.update(schema="scpainter.job/0"), "schema"),
+    (lambda j: j.update(resolution=[64]), "resolution"),
+    (lambda j: j["resolution"].__setitem__(1, 0), "resolution[1]"),
+    (lambda j: j.update(frames=[]), "frames"),
+    (lambda j: j["frames"][1].update(frame=1), "frames[1].frame"),
+    (lambda j: j["frames"][0].update(K=[[0, 0, 1], [0, 1, 1], [0, 0, 1]]), "frames[0].K"),
+    (lambda j: j["frames"][1]["K"][0].__setitem__(0, float("nan")), "frames[1].K"),
+    (lambda j: j["frames"][0].update(world_to_camera=np.diag([2.0, 2, 2, 1]).tolist()), "frames[0].world_to_camera"),
+    (lambda j: j["frames"][0].update(source_frames=[-1]), "frames[0].source_frames[0]"),
+    (lambda j: j["scene"].update(world_from_vggt=np.diag([1.0, 2, 1, 1]).tolist()), "scene.world_from_vggt"),
+    (lambda j: j["scene"].update(confidence_percentile=120), "scene.confidence_percentile"),
+    (lambda j: j["scene"]["removal_boxes"][0].update(size=[1, 2]), "scene.removal_boxes[0].size"),
+    (lambda j: j["assets"][0]["object_to_world"].pop("2"), "assets[0].object_to_world"),
+    (lambda j: j["assets"][0]["object_to_world"].update({"1": np.zeros((4, 4)).tolist()}),
+     "assets[0].object_to_world['1']"),
+    (lambda j: j["assets"].append(copy.deepcopy(j["assets"][0])), "assets[1].name"),
+    (lambda j: j.update(output_dir=""), "output_dir"),
+    (lambda j: j["generate"].update(overlap=14), "generate.overlap"),
+    (lambda j: j["generate"].update(steps=0), "generate.steps"),
+])
+def test_bad_fields_are_named(tmp_path, mutate, field):
+    job = minimal()
+    mutate(job)
+    p = tmp_path / "job.json"
+    p.write_text(json.dumps(job))
+    with pytest.raises(J.JobError) as e:
+        J.load(p)
+    assert str(e.value).startswith(f"job.json: {field}:"), str(e.value)
+    with pytest.raises(J.JobError):  # never half-written: save validates first
+        J.save(tmp_path / "other.json", job)
+    assert not (tmp_path / "other.json").exists()
+
+
+def test_not_json(tmp_path):
+    (tmp_path / "job.json").write_text("{nope")
+    with pytest.raises(J.JobError, match="not valid JSON"):
+        J.load(tmp_path / "job.json")
+    with pytest.raises(J.JobError, match="not found"):
+        J.load(tmp_path / "missing.json")

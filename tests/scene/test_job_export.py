@@ -1,0 +1,97 @@
+"""Job export from a scene, checked against cameras and transforms computed independently."""
+
+import os
+
+import bpy
+import numpy as np
+import pytest
+
+from scpainter_blender.core import cameras as C
+from scpainter_blender.core import job as J
+from scpainter_blender.core import shapes
+
+
+def _build_scene(street, tmp_path):
+    bpy.ops.scpainter.import_vggt(filepath=street.predictions_path, scale_mode="TRAJECTORY",
+                                  trajectory_path=os.path.join(street.root, "metric.npz"))
+    bpy.ops.scpainter.new_camera_path(shift=2.0)
+    ply = str(tmp_path / "car_01.ply")
+    shapes.save_as_amodal3r(ply, shapes.procedural_car_gaussians(count=500, seed=1))
+    bpy.ops.scpainter.import_gaussians(filepath=ply, target_length=4.4)
+    car = bpy.context.active_object
+    car.rotation_euler = (0.0, 0.0, 0.3)
+    for frame, x in ((1, 3.0), (16, 10.0)):  # drives 7 m along x over the clip, linearly
+        car.location = (x, 12.0, 0.0)
+        car.keyframe_insert("location", frame=frame)
+    from bpy_extras import anim_utils
+
+    ad = car.animation_data
+    bag = anim_utils.action_get_channelbag_for_slot(ad.action, ad.action_slot) if hasattr(ad, "action_slot") \
+        else ad.action
+    for fc in bag.fcurves:
+        for k in fc.keyframe_points:
+            k.interpolation = "LINEAR"
+    return car, ply
+
+
+def test_export_matches_independent_cameras_and_transforms(empty_scene, street, tmp_path):
+    car, ply = _build_scene(street, tmp_path)
+    path = str(tmp_path / "out" / "job.json")
+    assert bpy.ops.scpainter.export_job(filepath=path) == {"FINISHED"}
+    job = J.load(path)
+    metric = street.metric()
+    S = street.params.num_frames
+    assert job["resolution"] == [street.params.width, street.params.height]
+    assert [f["frame"] for f in job["frames"]] == list(range(1, S + 1))
+    truth = metric["world_to_camera_left_2m"]
+    for i, fr in enumerate(job["frames"]):
+        assert np.abs(np.array(fr["K"]) - metric["K"][i]).max() < 1e-3
+        w2c = np.array(fr["world_to_camera"])
+        assert np.abs(C.camera_centers(w2c) - C.camera_centers(truth[i])).max() < 2e-3
+        assert np.abs(w2c[:3, :3] - truth[i][:3, :3]).max() < 1e-4
+        assert fr["source_frames"] == list(range(S))
+    sc = job["scene"]
+    assert J.resolve(path, sc["predictions"]) == os.path.abspath(street.predictions_path)
+    assert np.abs(np.array(sc["world_from_vggt"]) - metric["world_from_vggt"]).max() < 1e-4
+    assert "removal_boxes" not in sc and "generate" not in job
+    # the asset, frame by frame: T(x(f), 12, 0) · Rz(0.3) · uniform scale · data_from_file, x linear in f
+    (asset,) = job["assets"]
+    assert asset["name"] == car.name and J.resolve(path, asset["ply"]) == os.path.abspath(ply)
+    D = np.array(car["scpainter_data_from_file"]).reshape(4, 4)
+    s = car.scale[0]
+    c, sn = np.cos(0.3), np.sin(0.3)
+    for f in range(1, S + 1):
+        x = 3.0 + 7.0 * (f - 1) / 15.0
+        M = np.eye(4)
+        M[:3, :3] = s * np.array([[c, -sn, 0], [sn, c, 0], [0, 0, 1]])
+        M[:3, 3] = [x, 12.0, 0.0]
+        assert np.abs(np.array(asset["object_to_world"][str(f)]) - M @ D).max() < 1e-5, f
+    assert job["output_dir"] == "."
+
+
+def test_leaves_out_what_the_scene_does_not_use(empty_scene, street, tmp_path):
+    car, _ = _build_scene(street, tmp_path)
+    car["scpainter_review"] = "rejected"  # stage-2 rejected assets are not rendered
+    pts = next(o for o in empty_scene.objects if o.get("scpainter_kind") == "points")
+    pts.location.x += 1.0  # the artist nudged the reconstruction: world_from_vggt follows
+    from scpainter_blender.scene import points
+
+    mod = points.points_modifier(pts)
+    points.set_input(mod, "Current Frame Only", True)
+    points.set_input(mod, "Frame Window", 1)
+    job = bpy.ops.scpainter.export_job(filepath=str(tmp_path / "job.json"))
+    job = J.load(tmp_path / "job.json")
+    assert "assets" not in job
+    W = np.array(job["scene"]["world_from_vggt"])
+    assert np.abs(W[:3, 3] - (street.metric()["world_from_vggt"][:3, 3] + [1, 0, 0])).max() < 1e-4
+    assert job["frames"][0]["source_frames"] == [0, 1]
+    assert job["frames"][5]["source_frames"] == [4, 5, 6]
+    assert job["frames"][-1]["source_frames"] == [14, 15]
+
+
+def test_needs_a_camera_and_a_saved_blend(empty_scene, tmp_path):
+    with pytest.raises(RuntimeError, match="not saved yet"):
+        bpy.ops.scpainter.export_job()
+    with pytest.raises(RuntimeError, match="no active camera"):
+        bpy.ops.scpainter.export_job(filepath=str(tmp_path / "job.json"))
+    assert not (tmp_path / "job.json").exists()

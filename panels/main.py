@@ -26,12 +26,13 @@ class SCPAINTER_PT_main(bpy.types.Panel):
             label = f"{abs(shift):g} m {'L' if shift > 0 else 'R'}"
             row.operator("scpainter.new_camera_path", text=label).shift = shift
         box.operator("scpainter.new_camera_path", text="Custom Shift...").shift = 1.0
+        self.draw_assets(context, layout.box())
         box = layout.box()
         box.label(text="Job", icon="FILE")
         box.prop(context.scene, "scpainter_output_dir", text="")
         box.operator("scpainter.export_job", icon="EXPORT")
         obj = context.active_object
-        if obj is None or "scpainter_kind" not in obj:
+        if obj is None or "scpainter_kind" not in obj or obj["scpainter_kind"] not in ("points", "recorded_camera"):
             return
         box = layout.box()
         box.label(text=obj.name, icon="POINTCLOUD_DATA" if obj["scpainter_kind"] == "points" else "CAMERA_DATA")
@@ -41,6 +42,28 @@ class SCPAINTER_PT_main(bpy.types.Panel):
         if mod is not None:
             for name in ("Point Radius", "Current Frame Only", "Frame Window"):
                 box.prop(mod, f'["{points._socket_identifier(mod.node_group, name)}"]', text=name)
+
+
+    @staticmethod
+    def draw_assets(context, box):
+        box.label(text="Car Assets", icon="AUTO")
+        col = box.column(align=True)
+        col.operator("scpainter.fit_asset")
+        col.operator("scpainter.snap_to_ground")
+        col.operator("scpainter.add_removal_box")
+        col.operator("scpainter.replace_car")
+        col.operator("scpainter.check_assets")
+        icons = {"accepted": "CHECKMARK", "rejected": "X", "unchecked": "QUESTION"}
+        for obj in context.scene.objects:  # stage 2: a person accepts or rejects each asset
+            if obj.get("scpainter_kind") != "gaussian_asset":
+                continue
+            row = box.row(align=True)
+            stage1 = obj.get("scpainter_stage1", "")
+            row.label(text=f"{obj.name}{'  (size flagged)' if stage1 == 'flagged' else ''}",
+                      icon=icons.get(obj.get("scpainter_review", "unchecked"), "QUESTION"))
+            for status, icon in (("accepted", "CHECKMARK"), ("rejected", "X")):
+                op = row.operator("scpainter.review_asset", text="", icon=icon)
+                op.name, op.status = obj.name, status
 
 
 classes = (SCPAINTER_PT_main,)

@@ -1,0 +1,164 @@
+"""Placing car assets: fit, snap to the ground, removal boxes, replace a recorded car, the two review stages."""
+
+from __future__ import annotations
+
+import bpy
+import numpy as np
+
+from ..scpainter_blender.scene import placement
+
+
+def _asset(context):
+    obj = context.active_object
+    return obj if obj is not None and obj.get("scpainter_kind") == "gaussian_asset" else None
+
+
+def _points(context):
+    return next((o for o in context.scene.objects if o.get("scpainter_kind") == "points"), None)
+
+
+class _AssetOperator:
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        if _asset(context) is None:
+            cls.poll_message_set("Select a Gaussian car asset (File > Import > SCPainter Gaussian Asset)")
+            return False
+        return True
+
+
+class SCPAINTER_OT_fit_asset(_AssetOperator, bpy.types.Operator):
+    """Scale the active asset to a car size: uniformly to its length, or to length, width and height"""
+
+    bl_idname = "scpainter.fit_asset"
+    bl_label = "Fit to Car Size"
+    bl_options = {"REGISTER", "UNDO"}
+
+    length: bpy.props.FloatProperty(name="Length", default=placement.DEFAULT_CAR[0], min=0.1, unit="LENGTH")
+    width: bpy.props.FloatProperty(name="Width", default=placement.DEFAULT_CAR[1], min=0.1, unit="LENGTH")
+    height: bpy.props.FloatProperty(name="Height", default=placement.DEFAULT_CAR[2], min=0.1, unit="LENGTH")
+    uniform: bpy.props.BoolProperty(name="Keep Proportions", default=True,
+                                    description="Scale uniformly to the length (off: per axis to all three)")
+
+    def execute(self, context):
+        placement.fit_size(_asset(context), self.length, self.width, self.height, self.uniform)
+        return {"FINISHED"}
+
+
+class SCPAINTER_OT_snap_to_ground(_AssetOperator, bpy.types.Operator):
+    """Stand the active asset on the road: a plane fitted to the scene points around its footprint"""
+
+    bl_idname = "scpainter.snap_to_ground"
+    bl_label = "Snap to Ground"
+    bl_options = {"REGISTER", "UNDO"}
+
+    align: bpy.props.BoolProperty(name="Align to Slope", default=True)
+    margin: bpy.props.FloatProperty(name="Margin", default=1.0, min=0.0, unit="LENGTH",
+                                    description="How far around the footprint to look for road points")
+
+    def execute(self, context):
+        pts = _points(context)
+        if pts is None:
+            self.report({"ERROR"}, "no reconstruction in the scene: import a VGGT reconstruction first")
+            return {"CANCELLED"}
+        try:
+            plane, n = placement.snap_to_ground(context, _asset(context), pts, self.margin, self.align)
+        except ValueError as e:
+            self.report({"ERROR"}, str(e))
+            return {"CANCELLED"}
+        self.report({"INFO"}, f"Ground fitted to {n:,} points (normal {np.round(plane[:3], 3).tolist()})")
+        return {"FINISHED"}
+
+
+class SCPAINTER_OT_add_removal_box(bpy.types.Operator):
+    """Add a box whose points are removed from the reconstruction (around the active asset, else at the cursor)"""
+
+    bl_idname = "scpainter.add_removal_box"
+    bl_label = "Add Removal Box"
+    bl_options = {"REGISTER", "UNDO"}
+
+    length: bpy.props.FloatProperty(name="Length", default=placement.DEFAULT_CAR[0], min=0.1, unit="LENGTH")
+    width: bpy.props.FloatProperty(name="Width", default=placement.DEFAULT_CAR[1], min=0.1, unit="LENGTH")
+    height: bpy.props.FloatProperty(name="Height", default=placement.DEFAULT_CAR[2], min=0.1, unit="LENGTH")
+
+    @classmethod
+    def poll(cls, context):
+        if _points(context) is None:
+            cls.poll_message_set("Import a VGGT reconstruction first")
+            return False
+        return True
+
+    def execute(self, context):
+        box = placement.add_removal_box(context, _points(context), size=(self.length, self.width, self.height))
+        for o in context.view_layer.objects.selected:
+            o.select_set(False)
+        context.view_layer.objects.active = box
+        box.select_set(True)
+        return {"FINISHED"}
+
+
+class SCPAINTER_OT_replace_car(_AssetOperator, bpy.types.Operator):
+    """Align the active asset to the selected removal box (the recorded car it replaces) and check its size"""
+
+    bl_idname = "scpainter.replace_car"
+    bl_label = "Replace Car"
+    bl_options = {"REGISTER", "UNDO"}
+
+    uniform: bpy.props.BoolProperty(name="Keep Proportions", default=False,
+                                    description="Scale uniformly to the box length instead of filling the box")
+
+    def execute(self, context):
+        boxes = [o for o in context.selected_objects if o.get("scpainter_kind") == "removal_box"]
+        if len(boxes) != 1:
+            self.report({"ERROR"}, "select exactly one removal box together with the asset")
+            return {"CANCELLED"}
+        asset = _asset(context)
+        placement.align_to_box(asset, boxes[0], self.uniform)
+        r = placement.stage1_check(asset)
+        level = {"WARNING"} if r["status"] == "flagged" else {"INFO"}
+        self.report(level, f"{asset.name}: stage 1 {r['status']} (width {r['width']:+.0%}, "
+                           f"height {r['height']:+.0%} against the box)")
+        return {"FINISHED"}
+
+
+class SCPAINTER_OT_check_assets(bpy.types.Operator):
+    """Stage 1: flag assets whose proportions deviate from their target box (or a mid-size car) by too much"""
+
+    bl_idname = "scpainter.check_assets"
+    bl_label = "Check Asset Sizes"
+    bl_options = {"REGISTER", "UNDO"}
+
+    tolerance: bpy.props.FloatProperty(name="Tolerance", default=placement.STAGE1_TOLERANCE, min=0.0, max=1.0,
+                                       subtype="FACTOR")
+
+    def execute(self, context):
+        assets = [o for o in context.scene.objects if o.get("scpainter_kind") == "gaussian_asset"]
+        flagged = [o.name for o in assets if placement.stage1_check(o, tolerance=self.tolerance)["status"] != "ok"]
+        self.report({"WARNING"} if flagged else {"INFO"},
+                    f"{len(assets)} assets checked, flagged: {', '.join(flagged) or 'none'}")
+        return {"FINISHED"}
+
+
+class SCPAINTER_OT_review_asset(bpy.types.Operator):
+    """Stage 2: mark an asset accepted or rejected after looking at it (rejected assets are not rendered)"""
+
+    bl_idname = "scpainter.review_asset"
+    bl_label = "Review Asset"
+    bl_options = {"REGISTER", "UNDO"}
+
+    name: bpy.props.StringProperty(name="Asset")
+    status: bpy.props.EnumProperty(name="Status", items=[("accepted", "Accept", ""), ("rejected", "Reject", ""),
+                                                          ("unchecked", "Unchecked", "")])
+
+    def execute(self, context):
+        obj = bpy.data.objects.get(self.name) or _asset(context)
+        if obj is None or obj.get("scpainter_kind") != "gaussian_asset":
+            self.report({"ERROR"}, f"no Gaussian asset named {self.name!r}")
+            return {"CANCELLED"}
+        obj["scpainter_review"] = self.status
+        return {"FINISHED"}
+
+
+classes = (SCPAINTER_OT_fit_asset, SCPAINTER_OT_snap_to_ground, SCPAINTER_OT_add_removal_box,
+           SCPAINTER_OT_replace_car, SCPAINTER_OT_check_assets, SCPAINTER_OT_review_asset)

@@ -1,0 +1,220 @@
+"""Placing Gaussian car assets: fit to a car size, snap to the ground, replace a recorded car, review.
+
+Asset convention (scene/gaussians.py): data frame Z up, origin at the bottom centre; the *length* is the longer of
+the two horizontal extents. Removal boxes are cube empties (display size 1, so the box spans ±scale along each
+local axis, length along local Y); their points are removed from the reconstruction by a Geometry Nodes modifier
+on the points object, placed before the points preview, and exported to the job (DESIGN §4.2 removal_boxes).
+"""
+
+from __future__ import annotations
+
+import bpy
+import numpy as np
+from mathutils import Matrix, Quaternion, Vector
+
+from ..core import geometry
+from . import points as points_mod
+
+REMOVAL_GROUP = "SCPainter Removal Box"
+REMOVAL_GROUP_VERSION = 1
+DEFAULT_CAR = (4.5, 1.9, 1.6)  # length, width, height in metres: a mid-size car
+STAGE1_TOLERANCE = 0.2
+
+
+def asset_size(obj) -> np.ndarray:
+    """(length, width, height) of an asset in its data frame (before the object's scale)."""
+    sx, sy, sz = obj["scpainter_size"]
+    return np.array([max(sx, sy), min(sx, sy), sz])
+
+
+def _length_axis(obj) -> int:
+    sx, sy, _ = obj["scpainter_size"]
+    return 1 if sy >= sx else 0
+
+
+def fit_size(obj, length: float, width: float | None = None, height: float | None = None, uniform: bool = True):
+    """Scale an asset to a car size: uniformly to ``length``, or per axis to (length, width, height)."""
+    L, Wd, H = asset_size(obj)
+    if length <= 0 or L <= 0:
+        raise ValueError("the length to fit must be positive")
+    if uniform or width is None or height is None:
+        obj.scale = (length / L,) * 3
+        return
+    if width <= 0 or height <= 0 or Wd <= 0 or H <= 0:
+        raise ValueError("width and height to fit must be positive")
+    scale = [0.0, 0.0, height / H]
+    axis = _length_axis(obj)
+    scale[axis], scale[1 - axis] = length / L, width / Wd
+    obj.scale = scale
+
+
+def scene_points_world(points_obj) -> np.ndarray:
+    """World positions (N, 3) float64 of a points object's vertices (before its removal modifiers)."""
+    n = len(points_obj.data.vertices)
+    co = np.empty(n * 3, np.float32)
+    if n:
+        points_obj.data.attributes["position"].data.foreach_get("vector", co)
+    M = np.array(points_obj.matrix_world, dtype=np.float64)
+    return co.reshape(-1, 3).astype(np.float64) @ M[:3, :3].T + M[:3, 3]
+
+
+def removal_boxes(scene):
+    return [o for o in scene.objects if o.get("scpainter_kind") == "removal_box"]
+
+
+def box_matrix(box) -> tuple:
+    """(rigid box_to_world 4x4, full size (3,)) of a removal box empty."""
+    M = np.array(box.matrix_world, dtype=np.float64)
+    scale = np.linalg.norm(M[:3, :3], axis=0)
+    R = M.copy()
+    R[:3, :3] /= scale
+    return R, 2.0 * box.empty_display_size * scale
+
+
+def snap_to_ground(context, obj, points_obj, margin: float = 1.0, align: bool = True, threshold: float = 0.05):
+    """Put the asset's bottom centre on the ground plane fitted to the scene points around its footprint.
+
+    Points inside removal boxes (the car being replaced) are left out. ``align`` tilts the asset's up axis to
+    the plane normal, keeping its heading. Returns the plane and the number of points it was fitted to.
+    """
+    context.view_layer.update()
+    P = scene_points_world(points_obj)
+    M = np.array(obj.matrix_world, dtype=np.float64)
+    size = np.array(obj["scpainter_size"], np.float64)
+    corners = np.array([[sx, sy, 0.0] for sx in (-0.5, 0.5) for sy in (-0.5, 0.5)]) * size
+    foot = corners @ M[:3, :3].T + M[:3, 3]
+    lo, hi = foot[:, :2].min(0) - margin, foot[:, :2].max(0) + margin
+    sel = np.all((P[:, :2] >= lo) & (P[:, :2] <= hi), axis=1)
+    for box in removal_boxes(context.scene):
+        if sel.any():
+            T, s = box_matrix(box)
+            sel[sel] &= ~geometry.points_in_box(P[sel], T, s)
+    near = P[sel]
+    if len(near) < 20:
+        raise ValueError(f"only {len(near)} scene points under the asset: move it over the reconstructed road")
+    plane, inliers, _ = geometry.fit_plane_ransac(near, threshold=threshold)
+    x, y = obj.matrix_world.translation.x, obj.matrix_world.translation.y
+    z = geometry.plane_height(plane, x, y)
+    if align:
+        yaw = obj.matrix_world.to_quaternion()
+        heading = yaw @ Vector((0.0, 1.0, 0.0))
+        flat = Quaternion((0.0, 0.0, 1.0), np.arctan2(-heading.x, heading.y))
+        tilt = Vector((0.0, 0.0, 1.0)).rotation_difference(Vector(plane[:3].tolist()))
+        obj.rotation_mode = "QUATERNION"
+        obj.rotation_quaternion = tilt @ flat
+    obj.location = (x, y, z)
+    return plane, int(inliers.sum())
+
+
+def _removal_group() -> bpy.types.NodeTree:
+    ng = bpy.data.node_groups.get(REMOVAL_GROUP)
+    if ng is not None and ng.get("scpainter_version") == REMOVAL_GROUP_VERSION:
+        return ng
+    ng = bpy.data.node_groups.new(REMOVAL_GROUP, "GeometryNodeTree")
+    ng["scpainter_version"] = REMOVAL_GROUP_VERSION
+    ng.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
+    ng.interface.new_socket("Box", in_out="INPUT", socket_type="NodeSocketObject")
+    ng.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
+    n, link = ng.nodes, ng.links.new
+    gi, go = n.new("NodeGroupInput"), n.new("NodeGroupOutput")
+    info = n.new("GeometryNodeObjectInfo")
+    info.transform_space = "RELATIVE"  # the box in the points object's own space
+    link(gi.outputs["Box"], info.inputs["Object"])
+    inv = n.new("FunctionNodeInvertMatrix")
+    link(info.outputs["Transform"], inv.inputs["Matrix"])
+    pos = n.new("GeometryNodeInputPosition")
+    local = n.new("FunctionNodeTransformPoint")
+    link(pos.outputs["Position"], local.inputs["Vector"])
+    link(inv.outputs["Matrix"], local.inputs["Transform"])
+    absv = n.new("ShaderNodeVectorMath")
+    absv.operation = "ABSOLUTE"
+    link(local.outputs["Vector"], absv.inputs[0])
+    sep = n.new("ShaderNodeSeparateXYZ")
+    link(absv.outputs["Vector"], sep.inputs["Vector"])
+    inside = None
+    for axis in ("X", "Y", "Z"):  # the cube empty spans ±1 in its own (scaled) axes
+        cmp = n.new("FunctionNodeCompare")
+        cmp.data_type, cmp.operation = "FLOAT", "LESS_EQUAL"
+        link(sep.outputs[axis], cmp.inputs["A"])
+        cmp.inputs["B"].default_value = 1.0
+        if inside is None:
+            inside = cmp.outputs["Result"]
+        else:
+            both = n.new("FunctionNodeBooleanMath")
+            both.operation = "AND"
+            link(inside, both.inputs[0])
+            link(cmp.outputs["Result"], both.inputs[1])
+            inside = both.outputs[0]
+    valid = n.new("FunctionNodeBooleanMath")  # no box (deleted): nothing is removed
+    valid.operation = "AND"
+    link(inside, valid.inputs[0])
+    link(inv.outputs["Invertible"], valid.inputs[1])
+    delete = n.new("GeometryNodeDeleteGeometry")
+    delete.domain = "POINT"
+    link(gi.outputs["Geometry"], delete.inputs["Geometry"])
+    link(valid.outputs[0], delete.inputs["Selection"])
+    link(delete.outputs["Geometry"], go.inputs[0])
+    return ng
+
+
+def add_removal_box(context, points_obj, box_to_world=None, size=DEFAULT_CAR, name="Removal box"):
+    """A cube empty whose inside points are removed from ``points_obj`` (a modifier before the points preview).
+
+    ``size`` is (length, width, height) in metres: length along the box's local Y. ``box_to_world`` (rigid 4x4,
+    box centre) defaults to the 3D cursor with the box standing on it.
+    """
+    L, Wd, H = size
+    box = bpy.data.objects.new(name, None)
+    box.empty_display_type = "CUBE"
+    box.empty_display_size = 1.0
+    if box_to_world is None:
+        box_to_world = np.eye(4)
+        box_to_world[:3, 3] = np.array(context.scene.cursor.location) + [0.0, 0.0, H / 2]
+    box.matrix_world = Matrix(np.asarray(box_to_world, np.float64).tolist())
+    box.scale = (Wd / 2, L / 2, H / 2)
+    box["scpainter_kind"] = "removal_box"
+    for coll in points_obj.users_collection:
+        coll.objects.link(box)
+    mod = points_obj.modifiers.new(f"SCPainter Remove {box.name}", "NODES")
+    mod.node_group = _removal_group()
+    mod[next(i.identifier for i in mod.node_group.interface.items_tree if i.name == "Box")] = box
+    preview = points_mod.points_modifier(points_obj)
+    if preview is not None:  # remove first, then draw what is left
+        points_obj.modifiers.move(len(points_obj.modifiers) - 1, list(points_obj.modifiers).index(preview))
+    box["scpainter_points_object"] = points_obj.name
+    return box
+
+
+def align_to_box(obj, box, uniform: bool = False):
+    """Stand the asset in the box: bottom centre on the box's floor, heading along its length (local Y), sized
+    to it (per axis, or uniformly to its length)."""
+    T, size = box_matrix(box)
+    L, Wd, H = size[1], size[0], size[2]
+    fit_size(obj, L, Wd, H, uniform=uniform)
+    R = T[:3, :3].copy()
+    if _length_axis(obj) == 0:  # the asset's length runs along its X: turn it a quarter to the box's Y
+        R = R @ np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    obj.rotation_mode = "QUATERNION"
+    obj.rotation_quaternion = Matrix(R.tolist()).to_quaternion()
+    obj.location = (T[:3, 3] - T[:3, 2] * H / 2).tolist()
+    obj["scpainter_target_box"] = box.name
+
+
+def stage1_check(obj, target=None, tolerance: float = STAGE1_TOLERANCE) -> dict:
+    """The paper's stage-1 filter: the asset's proportions against its target box (or a default car).
+
+    Writes ``scpainter_stage1`` ("ok" or "flagged") and ``scpainter_stage1_deviation`` (width, height) on the
+    asset; returns both with the target used.
+    """
+    if target is None:
+        box = bpy.data.objects.get(obj.get("scpainter_target_box", ""))
+        if box is not None:
+            _, s = box_matrix(box)
+            target = (s[1], s[0], s[2])
+        else:
+            target = DEFAULT_CAR
+    dev = geometry.proportion_deviation(asset_size(obj), target)
+    status = "flagged" if np.any(np.abs(dev) > tolerance) else "ok"
+    obj["scpainter_stage1"] = status
+    obj["scpainter_stage1_deviation"] = [float(dev[1]), float(dev[2])]
+    return {"status": status, "width": float(dev[1]), "height": float(dev[2]), "target": list(map(float, target))}

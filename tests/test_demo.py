@@ -25,5 +25,10 @@ def test_demo_writes_blend_and_preview(street, tmp_path):
 
     bpy.ops.wm.open_mainfile(filepath=summary["blend"])  # the .blend opens with the import in it
     kinds = sorted(o.get("scpainter_kind", "") for o in bpy.context.scene.objects)
-    assert kinds == ["points", "recorded_camera"]
+    assert kinds == ["gaussian_asset", "points", "recorded_camera"]
+    assert abs(summary["asset_location"][2]) < 0.05  # stood on the road (z = 0)
+    from scpainter_blender.core import job
+
+    j = job.load(summary["job"])
+    assert len(j["frames"]) == 16 and j["assets"][0]["name"] == "car_01"
     bpy.ops.wm.read_homefile(use_empty=True)

@@ -1,4 +1,5 @@
-"""The README's main command: build the ground-truth street, import it into a new .blend, render a preview.
+"""The README's main command: build the ground-truth street, import it into a new .blend, park a procedural
+Gaussian car beside the road, export the job, and render a preview.
 
     .venv/bin/python tools/demo.py [--out build/demo] [--scale camera_height|trajectory|factor]
 
@@ -64,6 +65,20 @@ def main(argv=None):
     cam = next(o for o in scene.objects if o.get("scpainter_kind") == "recorded_camera")
     import numpy as np
 
+    # a procedural car saved the way Amodal3R saves its output, parked on the left strip, stood on the road
+    from scpainter_blender.core import shapes
+
+    car_ply = os.path.join(out, "car_01.ply")
+    shapes.save_as_amodal3r(car_ply, shapes.procedural_car_gaussians(count=30000, seed=7, paint=(0.1, 0.3, 0.8)))
+    scene.cursor.location = (-6.25, 9.0, 0.5)
+    if bpy.ops.scpainter.import_gaussians(filepath=car_ply) != {"FINISHED"}:
+        raise SystemExit("asset import failed")
+    car = bpy.context.active_object
+    bpy.ops.scpainter.snap_to_ground()
+    bpy.ops.scpainter.check_assets()
+    scene.camera = cam
+    job_path = os.path.join(out, "job.json")
+    bpy.ops.scpainter.export_job(filepath=job_path)
     truth = float(street.metric()["metres_per_unit"])
     scale = float(np.cbrt(np.linalg.det(np.array(pts["scpainter_world_from_vggt"]).reshape(4, 4)[:3, :3])))
 
@@ -87,7 +102,9 @@ def main(argv=None):
     bpy.ops.render.render(write_still=True)
     t_render = time.perf_counter() - t_render
 
-    summary = {"blend": blend, "preview": preview, "ground_truth_frame": street.frame_path("recorded", 0),
+    summary = {"blend": blend, "preview": preview, "job": job_path, "asset": car_ply,
+               "asset_location": list(car.location), "asset_stage1": car["scpainter_stage1"],
+               "ground_truth_frame": street.frame_path("recorded", 0),
                "street": street.root, "points": len(pts.data.vertices), "camera": cam.name,
                "scale_method": pts["scpainter_scale_method"], "scale_m_per_unit": scale,
                "scale_truth_m_per_unit": truth, "scale_error_percent": 100 * (scale / truth - 1),

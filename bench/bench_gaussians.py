@@ -9,9 +9,7 @@ Prints a table and writes bench/results/gaussians.json.
 """
 
 import argparse
-import json
 import os
-import platform
 import sys
 import tempfile
 import time
@@ -28,13 +26,11 @@ def main(argv=None):
     p.add_argument("--json", default=os.path.join(ROOT, "bench", "results", "gaussians.json"))
     args = p.parse_args(argv)
     work = tempfile.mkdtemp(prefix="scpainter-bench-")
-    blender_env.use_private_user_resources(os.path.join(work, "user"))
+    pkg = blender_env.install_for_script(work)
     import bpy
 
     from scpainter_blender.core import shapes
 
-    pkg = blender_env.install_zip(blender_env.build_extension(os.path.join(work, "dist")),
-                                  os.path.join(work, "user", "extensions", "scpainter_local"))
     gaussians = sys.modules[pkg + ".scpainter_blender.scene.gaussians"]
     rows = []
     for n in args.counts:
@@ -65,10 +61,7 @@ def main(argv=None):
     print(" | ".join(f"{h:>17}" for h in head))
     for r in rows:
         print(" | ".join(f"{r[h]:>17,.3f}" if isinstance(r[h], float) else f"{r[h]:>17,}" for h in head))
-    os.makedirs(os.path.dirname(args.json), exist_ok=True)
-    with open(args.json, "w") as f:
-        json.dump({"machine": {"cpus": os.cpu_count(), "platform": platform.platform(),
-                               "blender": bpy.app.version_string}, "rows": rows}, f, indent=1)
+    blender_env.write_bench_json(args.json, rows)
     print(f"saved {args.json}")
 
 

@@ -8,9 +8,7 @@ in points per second; prints a table and writes bench/results/import.json (or --
 """
 
 import argparse
-import json
 import os
-import platform
 import sys
 import tempfile
 import time
@@ -43,11 +41,8 @@ def main(argv=None):
     p.add_argument("--json", default=os.path.join(ROOT, "bench", "results", "import.json"))
     args = p.parse_args(argv)
     work = tempfile.mkdtemp(prefix="scpainter-bench-")
-    blender_env.use_private_user_resources(os.path.join(work, "user"))
+    pkg = blender_env.install_for_script(work)
     import bpy
-
-    pkg = blender_env.install_zip(blender_env.build_extension(os.path.join(work, "dist")),
-                                  os.path.join(work, "user", "extensions", "scpainter_local"))
     importer = sys.modules[pkg + ".scpainter_blender.scene.importer"]
     rows = []
     for S in args.frames:
@@ -73,10 +68,7 @@ def main(argv=None):
     print(" | ".join(f"{h:>15}" for h in head))
     for r in rows:
         print(" | ".join(f"{r[h]:>15,.3f}" if isinstance(r[h], float) else f"{r[h]:>15,}" for h in head))
-    os.makedirs(os.path.dirname(args.json), exist_ok=True)
-    with open(args.json, "w") as f:
-        json.dump({"machine": {"cpus": os.cpu_count(), "platform": platform.platform(),
-                               "blender": bpy.app.version_string}, "rows": rows}, f, indent=1)
+    blender_env.write_bench_json(args.json, rows)
     print(f"saved {args.json}")
 
 

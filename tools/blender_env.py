@@ -71,3 +71,28 @@ def install_zip(zip_path: str, directory: str) -> str:
     if PACKAGE not in bpy.context.preferences.addons:
         raise RuntimeError(f"{PACKAGE} was installed but is not enabled")
     return PACKAGE
+
+
+def install_for_script(work_dir: str) -> str:
+    """Private user folder under ``work_dir``, bpy imported, the extension built and installed: the package name.
+
+    For scripts (demo, benchmarks) that use the add-on the way Blender runs it, without touching the user's own
+    Blender configuration.
+    """
+    user = os.path.join(work_dir, "blender-user")
+    use_private_user_resources(user)
+    return install_zip(build_extension(os.path.join(work_dir, "dist")),
+                       os.path.join(user, "extensions", REPO_MODULE))
+
+
+def write_bench_json(path: str, rows: list) -> None:
+    """A benchmark's rows with the machine they ran on."""
+    import json
+    import platform
+
+    import bpy
+
+    os.makedirs(os.path.dirname(path), exist_ok=True)
+    with open(path, "w") as f:
+        json.dump({"machine": {"cpus": os.cpu_count(), "platform": platform.platform(),
+                               "blender": bpy.app.version_string}, "rows": rows}, f, indent=1)

@@ -42,11 +42,9 @@ def main(argv=None):
     made = street.info.get("generated_in_s")
     log(f"street: {street.root} ({'generated in %.0f s' % made if made else 'cached'})")
 
-    blender_env.use_private_user_resources(os.path.join(out, "blender-user"))
+    pkg = blender_env.install_for_script(out)
     import bpy
 
-    pkg = blender_env.install_zip(blender_env.build_extension(os.path.join(out, "dist")),
-                                  os.path.join(out, "blender-user", "extensions", "scpainter_local"))
     log(f"add-on: {pkg} installed and enabled")
 
     bpy.ops.wm.read_homefile(use_empty=True)

@@ -25,7 +25,7 @@ import bpy
 import numpy as np
 
 from ..core import cameras, splats
-from . import compat
+from . import materials
 from .points import _linear_rgba, _socket_identifier, set_input
 
 NODE_GROUP = "SCPainter Gaussians"
@@ -35,27 +35,8 @@ TRELLIS_DEFAULT_LENGTH = 4.5  # metres: a unit-cube asset is scaled to a mid-siz
 
 
 def _material(attribute_type: str) -> bpy.types.Material:
-    name = MATERIALS[attribute_type]
-    mat = bpy.data.materials.get(name)
-    if mat is not None:
-        return mat
-    mat = bpy.data.materials.new(name)
-    nt = compat.node_tree(mat, clear=True)
-    attr = nt.nodes.new("ShaderNodeAttribute")
-    attr.attribute_type = attribute_type  # points carry it themselves; instances read it from their point
-    attr.attribute_name = "gs_color"
-    emit = nt.nodes.new("ShaderNodeEmission")
-    clear = nt.nodes.new("ShaderNodeBsdfTransparent")
-    mix = nt.nodes.new("ShaderNodeMixShader")
-    out = nt.nodes.new("ShaderNodeOutputMaterial")
-    nt.links.new(attr.outputs["Color"], emit.inputs["Color"])
-    nt.links.new(attr.outputs["Alpha"], mix.inputs["Fac"])
-    nt.links.new(clear.outputs[0], mix.inputs[1])
-    nt.links.new(emit.outputs[0], mix.inputs[2])
-    nt.links.new(mix.outputs[0], out.inputs["Surface"])
-    if hasattr(mat, "surface_render_method"):  # EEVEE Next (4.2+): sort and blend, don't dither
-        mat.surface_render_method = "BLENDED"
-    return mat
+    # points carry gs_color themselves; instances read it from the point they stand on
+    return materials.emission_material(MATERIALS[attribute_type], "gs_color", attribute_type, alpha=True)
 
 
 def ensure_node_group() -> bpy.types.NodeTree:

@@ -12,7 +12,7 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
-from . import compat
+from . import materials
 
 NODE_GROUP = "SCPainter Points"
 MATERIAL = "SCPainter Points"
@@ -32,22 +32,7 @@ INPUTS = {
 
 def ensure_material() -> bpy.types.Material:
     """An emission material showing the point colour as it is (display colour = source image colour)."""
-    mat = bpy.data.materials.get(MATERIAL)
-    if mat is not None:
-        return mat
-    mat = bpy.data.materials.new(MATERIAL)
-    nt = compat.node_tree(mat, clear=True)
-    attr = nt.nodes.new("ShaderNodeAttribute")
-    attr.attribute_type = "GEOMETRY"
-    attr.attribute_name = COLOR_ATTRIBUTE
-    emit = nt.nodes.new("ShaderNodeEmission")
-    emit.inputs["Strength"].default_value = 1.0
-    out = nt.nodes.new("ShaderNodeOutputMaterial")
-    nt.links.new(attr.outputs["Color"], emit.inputs["Color"])
-    nt.links.new(emit.outputs["Emission"], out.inputs["Surface"])
-    attr.location, emit.location, out.location = (-400, 0), (-150, 0), (100, 0)
-    mat.diffuse_color = (0.8, 0.8, 0.8, 1.0)
-    return mat
+    return materials.emission_material(MATERIAL, COLOR_ATTRIBUTE)
 
 
 def ensure_node_group() -> bpy.types.NodeTree:

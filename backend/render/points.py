@@ -1,0 +1,71 @@
+"""Coloured points into one camera: cull early, project, z-buffer deterministically (nearest wins).
+
+Conventions (DESIGN §3): OpenCV camera, our K (pixel (u, v) covers [u, u+1) x [v, v+1)); a point lands in the
+pixel that contains its projection. Inputs are *camera-relative*: positions are given relative to a scene origin
+chosen near the cameras (float32 then keeps millimetres 1e5 m from the world origin), and ``world_to_camera`` is
+expressed for that origin — see ``relative_camera``.
+
+Determinism: the z-buffer key is (depth bits << 32 | point index) reduced with ``amin``; positive float32 bit
+patterns order like the floats, so the nearest point wins and ties go to the lower index, identically on CPU
+and CUDA, whatever the thread schedule.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+
+def relative_camera(world_to_camera, origin) -> np.ndarray:
+    """world_to_camera (4x4, float64) for positions expressed relative to ``origin`` (world metres)."""
+    T = np.array(world_to_camera, dtype=np.float64, copy=True)
+    T[:3, 3] = T[:3, 3] + T[:3, :3] @ np.asarray(origin, np.float64)
+    return T
+
+
+def _depth_keys(z: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+    bits = z.to(torch.float32).contiguous().view(torch.int32).to(torch.int64)
+    return (bits << 32) | index.to(torch.int64)
+
+
+def render_points(xyz: torch.Tensor, rgb: torch.Tensor, K, world_to_camera, width: int, height: int,
+                  near: float = 0.05, radius_px: int = 0):
+    """Z-buffer points (N, 3) with colours (N, 3) into a ``height`` x ``width`` image.
+
+    Returns (rgb (H, W, 3) zeros where empty, depth (H, W) +inf where empty, index (H, W) int64 of the winning
+    point, -1 where empty). ``radius_px`` > 0 splats each point over a (2r+1)^2 square, nearest still winning.
+    Points at or behind ``near`` (metres), outside the image, or with non-finite values are culled first.
+    """
+    dev = xyz.device
+    T = torch.as_tensor(np.asarray(world_to_camera, np.float64), dtype=torch.float32, device=dev)
+    Kt = torch.as_tensor(np.asarray(K, np.float64), dtype=torch.float32, device=dev)
+    idx = torch.arange(len(xyz), device=dev)
+    cam = xyz @ T[:3, :3].T + T[:3, 3]
+    z = cam[:, 2]
+    keep = (z > near) & torch.isfinite(cam).all(dim=1)
+    idx, cam, z = idx[keep], cam[keep], z[keep]
+    u = Kt[0, 0] * cam[:, 0] / z + Kt[0, 1] * cam[:, 1] / z + Kt[0, 2]
+    v = Kt[1, 1] * cam[:, 1] / z + Kt[1, 2]
+    r = int(radius_px)
+    inside = (u >= -r) & (u < width + r) & (v >= -r) & (v < height + r)
+    idx, z, u, v = idx[inside], z[inside], u[inside], v[inside]
+    cu, cv = torch.floor(u).to(torch.int64), torch.floor(v).to(torch.int64)
+    if r > 0:
+        offs = torch.arange(-r, r + 1, device=dev)
+        du, dv = torch.meshgrid(offs, offs, indexing="xy")
+        cu = (cu[:, None] + du.reshape(1, -1)).reshape(-1)
+        cv = (cv[:, None] + dv.reshape(1, -1)).reshape(-1)
+        n = du.numel()
+        idx, z = idx.repeat_interleave(n), z.repeat_interleave(n)
+        ok = (cu >= 0) & (cu < width) & (cv >= 0) & (cv < height)
+        idx, z, cu, cv = idx[ok], z[ok], cu[ok], cv[ok]
+    pix = cv * width + cu
+    best = torch.full((height * width,), torch.iinfo(torch.int64).max, dtype=torch.int64, device=dev)
+    best.scatter_reduce_(0, pix, _depth_keys(z, idx), reduce="amin")
+    hit = best != torch.iinfo(torch.int64).max
+    winner = torch.where(hit, best & 0xFFFFFFFF, torch.full_like(best, -1))
+    depth = torch.full((height * width,), float("inf"), device=dev)
+    depth[hit] = (best[hit] >> 32).to(torch.int32).view(torch.float32)
+    image = torch.zeros((height * width, 3), device=dev)
+    image[hit] = rgb[winner[hit]].to(torch.float32)
+    return image.reshape(height, width, 3), depth.reshape(height, width), winner.reshape(height, width)

@@ -48,3 +48,18 @@ def error(message: str, hint: str | None = None, **fields) -> None:
 
 def log(message: str) -> None:
     print(message, file=sys.stderr, flush=True)
+
+
+class FileLog:
+    """Human log lines to standard error and appended to a file (``<output_dir>/backend.log``)."""
+
+    def __init__(self, path: str):
+        self.path = path
+
+    def __call__(self, message: str) -> None:
+        import time
+
+        line = f"{time.strftime('%Y-%m-%d %H:%M:%S')} {message}"
+        log(line)
+        with open(self.path, "a", encoding="utf-8") as f:
+            f.write(line + "\n")

@@ -62,23 +62,37 @@ def quat_to_rotmat(q: torch.Tensor) -> torch.Tensor:
     ], -2)
 
 
+def covariance_factors(quats, scales):
+    """M = R(q) S with Σ = M Mᵀ, (N, 3, 3), and a mask of usable rows (non-zero, finite quaternion and scales)."""
+    qn = torch.linalg.norm(quats, dim=1)
+    ok = (qn > 1e-12) & torch.isfinite(quats).all(1) & torch.isfinite(scales).all(1)
+    q = torch.where(ok[:, None], quats / qn.clamp_min(1e-12)[:, None], torch.zeros_like(quats))
+    return quat_to_rotmat(q) * scales.abs()[:, None, :], ok
+
+
 def project(means, quats, scales, opacities, sh, K, world_to_camera, width, height, near=0.05):
-    """EWA projection of the visible Gaussians. Returns a dict of per-Gaussian screen quantities (M rows) and the
-    original indices ``index`` (M,); Gaussians behind ``near``, with bad values, or entirely off-screen are gone."""
+    """EWA projection of the visible Gaussians given quaternions and scales (see project_factors)."""
+    factors, ok = covariance_factors(quats, scales)
+    return project_factors(means, factors, opacities, sh, K, world_to_camera, width, height, near, valid=ok)
+
+
+def project_factors(means, factors, opacities, sh, K, world_to_camera, width, height, near=0.05, valid=None):
+    """EWA projection of Gaussians with covariance Σ = M Mᵀ (``factors`` M, (N, 3, 3), world axes: an asset's
+    affine object_to_world A gives M = A R S). Returns a dict of per-Gaussian screen quantities (M rows) and the
+    original indices ``index``; Gaussians behind ``near``, with bad values, or entirely off-screen are gone."""
     dev, dt = means.device, means.dtype
     T = torch.as_tensor(np.asarray(world_to_camera, np.float64), dtype=dt, device=dev)
     Kt = torch.as_tensor(np.asarray(K, np.float64), dtype=dt, device=dev)
     fx, fy, cx, cy = Kt[0, 0], Kt[1, 1], Kt[0, 2], Kt[1, 2]
-    qn = torch.linalg.norm(quats, dim=1)
-    finite = (torch.isfinite(means).all(1) & torch.isfinite(quats).all(1) & torch.isfinite(scales).all(1)
+    finite = (torch.isfinite(means).all(1) & torch.isfinite(factors).all(2).all(1)
               & torch.isfinite(opacities) & torch.isfinite(sh).all(2).all(1))
+    if valid is not None:
+        finite &= valid
     cam = means @ T[:3, :3].T + T[:3, 3]
-    keep = finite & (qn > 1e-12) & (cam[:, 2] > near) & (opacities >= ALPHA_MIN)
+    keep = finite & (cam[:, 2] > near) & (opacities >= ALPHA_MIN)
     index = torch.nonzero(keep).squeeze(1)
-    cam, q = cam[index], quats[index] / qn[index, None]
-    s = scales[index].abs()
-    R = quat_to_rotmat(q)
-    M = T[:3, :3] @ R * s[:, None, :]                          # W R S
+    cam = cam[index]
+    M = T[:3, :3] @ factors[index]                              # W M
     cov = M @ M.transpose(1, 2)                                 # W Σ Wᵀ
     tz = cam[:, 2]
     lim_x = 1.3 * 0.5 * width / fx

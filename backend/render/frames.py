@@ -1,0 +1,127 @@
+"""Render a job's condition layers frame by frame (DESIGN §4.3): I (R G B), hole (M), asset (M_a), Z.
+
+The scene is loaded once: the reconstruction's points in world metres (float64, removal boxes applied), moved
+to a scene origin at the first camera so the device works in float32 without losing millimetres; each asset's
+Gaussians in its file coordinates, mapped per frame by its object_to_world. Per frame: the source frames' points
+are z-buffered, the Gaussians composited front to back over the nearest point, and
+
+    I = C_gaussians + (1 - M_a) · I_points,   M_a = 1 - transmittance,   hole = no point and M_a < 1/255,
+    Z = depth where the asset opacity reaches 0.5 if nearer than the point, else the point's depth (+inf: empty).
+
+Nothing is computed for what the job leaves out: no ``scene``, no points; no ``assets``, no Gaussian pass.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from scpainter_blender.core import cameras, geometry, splats, vggt
+from scpainter_blender.core import job as job_mod
+
+from . import gaussians as gs
+from . import points as pts
+
+
+@dataclass
+class Asset:
+    name: str
+    means: torch.Tensor        # (N, 3) file coordinates
+    factors: torch.Tensor      # (N, 3, 3) R S in file axes
+    opacities: torch.Tensor
+    sh: torch.Tensor
+    object_to_world: dict      # frame (str) -> 4x4
+
+
+@dataclass
+class Scene:
+    origin: np.ndarray
+    device: torch.device
+    xyz: torch.Tensor | None = None       # (P, 3) relative to origin, float32
+    rgb: torch.Tensor | None = None
+    frame: torch.Tensor | None = None     # (P,) source frame of each point
+    assets: list = field(default_factory=list)
+    removed_points: int = 0
+
+
+def load_scene(job: dict, job_path: str, device) -> Scene:
+    device = torch.device(device)
+    origin = cameras.camera_centers(np.array(job["frames"][0]["world_to_camera"], np.float64))
+    scene = Scene(origin=origin, device=device)
+    if "scene" in job:
+        sc = job["scene"]
+        pred = vggt.load_predictions(job_mod.resolve(job_path, sc["predictions"]), world_points=False)
+        cloud = vggt.point_cloud(pred, sc.get("confidence_percentile", 50.0),
+                                 world_from_vggt=np.array(sc["world_from_vggt"]))
+        keep = np.ones(len(cloud), bool)
+        for box in sc.get("removal_boxes", []):
+            keep &= ~geometry.points_in_box(cloud.positions, box["box_to_world"], box["size"])
+        scene.removed_points = int((~keep).sum())
+        scene.xyz = torch.as_tensor((cloud.positions[keep] - origin).astype(np.float32), device=device)
+        scene.rgb = torch.as_tensor(cloud.colors[keep], device=device)
+        scene.frame = torch.as_tensor(cloud.frame[keep].astype(np.int64), device=device)
+    for a in job.get("assets", []):
+        g = splats.load(job_mod.resolve(job_path, a["ply"]))
+        t = lambda x: torch.as_tensor(np.asarray(x, np.float32), device=device)  # noqa: E731
+        factors, ok = gs.covariance_factors(t(g.quats), t(g.scales))
+        scene.assets.append(Asset(a["name"], t(g.means)[ok], factors[ok], t(g.opacities)[ok], t(g.sh)[ok],
+                                  a["object_to_world"]))
+    return scene
+
+
+def render_frame(scene: Scene, entry: dict, width: int, height: int, point_radius_px: int = 0) -> dict:
+    """The condition layers of one output frame as numpy float32 (H, W) channels R G B hole asset Z."""
+    dev = scene.device
+    K = np.array(entry["K"], np.float64)
+    w2c = pts.relative_camera(np.array(entry["world_to_camera"], np.float64), scene.origin)
+    image = torch.zeros((height, width, 3), device=dev)
+    depth = torch.full((height, width), float("inf"), device=dev)
+    if scene.xyz is not None and entry.get("source_frames"):
+        sel = torch.isin(scene.frame, torch.as_tensor(entry["source_frames"], device=dev))
+        image, depth, _ = pts.render_points(scene.xyz[sel], scene.rgb[sel], K, w2c, width, height,
+                                            radius_px=point_radius_px)
+    alpha = torch.zeros((height, width), device=dev)
+    zmed = torch.full((height, width), float("inf"), device=dev)
+    if scene.assets:
+        means, factors, opac, sh = [], [], [], []
+        K_max = max(a.sh.shape[1] for a in scene.assets)
+        for a in scene.assets:
+            A = np.array(a.object_to_world[str(entry["frame"])], np.float64)
+            A[:3, 3] -= scene.origin  # relative to the scene origin, like the points
+            At = torch.as_tensor(A, dtype=torch.float32, device=dev)
+            means.append(a.means @ At[:3, :3].T + At[:3, 3])
+            factors.append(At[:3, :3] @ a.factors)
+            opac.append(a.opacities)
+            sh.append(torch.nn.functional.pad(a.sh, (0, 0, 0, K_max - a.sh.shape[1])))
+        proj = gs.project_factors(torch.cat(means), torch.cat(factors), torch.cat(opac), torch.cat(sh), K, w2c,
+                                  width, height)
+        color_g, alpha, zmed = gs.rasterize(proj, width, height, background_depth=depth)
+        image = color_g + (1.0 - alpha)[..., None] * image
+    hole = torch.isinf(depth) & (alpha < gs.ALPHA_MIN)
+    z = torch.where(zmed < depth, zmed, depth)
+    img = image.clamp(0.0, 1.0).cpu().numpy()
+    return {"R": img[..., 0], "G": img[..., 1], "B": img[..., 2], "hole": hole.float().cpu().numpy(),
+            "asset": alpha.cpu().numpy(), "Z": z.cpu().numpy()}
+
+
+def write_png(path, rgb) -> None:
+    """8-bit RGB PNG (the condition image is display-referred already), stdlib only, written atomically."""
+    import struct
+    import zlib
+
+    a = (np.clip(rgb, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+    H, W, _ = a.shape
+    raw = np.concatenate([np.zeros((H, 1), np.uint8), a.reshape(H, W * 3)], axis=1).tobytes()
+
+    def chunk(kind, data):
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+
+    png = (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", W, H, 8, 2, 0, 0, 0))
+           + chunk(b"IDAT", zlib.compress(raw, 6)) + chunk(b"IEND", b""))
+    tmp = os.fspath(path) + ".tmp"
+    with open(tmp, "wb") as f:
+        f.write(png)
+    os.replace(tmp, path)

@@ -24,6 +24,7 @@ from scpainter_blender.core import job as job_mod
 
 from . import gaussians as gs
 from . import points as pts
+from . import tiles
 
 
 @dataclass
@@ -72,8 +73,11 @@ def load_scene(job: dict, job_path: str, device) -> Scene:
     return scene
 
 
-def render_frame(scene: Scene, entry: dict, width: int, height: int, point_radius_px: int = 0) -> dict:
-    """The condition layers of one output frame as numpy float32 (H, W) channels R G B hole asset Z."""
+def render_frame(scene: Scene, entry: dict, width: int, height: int, point_radius_px: int = 0,
+                 reference: bool = False, to_numpy: bool = True) -> dict:
+    """The condition layers of one output frame as float32 (H, W) channels R G B hole asset Z: numpy arrays, or
+    tensors on the scene's device with ``to_numpy=False``. ``reference`` composites Gaussians with the torch pair
+    rasterizer instead of the tile kernels (same result, slower; for tests and benchmarks)."""
     dev = scene.device
     K = np.array(entry["K"], np.float64)
     w2c = pts.relative_camera(np.array(entry["world_to_camera"], np.float64), scene.origin)
@@ -98,13 +102,14 @@ def render_frame(scene: Scene, entry: dict, width: int, height: int, point_radiu
             sh.append(torch.nn.functional.pad(a.sh, (0, 0, 0, K_max - a.sh.shape[1])))
         proj = gs.project_factors(torch.cat(means), torch.cat(factors), torch.cat(opac), torch.cat(sh), K, w2c,
                                   width, height)
-        color_g, alpha, zmed = gs.rasterize(proj, width, height, background_depth=depth)
+        raster = gs.rasterize if reference else tiles.rasterize
+        color_g, alpha, zmed = raster(proj, width, height, background_depth=depth)
         image = color_g + (1.0 - alpha)[..., None] * image
     hole = torch.isinf(depth) & (alpha < gs.ALPHA_MIN)
     z = torch.where(zmed < depth, zmed, depth)
-    img = image.clamp(0.0, 1.0).cpu().numpy()
-    return {"R": img[..., 0], "G": img[..., 1], "B": img[..., 2], "hole": hole.float().cpu().numpy(),
-            "asset": alpha.cpu().numpy(), "Z": z.cpu().numpy()}
+    img = image.clamp(0.0, 1.0)
+    layers = {"R": img[..., 0], "G": img[..., 1], "B": img[..., 2], "hole": hole.float(), "asset": alpha, "Z": z}
+    return {k: v.cpu().numpy() for k, v in layers.items()} if to_numpy else layers
 
 
 def write_png(path, rgb) -> None:

@@ -120,6 +120,26 @@ def project_factors(means, factors, opacities, sh, K, world_to_camera, width, he
             "opacity": opacities[index], "color": sh_colors(sh[index], dirs)}
 
 
+def pixel_boxes(proj, width, height) -> torch.Tensor:
+    """(G, 4) int64 x0, x1, y0, y1: the inclusive pixel range of each Gaussian's cutoff square, clipped to the
+    image. Pixel (x, y) gets a pair with Gaussian g exactly when x0 <= x <= x1 and y0 <= y <= y1."""
+    m2, r = proj["mean2d"], proj["radius"]
+    return torch.stack([torch.clamp(torch.floor(m2[:, 0] - r), 0, width - 1),
+                        torch.clamp(torch.floor(m2[:, 0] + r), 0, width - 1),
+                        torch.clamp(torch.floor(m2[:, 1] - r), 0, height - 1),
+                        torch.clamp(torch.floor(m2[:, 1] + r), 0, height - 1)], 1).to(torch.int64)
+
+
+def depth_rank(proj) -> torch.Tensor:
+    """(G,) int64: each projected Gaussian's position in front-to-back order, ties by original index."""
+    G = len(proj["depth"])
+    rank = torch.empty(G, dtype=torch.int64, device=proj["depth"].device)
+    order = torch.sort(proj["index"], stable=True).indices
+    order = order[torch.sort(proj["depth"][order], stable=True).indices]
+    rank[order] = torch.arange(G, device=rank.device)
+    return rank
+
+
 def rasterize(proj, width, height, background_depth=None, max_pairs=200_000_000):
     """Front-to-back compositing of projected Gaussians (see the module rules).
 
@@ -135,11 +155,8 @@ def rasterize(proj, width, height, background_depth=None, max_pairs=200_000_000)
     G = len(proj["depth"])
     if G == 0:
         return color.reshape(height, width, 3), alpha_acc.reshape(height, width), zmed.reshape(height, width)
-    m2, r = proj["mean2d"], proj["radius"]
-    x0 = torch.clamp(torch.floor(m2[:, 0] - r), 0, width - 1).to(torch.int64)
-    x1 = torch.clamp(torch.floor(m2[:, 0] + r), 0, width - 1).to(torch.int64)
-    y0 = torch.clamp(torch.floor(m2[:, 1] - r), 0, height - 1).to(torch.int64)
-    y1 = torch.clamp(torch.floor(m2[:, 1] + r), 0, height - 1).to(torch.int64)
+    m2 = proj["mean2d"]
+    x0, x1, y0, y1 = pixel_boxes(proj, width, height).unbind(1)
     w, h = x1 - x0 + 1, y1 - y0 + 1
     counts = w * h
     total = int(counts.sum())
@@ -160,11 +177,7 @@ def rasterize(proj, width, height, background_depth=None, max_pairs=200_000_000)
         ok &= proj["depth"][g] < background_depth.reshape(-1)[pix]
     g, pix, alpha = g[ok], pix[ok], alpha[ok]
     # depth order within each pixel; ties by the Gaussian's original index (rank = position in a stable sort)
-    rank = torch.empty(G, dtype=torch.int64, device=dev)
-    order_d = torch.sort(proj["index"], stable=True).indices
-    order_d = order_d[torch.sort(proj["depth"][order_d], stable=True).indices]
-    rank[order_d] = torch.arange(G, device=dev)
-    order = torch.argsort(pix * G + rank[g])
+    order = torch.argsort(pix * G + depth_rank(proj)[g])
     g, pix, alpha = g[order], pix[order], alpha[order]
     # segmented exclusive cumulative product of (1 - α) per pixel, in log space. The running sum spans every pair
     # of the image, so it is kept in float64: in float32 subtracting a segment's base loses ~1e-4 of T.

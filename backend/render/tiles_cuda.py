@@ -1,0 +1,83 @@
+"""CUDA compositing kernel for ``tiles.rasterize``: Triton, one program per tile, the tile's pixels as one vector.
+
+Each program walks its tile's depth-sorted list one Gaussian at a time (the same per-pixel rules as
+``tiles_cpu`` and the torch reference, float32) and leaves the loop when every pixel of the tile is saturated,
+hidden by its point, or outside the image. Imported only on CUDA machines: importing Triton is not free and the
+CPU path does not need it.
+"""
+
+from __future__ import annotations
+
+import torch
+import triton
+import triton.language as tl
+
+from .gaussians import ALPHA_MAX, ALPHA_MIN, T_MIN
+
+
+@triton.jit
+def _composite_kernel(params_ptr, boxes_ptr, tile_start_ptr, bg_ptr, out_c_ptr, out_a_ptr, out_z_ptr,
+                      width, height, tiles_x, TILE: tl.constexpr, ALPHA_MAX: tl.constexpr,
+                      ALPHA_MIN: tl.constexpr, T_MIN: tl.constexpr):
+    t = tl.program_id(0)
+    offs = tl.arange(0, TILE * TILE)
+    px = (t % tiles_x) * TILE + offs % TILE
+    py = (t // tiles_x) * TILE + offs // TILE
+    inside = (px < width) & (py < height)
+    pix = py * width + px
+    zbg = tl.load(bg_ptr + pix, mask=inside, other=0.0)
+    fx = px.to(tl.float32) + 0.5
+    fy = py.to(tl.float32) + 0.5
+    T = tl.full([TILE * TILE], 1.0, tl.float32)
+    r = tl.zeros([TILE * TILE], tl.float32)
+    g = tl.zeros([TILE * TILE], tl.float32)
+    b = tl.zeros([TILE * TILE], tl.float32)
+    z = tl.full([TILE * TILE], float("inf"), tl.float32)
+    active = inside
+    e = tl.load(tile_start_ptr + t)
+    last = tl.load(tile_start_ptr + t + 1)
+    n_active = tl.sum(active.to(tl.int32), 0)
+    while (e < last) & (n_active > 0):
+        p = params_ptr + e * 12
+        depth = tl.load(p + 6)
+        active = active & (depth < zbg)  # depth order: hidden now means hidden for the rest of the list
+        x0 = tl.load(boxes_ptr + e * 4)
+        x1 = tl.load(boxes_ptr + e * 4 + 1)
+        y0 = tl.load(boxes_ptr + e * 4 + 2)
+        y1 = tl.load(boxes_ptr + e * 4 + 3)
+        dx = fx - tl.load(p)
+        dy = fy - tl.load(p + 1)
+        power = -0.5 * (tl.load(p + 2) * dx * dx + 2.0 * tl.load(p + 3) * dx * dy + tl.load(p + 4) * dy * dy)
+        a = tl.minimum(tl.load(p + 5) * tl.exp(power), ALPHA_MAX)
+        use = active & (px >= x0) & (px <= x1) & (py >= y0) & (py <= y1) & (power <= 0.0) & (a >= ALPHA_MIN)
+        Tn = T * (1.0 - a)
+        stop = use & (Tn < T_MIN)
+        active = active & ~stop
+        use = use & ~stop
+        w = tl.where(use, a * T, 0.0)
+        r += w * tl.load(p + 7)
+        g += w * tl.load(p + 8)
+        b += w * tl.load(p + 9)
+        z = tl.where(use & (T > 0.5) & (Tn <= 0.5), depth, z)
+        T = tl.where(use, Tn, T)
+        e += 1
+        n_active = tl.sum(active.to(tl.int32), 0)
+    tl.store(out_c_ptr + pix * 3, r, mask=inside)
+    tl.store(out_c_ptr + pix * 3 + 1, g, mask=inside)
+    tl.store(out_c_ptr + pix * 3 + 2, b, mask=inside)
+    tl.store(out_a_ptr + pix, 1.0 - T, mask=inside)
+    tl.store(out_z_ptr + pix, z, mask=inside)
+
+
+def composite(params, boxes, entries, tile_start, bg, width, height, tiles_x, tile):
+    """Run the kernel on CUDA tensors; returns (color (HW, 3), alpha (HW), depth (HW)) float32."""
+    dev = params.device
+    out_c = torch.empty((height * width, 3), dtype=torch.float32, device=dev)
+    out_a = torch.empty(height * width, dtype=torch.float32, device=dev)
+    out_z = torch.empty(height * width, dtype=torch.float32, device=dev)
+    e = entries.to(torch.int64)
+    n_tiles = len(tile_start) - 1
+    _composite_kernel[(n_tiles,)](params[e].contiguous(), boxes[e].contiguous(), tile_start, bg, out_c, out_a,
+                                  out_z, width, height, tiles_x, TILE=tile, ALPHA_MAX=ALPHA_MAX,
+                                  ALPHA_MIN=ALPHA_MIN, T_MIN=T_MIN, num_warps=4)
+    return out_c, out_a, out_z

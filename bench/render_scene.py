@@ -74,9 +74,16 @@ def source_cloud(frames: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return np.concatenate(out_p), np.concatenate(out_c), np.concatenate(out_f)
 
 
-def build(n_points: int, n_gaussians: int, width: int = 1024, height: int = 576, device="cpu", seed: int = 0) -> tuple[fr.Scene, dict]:
+def car_gaussians(n: int, seed: int = 0):
+    """The procedural car (metres, on z = 0, front towards +Y), red."""
+    return shapes.procedural_car_gaussians(count=n, seed=seed, paint=(0.7, 0.1, 0.1))
+
+
+def build(n_points: int, n_gaussians: int, width: int = 1024, height: int = 576, device="cpu", seed: int = 0,
+          car_distance: float = 12.0) -> tuple[fr.Scene, dict]:
     """The benchmark scene as the render command holds it, and one output frame entry (frame 0, camera at the
-    start of the drive, the car 12 m ahead in the right lane). ``n_points`` are drawn from the source cloud."""
+    start of the drive, the car ``car_distance`` m ahead in the right lane). ``n_points`` are drawn from the
+    source cloud."""
     rng = np.random.default_rng(seed)
     frames = max(1, int(np.ceil(n_points / (SRC_W * SRC_H))))
     xyz, rgb, frame = source_cloud(frames)
@@ -90,11 +97,11 @@ def build(n_points: int, n_gaussians: int, width: int = 1024, height: int = 576,
         scene.rgb = torch.as_tensor(rgb, device=dev)
         scene.frame = torch.as_tensor(frame, device=dev)
     if n_gaussians:
-        g = shapes.procedural_car_gaussians(count=n_gaussians, seed=seed, paint=(0.7, 0.1, 0.1))
+        g = car_gaussians(n_gaussians, seed)
         t = lambda x: torch.as_tensor(np.asarray(x, np.float32), device=dev)  # noqa: E731
         factors, ok = gs.covariance_factors(t(g.quats), t(g.scales))
         A = np.eye(4)
-        A[:3, 3] = (3.5, 12.0, 0.0)
+        A[:3, 3] = (3.5, car_distance, 0.0)
         scene.assets.append(fr.Asset("car", t(g.means)[ok], factors[ok], t(g.opacities)[ok], t(g.sh)[ok],
                                      {"0": A.tolist()}))
     entry = {"frame": 0, "world_to_camera": world_to_camera(0.0, 0.0).tolist(),

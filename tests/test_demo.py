@@ -24,11 +24,26 @@ def test_demo_writes_blend_and_preview(street, tmp_path):
     import bpy
 
     bpy.ops.wm.open_mainfile(filepath=summary["blend"])  # the .blend opens with the import in it
-    kinds = sorted(o.get("scpainter_kind", "") for o in bpy.context.scene.objects)
-    assert kinds == ["gaussian_asset", "points", "recorded_camera"]
+    scene = bpy.context.scene
+    kinds = sorted(o.get("scpainter_kind", "") for o in scene.objects)
+    by_kind = {o.get("scpainter_kind"): o for o in scene.objects}
+    scene.frame_set(scene.frame_start)
+    gap = (by_kind["camera_path"].matrix_world.translation - by_kind["recorded_camera"].matrix_world.translation)
+    assert scene.camera.name == summary["camera_path"] and abs(gap.length - 2.0) < 1e-3  # the 2 m shifted path
+    assert kinds == ["camera_path", "gaussian_asset", "points", "recorded_camera"]
     assert abs(summary["asset_location"][2]) < 0.05  # stood on the road (z = 0)
     from scpainter_blender.core import job
 
     j = job.load(summary["job"])
     assert len(j["frames"]) == 16 and j["assets"][0]["name"] == "car_01"
+    # the condition layers of the 2 m shifted path, rendered by the backend: every frame, the car in view
+    cond = summary["conditions"]
+    assert cond["frames"] == 16 and len(cond["previews"]) == 16
+    assert all(0.05 < h < 0.8 for h in cond["hole_fraction"])
+    assert cond["asset_pixels"][0] > 1000  # the car fills part of the first frames
+    from backend.render import exr
+
+    layers = exr.read(os.path.join(cond["folder"], "frame_000001.exr"))
+    assert sorted(layers) == ["B", "G", "R", "Z", "asset", "hole"]
+    assert "conditions" in proc.stderr
     bpy.ops.wm.read_homefile(use_empty=True)

@@ -1,5 +1,6 @@
 """The README's main command: build the ground-truth street, import it into a new .blend, park a procedural
-Gaussian car beside the road, export the job, and render a preview.
+Gaussian car beside the road, add a camera path 2 m to the left of the drive, export the job, render the
+condition layers with the backend (``python -m backend render``), and render a Cycles preview.
 
     .venv/bin/python tools/demo.py [--out build/demo] [--scale camera_height|trajectory|factor]
 
@@ -30,6 +31,8 @@ def main(argv=None):
     p.add_argument("--scale", choices=["camera_height", "trajectory", "factor"], default="camera_height",
                    help="how the import finds metric scale (default: the known 1.6 m camera height)")
     p.add_argument("--samples", type=int, default=4, help="Cycles samples for the preview")
+    p.add_argument("--shift", type=float, default=2.0, help="sideways shift of the new camera path (m, + left)")
+    p.add_argument("--device", choices=["auto", "cpu", "cuda"], default="auto", help="backend device")
     args = p.parse_args(argv)
     out = os.path.abspath(args.out)
     os.makedirs(out, exist_ok=True)
@@ -74,7 +77,11 @@ def main(argv=None):
     car = bpy.context.active_object
     bpy.ops.scpainter.snap_to_ground()
     bpy.ops.scpainter.check_assets()
+    # the new camera path: the drive shifted sideways, keyed on every frame; it becomes the scene camera
     scene.camera = cam
+    if bpy.ops.scpainter.new_camera_path(shift=args.shift) != {"FINISHED"}:
+        raise SystemExit("camera path failed")
+    path_cam = scene.camera
     job_path = os.path.join(out, "job.json")
     bpy.ops.scpainter.export_job(filepath=job_path)
     truth = float(street.metric()["metres_per_unit"])
@@ -82,6 +89,18 @@ def main(argv=None):
 
     blend = os.path.join(out, "street_demo.blend")
     bpy.ops.wm.save_as_mainfile(filepath=blend)
+
+    # the condition layers (I, M, M_a, Z per frame) from the backend, as the add-on runs it: a subprocess
+    # reading the event stream. --force: a demo run always shows this run's result.
+    from scpainter_blender import backend_client
+
+    log(f"backend: rendering the condition layers of {job_path} ...")
+    t_cond = time.perf_counter()
+    done = backend_client.run(["render", job_path, "--device", args.device, "--force"], python=sys.executable,
+                              on_event=lambda e: e.get("event") == "progress" and log(
+                                  f"  frame {e['frame']}: {e['done']}/{e['total']}"))
+    t_cond = time.perf_counter() - t_cond
+    cond = conditions_summary(done["output_dir"])
 
     # a viewport-free preview: Cycles on the CPU from the recorded camera, points in their own colours
     scene.render.engine = "CYCLES"
@@ -101,17 +120,33 @@ def main(argv=None):
     t_render = time.perf_counter() - t_render
 
     summary = {"blend": blend, "preview": preview, "job": job_path, "asset": car_ply,
+               "camera_path": path_cam.name, "shift_m": args.shift, "conditions": cond,
                "asset_location": list(car.location), "asset_stage1": car["scpainter_stage1"],
                "ground_truth_frame": street.frame_path("recorded", 0),
                "street": street.root, "points": len(pts.data.vertices), "camera": cam.name,
                "scale_method": pts["scpainter_scale_method"], "scale_m_per_unit": scale,
                "scale_truth_m_per_unit": truth, "scale_error_percent": 100 * (scale / truth - 1),
                "scale_residual_m": pts["scpainter_scale_residual_m"],
-               "seconds": {"street": made or 0.0, "import": t_import, "preview": t_render,
+               "seconds": {"street": made or 0.0, "import": t_import, "conditions": t_cond, "preview": t_render,
                            "total": time.perf_counter() - t0}}
     print(json.dumps(summary, indent=1))
-    log(f"\nSaved {blend}\n      {preview}")
+    log(f"\nSaved {blend}\n      {preview}\n      {cond['folder']} ({cond['frames']} frames of condition layers)")
     return 0
+
+
+def conditions_summary(output_dir: str) -> dict:
+    """Where the condition layers are and what they hold: per-frame hole fraction and asset coverage."""
+    from backend.render import exr
+
+    folder = os.path.join(output_dir, "conditions")
+    files = sorted(f for f in os.listdir(folder) if f.endswith(".exr"))
+    holes, asset = [], []
+    for f in files:
+        layers = exr.read(os.path.join(folder, f))
+        holes.append(float(layers["hole"].mean()))
+        asset.append(int((layers["asset"] > 0.5).sum()))
+    return {"folder": folder, "frames": len(files), "hole_fraction": holes, "asset_pixels": asset,
+            "previews": sorted(os.path.join(folder, f) for f in os.listdir(folder) if f.endswith(".png"))}
 
 
 if __name__ == "__main__":

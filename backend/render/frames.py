@@ -74,10 +74,12 @@ def load_scene(job: dict, job_path: str, device) -> Scene:
 
 
 def render_frame(scene: Scene, entry: dict, width: int, height: int, point_radius_px: int = 0,
-                 reference: bool = False, to_numpy: bool = True) -> dict:
+                 reference: bool = False, to_numpy: bool = True, cutoff: float = gs.CUTOFF,
+                 tile: int = tiles.TILE) -> dict:
     """The condition layers of one output frame as float32 (H, W) channels R G B hole asset Z: numpy arrays, or
     tensors on the scene's device with ``to_numpy=False``. ``reference`` composites Gaussians with the torch pair
-    rasterizer instead of the tile kernels (same result, slower; for tests and benchmarks)."""
+    rasterizer instead of the tile kernels (same result, slower; for tests and benchmarks); ``cutoff`` (σ) and
+    ``tile`` (pixels) are the Gaussian cutoff and the tile kernels' tile size."""
     dev = scene.device
     K = np.array(entry["K"], np.float64)
     w2c = pts.relative_camera(np.array(entry["world_to_camera"], np.float64), scene.origin)
@@ -95,15 +97,17 @@ def render_frame(scene: Scene, entry: dict, width: int, height: int, point_radiu
         for a in scene.assets:
             A = np.array(a.object_to_world[str(entry["frame"])], np.float64)
             A[:3, 3] -= scene.origin  # relative to the scene origin, like the points
-            At = torch.as_tensor(A, dtype=torch.float32, device=dev)
+            At = torch.as_tensor(A, dtype=a.means.dtype, device=dev)
             means.append(a.means @ At[:3, :3].T + At[:3, 3])
             factors.append(At[:3, :3] @ a.factors)
             opac.append(a.opacities)
             sh.append(torch.nn.functional.pad(a.sh, (0, 0, 0, K_max - a.sh.shape[1])))
         proj = gs.project_factors(torch.cat(means), torch.cat(factors), torch.cat(opac), torch.cat(sh), K, w2c,
-                                  width, height)
-        raster = gs.rasterize if reference else tiles.rasterize
-        color_g, alpha, zmed = raster(proj, width, height, background_depth=depth)
+                                  width, height, cutoff=cutoff)
+        if reference:
+            color_g, alpha, zmed = gs.rasterize(proj, width, height, background_depth=depth)
+        else:
+            color_g, alpha, zmed = tiles.rasterize(proj, width, height, background_depth=depth, tile=tile)
         image = color_g + (1.0 - alpha)[..., None] * image
     hole = torch.isinf(depth) & (alpha < gs.ALPHA_MIN)
     z = torch.where(zmed < depth, zmed, depth)

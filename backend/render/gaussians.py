@@ -7,7 +7,8 @@ Conventions (DESIGN §3, §4.3; the rules of the INRIA rasterizer and gsplat):
   scales are standard deviations in metres, opacities in [0, 1], SH (N, K, 3) coefficient-major.
 * Σ = R S Sᵀ Rᵀ in world, W Σ Wᵀ in camera, Σ₂ = J W Σ Wᵀ Jᵀ + 0.3 I in pixels, with J the perspective Jacobian at
   the mean whose x/z, y/z are clamped to ±1.3·tan(fov/2) first (so Gaussians far off-screen stay bounded).
-* Pixel centres are at (u + 0.5, v + 0.5); a Gaussian reaches pixels within 3 σ of its mean along Σ₂'s major axis.
+* Pixel centres are at (u + 0.5, v + 0.5); a Gaussian reaches pixels within 3 σ (``cutoff``) of its mean along
+  Σ₂'s major axis.
 * Per pixel, in depth order (ties by index): α = min(0.99, o · exp(-½ dᵀ Σ₂⁻¹ d)); skipped below 1/255; stop
   before the Gaussian that would drop the transmittance below 1e-4. Only Gaussians in front of the pixel's
   nearest point are composited: the point is the opaque background behind them.
@@ -31,6 +32,7 @@ ALPHA_MIN = 1.0 / 255.0
 ALPHA_MAX = 0.99
 T_MIN = 1e-4
 BLUR = 0.3
+CUTOFF = 3.0
 
 
 def sh_colors(sh: torch.Tensor, dirs: torch.Tensor) -> torch.Tensor:
@@ -70,16 +72,20 @@ def covariance_factors(quats, scales):
     return quat_to_rotmat(q) * scales.abs()[:, None, :], ok
 
 
-def project(means, quats, scales, opacities, sh, K, world_to_camera, width, height, near=0.05):
+def project(means, quats, scales, opacities, sh, K, world_to_camera, width, height, near=0.05, cutoff=CUTOFF):
     """EWA projection of the visible Gaussians given quaternions and scales (see project_factors)."""
     factors, ok = covariance_factors(quats, scales)
-    return project_factors(means, factors, opacities, sh, K, world_to_camera, width, height, near, valid=ok)
+    return project_factors(means, factors, opacities, sh, K, world_to_camera, width, height, near, valid=ok,
+                           cutoff=cutoff)
 
 
-def project_factors(means, factors, opacities, sh, K, world_to_camera, width, height, near=0.05, valid=None):
+def project_factors(means, factors, opacities, sh, K, world_to_camera, width, height, near=0.05, valid=None,
+                    cutoff=CUTOFF):
     """EWA projection of Gaussians with covariance Σ = M Mᵀ (``factors`` M, (N, 3, 3), world axes: an asset's
     affine object_to_world A gives M = A R S). Returns a dict of per-Gaussian screen quantities (M rows) and the
-    original indices ``index``; Gaussians behind ``near``, with bad values, or entirely off-screen are gone."""
+    original indices ``index``; Gaussians behind ``near``, with bad values, or entirely off-screen are gone.
+    ``cutoff``: each Gaussian reaches pixels within that many σ (major axis) of its mean; beyond
+    sqrt(2 ln 255) ≈ 3.33 σ nothing changes, since α < 1/255 there is skipped anyway."""
     dev, dt = means.device, means.dtype
     T = torch.as_tensor(np.asarray(world_to_camera, np.float64), dtype=dt, device=dev)
     Kt = torch.as_tensor(np.asarray(K, np.float64), dtype=dt, device=dev)
@@ -108,7 +114,7 @@ def project_factors(means, factors, opacities, sh, K, world_to_camera, width, he
     conic = torch.stack([c / det, -b / det, a / det], 1)
     mid = 0.5 * (a + c)
     lam = mid + torch.sqrt(torch.clamp(mid * mid - det, min=0.0))
-    radius = torch.ceil(3.0 * torch.sqrt(lam))
+    radius = torch.ceil(cutoff * torch.sqrt(lam))
     mean2 = torch.stack([fx * cam[:, 0] / tz + Kt[0, 1] * cam[:, 1] / tz + cx, fy * cam[:, 1] / tz + cy], 1)
     on = (mean2[:, 0] + radius > 0) & (mean2[:, 0] - radius < width) & (mean2[:, 1] + radius > 0) & \
         (mean2[:, 1] - radius < height) & (det > 0) & torch.isfinite(radius)

@@ -1,0 +1,156 @@
+"""SCPainter generation, read top to bottom: CLIP embedding, condition latents, windowed EDM sampling, decoding.
+
+Shapes: frames F, latent channels C = 4, latent size h x w = H/8 x W/8. Latents are float32 throughout the
+sampler; only the UNet's input is cast to the model dtype (bf16/fp16 on CUDA).
+
+Windows: the UNet denoises ``window`` frames at a time. A longer clip is covered by windows that overlap by
+``overlap`` frames (the last one aligned to the clip's end); at every step each window predicts x_0 for its frames
+and frames seen by several windows take the mean, then one Euler step moves the whole clip. A clip that fits one
+window is one window: the same arithmetic as SVD's own loop.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+from . import edm
+from .condition import encode_conditions
+
+
+def window_starts(frames: int, window: int, overlap: int) -> list[int]:
+    """First frame of each window covering ``frames``; consecutive windows share ≥ ``overlap`` frames."""
+    if frames <= window:
+        return [0]
+    if not 0 <= overlap < window:
+        raise ValueError(f"overlap must be in [0, window), got {overlap} for window {window}")
+    stride = window - overlap
+    starts = list(range(0, frames - window, stride))
+    return starts + [frames - window]
+
+
+class SCPainterPipeline:
+    def __init__(self, components: dict, device="cpu", dtype=torch.float32):
+        self.unet = components["unet"]
+        self.vae = components["vae"]
+        self.image_encoder = components["image_encoder"]
+        self.condition_encoder = components["condition_encoder"]
+        self.config = components["config"]
+        self.clip_mean = torch.tensor(components["clip_mean"]).view(1, 3, 1, 1)
+        self.clip_std = torch.tensor(components["clip_std"]).view(1, 3, 1, 1)
+        self.device, self.dtype = torch.device(device), dtype
+
+    @classmethod
+    def from_pretrained(cls, path: str, device="cpu", dtype=torch.float32):
+        from . import checkpoint
+
+        return cls(checkpoint.load(path, device, dtype), device, dtype)
+
+    @property
+    def pixel_multiple(self) -> int:
+        """Image sizes must be multiples of this: the VAE's 8 times the UNet's downsampling."""
+        return self.condition_encoder.downsample * 2 ** (len(self.unet.config.block_out_channels) - 1)
+
+    @torch.no_grad()
+    def clip_embedding(self, image: torch.Tensor) -> torch.Tensor:
+        """(1, 1, D) CLIP image embedding of one (3, H, W) image in [0, 1], preprocessed as SVD's pipeline does
+        (antialiased resize at [−1, 1], back to [0, 1], CLIP mean/std)."""
+        from diffusers.pipelines.stable_video_diffusion.pipeline_stable_video_diffusion import (
+            _resize_with_antialiasing,
+        )
+
+        size = self.image_encoder.config.image_size
+        x = image[None].float() * 2.0 - 1.0
+        x = (_resize_with_antialiasing(x, (size, size)) + 1.0) / 2.0
+        x = (x - self.clip_mean) / self.clip_std
+        emb = self.image_encoder(x.to(self.device, self.dtype)).image_embeds
+        return emb[:, None].float()
+
+    @torch.no_grad()
+    def condition_latents(self, image, asset, valid, seed: int = 0, chunk: int = 8) -> torch.Tensor:
+        """(F, C, h, w) float32 from I (F, 3, H, W), M_a and V (F, 1, H, W) in [0, 1], encoded in chunks."""
+        gen = torch.Generator().manual_seed(seed + 1)
+        out = []
+        for i in range(0, len(image), chunk):
+            sl = slice(i, i + chunk)
+            out.append(encode_conditions(self.condition_encoder, image[sl].to(self.device),
+                                         asset[sl].to(self.device), valid[sl].to(self.device),
+                                         self.config.noise_aug_strength, gen))
+        return torch.cat(out)
+
+    def initial_latents(self, shape, seed: int) -> torch.Tensor:
+        """ε · √(σ_max² + 1), drawn on the CPU so a seed gives the same video on any device."""
+        gen = torch.Generator().manual_seed(seed)
+        return (torch.randn(shape, generator=gen) * edm.init_noise_sigma()).to(self.device)
+
+    def _time_ids(self, batch: int) -> torch.Tensor:
+        c = self.config
+        ids = torch.tensor([[c.fps - 1, c.motion_bucket_id, c.noise_aug_strength]], dtype=self.dtype)
+        return ids.repeat(batch, 1).to(self.device)
+
+    @torch.no_grad()
+    def predict_x0(self, x, sigma, cond, clip, guidance) -> torch.Tensor:
+        """x_0 of one window: x (F, C, h, w) float32 at noise level σ; guidance (F,) per frame (≤ 1: no CFG)."""
+        scaled = edm.c_in(sigma) * x
+        inp = torch.cat([scaled, cond], dim=1)[None]                        # (1, F, 2C, h, w)
+        t = edm.c_noise(sigma).to(self.dtype)
+        if float(guidance.max()) > 1.0:
+            # one batched pass: the unconditional branch has zero CLIP and zero condition latent
+            uncond = torch.cat([scaled, torch.zeros_like(cond)], dim=1)[None]
+            v = self.unet(torch.cat([uncond, inp]).to(self.dtype), t,
+                          encoder_hidden_states=torch.cat([torch.zeros_like(clip), clip]).to(self.dtype),
+                          added_time_ids=self._time_ids(2), return_dict=False)[0].float()
+            v = edm.guide(v[0], v[1], guidance.view(-1, 1, 1, 1).to(v))
+        else:
+            v = self.unet(inp.to(self.dtype), t, encoder_hidden_states=clip.to(self.dtype),
+                          added_time_ids=self._time_ids(1), return_dict=False)[0][0].float()
+        return edm.v_to_x0(x, v, sigma)
+
+    @torch.no_grad()
+    def sample(self, cond, clip, steps: int = 25, seed: int = 0, window: int | None = None, overlap: int = 4,
+               min_guidance: float | None = None, max_guidance: float | None = None, latents=None,
+               start_step: int = 0, on_step=None) -> torch.Tensor:
+        """Denoise the whole clip; returns latents (F, C, h, w) float32 (still scaled by the VAE factor).
+
+        ``latents``/``start_step`` resume from a saved state (the sampler is deterministic: no noise is drawn after
+        the initial latents). ``on_step(step, total, latents)`` runs after each step; returning True stops there.
+        """
+        c = self.config
+        window = window or c.window
+        g_min = c.min_guidance if min_guidance is None else min_guidance
+        g_max = c.max_guidance if max_guidance is None else max_guidance
+        cond = cond.to(self.device)
+        frames = len(cond)
+        sigmas = edm.karras_sigmas(steps).to(self.device)
+        x = self.initial_latents(cond.shape, seed) if latents is None else latents.to(self.device).float()
+        starts = window_starts(frames, window, overlap)
+        for i in range(start_step, steps):
+            sigma, sigma_next = sigmas[i], sigmas[i + 1]
+            acc = torch.zeros_like(x)
+            count = torch.zeros(frames, 1, 1, 1, device=self.device)
+            for s in starts:
+                e = min(s + window, frames)
+                g = edm.guidance_ramp(e - s, g_min, g_max, device=self.device)
+                acc[s:e] += self.predict_x0(x[s:e], sigma, cond[s:e], clip, g)
+                count[s:e] += 1
+            x = edm.euler_step(x, acc / count, sigma, sigma_next)
+            if on_step is not None and on_step(i + 1, steps, x):
+                break
+        return x
+
+    @torch.no_grad()
+    def decode(self, latents, chunk: int = 8) -> torch.Tensor:
+        """(F, 3, H, W) in [0, 1] from latents, ``chunk`` frames at a time (the temporal decoder sees each chunk)."""
+        vdt = next(self.vae.parameters()).dtype
+        out = []
+        for i in range(0, len(latents), chunk):
+            z = latents[i:i + chunk] / self.vae.config.scaling_factor
+            img = self.vae.decode(z.to(self.device, vdt), num_frames=len(z)).sample.float()
+            out.append(((img + 1.0) / 2.0).clamp(0.0, 1.0).cpu())
+        return torch.cat(out)
+
+
+def pad_to_multiple(x: torch.Tensor, multiple: int, value: float = 0.0) -> torch.Tensor:
+    """Pad (…, H, W) on the bottom and right up to multiples of ``multiple``."""
+    H, W = x.shape[-2:]
+    return F.pad(x, (0, (-W) % multiple, 0, (-H) % multiple), value=value)

@@ -10,8 +10,6 @@ import os
 import sys
 import traceback
 
-import numpy as np
-
 from . import events
 
 
@@ -67,57 +65,58 @@ def _device(name: str) -> str:
 
 
 def _cmd_render(args) -> int:
-    import signal
     import time
 
     from scpainter_blender.core import job as job_mod
 
+    from .render import command
+
     job = job_mod.load(args.job)
     device = _device(args.device)
-    from .render import exr
-    from .render import frames as fr
+    t0 = time.perf_counter()
+    with events.stop_on_sigterm() as stop:
+        result = command.render_job(args.job, job, device, force=args.force, point_radius=args.point_radius,
+                                    stop=stop)
+    if result["stopped"]:
+        events.error(f"stopped by SIGTERM after {result['rendered'] + result['skipped']} of {result['frames']} "
+                     "frames", hint="finished frames are kept: run the same command again to resume")
+        return events.EXIT_FAILED
+    result.pop("stopped")
+    events.done(command="render", device=device, seconds=time.perf_counter() - t0, **result)
+    return events.EXIT_OK
 
-    out = job_mod.resolve(args.job, job["output_dir"])
-    cond = os.path.join(out, "conditions")
-    os.makedirs(cond, exist_ok=True)
-    log = events.FileLog(os.path.join(out, "backend.log"))
-    stop = []
-    previous = signal.signal(signal.SIGTERM, lambda *_: stop.append(True))
-    try:
-        t0 = time.perf_counter()
-        W, H = job["resolution"]
-        scene = fr.load_scene(job, args.job, device)
-        log(f"render {args.job}: {len(job['frames'])} frames {W}x{H} on {device}; "
-            f"{0 if scene.xyz is None else len(scene.xyz):,} points ({scene.removed_points:,} removed by boxes), "
-            f"{len(scene.assets)} assets")
-        total, rendered, skipped = len(job["frames"]), 0, 0
-        for n, entry in enumerate(job["frames"]):
-            if stop:
-                break
-            f = entry["frame"]
-            exr_path = os.path.join(cond, f"frame_{f:06d}.exr")
-            png_path = os.path.join(cond, f"preview_{f:06d}.png")
-            if not args.force and os.path.isfile(exr_path) and os.path.isfile(png_path):
-                skipped += 1
-            else:
-                t = time.perf_counter()
-                layers = fr.render_frame(scene, entry, W, H, args.point_radius)
-                exr.write(exr_path, layers)
-                fr.write_png(png_path, np.stack([layers["R"], layers["G"], layers["B"]], axis=-1))
-                rendered += 1
-                log(f"frame {f}: {time.perf_counter() - t:.3f} s, hole {layers['hole'].mean():.3f}")
-                events.artifact(exr_path, frame=f, kind="conditions")
-                events.artifact(png_path, frame=f, kind="preview")
-            events.progress("render", n + 1, total, frame=f)
-        if stop:
-            events.error(f"stopped by SIGTERM after {rendered + skipped} of {total} frames",
-                         hint="finished frames are kept: run the same command again to resume")
-            return events.EXIT_FAILED
-        events.done(command="render", frames=total, rendered=rendered, skipped=skipped, device=device,
-                    output_dir=out, seconds=time.perf_counter() - t0)
-        return events.EXIT_OK
-    finally:
-        signal.signal(signal.SIGTERM, previous)
+
+def _cmd_generate(args) -> int:
+    import time
+
+    from scpainter_blender.core import job as job_mod
+
+    from . import generate
+    from .model import checkpoint
+
+    job = job_mod.load(args.job)
+    # fail fast, before anything is rendered or loaded: no checkpoint, no generation
+    checkpoint.resolve(args.checkpoint or (job.get("generate") or {}).get("checkpoint"))
+    device = _device(args.device)
+    t0 = time.perf_counter()
+    overrides = {"steps": args.steps, "seed": args.seed}
+    with events.stop_on_sigterm() as stop:
+        result = generate.generate_job(args.job, job, device, args.checkpoint, args.precision, args.force, stop,
+                                       overrides)
+    if result.pop("stopped"):
+        events.error(f"stopped by SIGTERM during {result['stage']} ({result['steps_done']} sampler steps done)",
+                     hint="finished work is kept: run the same command again to resume")
+        return events.EXIT_FAILED
+    events.done(command="generate", device=device, seconds=time.perf_counter() - t0, **result)
+    return events.EXIT_OK
+
+
+def _cmd_init_checkpoint(args) -> int:
+    from .model import checkpoint
+
+    out = checkpoint.init_checkpoint(args.svd, args.out, log=events.log)
+    events.done(command="init-checkpoint", checkpoint=out)
+    return events.EXIT_OK
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -137,6 +136,20 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--force", action="store_true", help="render frames that are already finished again")
     r.add_argument("--point-radius", type=int, default=0, help="splat each point over (2r+1)^2 pixels")
     r.set_defaults(func=_cmd_render)
+    n = sub.add_parser("generate", help="render missing conditions, then generate the video with a checkpoint")
+    n.add_argument("job", help="job.json (DESIGN §4.2)")
+    n.add_argument("--checkpoint", help="SCPainter checkpoint folder (default: the job's generate.checkpoint)")
+    n.add_argument("--device", choices=["auto", "cpu", "cuda"], default="auto")
+    n.add_argument("--precision", choices=["auto", "fp32", "bf16", "fp16"], default="auto",
+                   help="UNet/CLIP dtype (auto: bf16 on CUDA, fp32 on CPU); latents stay float32")
+    n.add_argument("--steps", type=int, help="sampler steps (default: the job's, else 25)")
+    n.add_argument("--seed", type=int, help="seed (default: the job's, else 0)")
+    n.add_argument("--force", action="store_true", help="generate again even if the video is up to date")
+    n.set_defaults(func=_cmd_generate)
+    c = sub.add_parser("init-checkpoint", help="make an SCPainter checkpoint folder from a stock SVD snapshot")
+    c.add_argument("--svd", required=True, help="local stable-video-diffusion-img2vid(-xt) diffusers folder")
+    c.add_argument("--out", required=True, help="new checkpoint folder")
+    c.set_defaults(func=_cmd_init_checkpoint)
     return p
 
 

@@ -6,8 +6,10 @@ standard output carries nothing but events, so a client can parse every line.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
+import signal
 import sys
 
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT = 0, 1, 2
@@ -63,3 +65,15 @@ class FileLog:
         log(line)
         with open(self.path, "a", encoding="utf-8") as f:
             f.write(line + "\n")
+
+
+@contextlib.contextmanager
+def stop_on_sigterm():
+    """Within the block SIGTERM does not kill the process: it appends to the yielded list, which long loops check
+    between units of work (a frame, a sampler step) to stop cleanly with finished outputs kept."""
+    stop: list = []
+    previous = signal.signal(signal.SIGTERM, lambda *_: stop.append(True))
+    try:
+        yield stop
+    finally:
+        signal.signal(signal.SIGTERM, previous)

@@ -158,15 +158,17 @@ def load(path: str, device="cpu", dtype=None) -> dict:
     dtype = dtype or torch.float32
     kw = {"local_files_only": True, "use_safetensors": True}
     try:
-        unet = UNetSpatioTemporalConditionModel.from_pretrained(path, subfolder="unet", **kw)
-        vae = AutoencoderKLTemporalDecoder.from_pretrained(path, subfolder="vae", **kw)
-        clip = CLIPVisionModelWithProjection.from_pretrained(os.path.join(path, "image_encoder"), **kw)
-        cond = ConditionEncoder.from_pretrained(path, subfolder="condition_encoder", **kw)
+        with open(os.path.join(path, "vae", "config.json")) as f:
+            upcast = json.load(f).get("force_upcast", True)
+        vae_dtype = torch.float32 if (dtype == torch.float16 and upcast) else dtype
+        unet = UNetSpatioTemporalConditionModel.from_pretrained(path, subfolder="unet", torch_dtype=dtype, **kw)
+        vae = AutoencoderKLTemporalDecoder.from_pretrained(path, subfolder="vae", torch_dtype=vae_dtype, **kw)
+        clip = CLIPVisionModelWithProjection.from_pretrained(os.path.join(path, "image_encoder"), dtype=dtype, **kw)
+        cond = ConditionEncoder.from_pretrained(path, subfolder="condition_encoder", torch_dtype=vae_dtype, **kw)
     except (OSError, ValueError) as e:
         raise CheckpointError(f"{path}: cannot load a component ({e})") from None
-    vae_dtype = torch.float32 if (dtype == torch.float16 and vae.config.force_upcast) else dtype
-    for m, dt in ((unet, dtype), (clip, dtype), (vae, vae_dtype), (cond, vae_dtype)):
-        m.to(device=device, dtype=dt).eval().requires_grad_(False)
+    for m in (unet, clip, vae, cond):
+        m.to(device).eval().requires_grad_(False)
     with open(os.path.join(path, "feature_extractor", "preprocessor_config.json")) as f:
         fe = json.load(f)
     return {"unet": unet, "vae": vae, "image_encoder": clip, "condition_encoder": cond, "config": cfg,

@@ -51,7 +51,7 @@ class ConditionEncoder(ModelMixin, ConfigMixin):
         state["conv_in.weight"] = torch.cat([w, torch.zeros_like(w[:, :1])], dim=1)
         enc.encoder.load_state_dict(state)
         enc.quant_conv.load_state_dict(vae.quant_conv.state_dict())
-        return enc.to(dtype=vae.dtype)
+        return enc if vae.dtype == torch.float32 else enc.to(dtype=vae.dtype)
 
     def forward(self, image: torch.Tensor, asset_mask: torch.Tensor) -> torch.Tensor:
         """image (N, 3, H, W) and asset_mask (N, 1, H, W), both already in [−1, 1]."""

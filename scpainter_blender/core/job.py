@@ -157,9 +157,12 @@ def validate(job, path="job.json") -> dict:
             raise JobError(path, "generate", "expected an object")
         if "checkpoint" in gen:
             _str(gen["checkpoint"], path, "generate.checkpoint")
-        for key, lo in (("steps", 1), ("window", 1), ("overlap", 0), ("seed", 0)):
+        for key, lo in (("steps", 1), ("window", 1), ("overlap", 0), ("seed", 0), ("decode_chunk", 1)):
             if key in gen:
                 _int(gen[key], path, f"generate.{key}", lo=lo)
+        for key, lo in (("min_guidance", 0.0), ("max_guidance", 0.0), ("fps", 1.0)):
+            if key in gen:
+                _number(gen[key], path, f"generate.{key}", lo=lo)
         if gen.get("overlap", 0) >= gen.get("window", 14):
             raise JobError(path, "generate.overlap", "must be smaller than generate.window")
     return job

@@ -1,0 +1,181 @@
+"""The body of ``python -m backend generate``: conditions -> SCPainter video (DESIGN §5), resumable, stoppable.
+
+Steps: render the condition layers that are missing (the render command's code); load I, M_a and the validity
+1 − hole of every frame; pad them with holes to the model's size multiple; CLIP-embed the first source frame
+(the recorded image; the first condition image when the job has no scene); sample the whole clip in overlapping
+windows; decode in chunks; crop; write ``generated/frame_NNNNNN.png`` and ``generated.mp4``.
+
+Resume: after every sampler step the latents are saved (atomically) to ``generate_state.safetensors`` with a key
+hashing everything that determines the result (checkpoint, settings, conditions); a run with the same key
+continues from the saved step and gives exactly the frames of an uninterrupted run (the sampler draws no noise
+after the start). A finished run writes ``generated/manifest.json``; running again with the same key skips.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import time
+
+import numpy as np
+import torch
+
+from scpainter_blender.core import job as job_mod
+
+from . import events
+from .model import checkpoint as ckpt_mod
+from .render import command as render_cmd
+from .render import exr
+from .render import frames as fr
+
+PRECISIONS = {"fp32": torch.float32, "bf16": torch.bfloat16, "fp16": torch.float16}
+
+
+def settings(job: dict, config, overrides: dict) -> dict:
+    gen = dict(job.get("generate") or {})
+    gen.update({k: v for k, v in overrides.items() if v is not None})
+    return {"steps": int(gen.get("steps", 25)), "window": int(gen.get("window", config.window)),
+            "overlap": int(gen.get("overlap", 4)), "seed": int(gen.get("seed", 0)),
+            "min_guidance": float(gen.get("min_guidance", config.min_guidance)),
+            "max_guidance": float(gen.get("max_guidance", config.max_guidance)),
+            "fps": float(gen.get("fps", config.fps)), "decode_chunk": int(gen.get("decode_chunk", 8))}
+
+
+def load_conditions(job_path: str, job: dict):
+    """I (F, 3, H, W), M_a (F, 1, H, W) and validity (F, 1, H, W) float32 tensors from the condition EXRs."""
+    image, asset, valid = [], [], []
+    for entry in job["frames"]:
+        path = render_cmd.frame_paths(job_path, job, entry["frame"])[0]
+        layers = exr.read(path)
+        missing = {"R", "G", "B", "hole", "asset"} - set(layers)
+        if missing:
+            raise ValueError(f"{path}: condition layers {sorted(missing)} are missing")
+        image.append(np.stack([layers["R"], layers["G"], layers["B"]]))
+        asset.append(layers["asset"][None])
+        valid.append(1.0 - layers["hole"][None])
+    t = lambda a: torch.from_numpy(np.ascontiguousarray(np.stack(a), dtype=np.float32))  # noqa: E731
+    return t(image), t(asset), t(valid)
+
+
+def clip_source(job_path: str, job: dict, first_condition: torch.Tensor) -> torch.Tensor:
+    """(3, H, W) in [0, 1]: the recorded image of the first output frame's first source frame, if any."""
+    scene, sources = job.get("scene"), job["frames"][0].get("source_frames") or []
+    if scene and sources:
+        with np.load(job_mod.resolve(job_path, scene["predictions"]), allow_pickle=False) as z:
+            images = z["images"]
+            images = images[0] if images.ndim == 5 else images
+            return torch.from_numpy(np.ascontiguousarray(images[sources[0]], dtype=np.float32))
+    return first_condition
+
+
+def state_key(ckpt: str, s: dict, precision: str, image, asset, valid) -> str:
+    h = hashlib.sha256(json.dumps({"checkpoint": os.path.abspath(ckpt), "settings": s, "precision": precision},
+                                  sort_keys=True).encode())
+    for t in (image, asset, valid):
+        h.update(t.numpy().tobytes())
+    return h.hexdigest()[:32]
+
+
+def save_state(path: str, latents: torch.Tensor, step: int, key: str) -> None:
+    from safetensors.torch import save_file
+
+    tmp = path + ".tmp"
+    save_file({"latents": latents.detach().float().cpu().contiguous()}, tmp, metadata={"key": key, "step": str(step)})
+    os.replace(tmp, path)
+
+
+def load_state(path: str, key: str):
+    """(latents, step) saved under the same key, else (None, 0)."""
+    from safetensors import safe_open
+
+    if not os.path.isfile(path):
+        return None, 0
+    try:
+        with safe_open(path, framework="pt") as f:
+            meta = f.metadata() or {}
+            if meta.get("key") != key:
+                return None, 0
+            return f.get_tensor("latents"), int(meta["step"])
+    except Exception:  # a damaged state file only costs the steps it held
+        return None, 0
+
+
+def generate_job(job_path: str, job: dict, device: str, checkpoint: str | None, precision: str = "auto",
+                 force: bool = False, stop=(), overrides: dict | None = None) -> dict:
+    ckpt = ckpt_mod.resolve(checkpoint or (job.get("generate") or {}).get("checkpoint"))
+    if precision == "auto":
+        precision = "bf16" if device == "cuda" else "fp32"
+    dtype = PRECISIONS[precision]
+    out = job_mod.resolve(job_path, job["output_dir"])
+    os.makedirs(out, exist_ok=True)
+    log = events.FileLog(os.path.join(out, "backend.log"))
+    t0 = time.perf_counter()
+    r = render_cmd.render_job(job_path, job, device, stop=stop, log=log)
+    if r["stopped"]:
+        return {"stopped": True, "stage": "render", "steps_done": 0}
+    image, asset, valid = load_conditions(job_path, job)
+    frames_n, _, H, W = image.shape
+    config = ckpt_mod.ScpainterConfig.load(os.path.join(ckpt, "scpainter.json"))
+    s = settings(job, config, overrides or {})
+    key = state_key(ckpt, s, precision, image, asset, valid)
+    gen_dir = os.path.join(out, "generated")
+    mp4 = os.path.join(out, "generated.mp4")
+    manifest = os.path.join(gen_dir, "manifest.json")
+    if not force and os.path.isfile(manifest) and os.path.isfile(mp4):
+        with open(manifest) as f:
+            if json.load(f).get("key") == key:
+                log(f"generate: {mp4} is up to date (same checkpoint, settings and conditions)")
+                return {"stopped": False, "skipped": True, "video": mp4, "frames_dir": gen_dir, "frames": frames_n}
+
+    from .model.pipeline import SCPainterPipeline, pad_to_multiple
+
+    log(f"generate {job_path}: {frames_n} frames {W}x{H}, {s['steps']} steps, window {s['window']} overlap "
+        f"{s['overlap']}, {precision} on {device}, checkpoint {ckpt}")
+    pipe = SCPainterPipeline.from_pretrained(ckpt, device, dtype)
+    m = pipe.pixel_multiple
+    cond = pipe.condition_latents(pad_to_multiple(image, m), pad_to_multiple(asset, m),
+                                  pad_to_multiple(valid, m, 0.0), seed=s["seed"])
+    clip = pipe.clip_embedding(clip_source(job_path, job, image[0]))
+    state_path = os.path.join(out, "generate_state.safetensors")
+    latents, start = (None, 0) if force else load_state(state_path, key)
+    if start:
+        log(f"generate: resuming after step {start} of {s['steps']}")
+    stopped_at = []
+
+    def on_step(i, n, x):
+        save_state(state_path, x, i, key)
+        events.progress("generate", i, n)
+        if stop and i < n:
+            stopped_at.append(i)
+            return True
+        return False
+
+    x = latents
+    if start < s["steps"]:
+        x = pipe.sample(cond, clip, steps=s["steps"], seed=s["seed"], window=s["window"], overlap=s["overlap"],
+                        min_guidance=s["min_guidance"], max_guidance=s["max_guidance"], latents=latents,
+                        start_step=start, on_step=on_step)
+    if stopped_at:
+        return {"stopped": True, "stage": "generate", "steps_done": stopped_at[0], "steps": s["steps"]}
+    video = pipe.decode(x, chunk=s["decode_chunk"])[:, :, :H, :W]
+    rgb = video.permute(0, 2, 3, 1).numpy()
+    os.makedirs(gen_dir, exist_ok=True)
+    for entry, frame in zip(job["frames"], rgb):
+        path = os.path.join(gen_dir, f"frame_{entry['frame']:06d}.png")
+        fr.write_png(path, frame)
+        events.artifact(path, frame=entry["frame"], kind="generated")
+    from .video import write_mp4
+
+    write_mp4(mp4, (np.clip(rgb, 0, 1) * 255 + 0.5).astype(np.uint8), s["fps"])
+    events.artifact(mp4, kind="video")
+    tmp = manifest + ".tmp"
+    with open(tmp, "w") as f:
+        json.dump({"key": key, "checkpoint": ckpt, "settings": s, "precision": precision,
+                   "frames": [e["frame"] for e in job["frames"]]}, f, indent=1)
+    os.replace(tmp, manifest)
+    if os.path.exists(state_path):
+        os.remove(state_path)
+    log(f"generate: {mp4} in {time.perf_counter() - t0:.1f} s")
+    return {"stopped": False, "skipped": False, "video": mp4, "frames_dir": gen_dir, "frames": frames_n,
+            "precision": precision, **s}

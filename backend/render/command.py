@@ -1,0 +1,64 @@
+"""The body of ``python -m backend render``: every frame of a job, resumable, stoppable (DESIGN §4.3, §4.4)."""
+
+from __future__ import annotations
+
+import os
+import time
+
+import numpy as np
+
+from scpainter_blender.core import job as job_mod
+
+from .. import events
+from . import exr
+from . import frames as fr
+
+
+def conditions_dir(job_path: str, job: dict) -> str:
+    return os.path.join(job_mod.resolve(job_path, job["output_dir"]), "conditions")
+
+
+def frame_paths(job_path: str, job: dict, frame: int) -> tuple[str, str]:
+    """(EXR, PNG preview) of one output frame's condition layers."""
+    cond = conditions_dir(job_path, job)
+    return os.path.join(cond, f"frame_{frame:06d}.exr"), os.path.join(cond, f"preview_{frame:06d}.png")
+
+
+def render_job(job_path: str, job: dict, device: str, force: bool = False, point_radius: int = 0,
+               stop=(), log=None) -> dict:
+    """Render the frames not finished yet (all with ``force``); emits progress and artifact events.
+
+    ``stop``: a list that becomes non-empty when the caller wants to stop (checked between frames). Returns
+    counts and ``stopped``.
+    """
+    out = job_mod.resolve(job_path, job["output_dir"])
+    os.makedirs(conditions_dir(job_path, job), exist_ok=True)
+    log = log or events.FileLog(os.path.join(out, "backend.log"))
+    W, H = job["resolution"]
+    total, rendered, skipped = len(job["frames"]), 0, 0
+    todo = [e for e in job["frames"] if force or not all(os.path.isfile(p) for p in frame_paths(job_path, job,
+                                                                                                 e["frame"]))]
+    scene = None
+    for n, entry in enumerate(job["frames"]):
+        if stop:
+            break
+        f = entry["frame"]
+        exr_path, png_path = frame_paths(job_path, job, f)
+        if entry not in todo:
+            skipped += 1
+        else:
+            if scene is None:  # loaded only when there is something to render
+                scene = fr.load_scene(job, job_path, device)
+                log(f"render {job_path}: {len(todo)} of {total} frames {W}x{H} on {device}; "
+                    f"{0 if scene.xyz is None else len(scene.xyz):,} points ({scene.removed_points:,} removed by "
+                    f"boxes), {len(scene.assets)} assets")
+            t = time.perf_counter()
+            layers = fr.render_frame(scene, entry, W, H, point_radius)
+            exr.write(exr_path, layers)
+            fr.write_png(png_path, np.stack([layers["R"], layers["G"], layers["B"]], axis=-1))
+            rendered += 1
+            log(f"frame {f}: {time.perf_counter() - t:.3f} s, hole {layers['hole'].mean():.3f}")
+            events.artifact(exr_path, frame=f, kind="conditions")
+            events.artifact(png_path, frame=f, kind="preview")
+        events.progress("render", n + 1, total, frame=f)
+    return {"frames": total, "rendered": rendered, "skipped": skipped, "output_dir": out, "stopped": bool(stop)}

@@ -1,0 +1,45 @@
+"""H.264 MP4 output through PyAV (FFmpeg's libx264), written to a temporary file and renamed when complete."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+
+def write_mp4(path: str, frames: np.ndarray, fps: float, crf: int = 18) -> str:
+    """frames (F, H, W, 3) uint8 RGB -> an MP4 any player opens (yuv420p). Odd sizes are padded by one edge row or
+    column (4:2:0 chroma needs even sizes)."""
+    import av
+
+    frames = np.asarray(frames)
+    if frames.ndim != 4 or frames.shape[-1] != 3 or frames.dtype != np.uint8 or len(frames) == 0:
+        raise ValueError(f"{path}: frames must be a non-empty (F, H, W, 3) uint8 array, got {frames.shape} "
+                         f"{frames.dtype}")
+    F, H, W, _ = frames.shape
+    frames = np.pad(frames, ((0, 0), (0, H % 2), (0, W % 2), (0, 0)), mode="edge")
+    tmp = path + ".tmp"
+    try:
+        with av.open(tmp, "w", format="mp4") as container:
+            stream = container.add_stream("libx264", rate=round(fps))
+            stream.width, stream.height = frames.shape[2], frames.shape[1]
+            stream.pix_fmt = "yuv420p"
+            stream.options = {"crf": str(crf)}
+            for f in frames:
+                for packet in stream.encode(av.VideoFrame.from_ndarray(f, format="rgb24")):
+                    container.mux(packet)
+            for packet in stream.encode():
+                container.mux(packet)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+    return path
+
+
+def read_mp4(path: str) -> np.ndarray:
+    """All frames of a video as (F, H, W, 3) uint8 (for tests and checks)."""
+    import av
+
+    with av.open(path) as container:
+        return np.stack([f.to_ndarray(format="rgb24") for f in container.decode(video=0)])

@@ -1,0 +1,130 @@
+"""``python -m backend generate`` and ``init-checkpoint`` end to end with a tiny checkpoint on the street."""
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+
+import bpy
+import numpy as np
+import pytest
+from PIL import Image
+
+from backend.video import read_mp4
+from scpainter_blender.core import job as J
+from scpainter_blender.core import shapes
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+
+def backend(*args, timeout=900):
+    p = subprocess.run([sys.executable, "-m", "backend", *map(str, args)], cwd=ROOT, capture_output=True, text=True,
+                       timeout=timeout)
+    return p.returncode, [json.loads(line) for line in p.stdout.splitlines() if line.strip()], p.stderr
+
+
+@pytest.fixture(scope="module")
+def street_job(street, tmp_path_factory, addon, tiny_checkpoint):
+    """The street with a car beside the road, seen from a path 2 m to the left at half resolution; 3 steps."""
+    d = tmp_path_factory.mktemp("generate")
+    bpy.ops.wm.read_homefile(use_empty=True)
+    bpy.ops.scpainter.import_vggt(filepath=street.predictions_path, scale_mode="TRAJECTORY",
+                                  trajectory_path=os.path.join(street.root, "metric.npz"))
+    ply = str(d / "car.ply")
+    shapes.save_as_amodal3r(ply, shapes.procedural_car_gaussians(count=5000, seed=7, paint=(0.1, 0.3, 0.8)))
+    bpy.context.scene.cursor.location = (-3.5, 9.0, 0.0)
+    bpy.ops.scpainter.import_gaussians(filepath=ply)
+    bpy.ops.scpainter.new_camera_path(shift=2.0)
+    bpy.context.scene.render.resolution_percentage = 50  # 259 x 147: the tiny model's CPU time stays small
+    path = d / "job.json"
+    bpy.ops.scpainter.export_job(filepath=str(path))
+    bpy.ops.wm.read_homefile(use_empty=True)
+    job = J.load(path)
+    job["generate"] = {"checkpoint": tiny_checkpoint, "steps": 3, "window": 14, "overlap": 4, "seed": 11}
+    J.save(path, job)
+    return str(path)
+
+
+def frames_of(out):
+    d = os.path.join(out, "generated")
+    return {f: np.asarray(Image.open(os.path.join(d, f))) for f in sorted(os.listdir(d)) if f.endswith(".png")}
+
+
+def test_generate_end_to_end(street_job):
+    code, ev, err = backend("generate", street_job, "--device", "cpu")
+    assert code == 0, err[-3000:]
+    done = ev[-1]
+    assert done["event"] == "done" and done["frames"] == 16 and done["precision"] == "fp32"
+    stages = [e["stage"] for e in ev if e["event"] == "progress"]
+    assert stages.count("render") == 16 and stages.count("generate") == 3   # conditions were rendered first
+    frames = frames_of(os.path.dirname(done["video"]))
+    assert len(frames) == 16 and all(f.shape == (147, 259, 3) for f in frames.values())
+    video = read_mp4(done["video"])
+    assert video.shape[0] == 16 and video.shape[1:3] == (148, 260)  # H.264 4:2:0 needs even sizes
+    assert not os.path.exists(os.path.join(os.path.dirname(done["video"]), "generate_state.safetensors"))
+    # the same job again: up to date, nothing recomputed
+    code, ev, _ = backend("generate", street_job, "--device", "cpu")
+    assert code == 0 and ev[-1]["skipped"] is True
+
+
+def test_sigterm_then_resume_gives_the_uninterrupted_frames(street_job, tmp_path):
+    job = J.load(street_job)
+    reference = frames_of(J.resolve(street_job, job["output_dir"]))
+    assert reference, "test_generate_end_to_end runs first and leaves its frames"
+    job["output_dir"] = job["output_dir"].rstrip("/") + "_resumed"
+    path = os.path.join(os.path.dirname(street_job), "job_resumed.json")
+    J.save(path, job)
+    proc = subprocess.Popen([sys.executable, "-m", "backend", "generate", path, "--device", "cpu"], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    seen = []
+    for line in proc.stdout:
+        seen.append(json.loads(line))
+        if seen[-1]["event"] == "progress" and seen[-1]["stage"] == "generate" and seen[-1]["done"] == 1:
+            proc.send_signal(signal.SIGTERM)
+    proc.wait(timeout=600)
+    assert proc.returncode == 1 and seen[-1]["event"] == "error" and "resume" in seen[-1]["hint"]
+    out = J.resolve(path, job["output_dir"])
+    assert os.path.isfile(os.path.join(out, "generate_state.safetensors"))
+    assert not os.path.exists(os.path.join(out, "generated.mp4"))
+    code, ev, err = backend("generate", path, "--device", "cpu")
+    assert code == 0, err[-3000:]
+    assert [e["done"] for e in ev if e["event"] == "progress" and e["stage"] == "generate"] == [2, 3]
+    resumed = frames_of(out)
+    assert resumed.keys() == reference.keys()
+    assert all(np.array_equal(resumed[k], reference[k]) for k in reference)
+
+
+def test_no_checkpoint_fails_fast(street_job, tiny_svd, tmp_path):
+    job = J.load(street_job)
+    del job["generate"]["checkpoint"]
+    path = tmp_path / "job.json"
+    shutil.copy(J.resolve(street_job, job["scene"]["predictions"]), tmp_path / "predictions.npz")
+    job["scene"]["predictions"] = "predictions.npz"
+    job.pop("assets")
+    J.save(path, job)
+    code, ev, _ = backend("generate", path, "--device", "cpu")
+    assert code == 2 and "init-checkpoint" in ev[-1]["message"]
+    assert not (tmp_path / "out").exists()                           # nothing rendered before failing
+    code, ev, _ = backend("generate", path, "--device", "cpu", "--checkpoint", tiny_svd)
+    assert code == 2 and "stock SVD snapshot" in ev[-1]["message"]
+
+
+def test_init_checkpoint_command(tiny_svd, tmp_path):
+    out = tmp_path / "ckpt"
+    code, ev, err = backend("init-checkpoint", "--svd", tiny_svd, "--out", out)
+    assert code == 0, err
+    assert ev[-1]["checkpoint"] == str(out)
+    cfg = json.loads((out / "scpainter.json").read_text())
+    assert cfg["schema"] == "scpainter.checkpoint/1" and cfg["base"] == tiny_svd and cfg["trained_steps"] == 0
+    assert (out / "condition_encoder" / "diffusion_pytorch_model.safetensors").is_file()
+    code, ev, _ = backend("init-checkpoint", "--svd", tiny_svd, "--out", out)
+    assert code == 2 and "already exists" in ev[-1]["message"]
+    bad = tmp_path / "svd-bin"
+    shutil.copytree(tiny_svd, bad)
+    os.remove(bad / "unet" / "diffusion_pytorch_model.safetensors")
+    (bad / "unet" / "diffusion_pytorch_model.bin").write_bytes(b"pickle")
+    code, ev, _ = backend("init-checkpoint", "--svd", bad, "--out", tmp_path / "never")
+    assert code == 2 and "unet" in ev[-1]["message"] and ".bin" in ev[-1]["message"]
+    assert not (tmp_path / "never").exists()

@@ -40,3 +40,25 @@ def test_guidance_ramp_and_mix():
     assert torch.allclose(edm.guide(u, c, g[:, None]), g[:, None].expand(5, 2))
     with pytest.raises(ValueError):
         edm.karras_sigmas(0)
+
+
+@pytest.mark.parametrize("dtype", [torch.float16, torch.bfloat16])
+@pytest.mark.parametrize("sigma", [edm.SIGMA_MAX, 1.0, edm.SIGMA_MIN])
+@pytest.mark.parametrize("scale", [1.0, 15.0])
+def test_low_precision_network_keeps_the_sampler_finite(dtype, sigma, scale):
+    """Our path: float32 formulas, only the network's input/output rounded to fp16/bf16 — finite everywhere and
+    x0 close to float64. Doing the formulas in fp16 instead loses σ² = 490000 to inf at σ_max (c_in becomes 0)."""
+    g = torch.Generator().manual_seed(0)
+    x0 = torch.randn(4096, generator=g, dtype=torch.float64)
+    x = x0 + sigma * torch.randn(4096, generator=g, dtype=torch.float64)
+    s = torch.tensor(sigma, dtype=torch.float64)
+    v = (x / (s * s + 1) - x0) * torch.sqrt(s * s + 1) / s
+    inp = (edm.c_in(s.float()) * x.float()).to(dtype)
+    assert torch.isfinite(inp).all()
+    v_r = v.to(dtype).float()
+    out = edm.v_to_x0(x.float(), edm.guide(v_r, v_r, torch.tensor(scale)), s.float())
+    assert torch.isfinite(out).all()
+    tol = 0.05 if dtype == torch.bfloat16 else 0.01
+    assert float((out.double() - x0).abs().max()) < tol
+    if dtype == torch.float16 and sigma == edm.SIGMA_MAX:
+        assert float(edm.c_in(s.half())) == 0.0  # why the formulas stay in float32

@@ -46,4 +46,19 @@ def test_demo_writes_blend_and_preview(street, tmp_path):
     layers = exr.read(os.path.join(cond["folder"], "frame_000001.exr"))
     assert sorted(layers) == ["B", "G", "R", "Z", "asset", "hole"]
     assert "conditions" in proc.stderr
+    assert summary["generation"]["skipped"] and "init-checkpoint" in summary["generation"]["reason"]
+    assert "generation skipped" in proc.stderr
     bpy.ops.wm.read_homefile(use_empty=True)
+
+
+def test_demo_generates_when_a_checkpoint_is_configured(street, tiny_checkpoint, tmp_path):
+    out = tmp_path / "demo"
+    proc = subprocess.run([sys.executable, os.path.join(ROOT, "tools", "demo.py"), "--out", str(out),
+                           "--samples", "1", "--checkpoint", tiny_checkpoint, "--steps", "2", "--device", "cpu"],
+                          capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    summary = json.loads(proc.stdout[proc.stdout.index("{"):])
+    gen = summary["generation"]
+    assert gen["skipped"] is False and os.path.getsize(gen["video"]) > 1000
+    assert len([f for f in os.listdir(gen["frames_dir"]) if f.endswith(".png")]) == 16
+    assert "step 2/2" in proc.stderr

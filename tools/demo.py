@@ -1,6 +1,8 @@
 """The README's main command: build the ground-truth street, import it into a new .blend, park a procedural
 Gaussian car beside the road, add a camera path 2 m to the left of the drive, export the job, render the
-condition layers with the backend (``python -m backend render``), and render a Cycles preview.
+condition layers with the backend (``python -m backend render``), generate the video when a checkpoint is
+configured (``--checkpoint`` or ``$SCPAINTER_CHECKPOINT``; otherwise it says what it skipped and how to make one),
+and render a Cycles preview.
 
     .venv/bin/python tools/demo.py [--out build/demo] [--scale camera_height|trajectory|factor]
 
@@ -33,6 +35,10 @@ def main(argv=None):
     p.add_argument("--samples", type=int, default=4, help="Cycles samples for the preview")
     p.add_argument("--shift", type=float, default=2.0, help="sideways shift of the new camera path (m, + left)")
     p.add_argument("--device", choices=["auto", "cpu", "cuda"], default="auto", help="backend device")
+    p.add_argument("--checkpoint", default=os.environ.get("SCPAINTER_CHECKPOINT", ""),
+                   help="SCPainter checkpoint folder (python -m backend init-checkpoint makes one); set as the "
+                        "add-on preference, so the exported job generates")
+    p.add_argument("--steps", type=int, help="sampler steps for the generation (default: the job's, 25)")
     args = p.parse_args(argv)
     out = os.path.abspath(args.out)
     os.makedirs(out, exist_ok=True)
@@ -82,6 +88,8 @@ def main(argv=None):
     if bpy.ops.scpainter.new_camera_path(shift=args.shift) != {"FINISHED"}:
         raise SystemExit("camera path failed")
     path_cam = scene.camera
+    if args.checkpoint:
+        bpy.context.preferences.addons[pkg].preferences.checkpoint_dir = os.path.abspath(args.checkpoint)
     job_path = os.path.join(out, "job.json")
     bpy.ops.scpainter.export_job(filepath=job_path)
     truth = float(street.metric()["metres_per_unit"])
@@ -102,6 +110,23 @@ def main(argv=None):
     t_cond = time.perf_counter() - t_cond
     cond = conditions_summary(done["output_dir"])
 
+    from scpainter_blender.core import job as job_mod
+
+    t_gen = time.perf_counter()
+    if "generate" in job_mod.load(job_path):
+        log(f"backend: generating the video with {args.checkpoint} ...")
+        steps = ["--steps", str(args.steps)] if args.steps else []
+        gen = backend_client.run(["generate", job_path, "--device", args.device, *steps], python=sys.executable,
+                                 on_event=lambda e: e.get("stage") == "generate" and log(
+                                     f"  step {e['done']}/{e['total']}"))
+        generation = {"video": gen["video"], "frames_dir": gen["frames_dir"], "skipped": False}
+    else:
+        from backend.model.checkpoint import no_checkpoint_message
+
+        generation = {"skipped": True, "reason": no_checkpoint_message()}
+        log(f"generation skipped: {generation['reason']}")
+    t_gen = time.perf_counter() - t_gen
+
     # a viewport-free preview: Cycles on the CPU from the recorded camera, points in their own colours
     scene.render.engine = "CYCLES"
     scene.cycles.device = "CPU"
@@ -120,14 +145,15 @@ def main(argv=None):
     t_render = time.perf_counter() - t_render
 
     summary = {"blend": blend, "preview": preview, "job": job_path, "asset": car_ply,
-               "camera_path": path_cam.name, "shift_m": args.shift, "conditions": cond,
+               "camera_path": path_cam.name, "shift_m": args.shift, "conditions": cond, "generation": generation,
                "asset_location": list(car.location), "asset_stage1": car["scpainter_stage1"],
                "ground_truth_frame": street.frame_path("recorded", 0),
                "street": street.root, "points": len(pts.data.vertices), "camera": cam.name,
                "scale_method": pts["scpainter_scale_method"], "scale_m_per_unit": scale,
                "scale_truth_m_per_unit": truth, "scale_error_percent": 100 * (scale / truth - 1),
                "scale_residual_m": pts["scpainter_scale_residual_m"],
-               "seconds": {"street": made or 0.0, "import": t_import, "conditions": t_cond, "preview": t_render,
+               "seconds": {"street": made or 0.0, "import": t_import, "conditions": t_cond, "generation": t_gen,
+                           "preview": t_render,
                            "total": time.perf_counter() - t0}}
     print(json.dumps(summary, indent=1))
     log(f"\nSaved {blend}\n      {preview}\n      {cond['folder']} ({cond['frames']} frames of condition layers)")

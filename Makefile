@@ -5,7 +5,7 @@ setup:
 	@bash tools/setup.sh
 
 demo: setup
-	.venv/bin/python tools/demo.py
+	.venv/bin/python tools/demo.py $(ARGS)
 
 test: setup
 	.venv/bin/python -m pytest

@@ -18,7 +18,7 @@ def _cmd_doctor(args) -> int:
     import platform
 
     report = {"python": sys.version.split()[0], "platform": platform.platform(), "executable": sys.executable}
-    for mod in ("numpy", "torch", "diffusers", "transformers", "open3d"):
+    for mod in ("numpy", "torch", "numba", "diffusers", "transformers", "safetensors", "av", "open3d"):
         spec = importlib.util.find_spec(mod)
         report[mod] = None
         if spec is not None:
@@ -31,6 +31,16 @@ def _cmd_doctor(args) -> int:
 
         report["cuda"] = torch.cuda.is_available()
         report["devices"] = [torch.cuda.get_device_name(i) for i in range(torch.cuda.device_count())]
+    report["missing"] = [m for m in ("numpy", "torch", "numba", "diffusers", "transformers", "safetensors", "av")
+                         if not report.get(m) or str(report[m]).startswith("broken")]
+    if args.checkpoint:
+        from .model import checkpoint
+
+        try:
+            checkpoint.ScpainterConfig.load(os.path.join(checkpoint.resolve(args.checkpoint), "scpainter.json"))
+            report["checkpoint"] = "ok"
+        except ValueError as e:
+            report["checkpoint"] = str(e)
     events.done(command="doctor", report=report)
     return events.EXIT_OK
 
@@ -123,6 +133,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m backend", description=__doc__)
     sub = p.add_subparsers(dest="command", required=True)
     d = sub.add_parser("doctor", help="report the Python, packages and devices the backend would use")
+    d.add_argument("--checkpoint", help="also check this SCPainter checkpoint folder")
     d.set_defaults(func=_cmd_doctor)
     g = sub.add_parser("ground-plane", help="metric world_from_vggt from a known camera height over the road")
     g.add_argument("predictions", help="VGGT predictions.npz")

@@ -31,6 +31,7 @@ class SCPAINTER_PT_main(bpy.types.Panel):
         box.label(text="Job", icon="FILE")
         box.prop(context.scene, "scpainter_output_dir", text="")
         box.operator("scpainter.export_job", icon="EXPORT")
+        self.draw_backend(box)
         obj = context.active_object
         if obj is None or "scpainter_kind" not in obj or obj["scpainter_kind"] not in ("points", "recorded_camera"):
             return
@@ -43,6 +44,19 @@ class SCPAINTER_PT_main(bpy.types.Panel):
             for name in ("Point Radius", "Current Frame Only", "Frame Window"):
                 box.prop(mod, f'["{points._socket_identifier(mod.node_group, name)}"]', text=name)
 
+
+    @staticmethod
+    def draw_backend(box):
+        from ..scpainter_blender.scene.runs import ACTIVE
+
+        if ACTIVE:
+            frac = ACTIVE["done"] / max(ACTIVE["total"], 1)
+            box.progress(factor=frac, type="BAR",
+                         text=f"{ACTIVE['command']}: {ACTIVE['stage']} {ACTIVE['done']}/{ACTIVE['total']} (Esc stops)")
+        row = box.row(align=True)
+        row.operator("scpainter.render_conditions", icon="RENDER_STILL")
+        row.operator("scpainter.generate", icon="RENDER_ANIMATION")
+        box.operator("scpainter.open_output", icon="FILE_FOLDER")
 
     @staticmethod
     def draw_assets(context, box):

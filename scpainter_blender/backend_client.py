@@ -24,13 +24,159 @@ class BackendError(RuntimeError):
 
 
 def backend_python(preference: str = "") -> str:
-    """The interpreter that runs the backend: the preference if set, else the running one."""
+    """The interpreter that runs the backend: the preference if set, else the running one when it can import torch
+    (the bpy module in a project venv; Blender's bundled Python usually cannot)."""
     if preference:
         if not os.path.isfile(preference):
             raise BackendError(f"Backend Python not found: {preference}",
                                hint="set it in Preferences > Add-ons > SCPainter")
         return preference
+    import importlib.util
+
+    if importlib.util.find_spec("torch") is None:
+        raise BackendError("Blender's Python cannot run the backend (no torch)",
+                           hint="set Backend Python in Preferences > Add-ons > SCPainter to an interpreter with "
+                                "the backend's packages, e.g. the project's .venv/bin/python")
     return sys.executable
+
+
+class BackendJob:
+    """``python -m backend *args`` in a subprocess (arguments as a list, no shell), its event stream read by a
+    thread so that ``poll()`` never blocks: what Blender's modal operators need. ``wait()`` blocks instead.
+
+    ``cancel()`` sends SIGTERM (the backend finishes its unit of work and keeps what is done), then kills after
+    ``grace`` seconds. Standard error is kept (its tail for messages) and appended to ``log_path`` if given.
+    """
+
+    def __init__(self, args, python: str = "", cwd=None, log_path: str | None = None):
+        import collections
+        import queue
+        import threading
+
+        exe = backend_python(python)
+        env = dict(os.environ)
+        env["PYTHONPATH"] = EXTENSION_ROOT + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+        env.setdefault("PYTHONUNBUFFERED", "1")
+        self.args = [str(a) for a in args]
+        self.log_path = log_path
+        self.proc = subprocess.Popen([exe, "-m", "backend", *self.args], cwd=cwd or EXTENSION_ROOT, env=env,
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        self._events = queue.Queue()
+        self._stderr = collections.deque(maxlen=200)
+        self.done = self.error = None
+        self.progress = None          # the last progress event
+        self.cancelled = False
+        self._threads = [threading.Thread(target=self._read_stdout, daemon=True),
+                         threading.Thread(target=self._read_stderr, daemon=True)]
+        for t in self._threads:
+            t.start()
+
+    def _read_stdout(self):
+        for line in self.proc.stdout:
+            line = line.strip()
+            if line:
+                try:
+                    self._events.put(json.loads(line))
+                except json.JSONDecodeError:
+                    pass  # not an event (a library printing to stdout): ignore rather than fail the job
+
+    def _read_stderr(self):
+        log = open(self.log_path, "a", encoding="utf-8") if self.log_path else None
+        try:
+            for line in self.proc.stderr:
+                self._stderr.append(line.rstrip("\n"))
+                if log:
+                    log.write(line)
+                    log.flush()
+        finally:
+            if log:
+                log.close()
+
+    def poll(self) -> list:
+        """The events that arrived since the last call (never blocks)."""
+        import queue
+
+        out = []
+        while True:
+            try:
+                ev = self._events.get_nowait()
+            except queue.Empty:
+                break
+            kind = ev.get("event")
+            if kind == "done":
+                self.done = ev
+            elif kind == "error":
+                self.error = ev
+            elif kind == "progress":
+                self.progress = ev
+            out.append(ev)
+        return out
+
+    @property
+    def finished(self) -> bool:
+        """The process has exited and both streams are read to the end."""
+        return self.proc.poll() is not None and not any(t.is_alive() for t in self._threads)
+
+    @property
+    def stderr_tail(self) -> str:
+        return "\n".join(self._stderr)
+
+    def cancel(self, grace: float = 10.0) -> None:
+        """SIGTERM, then SIGKILL if the backend has not stopped after ``grace`` seconds."""
+        self.cancelled = True
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(timeout=grace)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+
+    def result(self) -> dict:
+        """The ``done`` event of a finished job, or BackendError with the backend's message and log tail."""
+        self.poll()
+        code = self.proc.returncode
+        if self.error is not None:
+            raise BackendError(self.error.get("message", "backend error"), self.error.get("hint"), code,
+                               self.stderr_tail)
+        if self.cancelled:
+            raise BackendError("cancelled", "finished outputs are kept", code, self.stderr_tail)
+        if code != 0 or self.done is None:
+            tail = self.stderr_tail.strip().splitlines()[-1:] or ["no output"]
+            raise BackendError(f"backend exited with code {code}: {tail[0]}", exit_code=code, log=self.stderr_tail)
+        return self.done
+
+    def wait(self, timeout: float | None = None, on_event=None, idle_timeout: float | None = None) -> dict:
+        """Block until the job ends; ``on_event`` sees each event. Past ``timeout`` seconds in all, or
+        ``idle_timeout`` seconds without an event, the job is cancelled and BackendError says it hung."""
+        import time
+
+        start = last = time.monotonic()
+        try:
+            while not self.finished:
+                events = self.poll()
+                now = time.monotonic()
+                if events:
+                    last = now
+                for ev in events:
+                    if on_event is not None:
+                        on_event(ev)
+                total = timeout is not None and now - start > timeout
+                if total or (idle_timeout is not None and now - last > idle_timeout):
+                    self.cancel()
+                    why = f"after {now - start:.0f} s" if total else f"with no event for {now - last:.0f} s"
+                    raise BackendError(f"backend stopped: it hung {why}",
+                                       hint=f"see {self.log_path}" if self.log_path else None, log=self.stderr_tail)
+                time.sleep(0.05)
+            for ev in self.poll():
+                if on_event is not None:
+                    on_event(ev)
+        except BaseException:
+            if self.proc.poll() is None:
+                self.proc.kill()
+                self.proc.wait()
+            raise
+        return self.result()
 
 
 def run(args, python: str = "", on_event=None, cwd=None, timeout=None) -> dict:
@@ -38,37 +184,4 @@ def run(args, python: str = "", on_event=None, cwd=None, timeout=None) -> dict:
 
     ``on_event(event_dict)`` sees every event as it arrives (progress for a UI, artifacts).
     """
-    exe = backend_python(python)
-    env = dict(os.environ)
-    env["PYTHONPATH"] = EXTENSION_ROOT + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
-    env.setdefault("PYTHONUNBUFFERED", "1")
-    proc = subprocess.Popen([exe, "-m", "backend", *map(str, args)], cwd=cwd or EXTENSION_ROOT, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    done, error = None, None
-    try:
-        for line in proc.stdout:
-            line = line.strip()
-            if not line:
-                continue
-            try:
-                ev = json.loads(line)
-            except json.JSONDecodeError:
-                continue  # not an event (a library printing to stdout): ignore rather than fail the job
-            if on_event is not None:
-                on_event(ev)
-            if ev.get("event") == "done":
-                done = ev
-            elif ev.get("event") == "error":
-                error = ev
-        stderr = proc.stderr.read()
-        code = proc.wait(timeout=timeout)
-    except BaseException:
-        proc.kill()
-        proc.wait()
-        raise
-    if error is not None or code != 0 or done is None:
-        if error is not None:
-            raise BackendError(error.get("message", "backend error"), error.get("hint"), code, stderr)
-        tail = stderr.strip().splitlines()[-1:] or ["no output"]
-        raise BackendError(f"backend exited with code {code}: {tail[0]}", exit_code=code, log=stderr)
-    return done
+    return BackendJob(args, python, cwd).wait(timeout=timeout, on_event=on_event)

@@ -13,7 +13,8 @@ class SCPAINTER_AP_preferences(bpy.types.AddonPreferences):
 
     backend_python: bpy.props.StringProperty(
         name="Backend Python", subtype="FILE_PATH",
-        description="Python interpreter with torch for the backend (empty: the one running Blender)")
+        description="Python interpreter with torch for the backend (empty: the one running Blender, if it has "
+                    "torch)")
     checkpoint_dir: bpy.props.StringProperty(
         name="Checkpoint Folder", subtype="DIR_PATH",
         description="Local folder of the SCPainter / Stable Video Diffusion weights (nothing is downloaded)")
@@ -27,6 +28,12 @@ class SCPAINTER_AP_preferences(bpy.types.AddonPreferences):
         col.prop(self, "backend_python")
         col.prop(self, "checkpoint_dir")
         col.prop(self, "device")
+        from .runs import DOCTOR
+
+        row = self.layout.row()
+        row.operator("scpainter.check_backend", icon="CHECKMARK")
+        if DOCTOR:
+            row.label(text=DOCTOR["text"], icon="CHECKMARK" if DOCTOR.get("ok") else "ERROR")
 
 
 def get(context=None) -> SCPAINTER_AP_preferences | None:

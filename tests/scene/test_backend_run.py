@@ -1,0 +1,101 @@
+"""Render Conditions / Generate through the operators (blocking in background mode), with the real backend in a
+subprocess; failures (crash, hang, missing interpreter or checkpoint) leave the scene and finished outputs alone."""
+
+import os
+import stat
+import sys
+
+import bpy
+import pytest
+
+from scpainter_blender.core import shapes
+
+
+@pytest.fixture
+def street_scene(addon, street, tmp_path, tiny_checkpoint):
+    bpy.ops.wm.read_homefile(use_empty=True)
+    bpy.ops.scpainter.import_vggt(filepath=street.predictions_path, scale_mode="TRAJECTORY",
+                                  trajectory_path=os.path.join(street.root, "metric.npz"))
+    ply = str(tmp_path / "car.ply")
+    shapes.save_as_amodal3r(ply, shapes.procedural_car_gaussians(count=3000, seed=7, paint=(0.1, 0.3, 0.8)))
+    scene = bpy.context.scene
+    scene.cursor.location = (-3.5, 9.0, 0.0)
+    bpy.ops.scpainter.import_gaussians(filepath=ply)
+    bpy.ops.scpainter.new_camera_path(shift=2.0)
+    scene.render.resolution_percentage = 50
+    scene.frame_end = 4                               # four frames keep the tiny model's CPU time small
+    scene.scpainter_output_dir = str(tmp_path / "out")
+    prefs = bpy.context.preferences.addons[addon].preferences
+    prefs.backend_python, prefs.device, prefs.checkpoint_dir = sys.executable, "CPU", tiny_checkpoint
+    yield scene
+    prefs.backend_python, prefs.device, prefs.checkpoint_dir = "", "AUTO", ""
+    bpy.ops.wm.read_homefile(use_empty=True)
+
+
+def _state():
+    """What a run must not touch unless it finished: datablocks and the camera's backgrounds."""
+    cam = bpy.context.scene.camera
+    return (len(bpy.data.images), len(bpy.data.movieclips), len(bpy.data.objects),
+            len(cam.data.background_images), cam.data.show_background_images)
+
+
+def test_render_then_generate_load_results_behind_the_camera(street_scene, tmp_path):
+    assert bpy.ops.scpainter.render_conditions() == {"FINISHED"}
+    out = tmp_path / "out"
+    assert len(list((out / "conditions").glob("frame_*.exr"))) == 4
+    img = bpy.data.images["SCPainter Conditions"]
+    assert img.source == "SEQUENCE" and img["scpainter_frames"] == 4
+    cam = street_scene.camera.data
+    assert cam.show_background_images and cam.background_images[0].image == img
+    assert cam.background_images[0].image_user.frame_start == 1      # file N shows at frame N
+    assert bpy.ops.scpainter.generate() == {"FINISHED"}
+    assert (out / "generated.mp4").is_file() and len(list((out / "generated").glob("frame_*.png"))) == 4
+    assert bpy.data.images["SCPainter Generated"].source == "SEQUENCE"
+    assert bpy.data.movieclips["SCPainter Video"].frame_duration == 4
+    assert cam.background_images[0].image.name == "SCPainter Generated" and len(cam.background_images) == 1
+
+
+def _fake_python(tmp_path, body):
+    path = tmp_path / "fake-python"
+    path.write_text("#!/bin/sh\n" + body + "\n")
+    path.chmod(path.stat().st_mode | stat.S_IEXEC)
+    return str(path)
+
+
+def test_crash_hang_and_missing_pieces_leave_the_scene_alone(street_scene, tmp_path, addon):
+    prefs = bpy.context.preferences.addons[addon].preferences
+    before = _state()
+    prefs.backend_python = _fake_python(tmp_path, "echo 'Segmentation fault' >&2; exit 139")
+    with pytest.raises(RuntimeError, match="code 139: Segmentation fault"):
+        bpy.ops.scpainter.render_conditions()
+    assert _state() == before
+    prefs.backend_python = _fake_python(tmp_path, "exec sleep 60")
+    with pytest.raises(RuntimeError, match="hung after 2 s"):
+        bpy.ops.scpainter.render_conditions(timeout=2.0)
+    assert _state() == before
+    prefs.backend_python = str(tmp_path / "no-such-python")
+    with pytest.raises(RuntimeError, match="Backend Python not found.*no-such-python"):
+        bpy.ops.scpainter.render_conditions()
+    prefs.backend_python, prefs.checkpoint_dir = sys.executable, ""
+    with pytest.raises(RuntimeError, match="no checkpoint folder is set.*init-checkpoint"):
+        bpy.ops.scpainter.generate()
+    assert _state() == before and not (tmp_path / "out" / "generated").exists()
+
+
+def test_cancelled_render_keeps_finished_frames_and_the_scene(street_scene, tmp_path, addon):
+    """What Esc does in the UI: SIGTERM through BackendJob.cancel; the frames done stay complete."""
+    from backend.render import exr
+
+    runs = sys.modules[f"{addon}.scpainter_blender.scene.runs"]  # the installed add-on's module
+
+    before = _state()
+    job, out = runs.start(bpy.context, "render")
+    while not (job.progress and job.progress["done"] >= 1):
+        job.poll()
+    job.cancel()
+    with pytest.raises(Exception, match="SIGTERM|cancelled"):
+        job.result()
+    frames = sorted((tmp_path / "out" / "conditions").glob("frame_*.exr"))
+    assert 1 <= len(frames) <= 4 and all(exr.read(f)["R"].shape == (147, 259) for f in frames)
+    assert not list((tmp_path / "out" / "conditions").glob("*.tmp"))
+    assert _state() == before

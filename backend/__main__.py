@@ -129,6 +129,19 @@ def _cmd_init_checkpoint(args) -> int:
     return events.EXIT_OK
 
 
+def _cmd_batch(args) -> int:
+    from . import batch
+
+    items = list(args.jobs) + ([p for f in args.list for p in batch.read_list(f)] if args.list else [])
+    if not items:
+        raise ValueError("batch: no jobs given (paths, or --list FILE)")
+    results, rank = batch.run_batch(items, args.command_name, _device(args.device), args.checkpoint)
+    failed = [r for r in results if r["status"] != "ok"]
+    if rank == 0:
+        events.done(command="batch", jobs=len(results), failed=len(failed), items=results)
+    return events.EXIT_FAILED if failed else events.EXIT_OK
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m backend", description=__doc__)
     sub = p.add_subparsers(dest="command", required=True)
@@ -157,6 +170,13 @@ def build_parser() -> argparse.ArgumentParser:
     n.add_argument("--seed", type=int, help="seed (default: the job's, else 0)")
     n.add_argument("--force", action="store_true", help="generate again even if the video is up to date")
     n.set_defaults(func=_cmd_generate)
+    b = sub.add_parser("batch", help="run render or generate over many jobs; sharded under torchrun/accelerate")
+    b.add_argument("jobs", nargs="*", help="job.json files")
+    b.add_argument("--list", action="append", help="a text file of job paths, one per line (repeatable)")
+    b.add_argument("--command", dest="command_name", choices=["render", "generate"], default="render")
+    b.add_argument("--device", choices=["auto", "cpu", "cuda"], default="auto")
+    b.add_argument("--checkpoint", help="checkpoint for generate (default: each job's generate.checkpoint)")
+    b.set_defaults(func=_cmd_batch)
     c = sub.add_parser("init-checkpoint", help="make an SCPainter checkpoint folder from a stock SVD snapshot")
     c.add_argument("--svd", required=True, help="local stable-video-diffusion-img2vid(-xt) diffusers folder")
     c.add_argument("--out", required=True, help="new checkpoint folder")

@@ -1,6 +1,14 @@
 """``blender -c scpainter <command> ...``: the add-on's headless commands for batch pipelines.
 
     blender -c scpainter import predictions.npz --camera-height 1.6 --save scene.blend
+    blender -c scpainter render scene.blend [--output DIR] [--device cpu|cuda|auto]
+    blender -c scpainter generate scene.blend --checkpoint /models/scpainter
+    blender -c scpainter batch a.blend b.blend jobs/c.json [--list scenes.txt] --command generate [--shard 0/4]
+
+``render``/``generate`` open the .blend, write its job into the scene's output folder and run the backend there
+(blocking); the .blend itself is never written. ``batch`` does that for every .blend (job files go straight to
+the backend), goes on past failures, prints one summary with each item's status, time and outputs, and exits 1 if
+any failed; ``--shard K/N`` (or torchrun's RANK/WORLD_SIZE) takes every N-th item from K.
 
 ``-c`` implies background mode; the import goes into the scene that is open (``blender -b scene.blend -c ...``
 imports into scene.blend). With the ``bpy`` module (no ``-c``), call ``execute(argv)`` directly. Output: a JSON summary on standard output; exit code 0 done, 2 bad input,
@@ -12,11 +20,12 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 
 import bpy
 
 from .. import backend_client
-from . import importer
+from . import importer, preferences, runs
 
 
 class _Parser(argparse.ArgumentParser):
@@ -37,6 +46,22 @@ def _parser():
     i.add_argument("--point-source", choices=["depth", "world_points"], default="depth")
     i.add_argument("--backend-python", default="", help="interpreter for the backend (camera-height mode)")
     i.add_argument("--save", help="write the scene to this .blend (written to a temporary file, then renamed)")
+    for name in ("render", "generate", "batch"):
+        c = sub.add_parser(name, help={"render": "render a .blend's condition layers",
+                                       "generate": "generate a .blend's video",
+                                       "batch": "render or generate many .blend / job files"}[name])
+        if name == "batch":
+            c.add_argument("items", nargs="*", help=".blend or job.json files")
+            c.add_argument("--list", action="append", help="a text file of paths, one per line (repeatable)")
+            c.add_argument("--command", dest="what", choices=["render", "generate"], default="render")
+            c.add_argument("--shard", help="K/N: run every N-th item starting at K (default: RANK/WORLD_SIZE)")
+        else:
+            c.add_argument("blend", help="the scene (.blend)")
+            c.add_argument("--output", help="output folder (default: the scene's SCPainter output folder)")
+        c.add_argument("--device", choices=["auto", "cpu", "cuda"], help="default: the add-on preference")
+        c.add_argument("--backend-python", help="interpreter for the backend (default: the add-on preference)")
+        c.add_argument("--checkpoint", help="SCPainter checkpoint folder (default: the add-on preference)")
+        c.add_argument("--timeout", type=float, default=0.0, help="stop a scene's backend after this many s")
     return p
 
 
@@ -62,15 +87,108 @@ def _import(args) -> dict:
     return out
 
 
+def _apply_preferences(args) -> None:
+    """Command-line settings override the add-on preferences for this process (preferences are not saved)."""
+    prefs = preferences.get(bpy.context)
+    if prefs is None:
+        return
+    if args.backend_python:
+        prefs.backend_python = os.path.abspath(args.backend_python)
+    if args.checkpoint:
+        prefs.checkpoint_dir = os.path.abspath(args.checkpoint)
+    if args.device:
+        prefs.device = args.device.upper()
+
+
+def _progress(ev) -> None:
+    if ev.get("event") == "progress":
+        print(f"scpainter: {ev['stage']} {ev['done']}/{ev['total']}", file=sys.stderr, flush=True)
+
+
+def _run_blend(blend: str, command: str, args, output: str | None = None) -> dict:
+    if not os.path.isfile(blend):
+        raise ValueError(f"{blend}: no such .blend file")
+    bpy.ops.wm.open_mainfile(filepath=os.path.abspath(blend), load_ui=False)
+    if output:
+        bpy.context.scene.scpainter_output_dir = os.path.abspath(output)
+    job, out = runs.start(bpy.context, command)
+    try:
+        done = job.wait(timeout=args.timeout or None, on_event=_progress)
+    except backend_client.BackendError as e:
+        raise backend_client.BackendError(runs.failure_message(e, out)) from None
+    return _outputs(done, out)
+
+
+def _run_job(path: str, command: str, args) -> dict:
+    prefs = preferences.get(bpy.context)
+    device = args.device or (prefs.device.lower() if prefs else "auto")
+    extra = ["--checkpoint", os.path.abspath(args.checkpoint)] if command == "generate" and args.checkpoint else []
+    done = backend_client.BackendJob([command, os.path.abspath(path), "--device", device, *extra],
+                                     python=prefs.backend_python if prefs else "").wait(
+        timeout=args.timeout or None, on_event=_progress)
+    return _outputs(done, done.get("output_dir"))
+
+
+def _outputs(done: dict, out) -> dict:
+    keep = ("frames", "rendered", "skipped", "video", "frames_dir", "seconds")
+    return {"output_dir": out or os.path.dirname(done.get("video", "")), **{k: done[k] for k in keep if k in done}}
+
+
+def _shard(args) -> tuple[int, int]:
+    if args.shard:
+        try:
+            k, n = (int(x) for x in args.shard.split("/"))
+        except ValueError:
+            raise ValueError(f"--shard {args.shard!r}: expected K/N, e.g. 0/4") from None
+        return k, n
+    return int(os.environ.get("RANK", 0) or 0), int(os.environ.get("WORLD_SIZE", 1) or 1)
+
+
+def _batch(args) -> tuple[dict, int]:
+    import time
+
+    items = list(args.items)
+    for f in args.list or []:
+        base = os.path.dirname(os.path.abspath(f))
+        with open(f, encoding="utf-8") as fh:
+            items += [p if os.path.isabs(p) else os.path.join(base, p)
+                      for p in (line.strip() for line in fh) if p and not p.startswith("#")]
+    if not items:
+        raise ValueError("batch: no .blend or job files given (paths, or --list FILE)")
+    k, n = _shard(args)
+    if not 0 <= k < n:
+        raise ValueError(f"--shard {k}/{n}: K must be in [0, N)")
+    results = []
+    for path in items[k::n]:
+        t = time.perf_counter()
+        print(f"scpainter batch: {args.what} {path}", file=sys.stderr, flush=True)
+        try:
+            run = _run_job if path.endswith(".json") else _run_blend
+            results.append({"item": path, "status": "ok", **run(path, args.what, args)})
+        except (ValueError, RuntimeError, OSError) as e:  # BackendError is a RuntimeError; go on with the rest
+            results.append({"item": path, "status": "failed", "error": str(e)})
+        results[-1]["seconds"] = time.perf_counter() - t
+    failed = sum(r["status"] != "ok" for r in results)
+    return {"what": args.what, "shard": f"{k}/{n}", "items": results, "failed": failed}, (1 if failed else 0)
+
+
 def execute(argv) -> int:
     try:
         args = _parser().parse_args(list(argv))
-        summary = _import(args)
+        code = 0
+        if args.command == "import":
+            summary = _import(args)
+        else:
+            _apply_preferences(args)
+            if args.command == "batch":
+                summary, code = _batch(args)
+            else:
+                summary = _run_blend(args.blend, args.command, args, args.output)
     except (ValueError, backend_client.BackendError) as e:
         print(json.dumps({"event": "error", "message": str(e)}), flush=True)
-        return 2
+        return 2 if isinstance(e, ValueError) else 1
     print(json.dumps({"event": "done", "command": args.command, **summary}), flush=True)
-    return 0
+    return code
 
 
 _handle = None

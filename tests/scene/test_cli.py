@@ -43,3 +43,57 @@ def test_bad_input_exit_code_2(addon, empty_scene, tmp_path, capsys):
     assert "predictions" in _last_event(capsys)["message"]
     assert cli.execute(["import", "x.npz", "--camera-height", "1.6", "--scale-factor", "2"]) == 2
     assert len(bpy.data.objects) == 0
+
+
+def _street_blend(street, folder):
+    """A saved scene: the street, a car, a 2 m path, half resolution, frames 1-3."""
+    from scpainter_blender.core import shapes
+
+    bpy.ops.wm.read_homefile(use_empty=True)
+    bpy.ops.scpainter.import_vggt(filepath=street.predictions_path, scale_mode="TRAJECTORY",
+                                  trajectory_path=os.path.join(street.root, "metric.npz"))
+    ply = str(folder / "car.ply")
+    shapes.save_as_amodal3r(ply, shapes.procedural_car_gaussians(count=2000, seed=3))
+    bpy.context.scene.cursor.location = (-3.5, 9.0, 0.0)
+    bpy.ops.scpainter.import_gaussians(filepath=ply)
+    bpy.ops.scpainter.new_camera_path(shift=2.0)
+    bpy.context.scene.render.resolution_percentage = 50
+    bpy.context.scene.frame_end = 3
+    path = str(folder / "street.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=path)
+    bpy.ops.wm.read_homefile(use_empty=True)
+    return path
+
+
+def test_render_generate_and_batch_headless(addon, street, tmp_path, capsys, tiny_checkpoint):
+    import hashlib
+
+    cli = _cli(addon)
+    blend = _street_blend(street, tmp_path)
+    digest = hashlib.sha256(open(blend, "rb").read()).hexdigest()
+    common = ["--device", "cpu", "--backend-python", sys.executable]
+    code = cli.execute(["render", blend, *common])
+    ev = _last_event(capsys)
+    assert code == 0, ev
+    out = tmp_path / "scpainter" / "Scene"                       # the default: //scpainter/<scene name>/
+    assert ev["output_dir"] == str(out) and ev["frames"] == 3 and len(list((out / "conditions").glob("*.exr"))) == 3
+    code = cli.execute(["generate", blend, *common, "--checkpoint", tiny_checkpoint, "--output",
+                        str(tmp_path / "gen")])
+    ev = _last_event(capsys)
+    assert code == 0, ev
+    assert os.path.isfile(ev["video"]) and ev["video"].startswith(str(tmp_path / "gen"))
+    # a batch over a scene, a missing scene and the job file the first run wrote: one summary, exit 1
+    (tmp_path / "list.txt").write_text("scpainter/Scene/job.json\n")
+    code = cli.execute(["batch", blend, str(tmp_path / "missing.blend"), "--list", str(tmp_path / "list.txt"),
+                        "--command", "render", *common])
+    ev = _last_event(capsys)
+    assert code == 1 and ev["failed"] == 1 and [r["status"] for r in ev["items"]] == ["ok", "failed", "ok"]
+    assert "missing.blend" in ev["items"][1]["error"] and ev["items"][2]["skipped"] == 3   # already rendered
+    code = cli.execute(["batch", blend, str(tmp_path / "missing.blend"), "--shard", "0/2", "--command", "render",
+                        *common])
+    ev = _last_event(capsys)
+    assert code == 0 and [r["item"] for r in ev["items"]] == [blend] and ev["shard"] == "0/2"
+    assert hashlib.sha256(open(blend, "rb").read()).hexdigest() == digest   # the .blend is never written
+    prefs = bpy.context.preferences.addons[addon].preferences
+    prefs.backend_python, prefs.device, prefs.checkpoint_dir = "", "AUTO", ""
+    bpy.ops.wm.read_homefile(use_empty=True)

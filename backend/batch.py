@@ -1,0 +1,97 @@
+"""``python -m backend batch``: many jobs, one summary; sharded across processes under torchrun / accelerate.
+
+    torchrun --standalone --nproc_per_node 4 -m backend batch jobs/*.json --command generate
+    accelerate launch --num_processes 4 -m backend batch --list jobs.txt --command render
+
+Each process takes every WORLD_SIZE-th job starting at its RANK (the variables torchrun and accelerate set; one
+process without them), on GPU LOCAL_RANK when CUDA is there. A job that fails is recorded and the batch goes on.
+At the end the ranks exchange their results (torch.distributed, gloo: no GPU needed for this) and rank 0 emits one
+``done`` event listing every job with its rank, status, time and outputs. Every rank exits 1 if any job failed.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+
+from . import events
+
+
+def shard(items: list, rank: int, world: int) -> list:
+    """The items of one rank: every ``world``-th, starting at ``rank`` (deterministic, order kept)."""
+    if not 0 <= rank < world:
+        raise ValueError(f"rank {rank} is not in [0, {world})")
+    return items[rank::world]
+
+
+def ranks_from_env() -> tuple[int, int, int]:
+    """(rank, world size, local rank) from torchrun/accelerate's environment; (0, 1, 0) without it."""
+    def get(name, default):
+        value = os.environ.get(name, "")
+        return int(value) if value.strip() else default
+    return get("RANK", 0), get("WORLD_SIZE", 1), get("LOCAL_RANK", 0)
+
+
+def read_list(path: str) -> list[str]:
+    """Job paths from a text file, one per line (blank lines and # comments skipped), relative to the file."""
+    base = os.path.dirname(os.path.abspath(path))
+    with open(path, encoding="utf-8") as f:
+        lines = [line.strip() for line in f]
+    return [p if os.path.isabs(p) else os.path.join(base, p) for p in lines if p and not p.startswith("#")]
+
+
+def run_one(job_path: str, command: str, device: str, checkpoint: str | None, stop) -> dict:
+    from scpainter_blender.core import job as job_mod
+
+    job = job_mod.load(job_path)
+    if command == "render":
+        from .render import command as render_cmd
+
+        r = render_cmd.render_job(job_path, job, device, stop=stop)
+        return {"output_dir": r["output_dir"], "frames": r["frames"], "stopped": r["stopped"]}
+    from .generate import generate_job
+
+    r = generate_job(job_path, job, device, checkpoint, stop=stop)
+    return {"video": r.get("video"), "frames": r.get("frames"), "stopped": r["stopped"]}
+
+
+def gather(results: list, world: int) -> list:
+    """All ranks' results on every rank (a no-op for one process)."""
+    if world == 1:
+        return results
+    import torch.distributed as dist
+
+    if not dist.is_initialized():
+        dist.init_process_group("gloo")
+    everything = [None] * world
+    dist.all_gather_object(everything, results)
+    dist.destroy_process_group()
+    return [r for part in everything for r in part]
+
+
+def run_batch(items: list[str], command: str, device: str, checkpoint: str | None = None) -> tuple[list, int]:
+    """Run this rank's share; returns (every rank's results, rank)."""
+    rank, world, local = ranks_from_env()
+    if device == "cuda":
+        import torch
+
+        torch.cuda.set_device(local % torch.cuda.device_count())
+    mine = shard(items, rank, world)
+    events.log(f"batch rank {rank}/{world}: {len(mine)} of {len(items)} jobs on {device}")
+    results = []
+    with events.stop_on_sigterm() as stop:
+        for n, path in enumerate(mine):
+            if stop:
+                results.append({"job": path, "rank": rank, "status": "not run (SIGTERM)"})
+                continue
+            t = time.perf_counter()
+            try:
+                out = run_one(path, command, device, checkpoint, stop)
+                status = "stopped" if out.pop("stopped") else "ok"
+                results.append({"job": path, "rank": rank, "status": status, **out})
+            except Exception as e:  # one bad scene must not stop the batch: record it and go on
+                results.append({"job": path, "rank": rank, "status": "failed", "error": f"{type(e).__name__}: {e}"})
+                events.log(f"batch: {path} failed: {e}")
+            results[-1]["seconds"] = time.perf_counter() - t
+            events.progress("batch", n + 1, len(mine), rank=rank, job=path, status=results[-1]["status"])
+    return gather(results, world), rank

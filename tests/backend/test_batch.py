@@ -1,0 +1,63 @@
+"""``python -m backend batch``: sharding, failures recorded and passed over, two processes under torchrun."""
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from backend import batch
+from scpainter_blender.core import job as J
+from scpainter_blender.core import shapes
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+
+def test_shard_covers_every_item_once():
+    items = [f"j{i}" for i in range(11)]
+    parts = [batch.shard(items, r, 4) for r in range(4)]
+    assert sorted(sum(parts, [])) == sorted(items) and parts[1] == ["j1", "j5", "j9"]
+    assert batch.shard(items, 0, 1) == items
+    with pytest.raises(ValueError):
+        batch.shard(items, 4, 4)
+
+
+def _car_job(folder, name, ply_ok=True):
+    """A small assets-only job (a car seen from 8 m back, 48 x 32 pixels, 2 frames)."""
+    os.makedirs(folder, exist_ok=True)
+    if ply_ok:
+        shapes.save_as_amodal3r(os.path.join(folder, "car.ply"), shapes.procedural_car_gaussians(count=2000, seed=1))
+    w2c = np.eye(4)
+    w2c[:3, :3] = [[1, 0, 0], [0, 0, -1], [0, 1, 0]]
+    w2c[:3, 3] = -w2c[:3, :3] @ np.array([0.0, -8.0, 0.3])
+    obj = (np.diag([4.5 / 0.98] * 3 + [1.0]) @ np.array([[1, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1.0]]))
+    frames = [{"frame": f, "K": [[40, 0, 24], [0, 40, 16], [0, 0, 1]], "world_to_camera": w2c.tolist()}
+              for f in (1, 2)]
+    job = {"schema": J.SCHEMA, "resolution": [48, 32], "frames": frames, "output_dir": f"out_{name}",
+           "assets": [{"name": "car", "ply": "car.ply", "object_to_world": {"1": obj.tolist(), "2": obj.tolist()}}]}
+    path = os.path.join(folder, f"{name}.json")
+    J.save(path, job)
+    return path
+
+
+def test_two_processes_under_torchrun(tmp_path):
+    jobs = [_car_job(tmp_path / "a", "a"), _car_job(tmp_path / "b", "b", ply_ok=False), _car_job(tmp_path / "c", "c")]
+    (tmp_path / "list.txt").write_text("# three jobs\nc/c.json\n\n")
+    torchrun = os.path.join(os.path.dirname(sys.executable), "torchrun")
+    p = subprocess.run([torchrun, "--standalone", "--nproc_per_node", "2", "-m", "backend", "batch", jobs[0],
+                        jobs[1], "--list", str(tmp_path / "list.txt"), "--command", "render", "--device", "cpu"],
+                       cwd=ROOT, capture_output=True, text=True, timeout=600,
+                       env={**os.environ, "PYTHONPATH": ROOT, "OMP_NUM_THREADS": "1"})
+    assert p.returncode != 0  # one job failed: every rank says so
+    events = [json.loads(line) for line in p.stdout.splitlines() if line.startswith("{")]
+    done = [e for e in events if e["event"] == "done"]
+    assert len(done) == 1, p.stdout + p.stderr[-3000:]  # one summary, from rank 0
+    items = {os.path.basename(r["job"]): r for r in done[0]["items"]}
+    assert set(items) == {"a.json", "b.json", "c.json"} and done[0]["failed"] == 1
+    assert items["a.json"]["rank"] == 0 and items["b.json"]["rank"] == 1 and items["c.json"]["rank"] == 0
+    assert items["a.json"]["status"] == "ok" and items["c.json"]["status"] == "ok"
+    assert items["b.json"]["status"] == "failed" and "car.ply" in items["b.json"]["error"]
+    for name in ("a", "c"):
+        assert len(os.listdir(tmp_path / name / f"out_{name}" / "conditions")) == 4   # 2 EXR + 2 PNG

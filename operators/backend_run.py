@@ -26,6 +26,9 @@ class _BackendRun:
     timeout: bpy.props.FloatProperty(name="Timeout", default=0.0, min=0.0, unit="TIME_ABSOLUTE",
                                      description="Stop the backend if it runs longer (seconds; 0: no limit)")
 
+    def extra_args(self):
+        return ()
+
     @classmethod
     def poll(cls, context):
         if ACTIVE:
@@ -39,7 +42,7 @@ class _BackendRun:
     def execute(self, context):
         """Blocking: background mode and scripts."""
         try:
-            job, out = start(context, self.command)
+            job, out = start(context, self.command, self.extra_args())
         except (ValueError, BackendError) as e:
             self.report({"ERROR"}, str(e))
             return {"CANCELLED"}
@@ -60,7 +63,7 @@ class _BackendRun:
         if bpy.app.background:
             return self.execute(context)
         try:
-            self._job, self._out = start(context, self.command)
+            self._job, self._out = start(context, self.command, self.extra_args())
         except (ValueError, BackendError) as e:
             self.report({"ERROR"}, str(e))
             return {"CANCELLED"}
@@ -135,6 +138,12 @@ class SCPAINTER_OT_generate(_BackendRun, bpy.types.Operator):
     bl_idname = "scpainter.generate"
     bl_label = "Generate"
     command = "generate"
+
+    steps: bpy.props.IntProperty(name="Steps", default=0, min=0, soft_max=50,
+                                 description="Sampler steps (0: the job's, 25); fewer is faster and rougher")
+
+    def extra_args(self):
+        return ("--steps", str(self.steps)) if self.steps else ()
 
 
 class SCPAINTER_OT_open_output(bpy.types.Operator):

@@ -30,6 +30,8 @@ def test_demo_writes_blend_and_preview(street, tmp_path):
     scene.frame_set(scene.frame_start)
     gap = (by_kind["camera_path"].matrix_world.translation - by_kind["recorded_camera"].matrix_world.translation)
     assert scene.camera.name == summary["camera_path"] and abs(gap.length - 2.0) < 1e-3  # the 2 m shifted path
+    bg = scene.camera.data.background_images   # the condition previews, loaded by Render Conditions
+    assert scene.camera.data.show_background_images and bg[0].image.name == "SCPainter Conditions"
     assert kinds == ["camera_path", "gaussian_asset", "points", "recorded_camera"]
     assert abs(summary["asset_location"][2]) < 0.05  # stood on the road (z = 0)
     from scpainter_blender.core import job
@@ -61,4 +63,4 @@ def test_demo_generates_when_a_checkpoint_is_configured(street, tiny_checkpoint,
     gen = summary["generation"]
     assert gen["skipped"] is False and os.path.getsize(gen["video"]) > 1000
     assert len([f for f in os.listdir(gen["frames_dir"]) if f.endswith(".png")]) == 16
-    assert "step 2/2" in proc.stderr
+    assert "generate 2/2" in proc.stdout

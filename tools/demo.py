@@ -90,6 +90,7 @@ def main(argv=None):
     path_cam = scene.camera
     if args.checkpoint:
         bpy.context.preferences.addons[pkg].preferences.checkpoint_dir = os.path.abspath(args.checkpoint)
+    scene.scpainter_output_dir = out  # jobs, conditions and the video go here (saved with the .blend)
     job_path = os.path.join(out, "job.json")
     bpy.ops.scpainter.export_job(filepath=job_path)
     truth = float(street.metric()["metres_per_unit"])
@@ -98,34 +99,31 @@ def main(argv=None):
     blend = os.path.join(out, "street_demo.blend")
     bpy.ops.wm.save_as_mainfile(filepath=blend)
 
-    # the condition layers (I, M, M_a, Z per frame) from the backend, as the add-on runs it: a subprocess
-    # reading the event stream. --force: a demo run always shows this run's result.
-    from scpainter_blender import backend_client
-
-    log(f"backend: rendering the condition layers of {job_path} ...")
+    # the condition layers (I, M, M_a, Z per frame) and, with a checkpoint, the video: the add-on's own operators
+    # (blocking in background mode) run the backend in a subprocess and load the results behind the camera
+    prefs = bpy.context.preferences.addons[pkg].preferences
+    prefs.device = args.device.upper()
+    log("backend: rendering the condition layers ...")
     t_cond = time.perf_counter()
-    done = backend_client.run(["render", job_path, "--device", args.device, "--force"], python=sys.executable,
-                              on_event=lambda e: e.get("event") == "progress" and log(
-                                  f"  frame {e['frame']}: {e['done']}/{e['total']}"))
+    if bpy.ops.scpainter.render_conditions() != {"FINISHED"}:
+        raise SystemExit("rendering the conditions failed: see the message above")
     t_cond = time.perf_counter() - t_cond
-    cond = conditions_summary(done["output_dir"])
-
-    from scpainter_blender.core import job as job_mod
+    cond = conditions_summary(out)
 
     t_gen = time.perf_counter()
-    if "generate" in job_mod.load(job_path):
+    if args.checkpoint:
         log(f"backend: generating the video with {args.checkpoint} ...")
-        steps = ["--steps", str(args.steps)] if args.steps else []
-        gen = backend_client.run(["generate", job_path, "--device", args.device, *steps], python=sys.executable,
-                                 on_event=lambda e: e.get("stage") == "generate" and log(
-                                     f"  step {e['done']}/{e['total']}"))
-        generation = {"video": gen["video"], "frames_dir": gen["frames_dir"], "skipped": False}
+        if bpy.ops.scpainter.generate(steps=args.steps or 0) != {"FINISHED"}:
+            raise SystemExit("generation failed: see the message above")
+        generation = {"video": os.path.join(out, "generated.mp4"), "frames_dir": os.path.join(out, "generated"),
+                      "skipped": False}
     else:
         from backend.model.checkpoint import no_checkpoint_message
 
         generation = {"skipped": True, "reason": no_checkpoint_message()}
         log(f"generation skipped: {generation['reason']}")
     t_gen = time.perf_counter() - t_gen
+    bpy.ops.wm.save_mainfile()  # again, now with the results loaded behind the camera path
 
     # a viewport-free preview: Cycles on the CPU from the recorded camera, points in their own colours
     scene.render.engine = "CYCLES"

@@ -24,9 +24,28 @@ def frame_paths(job_path: str, job: dict, frame: int) -> tuple[str, str]:
     return os.path.join(cond, f"frame_{frame:06d}.exr"), os.path.join(cond, f"preview_{frame:06d}.png")
 
 
+def job_key(job_path: str, job: dict, point_radius: int) -> str:
+    """A hash of everything the condition layers depend on: the job without its generation settings and output
+    folder, the point radius, and the size and time of each input file. Finished frames are reused only under
+    the same key, so moving a car or a camera and rendering again cannot keep stale frames."""
+    import hashlib
+    import json
+
+    content = {k: v for k, v in job.items() if k not in ("generate", "output_dir")}
+    files = [job["scene"]["predictions"]] if "scene" in job else []
+    files += [a["ply"] for a in job.get("assets", [])]
+    stamps = []
+    for f in files:
+        st = os.stat(job_mod.resolve(job_path, f))
+        stamps.append([f, st.st_size, st.st_mtime_ns])
+    blob = json.dumps({"job": content, "radius": point_radius, "files": stamps}, sort_keys=True)
+    return hashlib.sha256(blob.encode()).hexdigest()[:32]
+
+
 def render_job(job_path: str, job: dict, device: str, force: bool = False, point_radius: int = 0,
                stop=(), log=None) -> dict:
-    """Render the frames not finished yet (all with ``force``); emits progress and artifact events.
+    """Render the frames not finished yet (all with ``force``, or when the job changed since they were made);
+    emits progress and artifact events.
 
     ``stop``: a list that becomes non-empty when the caller wants to stop (checked between frames). Returns
     counts and ``stopped``.
@@ -36,6 +55,20 @@ def render_job(job_path: str, job: dict, device: str, force: bool = False, point
     log = log or events.FileLog(os.path.join(out, "backend.log"))
     W, H = job["resolution"]
     total, rendered, skipped = len(job["frames"]), 0, 0
+    key_path = os.path.join(conditions_dir(job_path, job), "job_key.txt")
+    key = job_key(job_path, job, point_radius)
+    if not force and os.path.isfile(key_path):
+        with open(key_path) as f:
+            if f.read().strip() != key:
+                log("render: the job changed since the finished frames were made: rendering every frame again")
+                force = True
+                cond = conditions_dir(job_path, job)
+                for name in os.listdir(cond):  # stale frames go first, so a stop half-way cannot mix old and new
+                    if name.startswith(("frame_", "preview_")):
+                        os.remove(os.path.join(cond, name))
+    with open(key_path + ".tmp", "w") as f:
+        f.write(key + "\n")
+    os.replace(key_path + ".tmp", key_path)
     todo = [e for e in job["frames"] if force or not all(os.path.isfile(p) for p in frame_paths(job_path, job,
                                                                                                  e["frame"]))]
     scene = None

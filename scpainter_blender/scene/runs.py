@@ -16,8 +16,8 @@ ACTIVE: dict = {}
 DOCTOR: dict = {}
 
 
-def start(context, command: str) -> tuple[BackendJob, str]:
-    """Export the scene's job into its output folder and start ``python -m backend <command> job.json``."""
+def start(context, command: str, extra=()) -> tuple[BackendJob, str]:
+    """Export the scene's job into its output folder and start ``python -m backend <command> job.json *extra``."""
     scene = context.scene
     out = props.output_dir(scene)
     prefs = preferences.get(context)
@@ -29,7 +29,7 @@ def start(context, command: str) -> tuple[BackendJob, str]:
     job_path = os.path.join(out, "job.json")
     job_export.export_job(context, job_path, checkpoint=ckpt)
     device = prefs.device.lower() if prefs else "auto"
-    job = BackendJob([command, job_path, "--device", device], python=prefs.backend_python if prefs else "")
+    job = BackendJob([command, job_path, "--device", device, *extra], python=prefs.backend_python if prefs else "")
     return job, out
 
 

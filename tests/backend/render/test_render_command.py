@@ -77,6 +77,12 @@ def test_recorded_drive_reproduces_the_frames(street_jobs, street):
     code, ev, _ = backend("render", job_path, "--device", "cpu")
     assert code == 0 and ev[-1]["rendered"] == 0 and ev[-1]["skipped"] == 16
     assert os.path.getsize(os.path.join(os.path.dirname(job_path), "backend.log")) > 0
+    # a changed job (a camera moved) is never served stale frames
+    job = J.load(job_path)
+    job["frames"][3]["world_to_camera"][0][3] += 0.5
+    J.save(job_path, job)
+    code, ev, _ = backend("render", job_path, "--device", "cpu")
+    assert code == 0 and ev[-1]["rendered"] == 16
 
 
 def test_shifted_drive_with_a_car(street_jobs):

@@ -11,8 +11,8 @@ the backend), goes on past failures, prints one summary with each item's status,
 any failed; ``--shard K/N`` (or torchrun's RANK/WORLD_SIZE) takes every N-th item from K.
 
 ``-c`` implies background mode; the import goes into the scene that is open (``blender -b scene.blend -c ...``
-imports into scene.blend). With the ``bpy`` module (no ``-c``), call ``execute(argv)`` directly. Output: a JSON summary on standard output; exit code 0 done, 2 bad input,
-1 anything else (the backend's convention, DESIGN §4.4).
+imports into scene.blend). With the ``bpy`` module (no ``-c``), call ``execute(argv)`` directly. Output: a JSON
+summary on standard output; exit code 0 done, 2 bad input, 1 anything else (the backend's convention, DESIGN §4.4).
 """
 
 from __future__ import annotations

@@ -10,13 +10,12 @@ to the output folder, and the results are loaded only after success.
 from __future__ import annotations
 
 import os
-import time
 
 import bpy
 
 from ..scpainter_blender.backend_client import BackendError, BackendJob
 from ..scpainter_blender.scene import preferences, props
-from ..scpainter_blender.scene.runs import ACTIVE, DOCTOR, failure_message, finish, start
+from ..scpainter_blender.scene.runs import ACTIVE, DOCTOR, Follower, failure_message, finish, start
 
 
 class _BackendRun:
@@ -63,59 +62,42 @@ class _BackendRun:
         if bpy.app.background:
             return self.execute(context)
         try:
-            self._job, self._out = start(context, self.command, self.extra_args())
+            job, out = start(context, self.command, self.extra_args())
         except (ValueError, BackendError) as e:
             self.report({"ERROR"}, str(e))
             return {"CANCELLED"}
-        self._t0 = time.monotonic()
-        ACTIVE.update(command=self.command, stage="starting", done=0, total=1, out=self._out)
+        self._follow = Follower(self.command, job, out, self.timeout)
         wm = context.window_manager
         self._timer = wm.event_timer_add(0.25, window=context.window)
         wm.progress_begin(0, 1000)
         wm.modal_handler_add(self)
         return {"RUNNING_MODAL"}
 
-    def _cleanup(self, context):
+    def _end(self, context, status):
         wm = context.window_manager
         wm.event_timer_remove(self._timer)
         wm.progress_end()
         if context.workspace:
             context.workspace.status_text_set(None)
-        ACTIVE.clear()
+        level, message = self._follow.report(context, status)
+        self.report({level}, message)
         _redraw(context)
+        return {"FINISHED"} if status == "finished" else {"CANCELLED"}
 
     def modal(self, context, event):
         if event.type == "ESC":
-            self._job.cancel()
-            self._cleanup(context)
-            self.report({"WARNING"}, f"{self.command} cancelled: finished outputs are kept in {self._out}")
-            return {"CANCELLED"}
+            self._follow.stop()
+            return self._end(context, "cancelled")
         if event.type != "TIMER":
             return {"PASS_THROUGH"}
-        for ev in self._job.poll():
-            if ev.get("event") == "progress":
-                ACTIVE.update(stage=ev["stage"], done=ev["done"], total=max(ev["total"], 1))
-        if self.timeout and time.monotonic() - self._t0 > self.timeout:
-            self._job.cancel()
-            self._cleanup(context)
-            self.report({"ERROR"}, f"{self.command} stopped after {self.timeout:.0f} s (timeout)")
-            return {"CANCELLED"}
-        frac = ACTIVE["done"] / ACTIVE["total"]
-        context.window_manager.progress_update(int(1000 * frac))
+        status = self._follow.tick()
+        if status != "running":
+            return self._end(context, status)
+        context.window_manager.progress_update(int(1000 * self._follow.fraction))
         if context.workspace:
-            context.workspace.status_text_set(f"SCPainter {self.command}: {ACTIVE['stage']} "
-                                              f"{ACTIVE['done']}/{ACTIVE['total']}  (Esc to stop)")
+            context.workspace.status_text_set(self._follow.status_text)
         _redraw(context)
-        if not self._job.finished:
-            return {"PASS_THROUGH"}
-        self._cleanup(context)
-        try:
-            done = self._job.result()
-        except BackendError as e:
-            self.report({"ERROR"}, failure_message(e, self._out))
-            return {"CANCELLED"}
-        self.report({"INFO"}, finish(context, self.command, self._out, done))
-        return {"FINISHED"}
+        return {"PASS_THROUGH"}
 
 
 def _redraw(context):

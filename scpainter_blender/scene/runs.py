@@ -52,3 +52,56 @@ def failure_message(e: BackendError, out: str) -> str:
         return f"{e} (log: {log})"
     tail = " | ".join(line for line in (e.log or "").strip().splitlines()[-3:])
     return f"{e}" + (f" (stderr: {tail})" if tail and tail not in str(e) else "")
+
+
+class Follower:
+    """The state machine of a run followed from a UI timer: ``tick()`` reads new events, keeps ``ACTIVE``
+    (progress for the panel), and says whether the run is still going; ``stop()`` is Esc. The modal operator only
+    adds the window-manager calls around it, so this logic is tested without a display."""
+
+    def __init__(self, command: str, job: BackendJob, out: str, timeout: float = 0.0):
+        import time
+
+        self.command, self.job, self.out, self.timeout = command, job, out, timeout
+        self.t0 = time.monotonic()
+        ACTIVE.clear()
+        ACTIVE.update(command=command, stage="starting", done=0, total=1, out=out)
+
+    @property
+    def fraction(self) -> float:
+        return ACTIVE["done"] / max(ACTIVE["total"], 1) if ACTIVE else 1.0
+
+    @property
+    def status_text(self) -> str:
+        return f"SCPainter {self.command}: {ACTIVE['stage']} {ACTIVE['done']}/{ACTIVE['total']}  (Esc to stop)"
+
+    def tick(self) -> str:
+        """'running', 'finished', 'failed' or 'timeout' (the last three end the run and clear ``ACTIVE``)."""
+        import time
+
+        for ev in self.job.poll():
+            if ev.get("event") == "progress":
+                ACTIVE.update(stage=ev["stage"], done=ev["done"], total=max(ev["total"], 1))
+        if self.timeout and time.monotonic() - self.t0 > self.timeout:
+            self.stop()
+            return "timeout"
+        if not self.job.finished:
+            return "running"
+        ACTIVE.clear()
+        return "finished" if self.job.proc.returncode == 0 and self.job.error is None else "failed"
+
+    def stop(self) -> None:
+        self.job.cancel()
+        ACTIVE.clear()
+
+    def report(self, context, status: str) -> tuple[str, str]:
+        """(level, message) for the end of a run; loads the results when it finished."""
+        if status == "timeout":
+            return "ERROR", f"{self.command} stopped after {self.timeout:.0f} s (timeout); finished outputs kept"
+        if status == "cancelled":
+            return "WARNING", f"{self.command} cancelled: finished outputs are kept in {self.out}"
+        try:
+            done = self.job.result()
+        except BackendError as e:
+            return "ERROR", failure_message(e, self.out)
+        return "INFO", finish(context, self.command, self.out, done)

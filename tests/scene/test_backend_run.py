@@ -82,20 +82,39 @@ def test_crash_hang_and_missing_pieces_leave_the_scene_alone(street_scene, tmp_p
     assert _state() == before and not (tmp_path / "out" / "generated").exists()
 
 
-def test_cancelled_render_keeps_finished_frames_and_the_scene(street_scene, tmp_path, addon):
-    """What Esc does in the UI: SIGTERM through BackendJob.cancel; the frames done stay complete."""
+def test_followed_runs_cancel_finish_and_time_out(street_scene, tmp_path, addon):
+    """The modal operator's state machine (runs.Follower), driven as the UI timer drives it: Esc keeps the frames
+    done and leaves the scene alone; a followed run to the end loads its results; a hung backend times out."""
+    import time
+
     from backend.render import exr
 
     runs = sys.modules[f"{addon}.scpainter_blender.scene.runs"]  # the installed add-on's module
-
     before = _state()
-    job, out = runs.start(bpy.context, "render")
-    while not (job.progress and job.progress["done"] >= 1):
-        job.poll()
-    job.cancel()
-    with pytest.raises(Exception, match="SIGTERM|cancelled"):
-        job.result()
+    follow = runs.Follower("render", *runs.start(bpy.context, "render"))
+    seen = []
+    while follow.tick() == "running" and not (runs.ACTIVE and runs.ACTIVE["done"] >= 1):
+        seen.append(dict(runs.ACTIVE))
+        time.sleep(0.05)
+    assert runs.ACTIVE["command"] == "render" and "Esc" in follow.status_text and 0 < follow.fraction <= 1
+    follow.stop()                                                   # Esc
+    level, message = follow.report(bpy.context, "cancelled")
+    assert level == "WARNING" and "kept" in message and not runs.ACTIVE
     frames = sorted((tmp_path / "out" / "conditions").glob("frame_*.exr"))
     assert 1 <= len(frames) <= 4 and all(exr.read(f)["R"].shape == (147, 259) for f in frames)
     assert not list((tmp_path / "out" / "conditions").glob("*.tmp"))
     assert _state() == before
+    # followed to the end: resumes, finishes, loads the previews behind the camera
+    follow = runs.Follower("render", *runs.start(bpy.context, "render"))
+    while (status := follow.tick()) == "running":
+        time.sleep(0.05)
+    assert status == "finished"
+    level, message = follow.report(bpy.context, status)
+    assert level == "INFO" and bpy.data.images["SCPainter Conditions"]["scpainter_frames"] == 4
+    # a backend that never answers
+    prefs = bpy.context.preferences.addons[addon].preferences
+    prefs.backend_python = _fake_python(tmp_path, "exec sleep 60")
+    follow = runs.Follower("render", *runs.start(bpy.context, "render"), timeout=1.0)
+    while (status := follow.tick()) == "running":
+        time.sleep(0.05)
+    assert status == "timeout" and follow.report(bpy.context, status)[0] == "ERROR" and not runs.ACTIVE

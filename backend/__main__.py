@@ -130,9 +130,11 @@ def _cmd_init_checkpoint(args) -> int:
 
 
 def _cmd_batch(args) -> int:
+    from scpainter_blender.core import job as job_mod
+
     from . import batch
 
-    items = list(args.jobs) + ([p for f in args.list for p in batch.read_list(f)] if args.list else [])
+    items = list(args.jobs) + [p for f in args.list or [] for p in job_mod.read_list(f)]
     if not items:
         raise ValueError("batch: no jobs given (paths, or --list FILE)")
     results, rank = batch.run_batch(items, args.command_name, _device(args.device), args.checkpoint)

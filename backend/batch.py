@@ -32,14 +32,6 @@ def ranks_from_env() -> tuple[int, int, int]:
     return get("RANK", 0), get("WORLD_SIZE", 1), get("LOCAL_RANK", 0)
 
 
-def read_list(path: str) -> list[str]:
-    """Job paths from a text file, one per line (blank lines and # comments skipped), relative to the file."""
-    base = os.path.dirname(os.path.abspath(path))
-    with open(path, encoding="utf-8") as f:
-        lines = [line.strip() for line in f]
-    return [p if os.path.isabs(p) else os.path.join(base, p) for p in lines if p and not p.startswith("#")]
-
-
 def run_one(job_path: str, command: str, device: str, checkpoint: str | None, stop) -> dict:
     from scpainter_blender.core import job as job_mod
 

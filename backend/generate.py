@@ -132,7 +132,7 @@ def generate_job(job_path: str, job: dict, device: str, checkpoint: str | None, 
 
     log(f"generate {job_path}: {frames_n} frames {W}x{H}, {s['steps']} steps, window {s['window']} overlap "
         f"{s['overlap']}, {precision} on {device}, checkpoint {ckpt}")
-    pipe = SCPainterPipeline.from_pretrained(ckpt, device, dtype)
+    pipe = SCPainterPipeline.from_checkpoint(ckpt, device, dtype)
     m = pipe.pixel_multiple
     cond = pipe.condition_latents(pad_to_multiple(image, m), pad_to_multiple(asset, m),
                                   pad_to_multiple(valid, m, 0.0), seed=s["seed"])

@@ -156,15 +156,18 @@ def load(path: str, device="cpu", dtype=None) -> dict:
     path = resolve(path)
     cfg = ScpainterConfig.load(os.path.join(path, "scpainter.json"))
     dtype = dtype or torch.float32
-    kw = {"local_files_only": True, "use_safetensors": True}
     try:
         with open(os.path.join(path, "vae", "config.json")) as f:
             upcast = json.load(f).get("force_upcast", True)
         vae_dtype = torch.float32 if (dtype == torch.float16 and upcast) else dtype
-        unet = UNetSpatioTemporalConditionModel.from_pretrained(path, subfolder="unet", torch_dtype=dtype, **kw)
-        vae = AutoencoderKLTemporalDecoder.from_pretrained(path, subfolder="vae", torch_dtype=vae_dtype, **kw)
-        clip = CLIPVisionModelWithProjection.from_pretrained(os.path.join(path, "image_encoder"), dtype=dtype, **kw)
-        cond = ConditionEncoder.from_pretrained(path, subfolder="condition_encoder", torch_dtype=vae_dtype, **kw)
+        unet = UNetSpatioTemporalConditionModel.from_pretrained(path, local_files_only=True, use_safetensors=True,
+                                                                subfolder="unet", torch_dtype=dtype)
+        vae = AutoencoderKLTemporalDecoder.from_pretrained(path, local_files_only=True, use_safetensors=True,
+                                                           subfolder="vae", torch_dtype=vae_dtype)
+        clip = CLIPVisionModelWithProjection.from_pretrained(os.path.join(path, "image_encoder"), local_files_only=True,
+                                                             use_safetensors=True, dtype=dtype)
+        cond = ConditionEncoder.from_pretrained(path, local_files_only=True, use_safetensors=True,
+                                                subfolder="condition_encoder", torch_dtype=vae_dtype)
     except (OSError, ValueError) as e:
         raise CheckpointError(f"{path}: cannot load a component ({e})") from None
     for m in (unet, clip, vae, cond):

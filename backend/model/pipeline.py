@@ -41,7 +41,8 @@ class SCPainterPipeline:
         self.device, self.dtype = torch.device(device), dtype
 
     @classmethod
-    def from_pretrained(cls, path: str, device="cpu", dtype=torch.float32):
+    def from_checkpoint(cls, path: str, device="cpu", dtype=torch.float32):
+        """Load an SCPainter checkpoint folder (local files only, see ``checkpoint.load``)."""
         from . import checkpoint
 
         return cls(checkpoint.load(path, device, dtype), device, dtype)

@@ -196,3 +196,16 @@ def save(path, job: dict) -> None:
 def resolve(job_path, relative: str) -> str:
     """A path of the job, absolute (paths in a job are relative to the job file's folder)."""
     return os.path.normpath(os.path.join(os.path.dirname(os.path.abspath(job_path)), relative))
+
+
+def read_list(path) -> list:
+    """Paths from a text file, one per line (blank lines and ``#`` comments skipped), relative ones taken from the
+    file's folder: the ``--list`` of the batch commands."""
+    path = os.fspath(path)
+    base = os.path.dirname(os.path.abspath(path))
+    try:
+        with open(path, encoding="utf-8") as f:
+            lines = [line.strip() for line in f]
+    except OSError as e:
+        raise ValueError(f"{path}: cannot read the list ({e.strerror})") from None
+    return [p if os.path.isabs(p) else os.path.join(base, p) for p in lines if p and not p.startswith("#")]

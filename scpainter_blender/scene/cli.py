@@ -25,6 +25,7 @@ import sys
 import bpy
 
 from .. import backend_client
+from ..core import job as job_mod
 from . import importer, preferences, runs
 
 
@@ -147,12 +148,7 @@ def _shard(args) -> tuple[int, int]:
 def _batch(args) -> tuple[dict, int]:
     import time
 
-    items = list(args.items)
-    for f in args.list or []:
-        base = os.path.dirname(os.path.abspath(f))
-        with open(f, encoding="utf-8") as fh:
-            items += [p if os.path.isabs(p) else os.path.join(base, p)
-                      for p in (line.strip() for line in fh) if p and not p.startswith("#")]
+    items = list(args.items) + [p for f in args.list or [] for p in job_mod.read_list(f)]
     if not items:
         raise ValueError("batch: no .blend or job files given (paths, or --list FILE)")
     k, n = _shard(args)

@@ -11,7 +11,7 @@ from backend.model.pipeline import SCPainterPipeline, window_starts
 
 @pytest.fixture(scope="module")
 def pipe(tiny_checkpoint):
-    p = SCPainterPipeline.from_pretrained(tiny_checkpoint)
+    p = SCPainterPipeline.from_checkpoint(tiny_checkpoint)
     p.config.noise_aug_strength = 0.0  # the stock comparison below runs without noise augmentation
     return p
 

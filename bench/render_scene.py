@@ -96,6 +96,7 @@ def build(n_points: int, n_gaussians: int, width: int = 1024, height: int = 576,
         scene.xyz = torch.as_tensor((xyz - origin).astype(np.float32), device=dev)
         scene.rgb = torch.as_tensor(rgb, device=dev)
         scene.frame = torch.as_tensor(frame, device=dev)
+        scene.frames_present = frozenset(np.unique(frame).tolist())
     if n_gaussians:
         g = car_gaussians(n_gaussians, seed)
         t = lambda x: torch.as_tensor(np.asarray(x, np.float32), device=dev)  # noqa: E731

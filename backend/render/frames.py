@@ -44,6 +44,7 @@ class Scene:
     xyz: torch.Tensor | None = None       # (P, 3) relative to origin, float32
     rgb: torch.Tensor | None = None
     frame: torch.Tensor | None = None     # (P,) source frame of each point
+    frames_present: frozenset | None = None  # the frames that have points (None: not known)
     assets: list = field(default_factory=list)
     removed_points: int = 0
 
@@ -64,6 +65,7 @@ def load_scene(job: dict, job_path: str, device) -> Scene:
         scene.xyz = torch.as_tensor((cloud.positions[keep] - origin).astype(np.float32), device=device)
         scene.rgb = torch.as_tensor(cloud.colors[keep], device=device)
         scene.frame = torch.as_tensor(cloud.frame[keep].astype(np.int64), device=device)
+        scene.frames_present = frozenset(np.unique(cloud.frame[keep]).tolist())
     for a in job.get("assets", []):
         g = splats.load(job_mod.resolve(job_path, a["ply"]))
         t = lambda x: torch.as_tensor(np.asarray(x, np.float32), device=device)  # noqa: E731
@@ -86,9 +88,12 @@ def render_frame(scene: Scene, entry: dict, width: int, height: int, point_radiu
     image = torch.zeros((height, width, 3), device=dev)
     depth = torch.full((height, width), float("inf"), device=dev)
     if scene.xyz is not None and entry.get("source_frames"):
-        sel = torch.isin(scene.frame, torch.as_tensor(entry["source_frames"], device=dev))
-        image, depth, _ = pts.render_points(scene.xyz[sel], scene.rgb[sel], K, w2c, width, height,
-                                            radius_px=point_radius_px)
+        if scene.frames_present is not None and scene.frames_present <= set(entry["source_frames"]):
+            xyz, rgb = scene.xyz, scene.rgb  # every frame: no selection pass, no copy
+        else:
+            sel = torch.isin(scene.frame, torch.as_tensor(entry["source_frames"], device=dev))
+            xyz, rgb = scene.xyz[sel], scene.rgb[sel]
+        image, depth, _ = pts.render_points(xyz, rgb, K, w2c, width, height, radius_px=point_radius_px)
     alpha = torch.zeros((height, width), device=dev)
     zmed = torch.full((height, width), float("inf"), device=dev)
     if scene.assets:
@@ -97,11 +102,14 @@ def render_frame(scene: Scene, entry: dict, width: int, height: int, point_radiu
         for a in scene.assets:
             A = np.array(a.object_to_world[str(entry["frame"])], np.float64)
             A[:3, 3] -= scene.origin  # relative to the scene origin, like the points
-            At = torch.as_tensor(A, dtype=a.means.dtype, device=dev)
-            means.append(a.means @ At[:3, :3].T + At[:3, 3])
-            factors.append(At[:3, :3] @ a.factors)
-            opac.append(a.opacities)
-            sh.append(torch.nn.functional.pad(a.sh, (0, 0, 0, K_max - a.sh.shape[1])))
+            # the projection runs in float64 on the CPU (cheap there, and it keeps thin Gaussians' pixel
+            # coordinates exact to ~1e-12 px); CUDA stays in the assets' dtype
+            dt = torch.float64 if dev.type == "cpu" else a.means.dtype
+            At = torch.as_tensor(A, dtype=dt, device=dev)
+            means.append(a.means.to(dt) @ At[:3, :3].T + At[:3, 3])
+            factors.append(At[:3, :3] @ a.factors.to(dt))
+            opac.append(a.opacities.to(dt))
+            sh.append(torch.nn.functional.pad(a.sh.to(dt), (0, 0, 0, K_max - a.sh.shape[1])))
         proj = gs.project_factors(torch.cat(means), torch.cat(factors), torch.cat(opac), torch.cat(sh), K, w2c,
                                   width, height, cutoff=cutoff)
         if reference:
@@ -112,7 +120,8 @@ def render_frame(scene: Scene, entry: dict, width: int, height: int, point_radiu
     hole = torch.isinf(depth) & (alpha < gs.ALPHA_MIN)
     z = torch.where(zmed < depth, zmed, depth)
     img = image.clamp(0.0, 1.0)
-    layers = {"R": img[..., 0], "G": img[..., 1], "B": img[..., 2], "hole": hole.float(), "asset": alpha, "Z": z}
+    layers = {"R": img[..., 0], "G": img[..., 1], "B": img[..., 2], "hole": hole, "asset": alpha, "Z": z}
+    layers = {k: v.to(torch.float32) for k, v in layers.items()}
     return {k: v.cpu().numpy() for k, v in layers.items()} if to_numpy else layers
 
 

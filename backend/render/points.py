@@ -39,17 +39,15 @@ def render_points(xyz: torch.Tensor, rgb: torch.Tensor, K, world_to_camera, widt
     dev = xyz.device
     T = torch.as_tensor(np.asarray(world_to_camera, np.float64), dtype=torch.float32, device=dev)
     Kt = torch.as_tensor(np.asarray(K, np.float64), dtype=torch.float32, device=dev)
-    idx = torch.arange(len(xyz), device=dev)
     cam = xyz @ T[:3, :3].T + T[:3, 3]
-    z = cam[:, 2]
-    keep = (z > near) & torch.isfinite(cam).all(dim=1)
-    idx, cam, z = idx[keep], cam[keep], z[keep]
-    u = Kt[0, 0] * cam[:, 0] / z + Kt[0, 1] * cam[:, 1] / z + Kt[0, 2]
-    v = Kt[1, 1] * cam[:, 1] / z + Kt[1, 2]
+    x, y, z = cam.unbind(1)
+    # every test in one mask and one gather (the hot path: millions of points per frame); NaN fails every test
+    u = Kt[0, 0] * x / z + Kt[0, 1] * y / z + Kt[0, 2]
+    v = Kt[1, 1] * y / z + Kt[1, 2]
     r = int(radius_px)
-    inside = (u >= -r) & (u < width + r) & (v >= -r) & (v < height + r)
-    idx, z, u, v = idx[inside], z[inside], u[inside], v[inside]
-    cu, cv = torch.floor(u).to(torch.int64), torch.floor(v).to(torch.int64)
+    valid = (z > near) & (z < float("inf")) & (u >= -r) & (u < width + r) & (v >= -r) & (v < height + r)
+    idx = torch.nonzero(valid).squeeze(1)
+    z, cu, cv = z[idx], torch.floor(u[idx]).to(torch.int64), torch.floor(v[idx]).to(torch.int64)
     if r > 0:
         offs = torch.arange(-r, r + 1, device=dev)
         du, dv = torch.meshgrid(offs, offs, indexing="xy")

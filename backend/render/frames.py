@@ -77,11 +77,11 @@ def load_scene(job: dict, job_path: str, device) -> Scene:
 
 def render_frame(scene: Scene, entry: dict, width: int, height: int, point_radius_px: int = 0,
                  reference: bool = False, to_numpy: bool = True, cutoff: float = gs.CUTOFF,
-                 tile: int = tiles.TILE) -> dict:
+                 tile: int | None = None) -> dict:
     """The condition layers of one output frame as float32 (H, W) channels R G B hole asset Z: numpy arrays, or
     tensors on the scene's device with ``to_numpy=False``. ``reference`` composites Gaussians with the torch pair
     rasterizer instead of the tile kernels (same result, slower; for tests and benchmarks); ``cutoff`` (σ) and
-    ``tile`` (pixels) are the Gaussian cutoff and the tile kernels' tile size."""
+    ``tile`` (pixels) are the Gaussian cutoff and the tile kernels' tile size (None: the device's default)."""
     dev = scene.device
     K = np.array(entry["K"], np.float64)
     w2c = pts.relative_camera(np.array(entry["world_to_camera"], np.float64), scene.origin)

@@ -26,3 +26,38 @@ def synthetic_predictions(S=3, H=14, W=21, seed=0):
         "world_points": rng.normal(0, 1, (S, H, W, 3)).astype(np.float32),
         "world_points_conf": (1.0 + rng.exponential(2.0, (S, H, W))).astype(np.float32),
     }
+
+
+def run_backend(*args, timeout=900):
+    """``python -m backend *args`` from the repo: (exit code, the events, standard error)."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    p = subprocess.run([sys.executable, "-m", "backend", *map(str, args)], cwd=root, capture_output=True, text=True,
+                       timeout=timeout)
+    return p.returncode, [json.loads(line) for line in p.stdout.splitlines() if line.strip()], p.stderr
+
+
+def street_with_car(street, folder, count=3000, seed=7, paint=(0.1, 0.3, 0.8), location=(-3.5, 9.0, 0.0),
+                    shift=2.0):
+    """In the current bpy session: the ground-truth street imported at its true scale, a procedural Gaussian car
+    (saved as Amodal3R saves it, in ``folder``) at ``location``, and a camera path ``shift`` m to the left, which
+    becomes the scene camera. Returns the scene."""
+    import os
+
+    import bpy
+
+    from scpainter_blender.core import shapes
+
+    bpy.ops.wm.read_homefile(use_empty=True)
+    bpy.ops.scpainter.import_vggt(filepath=street.predictions_path, scale_mode="TRAJECTORY",
+                                  trajectory_path=os.path.join(street.root, "metric.npz"))
+    ply = os.path.join(str(folder), "car.ply")
+    shapes.save_as_amodal3r(ply, shapes.procedural_car_gaussians(count=count, seed=seed, paint=paint))
+    bpy.context.scene.cursor.location = location
+    bpy.ops.scpainter.import_gaussians(filepath=ply)
+    bpy.ops.scpainter.new_camera_path(shift=shift)
+    return bpy.context.scene

@@ -14,29 +14,19 @@ from PIL import Image
 
 from backend.video import read_mp4
 from scpainter_blender.core import job as J
-from scpainter_blender.core import shapes
+from tests_support import run_backend, street_with_car
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 
-def backend(*args, timeout=900):
-    p = subprocess.run([sys.executable, "-m", "backend", *map(str, args)], cwd=ROOT, capture_output=True, text=True,
-                       timeout=timeout)
-    return p.returncode, [json.loads(line) for line in p.stdout.splitlines() if line.strip()], p.stderr
+backend = run_backend
 
 
 @pytest.fixture(scope="module")
 def street_job(street, tmp_path_factory, addon, tiny_checkpoint):
     """The street with a car beside the road, seen from a path 2 m to the left at half resolution; 3 steps."""
     d = tmp_path_factory.mktemp("generate")
-    bpy.ops.wm.read_homefile(use_empty=True)
-    bpy.ops.scpainter.import_vggt(filepath=street.predictions_path, scale_mode="TRAJECTORY",
-                                  trajectory_path=os.path.join(street.root, "metric.npz"))
-    ply = str(d / "car.ply")
-    shapes.save_as_amodal3r(ply, shapes.procedural_car_gaussians(count=5000, seed=7, paint=(0.1, 0.3, 0.8)))
-    bpy.context.scene.cursor.location = (-3.5, 9.0, 0.0)
-    bpy.ops.scpainter.import_gaussians(filepath=ply)
-    bpy.ops.scpainter.new_camera_path(shift=2.0)
+    street_with_car(street, d, count=5000)
     bpy.context.scene.render.resolution_percentage = 50  # 259 x 147: the tiny model's CPU time stays small
     path = d / "job.json"
     bpy.ops.scpainter.export_job(filepath=str(path))

@@ -1,27 +1,18 @@
 """Render Conditions / Generate through the operators (blocking in background mode), with the real backend in a
 subprocess; failures (crash, hang, missing interpreter or checkpoint) leave the scene and finished outputs alone."""
 
-import os
 import stat
 import sys
 
 import bpy
 import pytest
 
-from scpainter_blender.core import shapes
+from tests_support import street_with_car
 
 
 @pytest.fixture
 def street_scene(addon, street, tmp_path, tiny_checkpoint):
-    bpy.ops.wm.read_homefile(use_empty=True)
-    bpy.ops.scpainter.import_vggt(filepath=street.predictions_path, scale_mode="TRAJECTORY",
-                                  trajectory_path=os.path.join(street.root, "metric.npz"))
-    ply = str(tmp_path / "car.ply")
-    shapes.save_as_amodal3r(ply, shapes.procedural_car_gaussians(count=3000, seed=7, paint=(0.1, 0.3, 0.8)))
-    scene = bpy.context.scene
-    scene.cursor.location = (-3.5, 9.0, 0.0)
-    bpy.ops.scpainter.import_gaussians(filepath=ply)
-    bpy.ops.scpainter.new_camera_path(shift=2.0)
+    scene = street_with_car(street, tmp_path)
     scene.render.resolution_percentage = 50
     scene.frame_end = 4                               # four frames keep the tiny model's CPU time small
     scene.scpainter_output_dir = str(tmp_path / "out")
@@ -118,3 +109,21 @@ def test_followed_runs_cancel_finish_and_time_out(street_scene, tmp_path, addon)
     while (status := follow.tick()) == "running":
         time.sleep(0.05)
     assert status == "timeout" and follow.report(bpy.context, status)[0] == "ERROR" and not runs.ACTIVE
+
+
+def test_check_backend_reports_what_is_missing(addon, tiny_checkpoint, tmp_path):
+    runs = sys.modules[f"{addon}.scpainter_blender.scene.runs"]
+    prefs = bpy.context.preferences.addons[addon].preferences
+    try:
+        prefs.backend_python, prefs.checkpoint_dir = sys.executable, tiny_checkpoint
+        assert bpy.ops.scpainter.check_backend() == {"FINISHED"}
+        assert runs.DOCTOR["ok"] and "ready" in runs.DOCTOR["text"] and "torch" in runs.DOCTOR["text"]
+        prefs.checkpoint_dir = str(tmp_path)                         # a folder that is not a checkpoint
+        assert bpy.ops.scpainter.check_backend() == {"FINISHED"}
+        assert not runs.DOCTOR["ok"] and "scpainter.json" in runs.DOCTOR["text"]
+        prefs.backend_python = str(tmp_path / "no-python")
+        with pytest.raises(RuntimeError, match="Backend Python not found"):
+            bpy.ops.scpainter.check_backend()
+        assert not runs.DOCTOR["ok"]
+    finally:
+        prefs.backend_python, prefs.checkpoint_dir = "", ""

@@ -47,16 +47,9 @@ def test_bad_input_exit_code_2(addon, empty_scene, tmp_path, capsys):
 
 def _street_blend(street, folder):
     """A saved scene: the street, a car, a 2 m path, half resolution, frames 1-3."""
-    from scpainter_blender.core import shapes
+    from tests_support import street_with_car
 
-    bpy.ops.wm.read_homefile(use_empty=True)
-    bpy.ops.scpainter.import_vggt(filepath=street.predictions_path, scale_mode="TRAJECTORY",
-                                  trajectory_path=os.path.join(street.root, "metric.npz"))
-    ply = str(folder / "car.ply")
-    shapes.save_as_amodal3r(ply, shapes.procedural_car_gaussians(count=2000, seed=3))
-    bpy.context.scene.cursor.location = (-3.5, 9.0, 0.0)
-    bpy.ops.scpainter.import_gaussians(filepath=ply)
-    bpy.ops.scpainter.new_camera_path(shift=2.0)
+    street_with_car(street, folder, count=2000, seed=3)
     bpy.context.scene.render.resolution_percentage = 50
     bpy.context.scene.frame_end = 3
     path = str(folder / "street.blend")

@@ -13,14 +13,12 @@ import pytest
 from backend.render import exr
 from scpainter_blender.core import job as J
 from scpainter_blender.core import shapes
+from tests_support import run_backend
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
 
 
-def backend(*args, timeout=600):
-    p = subprocess.run([sys.executable, "-m", "backend", *map(str, args)], cwd=ROOT, capture_output=True, text=True,
-                       timeout=timeout)
-    return p.returncode, [json.loads(line) for line in p.stdout.splitlines() if line.strip()], p.stderr
+backend = run_backend
 
 
 def _pixels(path):

@@ -26,8 +26,8 @@ TILE_CPU = 8    # CPU: smaller tiles mean shorter lists per pixel (measured fast
 
 def bin_tiles(proj, width: int, height: int, tile: int = TILE) -> dict:
     """Tile lists of projected Gaussians (see the module docstring). Returns ``boxes`` (G, 4) int32 x0 x1 y0 y1,
-    ``entries`` (E,) int32 rows of ``proj`` sorted by (tile, depth rank), ``tile_start`` (tiles + 1,) int64,
-    ``tiles_x`` and ``tiles_y``."""
+    ``entries`` (E,) int32 rows of ``proj`` sorted by (tile, depth rank), ``entry_tile`` (E,) the tile of each
+    entry, ``tile_start`` (tiles + 1,) int64, ``tiles_x``, ``tiles_y`` and ``tile``."""
     dev = proj["mean2d"].device
     tiles_x, tiles_y = -(-width // tile), -(-height // tile)
     G = len(proj["depth"])
@@ -40,30 +40,39 @@ def bin_tiles(proj, width: int, height: int, tile: int = TILE) -> dict:
     tile_id = (ty0[g] + k // tw[g]) * tiles_x + tx0[g] + k % tw[g]
     order = torch.argsort(tile_id * max(G, 1) + gs.depth_rank(proj)[g])
     entries = g[order].to(torch.int32)
+    entry_tile = tile_id[order]
     per_tile = torch.bincount(tile_id, minlength=tiles_x * tiles_y)
     tile_start = torch.zeros(tiles_x * tiles_y + 1, dtype=torch.int64, device=dev)
     tile_start[1:] = torch.cumsum(per_tile, 0)
-    return {"boxes": boxes.to(torch.int32), "entries": entries, "tile_start": tile_start,
-            "tiles_x": tiles_x, "tiles_y": tiles_y}
+    return {"boxes": boxes.to(torch.int32), "entries": entries, "entry_tile": entry_tile, "tile_start": tile_start,
+            "tiles_x": tiles_x, "tiles_y": tiles_y, "tile": tile}
 
 
-def kernel_inputs(proj, bins, width, height, background_depth):
-    """The flat, contiguous arrays both kernels read (one layout, so they cannot drift apart): float64 parameters
-    on the CPU, float32 on CUDA; int32 boxes and entries."""
+def kernel_inputs(proj, bins, width, height, background_depth, dtype=None):
+    """The flat, contiguous arrays both kernels read, one row per tile entry (one layout, so the kernels cannot
+    drift apart): ``params`` (E, 12) = mean x, mean y relative to the entry's tile origin, conic a b c, opacity,
+    depth, r g b, two pads; ``boxes`` (E, 4) int32 absolute pixel boxes; ``tile_start``; the background depth.
+
+    Precision: the projection arrives in float64 (``frames.render_frame``); the CPU kernel keeps float64, the CUDA
+    kernel gets float32 with means relative to the tile (values below the tile size: ~1e-6 px of rounding instead
+    of ~6e-5 px at x ~ 1000, which thin, edge-on Gaussians would turn into ~1e-4 of alpha). ``dtype`` overrides
+    the device's choice (tests of the CUDA kernel in Triton's interpreter)."""
     dev = proj["mean2d"].device
-    # float64 on the CPU (free there): pixel coordinates in float32 carry ~6e-5 px of rounding at x ~ 1000, which
-    # thin (edge-on) Gaussians turn into ~1e-4 of alpha; CUDA keeps float32 for speed
-    dt = torch.float64 if dev.type == "cpu" else torch.float32
+    dt = dtype or (torch.float64 if dev.type == "cpu" else torch.float32)
     bg = (torch.full((height * width,), float("inf"), dtype=dt, device=dev) if background_depth is None
           else background_depth.reshape(-1).to(dt).contiguous())
-    # (G, 12): mean x, mean y, conic a b c, opacity, depth, r g b, and two pads for alignment
-    params = torch.zeros((len(proj["depth"]), 12), dtype=dt, device=dev)
-    params[:, 0:2] = proj["mean2d"]
-    params[:, 2:5] = proj["conic"]
-    params[:, 5] = proj["opacity"]
-    params[:, 6] = proj["depth"]
-    params[:, 7:10] = proj["color"]
-    return params.contiguous(), bins["boxes"].contiguous(), bins["entries"].contiguous(), bins["tile_start"].contiguous(), bg
+    per_gaussian = torch.zeros((len(proj["depth"]), 12), dtype=torch.float64, device=dev)
+    per_gaussian[:, 0:2] = proj["mean2d"]
+    per_gaussian[:, 2:5] = proj["conic"]
+    per_gaussian[:, 5] = proj["opacity"]
+    per_gaussian[:, 6] = proj["depth"]
+    per_gaussian[:, 7:10] = proj["color"]
+    e = bins["entries"].to(torch.int64)
+    params = per_gaussian[e]                              # one gather: entry order, read front to back
+    t, tile = bins["entry_tile"], bins["tile"]
+    params[:, 0] -= (t % bins["tiles_x"]) * tile          # relative to the entry's tile, still in float64
+    params[:, 1] -= (t // bins["tiles_x"]) * tile
+    return params.to(dt), bins["boxes"][e].contiguous(), bins["tile_start"].contiguous(), bg
 
 
 def rasterize(proj, width: int, height: int, background_depth=None, tile: int | None = None):

@@ -16,7 +16,7 @@ from .gaussians import ALPHA_MAX, ALPHA_MIN, T_MIN
 
 
 @njit(parallel=True, cache=True, nogil=True)
-def _composite(params, boxes, entries, tile_start, bg, width, height, tiles_x, tile, out_c, out_a, out_z):
+def _composite(params, boxes, tile_start, bg, width, height, tiles_x, tile, out_c, out_a, out_z):
     n_tiles = len(tile_start) - 1
     for t in prange(n_tiles):
         first, last = tile_start[t], tile_start[t + 1]
@@ -27,7 +27,7 @@ def _composite(params, boxes, entries, tile_start, bg, width, height, tiles_x, t
             for px in range(tx0, min(tx0 + tile, width)):
                 pix = py * width + px
                 T, r, g, b, z = 1.0, 0.0, 0.0, 0.0, np.inf
-                fx, fy = px + 0.5, py + 0.5
+                fx, fy = px - tx0 + 0.5, py - ty0 + 0.5  # tile-relative, as the means are
                 zbg = bg[pix]
                 for e in range(first, last):
                     if params[e, 6] >= zbg:
@@ -56,13 +56,11 @@ def _composite(params, boxes, entries, tile_start, bg, width, height, tiles_x, t
                 out_z[pix] = z
 
 
-def composite(params, boxes, entries, tile_start, bg, width, height, tiles_x, tile):
+def composite(params, boxes, tile_start, bg, width, height, tiles_x, tile):
     """Run the kernel on CPU tensors (shared memory, no copies); returns (color (HW, 3), alpha (HW), depth (HW))."""
     out_c = torch.zeros((height * width, 3), dtype=torch.float32)
     out_a = torch.zeros(height * width, dtype=torch.float32)
     out_z = torch.full((height * width,), float("inf"), dtype=torch.float32)
-    # gathered in entry order: each pixel then reads its tile's list front to back, contiguously
-    e = entries.to(torch.int64)
-    _composite(params[e].numpy(), boxes[e].numpy(), entries.numpy(), tile_start.numpy(), bg.numpy(), width, height,
-               tiles_x, tile, out_c.numpy(), out_a.numpy(), out_z.numpy())
+    _composite(params.numpy(), boxes.numpy(), tile_start.numpy(), bg.numpy(), width, height, tiles_x, tile,
+               out_c.numpy(), out_a.numpy(), out_z.numpy())
     return out_c, out_a, out_z

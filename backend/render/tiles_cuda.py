@@ -26,8 +26,8 @@ def _composite_kernel(params_ptr, boxes_ptr, tile_start_ptr, bg_ptr, out_c_ptr, 
     inside = (px < width) & (py < height)
     pix = py * width + px
     zbg = tl.load(bg_ptr + pix, mask=inside, other=0.0)
-    fx = px.to(tl.float32) + 0.5
-    fy = py.to(tl.float32) + 0.5
+    fx = (offs % TILE).to(tl.float32) + 0.5  # tile-relative, as the means are
+    fy = (offs // TILE).to(tl.float32) + 0.5
     T = tl.full([TILE * TILE], 1.0, tl.float32)
     r = tl.zeros([TILE * TILE], tl.float32)
     g = tl.zeros([TILE * TILE], tl.float32)
@@ -69,15 +69,13 @@ def _composite_kernel(params_ptr, boxes_ptr, tile_start_ptr, bg_ptr, out_c_ptr, 
     tl.store(out_z_ptr + pix, z, mask=inside)
 
 
-def composite(params, boxes, entries, tile_start, bg, width, height, tiles_x, tile):
+def composite(params, boxes, tile_start, bg, width, height, tiles_x, tile):
     """Run the kernel on CUDA tensors; returns (color (HW, 3), alpha (HW), depth (HW)) float32."""
     dev = params.device
     out_c = torch.empty((height * width, 3), dtype=torch.float32, device=dev)
     out_a = torch.empty(height * width, dtype=torch.float32, device=dev)
     out_z = torch.empty(height * width, dtype=torch.float32, device=dev)
-    e = entries.to(torch.int64)
     n_tiles = len(tile_start) - 1
-    _composite_kernel[(n_tiles,)](params[e].contiguous(), boxes[e].contiguous(), tile_start, bg, out_c, out_a,
-                                  out_z, width, height, tiles_x, TILE=tile, ALPHA_MAX=ALPHA_MAX,
-                                  ALPHA_MIN=ALPHA_MIN, T_MIN=T_MIN, num_warps=4)
+    _composite_kernel[(n_tiles,)](params, boxes, tile_start, bg, out_c, out_a, out_z, width, height, tiles_x,
+                                  TILE=tile, ALPHA_MAX=ALPHA_MAX, ALPHA_MIN=ALPHA_MIN, T_MIN=T_MIN, num_warps=4)
     return out_c, out_a, out_z

@@ -25,7 +25,8 @@ for seed, bg_wall in ((0, False), (1, True)):
     if bg_wall:
         bg[:, :32] = 5.0
     bins = tiles.bin_tiles(proj, 64, 48)
-    c, a, z = tiles_cuda.composite(*tiles.kernel_inputs(proj, bins, 64, 48, bg), 64, 48, bins["tiles_x"], 16)
+    inputs = tiles.kernel_inputs(proj, bins, 64, 48, bg, dtype=torch.float32)  # as on CUDA
+    c, a, z = tiles_cuda.composite(*inputs, 64, 48, bins["tiles_x"], 16)
     rc, ra, rz = GS.rasterize(proj, 64, 48, bg)
     assert float(ra.max()) > 0.5
     assert float((c.reshape(48, 64, 3) - rc).abs().max()) <= 1e-5, "colour"

@@ -11,25 +11,11 @@ At the end the ranks exchange their results (torch.distributed, gloo: no GPU nee
 
 from __future__ import annotations
 
-import os
 import time
 
+from scpainter_blender.core.job import ranks_from_env, shard  # shared with blender -c scpainter batch
+
 from . import events
-
-
-def shard(items: list, rank: int, world: int) -> list:
-    """The items of one rank: every ``world``-th, starting at ``rank`` (deterministic, order kept)."""
-    if not 0 <= rank < world:
-        raise ValueError(f"rank {rank} is not in [0, {world})")
-    return items[rank::world]
-
-
-def ranks_from_env() -> tuple[int, int, int]:
-    """(rank, world size, local rank) from torchrun/accelerate's environment; (0, 1, 0) without it."""
-    def get(name, default):
-        value = os.environ.get(name, "")
-        return int(value) if value.strip() else default
-    return get("RANK", 0), get("WORLD_SIZE", 1), get("LOCAL_RANK", 0)
 
 
 def run_one(job_path: str, command: str, device: str, checkpoint: str | None, stop) -> dict:

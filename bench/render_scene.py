@@ -13,7 +13,6 @@ import numpy as np
 import torch
 
 from backend.render import frames as fr
-from backend.render import gaussians as gs
 from scpainter_blender.core import shapes
 
 SRC_W, SRC_H, SRC_F = 518, 294, 300.0
@@ -98,13 +97,9 @@ def build(n_points: int, n_gaussians: int, width: int = 1024, height: int = 576,
         scene.frame = torch.as_tensor(frame, device=dev)
         scene.frames_present = frozenset(np.unique(frame).tolist())
     if n_gaussians:
-        g = car_gaussians(n_gaussians, seed)
-        t = lambda x: torch.as_tensor(np.asarray(x, np.float32), device=dev)  # noqa: E731
-        factors, ok = gs.covariance_factors(t(g.quats), t(g.scales))
         A = np.eye(4)
         A[:3, 3] = (3.5, car_distance, 0.0)
-        scene.assets.append(fr.Asset("car", t(g.means)[ok], factors[ok], t(g.opacities)[ok], t(g.sh)[ok],
-                                     {"0": A.tolist()}))
+        scene.assets.append(fr.make_asset("car", car_gaussians(n_gaussians, seed), {"0": A.tolist()}, dev))
     entry = {"frame": 0, "world_to_camera": world_to_camera(0.0, 0.0).tolist(),
              "K": intrinsics(width, height).tolist(),
              "source_frames": list(range(frames))}

@@ -30,7 +30,7 @@ from . import tiles
 @dataclass
 class Asset:
     name: str
-    means: torch.Tensor        # (N, 3) file coordinates
+    means: torch.Tensor        # (N, 3) file coordinates, float64 (see make_asset)
     factors: torch.Tensor      # (N, 3, 3) R S in file axes
     opacities: torch.Tensor
     sh: torch.Tensor
@@ -67,12 +67,17 @@ def load_scene(job: dict, job_path: str, device) -> Scene:
         scene.frame = torch.as_tensor(cloud.frame[keep].astype(np.int64), device=device)
         scene.frames_present = frozenset(np.unique(cloud.frame[keep]).tolist())
     for a in job.get("assets", []):
-        g = splats.load(job_mod.resolve(job_path, a["ply"]))
-        t = lambda x: torch.as_tensor(np.asarray(x, np.float32), device=device)  # noqa: E731
-        factors, ok = gs.covariance_factors(t(g.quats), t(g.scales))
-        scene.assets.append(Asset(a["name"], t(g.means)[ok], factors[ok], t(g.opacities)[ok], t(g.sh)[ok],
-                                  a["object_to_world"]))
+        scene.assets.append(make_asset(a["name"], splats.load(job_mod.resolve(job_path, a["ply"])),
+                                       a["object_to_world"], device))
     return scene
+
+
+def make_asset(name: str, g: splats.Gaussians, object_to_world: dict, device) -> Asset:
+    """An asset's Gaussians on the device in float64, the projection's precision (so no frame casts them again),
+    rows with zero or non-finite quaternions or scales dropped."""
+    t = lambda x: torch.as_tensor(np.asarray(x, np.float64), device=device)  # noqa: E731
+    factors, ok = gs.covariance_factors(t(g.quats), t(g.scales))
+    return Asset(name, t(g.means)[ok], factors[ok], t(g.opacities)[ok], t(g.sh)[ok], object_to_world)
 
 
 def render_frame(scene: Scene, entry: dict, width: int, height: int, point_radius_px: int = 0,
@@ -103,13 +108,12 @@ def render_frame(scene: Scene, entry: dict, width: int, height: int, point_radiu
             A = np.array(a.object_to_world[str(entry["frame"])], np.float64)
             A[:3, 3] -= scene.origin  # relative to the scene origin, like the points
             # the projection runs in float64 on every device (a few hundred flops per Gaussian; it keeps thin
-            # Gaussians' pixel coordinates exact, see tiles.kernel_inputs)
-            dt = torch.float64
-            At = torch.as_tensor(A, dtype=dt, device=dev)
-            means.append(a.means.to(dt) @ At[:3, :3].T + At[:3, 3])
-            factors.append(At[:3, :3] @ a.factors.to(dt))
-            opac.append(a.opacities.to(dt))
-            sh.append(torch.nn.functional.pad(a.sh.to(dt), (0, 0, 0, K_max - a.sh.shape[1])))
+            # Gaussians' pixel coordinates exact, see tiles.kernel_inputs): assets are stored in float64
+            At = torch.as_tensor(A, dtype=torch.float64, device=dev)
+            means.append(a.means @ At[:3, :3].T + At[:3, 3])
+            factors.append(At[:3, :3] @ a.factors)
+            opac.append(a.opacities)
+            sh.append(torch.nn.functional.pad(a.sh, (0, 0, 0, K_max - a.sh.shape[1])))
         proj = gs.project_factors(torch.cat(means), torch.cat(factors), torch.cat(opac), torch.cat(sh), K, w2c,
                                   width, height, cutoff=cutoff)
         if reference:

@@ -209,3 +209,18 @@ def read_list(path) -> list:
     except OSError as e:
         raise ValueError(f"{path}: cannot read the list ({e.strerror})") from None
     return [p if os.path.isabs(p) else os.path.join(base, p) for p in lines if p and not p.startswith("#")]
+
+
+def shard(items: list, rank: int, world: int) -> list:
+    """The items of one rank of a batch: every ``world``-th, starting at ``rank`` (deterministic, order kept)."""
+    if not 0 <= rank < world:
+        raise ValueError(f"rank {rank} is not in [0, {world})")
+    return items[rank::world]
+
+
+def ranks_from_env() -> tuple[int, int, int]:
+    """(rank, world size, local rank) from torchrun/accelerate's environment; (0, 1, 0) without it."""
+    def get(name, default):
+        value = os.environ.get(name, "")
+        return int(value) if value.strip() else default
+    return get("RANK", 0), get("WORLD_SIZE", 1), get("LOCAL_RANK", 0)

@@ -142,7 +142,7 @@ def _shard(args) -> tuple[int, int]:
         except ValueError:
             raise ValueError(f"--shard {args.shard!r}: expected K/N, e.g. 0/4") from None
         return k, n
-    return int(os.environ.get("RANK", 0) or 0), int(os.environ.get("WORLD_SIZE", 1) or 1)
+    return job_mod.ranks_from_env()[:2]
 
 
 def _batch(args) -> tuple[dict, int]:
@@ -155,7 +155,7 @@ def _batch(args) -> tuple[dict, int]:
     if not 0 <= k < n:
         raise ValueError(f"--shard {k}/{n}: K must be in [0, N)")
     results = []
-    for path in items[k::n]:
+    for path in job_mod.shard(items, k, n):
         t = time.perf_counter()
         print(f"scpainter batch: {args.what} {path}", file=sys.stderr, flush=True)
         try:

@@ -144,6 +144,35 @@ def _cmd_batch(args) -> int:
     return events.EXIT_FAILED if failed else events.EXIT_OK
 
 
+def _cmd_train(args) -> int:
+    from .train import config as train_config
+    from .train import trainer
+
+    cfg = train_config.load(args.config)
+    device = _device(args.device)
+    with events.stop_on_sigterm() as stop:
+        result = trainer.train(cfg, device, stop, args.max_steps)
+    result.pop("losses", None)
+    if result.pop("stopped"):
+        events.error(f"stopped by SIGTERM at step {result['step']}; checkpoint saved at {result['checkpoint']}",
+                     hint="run the same command again to resume")
+        return events.EXIT_FAILED
+    events.done(command="train", device=device, **result)
+    return events.EXIT_OK
+
+
+def _cmd_evaluate(args) -> int:
+    from .evaluate import protocol
+
+    with events.stop_on_sigterm() as stop:
+        result = protocol.evaluate(protocol.EvalSettings.from_args(args), _device(args.device), stop)
+    if result.pop("stopped", False):
+        events.error("stopped by SIGTERM", hint="finished renders and videos are kept: run again to resume")
+        return events.EXIT_FAILED
+    events.done(command="evaluate", **result)
+    return events.EXIT_OK
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m backend", description=__doc__)
     sub = p.add_subparsers(dest="command", required=True)
@@ -183,6 +212,18 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--svd", required=True, help="local stable-video-diffusion-img2vid(-xt) diffusers folder")
     c.add_argument("--out", required=True, help="new checkpoint folder")
     c.set_defaults(func=_cmd_init_checkpoint)
+    t = sub.add_parser("train", help="fine-tune a checkpoint on clip folders (run under accelerate launch/torchrun "
+                                     "for several GPUs); resumes from the newest checkpoint in output_dir")
+    t.add_argument("config", help="training config JSON (schema scpainter.train/1, docs/training.md)")
+    t.add_argument("--device", choices=["auto", "cpu", "cuda"], default="auto")
+    t.add_argument("--max-steps", type=int, help="stop (with a checkpoint) after this step this time")
+    t.set_defaults(func=_cmd_train)
+    e = sub.add_parser("evaluate", help="FID / FID-C / KID on validation clips and ground-truth PSNR/SSIM")
+    from .evaluate.protocol import add_arguments
+
+    add_arguments(e)
+    e.add_argument("--device", choices=["auto", "cpu", "cuda"], default="auto")
+    e.set_defaults(func=_cmd_evaluate)
     return p
 
 

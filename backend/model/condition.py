@@ -25,6 +25,8 @@ from diffusers.models.modeling_utils import ModelMixin
 class ConditionEncoder(ModelMixin, ConfigMixin):
     """SVD's VAE encoder widened to I ‖ M_a; ``forward`` returns the condition latent (N, latent_channels, H/8, W/8)."""
 
+    _supports_gradient_checkpointing = True  # diffusers' Encoder checkpoints its blocks when asked
+
     @register_to_config
     def __init__(self, in_channels: int = 4, latent_channels: int = 4,
                  down_block_types: tuple = ("DownEncoderBlock2D",) * 4,

@@ -54,18 +54,8 @@ class SCPainterPipeline:
 
     @torch.no_grad()
     def clip_embedding(self, image: torch.Tensor) -> torch.Tensor:
-        """(1, 1, D) CLIP image embedding of one (3, H, W) image in [0, 1], preprocessed as SVD's pipeline does
-        (antialiased resize at [−1, 1], back to [0, 1], CLIP mean/std)."""
-        from diffusers.pipelines.stable_video_diffusion.pipeline_stable_video_diffusion import (
-            _resize_with_antialiasing,
-        )
-
-        size = self.image_encoder.config.image_size
-        x = image[None].float() * 2.0 - 1.0
-        x = (_resize_with_antialiasing(x, (size, size)) + 1.0) / 2.0
-        x = (x - self.clip_mean) / self.clip_std
-        emb = self.image_encoder(x.to(self.device, self.dtype)).image_embeds
-        return emb[:, None].float()
+        """(1, 1, D) CLIP image embedding of one (3, H, W) image in [0, 1] (see ``clip_embeddings``)."""
+        return clip_embeddings(self.image_encoder, image[None].to(self.device), self.clip_mean, self.clip_std)
 
     @torch.no_grad()
     def condition_latents(self, image, asset, valid, seed: int = 0, chunk: int = 8) -> torch.Tensor:
@@ -149,6 +139,22 @@ class SCPainterPipeline:
             img = self.vae.decode(z.to(self.device, vdt), num_frames=len(z)).sample.float()
             out.append(((img + 1.0) / 2.0).clamp(0.0, 1.0).cpu())
         return torch.cat(out)
+
+
+def clip_embeddings(image_encoder, images: torch.Tensor, mean: torch.Tensor, std: torch.Tensor) -> torch.Tensor:
+    """(B, 1, D) float32 CLIP image embeddings of images (B, 3, H, W) in [0, 1], preprocessed as SVD's pipeline
+    does: antialiased resize to the encoder's size at [−1, 1], back to [0, 1], CLIP mean/std; the encoder runs in
+    its own dtype on the images' device."""
+    from diffusers.pipelines.stable_video_diffusion.pipeline_stable_video_diffusion import (
+        _resize_with_antialiasing,
+    )
+
+    size = image_encoder.config.image_size
+    x = images.float() * 2.0 - 1.0
+    x = (_resize_with_antialiasing(x, (size, size)) + 1.0) / 2.0
+    x = (x - mean.to(x.device)) / std.to(x.device)
+    emb = image_encoder(x.to(next(image_encoder.parameters()).dtype)).image_embeds
+    return emb[:, None].float()
 
 
 def pad_to_multiple(x: torch.Tensor, multiple: int, value: float = 0.0) -> torch.Tensor:

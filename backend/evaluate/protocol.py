@@ -1,0 +1,361 @@
+"""``python -m backend evaluate``: the paper's protocol on validation clips, and ground truth where a clip has it.
+
+Per clip, the first ``frames`` frames at ``width`` x ``height``, as jobs (job.json) that go through the same
+``render`` and ``generate`` code as users' jobs (so they resume and skip finished work):
+
+* ``nvs_<shift>``: the recorded drive shifted laterally by each shift (metres, + left; paper §4.2: ±2, ±3 m),
+  points of frames t ± window projected into frame t;
+* ``insert``: re-insertion (paper §4.1): the clip's first tracked car with an asset has its points removed (grown
+  box) and its Gaussian asset placed at its boxes, recorded cameras;
+* ``insert_shift<s>``: both at once (paper §4.3), shifted by the first shift.
+
+Each task has a *generated* video (with ``--checkpoint``) and the *naive* baseline, its condition image I (points
+and asset composited, holes black): the paper's "naive insertion" and our condition-only baseline.
+
+Metrics (``evaluation.json``, and a table on standard error):
+
+* FID / KID (Inception pool3 from ``--inception``, never downloaded) of every NVS task's frames against the
+  recorded frames of all clips (paper Table 2), and of the combined task (Table 3, whole frames);
+* FID-C / KID-C on car-centred crops (Table 1): generated and naive crops from the asset mask (its bounding box,
+  squared and grown by ``crop_grow``), real crops from the tracked cars' boxes projected into the recorded frames;
+* PSNR / SSIM against ground-truth views (``views`` in clip.json, e.g. the street's Cycles renders), per shift,
+  over all pixels and over the pixels the condition covers (1 − hole).
+
+With a handful of frames FID is dominated by its sample bias (it needs thousands of images); the numbers are
+computed exactly as for a full validation set and reported with the image counts so nobody mistakes them.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+import torch
+
+from scpainter_blender.core import cameras
+from scpainter_blender.core import job as job_mod
+
+from .. import events
+from ..train import clip as clip_mod
+from ..train.pairs import load_resized
+
+
+@dataclass
+class EvalSettings:
+    clips: list
+    output_dir: str
+    checkpoint: str | None = None       # None: baselines only
+    width: int = 576
+    height: int = 320
+    frames: int = 14
+    shifts: tuple = (2.0, -2.0, 3.0, -3.0)
+    insertion: bool = True
+    window: int = 8
+    steps: int = 25
+    seed: int = 0
+    precision: str = "auto"
+    inception: str | None = None
+    crop_size: int = 128                # crops are resized to this square before the feature extractor
+    crop_grow: float = 1.2
+    grow_m: float = 0.2                 # removal box margin, as in training pairs
+    grow_ratio: float = 0.1
+    confidence_percentile: float = 50.0
+
+    @classmethod
+    def from_args(cls, a) -> EvalSettings:
+        return cls(clips=a.clips, output_dir=a.output_dir, checkpoint=a.checkpoint, width=a.resolution[0],
+                   height=a.resolution[1], frames=a.frames, shifts=tuple(a.shifts), insertion=not a.no_insertion,
+                   window=a.window, steps=a.steps, seed=a.seed, precision=a.precision, inception=a.inception)
+
+
+def add_arguments(p) -> None:
+    p.add_argument("clips", nargs="+", help="validation clip folders (clip.json, docs/training.md)")
+    p.add_argument("--output-dir", required=True, help="jobs, renders, videos and evaluation.json go here")
+    p.add_argument("--checkpoint", help="SCPainter checkpoint to evaluate (without: the naive baselines only)")
+    p.add_argument("--resolution", type=int, nargs=2, default=[576, 320], metavar=("W", "H"))
+    p.add_argument("--frames", type=int, default=14, help="frames per clip, from its start")
+    p.add_argument("--shifts", type=float, nargs="*", default=[2.0, -2.0, 3.0, -3.0],
+                   help="lateral shifts in metres (+ left)")
+    p.add_argument("--no-insertion", action="store_true", help="skip the asset re-insertion tasks")
+    p.add_argument("--window", type=int, default=8, help="source frames t ± window project into frame t")
+    p.add_argument("--steps", type=int, default=25, help="sampler steps")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--precision", choices=["auto", "fp32", "bf16", "fp16"], default="auto")
+    p.add_argument("--inception", help="FID Inception weights (pytorch-fid's pt_inception-2015-12-05-6726825d.pth "
+                                       "or a safetensors copy); without it FID/KID are skipped")
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Jobs
+# ---------------------------------------------------------------------------------------------------------------
+
+def insertion_car(clip: clip_mod.Clip, frames: range) -> int | None:
+    """The first tracked car with an asset and a box in every evaluated frame."""
+    for i, car in enumerate(clip.cars):
+        if car.asset is not None and all(t in car.boxes for t in frames):
+            return i
+    return None
+
+
+def task_job(clip: clip_mod.Clip, s: EvalSettings, folder: str, shift: float, car: int | None) -> str:
+    """Write ``folder/job.json`` for one task; returns its path."""
+    frames = range(min(s.frames, clip.num_frames))
+    if shift and not clip.metric:
+        raise clip_mod.ClipError(clip.path, "poses", "lateral shifts in metres need metric poses (poses.npz)")
+    w2c = cameras.shift_trajectory(clip.world_to_camera, left_m=shift) if shift else clip.world_to_camera
+    K = clip.K_for(s.width, s.height)
+    S = clip.num_frames
+    job = {"schema": job_mod.SCHEMA, "resolution": [s.width, s.height], "output_dir": ".",
+           "frames": [{"frame": t, "K": K[t].tolist(), "world_to_camera": w2c[t].tolist(),
+                       "source_frames": list(range(max(0, t - s.window), min(S, t + s.window + 1)))} for t in frames],
+           "scene": {"predictions": os.path.relpath(clip.predictions.path, folder),
+                     "world_from_vggt": clip.world_from_vggt.tolist(),
+                     "confidence_percentile": s.confidence_percentile, "removal_boxes": []},
+           "generate": {"steps": s.steps, "seed": s.seed, "fps": clip.fps}}
+    if car is not None:
+        c = clip.cars[car]
+        boxes = {}
+        for t in range(S):  # every box of the car, deduplicated: its points are gone from every source frame
+            if t in c.boxes:
+                boxes.setdefault(np.round(c.boxes[t], 4).tobytes(), c.boxes[t])
+        for b in boxes.values():
+            T, size = clip_mod.grown_box(b, c.size, s.grow_m, s.grow_ratio)
+            job["scene"]["removal_boxes"].append({"box_to_world": T.tolist(), "size": size.tolist()})
+        if c.asset_to_box is None:
+            from scpainter_blender.core import splats
+
+            a2b = clip_mod.fit_asset_to_box(splats.load(c.asset).means, c.size)
+        else:
+            a2b = c.asset_to_box
+        job["assets"] = [{"name": c.id, "ply": os.path.relpath(c.asset, folder),
+                          "object_to_world": {str(t): (c.boxes[t] @ a2b).tolist() for t in frames}}]
+    os.makedirs(folder, exist_ok=True)
+    path = os.path.join(folder, "job.json")
+    job_mod.save(path, job)
+    return path
+
+
+def tasks(clip: clip_mod.Clip, s: EvalSettings) -> list:
+    """(name, shift, car) of the tasks this clip supports."""
+    out = [(f"nvs_{shift:+g}m", shift, None) for shift in s.shifts]
+    car = insertion_car(clip, range(min(s.frames, clip.num_frames))) if s.insertion else None
+    if car is not None:
+        out.append(("insert", 0.0, car))
+        if s.shifts:
+            out.append((f"insert_shift{s.shifts[0]:+g}m", s.shifts[0], car))
+    return out
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Crops
+# ---------------------------------------------------------------------------------------------------------------
+
+def square_box(x0, y0, x1, y1, grow: float, width: int, height: int):
+    """A square around the box (x0, y0)-(x1, y1) (pixels), side = grow × the longer side, moved to lie inside
+    the image where it fits; None when the box is empty."""
+    if x1 <= x0 or y1 <= y0:
+        return None
+    side = min(max(x1 - x0, y1 - y0) * grow, width, height)
+    cx, cy = (x0 + x1) / 2, (y0 + y1) / 2
+    left = int(round(min(max(cx - side / 2, 0), width - side)))
+    top = int(round(min(max(cy - side / 2, 0), height - side)))
+    side = int(round(side))
+    return left, top, left + side, top + side
+
+
+def crop(image: torch.Tensor, box, size: int) -> torch.Tensor:
+    """(3, size, size) from image (3, H, W) float in [0, 1] (bilinear, antialiased)."""
+    x0, y0, x1, y1 = box
+    c = image[:, y0:y1, x0:x1][None]
+    return torch.nn.functional.interpolate(c, size=(size, size), mode="bilinear", antialias=True,
+                                           align_corners=False)[0].clamp(0, 1)
+
+
+def mask_crop_box(mask: np.ndarray, grow: float, min_px: int = 8):
+    """Square crop box around the pixels where the asset mask exceeds 0.5; None if fewer than min_px² pixels."""
+    ys, xs = np.nonzero(mask > 0.5)
+    if len(xs) < min_px * min_px:
+        return None
+    H, W = mask.shape
+    return square_box(xs.min(), ys.min(), xs.max() + 1, ys.max() + 1, grow, W, H)
+
+
+def box_crop_box(box_to_world, size, K, world_to_camera, width: int, height: int, grow: float, min_px: int = 8):
+    """Square crop box around a 3D box's projection (all 8 corners in front of the camera, at least half of its
+    2D box inside the image, at least min_px on a side); None otherwise."""
+    corners = np.array([[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5)]) * size
+    world = corners @ np.asarray(box_to_world)[:3, :3].T + np.asarray(box_to_world)[:3, 3]
+    cam = world @ world_to_camera[:3, :3].T + world_to_camera[:3, 3]
+    if np.any(cam[:, 2] <= 0.1):
+        return None
+    uv = cam @ np.asarray(K).T
+    uv = uv[:, :2] / uv[:, 2:]
+    x0, y0 = uv.min(axis=0)
+    x1, y1 = uv.max(axis=0)
+    ix0, iy0, ix1, iy1 = max(x0, 0), max(y0, 0), min(x1, width), min(y1, height)
+    if ix1 - ix0 < min_px or iy1 - iy0 < min_px or (ix1 - ix0) * (iy1 - iy0) < 0.5 * (x1 - x0) * (y1 - y0):
+        return None
+    return square_box(ix0, iy0, ix1, iy1, grow, width, height)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Evaluation
+# ---------------------------------------------------------------------------------------------------------------
+
+@dataclass
+class ImageSets:
+    """Images (3, H, W) float in [0, 1] collected per set name, for FID/KID at the end."""
+
+    sets: dict = field(default_factory=dict)
+
+    def add(self, name: str, images) -> None:
+        self.sets.setdefault(name, []).extend(list(images))
+
+
+def _read_png(path: str, width: int, height: int) -> torch.Tensor:
+    return load_resized(path, width, height).float() / 255.0
+
+
+def run_task(job_path: str, device: str, s: EvalSettings, stop) -> dict:
+    """Render (and generate, with a checkpoint) one task; returns its I, M_a, validity and generated frames."""
+    from .. import generate as gen_mod
+    from ..render import command as render_cmd
+
+    job = job_mod.load(job_path)
+    out = {"generated": None}
+    if s.checkpoint:
+        r = gen_mod.generate_job(job_path, job, device, s.checkpoint, s.precision, stop=stop)
+        if r.get("stopped"):
+            return {"stopped": True}
+        out["generated"] = torch.stack([_read_png(os.path.join(r["frames_dir"], f"frame_{e['frame']:06d}.png"),
+                                                  s.width, s.height) for e in job["frames"]])
+    else:
+        r = render_cmd.render_job(job_path, job, device, stop=stop)
+        if r["stopped"]:
+            return {"stopped": True}
+    out["image"], out["asset"], out["valid"] = gen_mod.load_conditions(job_path, job)
+    out["frames"] = [e["frame"] for e in job["frames"]]
+    return out
+
+
+def ground_truth_metrics(pred: torch.Tensor, gt: torch.Tensor, valid: torch.Tensor) -> dict:
+    from .image_metrics import psnr, ssim
+
+    covered = valid > 0.5
+    return {"psnr": float(psnr(pred, gt).mean()), "ssim": float(ssim(pred, gt).mean()),
+            "psnr_covered": float(psnr(pred, gt, mask=covered).mean()),
+            "ssim_covered": float(ssim(pred, gt, mask=covered).mean())}
+
+
+def feature_metrics(sets: dict, reference: str, inception: str | None, device: str, log) -> dict:
+    """FID and KID of every set against ``reference`` (a key of ``sets``)."""
+    if not inception:
+        return {"skipped": "no --inception weights given (FID needs pt_inception-2015-12-05-6726825d.pth; "
+                           "nothing is downloaded)"}
+    from .fid import FeatureStats, fid, kid
+    from .inception import load_inception
+
+    net = load_inception(inception, device)
+    feats = {}
+    for name, images in sets.items():
+        st = FeatureStats(keep_features=True)
+        for i in range(0, len(images), 16):
+            with torch.no_grad():
+                st.update(net(torch.stack(images[i:i + 16]).to(device)).cpu())
+        feats[name] = st
+        log(f"evaluate: features of {name}: {st.count} images")
+    out = {}
+    ref = feats[reference]
+    for name, st in feats.items():
+        if name == reference:
+            continue
+        k_mean, k_std = kid(ref.features(), st.features(), subsets=100, subset_size=min(1000, ref.count, st.count))
+        out[name] = {"fid": fid(ref, st), "kid": k_mean, "kid_std": k_std, "images": st.count,
+                     "reference_images": ref.count}
+    return out
+
+
+def evaluate(s: EvalSettings, device: str, stop=()) -> dict:
+    out_dir = os.path.abspath(s.output_dir)
+    os.makedirs(out_dir, exist_ok=True)
+    log = events.FileLog(os.path.join(out_dir, "evaluate.log"))
+    t0 = time.perf_counter()
+    whole, crops = ImageSets(), ImageSets()
+    gt_rows = []
+    n_tasks_done = 0
+    clips = [clip_mod.load(p) for p in s.clips]
+    total = sum(len(tasks(c, s)) for c in clips)
+    for ci, clip in enumerate(clips):
+        name = f"{ci:03d}_{os.path.basename(clip.folder)}"
+        frames = range(min(s.frames, clip.num_frames))
+        K = clip.K_for(s.width, s.height)
+        real = [_read_png(clip.frame_paths[t], s.width, s.height) for t in frames]
+        whole.add("real", real)
+        for car in clip.cars:  # real car crops for FID-C, from the boxes on the recorded frames
+            for t in frames:
+                if t in car.boxes:
+                    b = box_crop_box(car.boxes[t], car.size, K[t], clip.world_to_camera[t], s.width, s.height,
+                                     s.crop_grow)
+                    if b is not None:
+                        crops.add("real", [crop(real[t], b, s.crop_size)])
+        for task, shift, car in tasks(clip, s):
+            if stop:
+                return {"stopped": True}
+            job_path = task_job(clip, s, os.path.join(out_dir, name, task), shift, car)
+            log(f"evaluate: {name} {task}")
+            r = run_task(job_path, device, s, stop)
+            if r.get("stopped"):
+                return {"stopped": True}
+            n_tasks_done += 1
+            events.progress("evaluate", n_tasks_done, total, clip=name, task=task)
+            kinds = {"naive": r["image"]}
+            if r["generated"] is not None:
+                kinds["generated"] = r["generated"]
+            for kind, video in kinds.items():
+                whole.add(f"{task}/{kind}", video)
+                if car is not None:
+                    for f, a in zip(video, r["asset"]):
+                        b = mask_crop_box(a[0].numpy(), s.crop_grow)
+                        if b is not None:
+                            crops.add(f"{task}/{kind}", [crop(f, b, s.crop_size)])
+            if car is None and shift in clip.views:
+                gt = torch.stack([_read_png(clip.views[shift][t], s.width, s.height) for t in frames])
+                for kind, video in kinds.items():
+                    gt_rows.append({"clip": name, "task": task, "shift_m": shift, "output": kind,
+                                    "frames": len(frames), "hole_fraction": float(1 - r["valid"].mean()),
+                                    **ground_truth_metrics(video, gt, r["valid"])})
+    result = {"settings": asdict(s), "seconds": None, "ground_truth": gt_rows,
+              "fid": feature_metrics(whole.sets, "real", s.inception, device, log),
+              "fid_c": (feature_metrics(crops.sets, "real", s.inception, device, log) if "real" in crops.sets
+                        else {"skipped": "no real car crops (no tracked cars in view)"}),
+              "counts": {"whole": {k: len(v) for k, v in whole.sets.items()},
+                         "crops": {k: len(v) for k, v in crops.sets.items()}}}
+    result["seconds"] = time.perf_counter() - t0
+    path = os.path.join(out_dir, "evaluation.json")
+    with open(path + ".tmp", "w") as f:
+        json.dump(result, f, indent=1, default=float)
+    os.replace(path + ".tmp", path)
+    log(format_table(result))
+    events.artifact(path, kind="evaluation")
+    return {"evaluation": path, "seconds": result["seconds"], "ground_truth": gt_rows}
+
+
+def format_table(result: dict) -> str:
+    lines = ["ground truth (PSNR dB / SSIM; all pixels | covered pixels):",
+             f"{'task':<16}{'output':<11}{'holes':>7}{'PSNR':>8}{'SSIM':>7}{'PSNR cov':>10}{'SSIM cov':>9}"]
+    for r in result["ground_truth"]:
+        lines.append(f"{r['task']:<16}{r['output']:<11}{r['hole_fraction']:>7.3f}{r['psnr']:>8.2f}{r['ssim']:>7.3f}"
+                     f"{r['psnr_covered']:>10.2f}{r['ssim_covered']:>9.3f}")
+    for key in ("fid", "fid_c"):
+        m = result[key]
+        if "skipped" in m:
+            lines.append(f"{key}: skipped: {m['skipped']}")
+            continue
+        lines.append(f"{key} (against real; images):")
+        for name, v in m.items():
+            lines.append(f"  {name:<30} FID {v['fid']:8.2f}  KID {v['kid']:.4f} ± {v['kid_std']:.4f}  "
+                         f"({v['images']} vs {v['reference_images']})")
+    return "\n".join(lines)

@@ -1,0 +1,228 @@
+"""Training clips: one folder per recorded clip, described by ``clip.json`` (schema ``scpainter.clip/1``).
+
+Layout (paths in ``clip.json`` are relative to it; docs/training.md has the full description)::
+
+    clip.json         {"schema": "scpainter.clip/1",
+                       "predictions": "predictions.npz",           VGGT demo layout, S frames (required)
+                       "frames": "frames/frame_{:06d}.png",        the real frames, a pattern or a list of S paths
+                       "poses": "poses.npz",                       optional metric poses (below)
+                       "cars": [{"id": "car 3", "size": [w, l, h],  optional tracked cars: box size in metres,
+                                 "boxes": {"0": 4x4, ...},          per-frame box_to_world (frames the car is in),
+                                 "asset": "assets/car_3.ply",       optional Gaussian asset (Amodal3R/TRELLIS PLY)
+                                 "asset_to_box": 4x4}],             optional; default: fitted (see Car)
+                       "views": {"2": "views/left_2m/frame_{:06d}.png"},   optional ground truth of the drive
+                       "fps": 10}                                           shifted left by 2 m (evaluation only)
+    predictions.npz   images (S,3,h,w), depth, depth_conf, extrinsic, intrinsic (VGGT's demo output)
+    poses.npz         world_to_camera (S,4,4) OpenCV, metric world; K (S,3,3) ours, for the frame images' size;
+                      world_from_vggt (4,4) similarity taking VGGT's world to the metric one
+    frames/           the real frames (any size; the targets of training, resized to the training resolution)
+
+World: the metric world of ``poses.npz`` when given; otherwise VGGT's own world (first camera = origin, scale
+normalised), with VGGT's cameras, and box sizes/asset alignment then in VGGT units. Boxes follow the job's
+convention: ``box_to_world`` maps the box frame (centre at the origin, axes along the box's width x, length y,
+height z, Z up) to the world; ``size`` is the box's full extent along those axes.
+
+No torch here: numpy, Pillow for the frames. Every error names the file and the field.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from scpainter_blender.core import cameras, vggt
+from scpainter_blender.core import job as job_mod
+from scpainter_blender.core.job import JobError
+
+SCHEMA = "scpainter.clip/1"
+
+
+class ClipError(JobError):
+    """A clip folder that cannot be used; the message names the file and the field."""
+
+
+@dataclass
+class Car:
+    """A tracked car. ``boxes``: frame -> box_to_world (4x4). ``asset_to_box`` maps the asset's file coordinates
+    into the box frame; when the clip gives none, the asset's bounding-box centre goes to the box centre and its
+    largest extent is scaled to the box's largest extent (assets in Z-up, front along +Y, as ours are)."""
+
+    id: str
+    size: np.ndarray
+    boxes: dict
+    asset: str | None = None
+    asset_to_box: np.ndarray | None = None
+
+
+@dataclass
+class Clip:
+    path: str                      # the clip.json
+    predictions: vggt.VGGTPredictions
+    frame_paths: list
+    image_size: tuple              # (W, H) of the real frames
+    world_to_camera: np.ndarray    # (S, 4, 4) OpenCV, clip world
+    K: np.ndarray                  # (S, 3, 3) ours, for image_size
+    world_from_vggt: np.ndarray    # (4, 4)
+    cars: list = field(default_factory=list)
+    fps: float = 10.0
+    metric: bool = False
+    views: dict = field(default_factory=dict)   # lateral shift (m, + left) -> S ground-truth frame paths
+
+    @property
+    def num_frames(self) -> int:
+        return self.predictions.num_frames
+
+    @property
+    def folder(self) -> str:
+        return os.path.dirname(os.path.abspath(self.path))
+
+    def K_for(self, width: int, height: int) -> np.ndarray:
+        """(S, 3, 3) intrinsics for the frames resized to width x height (pixel centres at +0.5, so a resize is a
+        plain scale of rows 0 and 1)."""
+        sx, sy = width / self.image_size[0], height / self.image_size[1]
+        return np.diag([sx, sy, 1.0]) @ self.K
+
+
+def _image_size(path: str, where: str, clip_path: str) -> tuple:
+    from PIL import Image
+
+    try:
+        with Image.open(path) as im:
+            return im.size
+    except FileNotFoundError:
+        raise ClipError(clip_path, where, f"frame file not found: {path}") from None
+    except OSError as e:
+        raise ClipError(clip_path, where, f"cannot read the image {path} ({e})") from None
+
+
+def load(path) -> Clip:
+    """Read and check a clip folder's ``clip.json`` (or the folder itself) and what it names."""
+    path = os.fspath(path)
+    if os.path.isdir(path):
+        path = os.path.join(path, "clip.json")
+    try:
+        with open(path, encoding="utf-8") as f:
+            data = json.load(f)
+    except FileNotFoundError:
+        raise ClipError(path, "(file)", "not found") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise ClipError(path, "(file)", f"not valid JSON: {e}") from None
+    if not isinstance(data, dict) or data.get("schema") != SCHEMA:
+        raise ClipError(path, "schema", f"expected {SCHEMA!r}, got {data.get('schema') if isinstance(data, dict) else data!r}")
+    pred_path = job_mod.resolve(path, job_mod._str(data.get("predictions"), path, "predictions"))
+    try:
+        pred = vggt.load_predictions(pred_path, world_points=False)
+    except FileNotFoundError:
+        raise ClipError(path, "predictions", f"file not found: {pred_path}") from None
+    S = pred.num_frames
+
+    frames = data.get("frames")
+    if isinstance(frames, str):
+        try:
+            frame_paths = [job_mod.resolve(path, frames.format(i)) for i in range(S)]
+        except (IndexError, KeyError, ValueError) as e:
+            raise ClipError(path, "frames", f"expected a pattern like 'frames/frame_{{:06d}}.png' ({e})") from None
+    elif isinstance(frames, list) and len(frames) == S:
+        frame_paths = [job_mod.resolve(path, job_mod._str(p, path, f"frames[{i}]")) for i, p in enumerate(frames)]
+    else:
+        raise ClipError(path, "frames", f"expected a path pattern or a list of {S} paths (one per VGGT frame)")
+    size = _image_size(frame_paths[0], "frames[0]", path)
+    for i in (S // 2, S - 1):  # the ends and the middle: a wrong count or size fails here, not mid-training
+        if _image_size(frame_paths[i], f"frames[{i}]", path) != size:
+            raise ClipError(path, f"frames[{i}]", f"size differs from frames[0] {size}")
+
+    metric = "poses" in data
+    if metric:
+        poses_path = job_mod.resolve(path, job_mod._str(data["poses"], path, "poses"))
+        try:
+            with np.load(poses_path, allow_pickle=False) as z:
+                arrays = {k: np.asarray(z[k], np.float64) for k in ("world_to_camera", "K", "world_from_vggt")
+                          if k in z.files}
+        except FileNotFoundError:
+            raise ClipError(path, "poses", f"file not found: {poses_path}") from None
+        except (OSError, ValueError) as e:
+            raise ClipError(path, "poses", f"cannot read {poses_path} ({e})") from None
+        for key, shape in (("world_to_camera", (S, 4, 4)), ("K", (S, 3, 3)), ("world_from_vggt", (4, 4))):
+            a = arrays.get(key)
+            if a is None or a.shape != shape or not np.all(np.isfinite(a)):
+                got = "missing" if a is None else f"shape {a.shape}" + ("" if np.all(np.isfinite(a)) else ", non-finite")
+                raise ClipError(poses_path, key, f"expected finite {shape}, got {got}")
+        w2c, K, world_from_vggt = arrays["world_to_camera"], arrays["K"], arrays["world_from_vggt"]
+    else:
+        w2c = cameras.orthonormalize(pred.world_to_camera)
+        K = np.diag([size[0] / pred.width, size[1] / pred.height, 1.0]) @ pred.K
+        world_from_vggt = np.eye(4)
+
+    cars = []
+    for i, c in enumerate(data.get("cars", [])):
+        where = f"cars[{i}]"
+        if not isinstance(c, dict):
+            raise ClipError(path, where, "expected an object")
+        car_size = np.array(c.get("size"), np.float64) if isinstance(c.get("size"), list) else None
+        if car_size is None or car_size.shape != (3,) or not np.all(car_size > 0):
+            raise ClipError(path, f"{where}.size", f"expected [width, length, height] > 0, got {c.get('size')!r}")
+        boxes = {}
+        if not isinstance(c.get("boxes"), dict) or not c["boxes"]:
+            raise ClipError(path, f"{where}.boxes", "expected an object {frame: box_to_world 4x4}, non-empty")
+        for k, m in c["boxes"].items():
+            try:
+                f = int(k)
+            except ValueError:
+                raise ClipError(path, f"{where}.boxes.{k}", "keys are frame indices") from None
+            if not 0 <= f < S:
+                raise ClipError(path, f"{where}.boxes.{k}", f"frame outside the clip's 0..{S - 1}")
+            boxes[f] = job_mod._rigid(m, path, f"{where}.boxes.{k}")
+        asset = c.get("asset")
+        if asset is not None:
+            asset = job_mod.resolve(path, job_mod._str(asset, path, f"{where}.asset"))
+            if not os.path.isfile(asset):
+                raise ClipError(path, f"{where}.asset", f"file not found: {asset}")
+        a2b = c.get("asset_to_box")
+        a2b = None if a2b is None else job_mod._affine(a2b, path, f"{where}.asset_to_box")
+        cars.append(Car(str(c.get("id", i)), car_size, boxes, asset, a2b))
+    fps = job_mod._number(data.get("fps", 10.0), path, "fps", lo=0.1)
+    views = {}
+    if not isinstance(data.get("views", {}), dict):
+        raise ClipError(path, "views", "expected an object {shift in metres: frame path pattern}")
+    for k, pattern in data.get("views", {}).items():
+        try:
+            shift = float(k)
+        except ValueError:
+            raise ClipError(path, f"views.{k}", "keys are lateral shifts in metres (+ left)") from None
+        views[shift] = [job_mod.resolve(path, job_mod._str(pattern, path, f"views.{k}").format(i)) for i in range(S)]
+        if not os.path.isfile(views[shift][0]):
+            raise ClipError(path, f"views.{k}", f"frame file not found: {views[shift][0]}")
+    return Clip(path, pred, frame_paths, size, w2c, K, world_from_vggt, cars, fps, metric, views)
+
+
+def fit_asset_to_box(means: np.ndarray, box_size) -> np.ndarray:
+    """4x4 asset file -> box frame: bounding-box centre to the box centre, largest extent to the box's largest
+    (uniform scale, no rotation: the asset is already Z up, front along +Y)."""
+    lo, hi = means.min(axis=0).astype(np.float64), means.max(axis=0).astype(np.float64)
+    s = float(np.max(box_size)) / max(float(np.max(hi - lo)), 1e-9)
+    A = np.eye(4)
+    A[:3, :3] *= s
+    A[:3, 3] = -s * (lo + hi) / 2
+    return A
+
+
+def grown_box(box_to_world, size, grow_m: float, grow_ratio: float):
+    """The removal box of a car: its size scaled by (1 + grow_ratio) plus grow_m on every side (metres or clip
+    units), same pose."""
+    return np.asarray(box_to_world, np.float64), np.asarray(size, np.float64) * (1 + grow_ratio) + 2 * grow_m
+
+
+def save(path, data: dict) -> None:
+    """Write a clip.json atomically (after checking it parses with ``load`` from the same folder is the caller's
+    business: the files it names may not exist yet)."""
+    path = os.fspath(path)
+    if data.get("schema") != SCHEMA:
+        raise ValueError(f"{path}: schema must be {SCHEMA!r}")
+    tmp = path + ".tmp"
+    with open(tmp, "w", encoding="utf-8") as f:
+        json.dump(data, f, indent=1)
+        f.write("\n")
+    os.replace(tmp, path)

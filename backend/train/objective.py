@@ -1,0 +1,86 @@
+"""The fine-tuning objective (DESIGN §5): EDM with SVD's v-parameterisation, written out.
+
+For a sample with clean latent x_0 (VAE latent of the real frames × scaling factor, (F, C, h, w)):
+
+    σ = exp(p_mean + p_std · n), n ~ N(0, 1)          one noise level per sample
+    x_σ = x_0 + σ ε
+    v = UNet([c_in(σ) x_σ ‖ cond], c_noise(σ), clip, time ids)
+    x̂_0 = c_skip x_σ + c_out v                        (edm.v_to_x0)
+    loss = mean over the batch of  λ(σ) · mean((x̂_0 − x_0)²),   λ(σ) = (σ² + 1)/σ²
+
+λ(σ) = 1/c_out² makes the loss the plain mean squared error of v against its target (x_σ c_skip − x_0)/(−c_out),
+i.e. unit weight per network output. The CLIP embedding is zeroed for a sample with probability ``drop_clip`` and,
+independently, the render-condition latent with ``drop_condition`` — exactly what the sampler's unconditional
+branch sees, so classifier-free guidance has something to contrast. The condition latent is multiplied by the
+keep mask (not replaced), so a dropped sample still backpropagates zeros through the encoder and DDP sees every
+parameter used.
+
+All random draws come from one CPU generator the trainer seeds per (seed, step, rank): identical on any device and
+after a resume.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from ..model import edm
+from ..model.condition import encode_conditions
+from ..model.pipeline import clip_embeddings
+
+
+def draw(gen: torch.Generator, batch: int, cfg) -> dict:
+    """The per-sample random choices of one micro-step: σ (B,), keep_clip and keep_cond (B,) float 0/1."""
+    n = torch.randn(batch, generator=gen, dtype=torch.float64)
+    sigma = torch.exp(cfg.p_mean + cfg.p_std * n).float()
+    keep_clip = (torch.rand(batch, generator=gen) >= cfg.drop_clip).float()
+    keep_cond = (torch.rand(batch, generator=gen) >= cfg.drop_condition).float()
+    return {"sigma": sigma, "keep_clip": keep_clip, "keep_cond": keep_cond}
+
+
+@torch.no_grad()
+def target_latents(vae, target: torch.Tensor, gen: torch.Generator) -> torch.Tensor:
+    """x_0 (B, F, C, h, w) float32: a sample of the VAE posterior of the frames (B, F, 3, H, W) in [0, 1], times
+    the scaling factor (the posterior noise drawn on the CPU from ``gen``)."""
+    B, F = target.shape[:2]
+    x = (target.flatten(0, 1) * 2.0 - 1.0).to(next(vae.parameters()).dtype)
+    dist = vae.encode(x).latent_dist
+    eps = torch.randn(dist.mean.shape, generator=gen).to(dist.mean)
+    z = (dist.mean + dist.std * eps).float() * vae.config.scaling_factor
+    return z.view(B, F, *z.shape[1:])
+
+
+def time_ids(config, batch: int, device) -> torch.Tensor:
+    return torch.tensor([[config.fps - 1, config.motion_bucket_id, config.noise_aug_strength]],
+                        dtype=torch.float32, device=device).repeat(batch, 1)
+
+
+def loss(models: dict, batch: dict, cfg, gen: torch.Generator, device, autocast_dtype=None) -> tuple:
+    """(scalar loss, stats) for one micro-batch. ``models``: unet, condition_encoder (trained), vae, image_encoder
+    (frozen), clip_mean, clip_std, config (ScpainterConfig). ``batch``: target, image (B, F, 3, H, W), asset,
+    valid (B, F, 1, H, W) in [0, 1]."""
+    unet, cond_enc, config = models["unet"], models["condition_encoder"], models["config"]
+    target = batch["target"].to(device)
+    B, F = target.shape[:2]
+    r = draw(gen, B, cfg)
+    x0 = target_latents(models["vae"], target, gen)
+    eps = torch.randn(x0.shape, generator=gen).to(device)
+    sigma = r["sigma"].to(device).view(B, 1, 1, 1, 1)
+    x_sigma = x0 + sigma * eps
+    with torch.no_grad():
+        clip = clip_embeddings(models["image_encoder"], target[:, 0], models["clip_mean"], models["clip_std"])
+    clip = clip * r["keep_clip"].to(device).view(B, 1, 1)
+    with torch.autocast(device_type=torch.device(device).type, dtype=autocast_dtype or torch.float32,
+                        enabled=autocast_dtype is not None):
+        cond = encode_conditions(cond_enc, batch["image"].to(device).flatten(0, 1),
+                                 batch["asset"].to(device).flatten(0, 1), batch["valid"].to(device).flatten(0, 1),
+                                 config.noise_aug_strength, gen)
+        cond = cond.float().view(B, F, *cond.shape[1:]) * r["keep_cond"].to(device).view(B, 1, 1, 1, 1)
+        inp = torch.cat([edm.c_in(sigma) * x_sigma, cond], dim=2)
+        v = unet(inp, edm.c_noise(sigma.view(B)), encoder_hidden_states=clip,
+                 added_time_ids=time_ids(config, B, device), return_dict=False)[0].float()
+    x0_hat = edm.v_to_x0(x_sigma, v, sigma)
+    weight = (sigma.view(B) ** 2 + 1.0) / sigma.view(B) ** 2
+    per_sample = ((x0_hat - x0) ** 2).mean(dim=(1, 2, 3, 4))
+    total = (weight * per_sample).mean()
+    return total, {"sigma": r["sigma"], "keep_clip": r["keep_clip"], "keep_cond": r["keep_cond"],
+                   "per_sample": per_sample.detach().cpu()}

@@ -1,0 +1,173 @@
+"""Training pairs (paper §3.4, DESIGN §5): condition layers rendered from a clip, with the real frames as targets.
+
+A sample is ``frames`` consecutive target frames t0 .. t0+F−1 of one clip. For each target frame t:
+
+* **Novel-view pair**: the points of a random subset of the frames within ±``window`` of t, never t itself (each
+  neighbour kept with probability ``source_prob``; at least one), are projected into frame t's camera. Points
+  from other frames land where frame t's own pixels would have been, with the holes and misalignments a novel
+  view has, while the target stays the real frame t.
+* **Asset pair** (probability ``asset_prob``, clips with a tracked car that has an asset): that car's points are
+  removed from every source frame inside its box grown by ``grow_ratio`` and ``grow_m``, and its Gaussian asset
+  is composited at its box in frame t. The rendered asset mask M_a at this observed viewpoint comes out with I.
+
+Rendering is the inference renderer's (``backend.render.frames.render_frame``) at the training resolution, with the
+clip's intrinsics scaled to it. Layers, as ``generate`` loads them: I (3, H, W) and M_a, validity = 1 − hole
+(1, H, W), float32 in [0, 1]. All randomness comes from the generator the caller passes, so a sample index and a
+seed determine the sample (exact resume, identical across DataLoader workers).
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from dataclasses import dataclass, replace
+
+import numpy as np
+import torch
+
+from scpainter_blender.core import cameras, splats, vggt
+
+from ..render import frames as fr
+from . import clip as clip_mod
+
+
+@dataclass(frozen=True)
+class PairSettings:
+    width: int = 576
+    height: int = 320
+    frames: int = 14
+    window: int = 8                # sources from t − window .. t + window, t excluded
+    source_prob: float = 0.5       # each neighbour's chance of contributing points
+    asset_prob: float = 0.5        # chance that a sample is an asset pair (when the clip has assets)
+    grow_ratio: float = 0.1        # removal box = size · (1 + grow_ratio) + 2 · grow_m
+    grow_m: float = 0.2
+    confidence_percentile: float = 50.0
+    point_radius: int = 0
+
+
+def load_resized(path: str, width: int, height: int) -> torch.Tensor:
+    """(3, height, width) uint8: an image file as RGB, resized with Lanczos (antialiased) when its size differs."""
+    from PIL import Image
+
+    try:
+        with Image.open(path) as im:
+            im = im.convert("RGB")
+            if im.size != (width, height):
+                im = im.resize((width, height), Image.LANCZOS)
+            return torch.from_numpy(np.asarray(im).copy()).permute(2, 0, 1)
+    except OSError as e:
+        raise ValueError(f"{path}: cannot read the image ({e})") from None
+
+
+class PairMaker:
+    """Renders training samples of one clip. Holds the clip's point cloud (relative to the first camera, float32,
+    grouped by source frame), its assets, and the targets resized to the training resolution."""
+
+    def __init__(self, clip: clip_mod.Clip, settings: PairSettings, device="cpu"):
+        s = self.settings = settings
+        if clip.num_frames < s.frames:
+            raise clip_mod.ClipError(clip.path, "predictions",
+                                     f"the clip has {clip.num_frames} frames, fewer than the {s.frames} of a sample")
+        self.clip, self.device = clip, torch.device(device)
+        cloud = vggt.point_cloud(clip.predictions, s.confidence_percentile, world_from_vggt=clip.world_from_vggt)
+        self.origin = cameras.camera_centers(clip.world_to_camera[0])
+        self.xyz = torch.as_tensor((cloud.positions - self.origin).astype(np.float32), device=self.device)
+        self.rgb = torch.as_tensor(cloud.colors, device=self.device)
+        self.offsets = cloud.offsets
+        self.K = clip.K_for(s.width, s.height)
+        self.assets = {}
+        for i, car in enumerate(clip.cars):
+            if car.asset is None:
+                continue
+            g = splats.load(car.asset)
+            a2b = car.asset_to_box if car.asset_to_box is not None else clip_mod.fit_asset_to_box(g.means, car.size)
+            self.assets[i] = (fr.make_asset(car.id, g, {}, self.device), a2b)
+        self._targets = {}
+
+    def target(self, t: int) -> torch.Tensor:
+        """(3, H, W) float32 in [0, 1]: real frame t, resized with Lanczos (antialiased), cached as uint8."""
+        if t not in self._targets:
+            self._targets[t] = load_resized(self.clip.frame_paths[t], self.settings.width, self.settings.height)
+        return self._targets[t].float() / 255.0
+
+    def sources(self, t: int, rng: np.random.Generator) -> list:
+        s, S = self.settings, self.clip.num_frames
+        near = [f for f in range(max(0, t - s.window), min(S, t + s.window + 1)) if f != t]
+        keep = [f for f in near if rng.random() < s.source_prob]
+        return keep or [near[int(rng.integers(len(near)))]]
+
+    def _points(self, sources: list, car: clip_mod.Car | None):
+        """Points of the source frames, minus the car's points inside its grown box at each source frame."""
+        xyz, rgb = [], []
+        for f in sources:
+            sl = slice(int(self.offsets[f]), int(self.offsets[f + 1]))
+            p, c = self.xyz[sl], self.rgb[sl]
+            if car is not None and f in car.boxes:
+                T, size = clip_mod.grown_box(car.boxes[f], car.size, self.settings.grow_m, self.settings.grow_ratio)
+                R = torch.as_tensor(T[:3, :3], dtype=torch.float32, device=self.device)
+                c0 = torch.as_tensor(T[:3, 3] - self.origin, dtype=torch.float32, device=self.device)
+                local = (p - c0) @ R
+                inside = (local.abs() <= torch.as_tensor(size / 2, dtype=torch.float32, device=self.device)).all(1)
+                p, c = p[~inside], c[~inside]
+            xyz.append(p)
+            rgb.append(c)
+        return torch.cat(xyz), torch.cat(rgb)
+
+    def sample(self, rng: np.random.Generator, t0: int | None = None, asset: bool | None = None) -> dict:
+        """One training sample: target, image (F, 3, H, W); asset, valid (F, 1, H, W); and what was drawn."""
+        s, S = self.settings, self.clip.num_frames
+        t0 = int(rng.integers(0, S - s.frames + 1)) if t0 is None else t0
+        targets = range(t0, t0 + s.frames)
+        with_asset = [i for i in self.assets if any(t in self.clip.cars[i].boxes for t in targets)]
+        want = (rng.random() < s.asset_prob) if asset is None else asset
+        car_i = with_asset[int(rng.integers(len(with_asset)))] if (want and with_asset) else None
+        car = None if car_i is None else self.clip.cars[car_i]
+        out = {k: [] for k in ("target", "image", "asset", "valid")}
+        drawn = []
+        for t in targets:
+            src = self.sources(t, rng)
+            drawn.append(src)
+            xyz, rgb = self._points(src, car)
+            scene = fr.Scene(origin=self.origin, device=self.device, xyz=xyz, rgb=rgb, frames_present=frozenset(src))
+            if car is not None and t in car.boxes:
+                a, a2b = self.assets[car_i]
+                scene.assets = [replace(a, object_to_world={str(t): car.boxes[t] @ a2b})]
+            entry = {"frame": t, "K": self.K[t], "world_to_camera": self.clip.world_to_camera[t], "source_frames": src}
+            layers = fr.render_frame(scene, entry, s.width, s.height, s.point_radius, to_numpy=False)
+            out["target"].append(self.target(t))
+            out["image"].append(torch.stack([layers["R"], layers["G"], layers["B"]]).cpu())
+            out["asset"].append(layers["asset"][None].cpu())
+            out["valid"].append(1.0 - layers["hole"][None].cpu())
+        sample = {k: torch.stack(v) for k, v in out.items()}
+        sample.update(t0=t0, car=-1 if car_i is None else car_i, sources=drawn)
+        return sample
+
+
+class PairDataset(torch.utils.data.Dataset):
+    """Sample ``i`` of a training run: clip, start frame and sources drawn from ``np.random.default_rng([seed, i])``
+    — the same sample in any worker, on any rank, after any resume. Clips are opened lazily per worker, the most
+    recent ``cache`` of them kept (a clip's point cloud is tens of MB)."""
+
+    def __init__(self, clip_paths: list, settings: PairSettings, seed: int = 0, cache: int = 4, length: int = 2**62):
+        if not clip_paths:
+            raise ValueError("no training clips given")
+        self.clip_paths, self.settings, self.seed, self.cache, self.length = list(clip_paths), settings, seed, cache, length
+        self._makers: OrderedDict = OrderedDict()
+
+    def __len__(self):
+        return self.length
+
+    def maker(self, k: int) -> PairMaker:
+        if k not in self._makers:
+            self._makers[k] = PairMaker(clip_mod.load(self.clip_paths[k]), self.settings)
+            while len(self._makers) > self.cache:
+                self._makers.popitem(last=False)
+        self._makers.move_to_end(k)
+        return self._makers[k]
+
+    def __getitem__(self, i: int) -> dict:
+        rng = np.random.default_rng([self.seed, int(i)])
+        k = int(rng.integers(len(self.clip_paths)))
+        sample = self.maker(k).sample(rng)
+        return {"target": sample["target"], "image": sample["image"], "asset": sample["asset"],
+                "valid": sample["valid"], "clip": k, "t0": sample["t0"], "car": sample["car"]}
+

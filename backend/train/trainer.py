@@ -1,0 +1,315 @@
+"""``python -m backend train CONFIG``: fine-tune an SCPainter checkpoint on clip folders (DESIGN §5).
+
+Read top to bottom: load the checkpoint's components (UNet and condition encoder trained; VAE and CLIP frozen),
+wrap what trains with ``accelerate`` (DDP over however many processes ``accelerate launch``/``torchrun`` started;
+one process otherwise), resume from the newest checkpoint in ``output_dir`` if there is one, then step:
+
+    batch (rendered pairs, backend.train.pairs) → objective.loss → backward → clip → AdamW → EMA,
+
+logging to TensorBoard (rank 0) and saving checkpoints that ``generate`` loads directly.
+
+Determinism and exact resume: sample i of the run is drawn from (seed, i) (pairs.PairDataset) and each
+micro-step's noise from a CPU generator seeded (seed, step, micro-step, rank); the learning rate is a function of
+the step. A checkpoint holds the weights, the optimiser state and the EMA, so resuming at step k and training to
+n gives the weights of an uninterrupted run to n.
+
+Checkpoint folder ``checkpoints/step_NNNNNNN`` (written under a temporary name, renamed when complete): an
+SCPainter checkpoint (scpainter.json with trained_steps, the base's frozen components hard-linked, unet/ and
+condition_encoder/ holding the EMA weights, or the raw ones without EMA) plus ``training_state/`` (raw weights,
+optimiser state — read back with ``torch.load(weights_only=True)`` — EMA, step).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+import tempfile
+import time
+from dataclasses import asdict
+
+import numpy as np
+import torch
+
+from .. import events
+from ..model import checkpoint as ckpt_mod
+from . import objective
+from .config import TrainConfig, TrainConfigError
+from .ema import EMA
+from .pairs import PairDataset
+
+CKPT_PREFIX = "step_"
+
+
+def checkpoints(output_dir: str) -> list:
+    """Finished checkpoint folders in ``output_dir``, oldest first."""
+    d = os.path.join(output_dir, "checkpoints")
+    if not os.path.isdir(d):
+        return []
+    names = sorted(n for n in os.listdir(d) if n.startswith(CKPT_PREFIX) and n[len(CKPT_PREFIX):].isdigit())
+    return [os.path.join(d, n) for n in names if os.path.isfile(os.path.join(d, n, "training_state", "state.json"))]
+
+
+def lr_at(cfg: TrainConfig, step: int) -> float:
+    """Linear warm-up over ``warmup_steps``, then constant."""
+    return cfg.learning_rate * min(1.0, (step + 1) / cfg.warmup_steps) if cfg.warmup_steps else cfg.learning_rate
+
+
+class StepSampler(torch.utils.data.Sampler):
+    """Global sample indices of this rank from ``start_step`` on: micro-step m of step s takes samples
+    ((s·A + m)·W + rank)·B + j, j < B (A: accumulation, W: processes, B: batch)."""
+
+    def __init__(self, start_step: int, steps: int, batch: int, accumulation: int, world: int, rank: int):
+        self.a = (start_step, steps, batch, accumulation, world, rank)
+
+    def __iter__(self):
+        start, steps, B, A, W, r = self.a
+        for s in range(start, steps):
+            for m in range(A):
+                base = ((s * A + m) * W + r) * B
+                yield from range(base, base + B)
+
+    def __len__(self):
+        start, steps, B, A, _, _ = self.a
+        return max(0, steps - start) * A * B
+
+
+def _collate(items: list) -> dict:
+    return {k: torch.stack([it[k] for it in items]) for k in ("target", "image", "asset", "valid")}
+
+
+def make_optimizer(cfg: TrainConfig, params: list):
+    if cfg.optimizer == "adamw8bit":
+        try:
+            import bitsandbytes as bnb
+        except ImportError:
+            raise TrainConfigError(cfg.path, "optimizer", "'adamw8bit' needs bitsandbytes (a CUDA package): "
+                                   "pip install bitsandbytes, or use 'adamw'") from None
+        opt = bnb.optim.AdamW8bit
+    else:
+        opt = torch.optim.AdamW
+    return opt(params, lr=lr_at(cfg, 0), betas=tuple(cfg.adam_betas), eps=cfg.adam_eps,
+               weight_decay=cfg.weight_decay)
+
+
+def _save_component(model, folder: str, state: dict) -> None:
+    """A diffusers component folder (config.json + safetensors) holding ``state``."""
+    from safetensors.torch import save_file
+
+    os.makedirs(folder, exist_ok=True)
+    model.save_config(folder)
+    save_file({k: v.detach().float().cpu().contiguous() for k, v in state.items()},
+              os.path.join(folder, "diffusion_pytorch_model.safetensors"))
+
+
+class Trainer:
+    def __init__(self, cfg: TrainConfig, device: str | None = None, log=None):
+        from accelerate import Accelerator
+
+        self.cfg = cfg
+        cpu = device == "cpu" or (device is None and not torch.cuda.is_available())
+        mp = cfg.mixed_precision
+        if mp == "auto":
+            mp = "no" if cpu else "bf16"
+        self.accelerator = Accelerator(cpu=cpu, mixed_precision=mp, gradient_accumulation_steps=1)
+        self.autocast = torch.bfloat16 if mp == "bf16" else None
+        self.device = self.accelerator.device
+        self.rank, self.world = self.accelerator.process_index, self.accelerator.num_processes
+        self.out = cfg.resolve(cfg.output_dir)
+        os.makedirs(self.out, exist_ok=True)
+        self.log = log or (events.FileLog(os.path.join(self.out, "train.log")) if self.rank == 0 else (lambda m: None))
+        self.base = ckpt_mod.resolve(cfg.resolve(cfg.checkpoint))
+        comps = ckpt_mod.load(self.base, device=self.device, dtype=torch.float32)
+        self.scp_config = comps["config"]
+        self.unet, self.cond = comps["unet"], comps["condition_encoder"]
+        self.unet.train().requires_grad_(True)
+        self.cond.train().requires_grad_(cfg.train_condition_encoder)
+        if cfg.gradient_checkpointing:
+            self.unet.enable_gradient_checkpointing()
+            self.cond.enable_gradient_checkpointing()
+        self.frozen = {"vae": comps["vae"], "image_encoder": comps["image_encoder"],
+                       "clip_mean": torch.tensor(comps["clip_mean"]).view(1, 3, 1, 1),
+                       "clip_std": torch.tensor(comps["clip_std"]).view(1, 3, 1, 1), "config": comps["config"]}
+        self.named = {f"unet.{k}": p for k, p in self.unet.named_parameters()}
+        if cfg.train_condition_encoder:
+            self.named.update({f"condition_encoder.{k}": p for k, p in self.cond.named_parameters()})
+        self.optimizer = make_optimizer(cfg, list(self.named.values()))
+        self.ema = EMA(self.named, cfg.ema_decay) if cfg.ema_decay > 0 else None
+        self.step = 0
+        latest = checkpoints(self.out)
+        if latest:
+            self._load_state(latest[-1])
+        self.unet_ddp, self.cond_ddp, self.optimizer = self.accelerator.prepare(self.unet, self.cond, self.optimizer)
+        self.dataset = PairDataset(cfg.clip_paths(), cfg.pairs, seed=cfg.seed)
+        from .tensorboard_log import TrainLog
+
+        self.tb = TrainLog(os.path.join(self.out, "logs") if self.rank == 0 else None)
+
+    # ---------------------------------------------------------------------------------------------------------
+    def _load_state(self, folder: str) -> None:
+        from safetensors.torch import load_file
+
+        st = os.path.join(folder, "training_state")
+        with open(os.path.join(st, "state.json")) as f:
+            meta = json.load(f)
+        raw = load_file(os.path.join(st, "weights.safetensors"))
+        missing = set(self.named) - set(raw)
+        if missing:
+            raise TrainConfigError(self.cfg.path, "output_dir", f"{st}: the saved weights lack {sorted(missing)[:3]} "
+                                   "(trained with another configuration?)")
+        with torch.no_grad():
+            for k, p in self.named.items():
+                p.copy_(raw[k])
+        self.optimizer.load_state_dict(torch.load(os.path.join(st, "optimizer.pt"), map_location="cpu",
+                                                  weights_only=True))
+        if self.ema is not None:
+            ema = load_file(os.path.join(st, "ema.safetensors"))
+            self.ema.shadow = {k: ema[k].to(self.device) for k in self.named}
+            self.ema.updates = int(meta["ema_updates"])
+        self.step = int(meta["step"])
+        self.log(f"train: resumed from {folder} at step {self.step}")
+
+    def save(self) -> str:
+        """Write checkpoints/step_N (every rank waits; rank 0 writes) and prune old ones. Returns the folder."""
+        self.accelerator.wait_for_everyone()
+        final = os.path.join(self.out, "checkpoints", f"{CKPT_PREFIX}{self.step:07d}")
+        if self.rank == 0 and not os.path.isdir(final):
+            from safetensors.torch import save_file
+
+            os.makedirs(os.path.dirname(final), exist_ok=True)
+            tmp = tempfile.mkdtemp(prefix=".ckpt-", dir=os.path.dirname(final))
+            try:
+                for comp in ("vae", "image_encoder", "feature_extractor", "scheduler"):
+                    ckpt_mod._link_or_copy_tree(os.path.join(self.base, comp), os.path.join(tmp, comp))
+                shutil.copy2(os.path.join(self.base, "model_index.json"), os.path.join(tmp, "model_index.json"))
+                weights = self.ema.shadow if self.ema is not None else {k: p for k, p in self.named.items()}
+                unet_state = dict(self.unet.state_dict())
+                unet_state.update({k[5:]: v for k, v in weights.items() if k.startswith("unet.")})
+                _save_component(self.unet, os.path.join(tmp, "unet"), unet_state)
+                cond_state = dict(self.cond.state_dict())
+                cond_state.update({k[18:]: v for k, v in weights.items() if k.startswith("condition_encoder.")})
+                _save_component(self.cond, os.path.join(tmp, "condition_encoder"), cond_state)
+                sc = asdict(self.scp_config)
+                sc["trained_steps"] = self.scp_config.trained_steps + self.step
+                sc["extra"] = dict(sc.get("extra") or {}, trained_from=self.base, ema=self.ema is not None,
+                                   train_config=self.cfg.to_json())
+                with open(os.path.join(tmp, "scpainter.json"), "w") as f:
+                    json.dump(sc, f, indent=1)
+                st = os.path.join(tmp, "training_state")
+                os.makedirs(st)
+                save_file({k: p.detach().float().cpu().contiguous() for k, p in self.named.items()},
+                          os.path.join(st, "weights.safetensors"))
+                torch.save(self.optimizer.state_dict(), os.path.join(st, "optimizer.pt"))
+                if self.ema is not None:
+                    save_file({k: v.cpu().contiguous() for k, v in self.ema.shadow.items()},
+                              os.path.join(st, "ema.safetensors"))
+                with open(os.path.join(st, "state.json"), "w") as f:
+                    json.dump({"step": self.step, "ema_updates": 0 if self.ema is None else self.ema.updates,
+                               "world_size": self.world}, f)
+                os.rename(tmp, final)
+            except BaseException:
+                shutil.rmtree(tmp, ignore_errors=True)
+                raise
+            for old in checkpoints(self.out)[:-self.cfg.keep_checkpoints]:
+                shutil.rmtree(old, ignore_errors=True)
+            events.artifact(final, kind="checkpoint", step=self.step)
+        self.accelerator.wait_for_everyone()
+        return final
+
+    # ---------------------------------------------------------------------------------------------------------
+    def _generator(self, step: int, micro: int) -> torch.Generator:
+        seed = int(np.random.SeedSequence([self.cfg.seed, step, micro, self.rank]).generate_state(1)[0])
+        return torch.Generator().manual_seed(seed)
+
+    def _models(self) -> dict:
+        return {"unet": self.unet_ddp, "condition_encoder": self.cond_ddp, **self.frozen}
+
+    def sample_video(self, sample: dict, steps: int) -> torch.Tensor:
+        """(F, 3, H, 3W) in [0, 1]: condition | generated (EMA weights) | target, for the log."""
+        from ..model.pipeline import SCPainterPipeline
+
+        comps = {"unet": self.unet, "vae": self.frozen["vae"], "image_encoder": self.frozen["image_encoder"],
+                 "condition_encoder": self.cond, "config": self.scp_config,
+                 "clip_mean": self.frozen["clip_mean"].flatten().tolist(),
+                 "clip_std": self.frozen["clip_std"].flatten().tolist()}
+        self.unet.eval(), self.cond.eval()
+        try:
+            ctx = self.ema.applied(self.named) if self.ema is not None else torch.no_grad()
+            with ctx:
+                pipe = SCPainterPipeline(comps, self.device)
+                cond = pipe.condition_latents(sample["image"], sample["asset"], sample["valid"])
+                x = pipe.sample(cond, pipe.clip_embedding(sample["target"][0]), steps=steps)
+                video = pipe.decode(x)
+        finally:
+            self.unet.train(), self.cond.train()
+        return torch.cat([sample["image"], video, sample["target"]], dim=-1)
+
+    def train(self, stop=(), max_steps: int | None = None) -> dict:
+        cfg, acc = self.cfg, self.accelerator
+        end = cfg.steps if max_steps is None else min(cfg.steps, max_steps)
+        if self.step >= end:
+            self.log(f"train: already at step {self.step} of {end}")
+            return {"step": self.step, "stopped": False, "checkpoint": (checkpoints(self.out) or [None])[-1]}
+        loader = torch.utils.data.DataLoader(
+            self.dataset, batch_size=cfg.batch_size, num_workers=cfg.num_workers, collate_fn=_collate,
+            sampler=StepSampler(self.step, end, cfg.batch_size, cfg.gradient_accumulation, self.world, self.rank),
+            persistent_workers=False, prefetch_factor=2 if cfg.num_workers else None)
+        val = self.dataset.maker(0).sample(np.random.default_rng([cfg.seed, 2**31])) if cfg.sample_every else None
+        n_params = sum(p.numel() for p in self.named.values())
+        self.log(f"train: {n_params / 1e6:.1f} M trained parameters, steps {self.step} -> {end}, batch "
+                 f"{cfg.batch_size} x {cfg.gradient_accumulation} x {self.world} processes, "
+                 f"{cfg.pairs.frames} frames {cfg.pairs.width}x{cfg.pairs.height}, {self.device}, "
+                 f"mixed precision {acc.mixed_precision}")
+        it = iter(loader)
+        t_last, losses, stopped = time.perf_counter(), [], False
+        while self.step < end:
+            if stop:
+                stopped = True
+                break
+            lr = lr_at(cfg, self.step)
+            for g in self.optimizer.param_groups:
+                g["lr"] = lr
+            step_loss = 0.0
+            for m in range(cfg.gradient_accumulation):
+                batch = next(it)
+                loss, _ = objective.loss(self._models(), batch, cfg, self._generator(self.step, m), self.device,
+                                         self.autocast)
+                acc.backward(loss / cfg.gradient_accumulation)
+                step_loss += float(loss.detach()) / cfg.gradient_accumulation
+            if not math.isfinite(step_loss):
+                raise FloatingPointError(f"train: loss is {step_loss} at step {self.step}; the last checkpoint is "
+                                         "kept (lower learning_rate, or check the clips)")
+            grad_norm = float(acc.clip_grad_norm_(list(self.named.values()), cfg.max_grad_norm))
+            self.optimizer.step()
+            self.optimizer.zero_grad(set_to_none=True)
+            if self.ema is not None:
+                self.ema.update(self.named)
+            self.step += 1
+            losses.append(step_loss)
+            events.progress("train", self.step, end, loss=step_loss)
+            if self.step % cfg.log_every == 0 or self.step == end:
+                dt = time.perf_counter() - t_last
+                t_last = time.perf_counter()
+                mean = float(np.mean(losses[-cfg.log_every:]))
+                samples_s = cfg.log_every * cfg.batch_size * cfg.gradient_accumulation * self.world / dt
+                self.tb.scalars(self.step, {"loss": mean, "lr": lr, "grad_norm": grad_norm,
+                                            "samples_per_s": samples_s})
+                self.log(f"step {self.step}: loss {mean:.4f}, grad norm {grad_norm:.3f}, lr {lr:.2e}, "
+                         f"{samples_s:.2f} samples/s")
+            if val is not None and self.rank == 0 and self.step % cfg.sample_every == 0:
+                self.tb.video("sample/condition|generated|target", self.step,
+                              self.sample_video(val, cfg.sample_steps), fps=int(self.scp_config.fps))
+            if self.step % cfg.save_every == 0:
+                self.save()
+        final = self.save()
+        self.tb.flush()
+        return {"step": self.step, "stopped": stopped, "checkpoint": final, "losses": losses}
+
+
+def train(cfg: TrainConfig, device: str | None = None, stop=(), max_steps: int | None = None) -> dict:
+    trainer = Trainer(cfg, device)
+    try:
+        return trainer.train(stop, max_steps)
+    finally:
+        trainer.tb.close()

@@ -1,5 +1,5 @@
 # The two commands of the README: `make demo` (the main job on the built-in street) and `make test`.
-.PHONY: setup demo test bench clean-cache
+.PHONY: setup demo test bench train-street clean-cache
 
 setup:
 	@bash tools/setup.sh
@@ -9,6 +9,9 @@ demo: setup
 
 test: setup
 	.venv/bin/python -m pytest
+
+train-street: setup
+	.venv/bin/python tools/train_street.py $(ARGS)
 
 bench: setup
 	.venv/bin/python bench/bench_import.py

@@ -219,9 +219,20 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--max-steps", type=int, help="stop (with a checkpoint) after this step this time")
     t.set_defaults(func=_cmd_train)
     e = sub.add_parser("evaluate", help="FID / FID-C / KID on validation clips and ground-truth PSNR/SSIM")
-    from .evaluate.protocol import add_arguments
-
-    add_arguments(e)
+    e.add_argument("clips", nargs="+", help="validation clip folders (clip.json, docs/training.md)")
+    e.add_argument("--output-dir", required=True, help="jobs, renders, videos and evaluation.json go here")
+    e.add_argument("--checkpoint", help="SCPainter checkpoint to evaluate (without: the naive baselines only)")
+    e.add_argument("--resolution", type=int, nargs=2, default=[576, 320], metavar=("W", "H"))
+    e.add_argument("--frames", type=int, default=14, help="frames per clip, from its start")
+    e.add_argument("--shifts", type=float, nargs="*", default=[2.0, -2.0, 3.0, -3.0],
+                   help="lateral shifts in metres (+ left)")
+    e.add_argument("--no-insertion", action="store_true", help="skip the asset re-insertion tasks")
+    e.add_argument("--window", type=int, default=8, help="source frames t ± window project into frame t")
+    e.add_argument("--steps", type=int, default=25, help="sampler steps")
+    e.add_argument("--seed", type=int, default=0)
+    e.add_argument("--precision", choices=["auto", "fp32", "bf16", "fp16"], default="auto")
+    e.add_argument("--inception", help="FID Inception weights (pytorch-fid's pt_inception-2015-12-05-6726825d.pth "
+                                       "or a safetensors copy); without it FID/KID are skipped")
     e.add_argument("--device", choices=["auto", "cpu", "cuda"], default="auto")
     e.set_defaults(func=_cmd_evaluate)
     return p

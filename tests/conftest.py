@@ -83,3 +83,11 @@ def tiny_checkpoint(tiny_svd, tmp_path_factory):
     from backend.model import checkpoint
 
     return checkpoint.init_checkpoint(tiny_svd, str(tmp_path_factory.mktemp("ckpt") / "scpainter-tiny"))
+
+
+@pytest.fixture(scope="session")
+def street_clip_path(street, tmp_path_factory):
+    """The ground-truth street exported as a training clip (clip.json path)."""
+    from backend.train import street_clip
+
+    return street_clip.export_clip(street, str(tmp_path_factory.mktemp("clips") / "street"))

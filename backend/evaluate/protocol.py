@@ -66,26 +66,10 @@ class EvalSettings:
 
     @classmethod
     def from_args(cls, a) -> EvalSettings:
+        """From ``python -m backend evaluate``'s arguments (backend/__main__.py)."""
         return cls(clips=a.clips, output_dir=a.output_dir, checkpoint=a.checkpoint, width=a.resolution[0],
                    height=a.resolution[1], frames=a.frames, shifts=tuple(a.shifts), insertion=not a.no_insertion,
                    window=a.window, steps=a.steps, seed=a.seed, precision=a.precision, inception=a.inception)
-
-
-def add_arguments(p) -> None:
-    p.add_argument("clips", nargs="+", help="validation clip folders (clip.json, docs/training.md)")
-    p.add_argument("--output-dir", required=True, help="jobs, renders, videos and evaluation.json go here")
-    p.add_argument("--checkpoint", help="SCPainter checkpoint to evaluate (without: the naive baselines only)")
-    p.add_argument("--resolution", type=int, nargs=2, default=[576, 320], metavar=("W", "H"))
-    p.add_argument("--frames", type=int, default=14, help="frames per clip, from its start")
-    p.add_argument("--shifts", type=float, nargs="*", default=[2.0, -2.0, 3.0, -3.0],
-                   help="lateral shifts in metres (+ left)")
-    p.add_argument("--no-insertion", action="store_true", help="skip the asset re-insertion tasks")
-    p.add_argument("--window", type=int, default=8, help="source frames t ± window project into frame t")
-    p.add_argument("--steps", type=int, default=25, help="sampler steps")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--precision", choices=["auto", "fp32", "bf16", "fp16"], default="auto")
-    p.add_argument("--inception", help="FID Inception weights (pytorch-fid's pt_inception-2015-12-05-6726825d.pth "
-                                       "or a safetensors copy); without it FID/KID are skipped")
 
 
 # ---------------------------------------------------------------------------------------------------------------

@@ -113,10 +113,9 @@ def load(path) -> Clip:
     if not isinstance(data, dict) or data.get("schema") != SCHEMA:
         raise ClipError(path, "schema", f"expected {SCHEMA!r}, got {data.get('schema') if isinstance(data, dict) else data!r}")
     pred_path = job_mod.resolve(path, job_mod._str(data.get("predictions"), path, "predictions"))
-    try:
-        pred = vggt.load_predictions(pred_path, world_points=False)
-    except FileNotFoundError:
-        raise ClipError(path, "predictions", f"file not found: {pred_path}") from None
+    if not os.path.isfile(pred_path):
+        raise ClipError(path, "predictions", f"file not found: {pred_path}")
+    pred = vggt.load_predictions(pred_path, world_points=False)  # its errors name the file and key
     S = pred.num_frames
 
     frames = data.get("frames")

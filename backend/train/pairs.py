@@ -112,14 +112,18 @@ class PairMaker:
             rgb.append(c)
         return torch.cat(xyz), torch.cat(rgb)
 
-    def sample(self, rng: np.random.Generator, t0: int | None = None, asset: bool | None = None) -> dict:
-        """One training sample: target, image (F, 3, H, W); asset, valid (F, 1, H, W); and what was drawn."""
+    def sample(self, rng: np.random.Generator, t0: int | None = None, asset: bool | None = None,
+               car: int | None = None) -> dict:
+        """One training sample: target, image (F, 3, H, W); asset, valid (F, 1, H, W); and what was drawn.
+        ``t0``, ``asset`` (asset pair or not) and ``car`` (its index) override the draws, for tests and samples."""
         s, S = self.settings, self.clip.num_frames
         t0 = int(rng.integers(0, S - s.frames + 1)) if t0 is None else t0
         targets = range(t0, t0 + s.frames)
         with_asset = [i for i in self.assets if any(t in self.clip.cars[i].boxes for t in targets)]
         want = (rng.random() < s.asset_prob) if asset is None else asset
         car_i = with_asset[int(rng.integers(len(with_asset)))] if (want and with_asset) else None
+        if car is not None:
+            car_i = car
         car = None if car_i is None else self.clip.cars[car_i]
         out = {k: [] for k in ("target", "image", "asset", "valid")}
         drawn = []

@@ -254,7 +254,10 @@ class Trainer:
         loader = torch.utils.data.DataLoader(
             self.dataset, batch_size=cfg.batch_size, num_workers=cfg.num_workers, collate_fn=_collate,
             sampler=StepSampler(self.step, end, cfg.batch_size, cfg.gradient_accumulation, self.world, self.rank),
-            persistent_workers=False, prefetch_factor=2 if cfg.num_workers else None)
+            prefetch_factor=2 if cfg.num_workers else None,
+            # spawn, not fork: the parent has run numba's and torch's thread pools (samples, model loading), and a
+            # forked child inherits their locks and hangs
+            multiprocessing_context="spawn" if cfg.num_workers else None)
         val = self.dataset.maker(0).sample(np.random.default_rng([cfg.seed, 2**31])) if cfg.sample_every else None
         n_params = sum(p.numel() for p in self.named.values())
         self.log(f"train: {n_params / 1e6:.1f} M trained parameters, steps {self.step} -> {end}, batch "

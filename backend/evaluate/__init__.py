@@ -1,0 +1,1 @@
+"""Evaluation metrics: FID/KID over Inception-v3 pool3 features, and per-image PSNR/SSIM."""

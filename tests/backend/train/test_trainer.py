@@ -1,0 +1,108 @@
+"""The trainer end to end on the street clip with the tiny model: exact resume, checkpoints generate loads, logs,
+configuration errors, and the train command."""
+
+import json
+import os
+
+import pytest
+import torch
+from safetensors.torch import load_file
+
+from backend.train import config as train_config
+from backend.train import trainer
+from tests_support import run_backend
+
+
+def _config(tmp_path, tiny_checkpoint, street_clip_path, out="out", **kw):
+    data = {"schema": "scpainter.train/1", "checkpoint": tiny_checkpoint, "clips": [street_clip_path],
+            "output_dir": str(tmp_path / out), "pairs": {"width": 128, "height": 64, "frames": 2},
+            "steps": 4, "learning_rate": 1e-4, "warmup_steps": 2, "ema_decay": 0.9, "num_workers": 0,
+            "log_every": 1, "save_every": 100}
+    data.update(kw)
+    path = tmp_path / f"{out}.json"
+    path.write_text(json.dumps(data))
+    return str(path)
+
+
+def test_resume_equals_uninterrupted_training(tmp_path, tiny_checkpoint, street_clip_path):
+    straight = train_config.load(_config(tmp_path, tiny_checkpoint, street_clip_path, "straight"))
+    a = trainer.train(straight, "cpu")
+    split = train_config.load(_config(tmp_path, tiny_checkpoint, street_clip_path, "split"))
+    first = trainer.train(split, "cpu", max_steps=2)
+    assert first["step"] == 2 and first["checkpoint"].endswith("step_0000002")
+    b = trainer.train(split, "cpu")
+    assert b["step"] == 4 and a["losses"][2:] == b["losses"]
+    for f in ("training_state/weights.safetensors", "training_state/ema.safetensors",
+              "unet/diffusion_pytorch_model.safetensors", "condition_encoder/diffusion_pytorch_model.safetensors"):
+        x, y = load_file(os.path.join(a["checkpoint"], f)), load_file(os.path.join(b["checkpoint"], f))
+        assert x.keys() == y.keys()
+        for k in x:
+            assert torch.equal(x[k], y[k]), (f, k)
+    opt = torch.load(os.path.join(b["checkpoint"], "training_state", "optimizer.pt"), weights_only=True)
+    assert opt["state"]  # the AdamW moments came back
+    # training changed the weights, and the checkpoint holds the EMA, not the raw weights
+    raw = load_file(os.path.join(a["checkpoint"], "training_state", "weights.safetensors"))
+    ema = load_file(os.path.join(a["checkpoint"], "unet", "diffusion_pytorch_model.safetensors"))
+    base = load_file(os.path.join(tiny_checkpoint, "unet", "diffusion_pytorch_model.safetensors"))
+    k = "conv_in.weight"
+    assert not torch.equal(raw[f"unet.{k}"], base[k]) and not torch.equal(ema[k], raw[f"unet.{k}"])
+
+
+def test_checkpoint_generates_and_logs_hold_losses_and_a_sample_video(tmp_path, tiny_checkpoint, street_clip_path):
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    from backend.model.pipeline import SCPainterPipeline
+
+    cfg = train_config.load(_config(tmp_path, tiny_checkpoint, street_clip_path, steps=2, sample_every=2,
+                                    sample_steps=2, save_every=1, keep_checkpoints=1))
+    r = trainer.train(cfg, "cpu")
+    assert [os.path.basename(p) for p in trainer.checkpoints(cfg.resolve(cfg.output_dir))] == ["step_0000002"]
+    with open(os.path.join(r["checkpoint"], "scpainter.json")) as f:
+        assert json.load(f)["trained_steps"] == 2
+    pipe = SCPainterPipeline.from_checkpoint(r["checkpoint"])
+    cond = torch.zeros(2, 4, 8, 16)
+    video = pipe.decode(pipe.sample(cond, torch.zeros(1, 1, 32), steps=2))
+    assert video.shape == (2, 3, 64, 128) and torch.isfinite(video).all()
+    acc = EventAccumulator(os.path.join(cfg.resolve(cfg.output_dir), "logs"), size_guidance={"images": 0, "scalars": 0})
+    acc.Reload()
+    assert [e.step for e in acc.Scalars("loss")] == [1, 2]
+    (img,) = acc.Images("sample/condition|generated|target")
+    assert (img.width, img.height) == (3 * 128, 64) and img.encoded_image_string[:3] == b"GIF"
+
+
+@pytest.mark.parametrize("edit, field", [
+    ({"stpes": 3}, "stpes"),
+    ({"steps": 0}, "steps"),
+    ({"drop_clip": 1.5}, "drop_clip"),
+    ({"pairs": {"width": 100}}, "pairs"),
+    ({"pairs": {"widht": 128}}, "pairs"),
+    ({"mixed_precision": "fp8"}, "mixed_precision"),
+    ({"clips": []}, "clips"),
+])
+def test_bad_configs_name_the_setting(tmp_path, edit, field):
+    data = {"schema": "scpainter.train/1", "checkpoint": "c", "clips": ["x"], "output_dir": "o", **edit}
+    with pytest.raises(train_config.TrainConfigError, match=f"train.json: {field}"):
+        train_config.from_dict(data, str(tmp_path / "train.json"))
+
+
+def test_8bit_optimizer_without_bitsandbytes_says_what_to_install(tmp_path):
+    try:
+        import bitsandbytes  # noqa: F401
+        pytest.skip("bitsandbytes is installed here")
+    except ImportError:
+        pass
+    cfg = train_config.from_dict({"schema": "scpainter.train/1", "checkpoint": "c", "clips": ["x"],
+                                  "output_dir": "o", "optimizer": "adamw8bit"}, str(tmp_path / "t.json"))
+    with pytest.raises(train_config.TrainConfigError, match="bitsandbytes"):
+        trainer.make_optimizer(cfg, [torch.nn.Parameter(torch.zeros(2))])
+
+
+def test_train_command(tmp_path, tiny_checkpoint, street_clip_path):
+    cfg = _config(tmp_path, tiny_checkpoint, street_clip_path, steps=3)
+    code, events, err = run_backend("train", cfg, "--device", "cpu", "--max-steps", "1")
+    assert code == 0, err
+    done = events[-1]
+    assert done["event"] == "done" and done["step"] == 1 and os.path.isdir(done["checkpoint"])
+    assert [e["done"] for e in events if e["event"] == "progress"] == [1]
+    code, events, _ = run_backend("train", str(tmp_path / "missing.json"))
+    assert code == 2 and "missing.json: (file): not found" in events[-1]["message"]

@@ -157,7 +157,10 @@ def _cmd_train(args) -> int:
         events.error(f"stopped by SIGTERM at step {result['step']}; checkpoint saved at {result['checkpoint']}",
                      hint="run the same command again to resume")
         return events.EXIT_FAILED
-    events.done(command="train", device=device, **result)
+    from scpainter_blender.core.job import ranks_from_env
+
+    if ranks_from_env()[0] == 0:  # under torchrun / accelerate launch: one done event, from rank 0
+        events.done(command="train", device=device, **result)
     return events.EXIT_OK
 
 
@@ -230,6 +233,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--window", type=int, default=8, help="source frames t ± window project into frame t")
     e.add_argument("--steps", type=int, default=25, help="sampler steps")
     e.add_argument("--seed", type=int, default=0)
+    e.add_argument("--crop-min-px", type=int, default=16, help="cars smaller than this (pixels) make no FID-C crop")
     e.add_argument("--precision", choices=["auto", "fp32", "bf16", "fp16"], default="auto")
     e.add_argument("--inception", help="FID Inception weights (pytorch-fid's pt_inception-2015-12-05-6726825d.pth "
                                        "or a safetensors copy); without it FID/KID are skipped")

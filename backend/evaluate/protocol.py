@@ -60,6 +60,7 @@ class EvalSettings:
     inception: str | None = None
     crop_size: int = 128                # crops are resized to this square before the feature extractor
     crop_grow: float = 1.2
+    crop_min_px: int = 16               # smaller cars (2D box side, pixels at the evaluation size) are left out
     grow_m: float = 0.2                 # removal box margin, as in training pairs
     grow_ratio: float = 0.1
     confidence_percentile: float = 50.0
@@ -69,7 +70,8 @@ class EvalSettings:
         """From ``python -m backend evaluate``'s arguments (backend/__main__.py)."""
         return cls(clips=a.clips, output_dir=a.output_dir, checkpoint=a.checkpoint, width=a.resolution[0],
                    height=a.resolution[1], frames=a.frames, shifts=tuple(a.shifts), insertion=not a.no_insertion,
-                   window=a.window, steps=a.steps, seed=a.seed, precision=a.precision, inception=a.inception)
+                   window=a.window, steps=a.steps, seed=a.seed, precision=a.precision, inception=a.inception,
+                   crop_min_px=a.crop_min_px)
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -158,16 +160,17 @@ def crop(image: torch.Tensor, box, size: int) -> torch.Tensor:
                                            align_corners=False)[0].clamp(0, 1)
 
 
-def mask_crop_box(mask: np.ndarray, grow: float, min_px: int = 8):
-    """Square crop box around the pixels where the asset mask exceeds 0.5; None if fewer than min_px² pixels."""
+def mask_crop_box(mask: np.ndarray, grow: float, min_px: int = 16):
+    """Square crop box around the pixels where the asset mask exceeds 0.5; None if their bounding box is smaller
+    than min_px on a side."""
     ys, xs = np.nonzero(mask > 0.5)
-    if len(xs) < min_px * min_px:
+    if len(xs) == 0 or xs.max() + 1 - xs.min() < min_px or ys.max() + 1 - ys.min() < min_px:
         return None
     H, W = mask.shape
     return square_box(xs.min(), ys.min(), xs.max() + 1, ys.max() + 1, grow, W, H)
 
 
-def box_crop_box(box_to_world, size, K, world_to_camera, width: int, height: int, grow: float, min_px: int = 8):
+def box_crop_box(box_to_world, size, K, world_to_camera, width: int, height: int, grow: float, min_px: int = 16):
     """Square crop box around a 3D box's projection (all 8 corners in front of the camera, at least half of its
     2D box inside the image, at least min_px on a side); None otherwise."""
     corners = np.array([[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5)]) * size
@@ -234,15 +237,14 @@ def ground_truth_metrics(pred: torch.Tensor, gt: torch.Tensor, valid: torch.Tens
             "ssim_covered": float(ssim(pred, gt, mask=covered).mean())}
 
 
-def feature_metrics(sets: dict, reference: str, inception: str | None, device: str, log) -> dict:
-    """FID and KID of every set against ``reference`` (a key of ``sets``)."""
-    if not inception:
+def feature_metrics(sets: dict, reference: str, net, device: str, log) -> dict:
+    """FID and KID of every set against ``reference`` (a key of ``sets``), with the feature extractor ``net``
+    ((N, 3, H, W) in [0, 1] -> (N, D)); None: skipped."""
+    if net is None:
         return {"skipped": "no --inception weights given (FID needs pt_inception-2015-12-05-6726825d.pth; "
                            "nothing is downloaded)"}
     from .fid import FeatureStats, fid, kid
-    from .inception import load_inception
 
-    net = load_inception(inception, device)
     feats = {}
     for name, images in sets.items():
         st = FeatureStats(keep_features=True)
@@ -262,7 +264,13 @@ def feature_metrics(sets: dict, reference: str, inception: str | None, device: s
     return out
 
 
-def evaluate(s: EvalSettings, device: str, stop=()) -> dict:
+def evaluate(s: EvalSettings, device: str, stop=(), extractor=None) -> dict:
+    """Run every task of every clip and write ``evaluation.json``. ``extractor`` replaces the Inception network
+    given by ``s.inception`` (tests use a tiny random one; FID's statistics do not depend on the extractor)."""
+    if extractor is None and s.inception:
+        from .inception import load_inception
+
+        extractor = load_inception(s.inception, device)  # fail fast: before hours of generation
     out_dir = os.path.abspath(s.output_dir)
     os.makedirs(out_dir, exist_ok=True)
     log = events.FileLog(os.path.join(out_dir, "evaluate.log"))
@@ -282,7 +290,7 @@ def evaluate(s: EvalSettings, device: str, stop=()) -> dict:
             for t in frames:
                 if t in car.boxes:
                     b = box_crop_box(car.boxes[t], car.size, K[t], clip.world_to_camera[t], s.width, s.height,
-                                     s.crop_grow)
+                                     s.crop_grow, s.crop_min_px)
                     if b is not None:
                         crops.add("real", [crop(real[t], b, s.crop_size)])
         for task, shift, car in tasks(clip, s):
@@ -302,7 +310,7 @@ def evaluate(s: EvalSettings, device: str, stop=()) -> dict:
                 whole.add(f"{task}/{kind}", video)
                 if car is not None:
                     for f, a in zip(video, r["asset"]):
-                        b = mask_crop_box(a[0].numpy(), s.crop_grow)
+                        b = mask_crop_box(a[0].numpy(), s.crop_grow, s.crop_min_px)
                         if b is not None:
                             crops.add(f"{task}/{kind}", [crop(f, b, s.crop_size)])
             if car is None and shift in clip.views:
@@ -312,8 +320,8 @@ def evaluate(s: EvalSettings, device: str, stop=()) -> dict:
                                     "frames": len(frames), "hole_fraction": float(1 - r["valid"].mean()),
                                     **ground_truth_metrics(video, gt, r["valid"])})
     result = {"settings": asdict(s), "seconds": None, "ground_truth": gt_rows,
-              "fid": feature_metrics(whole.sets, "real", s.inception, device, log),
-              "fid_c": (feature_metrics(crops.sets, "real", s.inception, device, log) if "real" in crops.sets
+              "fid": feature_metrics(whole.sets, "real", extractor, device, log),
+              "fid_c": (feature_metrics(crops.sets, "real", extractor, device, log) if "real" in crops.sets
                         else {"skipped": "no real car crops (no tracked cars in view)"}),
               "counts": {"whole": {k: len(v) for k, v in whole.sets.items()},
                          "crops": {k: len(v) for k, v in crops.sets.items()}}}

@@ -68,12 +68,17 @@ def latent_validity(valid: torch.Tensor, factor: int = 8) -> torch.Tensor:
     return F.avg_pool2d(valid, factor)
 
 
-def encode_conditions(encoder: ConditionEncoder, image, asset, valid, noise_aug: float = 0.0, generator=None):
+def encode_conditions(encoder: ConditionEncoder, image, asset, valid, noise_aug: float = 0.0, generator=None,
+                      noise=None):
     """Condition latents (N, C, h, w) from I, M_a, V in [0, 1]. ``noise_aug`` adds SVD's Gaussian noise
-    augmentation to the [−1, 1] image (drawn on the CPU from ``generator`` for device-independent results)."""
+    augmentation to the [−1, 1] image: ``noise`` (shaped like ``image``) when given, else drawn on the CPU from
+    ``generator`` (device-independent results)."""
+    base = getattr(encoder, "module", encoder)  # a DistributedDataParallel wrapper runs forward, the model knows
     x = image * 2.0 - 1.0
     if noise_aug > 0:
-        x = x + noise_aug * torch.randn(x.shape, generator=generator, dtype=torch.float32).to(x.device, x.dtype)
+        if noise is None:
+            noise = torch.randn(x.shape, generator=generator, dtype=torch.float32)
+        x = x + noise_aug * noise.to(x.device, x.dtype)
     dt = next(encoder.parameters()).dtype
     latent = encoder(x.to(dt), (asset * 2.0 - 1.0).to(dt)).float()
-    return latent * latent_validity(valid.float(), encoder.downsample)
+    return latent * latent_validity(valid.float(), base.downsample)

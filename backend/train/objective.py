@@ -15,8 +15,9 @@ branch sees, so classifier-free guidance has something to contrast. The conditio
 keep mask (not replaced), so a dropped sample still backpropagates zeros through the encoder and DDP sees every
 parameter used.
 
-All random draws come from one CPU generator the trainer seeds per (seed, step, rank): identical on any device and
-after a resume.
+Every random draw of a sample comes from its own CPU generator, seeded by the run's seed and the sample's global
+index: identical on any device, after a resume, and however the global batch is split over processes (so 2
+processes × batch 1 train exactly as 1 process × batch 2, up to float summation order).
 """
 
 from __future__ import annotations
@@ -28,23 +29,36 @@ from ..model.condition import encode_conditions
 from ..model.pipeline import clip_embeddings
 
 
-def draw(gen: torch.Generator, batch: int, cfg) -> dict:
-    """The per-sample random choices of one micro-step: σ (B,), keep_clip and keep_cond (B,) float 0/1."""
-    n = torch.randn(batch, generator=gen, dtype=torch.float64)
+def generators(seed: int, indices) -> list:
+    """One CPU generator per sample, seeded by (run seed, the sample's global index)."""
+    import numpy as np
+
+    return [torch.Generator().manual_seed(int(np.random.SeedSequence([seed, int(i)]).generate_state(1)[0]))
+            for i in indices]
+
+
+def draw(gens: list, cfg) -> dict:
+    """The random choices of each sample (one generator each): σ (B,), keep_clip and keep_cond (B,) float 0/1."""
+    n = torch.cat([torch.randn(1, generator=g, dtype=torch.float64) for g in gens])
+    u = torch.stack([torch.rand(2, generator=g) for g in gens])
     sigma = torch.exp(cfg.p_mean + cfg.p_std * n).float()
-    keep_clip = (torch.rand(batch, generator=gen) >= cfg.drop_clip).float()
-    keep_cond = (torch.rand(batch, generator=gen) >= cfg.drop_condition).float()
-    return {"sigma": sigma, "keep_clip": keep_clip, "keep_cond": keep_cond}
+    return {"sigma": sigma, "keep_clip": (u[:, 0] >= cfg.drop_clip).float(),
+            "keep_cond": (u[:, 1] >= cfg.drop_condition).float()}
+
+
+def randn(gens: list, shape: tuple) -> torch.Tensor:
+    """(B, *shape) standard normal noise, sample b from gens[b] (on the CPU)."""
+    return torch.stack([torch.randn(shape, generator=g) for g in gens])
 
 
 @torch.no_grad()
-def target_latents(vae, target: torch.Tensor, gen: torch.Generator) -> torch.Tensor:
+def target_latents(vae, target: torch.Tensor, gens: list) -> torch.Tensor:
     """x_0 (B, F, C, h, w) float32: a sample of the VAE posterior of the frames (B, F, 3, H, W) in [0, 1], times
-    the scaling factor (the posterior noise drawn on the CPU from ``gen``)."""
+    the scaling factor (each sample's posterior noise from its generator)."""
     B, F = target.shape[:2]
     x = (target.flatten(0, 1) * 2.0 - 1.0).to(next(vae.parameters()).dtype)
     dist = vae.encode(x).latent_dist
-    eps = torch.randn(dist.mean.shape, generator=gen).to(dist.mean)
+    eps = randn(gens, (F, *dist.mean.shape[1:])).flatten(0, 1).to(dist.mean)
     z = (dist.mean + dist.std * eps).float() * vae.config.scaling_factor
     return z.view(B, F, *z.shape[1:])
 
@@ -54,16 +68,19 @@ def time_ids(config, batch: int, device) -> torch.Tensor:
                         dtype=torch.float32, device=device).repeat(batch, 1)
 
 
-def loss(models: dict, batch: dict, cfg, gen: torch.Generator, device, autocast_dtype=None) -> tuple:
+def loss(models: dict, batch: dict, cfg, gens: list, device, autocast_dtype=None) -> tuple:
     """(scalar loss, stats) for one micro-batch. ``models``: unet, condition_encoder (trained), vae, image_encoder
     (frozen), clip_mean, clip_std, config (ScpainterConfig). ``batch``: target, image (B, F, 3, H, W), asset,
-    valid (B, F, 1, H, W) in [0, 1]."""
+    valid (B, F, 1, H, W) in [0, 1]. ``gens``: one generator per sample (``generators``)."""
     unet, cond_enc, config = models["unet"], models["condition_encoder"], models["config"]
     target = batch["target"].to(device)
     B, F = target.shape[:2]
-    r = draw(gen, B, cfg)
-    x0 = target_latents(models["vae"], target, gen)
-    eps = torch.randn(x0.shape, generator=gen).to(device)
+    if len(gens) != B:
+        raise ValueError(f"{len(gens)} generators for a batch of {B}")
+    r = draw(gens, cfg)
+    x0 = target_latents(models["vae"], target, gens)
+    eps = randn(gens, tuple(x0.shape[1:])).to(device)
+    aug = randn(gens, tuple(batch["image"].shape[1:])).flatten(0, 1)
     sigma = r["sigma"].to(device).view(B, 1, 1, 1, 1)
     x_sigma = x0 + sigma * eps
     with torch.no_grad():
@@ -73,7 +90,7 @@ def loss(models: dict, batch: dict, cfg, gen: torch.Generator, device, autocast_
                         enabled=autocast_dtype is not None):
         cond = encode_conditions(cond_enc, batch["image"].to(device).flatten(0, 1),
                                  batch["asset"].to(device).flatten(0, 1), batch["valid"].to(device).flatten(0, 1),
-                                 config.noise_aug_strength, gen)
+                                 config.noise_aug_strength, noise=aug)
         cond = cond.float().view(B, F, *cond.shape[1:]) * r["keep_cond"].to(device).view(B, 1, 1, 1, 1)
         inp = torch.cat([edm.c_in(sigma) * x_sigma, cond], dim=2)
         v = unet(inp, edm.c_noise(sigma.view(B)), encoder_hidden_states=clip,

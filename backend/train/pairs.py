@@ -173,5 +173,5 @@ class PairDataset(torch.utils.data.Dataset):
         k = int(rng.integers(len(self.clip_paths)))
         sample = self.maker(k).sample(rng)
         return {"target": sample["target"], "image": sample["image"], "asset": sample["asset"],
-                "valid": sample["valid"], "clip": k, "t0": sample["t0"], "car": sample["car"]}
+                "valid": sample["valid"], "clip": k, "t0": sample["t0"], "car": sample["car"], "index": int(i)}
 

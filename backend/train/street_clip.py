@@ -16,8 +16,6 @@ import numpy as np
 
 from scpainter_blender.core import shapes, splats
 
-from scpainter_blender.street.dataset import view_name
-
 from . import clip as clip_mod
 
 
@@ -64,8 +62,8 @@ def export_clip(street, out: str, gaussians_per_car: int = 8000) -> str:
         for i in range(S):
             _link(street.frame_path("recorded", i), os.path.join(tmp, "frames", f"frame_{i:06d}.png"))
         views = {}
-        for shift in street.params.shifts_m:  # ground truth for evaluation; the trainer never reads it
-            name = view_name(shift)
+        # ground truth for evaluation (the trainer never reads it); street.views = ["recorded", one per shift]
+        for shift, name in zip(street.params.shifts_m, street.views[1:]):
             os.makedirs(os.path.join(tmp, "views", name))
             for i in range(S):
                 _link(street.frame_path(name, i), os.path.join(tmp, "views", name, f"frame_{i:06d}.png"))

@@ -8,9 +8,9 @@ one process otherwise), resume from the newest checkpoint in ``output_dir`` if t
 
 logging to TensorBoard (rank 0) and saving checkpoints that ``generate`` loads directly.
 
-Determinism and exact resume: sample i of the run is drawn from (seed, i) (pairs.PairDataset) and each
-micro-step's noise from a CPU generator seeded (seed, step, micro-step, rank); the learning rate is a function of
-the step. A checkpoint holds the weights, the optimiser state and the EMA, so resuming at step k and training to
+Determinism and exact resume: sample i of the run is drawn from (seed, i) (pairs.PairDataset) and its noise from
+a CPU generator seeded by (seed, i) (objective.generators); the learning rate is a function of the step. So the
+run does not depend on how the global batch is split over processes either. A checkpoint holds the weights, the optimiser state and the EMA, so resuming at step k and training to
 n gives the weights of an uninterrupted run to n.
 
 Checkpoint folder ``checkpoints/step_NNNNNNN`` (written under a temporary name, renamed when complete): an
@@ -76,7 +76,9 @@ class StepSampler(torch.utils.data.Sampler):
 
 
 def _collate(items: list) -> dict:
-    return {k: torch.stack([it[k] for it in items]) for k in ("target", "image", "asset", "valid")}
+    out = {k: torch.stack([it[k] for it in items]) for k in ("target", "image", "asset", "valid")}
+    out["index"] = torch.tensor([it["index"] for it in items])
+    return out
 
 
 def make_optimizer(cfg: TrainConfig, params: list):
@@ -140,7 +142,11 @@ class Trainer:
         latest = checkpoints(self.out)
         if latest:
             self._load_state(latest[-1])
-        self.unet_ddp, self.cond_ddp, self.optimizer = self.accelerator.prepare(self.unet, self.cond, self.optimizer)
+        if cfg.train_condition_encoder:
+            self.unet_ddp, self.cond_ddp, self.optimizer = self.accelerator.prepare(self.unet, self.cond, self.optimizer)
+        else:  # DDP refuses a module without trainable parameters
+            self.unet_ddp, self.optimizer = self.accelerator.prepare(self.unet, self.optimizer)
+            self.cond_ddp = self.cond
         self.dataset = PairDataset(cfg.clip_paths(), cfg.pairs, seed=cfg.seed)
         from .tensorboard_log import TrainLog
 
@@ -218,10 +224,6 @@ class Trainer:
         return final
 
     # ---------------------------------------------------------------------------------------------------------
-    def _generator(self, step: int, micro: int) -> torch.Generator:
-        seed = int(np.random.SeedSequence([self.cfg.seed, step, micro, self.rank]).generate_state(1)[0])
-        return torch.Generator().manual_seed(seed)
-
     def _models(self) -> dict:
         return {"unet": self.unet_ddp, "condition_encoder": self.cond_ddp, **self.frozen}
 
@@ -276,10 +278,12 @@ class Trainer:
             step_loss = 0.0
             for m in range(cfg.gradient_accumulation):
                 batch = next(it)
-                loss, _ = objective.loss(self._models(), batch, cfg, self._generator(self.step, m), self.device,
-                                         self.autocast)
+                gens = objective.generators(cfg.seed, batch["index"].tolist())
+                loss, _ = objective.loss(self._models(), batch, cfg, gens, self.device, self.autocast)
                 acc.backward(loss / cfg.gradient_accumulation)
                 step_loss += float(loss.detach()) / cfg.gradient_accumulation
+            if self.world > 1:  # the logged loss is the global batch's, not rank 0's share
+                step_loss = float(acc.reduce(torch.tensor(step_loss, device=self.device), "mean"))
             if not math.isfinite(step_loss):
                 raise FloatingPointError(f"train: loss is {step_loss} at step {self.step}; the last checkpoint is "
                                          "kept (lower learning_rate, or check the clips)")
@@ -290,7 +294,8 @@ class Trainer:
                 self.ema.update(self.named)
             self.step += 1
             losses.append(step_loss)
-            events.progress("train", self.step, end, loss=step_loss)
+            if self.rank == 0:
+                events.progress("train", self.step, end, loss=step_loss)
             if self.step % cfg.log_every == 0 or self.step == end:
                 dt = time.perf_counter() - t_last
                 t_last = time.perf_counter()

@@ -45,7 +45,7 @@ def test_dropout_rates_hold_and_the_unet_sees_zeros_exactly_there(models):
         with torch.no_grad():
             batch = _batch(B=16, F=1, H=64, W=64)
             for step in range(30):
-                _, st = objective.loss(models, batch, cfg, torch.Generator().manual_seed(step), "cpu")
+                _, st = objective.loss(models, batch, cfg, objective.generators(step, range(16)), "cpu")
                 draws.append(st)
     finally:
         h.remove()
@@ -62,8 +62,18 @@ def test_dropout_rates_hold_and_the_unet_sees_zeros_exactly_there(models):
     assert abs(both - 0.0225) < 4 * math.sqrt(0.0225 * 0.9775 / n)
 
 
+def test_each_sample_draws_from_its_own_generator(models):
+    """A sample's noise and dropout depend on its (seed, index) only, not on the batch it is in: what makes a
+    2-process run equal a 1-process run with twice the batch."""
+    a = objective.draw(objective.generators(0, [4, 5]), _cfg())
+    b = objective.draw(objective.generators(0, [5]), _cfg())
+    assert a["sigma"][1] == b["sigma"][0] and a["keep_cond"][1] == b["keep_cond"][0]
+    x = objective.randn(objective.generators(0, [4, 5]), (2, 3))
+    assert torch.equal(x[1], objective.randn(objective.generators(0, [5]), (2, 3))[0])
+
+
 def test_sigma_is_log_normal():
-    d = objective.draw(torch.Generator().manual_seed(0), 20000, _cfg(p_mean=0.7, p_std=1.6))
+    d = objective.draw(objective.generators(0, range(20000)), _cfg(p_mean=0.7, p_std=1.6))
     logs = torch.log(d["sigma"].double())
     assert abs(float(logs.mean()) - 0.7) < 0.05 and abs(float(logs.std()) - 1.6) < 0.05
 
@@ -87,7 +97,7 @@ def _grads(models, checkpointing):
         (m.enable_gradient_checkpointing if checkpointing else m.disable_gradient_checkpointing)()
         m.zero_grad(set_to_none=True)
     loss, _ = objective.loss(models, _batch(B=1), _cfg(drop_clip=0.0, drop_condition=0.0),
-                             torch.Generator().manual_seed(3), "cpu")
+                             objective.generators(3, [0]), "cpu")
     loss.backward()
     out = {f"u.{k}": p.grad.clone() for k, p in unet.named_parameters() if p.grad is not None}
     out.update({f"c.{k}": p.grad.clone() for k, p in cond.named_parameters() if p.grad is not None})
@@ -120,7 +130,7 @@ def test_tiny_model_overfits_one_batch(tiny_checkpoint):
     batch, cfg = _batch(B=1, F=2, H=64, W=64), _cfg(drop_clip=0.0, drop_condition=0.0, p_mean=0.0, p_std=0.5)
     losses = []
     for _ in range(300):
-        loss, _ = objective.loss(c, batch, cfg, torch.Generator().manual_seed(0), "cpu")
+        loss, _ = objective.loss(c, batch, cfg, objective.generators(0, [0]), "cpu")
         opt.zero_grad()
         loss.backward()
         opt.step()

@@ -106,3 +106,32 @@ def test_train_command(tmp_path, tiny_checkpoint, street_clip_path):
     assert [e["done"] for e in events if e["event"] == "progress"] == [1]
     code, events, _ = run_backend("train", str(tmp_path / "missing.json"))
     assert code == 2 and "missing.json: (file): not found" in events[-1]["message"]
+
+
+def test_two_processes_train_like_one_with_twice_the_batch(tmp_path, tiny_checkpoint, street_clip_path):
+    """DDP through accelerate, on the CPU (gloo): torchrun with 2 processes × batch 1 gives the weights of one
+    process × batch 2 (same samples, same noise; gradients averaged over the ranks). A larger Adam ε keeps Adam's
+    normalisation from blowing up float summation noise in near-zero gradients (with ε = 1e-8 the updates of such
+    parameters are ±lr whatever their tiny gradient's rounding)."""
+    import subprocess
+    import sys
+
+    common = {"steps": 2, "warmup_steps": 0, "ema_decay": 0.0, "adam_eps": 1e-4}
+    one = _config(tmp_path, tiny_checkpoint, street_clip_path, "one", batch_size=2, **common)
+    two = _config(tmp_path, tiny_checkpoint, street_clip_path, "two", batch_size=1, **common)
+    a = trainer.train(train_config.load(one), "cpu")
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
+    p = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--nproc_per_node", "2", "-m", "backend",
+                        "train", two, "--device", "cpu"], cwd=root, capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stderr[-3000:]
+    done = [e for e in map(json.loads, p.stdout.splitlines()) if e["event"] == "done"]
+    assert len(done) == 1 and done[0]["step"] == 2  # one done event, from rank 0
+    x = load_file(os.path.join(a["checkpoint"], "training_state", "weights.safetensors"))
+    y = load_file(os.path.join(done[0]["checkpoint"], "training_state", "weights.safetensors"))
+    base = load_file(os.path.join(tiny_checkpoint, "unet", "diffusion_pytorch_model.safetensors"))
+    base = {f"unet.{k}": v for k, v in base.items()}
+    keys = [k for k in x if k in base]
+    dx = torch.cat([(x[k] - base[k]).flatten() for k in keys])
+    dy = torch.cat([(y[k] - base[k]).flatten() for k in keys])
+    rel = float((dx - dy).norm() / dx.norm())
+    assert float(dx.norm()) > 0 and rel < 1e-4, rel

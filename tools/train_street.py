@@ -4,8 +4,9 @@
 
 Steps, all under build/train_street/ (each skipped when its output exists, so a second run resumes):
 1. the street (cached) exported as a training clip (backend.train.street_clip);
-2. a tiny random-weight SVD (backend.model.configs "tiny") and an SCPainter checkpoint made from it
-   (python -m backend init-checkpoint);
+2. a tiny SVD (backend.model.configs "tiny"): random weights, except that its VAE is first fitted as an
+   autoencoder to the recorded frames (a few hundred steps) — a stand-in for SVD's pretrained VAE, without which
+   no UNet could produce an image — and an SCPainter checkpoint made from it (python -m backend init-checkpoint);
 3. python -m backend train train.json (CPU; resumes from its newest checkpoint);
 4. python -m backend evaluate on the same street: PSNR/SSIM of the shifted drives against the Cycles renders,
    for the trained model and for the condition-only baseline; FID/KID too with --inception PATH.
@@ -36,6 +37,39 @@ def backend(*args) -> None:
         sys.exit(f"train_street: {' '.join(cmd)} failed ({p.returncode}): {errors[-1:] or 'see stderr'}")
 
 
+def fit_tiny_vae(svd: str, frames: list, width: int, height: int, steps: int = 400, seed: int = 0) -> dict:
+    """Train the tiny SVD's VAE (encoder and temporal decoder) to reconstruct clips of 4 recorded frames at
+    width x height: MSE + 1e-6 KL, AdamW 1e-3. Saves it in place; returns first/last losses."""
+    import torch
+    from diffusers import AutoencoderKLTemporalDecoder
+
+    from backend.train.pairs import load_resized
+
+    torch.manual_seed(seed)
+    vae = AutoencoderKLTemporalDecoder.from_pretrained(svd, subfolder="vae", local_files_only=True)
+    video = torch.stack([load_resized(f, width, height) for f in frames]).float() / 255.0 * 2 - 1
+    opt = torch.optim.AdamW(vae.parameters(), lr=1e-3)
+    g = torch.Generator().manual_seed(seed)
+    losses = []
+    vae.train()
+    for step in range(steps):
+        t0 = int(torch.randint(0, len(video) - 3, (1,), generator=g))
+        x = video[t0:t0 + 4]
+        dist = vae.encode(x).latent_dist
+        z = dist.mean + dist.std * torch.randn(dist.mean.shape, generator=g)
+        rec = vae.decode(z, num_frames=4).sample
+        kl = 0.5 * (dist.mean ** 2 + dist.var - 1 - dist.logvar).mean()
+        loss = torch.nn.functional.mse_loss(rec, x) + 1e-6 * kl
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        losses.append(float(loss.detach()))
+        if step % 50 == 0:
+            print(f"fit tiny VAE: step {step}: mse {losses[-1]:.4f}", flush=True)
+    vae.eval().save_pretrained(os.path.join(svd, "vae"), safe_serialization=True)
+    return {"first": sum(losses[:10]) / 10, "last": sum(losses[-10:]) / 10}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--out", default=os.path.join(ROOT, "build", "train_street"))
@@ -52,7 +86,12 @@ def main() -> None:
     clip = street_clip.export_clip(ensure_street(log=print), os.path.join(out, "street_clip"))
     svd, ckpt = os.path.join(out, "svd-tiny"), os.path.join(out, "scpainter-tiny")
     if not os.path.isdir(svd):
-        configs.save_stock_svd(svd, "tiny", seed=0)
+        from backend.train import clip as clip_mod
+
+        tmp = svd + ".tmp"
+        configs.save_stock_svd(tmp, "tiny", seed=0)
+        print("fit tiny VAE:", fit_tiny_vae(tmp, clip_mod.load(clip).frame_paths, 128, 64))
+        os.rename(tmp, svd)
     if not os.path.isdir(ckpt):
         backend("init-checkpoint", "--svd", svd, "--out", ckpt)
     cfg = {"schema": "scpainter.train/1", "checkpoint": "scpainter-tiny", "clips": ["street_clip"],

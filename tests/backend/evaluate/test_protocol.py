@@ -94,3 +94,14 @@ def test_evaluate_end_to_end(street_clip_path, tiny_checkpoint, tmp_path):
     again = protocol.evaluate(s, "cpu", extractor=tiny_extractor())  # finished renders and videos are reused
     with open(again["evaluation"]) as f:
         assert json.load(f)["ground_truth"] == ev["ground_truth"]
+
+
+def test_evaluate_command_refuses_missing_inception_weights_before_any_work(street_clip_path, tmp_path):
+    from tests_support import run_backend
+
+    code, events, _ = run_backend("evaluate", os.path.dirname(street_clip_path), "--output-dir", tmp_path / "e",
+                                  "--inception", tmp_path / "nope.pth", "--device", "cpu")
+    assert code == 2
+    msg = events[-1]["message"]
+    assert "nope.pth" in msg and "pt_inception-2015-12-05-6726825d.pth" in msg and "download" in msg
+    assert not os.path.exists(tmp_path / "e" / "000_street")

@@ -103,13 +103,7 @@ def load(path) -> Clip:
     path = os.fspath(path)
     if os.path.isdir(path):
         path = os.path.join(path, "clip.json")
-    try:
-        with open(path, encoding="utf-8") as f:
-            data = json.load(f)
-    except FileNotFoundError:
-        raise ClipError(path, "(file)", "not found") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise ClipError(path, "(file)", f"not valid JSON: {e}") from None
+    data = job_mod.read_json(path, ClipError)
     if not isinstance(data, dict) or data.get("schema") != SCHEMA:
         raise ClipError(path, "schema", f"expected {SCHEMA!r}, got {data.get('schema') if isinstance(data, dict) else data!r}")
     pred_path = job_mod.resolve(path, job_mod._str(data.get("predictions"), path, "predictions"))

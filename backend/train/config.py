@@ -133,14 +133,7 @@ def from_dict(data: dict, path: str = "train.json") -> TrainConfig:
 
 
 def load(path: str) -> TrainConfig:
-    try:
-        with open(path, encoding="utf-8") as f:
-            data = json.load(f)
-    except FileNotFoundError:
-        raise TrainConfigError(path, "(file)", "not found") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise TrainConfigError(path, "(file)", f"not valid JSON: {e}") from None
-    return from_dict(data, path)
+    return from_dict(job_mod.read_json(path, TrainConfigError), path)
 
 
 def save(path: str, cfg: TrainConfig) -> None:

@@ -168,17 +168,21 @@ def validate(job, path="job.json") -> dict:
     return job
 
 
+def read_json(path, error=JobError):
+    """A JSON file's content; a missing or malformed file raises ``error(path, "(file)", message)``."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            return json.load(f)
+    except FileNotFoundError:
+        raise error(path, "(file)", "not found") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise error(path, "(file)", f"not valid JSON: {e}") from None
+
+
 def load(path) -> dict:
     """Read and validate a job file."""
     path = os.fspath(path)
-    try:
-        with open(path, encoding="utf-8") as f:
-            job = json.load(f)
-    except FileNotFoundError:
-        raise JobError(path, "(file)", "not found") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise JobError(path, "(file)", f"not valid JSON: {e}") from None
-    return validate(job, path)
+    return validate(read_json(path), path)
 
 
 def save(path, job: dict) -> None:

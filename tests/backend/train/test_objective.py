@@ -1,13 +1,11 @@
 """The fine-tuning objective: dropout rates, the loss weight, gradient checkpointing, overfitting one batch."""
 
 import math
-from types import SimpleNamespace
 
 import pytest
 import torch
 
-from backend.model import checkpoint
-from backend.model import edm
+from backend.model import checkpoint, edm
 from backend.train import objective
 from backend.train.config import TrainConfig
 

@@ -7,10 +7,10 @@ import os
 import pytest
 import torch
 from safetensors.torch import load_file
+from tests_support import run_backend
 
 from backend.train import config as train_config
 from backend.train import trainer
-from tests_support import run_backend
 
 
 def _config(tmp_path, tiny_checkpoint, street_clip_path, out="out", **kw):

@@ -260,7 +260,8 @@ class Trainer:
             # spawn, not fork: the parent has run numba's and torch's thread pools (samples, model loading), and a
             # forked child inherits their locks and hangs
             multiprocessing_context="spawn" if cfg.num_workers else None)
-        val = self.dataset.maker(0).sample(np.random.default_rng([cfg.seed, 2**31])) if cfg.sample_every else None
+        val = (self.dataset.maker(0).sample(np.random.default_rng([cfg.seed, 2**31]))
+               if cfg.sample_every and self.rank == 0 else None)
         n_params = sum(p.numel() for p in self.named.values())
         self.log(f"train: {n_params / 1e6:.1f} M trained parameters, steps {self.step} -> {end}, batch "
                  f"{cfg.batch_size} x {cfg.gradient_accumulation} x {self.world} processes, "

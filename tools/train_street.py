@@ -37,39 +37,6 @@ def backend(*args) -> None:
         sys.exit(f"train_street: {' '.join(cmd)} failed ({p.returncode}): {errors[-1:] or 'see stderr'}")
 
 
-def fit_tiny_vae(svd: str, frames: list, width: int, height: int, steps: int = 400, seed: int = 0) -> dict:
-    """Train the tiny SVD's VAE (encoder and temporal decoder) to reconstruct clips of 4 recorded frames at
-    width x height: MSE + 1e-6 KL, AdamW 1e-3. Saves it in place; returns first/last losses."""
-    import torch
-    from diffusers import AutoencoderKLTemporalDecoder
-
-    from backend.train.pairs import load_resized
-
-    torch.manual_seed(seed)
-    vae = AutoencoderKLTemporalDecoder.from_pretrained(svd, subfolder="vae", local_files_only=True)
-    video = torch.stack([load_resized(f, width, height) for f in frames]).float() / 255.0 * 2 - 1
-    opt = torch.optim.AdamW(vae.parameters(), lr=1e-3)
-    g = torch.Generator().manual_seed(seed)
-    losses = []
-    vae.train()
-    for step in range(steps):
-        t0 = int(torch.randint(0, len(video) - 3, (1,), generator=g))
-        x = video[t0:t0 + 4]
-        dist = vae.encode(x).latent_dist
-        z = dist.mean + dist.std * torch.randn(dist.mean.shape, generator=g)
-        rec = vae.decode(z, num_frames=4).sample
-        kl = 0.5 * (dist.mean ** 2 + dist.var - 1 - dist.logvar).mean()
-        loss = torch.nn.functional.mse_loss(rec, x) + 1e-6 * kl
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        losses.append(float(loss.detach()))
-        if step % 50 == 0:
-            print(f"fit tiny VAE: step {step}: mse {losses[-1]:.4f}", flush=True)
-    vae.eval().save_pretrained(os.path.join(svd, "vae"), safe_serialization=True)
-    return {"first": sum(losses[:10]) / 10, "last": sum(losses[-10:]) / 10}
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--out", default=os.path.join(ROOT, "build", "train_street"))
@@ -90,7 +57,7 @@ def main() -> None:
 
         tmp = svd + ".tmp"
         configs.save_stock_svd(tmp, "tiny", seed=0)
-        print("fit tiny VAE:", fit_tiny_vae(tmp, clip_mod.load(clip).frame_paths, 128, 64))
+        print("fit tiny VAE:", configs.fit_vae(tmp, clip_mod.load(clip).frame_paths, 128, 64, log=print))
         os.rename(tmp, svd)
     if not os.path.isdir(ckpt):
         backend("init-checkpoint", "--svd", svd, "--out", ckpt)

@@ -167,8 +167,8 @@ class Trainer:
         with torch.no_grad():
             for k, p in self.named.items():
                 p.copy_(raw[k])
-        self.optimizer.load_state_dict(torch.load(os.path.join(st, "optimizer.pt"), map_location="cpu",
-                                                  weights_only=True))
+        opt_state = torch.load(os.path.join(st, "optimizer.pt"), map_location="cpu", weights_only=True)
+        self.optimizer.load_state_dict(opt_state)
         if self.ema is not None:
             ema = load_file(os.path.join(st, "ema.safetensors"))
             self.ema.shadow = {k: ema[k].to(self.device) for k in self.named}

@@ -98,11 +98,15 @@ def _image_size(path: str, where: str, clip_path: str) -> tuple:
         raise ClipError(clip_path, where, f"cannot read the image {path} ({e})") from None
 
 
+def json_path(path) -> str:
+    """The clip.json of a clip folder (or the path itself when it names the file)."""
+    path = os.fspath(path)
+    return os.path.join(path, "clip.json") if os.path.isdir(path) or not path.endswith(".json") else path
+
+
 def load(path) -> Clip:
     """Read and check a clip folder's ``clip.json`` (or the folder itself) and what it names."""
-    path = os.fspath(path)
-    if os.path.isdir(path):
-        path = os.path.join(path, "clip.json")
+    path = json_path(path)
     data = job_mod.read_json(path, ClipError)
     if not isinstance(data, dict) or data.get("schema") != SCHEMA:
         raise ClipError(path, "schema", f"expected {SCHEMA!r}, got {data.get('schema') if isinstance(data, dict) else data!r}")

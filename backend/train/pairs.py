@@ -171,7 +171,10 @@ class PairDataset(torch.utils.data.Dataset):
     def __getitem__(self, i: int) -> dict:
         rng = np.random.default_rng([self.seed, int(i)])
         k = int(rng.integers(len(self.clip_paths)))
-        sample = self.maker(k).sample(rng)
+        try:
+            sample = self.maker(k).sample(rng)
+        except ValueError as e:  # a plain ValueError crosses the DataLoader's process boundary with its message
+            raise ValueError(f"training sample {i}: {e}") from None
         return {"target": sample["target"], "image": sample["image"], "asset": sample["asset"],
                 "valid": sample["valid"], "clip": k, "t0": sample["t0"], "car": sample["car"], "index": int(i)}
 

@@ -34,6 +34,7 @@ import torch
 
 from .. import events
 from ..model import checkpoint as ckpt_mod
+from . import clip as clip_mod
 from . import objective
 from .config import TrainConfig, TrainConfigError
 from .ema import EMA
@@ -122,6 +123,13 @@ class Trainer:
         os.makedirs(self.out, exist_ok=True)
         self.log = log or (events.FileLog(os.path.join(self.out, "train.log")) if self.rank == 0 else (lambda m: None))
         self.base = ckpt_mod.resolve(cfg.resolve(cfg.checkpoint))
+        clip_paths = cfg.clip_paths()
+        # fail before loading models, not in a DataLoader worker an hour in: every clip.json exists, the first
+        # clip loads whole (the others are read when first sampled, and a bad one stops training with its name)
+        missing = [p for p in clip_paths if not os.path.isfile(clip_mod.json_path(p))]
+        if missing:
+            raise TrainConfigError(cfg.path, "clips", f"{len(missing)} clip folders have no clip.json: {missing[:3]}")
+        clip_mod.load(clip_paths[0])
         comps = ckpt_mod.load(self.base, device=self.device, dtype=torch.float32)
         self.scp_config = comps["config"]
         self.unet, self.cond = comps["unet"], comps["condition_encoder"]
@@ -147,7 +155,7 @@ class Trainer:
         else:  # DDP refuses a module without trainable parameters
             self.unet_ddp, self.optimizer = self.accelerator.prepare(self.unet, self.optimizer)
             self.cond_ddp = self.cond
-        self.dataset = PairDataset(cfg.clip_paths(), cfg.pairs, seed=cfg.seed)
+        self.dataset = PairDataset(clip_paths, cfg.pairs, seed=cfg.seed)
         from .tensorboard_log import TrainLog
 
         self.tb = TrainLog(os.path.join(self.out, "logs") if self.rank == 0 else None)

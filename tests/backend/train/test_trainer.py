@@ -135,3 +135,22 @@ def test_two_processes_train_like_one_with_twice_the_batch(tmp_path, tiny_checkp
     dy = torch.cat([(y[k] - base[k]).flatten() for k in keys])
     rel = float((dx - dy).norm() / dx.norm())
     assert float(dx.norm()) > 0 and rel < 1e-4, rel
+
+
+def test_missing_clip_is_refused_before_the_models_load(tmp_path, tiny_checkpoint, street_clip_path):
+    cfg = train_config.load(_config(tmp_path, tiny_checkpoint, street_clip_path,
+                                    clips=[street_clip_path, str(tmp_path / "no_clip")]))
+    with pytest.raises(train_config.TrainConfigError, match="clips: 1 clip folders have no clip.json"):
+        trainer.Trainer(cfg, "cpu")
+
+
+def test_a_bad_clip_met_in_a_worker_stops_training_with_its_name(tmp_path, tiny_checkpoint, street_clip_path):
+    import shutil
+
+    bad = tmp_path / "bad"
+    shutil.copytree(os.path.dirname(street_clip_path), bad)
+    os.remove(bad / "frames" / "frame_000005.png")  # the clip loads (ends and middle checked), sampling fails
+    cfg = train_config.load(_config(tmp_path, tiny_checkpoint, str(bad), num_workers=1, pairs={
+        "width": 128, "height": 64, "frames": 16}))
+    with pytest.raises(ValueError, match="training sample 0: .*frame_000005.png"):
+        trainer.train(cfg, "cpu")

@@ -110,12 +110,7 @@ def task_job(clip: clip_mod.Clip, s: EvalSettings, folder: str, shift: float, ca
         for b in boxes.values():
             T, size = clip_mod.grown_box(b, c.size, s.grow_m, s.grow_ratio)
             job["scene"]["removal_boxes"].append({"box_to_world": T.tolist(), "size": size.tolist()})
-        if c.asset_to_box is None:
-            from scpainter_blender.core import splats
-
-            a2b = clip_mod.fit_asset_to_box(splats.load(c.asset).means, c.size)
-        else:
-            a2b = c.asset_to_box
+        a2b = clip_mod.asset_to_box(c)
         job["assets"] = [{"name": c.id, "ply": os.path.relpath(c.asset, folder),
                           "object_to_world": {str(t): (c.boxes[t] @ a2b).tolist() for t in frames}}]
     os.makedirs(folder, exist_ok=True)

@@ -99,6 +99,14 @@ def _link_or_copy_tree(src: str, dst: str) -> None:
                 shutil.copy2(s, d)
 
 
+def link_components(src: str, dst: str, components=COMPONENTS, log=lambda m: None) -> None:
+    """Hard-link (or copy) ``components`` and model_index.json of the diffusers folder ``src`` into ``dst``."""
+    for comp in components:
+        log(f"{comp}")
+        _link_or_copy_tree(os.path.join(src, comp), os.path.join(dst, comp))
+    shutil.copy2(os.path.join(src, "model_index.json"), os.path.join(dst, "model_index.json"))
+
+
 def init_checkpoint(svd: str, out: str, log=lambda m: None) -> str:
     """Turn a stock SVD snapshot into an SCPainter checkpoint folder at ``out`` (written beside it under a
     temporary name, renamed when complete). Returns ``out``."""
@@ -114,10 +122,7 @@ def init_checkpoint(svd: str, out: str, log=lambda m: None) -> str:
     os.makedirs(parent, exist_ok=True)
     tmp = tempfile.mkdtemp(prefix=".scpainter-ckpt-", dir=parent)
     try:
-        for comp in COMPONENTS:
-            log(f"init-checkpoint: {comp}")
-            _link_or_copy_tree(os.path.join(svd, comp), os.path.join(tmp, comp))
-        shutil.copy2(os.path.join(svd, "model_index.json"), os.path.join(tmp, "model_index.json"))
+        link_components(svd, tmp, log=lambda m: log(f"init-checkpoint: {m}"))
         vae = AutoencoderKLTemporalDecoder.from_pretrained(svd, subfolder="vae", local_files_only=True,
                                                            use_safetensors=True)
         log("init-checkpoint: condition encoder (SVD's VAE encoder, mask channel zero)")

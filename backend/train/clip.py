@@ -206,6 +206,18 @@ def fit_asset_to_box(means: np.ndarray, box_size) -> np.ndarray:
     return A
 
 
+def asset_to_box(car: Car, means: np.ndarray | None = None) -> np.ndarray:
+    """The car's asset_to_box: the clip's when given, else fitted to the asset (fit_asset_to_box) — to ``means``
+    when the caller has the asset loaded, else to the asset file read here."""
+    if car.asset_to_box is not None:
+        return car.asset_to_box
+    if means is None:
+        from scpainter_blender.core import splats
+
+        means = splats.load(car.asset).means
+    return fit_asset_to_box(means, car.size)
+
+
 def grown_box(box_to_world, size, grow_m: float, grow_ratio: float):
     """The removal box of a car: its size scaled by (1 + grow_ratio) plus grow_m on every side (metres or clip
     units), same pose."""

@@ -79,8 +79,7 @@ class PairMaker:
             if car.asset is None:
                 continue
             g = splats.load(car.asset)
-            a2b = car.asset_to_box if car.asset_to_box is not None else clip_mod.fit_asset_to_box(g.means, car.size)
-            self.assets[i] = (fr.make_asset(car.id, g, {}, self.device), a2b)
+            self.assets[i] = (fr.make_asset(car.id, g, {}, self.device), clip_mod.asset_to_box(car, g.means))
         self._targets = {}
 
     def target(self, t: int) -> torch.Tensor:

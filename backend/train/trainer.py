@@ -194,9 +194,8 @@ class Trainer:
             os.makedirs(os.path.dirname(final), exist_ok=True)
             tmp = tempfile.mkdtemp(prefix=".ckpt-", dir=os.path.dirname(final))
             try:
-                for comp in ("vae", "image_encoder", "feature_extractor", "scheduler"):
-                    ckpt_mod._link_or_copy_tree(os.path.join(self.base, comp), os.path.join(tmp, comp))
-                shutil.copy2(os.path.join(self.base, "model_index.json"), os.path.join(tmp, "model_index.json"))
+                frozen = [c for c in ckpt_mod.COMPONENTS if c != "unet"]  # unet/ is written below, trained
+                ckpt_mod.link_components(self.base, tmp, frozen)
                 weights = self.ema.shadow if self.ema is not None else {k: p for k, p in self.named.items()}
                 unet_state = dict(self.unet.state_dict())
                 unet_state.update({k[5:]: v for k, v in weights.items() if k.startswith("unet.")})

@@ -61,3 +61,19 @@ def street_with_car(street, folder, count=3000, seed=7, paint=(0.1, 0.3, 0.8), l
     bpy.ops.scpainter.import_gaussians(filepath=ply)
     bpy.ops.scpainter.new_camera_path(shift=shift)
     return bpy.context.scene
+
+
+def realdata(relpath):
+    """A real public file from ``../shared/realdata`` (or ``$SCPAINTER_REALDATA``), or skip the test saying so.
+
+    These files are never committed (PROVENANCE.md in that folder says where each comes from)."""
+    import os
+
+    import pytest
+
+    root = os.environ.get("SCPAINTER_REALDATA") or os.path.join(
+        os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "..", "shared", "realdata")
+    path = os.path.join(root, relpath)
+    if not os.path.isfile(path):
+        pytest.skip(f"real data file {relpath} not found under {os.path.abspath(root)} (set SCPAINTER_REALDATA)")
+    return os.path.abspath(path)

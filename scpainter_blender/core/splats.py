@@ -1,7 +1,15 @@
-"""3D Gaussian Splatting PLY files: read, write, decode, and evaluate their spherical harmonics.
+"""3D Gaussian splat files: read (INRIA PLY, half-float PLY, SuperSplat compressed PLY, .splat), write, decode,
+and evaluate their spherical harmonics.
 
-File layout (INRIA, graphdeco-inria/gaussian-splatting): one ``vertex`` element with float properties
-``x y z [nx ny nz] f_dc_0..2 [f_rest_0..M-1] opacity scale_0..2 rot_0..3``, binary little- or big-endian, where
+Every reader returns a ``GaussianPly``: the raw values an INRIA file would hold (positions, ``f_dc``, ``f_rest``,
+opacity logit, log scales, quaternion (w, x, y, z)), so decoding and everything downstream is one path.
+``read(path)`` picks the reader by content (PLY magic, then the header's elements) or, for headerless ``.splat``,
+by extension; ``load(path) = decode(read(path))``. ``GaussianPly.format`` says which layout the file had
+(``FORMAT_NAMES``).
+
+INRIA PLY (graphdeco-inria/gaussian-splatting ``scene/gaussian_model.py``, ``save_ply``): one ``vertex`` element
+with float properties ``x y z [nx ny nz] f_dc_0..2 [f_rest_0..M-1] opacity scale_0..2 rot_0..3``, binary little-
+or big-endian, where
 
 * ``opacity`` is a logit (decoded with a sigmoid), ``scale_*`` are natural logs (decoded with exp),
 * ``rot_*`` is a quaternion (w, x, y, z), not necessarily unit (decoded by normalising),
@@ -9,9 +17,45 @@ File layout (INRIA, graphdeco-inria/gaussian-splatting): one ``vertex`` element 
   coefficients 1..K-1, then green's, then blue's. Colour = max(0.5 + Σ_k SH_k(dir) c_k, 0), dir = normalise(mean -
   camera centre).
 
-TRELLIS / Amodal3R write the same layout with SH degree 0 (17 properties, zero normals), the object inside the
-unit cube [-0.5, 0.5]^3, and positions/rotations multiplied by ``TRELLIS_FILE_FROM_ZUP`` (the file holds
-(x, -z, y) of their Z-up frame). Everything else decodes exactly like an INRIA file.
+Property types: ``float`` and ``double`` are read as float32 ("inria"). A file whose every Gaussian property
+(x y z f_dc_* opacity scale_* rot_* f_rest_*) is ``ushort``/``uint16`` is a half-float export: the 16 bits are
+IEEE half floats in the file's byte order ("inria_half"). Any other integer type among them (or a mix of ushort
+and float) is refused naming the property: integers there have no agreed meaning. Other properties (normals,
+labels...) keep their own type in ``extra``.
+
+SuperSplat compressed PLY ("supersplat_compressed"; writers: playcanvas/supersplat ``src/splat-serialize.ts``
+``serializePlyCompressed``, playcanvas/splat-transform ``src/lib/writers/write-compressed-ply.ts`` and
+``compressed-chunk.ts``; readers: playcanvas/engine ``src/scene/gsplat/gsplat-compressed-data.js``,
+playcanvas/splat-transform ``src/lib/readers/decompress-ply.ts``). Elements, in order:
+
+* ``chunk`` (one per 256 consecutive vertices, ceil(M / 256) rows), float: ``min_x min_y min_z max_x max_y max_z``
+  (the box of the chunk's means), ``min_scale_x.. max_scale_z`` (range of the log scales, clamped to [-20, 20]),
+  and in newer files ``min_r min_g min_b max_r max_g max_b`` (range of the colours 0.5 + C0 f_dc).
+* ``vertex`` (M rows), uint32 ``packed_position packed_rotation packed_scale packed_color``.
+* optional ``sh`` (M rows), uchar ``f_rest_0..`` (9, 24 or 45, INRIA's channel-major order).
+
+A u-bit field k decodes to t = k / (2^u - 1) and a value lo + t (hi - lo) with the chunk's range.
+``packed_position`` and ``packed_scale``: x in bits 21-31 (11 bits), y in bits 11-20 (10), z in bits 0-10 (11).
+``packed_color``: r bits 24-31, g 16-23, b 8-15, alpha 0-7 (8 each); with chunk colours r = lerp(min_r, max_r, t),
+without them r = t; f_dc = (r - 0.5) / C0; alpha is the sigmoid of the opacity itself, stored as the logit
+log(a / (1 - a)), with ±40 for a = 0 / 1 as the engine does. ``packed_rotation`` ("smallest three"): bits 30-31
+= index i of the largest-magnitude component in file order (rot_0..rot_3 = w, x, y, z); the other three
+components, in increasing index order, are in bits 20-29, 10-19 and 0-9 as (k / 1023 - 0.5) · √2 (the writer
+stores q_j · √2/2 + 0.5, so ±1/√2 spans the range); the writer flips the quaternion's sign so component i is
+positive, and it is decoded as sqrt(max(0, 1 - a² - b² - c²)). ``sh`` bytes: the writer stores
+trunc((v / 8 + 0.5) · 256) clamped to 0..255; decoded to the bucket's middle ((k + 0.5) / 256 - 0.5) · 8, with
+0 → -4 and 255 → +4 (splat-transform's reader; the engine's k · 8/255 - 4 differs by < 1/64).
+
+antimatter15 ``.splat`` ("splat"; antimatter15/splat ``convert.py`` writes it, ``main.js`` reads it): no header,
+32 bytes per Gaussian, little-endian: position 3 × float32, scale 3 × float32 (σ itself, not its log), colour
+RGBA 4 × uint8 (r = (0.5 + C0 f_dc) · 255, alpha = sigmoid(opacity) · 255), quaternion 4 × uint8 (w, x, y, z),
+byte = q / |q| · 128 + 128, read back as (byte - 128) / 128. Read as log σ, f_dc = (byte / 255 - 0.5) / C0,
+opacity logit of byte / 255 clamped to [1e-6, 1 - 1e-6] (so 0 and 255 stay finite), and that raw quaternion.
+No SH beyond degree 0.
+
+TRELLIS / Amodal3R write the INRIA layout with SH degree 0 (17 properties, zero normals), the object inside the
+unit cube, and positions/rotations multiplied by ``TRELLIS_FILE_FROM_ZUP`` (the file holds (x, -z, y) of their
+Z-up frame); ``detect_axes`` recognises them. Everything else decodes exactly like an INRIA file.
 
 Raw values (``GaussianPly``) are kept apart from decoded ones (``Gaussians``) so that write -> read is bit-exact.
 Rows with NaN/inf, zero quaternions or scales that overflow are dropped on decoding and counted, never passed on.
@@ -30,12 +74,47 @@ import numpy as np
 #: File axes from TRELLIS's Z-up object axes: p_file = TRELLIS_FILE_FROM_ZUP @ p (a -90° turn about X undoes it).
 TRELLIS_FILE_FROM_ZUP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 
+#: What TRELLIS's ``Gaussian.save_ply`` writes (microsoft/TRELLIS ``trellis/representations/gaussian/
+#: gaussian_model.py``, ``construct_list_of_attributes`` with SH degree 0), in this order, all float32.
+TRELLIS_PROPERTIES = ("x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1",
+                      "scale_2", "rot_0", "rot_1", "rot_2", "rot_3")
+
+#: How far a TRELLIS/Amodal3R mean can be from the origin. microsoft/TRELLIS
+#: ``trellis/models/structured_latent_vae/decoder_gs.py`` (``to_representation``) puts each Gaussian at its voxel
+#: centre (i + 0.5) / 64 plus tanh(.) / 64 · 0.5 · voxel_size, with resolution 64 and voxel_size 1.5 in the
+#: released decoder's config (``slat_dec_gs_swin8_B_64l8gs32_fp16``), so at most 0.75 voxel from the centre; the
+#: ``Gaussian`` aabb [-0.5, -0.5, -0.5, 1, 1, 1] then shifts the cube to [-0.5, 0.5]^3 and save_ply only permutes
+#: axes. The tightest bound is 0.5 - 0.5/64 + 0.75/64 = 0.50390625; we accept 0.75 voxel beyond the cube's face,
+#: 0.5 + 0.75/64 = 0.51171875, plus float slack, so that a fork with another voxel-centre convention still passes.
+TRELLIS_MEAN_BOUND = 0.5 + 0.75 / 64 + 1e-5
+
 REQUIRED = ("x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2",
             "rot_0", "rot_1", "rot_2", "rot_3")
 MAX_HEADER = 1 << 16
 _TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
           "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
           "float": "f4", "float32": "f4", "double": "f8", "float64": "f8"}
+_PLY_TYPE = {"i1": "char", "u1": "uchar", "i2": "short", "u2": "ushort", "i4": "int", "u4": "uint", "f4": "float",
+             "f8": "double"}
+
+#: Human names of ``GaussianPly.format`` values, for import reports.
+FORMAT_NAMES = {"inria": "INRIA 3DGS PLY", "inria_half": "INRIA 3DGS PLY, half floats",
+                "supersplat_compressed": "SuperSplat compressed PLY", "splat": "antimatter15 .splat"}
+ACCEPTED = ("binary INRIA 3DGS PLY (float, double or half floats in ushort slots; TRELLIS/Amodal3R included), "
+            "SuperSplat compressed PLY (.compressed.ply) and antimatter15 .splat")
+
+#: SuperSplat compressed PLY: splats per chunk, and the chunk/vertex properties (module docstring).
+CHUNK_SIZE = 256
+_CHUNK_PROPS = ("min_x", "min_y", "min_z", "max_x", "max_y", "max_z", "min_scale_x", "min_scale_y", "min_scale_z",
+                "max_scale_x", "max_scale_y", "max_scale_z")
+_CHUNK_COLOR_PROPS = ("min_r", "min_g", "min_b", "max_r", "max_g", "max_b")
+_PACKED_PROPS = ("packed_position", "packed_rotation", "packed_scale", "packed_color")
+#: Opacity logit for alpha bytes 0 and 255 (playcanvas/engine gsplat-compressed-data.js uses ±40).
+_COMPRESSED_LOGIT_LIMIT = 40.0
+
+#: antimatter15 .splat: one 32-byte little-endian record per Gaussian.
+SPLAT_RECORD = np.dtype([("xyz", "<f4", (3,)), ("scale", "<f4", (3,)), ("rgba", "u1", (4,)), ("rot", "u1", (4,))])
+_SPLAT_ALPHA_EPS = 1e-6
 
 # Real spherical-harmonic basis constants as used by 3DGS renderers (degree 0-3).
 SH_C0 = 0.28209479177387814
@@ -46,7 +125,7 @@ SH_C3 = (-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.37317633
 
 
 class SplatsError(ValueError):
-    """A Gaussian PLY that cannot be used; the message names the file and what is wrong."""
+    """A Gaussian file that cannot be used; the message names the file and what is wrong."""
 
     def __init__(self, path, message):
         self.path = str(path)
@@ -59,10 +138,12 @@ def num_sh_coefficients(degree: int) -> int:
 
 @dataclass
 class GaussianPly:
-    """Raw per-Gaussian values exactly as stored (float32), N rows.
+    """Raw per-Gaussian values as an INRIA file holds them (float32), N rows.
 
     ``f_rest`` is (N, 3, K - 1): channel-major, as in the file. ``extra`` keeps any other vertex properties
     (normals, per-splat labels...) in file order so a rewrite loses nothing; decoding ignores them.
+    ``format`` is the layout the values came from (a key of ``FORMAT_NAMES``); ``properties`` the file's vertex
+    property names in file order (empty when not read from a PLY vertex element).
     """
 
     xyz: np.ndarray
@@ -72,6 +153,8 @@ class GaussianPly:
     scale: np.ndarray
     rot: np.ndarray
     extra: dict = field(default_factory=dict)
+    format: str = "inria"
+    properties: tuple = ()
 
     def __len__(self):
         return len(self.xyz)
@@ -119,10 +202,51 @@ class Gaussians:
 # Reading
 # --------------------------------------------------------------------------------------------------------------
 
-def _parse_header(raw: bytes, path):
+def read(path) -> GaussianPly:
+    """Read any accepted Gaussian file (module docstring) into raw float32 arrays; SplatsError if unusable.
+
+    PLY files (INRIA, half-float, SuperSplat compressed) are recognised by content; headerless ``.splat`` files by
+    their extension.
+    """
+    path = os.fspath(path)
+    head = _head(path, 4)
+    if head.startswith(b"ply"):
+        return read_ply(path)
+    ext = os.path.splitext(path)[1].lower()
+    if ext == ".splat":
+        return read_splat(path)
+    raise SplatsError(path, _not_accepted(head, ext))
+
+
+def load(path) -> Gaussians:
+    """read + decode: decoded Gaussians of any accepted file."""
+    return decode(read(path))
+
+
+def _head(path, n: int) -> bytes:
+    try:
+        with open(path, "rb") as f:
+            return f.read(n)
+    except FileNotFoundError:
+        raise SplatsError(path, "file not found") from None
+    except OSError as e:
+        raise SplatsError(path, f"cannot be read: {e}") from None
+
+
+def _not_accepted(head: bytes, ext: str) -> str:
+    if head.startswith(b"glTF") or ext in (".glb", ".gltf", ".obj", ".stl", ".off", ".fbx"):
+        return (f"a mesh/scene file ({ext or 'glTF'}), not Gaussian splats: import it as a mesh asset; "
+                f"Gaussian files accepted are {ACCEPTED}")
+    if ext in (".ksplat", ".spz", ".sog", ".sogs", ".lcc"):
+        return (f"{ext} Gaussian files are not supported: convert it to .ply (e.g. with playcanvas/splat-transform); "
+                f"accepted are {ACCEPTED}")
+    return f"not a PLY file (it does not start with 'ply') and not named .splat: accepted are {ACCEPTED}"
+
+
+def _parse_header(raw: bytes, path, binary_only: bool = True):
     end = raw.find(b"end_header")
     if not raw.startswith(b"ply"):
-        raise SplatsError(path, "not a PLY file (it does not start with 'ply')")
+        raise SplatsError(path, f"not a PLY file (it does not start with 'ply'); accepted are {ACCEPTED}")
     if end < 0:
         raise SplatsError(path, f"no 'end_header' in the first {MAX_HEADER} bytes")
     nl = raw.find(b"\n", end)
@@ -159,44 +283,133 @@ def _parse_header(raw: bytes, path):
             elements[-1][2].append((words[2], _TYPES[words[1]]))
         else:
             raise SplatsError(path, f"header line {n}: unexpected {words[0]!r}")
-    if fmt not in ("binary_little_endian", "binary_big_endian"):
-        raise SplatsError(path, f"format {fmt!r} is not supported: expected binary_little_endian or "
-                                "binary_big_endian (ASCII splat files are not used in practice)")
+    if binary_only:
+        _check_binary(fmt, path)
     return fmt, elements, nl + 1
 
 
+def _check_binary(fmt, path) -> None:
+    if fmt not in ("binary_little_endian", "binary_big_endian"):
+        raise SplatsError(path, f"format {fmt!r} is not supported: expected binary_little_endian or "
+                                "binary_big_endian (ASCII splat files are not used in practice)")
+
+
+def _element(elements, name):
+    """The first element called ``name`` as (count, [(property, type)]), or None."""
+    for e in elements:
+        if e[0] == name:
+            return e[1], e[2]
+    return None
+
+
+_GAUSSIAN_HINTS = ("f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1",
+                   "rot_2", "rot_3") + _PACKED_PROPS
+
+
+def _mesh_message(elements):
+    """A message when the PLY looks like a mesh or point cloud (no Gaussian property at all), else None."""
+    vertex = _element(elements, "vertex")
+    if vertex is None:
+        return None
+    names = [p for p, _ in vertex[1]]
+    if not names or set(names) & set(_GAUSSIAN_HINTS) or _element(elements, "chunk") is not None:
+        return None
+    face = _element(elements, "face")
+    what = f"{vertex[0]} vertices ({' '.join(names[:8])}{' ...' if len(names) > 8 else ''})"
+    what += f" and {face[0]} faces" if face is not None else ""
+    return (f"looks like a mesh without Gaussian properties: it has {what} but none of f_dc_*, opacity, scale_*, "
+            "rot_*: import it as a mesh asset (.glb/.obj/.ply mesh)")
+
+
+def is_mesh_ply(path) -> bool:
+    """True for a readable PLY (binary or ASCII) whose header has faces and no Gaussian property (a mesh to
+    convert); never raises."""
+    try:
+        with open(os.fspath(path), "rb") as f:
+            raw = f.read(MAX_HEADER)
+        _, elements, _ = _parse_header(raw, path, binary_only=False)
+    except (OSError, SplatsError):
+        return False
+    face = _element(elements, "face")
+    return face is not None and face[0] > 0 and _mesh_message(elements) is not None
+
+
+def _read_elements(f, path, size: int, order: str, elements, start: int, wanted) -> dict:
+    """Structured arrays of the ``wanted`` elements (first of each name), skipping the ones before them."""
+    noun = {"vertex": "Gaussians", "chunk": "chunks", "sh": "SH rows"}
+    last = max(i for i, e in enumerate(elements) if e[0] in wanted)
+    out, offset = {}, start
+    for name, count, props in elements[:last + 1]:
+        if any(t is None for _, t in props):
+            if name in wanted and name not in out:
+                raise SplatsError(path, f"the {name!r} element has list properties")
+            raise SplatsError(path, f"element {name!r} before {elements[last][0]!r} has list properties")
+        dtype = np.dtype([(p, order + t) for p, t in props])
+        need = count * dtype.itemsize
+        if name in wanted and name not in out:
+            if not props:
+                raise SplatsError(path, f"the {name!r} element has no properties")
+            if offset + need > size:
+                raise SplatsError(path, f"truncated: the header promises {count} {noun.get(name, name + ' rows')} "
+                                        f"({need} bytes from byte {offset}) but the file has {size} bytes")
+            f.seek(offset)
+            out[name] = np.frombuffer(f.read(need), dtype=dtype, count=count)
+        offset += need
+    return out
+
+
 def read_ply(path) -> GaussianPly:
-    """Read a Gaussian-splat PLY (INRIA or TRELLIS/Amodal3R) into raw float32 arrays; SplatsError if unusable."""
+    """Read a Gaussian-splat PLY (INRIA, TRELLIS/Amodal3R, half-float or SuperSplat compressed) into raw float32
+    arrays; SplatsError if unusable."""
     path = os.fspath(path)
     try:
         size = os.path.getsize(path)
         with open(path, "rb") as f:
             head = f.read(MAX_HEADER)
-            fmt, elements, start = _parse_header(head, path)
+            fmt, elements, start = _parse_header(head, path, binary_only=False)
+            mesh = _mesh_message(elements)
+            if mesh:
+                raise SplatsError(path, mesh)
+            _check_binary(fmt, path)
             order = "<" if fmt == "binary_little_endian" else ">"
-            offset = start
-            for name, count, props in elements:
-                if name == "vertex":
-                    break
-                if any(t is None for _, t in props):
-                    raise SplatsError(path, f"element {name!r} before 'vertex' has list properties")
-                offset += count * sum(np.dtype(t).itemsize for _, t in props)
-            else:
+            vertex = _element(elements, "vertex")
+            if vertex is None:
                 raise SplatsError(path, "no 'vertex' element")
-            if any(t is None for _, t in props):
-                raise SplatsError(path, "the 'vertex' element has list properties")
-            dtype = np.dtype([(p, order + t) for p, t in props])
-            need = count * dtype.itemsize
-            if offset + need > size:
-                raise SplatsError(path, f"truncated: the header promises {count} Gaussians "
-                                        f"({need} bytes from byte {offset}) but the file has {size} bytes")
-            f.seek(offset)
-            data = np.frombuffer(f.read(need), dtype=dtype, count=count)
+            vnames = [p for p, _ in vertex[1]]
+            if _element(elements, "chunk") is not None or "packed_position" in vnames:
+                _check_compressed_header(elements, path)
+                wanted = ("chunk", "vertex", "sh") if _element(elements, "sh") is not None else ("chunk", "vertex")
+                arrays = _read_elements(f, path, size, order, elements, start, wanted)
+                return _from_compressed(arrays, path)
+            data = _read_elements(f, path, size, order, elements, start, ("vertex",))["vertex"]
     except FileNotFoundError:
         raise SplatsError(path, "file not found") from None
     except OSError as e:
         raise SplatsError(path, f"cannot be read: {e}") from None
-    return _from_structured(data, [p for p, _ in props], path)
+    return _from_structured(data, vnames, path)
+
+
+def _type_name(dt: np.dtype) -> str:
+    code = dt.str[1:]
+    return f"{_PLY_TYPE.get(code, code)} ({dt.name})"
+
+
+def _storage(data, keys, path) -> str:
+    """"inria" when every key is float/double, "inria_half" when every key is ushort; SplatsError otherwise."""
+    kinds = {k: data.dtype[k] for k in keys}
+    nonfloat = [k for k in keys if kinds[k].kind != "f"]
+    if not nonfloat:
+        return "inria"
+    if len(nonfloat) == len(keys) and all(kinds[k].str[1:] == "u2" for k in keys):
+        return "inria_half"
+    k = nonfloat[0]
+    more = f" (and {len(nonfloat) - 1} more)" if len(nonfloat) > 1 else ""
+    if all(kinds[n].str[1:] == "u2" for n in nonfloat):
+        raise SplatsError(path, f"property {k!r}{more} is stored as {_type_name(kinds[k])} while others are "
+                                "float: a half-float export stores every Gaussian property as ushort, a mix is "
+                                "ambiguous; re-export the file as float32")
+    raise SplatsError(path, f"property {k!r}{more} is stored as {_type_name(kinds[k])}: Gaussian properties must be "
+                            "float or double (integers have no agreed scale); re-export the file as float32")
 
 
 def _from_structured(data, names, path) -> GaussianPly:
@@ -209,21 +422,210 @@ def _from_structured(data, names, path) -> GaussianPly:
     valid = {3 * (num_sh_coefficients(d) - 1): d for d in range(4)}
     if len(rest) not in valid:
         raise SplatsError(path, f"{len(rest)} f_rest properties: expected 0, 9, 24 or 45 (SH degree 0-3)")
+    used = list(REQUIRED) + rest
+    storage = _storage(data, used, path)
+
+    def column(k):
+        if storage == "inria_half":  # the same bits as IEEE half floats, in the file's byte order
+            return data[k].view(data.dtype[k].str[0] + "f2")
+        return data[k]
 
     def cols(keys):  # doubles beyond float32's range become inf here, and are dropped on decoding
         out = np.empty((len(data), len(keys)), np.float32)
         with np.errstate(invalid="ignore", over="ignore"):
             for i, k in enumerate(keys):
-                out[:, i] = data[k]
+                out[:, i] = column(k)
         return out
 
     K1 = len(rest) // 3
-    used = set(REQUIRED) | set(rest)
+    used_set = set(used)
     return GaussianPly(
         xyz=cols(["x", "y", "z"]), f_dc=cols(["f_dc_0", "f_dc_1", "f_dc_2"]),
         f_rest=cols(rest).reshape(len(data), 3, K1), opacity=cols(["opacity"])[:, 0],
         scale=cols(["scale_0", "scale_1", "scale_2"]), rot=cols(["rot_0", "rot_1", "rot_2", "rot_3"]),
-        extra={n: data[n].astype(data.dtype[n].newbyteorder("=")) for n in names if n not in used})
+        extra={n: data[n].astype(data.dtype[n].newbyteorder("=")) for n in names if n not in used_set},
+        format=storage, properties=tuple(names))
+
+
+# -- SuperSplat compressed PLY -------------------------------------------------------------------------------------
+
+def _check_compressed_header(elements, path) -> None:
+    """Refuse a compressed layout that is incomplete or inconsistent, naming what is wrong (before reading data)."""
+    what = "a SuperSplat compressed PLY"
+    chunk, vertex, sh = (_element(elements, n) for n in ("chunk", "vertex", "sh"))
+    if chunk is None:
+        raise SplatsError(path, f"the vertices have packed_* properties ({what}) but there is no 'chunk' element")
+    vtypes = dict(vertex[1])
+    missing = [p for p in _PACKED_PROPS if p not in vtypes]
+    if missing:
+        raise SplatsError(path, f"{what} needs vertex properties {list(_PACKED_PROPS)}; missing {missing}")
+    bad = [p for p in _PACKED_PROPS if vtypes[p] not in ("u4", "i4")]
+    if bad:
+        raise SplatsError(path, f"{what}: vertex property {bad[0]!r} is {_type_name(np.dtype(vtypes[bad[0]]))}, "
+                                "expected uint (32-bit)")
+    ctypes = dict(chunk[1])
+    needed = _CHUNK_PROPS + (_CHUNK_COLOR_PROPS if any(p in ctypes for p in _CHUNK_COLOR_PROPS) else ())
+    missing = [p for p in needed if p not in ctypes]
+    if missing:
+        raise SplatsError(path, f"{what}: the 'chunk' element lacks {missing}")
+    bad = [p for p in needed if ctypes[p] not in ("f4", "f8")]
+    if bad:
+        raise SplatsError(path, f"{what}: chunk property {bad[0]!r} is {_type_name(np.dtype(ctypes[bad[0]]))}, "
+                                "expected float")
+    expect = -(-vertex[0] // CHUNK_SIZE)
+    if chunk[0] != expect:
+        raise SplatsError(path, f"{what}: {vertex[0]} Gaussians need {expect} chunks of {CHUNK_SIZE}, "
+                                f"the header has {chunk[0]}")
+    if sh is not None:
+        names = [p for p, _ in sh[1]]
+        if len(names) not in (9, 24, 45) or names != [f"f_rest_{i}" for i in range(len(names))]:
+            raise SplatsError(path, f"{what}: the 'sh' element must hold f_rest_0..f_rest_(9, 24 or 45 - 1), "
+                                    f"it has {len(names)} properties")
+        bad = [p for p, t in sh[1] if t != "u1"]
+        if bad:
+            raise SplatsError(path, f"{what}: sh property {bad[0]!r} is {_type_name(np.dtype(dict(sh[1])[bad[0]]))}"
+                                    ", expected uchar")
+        if sh[0] != vertex[0]:
+            raise SplatsError(path, f"{what}: the 'sh' element has {sh[0]} rows for {vertex[0]} Gaussians")
+
+
+def _unorm(packed: np.ndarray, shift: int, bits: int) -> np.ndarray:
+    """The ``bits``-bit field at ``shift`` as k / (2^bits - 1) in [0, 1] (float64)."""
+    top = (1 << bits) - 1
+    return ((packed >> np.uint32(shift)) & np.uint32(top)).astype(np.float64) / top
+
+
+#: For the index of the largest quaternion component, the indices of the other three in storage order.
+_SMALLEST_THREE = np.array([[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]])
+
+
+def decode_packed_rotation(packed) -> np.ndarray:
+    """(N, 4) quaternions (rot_0..rot_3 = w, x, y, z) from SuperSplat's 2-10-10-10 "smallest three" words."""
+    packed = np.asarray(packed, np.uint32)
+    small = np.stack([(_unorm(packed, s, 10) - 0.5) * np.sqrt(2.0) for s in (20, 10, 0)], axis=1)
+    largest = (packed >> np.uint32(30)).astype(np.intp)
+    q = np.empty((len(packed), 4), np.float64)
+    rows = np.arange(len(packed))[:, None]
+    q[rows, _SMALLEST_THREE[largest]] = small
+    q[rows[:, 0], largest] = np.sqrt(np.maximum(0.0, 1.0 - (small * small).sum(axis=1)))
+    return q
+
+
+def _from_compressed(arrays, path) -> GaussianPly:
+    chunk, vert = arrays["chunk"], arrays["vertex"]
+    M = len(vert)
+    ci = np.arange(M) // CHUNK_SIZE
+
+    def ch(name):
+        return np.asarray(chunk[name], np.float64)[ci]
+
+    def lerp(lo, hi, t):  # as the readers do it: lo (1 - t) + hi t
+        return ch(lo) * (1.0 - t) + ch(hi) * t
+
+    def words(name):  # int32 words are read as their bits
+        w = np.asarray(vert[name])
+        return w.astype("=i4").view(np.uint32) if w.dtype.kind == "i" else w.astype(np.uint32)
+
+    pos, scl, col = words("packed_position"), words("packed_scale"), words("packed_color")
+    with np.errstate(invalid="ignore", over="ignore"):  # NaN/inf chunk values make NaN rows, dropped on decoding
+        xyz = np.stack([lerp("min_x", "max_x", _unorm(pos, 21, 11)), lerp("min_y", "max_y", _unorm(pos, 11, 10)),
+                        lerp("min_z", "max_z", _unorm(pos, 0, 11))], axis=1)
+        scale = np.stack([lerp("min_scale_x", "max_scale_x", _unorm(scl, 21, 11)),
+                          lerp("min_scale_y", "max_scale_y", _unorm(scl, 11, 10)),
+                          lerp("min_scale_z", "max_scale_z", _unorm(scl, 0, 11))], axis=1)
+        rgb = np.stack([_unorm(col, 24, 8), _unorm(col, 16, 8), _unorm(col, 8, 8)], axis=1)
+        if "min_r" in chunk.dtype.names:
+            rgb = np.stack([lerp(f"min_{c}", f"max_{c}", rgb[:, i]) for i, c in enumerate("rgb")], axis=1)
+        alpha = _unorm(col, 0, 8)
+        inner = np.clip(alpha, 1e-300, 1 - 1e-16)
+        opacity = np.where(alpha <= 0, -_COMPRESSED_LOGIT_LIMIT,
+                           np.where(alpha >= 1, _COMPRESSED_LOGIT_LIMIT, np.log(inner / (1.0 - inner))))
+    f_rest = np.zeros((M, 3, 0), np.float32)
+    if "sh" in arrays:
+        sh = arrays["sh"]
+        raw = np.stack([np.asarray(sh[f"f_rest_{i}"]) for i in range(len(sh.dtype.names))], axis=1)
+        vals = ((raw.astype(np.float64) + 0.5) / 256.0 - 0.5) * 8.0
+        vals[raw == 0], vals[raw == 255] = -4.0, 4.0
+        f_rest = vals.astype(np.float32).reshape(M, 3, -1)
+    with np.errstate(invalid="ignore", over="ignore"):  # beyond float32's range becomes inf: dropped on decoding
+        return GaussianPly(xyz=xyz.astype(np.float32), f_dc=((rgb - 0.5) / SH_C0).astype(np.float32),
+                           f_rest=f_rest, opacity=opacity.astype(np.float32), scale=scale.astype(np.float32),
+                           rot=decode_packed_rotation(words("packed_rotation")).astype(np.float32),
+                           format="supersplat_compressed")
+
+
+# -- antimatter15 .splat -------------------------------------------------------------------------------------------
+
+def read_splat(path) -> GaussianPly:
+    """Read an antimatter15 ``.splat`` file (module docstring) as raw INRIA values; SplatsError if unusable."""
+    path = os.fspath(path)
+    try:
+        size = os.path.getsize(path)
+        if size == 0:
+            raise SplatsError(path, "the .splat file is empty (0 bytes)")
+        if size % SPLAT_RECORD.itemsize:
+            raise SplatsError(path, f"a .splat file holds {SPLAT_RECORD.itemsize} bytes per Gaussian, but this one "
+                                    f"has {size} bytes, not a multiple of {SPLAT_RECORD.itemsize} ({size % 32} "
+                                    "left over): truncated, or not a .splat file")
+        with open(path, "rb") as f:
+            data = np.frombuffer(f.read(size), dtype=SPLAT_RECORD)
+    except FileNotFoundError:
+        raise SplatsError(path, "file not found") from None
+    except OSError as e:
+        raise SplatsError(path, f"cannot be read: {e}") from None
+    rgba = data["rgba"].astype(np.float64) / 255.0
+    alpha = np.clip(rgba[:, 3], _SPLAT_ALPHA_EPS, 1.0 - _SPLAT_ALPHA_EPS)
+    with np.errstate(divide="ignore", invalid="ignore"):  # σ <= 0 gives -inf/NaN: dropped on decoding
+        log_scale = np.log(data["scale"].astype(np.float64))
+    return GaussianPly(xyz=data["xyz"].astype(np.float32), f_dc=((rgba[:, :3] - 0.5) / SH_C0).astype(np.float32),
+                       f_rest=np.zeros((len(data), 3, 0), np.float32),
+                       opacity=np.log(alpha / (1.0 - alpha)).astype(np.float32), scale=log_scale.astype(np.float32),
+                       rot=((data["rot"].astype(np.float64) - 128.0) / 128.0).astype(np.float32), format="splat")
+
+
+# -- TRELLIS / Amodal3R ------------------------------------------------------------------------------------------
+
+def _layout(ply: GaussianPly) -> tuple:
+    """The vertex properties of ``ply``'s file, or for an in-memory one those ``write_ply`` would write."""
+    if ply.properties:
+        return tuple(ply.properties)
+    normals = [n for n in ("nx", "ny", "nz") if n in ply.extra]
+    K1 = ply.f_rest.shape[2]
+    return tuple(["x", "y", "z"] + normals + [f"f_dc_{i}" for i in range(3)]
+                 + [f"f_rest_{i}" for i in range(3 * K1)] + ["opacity"] + [f"scale_{i}" for i in range(3)]
+                 + [f"rot_{i}" for i in range(4)] + [n for n in ply.extra if n not in normals])
+
+
+def detect_axes(ply: GaussianPly, keep=None) -> tuple[str, str]:
+    """("TRELLIS" or "NONE", one sentence why) for the import report.
+
+    TRELLIS/Amodal3R files are recognised by their exact layout (``TRELLIS_PROPERTIES`` in that order, all normals
+    zero, SH degree 0, float PLY) and all kept means within ``TRELLIS_MEAN_BOUND`` (see there); ``keep`` is the
+    mask of rows to use (default: the rows ``decode`` keeps).
+    """
+    if ply.format != "inria":
+        return "NONE", f"not TRELLIS: a {FORMAT_NAMES.get(ply.format, ply.format)} file"
+    if ply.sh_degree:
+        return "NONE", f"not TRELLIS: has f_rest (SH {ply.sh_degree})"
+    if not {"nx", "ny", "nz"} <= set(ply.extra):
+        return "NONE", "not TRELLIS: no normals (TRELLIS writes zero nx ny nz)"
+    layout = _layout(ply)
+    if layout != TRELLIS_PROPERTIES:
+        others = [n for n in layout if n not in TRELLIS_PROPERTIES]
+        if others:
+            return "NONE", f"not TRELLIS: extra properties {others}"
+        return "NONE", "not TRELLIS: the properties are not in TRELLIS's save_ply order"
+    if any(np.any(np.asarray(ply.extra[n]) != 0) for n in ("nx", "ny", "nz")):
+        return "NONE", "not TRELLIS: normals are not all zero"
+    keep = valid_rows(ply)[0] if keep is None else np.asarray(keep, bool)
+    if not keep.any():
+        return "NONE", "not TRELLIS: no valid Gaussians"
+    reach = float(np.abs(ply.xyz[keep].astype(np.float64)).max())
+    if reach > TRELLIS_MEAN_BOUND:
+        return "NONE", (f"not TRELLIS: means reach {reach:.4g}, outside the unit cube (TRELLIS stays within "
+                        f"±{TRELLIS_MEAN_BOUND:.4f})")
+    return "TRELLIS", (f"TRELLIS/Amodal3R layout ({len(TRELLIS_PROPERTIES)} properties, zero normals, SH 0) and all "
+                       f"means within ±{TRELLIS_MEAN_BOUND:.4f} (the decoder's unit cube)")
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -275,6 +677,29 @@ def write_ply(path, ply: GaussianPly, byte_order: str = "<", comment: str | None
     os.replace(tmp, path)
 
 
+def write_splat(path, g) -> None:
+    """Write decoded ``Gaussians`` (or a raw ``GaussianPly``, decoded first) as an antimatter15 ``.splat``, atomically.
+
+    Bytes as antimatter15/splat ``convert.py`` makes them, except that colour, alpha and quaternion bytes are rounded
+    to the nearest value instead of truncated (readers decode both the same way); SH beyond degree 0 is dropped.
+    """
+    if isinstance(g, GaussianPly):
+        g = decode(g)
+    N = len(g)
+    rec = np.zeros(N, SPLAT_RECORD)
+    rec["xyz"] = g.means
+    rec["scale"] = g.scales
+    rgba = np.concatenate([0.5 + SH_C0 * g.sh[:, 0].astype(np.float64), g.opacities.astype(np.float64)[:, None]], 1)
+    rec["rgba"] = np.clip(np.rint(rgba * 255.0), 0, 255).astype(np.uint8)
+    q = g.quats.astype(np.float64)
+    q = q / np.maximum(np.linalg.norm(q, axis=1, keepdims=True), 1e-30)
+    rec["rot"] = np.clip(np.rint(q * 128.0 + 128.0), 0, 255).astype(np.uint8)
+    path = os.fspath(path)
+    tmp = path + ".tmp"
+    with open(tmp, "wb") as f:
+        f.write(rec.tobytes())
+    os.replace(tmp, path)
+
 # --------------------------------------------------------------------------------------------------------------
 # Decoding and encoding
 # --------------------------------------------------------------------------------------------------------------
@@ -321,11 +746,6 @@ def encode(g: Gaussians, extra: dict | None = None) -> GaussianPly:
                        opacity=np.log(o / (1 - o)).astype(np.float32),
                        scale=np.log(np.maximum(g.scales.astype(np.float64), 1e-30)).astype(np.float32),
                        rot=g.quats.astype(np.float32), extra=dict(extra or {}))
-
-
-def load(path) -> Gaussians:
-    """read_ply + decode."""
-    return decode(read_ply(path))
 
 
 # --------------------------------------------------------------------------------------------------------------

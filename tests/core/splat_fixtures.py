@@ -1,0 +1,132 @@
+"""Test helpers for core.splats: writers of the formats the reader must understand, written from the formats'
+descriptions (not from the reader).
+
+* ``write_compressed_ply`` quantises known Gaussians the way SuperSplat's exporter does (playcanvas/supersplat
+  ``src/splat-serialize.ts`` ``Chunk.pack``; the same rules in playcanvas/splat-transform
+  ``src/lib/writers/compressed-chunk.ts``): per chunk of 256, min/max boxes (log scales clamped to [-20, 20]),
+  t = (v - min) / (max - min) (0 when the range is below 1e-5), k = floor(t (2^bits - 1) + 0.5); positions and
+  scales 11-10-11 bits (x high), colours 8-8-8-8 (r high, alpha = sigmoid(opacity) low), the quaternion as the
+  index of its largest |component| in the top two bits and the other three, sign-flipped so that the largest is
+  positive, as floor((q_j √2/2 + 0.5) · 1023 + 0.5) in file order; SH bytes trunc((v / 8 + 0.5) · 256) in 0..255.
+* ``write_typed_ply`` writes any vertex (and optional face) layout with chosen PLY types, e.g. half floats in
+  ``ushort`` slots or a mesh.
+"""
+
+import numpy as np
+
+SH_C0 = 0.28209479177387814
+_NP = {"char": "i1", "uchar": "u1", "short": "i2", "ushort": "u2", "int": "i4", "uint": "u4", "float": "f4",
+       "double": "f8"}
+
+
+def write_typed_ply(path, columns, byte_order="<", faces=None, comment=None):
+    """PLY with one vertex element of ``columns`` = [(name, ply_type, values)], optionally triangle ``faces``."""
+    n = len(columns[0][2]) if columns else 0
+    arr = np.empty(n, dtype=[(name, byte_order + _NP[t]) for name, t, _ in columns])
+    for name, _, values in columns:
+        arr[name] = values
+    head = ["ply", f"format binary_{'little' if byte_order == '<' else 'big'}_endian 1.0"]
+    head += [f"comment {comment}"] if comment else []
+    head += [f"element vertex {n}"] + [f"property {t} {name}" for name, t, _ in columns]
+    body = arr.tobytes()
+    if faces is not None:
+        faces = np.asarray(faces, np.int32)
+        head += [f"element face {len(faces)}", "property list uchar int vertex_indices"]
+        rec = np.empty(len(faces), dtype=[("n", "u1"), ("idx", byte_order + "i4", (3,))])
+        rec["n"], rec["idx"] = 3, faces
+        body += rec.tobytes()
+    head.append("end_header")
+    with open(path, "wb") as f:
+        f.write(("\n".join(head) + "\n").encode("ascii") + body)
+
+
+def inria_columns(ply, ply_type="float", cast=None):
+    """The required INRIA columns of a GaussianPly (+ f_rest), each as ``ply_type`` values ``cast(v)``."""
+    cast = cast or (lambda v: v)
+    N, K1 = len(ply.xyz), ply.f_rest.shape[2]
+    cols = [(k, ply_type, cast(ply.xyz[:, i])) for i, k in enumerate("xyz")]
+    cols += [(f"f_dc_{i}", ply_type, cast(ply.f_dc[:, i])) for i in range(3)]
+    flat = ply.f_rest.reshape(N, 3 * K1)
+    cols += [(f"f_rest_{i}", ply_type, cast(flat[:, i])) for i in range(3 * K1)]
+    cols += [("opacity", ply_type, cast(ply.opacity))]
+    cols += [(f"scale_{i}", ply_type, cast(ply.scale[:, i])) for i in range(3)]
+    cols += [(f"rot_{i}", ply_type, cast(ply.rot[:, i])) for i in range(4)]
+    return cols
+
+
+def _pack_unorm(t, bits):
+    top = (1 << bits) - 1
+    return np.clip(np.floor(np.asarray(t, np.float64) * top + 0.5), 0, top).astype(np.uint32)
+
+
+def _normalise(v, lo, hi):
+    v = np.asarray(v, np.float64)
+    rng = hi - lo
+    t = np.where(rng < 1e-5, 0.0, (v - lo) / np.where(rng < 1e-5, 1.0, rng))
+    return np.where(v <= lo, 0.0, np.where(v >= hi, 1.0, t))
+
+
+def pack_rotation(q):
+    """SuperSplat's 2-10-10-10 word for quaternions (N, 4) in file order (w, x, y, z)."""
+    q = np.asarray(q, np.float64)
+    q = q / np.linalg.norm(q, axis=1, keepdims=True)
+    largest = np.argmax(np.abs(q), axis=1)  # first index on ties, as the writer's strict '>' scan
+    q = np.where(q[np.arange(len(q)), largest][:, None] < 0, -q, q)
+    words = []
+    for qi, big in zip(q, largest):
+        w = int(big)
+        for j in range(4):
+            if j != big:
+                w = (w << 10) | int(_pack_unorm(qi[j] * np.sqrt(0.5) + 0.5, 10))
+        words.append(w)
+    return np.array(words, np.uint32)
+
+
+def write_compressed_ply(path, xyz, log_scale, quat, f_dc, opacity_logit, f_rest=None, chunk_colors=True):
+    """Write a SuperSplat compressed PLY of the given raw Gaussians (module docstring); returns the chunk table
+    (C, 12 or 18) as written, for computing quantisation steps."""
+    xyz, log_scale, f_dc = (np.asarray(a, np.float64) for a in (xyz, log_scale, f_dc))
+    N = len(xyz)
+    C = -(-N // 256)
+    colour = 0.5 + SH_C0 * f_dc
+    alpha = 1.0 / (1.0 + np.exp(-np.asarray(opacity_logit, np.float64)))
+    table = np.zeros((C, 18 if chunk_colors else 12), np.float32)
+    packed = np.zeros((N, 4), np.uint32)
+    for c in range(C):
+        s = slice(c * 256, min(N, (c + 1) * 256))
+        lo_p, hi_p = xyz[s].min(0), xyz[s].max(0)
+        lo_s, hi_s = np.clip(log_scale[s].min(0), -20, 20), np.clip(log_scale[s].max(0), -20, 20)
+        # the file stores float32 ranges; quantise against them
+        lo_p, hi_p, lo_s, hi_s = (np.float32(a).astype(np.float64) for a in (lo_p, hi_p, lo_s, hi_s))
+        tp = [_normalise(xyz[s, i], lo_p[i], hi_p[i]) for i in range(3)]
+        ts = [_normalise(log_scale[s, i], lo_s[i], hi_s[i]) for i in range(3)]
+        packed[s, 0] = _pack_unorm(tp[0], 11) << 21 | _pack_unorm(tp[1], 10) << 11 | _pack_unorm(tp[2], 11)
+        packed[s, 2] = _pack_unorm(ts[0], 11) << 21 | _pack_unorm(ts[1], 10) << 11 | _pack_unorm(ts[2], 11)
+        row = list(lo_p) + list(hi_p) + list(lo_s) + list(hi_s)
+        if chunk_colors:
+            lo_c = np.float32(colour[s].min(0)).astype(np.float64)
+            hi_c = np.float32(colour[s].max(0)).astype(np.float64)
+            tc = [_normalise(colour[s, i], lo_c[i], hi_c[i]) for i in range(3)]
+            row += list(lo_c) + list(hi_c)
+        else:
+            tc = [np.clip(colour[s, i], 0, 1) for i in range(3)]
+        packed[s, 3] = (_pack_unorm(tc[0], 8) << 24 | _pack_unorm(tc[1], 8) << 16 | _pack_unorm(tc[2], 8) << 8
+                        | _pack_unorm(alpha[s], 8))
+        table[c] = row
+    packed[:, 1] = pack_rotation(quat)
+    names = ["min_x", "min_y", "min_z", "max_x", "max_y", "max_z", "min_scale_x", "min_scale_y", "min_scale_z",
+             "max_scale_x", "max_scale_y", "max_scale_z"]
+    names += ["min_r", "min_g", "min_b", "max_r", "max_g", "max_b"] if chunk_colors else []
+    head = ["ply", "format binary_little_endian 1.0", "comment test encoder", f"element chunk {C}"]
+    head += [f"property float {n}" for n in names]
+    head += [f"element vertex {N}"] + [f"property uint packed_{n}" for n in ("position", "rotation", "scale",
+                                                                               "color")]
+    body = table.astype("<f4").tobytes() + packed.astype("<u4").tobytes()
+    if f_rest is not None and f_rest.shape[2]:
+        flat = np.asarray(f_rest, np.float64).reshape(N, -1)
+        head += [f"element sh {N}"] + [f"property uchar f_rest_{i}" for i in range(flat.shape[1])]
+        body += np.clip(np.trunc((flat / 8 + 0.5) * 256), 0, 255).astype(np.uint8).tobytes()
+    head.append("end_header")
+    with open(path, "wb") as f:
+        f.write(("\n".join(head) + "\n").encode("ascii") + body)
+    return table

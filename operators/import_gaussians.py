@@ -1,58 +1,85 @@
-"""File > Import > SCPainter Gaussian Asset (.ply): an Amodal3R / 3DGS car as an object to place."""
+"""File > Import > SCPainter Car Asset: a Gaussian-splat or mesh car as an object to place."""
 
 from __future__ import annotations
 
 import bpy
 from bpy_extras.io_utils import ImportHelper
 
-from ..scpainter_blender.scene import gaussians
+from ..scpainter_blender.backend_client import BackendError
+from ..scpainter_blender.scene import gaussians, preferences
+
+AXES_ITEMS = [("TRELLIS", "TRELLIS / Amodal3R", "Undo their (x, -z, y) file axes"),
+              ("NONE", "As Stored", "Use the file's axes as Z-up")]
 
 
 class SCPAINTER_OT_import_gaussians(bpy.types.Operator, ImportHelper):
-    """Import a 3D Gaussian Splatting PLY (Amodal3R, TRELLIS or INRIA layout) as a car asset at the 3D cursor"""
+    """Import a car asset at the 3D cursor: Gaussian splats (INRIA / TRELLIS / Amodal3R PLY, SuperSplat compressed
+    PLY, .splat) or a mesh (GLB, glTF, OBJ, STL, mesh PLY; turned into surface Gaussians by the backend)"""
 
     bl_idname = "scpainter.import_gaussians"
-    bl_label = "Import Gaussian Asset"
+    bl_label = "Import Car Asset"
     bl_options = {"REGISTER", "UNDO", "PRESET"}
 
     filename_ext = ".ply"
-    filter_glob: bpy.props.StringProperty(default="*.ply", options={"HIDDEN"})
+    filter_glob: bpy.props.StringProperty(default=";".join(f"*{e}" for e in gaussians.ASSET_EXTENSIONS),
+                                          options={"HIDDEN"})
     axes: bpy.props.EnumProperty(
         name="Axes", default="AUTO",
-        items=[("AUTO", "Auto", "TRELLIS/Amodal3R axes for unit-cube SH-0 files, else as stored"),
-               ("TRELLIS", "TRELLIS / Amodal3R", "Undo their (x, -z, y) file axes"),
-               ("NONE", "As Stored", "Use the file's axes as Z-up")])
+        items=[("AUTO", "Auto", "TRELLIS/Amodal3R axes for files in their layout and unit cube, else as stored")]
+        + AXES_ITEMS)
     target_length: bpy.props.FloatProperty(
         name="Length", default=0.0, min=0.0, unit="LENGTH",
         description="Scale to this length along the longest horizontal axis (0: 4.5 m for unit-cube assets, "
                     "file units otherwise)")
     ellipsoids: bpy.props.BoolProperty(name="Ellipsoids", default=False,
                                        description="Preview as oriented ellipsoids (slower) instead of sprites")
+    mesh_count: bpy.props.IntProperty(
+        name="Mesh Gaussians", default=gaussians.DEFAULT_MESH_COUNT, min=100, soft_max=2_000_000,
+        description="Meshes only: how many flat Gaussians to sample on the surface (more: a closer silhouette)")
 
     def execute(self, context):
+        prefs = preferences.get(context)
         try:
             r = gaussians.import_gaussians(context, self.filepath, self.axes, self.target_length or None,
-                                           self.ellipsoids)
-        except ValueError as e:
+                                           self.ellipsoids, mesh_count=self.mesh_count,
+                                           backend_python=prefs.backend_python if prefs else "")
+        except (ValueError, BackendError) as e:
             self.report({"ERROR"}, str(e))
             return {"CANCELLED"}
         for o in context.view_layer.objects.selected:
             o.select_set(False)
         context.view_layer.objects.active = r.object
         r.object.select_set(True)
-        dropped = f", dropped {r.dropped}" if r.dropped else ""
-        self.report({"INFO"}, f"Imported {r.count:,} Gaussians as {r.object.name!r} ({r.axes} axes{dropped}) "
-                              f"in {r.timings['total']:.2f} s")
+        self.report({"INFO"}, r.report())
+        return {"FINISHED"}
+
+
+class SCPAINTER_OT_set_asset_axes(bpy.types.Operator):
+    """Re-read the active asset with other file axes (when Auto chose wrong: a car lying on its side)"""
+
+    bl_idname = "scpainter.set_asset_axes"
+    bl_label = "Set Asset Axes"
+    bl_options = {"REGISTER", "UNDO"}
+
+    axes: bpy.props.EnumProperty(name="Axes", items=AXES_ITEMS)
+
+    @classmethod
+    def poll(cls, context):
+        obj = context.active_object
+        return obj is not None and obj.get("scpainter_kind") == "gaussian_asset"
+
+    def execute(self, context):
+        gaussians.set_axes(context.active_object, self.axes)
         return {"FINISHED"}
 
 
 class SCPAINTER_FH_gaussians(bpy.types.FileHandler):
-    """Drag a Gaussian-splat .ply into the 3D viewport to import it."""
+    """Drag a car asset (splats or a mesh) into the 3D viewport to import it."""
 
     bl_idname = "SCPAINTER_FH_gaussians"
-    bl_label = "SCPainter Gaussian asset"
+    bl_label = "SCPainter car asset"
     bl_import_operator = "scpainter.import_gaussians"
-    bl_file_extensions = ".ply"
+    bl_file_extensions = ";".join(gaussians.ASSET_EXTENSIONS)
 
     @classmethod
     def poll_drop(cls, context):
@@ -60,7 +87,7 @@ class SCPAINTER_FH_gaussians(bpy.types.FileHandler):
 
 
 def menu_import(self, context):
-    self.layout.operator(SCPAINTER_OT_import_gaussians.bl_idname, text="SCPainter Gaussian Asset (.ply)")
+    self.layout.operator(SCPAINTER_OT_import_gaussians.bl_idname, text="SCPainter Car Asset (.ply, .splat, mesh)")
 
 
-classes = (SCPAINTER_OT_import_gaussians, SCPAINTER_FH_gaussians)
+classes = (SCPAINTER_OT_import_gaussians, SCPAINTER_OT_set_asset_axes, SCPAINTER_FH_gaussians)

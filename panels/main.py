@@ -67,6 +67,15 @@ class SCPAINTER_PT_main(bpy.types.Panel):
         col.operator("scpainter.add_removal_box")
         col.operator("scpainter.replace_car")
         col.operator("scpainter.check_assets")
+        active = context.active_object
+        if active is not None and active.get("scpainter_kind") == "gaussian_asset":
+            row = box.row(align=True)  # how the file's axes were read, and the way to correct it
+            row.label(text=f"Axes: {active.get('scpainter_axes', '?')}", icon="ORIENTATION_GLOBAL")
+            for axes, text in (("TRELLIS", "TRELLIS"), ("NONE", "As Stored")):
+                row.operator("scpainter.set_asset_axes", text=text,
+                             depress=active.get("scpainter_axes") == axes).axes = axes
+            if active.get("scpainter_axes_reason"):
+                box.label(text=active["scpainter_axes_reason"])
         icons = {"accepted": "CHECKMARK", "rejected": "X", "unchecked": "QUESTION"}
         for obj in context.scene.objects:  # stage 2: a person accepts or rejects each asset
             if obj.get("scpainter_kind") != "gaussian_asset":

@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 import bpy
 import numpy as np
 
+from .. import backend_client
 from ..core import cameras, splats
 from . import materials
 from .points import _linear_rgba, _socket_identifier, set_input
@@ -112,39 +113,88 @@ class GaussianImport:
     count: int
     dropped: dict
     axes: str
+    axes_reason: str = ""
+    format: str = "inria"
+    mesh: dict | None = None          # the backend's mesh-asset result when the source was a mesh
     timings: dict = field(default_factory=dict)
 
+    def report(self) -> str:
+        """One line for the operator's report and the CLI summary."""
+        dropped = f", dropped {self.dropped}" if self.dropped else ""
+        src = splats.FORMAT_NAMES.get(self.format, self.format)
+        if self.mesh:
+            src = (f"mesh, {self.mesh['count']:,} surface Gaussians, colour from {self.mesh['colour_source']}, "
+                   f"{self.mesh['up']} up")
+        return (f"Imported {self.count:,} Gaussians ({src}) as {self.object.name!r}{dropped}; axes {self.axes}: "
+                f"{self.axes_reason} ({self.timings.get('total', 0.0):.2f} s)")
 
-def detect_axes(ply: splats.GaussianPly, keep) -> str:
-    """"TRELLIS" for files shaped like TRELLIS/Amodal3R output (SH 0, normals, inside the unit cube), else "NONE"."""
-    if ply.sh_degree != 0 or not {"nx", "ny", "nz"} <= set(ply.extra) or not keep.any():
-        return "NONE"
-    return "TRELLIS" if np.abs(ply.xyz[keep]).max() <= 0.5 + 1e-4 else "NONE"
+
+#: Car meshes are converted to Gaussians by the backend (trimesh); a .ply is a mesh when it has faces and no
+#: Gaussian properties (decided by its header).
+MESH_EXTENSIONS = (".glb", ".gltf", ".obj", ".stl", ".off")
+ASSET_EXTENSIONS = (".ply", ".splat") + MESH_EXTENSIONS
+DEFAULT_MESH_COUNT = 200_000
+
+
+def is_mesh_file(filepath: str) -> bool:
+    ext = os.path.splitext(filepath)[1].lower()
+    return ext in MESH_EXTENSIONS or (ext == ".ply" and splats.is_mesh_ply(filepath))
+
+
+def _data_frame(xyz_file, axes: str):
+    """(data_from_file 4x4, F 3x3, data-frame bounds lo, hi) for file means (N, 3) read with ``axes``.
+
+    The data frame is Z up with its origin at the bottom centre of the means (module docstring).
+    """
+    F = splats.TRELLIS_FILE_FROM_ZUP.T if axes == "TRELLIS" else np.eye(3)
+    xyz = np.asarray(xyz_file, np.float64) @ F.T
+    lo, hi = xyz.min(axis=0), xyz.max(axis=0)
+    bottom = np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2]])
+    D = np.eye(4)
+    D[:3, :3], D[:3, 3] = F, -bottom
+    return D, F, lo - bottom, hi - bottom
+
+
+def _display_rotations(rot_raw, F):
+    q = np.asarray(rot_raw, np.float64)
+    q = q / np.linalg.norm(q, axis=1, keepdims=True)
+    return cameras.rotation_to_quaternion(F @ cameras.quaternion_to_rotation(q))
 
 
 def import_gaussians(context, filepath: str, axes: str = "AUTO", target_length: float | None = None,
-                     ellipsoids: bool = False, name: str | None = None) -> GaussianImport:
-    """Import a Gaussian PLY as an asset object at the 3D cursor; ``target_length`` metres along its longest
-    horizontal axis (None: 4.5 m for a TRELLIS unit-cube asset, file units otherwise)."""
+                     ellipsoids: bool = False, name: str | None = None, mesh_count: int = DEFAULT_MESH_COUNT,
+                     backend_python: str = "", gaussians_path: str | None = None) -> GaussianImport:
+    """Import a car asset as an object at the 3D cursor; ``target_length`` metres along its longest horizontal
+    axis (None: 4.5 m for an asset normalised to the unit cube, as TRELLIS/Amodal3R make them; file units
+    otherwise).
+
+    Gaussian files (INRIA / TRELLIS PLY, SuperSplat compressed PLY, .splat) are read here; meshes (GLB, glTF, OBJ,
+    STL, OFF, mesh PLY) are first turned into surface Gaussians by ``python -m backend mesh-asset`` (trimesh, in
+    the backend's Python) with ``mesh_count`` Gaussians, written to ``gaussians_path`` (default
+    ``mesh_gaussians_path``) and imported from there. Raises SplatsError / BackendError / ValueError; nothing is
+    created unless the import succeeds.
+    """
     t0 = time.perf_counter()
     filepath = os.path.abspath(bpy.path.abspath(filepath))
-    ply = splats.read_ply(filepath)
+    mesh = None
+    if is_mesh_file(filepath):
+        out = gaussians_path or mesh_gaussians_path(context.scene, filepath, mesh_count)
+        os.makedirs(os.path.dirname(out), exist_ok=True)
+        mesh = backend_client.run(["mesh-asset", filepath, "--out", out, "--count", int(mesh_count)],
+                                  python=backend_python)["result"]
+        mesh["source"] = filepath
+        filepath = out
+    ply = splats.read(filepath)
     keep, dropped = splats.valid_rows(ply)
     if not keep.any():
         raise splats.SplatsError(filepath, f"no valid Gaussians ({len(ply)} rows, dropped {dropped})")
     if axes == "AUTO":
-        axes = detect_axes(ply, keep)
-    F = splats.TRELLIS_FILE_FROM_ZUP.T if axes == "TRELLIS" else np.eye(3)
-    xyz = ply.xyz[keep].astype(np.float64) @ F.T
-    lo, hi = xyz.min(axis=0), xyz.max(axis=0)
-    bottom = np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2]])
-    data_from_file = np.eye(4)
-    data_from_file[:3, :3] = F
-    data_from_file[:3, 3] = -bottom
-    pos = (xyz - bottom).astype(np.float32)
+        axes, reason = splats.detect_axes(ply, keep)
+    else:
+        reason = "chosen on import"
+    data_from_file, F, lo, hi = _data_frame(ply.xyz[keep], axes)
+    pos = (ply.xyz[keep].astype(np.float64) @ data_from_file[:3, :3].T + data_from_file[:3, 3]).astype(np.float32)
     rot_raw = ply.rot[keep]
-    q_unit = rot_raw.astype(np.float64) / np.linalg.norm(rot_raw.astype(np.float64), axis=1, keepdims=True)
-    q_data = cameras.rotation_to_quaternion(F @ cameras.quaternion_to_rotation(q_unit))
     sigma = np.exp(ply.scale[keep].astype(np.float64))
     opacity = 1.0 / (1.0 + np.exp(-ply.opacity[keep].astype(np.float64)))
     rgba = _linear_rgba(np.clip(splats.SH_C0 * ply.f_dc[keep] + 0.5, 0.0, 1.0).astype(np.float32))
@@ -152,13 +202,13 @@ def import_gaussians(context, filepath: str, axes: str = "AUTO", target_length: 
     t_read = time.perf_counter()
 
     N = len(pos)
-    stem = name or os.path.splitext(os.path.basename(filepath))[0]
-    mesh = bpy.data.meshes.new(stem)
-    mesh.vertices.add(N)
-    mesh.attributes["position"].data.foreach_set("vector", pos.ravel())
+    stem = name or os.path.splitext(os.path.basename(mesh["source"] if mesh else filepath))[0]
+    mesh_data = bpy.data.meshes.new(stem)
+    mesh_data.vertices.add(N)
+    mesh_data.attributes["position"].data.foreach_set("vector", pos.ravel())
 
     def put(attr_name, kind, values, prop):
-        a = mesh.attributes.new(attr_name, kind, "POINT")  # written at once: a new attribute may move the others
+        a = mesh_data.attributes.new(attr_name, kind, "POINT")  # written at once: a new one may move the others
         a.data.foreach_set(prop, np.ascontiguousarray(values, dtype=np.float32 if kind != "INT" else np.int32).ravel())
 
     sh = np.concatenate([ply.f_dc[keep][:, None, :], np.swapaxes(ply.f_rest[keep], 1, 2)], axis=1)
@@ -170,18 +220,19 @@ def import_gaussians(context, filepath: str, axes: str = "AUTO", target_length: 
     for extra, values in ply.extra.items():
         is_int = np.issubdtype(values.dtype, np.integer)
         put(f"ply_{extra}", "INT" if is_int else "FLOAT", values[keep], "value")
-    put("gs_rotation", "QUATERNION", q_data, "value")
+    put("gs_rotation", "QUATERNION", _display_rotations(rot_raw, F), "value")
     put("gs_scale", "FLOAT_VECTOR", sigma, "vector")
-    col = mesh.color_attributes.new("gs_color", "FLOAT_COLOR", "POINT")
+    col = mesh_data.color_attributes.new("gs_color", "FLOAT_COLOR", "POINT")
     col.data.foreach_set("color", rgba.ravel())
-    mesh.update()
+    mesh_data.update()
 
-    obj = bpy.data.objects.new(stem, mesh)
+    obj = bpy.data.objects.new(stem, mesh_data)
     context.scene.collection.objects.link(obj)
     obj.location = context.scene.cursor.location
     extent = max(hi[0] - lo[0], hi[1] - lo[1])
     if target_length is None:
-        target_length = TRELLIS_DEFAULT_LENGTH if axes == "TRELLIS" else extent
+        unit_cube = np.abs(ply.xyz[keep]).max() <= splats.TRELLIS_MEAN_BOUND
+        target_length = TRELLIS_DEFAULT_LENGTH if unit_cube else extent
     if extent > 0:
         obj.scale = (target_length / extent,) * 3
     mod = obj.modifiers.new("SCPainter Gaussians", "NODES")
@@ -189,15 +240,63 @@ def import_gaussians(context, filepath: str, axes: str = "AUTO", target_length: 
     set_input(mod, "Ellipsoids", bool(ellipsoids))
     obj["scpainter_kind"] = "gaussian_asset"
     obj["scpainter_source"] = filepath
+    obj["scpainter_format"] = ply.format
     obj["scpainter_data_from_file"] = data_from_file.ravel().tolist()
     obj["scpainter_axes"] = axes
+    obj["scpainter_axes_reason"] = reason
     obj["scpainter_sh_degree"] = ply.sh_degree
     obj["scpainter_dropped"] = int(sum(dropped.values()))
     obj["scpainter_size"] = (hi - lo).tolist()  # data-frame extents (before the object's scale)
     obj["scpainter_review"] = "unchecked"
+    if mesh:
+        obj["scpainter_mesh_source"] = mesh["source"]
+        # trimesh's upright oriented box (length, width, height) of the mesh, for stage 1 (placement.asset_size)
+        obj["scpainter_obb_size"] = [float(v) for v in mesh["obb"]["size"]]
     t_end = time.perf_counter()
-    return GaussianImport(obj, N, dropped, axes, {"read_decode": t_read - t0, "object": t_end - t_read,
-                                                 "total": t_end - t0})
+    return GaussianImport(obj, N, dropped, axes, reason, ply.format, mesh,
+                          {"read_decode": t_read - t0, "object": t_end - t_read, "total": t_end - t0})
+
+
+def mesh_gaussians_path(scene, mesh_path: str, count: int) -> str:
+    """Where a mesh's surface Gaussians are written: ``<output folder>/assets/<stem>.<count>.gaussians.ply``, or
+    beside the mesh while the .blend is unsaved (its output folder is relative to it)."""
+    from . import props
+
+    stem = os.path.splitext(os.path.basename(mesh_path))[0]
+    name = f"{stem}.{int(count)}.gaussians.ply"
+    try:
+        return os.path.join(props.output_dir(scene), "assets", name)
+    except ValueError:
+        return os.path.join(os.path.dirname(mesh_path), name)
+
+
+def set_axes(obj, axes: str) -> None:
+    """Re-read an imported asset with other file axes ("TRELLIS" or "NONE"): the artist's correction when AUTO
+    chose wrong. Positions, display rotations, size and data_from_file are recomputed from the stored file values;
+    the object's placement is kept and its scale adjusted so its length stays the same."""
+    if axes not in ("TRELLIS", "NONE"):
+        raise ValueError(f"axes must be 'TRELLIS' or 'NONE', got {axes!r}")
+    me = obj.data
+    n = len(me.vertices)
+    pos = np.empty(n * 3, np.float32)
+    me.attributes["position"].data.foreach_get("vector", pos)
+    old = np.array(obj["scpainter_data_from_file"], np.float64).reshape(4, 4)
+    xyz_file = (pos.reshape(-1, 3).astype(np.float64) - old[:3, 3]) @ np.linalg.inv(old[:3, :3]).T
+    D, F, lo, hi = _data_frame(xyz_file, axes)
+    me.attributes["position"].data.foreach_set("vector", (xyz_file @ D[:3, :3].T + D[:3, 3]).astype(np.float32).ravel())
+    rot = np.empty(n * 4, np.float32)
+    me.attributes["rot"].data.foreach_get("value", rot)
+    me.attributes["gs_rotation"].data.foreach_set("value", _display_rotations(rot.reshape(-1, 4), F)
+                                                  .astype(np.float32).ravel())
+    me.update()
+    old_size = np.array(obj["scpainter_size"], np.float64)
+    old_len, new_len = max(old_size[:2]), max(hi[0] - lo[0], hi[1] - lo[1])
+    if new_len > 0 and old_len > 0:
+        obj.scale = np.array(obj.scale) * (old_len / new_len)
+    obj["scpainter_data_from_file"] = D.ravel().tolist()
+    obj["scpainter_size"] = (hi - lo).tolist()
+    obj["scpainter_axes"] = axes
+    obj["scpainter_axes_reason"] = "set by hand"
 
 
 def preview_input(obj, name):

@@ -27,6 +27,14 @@ def asset_size(obj) -> np.ndarray:
     return np.array([max(sx, sy), min(sx, sy), sz])
 
 
+def proportions(obj) -> np.ndarray:
+    """(length, width, height) for the stage-1 check: trimesh's upright oriented box where the import measured it
+    (mesh assets: right for cars not aligned with an axis), else the data-frame bounds (asset_size)."""
+    if "scpainter_obb_size" in obj:
+        return np.array(obj["scpainter_obb_size"], np.float64)
+    return asset_size(obj)
+
+
 def _length_axis(obj) -> int:
     sx, sy, _ = obj["scpainter_size"]
     return 1 if sy >= sx else 0
@@ -213,7 +221,7 @@ def stage1_check(obj, target=None, tolerance: float = STAGE1_TOLERANCE) -> dict:
             target = (s[1], s[0], s[2])
         else:
             target = DEFAULT_CAR
-    dev = geometry.proportion_deviation(asset_size(obj), target)
+    dev = geometry.proportion_deviation(proportions(obj), target)
     status = "flagged" if np.any(np.abs(dev) > tolerance) else "ok"
     obj["scpainter_stage1"] = status
     obj["scpainter_stage1_deviation"] = [float(dev[1]), float(dev[2])]

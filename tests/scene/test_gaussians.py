@@ -8,6 +8,7 @@ import pytest
 
 from scpainter_blender.core import cameras as C
 from scpainter_blender.core import shapes, splats
+from tests_support import realdata
 
 
 @pytest.fixture(scope="module")
@@ -146,3 +147,105 @@ def test_sh3_file_keeps_all_coefficients(empty_scene, tmp_path):
     for k in range(1, 16):  # coefficient k of red, green, blue = f_rest[:, c, k-1]
         assert np.array_equal(_attr(obj, f"sh_{k}", 3), raw.f_rest[:, :, k - 1])
     assert obj.scale[0] == pytest.approx(1.0)  # file units kept
+
+
+# -- files as other tools write them ---------------------------------------------------------------------------
+
+def _trellis_car_to_the_cube_edge(path, reach=0.504):
+    """A car written as TRELLIS does, its means pushed out to ±``reach``: TRELLIS' decoder lets a Gaussian sit up
+    to 0.75 voxel of 64 off its voxel centre, so a car filling the cube reaches about ±0.504."""
+    g = shapes.procedural_car_gaussians(count=3000, seed=4)
+    shapes.save_as_amodal3r(path, g)
+    raw = splats.read_ply(path)
+    raw.xyz *= np.float32(reach / np.abs(raw.xyz).max())
+    splats.write_ply(path, raw)
+    return raw
+
+
+def test_trellis_car_reaching_past_the_unit_cube_stands_upright(empty_scene, tmp_path):
+    path = str(tmp_path / "amodal3r_car.ply")
+    raw = _trellis_car_to_the_cube_edge(path)
+    assert np.abs(raw.xyz).max() > 0.5 + 1e-4  # what the old detection refused
+    assert bpy.ops.scpainter.import_gaussians(filepath=path) == {"FINISHED"}
+    obj = bpy.context.active_object
+    assert obj["scpainter_axes"] == "TRELLIS" and "TRELLIS" in obj["scpainter_axes_reason"]
+    size = np.array(obj["scpainter_size"])
+    assert size[1] > size[0] > size[2]  # length along Y, upright: not lying on its side
+    world = size * np.array(obj.scale)
+    assert world[1] == pytest.approx(4.5, rel=1e-5)
+
+
+def test_set_axes_flips_and_restores(empty_scene, tmp_path):
+    path = str(tmp_path / "amodal3r_car.ply")
+    _trellis_car_to_the_cube_edge(path)
+    bpy.ops.scpainter.import_gaussians(filepath=path)
+    obj = bpy.context.active_object
+    pos0, q0 = _attr(obj, "position", 3).copy(), _attr(obj, "gs_rotation", 4).copy()
+    D0, size0 = list(obj["scpainter_data_from_file"]), list(obj["scpainter_size"])
+    length0 = max(size0[:2]) * obj.scale[0]
+    assert bpy.ops.scpainter.set_asset_axes(axes="NONE") == {"FINISHED"}
+    assert obj["scpainter_axes"] == "NONE"
+    size1 = np.array(obj["scpainter_size"])
+    assert size1[2] > size1[0]  # read as stored, the car's length is vertical: on its side
+    assert max(size1[:2]) * obj.scale[0] == pytest.approx(length0, rel=1e-5)  # length kept
+    raw = splats.read_ply(path)  # data_from_file still maps the file onto the new data frame
+    M = np.array(obj["scpainter_data_from_file"]).reshape(4, 4)
+    assert np.abs(raw.xyz @ M[:3, :3].T + M[:3, 3] - _attr(obj, "position", 3)).max() < 1e-6
+    assert bpy.ops.scpainter.set_asset_axes(axes="TRELLIS") == {"FINISHED"}
+    assert np.abs(_attr(obj, "position", 3) - pos0).max() < 1e-6
+    assert np.abs(np.abs(np.einsum("ij,ij->i", _attr(obj, "gs_rotation", 4), q0)) - 1).max() < 1e-5
+    assert np.allclose(obj["scpainter_data_from_file"], D0, atol=1e-7)
+    assert np.allclose(obj["scpainter_size"], size0, atol=1e-6)
+
+
+def test_supersplat_compressed_ply_imports(empty_scene):
+    path = realdata("compressed/olgelta_longheadpiece_scene.compressed.ply")
+    assert bpy.ops.scpainter.import_gaussians(filepath=path) == {"FINISHED"}
+    obj = bpy.context.active_object
+    assert len(obj.data.vertices) == 220_315 and obj["scpainter_format"] == "supersplat_compressed"
+    assert obj["scpainter_axes"] == "NONE"
+    assert np.all(np.isfinite(_attr(obj, "gs_scale", 3))) and np.all(np.isfinite(_attr(obj, "position", 3)))
+    q = _attr(obj, "gs_rotation", 4)
+    assert np.abs(np.linalg.norm(q, axis=1) - 1).max() < 1e-5
+
+
+def test_splat_file_imports_like_its_ply(empty_scene, tmp_path):
+    g = shapes.procedural_car_gaussians(count=500, seed=2, paint=(0.2, 0.6, 0.2))
+    splats.write_splat(tmp_path / "car.splat", g)
+    splats.write_ply(tmp_path / "car.ply", splats.encode(g))
+    assert bpy.ops.scpainter.import_gaussians(filepath=str(tmp_path / "car.ply")) == {"FINISHED"}
+    from_ply = _attr(bpy.context.active_object, "position", 3).copy()
+    assert bpy.ops.scpainter.import_gaussians(filepath=str(tmp_path / "car.splat")) == {"FINISHED"}
+    obj = bpy.context.active_object
+    assert obj["scpainter_format"] == "splat" and len(obj.data.vertices) == 500
+    assert np.abs(_attr(obj, "position", 3) - from_ply).max() < 1e-5  # positions are float32 in both
+
+
+def test_mesh_car_imports_through_the_backend_and_stage1_uses_its_oriented_box(empty_scene, tmp_path):
+    """A CAD-style car box, turned 30° about the up axis in its own file, written as a glTF (Y up): it becomes a
+    Gaussian asset standing upright, and stage 1 measures it with trimesh's oriented box, not its axis-aligned
+    bounds (which are 40 % too wide and would flag it)."""
+    trimesh = pytest.importorskip("trimesh")
+    from scpainter_blender.scene import placement
+
+    box = trimesh.creation.box(extents=(1.9, 4.5, 1.5))  # width x, length y, height z (Z up)
+    box.apply_translation((0.0, 0.0, 0.75))
+    box.apply_transform(trimesh.transformations.rotation_matrix(np.radians(30.0), (0, 0, 1)))
+    box.visual.vertex_colors = np.tile([200, 30, 30, 255], (len(box.vertices), 1)).astype(np.uint8)
+    box.apply_transform(np.array([[1, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]], float))  # Z up -> glTF Y up
+    path = str(tmp_path / "cad_car.glb")
+    box.export(path)
+    assert bpy.ops.scpainter.import_gaussians(filepath=path, mesh_count=4000) == {"FINISHED"}
+    obj = bpy.context.active_object
+    assert obj["scpainter_kind"] == "gaussian_asset" and obj["scpainter_mesh_source"] == path
+    assert os.path.isfile(obj["scpainter_source"]) and obj["scpainter_source"] != path
+    assert len(obj.data.vertices) == 4000 and obj["scpainter_axes"] == "NONE"
+    assert obj.scale[0] == pytest.approx(1.0)  # a metric CAD car keeps its units
+    size = np.array(obj["scpainter_size"])
+    assert size[2] == pytest.approx(1.5, abs=0.05)  # upright: Y up in the file became Z up
+    assert np.allclose(obj["scpainter_obb_size"], (4.5, 1.9, 1.5), atol=0.05)
+    assert placement.stage1_check(obj)["status"] == "ok"
+    aabb = placement.asset_size(obj)
+    assert aabb[1] > 1.3 * 1.9  # what stage 1 would have measured without the oriented box
+    colour = _attr(obj, "sh_0", 3) * splats.SH_C0 + 0.5
+    assert np.allclose(np.median(colour, axis=0), np.array([200, 30, 30]) / 255, atol=0.02)

@@ -40,6 +40,18 @@ class SCPAINTER_OT_import_vggt(bpy.types.Operator, ImportHelper):
     current_frame_only: bpy.props.BoolProperty(name="Current Frame Only", default=False,
                                                description="Show only the points of the current frame (± window)")
     frame_window: bpy.props.IntProperty(name="Frame Window", default=0, min=0)
+    extrinsic_convention: bpy.props.EnumProperty(
+        name="Extrinsic Convention", default="auto",
+        items=[("auto", "Auto (Check)", "VGGT's world-to-camera, checked against the file's world_points: a file "
+                                        "holding camera-to-world poses is refused with a message"),
+               ("world_to_camera", "World to Camera", "The extrinsic maps world to camera (VGGT's own output); "
+                                                      "not checked"),
+               ("camera_to_world", "Camera to World", "The extrinsic holds camera poses (camera to world), as some "
+                                                      "tools around VGGT save them; inverted, not checked")])
+    crop: bpy.props.StringProperty(
+        name="Crop", default="auto",
+        description="Borders to leave out, in pixels: 'auto' (the white padding of VGGT's pad preprocessing), "
+                    "'none', or 'left top right bottom'. The camera's principal point and resolution follow")
 
     def draw(self, context):
         col = self.layout.column()
@@ -48,7 +60,7 @@ class SCPAINTER_OT_import_vggt(bpy.types.Operator, ImportHelper):
             col.prop(self, name)
         col.prop(self, {"FACTOR": "scale_factor", "TRAJECTORY": "trajectory_path",
                         "CAMERA_HEIGHT": "camera_height"}[self.scale_mode])
-        for name in ("point_radius", "current_frame_only", "frame_window"):
+        for name in ("extrinsic_convention", "crop", "point_radius", "current_frame_only", "frame_window"):
             col.prop(self, name)
 
     def execute(self, context):
@@ -58,7 +70,8 @@ class SCPAINTER_OT_import_vggt(bpy.types.Operator, ImportHelper):
             scale_mode=self.scale_mode, scale_factor=self.scale_factor, trajectory_path=self.trajectory_path,
             camera_height=self.camera_height, backend_python=prefs.backend_python if prefs else "",
             point_radius=self.point_radius, current_frame_only=self.current_frame_only,
-            frame_window=self.frame_window, frame_start=context.scene.frame_start)
+            frame_window=self.frame_window, frame_start=context.scene.frame_start,
+            extrinsic_convention=self.extrinsic_convention, crop=self.crop)
         try:
             result = importer.import_vggt(context, self.filepath, opts)
         except (ValueError, BackendError) as e:
@@ -66,6 +79,8 @@ class SCPAINTER_OT_import_vggt(bpy.types.Operator, ImportHelper):
             return {"CANCELLED"}
         for w in result.warnings:
             self.report({"WARNING"}, w)
+        for line in result.load_report.info:
+            self.report({"INFO"}, line)
         for o in context.view_layer.objects.selected:
             o.select_set(False)
         context.view_layer.objects.active = result.points

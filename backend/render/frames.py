@@ -55,7 +55,10 @@ def load_scene(job: dict, job_path: str, device) -> Scene:
     scene = Scene(origin=origin, device=device)
     if "scene" in job:
         sc = job["scene"]
-        pred = vggt.load_predictions(job_mod.resolve(job_path, sc["predictions"]), world_points=False)
+        # as the import loaded it: the same reading of the poses, the same crop (NaN/inf pixels are dropped)
+        pred = vggt.load_predictions(job_mod.resolve(job_path, sc["predictions"]), world_points=False,
+                                     extrinsic_convention=sc.get("extrinsic_convention", "world_to_camera"),
+                                     crop=sc.get("crop", "none"))
         cloud = vggt.point_cloud(pred, sc.get("confidence_percentile", 50.0),
                                  world_from_vggt=np.array(sc["world_from_vggt"]))
         keep = np.ones(len(cloud), bool)

@@ -19,6 +19,9 @@ import numpy as np
 
 SCHEMA = "scpainter.job/1"
 
+#: ``scene.extrinsic_convention``: what the predictions' ``extrinsic`` holds (core.vggt.EXTRINSIC_CONVENTIONS).
+EXTRINSIC_CONVENTIONS = ("world_to_camera", "camera_to_world")
+
 
 class JobError(ValueError):
     def __init__(self, path, field, message):
@@ -115,6 +118,14 @@ def validate(job, path="job.json") -> dict:
         if not s > 0 or np.abs(A.T @ A / s ** 2 - np.eye(3)).max() > 1e-4 or np.any(W[3] != [0, 0, 0, 1]):
             raise JobError(path, "scene.world_from_vggt", "is not a similarity (uniform scale · rotation + shift)")
         _number(sc.get("confidence_percentile", 50.0), path, "scene.confidence_percentile", 0.0, 100.0)
+        if sc.get("extrinsic_convention", "world_to_camera") not in EXTRINSIC_CONVENTIONS:
+            raise JobError(path, "scene.extrinsic_convention", f"expected one of {list(EXTRINSIC_CONVENTIONS)}, "
+                                                               f"got {sc['extrinsic_convention']!r}")
+        crop = sc.get("crop", [0, 0, 0, 0])
+        if not isinstance(crop, list) or len(crop) != 4:
+            raise JobError(path, "scene.crop", f"expected [left, top, right, bottom] in pixels, got {crop!r}")
+        for i, v in enumerate(crop):
+            _int(v, path, f"scene.crop[{i}]", lo=0)
         boxes = sc.get("removal_boxes", [])
         if not isinstance(boxes, list):
             raise JobError(path, "scene.removal_boxes", "expected a list")

@@ -8,7 +8,18 @@ VGGT's conventions (facebookresearch/vggt), which this module converts from:
   centres at u + 0.5 (DESIGN §3), so our K is VGGT's with cx + 0.5, cy + 0.5 and both unproject identically.
 * ``depth`` (S, H, W, 1) camera z; ``depth_conf`` (S, H, W) = 1 + exp(x) >= 1; ``images`` (S, 3, H, W) in [0, 1]
   (sRGB-encoded display values); optional ``world_points`` (S, H, W, 3) and ``world_points_conf``.
-* The demo squeezes a batch axis of 1 before saving; files with it are accepted too.
+* The demo squeezes a batch axis of 1 before saving; files with it are accepted too, and so are one-frame files
+  saved with every size-1 axis squeezed (depth (H, W), extrinsic (3, 4), intrinsic (3, 3), images (3, H, W)).
+
+What other tools write around VGGT, and what loading does about it (``load_predictions`` options, ``LoadReport``):
+
+* ``extrinsic`` holding camera-to-world poses (a common mix-up): ``extrinsic_convention="auto"`` checks each
+  frame's depth unprojection against ``world_points`` and refuses such a file, saying how to re-import;
+  "camera_to_world" inverts on load.
+* VGGT's "pad" preprocessing adds white borders to make the images square: ``crop="auto"`` finds and removes
+  them (or give the pixels), moving the principal point with the crop.
+* NaN/inf depth, confidence or world-point pixels are dropped (``valid`` masks) and counted; a frame without a
+  finite pixel, or a non-finite pose or intrinsic, is refused naming the frame.
 
 Outputs are float64 positions in the requested world (Blender's: Z up, metres, when a ``world_from_vggt``
 similarity is given). Files are read with ``allow_pickle=False`` and only the numeric keys named above are
@@ -58,6 +69,9 @@ class VGGTPredictions:
     intrinsic_vggt: np.ndarray    # (S, 3, 3) float64, VGGT's pixel convention
     world_points: np.ndarray | None = None        # (S, H, W, 3) float32, VGGT world
     world_points_conf: np.ndarray | None = None   # (S, H, W) float32
+    valid: np.ndarray | None = None               # (S, H, W) bool: finite depth and depth_conf (None: all are)
+    world_points_valid: np.ndarray | None = None  # (S, H, W) bool: finite world point and its confidence
+    report: LoadReport = field(default_factory=lambda: LoadReport())  # what loading decided and dropped
 
     @property
     def num_frames(self) -> int:
@@ -95,8 +109,81 @@ def ours_K_to_vggt(K) -> np.ndarray:
 # Loading and validation
 # --------------------------------------------------------------------------------------------------------------
 
+#: What ``extrinsic`` holds: VGGT's own world-to-camera, or camera-to-world as some tools around VGGT save it
+#: (facebookresearch/vggt issues 275, 370). ``"auto"`` (load_predictions only) checks against ``world_points``.
+EXTRINSIC_CONVENTIONS = ("world_to_camera", "camera_to_world")
+
+#: A reading of ``extrinsic`` agrees with the file's ``world_points`` in a frame when the depth it unprojects
+#: lands within this fraction of the frame's median depth of the point head (median over confident pixels).
+#: VGGT's depth and point heads are independent estimates that differ by a few percent of the depth; reading
+#: camera-to-world poses as world-to-camera misses by twice the camera's offset plus twice its rotation angle
+#: times the depth, far beyond this once the camera has moved.
+CONVENTION_TOLERANCE = 0.25
+
+#: Pixels compared per frame by the convention check (a regular grid; more adds nothing to a median).
+CONVENTION_CHECK_PIXELS = 20_000
+
+
+@dataclass
+class ConventionCheck:
+    """Depth unprojected with each reading of ``extrinsic`` against the file's ``world_points``, per frame.
+
+    ``frames``: the frames checked (frames without enough confident pixels are left out); ``relative[c]``: per
+    checked frame, the median distance between the two point estimates divided by the median depth, for
+    convention ``c``; ``distance[c]``: that median distance in VGGT units; ``pixels``: pixels compared per frame.
+    """
+
+    frames: np.ndarray
+    relative: dict
+    distance: dict
+    pixels: np.ndarray
+    tolerance: float = CONVENTION_TOLERANCE
+
+    def agrees(self, convention: str) -> bool:
+        return bool(len(self.frames)) and bool(np.all(self.relative[convention] <= self.tolerance))
+
+    def worst(self, convention: str) -> int:
+        """Index (into ``frames``) of the frame where ``convention`` disagrees most."""
+        return int(np.argmax(self.relative[convention]))
+
+    def to_json(self) -> dict:
+        return {"frames": self.frames.tolist(), "tolerance": self.tolerance, "pixels": self.pixels.tolist(),
+                "relative": {k: v.tolist() for k, v in self.relative.items()},
+                "distance_vggt": {k: v.tolist() for k, v in self.distance.items()}}
+
+
+@dataclass
+class LoadReport:
+    """What loading decided and dropped: the extrinsic convention (and whether it was checked), the crop, and the
+    pixels with NaN/inf values. ``info`` and ``warnings`` are sentences for the import report."""
+
+    extrinsic_convention: str = "world_to_camera"  # resolved: never "auto"
+    convention_requested: str = "world_to_camera"
+    convention_checked: bool = False
+    check: ConventionCheck | None = None
+    crop: tuple = (0, 0, 0, 0)                     # (left, top, right, bottom) pixels removed
+    crop_requested: str = "none"                   # "none", "auto" or "explicit"
+    original_size: tuple = (0, 0)                  # (W, H) before the crop
+    nonfinite: dict = field(default_factory=dict)  # key -> per-frame counts of NaN/inf pixels (keys with any)
+    dropped_pixels: list = field(default_factory=list)  # per frame: pixels dropped from depth points (NaN/inf)
+    info: list = field(default_factory=list)
+    warnings: list = field(default_factory=list)
+
+    def to_json(self) -> dict:
+        return {"extrinsic_convention": self.extrinsic_convention,
+                "extrinsic_convention_requested": self.convention_requested,
+                "extrinsic_convention_checked": self.convention_checked,
+                "convention_check": None if self.check is None else self.check.to_json(),
+                "crop": list(self.crop), "crop_requested": self.crop_requested,
+                "original_size": list(self.original_size),
+                "nonfinite_pixels": {k: list(v) for k, v in self.nonfinite.items()},
+                "dropped_pixels": int(sum(self.dropped_pixels)), "info": list(self.info),
+                "warnings": list(self.warnings)}
+
+
 def _fit_shape(arr, path, key, target, what):
-    """Reshape ``arr`` to ``target`` by dropping a leading batch axis of 1 and/or a trailing axis of 1."""
+    """Reshape ``arr`` to ``target`` by dropping a leading batch axis of 1 and/or a trailing axis of 1, or (one
+    frame) adding the frame axis that a squeeze of every size-1 axis removed."""
     shape = tuple(arr.shape)
     candidates = [shape]
     if len(shape) >= 1 and shape[0] == 1:
@@ -104,6 +191,8 @@ def _fit_shape(arr, path, key, target, what):
     for c in list(candidates):
         if len(c) >= 1 and c[-1] == 1:
             candidates.append(c[:-1])
+    if target[0] == 1:
+        candidates += [(1,) + c for c in list(candidates)]
     for c in candidates:
         if c == tuple(target):
             return arr.reshape(target)
@@ -148,8 +237,14 @@ def _check_finite(a, path, key):
     bad = ~np.isfinite(a)
     if bad.any():
         frames = np.unique(np.nonzero(bad.reshape(bad.shape[0], -1))[0])
-        raise PredictionsError(path, key, f"{int(bad.sum())} values are NaN or inf "
-                                          f"(first in frame {int(frames[0])}; frames {frames[:8].tolist()})")
+        raise PredictionsError(path, key, f"{int(bad.sum())} values are NaN or inf (first in frame "
+                                          f"{int(frames[0])}; frames {frames[:8].tolist()}): those frames "
+                                          "cannot be placed; re-run VGGT on the clip or remove those frames from "
+                                          "the file")
+
+
+def _all_finite(a) -> bool:
+    return bool(np.isfinite(a.min()) and np.isfinite(a.max()))
 
 
 def _numeric(npz, path, key):
@@ -164,12 +259,89 @@ def _numeric(npz, path, key):
     return a
 
 
-def load_predictions(path, world_points: bool = True) -> VGGTPredictions:
+def parse_crop(value):
+    """The crop option: ``"auto"``, ``"none"`` (also None, ``""``) or four pixel counts ``left top right
+    bottom`` (a sequence, or a string of four integers separated by spaces or commas). Returns "auto", "none" or
+    a tuple of 4 ints >= 0; raises ValueError saying what is accepted."""
+    given = value
+    if value is None:
+        return "none"
+    if isinstance(value, str):
+        s = value.strip().lower()
+        if s in ("", "none"):
+            return "none"
+        if s == "auto":
+            return "auto"
+        value = s.replace(",", " ").split()
+    try:
+        px = tuple(int(v) for v in value)
+        ok = len(px) == 4 and all(p >= 0 and float(v) == p for p, v in zip(px, value))
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise ValueError(f"crop {given!r}: expected 'auto', 'none' or four pixel counts 'left top right bottom' "
+                         "(integers >= 0)")
+    return px
+
+
+def white_borders(images) -> tuple:
+    """(left, top, right, bottom): how many border columns/rows are exactly white (1.0 in every channel) in every
+    pixel of every frame, symmetric or not. ``images`` (S, H, W, 3)."""
+    images = np.asarray(images)
+    S, H, W, _ = images.shape
+    white = np.ones((H, W), bool)
+    for i in range(S):  # one frame at a time: no (S, H, W, 3) temporary
+        white &= np.all(images[i] == 1.0, axis=-1)
+        if not (white[0].any() or white[-1].any() or white[:, 0].any() or white[:, -1].any()):
+            return (0, 0, 0, 0)
+    rows, cols = white.all(axis=1), white.all(axis=0)
+    lead = lambda x: len(x) if x.all() else int(np.argmin(x))  # noqa: E731  (leading True count)
+    return lead(cols), lead(rows), lead(cols[::-1]), lead(rows[::-1])
+
+
+def detect_padding(images) -> tuple:
+    """(left, top, right, bottom) of the white borders VGGT's "pad" preprocessing adds, or zeros.
+
+    ``load_and_preprocess_images(mode="pad")`` pads the shorter side with pure white (1.0) to a square, half on
+    each side (the second half one pixel larger when the total is odd). A border counts only when it is exactly
+    1.0 in every channel of every pixel of every frame *and* the opposite border of the same axis is too, with
+    the two differing by at most one pixel: a white sky at the top alone, or a sky band wider than the bottom one,
+    is not cropped; nor is an image that is white all over.
+    """
+    left, top, right, bottom = white_borders(images)
+    H, W = np.shape(images)[1:3]
+    if top >= H or left >= W:
+        return (0, 0, 0, 0)
+
+    def symmetric(a, b):
+        return (a, b) if a + b >= 2 and abs(a - b) <= 1 else (0, 0)
+
+    top, bottom = symmetric(top, bottom)
+    left, right = symmetric(left, right)
+    return (left, top, right, bottom)
+
+
+def load_predictions(path, world_points: bool = True, *, extrinsic_convention: str = "world_to_camera",
+                     crop="none", metres_per_unit: float | None = None) -> VGGTPredictions:
     """Load and validate a VGGT ``predictions.npz``; raises PredictionsError naming the file and key.
 
     ``world_points=False`` skips the optional point-map arrays (half the file) when they will not be used.
+    ``extrinsic_convention``: what ``extrinsic`` holds, "world_to_camera" (VGGT's, the default), "camera_to_world"
+    (inverted on load), or "auto": check each frame's depth unprojection against ``world_points`` (read for the
+    check even with ``world_points=False``) and refuse a file whose poses are camera-to-world or do not fit at all
+    (see check_extrinsic_convention). ``crop``: "none", "auto" (VGGT's white pad borders, see detect_padding) or
+    (left, top, right, bottom) pixels cut from every per-pixel array, the principal point moved with them.
+    ``metres_per_unit`` (when known) only turns disagreements in refusals into metres.
+    Pixels with NaN/inf depth, confidence or world point are dropped (``valid`` masks), counted in ``report``.
     """
     path = os.fspath(path)
+    if extrinsic_convention not in ("auto",) + EXTRINSIC_CONVENTIONS:
+        raise ValueError(f"extrinsic_convention must be 'auto', 'world_to_camera' or 'camera_to_world', "
+                         f"got {extrinsic_convention!r}")
+    try:
+        crop = parse_crop(crop)
+    except ValueError as e:
+        raise PredictionsError(path, None, str(e)) from None
     if not os.path.isfile(path):
         raise PredictionsError(path, None, "file not found")
     try:
@@ -182,26 +354,76 @@ def load_predictions(path, world_points: bool = True) -> VGGTPredictions:
         missing = [k for k in REQUIRED_KEYS if k not in npz.files]
         if missing:
             raise PredictionsError(path, missing[0], f"missing key(s) {missing}; the file has {sorted(npz.files)}")
-        wanted = REQUIRED_KEYS + (OPTIONAL_KEYS if world_points else ())
+        read_wp = world_points or extrinsic_convention == "auto"
+        wanted = REQUIRED_KEYS + (OPTIONAL_KEYS if read_wp else ())
         arrays = {k: _numeric(npz, path, k) for k in wanted if k in npz.files}
-    return predictions_from_arrays(arrays, path)
+    return predictions_from_arrays(arrays, path, extrinsic_convention=extrinsic_convention, crop=crop,
+                                   metres_per_unit=metres_per_unit, keep_world_points=world_points)
 
 
-def predictions_from_arrays(arrays, path="<arrays>") -> VGGTPredictions:
-    """Validate a mapping of VGGT arrays (as in the .npz) into VGGTPredictions."""
+def _per_frame_matrices(arr, path, key, S, shapes):
+    a = np.asarray(arr, dtype=np.float64)
+    if a.ndim == 4 and a.shape[0] == 1:
+        a = a[0]
+    if a.ndim == 2 and S == 1:  # one frame saved with every size-1 axis squeezed
+        a = a[None]
+    if a.ndim != 3 or a.shape[0] != S or a.shape[1:] not in shapes:
+        want = " or ".join(f"({S}, {r}, {c})" for r, c in shapes)
+        raise PredictionsError(path, key, f"expected {want}, got {np.shape(arr)}")
+    return a
+
+
+def _drop_nonfinite(report, path, values, confs, keys, S, what, hint):
+    """Valid-pixel mask (S, H, W) or None when every pixel is finite; zeroes the bad pixels in place, counts them
+    per frame in ``report`` and refuses a frame left without any finite pixel."""
+    if all(_all_finite(a) for a in (values, confs) if a is not None):
+        return None
+    bad_v = ~np.isfinite(values)
+    if bad_v.ndim == 4:
+        bad_v = bad_v.any(axis=-1)
+    bad_c = ~np.isfinite(confs) if confs is not None else np.zeros_like(bad_v)
+    bad = bad_v | bad_c
+    for key, b in zip(keys, (bad_v, bad_c)):
+        counts = b.reshape(S, -1).sum(axis=1)
+        if counts.any():
+            report.nonfinite[key] = [int(c) for c in counts]
+    n_px = bad[0].size
+    for i in range(S):
+        if bad[i].all():
+            key = keys[0] if bad_v[i].all() or not bad_c[i].all() else keys[1]
+            raise PredictionsError(path, key, f"frame {i} has no pixel with a finite {what} ({int(bad_v[i].sum())} "
+                                              f"of its {n_px} {keys[0]} pixels and {int(bad_c[i].sum())} "
+                                              f"{keys[1]} values are NaN or inf): {hint.format(i=i)}")
+    values[bad] = 0.0
+    if confs is not None:
+        confs[bad] = 0.0
+    return ~bad
+
+
+def _crop_arrays(arrays: dict, crop, path, W, H):
+    l, t, r, b = crop
+    if l + r >= W or t + b >= H:
+        raise PredictionsError(path, None, f"crop left {l} top {t} right {r} bottom {b} leaves nothing of the "
+                                           f"{W} x {H} images: give fewer pixels (or crop 'none')")
+    return {k: np.ascontiguousarray(v[:, t:H - b, l:W - r]) for k, v in arrays.items()}
+
+
+def predictions_from_arrays(arrays, path="<arrays>", *, extrinsic_convention: str = "world_to_camera",
+                            crop="none", metres_per_unit: float | None = None,
+                            keep_world_points: bool = True) -> VGGTPredictions:
+    """Validate a mapping of VGGT arrays (as in the .npz) into VGGTPredictions (see load_predictions)."""
+    if extrinsic_convention not in ("auto",) + EXTRINSIC_CONVENTIONS:
+        raise ValueError(f"extrinsic_convention must be 'auto', 'world_to_camera' or 'camera_to_world', "
+                         f"got {extrinsic_convention!r}")
+    crop = parse_crop(crop)
+    report = LoadReport(convention_requested=extrinsic_convention)
     images = _images_to_hwc(np.asarray(arrays["images"]), path)
     S, H, W, _ = images.shape
     depth = _fit_shape(np.asarray(arrays["depth"]), path, "depth", (S, H, W), "(S, H, W[, 1])").astype(np.float32)
-    _check_finite(depth, path, "depth")
     conf = _fit_shape(np.asarray(arrays["depth_conf"]), path, "depth_conf", (S, H, W), "(S, H, W)")
     conf = conf.astype(np.float32)
-    _check_finite(conf, path, "depth_conf")
 
-    ext = np.asarray(arrays["extrinsic"], dtype=np.float64)
-    if ext.ndim == 4 and ext.shape[0] == 1:
-        ext = ext[0]
-    if ext.ndim != 3 or ext.shape[0] != S or ext.shape[1:] not in ((3, 4), (4, 4)):
-        raise PredictionsError(path, "extrinsic", f"expected ({S}, 3, 4) or ({S}, 4, 4), got {np.shape(arrays['extrinsic'])}")
+    ext = _per_frame_matrices(arrays["extrinsic"], path, "extrinsic", S, ((3, 4), (4, 4)))
     _check_finite(ext, path, "extrinsic")
     ext = cameras.as_matrix4(ext)
     R = ext[:, :3, :3]
@@ -213,11 +435,7 @@ def predictions_from_arrays(arrays, path="<arrays>") -> VGGTPredictions:
     if np.any(ext[:, 3] != [0, 0, 0, 1]):
         raise PredictionsError(path, "extrinsic", "the last row of a 4x4 extrinsic must be [0, 0, 0, 1]")
 
-    intr = np.asarray(arrays["intrinsic"], dtype=np.float64)
-    if intr.ndim == 4 and intr.shape[0] == 1:
-        intr = intr[0]
-    if intr.shape != (S, 3, 3):
-        raise PredictionsError(path, "intrinsic", f"expected ({S}, 3, 3), got {np.shape(arrays['intrinsic'])}")
+    intr = _per_frame_matrices(arrays["intrinsic"], path, "intrinsic", S, ((3, 3),)).copy()
     _check_finite(intr, path, "intrinsic")
     if np.any(intr[:, 0, 0] <= 0) or np.any(intr[:, 1, 1] <= 0):
         raise PredictionsError(path, "intrinsic", "focal lengths must be positive")
@@ -226,13 +444,190 @@ def predictions_from_arrays(arrays, path="<arrays>") -> VGGTPredictions:
     if "world_points" in arrays:
         wp = _fit_shape(np.asarray(arrays["world_points"]), path, "world_points", (S, H, W, 3), "(S, H, W, 3)")
         wp = wp.astype(np.float32)
-        _check_finite(wp, path, "world_points")
     if "world_points_conf" in arrays:
         wpc = _fit_shape(np.asarray(arrays["world_points_conf"]), path, "world_points_conf", (S, H, W),
                          "(S, H, W)").astype(np.float32)
-        _check_finite(wpc, path, "world_points_conf")
-    return VGGTPredictions(path=str(path), images=images, depth=depth, depth_conf=conf, world_to_camera=ext,
-                           intrinsic_vggt=intr, world_points=wp, world_points_conf=wpc)
+
+    # crop: every per-pixel array, and the principal point with them
+    report.original_size = (W, H)
+    if crop == "auto":
+        report.crop_requested = "auto"
+        crop = detect_padding(images)
+        bands = white_borders(images) if not any(crop) else (0, 0, 0, 0)
+        if any(bands) and bands[1] < H:
+            report.info.append(f"white borders (left {bands[0]}, top {bands[1]}, right {bands[2]}, bottom "
+                               f"{bands[3]} px) are not the symmetric bands VGGT's padding makes: not cropped "
+                               "(give the crop in pixels to remove them)")
+    elif crop == "none":
+        crop = (0, 0, 0, 0)
+    else:
+        report.crop_requested = "explicit"
+    if any(crop):
+        per_pixel = {"images": images, "depth": depth, "depth_conf": conf}
+        if wp is not None:
+            per_pixel["world_points"] = wp
+        if wpc is not None:
+            per_pixel["world_points_conf"] = wpc
+        per_pixel = _crop_arrays(per_pixel, crop, path, W, H)
+        images, depth, conf = per_pixel["images"], per_pixel["depth"], per_pixel["depth_conf"]
+        wp, wpc = per_pixel.get("world_points"), per_pixel.get("world_points_conf")
+        intr[:, 0, 2] -= crop[0]
+        intr[:, 1, 2] -= crop[1]
+        H, W = depth.shape[1:]
+        how = "VGGT's white padding detected" if report.crop_requested == "auto" else "as given"
+        report.info.append(f"cropped left {crop[0]}, top {crop[1]}, right {crop[2]}, bottom {crop[3]} px "
+                           f"({how}): {report.original_size[0]} x {report.original_size[1]} -> {W} x {H}, "
+                           "principal point moved with the crop")
+    report.crop = tuple(int(c) for c in crop)
+
+    # NaN/inf pixels: dropped (zeroed and masked), counted; a frame without any finite pixel is refused
+    valid = _drop_nonfinite(report, path, depth, conf, ("depth", "depth_conf"), S, "depth and confidence",
+                            "re-run VGGT on the clip or remove frame {i} from the file")
+    wp_valid = None
+    if wp is not None:
+        wp_valid = _drop_nonfinite(
+            report, path, wp, wpc, ("world_points", "world_points_conf"), S, "world point",
+            "re-run VGGT on the clip or remove frame {i} from the file; or import with points from depth and an "
+            "explicit extrinsic convention, which do not read the point map")
+    if valid is not None:
+        report.dropped_pixels = [int(n) for n in (~valid).reshape(S, -1).sum(axis=1)]
+        frames = [f"frame {i}: {n}" for i, n in enumerate(report.dropped_pixels) if n]
+        report.warnings.append(f"dropped {sum(report.dropped_pixels)} pixels with NaN/inf depth or confidence "
+                               f"({', '.join(frames[:8])}{', ...' if len(frames) > 8 else ''})")
+    else:
+        report.dropped_pixels = [0] * S
+    if wp_valid is not None:
+        n = (~wp_valid).reshape(S, -1).sum(axis=1)
+        frames = [f"frame {i}: {k}" for i, k in enumerate(n) if k]
+        report.warnings.append(f"{int(n.sum())} world_points pixels are NaN/inf: left out of the point map and the "
+                               "convention check "
+                               f"({', '.join(frames[:8])}{', ...' if len(frames) > 8 else ''})")
+
+    pred = VGGTPredictions(path=str(path), images=images, depth=depth, depth_conf=conf, world_to_camera=ext,
+                           intrinsic_vggt=intr, world_points=wp, world_points_conf=wpc, valid=valid,
+                           world_points_valid=wp_valid, report=report)
+    _resolve_convention(pred, extrinsic_convention, metres_per_unit)
+    if not keep_world_points:
+        pred.world_points = pred.world_points_conf = pred.world_points_valid = None
+    return pred
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Extrinsic convention: world-to-camera (VGGT) or camera-to-world, checked against the point head
+# --------------------------------------------------------------------------------------------------------------
+
+def check_extrinsic_convention(pred: VGGTPredictions, tolerance: float = CONVENTION_TOLERANCE,
+                               max_pixels: int = CONVENTION_CHECK_PIXELS) -> ConventionCheck | None:
+    """Each frame's depth, unprojected with ``pred.world_to_camera`` as stored and with its inverse, against the
+    file's ``world_points`` (None without them).
+
+    Pixels: a regular grid of at most ``max_pixels`` per frame, with finite values, positive depth and both
+    confidences at or above the frame's median (VGGT's point head is least reliable where it is unsure). Per frame
+    and reading: median distance between the two estimates, and that divided by the median depth. A frame with
+    fewer than 16 such pixels is left out.
+    """
+    if pred.world_points is None:
+        return None
+    S, H, W = pred.depth.shape
+    step = max(1, int(np.ceil(np.sqrt(H * W / max_pixels))))
+    rows, cols = np.mgrid[0:H:step, 0:W:step]
+    rows, cols = rows.ravel(), cols.ravel()
+    readings = {"world_to_camera": cameras.as_matrix4(pred.world_to_camera),
+                "camera_to_world": cameras.rigid_inverse(pred.world_to_camera)}
+    K = pred.K
+    frames, pixels = [], []
+    rel = {k: [] for k in readings}
+    dist = {k: [] for k in readings}
+    for i in range(S):
+        d = pred.depth[i][rows, cols]
+        c = pred.depth_conf[i][rows, cols]
+        ok = (d > 0) & (c > 1e-5)
+        if pred.valid is not None:
+            ok &= pred.valid[i][rows, cols]
+        if pred.world_points_valid is not None:
+            ok &= pred.world_points_valid[i][rows, cols]
+        if ok.sum() >= 16:
+            ok &= c >= np.median(c[ok])
+        if pred.world_points_conf is not None and ok.sum() >= 16:
+            wc = pred.world_points_conf[i][rows, cols]
+            ok &= wc >= np.median(wc[ok])
+        if ok.sum() < 16:
+            continue
+        r, q = rows[ok], cols[ok]
+        P = pred.world_points[i][r, q].astype(np.float64)
+        scale = float(np.median(d[ok]))
+        frames.append(i)
+        pixels.append(int(ok.sum()))
+        for name, T in readings.items():
+            X = unproject_pixels(pred.depth[i], K[i], T[i], r, q)
+            m = float(np.median(np.linalg.norm(X - P, axis=1)))
+            dist[name].append(m)
+            rel[name].append(m / scale)
+    return ConventionCheck(np.array(frames, np.int64), {k: np.array(v) for k, v in rel.items()},
+                           {k: np.array(v) for k, v in dist.items()}, np.array(pixels, np.int64), tolerance)
+
+
+def _length(units: float, metres_per_unit: float | None) -> str:
+    if metres_per_unit:
+        return f"{units * metres_per_unit:.3g} m"
+    return f"{units:.3g} VGGT units (the metric scale is not known before the import's fit)"
+
+
+def _resolve_convention(pred: VGGTPredictions, requested: str, metres_per_unit: float | None) -> None:
+    """Apply the extrinsic convention to ``pred`` (in place), checking it first when ``requested`` is "auto"."""
+    report = pred.report
+    if requested == "camera_to_world":
+        pred.world_to_camera = cameras.rigid_inverse(pred.world_to_camera)
+        report.extrinsic_convention = "camera_to_world"
+        report.info.append("extrinsic read as camera-to-world (as given) and inverted; not checked")
+        return
+    report.extrinsic_convention = "world_to_camera"
+    if requested == "world_to_camera":
+        report.info.append("extrinsic read as world-to-camera (VGGT's; as given), not checked")
+        return
+    check = check_extrinsic_convention(pred)
+    report.check = check
+    redo = ("re-import with the extrinsic convention set explicitly (the import's 'Extrinsic Convention' option, "
+            "--extrinsic-convention on the command line)")
+    if check is None or not len(check.frames):
+        why = ("the file has no world_points" if check is None else
+               "no frame has enough confident pixels with a finite point-map value")
+        report.warnings.append(f"extrinsic convention not checked ({why}): read as world-to-camera, VGGT's; if "
+                               f"the points look scattered and the camera path wrong, {redo}: camera_to_world")
+        return
+    report.convention_checked = True
+    w2c, c2w = "world_to_camera", "camera_to_world"
+    if check.agrees(w2c):
+        k = check.worst(w2c)
+        note = (f"extrinsic checked against world_points in {len(check.frames)} frames: world-to-camera agrees "
+                f"(median {np.median(check.relative[w2c]):.1%} of the depth, at most {check.relative[w2c][k]:.1%} "
+                f"in frame {int(check.frames[k])})")
+        if check.agrees(c2w):
+            note += "; the cameras barely move, so camera-to-world would fit as well"
+        report.info.append(note)
+        return
+    k = check.worst(w2c)
+    f = int(check.frames[k])
+    if check.agrees(c2w):
+        j = check.worst(c2w)
+        raise PredictionsError(
+            pred.path, "extrinsic",
+            f"holds camera-to-world poses, not VGGT's world-to-camera: read as world-to-camera, the depth of frame "
+            f"{f} lands {_length(check.distance[w2c][k], metres_per_unit)} from the file's world_points (median, "
+            f"{check.relative[w2c][k]:.0%} of the depth; tolerance {check.tolerance:.0%}), while the inverted poses "
+            f"agree in every frame (at most {check.relative[c2w][j]:.1%}). "
+            f"{redo[0].upper() + redo[1:]}: camera_to_world")
+    # neither reading fits: name the frame that neither explains
+    worst = int(np.argmax(np.minimum(check.relative[w2c], check.relative[c2w])))
+    f = int(check.frames[worst])
+    raise PredictionsError(
+        pred.path, "extrinsic",
+        f"neither reading of the poses fits the file's world_points: in frame {f} the depth lands "
+        f"{_length(check.distance[w2c][worst], metres_per_unit)} from them read as world-to-camera "
+        f"({check.relative[w2c][worst]:.0%} of the depth) and {_length(check.distance[c2w][worst], metres_per_unit)} "
+        f"read as camera-to-world ({check.relative[c2w][worst]:.0%}; tolerance {check.tolerance:.0%}). Check that "
+        "extrinsic, intrinsic, depth and world_points come from the same VGGT run and were cropped or resized "
+        f"together; to import the poses anyway, {redo}: world_to_camera or camera_to_world (no check)")
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -311,14 +706,18 @@ def point_cloud(pred: VGGTPredictions, confidence_percentile: float = 50.0, sour
     into one affine map per frame, x_world = A (d · ray) + b, written straight into preallocated outputs.
     """
     if source == "depth":
-        conf = pred.depth_conf
+        conf, valid = pred.depth_conf, pred.valid
     elif source == "world_points":
         if pred.world_points is None:
             raise PredictionsError(pred.path, "world_points", "requested as point source but absent from the file")
         conf = pred.world_points_conf if pred.world_points_conf is not None else pred.depth_conf
+        valid = pred.world_points_valid
+        if pred.world_points_conf is None and pred.valid is not None:
+            valid = pred.valid if valid is None else valid & pred.valid
     else:
         raise ValueError(f"source must be 'depth' or 'world_points', got {source!r}")
-    thr = confidence_threshold(conf, confidence_percentile)
+    # pixels with NaN/inf values (zeroed on load) are not part of the clip's confidence distribution
+    thr = confidence_threshold(conf if valid is None else conf[valid], confidence_percentile)
     frames = list(range(pred.num_frames) if frames is None else frames)
     s, Rw, tw = (1.0, np.eye(3), np.zeros(3)) if world_from_vggt is None else \
         cameras.decompose_similarity(world_from_vggt)
@@ -327,6 +726,8 @@ def point_cloud(pred: VGGTPredictions, confidence_percentile: float = 50.0, sour
         m = (conf[i] > 1e-5) & (pred.depth[i] > 0)
         if np.isfinite(thr):
             m &= conf[i] >= thr
+        if valid is not None:
+            m &= valid[i]
         masks.append(m)
     counts = [int(m.sum()) for m in masks]
     offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
@@ -524,12 +925,14 @@ def ground_candidates(pred: VGGTPredictions, confidence_percentile: float = 50.0
     """
     H = pred.height
     conf = pred.depth_conf
-    thr = confidence_threshold(conf, confidence_percentile)
+    thr = confidence_threshold(conf if pred.valid is None else conf[pred.valid], confidence_percentile)
     start = int(np.floor(H * (1.0 - lower_fraction)))
     K = pred.K
     pts = []
     for i in range(pred.num_frames):
         keep = (conf[i, start:] >= thr) & (conf[i, start:] > 1e-5) & (pred.depth[i, start:] > 0)
+        if pred.valid is not None:
+            keep &= pred.valid[i, start:]
         rows, cols = np.nonzero(keep)
         pts.append(unproject_pixels(pred.depth[i], K[i], pred.world_to_camera[i], rows + start, cols))
     pts = np.concatenate(pts) if pts else np.zeros((0, 3))

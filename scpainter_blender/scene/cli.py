@@ -1,6 +1,7 @@
 """``blender -c scpainter <command> ...``: the add-on's headless commands for batch pipelines.
 
     blender -c scpainter import predictions.npz --camera-height 1.6 --save scene.blend
+    blender -c scpainter import predictions.npz --extrinsic-convention camera_to_world --crop "0 77 0 77"
     blender -c scpainter render scene.blend [--output DIR] [--device cpu|cuda|auto]
     blender -c scpainter generate scene.blend --checkpoint /models/scpainter
     blender -c scpainter batch a.blend b.blend jobs/c.json [--list scenes.txt] --command generate [--shard 0/4]
@@ -46,6 +47,10 @@ def _parser():
     i.add_argument("--confidence-percentile", type=float, default=50.0)
     i.add_argument("--point-source", choices=["depth", "world_points"], default="depth")
     i.add_argument("--backend-python", default="", help="interpreter for the backend (camera-height mode)")
+    i.add_argument("--extrinsic-convention", choices=["auto", "world_to_camera", "camera_to_world"], default="auto",
+                   help="what the file's extrinsic holds; auto: VGGT's world-to-camera, checked against world_points")
+    i.add_argument("--crop", default="auto", help="borders to leave out: auto (VGGT's white padding), none, or "
+                                                  "'LEFT TOP RIGHT BOTTOM' pixels")
     i.add_argument("--save", help="write the scene to this .blend (written to a temporary file, then renamed)")
     for name in ("render", "generate", "batch"):
         c = sub.add_parser(name, help={"render": "render a .blend's condition layers",
@@ -68,7 +73,8 @@ def _parser():
 
 def _import(args) -> dict:
     opts = importer.ImportOptions(confidence_percentile=args.confidence_percentile, point_source=args.point_source,
-                                  backend_python=args.backend_python)
+                                  backend_python=args.backend_python,
+                                  extrinsic_convention=args.extrinsic_convention, crop=args.crop)
     if args.trajectory:
         opts.scale_mode, opts.trajectory_path = "TRAJECTORY", args.trajectory
     elif args.camera_height is not None:
@@ -78,7 +84,7 @@ def _import(args) -> dict:
     result = importer.import_vggt(bpy.context, args.predictions, opts)
     out = {"points": result.num_points, "points_object": result.points.name, "camera": result.camera.name,
            "scale": result.fit.scale, "scale_method": result.fit.method, "residual_m": result.fit.residual_m,
-           "warnings": result.warnings, "timings_s": result.timings}
+           "warnings": result.warnings, "predictions": result.load_report.to_json(), "timings_s": result.timings}
     if args.save:
         path = os.path.abspath(args.save)
         tmp = path + ".tmp.blend"

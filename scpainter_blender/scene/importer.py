@@ -35,6 +35,8 @@ class ImportOptions:
     frame_window: int = 0
     frame_start: int = 1
     set_scene_camera: bool = True
+    extrinsic_convention: str = "auto"   # "auto" (check against world_points), "world_to_camera", "camera_to_world"
+    crop: str = "auto"                   # "auto" (VGGT's white padding), "none", or "left top right bottom" pixels
 
 
 @dataclass
@@ -45,6 +47,7 @@ class ImportResult:
     num_points: int
     timings: dict = field(default_factory=dict)
     warnings: list = field(default_factory=list)
+    load_report: vggt.LoadReport | None = None   # convention (checked?), crop, NaN/inf pixels dropped
 
 
 def metric_fit(pred: vggt.VGGTPredictions, opts: ImportOptions) -> vggt.MetricFit:
@@ -57,8 +60,11 @@ def metric_fit(pred: vggt.VGGTPredictions, opts: ImportOptions) -> vggt.MetricFi
         w2c, centres = vggt.load_metric_trajectory(bpy.path.abspath(opts.trajectory_path), pred.num_frames)
         return vggt.world_from_vggt_by_trajectory(pred.world_to_camera, w2c, centres)
     if opts.scale_mode == "CAMERA_HEIGHT":
+        rep = pred.report  # the backend loads the file as it was loaded here: same poses, same pixels
         done = backend_client.run(["ground-plane", pred.path, "--camera-height", opts.camera_height,
-                                   "--confidence-percentile", opts.confidence_percentile],
+                                   "--confidence-percentile", opts.confidence_percentile,
+                                   "--extrinsic-convention", rep.extrinsic_convention,
+                                   "--crop", *rep.crop],
                                   python=opts.backend_python)
         r = done["result"]
         return vggt.MetricFit(np.array(r["world_from_vggt"]), r["method"], r["scale"], r["residual_m"],
@@ -66,13 +72,15 @@ def metric_fit(pred: vggt.VGGTPredictions, opts: ImportOptions) -> vggt.MetricFi
     raise ValueError(f"unknown scale mode {opts.scale_mode!r}; expected one of {SCALE_MODES}")
 
 
-def _tag(obj, kind, filepath, fit, opts):
+def _tag(obj, kind, filepath, fit, opts, rep: vggt.LoadReport):
     obj["scpainter_kind"] = kind
     obj["scpainter_source"] = filepath
     obj["scpainter_world_from_vggt"] = np.asarray(fit.world_from_vggt, np.float64).ravel().tolist()
     obj["scpainter_scale_method"] = fit.method
     obj["scpainter_scale_residual_m"] = float(fit.residual_m)
     obj["scpainter_confidence_percentile"] = float(opts.confidence_percentile)
+    obj["scpainter_extrinsic_convention"] = rep.extrinsic_convention
+    obj["scpainter_crop"] = [int(c) for c in rep.crop]
 
 
 def import_vggt(context, filepath: str, opts: ImportOptions | None = None) -> ImportResult:
@@ -80,7 +88,10 @@ def import_vggt(context, filepath: str, opts: ImportOptions | None = None) -> Im
     opts = opts or ImportOptions()
     t0 = time.perf_counter()
     filepath = os.path.abspath(bpy.path.abspath(filepath))
-    pred = vggt.load_predictions(filepath, world_points=opts.point_source == "world_points")
+    # every check and refusal happens here, before anything is created: a refused file leaves the scene as it was
+    pred = vggt.load_predictions(filepath, world_points=opts.point_source == "world_points",
+                                 extrinsic_convention=opts.extrinsic_convention, crop=opts.crop,
+                                 metres_per_unit=opts.scale_factor if opts.scale_mode == "FACTOR" else None)
     t_load = time.perf_counter()
     fit = metric_fit(pred, opts)
     t_fit = time.perf_counter()
@@ -108,7 +119,7 @@ def import_vggt(context, filepath: str, opts: ImportOptions | None = None) -> Im
     if opts.set_scene_camera:
         scene.camera = cam
     for o, kind in ((obj, "points"), (cam, "recorded_camera")):
-        _tag(o, kind, filepath, fit, opts)
+        _tag(o, kind, filepath, fit, opts, pred.report)
     obj["scpainter_num_frames"] = pred.num_frames
     obj["scpainter_matrix_world_at_import"] = np.array(obj.matrix_basis, dtype=np.float64).ravel().tolist()
     cam["scpainter_intrinsics"] = pred.K.ravel().tolist()
@@ -116,4 +127,4 @@ def import_vggt(context, filepath: str, opts: ImportOptions | None = None) -> Im
     t_end = time.perf_counter()
     timings = {"load": t_load - t0, "metric_fit": t_fit - t_load, "unproject": t_unproject - t_fit,
                "points_object": t_points - t_unproject, "camera": t_end - t_points, "total": t_end - t0}
-    return ImportResult(obj, cam, fit, len(pts), timings, warnings)
+    return ImportResult(obj, cam, fit, len(pts), timings, list(pred.report.warnings) + list(warnings), pred.report)

@@ -90,7 +90,10 @@ def build_job(context, job_path: str, output_dir: str | None = None, checkpoint:
     if pts is not None:
         job["scene"] = {"predictions": os.path.relpath(pts["scpainter_source"], job_dir),
                         "world_from_vggt": effective_world_from_vggt(pts).tolist(),
-                        "confidence_percentile": float(pts.get("scpainter_confidence_percentile", 50.0))}
+                        "confidence_percentile": float(pts.get("scpainter_confidence_percentile", 50.0)),
+                        # how the import read the file: the backend loads the same poses and pixels
+                        "extrinsic_convention": str(pts.get("scpainter_extrinsic_convention", "world_to_camera")),
+                        "crop": [int(v) for v in pts.get("scpainter_crop", [0, 0, 0, 0])]}
         if boxes:
             job["scene"]["removal_boxes"] = [removal_box(b) for b in boxes]
     if assets:

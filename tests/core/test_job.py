@@ -43,6 +43,11 @@ def test_valid_job_round_trip(tmp_path):
     (lambda j: j["frames"][0].update(source_frames=[-1]), "frames[0].source_frames[0]"),
     (lambda j: j["scene"].update(world_from_vggt=np.diag([1.0, 2, 1, 1]).tolist()), "scene.world_from_vggt"),
     (lambda j: j["scene"].update(confidence_percentile=120), "scene.confidence_percentile"),
+    (lambda j: j["scene"].update(extrinsic_convention="auto"), "scene.extrinsic_convention"),
+    (lambda j: j["scene"].update(crop=[0, 5, 0]), "scene.crop"),
+    (lambda j: j["scene"].update(crop="auto"), "scene.crop"),
+    (lambda j: j["scene"].update(crop=[0, -5, 0, 5]), "scene.crop[1]"),
+    (lambda j: j["scene"].update(crop=[0, 5.5, 0, 5]), "scene.crop[1]"),
     (lambda j: j["scene"]["removal_boxes"][0].update(size=[1, 2]), "scene.removal_boxes[0].size"),
     (lambda j: j["assets"][0]["object_to_world"].pop("2"), "assets[0].object_to_world"),
     (lambda j: j["assets"][0]["object_to_world"].update({"1": np.zeros((4, 4)).tolist()}),
@@ -71,3 +76,14 @@ def test_not_json(tmp_path):
         J.load(tmp_path / "job.json")
     with pytest.raises(J.JobError, match="not found"):
         J.load(tmp_path / "missing.json")
+
+
+def test_scene_reading_of_the_predictions():
+    """scene.extrinsic_convention and scene.crop: optional (VGGT's world-to-camera, no crop), checked."""
+    from scpainter_blender.core import vggt
+
+    assert J.EXTRINSIC_CONVENTIONS == vggt.EXTRINSIC_CONVENTIONS
+    job = minimal()
+    J.validate(job)
+    job["scene"].update(extrinsic_convention="camera_to_world", crop=[0, 77, 0, 77])
+    J.validate(job)

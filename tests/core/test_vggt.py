@@ -9,6 +9,7 @@ import pytest
 from scpainter_blender.core import cameras as C
 from scpainter_blender.core import vggt as V
 from tests_support import synthetic_predictions as make_arrays
+from vggt_cases import drive, pad, write
 
 
 def save(tmp_path, arrays, name="predictions.npz", **extra):
@@ -178,13 +179,16 @@ def test_wrong_shapes(tmp_path, key, shape):
     assert "predictions.npz" in str(e.value)
 
 
-@pytest.mark.parametrize("key", ["depth", "depth_conf", "extrinsic", "intrinsic", "images", "world_points"])
+@pytest.mark.parametrize("key", ["extrinsic", "intrinsic", "images"])
 def test_nan_values(tmp_path, key):
+    """Non-finite poses, intrinsics or colours stay refusals, naming the frame and what to do."""
     arrays = make_arrays()
     a = arrays[key]
     a.reshape(-1)[a.size // 2 + 1] = np.nan
-    with pytest.raises(V.PredictionsError, match=f"'{key}'.*NaN"):
+    with pytest.raises(V.PredictionsError, match=f"'{key}'.*NaN") as e:
         V.load_predictions(save(tmp_path, arrays))
+    if key != "images":
+        assert "frame 1" in str(e.value) and "re-run VGGT" in str(e.value)
 
 
 def test_not_a_rotation(tmp_path):
@@ -275,3 +279,187 @@ def test_camera_height_fit_levels_the_world():
     assert np.allclose(np.diff(c[:, 0]), 0.0) and np.all(np.diff(c[:, 1]) > 0)  # drives along +Y
     on_plane = np.array([3.0, 0.8, 7.0])  # any point with y = 0.8 lies on the ground
     assert abs((fit.world_from_vggt @ [*on_plane, 1.0])[2]) < 1e-12
+
+
+# -- files as other tools write them: pose convention, NaN pixels, squeezed axes, padding ----------------------
+
+def test_world_to_camera_file_passes_the_check(tmp_path):
+    arrays, w2c, _ = drive()
+    pred = V.load_predictions(write(tmp_path, arrays), extrinsic_convention="auto")
+    rep = pred.report
+    assert rep.extrinsic_convention == "world_to_camera" and rep.convention_checked
+    assert np.abs(pred.world_to_camera - w2c).max() < 1e-6
+    chk = rep.check
+    assert list(chk.frames) == [0, 1, 2, 3] and chk.agrees("world_to_camera") and not chk.agrees("camera_to_world")
+    assert chk.relative["world_to_camera"].max() < 0.06   # the 2 % point-head noise, not more
+    assert "world-to-camera agrees" in rep.info[0] and not rep.warnings
+    # the default (and the backend's reading) does not check, and needs no world_points
+    plain = V.load_predictions(write(tmp_path, arrays), world_points=False)
+    assert plain.report.check is None and np.array_equal(plain.world_to_camera, pred.world_to_camera)
+
+
+def test_camera_to_world_file_refused_then_imported_as_such(tmp_path):
+    arrays, w2c, _ = drive()
+    arrays["extrinsic"] = C.rigid_inverse(w2c)  # what some tools write under 'extrinsic'
+    path = write(tmp_path, arrays)
+    for world_points in (True, False):  # the check reads world_points even when the caller will not use them
+        with pytest.raises(V.PredictionsError) as e:
+            V.load_predictions(path, world_points=world_points, extrinsic_convention="auto")
+        msg = str(e.value)
+        assert msg.startswith("predictions.npz: 'extrinsic': holds camera-to-world poses") and path in msg
+        assert "VGGT units" in msg and "inverted poses agree" in msg
+        assert "--extrinsic-convention on the command line): camera_to_world (" in msg
+    # with a known scale the disagreement is in metres: the median distance of the worst frame, scaled
+    with pytest.raises(V.PredictionsError) as e:
+        V.load_predictions(path, extrinsic_convention="auto", metres_per_unit=2.0)
+    chk = V.check_extrinsic_convention(V.load_predictions(path))
+    k = chk.worst("world_to_camera")
+    assert f"frame {chk.frames[k]} lands {2.0 * chk.distance['world_to_camera'][k]:.3g} m" in str(e.value)
+    pred = V.load_predictions(path, extrinsic_convention="camera_to_world")
+    assert pred.report.extrinsic_convention == "camera_to_world" and not pred.report.convention_checked
+    assert np.abs(pred.world_to_camera - w2c).max() < 1e-6
+    good = V.load_predictions(write(tmp_path, drive()[0], "good.npz"))
+    assert np.abs(V.point_cloud(pred, 0.0).positions - V.point_cloud(good, 0.0).positions).max() < 1e-5
+
+
+def test_neither_convention_fits(tmp_path):
+    arrays, w2c, _ = drive()
+    arrays["world_points"] = drive(seed=1)[0]["world_points"][:, ::-1]  # another depth, mirrored: unrelated
+    path = write(tmp_path, arrays)
+    with pytest.raises(V.PredictionsError) as e:
+        V.load_predictions(path, extrinsic_convention="auto")
+    msg = str(e.value)
+    assert "'extrinsic': neither reading of the poses fits the file's world_points: in frame" in msg
+    assert "VGGT units" in msg and "world_to_camera or camera_to_world (no check)" in msg
+    with pytest.raises(V.PredictionsError, match=r"in frame \d the depth lands [\d.]+ m from them"):
+        V.load_predictions(path, extrinsic_convention="auto", metres_per_unit=3.0)
+    # an explicit convention imports it anyway
+    assert V.load_predictions(path, extrinsic_convention="world_to_camera").num_frames == 4
+
+
+def test_convention_not_checkable_without_world_points(tmp_path):
+    arrays, _, _ = drive()
+    del arrays["world_points"], arrays["world_points_conf"]
+    pred = V.load_predictions(write(tmp_path, arrays), extrinsic_convention="auto")
+    rep = pred.report
+    assert rep.extrinsic_convention == "world_to_camera" and not rep.convention_checked
+    assert "not checked (the file has no world_points)" in rep.warnings[0]
+    assert rep.to_json()["extrinsic_convention_checked"] is False
+    with pytest.raises(ValueError, match="extrinsic_convention"):
+        V.load_predictions(write(tmp_path, arrays), extrinsic_convention="c2w")
+
+
+def test_nonfinite_pixels_dropped_and_counted(tmp_path):
+    arrays, _, _ = drive()
+    arrays["depth"][1, 2, 3:6] = np.nan
+    arrays["depth_conf"][2, 5, 7] = np.inf
+    arrays["depth_conf"][2, 6, 7] = -np.inf
+    arrays["world_points"][0, 4, 4, 1] = np.nan
+    path = write(tmp_path, arrays)
+    pred = V.load_predictions(path, extrinsic_convention="auto")  # the check skips the bad pixels too
+    rep = pred.report
+    assert rep.nonfinite == {"depth": [0, 3, 0, 0], "depth_conf": [0, 0, 2, 0], "world_points": [1, 0, 0, 0]}
+    assert rep.dropped_pixels == [0, 3, 2, 0] and rep.convention_checked
+    assert "dropped 5 pixels with NaN/inf depth or confidence (frame 1: 3, frame 2: 2)" in rep.warnings
+    assert np.all(np.isfinite(pred.depth)) and np.all(np.isfinite(pred.depth_conf))
+    bad = ~np.isfinite(arrays["depth"]) | ~np.isfinite(arrays["depth_conf"])
+    assert np.array_equal(pred.valid, ~bad)
+    # the points: the clean pixels, filtered by the percentile of the clean confidences
+    conf = arrays["depth_conf"]
+    for p in (0.0, 50.0):
+        keep = ~bad & (conf >= np.percentile(conf[~bad], p))
+        pts = V.point_cloud(pred, p)
+        assert np.array_equal(np.diff(pts.offsets), keep.reshape(4, -1).sum(1))
+        assert np.all(np.isfinite(pts.positions))
+    wp = V.point_cloud(pred, 0.0, source="world_points")  # its own bad pixel, and (depth <= 0) the depth ones
+    assert len(wp) == 4 * 24 * 32 - 1 - 5 and np.all(np.isfinite(wp.positions))
+    g = V.ground_candidates(pred, 0.0)
+    assert len(g) == 4 * 10 * 32 - 0 and np.all(np.isfinite(g))  # bad pixels are in the upper rows
+    # a frame without a single finite pixel is refused, naming it; so is a frame of NaN world points
+    for key, value in (("depth", np.nan), ("depth_conf", np.inf), ("world_points", np.nan)):
+        a = {k: np.array(v) for k, v in arrays.items()}
+        a[key][2] = value
+        with pytest.raises(V.PredictionsError, match=f"'{key}': frame 2 has no pixel with a finite") as e:
+            V.load_predictions(write(tmp_path, a, "bad.npz"))
+        assert "remove frame 2" in str(e.value) and "bad.npz" in str(e.value)
+    # ... but a point map is not read when it is not used
+    a = {k: np.array(v) for k, v in arrays.items()}
+    a["world_points"][2] = np.nan
+    assert V.load_predictions(write(tmp_path, a, "wp.npz"), world_points=False).num_frames == 4
+
+
+def test_squeezed_one_frame_file(tmp_path):
+    arrays, _, _ = drive(S=1)
+    base = V.load_predictions(write(tmp_path, arrays, "base.npz"))
+    H, W = 24, 32
+    for layout in ("chw", "hwc"):
+        sq = {"images": np.moveaxis(arrays["images"][0], -1, 0) if layout == "chw" else arrays["images"][0],
+              "depth": arrays["depth"][0], "depth_conf": arrays["depth_conf"][0],
+              "extrinsic": arrays["extrinsic"][0, :3].astype(np.float32),
+              "intrinsic": arrays["intrinsic_vggt"][0].astype(np.float32),
+              "world_points": arrays["world_points"][0], "world_points_conf": arrays["world_points_conf"][0]}
+        assert sq["depth"].shape == (H, W) and sq["extrinsic"].shape == (3, 4) and sq["intrinsic"].shape == (3, 3)
+        pred = V.load_predictions(save(tmp_path, sq, f"{layout}.npz"), extrinsic_convention="auto")
+        assert pred.num_frames == 1 and pred.images.shape == (1, H, W, 3)
+        assert pred.world_points.shape == (1, H, W, 3) and pred.world_points_conf.shape == (1, H, W)
+        for name in ("images", "depth", "depth_conf", "world_to_camera", "intrinsic_vggt", "world_points"):
+            assert np.array_equal(getattr(pred, name), getattr(base, name)), name
+
+
+@pytest.mark.parametrize("top,bottom", [(4, 4), (3, 4)])
+def test_padded_file_cropped_like_the_original(tmp_path, top, bottom):
+    arrays, _, _ = drive(H=32 - top - bottom, W=32)
+    orig = V.load_predictions(write(tmp_path, arrays, "orig.npz"))
+    padded = write(tmp_path, pad(arrays, top, bottom))
+    uncropped = V.load_predictions(padded)
+    assert (uncropped.width, uncropped.height) == (32, 32)
+    auto = V.load_predictions(padded, crop="auto", extrinsic_convention="auto")
+    explicit = V.load_predictions(padded, crop=f"0 {top} 0 {bottom}")
+    as_list = V.load_predictions(padded, crop=[0, top, 0, bottom])
+    assert auto.report.crop == explicit.report.crop == (0, top, 0, bottom)
+    assert auto.report.crop_requested == "auto" and explicit.report.crop_requested == "explicit"
+    assert f"cropped left 0, top {top}, right 0, bottom {bottom} px (VGGT's white padding detected): " \
+           f"32 x 32 -> 32 x {32 - top - bottom}" in auto.report.info[0]
+    assert auto.report.original_size == (32, 32)
+    ref = V.point_cloud(orig, 50.0)
+    for pred in (auto, explicit, as_list):
+        assert (pred.width, pred.height) == (orig.width, orig.height)
+        assert np.array_equal(pred.K, orig.K) and np.array_equal(pred.images, orig.images)
+        pts = V.point_cloud(pred, 50.0)
+        assert np.array_equal(pts.positions, ref.positions) and np.array_equal(pts.frame, ref.frame)
+    # not padded: auto finds nothing
+    assert V.load_predictions(write(tmp_path, arrays, "orig.npz"), crop="auto").report.crop == (0, 0, 0, 0)
+
+
+def test_left_right_padding_and_white_sky_not_cropped(tmp_path):
+    arrays, _, _ = drive(H=24, W=16)
+    p = write(tmp_path, pad(arrays, 0, 0, left=4, right=4))
+    assert V.load_predictions(p, crop="auto").report.crop == (4, 0, 4, 0)
+    # a sky of pure white at the top of every frame: top band only, not cropped
+    sky = dict(arrays)
+    sky["images"] = arrays["images"].copy()
+    sky["images"][:, :3] = 1.0
+    pred = V.load_predictions(write(tmp_path, sky, "sky.npz"), crop="auto")
+    assert pred.report.crop == (0, 0, 0, 0) and pred.height == 24
+    assert "white borders (left 0, top 3, right 0, bottom 0 px)" in pred.report.info[0]
+    # padding plus a white sky row: the bands are not symmetric, nothing is guessed
+    both = pad(sky, 4, 4)
+    assert V.load_predictions(write(tmp_path, both, "both.npz"), crop="auto").report.crop == (0, 0, 0, 0)
+    # one frame with a non-white border pixel is enough: not padding
+    one = pad(arrays, 4, 4)
+    one["images"][2, 1, 5, 0] = 0.999
+    assert V.load_predictions(write(tmp_path, one, "one.npz"), crop="auto").report.crop == (0, 0, 0, 0)
+    white = dict(arrays, images=np.ones_like(arrays["images"]))
+    assert V.load_predictions(write(tmp_path, white, "white.npz"), crop="auto").report.crop == (0, 0, 0, 0)
+
+
+def test_bad_crops(tmp_path):
+    arrays, _, _ = drive(H=10, W=12)
+    p = write(tmp_path, arrays)
+    with pytest.raises(V.PredictionsError, match="predictions.npz: crop left 6 top 0 right 6 bottom 0 leaves"):
+        V.load_predictions(p, crop="6 0 6 0")
+    for bad in ("1 2 3", "a b c d", "-1 0 0 0", "1.5 0 0 0", [1, 2]):
+        with pytest.raises(V.PredictionsError, match="predictions.npz: crop .*'auto', 'none' or four"):
+            V.load_predictions(p, crop=bad)
+    assert V.parse_crop(None) == V.parse_crop("") == V.parse_crop(" None ") == "none"
+    assert V.parse_crop("1,2, 3 4") == (1, 2, 3, 4)

@@ -90,3 +90,47 @@ def test_render_generate_and_batch_headless(addon, street, tmp_path, capsys, tin
     prefs = bpy.context.preferences.addons[addon].preferences
     prefs.backend_python, prefs.device, prefs.checkpoint_dir = "", "AUTO", ""
     bpy.ops.wm.read_homefile(use_empty=True)
+
+
+def test_import_convention_crop_and_report(addon, empty_scene, tmp_path, capsys):
+    """--extrinsic-convention and --crop; the JSON summary says what loading decided and dropped."""
+    from vggt_cases import drive, pad, write
+
+    from scpainter_blender.core import cameras as C
+
+    cli = _cli(addon)
+    arrays, w2c, _ = drive(H=22, W=32)
+    c2w = dict(pad(arrays, 5, 5), extrinsic=C.rigid_inverse(w2c))
+    path = write(tmp_path, c2w)
+    assert cli.execute(["import", path, "--scale-factor", "3"]) == 2
+    msg = _last_event(capsys)["message"]
+    assert "'extrinsic': holds camera-to-world poses" in msg and " m from the file's world_points" in msg
+    assert "--extrinsic-convention on the command line): camera_to_world" in msg
+    assert len(bpy.data.objects) == 0
+    assert cli.execute(["import", path, "--crop", "1 2"]) == 2
+    assert "crop '1 2'" in _last_event(capsys)["message"]
+    assert cli.execute(["import", path, "--extrinsic-convention", "sideways"]) == 2
+    capsys.readouterr()
+
+    assert cli.execute(["import", path, "--extrinsic-convention", "camera_to_world", "--crop", "0 5 0 5"]) == 0
+    ev = _last_event(capsys)
+    rep = ev["predictions"]
+    assert rep["extrinsic_convention"] == "camera_to_world" and not rep["extrinsic_convention_checked"]
+    assert rep["crop"] == [0, 5, 0, 5] and rep["crop_requested"] == "explicit" and rep["original_size"] == [32, 32]
+    assert (bpy.context.scene.render.resolution_x, bpy.context.scene.render.resolution_y) == (32, 22)
+    bpy.ops.wm.read_homefile(use_empty=True)
+
+    # no world_points, a few NaN depths: imported, and the summary says the convention was not checked
+    plain = {k: v for k, v in arrays.items() if not k.startswith("world_points")}
+    plain["depth"] = plain["depth"].copy()
+    plain["depth"][0, 3, :2] = np.nan
+    path = write(tmp_path, plain, "plain.npz")
+    assert cli.execute(["import", path]) == 0
+    ev = _last_event(capsys)
+    rep = ev["predictions"]
+    assert rep["extrinsic_convention"] == "world_to_camera" and rep["extrinsic_convention_checked"] is False
+    assert rep["nonfinite_pixels"] == {"depth": [2, 0, 0, 0]} and rep["dropped_pixels"] == 2
+    assert rep["crop"] == [0, 0, 0, 0] and rep["crop_requested"] == "auto"
+    assert any("not checked (the file has no world_points)" in w for w in ev["warnings"])
+    assert any("dropped 2 pixels" in w for w in ev["warnings"])
+    bpy.ops.wm.read_homefile(use_empty=True)

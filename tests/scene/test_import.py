@@ -168,14 +168,25 @@ def test_one_undo_step(empty_scene, street):
     assert len(bpy.data.objects) == n_before + 2
 
 
-@pytest.mark.parametrize("problem", ["truncated", "nan_depth", "missing_key"])
-def test_bad_file_reports_and_creates_nothing(empty_scene, tmp_path, problem):
+def _synthetic(**kw):
+    """tests_support.synthetic_predictions with world_points that agree with the depth, as VGGT's do (the
+    import checks the extrinsic convention against them)."""
     from tests_support import synthetic_predictions
 
+    arrays = synthetic_predictions(**kw)
+    arrays["world_points"] = V.unproject_depth(arrays["depth"][..., 0], V.vggt_K_to_ours(arrays["intrinsic"]),
+                                               C.as_matrix4(arrays["extrinsic"])).astype(np.float32)
+    return arrays
+
+
+@pytest.mark.parametrize("problem", ["truncated", "nan_extrinsic", "missing_key", "nan_frame"])
+def test_bad_file_reports_and_creates_nothing(empty_scene, tmp_path, problem):
     path = str(tmp_path / "predictions.npz")
-    arrays = synthetic_predictions()
-    if problem == "nan_depth":
-        arrays["depth"][1, 2, 3] = np.nan
+    arrays = _synthetic()
+    if problem == "nan_extrinsic":
+        arrays["extrinsic"][1, 2, 3] = np.nan
+    if problem == "nan_frame":
+        arrays["depth"][2] = np.nan
     if problem == "missing_key":
         del arrays["intrinsic"]
     np.savez(path, **arrays)
@@ -185,8 +196,10 @@ def test_bad_file_reports_and_creates_nothing(empty_scene, tmp_path, problem):
     n = len(bpy.data.objects)
     with pytest.raises(RuntimeError, match="predictions.npz") as e:
         bpy.ops.scpainter.import_vggt(filepath=path)
-    if problem == "nan_depth":
-        assert "'depth'" in str(e.value) and "NaN" in str(e.value)
+    if problem == "nan_extrinsic":
+        assert "'extrinsic'" in str(e.value) and "NaN" in str(e.value) and "frame 1" in str(e.value)
+    if problem == "nan_frame":
+        assert "'depth': frame 2 has no pixel with a finite depth" in str(e.value)
     if problem == "missing_key":
         assert "'intrinsic'" in str(e.value)
     assert len(bpy.data.objects) == n
@@ -194,10 +207,8 @@ def test_bad_file_reports_and_creates_nothing(empty_scene, tmp_path, problem):
 
 def test_import_menu_and_large_coordinates(empty_scene, tmp_path):
     """A clip 1e5 m from the origin keeps millimetres: vertices are stored relative to the object origin."""
-    from tests_support import synthetic_predictions
-
     path = str(tmp_path / "far.npz")
-    np.savez(path, **synthetic_predictions())
+    np.savez(path, **_synthetic())
     traj = str(tmp_path / "traj.npz")
     pred = V.load_predictions(path)
     M = C.similarity_matrix(10.0, V.BLENDER_FROM_OPENCV_AXES, [1e5, 2e5, 50.0])
@@ -214,9 +225,7 @@ def test_import_menu_and_large_coordinates(empty_scene, tmp_path):
 
 def test_empty_reconstruction_imports_camera_and_no_points(empty_scene, tmp_path):
     """Every depth behind the camera: an empty point cloud (no crash), the camera still comes in."""
-    from tests_support import synthetic_predictions
-
-    arrays = synthetic_predictions()
+    arrays = _synthetic()
     arrays["depth"][:] = -1.0
     path = str(tmp_path / "empty.npz")
     np.savez(path, **arrays)
@@ -226,3 +235,147 @@ def test_empty_reconstruction_imports_camera_and_no_points(empty_scene, tmp_path
     assert bpy.context.scene.camera.get("scpainter_kind") == "recorded_camera"
     empty_scene.frame_set(2)
     pts.evaluated_get(bpy.context.evaluated_depsgraph_get())  # the node tree evaluates on nothing
+
+
+# -- files as other tools write them --------------------------------------------------------------------------
+
+def _installed(addon, module):
+    import sys
+
+    return sys.modules[f"{addon}.scpainter_blender.{module}"]
+
+
+def _job_scene_points(tmp_path):
+    """The job the scene exports, and the points the backend loads from it (world metres)."""
+    from backend.render import frames
+
+    from scpainter_blender.scene import job_export
+
+    path = str(tmp_path / "job.json")
+    job = job_export.export_job(bpy.context, path)
+    scene = frames.load_scene(job, path, "cpu")
+    return job, scene.xyz.numpy().astype(np.float64) + scene.origin
+
+
+def test_camera_to_world_file_refused_then_imported(empty_scene, tmp_path):
+    from vggt_cases import drive, write
+
+    arrays, w2c, intr = drive()
+    arrays["extrinsic"] = C.rigid_inverse(w2c)
+    path = write(tmp_path, arrays)
+    n = len(bpy.data.objects)
+    with pytest.raises(RuntimeError) as e:
+        bpy.ops.scpainter.import_vggt(filepath=path, scale_factor=2.0)
+    msg = str(e.value)
+    assert "predictions.npz: 'extrinsic': holds camera-to-world poses" in msg and " m from the file's" in msg
+    assert "Extrinsic Convention" in msg and "camera_to_world" in msg
+    assert len(bpy.data.objects) == n  # nothing half-imported
+
+    assert bpy.ops.scpainter.import_vggt(filepath=path, scale_factor=2.0, confidence_percentile=0.0,
+                                         extrinsic_convention="camera_to_world") == {"FINISHED"}
+    pts = next(o for o in empty_scene.objects if o.get("scpainter_kind") == "points")
+    cam = empty_scene.camera
+    for o in (pts, cam):
+        assert o["scpainter_extrinsic_convention"] == "camera_to_world" and list(o["scpainter_crop"]) == [0] * 4
+    M = V.world_from_vggt_by_factor(2.0).world_from_vggt
+    true_w2c = C.transform_world_to_camera(w2c, M)
+    for i in range(4):
+        empty_scene.frame_set(1 + i)
+        assert np.abs(np.array(cam.matrix_world) - C.blender_matrix_world(true_w2c[i])).max() < 1e-4, i
+    truth = V.unproject_depth(arrays["depth"], V.vggt_K_to_ours(intr), w2c).reshape(-1, 3)
+    truth = 2.0 * truth @ V.BLENDER_FROM_OPENCV_AXES.T
+    assert np.abs(_world_vertices(pts) - truth).max() < 1e-4
+    # the job carries the convention; the backend loads the very same points
+    job, backend_points = _job_scene_points(tmp_path)
+    assert job["scene"]["extrinsic_convention"] == "camera_to_world" and job["scene"]["crop"] == [0, 0, 0, 0]
+    assert np.abs(backend_points - truth).max() < 1e-4
+
+
+def test_padded_file_cropped_camera_and_job(empty_scene, tmp_path):
+    from vggt_cases import drive, pad, write
+
+    arrays, w2c, intr = drive(H=22, W=32)
+    padded = write(tmp_path, pad(arrays, 5, 5))
+    assert bpy.ops.scpainter.import_vggt(filepath=padded, confidence_percentile=0.0) == {"FINISHED"}
+    scene = empty_scene
+    assert (scene.render.resolution_x, scene.render.resolution_y) == (32, 22)
+    pts = next(o for o in scene.objects if o.get("scpainter_kind") == "points")
+    assert list(pts["scpainter_crop"]) == [0, 5, 0, 5] and pts["scpainter_extrinsic_convention"] == "world_to_camera"
+    from scpainter_blender.scene.camera import K_of_camera_object
+
+    scene.frame_set(2)
+    assert np.abs(K_of_camera_object(scene, scene.camera) - V.vggt_K_to_ours(intr[1])).max() < 1e-3
+    truth = V.unproject_depth(arrays["depth"], V.vggt_K_to_ours(intr), w2c).reshape(-1, 3)
+    truth = truth @ V.BLENDER_FROM_OPENCV_AXES.T
+    assert np.abs(_world_vertices(pts) - truth).max() < 1e-4   # none of the padding's points
+    job, backend_points = _job_scene_points(tmp_path)
+    assert job["scene"]["crop"] == [0, 5, 0, 5]
+    assert np.abs(backend_points - truth).max() < 1e-4
+    # explicit crop, and no crop at all
+    for crop, size in (("0 5 0 5", (32, 22)), ("none", (32, 32))):
+        bpy.ops.wm.read_homefile(use_empty=True)
+        assert bpy.ops.scpainter.import_vggt(filepath=padded, crop=crop) == {"FINISHED"}
+        assert (bpy.context.scene.render.resolution_x, bpy.context.scene.render.resolution_y) == size
+    with pytest.raises(RuntimeError, match="crop '1 2': expected 'auto', 'none' or four"):
+        bpy.ops.scpainter.import_vggt(filepath=padded, crop="1 2")
+
+
+def test_nan_pixels_and_unchecked_convention_in_the_report(addon, empty_scene, tmp_path):
+    from vggt_cases import drive, write
+
+    arrays, _, _ = drive()
+    del arrays["world_points"], arrays["world_points_conf"]
+    arrays["depth"][3, 0, :4] = np.inf
+    arrays["depth_conf"][1, 7, 7] = np.nan
+    path = write(tmp_path, arrays)
+    importer = _installed(addon, "scene.importer")
+    result = importer.import_vggt(bpy.context, path, importer.ImportOptions(confidence_percentile=0.0))
+    assert result.num_points == 4 * 24 * 32 - 5
+    assert any("extrinsic convention not checked (the file has no world_points)" in w for w in result.warnings)
+    assert any("dropped 5 pixels with NaN/inf depth or confidence (frame 1: 1, frame 3: 4)" in w
+               for w in result.warnings)
+    assert result.load_report.nonfinite == {"depth": [0, 0, 0, 4], "depth_conf": [0, 1, 0, 0]}
+    assert bpy.ops.scpainter.import_vggt(filepath=path) == {"FINISHED"}  # the operator reports, does not refuse
+    _, backend_points = _job_scene_points(tmp_path)     # the backend drops the same pixels
+    assert np.all(np.isfinite(backend_points))
+
+
+def test_camera_height_with_convention_and_crop_through_backend(empty_scene, street, tmp_path):
+    """The ground-plane backend reads the file as the import does: camera-to-world poses and a padded image.
+
+    The street's world is re-posed by a tilt (as a tool that re-centres the world writes it): read as
+    world-to-camera, those poses put the cameras at the wrong heights over the road (scale 11 % off, 0.8 m
+    residual)."""
+    from vggt_cases import pad
+
+    S = 8
+    with np.load(street.predictions_path) as z:
+        a = {k: z[k][:S] for k in z.files}
+    tilt, yaw = np.radians(25.0), np.radians(30.0)
+    G = np.eye(4)
+    G[:3, :3] = np.array([[1, 0, 0], [0, np.cos(tilt), -np.sin(tilt)], [0, np.sin(tilt), np.cos(tilt)]]) @ \
+        np.array([[np.cos(yaw), 0, np.sin(yaw)], [0, 1, 0], [-np.sin(yaw), 0, np.cos(yaw)]])
+    G[:3, 3] = [1.0, -0.5, 2.0]
+    w2c = C.as_matrix4(a["extrinsic"]) @ C.rigid_inverse(G)
+    arrays = dict(images=np.moveaxis(a["images"], 1, -1), depth=a["depth"][..., 0], depth_conf=a["depth_conf"],
+                  extrinsic=C.rigid_inverse(w2c), intrinsic_vggt=a["intrinsic"],
+                  world_points=(a["world_points"] @ G[:3, :3].T + G[:3, 3]).astype(np.float32),
+                  world_points_conf=a["world_points_conf"])
+    H, W = arrays["depth"].shape[1:]
+    top = (W - H) // 2
+    path = str(tmp_path / "predictions.npz")
+    V.save_predictions(path, **pad(arrays, top, W - H - top))
+    with pytest.raises(RuntimeError, match="holds camera-to-world poses"):
+        bpy.ops.scpainter.import_vggt(filepath=path, scale_mode="CAMERA_HEIGHT", camera_height=1.6)
+    assert bpy.ops.scpainter.import_vggt(filepath=path, scale_mode="CAMERA_HEIGHT", camera_height=1.6,
+                                         extrinsic_convention="camera_to_world") == {"FINISHED"}
+    pts = next(o for o in empty_scene.objects if o.get("scpainter_kind") == "points")
+    cam = empty_scene.camera
+    assert list(pts["scpainter_crop"]) == [0, top, 0, W - H - top]
+    M = np.array(pts["scpainter_world_from_vggt"]).reshape(4, 4)
+    s, _, _ = C.decompose_similarity(M)
+    assert s == pytest.approx(float(street.metric()["metres_per_unit"]), rel=0.01)
+    assert pts["scpainter_scale_residual_m"] < 0.02
+    for f in (1, S):
+        empty_scene.frame_set(f)
+        assert cam.matrix_world.translation.z == pytest.approx(1.6, abs=0.02)

@@ -18,7 +18,7 @@ def _cmd_doctor(args) -> int:
     import platform
 
     report = {"python": sys.version.split()[0], "platform": platform.platform(), "executable": sys.executable}
-    for mod in ("numpy", "torch", "numba", "diffusers", "transformers", "safetensors", "av", "open3d"):
+    for mod in ("numpy", "torch", "numba", "diffusers", "transformers", "safetensors", "av", "open3d", "trimesh"):
         spec = importlib.util.find_spec(mod)
         report[mod] = None
         if spec is not None:
@@ -31,8 +31,8 @@ def _cmd_doctor(args) -> int:
 
         report["cuda"] = torch.cuda.is_available()
         report["devices"] = [torch.cuda.get_device_name(i) for i in range(torch.cuda.device_count())]
-    report["missing"] = [m for m in ("numpy", "torch", "numba", "diffusers", "transformers", "safetensors", "av")
-                         if not report.get(m) or str(report[m]).startswith("broken")]
+    needed = ("numpy", "torch", "numba", "diffusers", "transformers", "safetensors", "av", "trimesh")
+    report["missing"] = [m for m in needed if not report.get(m) or str(report[m]).startswith("broken")]
     if args.checkpoint:
         from .model import checkpoint
 
@@ -50,7 +50,8 @@ def _cmd_ground_plane(args) -> int:
 
     from .ground_plane import fit_ground_plane
 
-    pred = vggt.load_predictions(args.predictions)
+    pred = vggt.load_predictions(args.predictions, world_points=False, extrinsic_convention=args.extrinsic_convention,
+                                 crop=args.crop or "none")
     events.progress("ground_plane", 0, 1)
     plane, stats = fit_ground_plane(pred, confidence_percentile=args.confidence_percentile, seed=args.seed)
     fit = vggt.world_from_vggt_by_camera_height(plane, pred.world_to_camera, args.camera_height,
@@ -176,6 +177,16 @@ def _cmd_evaluate(args) -> int:
     return events.EXIT_OK
 
 
+def _cmd_mesh_asset(args) -> int:
+    from . import mesh_asset
+
+    result = mesh_asset.convert(args.mesh, args.out, count=args.count, up=args.up, seed=args.seed,
+                                progress=events.progress)
+    events.artifact(result["ply"], kind="gaussians")
+    events.done(command="mesh-asset", result=result)
+    return events.EXIT_OK
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m backend", description=__doc__)
     sub = p.add_subparsers(dest="command", required=True)
@@ -187,6 +198,10 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--camera-height", type=float, required=True, help="camera height over the road, metres")
     g.add_argument("--confidence-percentile", type=float, default=50.0)
     g.add_argument("--seed", type=int, default=0)
+    g.add_argument("--extrinsic-convention", choices=["world_to_camera", "camera_to_world"],
+                   default="world_to_camera", help="what the file's extrinsic holds (the import decides)")
+    g.add_argument("--crop", type=int, nargs=4, metavar=("LEFT", "TOP", "RIGHT", "BOTTOM"),
+                   help="pixels cut from the images' borders before the fit (the import's crop)")
     g.set_defaults(func=_cmd_ground_plane)
     r = sub.add_parser("render", help="render a job's condition layers (EXR + PNG previews) frame by frame")
     r.add_argument("job", help="job.json (DESIGN §4.2)")
@@ -239,6 +254,14 @@ def build_parser() -> argparse.ArgumentParser:
                                        "or a safetensors copy); without it FID/KID are skipped")
     e.add_argument("--device", choices=["auto", "cpu", "cuda"], default="auto")
     e.set_defaults(func=_cmd_evaluate)
+    m = sub.add_parser("mesh-asset", help="a car mesh (GLB, glTF, OBJ, PLY, STL, OFF) as flat surface Gaussians "
+                                          "(an INRIA-layout PLY, Z up, the mesh's units)")
+    m.add_argument("mesh", help="mesh file; glTF/GLB/OBJ are read Y up, PLY/STL/OFF Z up (see --up)")
+    m.add_argument("--out", required=True, help="Gaussian PLY to write (atomically)")
+    m.add_argument("--count", type=int, default=200_000, help="number of Gaussians (default 200000)")
+    m.add_argument("--up", choices=["auto", "y", "z"], default="auto", help="the file's up axis (default: by format)")
+    m.add_argument("--seed", type=int, default=0)
+    m.set_defaults(func=_cmd_mesh_asset)
     return p
 
 

@@ -125,8 +125,9 @@ def write_splat_cases(d):
 def write_mesh_cases(d):
     import trimesh
 
-    box = trimesh.creation.box(extents=(1.9, 4.5, 1.5))
+    box = trimesh.creation.box(extents=(1.9, 4.5, 1.5))  # width x, length y, height z (Z up)
     box.visual.vertex_colors = np.tile([200, 30, 30, 255], (len(box.vertices), 1)).astype(np.uint8)
+    box.apply_transform([[1, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]])  # OBJ files are Y up
     box.export(os.path.join(d, "cad_car.obj"))
     return {"OBJ car (vertex colours)": "cad_car.obj"}
 

@@ -120,6 +120,12 @@ EXTRINSIC_CONVENTIONS = ("world_to_camera", "camera_to_world")
 #: times the depth, far beyond this once the camera has moved.
 CONVENTION_TOLERANCE = 0.25
 
+#: Within that tolerance, a reading still loses a frame to the other one when the other lands at most half as far
+#: and at least this fraction of the depth nearer: a camera-to-world file of a slow drive misses by only ~10-20 %
+#: of the depth in its later frames, yet its inverse fits exactly. Frames where the camera barely moved give both
+#: readings the same distance and decide nothing.
+CONVENTION_MARGIN = 0.02
+
 #: Pixels compared per frame by the convention check (a regular grid; more adds nothing to a median).
 CONVENTION_CHECK_PIXELS = 20_000
 
@@ -140,7 +146,11 @@ class ConventionCheck:
     tolerance: float = CONVENTION_TOLERANCE
 
     def agrees(self, convention: str) -> bool:
-        return bool(len(self.frames)) and bool(np.all(self.relative[convention] <= self.tolerance))
+        """Every checked frame within the tolerance, and in none does the other reading fit decisively better."""
+        this = self.relative[convention]
+        other = next(v for k, v in self.relative.items() if k != convention)
+        beaten = (other <= 0.5 * this) & (this - other >= CONVENTION_MARGIN)
+        return bool(len(self.frames)) and bool(np.all(this <= self.tolerance)) and not bool(np.any(beaten))
 
     def worst(self, convention: str) -> int:
         """Index (into ``frames``) of the frame where ``convention`` disagrees most."""

@@ -165,8 +165,7 @@ def import_gaussians(context, filepath: str, axes: str = "AUTO", target_length: 
                      ellipsoids: bool = False, name: str | None = None, mesh_count: int = DEFAULT_MESH_COUNT,
                      backend_python: str = "", gaussians_path: str | None = None) -> GaussianImport:
     """Import a car asset as an object at the 3D cursor; ``target_length`` metres along its longest horizontal
-    axis (None: 4.5 m for an asset normalised to the unit cube, as TRELLIS/Amodal3R make them; file units
-    otherwise).
+    axis (None: 4.5 m for a TRELLIS/Amodal3R file or a mesh inside their unit cube; file units otherwise).
 
     Gaussian files (INRIA / TRELLIS PLY, SuperSplat compressed PLY, .splat) are read here; meshes (GLB, glTF, OBJ,
     STL, OFF, mesh PLY) are first turned into surface Gaussians by ``python -m backend mesh-asset`` (trimesh, in
@@ -230,8 +229,9 @@ def import_gaussians(context, filepath: str, axes: str = "AUTO", target_length: 
     context.scene.collection.objects.link(obj)
     obj.location = context.scene.cursor.location
     extent = max(hi[0] - lo[0], hi[1] - lo[1])
-    if target_length is None:
-        unit_cube = np.abs(ply.xyz[keep]).max() <= splats.TRELLIS_MEAN_BOUND
+    if target_length is None:  # TRELLIS/Amodal3R make unit-cube objects, as Gaussians and as GLBs
+        in_cube = np.abs(ply.xyz[keep]).max() <= splats.TRELLIS_MEAN_BOUND
+        unit_cube = axes == "TRELLIS" or (mesh is not None and in_cube)
         target_length = TRELLIS_DEFAULT_LENGTH if unit_cube else extent
     if extent > 0:
         obj.scale = (target_length / extent,) * 3

@@ -322,6 +322,28 @@ def test_camera_to_world_file_refused_then_imported_as_such(tmp_path):
     assert np.abs(V.point_cloud(pred, 0.0).positions - V.point_cloud(good, 0.0).positions).max() < 1e-5
 
 
+def test_camera_to_world_file_of_a_slow_drive_refused(tmp_path):
+    """A slow drive: read the wrong way, its frames miss by less than the tolerance that VGGT's point-head noise
+    needs, but the inverse fits them decisively better: still refused."""
+    arrays, w2c, _ = drive(S=3)
+    for i in range(3):  # 0.1 units forward per frame and a 1° turn: metres in a real clip
+        yaw = np.radians(1.0 * i)
+        R = np.array([[np.cos(yaw), 0, -np.sin(yaw)], [0, 1, 0], [np.sin(yaw), 0, np.cos(yaw)]])
+        w2c[i, :3, :3], w2c[i, :3, 3] = R, -R @ np.array([0.0, 0.0, 0.1 * i])
+    wp = V.unproject_depth(arrays["depth"], V.vggt_K_to_ours(arrays["intrinsic_vggt"]), w2c)
+    wp += np.random.default_rng(1).normal(0.0, 0.01, wp.shape) * arrays["depth"][..., None]  # point-head noise
+    arrays["world_points"] = wp.astype(np.float32)
+    arrays["extrinsic"] = C.rigid_inverse(w2c)
+    path = write(tmp_path, arrays)
+    chk = V.check_extrinsic_convention(V.load_predictions(path))
+    assert chk.relative["world_to_camera"].max() < V.CONVENTION_TOLERANCE  # inside the tolerance alone
+    assert not chk.agrees("world_to_camera") and chk.agrees("camera_to_world")
+    with pytest.raises(V.PredictionsError, match="holds camera-to-world poses"):
+        V.load_predictions(path, extrinsic_convention="auto")
+    arrays["extrinsic"] = w2c  # and the right file of the same drive passes
+    assert V.load_predictions(write(tmp_path, arrays, "ok.npz"), extrinsic_convention="auto").report.convention_checked
+
+
 def test_neither_convention_fits(tmp_path):
     arrays, w2c, _ = drive()
     arrays["world_points"] = drive(seed=1)[0]["world_points"][:, ::-1]  # another depth, mirrored: unrelated

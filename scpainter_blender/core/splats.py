@@ -449,29 +449,27 @@ def _from_structured(data, names, path) -> GaussianPly:
 
 # -- SuperSplat compressed PLY -------------------------------------------------------------------------------------
 
+def _require_properties(path, what, element, types: dict, needed, allowed, expected) -> None:
+    """Refuse an element of the compressed layout that lacks one of ``needed`` or stores one in another type."""
+    missing = [p for p in needed if p not in types]
+    if missing:
+        raise SplatsError(path, f"{what} needs {element} properties {list(needed)}; missing {missing}")
+    bad = [p for p in needed if types[p] not in allowed]
+    if bad:
+        raise SplatsError(path, f"{what}: {element} property {bad[0]!r} is {_type_name(np.dtype(types[bad[0]]))}, "
+                                f"expected {expected}")
+
+
 def _check_compressed_header(elements, path) -> None:
     """Refuse a compressed layout that is incomplete or inconsistent, naming what is wrong (before reading data)."""
     what = "a SuperSplat compressed PLY"
     chunk, vertex, sh = (_element(elements, n) for n in ("chunk", "vertex", "sh"))
     if chunk is None:
         raise SplatsError(path, f"the vertices have packed_* properties ({what}) but there is no 'chunk' element")
-    vtypes = dict(vertex[1])
-    missing = [p for p in _PACKED_PROPS if p not in vtypes]
-    if missing:
-        raise SplatsError(path, f"{what} needs vertex properties {list(_PACKED_PROPS)}; missing {missing}")
-    bad = [p for p in _PACKED_PROPS if vtypes[p] not in ("u4", "i4")]
-    if bad:
-        raise SplatsError(path, f"{what}: vertex property {bad[0]!r} is {_type_name(np.dtype(vtypes[bad[0]]))}, "
-                                "expected uint (32-bit)")
+    _require_properties(path, what, "vertex", dict(vertex[1]), _PACKED_PROPS, ("u4", "i4"), "uint (32-bit)")
     ctypes = dict(chunk[1])
     needed = _CHUNK_PROPS + (_CHUNK_COLOR_PROPS if any(p in ctypes for p in _CHUNK_COLOR_PROPS) else ())
-    missing = [p for p in needed if p not in ctypes]
-    if missing:
-        raise SplatsError(path, f"{what}: the 'chunk' element lacks {missing}")
-    bad = [p for p in needed if ctypes[p] not in ("f4", "f8")]
-    if bad:
-        raise SplatsError(path, f"{what}: chunk property {bad[0]!r} is {_type_name(np.dtype(ctypes[bad[0]]))}, "
-                                "expected float")
+    _require_properties(path, what, "chunk", ctypes, needed, ("f4", "f8"), "float")
     expect = -(-vertex[0] // CHUNK_SIZE)
     if chunk[0] != expect:
         raise SplatsError(path, f"{what}: {vertex[0]} Gaussians need {expect} chunks of {CHUNK_SIZE}, "
@@ -481,10 +479,7 @@ def _check_compressed_header(elements, path) -> None:
         if len(names) not in (9, 24, 45) or names != [f"f_rest_{i}" for i in range(len(names))]:
             raise SplatsError(path, f"{what}: the 'sh' element must hold f_rest_0..f_rest_(9, 24 or 45 - 1), "
                                     f"it has {len(names)} properties")
-        bad = [p for p, t in sh[1] if t != "u1"]
-        if bad:
-            raise SplatsError(path, f"{what}: sh property {bad[0]!r} is {_type_name(np.dtype(dict(sh[1])[bad[0]]))}"
-                                    ", expected uchar")
+        _require_properties(path, what, "sh", dict(sh[1]), names, ("u1",), "uchar")
         if sh[0] != vertex[0]:
             raise SplatsError(path, f"{what}: the 'sh' element has {sh[0]} rows for {vertex[0]} Gaussians")
 

@@ -51,6 +51,8 @@ class SCPAINTER_OT_import_gaussians(bpy.types.Operator, ImportHelper):
         context.view_layer.objects.active = r.object
         r.object.select_set(True)
         self.report({"INFO"}, r.report())
+        for w in r.warnings:
+            self.report({"WARNING"}, w)
         return {"FINISHED"}
 
 

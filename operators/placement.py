@@ -134,9 +134,14 @@ class SCPAINTER_OT_check_assets(bpy.types.Operator):
 
     def execute(self, context):
         assets = [o for o in context.scene.objects if o.get("scpainter_kind") == "gaussian_asset"]
-        flagged = [o.name for o in assets if placement.stage1_check(o, tolerance=self.tolerance)["status"] != "ok"]
-        self.report({"WARNING"} if flagged else {"INFO"},
-                    f"{len(assets)} assets checked, flagged: {', '.join(flagged) or 'none'}")
+        flagged = []
+        for o in assets:
+            r = placement.stage1_check(o, tolerance=self.tolerance)
+            if r["status"] != "ok":
+                flagged.append(f"{o.name} (width {r['width']:+.0%}, height {r['height']:+.0%} at the length of "
+                               f"{r['target'][0]:.3g} m)")
+        self.report({"WARNING"} if flagged else {"INFO"}, f"{len(assets)} assets checked against "
+                    f"±{self.tolerance:.0%}, flagged: {'; '.join(flagged) or 'none'}")
         return {"FINISHED"}
 
 

@@ -103,6 +103,10 @@ FORMAT_NAMES = {"inria": "INRIA 3DGS PLY", "inria_half": "INRIA 3DGS PLY, half f
 ACCEPTED = ("binary INRIA 3DGS PLY (float, double or half floats in ushort slots; TRELLIS/Amodal3R included), "
             "SuperSplat compressed PLY (.compressed.ply) and antimatter15 .splat")
 
+#: Mesh files: not splats, but what the car-asset import converts to Gaussians (backend ``mesh-asset``, trimesh);
+#: a ``.ply`` is a mesh when ``is_mesh_ply`` says so.
+MESH_EXTENSIONS = (".glb", ".gltf", ".obj", ".stl", ".off")
+
 #: SuperSplat compressed PLY: splats per chunk, and the chunk/vertex properties (module docstring).
 CHUNK_SIZE = 256
 _CHUNK_PROPS = ("min_x", "min_y", "min_z", "max_x", "max_y", "max_z", "min_scale_x", "min_scale_y", "min_scale_z",
@@ -234,9 +238,12 @@ def _head(path, n: int) -> bytes:
 
 
 def _not_accepted(head: bytes, ext: str) -> str:
-    if head.startswith(b"glTF") or ext in (".glb", ".gltf", ".obj", ".stl", ".off", ".fbx"):
-        return (f"a mesh/scene file ({ext or 'glTF'}), not Gaussian splats: import it as a mesh asset; "
-                f"Gaussian files accepted are {ACCEPTED}")
+    if head.startswith(b"glTF") or ext in MESH_EXTENSIONS:
+        return (f"a mesh ({ext or 'glTF'}), not Gaussian splats: the car-asset import and `python -m backend "
+                f"mesh-asset` turn meshes into Gaussians; Gaussian files accepted are {ACCEPTED}")
+    if ext in (".fbx", ".blend", ".usd", ".usdz", ".usdc", ".dae", ".3ds"):
+        return (f"{ext} files are not read: export the car as GLB, glTF, OBJ, STL or PLY (mesh), or as Gaussian "
+                f"splats ({ACCEPTED})")
     if ext in (".ksplat", ".spz", ".sog", ".sogs", ".lcc"):
         return (f"{ext} Gaussian files are not supported: convert it to .ply (e.g. with playcanvas/splat-transform); "
                 f"accepted are {ACCEPTED}")
@@ -599,7 +606,7 @@ def detect_axes(ply: GaussianPly, keep=None) -> tuple[str, str]:
     mask of rows to use (default: the rows ``decode`` keeps).
     """
     if ply.format != "inria":
-        return "NONE", f"not TRELLIS: a {FORMAT_NAMES.get(ply.format, ply.format)} file"
+        return "NONE", f"not TRELLIS: its layout is {FORMAT_NAMES.get(ply.format, ply.format)}"
     if ply.sh_degree:
         return "NONE", f"not TRELLIS: has f_rest (SH {ply.sh_degree})"
     if not {"nx", "ny", "nz"} <= set(ply.extra):

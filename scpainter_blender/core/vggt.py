@@ -233,8 +233,12 @@ def _images_to_hwc(arr, path):
         raise PredictionsError(path, "images", f"expected float in [0, 1] or uint8, got dtype {hwc.dtype}")
     hwc = hwc.astype(np.float32, copy=False)
     lo, hi = float(hwc.min()), float(hwc.max())
-    if not (np.isfinite(lo) and np.isfinite(hi)):
-        raise PredictionsError(path, "images", f"{int((~np.isfinite(hwc)).sum())} values are NaN or inf")
+    if not (np.isfinite(lo) and np.isfinite(hi)):  # colours have no stand-in: refuse, naming where
+        bad = ~np.isfinite(hwc)
+        frames = np.unique(np.nonzero(bad.reshape(len(bad), -1))[0])
+        raise PredictionsError(path, "images", f"{int(bad.sum())} colour values are NaN or inf (frames "
+                                               f"{frames[:8].tolist()}): the images VGGT saw are finite, so the "
+                                               "file was damaged after VGGT; export it again")
     if lo < -1e-3 or hi > 1.0 + 1e-3:
         raise PredictionsError(path, "images", f"float values must lie in [0, 1], found [{lo:g}, {hi:g}] "
                                                "(uint8 images are accepted as they are)")

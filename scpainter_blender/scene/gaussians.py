@@ -117,6 +117,7 @@ class GaussianImport:
     format: str = "inria"
     mesh: dict | None = None          # the backend's mesh-asset result when the source was a mesh
     timings: dict = field(default_factory=dict)
+    warnings: list = field(default_factory=list)
 
     def report(self) -> str:
         """One line for the operator's report and the CLI summary."""
@@ -131,14 +132,15 @@ class GaussianImport:
 
 #: Car meshes are converted to Gaussians by the backend (trimesh); a .ply is a mesh when it has faces and no
 #: Gaussian properties (decided by its header).
-MESH_EXTENSIONS = (".glb", ".gltf", ".obj", ".stl", ".off")
-ASSET_EXTENSIONS = (".ply", ".splat") + MESH_EXTENSIONS
+ASSET_EXTENSIONS = (".ply", ".splat") + splats.MESH_EXTENSIONS
 DEFAULT_MESH_COUNT = 200_000
+#: Lengths (metres) outside which an imported asset is most likely in other units: the import says so.
+MIN_CAR_LENGTH, MAX_CAR_LENGTH = 0.5, 30.0
 
 
 def is_mesh_file(filepath: str) -> bool:
     ext = os.path.splitext(filepath)[1].lower()
-    return ext in MESH_EXTENSIONS or (ext == ".ply" and splats.is_mesh_ply(filepath))
+    return ext in splats.MESH_EXTENSIONS or (ext == ".ply" and splats.is_mesh_ply(filepath))
 
 
 def _data_frame(xyz_file, axes: str):
@@ -175,6 +177,8 @@ def import_gaussians(context, filepath: str, axes: str = "AUTO", target_length: 
     """
     t0 = time.perf_counter()
     filepath = os.path.abspath(bpy.path.abspath(filepath))
+    if not os.path.isfile(filepath):
+        raise splats.SplatsError(filepath, "file not found")
     mesh = None
     if is_mesh_file(filepath):
         out = gaussians_path or mesh_gaussians_path(context.scene, filepath, mesh_count)
@@ -187,10 +191,12 @@ def import_gaussians(context, filepath: str, axes: str = "AUTO", target_length: 
     keep, dropped = splats.valid_rows(ply)
     if not keep.any():
         raise splats.SplatsError(filepath, f"no valid Gaussians ({len(ply)} rows, dropped {dropped})")
-    if axes == "AUTO":
-        axes, reason = splats.detect_axes(ply, keep)
-    else:
+    if axes != "AUTO":
         reason = "chosen on import"
+    elif mesh:  # the backend already turned the mesh Z up
+        axes, reason = "NONE", f"a mesh read {mesh['up'].upper()} up and turned Z up"
+    else:
+        axes, reason = splats.detect_axes(ply, keep)
     data_from_file, F, lo, hi = _data_frame(ply.xyz[keep], axes)
     pos = (ply.xyz[keep].astype(np.float64) @ data_from_file[:3, :3].T + data_from_file[:3, 3]).astype(np.float32)
     rot_raw = ply.rot[keep]
@@ -252,22 +258,36 @@ def import_gaussians(context, filepath: str, axes: str = "AUTO", target_length: 
         obj["scpainter_mesh_source"] = mesh["source"]
         # trimesh's upright oriented box (length, width, height) of the mesh, for stage 1 (placement.asset_size)
         obj["scpainter_obb_size"] = [float(v) for v in mesh["obb"]["size"]]
+    warnings = []
+    if extent > 0 and not MIN_CAR_LENGTH <= target_length <= MAX_CAR_LENGTH:
+        warnings.append(f"{obj.name} is {target_length:.3g} m long in its file's units (millimetres or centimetres?): "
+                        "set Length on import, or use Fit to Car Size")
     t_end = time.perf_counter()
     return GaussianImport(obj, N, dropped, axes, reason, ply.format, mesh,
-                          {"read_decode": t_read - t0, "object": t_end - t_read, "total": t_end - t0})
+                          {"read_decode": t_read - t0, "object": t_end - t_read, "total": t_end - t0}, warnings)
 
 
 def mesh_gaussians_path(scene, mesh_path: str, count: int) -> str:
-    """Where a mesh's surface Gaussians are written: ``<output folder>/assets/<stem>.<count>.gaussians.ply``, or
-    beside the mesh while the .blend is unsaved (its output folder is relative to it)."""
+    """Where a mesh's surface Gaussians are written: ``<output folder>/assets/`` (the scene's, so the file travels
+    with the project), or the user's cache folder (``$XDG_CACHE_HOME/scpainter/assets``, ``~/.cache/...``) while
+    the .blend is unsaved. Never beside the mesh: asset libraries are often read-only.
+
+    The name keeps the source's full file name and adds a hash of its absolute path, size and modification time,
+    so two meshes (``car.stl``, ``car.ply``, or one edited since) never share a file: ``car.stl.200000.<hash>.ply``.
+    """
+    import hashlib
+
     from . import props
 
-    stem = os.path.splitext(os.path.basename(mesh_path))[0]
-    name = f"{stem}.{int(count)}.gaussians.ply"
+    st = os.stat(mesh_path)
+    key = hashlib.sha256(f"{os.path.abspath(mesh_path)}|{st.st_size}|{st.st_mtime_ns}".encode()).hexdigest()[:10]
+    name = f"{os.path.basename(mesh_path)}.{int(count)}.{key}.gaussians.ply"
     try:
-        return os.path.join(props.output_dir(scene), "assets", name)
-    except ValueError:
-        return os.path.join(os.path.dirname(mesh_path), name)
+        folder = os.path.join(props.output_dir(scene), "assets")
+    except ValueError:  # unsaved .blend: its output folder is relative to it
+        cache = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+        folder = os.path.join(cache, "scpainter", "assets")
+    return os.path.join(folder, name)
 
 
 def set_axes(obj, axes: str) -> None:
@@ -297,6 +317,9 @@ def set_axes(obj, axes: str) -> None:
     obj["scpainter_size"] = (hi - lo).tolist()
     obj["scpainter_axes"] = axes
     obj["scpainter_axes_reason"] = "set by hand"
+    for key in ("scpainter_stage1", "scpainter_stage1_deviation"):  # measured on the old axes: check again
+        if key in obj:
+            del obj[key]
 
 
 def preview_input(obj, name):

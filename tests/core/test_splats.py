@@ -684,14 +684,17 @@ def test_real_trellis_mesh_ply_and_glb():
         SP.load(mesh)
     assert SP.is_mesh_ply(mesh)
     glb = realdata("trellis/uanu2002_trellis_sample.glb")
-    with pytest.raises(SP.SplatsError, match=r"uanu2002_trellis_sample\.glb: a mesh/scene file.*accepted are"):
+    with pytest.raises(SP.SplatsError, match=r"uanu2002_trellis_sample\.glb: a mesh \(\.glb\).*mesh-asset.*accepted are"):
         SP.read(glb)
 
 
 def test_other_files_name_the_accepted_formats(tmp_path):
     (tmp_path / "model.glb").write_bytes(b"glTF\x02\x00\x00\x00" + bytes(100))
-    with pytest.raises(SP.SplatsError, match=r"model\.glb: a mesh/scene file.*\.splat"):
+    with pytest.raises(SP.SplatsError, match=r"model\.glb: a mesh \(\.glb\).*\.splat"):
         SP.read(tmp_path / "model.glb")
+    (tmp_path / "car.fbx").write_bytes(b"Kaydara FBX Binary  \x00" + bytes(100))  # not read at all: say so
+    with pytest.raises(SP.SplatsError, match=r"car\.fbx: \.fbx files are not read: export the car as GLB"):
+        SP.read(tmp_path / "car.fbx")
     (tmp_path / "scene.spz").write_bytes(bytes(100))
     with pytest.raises(SP.SplatsError, match=r"\.spz Gaussian files are not supported.*splat-transform"):
         SP.read(tmp_path / "scene.spz")
@@ -762,4 +765,4 @@ def test_detect_axes_not_trellis(tmp_path):
     assert SP.detect_axes(SP.read(tmp_path / "order.ply"))[1] == ("not TRELLIS: the properties are not in "
                                                                   "TRELLIS's save_ply order")
     write_compressed(tmp_path / "c.ply", random_gaussians(30, 0, seed=2))
-    assert SP.detect_axes(SP.read(tmp_path / "c.ply"))[1] == "not TRELLIS: a SuperSplat compressed PLY file"
+    assert SP.detect_axes(SP.read(tmp_path / "c.ply"))[1] == "not TRELLIS: its layout is SuperSplat compressed PLY"

@@ -183,8 +183,9 @@ def test_set_axes_flips_and_restores(empty_scene, tmp_path):
     pos0, q0 = _attr(obj, "position", 3).copy(), _attr(obj, "gs_rotation", 4).copy()
     D0, size0 = list(obj["scpainter_data_from_file"]), list(obj["scpainter_size"])
     length0 = max(size0[:2]) * obj.scale[0]
+    assert bpy.ops.scpainter.check_assets() == {"FINISHED"} and obj["scpainter_stage1"] == "ok"
     assert bpy.ops.scpainter.set_asset_axes(axes="NONE") == {"FINISHED"}
-    assert obj["scpainter_axes"] == "NONE"
+    assert obj["scpainter_axes"] == "NONE" and "scpainter_stage1" not in obj  # measured on the old axes
     size1 = np.array(obj["scpainter_size"])
     assert size1[2] > size1[0]  # read as stored, the car's length is vertical: on its side
     assert max(size1[:2]) * obj.scale[0] == pytest.approx(length0, rel=1e-5)  # length kept
@@ -221,7 +222,7 @@ def test_splat_file_imports_like_its_ply(empty_scene, tmp_path):
     assert np.abs(_attr(obj, "position", 3) - from_ply).max() < 1e-5  # positions are float32 in both
 
 
-def test_mesh_car_imports_through_the_backend_and_stage1_uses_its_oriented_box(empty_scene, tmp_path):
+def test_mesh_car_imports_through_the_backend_and_stage1_uses_its_oriented_box(empty_scene, tmp_path, monkeypatch):
     """A CAD-style car box, turned 30° about the up axis in its own file, written as a glTF (Y up): it becomes a
     Gaussian asset standing upright, and stage 1 measures it with trimesh's oriented box, not its axis-aligned
     bounds (which are 40 % too wide and would flag it)."""
@@ -233,13 +234,22 @@ def test_mesh_car_imports_through_the_backend_and_stage1_uses_its_oriented_box(e
     box.apply_transform(trimesh.transformations.rotation_matrix(np.radians(30.0), (0, 0, 1)))
     box.visual.vertex_colors = np.tile([200, 30, 30, 255], (len(box.vertices), 1)).astype(np.uint8)
     box.apply_transform(np.array([[1, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]], float))  # Z up -> glTF Y up
-    path = str(tmp_path / "cad_car.glb")
+    path = str(tmp_path / "library" / "cad_car.glb")
+    os.makedirs(os.path.dirname(path))
     box.export(path)
-    assert bpy.ops.scpainter.import_gaussians(filepath=path, mesh_count=4000) == {"FINISHED"}
+    os.chmod(os.path.dirname(path), 0o555)  # asset libraries are often read-only: nothing is written beside them
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))  # the .blend is unsaved: the user's cache
+    try:
+        assert bpy.ops.scpainter.import_gaussians(filepath=path, mesh_count=4000) == {"FINISHED"}
+    finally:
+        os.chmod(os.path.dirname(path), 0o755)
     obj = bpy.context.active_object
     assert obj["scpainter_kind"] == "gaussian_asset" and obj["scpainter_mesh_source"] == path
-    assert os.path.isfile(obj["scpainter_source"]) and obj["scpainter_source"] != path
+    out = obj["scpainter_source"]
+    assert os.path.isfile(out) and out.startswith(str(tmp_path / "cache" / "scpainter" / "assets"))
+    assert os.path.basename(out).startswith("cad_car.glb.4000.")
     assert len(obj.data.vertices) == 4000 and obj["scpainter_axes"] == "NONE"
+    assert obj["scpainter_axes_reason"] == "a mesh read Y up and turned Z up"
     assert obj.scale[0] == pytest.approx(1.0)  # a metric CAD car keeps its units
     size = np.array(obj["scpainter_size"])
     assert size[2] == pytest.approx(1.5, abs=0.05)  # upright: Y up in the file became Z up
@@ -251,3 +261,30 @@ def test_mesh_car_imports_through_the_backend_and_stage1_uses_its_oriented_box(e
     linear = np.array([200, 30, 30]) / 255  # glTF's COLOR_0 is linear by the spec
     srgb = np.where(linear <= 0.0031308, 12.92 * linear, 1.055 * linear ** (1 / 2.4) - 0.055)
     assert np.allclose(np.median(colour, axis=0), srgb, atol=0.01)
+
+
+def test_meshes_of_one_name_never_share_their_gaussians(tmp_path, empty_scene, monkeypatch):
+    """car.stl (grey) and car.ply (red) beside each other: each asset gets its own converted file, saved with the
+    project once the .blend is saved; a millimetre CAD car is imported but the report says its length is odd."""
+    trimesh = pytest.importorskip("trimesh")
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "scene.blend"))
+    box = trimesh.creation.box(extents=(1.9, 4.5, 1.5))
+    box.export(str(tmp_path / "car.stl"))
+    box.visual.vertex_colors = np.tile([220, 20, 20, 255], (len(box.vertices), 1)).astype(np.uint8)
+    box.export(str(tmp_path / "car.ply"))
+    sources = []
+    for name in ("car.stl", "car.ply"):
+        assert bpy.ops.scpainter.import_gaussians(filepath=str(tmp_path / name), mesh_count=500) == {"FINISHED"}
+        sources.append(bpy.context.active_object["scpainter_source"])
+    assert sources[0] != sources[1]
+    assert all(os.path.dirname(p) == str(tmp_path / "scpainter" / "Scene" / "assets") for p in sources)
+    red = splats.read(sources[1]).f_dc * splats.SH_C0 + 0.5
+    grey = splats.read(sources[0]).f_dc * splats.SH_C0 + 0.5
+    assert red[:, 0].min() > 0.8 and np.allclose(grey, 0.5, atol=1e-6)
+    mm = box.copy()
+    mm.apply_scale(1000.0)
+    mm.export(str(tmp_path / "car_mm.stl"))
+    from scpainter_blender.scene import gaussians
+
+    r = gaussians.import_gaussians(bpy.context, str(tmp_path / "car_mm.stl"), mesh_count=500)
+    assert r.object.scale[0] == pytest.approx(1.0) and "4.5e+03 m long" in r.warnings[0]

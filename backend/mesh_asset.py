@@ -70,6 +70,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from scpainter_blender.core import cameras, splats
+from scpainter_blender.core.colors import linear_to_srgb, srgb_to_linear
 
 #: p_zup = Y_UP_TO_Z_UP @ p for Y-up files: (x, y, z) -> (x, -z, y), Blender's glTF import.
 Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
@@ -273,16 +274,6 @@ def oriented_box_3d(vertices) -> list:
 # --------------------------------------------------------------------------------------------------------------
 # Colours
 # --------------------------------------------------------------------------------------------------------------
-
-def srgb_to_linear(c):
-    c = np.asarray(c, np.float64)
-    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
-
-
-def linear_to_srgb(c):
-    c = np.clip(np.asarray(c, np.float64), 0.0, None)
-    return np.where(c <= 0.0031308, 12.92 * c, 1.055 * c ** (1 / 2.4) - 0.055)
-
 
 def sample_texture(image, uv) -> np.ndarray:
     """Bilinear RGB in [0, 1] (n, 3) of an image (PIL image or (H, W[, C]) array, 8 or 16 bit) at trimesh UVs (n, 2).

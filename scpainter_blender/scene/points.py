@@ -12,6 +12,7 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
+from ..core import colors
 from . import materials
 
 NODE_GROUP = "SCPainter Points"
@@ -121,8 +122,7 @@ def points_modifier(obj):
 
 def srgb_to_linear_lut(levels: int = 256) -> np.ndarray:
     """sRGB-encoded level -> linear value, tabulated (IEC 61966-2-1); 256 levels match 8-bit source images."""
-    c = np.linspace(0.0, 1.0, levels)
-    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4).astype(np.float32)
+    return colors.srgb_to_linear(np.linspace(0.0, 1.0, levels)).astype(np.float32)
 
 
 _LUT = srgb_to_linear_lut()

@@ -13,6 +13,7 @@ from PIL import Image
 
 from backend import mesh_asset as ma
 from scpainter_blender.core import cameras, splats
+from scpainter_blender.core.colors import linear_to_srgb
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 R_GLTF = ma.Y_UP_TO_Z_UP            # p_zup = R_GLTF @ p_gltf
@@ -156,7 +157,7 @@ def test_glb_base_colour_factor_is_linear(tmp_path):
     mat = trimesh.visual.material.PBRMaterial(baseColorTexture=image, baseColorFactor=factor)
     box.visual = trimesh.visual.TextureVisuals(uv=uv, material=mat)
     g = ma.mesh_to_gaussians(ma.load_mesh(export(box, tmp_path / "f.glb")), 200)
-    expect = ma.linear_to_srgb(np.round(factor[:3] * 255) / 255)   # trimesh stores the factor as 8 bit
+    expect = linear_to_srgb(np.round(factor[:3] * 255) / 255)   # trimesh stores the factor as 8 bit
     np.testing.assert_allclose(rgb_of(g), np.tile(expect, (200, 1)), atol=1e-5)
     plain = trimesh.creation.box()
     plain.visual = trimesh.visual.TextureVisuals(material=trimesh.visual.material.PBRMaterial(
@@ -178,7 +179,7 @@ def test_vertex_colours_are_interpolated(tmp_path):
     grey.visual.vertex_colors = np.tile([51, 51, 51, 255], (len(grey.vertices), 1))
     res = ma.sample_gaussians(ma.load_mesh(export(grey, tmp_path / "grey.glb")), 50)
     assert res.colour_source == "vertex"
-    np.testing.assert_allclose(rgb_of(res.gaussians), ma.linear_to_srgb(51 / 255), atol=1e-5)
+    np.testing.assert_allclose(rgb_of(res.gaussians), linear_to_srgb(51 / 255), atol=1e-5)
 
 
 def test_face_colours_and_no_colours(tmp_path):

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from scpainter_blender.core import cameras as C
-from scpainter_blender.core import shapes, splats
+from scpainter_blender.core import colors, shapes, splats
 from tests_support import realdata
 
 
@@ -258,8 +258,7 @@ def test_mesh_car_imports_through_the_backend_and_stage1_uses_its_oriented_box(e
     aabb = placement.asset_size(obj)
     assert aabb[1] > 1.3 * 1.9  # what stage 1 would have measured without the oriented box
     colour = _attr(obj, "sh_0", 3) * splats.SH_C0 + 0.5  # display (sRGB-encoded) values, as f_dc colours are
-    linear = np.array([200, 30, 30]) / 255  # glTF's COLOR_0 is linear by the spec
-    srgb = np.where(linear <= 0.0031308, 12.92 * linear, 1.055 * linear ** (1 / 2.4) - 0.055)
+    srgb = colors.linear_to_srgb(np.array([200, 30, 30]) / 255)  # glTF's COLOR_0 is linear by the spec
     assert np.allclose(np.median(colour, axis=0), srgb, atol=0.01)
 
 

@@ -69,7 +69,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from scpainter_blender.core import cameras, splats
+from scpainter_blender.core import cameras, shapes, splats
 from scpainter_blender.core.colors import linear_to_srgb, srgb_to_linear
 
 #: p_zup = Y_UP_TO_Z_UP @ p for Y-up files: (x, y, z) -> (x, -z, y), Blender's glTF import.
@@ -386,15 +386,7 @@ def sample_gaussians(mesh, count: int, seed: int = 0, sigma_factor: float = SIGM
     geom = trimesh.Trimesh(np.nan_to_num(V, nan=0.0, posinf=0.0, neginf=0.0), F, process=False, validate=False)
     means, fidx, bary = trimesh.sample.sample_surface(geom, count, face_weight=area, return_barycentric=True,
                                                       seed=seed)
-    tri = V[F[fidx]]
-    e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        n = np.cross(e1, e2)
-        n /= np.linalg.norm(n, axis=1, keepdims=True)
-        t1 = e1 - np.sum(e1 * n, axis=1, keepdims=True) * n
-        t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
-    t2 = np.cross(n, t1)
-    R = np.stack([t1, t2, n], axis=2)                  # columns: local x, y, z in the output frame
+    R = shapes.face_frames(V[F[fidx]])                # columns: local x, y, z in the output frame
     rgb = np.empty((count, 3))
     sources = np.empty(count, object)
     part_of = np.searchsorted(face_offsets, fidx, side="right") - 1

@@ -93,6 +93,20 @@ def add_car(builder: MeshBuilder, rng, paint, glass, tyre, length=4.4, width=1.8
             builder.cylinder((sx * (width / 2 - 0.1), sy * (length / 2 - 0.8), 0.32), 0.32, 0.24, 0, tyre)
 
 
+def face_frames(tri) -> np.ndarray:
+    """Rotations (F, 3, 3) whose columns are a flat Gaussian's local x, y, z on triangles ``tri`` (F, 3, 3):
+    z = n = normalise((v1 - v0) x (v2 - v0)) (the winding's normal), x = t1 = v1 - v0 made orthogonal to n and
+    normalised, y = n x t1. Degenerate or non-finite triangles give NaN rows (the caller drops them)."""
+    tri = np.asarray(tri, np.float64)
+    e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        n = np.cross(e1, e2)
+        n /= np.linalg.norm(n, axis=1, keepdims=True)
+        t1 = e1 - np.sum(e1 * n, axis=1, keepdims=True) * n
+        t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+    return np.stack([t1, np.cross(n, t1), n], axis=2)
+
+
 def surface_gaussians(builder: MeshBuilder, colors: dict, count: int, seed: int = 0, flatness: float = 0.1,
                       opacity: float = 0.95) -> splats.Gaussians:
     """Flat Gaussians spread over a mesh's surface, area-weighted, coloured by material.
@@ -104,18 +118,13 @@ def surface_gaussians(builder: MeshBuilder, colors: dict, count: int, seed: int 
     rng = np.random.default_rng(seed)
     tri, slot = builder.triangles()
     e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
-    cross = np.cross(e1, e2)
-    area = 0.5 * np.linalg.norm(cross, axis=1)
-    normal = cross / np.maximum(2 * area, 1e-300)[:, None]
+    area = 0.5 * np.linalg.norm(np.cross(e1, e2), axis=1)
     pick = rng.choice(len(tri), size=count, p=area / area.sum())
     r1, r2 = rng.random(count), rng.random(count)
     flip = r1 + r2 > 1
     r1[flip], r2[flip] = 1 - r1[flip], 1 - r2[flip]
     means = tri[pick, 0] + r1[:, None] * e1[pick] + r2[:, None] * e2[pick]
-    n = normal[pick]
-    t1 = e1[pick] / np.linalg.norm(e1[pick], axis=1, keepdims=True)
-    t2 = np.cross(n, t1)
-    R = np.stack([t1, t2, n], axis=2)  # columns: local x, y, z in object axes
+    R = face_frames(tri[pick])
     sigma = np.sqrt(area.sum() / count)
     scales = np.tile([sigma, sigma, flatness * sigma], (count, 1))
     rgb = np.array([colors[m] for m in builder.materials], float)[slot[pick]]

@@ -246,10 +246,8 @@ def _images_to_hwc(arr, path):
 
 
 def _check_finite(a, path, key):
-    if np.isfinite(a.min()) and np.isfinite(a.max()):  # NaN propagates through min/max: one cheap pass each
-        return
-    bad = ~np.isfinite(a)
-    if bad.any():
+    if not _all_finite(a):
+        bad = ~np.isfinite(a)
         frames = np.unique(np.nonzero(bad.reshape(bad.shape[0], -1))[0])
         raise PredictionsError(path, key, f"{int(bad.sum())} values are NaN or inf (first in frame "
                                           f"{int(frames[0])}; frames {frames[:8].tolist()}): those frames "
@@ -258,7 +256,19 @@ def _check_finite(a, path, key):
 
 
 def _all_finite(a) -> bool:
-    return bool(np.isfinite(a.min()) and np.isfinite(a.max()))
+    return bool(np.isfinite(a.min()) and np.isfinite(a.max()))  # NaN propagates through min/max: one cheap pass
+
+
+def _check_convention(value) -> None:
+    if value not in ("auto",) + EXTRINSIC_CONVENTIONS:
+        raise ValueError(f"extrinsic_convention must be 'auto', 'world_to_camera' or 'camera_to_world', "
+                         f"got {value!r}")
+
+
+def _per_frame(counts) -> str:
+    """"frame 3: 12, frame 7: 1" for the frames with a non-zero count (the first 8, then "...")."""
+    frames = [f"frame {i}: {int(n)}" for i, n in enumerate(counts) if n]
+    return ", ".join(frames[:8]) + (", ..." if len(frames) > 8 else "")
 
 
 def _numeric(npz, path, key):
@@ -349,9 +359,7 @@ def load_predictions(path, world_points: bool = True, *, extrinsic_convention: s
     Pixels with NaN/inf depth, confidence or world point are dropped (``valid`` masks), counted in ``report``.
     """
     path = os.fspath(path)
-    if extrinsic_convention not in ("auto",) + EXTRINSIC_CONVENTIONS:
-        raise ValueError(f"extrinsic_convention must be 'auto', 'world_to_camera' or 'camera_to_world', "
-                         f"got {extrinsic_convention!r}")
+    _check_convention(extrinsic_convention)
     try:
         crop = parse_crop(crop)
     except ValueError as e:
@@ -426,9 +434,7 @@ def predictions_from_arrays(arrays, path="<arrays>", *, extrinsic_convention: st
                             crop="none", metres_per_unit: float | None = None,
                             keep_world_points: bool = True) -> VGGTPredictions:
     """Validate a mapping of VGGT arrays (as in the .npz) into VGGTPredictions (see load_predictions)."""
-    if extrinsic_convention not in ("auto",) + EXTRINSIC_CONVENTIONS:
-        raise ValueError(f"extrinsic_convention must be 'auto', 'world_to_camera' or 'camera_to_world', "
-                         f"got {extrinsic_convention!r}")
+    _check_convention(extrinsic_convention)
     crop = parse_crop(crop)
     report = LoadReport(convention_requested=extrinsic_convention)
     images = _images_to_hwc(np.asarray(arrays["images"]), path)
@@ -505,17 +511,14 @@ def predictions_from_arrays(arrays, path="<arrays>", *, extrinsic_convention: st
             "explicit extrinsic convention, which do not read the point map")
     if valid is not None:
         report.dropped_pixels = [int(n) for n in (~valid).reshape(S, -1).sum(axis=1)]
-        frames = [f"frame {i}: {n}" for i, n in enumerate(report.dropped_pixels) if n]
         report.warnings.append(f"dropped {sum(report.dropped_pixels)} pixels with NaN/inf depth or confidence "
-                               f"({', '.join(frames[:8])}{', ...' if len(frames) > 8 else ''})")
+                               f"({_per_frame(report.dropped_pixels)})")
     else:
         report.dropped_pixels = [0] * S
     if wp_valid is not None:
         n = (~wp_valid).reshape(S, -1).sum(axis=1)
-        frames = [f"frame {i}: {k}" for i, k in enumerate(n) if k]
         report.warnings.append(f"{int(n.sum())} world_points pixels are NaN/inf: left out of the point map and the "
-                               "convention check "
-                               f"({', '.join(frames[:8])}{', ...' if len(frames) > 8 else ''})")
+                               f"convention check ({_per_frame(n)})")
 
     pred = VGGTPredictions(path=str(path), images=images, depth=depth, depth_conf=conf, world_to_camera=ext,
                            intrinsic_vggt=intr, world_points=wp, world_points_conf=wpc, valid=valid,

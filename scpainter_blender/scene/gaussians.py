@@ -17,6 +17,7 @@ icosphere instanced per Gaussian, scaled to size·σ along its axes), both colou
 
 from __future__ import annotations
 
+import hashlib
 import os
 import time
 from dataclasses import dataclass, field
@@ -26,7 +27,7 @@ import numpy as np
 
 from .. import backend_client
 from ..core import cameras, splats
-from . import materials
+from . import materials, props
 from .points import _linear_rgba, _socket_identifier, set_input
 
 NODE_GROUP = "SCPainter Gaussians"
@@ -275,10 +276,6 @@ def mesh_gaussians_path(scene, mesh_path: str, count: int) -> str:
     The name keeps the source's full file name and adds a hash of its absolute path, size and modification time,
     so two meshes (``car.stl``, ``car.ply``, or one edited since) never share a file: ``car.stl.200000.<hash>.ply``.
     """
-    import hashlib
-
-    from . import props
-
     st = os.stat(mesh_path)
     key = hashlib.sha256(f"{os.path.abspath(mesh_path)}|{st.st_size}|{st.st_mtime_ns}".encode()).hexdigest()[:10]
     name = f"{os.path.basename(mesh_path)}.{int(count)}.{key}.gaussians.ply"

@@ -83,11 +83,15 @@ def _cmd_render(args) -> int:
     from .render import command
 
     job = job_mod.load(args.job)
+    if args.check:  # (render_job checks the same before it writes anything)
+        paths = job_mod.check_inputs(args.job, job, args.allow_outside)
+        events.done(command="render", check=True, frames=len(job["frames"]), output_dir=paths["output_dir"])
+        return events.EXIT_OK
     device = _device(args.device)
     t0 = time.perf_counter()
     with events.stop_on_sigterm() as stop:
         result = command.render_job(args.job, job, device, force=args.force, point_radius=args.point_radius,
-                                    stop=stop)
+                                    stop=stop, allow_outside=args.allow_outside)
     if result["stopped"]:
         events.error(f"stopped by SIGTERM after {result['rendered'] + result['skipped']} of {result['frames']} "
                      "frames", hint="finished frames are kept: run the same command again to resume")
@@ -103,17 +107,21 @@ def _cmd_generate(args) -> int:
     from scpainter_blender.core import job as job_mod
 
     from . import generate
-    from .model import checkpoint
 
     job = job_mod.load(args.job)
-    # fail fast, before anything is rendered or loaded: no checkpoint, no generation
-    checkpoint.resolve(args.checkpoint or (job.get("generate") or {}).get("checkpoint"))
+    overrides = {"steps": args.steps, "seed": args.seed}
+    # everything is checked before anything is rendered or loaded: the job, the overrides, the checkpoint (its
+    # config and that it holds only safetensors), the settings they make together, and the input files
+    plan = generate.prepare(args.job, job, args.checkpoint, overrides, args.allow_outside)
+    if args.check:
+        events.done(command="generate", check=True, frames=len(job["frames"]), checkpoint=plan.checkpoint,
+                    settings=plan.settings, output_dir=plan.output_dir)
+        return events.EXIT_OK
     device = _device(args.device)
     t0 = time.perf_counter()
-    overrides = {"steps": args.steps, "seed": args.seed}
     with events.stop_on_sigterm() as stop:
         result = generate.generate_job(args.job, job, device, args.checkpoint, args.precision, args.force, stop,
-                                       overrides)
+                                       overrides, allow_outside=args.allow_outside)
     if result.pop("stopped"):
         events.error(f"stopped by SIGTERM during {result['stage']} ({result['steps_done']} sampler steps done)",
                      hint="finished work is kept: run the same command again to resume")
@@ -138,7 +146,8 @@ def _cmd_batch(args) -> int:
     items = list(args.jobs) + [p for f in args.list or [] for p in job_mod.read_list(f)]
     if not items:
         raise ValueError("batch: no jobs given (paths, or --list FILE)")
-    results, rank = batch.run_batch(items, args.command_name, _device(args.device), args.checkpoint)
+    results, rank = batch.run_batch(items, args.command_name, _device(args.device), args.checkpoint,
+                                    allow_outside=args.allow_outside)
     failed = [r for r in results if r["status"] != "ok"]
     if rank == 0:
         events.done(command="batch", jobs=len(results), failed=len(failed), items=results)
@@ -187,6 +196,29 @@ def _cmd_mesh_asset(args) -> int:
     return events.EXIT_OK
 
 
+ALLOW_OUTSIDE_HELP = ("let the job's paths (output_dir, predictions, assets, checkpoint) lead outside the job file's "
+                      "folder; without it they must stay inside (a job from someone else then cannot read or write "
+                      "elsewhere)")
+
+
+def _bounded_int(lo: int, hi: int):
+    def parse(text):
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if not lo <= value <= hi:
+            raise argparse.ArgumentTypeError(f"expected an integer in [{lo}, {hi}], got {value}")
+        return value
+    return parse
+
+
+def _input_options(p) -> None:
+    p.add_argument("--allow-outside", action="store_true", help=ALLOW_OUTSIDE_HELP)
+    p.add_argument("--check", action="store_true", help="validate the job, its input files (and the checkpoint) "
+                                                         "and stop: render and load nothing")
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m backend", description=__doc__)
     sub = p.add_subparsers(dest="command", required=True)
@@ -207,7 +239,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("job", help="job.json (DESIGN §4.2)")
     r.add_argument("--device", choices=["auto", "cpu", "cuda"], default="auto")
     r.add_argument("--force", action="store_true", help="render frames that are already finished again")
-    r.add_argument("--point-radius", type=int, default=0, help="splat each point over (2r+1)^2 pixels")
+    r.add_argument("--point-radius", type=_bounded_int(0, 16), default=0,
+                   help="splat each point over (2r+1)^2 pixels (0-16)")
+    _input_options(r)
     r.set_defaults(func=_cmd_render)
     n = sub.add_parser("generate", help="render missing conditions, then generate the video with a checkpoint")
     n.add_argument("job", help="job.json (DESIGN §4.2)")
@@ -218,6 +252,7 @@ def build_parser() -> argparse.ArgumentParser:
     n.add_argument("--steps", type=int, help="sampler steps (default: the job's, else 25)")
     n.add_argument("--seed", type=int, help="seed (default: the job's, else 0)")
     n.add_argument("--force", action="store_true", help="generate again even if the video is up to date")
+    _input_options(n)
     n.set_defaults(func=_cmd_generate)
     b = sub.add_parser("batch", help="run render or generate over many jobs; sharded under torchrun/accelerate")
     b.add_argument("jobs", nargs="*", help="job.json files")
@@ -225,6 +260,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--command", dest="command_name", choices=["render", "generate"], default="render")
     b.add_argument("--device", choices=["auto", "cpu", "cuda"], default="auto")
     b.add_argument("--checkpoint", help="checkpoint for generate (default: each job's generate.checkpoint)")
+    b.add_argument("--allow-outside", action="store_true", help=ALLOW_OUTSIDE_HELP)
     b.set_defaults(func=_cmd_batch)
     c = sub.add_parser("init-checkpoint", help="make an SCPainter checkpoint folder from a stock SVD snapshot")
     c.add_argument("--svd", required=True, help="local stable-video-diffusion-img2vid(-xt) diffusers folder")
@@ -267,11 +303,21 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
+    from scpainter_blender.core.files import InputError
+
+    from .errors import CleanFailure
+
     try:
         return args.func(args)
-    except (ValueError, FileNotFoundError) as e:  # bad input: the message names the file and field
+    except InputError as e:  # bad input: the message names the file and field
+        events.error(str(e), hint=e.hint or "check the input file and arguments", file=e.path, field=e.field)
+        return events.EXIT_BAD_INPUT
+    except (ValueError, FileNotFoundError) as e:
         events.error(str(e), hint="check the input file and arguments")
         return events.EXIT_BAD_INPUT
+    except CleanFailure as e:  # explained by the command itself: no traceback
+        events.error(str(e), hint=e.hint, **e.fields)
+        return events.EXIT_FAILED
     except KeyboardInterrupt:
         events.error("interrupted")
         return events.EXIT_FAILED

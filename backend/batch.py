@@ -18,18 +18,18 @@ from scpainter_blender.core.job import ranks_from_env, shard  # shared with blen
 from . import events
 
 
-def run_one(job_path: str, command: str, device: str, checkpoint: str | None, stop) -> dict:
+def run_one(job_path: str, command: str, device: str, checkpoint: str | None, stop, allow_outside: bool = False) -> dict:
     from scpainter_blender.core import job as job_mod
 
     job = job_mod.load(job_path)
     if command == "render":
         from .render import command as render_cmd
 
-        r = render_cmd.render_job(job_path, job, device, stop=stop)
+        r = render_cmd.render_job(job_path, job, device, stop=stop, allow_outside=allow_outside)
         return {"output_dir": r["output_dir"], "frames": r["frames"], "stopped": r["stopped"]}
     from .generate import generate_job
 
-    r = generate_job(job_path, job, device, checkpoint, stop=stop)
+    r = generate_job(job_path, job, device, checkpoint, stop=stop, allow_outside=allow_outside)
     return {"video": r.get("video"), "frames": r.get("frames"), "stopped": r["stopped"]}
 
 
@@ -47,7 +47,8 @@ def gather(results: list, world: int) -> list:
     return [r for part in everything for r in part]
 
 
-def run_batch(items: list[str], command: str, device: str, checkpoint: str | None = None) -> tuple[list, int]:
+def run_batch(items: list[str], command: str, device: str, checkpoint: str | None = None,
+              allow_outside: bool = False) -> tuple[list, int]:
     """Run this rank's share; returns (every rank's results, rank)."""
     rank, world, local = ranks_from_env()
     if device == "cuda":
@@ -64,7 +65,7 @@ def run_batch(items: list[str], command: str, device: str, checkpoint: str | Non
                 continue
             t = time.perf_counter()
             try:
-                out = run_one(path, command, device, checkpoint, stop)
+                out = run_one(path, command, device, checkpoint, stop, allow_outside)
                 status = "stopped" if out.pop("stopped") else "ok"
                 results.append({"job": path, "rank": rank, "status": status, **out})
             except Exception as e:  # one bad scene must not stop the batch: record it and go on

@@ -56,15 +56,30 @@ class FileLog:
     """Human log lines to standard error and appended to a file (``<output_dir>/backend.log``)."""
 
     def __init__(self, path: str):
+        import os
+        import stat
+
+        from scpainter_blender.core import files
+
         self.path = path
+        try:  # refused now, before the command writes anything, rather than at its first log line
+            mode = os.lstat(path).st_mode
+        except FileNotFoundError:
+            return
+        if stat.S_ISLNK(mode):
+            raise files.InputError(path, "(file)", "is a symbolic link: the log is not written through links",
+                                   hint="remove the link")
+        if not stat.S_ISREG(mode):
+            raise files.InputError(path, "(file)", "is not a regular file: the log cannot be appended to it")
 
     def __call__(self, message: str) -> None:
         import time
 
+        from scpainter_blender.core import files
+
         line = f"{time.strftime('%Y-%m-%d %H:%M:%S')} {message}"
         log(line)
-        with open(self.path, "a", encoding="utf-8") as f:
-            f.write(line + "\n")
+        files.append_text(self.path, line + "\n")  # never through a planted symbolic link
 
 
 @contextlib.contextmanager

@@ -17,13 +17,16 @@ import hashlib
 import json
 import os
 import time
+from dataclasses import dataclass
 
 import numpy as np
 import torch
 
+from scpainter_blender.core import files
 from scpainter_blender.core import job as job_mod
 
 from . import events
+from .errors import FolderBusyError
 from .model import checkpoint as ckpt_mod
 from .render import command as render_cmd
 from .render import exr
@@ -33,6 +36,8 @@ PRECISIONS = {"fp32": torch.float32, "bf16": torch.bfloat16, "fp16": torch.float
 
 
 def settings(job: dict, config, overrides: dict) -> dict:
+    """The generation settings: command-line ``overrides``, else the job's ``generate``, else the checkpoint's
+    config (window, guidance, fps), else the defaults."""
     gen = dict(job.get("generate") or {})
     gen.update({k: v for k, v in overrides.items() if v is not None})
     return {"steps": int(gen.get("steps", 25)), "window": int(gen.get("window", config.window)),
@@ -40,6 +45,45 @@ def settings(job: dict, config, overrides: dict) -> dict:
             "min_guidance": float(gen.get("min_guidance", config.min_guidance)),
             "max_guidance": float(gen.get("max_guidance", config.max_guidance)),
             "fps": float(gen.get("fps", config.fps)), "decode_chunk": int(gen.get("decode_chunk", 8))}
+
+
+@dataclass
+class Plan:
+    """What ``generate`` will do, known before anything is rendered or loaded (``prepare``)."""
+    checkpoint: str
+    config: object          # backend.model.checkpoint.ScpainterConfig
+    settings: dict
+    output_dir: str
+    paths: dict
+
+
+def prepare(job_path: str, job: dict, checkpoint: str | None, overrides: dict | None = None,
+            allow_outside: bool = False) -> Plan:
+    """Validate a generation before any work: the command-line overrides, the checkpoint (``checkpoint.check``:
+    config field by field, safetensors only), the settings the job, overrides and checkpoint make together, and
+    the job's input files (``job.check_inputs``). Raises an InputError naming the file (or "command line") and
+    the field."""
+    overrides = overrides or {}
+    for key, value in overrides.items():
+        if value is not None and key in job_mod.GENERATE_INT_BOUNDS:
+            job_mod._int(value, "command line", f"--{key}", *job_mod.GENERATE_INT_BOUNDS[key])
+    if checkpoint or not (job.get("generate") or {}).get("checkpoint"):
+        ckpt = ckpt_mod.resolve(checkpoint)   # the command line's (or none: the message says how to make one)
+    else:  # the job's own checkpoint path is relative to the job and confined like its other paths
+        ckpt = ckpt_mod.resolve(job_mod.job_paths(job_path, job, allow_outside, checkpoint=True)["generate.checkpoint"])
+    config = ckpt_mod.check(ckpt)
+    s = settings(job, config, overrides)
+    own = job.get("generate") or {}
+    try:
+        job_mod.check_generate_settings(s, job_path)
+    except job_mod.JobError as e:
+        if e.field == "generate.overlap" and "window" not in own and "window" not in overrides:
+            raise job_mod.JobError(job_path, e.field, f"{s['overlap']} must be smaller than the checkpoint's window "
+                                                      f"({s['window']}, from its scpainter.json)") from None
+        raise
+    paths = job_mod.check_inputs(job_path, job, allow_outside)
+    paths["allow_outside"] = allow_outside
+    return Plan(ckpt, config, s, paths["output_dir"], paths)
 
 
 def load_conditions(job_path: str, job: dict):
@@ -62,10 +106,12 @@ def clip_source(job_path: str, job: dict, first_condition: torch.Tensor) -> torc
     """(3, H, W) in [0, 1]: the recorded image of the first output frame's first source frame, if any."""
     scene, sources = job.get("scene"), job["frames"][0].get("source_frames") or []
     if scene and sources:
-        with np.load(job_mod.resolve(job_path, scene["predictions"]), allow_pickle=False) as z:
-            images = z["images"]
-            images = images[0] if images.ndim == 5 else images
-            return torch.from_numpy(np.ascontiguousarray(images[sources[0]], dtype=np.float32))
+        from scpainter_blender.core import vggt
+
+        path = job_mod.resolve(job_path, scene["predictions"])
+        images = files.read_npz(path, ["images"], error=vggt.PredictionsError)["images"]
+        images = images[0] if images.ndim == 5 else images
+        return torch.from_numpy(np.ascontiguousarray(images[sources[0]], dtype=np.float32))
     return first_condition
 
 
@@ -80,9 +126,9 @@ def state_key(ckpt: str, s: dict, precision: str, image, asset, valid) -> str:
 def save_state(path: str, latents: torch.Tensor, step: int, key: str) -> None:
     from safetensors.torch import save_file
 
-    tmp = path + ".tmp"
-    save_file({"latents": latents.detach().float().cpu().contiguous()}, tmp, metadata={"key": key, "step": str(step)})
-    os.replace(tmp, path)
+    with files.atomic_path(path) as tmp:
+        save_file({"latents": latents.detach().float().cpu().contiguous()}, tmp,
+                  metadata={"key": key, "step": str(step)})
 
 
 def load_state(path: str, key: str):
@@ -102,31 +148,43 @@ def load_state(path: str, key: str):
 
 
 def generate_job(job_path: str, job: dict, device: str, checkpoint: str | None, precision: str = "auto",
-                 force: bool = False, stop=(), overrides: dict | None = None) -> dict:
-    ckpt = ckpt_mod.resolve(checkpoint or (job.get("generate") or {}).get("checkpoint"))
+                 force: bool = False, stop=(), overrides: dict | None = None, allow_outside: bool = False) -> dict:
+    """Render the missing condition layers and generate the video (see the module docstring); validated first
+    (``prepare``), one run per output folder (``files.OutputLock``). A model producing NaN/inf raises
+    ``errors.NonFiniteError`` and writes no frame, video or manifest."""
+    plan = prepare(job_path, job, checkpoint, overrides, allow_outside)
+    files.make_folder(plan.output_dir, "output_dir")
+    with files.OutputLock(plan.output_dir, "generate", busy=FolderBusyError) as lock:
+        return _generate(job_path, job, device, plan, precision, force, stop, lock)
+
+
+def _generate(job_path, job, device, plan: Plan, precision, force, stop, lock) -> dict:
+    ckpt, config, s, out = plan.checkpoint, plan.config, plan.settings, plan.output_dir
     if precision == "auto":
         precision = "bf16" if device == "cuda" else "fp32"
     dtype = PRECISIONS[precision]
-    out = job_mod.resolve(job_path, job["output_dir"])
-    os.makedirs(out, exist_ok=True)
     log = events.FileLog(os.path.join(out, "backend.log"))
+    if lock.stale:
+        log(f"generate: took over the lock of a run that ended without releasing it ({lock.stale})")
     t0 = time.perf_counter()
-    r = render_cmd.render_job(job_path, job, device, stop=stop, log=log)
+    r = render_cmd.render_job(job_path, job, device, stop=stop, log=log, allow_outside=plan.paths["allow_outside"],
+                              lock=False)
     if r["stopped"]:
         return {"stopped": True, "stage": "render", "steps_done": 0}
     image, asset, valid = load_conditions(job_path, job)
     frames_n, _, H, W = image.shape
-    config = ckpt_mod.ScpainterConfig.load(os.path.join(ckpt, "scpainter.json"))
-    s = settings(job, config, overrides or {})
     key = state_key(ckpt, s, precision, image, asset, valid)
     gen_dir = os.path.join(out, "generated")
     mp4 = os.path.join(out, "generated.mp4")
     manifest = os.path.join(gen_dir, "manifest.json")
     if not force and os.path.isfile(manifest) and os.path.isfile(mp4):
-        with open(manifest) as f:
-            if json.load(f).get("key") == key:
-                log(f"generate: {mp4} is up to date (same checkpoint, settings and conditions)")
-                return {"stopped": False, "skipped": True, "video": mp4, "frames_dir": gen_dir, "frames": frames_n}
+        try:
+            done_key = files.read_json(manifest).get("key")
+        except (files.InputError, AttributeError):  # an unreadable manifest only means generating again
+            done_key = None
+        if done_key == key:
+            log(f"generate: {mp4} is up to date (same checkpoint, settings and conditions)")
+            return {"stopped": False, "skipped": True, "video": mp4, "frames_dir": gen_dir, "frames": frames_n}
 
     from .model.pipeline import SCPainterPipeline, pad_to_multiple
 
@@ -160,7 +218,7 @@ def generate_job(job_path: str, job: dict, device: str, checkpoint: str | None, 
         return {"stopped": True, "stage": "generate", "steps_done": stopped_at[0], "steps": s["steps"]}
     video = pipe.decode(x, chunk=s["decode_chunk"])[:, :, :H, :W]
     rgb = video.permute(0, 2, 3, 1).numpy()
-    os.makedirs(gen_dir, exist_ok=True)
+    files.output_folder(out, "generated", plan.paths.get("allow_outside", False))
     for entry, frame in zip(job["frames"], rgb):
         path = os.path.join(gen_dir, f"frame_{entry['frame']:06d}.png")
         fr.write_png(path, frame)
@@ -169,11 +227,8 @@ def generate_job(job_path: str, job: dict, device: str, checkpoint: str | None, 
 
     write_mp4(mp4, (np.clip(rgb, 0, 1) * 255 + 0.5).astype(np.uint8), s["fps"])
     events.artifact(mp4, kind="video")
-    tmp = manifest + ".tmp"
-    with open(tmp, "w") as f:
-        json.dump({"key": key, "checkpoint": ckpt, "settings": s, "precision": precision,
-                   "frames": [e["frame"] for e in job["frames"]]}, f, indent=1)
-    os.replace(tmp, manifest)
+    files.write_json(manifest, {"key": key, "checkpoint": ckpt, "settings": s, "precision": precision,
+                                "frames": [e["frame"] for e in job["frames"]]})
     if os.path.exists(state_path):
         os.remove(state_path)
     log(f"generate: {mp4} in {time.perf_counter() - t0:.1f} s")

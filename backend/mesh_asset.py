@@ -69,7 +69,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from scpainter_blender.core import cameras, shapes, splats
+from scpainter_blender.core import cameras, files, shapes, splats
 from scpainter_blender.core.colors import linear_to_srgb, srgb_to_linear
 
 #: p_zup = Y_UP_TO_Z_UP @ p for Y-up files: (x, y, z) -> (x, -z, y), Blender's glTF import.
@@ -86,12 +86,18 @@ DEFAULT_COUNT = 200_000
 MAX_COUNT = 10_000_000
 
 
-class MeshAssetError(ValueError):
-    """A mesh file that cannot be made into Gaussians; the message names the file and what to do."""
+class MeshAssetError(files.InputError):
+    """A mesh file that cannot be made into Gaussians; the message names the file and what to do. ``field``: the
+    part of the file at fault ("(file)" for the file as a whole; an element, or a texture/buffer the file names)."""
 
-    def __init__(self, path, message):
-        self.path = str(path)
-        super().__init__(f"{os.path.basename(self.path)}: {message} ({self.path})")
+    def __init__(self, path, message, field=None, hint=None):
+        files.InputError.__init__(self, path, field, message, hint)
+        self.args = (f"{os.path.basename(self.path)}: {message} ({self.path})",)  # the text it has always had
+
+
+def _file_error(path, field, message):
+    """``files``' error callback: its messages as MeshAssetError."""
+    return MeshAssetError(path, "file not found" if message == "not found" else message, field)
 
 
 @dataclass
@@ -142,11 +148,61 @@ class MeshGaussians:
 # Loading
 # --------------------------------------------------------------------------------------------------------------
 
-def _ply_header(path) -> str:
-    with open(path, "rb") as f:
-        head = f.read(1 << 16)
-    end = head.find(b"end_header")
-    return head[:end if end >= 0 else len(head)].decode("ascii", "replace")
+def _check_ply(path, size: int) -> None:
+    """Refuse, before trimesh reads it, a PLY that holds Gaussians, or whose header promises more than the file
+    holds (trimesh would allocate what the counts claim). A header our parser cannot read is left to trimesh,
+    which reads more PLY dialects and says what it thinks is wrong."""
+    try:
+        fmt, elements, start = splats.read_ply_header(path)
+    except splats.SplatsError:
+        return
+    vertex = next((props for name, _, props in elements if name == "vertex"), [])
+    names = {p for p, _ in vertex}
+    if "f_dc_0" in names or {"scale_0", "rot_0"} <= names or "packed_position" in names:
+        raise MeshAssetError(path, "this is a Gaussian-splat PLY, not a mesh: import it as Gaussians directly")
+    binary = fmt in ("binary_little_endian", "binary_big_endian")
+    for name, count, props in elements:
+        # the fewest bytes a row can take: its fixed properties, each list's count; ASCII: one digit and a space each
+        least = sum(np.dtype(t).itemsize if t is not None else 1 for _, t in props) if binary else 2 * len(props)
+        if count * least > size - start:
+            raise MeshAssetError(path, f"the header promises {count} {name} rows (at least {count * least:,} bytes) "
+                                       f"but the file has {size - start:,} bytes after it: truncated or corrupt", name)
+
+
+def _regular_resolver(path):
+    """trimesh's resolver for the files a mesh names (glTF buffers and images, OBJ materials and textures), opening
+    only regular files: a FIFO named as a texture would block the read forever. trimesh swallows some of its
+    resolver's errors (a texture it cannot read is dropped), so each refusal is also kept in ``.refused`` for the
+    caller to raise."""
+    from trimesh import resolvers
+
+    refused = []
+
+    class RegularFiles(resolvers.FilePathResolver):
+        def get(self, name):
+            for candidate in (name.strip(), name.strip().lstrip("/"), os.path.split(name)[-1]):
+                try:
+                    where = self.absolute(candidate)  # trimesh keeps names inside the mesh's folder
+                except ValueError:
+                    continue
+                if os.path.lexists(where):
+                    def error(p, f, m):
+                        refused.append(MeshAssetError(path, f"{name!r} (named by the mesh) {m}", name,
+                                                      hint="replace it with the file itself"))
+                        return refused[-1]
+
+                    with files.open_regular(where, error) as f:
+                        return f.read()
+            return super().get(name)
+
+        def namespaced(self, namespace):
+            child = RegularFiles(os.path.join(self.parent, namespace), allow_anywhere=self.allow_anywhere)
+            child.refused = refused
+            return child
+
+    resolver = RegularFiles(path)
+    resolver.refused = refused
+    return resolver
 
 
 def load_mesh(path, up: str = "auto") -> MeshAsset:
@@ -162,21 +218,27 @@ def load_mesh(path, up: str = "auto") -> MeshAsset:
     ext = os.path.splitext(path)[1].lower()
     if up not in ("auto", "y", "z"):
         raise ValueError(f"up must be 'auto', 'y' or 'z', got {up!r}")
-    if not os.path.isfile(path):
-        raise MeshAssetError(path, "file not found")
+    size = files.check_regular(path, _file_error)  # trimesh opens by name: a FIFO would block it forever
     if ext not in UP_BY_EXTENSION:
         raise MeshAssetError(path, f"{ext or 'no extension'} is not a mesh format read here: export the car as "
                                    "GLB, glTF, OBJ, PLY, STL or OFF")
+    if size == 0:
+        raise MeshAssetError(path, "the file is empty (0 bytes)")
     if ext == ".ply":
-        header = _ply_header(path)
-        if "f_dc_0" in header or ("scale_0" in header and "rot_0" in header) or "packed_position" in header:
-            raise MeshAssetError(path, "this is a Gaussian-splat PLY, not a mesh: import it as Gaussians directly")
+        _check_ply(path, size)
+    resolver = _regular_resolver(path)
     try:
-        scene = trimesh.load(path, force="scene", process=False)
+        scene = trimesh.load(path, force="scene", process=False, resolver=resolver)
         parts = scene.dump()
+    except MeshAssetError:
+        raise
     except Exception as e:  # trimesh raises anything from struct.error to KeyError on a broken file
+        if resolver.refused:
+            raise resolver.refused[0] from None
         raise MeshAssetError(path, f"trimesh cannot read it as a mesh ({type(e).__name__}: {e}); check the file "
                                    "opens in Blender, or export it again as GLB") from None
+    if resolver.refused:  # trimesh went on without it (a texture): still the user's file to fix
+        raise resolver.refused[0]
     meshes = [p for p in parts if isinstance(p, trimesh.Trimesh) and len(p.faces)]
     if not meshes:
         points = sum(len(getattr(p, "vertices", ())) for p in parts)

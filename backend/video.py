@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
-import os
 
 import numpy as np
+
+from scpainter_blender.core import files
 
 
 def write_mp4(path: str, frames: np.ndarray, fps: float, crf: int = 18) -> str:
@@ -18,8 +19,7 @@ def write_mp4(path: str, frames: np.ndarray, fps: float, crf: int = 18) -> str:
                          f"{frames.dtype}")
     F, H, W, _ = frames.shape
     frames = np.pad(frames, ((0, 0), (0, H % 2), (0, W % 2), (0, 0)), mode="edge")
-    tmp = path + ".tmp"
-    try:
+    with files.atomic_path(path) as tmp:
         with av.open(tmp, "w", format="mp4") as container:
             stream = container.add_stream("libx264", rate=round(fps))
             stream.width, stream.height = frames.shape[2], frames.shape[1]
@@ -30,10 +30,6 @@ def write_mp4(path: str, frames: np.ndarray, fps: float, crf: int = 18) -> str:
                     container.mux(packet)
             for packet in stream.encode():
                 container.mux(packet)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
     return path
 
 

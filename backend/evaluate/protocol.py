@@ -35,7 +35,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import torch
 
-from scpainter_blender.core import cameras
+from scpainter_blender.core import cameras, files
 from scpainter_blender.core import job as job_mod
 
 from .. import events
@@ -209,13 +209,14 @@ def run_task(job_path: str, device: str, s: EvalSettings, stop) -> dict:
     job = job_mod.load(job_path)
     out = {"generated": None}
     if s.checkpoint:
-        r = gen_mod.generate_job(job_path, job, device, s.checkpoint, s.precision, stop=stop)
+        # the protocol writes these jobs itself, pointing at the clip folders the user named: outside is allowed
+        r = gen_mod.generate_job(job_path, job, device, s.checkpoint, s.precision, stop=stop, allow_outside=True)
         if r.get("stopped"):
             return {"stopped": True}
         out["generated"] = torch.stack([_read_png(os.path.join(r["frames_dir"], f"frame_{e['frame']:06d}.png"),
                                                   s.width, s.height) for e in job["frames"]])
     else:
-        r = render_cmd.render_job(job_path, job, device, stop=stop)
+        r = render_cmd.render_job(job_path, job, device, stop=stop, allow_outside=True)
         if r["stopped"]:
             return {"stopped": True}
     out["image"], out["asset"], out["valid"] = gen_mod.load_conditions(job_path, job)
@@ -322,9 +323,8 @@ def evaluate(s: EvalSettings, device: str, stop=(), extractor=None) -> dict:
                          "crops": {k: len(v) for k, v in crops.sets.items()}}}
     result["seconds"] = time.perf_counter() - t0
     path = os.path.join(out_dir, "evaluation.json")
-    with open(path + ".tmp", "w") as f:
+    with files.atomic_write(path, "w") as f:
         json.dump(result, f, indent=1, default=float)
-    os.replace(path + ".tmp", path)
     log(format_table(result))
     events.artifact(path, kind="evaluation")
     return {"evaluation": path, "seconds": result["seconds"], "ground_truth": gt_rows}

@@ -14,8 +14,22 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
+from ..errors import NonFiniteError
 from . import edm
 from .condition import encode_conditions
+
+PRECISION_NAMES = {torch.float32: "fp32", torch.bfloat16: "bf16", torch.float16: "fp16"}
+
+
+def precision_hint(dtype) -> str:
+    """What to try after NaN/inf from a network that ran in ``dtype`` (named as ``--precision`` spells it)."""
+    name = PRECISION_NAMES.get(dtype, str(dtype))
+    if dtype == torch.float16:
+        return f"it ran in {name}, whose range (±65504) overflows easily: run again with --precision bf16 or fp32"
+    if dtype == torch.bfloat16:
+        return f"it ran in {name}: run again with --precision fp32"
+    return (f"it ran in {name}, so rounding is not the cause: the checkpoint's weights may hold NaN/inf (a diverged "
+            "training run?); try an earlier or another checkpoint")
 
 
 def window_starts(frames: int, window: int, overlap: int) -> list[int]:
@@ -105,6 +119,11 @@ class SCPainterPipeline:
 
         ``latents``/``start_step`` resume from a saved state (the sampler is deterministic: no noise is drawn after
         the initial latents). ``on_step(step, total, latents)`` runs after each step; returning True stops there.
+
+        Raises ``NonFiniteError`` (fields ``stage="generate"``, ``step`` 1-based, ``sigma`` the step's starting σ)
+        as soon as a step leaves NaN/inf anywhere in the latents, before ``on_step`` sees them: a caller that saves
+        resume state there never saves a poisoned one. The check is on the latents after the Euler step, so it
+        also catches NaN/inf from either guidance branch alone (u + s·(c − u) is NaN when u is NaN or inf).
         """
         c = self.config
         window = window or c.window
@@ -125,18 +144,31 @@ class SCPainterPipeline:
                 acc[s:e] += self.predict_x0(x[s:e], sigma, cond[s:e], clip, g)
                 count[s:e] += 1
             x = edm.euler_step(x, acc / count, sigma, sigma_next)
+            # one reduction over the whole clip per step (one host sync, as cheap as the step's progress event)
+            if not bool(torch.isfinite(x).all()):
+                raise NonFiniteError(
+                    f"the model produced NaN/inf latents at step {i + 1} of {steps} (σ = {float(sigma):.4g})",
+                    hint=precision_hint(self.dtype), stage="generate", step=i + 1, sigma=float(sigma))
             if on_step is not None and on_step(i + 1, steps, x):
                 break
         return x
 
     @torch.no_grad()
     def decode(self, latents, chunk: int = 8) -> torch.Tensor:
-        """(F, 3, H, W) in [0, 1] from latents, ``chunk`` frames at a time (the temporal decoder sees each chunk)."""
+        """(F, 3, H, W) in [0, 1] from latents, ``chunk`` frames at a time (the temporal decoder sees each chunk).
+
+        Raises ``NonFiniteError`` (``stage="decode"``, ``frames`` [first, end) of the chunk, 0-based) when the
+        decoder returns NaN/inf: checked before the clamp, which would turn ±inf into plausible 0/1 pixels."""
         vdt = next(self.vae.parameters()).dtype
         out = []
         for i in range(0, len(latents), chunk):
             z = latents[i:i + chunk] / self.vae.config.scaling_factor
             img = self.vae.decode(z.to(self.device, vdt), num_frames=len(z)).sample.float()
+            if not bool(torch.isfinite(img).all()):
+                raise NonFiniteError(
+                    f"the VAE decoder produced NaN/inf pixels in frames {i}-{i + len(z) - 1} (0-based) of "
+                    f"{len(latents)}",
+                    hint=precision_hint(vdt), stage="decode", frames=[i, i + len(z)])
             out.append(((img + 1.0) / 2.0).clamp(0.0, 1.0).cpu())
         return torch.cat(out)
 

@@ -2,14 +2,17 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import time
 
 import numpy as np
 
+from scpainter_blender.core import files
 from scpainter_blender.core import job as job_mod
 
 from .. import events
+from ..errors import FolderBusyError
 from . import exr
 from . import frames as fr
 
@@ -42,33 +45,60 @@ def job_key(job_path: str, job: dict, point_radius: int) -> str:
     return hashlib.sha256(blob.encode()).hexdigest()[:32]
 
 
+RECORD = "record.json"  # in conditions/: the job key and the files this project wrote for it
+
+
+def _frame_files(job: dict) -> list:
+    return [n for e in job["frames"] for n in (f"frame_{e['frame']:06d}.exr", f"preview_{e['frame']:06d}.png")]
+
+
+def _previous_record(cond: str) -> dict | None:
+    """The conditions folder's record ({"key", "files"}), None when there is none or it is unreadable."""
+    try:
+        record = files.read_json(os.path.join(cond, RECORD))
+    except files.InputError:
+        return None
+    ok = isinstance(record, dict) and isinstance(record.get("key"), str) and isinstance(record.get("files"), list)
+    return record if ok else None
+
+
 def render_job(job_path: str, job: dict, device: str, force: bool = False, point_radius: int = 0,
-               stop=(), log=None) -> dict:
+               stop=(), log=None, allow_outside: bool = False, lock: bool = True) -> dict:
     """Render the frames not finished yet (all with ``force``, or when the job changed since they were made);
     emits progress and artifact events.
 
-    ``stop``: a list that becomes non-empty when the caller wants to stop (checked between frames). Returns
-    counts and ``stopped``.
+    First the job's paths and input files are checked (``job.check_inputs``: confined to the job's folder unless
+    ``allow_outside``); with ``lock`` the output folder is locked for the run (``files.OutputLock``; a second run
+    raises ``errors.FolderBusyError``). ``stop``: a list that becomes non-empty when the caller wants to stop
+    (checked between frames). Returns counts and ``stopped``.
     """
-    out = job_mod.resolve(job_path, job["output_dir"])
-    os.makedirs(conditions_dir(job_path, job), exist_ok=True)
-    log = log or events.FileLog(os.path.join(out, "backend.log"))
+    paths = job_mod.check_inputs(job_path, job, allow_outside)
+    out = files.make_folder(paths["output_dir"], "output_dir")
+    with (files.OutputLock(out, "render", busy=FolderBusyError) if lock else contextlib.nullcontext()) as held:
+        log = log or events.FileLog(os.path.join(out, "backend.log"))
+        if held is not None and held.stale:
+            log(f"render: took over the lock of a run that ended without releasing it ({held.stale})")
+        return _render(job_path, job, device, force, point_radius, stop, log, out, allow_outside)
+
+
+def _render(job_path, job, device, force, point_radius, stop, log, out, allow_outside) -> dict:
+    cond = files.output_folder(out, "conditions", allow_outside)
     W, H = job["resolution"]
     total, rendered, skipped = len(job["frames"]), 0, 0
-    key_path = os.path.join(conditions_dir(job_path, job), "job_key.txt")
     key = job_key(job_path, job, point_radius)
-    if not force and os.path.isfile(key_path):
-        with open(key_path) as f:
-            if f.read().strip() != key:
-                log("render: the job changed since the finished frames were made: rendering every frame again")
-                force = True
-                cond = conditions_dir(job_path, job)
-                for name in os.listdir(cond):  # stale frames go first, so a stop half-way cannot mix old and new
-                    if name.startswith(("frame_", "preview_")):
-                        os.remove(os.path.join(cond, name))
-    with open(key_path + ".tmp", "w") as f:
-        f.write(key + "\n")
-    os.replace(key_path + ".tmp", key_path)
+    previous = _previous_record(cond)
+    if not force and previous is not None and previous["key"] != key:
+        log("render: the job changed since the finished frames were made: rendering every frame again")
+        force = True
+    if force or previous is None:
+        # stale frames go first, so a stop half-way cannot mix old and new; only files this project wrote for the
+        # job (its previous record's, and this job's own frame names), never anything else in the folder
+        files.remove_listed(cond, (previous or {}).get("files", []) + _frame_files(job))
+        force = True
+    files.write_json(os.path.join(cond, RECORD), {"schema": "scpainter.conditions/1", "key": key,
+                                                  "files": _frame_files(job)})
+    with contextlib.suppress(FileNotFoundError):  # the record's former name (one line: the key)
+        os.remove(os.path.join(cond, "job_key.txt"))
     todo = [e for e in job["frames"] if force or not all(os.path.isfile(p) for p in frame_paths(job_path, job,
                                                                                                  e["frame"]))]
     scene = None

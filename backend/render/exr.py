@@ -14,6 +14,8 @@ import struct
 
 import numpy as np
 
+from scpainter_blender.core import files
+
 MAGIC = 20000630
 FLOAT = 2
 
@@ -55,12 +57,10 @@ def write(path, channels: dict) -> None:
     lead[:, 0], lead[:, 1] = np.arange(H), row_bytes
     body = np.concatenate([lead.view(np.uint8).reshape(H, 8), rows.view(np.uint8).reshape(H, row_bytes)], axis=1)
     path = os.fspath(path)
-    tmp = path + ".tmp"
-    with open(tmp, "wb") as f:
+    with files.atomic_write(path) as f:
         f.write(header)
         f.write(offsets.tobytes())
         f.write(body.tobytes())
-    os.replace(tmp, path)
 
 
 def read(path) -> dict:

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from scpainter_blender.core import cameras, geometry, splats, vggt
+from scpainter_blender.core import cameras, files, geometry, splats, vggt
 from scpainter_blender.core import job as job_mod
 
 from . import gaussians as gs
@@ -146,7 +146,5 @@ def write_png(path, rgb) -> None:
 
     png = (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", W, H, 8, 2, 0, 0, 0))
            + chunk(b"IDAT", zlib.compress(raw, 6)) + chunk(b"IEND", b""))
-    tmp = os.fspath(path) + ".tmp"
-    with open(tmp, "wb") as f:
+    with files.atomic_write(path) as f:
         f.write(png)
-    os.replace(tmp, path)

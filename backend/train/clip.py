@@ -27,21 +27,28 @@ No torch here: numpy, Pillow for the frames. Every error names the file and the 
 
 from __future__ import annotations
 
-import json
+import math
 import os
+import re
+import string
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from scpainter_blender.core import cameras, vggt
+from scpainter_blender.core import cameras, files, vggt
 from scpainter_blender.core import job as job_mod
 from scpainter_blender.core.job import JobError
 
 SCHEMA = "scpainter.clip/1"
 
 
-class ClipError(JobError):
-    """A clip folder that cannot be used; the message names the file and the field."""
+class ClipError(JobError, files.InputError):
+    """A clip folder that cannot be used; ``str()`` is "<file name>: <field>: <message>". A JobError (the shared
+    job validators raise those for clip fields too) and an InputError (bad input: exit code 2, ``field`` in the
+    error event)."""
+
+    def __init__(self, path, field, message, hint=None):
+        files.InputError.__init__(self, path, field, message, hint)
 
 
 @dataclass
@@ -89,13 +96,75 @@ class Clip:
 def _image_size(path: str, where: str, clip_path: str) -> tuple:
     from PIL import Image
 
+    def error(p, f, message):
+        if message == "not found":
+            return ClipError(clip_path, where, f"frame file not found: {path}")
+        return ClipError(clip_path, where, f"{path} {message}")
+
+    with files.open_regular(path, error) as fh:  # PIL opens by name too: a FIFO would block it
+        try:
+            with Image.open(fh) as im:
+                return im.size
+        except Exception as e:  # noqa: BLE001  PIL raises OSError, SyntaxError, DecompressionBombError, ...
+            raise ClipError(clip_path, where, f"cannot read the image {path} ({type(e).__name__}: "
+                                              f"{str(e)[:200]})") from None
+
+
+#: A frame pattern's only replacement field: the frame index, optionally zero-padded (``{:06d}``, ``{}``, ``{0}``).
+_INDEX_FIELD = re.compile(r"(0?[1-9]\d?)?d?")
+
+
+def _pattern(value, clip_path: str, where: str, S: int) -> list:
+    """The S paths of a frame pattern such as ``frames/frame_{:06d}.png``. Only the index may be formatted: a
+    pattern is a path, and ``str.format`` could otherwise read attributes or pad to a gigabyte."""
+    pattern = job_mod._str(value, clip_path, where)
     try:
-        with Image.open(path) as im:
-            return im.size
-    except FileNotFoundError:
-        raise ClipError(clip_path, where, f"frame file not found: {path}") from None
-    except OSError as e:
-        raise ClipError(clip_path, where, f"cannot read the image {path} ({e})") from None
+        fields_ = [(name, spec, conv) for _, name, spec, conv in string.Formatter().parse(pattern) if name is not None]
+    except ValueError as e:
+        raise ClipError(clip_path, where, f"expected a pattern like 'frames/frame_{{:06d}}.png' ({e})") from None
+    for name, spec, conv in fields_:
+        if name not in ("", "0") or conv is not None or not _INDEX_FIELD.fullmatch(spec or ""):
+            raise ClipError(clip_path, where, f"expected a pattern like 'frames/frame_{{:06d}}.png': only the frame "
+                                              f"index may be formatted, got {{{name}{'!' + conv if conv else ''}"
+                                              f"{':' + spec if spec else ''}}}")
+    return [job_mod.resolve(clip_path, pattern.format(i)) for i in range(S)]
+
+
+def _float_array(a, path: str, key: str, shape) -> np.ndarray:
+    """A poses.npz array of ``shape``, finite, as float64; ClipError naming the file and key otherwise."""
+    if a.dtype.kind == "b":
+        raise ClipError(path, key, f"holds booleans (dtype {a.dtype}), expected numbers")
+    if a.shape != shape:
+        raise ClipError(path, key, f"expected finite {shape}, got shape {a.shape}")
+    a = a.astype(np.float64)
+    if not np.all(np.isfinite(a)):
+        raise ClipError(path, key, f"expected finite {shape}, got shape {a.shape}, non-finite")
+    return a
+
+
+def _read_poses(poses_path: str, clip_path: str, S: int):
+    """world_to_camera (S, 4, 4) rigid, K (S, 3, 3) with positive focal lengths, world_from_vggt (4, 4) a
+    similarity, from ``poses.npz``; ClipError naming the file and key for anything else."""
+    def error(p, key, message):
+        if key is None and message == "not found":
+            return ClipError(clip_path, "poses", f"file not found: {poses_path}")
+        return ClipError(p, key, message)
+
+    arrays = files.read_npz(poses_path, ("world_to_camera", "K", "world_from_vggt"), error=error)
+    w2c = _float_array(arrays["world_to_camera"], poses_path, "world_to_camera", (S, 4, 4))
+    problem = vggt.rigid_problem(w2c, name="world_to_camera")
+    if problem is not None:  # an inverse of it is taken for every rendered frame
+        raise ClipError(poses_path, "world_to_camera", problem[1])
+    K = _float_array(arrays["K"], poses_path, "K", (S, 3, 3))
+    if np.any(K[:, 0, 0] <= 0) or np.any(K[:, 1, 1] <= 0) or np.any(K[:, 2] != [0, 0, 1]):
+        raise ClipError(poses_path, "K", "expected intrinsics [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0")
+    M = _float_array(arrays["world_from_vggt"], poses_path, "world_from_vggt", (4, 4))
+    s = np.cbrt(np.linalg.det(M[:3, :3]))
+    if not s > 0 or np.abs(M[:3, :3].T @ M[:3, :3] / (s * s) - np.eye(3)).max() > 1e-3 or \
+            np.any(M[3] != [0, 0, 0, 1]):
+        raise ClipError(poses_path, "world_from_vggt", "expected a similarity (scale > 0 x rotation, translation, "
+                                                       "last row [0, 0, 0, 1])")
+    return w2c, K, M
 
 
 def json_path(path) -> str:
@@ -107,25 +176,26 @@ def json_path(path) -> str:
 def load(path) -> Clip:
     """Read and check a clip folder's ``clip.json`` (or the folder itself) and what it names."""
     path = json_path(path)
-    data = job_mod.read_json(path, ClipError)
+    # a regular file only (a FIFO is refused, not waited on), within size, depth and number limits
+    data = files.read_json(path, error=ClipError)
     if not isinstance(data, dict) or data.get("schema") != SCHEMA:
-        raise ClipError(path, "schema", f"expected {SCHEMA!r}, got {data.get('schema') if isinstance(data, dict) else data!r}")
+        got = data.get("schema") if isinstance(data, dict) else data
+        raise ClipError(path, "schema", f"expected {SCHEMA!r}, got {_short(got)}")
     pred_path = job_mod.resolve(path, job_mod._str(data.get("predictions"), path, "predictions"))
-    if not os.path.isfile(pred_path):
-        raise ClipError(path, "predictions", f"file not found: {pred_path}")
+    files.check_regular(pred_path, lambda p, f, m: ClipError(
+        path, "predictions", f"file not found: {pred_path}" if m == "not found" else f"{pred_path} {m}"))
     pred = vggt.load_predictions(pred_path, world_points=False)  # its errors name the file and key
     S = pred.num_frames
 
     frames = data.get("frames")
     if isinstance(frames, str):
-        try:
-            frame_paths = [job_mod.resolve(path, frames.format(i)) for i in range(S)]
-        except (IndexError, KeyError, ValueError) as e:
-            raise ClipError(path, "frames", f"expected a pattern like 'frames/frame_{{:06d}}.png' ({e})") from None
+        frame_paths = _pattern(frames, path, "frames", S)
     elif isinstance(frames, list) and len(frames) == S:
         frame_paths = [job_mod.resolve(path, job_mod._str(p, path, f"frames[{i}]")) for i, p in enumerate(frames)]
     else:
         raise ClipError(path, "frames", f"expected a path pattern or a list of {S} paths (one per VGGT frame)")
+    for i, frame in enumerate(frame_paths):  # cheap stats: training opens every frame, and a FIFO would block it
+        _check_file(frame, path, f"frames[{i}]", "frame file")
     size = _image_size(frame_paths[0], "frames[0]", path)
     for i in (S // 2, S - 1):  # the ends and the middle: a wrong count or size fails here, not mid-training
         if _image_size(frame_paths[i], f"frames[{i}]", path) != size:
@@ -134,33 +204,29 @@ def load(path) -> Clip:
     metric = "poses" in data
     if metric:
         poses_path = job_mod.resolve(path, job_mod._str(data["poses"], path, "poses"))
-        try:
-            with np.load(poses_path, allow_pickle=False) as z:
-                arrays = {k: np.asarray(z[k], np.float64) for k in ("world_to_camera", "K", "world_from_vggt")
-                          if k in z.files}
-        except FileNotFoundError:
-            raise ClipError(path, "poses", f"file not found: {poses_path}") from None
-        except (OSError, ValueError) as e:
-            raise ClipError(path, "poses", f"cannot read {poses_path} ({e})") from None
-        for key, shape in (("world_to_camera", (S, 4, 4)), ("K", (S, 3, 3)), ("world_from_vggt", (4, 4))):
-            a = arrays.get(key)
-            if a is None or a.shape != shape or not np.all(np.isfinite(a)):
-                got = "missing" if a is None else f"shape {a.shape}" + ("" if np.all(np.isfinite(a)) else ", non-finite")
-                raise ClipError(poses_path, key, f"expected finite {shape}, got {got}")
-        w2c, K, world_from_vggt = arrays["world_to_camera"], arrays["K"], arrays["world_from_vggt"]
+        w2c, K, world_from_vggt = _read_poses(poses_path, path, S)
     else:
         w2c = cameras.orthonormalize(pred.world_to_camera)
         K = np.diag([size[0] / pred.width, size[1] / pred.height, 1.0]) @ pred.K
         world_from_vggt = np.eye(4)
 
     cars = []
+    if not isinstance(data.get("cars", []), list):
+        raise ClipError(path, "cars", f"expected a list of cars, got {_short(data.get('cars'))}")
     for i, c in enumerate(data.get("cars", [])):
         where = f"cars[{i}]"
         if not isinstance(c, dict):
             raise ClipError(path, where, "expected an object")
-        car_size = np.array(c.get("size"), np.float64) if isinstance(c.get("size"), list) else None
-        if car_size is None or car_size.shape != (3,) or not np.all(car_size > 0):
-            raise ClipError(path, f"{where}.size", f"expected [width, length, height] > 0, got {c.get('size')!r}")
+        size_ = c.get("size")
+        car_size = None
+        if isinstance(size_, list) and len(size_) == 3 and all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) for v in size_):
+            car_size = np.array(size_, np.float64)
+        if car_size is None or not np.all(np.isfinite(car_size)) or not np.all(car_size > 0):
+            raise ClipError(path, f"{where}.size", f"expected [width, length, height] > 0, got {_short(size_)}")
+        car_id = c.get("id", i)
+        if isinstance(car_id, bool) or not isinstance(car_id, (str, int)):
+            raise ClipError(path, f"{where}.id", f"expected a name or a number, got {_short(car_id)}")
         boxes = {}
         if not isinstance(c.get("boxes"), dict) or not c["boxes"]:
             raise ClipError(path, f"{where}.boxes", "expected an object {frame: box_to_world 4x4}, non-empty")
@@ -175,11 +241,10 @@ def load(path) -> Clip:
         asset = c.get("asset")
         if asset is not None:
             asset = job_mod.resolve(path, job_mod._str(asset, path, f"{where}.asset"))
-            if not os.path.isfile(asset):
-                raise ClipError(path, f"{where}.asset", f"file not found: {asset}")
+            _check_file(asset, path, f"{where}.asset")
         a2b = c.get("asset_to_box")
         a2b = None if a2b is None else job_mod._affine(a2b, path, f"{where}.asset_to_box")
-        cars.append(Car(str(c.get("id", i)), car_size, boxes, asset, a2b))
+        cars.append(Car(str(car_id), car_size, boxes, asset, a2b))
     fps = job_mod._number(data.get("fps", 10.0), path, "fps", lo=0.1)
     views = {}
     if not isinstance(data.get("views", {}), dict):
@@ -188,11 +253,26 @@ def load(path) -> Clip:
         try:
             shift = float(k)
         except ValueError:
-            raise ClipError(path, f"views.{k}", "keys are lateral shifts in metres (+ left)") from None
-        views[shift] = [job_mod.resolve(path, job_mod._str(pattern, path, f"views.{k}").format(i)) for i in range(S)]
-        if not os.path.isfile(views[shift][0]):
-            raise ClipError(path, f"views.{k}", f"frame file not found: {views[shift][0]}")
+            shift = math.nan
+        if not math.isfinite(shift):
+            raise ClipError(path, f"views.{k}", "keys are lateral shifts in metres (+ left)")
+        if shift in views:
+            raise ClipError(path, f"views.{k}", f"a second entry for the shift {shift:g} m")
+        views[shift] = _pattern(pattern, path, f"views.{k}", S)
+        for frame in views[shift]:
+            _check_file(frame, path, f"views.{k}", "frame file")
     return Clip(path, pred, frame_paths, size, w2c, K, world_from_vggt, cars, fps, metric, views)
+
+
+def _short(v) -> str:
+    text = repr(v)
+    return text if len(text) <= 80 else text[:77] + "..."
+
+
+def _check_file(file_path: str, clip_path: str, where: str, what: str = "file") -> None:
+    """A file the clip names must be a regular file: ClipError naming the clip's field otherwise."""
+    files.check_regular(file_path, lambda p, f, m: ClipError(
+        clip_path, where, f"{what} not found: {file_path}" if m == "not found" else f"{file_path} {m}"))
 
 
 def fit_asset_to_box(means: np.ndarray, box_size) -> np.ndarray:
@@ -230,8 +310,4 @@ def save(path, data: dict) -> None:
     path = os.fspath(path)
     if data.get("schema") != SCHEMA:
         raise ValueError(f"{path}: schema must be {SCHEMA!r}")
-    tmp = path + ".tmp"
-    with open(tmp, "w", encoding="utf-8") as f:
-        json.dump(data, f, indent=1)
-        f.write("\n")
-    os.replace(tmp, path)
+    files.write_json(path, data)  # atomic; NaN refused, as load would refuse it

@@ -6,10 +6,11 @@ Every field and its default is below; docs/training.md explains them.
 
 from __future__ import annotations
 
-import json
+import math
 import os
 from dataclasses import asdict, dataclass, field, fields
 
+from scpainter_blender.core import files
 from scpainter_blender.core import job as job_mod
 
 from .pairs import PairSettings
@@ -17,9 +18,12 @@ from .pairs import PairSettings
 SCHEMA = "scpainter.train/1"
 
 
-class TrainConfigError(ValueError):
-    def __init__(self, path, field_name, message):
-        super().__init__(f"{os.path.basename(str(path))}: {field_name}: {message}")
+class TrainConfigError(files.InputError):
+    """A training config that cannot be used: ``str()`` is "<file name>: <setting>: <message>"; ``field`` the
+    setting (``pairs.width``), ``"(file)"`` for the file as a whole."""
+
+    def __init__(self, path, field_name, message, hint=None):
+        files.InputError.__init__(self, path, field_name, message, hint)
 
 
 @dataclass
@@ -74,36 +78,77 @@ class TrainConfig:
         return {"schema": SCHEMA, **d}
 
 
+def _short(v) -> str:
+    """A value for a message: its repr, cut (a setting can be a 100 MB list)."""
+    text = repr(v)
+    return text if len(text) <= 80 else text[:77] + "..."
+
+
+#: Integers beyond this are refused: torch and the data loader take C ints, and no setting needs more.
+MAX_INT = 2 ** 31 - 1
+
+
 def _check(cfg: TrainConfig, path: str) -> TrainConfig:
+    """Every setting's type and range, naming the setting; a JSON value of the wrong type (a list for a number, a
+    dict for a list) ends here, never as a TypeError in the middle of training."""
     def err(name, msg):
         raise TrainConfigError(path, name, msg)
 
+    def integer(name, v, lo, hi=MAX_INT):
+        if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+            err(name, f"expected an integer in [{lo}, {hi}], got {_short(v)}")
+
+    def number(name, v, lo=-math.inf, hi=math.inf, lo_open=False, hi_open=False, what=None):
+        ok = not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v) and \
+            (v > lo if lo_open else v >= lo) and (v < hi if hi_open else v <= hi)
+        if not ok:
+            err(name, f"expected {what or 'a finite number'}, got {_short(v)}")
+
     for name in ("steps", "batch_size", "gradient_accumulation", "save_every", "keep_checkpoints", "log_every",
                  "sample_steps"):
-        v = getattr(cfg, name)
-        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-            err(name, f"expected an integer >= 1, got {v!r}")
+        integer(name, getattr(cfg, name), 1)
     for name in ("warmup_steps", "sample_every", "num_workers", "seed"):
-        v = getattr(cfg, name)
-        if isinstance(v, bool) or not isinstance(v, int) or v < 0:
-            err(name, f"expected an integer >= 0, got {v!r}")
+        integer(name, getattr(cfg, name), 0)
     for name in ("drop_clip", "drop_condition", "ema_decay"):
+        number(name, getattr(cfg, name), 0.0, 1.0, hi_open=True, what="a number in [0, 1)")
+    number("learning_rate", cfg.learning_rate, 0.0, lo_open=True, what="a number > 0")
+    number("adam_eps", cfg.adam_eps, 0.0, lo_open=True, what="a number > 0")
+    number("weight_decay", cfg.weight_decay, 0.0, what="a number >= 0")
+    number("max_grad_norm", cfg.max_grad_norm, 0.0, lo_open=True, what="a number > 0")
+    number("p_mean", cfg.p_mean)
+    number("p_std", cfg.p_std, 0.0, lo_open=True, what="a number > 0")
+    betas = cfg.adam_betas
+    if not isinstance(betas, (list, tuple)) or len(betas) != 2:
+        err("adam_betas", f"expected two numbers [beta1, beta2] in [0, 1), got {_short(betas)}")
+    for i, b in enumerate(betas):
+        number(f"adam_betas[{i}]", b, 0.0, 1.0, hi_open=True, what="a number in [0, 1)")
+    for name in ("gradient_checkpointing", "train_condition_encoder"):
+        if not isinstance(getattr(cfg, name), bool):
+            err(name, f"expected true or false, got {_short(getattr(cfg, name))}")
+    if not isinstance(cfg.mixed_precision, str) or cfg.mixed_precision not in ("auto", "no", "bf16"):
+        err("mixed_precision", f"expected auto, no or bf16, got {_short(cfg.mixed_precision)}")
+    if not isinstance(cfg.optimizer, str) or cfg.optimizer not in ("adamw", "adamw8bit"):
+        err("optimizer", f"expected adamw or adamw8bit, got {_short(cfg.optimizer)}")
+    for name in ("checkpoint", "output_dir"):
         v = getattr(cfg, name)
-        if not isinstance(v, (int, float)) or not 0.0 <= v < 1.0:
-            err(name, f"expected a number in [0, 1), got {v!r}")
-    if not (isinstance(cfg.learning_rate, (int, float)) and cfg.learning_rate > 0):
-        err("learning_rate", f"expected a number > 0, got {cfg.learning_rate!r}")
-    if cfg.mixed_precision not in ("auto", "no", "bf16"):
-        err("mixed_precision", f"expected auto, no or bf16, got {cfg.mixed_precision!r}")
-    if cfg.optimizer not in ("adamw", "adamw8bit"):
-        err("optimizer", f"expected adamw or adamw8bit, got {cfg.optimizer!r}")
+        if not isinstance(v, str) or not v or "\0" in v or len(v) > 4096:
+            err(name, f"expected a folder path (a non-empty string), got {_short(v)}")
     if not isinstance(cfg.clips, list) or not cfg.clips:
         err("clips", "expected a non-empty list of clip folders (or list files)")
+    for i, c in enumerate(cfg.clips):
+        if not isinstance(c, str) or not c or "\0" in c or len(c) > 4096:
+            err(f"clips[{i}]", f"expected a clip folder or list file path (a non-empty string), got {_short(c)}")
     p = cfg.pairs
+    for name, lo, hi in (("width", 64, 16384), ("height", 64, 16384), ("frames", 1, 4096), ("window", 1, 100_000),
+                         ("point_radius", 0, 64)):
+        integer(f"pairs.{name}", getattr(p, name), lo, hi)
     if p.width % 64 or p.height % 64:
         err("pairs", f"width and height must be multiples of 64 (the VAE's 8 x the UNet's 8), got {p.width}x{p.height}")
-    if p.frames < 1 or p.window < 1 or not 0 < p.source_prob <= 1 or not 0 <= p.asset_prob <= 1:
-        err("pairs", "frames >= 1, window >= 1, source_prob in (0, 1], asset_prob in [0, 1]")
+    number("pairs.source_prob", p.source_prob, 0.0, 1.0, lo_open=True, what="a number in (0, 1]")
+    number("pairs.asset_prob", p.asset_prob, 0.0, 1.0, what="a number in [0, 1]")
+    number("pairs.grow_ratio", p.grow_ratio, 0.0, what="a number >= 0")
+    number("pairs.grow_m", p.grow_m, 0.0, what="a number >= 0")
+    number("pairs.confidence_percentile", p.confidence_percentile, 0.0, 100.0, what="a number in [0, 100]")
     return cfg
 
 
@@ -120,10 +165,13 @@ def from_dict(data: dict, path: str = "train.json") -> TrainConfig:
             raise TrainConfigError(path, k, "required")
     pairs = data.pop("pairs", {})
     pk = {f.name for f in fields(PairSettings)}
-    if not isinstance(pairs, dict) or set(pairs) - pk:
-        raise TrainConfigError(path, "pairs", f"unknown keys {sorted(set(pairs) - pk) if isinstance(pairs, dict) else pairs} "
-                               f"(known: {', '.join(sorted(pk))})")
-    if "adam_betas" in data:
+    if not isinstance(pairs, dict):
+        raise TrainConfigError(path, "pairs", f"expected an object of pair settings ({', '.join(sorted(pk))}), got "
+                                              f"{_short(pairs)}")
+    if set(pairs) - pk:
+        raise TrainConfigError(path, "pairs", f"unknown keys {sorted(set(pairs) - pk)} (known: "
+                                              f"{', '.join(sorted(pk))})")
+    if isinstance(data.get("adam_betas"), list):  # JSON has no tuples; anything else is refused by _check
         data["adam_betas"] = tuple(data["adam_betas"])
     try:
         cfg = TrainConfig(**data, pairs=PairSettings(**pairs), path=os.path.abspath(path))
@@ -133,12 +181,9 @@ def from_dict(data: dict, path: str = "train.json") -> TrainConfig:
 
 
 def load(path: str) -> TrainConfig:
-    return from_dict(job_mod.read_json(path, TrainConfigError), path)
+    # files.read_json: a regular file only (a FIFO is refused, not waited on), within size, depth and number limits
+    return from_dict(files.read_json(path, error=TrainConfigError), path)
 
 
 def save(path: str, cfg: TrainConfig) -> None:
-    tmp = path + ".tmp"
-    with open(tmp, "w", encoding="utf-8") as f:
-        json.dump(cfg.to_json(), f, indent=1)
-        f.write("\n")
-    os.replace(tmp, path)
+    files.write_json(path, cfg.to_json())

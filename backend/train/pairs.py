@@ -24,7 +24,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import torch
 
-from scpainter_blender.core import cameras, splats, vggt
+from scpainter_blender.core import cameras, files, splats, vggt
 
 from ..render import frames as fr
 from . import clip as clip_mod
@@ -49,13 +49,13 @@ def load_resized(path: str, width: int, height: int) -> torch.Tensor:
     from PIL import Image
 
     try:
-        with Image.open(path) as im:
+        with files.open_regular(path) as f, Image.open(f) as im:  # a FIFO swapped in after loading cannot block
             im = im.convert("RGB")
             if im.size != (width, height):
                 im = im.resize((width, height), Image.LANCZOS)
             return torch.from_numpy(np.asarray(im).copy()).permute(2, 0, 1)
-    except OSError as e:
-        raise ValueError(f"{path}: cannot read the image ({e})") from None
+    except (OSError, Image.DecompressionBombError, SyntaxError) as e:
+        raise files.InputError(path, "(file)", f"cannot read the image ({e})") from None
 
 
 class PairMaker:

@@ -17,6 +17,10 @@ Checkpoint folder ``checkpoints/step_NNNNNNN`` (written under a temporary name, 
 SCPainter checkpoint (scpainter.json with trained_steps, the base's frozen components hard-linked, unet/ and
 condition_encoder/ holding the EMA weights, or the raw ones without EMA) plus ``training_state/`` (raw weights,
 optimiser state — read back with ``torch.load(weights_only=True)`` — EMA, step).
+
+A non-finite loss or gradient norm stops the run with ``NonFiniteError`` before the optimiser step, so neither the
+weights nor the EMA take anything from that step and no checkpoint is written after it; the newest checkpoint is
+the last good state, and ``save`` refuses non-finite weights as a last guard.
 """
 
 from __future__ import annotations
@@ -33,6 +37,7 @@ import numpy as np
 import torch
 
 from .. import events
+from ..errors import NonFiniteError
 from ..model import checkpoint as ckpt_mod
 from . import clip as clip_mod
 from . import objective
@@ -77,8 +82,11 @@ class StepSampler(torch.utils.data.Sampler):
 
 
 def _collate(items: list) -> dict:
+    """Stack PairDataset items; ``index``, ``clip`` (index into the run's clip list) and ``t0`` (first target
+    frame) are (B,) int64, kept so a failing step can name its samples."""
     out = {k: torch.stack([it[k] for it in items]) for k in ("target", "image", "asset", "valid")}
-    out["index"] = torch.tensor([it["index"] for it in items])
+    for k in ("index", "clip", "t0"):
+        out[k] = torch.tensor([it[k] for it in items])
     return out
 
 
@@ -123,7 +131,7 @@ class Trainer:
         os.makedirs(self.out, exist_ok=True)
         self.log = log or (events.FileLog(os.path.join(self.out, "train.log")) if self.rank == 0 else (lambda m: None))
         self.base = ckpt_mod.resolve(cfg.resolve(cfg.checkpoint))
-        clip_paths = cfg.clip_paths()
+        self.clip_paths = clip_paths = cfg.clip_paths()
         # fail before loading models, not in a DataLoader worker an hour in: every clip.json exists, the first
         # clip loads whole (the others are read when first sampled, and a bad one stops training with its name)
         missing = [p for p in clip_paths if not os.path.isfile(clip_mod.json_path(p))]
@@ -184,8 +192,50 @@ class Trainer:
         self.step = int(meta["step"])
         self.log(f"train: resumed from {folder} at step {self.step}")
 
+    def _describe(self, samples: list) -> list:
+        """[{"sample": global index, "clip": clip path, "frames": [t0, t0 + F)}] for (index, clip, t0) triples."""
+        F = self.cfg.pairs.frames
+        return [{"sample": int(i), "clip": self.clip_paths[int(k)], "frames": [int(t0), int(t0) + F]}
+                for i, k, t0 in samples]
+
+    def _nonfinite(self, what: str, step: int, samples: list | None) -> NonFiniteError:
+        """The error for a non-finite ``what`` ("the loss is nan") at ``step`` (1-based: step N is the one that
+        makes checkpoint step_N), naming this rank's samples of that step when known. Fields: stage "train",
+        step, batch (``_describe``, [] when unknown), checkpoint (the newest checkpoint folder, or None)."""
+        batch = self._describe(samples or [])
+        last = (checkpoints(self.out) or [None])[-1]
+
+        def name(b):
+            c = os.path.normpath(b["clip"])
+            c = os.path.basename(os.path.dirname(c) if c.endswith(".json") else c)
+            return f"{b['sample']} ({c}, frames {b['frames'][0]}-{b['frames'][1] - 1})"
+
+        names = ", ".join(name(b) for b in batch[:4]) + (f" and {len(batch) - 4} more" if len(batch) > 4 else "")
+        where = f" (samples{f' on rank {self.rank}' if self.world > 1 else ''}: {names})" if batch else ""
+        kept = (f"the last good checkpoint {last} is kept" if last else "no checkpoint had been written yet")
+        # data and noise are functions of the step, so rerunning unchanged would meet the same NaN: change a setting
+        fp32 = " or set mixed_precision to \"no\" (fp32)" if self.autocast is not None else ""
+        hint = (f"lower learning_rate{fp32} in the training config, then run the same command again: it "
+                + (f"resumes from {last}" if last else "starts from the base checkpoint"))
+        return NonFiniteError(f"train: {what} at step {step}{where}; nothing from it is saved and {kept}",
+                              hint=hint, stage="train", step=step, batch=batch, checkpoint=last)
+
+    def _check_weights(self) -> None:
+        """Raise NonFiniteError if a weight about to be saved (raw or EMA) holds NaN/inf: a checkpoint is a state
+        to resume and generate from, and a poisoned one would replace a good one when old ones are pruned."""
+        named = dict(self.named)
+        if self.ema is not None:
+            named.update({f"ema:{k}": v for k, v in self.ema.shadow.items()})
+        ok = torch.stack([torch.isfinite(p.detach()).all() for p in named.values()])  # one host sync
+        if not bool(ok.all()):
+            bad = [k for k, good in zip(named, ok.tolist()) if not good]
+            more = f" (and {len(bad) - 1} more)" if len(bad) > 1 else ""
+            raise self._nonfinite(f"the weight {bad[0]}{more} holds NaN/inf", self.step, None)
+
     def save(self) -> str:
-        """Write checkpoints/step_N (every rank waits; rank 0 writes) and prune old ones. Returns the folder."""
+        """Write checkpoints/step_N (every rank waits; rank 0 writes) and prune old ones. Returns the folder.
+        Raises NonFiniteError, writing nothing, if a weight is NaN/inf (see ``_check_weights``)."""
+        self._check_weights()  # on every rank (the weights are the same on all), so all of them stop
         self.accelerator.wait_for_everyone()
         final = os.path.join(self.out, "checkpoints", f"{CKPT_PREFIX}{self.step:07d}")
         if self.rank == 0 and not os.path.isdir(final):
@@ -234,8 +284,9 @@ class Trainer:
     def _models(self) -> dict:
         return {"unet": self.unet_ddp, "condition_encoder": self.cond_ddp, **self.frozen}
 
-    def sample_video(self, sample: dict, steps: int) -> torch.Tensor:
-        """(F, 3, H, 3W) in [0, 1]: condition | generated (EMA weights) | target, for the log."""
+    def sample_video(self, sample: dict, steps: int) -> torch.Tensor | None:
+        """(F, 3, H, 3W) in [0, 1]: condition | generated (EMA weights) | target, for the log; None (logged) when
+        the sampler produced NaN/inf."""
         from ..model.pipeline import SCPainterPipeline
 
         comps = {"unet": self.unet, "vae": self.frozen["vae"], "image_encoder": self.frozen["image_encoder"],
@@ -250,6 +301,10 @@ class Trainer:
                 cond = pipe.condition_latents(sample["image"], sample["asset"], sample["valid"])
                 x = pipe.sample(cond, pipe.clip_embedding(sample["target"][0]), steps=steps)
                 video = pipe.decode(x)
+        except NonFiniteError as e:
+            # the log's sample is not the run: a bad state is caught by the loss or by save, not here
+            self.log(f"train: no sample video at step {self.step}: {e}")
+            return None
         finally:
             self.unet.train(), self.cond.train()
         return torch.cat([sample["image"], video, sample["target"]], dim=-1)
@@ -283,19 +338,24 @@ class Trainer:
             lr = lr_at(cfg, self.step)
             for g in self.optimizer.param_groups:
                 g["lr"] = lr
-            step_loss = 0.0
+            step_loss, samples = 0.0, []
             for m in range(cfg.gradient_accumulation):
                 batch = next(it)
+                samples += zip(batch["index"].tolist(), batch["clip"].tolist(), batch["t0"].tolist())
                 gens = objective.generators(cfg.seed, batch["index"].tolist())
                 loss, _ = objective.loss(self._models(), batch, cfg, gens, self.device, self.autocast)
                 acc.backward(loss / cfg.gradient_accumulation)
                 step_loss += float(loss.detach()) / cfg.gradient_accumulation
             if self.world > 1:  # the logged loss is the global batch's, not rank 0's share
                 step_loss = float(acc.reduce(torch.tensor(step_loss, device=self.device), "mean"))
+            # both checks come before optimizer.step: a bad step changes neither the weights nor the EMA, and
+            # raising here skips every save after it (the reduced loss and the DDP-averaged gradient norm are the
+            # same on every rank, so all ranks stop together)
             if not math.isfinite(step_loss):
-                raise FloatingPointError(f"train: loss is {step_loss} at step {self.step}; the last checkpoint is "
-                                         "kept (lower learning_rate, or check the clips)")
+                raise self._nonfinite(f"the loss is {step_loss}", self.step + 1, samples)
             grad_norm = float(acc.clip_grad_norm_(list(self.named.values()), cfg.max_grad_norm))
+            if not math.isfinite(grad_norm):
+                raise self._nonfinite(f"the gradient norm is {grad_norm}", self.step + 1, samples)
             self.optimizer.step()
             self.optimizer.zero_grad(set_to_none=True)
             if self.ema is not None:
@@ -314,8 +374,9 @@ class Trainer:
                 self.log(f"step {self.step}: loss {mean:.4f}, grad norm {grad_norm:.3f}, lr {lr:.2e}, "
                          f"{samples_s:.2f} samples/s")
             if val is not None and self.rank == 0 and self.step % cfg.sample_every == 0:
-                self.tb.video("sample/condition|generated|target", self.step,
-                              self.sample_video(val, cfg.sample_steps), fps=int(self.scp_config.fps))
+                video = self.sample_video(val, cfg.sample_steps)
+                if video is not None:
+                    self.tb.video("sample/condition|generated|target", self.step, video, fps=int(self.scp_config.fps))
             if self.step % cfg.save_every == 0:
                 self.save()
         final = self.save()

@@ -71,6 +71,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import files
+
 #: File axes from TRELLIS's Z-up object axes: p_file = TRELLIS_FILE_FROM_ZUP @ p (a -90° turn about X undoes it).
 TRELLIS_FILE_FROM_ZUP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 
@@ -90,7 +92,8 @@ TRELLIS_MEAN_BOUND = 0.5 + 0.75 / 64 + 1e-5
 
 REQUIRED = ("x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2",
             "rot_0", "rot_1", "rot_2", "rot_3")
-MAX_HEADER = 1 << 16
+MAX_HEADER = 1 << 16        # bytes: a degree-3 INRIA header is ~1.5 KB
+MAX_HEADER_LINES = 4096     # an INRIA header has 62 property lines at most; more is not a splat file
 _TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
           "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
           "float": "f4", "float32": "f4", "double": "f8", "float64": "f8"}
@@ -128,12 +131,13 @@ SH_C3 = (-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.37317633
          1.445305721320277, -0.5900435899266435)
 
 
-class SplatsError(ValueError):
-    """A Gaussian file that cannot be used; the message names the file and what is wrong."""
+class SplatsError(files.InputError):
+    """A Gaussian file that cannot be used; the message names the file and what is wrong. ``field``: the property,
+    element or "header line N" at fault ("(file)" for the file as a whole)."""
 
-    def __init__(self, path, message):
-        self.path = str(path)
-        super().__init__(f"{os.path.basename(self.path)}: {message} ({self.path})")
+    def __init__(self, path, message, field=None, hint=None):
+        files.InputError.__init__(self, path, field, message, hint)
+        self.args = (f"{os.path.basename(self.path)}: {message} ({self.path})",)  # the text it has always had
 
 
 def num_sh_coefficients(degree: int) -> int:
@@ -210,7 +214,7 @@ def read(path) -> GaussianPly:
     """Read any accepted Gaussian file (module docstring) into raw float32 arrays; SplatsError if unusable.
 
     PLY files (INRIA, half-float, SuperSplat compressed) are recognised by content; headerless ``.splat`` files by
-    their extension.
+    their extension. Only regular files are opened (a FIFO or a directory is refused at once, not waited on).
     """
     path = os.fspath(path)
     head = _head(path, 4)
@@ -227,12 +231,19 @@ def load(path) -> Gaussians:
     return decode(read(path))
 
 
+def _file_error(path, field, message):
+    """``files``' error callback: its "not found" / "is a FIFO ..." messages as SplatsError."""
+    return SplatsError(path, "file not found" if message == "not found" else message, field)
+
+
+def _open(path):
+    return files.open_regular(path, _file_error)
+
+
 def _head(path, n: int) -> bytes:
     try:
-        with open(path, "rb") as f:
+        with _open(path) as f:
             return f.read(n)
-    except FileNotFoundError:
-        raise SplatsError(path, "file not found") from None
     except OSError as e:
         raise SplatsError(path, f"cannot be read: {e}") from None
 
@@ -250,55 +261,103 @@ def _not_accepted(head: bytes, ext: str) -> str:
     return f"not a PLY file (it does not start with 'ply') and not named .splat: accepted are {ACCEPTED}"
 
 
+def _line_error(path, n: int, message: str) -> SplatsError:
+    """A header problem, named by its line (``field`` "header line N", as the message has always said)."""
+    e = SplatsError(path, f"header line {n}: {message}", f"header line {n}")
+    e.message = message
+    return e
+
+
+def _header_lines(raw: bytes, path):
+    """(header lines as bytes without their line ends, offset of the first data byte).
+
+    The header ends at the first line whose only word is ``end_header`` (PLY's rule; surrounding spaces, tabs and
+    a CR of CRLF files are allowed, as plyfile allows them): a ``comment`` or ``obj_info`` line that merely
+    contains the words does not end it, so it can never shift the data."""
+    if raw.split(b"\n", 1)[0].strip(b" \t\r") != b"ply":
+        raise SplatsError(path, f"not a PLY file (its first line is not 'ply'); accepted are {ACCEPTED}")
+    lines, pos = [], 0
+    while True:
+        nl = raw.find(b"\n", pos)
+        if nl < 0:
+            if raw[pos:].strip(b" \t\r") == b"end_header":
+                raise SplatsError(path, "the header ends without a newline after 'end_header' (truncated file?)")
+            if len(raw) >= MAX_HEADER:
+                raise SplatsError(path, f"no 'end_header' line in the first {MAX_HEADER} bytes: the header is too "
+                                        "long, or this is not a PLY file")
+            raise SplatsError(path, "the header has no 'end_header' line: the file is truncated or not a PLY file")
+        line = raw[pos:nl]
+        pos = nl + 1
+        if line.split() == [b"end_header"]:
+            return lines, pos
+        lines.append(line)
+        if len(lines) > MAX_HEADER_LINES:
+            raise SplatsError(path, f"the header has more than {MAX_HEADER_LINES} lines: not a splat file")
+
+
 def _parse_header(raw: bytes, path, binary_only: bool = True):
-    end = raw.find(b"end_header")
-    if not raw.startswith(b"ply"):
-        raise SplatsError(path, f"not a PLY file (it does not start with 'ply'); accepted are {ACCEPTED}")
-    if end < 0:
-        raise SplatsError(path, f"no 'end_header' in the first {MAX_HEADER} bytes")
-    nl = raw.find(b"\n", end)
-    if nl < 0:
-        raise SplatsError(path, "the header ends without a newline (truncated file?)")
-    try:
-        lines = raw[:end].decode("ascii").splitlines()
-    except UnicodeDecodeError:
-        raise SplatsError(path, "the header is not ASCII text") from None
+    """(format, [[element name, count, [(property, numpy type code or None for a list)]]], data offset) of the
+    header at the start of ``raw``; SplatsError naming the header line for anything malformed."""
+    lines, start = _header_lines(raw, path)
     fmt, elements = None, []
-    for n, line in enumerate(lines[1:], start=2):
+    for n, raw_line in enumerate(lines[1:], start=2):
+        words = raw_line.split()
+        if not words or words[0] in (b"comment", b"obj_info"):
+            continue  # free text: any bytes (UTF-8 names), never parsed
+        try:
+            line = raw_line.decode("ascii").rstrip("\r")
+        except UnicodeDecodeError as e:
+            raise _line_error(path, n, f"is not ASCII text (byte {e.start}: {raw_line[:60]!r})") from None
         words = line.split()
-        if not words or words[0] in ("comment", "obj_info"):
-            continue
         if words[0] == "format":
             if len(words) != 3:
-                raise SplatsError(path, f"header line {n}: malformed format line {line!r}")
+                raise _line_error(path, n, f"malformed format line {line!r}")
+            if fmt is not None:
+                raise _line_error(path, n, "a second format line")
             fmt = words[1]
         elif words[0] == "element":
             if len(words) != 3 or not re.fullmatch(r"\d{1,15}", words[2]):
-                raise SplatsError(path, f"header line {n}: malformed element line {line!r}")
+                raise _line_error(path, n, f"malformed element line {line!r}")
             elements.append([words[1], int(words[2]), []])
         elif words[0] == "property":
             if not elements:
-                raise SplatsError(path, f"header line {n}: property before any element")
+                raise _line_error(path, n, "property before any element")
             if len(words) >= 2 and words[1] == "list":
+                if len(words) != 5 or words[2] not in _TYPES or words[3] not in _TYPES:
+                    raise _line_error(path, n, f"malformed list property {line!r} (expected 'property list "
+                                               "<count type> <item type> <name>')")
                 elements[-1][2].append((words[-1], None))
                 continue
             if len(words) != 3 or words[1] not in _TYPES:
-                raise SplatsError(path, f"header line {n}: unknown property {line!r}")
+                raise _line_error(path, n, f"unknown property {line!r}")
             names = [p[0] for p in elements[-1][2]]
             if words[2] in names:
-                raise SplatsError(path, f"header line {n}: property {words[2]!r} appears twice")
+                raise _line_error(path, n, f"property {words[2]!r} appears twice")
             elements[-1][2].append((words[2], _TYPES[words[1]]))
         else:
-            raise SplatsError(path, f"header line {n}: unexpected {words[0]!r}")
+            raise _line_error(path, n, f"unexpected {words[0]!r}")
     if binary_only:
         _check_binary(fmt, path)
-    return fmt, elements, nl + 1
+    return fmt, elements, start
+
+
+def read_ply_header(path):
+    """(format, elements, data offset) of a PLY file's header (see ``_parse_header``; ASCII files included), read
+    from a regular file only; SplatsError naming the file (and the header line) otherwise. For callers that only
+    need to know what a PLY holds (the mesh import)."""
+    path = os.fspath(path)
+    try:
+        with _open(path) as f:
+            raw = f.read(MAX_HEADER)
+    except OSError as e:
+        raise SplatsError(path, f"cannot be read: {e}") from None
+    return _parse_header(raw, path, binary_only=False)
 
 
 def _check_binary(fmt, path) -> None:
     if fmt not in ("binary_little_endian", "binary_big_endian"):
         raise SplatsError(path, f"format {fmt!r} is not supported: expected binary_little_endian or "
-                                "binary_big_endian (ASCII splat files are not used in practice)")
+                                "binary_big_endian (ASCII splat files are not used in practice)", "format")
 
 
 def _element(elements, name):
@@ -332,9 +391,7 @@ def is_mesh_ply(path) -> bool:
     """True for a readable PLY (binary or ASCII) whose header has faces and no Gaussian property (a mesh to
     convert); never raises."""
     try:
-        with open(os.fspath(path), "rb") as f:
-            raw = f.read(MAX_HEADER)
-        _, elements, _ = _parse_header(raw, path, binary_only=False)
+        _, elements, _ = read_ply_header(path)
     except (OSError, SplatsError):
         return False
     face = _element(elements, "face")
@@ -349,18 +406,22 @@ def _read_elements(f, path, size: int, order: str, elements, start: int, wanted)
     for name, count, props in elements[:last + 1]:
         if any(t is None for _, t in props):
             if name in wanted and name not in out:
-                raise SplatsError(path, f"the {name!r} element has list properties")
-            raise SplatsError(path, f"element {name!r} before {elements[last][0]!r} has list properties")
+                raise SplatsError(path, f"the {name!r} element has list properties", name)
+            raise SplatsError(path, f"element {name!r} before {elements[last][0]!r} has list properties", name)
         dtype = np.dtype([(p, order + t) for p, t in props])
         need = count * dtype.itemsize
         if name in wanted and name not in out:
             if not props:
-                raise SplatsError(path, f"the {name!r} element has no properties")
-            if offset + need > size:
+                raise SplatsError(path, f"the {name!r} element has no properties", name)
+            if offset + need > size:  # checked before anything is allocated: counts are claims
                 raise SplatsError(path, f"truncated: the header promises {count} {noun.get(name, name + ' rows')} "
-                                        f"({need} bytes from byte {offset}) but the file has {size} bytes")
+                                        f"({need} bytes from byte {offset}) but the file has {size} bytes", name)
             f.seek(offset)
-            out[name] = np.frombuffer(f.read(need), dtype=dtype, count=count)
+            buf = f.read(need)
+            if len(buf) != need:  # the file shrank while being read
+                raise SplatsError(path, f"truncated: {len(buf)} of the {need} bytes of the {name!r} element could be "
+                                        "read", name)
+            out[name] = np.frombuffer(buf, dtype=dtype, count=count)
         offset += need
     return out
 
@@ -370,8 +431,8 @@ def read_ply(path) -> GaussianPly:
     arrays; SplatsError if unusable."""
     path = os.fspath(path)
     try:
-        size = os.path.getsize(path)
-        with open(path, "rb") as f:
+        with _open(path) as f:
+            size = os.fstat(f.fileno()).st_size
             head = f.read(MAX_HEADER)
             fmt, elements, start = _parse_header(head, path, binary_only=False)
             mesh = _mesh_message(elements)
@@ -381,7 +442,7 @@ def read_ply(path) -> GaussianPly:
             order = "<" if fmt == "binary_little_endian" else ">"
             vertex = _element(elements, "vertex")
             if vertex is None:
-                raise SplatsError(path, "no 'vertex' element")
+                raise SplatsError(path, "no 'vertex' element", "vertex")
             vnames = [p for p, _ in vertex[1]]
             if _element(elements, "chunk") is not None or "packed_position" in vnames:
                 _check_compressed_header(elements, path)
@@ -389,8 +450,6 @@ def read_ply(path) -> GaussianPly:
                 arrays = _read_elements(f, path, size, order, elements, start, wanted)
                 return _from_compressed(arrays, path)
             data = _read_elements(f, path, size, order, elements, start, ("vertex",))["vertex"]
-    except FileNotFoundError:
-        raise SplatsError(path, "file not found") from None
     except OSError as e:
         raise SplatsError(path, f"cannot be read: {e}") from None
     return _from_structured(data, vnames, path)
@@ -414,21 +473,22 @@ def _storage(data, keys, path) -> str:
     if all(kinds[n].str[1:] == "u2" for n in nonfloat):
         raise SplatsError(path, f"property {k!r}{more} is stored as {_type_name(kinds[k])} while others are "
                                 "float: a half-float export stores every Gaussian property as ushort, a mix is "
-                                "ambiguous; re-export the file as float32")
+                                "ambiguous; re-export the file as float32", k)
     raise SplatsError(path, f"property {k!r}{more} is stored as {_type_name(kinds[k])}: Gaussian properties must be "
-                            "float or double (integers have no agreed scale); re-export the file as float32")
+                            "float or double (integers have no agreed scale); re-export the file as float32", k)
 
 
 def _from_structured(data, names, path) -> GaussianPly:
     missing = [k for k in REQUIRED if k not in names]
     if missing:
-        raise SplatsError(path, f"missing required properties {missing}")
+        raise SplatsError(path, f"missing required properties {missing}", missing[0])
     rest = sorted((n for n in names if n.startswith("f_rest_")), key=lambda n: int(n[7:]) if n[7:].isdigit() else -1)
     if rest and [n[7:] for n in rest] != [str(i) for i in range(len(rest))]:
-        raise SplatsError(path, f"f_rest properties must be numbered 0..{len(rest) - 1} without gaps")
+        raise SplatsError(path, f"f_rest properties must be numbered 0..{len(rest) - 1} without gaps", rest[0])
     valid = {3 * (num_sh_coefficients(d) - 1): d for d in range(4)}
     if len(rest) not in valid:
-        raise SplatsError(path, f"{len(rest)} f_rest properties: expected 0, 9, 24 or 45 (SH degree 0-3)")
+        raise SplatsError(path, f"{len(rest)} f_rest properties: expected 0, 9, 24 or 45 (SH degree 0-3)",
+                          rest[-1])
     used = list(REQUIRED) + rest
     storage = _storage(data, used, path)
 
@@ -460,11 +520,11 @@ def _require_properties(path, what, element, types: dict, needed, allowed, expec
     """Refuse an element of the compressed layout that lacks one of ``needed`` or stores one in another type."""
     missing = [p for p in needed if p not in types]
     if missing:
-        raise SplatsError(path, f"{what} needs {element} properties {list(needed)}; missing {missing}")
+        raise SplatsError(path, f"{what} needs {element} properties {list(needed)}; missing {missing}", missing[0])
     bad = [p for p in needed if types[p] not in allowed]
     if bad:
         raise SplatsError(path, f"{what}: {element} property {bad[0]!r} is {_type_name(np.dtype(types[bad[0]]))}, "
-                                f"expected {expected}")
+                                f"expected {expected}", bad[0])
 
 
 def _check_compressed_header(elements, path) -> None:
@@ -472,7 +532,8 @@ def _check_compressed_header(elements, path) -> None:
     what = "a SuperSplat compressed PLY"
     chunk, vertex, sh = (_element(elements, n) for n in ("chunk", "vertex", "sh"))
     if chunk is None:
-        raise SplatsError(path, f"the vertices have packed_* properties ({what}) but there is no 'chunk' element")
+        raise SplatsError(path, f"the vertices have packed_* properties ({what}) but there is no 'chunk' element",
+                          "chunk")
     _require_properties(path, what, "vertex", dict(vertex[1]), _PACKED_PROPS, ("u4", "i4"), "uint (32-bit)")
     ctypes = dict(chunk[1])
     needed = _CHUNK_PROPS + (_CHUNK_COLOR_PROPS if any(p in ctypes for p in _CHUNK_COLOR_PROPS) else ())
@@ -480,15 +541,15 @@ def _check_compressed_header(elements, path) -> None:
     expect = -(-vertex[0] // CHUNK_SIZE)
     if chunk[0] != expect:
         raise SplatsError(path, f"{what}: {vertex[0]} Gaussians need {expect} chunks of {CHUNK_SIZE}, "
-                                f"the header has {chunk[0]}")
+                                f"the header has {chunk[0]}", "chunk")
     if sh is not None:
         names = [p for p, _ in sh[1]]
         if len(names) not in (9, 24, 45) or names != [f"f_rest_{i}" for i in range(len(names))]:
             raise SplatsError(path, f"{what}: the 'sh' element must hold f_rest_0..f_rest_(9, 24 or 45 - 1), "
-                                    f"it has {len(names)} properties")
+                                    f"it has {len(names)} properties", "sh")
         _require_properties(path, what, "sh", dict(sh[1]), names, ("u1",), "uchar")
         if sh[0] != vertex[0]:
-            raise SplatsError(path, f"{what}: the 'sh' element has {sh[0]} rows for {vertex[0]} Gaussians")
+            raise SplatsError(path, f"{what}: the 'sh' element has {sh[0]} rows for {vertex[0]} Gaussians", "sh")
 
 
 def _unorm(packed: np.ndarray, shift: int, bits: int) -> np.ndarray:
@@ -562,19 +623,20 @@ def read_splat(path) -> GaussianPly:
     """Read an antimatter15 ``.splat`` file (module docstring) as raw INRIA values; SplatsError if unusable."""
     path = os.fspath(path)
     try:
-        size = os.path.getsize(path)
-        if size == 0:
-            raise SplatsError(path, "the .splat file is empty (0 bytes)")
-        if size % SPLAT_RECORD.itemsize:
-            raise SplatsError(path, f"a .splat file holds {SPLAT_RECORD.itemsize} bytes per Gaussian, but this one "
-                                    f"has {size} bytes, not a multiple of {SPLAT_RECORD.itemsize} ({size % 32} "
-                                    "left over): truncated, or not a .splat file")
-        with open(path, "rb") as f:
-            data = np.frombuffer(f.read(size), dtype=SPLAT_RECORD)
-    except FileNotFoundError:
-        raise SplatsError(path, "file not found") from None
+        with _open(path) as f:
+            size = os.fstat(f.fileno()).st_size
+            if size == 0:
+                raise SplatsError(path, "the .splat file is empty (0 bytes)")
+            if size % SPLAT_RECORD.itemsize:
+                raise SplatsError(path, f"a .splat file holds {SPLAT_RECORD.itemsize} bytes per Gaussian, but this "
+                                        f"one has {size} bytes, not a multiple of {SPLAT_RECORD.itemsize} ({size % 32} "
+                                        "left over): truncated, or not a .splat file")
+            buf = f.read(size)
     except OSError as e:
         raise SplatsError(path, f"cannot be read: {e}") from None
+    if len(buf) != size:  # the file changed while being read
+        raise SplatsError(path, f"only {len(buf)} of its {size} bytes could be read: the file changed while being read")
+    data = np.frombuffer(buf, dtype=SPLAT_RECORD)
     rgba = data["rgba"].astype(np.float64) / 255.0
     alpha = np.clip(rgba[:, 3], _SPLAT_ALPHA_EPS, 1.0 - _SPLAT_ALPHA_EPS)
     with np.errstate(divide="ignore", invalid="ignore"):  # σ <= 0 gives -inf/NaN: dropped on decoding
@@ -666,17 +728,14 @@ def write_ply(path, ply: GaussianPly, byte_order: str = "<", comment: str | None
     names = {v: k for k, v in _TYPES.items() if k in ("char", "uchar", "short", "ushort", "int", "uint", "float",
                                                          "double")}
     header = ["ply", f"format binary_{'little' if byte_order == '<' else 'big'}_endian 1.0"]
-    if comment:
-        header.append(f"comment {comment}")
+    if comment:  # one line of printable ASCII: a newline in it would write header lines of its own
+        header.append("comment " + "".join(ch if " " <= ch <= "~" else "?" for ch in comment))
     header.append(f"element vertex {N}")
     header += [f"property {names[t]} {n}" for n, t in fields]
     header.append("end_header")
-    path = os.fspath(path)
-    tmp = path + ".tmp"
-    with open(tmp, "wb") as f:
+    with files.atomic_write(os.fspath(path)) as f:
         f.write(("\n".join(header) + "\n").encode("ascii"))
         f.write(arr.tobytes())
-    os.replace(tmp, path)
 
 
 def write_splat(path, g) -> None:
@@ -696,11 +755,8 @@ def write_splat(path, g) -> None:
     q = g.quats.astype(np.float64)
     q = q / np.maximum(np.linalg.norm(q, axis=1, keepdims=True), 1e-30)
     rec["rot"] = np.clip(np.rint(q * 128.0 + 128.0), 0, 255).astype(np.uint8)
-    path = os.fspath(path)
-    tmp = path + ".tmp"
-    with open(tmp, "wb") as f:
+    with files.atomic_write(os.fspath(path)) as f:
         f.write(rec.tobytes())
-    os.replace(tmp, path)
 
 # --------------------------------------------------------------------------------------------------------------
 # Decoding and encoding

@@ -31,12 +31,12 @@ No bpy, no torch: numpy only.
 from __future__ import annotations
 
 import os
-import zipfile
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import cameras
+from . import cameras, files
 
 REQUIRED_KEYS = ("images", "depth", "depth_conf", "extrinsic", "intrinsic")
 OPTIONAL_KEYS = ("world_points", "world_points_conf")
@@ -46,13 +46,26 @@ OPTIONAL_KEYS = ("world_points", "world_points_conf")
 BLENDER_FROM_OPENCV_AXES = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
 
 
-class PredictionsError(ValueError):
-    """A predictions file that cannot be used; the message names the file and the key."""
+class PredictionsError(files.InputError):
+    """A predictions (or trajectory) file that cannot be used; the message names the file and the key (``key``,
+    also ``field``; None / "(file)" for the file as a whole)."""
 
-    def __init__(self, path, key, message):
-        self.path, self.key = str(path), key
+    def __init__(self, path, key, message, hint=None):
+        key = None if key == "(file)" else key  # files' callbacks name the whole file so
+        files.InputError.__init__(self, path, key, message, hint)
+        self.key = key
         where = f"{os.path.basename(self.path)}" + (f": '{key}'" if key else "")
-        super().__init__(f"{where}: {message} ({self.path})")
+        self.args = (f"{where}: {message} ({self.path})",)  # the text it has always had
+
+
+def _npz_error(path, key, message):
+    """``files.read_npz``'s error callback."""
+    return PredictionsError(path, key, "file not found" if message == "not found" else message)
+
+
+#: Per-pixel arrays hold measurements: VGGT saves them as float32. An integer depth map (millimetres, as depth
+#: cameras write) or a boolean mask under these names would be read as VGGT units without a word: refused.
+_FLOAT_KEYS = ("depth", "depth_conf", "world_points", "world_points_conf")
 
 
 @dataclass
@@ -227,6 +240,11 @@ def _images_to_hwc(arr, path):
         hwc = np.moveaxis(a, 1, -1)
     else:
         raise PredictionsError(path, "images", f"expected 3 colour channels, got shape {arr.shape}")
+    if hwc.shape[0] == 0:  # every later step needs a frame: refuse here, naming the key, not in a reduction
+        raise PredictionsError(path, "images", f"holds no frames (shape {arr.shape}): VGGT writes at least one")
+    if hwc.shape[1] == 0 or hwc.shape[2] == 0:
+        raise PredictionsError(path, "images", f"has images of {hwc.shape[2]} x {hwc.shape[1]} pixels (shape "
+                                               f"{arr.shape}): nothing to place")
     if hwc.dtype == np.uint8:
         return hwc.astype(np.float32) / np.float32(255.0)
     if not np.issubdtype(hwc.dtype, np.floating):
@@ -271,16 +289,35 @@ def _per_frame(counts) -> str:
     return ", ".join(frames[:8]) + (", ..." if len(frames) > 8 else "")
 
 
-def _numeric(npz, path, key):
-    try:
-        a = npz[key]
-    except ValueError as e:  # object arrays need pickle: refuse them
-        raise PredictionsError(path, key, f"is not a numeric array ({e})") from None
-    except (zipfile.BadZipFile, EOFError, OSError) as e:
-        raise PredictionsError(path, key, f"cannot be read; the file is truncated or corrupt ({e})") from None
-    if a.dtype.kind not in "fiub":
-        raise PredictionsError(path, key, f"is not a numeric array (dtype {a.dtype})")
+def _numeric(arr, path, key):
+    """``arr`` as a numpy array of numbers: floats (and, but for per-pixel measurements, integers); booleans,
+    objects, strings, complex numbers refused naming the key."""
+    a = np.asarray(arr)
+    if a.dtype.kind == "b" or a.dtype.kind not in "fiu":
+        raise PredictionsError(path, key, f"is not an array of numbers (dtype {a.dtype}); VGGT saves float32")
+    if key in _FLOAT_KEYS and a.dtype.kind != "f":
+        raise PredictionsError(path, key, f"holds integers (dtype {a.dtype}), VGGT saves float32: convert it to "
+                                          "VGGT's units as floats (an integer depth map in millimetres would "
+                                          "otherwise be read as units)")
     return a
+
+
+def rigid_problem(T, tolerance: float = 1e-3, name: str = "extrinsic", what: str = "frame"):
+    """(index, sentence) of the first finite matrix of ``T`` (N, 4, 4) that is not a rotation + translation
+    (|R^T R - I| > ``tolerance``, a reflection, or a last row other than [0, 0, 0, 1]); None if all are. The
+    sentence calls the matrices ``what`` ("frame 3 is not ...") and the array ``name``. Camera placement inverts
+    these matrices, so a singular one must be refused here, not fail in a solver."""
+    R = T[:, :3, :3]
+    orth = np.abs(np.swapaxes(R, 1, 2) @ R - np.eye(3)).max(axis=(1, 2))
+    bad = (orth > tolerance) | (np.linalg.det(R) < 0)
+    if bad.any():
+        i = int(np.argmax(bad))
+        return i, f"{what} {i} is not a rotation + translation (|R^T R - I| = {orth[i]:.2e})"
+    rows = np.any(T[:, 3] != [0, 0, 0, 1], axis=1)
+    if rows.any():
+        i = int(np.argmax(rows))
+        return i, f"the last row of a 4x4 {name} must be [0, 0, 0, 1] ({what} {i})"
+    return None
 
 
 def parse_crop(value):
@@ -364,21 +401,10 @@ def load_predictions(path, world_points: bool = True, *, extrinsic_convention: s
         crop = parse_crop(crop)
     except ValueError as e:
         raise PredictionsError(path, None, str(e)) from None
-    if not os.path.isfile(path):
-        raise PredictionsError(path, None, "file not found")
-    try:
-        npz = np.load(path, allow_pickle=False)
-    except (zipfile.BadZipFile, EOFError, OSError, ValueError) as e:
-        raise PredictionsError(path, None, f"not a readable .npz file (truncated or corrupt?): {e}") from None
-    if not isinstance(npz, np.lib.npyio.NpzFile):
-        raise PredictionsError(path, None, "expected an .npz archive of named arrays, got a single array")
-    with npz:
-        missing = [k for k in REQUIRED_KEYS if k not in npz.files]
-        if missing:
-            raise PredictionsError(path, missing[0], f"missing key(s) {missing}; the file has {sorted(npz.files)}")
-        read_wp = world_points or extrinsic_convention == "auto"
-        wanted = REQUIRED_KEYS + (OPTIONAL_KEYS if read_wp else ())
-        arrays = {k: _numeric(npz, path, k) for k in wanted if k in npz.files}
+    read_wp = world_points or extrinsic_convention == "auto"
+    # only the named keys are read (newer demo files also hold pose_enc_list = None, a pickle: never touched);
+    # read_npz refuses FIFOs and directories, pickles, broken headers and corrupt members, naming file and key
+    arrays = files.read_npz(path, REQUIRED_KEYS, OPTIONAL_KEYS if read_wp else (), error=_npz_error)
     return predictions_from_arrays(arrays, path, extrinsic_convention=extrinsic_convention, crop=crop,
                                    metres_per_unit=metres_per_unit, keep_world_points=world_points)
 
@@ -437,23 +463,22 @@ def predictions_from_arrays(arrays, path="<arrays>", *, extrinsic_convention: st
     _check_convention(extrinsic_convention)
     crop = parse_crop(crop)
     report = LoadReport(convention_requested=extrinsic_convention)
-    images = _images_to_hwc(np.asarray(arrays["images"]), path)
+    missing = [k for k in REQUIRED_KEYS if k not in arrays]
+    if missing:
+        raise PredictionsError(path, missing[0], f"missing key(s) {missing}; the arrays are {sorted(arrays)}")
+    arrays = {k: _numeric(v, path, k) for k, v in arrays.items() if k in REQUIRED_KEYS + OPTIONAL_KEYS}
+    images = _images_to_hwc(arrays["images"], path)
     S, H, W, _ = images.shape
-    depth = _fit_shape(np.asarray(arrays["depth"]), path, "depth", (S, H, W), "(S, H, W[, 1])").astype(np.float32)
-    conf = _fit_shape(np.asarray(arrays["depth_conf"]), path, "depth_conf", (S, H, W), "(S, H, W)")
+    depth = _fit_shape(arrays["depth"], path, "depth", (S, H, W), "(S, H, W[, 1])").astype(np.float32)
+    conf = _fit_shape(arrays["depth_conf"], path, "depth_conf", (S, H, W), "(S, H, W)")
     conf = conf.astype(np.float32)
 
     ext = _per_frame_matrices(arrays["extrinsic"], path, "extrinsic", S, ((3, 4), (4, 4)))
     _check_finite(ext, path, "extrinsic")
     ext = cameras.as_matrix4(ext)
-    R = ext[:, :3, :3]
-    orth = np.abs(np.swapaxes(R, 1, 2) @ R - np.eye(3)).max(axis=(1, 2))
-    if orth.max() > 1e-3 or np.any(np.linalg.det(R) < 0):
-        bad = int(np.argmax(orth))
-        raise PredictionsError(path, "extrinsic", f"frame {bad} is not a rotation + translation "
-                                                  f"(|R^T R - I| = {orth[bad]:.2e})")
-    if np.any(ext[:, 3] != [0, 0, 0, 1]):
-        raise PredictionsError(path, "extrinsic", "the last row of a 4x4 extrinsic must be [0, 0, 0, 1]")
+    problem = rigid_problem(ext)
+    if problem is not None:
+        raise PredictionsError(path, "extrinsic", problem[1])
 
     intr = _per_frame_matrices(arrays["intrinsic"], path, "intrinsic", S, ((3, 3),)).copy()
     _check_finite(intr, path, "intrinsic")
@@ -462,10 +487,10 @@ def predictions_from_arrays(arrays, path="<arrays>", *, extrinsic_convention: st
 
     wp = wpc = None
     if "world_points" in arrays:
-        wp = _fit_shape(np.asarray(arrays["world_points"]), path, "world_points", (S, H, W, 3), "(S, H, W, 3)")
+        wp = _fit_shape(arrays["world_points"], path, "world_points", (S, H, W, 3), "(S, H, W, 3)")
         wp = wp.astype(np.float32)
     if "world_points_conf" in arrays:
-        wpc = _fit_shape(np.asarray(arrays["world_points_conf"]), path, "world_points_conf", (S, H, W),
+        wpc = _fit_shape(arrays["world_points_conf"], path, "world_points_conf", (S, H, W),
                          "(S, H, W)").astype(np.float32)
 
     # crop: every per-pixel array, and the principal point with them
@@ -811,45 +836,57 @@ def world_from_vggt_by_factor(scale: float) -> MetricFit:
     return MetricFit(M, "factor", float(scale))
 
 
+#: A TUM table of 100,000 poses is ~10 MB.
+MAX_TRAJECTORY_TEXT_BYTES = 256 * 2 ** 20
+
+
 def load_metric_trajectory(path, num_frames: int | None = None):
     """A metric camera path in world metres: returns (world_to_camera (N, 4, 4) or None, centres (N, 3)).
 
     Accepted: ``.npz`` with ``world_to_camera`` ((N, 4, 4) or (N, 3, 4), OpenCV cameras) or ``camera_centers``
     (N, 3); text (``.txt``/``.csv``, ``#`` comments) with 3 columns x y z, or 8 columns in TUM order
-    ``t x y z qx qy qz qw`` (camera-to-world, OpenCV camera axes).
+    ``t x y z qx qy qz qw`` (camera-to-world, OpenCV camera axes). PredictionsError naming the file and key for
+    anything else (a FIFO or directory, an unreadable archive, no poses, wrong shapes, NaN, non-rigid poses).
     """
     path = os.fspath(path)
-    if not os.path.isfile(path):
-        raise PredictionsError(path, None, "trajectory file not found")
     w2c = None
     if path.lower().endswith(".npz"):
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                if "world_to_camera" in z.files:
-                    w2c = cameras.as_matrix4(_numeric(z, path, "world_to_camera"), "world_to_camera")
-                    if w2c.ndim != 3:
-                        raise PredictionsError(path, "world_to_camera", f"expected (N, 4, 4), got {w2c.shape}")
-                    centres = cameras.camera_centers(w2c)
-                elif "camera_centers" in z.files:
-                    centres = np.asarray(_numeric(z, path, "camera_centers"), np.float64)
-                else:
-                    raise PredictionsError(path, "world_to_camera",
-                                           f"missing; expected 'world_to_camera' or 'camera_centers', has {z.files}")
-        except (zipfile.BadZipFile, EOFError, OSError, ValueError) as e:
-            if isinstance(e, PredictionsError):
-                raise
-            raise PredictionsError(path, None, f"not a readable .npz file: {e}") from None
+        arrays = files.read_npz(path, (), ("world_to_camera", "camera_centers"), error=_trajectory_error)
+        if "world_to_camera" in arrays:
+            key = "world_to_camera"
+            a = _numeric(arrays[key], path, key)
+            if a.ndim != 3 or a.shape[1:] not in ((3, 4), (4, 4)):
+                raise PredictionsError(path, key, f"expected (N, 4, 4) or (N, 3, 4), got {a.shape}")
+            w2c = cameras.as_matrix4(a)
+            centres = None
+        elif "camera_centers" in arrays:
+            key = "camera_centers"
+            centres = np.asarray(_numeric(arrays[key], path, key), np.float64)
+        else:
+            raise PredictionsError(path, "world_to_camera", "missing; expected 'world_to_camera' or "
+                                                            f"'camera_centers', has {_npz_keys(path)}")
     else:
+        key = None
+        size = files.check_regular(path, _trajectory_error)  # np.loadtxt opens by name: a FIFO would block it
+        if size > MAX_TRAJECTORY_TEXT_BYTES:  # loadtxt would take minutes and gigabytes before failing
+            raise PredictionsError(path, None, f"is larger than {MAX_TRAJECTORY_TEXT_BYTES // 2 ** 20} MB ({size:,} "
+                                               "bytes), far more than a camera path's table: not a trajectory file")
         try:
-            rows = np.loadtxt(path, comments="#", delimiter="," if path.lower().endswith(".csv") else None,
-                              ndmin=2, dtype=np.float64)
-        except ValueError as e:
-            raise PredictionsError(path, None, f"not a numeric table: {e}") from None
+            with warnings.catch_warnings():  # "input contained no data": said below, as an error naming the file
+                warnings.simplefilter("ignore", UserWarning)
+                rows = np.loadtxt(path, comments="#", delimiter="," if path.lower().endswith(".csv") else None,
+                                  ndmin=2, dtype=np.float64)
+        except (ValueError, OSError) as e:  # a UnicodeDecodeError is a ValueError
+            raise PredictionsError(path, None, f"not a numeric table: {str(e)[:300]}") from None
+        if rows.size == 0:
+            raise PredictionsError(path, None, "holds no poses (no numeric rows)")
         if rows.shape[1] == 3:
             centres = rows
         elif rows.shape[1] == 8:
             centres = rows[:, 1:4]
             q = rows[:, [7, 4, 5, 6]]  # TUM's qx qy qz qw -> (w, x, y, z)
+            if not np.all(np.isfinite(q)):
+                raise PredictionsError(path, "quaternion", "contains NaN or inf")
             try:
                 Rc2w = cameras.quaternion_to_rotation(q)
             except ValueError as e:
@@ -859,15 +896,41 @@ def load_metric_trajectory(path, num_frames: int | None = None):
             w2c = cameras.rigid_inverse(c2w)
         else:
             raise PredictionsError(path, None, f"expected 3 columns (x y z) or 8 (TUM), got {rows.shape[1]}")
+    if w2c is not None:
+        if len(w2c) == 0:
+            raise PredictionsError(path, key, f"holds no poses (shape {w2c.shape})")
+        if not np.all(np.isfinite(w2c)):
+            raise PredictionsError(path, key, "trajectory contains NaN or inf")
+        problem = rigid_problem(w2c, name="pose", what="pose")
+        if problem is not None:  # orthonormalize would invert a singular matrix
+            raise PredictionsError(path, key, problem[1])
+        centres = cameras.camera_centers(w2c)
     if centres.ndim != 2 or centres.shape[1] != 3:
         raise PredictionsError(path, "camera_centers", f"expected (N, 3), got {centres.shape}")
-    if not np.all(np.isfinite(centres)) or (w2c is not None and not np.all(np.isfinite(w2c))):
+    if len(centres) == 0:
+        raise PredictionsError(path, "camera_centers", f"holds no poses (shape {centres.shape})")
+    if not np.all(np.isfinite(centres)):
         raise PredictionsError(path, None, "trajectory contains NaN or inf")
     if w2c is not None:
         w2c = cameras.orthonormalize(w2c)
     if num_frames is not None and len(centres) != num_frames:
         raise PredictionsError(path, None, f"has {len(centres)} poses but the clip has {num_frames} frames")
     return w2c, centres
+
+
+def _trajectory_error(path, key, message):
+    return PredictionsError(path, key, "trajectory file not found" if message == "not found" else message)
+
+
+def _npz_keys(path) -> list:
+    """The member names of an .npz that read_npz has just opened, for a message ([] if it cannot be listed)."""
+    import zipfile
+
+    try:
+        with files.open_regular(path) as fh, zipfile.ZipFile(fh) as zf:
+            return sorted(n[:-4] if n.endswith(".npy") else n for n in zf.namelist())
+    except (files.InputError, zipfile.BadZipFile, OSError, ValueError, EOFError):
+        return []
 
 
 def world_from_vggt_by_trajectory(vggt_world_to_camera, metric_world_to_camera=None,
@@ -978,7 +1041,5 @@ def save_predictions(path, images, depth, depth_conf, extrinsic, intrinsic_vggt,
         arrays["world_points"] = np.asarray(world_points, np.float32)
     if world_points_conf is not None:
         arrays["world_points_conf"] = np.asarray(world_points_conf, np.float32)
-    path = os.fspath(path)
-    tmp = path + ".tmp.npz"
-    np.savez(tmp, **arrays)
-    os.replace(tmp, path)
+    with files.atomic_write(os.fspath(path)) as f:  # a file object: np.savez would add .npz to a temporary name
+        np.savez(f, **arrays)

@@ -26,6 +26,7 @@ import sys
 import bpy
 
 from .. import backend_client
+from ..core import files
 from ..core import job as job_mod
 from . import importer, preferences, runs
 
@@ -61,6 +62,9 @@ def _parser():
             c.add_argument("--list", action="append", help="a text file of paths, one per line (repeatable)")
             c.add_argument("--command", dest="what", choices=["render", "generate"], default="render")
             c.add_argument("--shard", help="K/N: run every N-th item starting at K (default: RANK/WORLD_SIZE)")
+            c.add_argument("--allow-outside", action="store_true",
+                           help="let job.json items' paths lead outside their folder (.blend items always may: "
+                                "their output folder is the one the scene names)")
         else:
             c.add_argument("blend", help="the scene (.blend)")
             c.add_argument("--output", help="output folder (default: the scene's SCPainter output folder)")
@@ -87,9 +91,9 @@ def _import(args) -> dict:
            "warnings": result.warnings, "predictions": result.load_report.to_json(), "timings_s": result.timings}
     if args.save:
         path = os.path.abspath(args.save)
-        tmp = path + ".tmp.blend"
-        bpy.ops.wm.save_as_mainfile(filepath=tmp, copy=True)
-        os.replace(tmp, path)
+        os.makedirs(os.path.dirname(path), exist_ok=True)
+        with files.atomic_path(path) as tmp:  # a unique temporary name, renamed when Blender has written it
+            bpy.ops.wm.save_as_mainfile(filepath=tmp, copy=True)
         out["blend"] = path
     return out
 
@@ -115,7 +119,11 @@ def _progress(ev) -> None:
 def _run_blend(blend: str, command: str, args, output: str | None = None) -> dict:
     if not os.path.isfile(blend):
         raise ValueError(f"{blend}: no such .blend file")
-    bpy.ops.wm.open_mainfile(filepath=os.path.abspath(blend), load_ui=False)
+    try:
+        bpy.ops.wm.open_mainfile(filepath=os.path.abspath(blend), load_ui=False)
+    except RuntimeError as e:  # Blender's own words ("File format is not supported"), without its traceback
+        raise files.InputError(blend, "(file)", f"Blender cannot open it as a scene: {str(e).strip()}",
+                               hint="give a .blend file saved by Blender") from None
     if output:
         bpy.context.scene.scpainter_output_dir = os.path.abspath(output)
     job, out = runs.start(bpy.context, command)
@@ -130,6 +138,7 @@ def _run_job(path: str, command: str, args) -> dict:
     prefs = preferences.get(bpy.context)
     device = args.device or (prefs.device.lower() if prefs else "auto")
     extra = ["--checkpoint", os.path.abspath(args.checkpoint)] if command == "generate" and args.checkpoint else []
+    extra += ["--allow-outside"] if getattr(args, "allow_outside", False) else []
     done = backend_client.BackendJob([command, os.path.abspath(path), "--device", device, *extra],
                                      python=prefs.backend_python if prefs else "").wait(
         timeout=args.timeout or None, on_event=_progress)
@@ -186,9 +195,20 @@ def execute(argv) -> int:
                 summary, code = _batch(args)
             else:
                 summary = _run_blend(args.blend, args.command, args, args.output)
+    except files.InputError as e:
+        print(json.dumps({"event": "error", "message": str(e), "hint": e.hint, "file": e.path, "field": e.field}),
+              flush=True)
+        return 2
     except (ValueError, backend_client.BackendError) as e:
         print(json.dumps({"event": "error", "message": str(e)}), flush=True)
         return 2 if isinstance(e, ValueError) else 1
+    except Exception as e:  # a bug or a failure of Blender itself: one error event, the traceback on stderr
+        import traceback
+
+        traceback.print_exc(file=sys.stderr)
+        print(json.dumps({"event": "error", "message": f"{type(e).__name__}: {e}",
+                          "hint": "see the traceback on standard error"}), flush=True)
+        return 1
     print(json.dumps({"event": "done", "command": args.command, **summary}), flush=True)
     return code
 

@@ -29,7 +29,10 @@ def start(context, command: str, extra=()) -> tuple[BackendJob, str]:
     job_path = os.path.join(out, "job.json")
     job_export.export_job(context, job_path, checkpoint=ckpt)
     device = prefs.device.lower() if prefs else "auto"
-    job = BackendJob([command, job_path, "--device", device, *extra], python=prefs.backend_python if prefs else "")
+    # the job's output folder is the one the user set (and its inputs are the files they imported): the add-on
+    # says so with --allow-outside, which a job from someone else, run by hand, does not get
+    job = BackendJob([command, job_path, "--device", device, "--allow-outside", *extra],
+                     python=prefs.backend_python if prefs else "")
     return job, out
 
 

@@ -1,5 +1,6 @@
 """``python -m backend generate`` and ``init-checkpoint`` end to end with a tiny checkpoint on the street."""
 
+import copy
 import json
 import os
 import shutil
@@ -24,7 +25,8 @@ backend = run_backend
 
 @pytest.fixture(scope="module")
 def street_job(street, tmp_path_factory, addon, tiny_checkpoint):
-    """The street with a car beside the road, seen from a path 2 m to the left at half resolution; 3 steps."""
+    """The street with a car beside the road, seen from a path 2 m to the left at half resolution; 3 steps. Its
+    predictions and checkpoint lie outside its folder: it runs with --allow-outside."""
     d = tmp_path_factory.mktemp("generate")
     street_with_car(street, d, count=5000)
     bpy.context.scene.render.resolution_percentage = 50  # 259 x 147: the tiny model's CPU time stays small
@@ -43,7 +45,7 @@ def frames_of(out):
 
 
 def test_generate_end_to_end(street_job):
-    code, ev, err = backend("generate", street_job, "--device", "cpu")
+    code, ev, err = backend("generate", street_job, "--device", "cpu", "--allow-outside")
     assert code == 0, err[-3000:]
     done = ev[-1]
     assert done["event"] == "done" and done["frames"] == 16 and done["precision"] == "fp32"
@@ -55,7 +57,7 @@ def test_generate_end_to_end(street_job):
     assert video.shape[0] == 16 and video.shape[1:3] == (148, 260)  # H.264 4:2:0 needs even sizes
     assert not os.path.exists(os.path.join(os.path.dirname(done["video"]), "generate_state.safetensors"))
     # the same job again: up to date, nothing recomputed
-    code, ev, _ = backend("generate", street_job, "--device", "cpu")
+    code, ev, _ = backend("generate", street_job, "--device", "cpu", "--allow-outside")
     assert code == 0 and ev[-1]["skipped"] is True
 
 
@@ -66,7 +68,7 @@ def test_sigterm_then_resume_gives_the_uninterrupted_frames(street_job, tmp_path
     job["output_dir"] = job["output_dir"].rstrip("/") + "_resumed"
     path = os.path.join(os.path.dirname(street_job), "job_resumed.json")
     J.save(path, job)
-    proc = subprocess.Popen([sys.executable, "-m", "backend", "generate", path, "--device", "cpu"], cwd=ROOT,
+    proc = subprocess.Popen([sys.executable, "-m", "backend", "generate", path, "--device", "cpu", "--allow-outside"], cwd=ROOT,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     seen = []
     for line in proc.stdout:
@@ -78,7 +80,7 @@ def test_sigterm_then_resume_gives_the_uninterrupted_frames(street_job, tmp_path
     out = J.resolve(path, job["output_dir"])
     assert os.path.isfile(os.path.join(out, "generate_state.safetensors"))
     assert not os.path.exists(os.path.join(out, "generated.mp4"))
-    code, ev, err = backend("generate", path, "--device", "cpu")
+    code, ev, err = backend("generate", path, "--device", "cpu", "--allow-outside")
     assert code == 0, err[-3000:]
     stopped_after = [e["done"] for e in seen if e["event"] == "progress" and e.get("stage") == "generate"][-1]
     assert stopped_after < 3        # the steps done before the stop are not done again:
@@ -121,3 +123,65 @@ def test_init_checkpoint_command(tiny_svd, tmp_path):
     code, ev, _ = backend("init-checkpoint", "--svd", bad, "--out", tmp_path / "never")
     assert code == 2 and "unet" in ev[-1]["message"] and ".bin" in ev[-1]["message"]
     assert not (tmp_path / "never").exists()
+
+
+def _nan_checkpoint(tiny_checkpoint, folder):
+    """A copy of the tiny checkpoint whose UNet outputs NaN (its last convolution's bias is NaN)."""
+    from safetensors.torch import load_file, save_file
+
+    out = os.path.join(str(folder), "nan-ckpt")
+    shutil.copytree(tiny_checkpoint, out)
+    weights = os.path.join(out, "unet", "diffusion_pytorch_model.safetensors")
+    state = load_file(weights)
+    state["conv_out.bias"] = state["conv_out.bias"] * float("nan")
+    save_file(state, weights)
+    return out
+
+
+def test_a_model_that_outputs_nan_is_an_error_not_a_video(tiny_checkpoint, tmp_path):
+    """Issue 14: exit 1 naming the step and σ, suggesting a precision; no frames, no MP4, no manifest, and no
+    resume state holding NaN (so the next run cannot 'finish' a black clip)."""
+    from tests_support import small_job
+
+    job_path = small_job(tmp_path / "job", frames=(1, 2, 3), resolution=(64, 64),
+                         generate={"checkpoint": _nan_checkpoint(tiny_checkpoint, tmp_path), "steps": 2,
+                                   "window": 3, "overlap": 1})
+    code, ev, err = backend("generate", job_path, "--device", "cpu", "--allow-outside")
+    assert code == 1, err[-3000:]
+    error = ev[-1]
+    assert error["event"] == "error" and error["step"] == 1 and error["stage"] == "generate", error
+    assert error["sigma"] == pytest.approx(700.0, rel=1e-3)
+    assert "fp32" in error["hint"] and "checkpoint" in error["hint"]     # in fp32 rounding is not the cause
+    assert "Traceback" not in err
+    out = tmp_path / "job" / "out"
+    assert (out / "conditions" / "frame_000003.exr").is_file()          # the conditions are fine and kept
+    assert not (out / "generated.mp4").exists() and not (out / "generated").exists()
+    assert not (out / "generate_state.safetensors").exists()
+
+
+def test_generate_checks_everything_before_any_work(tiny_checkpoint, tmp_path):
+    """Issue 14: fps 1e300, a missing source frame, a bad override or a window the checkpoint cannot hold fail
+    at once, naming file and field; nothing is rendered or loaded (no output folder)."""
+    from tests_support import small_job
+
+    job_path = small_job(tmp_path / "job", generate={"checkpoint": "ckpt"})
+    shutil.copytree(tiny_checkpoint, tmp_path / "job" / "ckpt", copy_function=os.link)
+    code, ev, err = backend("generate", job_path, "--check")
+    assert code == 0 and ev[-1]["check"] and ev[-1]["settings"]["window"] == 14, err[-2000:]
+    base = J.load(job_path)
+    for change, field in [({"fps": 1e300}, "generate.fps"), ({"overlap": 14}, "generate.overlap"),
+                          ({"window": 4, "overlap": 4}, "generate.overlap")]:
+        job = copy.deepcopy(base)
+        job["generate"] = {"checkpoint": "ckpt", **change}
+        with open(job_path, "w") as f:  # as someone else's tool writes it, unvalidated
+            json.dump(job, f)
+        code, ev, _ = backend("generate", job_path)
+        assert code == 2 and ev[-1]["field"] == field and ev[-1]["file"] == job_path, ev[-1]
+    job["generate"] = {"checkpoint": "ckpt"}
+    job["frames"][1]["source_frames"] = [1, 2]
+    J.save(job_path, job)
+    code, ev, _ = backend("generate", job_path)
+    assert code == 2 and ev[-1]["field"] == "frames[1].source_frames" and "has 2 frames" in ev[-1]["message"]
+    code, ev, _ = backend("generate", job_path, "--steps", "0")
+    assert code == 2 and ev[-1]["field"] == "--steps"
+    assert not (tmp_path / "job" / "out").exists()

@@ -554,3 +554,118 @@ def test_real_mesh_ply_without_colours(tmp_path):
     assert np.isfinite(g.means).all() and len(g) == 20_000
     # an upright box: height 1 (the z range), length and width from the footprint
     assert r["obb"]["size"][2] == pytest.approx(1.0, abs=0.01) and r["obb"]["size"][0] >= r["obb"]["size"][1]
+
+
+# -- inputs that must not hang or traceback (issue 14) ----------------------------------------------------------------
+
+def _triangle_gltf(folder, buffer_uri="tri.bin", image_uri=None):
+    """A one-triangle glTF whose buffer (and optional base-colour image) are separate files named by URI."""
+    positions = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32)
+    uv = np.array([[0, 0], [1, 0], [0, 1]], np.float32)
+    indices = np.array([0, 1, 2, 0], np.uint16)  # padded to 4 bytes
+    blob = positions.tobytes() + uv.tobytes() + indices.tobytes()
+    gltf = {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+            "buffers": [{"uri": buffer_uri, "byteLength": len(blob)}],
+            "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 36},
+                            {"buffer": 0, "byteOffset": 36, "byteLength": 24},
+                            {"buffer": 0, "byteOffset": 60, "byteLength": 6}],
+            "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
+                           "min": [0, 0, 0], "max": [1, 1, 0]},
+                          {"bufferView": 1, "componentType": 5126, "count": 3, "type": "VEC2"},
+                          {"bufferView": 2, "componentType": 5123, "count": 3, "type": "SCALAR"}],
+            "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "TEXCOORD_0": 1}, "indices": 2}]}]}
+    if image_uri is not None:
+        gltf["meshes"][0]["primitives"][0]["material"] = 0
+        gltf["materials"] = [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}]
+        gltf["textures"] = [{"source": 0}]
+        gltf["images"] = [{"uri": image_uri}]
+    if buffer_uri == "tri.bin":
+        (folder / "tri.bin").write_bytes(blob)
+    (folder / "tri.gltf").write_text(json.dumps(gltf))
+    return folder / "tri.gltf"
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this system")
+def test_fifo_inputs_are_refused_at_once(tmp_path):
+    """A FIFO as the mesh, or named by the mesh as its buffer or texture, once blocked trimesh for ever."""
+    import time
+
+    for name in ("pipe.glb", "pipe.ply", "pipe.obj"):
+        os.mkfifo(tmp_path / name)
+        t = time.perf_counter()
+        with pytest.raises(ma.MeshAssetError, match=rf"{name.replace('.', '[.]')}: is a FIFO \(named pipe\)") as e:
+            ma.load_mesh(tmp_path / name)
+        assert time.perf_counter() - t < 1.0 and e.value.field == "(file)"
+    with pytest.raises(ma.MeshAssetError, match="is a directory"):
+        ma.load_mesh(tmp_path)
+    ok = tmp_path / "ok"
+    ok.mkdir()
+    assert len(ma.load_mesh(_triangle_gltf(ok)).faces) == 1  # the hand-written glTF is valid
+    for what in ("buffer", "image"):
+        folder = tmp_path / what
+        folder.mkdir()
+        if what == "buffer":
+            os.mkfifo(folder / "fifo.bin")
+            path = _triangle_gltf(folder, buffer_uri="fifo.bin")
+        else:
+            os.mkfifo(folder / "fifo.png")
+            path = _triangle_gltf(folder, image_uri="fifo.png")
+            (folder / "tri.bin").write_bytes((ok / "tri.bin").read_bytes())
+        result = {}
+
+        def attempt():
+            try:
+                result["asset"] = ma.load_mesh(path)
+            except ValueError as e:
+                result["error"] = e
+
+        worker = __import__("threading").Thread(target=attempt, daemon=True)
+        worker.start()
+        worker.join(10.0)
+        if worker.is_alive():
+            with open(folder / ("fifo.bin" if what == "buffer" else "fifo.png"), "wb"):
+                pass  # unblock it, then fail
+            pytest.fail(f"load_mesh blocked on a FIFO {what}")
+        # named even where trimesh would go on without it (a texture): the user's file to fix
+        e = result.get("error")
+        assert isinstance(e, ma.MeshAssetError), result
+        name = "fifo.bin" if what == "buffer" else "fifo.png"
+        assert str(e).startswith(f"tri.gltf: '{name}' (named by the mesh) is a FIFO") and e.field == name
+
+
+def test_gaussian_ply_detected_by_its_properties_not_its_comments(tmp_path):
+    g = ma.mesh_to_gaussians(trimesh.creation.box(), 50)
+    splats.write_ply(tmp_path / "splat.ply", splats.encode(g), comment="exported by end_header tools")
+    with pytest.raises(ma.MeshAssetError, match="Gaussian-splat PLY") as e:
+        ma.load_mesh(tmp_path / "splat.ply")
+    assert isinstance(e.value, ma.files.InputError)
+    box = trimesh.creation.box()
+    data = box.export(file_type="ply")  # binary; a comment naming Gaussian properties is not a Gaussian file
+    data = data.replace(b"\nelement vertex", b"\ncomment not f_dc_0 scale_0 rot_0\nelement vertex", 1)
+    (tmp_path / "mesh.ply").write_bytes(data)
+    assert len(ma.load_mesh(tmp_path / "mesh.ply").faces) == 12
+
+
+def test_ply_counts_beyond_the_file_are_refused_before_trimesh(tmp_path):
+    data = trimesh.creation.box().export(file_type="ply")
+    head, body = data.split(b"end_header\n", 1)
+    n = int(head.split(b"element vertex ")[1].split(b"\n")[0])
+    (tmp_path / "big.ply").write_bytes(head.replace(b"element vertex %d" % n, b"element vertex 999999999999")
+                                       + b"end_header\n" + body)
+    with pytest.raises(ma.MeshAssetError, match=r"big\.ply: the header promises 999999999999 vertex rows") as e:
+        ma.load_mesh(tmp_path / "big.ply")
+    assert e.value.field == "vertex"
+    (tmp_path / "empty.obj").write_bytes(b"")
+    with pytest.raises(ma.MeshAssetError, match=r"empty\.obj: the file is empty"):
+        ma.load_mesh(tmp_path / "empty.obj")
+
+
+def test_mesh_named_end_header_converts(tmp_path):
+    """The output PLY's comment carries the mesh's name: a name holding "end_header" must not cut the header."""
+    path = export(trimesh.creation.box(), tmp_path / "end_header.obj")
+    out = tmp_path / "end_header.gaussians.ply"
+    r = ma.convert(path, out, count=64)
+    assert b"comment scpainter mesh-asset end_header.obj" in out.read_bytes()[:400]
+    g = splats.load(out)
+    assert r["count"] == len(g) == 64 and g.dropped == {}
+    assert np.all(np.abs(g.means) <= 0.5 + 1e-6)  # the unit box: values read from the right offset

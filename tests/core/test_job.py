@@ -38,7 +38,8 @@ def test_valid_job_round_trip(tmp_path):
     (lambda j: j.update(frames=[]), "frames"),
     (lambda j: j["frames"][1].update(frame=1), "frames[1].frame"),
     (lambda j: j["frames"][0].update(K=[[0, 0, 1], [0, 1, 1], [0, 0, 1]]), "frames[0].K"),
-    (lambda j: j["frames"][1]["K"][0].__setitem__(0, float("nan")), "frames[1].K"),
+    # a NaN literal (Python's json writes them) is named down to the element by the reader
+    (lambda j: j["frames"][1]["K"][0].__setitem__(0, float("nan")), "frames[1].K[0][0]"),
     (lambda j: j["frames"][0].update(world_to_camera=np.diag([2.0, 2, 2, 1]).tolist()), "frames[0].world_to_camera"),
     (lambda j: j["frames"][0].update(source_frames=[-1]), "frames[0].source_frames[0]"),
     (lambda j: j["scene"].update(world_from_vggt=np.diag([1.0, 2, 1, 1]).tolist()), "scene.world_from_vggt"),
@@ -56,6 +57,22 @@ def test_valid_job_round_trip(tmp_path):
     (lambda j: j.update(output_dir=""), "output_dir"),
     (lambda j: j["generate"].update(overlap=14), "generate.overlap"),
     (lambda j: j["generate"].update(steps=0), "generate.steps"),
+    # bounds that match what runs (issue 14)
+    (lambda j: j.update(resolution=[100000, 32]), "resolution[0]"),
+    (lambda j: j.update(resolution=[16384, 16384]), "resolution"),
+    (lambda j: j["frames"][0].update(frame=10 ** 7), "frames[0].frame"),
+    (lambda j: j["frames"][0].update(source_frames=[0, 10 ** 9]), "frames[0].source_frames[1]"),
+    (lambda j: j["frames"][0].update(K=[[1e300, 0, 32], [0, 50, 16], [0, 0, 1]]), "frames[0].K"),
+    (lambda j: j["generate"].update(fps=1e300), "generate.fps"),
+    (lambda j: j["generate"].update(seed=2 ** 64), "generate.seed"),
+    (lambda j: j["generate"].update(decode_chunk=0), "generate.decode_chunk"),
+    (lambda j: j["generate"].update(window=1000), "generate.window"),
+    (lambda j: j["generate"].update(steps=10 ** 6), "generate.steps"),
+    (lambda j: j["generate"].update(min_guidance=4.0, max_guidance=2.0), "generate.min_guidance"),
+    (lambda j: j.update(output_dir="x" * 5000), "output_dir"),
+    # the loader's own similarity rule: a 1e-5 shear validated before, then failed deep in the renderer
+    (lambda j: j["scene"].update(world_from_vggt=(np.eye(4) + 1e-5 * np.eye(4, k=1)).tolist()),
+     "scene.world_from_vggt"),
 ])
 def test_bad_fields_are_named(tmp_path, mutate, field):
     job = minimal()
@@ -87,3 +104,49 @@ def test_scene_reading_of_the_predictions():
     J.validate(job)
     job["scene"].update(extrinsic_convention="camera_to_world", crop=[0, 77, 0, 77])
     J.validate(job)
+
+
+def test_paths_stay_in_the_job_folder(tmp_path):
+    """Every path a job names resolves inside its folder unless the user allows more (issue 14)."""
+    import os
+
+    job = minimal()
+    path = tmp_path / "job.json"
+    paths = J.job_paths(path, job)
+    assert paths["output_dir"] == str(tmp_path / "out")
+    assert paths["scene.predictions"] == str(tmp_path / "recon" / "predictions.npz")
+    assert "generate.checkpoint" not in paths            # asked for only when the job's checkpoint is used
+    with pytest.raises(J.JobError) as e:
+        J.job_paths(path, job, checkpoint=True)
+    assert e.value.field == "generate.checkpoint"
+    for field, change in [("output_dir", {"output_dir": "../x"}), ("output_dir", {"output_dir": "a/../../x"}),
+                          ("assets[0].ply", {"assets": [{**job["assets"][0], "ply": "/etc/passwd"}]})]:
+        bad = {**job, **change}
+        with pytest.raises(J.JobError) as e:
+            J.job_paths(path, bad)
+        assert e.value.field == field and "--allow-outside" in str(e.value)
+        assert J.job_paths(path, bad, allow_outside=True)[field].startswith("/")
+    os.symlink(tmp_path.parent, tmp_path / "up")          # inside by name, outside in fact
+    with pytest.raises(J.JobError, match="symbolic link"):
+        J.job_paths(path, {**job, "output_dir": "up/out"})
+    assert J.job_paths(path, {**job, "output_dir": "sub/../out/."})["output_dir"] == str(tmp_path / "out")
+
+
+def test_job_file_limits(tmp_path):
+    """A job file is read within limits (files.read_json): too deep, a FIFO, NaN named by its field."""
+    import os
+
+    p = tmp_path / "job.json"
+    p.write_text("[" * 100000)
+    with pytest.raises(J.JobError, match="nested deeper"):
+        J.load(p)
+    job = minimal()
+    text = json.dumps(job).replace('"confidence_percentile": 50.0', '"confidence_percentile": NaN')
+    p.write_text(text)
+    with pytest.raises(J.JobError) as e:
+        J.load(p)
+    assert e.value.field == "scene.confidence_percentile"
+    os.remove(p)
+    os.mkfifo(p)
+    with pytest.raises(J.JobError, match="FIFO"):
+        J.load(p)

@@ -485,3 +485,130 @@ def test_bad_crops(tmp_path):
             V.load_predictions(p, crop=bad)
     assert V.parse_crop(None) == V.parse_crop("") == V.parse_crop(" None ") == "none"
     assert V.parse_crop("1,2, 3 4") == (1, 2, 3, 4)
+
+
+# -- readers that cannot be made to traceback or hang (issue 14) ----------------------------------------------------
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this system")
+def test_fifo_and_directory_refused_at_once(tmp_path):
+    import time
+
+    for name in ("pipe.npz", "pipe.txt", "pipe.csv"):
+        os.mkfifo(tmp_path / name)
+    t = time.perf_counter()
+    with pytest.raises(V.PredictionsError, match=r"pipe\.npz: is a FIFO \(named pipe\), not a regular file") as e:
+        V.load_predictions(tmp_path / "pipe.npz")
+    assert isinstance(e.value, V.files.InputError) and e.value.field == "(file)" and e.value.key is None
+    for name in ("pipe.npz", "pipe.txt", "pipe.csv"):
+        with pytest.raises(V.PredictionsError, match=rf"{name.replace('.', '[.]')}: is a FIFO"):
+            V.load_metric_trajectory(tmp_path / name)
+    assert time.perf_counter() - t < 1.0
+    with pytest.raises(V.PredictionsError, match="is a directory"):
+        V.load_predictions(tmp_path)
+    with pytest.raises(V.PredictionsError, match="trajectory file not found"):
+        V.load_metric_trajectory(tmp_path / "none.txt")
+
+
+@pytest.mark.parametrize("key, array, message", [
+    ("images", np.zeros((0, 3, 14, 21), np.float32), "holds no frames"),
+    ("images", np.zeros((3, 3, 0, 21), np.float32), "has images of 21 x 0 pixels"),
+    ("images", np.zeros((3, 3, 14, 0), np.float32), "has images of 0 x 14 pixels"),
+    ("images", np.zeros(5, np.float32), r"expected \(S, 3, H, W\)"),
+    ("images", np.zeros((3, 3, 14, 21), bool), "is not an array of numbers"),
+    ("depth", np.zeros((0, 14, 21, 1), np.float32), r"expected shape .* got \(0, 14, 21, 1\)"),
+    ("depth", np.ones((3, 14, 21, 1), np.uint16), "holds integers .* millimetres"),
+    ("depth_conf", np.ones((3, 14, 21), bool), "is not an array of numbers"),
+    ("extrinsic", np.ones(3, np.float32), r"expected \(3, 3, 4\) or \(3, 4, 4\), got \(3,\)"),
+    ("extrinsic", np.zeros((3, 3, 4), np.float32), "frame 0 is not a rotation"),
+    ("intrinsic", np.float32(1.0), r"expected \(3, 3, 3\), got \(\)"),
+    ("world_points", np.ones((3, 14, 21, 3), np.int32), "holds integers"),
+    ("world_points_conf", np.ones((3, 14, 21, 0), np.float32), "expected shape"),
+])
+def test_odd_shapes_and_dtypes_name_the_key(tmp_path, key, array, message):
+    """Zero frames, empty or 1-D arrays, integers and booleans where VGGT writes floats: a PredictionsError naming
+    the key, never a numpy traceback from a later step."""
+    arrays = make_arrays()
+    arrays[key] = array
+    for convention in ("world_to_camera", "auto"):
+        with pytest.raises(V.PredictionsError, match=f"'{key}': {message}") as e:
+            V.load_predictions(save(tmp_path, arrays), extrinsic_convention=convention, crop="auto")
+        assert e.value.field == key and e.value.path.endswith("predictions.npz")
+
+
+def test_zero_frame_file_refused(tmp_path):
+    arrays = {k: np.zeros((0,) + v.shape[1:], v.dtype) for k, v in make_arrays().items()}
+    with pytest.raises(V.PredictionsError, match="'images': holds no frames"):
+        V.load_predictions(save(tmp_path, arrays))
+
+
+def test_damaged_npz_members_name_file_and_key(tmp_path):
+    arrays = make_arrays()
+    # a member stored without the .npy suffix
+    p = tmp_path / "nosuffix.npz"
+    with zipfile.ZipFile(p, "w") as z:
+        for k, v in arrays.items():
+            buf = __import__("io").BytesIO()
+            np.save(buf, v)
+            z.writestr(k if k == "depth" else f"{k}.npy", buf.getvalue())
+    with pytest.raises(V.PredictionsError, match=r"nosuffix\.npz: 'depth': is stored without the \.npy suffix"):
+        V.load_predictions(p)
+    # a corrupt deflate stream in one member (savez_compressed, bytes flipped mid-member)
+    q = tmp_path / "deflate.npz"
+    np.savez_compressed(q, **arrays)
+    data = bytearray(q.read_bytes())
+    with zipfile.ZipFile(q) as z:
+        info = z.getinfo("depth.npy")
+    mid = info.header_offset + 30 + len("depth.npy") + info.compress_size // 2
+    data[mid:mid + 8] = bytes(b ^ 0xA5 for b in data[mid:mid + 8])
+    q.write_bytes(bytes(data))
+    with pytest.raises(V.PredictionsError, match=r"deflate\.npz: 'depth': ") as e:
+        V.load_predictions(q)
+    assert e.value.field == "depth"
+    # a header claiming more elements than the member holds (same length, valid CRC)
+    with zipfile.ZipFile(save(tmp_path, arrays, "plain.npz")) as z:
+        members = {n: z.read(n) for n in z.namelist()}
+    members["intrinsic.npy"] = members["intrinsic.npy"].replace(b"(3, 3, 3)", b"(9, 3, 3)")
+    r = tmp_path / "claims.npz"
+    with zipfile.ZipFile(r, "w") as z:
+        for n, b in members.items():
+            z.writestr(n, b)
+    with pytest.raises(V.PredictionsError, match=r"claims\.npz: 'intrinsic': its header claims shape \(9, 3, 3\)"):
+        V.load_predictions(r)
+    # a broken header
+    members["intrinsic.npy"] = members["intrinsic.npy"].replace(b"'descr'", b"'dexcr'")
+    with zipfile.ZipFile(r, "w") as z:
+        for n, b in members.items():
+            z.writestr(n, b)
+    with pytest.raises(V.PredictionsError, match=r"'intrinsic': is not a readable \.npy array \(broken header"):
+        V.load_predictions(r)
+
+
+def test_bad_trajectories_are_clean_errors(tmp_path):
+    T = np.tile(np.eye(4), (3, 1, 1))
+    cases = {
+        "zero.npz": dict(world_to_camera=np.zeros((0, 4, 4))),
+        "singular.npz": dict(world_to_camera=np.concatenate([T, np.zeros((1, 4, 4))])),
+        "flat.npz": dict(world_to_camera=np.zeros(16)),
+        "bool.npz": dict(camera_centers=np.ones((3, 3), bool)),
+        "nocentres.npz": dict(camera_centers=np.zeros((0, 3))),
+        "neither.npz": dict(other=np.zeros(3)),
+        "pickle.npz": dict(world_to_camera=np.array([None], dtype=object)),
+    }
+    expected = {"zero.npz": "'world_to_camera': holds no poses", "singular.npz": "'world_to_camera': pose 3 is not a "
+                "rotation", "flat.npz": r"'world_to_camera': expected \(N, 4, 4\)", "bool.npz": "'camera_centers': is "
+                "not an array of numbers", "nocentres.npz": "'camera_centers': holds no poses", "neither.npz":
+                r"'world_to_camera': missing.*\['other'\]", "pickle.npz": "'world_to_camera': holds Python objects"}
+    for name, arrays in cases.items():
+        np.savez(tmp_path / name, **arrays)
+        with pytest.raises(V.PredictionsError, match=f"{name}: {expected[name]}"):
+            V.load_metric_trajectory(tmp_path / name)
+    (tmp_path / "empty.txt").write_text("# nothing but a comment\n")
+    (tmp_path / "latin1.txt").write_bytes(b"1 2 3\n4 5 \xe9\n")
+    (tmp_path / "zeroq.txt").write_text("0 1 2 3 0 0 0 0\n")
+    with open(tmp_path / "huge.txt", "wb") as f:  # sparse: its size alone is refused, nothing is read
+        f.truncate(V.MAX_TRAJECTORY_TEXT_BYTES + 1)
+    for name, message in (("empty.txt", "holds no poses"), ("latin1.txt", "not a numeric table"),
+                          ("huge.txt", "is larger than 256 MB"),
+                          ("zeroq.txt", "'quaternion': quaternion of zero length")):
+        with pytest.raises(V.PredictionsError, match=f"{name}: {message}"):
+            V.load_metric_trajectory(tmp_path / name)

@@ -18,7 +18,7 @@ def _last_event(capsys):
 
 
 def test_import_and_save(addon, empty_scene, street, tmp_path, capsys):
-    out = tmp_path / "batch.blend"
+    out = tmp_path / "not yet" / "batch.blend"     # a folder that does not exist yet is made
     code = _cli(addon).execute(["import", street.predictions_path, "--trajectory",
                                 os.path.join(street.root, "metric.npz"), "--save", str(out)])
     ev = _last_event(capsys)
@@ -26,7 +26,7 @@ def test_import_and_save(addon, empty_scene, street, tmp_path, capsys):
     assert ev["event"] == "done" and ev["scale_method"] == "trajectory"
     assert abs(ev["scale"] - float(street.metric()["metres_per_unit"])) < 1e-4
     assert ev["blend"] == str(out) and out.stat().st_size > 1_000_000
-    assert not list(tmp_path.glob("*.tmp.blend"))
+    assert sorted(os.listdir(out.parent)) == ["batch.blend"]       # no temporary file left
     bpy.ops.wm.open_mainfile(filepath=str(out))
     pts = next(o for o in bpy.context.scene.objects if o.get("scpainter_kind") == "points")
     assert len(pts.data.vertices) == ev["points"]
@@ -43,6 +43,11 @@ def test_bad_input_exit_code_2(addon, empty_scene, tmp_path, capsys):
     assert "predictions" in _last_event(capsys)["message"]
     assert cli.execute(["import", "x.npz", "--camera-height", "1.6", "--scale-factor", "2"]) == 2
     assert len(bpy.data.objects) == 0
+    not_blend = tmp_path / "predictions.npz"                   # a scene command given the wrong kind of file
+    np.savez(not_blend, depth=np.zeros(3))
+    assert cli.execute(["render", str(not_blend)]) == 2
+    ev = _last_event(capsys)
+    assert ev["file"] == str(not_blend) and "cannot open it as a scene" in ev["message"]
 
 
 def _street_blend(street, folder):

@@ -32,7 +32,9 @@ def _pixels(path):
 
 @pytest.fixture(scope="module")
 def street_jobs(street, tmp_path_factory, addon):
-    """Two jobs from one Blender scene: the recorded drive, and a 2 m shift with a car parked beside the road."""
+    """Two jobs from one Blender scene: the recorded drive, and a 2 m shift with a car parked beside the road.
+    They read the street's predictions from the cache, outside their folders: run with --allow-outside, as the
+    user who exported them would."""
     d = tmp_path_factory.mktemp("render")
     bpy.ops.wm.read_homefile(use_empty=True)
     bpy.ops.scpainter.import_vggt(filepath=street.predictions_path, scale_mode="TRAJECTORY",
@@ -50,7 +52,7 @@ def street_jobs(street, tmp_path_factory, addon):
 
 def test_recorded_drive_reproduces_the_frames(street_jobs, street):
     job_path, _ = street_jobs
-    code, ev, err = backend("render", job_path, "--device", "cpu")
+    code, ev, err = backend("render", job_path, "--device", "cpu", "--allow-outside")
     assert code == 0, err
     assert ev[-1]["event"] == "done" and ev[-1]["rendered"] == 16 and ev[-1]["device"] == "cpu"
     assert [e["done"] for e in ev if e["event"] == "progress"] == list(range(1, 17))
@@ -72,20 +74,20 @@ def test_recorded_drive_reproduces_the_frames(street_jobs, street):
     preview = _pixels(os.path.join(cond, "preview_000001.png"))  # the PNG is the EXR's image in 8 bits
     assert np.abs(preview - np.stack([first[c] for c in "RGB"], -1)).max() <= 0.5 / 255 + 1e-6
     # resume: finished frames are skipped; --force renders them again
-    code, ev, _ = backend("render", job_path, "--device", "cpu")
+    code, ev, _ = backend("render", job_path, "--device", "cpu", "--allow-outside")
     assert code == 0 and ev[-1]["rendered"] == 0 and ev[-1]["skipped"] == 16
     assert os.path.getsize(os.path.join(os.path.dirname(job_path), "backend.log")) > 0
     # a changed job (a camera moved) is never served stale frames
     job = J.load(job_path)
     job["frames"][3]["world_to_camera"][0][3] += 0.5
     J.save(job_path, job)
-    code, ev, _ = backend("render", job_path, "--device", "cpu")
+    code, ev, _ = backend("render", job_path, "--device", "cpu", "--allow-outside")
     assert code == 0 and ev[-1]["rendered"] == 16
 
 
 def test_shifted_drive_with_a_car(street_jobs):
     _, job_path = street_jobs
-    code, ev, err = backend("render", job_path, "--device", "cpu")
+    code, ev, err = backend("render", job_path, "--device", "cpu", "--allow-outside")
     assert code == 0, err
     cond = os.path.join(os.path.dirname(job_path), "conditions")
     layers = exr.read(os.path.join(cond, "frame_000001.exr"))
@@ -99,7 +101,8 @@ def test_shifted_drive_with_a_car(street_jobs):
 
 def test_sigterm_keeps_finished_frames_and_resumes(street_jobs):
     job_path, _ = street_jobs
-    proc = subprocess.Popen([sys.executable, "-m", "backend", "render", job_path, "--device", "cpu", "--force"],
+    proc = subprocess.Popen([sys.executable, "-m", "backend", "render", job_path, "--device", "cpu", "--force",
+                             "--allow-outside"],
                             cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     seen = []
     for line in proc.stdout:
@@ -115,7 +118,7 @@ def test_sigterm_keeps_finished_frames_and_resumes(street_jobs):
     assert not [f for f in os.listdir(cond) if f.endswith(".tmp")]
     for e in done:
         exr.read(os.path.join(cond, f"frame_{e['frame']:06d}.exr"))  # complete, readable files
-    code, ev, _ = backend("render", job_path, "--device", "cpu")
+    code, ev, _ = backend("render", job_path, "--device", "cpu", "--allow-outside")
     assert code == 0 and ev[-1]["rendered"] + ev[-1]["skipped"] == 16 and ev[-1]["skipped"] >= len(done)
 
 

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from backend.train import clip as clip_mod
+from scpainter_blender.core import files
 from scpainter_blender.core.job import JobError  # ClipError is one; the shared validators raise it
 
 
@@ -44,11 +45,72 @@ def _copy(street_clip_path, tmp_path, edit):
     (lambda d, f: d["cars"][0]["boxes"].update({"0": (2 * np.eye(4)).tolist()}), "cars[0].boxes.0"),
     (lambda d, f: d["cars"][0].update(asset="assets/none.ply"), "cars[0].asset"),
     (lambda d, f: np.savez(f / "poses.npz", K=np.zeros((16, 3, 3))), "world_to_camera"),
+    # wrong JSON types and odd values: each named, never a TypeError from deeper down (issue 14)
+    (lambda d, f: d.update(cars={"a": 1}), "cars"),
+    (lambda d, f: d.update(cars=5), "cars"),
+    (lambda d, f: d["cars"][0].update(size=["a", 1, 2]), "cars[0].size"),
+    (lambda d, f: d["cars"][0].update(size=[[1], [2], [3]]), "cars[0].size"),
+    (lambda d, f: d["cars"][0].update(size=[1, 2, 0]), "cars[0].size"),
+    (lambda d, f: d["cars"][0].update(id={"x": 1}), "cars[0].id"),
+    (lambda d, f: d["cars"][0].update(boxes=[np.eye(4).tolist()]), "cars[0].boxes"),
+    (lambda d, f: d.update(frames="frames/frame_{0.__class__}.png"), "frames"),
+    (lambda d, f: d.update(frames="frames/frame_{:999999999}.png"), "frames"),
+    (lambda d, f: d.update(frames={"0": "frames/frame_000000.png"}), "frames"),
+    (lambda d, f: d.update(views={"nan": "views/left_2m/frame_{:06d}.png"}), "views.nan"),
+    (lambda d, f: d.update(views=["views"]), "views"),
+    (lambda d, f: d.update(fps="10"), "fps"),
+    (lambda d, f: d.update(predictions=["predictions.npz"]), "predictions"),
+    (lambda d, f: _edit_poses(f, world_to_camera=lambda a: a * 0), "world_to_camera"),
+    (lambda d, f: _edit_poses(f, K=lambda a: a > 0), "K"),
+    (lambda d, f: _edit_poses(f, K=lambda a: -a), "K"),
+    (lambda d, f: _edit_poses(f, world_from_vggt=lambda a: a[:3]), "world_from_vggt"),
+    (lambda d, f: _edit_poses(f, world_from_vggt=lambda a: np.diag([1.0, 2.0, 3.0, 1.0])), "world_from_vggt"),
+    (lambda d, f: _edit_poses(f, world_to_camera=lambda a: np.array([None] * len(a), object)), "world_to_camera"),
 ])
 def test_bad_clips_name_the_field(street_clip_path, tmp_path, edit, field):
     folder = _copy(street_clip_path, tmp_path, edit)
     with pytest.raises(JobError, match=f"{field.replace('[', '.').replace(']', '.')}"):
         clip_mod.load(folder)
+
+
+def _edit_poses(folder, **change):
+    """Rewrite the clip's poses.npz with ``change[key](array)`` applied."""
+    with np.load(folder / "poses.npz") as z:
+        arrays = {k: z[k] for k in z.files}
+    for k, fn in change.items():
+        arrays[k] = fn(arrays[k])
+    np.savez(folder / "poses.npz", **arrays)
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this system")
+@pytest.mark.parametrize("name, field", [("clip.json", "(file)"), ("predictions.npz", "predictions"),
+                                         ("poses.npz", "(file)"), ("frames/frame_000000.png", "frames[0]"),
+                                         ("views/left_2m/frame_000000.png", "views.2")])
+def test_fifos_named_by_a_clip_are_refused_at_once(street_clip_path, tmp_path, name, field):
+    """A FIFO in place of any file a clip names once blocked the loader for ever; now it is refused at once."""
+    import threading
+
+    folder = _copy(street_clip_path, tmp_path, lambda d, f: None)
+    os.remove(folder / name)  # after _copy, which writes clip.json (a write would block on a FIFO too)
+    os.mkfifo(folder / name)
+    result = {}
+
+    def attempt():
+        try:
+            clip_mod.load(folder)
+        except JobError as e:
+            result["error"] = e
+
+    worker = threading.Thread(target=attempt, daemon=True)
+    worker.start()
+    worker.join(20.0)
+    if worker.is_alive():
+        with open(folder / name, "wb"):
+            pass
+        pytest.fail(f"loading the clip blocked on a FIFO {name}")
+    e = result["error"]
+    assert "is a FIFO (named pipe)" in str(e) and e.field == field, str(e)
+    assert isinstance(e, files.InputError)
 
 
 def test_clip_without_poses_uses_vggt_cameras_scaled_to_the_frames(street_clip_path, tmp_path):

@@ -149,7 +149,8 @@ def test_a_bad_clip_met_in_a_worker_stops_training_with_its_name(tmp_path, tiny_
 
     bad = tmp_path / "bad"
     shutil.copytree(os.path.dirname(street_clip_path), bad)
-    os.remove(bad / "frames" / "frame_000005.png")  # the clip loads (ends and middle checked), sampling fails
+    # the clip loads (every frame is a regular file), sampling fails in the worker: the frame is not an image
+    (bad / "frames" / "frame_000005.png").write_bytes(b"not a PNG")
     cfg = train_config.load(_config(tmp_path, tiny_checkpoint, str(bad), num_workers=1, pairs={
         "width": 128, "height": 64, "frames": 16}))
     with pytest.raises(ValueError, match="training sample 0: .*frame_000005.png"):

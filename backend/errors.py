@@ -1,0 +1,24 @@
+"""Failures that are not bad input but still end a command cleanly, with a message and no traceback.
+
+``python -m backend`` turns each into an ``error`` event (message, hint, the fields below) and exit code 1; bad
+input (``scpainter_blender.core.files.InputError``, a ``ValueError``) is exit code 2.
+"""
+
+from __future__ import annotations
+
+
+class CleanFailure(RuntimeError):
+    """A failure the command explains itself: ``hint`` says what to do, ``fields`` go into the error event."""
+
+    def __init__(self, message: str, hint: str | None = None, **fields):
+        self.hint, self.fields = hint, fields
+        super().__init__(message)
+
+
+class NonFiniteError(CleanFailure):
+    """A model produced NaN or infinity (sampler latents, decoded frames, a training loss): nothing is written
+    from it. ``fields`` name where (``stage``, ``step``, ``sigma``, ``batch``)."""
+
+
+class FolderBusyError(CleanFailure):
+    """Another live process holds the output folder's lock (see ``core.files.OutputLock``)."""

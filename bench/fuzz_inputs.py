@@ -1,0 +1,98 @@
+"""The fuzz cases of issue 14 on this checkout: per input kind, how many are accepted, refused cleanly, or end badly.
+
+    .venv/bin/python bench/fuzz_inputs.py [--label before|after] [--kinds job npz ply checkpoint] [--seed 14]
+                                          [--timeout 5] [--out bench/results/fuzz_inputs.json]
+
+Runs the cases of ``tests/fuzz_inputs.py`` (the same ones ``tests/backend/test_fuzz_inputs.py`` asserts on) and
+prints the table of the closing note (input kind, cases, accepted, clean errors, unclear, tracebacks, hangs,
+escapes, misreads), then the failing cases grouped by family with one example each. Outcome classes are defined in
+``tests/fuzz_inputs.py``: ``clean`` = exit 2 with an error naming the file; ``unclear`` = exit 2 naming none;
+``traceback`` = exit 1 or a traceback; ``hang`` = no answer within the timeout; ``escape`` = a file outside the
+job folder created, changed or deleted; ``misread`` = a PLY rewritten without changing its Gaussians, accepted with
+other values. Run from any checkout's root (an older one gives the "before" column: copy this file and
+tests/fuzz_inputs.py into it). Saves every case's result to the JSON. Not a test.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)
+sys.path.insert(0, os.path.join(ROOT, "tests"))
+
+import fuzz_inputs as F  # noqa: E402
+
+
+def compact(r: dict) -> dict:
+    """One case for the JSON: no traceback, no empty fields, the message's first 160 characters."""
+    out = {k: v for k, v in r.items() if k not in ("traceback", "seed") and v not in (None, "")}
+    if "message" in out:
+        out["message"] = out["message"][:160]
+    return out
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--label", default="after", help="before | after (recorded in the JSON)")
+    p.add_argument("--kinds", nargs="+", choices=F.KINDS, default=list(F.KINDS))
+    p.add_argument("--seed", type=int, default=F.SEED)
+    p.add_argument("--timeout", type=float, default=F.TIMEOUT_S, help="seconds per case before it is a hang")
+    p.add_argument("--out", default=os.path.join(ROOT, "bench", "results", "fuzz_inputs.json"))
+    p.add_argument("--quiet", action="store_true", help="no line per failing case while running")
+    args = p.parse_args()
+
+    def on_result(r):
+        if not args.quiet and r["outcome"] in F.FAILURES:
+            print(f"  {r['kind']:<10} {r['index']:>4} {r['outcome']:<9} {r['description'][:60]:<60} "
+                  f"{r['message'][:110]}", flush=True)
+
+    t0 = time.perf_counter()
+    run = F.run(args.kinds, seed=args.seed, timeout=args.timeout, on_result=on_result)
+    seconds = time.perf_counter() - t0
+    results = run["results"]
+    summary = F.summarize(results)
+    try:
+        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
+                                text=True).stdout.strip()
+        dirty = bool(subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=ROOT,
+                                    capture_output=True, text=True).stdout.strip())
+    except OSError:
+        commit, dirty = "", False
+
+    print(f"\nfuzz_inputs ({args.label}): commit {commit}{' + local changes' if dirty else ''}, seed {args.seed}, "
+          f"timeout {args.timeout:g} s, generate --check: {'yes' if run['check'] else 'no (generate runs for real)'}, "
+          f"{run['workers']} worker process(es), {seconds:.0f} s; backend {run['backend']}")
+    bad_base = {k: v for k, v in run["base"].items() if v["outcome"] != "accepted"}
+    if bad_base:
+        print(f"WARNING: the valid inputs themselves are not accepted, the table means little: {bad_base}")
+    print(F.format_table(summary))
+    groups = F.families(results)
+    if groups:
+        print("\nfailing cases by family (kind, family, outcome, count, an example):")
+        for kind, family, outcome, count, example in groups:
+            print(f"  {kind:<10} {family:<28} {outcome:<9} {count:>3}  {example[:200]}")
+
+    os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
+    with open(args.out, "w") as f:
+        json.dump({"label": args.label, "commit": commit, "local_changes": dirty, "seed": args.seed,
+                   "timeout_s": args.timeout, "generate_check": run["check"], "base": run["base"],
+                   "backend": run["backend"],
+                   "seconds": round(seconds, 1), "workers": run["workers"],
+                   "machine": {"cpus": os.cpu_count(), "platform": platform.platform(),
+                               "python": platform.python_version()},
+                   "summary": summary,
+                   "families": [dict(zip(("kind", "family", "outcome", "count", "example"), g)) for g in groups],
+                   "cases": [compact(r) for r in results]}, f, indent=1)
+    print(f"\nwrote {os.path.relpath(args.out)}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

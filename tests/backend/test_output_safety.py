@@ -1,0 +1,167 @@
+"""A job from someone else reads and writes only its own folder; one run per output folder; clean-up deletes only
+what this project wrote (issue 14, points 4 and 5). Runs ``python -m backend`` in-process on small jobs."""
+
+import contextlib
+import io
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+from backend.__main__ import main
+from scpainter_blender.core import files
+from scpainter_blender.core import job as J
+from tests_support import small_job
+
+
+def run(*args):
+    """(exit code, events) of ``python -m backend *args`` run in this process."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main([str(a) for a in args])
+    assert "Traceback" not in err.getvalue(), err.getvalue()
+    return code, [json.loads(line) for line in out.getvalue().splitlines() if line.strip()]
+
+
+def snapshot(folder):
+    """Every path under ``folder`` with its size and modification time (links: their target)."""
+    seen = {}
+    for root, dirs, names in os.walk(folder):
+        for n in dirs + names:
+            p = os.path.join(root, n)
+            seen[p] = os.readlink(p) if os.path.islink(p) else (os.lstat(p).st_size, os.lstat(p).st_mtime_ns)
+    return seen
+
+
+@pytest.fixture
+def case(tmp_path):
+    """A job folder and, beside it, a folder of the user's files that no run may touch."""
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    for name in ("frame_000001.exr", "preview_000001.png", "backend.log", "notes.txt"):
+        (outside / name).write_text("the user's own file\n")
+    return small_job(tmp_path / "job"), outside
+
+
+def edit(job_path, **changes):
+    job = J.load(job_path)
+    job.update(changes)
+    J.save(job_path, job)
+
+
+@pytest.mark.parametrize("output_dir", ["../outside", "../outside/conditions", "/tmp/scpainter-escape", "sub/../.."])
+def test_output_dir_may_not_leave_the_job_folder(case, output_dir):
+    job_path, outside = case
+    edit(job_path, output_dir=output_dir)
+    before = snapshot(os.path.dirname(outside))
+    code, ev = run("render", job_path, "--device", "cpu")
+    assert code == 2 and ev[-1]["field"] == "output_dir" and "--allow-outside" in ev[-1]["message"]
+    assert ev[-1]["file"] == job_path
+    assert snapshot(os.path.dirname(outside)) == before            # nothing written anywhere
+    assert not os.path.exists("/tmp/scpainter-escape")
+
+
+def test_inputs_may_not_leave_the_job_folder(case):
+    job_path, outside = case
+    folder = os.path.dirname(job_path)
+    os.replace(os.path.join(folder, "car.ply"), outside / "car.ply")
+    os.symlink(outside / "car.ply", os.path.join(folder, "car.ply"))   # a link pointing out counts as outside
+    code, ev = run("render", job_path, "--device", "cpu")
+    assert code == 2 and ev[-1]["field"] == "assets[0].ply" and "symbolic link" in ev[-1]["message"]
+    edit(job_path, scene={**J.load(job_path)["scene"], "predictions": "../outside/predictions.npz"})
+    code, ev = run("render", job_path, "--device", "cpu")
+    assert code == 2 and ev[-1]["field"] == "scene.predictions"
+    # the user may say so
+    os.replace(os.path.join(folder, "predictions.npz"), outside / "predictions.npz")
+    code, ev = run("render", job_path, "--device", "cpu", "--allow-outside")
+    assert code == 0 and ev[-1]["rendered"] == 2
+
+
+def test_allow_outside_writes_where_the_user_said(case, tmp_path):
+    job_path, _ = case
+    edit(job_path, output_dir=str(tmp_path / "elsewhere"))
+    code, ev = run("render", job_path, "--device", "cpu", "--allow-outside")
+    assert code == 0 and os.path.isfile(tmp_path / "elsewhere" / "conditions" / "frame_000002.exr")
+
+
+def test_links_planted_in_the_output_folder_are_not_followed(case):
+    job_path, outside = case
+    out = os.path.join(os.path.dirname(job_path), "out")
+    os.makedirs(out)
+    os.symlink(outside / "backend.log", os.path.join(out, "backend.log"))
+    before = snapshot(outside)
+    code, ev = run("render", job_path, "--device", "cpu")
+    assert code == 2 and "backend.log" in ev[-1]["message"] and "symbolic link" in ev[-1]["message"]
+    assert snapshot(outside) == before
+    os.remove(os.path.join(out, "backend.log"))
+    os.symlink(outside, os.path.join(out, "conditions"))              # the whole conditions folder
+    code, ev = run("render", job_path, "--device", "cpu")
+    assert code == 2 and "conditions" in ev[-1]["file"] and "outside the output folder" in ev[-1]["message"]
+    assert snapshot(outside) == before
+    os.remove(os.path.join(out, "conditions"))
+    os.makedirs(os.path.join(out, "conditions"))
+    os.symlink(outside / "frame_000001.exr", os.path.join(out, "conditions", "frame_000001.exr"))  # one frame
+    code, ev = run("render", job_path, "--device", "cpu")
+    assert code == 0 and ev[-1]["rendered"] == 2
+    assert snapshot(outside) == before                                  # the link was replaced, not written through
+    assert not os.path.islink(os.path.join(out, "conditions", "frame_000001.exr"))
+    assert not [n for n in os.listdir(os.path.join(out, "conditions")) if n.endswith(".tmp")]
+
+
+def test_stale_frames_clean_up_deletes_only_this_jobs_files(case):
+    job_path, _ = case
+    cond = os.path.join(os.path.dirname(job_path), "out", "conditions")
+    code, _ = run("render", job_path, "--device", "cpu")
+    assert code == 0
+    record = files.read_json(os.path.join(cond, "record.json"))
+    assert record["files"] == ["frame_000001.exr", "preview_000001.png", "frame_000002.exr", "preview_000002.png"]
+    for name in ("frame_000777.exr", "frame_notes.txt", "preview_mine.png"):  # not this job's outputs
+        with open(os.path.join(cond, name), "w") as f:
+            f.write("keep me\n")
+    job = J.load(job_path)
+    job["frames"][1]["world_to_camera"][0][3] += 0.25                   # the job changed: frames are stale
+    J.save(job_path, job)
+    code, ev = run("render", job_path, "--device", "cpu")
+    assert code == 0 and ev[-1]["rendered"] == 2
+    for name in ("frame_000777.exr", "frame_notes.txt", "preview_mine.png"):
+        assert open(os.path.join(cond, name)).read() == "keep me\n"
+
+
+def test_a_second_run_on_the_same_folder_is_refused(case):
+    job_path, _ = case
+    out = os.path.join(os.path.dirname(job_path), "out")
+    with files.OutputLock(out, "render (another process)"):
+        code, ev = run("render", job_path, "--device", "cpu")
+        # this process holds the lock, so it is alive: the run is refused, not run twice
+        assert code == 1 and "being written by another run" in ev[-1]["message"] and str(os.getpid()) in \
+            ev[-1]["message"]
+        assert not os.path.exists(os.path.join(out, "conditions", "frame_000001.exr"))
+    # a lock left by a process that died is taken over
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    with open(os.path.join(out, files.LOCK_NAME), "w") as f:
+        json.dump({"pid": dead.pid, "host": __import__("socket").gethostname(), "started": None,
+                   "command": "render", "since": "earlier"}, f)
+    code, ev = run("render", job_path, "--device", "cpu")
+    assert code == 0 and ev[-1]["rendered"] == 2
+    assert not os.path.exists(os.path.join(out, files.LOCK_NAME))     # released at the end
+    assert "took over the lock" in open(os.path.join(out, "backend.log")).read()
+
+
+def test_check_validates_and_writes_nothing(case):
+    job_path, _ = case
+    folder = os.path.dirname(job_path)
+    before = snapshot(folder)
+    code, ev = run("render", job_path, "--check")
+    assert code == 0 and ev[-1]["check"] is True and ev[-1]["frames"] == 2
+    job = J.load(job_path)
+    job["frames"][0]["source_frames"] = [0, 5]                          # the predictions have 2 frames
+    J.save(job_path, job)
+    before = snapshot(folder)
+    code, ev = run("render", job_path, "--check")
+    assert code == 2 and ev[-1]["field"] == "frames[0].source_frames" and "has 2 frames" in ev[-1]["message"]
+    code, ev = run("render", job_path)
+    assert code == 2 and ev[-1]["field"] == "frames[0].source_frames"
+    assert snapshot(folder) == before

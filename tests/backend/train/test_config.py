@@ -1,0 +1,116 @@
+"""The training config (train.json): every setting of the wrong type or range is refused naming it, the file is
+read within core.files' limits (a FIFO refused at once), and save/load round-trip."""
+
+import json
+import os
+import threading
+
+import pytest
+
+from backend.train import config as C
+from scpainter_blender.core import files
+
+BASE = {"schema": "scpainter.train/1", "checkpoint": "ckpt", "clips": ["clips/a"], "output_dir": "out"}
+
+#: JSON values of every type, for each setting: each either loads or is refused naming that setting.
+ODD_VALUES = [None, True, False, 0, -1, 1, 2 ** 40, 0.5, -0.5, 1e300, "", "x", "auto", [], [1], [0.9, 0.999],
+              {"a": 1}, {}, [[1]]]
+
+
+def test_defaults_load_and_round_trip(tmp_path):
+    path = tmp_path / "train.json"
+    path.write_text(json.dumps(BASE))
+    cfg = C.load(str(path))
+    assert cfg.clips == ["clips/a"] and cfg.adam_betas == (0.9, 0.999) and cfg.path == str(path)
+    C.save(str(tmp_path / "again.json"), cfg)
+    back = C.load(str(tmp_path / "again.json"))
+    assert back.to_json() == cfg.to_json()
+    assert [n for n in os.listdir(tmp_path) if n.endswith(".tmp")] == []
+
+
+@pytest.mark.parametrize("name", sorted({f for f in C.TrainConfig.__dataclass_fields__} - {"path", "pairs"}))
+def test_every_setting_of_the_wrong_type_is_named(tmp_path, name):
+    for value in ODD_VALUES:
+        data = {**BASE, name: value}
+        try:
+            C.from_dict(data, str(tmp_path / "train.json"))
+        except C.TrainConfigError as e:
+            assert e.field == name or e.field.startswith(f"{name}["), (name, value, str(e))
+            assert str(e).startswith(f"train.json: {e.field}: ")
+            assert isinstance(e, files.InputError)
+
+
+@pytest.mark.parametrize("name", sorted(C.PairSettings.__dataclass_fields__))
+def test_every_pair_setting_of_the_wrong_type_is_named(tmp_path, name):
+    for value in ODD_VALUES:
+        try:
+            C.from_dict({**BASE, "pairs": {name: value}}, str(tmp_path / "train.json"))
+        except C.TrainConfigError as e:
+            assert e.field in (f"pairs.{name}", "pairs"), (name, value, str(e))
+
+
+@pytest.mark.parametrize("edit, field, message", [
+    ({"adam_betas": 0.9}, "adam_betas", "two numbers"),
+    ({"adam_betas": {"a": 1, "b": 2}}, "adam_betas", "two numbers"),
+    ({"adam_betas": [0.9, "x"]}, "adam_betas[1]", "in \\[0, 1\\)"),
+    ({"adam_betas": [0.9, 1.0]}, "adam_betas[1]", "in \\[0, 1\\)"),
+    ({"learning_rate": True}, "learning_rate", "> 0"),
+    ({"steps": 2.0}, "steps", "integer"),
+    ({"steps": 2 ** 40}, "steps", "integer in \\[1, 2147483647\\]"),
+    ({"clips": "a"}, "clips", "non-empty list"),
+    ({"clips": ["a", 3]}, "clips[1]", "non-empty string"),
+    ({"checkpoint": ["c"]}, "checkpoint", "folder path"),
+    ({"optimizer": ["adamw"]}, "optimizer", "adamw or adamw8bit"),
+    ({"gradient_checkpointing": "yes"}, "gradient_checkpointing", "true or false"),
+    ({"pairs": [576, 320]}, "pairs", "expected an object of pair settings"),
+    ({"pairs": {"width": "576"}}, "pairs.width", "integer"),
+    ({"pairs": {"width": 100}}, "pairs", "multiples of 64"),
+    ({"pairs": {"confidence_percentile": 101}}, "pairs.confidence_percentile", "\\[0, 100\\]"),
+    ({"pairs": {"source_prob": 0}}, "pairs.source_prob", "\\(0, 1\\]"),
+    ({"schema": "scpainter.train/2"}, "schema", "scpainter.train/1"),
+])
+def test_named_refusals(tmp_path, edit, field, message):
+    with pytest.raises(C.TrainConfigError, match=message) as e:
+        C.from_dict({**BASE, **edit}, str(tmp_path / "train.json"))
+    assert e.value.field == field
+
+
+@pytest.mark.parametrize("text, field, message", [
+    ('{"schema": "scpainter.train/1", "checkpoint": "c", "clips": ["x"], "output_dir": "o", "learning_rate": NaN}',
+     "learning_rate", "NaN is not a JSON number"),
+    ('{"schema": "scpainter.train/1", "steps": 1e400}', "steps", "out of range"),
+    ('{"schema": "scpainter.train/1", "clips": ' + "[" * 40 + "]" * 40 + "}", "clips" + "[0]" * 31, "nested deeper"),
+    ('{"schema": "scpainter.train/1",', "(file)", "not valid JSON"),
+    ("[]", "schema", "scpainter.train/1"),
+])
+def test_file_limits_name_the_field(tmp_path, text, field, message):
+    path = tmp_path / "train.json"
+    path.write_text(text)
+    with pytest.raises(C.TrainConfigError, match=message) as e:
+        C.load(str(path))
+    assert e.value.field == field and str(e.value).startswith("train.json: ")
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this system")
+def test_fifo_and_directory_are_refused_at_once(tmp_path):
+    os.mkfifo(tmp_path / "train.json")
+    result = {}
+
+    def attempt():
+        try:
+            C.load(str(tmp_path / "train.json"))
+        except C.TrainConfigError as e:
+            result["error"] = e
+
+    worker = threading.Thread(target=attempt, daemon=True)
+    worker.start()
+    worker.join(5.0)
+    if worker.is_alive():
+        with open(tmp_path / "train.json", "w"):
+            pass
+        pytest.fail("loading the config blocked on a FIFO")
+    assert "train.json: (file): is a FIFO" in str(result["error"])
+    with pytest.raises(C.TrainConfigError, match="is a directory"):
+        C.load(str(tmp_path))
+    with pytest.raises(C.TrainConfigError, match="train.json: \\(file\\): not found"):
+        C.load(str(tmp_path / "missing" / "train.json"))

@@ -21,7 +21,9 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import sys
+import tempfile
 
 import bpy
 
@@ -92,8 +94,14 @@ def _import(args) -> dict:
     if args.save:
         path = os.path.abspath(args.save)
         os.makedirs(os.path.dirname(path), exist_ok=True)
-        with files.atomic_path(path) as tmp:  # a unique temporary name, renamed when Blender has written it
-            bpy.ops.wm.save_as_mainfile(filepath=tmp, copy=True)
+        # into a fresh private folder beside the target (Blender makes its own "@" temporary and ".blend1" backup
+        # of an existing file there), then renamed over the target
+        tmp = tempfile.mkdtemp(prefix=f".{os.path.basename(path)}.", dir=os.path.dirname(path))
+        try:
+            bpy.ops.wm.save_as_mainfile(filepath=os.path.join(tmp, "scene.blend"), copy=True)
+            os.replace(os.path.join(tmp, "scene.blend"), path)
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
         out["blend"] = path
     return out
 

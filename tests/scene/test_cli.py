@@ -82,8 +82,12 @@ def test_render_generate_and_batch_headless(addon, street, tmp_path, capsys, tin
     assert os.path.isfile(ev["video"]) and ev["video"].startswith(str(tmp_path / "gen"))
     # a batch over a scene, a missing scene and the job file the first run wrote: one summary, exit 1
     (tmp_path / "list.txt").write_text("scpainter/Scene/job.json\n")
+    # the job file reads the street's predictions from the cache, outside its folder: refused unless allowed
+    code = cli.execute(["batch", "--list", str(tmp_path / "list.txt"), "--command", "render", *common])
+    ev = _last_event(capsys)
+    assert code == 1 and "scene.predictions" in ev["items"][0]["error"] and "--allow-outside" in ev["items"][0]["error"]
     code = cli.execute(["batch", blend, str(tmp_path / "missing.blend"), "--list", str(tmp_path / "list.txt"),
-                        "--command", "render", *common])
+                        "--command", "render", "--allow-outside", *common])
     ev = _last_event(capsys)
     assert code == 1 and ev["failed"] == 1 and [r["status"] for r in ev["items"]] == ["ok", "failed", "ok"]
     assert "missing.blend" in ev["items"][1]["error"] and ev["items"][2]["skipped"] == 3   # already rendered

@@ -142,9 +142,12 @@ def load_state(path: str, key: str):
             meta = f.metadata() or {}
             if meta.get("key") != key:
                 return None, 0
-            return f.get_tensor("latents"), int(meta["step"])
+            latents, step = f.get_tensor("latents"), int(meta["step"])
     except Exception:  # a damaged state file only costs the steps it held
         return None, 0
+    if not bool(torch.isfinite(latents).all()):  # never resumed from (or decoded): the sampler never saves one
+        return None, 0
+    return latents, step
 
 
 def generate_job(job_path: str, job: dict, device: str, checkpoint: str | None, precision: str = "auto",

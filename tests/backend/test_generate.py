@@ -185,3 +185,18 @@ def test_generate_checks_everything_before_any_work(tiny_checkpoint, tmp_path):
     code, ev, _ = backend("generate", job_path, "--steps", "0")
     assert code == 2 and ev[-1]["field"] == "--steps"
     assert not (tmp_path / "job" / "out").exists()
+
+
+def test_a_resume_state_holding_nan_is_never_used(tmp_path):
+    """The sampler never saves non-finite latents; a state file that holds them anyway (damaged, or planted) is
+    ignored, so it can neither be resumed from nor decoded into a black video."""
+    import torch
+
+    from backend import generate as G
+
+    path = str(tmp_path / "generate_state.safetensors")
+    G.save_state(path, torch.ones(2, 4, 3, 3), 5, "key")
+    latents, step = G.load_state(path, "key")
+    assert step == 5 and torch.equal(latents, torch.ones(2, 4, 3, 3))
+    G.save_state(path, torch.full((2, 4, 3, 3), float("nan")), 5, "key")
+    assert G.load_state(path, "key") == (None, 0)

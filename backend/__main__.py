@@ -1,6 +1,8 @@
 """``python -m backend <command>``: the backend's command line (DESIGN §4.4).
 
-Exit codes: 0 done, 2 bad input, 1 anything else. Standard output carries JSON events only.
+Exit codes: 0 done, 2 bad input (the error event names the file and field), 1 anything else (a failure the
+command explains, such as a busy output folder or a model producing NaN, or a bug: traceback on standard error).
+Standard output carries JSON events only.
 """
 
 from __future__ import annotations
@@ -78,6 +80,7 @@ def _device(name: str) -> str:
 def _cmd_render(args) -> int:
     import time
 
+    from scpainter_blender.core import files
     from scpainter_blender.core import job as job_mod
 
     from .render import command
@@ -85,6 +88,7 @@ def _cmd_render(args) -> int:
     job = job_mod.load(args.job)
     if args.check:  # (render_job checks the same before it writes anything)
         paths = job_mod.check_inputs(args.job, job, args.allow_outside)
+        files.check_output(paths["output_dir"], args.allow_outside)
         events.done(command="render", check=True, frames=len(job["frames"]), output_dir=paths["output_dir"])
         return events.EXIT_OK
     device = _device(args.device)
@@ -215,8 +219,10 @@ def _bounded_int(lo: int, hi: int):
 
 def _input_options(p) -> None:
     p.add_argument("--allow-outside", action="store_true", help=ALLOW_OUTSIDE_HELP)
-    p.add_argument("--check", action="store_true", help="validate the job, its input files (and the checkpoint) "
-                                                         "and stop: render and load nothing")
+    p.add_argument("--check", action="store_true",
+                   help="validate and stop, rendering and loading nothing: the job, its paths, its input files "
+                        "from their headers (data corruption shows only when read), the output folder"
+                        + (" and the checkpoint" if p.prog.endswith("generate") else ""))
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -236,17 +242,19 @@ def build_parser() -> argparse.ArgumentParser:
                    help="pixels cut from the images' borders before the fit (the import's crop)")
     g.set_defaults(func=_cmd_ground_plane)
     r = sub.add_parser("render", help="render a job's condition layers (EXR + PNG previews) frame by frame")
-    r.add_argument("job", help="job.json (DESIGN §4.2)")
-    r.add_argument("--device", choices=["auto", "cpu", "cuda"], default="auto")
+    r.add_argument("job", help="job.json (the job contract: docs/design.md)")
+    r.add_argument("--device", choices=["auto", "cpu", "cuda"], default="auto",
+                   help="auto: CUDA when torch sees a GPU, else the CPU")
     r.add_argument("--force", action="store_true", help="render frames that are already finished again")
     r.add_argument("--point-radius", type=_bounded_int(0, 16), default=0,
                    help="splat each point over (2r+1)^2 pixels (0-16)")
     _input_options(r)
     r.set_defaults(func=_cmd_render)
     n = sub.add_parser("generate", help="render missing conditions, then generate the video with a checkpoint")
-    n.add_argument("job", help="job.json (DESIGN §4.2)")
+    n.add_argument("job", help="job.json (the job contract: docs/design.md)")
     n.add_argument("--checkpoint", help="SCPainter checkpoint folder (default: the job's generate.checkpoint)")
-    n.add_argument("--device", choices=["auto", "cpu", "cuda"], default="auto")
+    n.add_argument("--device", choices=["auto", "cpu", "cuda"], default="auto",
+                   help="auto: CUDA when torch sees a GPU, else the CPU")
     n.add_argument("--precision", choices=["auto", "fp32", "bf16", "fp16"], default="auto",
                    help="UNet/CLIP dtype (auto: bf16 on CUDA, fp32 on CPU); latents stay float32")
     n.add_argument("--steps", type=int, help="sampler steps (default: the job's, else 25)")

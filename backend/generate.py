@@ -67,10 +67,20 @@ def prepare(job_path: str, job: dict, checkpoint: str | None, overrides: dict | 
     for key, value in overrides.items():
         if value is not None and key in job_mod.GENERATE_INT_BOUNDS:
             job_mod._int(value, "command line", f"--{key}", *job_mod.GENERATE_INT_BOUNDS[key])
-    if checkpoint or not (job.get("generate") or {}).get("checkpoint"):
-        ckpt = ckpt_mod.resolve(checkpoint)   # the command line's (or none: the message says how to make one)
+    if checkpoint:  # the command line's: the user's own choice, never confined
+        ckpt = ckpt_mod.resolve(checkpoint)
+    elif not (job.get("generate") or {}).get("checkpoint"):
+        raise ckpt_mod.CheckpointError(job_path, "generate.checkpoint", ckpt_mod.no_checkpoint_message(),
+                                       hint=ckpt_mod.INIT_HINT)
     else:  # the job's own checkpoint path is relative to the job and confined like its other paths
-        ckpt = ckpt_mod.resolve(job_mod.job_paths(job_path, job, allow_outside, checkpoint=True)["generate.checkpoint"])
+        try:
+            named = job_mod.job_paths(job_path, job, allow_outside, checkpoint=True)["generate.checkpoint"]
+        except job_mod.JobError as e:
+            if e.field != "generate.checkpoint":
+                raise
+            raise job_mod.JobError(job_path, e.field, f"{e.message}; or name the checkpoint on the command line "
+                                                      "with --checkpoint PATH") from None
+        ckpt = ckpt_mod.resolve(named)
     config = ckpt_mod.check(ckpt)
     s = settings(job, config, overrides)
     own = job.get("generate") or {}
@@ -82,6 +92,7 @@ def prepare(job_path: str, job: dict, checkpoint: str | None, overrides: dict | 
                                                       f"({s['window']}, from its scpainter.json)") from None
         raise
     paths = job_mod.check_inputs(job_path, job, allow_outside)
+    files.check_output(paths["output_dir"], allow_outside)
     paths["allow_outside"] = allow_outside
     return Plan(ckpt, config, s, paths["output_dir"], paths)
 
@@ -168,8 +179,11 @@ def _generate(job_path, job, device, plan: Plan, precision, force, stop, lock) -
     dtype = PRECISIONS[precision]
     log = events.FileLog(os.path.join(out, "backend.log"))
     if lock.stale:
-        log(f"generate: took over the lock of a run that ended without releasing it ({lock.stale})")
+        log(f"generate: {lock.took_over()}")
     t0 = time.perf_counter()
+    files.remove_temporaries(out, ["generated.mp4", "generate_state.safetensors"])  # left by a killed run
+    files.remove_temporaries(os.path.join(out, "generated"), ["manifest.json"] + [
+        f"frame_{e['frame']:06d}.png" for e in job["frames"]])
     r = render_cmd.render_job(job_path, job, device, stop=stop, log=log, allow_outside=plan.paths["allow_outside"],
                               lock=False)
     if r["stopped"]:

@@ -409,6 +409,9 @@ def resolve(path: str | None) -> str:
     """The checkpoint folder, or CheckpointError saying how to make one."""
     if not path:
         raise CheckpointError(None, "generate.checkpoint", no_checkpoint_message(), hint=INIT_HINT)
+    if not os.path.isdir(path):
+        raise CheckpointError(os.path.abspath(path), "(folder)", "does not exist" if not os.path.exists(path) else
+                              "is not a folder", hint="give the folder init-checkpoint or training wrote")
     if not os.path.isfile(os.path.join(path, "scpainter.json")):
         stock = os.path.isfile(os.path.join(path, "model_index.json"))
         hint = " (it looks like a stock SVD snapshot: run init-checkpoint on it first)" if stock else ""

@@ -73,11 +73,12 @@ def render_job(job_path: str, job: dict, device: str, force: bool = False, point
     (checked between frames). Returns counts and ``stopped``.
     """
     paths = job_mod.check_inputs(job_path, job, allow_outside)
+    files.check_output(paths["output_dir"], allow_outside)
     out = files.make_folder(paths["output_dir"], "output_dir")
     with (files.OutputLock(out, "render", busy=FolderBusyError) if lock else contextlib.nullcontext()) as held:
         log = log or events.FileLog(os.path.join(out, "backend.log"))
         if held is not None and held.stale:
-            log(f"render: took over the lock of a run that ended without releasing it ({held.stale})")
+            log(f"render: {held.took_over()}")
         return _render(job_path, job, device, force, point_radius, stop, log, out, allow_outside)
 
 
@@ -95,6 +96,7 @@ def _render(job_path, job, device, force, point_radius, stop, log, out, allow_ou
         # job (its previous record's, and this job's own frame names), never anything else in the folder
         files.remove_listed(cond, (previous or {}).get("files", []) + _frame_files(job))
         force = True
+    files.remove_temporaries(cond, _frame_files(job) + [RECORD])  # left by a run that was killed mid-write
     files.write_json(os.path.join(cond, RECORD), {"schema": "scpainter.conditions/1", "key": key,
                                                   "files": _frame_files(job)})
     with contextlib.suppress(FileNotFoundError):  # the record's former name (one line: the key)

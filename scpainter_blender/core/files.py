@@ -586,9 +586,59 @@ def output_folder(parent, name: str, allow_outside: bool = False) -> str:
     return path
 
 
+OUTPUT_FOLDERS = ("conditions", "generated")
+LOG_NAME = "backend.log"
+
+
+def check_output(out, allow_outside: bool = False) -> None:
+    """What a run would refuse in an output folder, checked without creating anything (``--check`` and the start
+    of every run): ``out`` not a folder; ``conditions/`` or ``generated/`` not a folder or leading outside ``out``
+    (unless ``allow_outside``); ``backend.log`` a symbolic link or not a regular file. InputError names it."""
+    if not os.path.lexists(out):
+        return
+    if not os.path.isdir(out):
+        raise InputError(out, "output_dir", "exists and is not a folder", hint="remove it or choose another "
+                                                                               "output folder")
+    for name in OUTPUT_FOLDERS:
+        path = os.path.join(out, name)
+        if not os.path.lexists(path):
+            continue
+        if not allow_outside and not inside(path, out):
+            raise InputError(path, "(folder)", f"leads outside the output folder ({os.path.realpath(path)})",
+                             hint="remove the link, or run with --allow-outside if you made it")
+        if not os.path.isdir(path):
+            raise InputError(path, "(folder)", "exists and is not a folder")
+    log = os.path.join(out, LOG_NAME)
+    if os.path.islink(log):
+        raise InputError(log, "(file)", "is a symbolic link: the log is not written through links",
+                         hint="remove the link")
+    if os.path.lexists(log) and not os.path.isfile(log):
+        raise InputError(log, "(file)", "is not a regular file: the log cannot be appended to it")
+
+
+def remove_temporaries(folder, names) -> int:
+    """Delete what ``atomic_path`` left for the targets ``names`` in ``folder`` when a process was killed
+    (``.<name>.<random>.tmp``); only those names' temporaries, for a caller holding the folder's lock."""
+    prefixes = tuple(f".{n[:100]}." for n in names)
+    removed = 0
+    try:
+        entries = os.listdir(folder)
+    except OSError:
+        return 0
+    for entry in entries:
+        if entry.endswith(".tmp") and entry.startswith(prefixes) and "/" not in entry:
+            with contextlib.suppress(OSError):
+                p = os.path.join(folder, entry)
+                if os.path.islink(p) or os.path.isfile(p):
+                    os.remove(p)
+                    removed += 1
+    return removed
+
+
 # ---------------------------------------------------------------------------------------------------- locking
 
 LOCK_NAME = ".scpainter.lock"
+UNREADABLE_LOCK_S = 60   # a lock file nobody can read is taken over after this (a crash mid-write on old systems)
 
 
 def _process_start(pid: int):
@@ -630,14 +680,15 @@ class OutputLock:
     """``with OutputLock(folder, command):`` — at most one run writes an output folder at a time.
 
     The lock file ``<folder>/.scpainter.lock`` (created exclusively, never through a link) holds the owner's pid,
-    host, process start time, command and start date. A second run raises ``busy(message, hint)`` naming the
-    owner; a lock left by a process that no longer runs on this host is taken over (``stale`` is then the old
-    owner's record, for a log line). The file is removed when the block ends."""
+    host, process start time, command and start date, and appears whole (see ``_take``). A second run raises
+    ``busy(message, hint, file=, owner=)`` naming the owner; a lock left by a process that no longer runs on this
+    host, or unreadable for ``UNREADABLE_LOCK_S``, is taken over (``stale`` is then the old owner's record, for a
+    log line). The file is removed when the block ends."""
 
     def __init__(self, folder, command: str, busy=None):
         self.folder, self.command = os.fspath(folder), command
         self.path = os.path.join(self.folder, LOCK_NAME)
-        self.busy = busy or (lambda message, hint: RuntimeError(f"{message} ({hint})"))
+        self.busy = busy or (lambda message, hint, **fields: RuntimeError(f"{message} ({hint})"))
         self.stale = None
         self._held = False
 
@@ -648,36 +699,75 @@ class OutputLock:
         except (InputError, ValueError, OSError, RecursionError):
             return None
 
+    def _take(self, me: dict) -> bool:
+        """Create the lock file whole or not at all: written to a private temporary file, then hard-linked to its
+        name (``link`` fails if the name exists, never follows a planted link), so no reader sees it empty."""
+        fd, tmp = tempfile.mkstemp(prefix=".scpainter.lock.", dir=self.folder)
+        try:
+            with os.fdopen(fd, "w", encoding="utf-8") as f:
+                json.dump(me, f)
+            try:
+                os.link(tmp, self.path)
+            except FileExistsError:
+                return False
+            except OSError:  # a file system without hard links: exclusive create, then write
+                try:
+                    fd2 = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0),
+                                  0o644)
+                except FileExistsError:
+                    return False
+                with os.fdopen(fd2, "w", encoding="utf-8") as f:
+                    json.dump(me, f)
+            return True
+        finally:
+            with contextlib.suppress(OSError):
+                os.remove(tmp)
+
     def __enter__(self):
         make_folder(self.folder)
         me = {"pid": os.getpid(), "host": socket.gethostname(), "started": _process_start(os.getpid()),
               "command": self.command, "since": time.strftime("%Y-%m-%d %H:%M:%S")}
-        flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0)
         for _ in range(3):
-            try:
-                fd = os.open(self.path, flags, 0o644)
-            except FileExistsError:
+            if self._take(me):
+                self._held = True
+                return self
+            owner = self._owner()
+            if owner is None:  # unreadable: written by a file system without links this instant, or damaged
+                time.sleep(0.05)
                 owner = self._owner()
-                if owner is None:  # being written this instant, or garbage: look again shortly
-                    time.sleep(0.05)
-                    owner = self._owner()
-                if isinstance(owner, dict) and owner.get("host") == me["host"] and isinstance(owner.get("pid"), int) \
-                        and not _alive(owner["pid"], owner.get("started")):
-                    self.stale = owner
-                    with contextlib.suppress(FileNotFoundError):
-                        os.remove(self.path)
-                    continue
-                if owner is None:
-                    raise self.busy(f"{self.path}: the output folder is locked and the lock file is unreadable",
-                                    "if no other SCPainter run uses this folder, delete the lock file")
+            if isinstance(owner, dict) and owner.get("host") == me["host"] and isinstance(owner.get("pid"), int) \
+                    and not _alive(owner["pid"], owner.get("started")):
+                self.stale = owner
+            elif owner is None and self._age() > UNREADABLE_LOCK_S:
+                self.stale = {"unreadable lock file, age s": round(self._age())}
+            elif owner is None:
+                raise self.busy(f"{self.path}: the output folder is locked and the lock file is unreadable",
+                                f"it is taken over when older than {UNREADABLE_LOCK_S} s; delete it if no other "
+                                "SCPainter run uses this folder", file=self.path, owner=None)
+            else:
                 raise self.busy(f"{self.folder} is being written by another run: pid {owner.get('pid')} on "
                                 f"{owner.get('host')} ({owner.get('command')}, since {owner.get('since')})",
-                                f"wait for it to finish or stop it; if it is gone, delete {self.path}")
-            with os.fdopen(fd, "w", encoding="utf-8") as f:
-                json.dump(me, f)
-            self._held = True
-            return self
-        raise self.busy(f"{self.path}: could not take the output folder's lock", "try again")
+                                f"wait for it to finish or stop it; if it is gone, delete {self.path}",
+                                file=self.path, owner=owner)
+            with contextlib.suppress(FileNotFoundError):
+                os.remove(self.path)
+        raise self.busy(f"{self.path}: could not take the output folder's lock", "try again", file=self.path,
+                        owner=None)
+
+    def took_over(self) -> str | None:
+        """A log line when the lock was taken over from a run that ended without releasing it, else None."""
+        o = self.stale
+        if o is None:
+            return None
+        who = (f"pid {o.get('pid')} on {o.get('host')} ({o.get('command')}, since {o.get('since')})"
+               if "pid" in o else "an unreadable lock file")
+        return f"took over the output folder's lock from {who}: that run ended without releasing it"
+
+    def _age(self) -> float:
+        try:
+            return time.time() - os.lstat(self.path).st_mtime
+        except OSError:
+            return 0.0
 
     def __exit__(self, *exc):
         if self._held:

@@ -147,7 +147,7 @@ def test_a_second_run_on_the_same_folder_is_refused(case):
     code, ev = run("render", job_path, "--device", "cpu")
     assert code == 0 and ev[-1]["rendered"] == 2
     assert not os.path.exists(os.path.join(out, files.LOCK_NAME))     # released at the end
-    assert "took over the lock" in open(os.path.join(out, "backend.log")).read()
+    assert f"took over the output folder's lock from pid {dead.pid}" in open(os.path.join(out, "backend.log")).read()
 
 
 def test_check_validates_and_writes_nothing(case):
@@ -165,3 +165,34 @@ def test_check_validates_and_writes_nothing(case):
     code, ev = run("render", job_path)
     assert code == 2 and ev[-1]["field"] == "frames[0].source_frames"
     assert snapshot(folder) == before
+
+
+def test_check_refuses_what_the_run_would_and_temporaries_of_a_killed_run_go(case):
+    """--check looks at the output folder as the run does; a run removes what a killed run left half-written
+    (only the temporaries of its own outputs)."""
+    job_path, outside = case
+    out = os.path.join(os.path.dirname(job_path), "out")
+    os.makedirs(out)
+    os.symlink(outside, os.path.join(out, "conditions"))
+    code, ev = run("render", job_path, "--check")
+    assert code == 2 and "outside the output folder" in ev[-1]["message"]
+    os.remove(os.path.join(out, "conditions"))
+    cond = os.path.join(out, "conditions")
+    os.makedirs(cond)
+    for name in (".frame_000002.exr.k2j4h5g6.tmp", ".record.json.a1b2c3d4.tmp", ".notes.txt.a1b2c3d4.tmp"):
+        with open(os.path.join(cond, name), "w") as f:
+            f.write("half written\n")
+    code, ev = run("render", job_path, "--device", "cpu")
+    assert code == 0
+    assert sorted(n for n in os.listdir(cond) if n.endswith(".tmp")) == [".notes.txt.a1b2c3d4.tmp"]
+
+
+def test_generate_names_a_missing_checkpoint(case, tmp_path):
+    job_path, _ = case
+    code, ev = run("generate", job_path, "--check")
+    assert code == 2 and ev[-1]["file"] == job_path and ev[-1]["field"] == "generate.checkpoint"
+    code, ev = run("generate", job_path, "--check", "--checkpoint", tmp_path / "nonexistent")
+    assert code == 2 and "does not exist" in ev[-1]["message"] and ev[-1]["file"] == str(tmp_path / "nonexistent")
+    edit(job_path, generate={"checkpoint": str(tmp_path / "models" / "ckpt")})
+    code, ev = run("generate", job_path, "--check")
+    assert code == 2 and ev[-1]["field"] == "generate.checkpoint" and "--checkpoint PATH" in ev[-1]["message"]

@@ -361,7 +361,8 @@ def test_remove_listed_ignores_names_with_separators(tmp_path):
 # -- the output lock -----------------------------------------------------------------------------------------------
 
 class Busy(Exception):
-    def __init__(self, message, hint):
+    def __init__(self, message, hint, **fields):
+        self.fields = fields
         super().__init__(f"{message} | {hint}")
 
 
@@ -399,9 +400,15 @@ def test_stale_lock_of_a_finished_process_is_taken_over(tmp_path):
         with F.OutputLock(tmp_path, "generate", busy=Busy) as lock:
             assert lock.stale == garbage
     lock_path.write_text("[" * 5000)  # unreadable: busy, with what to do, never a traceback
-    with pytest.raises(Busy, match="lock file is unreadable"):
+    with pytest.raises(Busy, match="lock file is unreadable") as e:
         with F.OutputLock(tmp_path, "generate", busy=Busy):
             pass
+    assert e.value.fields == {"file": str(lock_path), "owner": None}
+    old = time.time() - F.UNREADABLE_LOCK_S - 5          # ... until it is old: a crash mid-write, taken over
+    os.utime(lock_path, (old, old))
+    with F.OutputLock(tmp_path, "generate", busy=Busy) as lock:
+        assert "unreadable lock file" in str(lock.stale)
+    assert sorted(os.listdir(tmp_path)) == []            # neither lock nor its temporary file is left
 
 
 def test_nul_in_a_name_and_a_socket_are_named(tmp_path):

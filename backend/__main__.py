@@ -89,7 +89,8 @@ def _cmd_render(args) -> int:
     if args.check:  # (render_job checks the same before it writes anything)
         paths = job_mod.check_inputs(args.job, job, args.allow_outside)
         files.check_output(paths["output_dir"], args.allow_outside)
-        events.done(command="render", check=True, frames=len(job["frames"]), output_dir=paths["output_dir"])
+        events.done(command="render", check=True, frames=len(job["frames"]), output_dir=paths["output_dir"],
+                    locked_by=files.lock_owner(paths["output_dir"]))
         return events.EXIT_OK
     device = _device(args.device)
     t0 = time.perf_counter()
@@ -108,6 +109,7 @@ def _cmd_render(args) -> int:
 def _cmd_generate(args) -> int:
     import time
 
+    from scpainter_blender.core import files
     from scpainter_blender.core import job as job_mod
 
     from . import generate
@@ -119,7 +121,7 @@ def _cmd_generate(args) -> int:
     plan = generate.prepare(args.job, job, args.checkpoint, overrides, args.allow_outside)
     if args.check:
         events.done(command="generate", check=True, frames=len(job["frames"]), checkpoint=plan.checkpoint,
-                    settings=plan.settings, output_dir=plan.output_dir)
+                    settings=plan.settings, output_dir=plan.output_dir, locked_by=files.lock_owner(plan.output_dir))
         return events.EXIT_OK
     device = _device(args.device)
     t0 = time.perf_counter()

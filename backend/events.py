@@ -56,21 +56,10 @@ class FileLog:
     """Human log lines to standard error and appended to a file (``<output_dir>/backend.log``)."""
 
     def __init__(self, path: str):
-        import os
-        import stat
-
         from scpainter_blender.core import files
 
         self.path = path
-        try:  # refused now, before the command writes anything, rather than at its first log line
-            mode = os.lstat(path).st_mode
-        except FileNotFoundError:
-            return
-        if stat.S_ISLNK(mode):
-            raise files.InputError(path, "(file)", "is a symbolic link: the log is not written through links",
-                                   hint="remove the link")
-        if not stat.S_ISREG(mode):
-            raise files.InputError(path, "(file)", "is not a regular file: the log cannot be appended to it")
+        files.check_log(path)  # refused now, before the command writes anything, rather than at its first line
 
     def __call__(self, message: str) -> None:
         import time

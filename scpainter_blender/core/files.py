@@ -608,12 +608,32 @@ def check_output(out, allow_outside: bool = False) -> None:
                              hint="remove the link, or run with --allow-outside if you made it")
         if not os.path.isdir(path):
             raise InputError(path, "(folder)", "exists and is not a folder")
-    log = os.path.join(out, LOG_NAME)
-    if os.path.islink(log):
-        raise InputError(log, "(file)", "is a symbolic link: the log is not written through links",
+    check_log(os.path.join(out, LOG_NAME))
+
+
+def check_log(path) -> None:
+    """InputError if the log file ``path`` exists as a symbolic link (never appended through) or as anything but a
+    regular file; a missing one is fine (it is created)."""
+    try:
+        mode = os.lstat(path).st_mode
+    except FileNotFoundError:
+        return
+    if stat.S_ISLNK(mode):
+        raise InputError(path, "(file)", "is a symbolic link: the log is not written through links",
                          hint="remove the link")
-    if os.path.lexists(log) and not os.path.isfile(log):
-        raise InputError(log, "(file)", "is not a regular file: the log cannot be appended to it")
+    if not stat.S_ISREG(mode):
+        raise InputError(path, "(file)", "is not a regular file: the log cannot be appended to it")
+
+
+def lock_owner(folder):
+    """The record of the run holding ``folder``'s lock if that run is alive on this host (or elsewhere: unknown,
+    taken as alive), else None: for ``--check`` to say a run would be refused."""
+    owner = OutputLock(folder, "check")._owner()
+    if not isinstance(owner, dict) or not isinstance(owner.get("pid"), int):
+        return None
+    if owner.get("host") == socket.gethostname() and not _alive(owner["pid"], owner.get("started")):
+        return None
+    return owner
 
 
 def remove_temporaries(folder, names) -> int:

@@ -133,6 +133,8 @@ def test_a_second_run_on_the_same_folder_is_refused(case):
     job_path, _ = case
     out = os.path.join(os.path.dirname(job_path), "out")
     with files.OutputLock(out, "render (another process)"):
+        code, ev = run("render", job_path, "--check")              # --check says a run would be refused
+        assert code == 0 and ev[-1]["locked_by"]["pid"] == os.getpid()
         code, ev = run("render", job_path, "--device", "cpu")
         # this process holds the lock, so it is alive: the run is refused, not run twice
         assert code == 1 and "being written by another run" in ev[-1]["message"] and str(os.getpid()) in \
@@ -155,7 +157,7 @@ def test_check_validates_and_writes_nothing(case):
     folder = os.path.dirname(job_path)
     before = snapshot(folder)
     code, ev = run("render", job_path, "--check")
-    assert code == 0 and ev[-1]["check"] is True and ev[-1]["frames"] == 2
+    assert code == 0 and ev[-1]["check"] is True and ev[-1]["frames"] == 2 and ev[-1]["locked_by"] is None
     job = J.load(job_path)
     job["frames"][0]["source_frames"] = [0, 5]                          # the predictions have 2 frames
     J.save(job_path, job)

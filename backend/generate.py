@@ -185,7 +185,7 @@ def _generate(job_path, job, device, plan: Plan, precision, force, stop, lock) -
     files.remove_temporaries(os.path.join(out, "generated"), ["manifest.json"] + [
         f"frame_{e['frame']:06d}.png" for e in job["frames"]])
     r = render_cmd.render_job(job_path, job, device, stop=stop, log=log, allow_outside=plan.paths["allow_outside"],
-                              lock=False)
+                              lock=False, checked=plan.paths)  # prepare() checked the inputs; the lock is held
     if r["stopped"]:
         return {"stopped": True, "stage": "render", "steps_done": 0}
     image, asset, valid = load_conditions(job_path, job)

@@ -63,17 +63,21 @@ def _previous_record(cond: str) -> dict | None:
 
 
 def render_job(job_path: str, job: dict, device: str, force: bool = False, point_radius: int = 0,
-               stop=(), log=None, allow_outside: bool = False, lock: bool = True) -> dict:
+               stop=(), log=None, allow_outside: bool = False, lock: bool = True, checked: dict | None = None) -> dict:
     """Render the frames not finished yet (all with ``force``, or when the job changed since they were made);
     emits progress and artifact events.
 
     First the job's paths and input files are checked (``job.check_inputs``: confined to the job's folder unless
     ``allow_outside``); with ``lock`` the output folder is locked for the run (``files.OutputLock``; a second run
-    raises ``errors.FolderBusyError``). ``stop``: a list that becomes non-empty when the caller wants to stop
-    (checked between frames). Returns counts and ``stopped``.
+    raises ``errors.FolderBusyError``). ``checked``: the paths ``job.check_inputs`` returned to a caller that
+    already checked the inputs and the output folder (``generate.prepare``), so they are not read twice.
+    ``stop``: a list that becomes non-empty when the caller wants to stop (checked between frames). Returns counts
+    and ``stopped``.
     """
-    paths = job_mod.check_inputs(job_path, job, allow_outside)
-    files.check_output(paths["output_dir"], allow_outside)
+    paths = checked
+    if paths is None:
+        paths = job_mod.check_inputs(job_path, job, allow_outside)
+        files.check_output(paths["output_dir"], allow_outside)
     out = files.make_folder(paths["output_dir"], "output_dir")
     with (files.OutputLock(out, "render", busy=FolderBusyError) if lock else contextlib.nullcontext()) as held:
         log = log or events.FileLog(os.path.join(out, "backend.log"))

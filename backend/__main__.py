@@ -1,8 +1,11 @@
-"""``python -m backend <command>``: the backend's command line (DESIGN §4.4).
+"""``python -m backend <command>``: the backend's command line (docs/design.md, "Backend").
 
-Exit codes: 0 done, 2 bad input (the error event names the file and field), 1 anything else (a failure the
-command explains, such as a busy output folder or a model producing NaN, or a bug: traceback on standard error).
-Standard output carries JSON events only.
+Exit codes: 0 done; 2 bad input: an ``InputError`` (the error event has ``file`` and ``field``; a command-line
+argument is file "(command line)" with the option as field) or an argparse error; 1 anything else: a failure the
+command explains (``errors.CleanFailure``: a busy output folder, a model producing NaN; no traceback), or a bug
+(any other exception, a plain ValueError included): its traceback on standard error and in the command's log
+(``<output_dir>/backend.log``), whose path the error event's ``log`` field gives. Standard output carries JSON
+events only.
 """
 
 from __future__ import annotations
@@ -10,7 +13,6 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import traceback
 
 from . import events
 
@@ -36,31 +38,16 @@ def _cmd_doctor(args) -> int:
     needed = ("numpy", "torch", "numba", "diffusers", "transformers", "safetensors", "av", "trimesh")
     report["missing"] = [m for m in needed if not report.get(m) or str(report[m]).startswith("broken")]
     if args.checkpoint:
+        from scpainter_blender.core import files
+
         from .model import checkpoint
 
         try:
             checkpoint.ScpainterConfig.load(os.path.join(checkpoint.resolve(args.checkpoint), "scpainter.json"))
             report["checkpoint"] = "ok"
-        except ValueError as e:
+        except files.InputError as e:
             report["checkpoint"] = str(e)
     events.done(command="doctor", report=report)
-    return events.EXIT_OK
-
-
-def _cmd_ground_plane(args) -> int:
-    from scpainter_blender.core import vggt
-
-    from .ground_plane import fit_ground_plane
-
-    pred = vggt.load_predictions(args.predictions, world_points=False, extrinsic_convention=args.extrinsic_convention,
-                                 crop=args.crop or "none")
-    events.progress("ground_plane", 0, 1)
-    plane, stats = fit_ground_plane(pred, confidence_percentile=args.confidence_percentile, seed=args.seed)
-    fit = vggt.world_from_vggt_by_camera_height(plane, pred.world_to_camera, args.camera_height,
-                                                plane_inlier_rms=stats["inlier_rms_vggt"])
-    fit.details.update(stats)
-    events.progress("ground_plane", 1, 1)
-    events.done(command="ground-plane", result=fit.to_json())
     return events.EXIT_OK
 
 
@@ -73,23 +60,26 @@ def _device(name: str) -> str:
     if torch.cuda.is_available():
         return "cuda"
     if name == "cuda":
-        raise ValueError("--device cuda: torch sees no CUDA GPU on this machine (use --device cpu or auto)")
+        from scpainter_blender.core.files import ArgumentError
+
+        raise ArgumentError("--device", "cuda: torch sees no CUDA GPU on this machine",
+                            hint="use --device cpu or auto")
     return "cpu"
 
 
 def _cmd_render(args) -> int:
     import time
 
-    from scpainter_blender.core import files
+    from scpainter_blender.core import files, job_inputs
     from scpainter_blender.core import job as job_mod
 
     from .render import command
 
     job = job_mod.load(args.job)
     if args.check:  # (render_job checks the same before it writes anything)
-        paths = job_mod.check_inputs(args.job, job, args.allow_outside)
+        paths = job_inputs.check_inputs(args.job, job, args.allow_outside)
         files.check_output(paths["output_dir"], args.allow_outside)
-        events.done(command="render", check=True, frames=len(job["frames"]), output_dir=paths["output_dir"],
+        events.done(command="render", check=True, frames=len(job.frames), output_dir=paths["output_dir"],
                     locked_by=files.lock_owner(paths["output_dir"]))
         return events.EXIT_OK
     device = _device(args.device)
@@ -120,7 +110,7 @@ def _cmd_generate(args) -> int:
     # config and that it holds only safetensors), the settings they make together, and the input files
     plan = generate.prepare(args.job, job, args.checkpoint, overrides, args.allow_outside)
     if args.check:
-        events.done(command="generate", check=True, frames=len(job["frames"]), checkpoint=plan.checkpoint,
+        events.done(command="generate", check=True, frames=len(job.frames), checkpoint=plan.checkpoint,
                     settings=plan.settings, output_dir=plan.output_dir, locked_by=files.lock_owner(plan.output_dir))
         return events.EXIT_OK
     device = _device(args.device)
@@ -145,13 +135,15 @@ def _cmd_init_checkpoint(args) -> int:
 
 
 def _cmd_batch(args) -> int:
-    from scpainter_blender.core import job as job_mod
+    from scpainter_blender.core import batch as batch_mod
 
     from . import batch
 
-    items = list(args.jobs) + [p for f in args.list or [] for p in job_mod.read_list(f)]
+    items = list(args.jobs) + [p for f in args.list or [] for p in batch_mod.read_list(f)]
     if not items:
-        raise ValueError("batch: no jobs given (paths, or --list FILE)")
+        from scpainter_blender.core.files import ArgumentError
+
+        raise ArgumentError("jobs", "no jobs given", hint="give job.json paths, or --list FILE")
     results, rank = batch.run_batch(items, args.command_name, _device(args.device), args.checkpoint,
                                     allow_outside=args.allow_outside)
     failed = [r for r in results if r["status"] != "ok"]
@@ -173,7 +165,7 @@ def _cmd_train(args) -> int:
         events.error(f"stopped by SIGTERM at step {result['step']}; checkpoint saved at {result['checkpoint']}",
                      hint="run the same command again to resume")
         return events.EXIT_FAILED
-    from scpainter_blender.core.job import ranks_from_env
+    from scpainter_blender.core.batch import ranks_from_env
 
     if ranks_from_env()[0] == 0:  # under torchrun / accelerate launch: one done event, from rank 0
         events.done(command="train", device=device, **result)
@@ -228,21 +220,13 @@ def _input_options(p) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from scpainter_blender.core.job import GENERATE_DEFAULTS  # numpy only: no torch or CUDA at start-up
+
     p = argparse.ArgumentParser(prog="python -m backend", description=__doc__)
     sub = p.add_subparsers(dest="command", required=True)
     d = sub.add_parser("doctor", help="report the Python, packages and devices the backend would use")
     d.add_argument("--checkpoint", help="also check this SCPainter checkpoint folder")
     d.set_defaults(func=_cmd_doctor)
-    g = sub.add_parser("ground-plane", help="metric world_from_vggt from a known camera height over the road")
-    g.add_argument("predictions", help="VGGT predictions.npz")
-    g.add_argument("--camera-height", type=float, required=True, help="camera height over the road, metres")
-    g.add_argument("--confidence-percentile", type=float, default=50.0)
-    g.add_argument("--seed", type=int, default=0)
-    g.add_argument("--extrinsic-convention", choices=["world_to_camera", "camera_to_world"],
-                   default="world_to_camera", help="what the file's extrinsic holds (the import decides)")
-    g.add_argument("--crop", type=int, nargs=4, metavar=("LEFT", "TOP", "RIGHT", "BOTTOM"),
-                   help="pixels cut from the images' borders before the fit (the import's crop)")
-    g.set_defaults(func=_cmd_ground_plane)
     r = sub.add_parser("render", help="render a job's condition layers (EXR + PNG previews) frame by frame")
     r.add_argument("job", help="job.json (the job contract: docs/design.md)")
     r.add_argument("--device", choices=["auto", "cpu", "cuda"], default="auto",
@@ -259,8 +243,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="auto: CUDA when torch sees a GPU, else the CPU")
     n.add_argument("--precision", choices=["auto", "fp32", "bf16", "fp16"], default="auto",
                    help="UNet/CLIP dtype (auto: bf16 on CUDA, fp32 on CPU); latents stay float32")
-    n.add_argument("--steps", type=int, help="sampler steps (default: the job's, else 25)")
-    n.add_argument("--seed", type=int, help="seed (default: the job's, else 0)")
+    n.add_argument("--steps", type=int,
+                   help=f"sampler steps (default: the job's, else {GENERATE_DEFAULTS['steps']})")
+    n.add_argument("--seed", type=int, help=f"seed (default: the job's, else {GENERATE_DEFAULTS['seed']})")
     n.add_argument("--force", action="store_true", help="generate again even if the video is up to date")
     _input_options(n)
     n.set_defaults(func=_cmd_generate)
@@ -292,8 +277,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="lateral shifts in metres (+ left)")
     e.add_argument("--no-insertion", action="store_true", help="skip the asset re-insertion tasks")
     e.add_argument("--window", type=int, default=8, help="source frames t ± window project into frame t")
-    e.add_argument("--steps", type=int, default=25, help="sampler steps")
-    e.add_argument("--seed", type=int, default=0)
+    e.add_argument("--steps", type=int, default=GENERATE_DEFAULTS["steps"], help="sampler steps")
+    e.add_argument("--seed", type=int, default=GENERATE_DEFAULTS["seed"])
     e.add_argument("--crop-min-px", type=int, default=16, help="cars smaller than this (pixels) make no FID-C crop")
     e.add_argument("--precision", choices=["auto", "fp32", "bf16", "fp16"], default="auto")
     e.add_argument("--inception", help="FID Inception weights (pytorch-fid's pt_inception-2015-12-05-6726825d.pth "
@@ -312,18 +297,16 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
-    from scpainter_blender.core.files import InputError
+    args = build_parser().parse_args(argv)  # argparse errors: usage on standard error, exit 2
+    from scpainter_blender.core.files import InputError  # (numpy: not imported before doctor can report it)
 
     from .errors import CleanFailure
 
     try:
-        return args.func(args)
-    except InputError as e:  # bad input: the message names the file and field
+        with events.log_scope():  # a bug's traceback goes to the log the command had open (backend.log)
+            return args.func(args)
+    except InputError as e:  # bad input, and only that: the message names the file and field
         events.error(str(e), hint=e.hint or "check the input file and arguments", file=e.path, field=e.field)
-        return events.EXIT_BAD_INPUT
-    except (ValueError, FileNotFoundError) as e:
-        events.error(str(e), hint="check the input file and arguments")
         return events.EXIT_BAD_INPUT
     except CleanFailure as e:  # explained by the command itself: no traceback
         events.error(str(e), hint=e.hint, **e.fields)
@@ -331,9 +314,12 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         events.error("interrupted")
         return events.EXIT_FAILED
-    except Exception as e:
-        events.log(traceback.format_exc())
-        events.error(f"{type(e).__name__}: {e}", hint="see the log on standard error")
+    except Exception as e:  # a bug (a plain ValueError included): the whole traceback, never "bad input"
+        log = events.report_bug(e, f"{args.command} failed")
+        where = f"{log} and standard error" if log else "standard error"
+        events.error(f"{type(e).__name__}: {e}", hint=f"an internal error in SCPainter, not a problem with the "
+                                                      f"input: the traceback is in {where}; please report it",
+                     log=log)
         return events.EXIT_FAILED
 
 

@@ -4,7 +4,8 @@
     accelerate launch --num_processes 4 -m backend batch --list jobs.txt --command render
 
 Each process takes every WORLD_SIZE-th job starting at its RANK (the variables torchrun and accelerate set; one
-process without them), on GPU LOCAL_RANK when CUDA is there. A job that fails is recorded and the batch goes on.
+process without them), on GPU LOCAL_RANK when CUDA is there. A job that fails is recorded and the batch goes on
+(``failure``: bad input with its ``file`` and ``field``, a bug with the ``log`` holding its traceback).
 At the end the ranks exchange their results (torch.distributed, gloo: no GPU needed for this) and rank 0 emits one
 ``done`` event listing every job with its rank, status, time and outputs. Every rank exits 1 if any job failed.
 """
@@ -13,7 +14,7 @@ from __future__ import annotations
 
 import time
 
-from scpainter_blender.core.job import ranks_from_env, shard  # shared with blender -c scpainter batch
+from scpainter_blender.core.batch import ranks_from_env, shard  # shared with blender -c scpainter batch
 
 from . import events
 
@@ -33,6 +34,23 @@ def run_one(job_path: str, command: str, device: str, checkpoint: str | None, st
     return {"video": r.get("video"), "frames": r.get("frames"), "stopped": r["stopped"]}
 
 
+def failure(e: Exception, path: str) -> dict:
+    """The fields of a failed job's result: ``error`` (the message); for bad input (an ``InputError``) ``file``
+    and ``field``; for a failure the job explains (``CleanFailure``) its fields; for anything else (a bug) the
+    traceback goes to standard error and the job's ``backend.log``, named by ``log``."""
+    from scpainter_blender.core.files import InputError
+
+    from .errors import CleanFailure
+
+    if isinstance(e, InputError):
+        events.log(f"batch: {path}: bad input: {e}")
+        return {"error": str(e), "hint": e.hint, "file": e.path, "field": e.field}
+    if isinstance(e, CleanFailure):
+        events.log(f"batch: {path} failed: {e}")
+        return {"error": str(e), "hint": e.hint, **e.fields}
+    return {"error": f"{type(e).__name__}: {e}", "log": events.report_bug(e, f"batch: {path} failed")}
+
+
 def gather(results: list, world: int) -> list:
     """All ranks' results on every rank (a no-op for one process)."""
     if world == 1:
@@ -50,7 +68,7 @@ def gather(results: list, world: int) -> list:
 def run_batch(items: list[str], command: str, device: str, checkpoint: str | None = None,
               allow_outside: bool = False) -> tuple[list, int]:
     """Run this rank's share; returns (every rank's results, rank)."""
-    rank, world, local = ranks_from_env()
+    rank, world, local = ranks_from_env()  # (InputError "(environment)" naming a bad variable)
     if device == "cuda":
         import torch
 
@@ -65,12 +83,12 @@ def run_batch(items: list[str], command: str, device: str, checkpoint: str | Non
                 continue
             t = time.perf_counter()
             try:
-                out = run_one(path, command, device, checkpoint, stop, allow_outside)
+                with events.log_scope():  # a bug's traceback goes to this job's backend.log
+                    out = run_one(path, command, device, checkpoint, stop, allow_outside)
                 status = "stopped" if out.pop("stopped") else "ok"
                 results.append({"job": path, "rank": rank, "status": status, **out})
             except Exception as e:  # one bad scene must not stop the batch: record it and go on
-                results.append({"job": path, "rank": rank, "status": "failed", "error": f"{type(e).__name__}: {e}"})
-                events.log(f"batch: {path} failed: {e}")
+                results.append({"job": path, "rank": rank, "status": "failed", **failure(e, path)})
             results[-1]["seconds"] = time.perf_counter() - t
             events.progress("batch", n + 1, len(mine), rank=rank, job=path, status=results[-1]["status"])
     return gather(results, world), rank

@@ -1,7 +1,11 @@
-"""The backend's event stream (DESIGN §4.4): one JSON object per line on standard output.
+"""The backend's event stream (docs/design.md, "Backend"): one JSON object per line on standard output.
 
 Human-readable logs go to standard error (and to ``<output_dir>/backend.log`` for commands that have one);
 standard output carries nothing but events, so a client can parse every line.
+
+Bugs (an exception that is neither bad input nor a failure the command explains): ``log_scope`` marks an
+exception leaving it with the innermost ``FileLog`` open at that moment, and ``report_bug`` writes its whole
+traceback to standard error and to that log, however deep in a command the log was opened.
 """
 
 from __future__ import annotations
@@ -11,24 +15,26 @@ import json
 import math
 import signal
 import sys
+import traceback
 
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT = 0, 1, 2
 
 
-def _clean(value):
-    """JSON has no NaN/inf: write them as null so every line parses with a strict parser."""
+def json_safe(value):
+    """JSON has no NaN/inf: ``value`` with them as None (null), so every event line, and every result file written
+    with ``core.files.write_json`` (which refuses NaN/inf), parses with a strict parser."""
     if isinstance(value, float) and not math.isfinite(value):
         return None
     if isinstance(value, dict):
-        return {k: _clean(v) for k, v in value.items()}
+        return {k: json_safe(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
-        return [_clean(v) for v in value]
+        return [json_safe(v) for v in value]
     return value
 
 
 def emit(event: str, stream=None, **fields) -> None:
     stream = stream or sys.stdout
-    stream.write(json.dumps(_clean({"event": event, **fields}), allow_nan=False) + "\n")
+    stream.write(json.dumps(json_safe({"event": event, **fields}), allow_nan=False) + "\n")
     stream.flush()
 
 
@@ -52,23 +58,80 @@ def log(message: str) -> None:
     print(message, file=sys.stderr, flush=True)
 
 
+#: The FileLogs opened in the ``log_scope`` blocks in progress, innermost (most recent) last.
+_open_logs: list = []
+#: The attribute ``log_scope`` sets on an exception leaving it: the FileLog that was open.
+_LOG_ATTR = "scpainter_log"
+
+
 class FileLog:
-    """Human log lines to standard error and appended to a file (``<output_dir>/backend.log``)."""
+    """Human log lines to standard error and appended to a file (``<output_dir>/backend.log``).
+
+    Opening one makes it the log a bug's traceback goes to (``report_bug``) until the enclosing ``log_scope``
+    ends."""
 
     def __init__(self, path: str):
         from scpainter_blender.core import files
 
         self.path = path
         files.check_log(path)  # refused now, before the command writes anything, rather than at its first line
+        _open_logs.append(self)
 
     def __call__(self, message: str) -> None:
         import time
 
-        from scpainter_blender.core import files
-
         line = f"{time.strftime('%Y-%m-%d %H:%M:%S')} {message}"
         log(line)
-        files.append_text(self.path, line + "\n")  # never through a planted symbolic link
+        self.append(line + "\n")
+
+    def append(self, text: str) -> None:
+        """``text`` appended to the file only (not standard error)."""
+        from scpainter_blender.core import files
+
+        files.append_text(self.path, text)  # never through a planted symbolic link
+
+
+@contextlib.contextmanager
+def log_scope():
+    """The FileLogs opened inside the block belong to it: an exception leaving the block while one is open is
+    marked with the innermost (``log_of``), and they stop being the bug log when the block ends. ``main`` wraps
+    each command in one, ``batch`` each job, ``render_job`` / ``generate_job`` their run."""
+    mark = len(_open_logs)
+    try:
+        yield
+    except BaseException as e:
+        if len(_open_logs) > mark and log_of(e) is None:
+            with contextlib.suppress(AttributeError, TypeError):  # an exception type that takes no attributes
+                setattr(e, _LOG_ATTR, _open_logs[-1])
+        raise
+    finally:
+        del _open_logs[mark:]
+
+
+def log_of(e: BaseException):
+    """The FileLog that was open where ``e`` was raised (see ``log_scope``), or None."""
+    log_ = getattr(e, _LOG_ATTR, None)
+    return log_ if isinstance(log_, FileLog) else None
+
+
+def report_bug(e: BaseException, what: str = "") -> str | None:
+    """A bug (an exception that is not bad input): its whole traceback to standard error and, when a ``FileLog``
+    was open where it was raised, appended to that file too. Returns that file's path (for the ``error`` event's
+    ``log`` field), None when the traceback went to standard error only."""
+    import time
+
+    text = "".join(traceback.format_exception(type(e), e, e.__traceback__))
+    head = f"{time.strftime('%Y-%m-%d %H:%M:%S')} {what or 'internal error'} (a bug in SCPainter, not bad input):"
+    log(f"{head}\n{text.rstrip()}")
+    log_ = log_of(e)
+    if log_ is None:
+        return None
+    try:
+        log_.append(f"{head}\n{text}")
+    except (OSError, ValueError) as failed:  # the log became unwritable (disk full, replaced by a link): say so
+        log(f"(the traceback could not be appended to {log_.path}: {failed})")
+        return None
+    return log_.path
 
 
 @contextlib.contextmanager

@@ -24,27 +24,16 @@ import torch
 
 from scpainter_blender.core import files
 from scpainter_blender.core import job as job_mod
+from scpainter_blender.core import job_inputs
 
 from . import events
 from .errors import FolderBusyError
 from .model import checkpoint as ckpt_mod
 from .render import command as render_cmd
-from .render import exr
+from .render import channels
 from .render import frames as fr
 
 PRECISIONS = {"fp32": torch.float32, "bf16": torch.bfloat16, "fp16": torch.float16}
-
-
-def settings(job: dict, config, overrides: dict) -> dict:
-    """The generation settings: command-line ``overrides``, else the job's ``generate``, else the checkpoint's
-    config (window, guidance, fps), else the defaults."""
-    gen = dict(job.get("generate") or {})
-    gen.update({k: v for k, v in overrides.items() if v is not None})
-    return {"steps": int(gen.get("steps", 25)), "window": int(gen.get("window", config.window)),
-            "overlap": int(gen.get("overlap", 4)), "seed": int(gen.get("seed", 0)),
-            "min_guidance": float(gen.get("min_guidance", config.min_guidance)),
-            "max_guidance": float(gen.get("max_guidance", config.max_guidance)),
-            "fps": float(gen.get("fps", config.fps)), "decode_chunk": int(gen.get("decode_chunk", 8))}
 
 
 @dataclass
@@ -57,24 +46,22 @@ class Plan:
     paths: dict
 
 
-def prepare(job_path: str, job: dict, checkpoint: str | None, overrides: dict | None = None,
+def prepare(job_path: str, job: job_mod.Job, checkpoint: str | None, overrides: dict | None = None,
             allow_outside: bool = False) -> Plan:
     """Validate a generation before any work: the command-line overrides, the checkpoint (``checkpoint.check``:
     config field by field, safetensors only), the settings the job, overrides and checkpoint make together, and
-    the job's input files (``job.check_inputs``). Raises an InputError naming the file (or "command line") and
+    the job's input files (``job.check_inputs``). Raises an InputError naming the file (or "(command line)") and
     the field."""
     overrides = overrides or {}
-    for key, value in overrides.items():
-        if value is not None and key in job_mod.GENERATE_INT_BOUNDS:
-            job_mod._int(value, "command line", f"--{key}", *job_mod.GENERATE_INT_BOUNDS[key])
+    job_mod.check_generate_settings({k: v for k, v in overrides.items() if v is not None}, files.COMMAND_LINE, "--")
     if checkpoint:  # the command line's: the user's own choice, never confined
         ckpt = ckpt_mod.resolve(checkpoint)
-    elif not (job.get("generate") or {}).get("checkpoint"):
+    elif job.generate is None or not job.generate.checkpoint:
         raise ckpt_mod.CheckpointError(job_path, "generate.checkpoint", ckpt_mod.no_checkpoint_message(),
                                        hint=ckpt_mod.INIT_HINT)
     else:  # the job's own checkpoint path is relative to the job and confined like its other paths
         try:
-            named = job_mod.job_paths(job_path, job, allow_outside, checkpoint=True)["generate.checkpoint"]
+            named = job_inputs.job_paths(job_path, job, allow_outside, checkpoint=True)["generate.checkpoint"]
         except job_mod.JobError as e:
             if e.field != "generate.checkpoint":
                 raise
@@ -82,54 +69,45 @@ def prepare(job_path: str, job: dict, checkpoint: str | None, overrides: dict | 
                                                       "with --checkpoint PATH") from None
         ckpt = ckpt_mod.resolve(named)
     config = ckpt_mod.check(ckpt)
-    s = settings(job, config, overrides)
-    own = job.get("generate") or {}
-    try:
-        job_mod.check_generate_settings(s, job_path)
-    except job_mod.JobError as e:
-        if e.field == "generate.overlap" and "window" not in own and "window" not in overrides:
-            raise job_mod.JobError(job_path, e.field, f"{s['overlap']} must be smaller than the checkpoint's window "
-                                                      f"({s['window']}, from its scpainter.json)") from None
-        raise
-    paths = job_mod.check_inputs(job_path, job, allow_outside)
+    s = (job.generate or job_mod.GenerateSettings()).resolve(config, overrides, job_path)
+    paths = job_inputs.check_inputs(job_path, job, allow_outside)
     files.check_output(paths["output_dir"], allow_outside)
     paths["allow_outside"] = allow_outside
     return Plan(ckpt, config, s, paths["output_dir"], paths)
 
 
-def load_conditions(job_path: str, job: dict):
-    """I (F, 3, H, W), M_a (F, 1, H, W) and validity (F, 1, H, W) float32 tensors from the condition EXRs."""
-    image, asset, valid = [], [], []
-    for entry in job["frames"]:
-        path = render_cmd.frame_paths(job_path, job, entry["frame"])[0]
-        layers = exr.read(path)
-        missing = {"R", "G", "B", "hole", "asset"} - set(layers)
-        if missing:
-            raise ValueError(f"{path}: condition layers {sorted(missing)} are missing")
-        image.append(np.stack([layers["R"], layers["G"], layers["B"]]))
-        asset.append(layers["asset"][None])
-        valid.append(1.0 - layers["hole"][None])
+def load_conditions(job_path: str, job: job_mod.Job):
+    """(image, asset_mask, valid): I (F, 3, H, W), M_a (F, 1, H, W) and validity 1 − hole (F, 1, H, W) float32
+    tensors from the condition EXRs (``channels.read``: EXRs with the former channel name load too; one without
+    these channels raises ``channels.ConditionsError``)."""
+    image, asset_mask, valid = [], [], []
+    need = (*channels.IMAGE, channels.HOLE, channels.ASSET_MASK)
+    for entry in job.frames:
+        layers = channels.read(render_cmd.frame_paths(job_path, job, entry.frame)[0], required=need)
+        image.append(np.stack([layers[c] for c in channels.IMAGE]))
+        asset_mask.append(layers[channels.ASSET_MASK][None])
+        valid.append(1.0 - layers[channels.HOLE][None])
     t = lambda a: torch.from_numpy(np.ascontiguousarray(np.stack(a), dtype=np.float32))  # noqa: E731
-    return t(image), t(asset), t(valid)
+    return t(image), t(asset_mask), t(valid)
 
 
-def clip_source(job_path: str, job: dict, first_condition: torch.Tensor) -> torch.Tensor:
+def clip_source(job_path: str, job: job_mod.Job, first_condition: torch.Tensor) -> torch.Tensor:
     """(3, H, W) in [0, 1]: the recorded image of the first output frame's first source frame, if any."""
-    scene, sources = job.get("scene"), job["frames"][0].get("source_frames") or []
-    if scene and sources:
+    scene, sources = job.scene, job.frames[0].source_frames
+    if scene is not None and sources:
         from scpainter_blender.core import vggt
 
-        path = job_mod.resolve(job_path, scene["predictions"])
+        path = job_mod.resolve(job_path, scene.predictions)
         images = files.read_npz(path, ["images"], error=vggt.PredictionsError)["images"]
         images = images[0] if images.ndim == 5 else images
         return torch.from_numpy(np.ascontiguousarray(images[sources[0]], dtype=np.float32))
     return first_condition
 
 
-def state_key(ckpt: str, s: dict, precision: str, image, asset, valid) -> str:
+def state_key(ckpt: str, s: dict, precision: str, image, asset_mask, valid) -> str:
     h = hashlib.sha256(json.dumps({"checkpoint": os.path.abspath(ckpt), "settings": s, "precision": precision},
                                   sort_keys=True).encode())
-    for t in (image, asset, valid):
+    for t in (image, asset_mask, valid):
         h.update(t.numpy().tobytes())
     return h.hexdigest()[:32]
 
@@ -161,19 +139,19 @@ def load_state(path: str, key: str):
     return latents, step
 
 
-def generate_job(job_path: str, job: dict, device: str, checkpoint: str | None, precision: str = "auto",
+def generate_job(job_path: str, job: job_mod.Job, device: str, checkpoint: str | None, precision: str = "auto",
                  force: bool = False, stop=(), overrides: dict | None = None, allow_outside: bool = False) -> dict:
     """Render the missing condition layers and generate the video (see the module docstring); validated first
     (``prepare``), one run per output folder (``files.OutputLock``). A model producing NaN/inf raises
     ``errors.NonFiniteError`` and writes no frame, video or manifest."""
     plan = prepare(job_path, job, checkpoint, overrides, allow_outside)
     files.make_folder(plan.output_dir, "output_dir")
-    with files.OutputLock(plan.output_dir, "generate", busy=FolderBusyError) as lock:
+    with files.OutputLock(plan.output_dir, "generate", busy=FolderBusyError) as lock, events.log_scope():
         return _generate(job_path, job, device, plan, precision, force, stop, lock)
 
 
 def _generate(job_path, job, device, plan: Plan, precision, force, stop, lock) -> dict:
-    ckpt, config, s, out = plan.checkpoint, plan.config, plan.settings, plan.output_dir
+    ckpt, s, out = plan.checkpoint, plan.settings, plan.output_dir
     if precision == "auto":
         precision = "bf16" if device == "cuda" else "fp32"
     dtype = PRECISIONS[precision]
@@ -183,14 +161,14 @@ def _generate(job_path, job, device, plan: Plan, precision, force, stop, lock) -
     t0 = time.perf_counter()
     files.remove_temporaries(out, ["generated.mp4", "generate_state.safetensors"])  # left by a killed run
     files.remove_temporaries(os.path.join(out, "generated"), ["manifest.json"] + [
-        f"frame_{e['frame']:06d}.png" for e in job["frames"]])
+        f"frame_{e.frame:06d}.png" for e in job.frames])
     r = render_cmd.render_job(job_path, job, device, stop=stop, log=log, allow_outside=plan.paths["allow_outside"],
                               lock=False, checked=plan.paths)  # prepare() checked the inputs; the lock is held
     if r["stopped"]:
         return {"stopped": True, "stage": "render", "steps_done": 0}
-    image, asset, valid = load_conditions(job_path, job)
+    image, asset_mask, valid = load_conditions(job_path, job)
     frames_n, _, H, W = image.shape
-    key = state_key(ckpt, s, precision, image, asset, valid)
+    key = state_key(ckpt, s, precision, image, asset_mask, valid)
     gen_dir = os.path.join(out, "generated")
     mp4 = os.path.join(out, "generated.mp4")
     manifest = os.path.join(gen_dir, "manifest.json")
@@ -209,7 +187,7 @@ def _generate(job_path, job, device, plan: Plan, precision, force, stop, lock) -
         f"{s['overlap']}, {precision} on {device}, checkpoint {ckpt}")
     pipe = SCPainterPipeline.from_checkpoint(ckpt, device, dtype)
     m = pipe.pixel_multiple
-    cond = pipe.condition_latents(pad_to_multiple(image, m), pad_to_multiple(asset, m),
+    cond = pipe.condition_latents(pad_to_multiple(image, m), pad_to_multiple(asset_mask, m),
                                   pad_to_multiple(valid, m, 0.0), seed=s["seed"])
     clip = pipe.clip_embedding(clip_source(job_path, job, image[0]))
     state_path = os.path.join(out, "generate_state.safetensors")
@@ -236,16 +214,16 @@ def _generate(job_path, job, device, plan: Plan, precision, force, stop, lock) -
     video = pipe.decode(x, chunk=s["decode_chunk"])[:, :, :H, :W]
     rgb = video.permute(0, 2, 3, 1).numpy()
     files.output_folder(out, "generated", plan.paths.get("allow_outside", False))
-    for entry, frame in zip(job["frames"], rgb):
-        path = os.path.join(gen_dir, f"frame_{entry['frame']:06d}.png")
+    for entry, frame in zip(job.frames, rgb):
+        path = os.path.join(gen_dir, f"frame_{entry.frame:06d}.png")
         fr.write_png(path, frame)
-        events.artifact(path, frame=entry["frame"], kind="generated")
+        events.artifact(path, frame=entry.frame, kind="generated")
     from .video import write_mp4
 
     write_mp4(mp4, (np.clip(rgb, 0, 1) * 255 + 0.5).astype(np.uint8), s["fps"])
     events.artifact(mp4, kind="video")
     files.write_json(manifest, {"key": key, "checkpoint": ckpt, "settings": s, "precision": precision,
-                                "frames": [e["frame"] for e in job["frames"]]})
+                                "frames": [e.frame for e in job.frames]})
     if os.path.exists(state_path):
         os.remove(state_path)
     log(f"generate: {mp4} in {time.perf_counter() - t0:.1f} s")

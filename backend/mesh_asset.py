@@ -15,8 +15,8 @@ Frames and units
 * TRELLIS (microsoft/TRELLIS): ``trellis/utils/postprocessing_utils.py:to_glb`` writes the GLB with
   ``vertices @ [[1,0,0],[0,0,-1],[0,1,0]]``, i.e. (x, z, -y) of TRELLIS's Z-up frame: plain glTF Y-up, so the
   conversion above returns TRELLIS's own Z-up frame. ``trellis/representations/gaussian/gaussian_model.py:save_ply``
-  writes its Gaussians as ``xyz @ T.T`` with the same matrix T, i.e. (x, -z, y) (``core.splats.TRELLIS_FILE_FROM_ZUP``),
-  which the Gaussian import undoes with ``F = TRELLIS_FILE_FROM_ZUP.T``. The two files of one TRELLIS asset
+  writes its Gaussians as ``xyz @ T.T`` with the same matrix T, i.e. (x, -z, y) (``core.splats.ZUP_TO_TRELLIS_FILE``),
+  which the Gaussian import undoes with ``F = ZUP_TO_TRELLIS_FILE.T``. The two files of one TRELLIS asset
   therefore land in the same pose (``tests/backend/test_mesh_asset.py`` builds both and checks it).
 
 Gaussians
@@ -34,7 +34,7 @@ Gaussian). Each sample gets one flat Gaussian:
 
 Choice of c (``bench/mesh_assets.py``, bench/results/mesh_assets.json). With N/A samples per unit area, the summed
 weight Σ o exp(-r²/2σ²) of the Gaussians at a point of the surface is 2π c² o on average, so one layer lets through
-about T = exp(-2π c² o) and a closed surface (two layers on every line of sight) exp(-4π c² o); past a free edge
+about a transmittance of exp(-2π c² o) and a closed surface (two layers on every line of sight) exp(-4π c² o); past a free edge
 the mask falls to 0.5 at the distance d where Φ(-d/σ) = ln 2 / (2π c² o). c ≈ 0.5 puts that edge on the outline but
 leaves the car a few per cent transparent; c = 1 closes it and moves the edge out by 1.2 σ. Measured on close-ups
 (the car 80 % of a 1024 x 576 frame's height) of the procedural car and two real TRELLIS GLBs: c = 0.5 has the
@@ -209,7 +209,7 @@ def load_mesh(path, up: str = "auto") -> MeshAsset:
     """Read a mesh file (GLB, glTF, OBJ, PLY, STL, OFF) into Z-up parts (see the module docstring).
 
     ``up``: "auto" (by extension: glTF/GLB/OBJ Y up, the rest Z up), "y" or "z". Raises ``MeshAssetError``
-    (a ValueError naming the file) for a missing or unreadable file, an unsupported format, a Gaussian-splat PLY,
+    (an InputError naming the file) for a missing or unreadable file, an unsupported format, a Gaussian-splat PLY,
     a point cloud, or a file without triangles.
     """
     import trimesh
@@ -246,10 +246,10 @@ def load_mesh(path, up: str = "auto") -> MeshAsset:
         raise MeshAssetError(path, f"it has {what}: a car asset needs a triangle mesh (or a Gaussian-splat PLY)")
     axis = UP_BY_EXTENSION[ext] if up == "auto" else up
     if axis == "y":
-        T = np.eye(4)
-        T[:3, :3] = Y_UP_TO_Z_UP
+        y_up_to_z_up = np.eye(4)
+        y_up_to_z_up[:3, :3] = Y_UP_TO_Z_UP
         for m in meshes:
-            m.apply_transform(T)
+            m.apply_transform(y_up_to_z_up)
     asset = MeshAsset(path, meshes, axis, gltf=ext in (".glb", ".gltf"))
     if not np.any(_face_areas(asset.vertices, asset.faces) > 0):
         raise MeshAssetError(path, f"its {len(asset.faces)} faces all have zero (or non-finite) area: nothing "
@@ -426,7 +426,8 @@ def sample_gaussians(mesh, count: int, seed: int = 0, sigma_factor: float = SIGM
     """``count`` flat surface Gaussians of ``mesh`` (a MeshAsset, a trimesh.Trimesh, or a list of them), with
     what the command reports (``MeshGaussians``). See the module docstring for the rules; same seed, same result.
 
-    Raises ValueError when the mesh has no face with a positive finite area or ``count`` < 1.
+    Raises ValueError when the mesh has no face with a positive finite area (``MeshAssetError`` naming the file
+    for a ``MeshAsset``: a file whose areas overflow float64) or ``count`` < 1 (the caller's to check).
     """
     import trimesh
 
@@ -443,7 +444,11 @@ def sample_gaussians(mesh, count: int, seed: int = 0, sigma_factor: float = SIGM
     area = _face_areas(V, F)
     total = float(area.sum())
     if not total > 0 or not math.isfinite(total):
-        raise ValueError("the mesh has no face with a positive, finite area: nothing to sample")
+        what = "the mesh has no face with a positive, finite area (in sum): nothing to sample"
+        if isinstance(mesh, MeshAsset):  # read from the user's file: bad input, not our bug
+            raise MeshAssetError(mesh.path, what, hint="check the mesh's units and that its faces are not all "
+                                                       "degenerate")
+        raise ValueError(what)
     # geometry only (no visuals, NaN corners replaced: zero-weight faces are never sampled anyway)
     geom = trimesh.Trimesh(np.nan_to_num(V, nan=0.0, posinf=0.0, neginf=0.0), F, process=False, validate=False)
     means, fidx, bary = trimesh.sample.sample_surface(geom, count, face_weight=area, return_barycentric=True,
@@ -488,15 +493,18 @@ def convert(path, out, count: int = DEFAULT_COUNT, up: str = "auto", seed: int =
             sigma_factor: float = SIGMA_FACTOR, progress=None) -> dict:
     """``python -m backend mesh-asset``: mesh file -> INRIA-layout Gaussian PLY (Z up, the mesh's units, SH 0, no
     normals), written atomically. ``progress(stage, done, total)`` is called between steps. Returns the ``done``
-    event's result (see the backend docs). Raises MeshAssetError / ValueError on bad input."""
+    event's result (see the backend docs). Raises MeshAssetError (the mesh, ``--out``) or ``files.ArgumentError``
+    (``--count``) on bad input."""
     progress = progress or (lambda *a: None)
     path, out = os.fspath(path), os.fspath(out)
     if not 1 <= int(count) <= MAX_COUNT:
-        raise ValueError(f"--count must be between 1 and {MAX_COUNT:,}, got {count}")
+        raise files.ArgumentError("--count", f"must be between 1 and {MAX_COUNT:,}, got {count}")
     if os.path.exists(out) and os.path.exists(path) and os.path.samefile(path, out):
-        raise MeshAssetError(out, "--out is the input mesh itself: choose another file")
+        raise MeshAssetError(out, "--out is the input mesh itself: choose another file", "--out")
     if not out.lower().endswith(".ply"):
-        raise MeshAssetError(out, "--out must be a .ply file")
+        raise MeshAssetError(out, "--out must be a .ply file", "--out")
+    if os.path.isdir(out):
+        raise MeshAssetError(out, "--out is a folder: name the .ply file to write", "--out")
     progress("load", 0, 3)
     asset = load_mesh(path, up)
     progress("sample", 1, 3)
@@ -506,9 +514,12 @@ def convert(path, out, count: int = DEFAULT_COUNT, up: str = "auto", seed: int =
     used = used[np.isfinite(used).all(axis=1)]
     box = upright_box(used)
     progress("write", 2, 3)
-    os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
+    files.make_folder(os.path.dirname(os.path.abspath(out)), "--out")
     name = "".join(ch if " " <= ch <= "~" else "?" for ch in os.path.basename(path))  # the header is ASCII
-    splats.write_ply(out, splats.encode(res.gaussians), comment=f"scpainter mesh-asset {name} up={asset.up}")
+    try:
+        splats.write_ply(out, splats.encode(res.gaussians), comment=f"scpainter mesh-asset {name} up={asset.up}")
+    except PermissionError as e:
+        raise MeshAssetError(out, f"--out cannot be written: {e.strerror}", "--out") from None
     progress("write", 3, 3)
     return {"ply": out, "count": len(res.gaussians), "up": asset.up, "area": res.area, "sigma": res.sigma,
             "colour_source": res.colour_source, "colour_counts": res.colour_counts, "dropped": res.dropped,
@@ -532,10 +543,10 @@ def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
         x = np.cross(z, (0.0, 1.0, 0.0))
     x /= np.linalg.norm(x)
     y = np.cross(z, x)
-    T = np.eye(4)
-    T[:3, :3] = np.stack([x, y, z])
-    T[:3, 3] = -T[:3, :3] @ eye
-    return T
+    w2c = np.eye(4)
+    w2c[:3, :3] = np.stack([x, y, z])
+    w2c[:3, 3] = -w2c[:3, :3] @ eye
+    return w2c
 
 
 def orbit_cameras(center, radius: float, width: int, height: int, views: int = 6, elevation_deg: float = 15.0,
@@ -564,14 +575,14 @@ def silhouette(vertices, faces, K, world_to_camera, width: int, height: int, nea
     """
     V = np.asarray(vertices, np.float64)
     Fc = np.asarray(faces, np.int64)
-    T = np.asarray(world_to_camera, np.float64)
-    cam = V @ T[:3, :3].T + T[:3, 3]
+    w2c = np.asarray(world_to_camera, np.float64)
+    cam = V @ w2c[:3, :3].T + w2c[:3, 3]
     with np.errstate(invalid="ignore", divide="ignore"):
         uv = (cam @ np.asarray(K, np.float64).T)
         uv = uv[:, :2] / uv[:, 2:3]
     z = cam[:, 2]
     tri_ok = (np.isfinite(uv).all(1) & (z > near))[Fc].all(axis=1)
-    P = uv[Fc[tri_ok]]                                  # (T, 3, 2)
+    P = uv[Fc[tri_ok]]                                  # (triangles, 3, 2)
     mask = np.zeros(height * width, bool)
     if not len(P):
         return mask.reshape(height, width)
@@ -617,16 +628,16 @@ def render_mask(g: splats.Gaussians, K, world_to_camera, width: int, height: int
     proj = gs.project(t(g.means), t(g.quats), t(g.scales), t(g.opacities), t(g.sh), K, world_to_camera,
                       width, height)
     raster = gs.rasterize if reference else tiles.rasterize
-    _, alpha, _ = raster(proj, width, height)
-    return alpha.numpy()
+    _, asset_mask, _ = raster(proj, width, height)
+    return asset_mask.numpy()
 
 
-def mask_metrics(alpha, sil, threshold: float = 0.5) -> dict:
-    """Compare a rendered mask (H, W) in [0, 1] with a binary silhouette (H, W).
+def mask_metrics(asset_mask, sil, threshold: float = 0.5) -> dict:
+    """Compare a rendered asset mask M_a (H, W) in [0, 1] with a binary silhouette (H, W).
 
-    * ``iou``: of (alpha >= threshold) and the silhouette;
-    * ``mean_abs``: mean |alpha - sil| over the pixels of either (alpha > 1/255 or the silhouette);
-    * ``leak``: Σ (1 - alpha) over the silhouette, ``spill``: Σ alpha outside it, both divided by the silhouette's
+    * ``iou``: of (M_a >= threshold) and the silhouette;
+    * ``mean_abs``: mean |M_a - sil| over the pixels of either (M_a > 1/255 or the silhouette);
+    * ``leak``: Σ (1 - M_a) over the silhouette, ``spill``: Σ M_a outside it, both divided by the silhouette's
       area (leak: how transparent the car is, spill: how much it bleeds past its outline; their sum is the L1 error
       per silhouette pixel);
     * ``boundary_px``: the mean distance (pixels) from each boundary pixel of one mask to the other's boundary,
@@ -634,7 +645,7 @@ def mask_metrics(alpha, sil, threshold: float = 0.5) -> dict:
     """
     from scipy import ndimage
 
-    a = np.clip(np.asarray(alpha, np.float64), 0.0, 1.0)
+    a = np.clip(np.asarray(asset_mask, np.float64), 0.0, 1.0)
     s = np.asarray(sil, bool)
     m = a >= threshold
     union = m | s

@@ -16,7 +16,6 @@ tests/fuzz_inputs.py into it). Saves the table and the failing cases to the JSON
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import subprocess
@@ -28,6 +27,7 @@ sys.path.insert(0, ROOT)
 sys.path.insert(0, os.path.join(ROOT, "tests"))
 
 import fuzz_inputs as F  # noqa: E402
+from scpainter_blender.core import files  # noqa: E402
 
 
 def compact(r: dict) -> dict:
@@ -80,17 +80,15 @@ def main() -> int:
             print(f"  {kind:<10} {family:<28} {outcome:<9} {count:>3}  {example[:200]}")
 
     os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
-    with open(args.out, "w") as f:
-        json.dump({"label": args.label, "commit": commit, "local_changes": dirty, "seed": args.seed,
-                   "timeout_s": args.timeout, "generate_check": run["check"], "base": run["base"],
-                   "backend": run["backend"],
-                   "seconds": round(seconds, 1), "workers": run["workers"],
-                   "machine": {"cpus": os.cpu_count(), "platform": platform.platform(),
-                               "python": platform.python_version()},
-                   "summary": summary,
-                   "families": [dict(zip(("kind", "family", "outcome", "count", "example"), g)) for g in groups],
-                   # every case is reproducible from (kind, index, seed): only the ones that end badly are kept
-                   "failing_cases": [compact(r) for r in results if r["outcome"] in F.FAILURES]}, f, indent=1)
+    files.write_json(args.out, {
+        "label": args.label, "commit": commit, "local_changes": dirty, "seed": args.seed,
+        "timeout_s": args.timeout, "generate_check": run["check"], "base": run["base"], "backend": run["backend"],
+        "seconds": round(seconds, 1), "workers": run["workers"],
+        "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version()},
+        "summary": summary,
+        "families": [dict(zip(("kind", "family", "outcome", "count", "example"), g)) for g in groups],
+        # every case is reproducible from (kind, index, seed): only the ones that end badly are kept
+        "failing_cases": [compact(r) for r in results if r["outcome"] in F.FAILURES]})
     print(f"\nwrote {os.path.relpath(args.out)}")
     return 0
 

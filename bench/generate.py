@@ -16,7 +16,6 @@ on the H100; ``--size tiny --device cpu`` only checks that the benchmark runs.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -27,10 +26,12 @@ sys.path.insert(0, ROOT)
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
+from backend import events  # noqa: E402
 from backend.model import configs, edm  # noqa: E402
 from backend.model.checkpoint import ScpainterConfig  # noqa: E402
 from backend.model.condition import ConditionEncoder  # noqa: E402
 from backend.model.pipeline import SCPainterPipeline  # noqa: E402
+from scpainter_blender.core import files  # noqa: E402
 
 DTYPES = {"fp16": torch.float16, "bf16": torch.bfloat16, "fp32": torch.float32}
 
@@ -75,7 +76,8 @@ def main(argv=None):
                               "condition_encoder": ConditionEncoder.from_vae(comps["vae"].float()).to(dev),
                               "config": ScpainterConfig(noise_aug_strength=0.0),
                               "clip_mean": comps["feature_extractor"].image_mean,
-                              "clip_std": comps["feature_extractor"].image_std}, dev, dt)
+                              "clip_std": comps["feature_extractor"].image_std,
+                              "schedule": edm.Schedule.from_config(dict(comps["scheduler"].config))}, dev, dt)
     ours.vae.to(dev, torch.float32 if dt == torch.float16 else dt)
     if args.compile:
         ours.unet = torch.compile(ours.unet)
@@ -97,13 +99,13 @@ def main(argv=None):
                 cond = ours.condition_latents(image[None].repeat(frames, 1, 1, 1), torch.zeros(frames, 1, H, W),
                                               torch.ones(frames, 1, H, W))
                 x = ours.sample(cond, ours.clip_embedding(image), steps=steps, window=frames,
-                                latents=eps[0] * edm.init_noise_sigma())
+                                latents=eps[0] * ours.schedule.init_noise_sigma)
                 return ours.decode(x, chunk=8)
 
         run_stock(2), run_ours(2)  # warm-up (and compilation)
         ref, t_stock, m_stock = timed(run_stock, dev)
         out, t_ours, m_ours = timed(run_ours, dev)
-        sigma = edm.karras_sigmas(args.steps)[0].to(dev)
+        sigma = ours.schedule.sigmas(args.steps)[0].to(dev)
         cond = torch.zeros(frames, 4, H // 8, W // 8, device=dev)
         clip = torch.zeros(1, 1, ours.image_encoder.config.projection_dim, device=dev)
         x = torch.randn(frames, 4, H // 8, W // 8, device=dev)
@@ -131,10 +133,8 @@ def main(argv=None):
         print(f"{r['steps']} | {r['seconds']:.2f} | {r['mean_abs_diff_vs_25']:.3e}")
     os.makedirs(args.out, exist_ok=True)
     path = os.path.join(args.out, f"generate_{args.size}_{args.device}.json")
-    with open(path + ".tmp", "w") as f:
-        json.dump({"device": torch.cuda.get_device_name() if dev == "cuda" else "cpu", "rows": rows,
-                   "steps_sweep": sweep}, f, indent=1)
-    os.replace(path + ".tmp", path)
+    files.write_json(path, events.json_safe({"device": torch.cuda.get_device_name() if dev == "cuda" else "cpu",
+                                             "rows": rows, "steps_sweep": sweep}))
     print(f"\nwrote {path}")
 
 

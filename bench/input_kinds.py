@@ -9,9 +9,7 @@ saves a JSON.
 """
 
 import argparse
-import json
 import os
-import struct
 import sys
 import tempfile
 
@@ -20,12 +18,13 @@ import numpy as np
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
+from scpainter_blender.core import files  # noqa: E402
 from tools import blender_env  # noqa: E402
 
 
 def analytic_clip(S=3, H=48, W=64, seed=0):
     """A road plane and a wall seen by a camera driving forward: VGGT-layout arrays with exact world_points."""
-    from scpainter_blender.core import cameras, vggt
+    from scpainter_blender.core import cameras, unproject, vggt
 
     rng = np.random.default_rng(seed)
     K = np.array([[50.0, 0, W / 2], [0, 50.0, H / 2], [0, 0, 1]])
@@ -44,7 +43,7 @@ def analytic_clip(S=3, H=48, W=64, seed=0):
         s_wall = (8.0 - c[2]) / d_world[..., 2]
         depth[i] = np.minimum(s_road, s_wall)
     Kv = vggt.ours_K_to_vggt(np.tile(K, (S, 1, 1)))
-    wp = vggt.unproject_depth(depth, np.tile(K, (S, 1, 1)), w2c)
+    wp = unproject.unproject_depth(depth, np.tile(K, (S, 1, 1)), w2c)
     images = rng.uniform(0.2, 0.8, (S, 3, H, W)).astype(np.float32)
     conf = (1.0 + rng.exponential(3.0, (S, H, W))).astype(np.float32)
     return dict(images=images, depth=depth, depth_conf=conf, extrinsic=w2c[:, :3], intrinsic_vggt=Kv,
@@ -52,19 +51,19 @@ def analytic_clip(S=3, H=48, W=64, seed=0):
 
 
 def write_vggt_cases(d):
-    from scpainter_blender.core import cameras, vggt
+    from scpainter_blender.core import cameras, vggt_io
 
     base = analytic_clip()
     out = {}
-    vggt.save_predictions(os.path.join(d, "vggt_ok.npz"), **base)
+    vggt_io.save_predictions(os.path.join(d, "vggt_ok.npz"), **base)
     out["VGGT demo file (world-to-camera)"] = "vggt_ok.npz"
     c2w = dict(base, extrinsic=cameras.rigid_inverse(cameras.as_matrix4(base["extrinsic"]))[:, :3])
-    vggt.save_predictions(os.path.join(d, "vggt_c2w.npz"), **c2w)
+    vggt_io.save_predictions(os.path.join(d, "vggt_c2w.npz"), **c2w)
     out["VGGT camera-to-world under 'extrinsic'"] = "vggt_c2w.npz"
     nan = dict(base, depth=base["depth"].copy())
     nan["depth"][1, 3:5, 7:9] = np.nan
     nan["depth"][2, 10, 10] = np.inf
-    vggt.save_predictions(os.path.join(d, "vggt_nan.npz"), **nan)
+    vggt_io.save_predictions(os.path.join(d, "vggt_nan.npz"), **nan)
     out["VGGT with 5 NaN/inf depth pixels"] = "vggt_nan.npz"
     one = {k: np.asarray(v[0], np.float32) for k, v in base.items()}
     np.savez(os.path.join(d, "vggt_one.npz"), images=one["images"], depth=one["depth"],
@@ -81,7 +80,7 @@ def write_vggt_cases(d):
     cnf[:, p:p + H] = pad["depth_conf"]
     Kp = pad["intrinsic_vggt"].copy()
     Kp[:, 1, 2] += p
-    vggt.save_predictions(os.path.join(d, "vggt_padded.npz"), img, dep, cnf, pad["extrinsic"], Kp)
+    vggt_io.save_predictions(os.path.join(d, "vggt_padded.npz"), img, dep, cnf, pad["extrinsic"], Kp)
     out["VGGT padded to a square (white bands)"] = "vggt_padded.npz"
     return out
 
@@ -166,15 +165,15 @@ def run(op, path, **kw):
 
 def point_error(path):
     """How far the imported points (depth unprojected with 'extrinsic' as stored) are from world_points, median."""
-    from scpainter_blender.core import vggt
+    from scpainter_blender.core import unproject, vggt_io
 
     try:
         with np.load(path, allow_pickle=False) as z:
             if "world_points" not in z.files:
                 return None
             wp = z["world_points"].reshape(-1, 3).astype(np.float64)
-        pred = vggt.load_predictions(path)
-        ours = vggt.unproject_depth(pred.depth, pred.K, pred.world_to_camera).reshape(-1, 3)
+        pred = vggt_io.load_predictions(path)
+        ours = unproject.unproject_depth(pred.depth, pred.K, pred.world_to_camera).reshape(-1, 3)
         ok = np.isfinite(ours).all(1) & np.isfinite(wp).all(1)
         return float(np.median(np.linalg.norm(ours[ok] - wp[ok], axis=1)))
     except Exception:
@@ -209,8 +208,7 @@ def main(argv=None):
     for r in rows:
         print(f"{r['kind']:<{w}}  {r['status']:<9} {r['what']}")
     os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
-    with open(args.out, "w") as f:
-        json.dump({"checkout": ROOT, "rows": rows}, f, indent=1)
+    files.write_json(args.out, {"checkout": ROOT, "rows": rows})
 
 
 if __name__ == "__main__":

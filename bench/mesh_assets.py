@@ -23,7 +23,6 @@ Prints tables and writes bench/results/mesh_assets.json. Not a test.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import statistics
@@ -37,8 +36,9 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 import trimesh  # noqa: E402
 
+from backend import events  # noqa: E402
 from backend import mesh_asset as ma  # noqa: E402
-from scpainter_blender.core import shapes  # noqa: E402
+from scpainter_blender.core import files, shapes  # noqa: E402
 
 REALDATA = os.environ.get("SCPAINTER_REALDATA") or os.path.join(ROOT, "..", "shared", "realdata")
 
@@ -83,18 +83,18 @@ def evaluate(asset, sils, cams, width, height, count, factor, seed=0):
     res = ma.sample_gaussians(asset, count, seed=seed, sigma_factor=factor)
     t_convert = time.perf_counter() - t
     per_view, t_render = [], []
-    for (K, T), sil in zip(cams, sils):
+    for (K, w2c), sil in zip(cams, sils):
         t = time.perf_counter()
-        alpha = ma.render_mask(res.gaussians, K, T, width, height)
+        asset_mask = ma.render_mask(res.gaussians, K, w2c, width, height)
         t_render.append(time.perf_counter() - t)
-        per_view.append(ma.mask_metrics(alpha, sil))
+        per_view.append(ma.mask_metrics(asset_mask, sil))
     row = {k: float(np.mean([m[k] for m in per_view])) for k in per_view[0]}
     row["iou_min"] = float(min(m["iou"] for m in per_view))
     row.update(count=count, factor=factor, sigma=res.sigma, sigma_px=None, convert_s=t_convert,
                render_s=statistics.median(t_render), colour_source=res.colour_source)
     # σ in pixels at the object's centre distance (the scale that decides coverage and edge blur)
-    K, T = cams[0]
-    row["sigma_px"] = float(res.sigma * K[0, 0] / np.linalg.norm(T[:3, 3]))
+    K, w2c = cams[0]
+    row["sigma_px"] = float(res.sigma * K[0, 0] / np.linalg.norm(w2c[:3, 3]))
     return row
 
 
@@ -130,7 +130,7 @@ def main(argv=None):
         for width, height in res_list:
             cams = cameras_for(asset, width, height, args.views)
             t = time.perf_counter()
-            sils = [ma.silhouette(asset.vertices, asset.faces, K, T, width, height) for K, T in cams]
+            sils = [ma.silhouette(asset.vertices, asset.faces, K, w2c, width, height) for K, w2c in cams]
             t_sil = (time.perf_counter() - t) / len(cams)
             jobs = [(ma.SIGMA_FACTOR, n) for n in args.counts]
             if (width, height) == res_list[-1]:
@@ -142,12 +142,13 @@ def main(argv=None):
                 rows.append(r)
                 show(r)
     os.makedirs(os.path.dirname(args.json), exist_ok=True)
-    with open(args.json, "w") as f:
-        json.dump({"machine": {"cpus": os.cpu_count(), "threads": args.threads, "platform": platform.platform(),
-                               "torch": torch.__version__, "trimesh": trimesh.__version__},
-                   "defaults": {"sigma_factor": ma.SIGMA_FACTOR, "opacity": ma.OPACITY,
-                                "normal_ratio": ma.NORMAL_RATIO, "count": ma.DEFAULT_COUNT},
-                   "views": args.views, "rows": rows}, f, indent=1)
+    # strict JSON: a boundary distance with no boundary to measure (inf) is written as null
+    files.write_json(args.json, events.json_safe({
+        "machine": {"cpus": os.cpu_count(), "threads": args.threads, "platform": platform.platform(),
+                    "torch": torch.__version__, "trimesh": trimesh.__version__},
+        "defaults": {"sigma_factor": ma.SIGMA_FACTOR, "opacity": ma.OPACITY, "normal_ratio": ma.NORMAL_RATIO,
+                     "count": ma.DEFAULT_COUNT},
+        "views": args.views, "rows": rows}))
     print(f"saved {args.json}")
 
 

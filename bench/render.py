@@ -19,7 +19,6 @@ Prints tables and writes bench/results/render_<devices>.json and a plot beside i
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import statistics
@@ -34,10 +33,13 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 import render_scene  # noqa: E402
+from backend import events  # noqa: E402
+from backend.render import channels  # noqa: E402
 from backend.render import frames as fr  # noqa: E402
 from backend.render import gaussians as gs  # noqa: E402
 from backend.render import points as pts  # noqa: E402
 from backend.render import tiles  # noqa: E402
+from scpainter_blender.core import files  # noqa: E402
 
 W, H = 1024, 576
 
@@ -60,24 +62,24 @@ def timed(fn, device, repeat=10, warmup=2):
 def gaussians_world(scene, entry):
     """The scene's asset Gaussians in scene-origin-relative world coordinates, with the camera for them."""
     a = scene.assets[0]
-    A = np.array(a.object_to_world[str(entry["frame"])], np.float64)
+    A = np.array(a.object_to_world[entry.frame], np.float64)
     A[:3, 3] -= scene.origin
     At = torch.as_tensor(A, dtype=a.means.dtype, device=scene.device)
-    w2c = pts.relative_camera(np.array(entry["world_to_camera"]), scene.origin)
+    w2c = pts.relative_camera(np.asarray(entry.world_to_camera), scene.origin)
     return a.means @ At[:3, :3].T + At[:3, 3], At[:3, :3] @ a.factors, a.opacities, a.sh, w2c
 
 
 def gaussian_pass(scene, entry, tile=None, reference=False):
     means, factors, opac, sh, w2c = gaussians_world(scene, entry)
-    proj = gs.project_factors(means, factors, opac, sh, entry["K"], w2c, W, H)
+    proj = gs.project_factors(means, factors, opac, sh, entry.K, w2c, W, H)
     if reference:
         return gs.rasterize(proj, W, H)
     return tiles.rasterize(proj, W, H, tile=tile)
 
 
 def point_pass(scene, entry):
-    w2c = pts.relative_camera(np.array(entry["world_to_camera"]), scene.origin)
-    return pts.render_points(scene.xyz, scene.rgb, entry["K"], w2c, W, H)
+    w2c = pts.relative_camera(np.asarray(entry.world_to_camera), scene.origin)
+    return pts.render_points(scene.xyz, scene.rgb, entry.K, w2c, W, H)
 
 
 def gsplat_pass(scene, entry, quats, scales):
@@ -86,10 +88,10 @@ def gsplat_pass(scene, entry, quats, scales):
     means, _, opac, sh, w2c = (x.float() if torch.is_tensor(x) else x for x in gaussians_world(scene, entry))
     dev = scene.device
     view = torch.as_tensor(w2c, dtype=torch.float32, device=dev)[None]
-    K = torch.as_tensor(np.array(entry["K"]), dtype=torch.float32, device=dev)[None]
-    img, alpha, _ = rasterization(means, quats, scales, opac, sh, view, K, W, H, near_plane=0.05, eps2d=0.3,
-                                  sh_degree=0, packed=False, rasterize_mode="classic", tile_size=16)
-    return img[0], alpha[0, ..., 0]
+    K = torch.as_tensor(np.array(entry.K), dtype=torch.float32, device=dev)[None]
+    img, asset_mask, _ = rasterization(means, quats, scales, opac, sh, view, K, W, H, near_plane=0.05, eps2d=0.3,
+                                       sh_degree=0, packed=False, rasterize_mode="classic", tile_size=16)
+    return img[0], asset_mask[0, ..., 0]
 
 
 def section_speed(device, rows):
@@ -102,8 +104,8 @@ def section_speed(device, rows):
            "points_ms": timed(lambda: point_pass(scene, entry), device),
            "gaussians_ms": timed(lambda: gaussian_pass(scene, entry), device)}
     layers = full()
-    res["asset_pixels"] = int((layers["asset"] > 0.5).sum())
-    res["hole_fraction"] = float(layers["hole"].mean())
+    res["asset_pixels"] = int((layers[channels.ASSET_MASK] > 0.5).sum())
+    res["hole_fraction"] = float(layers[channels.HOLE].mean())
     if device == "cuda":
         # determinism across devices: the same points z-buffered on the CPU pick the same winners
         cpu_scene = fr.Scene(origin=scene.origin, device=torch.device("cpu"), xyz=scene.xyz.cpu(),
@@ -120,10 +122,10 @@ def section_speed(device, rows):
             quats = torch.as_tensor(g.quats, device=device)
             scales = torch.as_tensor(g.scales, device=device)
             res["gsplat_ms"] = timed(lambda: gsplat_pass(scene, entry, quats, scales), device)
-            ours_c, ours_a, _ = gaussian_pass(scene, entry)
-            gc, ga = gsplat_pass(scene, entry, quats, scales)
+            ours_c, ours_mask, _ = gaussian_pass(scene, entry)
+            gc, gmask = gsplat_pass(scene, entry, quats, scales)
             res["gsplat_mean_abs_diff_rgb"] = float((ours_c - gc).abs().mean())
-            res["gsplat_max_abs_diff_alpha"] = float((ours_a - ga).abs().max())
+            res["gsplat_max_abs_diff_asset_mask"] = float((ours_mask - gmask).abs().max())
             res["gaussians_vs_gsplat"] = res["gaussians_ms"] / res["gsplat_ms"]
     rows.append(res)
     return scene, entry
@@ -150,15 +152,16 @@ def section_accuracy(device, rows, speed_scene):
         dI = np.abs(out["I"] - ref["I"])
         rows.append({"device": device, "setting": name, "frame_ms": ms, "max_abs_err_I": float(dI.max()),
                      "mean_abs_err_I": float(dI.mean()),
-                     "max_abs_err_asset": float(np.abs(out["asset"] - ref["asset"]).max()),
+                     "max_abs_err_asset_mask": float(np.abs(out["asset_mask"] - ref["asset_mask"]).max()),
                      "max_abs_err_I_same_cutoff": float(np.abs(out["I"] - same[cutoff]["I"]).max()),
-                     "max_abs_err_asset_same_cutoff": float(np.abs(out["asset"] - same[cutoff]["asset"]).max())})
+                     "max_abs_err_asset_mask_same_cutoff": float(np.abs(out["asset_mask"]
+                                                                        - same[cutoff]["asset_mask"]).max())})
 
 
 def render_with(scene, entry, cutoff=gs.CUTOFF, tile=None, reference=False):
     """render_frame's work with one setting changed; returns numpy I (H, W, 3) and the asset mask."""
     layers = fr.render_frame(scene, entry, W, H, reference=reference, cutoff=cutoff, tile=tile)
-    return {"I": np.stack([layers["R"], layers["G"], layers["B"]], -1), "asset": layers["asset"]}
+    return {"I": np.stack([layers[c] for c in channels.IMAGE], -1), "asset_mask": layers[channels.ASSET_MASK]}
 
 
 def reference_layers(scene, entry):
@@ -175,13 +178,13 @@ def section_street(rows):
 def street_rows(rows, percentile, radii):
     from PIL import Image
 
-    from scpainter_blender.core import vggt
+    from scpainter_blender.core import point_cloud, vggt_io
     from scpainter_blender.street.dataset import ensure_street, view_name
 
     street = ensure_street(log=lambda m: None)
     metric = street.metric()
-    pred = vggt.load_predictions(street.predictions_path, world_points=False)
-    cloud = vggt.point_cloud(pred, percentile, world_from_vggt=metric["world_from_vggt"])
+    pred = vggt_io.load_predictions(street.predictions_path, world_points=False)
+    cloud = point_cloud.point_cloud(pred, percentile, vggt_to_world=metric["vggt_to_world"])
     S = len(metric["world_to_camera"])
     w2c0 = metric["world_to_camera"][0]
     origin = -w2c0[:3, :3].T @ w2c0[:3, 3]
@@ -298,17 +301,14 @@ def main(argv=None):
     print_table("error against run time (time: speed scene; error: 1 M points + 20 k Gaussians against float64 "
                 "without a cutoff, and against float64 with the same cutoff)",
                 result["accuracy"], ["device", "setting", "frame_ms", "max_abs_err_I", "mean_abs_err_I",
-                                     "max_abs_err_asset", "max_abs_err_I_same_cutoff",
-                                     "max_abs_err_asset_same_cutoff"])
+                                     "max_abs_err_asset_mask", "max_abs_err_I_same_cutoff",
+                                     "max_abs_err_asset_mask_same_cutoff"])
     print_table("ground-truth street (16 frames 518 x 294, CPU)", result["street"],
                 ["confidence_percentile", "shift_m", "window", "point_radius_px", "hole_fraction", "psnr_covered_db",
                  "frame_ms"])
     os.makedirs(args.out, exist_ok=True)
     stem = os.path.join(args.out, "render_" + "_".join(args.devices))
-    tmp = stem + ".json.tmp"
-    with open(tmp, "w") as f:
-        json.dump(result, f, indent=1)
-    os.replace(tmp, stem + ".json")
+    files.write_json(stem + ".json", events.json_safe(result))  # a PSNR of a perfect match (inf) becomes null
     plot(result, stem + ".png")
     print(f"\nwrote {stem}.json and {stem}.png")
     return 0

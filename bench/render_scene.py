@@ -13,6 +13,7 @@ import numpy as np
 import torch
 
 from backend.render import frames as fr
+from scpainter_blender.core import job as job_mod
 from scpainter_blender.core import shapes
 
 SRC_W, SRC_H, SRC_F = 518, 294, 300.0
@@ -24,11 +25,11 @@ def camera_to_world_rotation() -> np.ndarray:
 
 
 def world_to_camera(x: float, y: float, z: float = 1.6) -> np.ndarray:
-    T = np.eye(4)
+    w2c = np.eye(4)
     R = camera_to_world_rotation().T
-    T[:3, :3] = R
-    T[:3, 3] = -R @ np.array([x, y, z])
-    return T
+    w2c[:3, :3] = R
+    w2c[:3, 3] = -R @ np.array([x, y, z])
+    return w2c
 
 
 def intrinsics(width: int, height: int, fov_x_deg: float = 80.0) -> np.ndarray:
@@ -99,8 +100,6 @@ def build(n_points: int, n_gaussians: int, width: int = 1024, height: int = 576,
     if n_gaussians:
         A = np.eye(4)
         A[:3, 3] = (3.5, car_distance, 0.0)
-        scene.assets.append(fr.make_asset("car", car_gaussians(n_gaussians, seed), {"0": A.tolist()}, dev))
-    entry = {"frame": 0, "world_to_camera": world_to_camera(0.0, 0.0).tolist(),
-             "K": intrinsics(width, height).tolist(),
-             "source_frames": list(range(frames))}
+        scene.assets.append(fr.make_asset("car", car_gaussians(n_gaussians, seed), {0: A}, dev))
+    entry = job_mod.Frame(0, intrinsics(width, height), world_to_camera(0.0, 0.0), list(range(frames)))
     return scene, entry

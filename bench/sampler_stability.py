@@ -15,7 +15,6 @@ bench/results/sampler_stability.json. CPU only: this is arithmetic, not speed.
 
 from __future__ import annotations
 
-import json
 import os
 import sys
 
@@ -24,9 +23,12 @@ import torch
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
-from backend.model import edm  # noqa: E402
+from backend import events  # noqa: E402
+from backend.model import configs, edm  # noqa: E402
+from scpainter_blender.core import files  # noqa: E402
 
 DTYPES = {"fp16": torch.float16, "bf16": torch.bfloat16, "fp32": torch.float32}
+SVD = edm.Schedule.from_config(configs.SCHEDULER)   # SVD's scheduler config: σ from 700 to 0.002
 
 
 def case(sigma: float, scale: float, seed: int = 0, n: int = 4 * 72 * 128):
@@ -60,20 +62,18 @@ def case(sigma: float, scale: float, seed: int = 0, n: int = 4 * 72 * 128):
 
 def main():
     rows = []
-    for sigma in (700.0, 100.0, 1.0, 0.01, edm.SIGMA_MIN):
+    for sigma in (SVD.sigma_max, 100.0, 1.0, 0.01, SVD.sigma_min):
         for scale in (1.0, 3.0, 7.5, 15.0):
             rows += case(sigma, scale)
     print("sigma | guidance | path | finite | max |Δ c_in·x| | max |Δ x0|")
     print("--- | --- | --- | --- | --- | ---")
     for r in rows:
-        if r["guidance"] in (1.0, 15.0) or r["sigma"] in (700.0, edm.SIGMA_MIN):
+        if r["guidance"] in (1.0, 15.0) or r["sigma"] in (SVD.sigma_max, SVD.sigma_min):
             e_in = "inf/NaN" if r["max_abs_err_input"] is None else f"{r['max_abs_err_input']:.2e}"
             e_x0 = "inf/NaN" if r["max_abs_err_x0"] is None else f"{r['max_abs_err_x0']:.2e}"
             print(f"{r['sigma']:g} | {r['guidance']:g} | {r['path']} | {r['finite']} | {e_in} | {e_x0}")
     path = os.path.join(ROOT, "bench", "results", "sampler_stability.json")
-    with open(path + ".tmp", "w") as f:
-        json.dump(rows, f, indent=1)
-    os.replace(path + ".tmp", path)
+    files.write_json(path, events.json_safe(rows))
     print(f"\nwrote {path}")
 
 

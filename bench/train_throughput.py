@@ -15,7 +15,6 @@ The issue's figures are ``--size full --device cuda`` on the H100; ``--size tiny
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -25,12 +24,14 @@ sys.path.insert(0, ROOT)
 
 import torch  # noqa: E402
 
-from backend.model import configs  # noqa: E402
+from backend import events  # noqa: E402
+from backend.model import configs, edm  # noqa: E402
 from backend.model.checkpoint import ScpainterConfig  # noqa: E402
 from backend.model.condition import ConditionEncoder  # noqa: E402
 from backend.train import objective  # noqa: E402
 from backend.train.config import TrainConfig  # noqa: E402
 from backend.train.ema import EMA  # noqa: E402
+from scpainter_blender.core import files  # noqa: E402
 
 
 def build(size: str, device: str):
@@ -41,7 +42,9 @@ def build(size: str, device: str):
     c["image_encoder"].to(device, frozen_dtype).eval().requires_grad_(False)
     c["unet"].to(device).train()
     cond.to(device).train()
-    return {"unet": c["unet"], "condition_encoder": cond, "vae": c["vae"], "image_encoder": c["image_encoder"],
+    schedule = edm.Schedule.from_config(dict(c["scheduler"].config))   # SVD's scheduler config
+    return {"unet": c["unet"], "denoiser": edm.Denoiser(c["unet"], schedule), "condition_encoder": cond,
+            "vae": c["vae"], "image_encoder": c["image_encoder"],
             "clip_mean": torch.tensor([0.48145466, 0.4578275, 0.40821073]).view(1, 3, 1, 1),
             "clip_std": torch.tensor([0.26862954, 0.26130258, 0.27577711]).view(1, 3, 1, 1),
             "config": ScpainterConfig()}
@@ -59,7 +62,7 @@ def run(models, device, batch, frames, W, H, steps, checkpointing):
     g = torch.Generator().manual_seed(0)
     data = {"target": torch.rand(batch, frames, 3, H, W, generator=g),
             "image": torch.rand(batch, frames, 3, H, W, generator=g),
-            "asset": torch.zeros(batch, frames, 1, H, W), "valid": torch.ones(batch, frames, 1, H, W)}
+            "asset_mask": torch.zeros(batch, frames, 1, H, W), "valid": torch.ones(batch, frames, 1, H, W)}
     data = {k: v.to(device) for k, v in data.items()}
     autocast = torch.bfloat16 if device == "cuda" else None
     times = []
@@ -68,7 +71,7 @@ def run(models, device, batch, frames, W, H, steps, checkpointing):
         torch.cuda.reset_peak_memory_stats()
     for i in range(2 + steps):
         t = time.perf_counter()
-        loss, _ = objective.loss(models, data, cfg, torch.Generator().manual_seed(i), device, autocast)
+        loss, _ = objective.loss(models, data, cfg, objective.generators(i, range(batch)), device, autocast)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(list(named.values()), 1.0)
         opt.step()
@@ -136,8 +139,7 @@ def main(argv=None):
            "frames": a.frames, "trained_parameters": n_params, "size": a.size}
     os.makedirs(os.path.join(ROOT, "bench", "results"), exist_ok=True)
     out = os.path.join(ROOT, "bench", "results", f"train_{a.size}_{a.device}.json")
-    with open(out, "w") as f:
-        json.dump({"env": env, "rows": rows, "paper_schedule": cost}, f, indent=1)
+    files.write_json(out, events.json_safe({"env": env, "rows": rows, "paper_schedule": cost}))
     print(f"wrote {out}")
 
 

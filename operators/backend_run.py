@@ -9,13 +9,13 @@ to the output folder, and the results are loaded only after success.
 
 from __future__ import annotations
 
-import os
-
 import bpy
 
 from ..scpainter_blender.backend_client import BackendError, BackendJob
+from ..scpainter_blender.core import files
 from ..scpainter_blender.scene import preferences, props
 from ..scpainter_blender.scene.runs import ACTIVE, DOCTOR, Follower, failure_message, finish, start
+from . import reports
 
 
 class _BackendRun:
@@ -38,13 +38,10 @@ class _BackendRun:
             return False
         return True
 
+    @reports.reported
     def execute(self, context):
         """Blocking: background mode and scripts."""
-        try:
-            job, out = start(context, self.command, self.extra_args())
-        except (ValueError, BackendError) as e:
-            self.report({"ERROR"}, str(e))
-            return {"CANCELLED"}
+        job, out = start(context, self.command, self.extra_args())
 
         def show(ev):
             if ev.get("event") == "progress":
@@ -58,14 +55,11 @@ class _BackendRun:
         self.report({"INFO"}, finish(context, self.command, out, done))
         return {"FINISHED"}
 
+    @reports.reported_invoke
     def invoke(self, context, event):
         if bpy.app.background:
             return self.execute(context)
-        try:
-            job, out = start(context, self.command, self.extra_args())
-        except (ValueError, BackendError) as e:
-            self.report({"ERROR"}, str(e))
-            return {"CANCELLED"}
+        job, out = start(context, self.command, self.extra_args())
         self._follow = Follower(self.command, job, out, self.timeout)
         wm = context.window_manager
         self._timer = wm.event_timer_add(0.25, window=context.window)
@@ -79,7 +73,10 @@ class _BackendRun:
         wm.progress_end()
         if context.workspace:
             context.workspace.status_text_set(None)
-        level, message = self._follow.report(context, status)
+        try:
+            level, message = self._follow.report(context, status)
+        except Exception as e:  # noqa: BLE001  loading the results failed: bad input or a bug (reports.message)
+            level, message = "ERROR", reports.message(e)
         self.report({level}, message)
         _redraw(context)
         return {"FINISHED"} if status == "finished" else {"CANCELLED"}
@@ -134,13 +131,9 @@ class SCPAINTER_OT_open_output(bpy.types.Operator):
     bl_idname = "scpainter.open_output"
     bl_label = "Open Output Folder"
 
+    @reports.reported
     def execute(self, context):
-        try:
-            out = props.output_dir(context.scene)
-        except ValueError as e:
-            self.report({"ERROR"}, str(e))
-            return {"CANCELLED"}
-        os.makedirs(out, exist_ok=True)
+        out = files.make_folder(props.output_dir(context.scene), "scene.scpainter_output_dir")
         bpy.ops.wm.path_open(filepath=out)
         return {"FINISHED"}
 
@@ -151,6 +144,7 @@ class SCPAINTER_OT_check_backend(bpy.types.Operator):
     bl_idname = "scpainter.check_backend"
     bl_label = "Check Backend"
 
+    @reports.reported
     def execute(self, context):
         prefs = preferences.get(context)
         args = ["doctor"]

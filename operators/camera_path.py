@@ -5,6 +5,7 @@ from __future__ import annotations
 import bpy
 
 from ..scpainter_blender.scene import camera
+from . import reports
 
 
 def recorded_camera(context):
@@ -32,12 +33,9 @@ class SCPAINTER_OT_new_camera_path(bpy.types.Operator):
             return False
         return True
 
+    @reports.reported
     def execute(self, context):
-        try:
-            obj = camera.create_camera_path(context, recorded_camera(context), self.shift)
-        except ValueError as e:
-            self.report({"ERROR"}, str(e))
-            return {"CANCELLED"}
+        obj = camera.create_camera_path(context, recorded_camera(context), self.shift)
         for o in context.view_layer.objects.selected:
             o.select_set(False)
         context.view_layer.objects.active = obj

@@ -5,8 +5,8 @@ from __future__ import annotations
 import bpy
 from bpy_extras.io_utils import ImportHelper
 
-from ..scpainter_blender.backend_client import BackendError
 from ..scpainter_blender.scene import gaussians, preferences
+from . import reports
 
 AXES_ITEMS = [("TRELLIS", "TRELLIS / Amodal3R", "Undo their (x, -z, y) file axes"),
               ("NONE", "As Stored", "Use the file's axes as Z-up")]
@@ -37,15 +37,12 @@ class SCPAINTER_OT_import_gaussians(bpy.types.Operator, ImportHelper):
         name="Mesh Gaussians", default=gaussians.DEFAULT_MESH_COUNT, min=100, soft_max=2_000_000,
         description="Meshes only: how many flat Gaussians to sample on the surface (more: a closer silhouette)")
 
+    @reports.reported
     def execute(self, context):
         prefs = preferences.get(context)
-        try:
-            r = gaussians.import_gaussians(context, self.filepath, self.axes, self.target_length or None,
-                                           self.ellipsoids, mesh_count=self.mesh_count,
-                                           backend_python=prefs.backend_python if prefs else "")
-        except (ValueError, BackendError) as e:
-            self.report({"ERROR"}, str(e))
-            return {"CANCELLED"}
+        r = gaussians.import_gaussians(context, self.filepath, self.axes, self.target_length or None,
+                                       self.ellipsoids, mesh_count=self.mesh_count,
+                                       backend_python=prefs.backend_python if prefs else "")
         for o in context.view_layer.objects.selected:
             o.select_set(False)
         context.view_layer.objects.active = r.object
@@ -70,6 +67,7 @@ class SCPAINTER_OT_set_asset_axes(bpy.types.Operator):
         obj = context.active_object
         return obj is not None and obj.get("scpainter_kind") == "gaussian_asset"
 
+    @reports.reported
     def execute(self, context):
         gaussians.set_axes(context.active_object, self.axes)
         return {"FINISHED"}

@@ -5,8 +5,8 @@ from __future__ import annotations
 import bpy
 from bpy_extras.io_utils import ImportHelper
 
-from ..scpainter_blender.backend_client import BackendError
-from ..scpainter_blender.scene import importer, preferences
+from ..scpainter_blender.scene import importer
+from . import reports
 
 
 class SCPAINTER_OT_import_vggt(bpy.types.Operator, ImportHelper):
@@ -29,13 +29,15 @@ class SCPAINTER_OT_import_vggt(bpy.types.Operator, ImportHelper):
         name="Metric Scale", default="FACTOR",
         items=[("FACTOR", "Factor", "Metres per VGGT unit"),
                ("TRAJECTORY", "Metric Trajectory", "Fit the camera path to a metric one (Umeyama)"),
-               ("CAMERA_HEIGHT", "Camera Height", "Known camera height over the road plane (RANSAC, backend)")])
+               ("CAMERA_HEIGHT", "Camera Height", "Known camera height over the road: RANSAC ground plane in the "
+                                                     "lower image rows, scale = height / camera-to-plane distance")])
     scale_factor: bpy.props.FloatProperty(name="Scale Factor", default=1.0, min=1e-6, soft_max=1000.0,
                                           description="Metres per VGGT unit")
     trajectory_path: bpy.props.StringProperty(name="Trajectory", subtype="FILE_PATH",
                                               description="Metric camera path (.npz world_to_camera, xyz or TUM text)")
     camera_height: bpy.props.FloatProperty(name="Camera Height", default=1.6, min=0.01, unit="LENGTH",
-                                           description="Height of the camera over the road, metres")
+                                           description="Height of the camera over the road, metres (the road "
+                                                       "must show in the lower part of the images)")
     point_radius: bpy.props.FloatProperty(name="Point Radius", default=0.03, min=0.0, unit="LENGTH")
     current_frame_only: bpy.props.BoolProperty(name="Current Frame Only", default=False,
                                                description="Show only the points of the current frame (± window)")
@@ -63,20 +65,16 @@ class SCPAINTER_OT_import_vggt(bpy.types.Operator, ImportHelper):
         for name in ("extrinsic_convention", "crop", "point_radius", "current_frame_only", "frame_window"):
             col.prop(self, name)
 
+    @reports.reported
     def execute(self, context):
-        prefs = preferences.get(context)
         opts = importer.ImportOptions(
             confidence_percentile=self.confidence_percentile, point_source=self.point_source,
             scale_mode=self.scale_mode, scale_factor=self.scale_factor, trajectory_path=self.trajectory_path,
-            camera_height=self.camera_height, backend_python=prefs.backend_python if prefs else "",
+            camera_height=self.camera_height,
             point_radius=self.point_radius, current_frame_only=self.current_frame_only,
             frame_window=self.frame_window, frame_start=context.scene.frame_start,
             extrinsic_convention=self.extrinsic_convention, crop=self.crop)
-        try:
-            result = importer.import_vggt(context, self.filepath, opts)
-        except (ValueError, BackendError) as e:
-            self.report({"ERROR"}, str(e))
-            return {"CANCELLED"}
+        result = importer.import_vggt(context, self.filepath, opts)  # InputError: reported by @reports.reported
         for w in result.warnings:
             self.report({"WARNING"}, w)
         for line in result.load_report.info:

@@ -7,6 +7,7 @@ import os
 import bpy
 
 from ..scpainter_blender.scene import job_export, preferences, props
+from . import reports
 
 
 class SCPAINTER_OT_export_job(bpy.types.Operator):
@@ -19,17 +20,14 @@ class SCPAINTER_OT_export_job(bpy.types.Operator):
     filepath: bpy.props.StringProperty(name="Job File", subtype="FILE_PATH", default="",
                                        description="Where to write job.json (empty: the scene's output folder)")
 
+    @reports.reported
     def execute(self, context):
-        try:
-            path = bpy.path.abspath(self.filepath) if self.filepath else \
-                os.path.join(props.output_dir(context.scene), "job.json")
-            prefs = preferences.get(context)
-            job = job_export.export_job(context, path, checkpoint=bpy.path.abspath(prefs.checkpoint_dir)
-                                        if prefs and prefs.checkpoint_dir else "")
-        except ValueError as e:
-            self.report({"ERROR"}, str(e))
-            return {"CANCELLED"}
-        self.report({"INFO"}, f"Wrote {path}: {len(job['frames'])} frames, {len(job.get('assets', []))} assets")
+        path = bpy.path.abspath(self.filepath) if self.filepath else \
+            os.path.join(props.output_dir(context.scene), "job.json")
+        prefs = preferences.get(context)
+        job = job_export.export_job(context, path, checkpoint=bpy.path.abspath(prefs.checkpoint_dir)
+                                    if prefs and prefs.checkpoint_dir else "")
+        self.report({"INFO"}, f"Wrote {path}: {len(job.frames)} frames, {len(job.assets)} assets")
         return {"FINISHED"}
 
 

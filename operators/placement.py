@@ -6,6 +6,7 @@ import bpy
 import numpy as np
 
 from ..scpainter_blender.scene import placement
+from . import reports
 
 
 def _asset(context):
@@ -41,6 +42,7 @@ class SCPAINTER_OT_fit_asset(_AssetOperator, bpy.types.Operator):
     uniform: bpy.props.BoolProperty(name="Keep Proportions", default=True,
                                     description="Scale uniformly to the length (off: per axis to all three)")
 
+    @reports.reported
     def execute(self, context):
         placement.fit_size(_asset(context), self.length, self.width, self.height, self.uniform)
         return {"FINISHED"}
@@ -57,16 +59,13 @@ class SCPAINTER_OT_snap_to_ground(_AssetOperator, bpy.types.Operator):
     margin: bpy.props.FloatProperty(name="Margin", default=1.0, min=0.0, unit="LENGTH",
                                     description="How far around the footprint to look for road points")
 
+    @reports.reported
     def execute(self, context):
         pts = _points(context)
         if pts is None:
             self.report({"ERROR"}, "no reconstruction in the scene: import a VGGT reconstruction first")
             return {"CANCELLED"}
-        try:
-            plane, n = placement.snap_to_ground(context, _asset(context), pts, self.margin, self.align)
-        except ValueError as e:
-            self.report({"ERROR"}, str(e))
-            return {"CANCELLED"}
+        plane, n = placement.snap_to_ground(context, _asset(context), pts, self.margin, self.align)
         self.report({"INFO"}, f"Ground fitted to {n:,} points (normal {np.round(plane[:3], 3).tolist()})")
         return {"FINISHED"}
 
@@ -89,6 +88,7 @@ class SCPAINTER_OT_add_removal_box(bpy.types.Operator):
             return False
         return True
 
+    @reports.reported
     def execute(self, context):
         box = placement.add_removal_box(context, _points(context), size=(self.length, self.width, self.height))
         for o in context.view_layer.objects.selected:
@@ -108,6 +108,7 @@ class SCPAINTER_OT_replace_car(_AssetOperator, bpy.types.Operator):
     uniform: bpy.props.BoolProperty(name="Keep Proportions", default=False,
                                     description="Scale uniformly to the box length instead of filling the box")
 
+    @reports.reported
     def execute(self, context):
         boxes = [o for o in context.selected_objects if o.get("scpainter_kind") == "removal_box"]
         if len(boxes) != 1:
@@ -132,6 +133,7 @@ class SCPAINTER_OT_check_assets(bpy.types.Operator):
     tolerance: bpy.props.FloatProperty(name="Tolerance", default=placement.STAGE1_TOLERANCE, min=0.0, max=1.0,
                                        subtype="FACTOR")
 
+    @reports.reported
     def execute(self, context):
         assets = [o for o in context.scene.objects if o.get("scpainter_kind") == "gaussian_asset"]
         flagged = []
@@ -156,6 +158,7 @@ class SCPAINTER_OT_review_asset(bpy.types.Operator):
     status: bpy.props.EnumProperty(name="Status", items=[("accepted", "Accept", ""), ("rejected", "Reject", ""),
                                                           ("unchecked", "Unchecked", "")])
 
+    @reports.reported
     def execute(self, context):
         obj = bpy.data.objects.get(self.name) or _asset(context)
         if obj is None or obj.get("scpainter_kind") != "gaussian_asset":

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import bpy
 
-from ..scpainter_blender.scene import points
+from ..scpainter_blender.scene import node_groups, points
 
 
 class SCPAINTER_PT_main(bpy.types.Panel):
@@ -42,7 +42,7 @@ class SCPAINTER_PT_main(bpy.types.Panel):
         mod = points.points_modifier(obj)
         if mod is not None:
             for name in ("Point Radius", "Current Frame Only", "Frame Window"):
-                box.prop(mod, f'["{points._socket_identifier(mod.node_group, name)}"]', text=name)
+                box.prop(mod, f'["{node_groups.socket_identifier(mod.node_group, name)}"]', text=name)
 
 
     @staticmethod

@@ -1,4 +1,5 @@
-"""Start the backend (``python -m backend ...``) in a subprocess and read its event stream (DESIGN §4.4).
+"""Start the backend (``python -m backend ...``) in a subprocess and read its event stream (docs/design.md,
+"Running the backend from Blender").
 
 No bpy, no torch: the add-on calls this from Blender's Python, where neither torch nor open3d exist; the
 backend runs under the interpreter chosen in the add-on preferences.
@@ -16,11 +17,23 @@ EXTENSION_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
 class BackendError(RuntimeError):
-    """The backend reported an error (or died); ``exit_code`` 2 means bad input."""
+    """The backend reported an error (or died). ``exit_code`` 2 means bad input: ``file`` and ``field`` (the error
+    event's) name it; 1 a failure the backend explains or an internal error, whose traceback is in ``log_path``
+    (the event's ``log``: ``<output_dir>/backend.log``) when the command had an output folder. ``log``: the tail
+    of the backend's standard error. ``str()`` is the message, the hint and where the log is."""
 
-    def __init__(self, message, hint=None, exit_code=None, log=""):
+    def __init__(self, message, hint=None, exit_code=None, log="", file=None, field=None, log_path=None):
         self.hint, self.exit_code, self.log = hint, exit_code, log
-        super().__init__(message + (f" ({hint})" if hint else ""))
+        self.file, self.field, self.log_path = file, field, log_path
+        text = message + (f" ({hint})" if hint else "")
+        if log_path and log_path not in text:
+            text += f" (log: {log_path})"
+        super().__init__(text)
+
+    @property
+    def bad_input(self) -> bool:
+        """The backend refused its input (exit code 2): ``file`` and ``field`` say which."""
+        return self.exit_code == 2
 
 
 def backend_python(preference: str = "") -> str:
@@ -137,8 +150,9 @@ class BackendJob:
         self.poll()
         code = self.proc.returncode
         if self.error is not None:
-            raise BackendError(self.error.get("message", "backend error"), self.error.get("hint"), code,
-                               self.stderr_tail)
+            e = self.error
+            raise BackendError(e.get("message", "backend error"), e.get("hint"), code, self.stderr_tail,
+                               file=e.get("file"), field=e.get("field"), log_path=e.get("log"))
         if self.cancelled:
             raise BackendError("cancelled", "finished outputs are kept", code, self.stderr_tail)
         if code != 0 or self.done is None:

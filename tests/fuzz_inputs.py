@@ -2,8 +2,8 @@
 
 Every case starts from a tiny valid job in its own folder and changes one thing::
 
-    <case>/job/job.json              scpainter.job/1: 2 frames of 16 x 12, a scene, one asset, output_dir "out"
-    <case>/job/predictions.npz       VGGT predictions, S = 2 frames of 16 x 12 (core.vggt.save_predictions)
+    <case>/job/job.json              scpainter.job/2: 2 frames of 16 x 12, a scene, one asset, output_dir "out"
+    <case>/job/predictions.npz       VGGT predictions, S = 2 frames of 16 x 12 (core.vggt_io.save_predictions)
     <case>/job/car.ply               20 INRIA Gaussians, SH degree 1 (core.splats.write_ply)
     <case>/job/out/                  the output folder
     <case>/outside/                  planted files that must never be touched (frame_000000.exr, backend.log,
@@ -126,14 +126,14 @@ class Base:
     arrays and their archives, the PLY, and (on first use) a tiny checkpoint."""
 
     def __init__(self, folder: str):
-        from scpainter_blender.core import cameras, splats, vggt
+        from scpainter_blender.core import cameras, splats, vggt, vggt_io
         from vggt_cases import drive
 
         self.folder = folder
         os.makedirs(folder, exist_ok=True)
         arrays, w2c_vggt, intr = drive(S=S, H=H, W=W, seed=3)
         pred = os.path.join(folder, "predictions.npz")
-        vggt.save_predictions(pred, **arrays)
+        vggt_io.save_predictions(pred, **arrays)
         with np.load(pred) as z:
             self.arrays = {k: z[k] for k in z.files}          # exactly what the writer saved
         with open(pred, "rb") as f:
@@ -169,8 +169,8 @@ class Base:
         o2w[:3, 3] = ahead
         frames = [{"frame": i + 1, "K": K[i].tolist(), "world_to_camera": w2c[i].tolist(), "source_frames": [0, 1]}
                   for i in range(S)]
-        self.job = {"schema": "scpainter.job/1", "resolution": [W, H], "frames": frames,
-                    "scene": {"predictions": "predictions.npz", "world_from_vggt": wfv.tolist(),
+        self.job = {"schema": "scpainter.job/2", "resolution": [W, H], "frames": frames,
+                    "scene": {"predictions": "predictions.npz", "vggt_to_world": wfv.tolist(),
                               "confidence_percentile": 50.0},
                     "assets": [{"name": "car", "ply": "car.ply",
                                 "object_to_world": {str(f["frame"]): o2w.tolist() for f in frames}}],
@@ -422,7 +422,7 @@ def _matrix_in(path, fn):
     return apply
 
 
-WFV = ("scene", "world_from_vggt")
+WFV = ("scene", "vggt_to_world")
 
 
 def _set_cells(path, cells):
@@ -530,7 +530,7 @@ JOB_SEMANTIC = [
         ("checkpoint", [('""', ""), ("123", 123), ('"../outside"', "../outside")]),
     ) for name, v in vals] + [("generate = []", _set(("generate",), [])),
                               ("generate = null", _set(("generate",), None))]),
-    ("world_from_vggt", [
+    ("vggt_to_world", [
         ("1e-5 shear (slightly not a similarity)", _set(WFV, _similar(shear=1e-5))),
         ("1e-3 shear", _set(WFV, _similar(shear=1e-3))), ("singular (zeros)", _set(WFV, np.zeros((4, 4)).tolist())),
         ("scale 1e-30", _set(WFV, _similar(scale=1e-30))), ("scale 1e-10", _set(WFV, _similar(scale=1e-10))),

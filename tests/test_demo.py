@@ -36,7 +36,7 @@ def test_demo_writes_blend_and_preview(street, tmp_path):
     assert abs(summary["asset_location"][2]) < 0.05  # stood on the road (z = 0)
     from scpainter_blender.core import job
 
-    j = job.load(summary["job"])
+    j = job.load(summary["job"]).to_dict()
     assert len(j["frames"]) == 16 and j["assets"][0]["name"] == "car_01"
     # the condition layers of the 2 m shifted path, rendered by the backend: every frame, the car in view
     cond = summary["conditions"]
@@ -46,7 +46,7 @@ def test_demo_writes_blend_and_preview(street, tmp_path):
     from backend.render import exr
 
     layers = exr.read(os.path.join(cond["folder"], "frame_000001.exr"))
-    assert sorted(layers) == ["B", "G", "R", "Z", "asset", "hole"]
+    assert sorted(layers) == ["B", "G", "R", "Z", "asset_mask", "hole"]
     assert "conditions" in proc.stderr
     assert summary["generation"]["skipped"] and "init-checkpoint" in summary["generation"]["reason"]
     assert "generation skipped" in proc.stderr

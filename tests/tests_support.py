@@ -88,19 +88,20 @@ def small_job(folder, frames=(1, 2), resolution=(16, 12), asset=True, **extra):
 
     from scpainter_blender.core import job as J
     from scpainter_blender.core import shapes
-    from scpainter_blender.core import vggt as V
+    from scpainter_blender.core import vggt_io
 
     folder = str(folder)
     os.makedirs(folder, exist_ok=True)
     pred = synthetic_predictions(S=2, H=12, W=16, seed=3)
-    V.save_predictions(os.path.join(folder, "predictions.npz"), images=pred["images"], depth=pred["depth"],
-                       depth_conf=pred["depth_conf"], extrinsic=pred["extrinsic"], intrinsic_vggt=pred["intrinsic"])
+    vggt_io.save_predictions(os.path.join(folder, "predictions.npz"), images=pred["images"], depth=pred["depth"],
+                             depth_conf=pred["depth_conf"], extrinsic=pred["extrinsic"],
+                             intrinsic_vggt=pred["intrinsic"])
     W, H = resolution
     w2c = np.eye(4)
     K = [[12.0 * W / 16, 0, W / 2], [0, 12.0 * W / 16, H / 2], [0, 0, 1]]
     job = {"schema": J.SCHEMA, "resolution": [W, H], "output_dir": "out",
            "frames": [{"frame": f, "K": K, "world_to_camera": w2c.tolist(), "source_frames": [0, 1]} for f in frames],
-           "scene": {"predictions": "predictions.npz", "world_from_vggt": np.eye(4).tolist()}}
+           "scene": {"predictions": "predictions.npz", "vggt_to_world": np.eye(4).tolist()}}
     if asset:
         shapes.save_as_amodal3r(os.path.join(folder, "car.ply"), shapes.procedural_car_gaussians(count=300, seed=2))
         place = np.diag([4.0, 4.0, 4.0, 1.0])

@@ -3,6 +3,7 @@ with its depth (as VGGT's independent point head does, to a few percent), and VG
 
 import numpy as np
 
+from scpainter_blender.core import unproject, vggt_io
 from scpainter_blender.core import vggt as V
 
 
@@ -19,7 +20,7 @@ def drive(S=4, H=24, W=32, seed=0, noise=0.02):
         w2c[i, :3, :3], w2c[i, :3, 3] = R, -R @ c
     intr = np.tile(np.array([[30.0, 0, W / 2], [0, 30.0, H / 2], [0, 0, 1]]), (S, 1, 1))
     depth = rng.uniform(1.0, 4.0, (S, H, W)).astype(np.float32)
-    wp = V.unproject_depth(depth, V.vggt_K_to_ours(intr), w2c)
+    wp = unproject.unproject_depth(depth, V.vggt_K_to_ours(intr), w2c)
     wp += rng.normal(0.0, noise, wp.shape) * depth[..., None]
     arrays = dict(images=rng.random((S, H, W, 3), dtype=np.float32), depth=depth,
                   depth_conf=(1.0 + rng.exponential(2.0, (S, H, W))).astype(np.float32), extrinsic=w2c,
@@ -30,7 +31,7 @@ def drive(S=4, H=24, W=32, seed=0, noise=0.02):
 
 def write(tmp_path, arrays, name="predictions.npz"):
     path = tmp_path / name
-    V.save_predictions(path, **arrays)
+    vggt_io.save_predictions(path, **arrays)
     return str(path)
 
 

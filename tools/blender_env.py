@@ -86,13 +86,13 @@ def install_for_script(work_dir: str) -> str:
 
 
 def write_bench_json(path: str, rows: list) -> None:
-    """A benchmark's rows with the machine they ran on."""
-    import json
+    """A benchmark's rows with the machine they ran on, written atomically (``core.files.write_json``)."""
     import platform
 
     import bpy
 
+    from scpainter_blender.core import files
+
     os.makedirs(os.path.dirname(path), exist_ok=True)
-    with open(path, "w") as f:
-        json.dump({"machine": {"cpus": os.cpu_count(), "platform": platform.platform(),
-                               "blender": bpy.app.version_string}, "rows": rows}, f, indent=1)
+    files.write_json(path, {"machine": {"cpus": os.cpu_count(), "platform": platform.platform(),
+                                        "blender": bpy.app.version_string}, "rows": rows})

@@ -94,7 +94,7 @@ def main(argv=None):
     job_path = os.path.join(out, "job.json")
     bpy.ops.scpainter.export_job(filepath=job_path)
     truth = float(street.metric()["metres_per_unit"])
-    scale = float(np.cbrt(np.linalg.det(np.array(pts["scpainter_world_from_vggt"]).reshape(4, 4)[:3, :3])))
+    scale = float(np.cbrt(np.linalg.det(np.array(pts["scpainter_vggt_to_world"]).reshape(4, 4)[:3, :3])))
 
     blend = os.path.join(out, "street_demo.blend")
     bpy.ops.wm.save_as_mainfile(filepath=blend)
@@ -159,17 +159,17 @@ def main(argv=None):
 
 
 def conditions_summary(output_dir: str) -> dict:
-    """Where the condition layers are and what they hold: per-frame hole fraction and asset coverage."""
-    from backend.render import exr
+    """Where the condition layers are and what they hold: per-frame hole fraction and asset-mask coverage."""
+    from backend.render import channels
 
     folder = os.path.join(output_dir, "conditions")
     files = sorted(f for f in os.listdir(folder) if f.endswith(".exr"))
-    holes, asset = [], []
+    holes, asset_pixels = [], []
     for f in files:
-        layers = exr.read(os.path.join(folder, f))
-        holes.append(float(layers["hole"].mean()))
-        asset.append(int((layers["asset"] > 0.5).sum()))
-    return {"folder": folder, "frames": len(files), "hole_fraction": holes, "asset_pixels": asset,
+        layers = channels.read(os.path.join(folder, f))
+        holes.append(float(layers[channels.HOLE].mean()))
+        asset_pixels.append(int((layers[channels.ASSET_MASK] > 0.5).sum()))
+    return {"folder": folder, "frames": len(files), "hole_fraction": holes, "asset_pixels": asset_pixels,
             "previews": sorted(os.path.join(folder, f) for f in os.listdir(folder) if f.endswith(".png"))}
 
 

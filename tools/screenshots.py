@@ -39,15 +39,15 @@ def main(argv=None):
     p.add_argument("--frame", type=int, default=1)
     p.add_argument("--shift", type=float, default=2.0, help="the demo's camera-path shift (for the true view)")
     args = p.parse_args(argv)
-    from backend.render import exr
+    from backend.render import channels
     from scpainter_blender.core import job as job_mod
     from scpainter_blender.street.dataset import ensure_street, view_name
 
     job = job_mod.load(os.path.join(args.demo, "job.json"))
-    cond = exr.read(os.path.join(args.demo, "conditions", f"frame_{args.frame:06d}.exr"))
-    image = np.stack([cond["R"], cond["G"], cond["B"]], -1)
-    masks = np.repeat(cond["hole"][..., None], 3, -1) * 0.85
-    masks[cond["asset"] > 0.5] = (0.9, 0.2, 0.2)
+    cond = channels.read(os.path.join(args.demo, "conditions", f"frame_{args.frame:06d}.exr"))
+    image = np.stack([cond[c] for c in channels.IMAGE], -1)
+    masks = np.repeat(cond[channels.HOLE][..., None], 3, -1) * 0.85
+    masks[cond[channels.ASSET_MASK] > 0.5] = (0.9, 0.2, 0.2)
     W = 518
     tiles = [tile(np.asarray(Image.open(os.path.join(args.demo, "preview.png")).convert("RGB")),
                   "1. the scene in Blender from the 2 m path (Cycles)", W),
@@ -58,7 +58,7 @@ def main(argv=None):
         tiles.append(tile(np.asarray(Image.open(generated).convert("RGB")), "4. Generate: the video frame", W))
     else:
         street = ensure_street(log=lambda m: None)
-        gt = street.frame_path(view_name(args.shift), job["frames"][0]["frame"] - 1)
+        gt = street.frame_path(view_name(args.shift), job.frames[0].frame - 1)
         tiles.append(tile(np.asarray(Image.open(gt).convert("RGB")),
                           "4. (no checkpoint) the true view, without the car", W))
     h = max(t.height for t in tiles)

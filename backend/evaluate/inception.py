@@ -20,13 +20,20 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from scpainter_blender.core import files
+
 WEIGHTS_FILE = "pt_inception-2015-12-05-6726825d.pth"
 FEATURE_DIM = 2048
 INPUT_SIZE = 299
 
 
-class EvaluationError(ValueError):
-    """Evaluation input that cannot be used; the message names the file and what is wrong."""
+class EvaluationError(files.InputError):
+    """Evaluation input that cannot be used (the ``--inception`` weights file): ``str()`` is ``"<full path>:
+    <what is wrong>"``; ``field`` the part at fault (``"(file)"`` for the file as a whole)."""
+
+    def __init__(self, path, message, field=None, hint=None):
+        files.InputError.__init__(self, path, field, message, hint)
+        self.args = (f"{self.path}: {message}",)
 
 
 class BasicConv2d(nn.Module):
@@ -239,14 +246,14 @@ def _read_state_dict(path: str) -> dict:
             # weights_only: a user-supplied file is never unpickled beyond tensors and plain containers.
             state = torch.load(path, map_location="cpu", weights_only=True)
         else:
-            raise EvaluationError(f"{path}: unsupported Inception weights format {ext or '(no extension)'!r}; "
-                                  "expected .safetensors, .pth or .pt")
+            raise EvaluationError(path, f"unsupported Inception weights format {ext or '(no extension)'!r}; "
+                                        "expected .safetensors, .pth or .pt")
     except EvaluationError:
         raise
     except Exception as e:  # noqa: BLE001  (any reader failure: corrupt file, a pickle of arbitrary objects)
-        raise EvaluationError(f"{path}: cannot read the Inception weights ({type(e).__name__}: {e})") from None
+        raise EvaluationError(path, f"cannot read the Inception weights ({type(e).__name__}: {e})") from None
     if not isinstance(state, dict) or not all(isinstance(k, str) and torch.is_tensor(v) for k, v in state.items()):
-        raise EvaluationError(f"{path}: not a state dict of tensors (the file holds a {type(state).__name__})")
+        raise EvaluationError(path, f"not a state dict of tensors (the file holds a {type(state).__name__})")
     return dict(state)
 
 
@@ -261,7 +268,7 @@ def load_inception(path, device="cpu") -> InceptionFeatures:
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise EvaluationError(
-            f"{path}: Inception weights file not found. FID needs pytorch-fid's Inception weights file {WEIGHTS_FILE} "
+            path, f"Inception weights file not found. FID needs pytorch-fid's Inception weights file {WEIGHTS_FILE} "
             "(or the same state dict as .safetensors), given with --inception PATH; nothing is downloaded.")
     state = _read_state_dict(path)
     # Built on the meta device: no time spent on a random init that the file replaces; assign=True below adopts the
@@ -286,10 +293,10 @@ def load_inception(path, device="cpu") -> InceptionFeatures:
         more = f" (and {len(mismatched) - 5} more)" if len(mismatched) > 5 else ""
         problems.append(f"wrong shapes: {shown}{more}")
     if problems:
-        raise EvaluationError(f"{path}: not the FID Inception-v3 weights ({WEIGHTS_FILE}); " + "; ".join(problems))
+        raise EvaluationError(path, f"not the FID Inception-v3 weights ({WEIGHTS_FILE}); " + "; ".join(problems))
     bad = [k for k, v in state.items() if v.is_floating_point() and not torch.isfinite(v).all()]
     if bad:
-        raise EvaluationError(f"{path}: non-finite values in {', '.join(sorted(bad)[:5])}")
+        raise EvaluationError(path, f"non-finite values in {', '.join(sorted(bad)[:5])}", sorted(bad)[0])
     # float32 whatever the file stores (the network runs in float32); counters stay integers.
     state = {k: v.float() if v.is_floating_point() else v.long() for k, v in state.items()}
     model.load_state_dict(state, strict=True, assign=True)

@@ -27,7 +27,6 @@ computed exactly as for a full validation set and reported with the image counts
 
 from __future__ import annotations
 
-import json
 import os
 import time
 from dataclasses import asdict, dataclass, field
@@ -35,7 +34,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import torch
 
-from scpainter_blender.core import cameras, files
+from scpainter_blender.core import files, trajectory
 from scpainter_blender.core import job as job_mod
 
 from .. import events
@@ -54,8 +53,8 @@ class EvalSettings:
     shifts: tuple = (2.0, -2.0, 3.0, -3.0)
     insertion: bool = True
     window: int = 8
-    steps: int = 25
-    seed: int = 0
+    steps: int = job_mod.GENERATE_DEFAULTS["steps"]
+    seed: int = job_mod.GENERATE_DEFAULTS["seed"]
     precision: str = "auto"
     inception: str | None = None
     crop_size: int = 128                # crops are resized to this square before the feature extractor
@@ -91,28 +90,27 @@ def task_job(clip: clip_mod.Clip, s: EvalSettings, folder: str, shift: float, ca
     frames = range(min(s.frames, clip.num_frames))
     if shift and not clip.metric:
         raise clip_mod.ClipError(clip.path, "poses", "lateral shifts in metres need metric poses (poses.npz)")
-    w2c = cameras.shift_trajectory(clip.world_to_camera, left_m=shift) if shift else clip.world_to_camera
+    w2c = trajectory.shift_trajectory(clip.world_to_camera, left_m=shift) if shift else clip.world_to_camera
     K = clip.K_for(s.width, s.height)
     S = clip.num_frames
-    job = {"schema": job_mod.SCHEMA, "resolution": [s.width, s.height], "output_dir": ".",
-           "frames": [{"frame": t, "K": K[t].tolist(), "world_to_camera": w2c[t].tolist(),
-                       "source_frames": list(range(max(0, t - s.window), min(S, t + s.window + 1)))} for t in frames],
-           "scene": {"predictions": os.path.relpath(clip.predictions.path, folder),
-                     "world_from_vggt": clip.world_from_vggt.tolist(),
-                     "confidence_percentile": s.confidence_percentile, "removal_boxes": []},
-           "generate": {"steps": s.steps, "seed": s.seed, "fps": clip.fps}}
+    boxes, assets = [], []
     if car is not None:
         c = clip.cars[car]
-        boxes = {}
+        unique = {}
         for t in range(S):  # every box of the car, deduplicated: its points are gone from every source frame
             if t in c.boxes:
-                boxes.setdefault(np.round(c.boxes[t], 4).tobytes(), c.boxes[t])
-        for b in boxes.values():
-            T, size = clip_mod.grown_box(b, c.size, s.grow_m, s.grow_ratio)
-            job["scene"]["removal_boxes"].append({"box_to_world": T.tolist(), "size": size.tolist()})
+                unique.setdefault(np.round(c.boxes[t], 4).tobytes(), c.boxes[t])
+        for b in unique.values():
+            box_to_world, size = clip_mod.grown_box(b, c.size, s.grow_m, s.grow_ratio)
+            boxes.append(job_mod.RemovalBox(box_to_world, size))
         a2b = clip_mod.asset_to_box(c)
-        job["assets"] = [{"name": c.id, "ply": os.path.relpath(c.asset, folder),
-                          "object_to_world": {str(t): (c.boxes[t] @ a2b).tolist() for t in frames}}]
+        assets.append(job_mod.Asset(c.id, os.path.relpath(c.asset, folder), {t: c.boxes[t] @ a2b for t in frames}))
+    scene = job_mod.Scene(os.path.relpath(clip.predictions.path, folder), clip.vggt_to_world,
+                          confidence_percentile=s.confidence_percentile, removal_boxes=boxes)
+    job = job_mod.Job((s.width, s.height), [
+        job_mod.Frame(t, K[t], w2c[t], list(range(max(0, t - s.window), min(S, t + s.window + 1)))) for t in frames],
+        output_dir=".", scene=scene, assets=assets,
+        generate=job_mod.GenerateSettings(steps=s.steps, seed=s.seed, fps=float(clip.fps)))
     os.makedirs(folder, exist_ok=True)
     path = os.path.join(folder, "job.json")
     job_mod.save(path, job)
@@ -213,14 +211,14 @@ def run_task(job_path: str, device: str, s: EvalSettings, stop) -> dict:
         r = gen_mod.generate_job(job_path, job, device, s.checkpoint, s.precision, stop=stop, allow_outside=True)
         if r.get("stopped"):
             return {"stopped": True}
-        out["generated"] = torch.stack([_read_png(os.path.join(r["frames_dir"], f"frame_{e['frame']:06d}.png"),
-                                                  s.width, s.height) for e in job["frames"]])
+        out["generated"] = torch.stack([_read_png(os.path.join(r["frames_dir"], f"frame_{e.frame:06d}.png"),
+                                                  s.width, s.height) for e in job.frames])
     else:
         r = render_cmd.render_job(job_path, job, device, stop=stop, allow_outside=True)
         if r["stopped"]:
             return {"stopped": True}
-    out["image"], out["asset"], out["valid"] = gen_mod.load_conditions(job_path, job)
-    out["frames"] = [e["frame"] for e in job["frames"]]
+    out["image"], out["asset_mask"], out["valid"] = gen_mod.load_conditions(job_path, job)
+    out["frames"] = [e.frame for e in job.frames]
     return out
 
 
@@ -305,8 +303,8 @@ def evaluate(s: EvalSettings, device: str, stop=(), extractor=None) -> dict:
             for kind, video in kinds.items():
                 whole.add(f"{task}/{kind}", video)
                 if car is not None:
-                    for f, a in zip(video, r["asset"]):
-                        b = mask_crop_box(a[0].numpy(), s.crop_grow, s.crop_min_px)
+                    for f, asset_mask in zip(video, r["asset_mask"]):
+                        b = mask_crop_box(asset_mask[0].numpy(), s.crop_grow, s.crop_min_px)
                         if b is not None:
                             crops.add(f"{task}/{kind}", [crop(f, b, s.crop_size)])
             if car is None and shift in clip.views:
@@ -323,8 +321,7 @@ def evaluate(s: EvalSettings, device: str, stop=(), extractor=None) -> dict:
                          "crops": {k: len(v) for k, v in crops.sets.items()}}}
     result["seconds"] = time.perf_counter() - t0
     path = os.path.join(out_dir, "evaluation.json")
-    with files.atomic_write(path, "w") as f:
-        json.dump(result, f, indent=1, default=float)
+    files.write_json(path, events.json_safe(result))  # strict JSON: a NaN/inf metric (e.g. no covered pixel) is null
     log(format_table(result))
     events.artifact(path, kind="evaluation")
     return {"evaluation": path, "seconds": result["seconds"], "ground_truth": gt_rows}
@@ -334,6 +331,7 @@ def format_table(result: dict) -> str:
     lines = ["ground truth (PSNR dB / SSIM; all pixels | covered pixels):",
              f"{'task':<16}{'output':<11}{'holes':>7}{'PSNR':>8}{'SSIM':>7}{'PSNR cov':>10}{'SSIM cov':>9}"]
     for r in result["ground_truth"]:
+        r = {k: float("nan") if v is None else v for k, v in r.items()}  # evaluation.json holds NaN/inf as null
         lines.append(f"{r['task']:<16}{r['output']:<11}{r['hole_fraction']:>7.3f}{r['psnr']:>8.2f}{r['ssim']:>7.3f}"
                      f"{r['psnr_covered']:>10.2f}{r['ssim_covered']:>9.3f}")
     for key in ("fid", "fid_c"):

@@ -281,7 +281,7 @@ def _check_weights(folder: str, name: str, config: dict) -> None:
 def _check_components(root: str, weighted) -> dict:
     """Each of ``weighted`` (component -> weights name): its ``config.json`` and safetensors weights; the feature
     extractor's and the scheduler's configs. Returns what ``load`` reads from them: ``force_upcast`` (VAE),
-    ``clip_mean``, ``clip_std``."""
+    ``clip_mean``, ``clip_std``, ``schedule`` (``edm.Schedule`` of the scheduler config, SVD's EDM kind only)."""
     info = {}
     for comp, name in weighted.items():
         folder = os.path.join(root, comp)
@@ -297,6 +297,10 @@ def _check_components(root: str, weighted) -> dict:
     for comp, name in JSON_FILES.items():
         _folder(os.path.join(root, comp))
         data = _json_object(os.path.join(root, comp, name))
+        if comp == "scheduler":
+            from .edm import Schedule   # here, not at the top: edm imports this module (and torch)
+
+            info["schedule"] = Schedule.from_config(data, os.path.join(root, comp, name))
         if comp == "feature_extractor":
             for key, default in (("image_mean", [0.48145466, 0.4578275, 0.40821073]),
                                  ("image_std", [0.26862954, 0.26130258, 0.27577711])):
@@ -329,9 +333,11 @@ def check(path: str) -> ScpainterConfig:
     ``_check_weights``: the file the library reads, or an index whose shards are all ``.safetensors`` files in the
     folder; a component with only ``.bin``/``.pt``/``.pth``/``.ckpt`` weights, or an index naming one, is
     refused naming that file); the VAE's ``force_upcast`` a boolean; ``feature_extractor/preprocessor_config.json``
-    with ``image_mean``/``image_std`` three finite numbers each; ``scheduler/scheduler_config.json`` a JSON
-    object. Every file must be a regular file (a FIFO or device is refused before it is read). CheckpointError
-    naming the file and field otherwise; ``resolve`` errors (no checkpoint, no scpainter.json) first."""
+    with ``image_mean``/``image_std`` three finite numbers each; ``scheduler/scheduler_config.json`` SVD's EDM
+    scheduler (``edm.Schedule.from_config``: v prediction, continuous timesteps, Karras sigmas between its
+    ``sigma_min`` and ``sigma_max``). Every file must be a regular file (a FIFO or device is refused before it
+    is read). CheckpointError naming the file and field otherwise; ``resolve`` errors (no checkpoint, no
+    scpainter.json) first."""
     return _check(resolve(path))["config"]
 
 
@@ -422,8 +428,10 @@ def resolve(path: str | None) -> str:
 
 def load(path: str, device="cpu", dtype=None) -> dict:
     """The checkpoint's components on ``device``: UNet and CLIP in ``dtype`` (float32 when None); the VAE and the
-    condition encoder in ``dtype`` too, except float16 on a VAE that asks for upcasting (SVD's does). The folder
-    passes ``check`` first, so only safetensors are ever read."""
+    condition encoder in ``dtype`` too, except float16 on a VAE that asks for upcasting (SVD's does); ``config``
+    (ScpainterConfig), ``clip_mean``/``clip_std``, ``schedule`` (``edm.Schedule`` from
+    ``scheduler/scheduler_config.json``: what the pipeline samples with and training's denoiser holds) and
+    ``path``. The folder passes ``check`` first, so only safetensors are ever read."""
     import torch
     from diffusers import AutoencoderKLTemporalDecoder, UNetSpatioTemporalConditionModel
     from transformers import CLIPVisionModelWithProjection
@@ -453,4 +461,4 @@ def load(path: str, device="cpu", dtype=None) -> dict:
     for m in models.values():
         m.to(device).eval().requires_grad_(False)
     return {**models, "config": info["config"], "clip_mean": info["clip_mean"], "clip_std": info["clip_std"],
-            "path": path}
+            "schedule": info["schedule"], "path": path}

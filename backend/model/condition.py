@@ -68,11 +68,11 @@ def latent_validity(valid: torch.Tensor, factor: int = 8) -> torch.Tensor:
     return F.avg_pool2d(valid, factor)
 
 
-def encode_conditions(encoder: ConditionEncoder, image, asset, valid, noise_aug: float = 0.0, generator=None,
+def encode_conditions(encoder: ConditionEncoder, image, asset_mask, valid, noise_aug: float = 0.0, generator=None,
                       noise=None):
-    """Condition latents (N, C, h, w) from I, M_a, V in [0, 1]. ``noise_aug`` adds SVD's Gaussian noise
-    augmentation to the [−1, 1] image: ``noise`` (shaped like ``image``) when given, else drawn on the CPU from
-    ``generator`` (device-independent results)."""
+    """Condition latents (N, C, h, w) from I (N, 3, H, W), the asset mask M_a and the validity V (N, 1, H, W), all
+    in [0, 1]. ``noise_aug`` adds SVD's Gaussian noise augmentation to the [−1, 1] image: ``noise`` (shaped like
+    ``image``) when given, else drawn on the CPU from ``generator`` (device-independent results)."""
     base = getattr(encoder, "module", encoder)  # a DistributedDataParallel wrapper runs forward, the model knows
     x = image * 2.0 - 1.0
     if noise_aug > 0:
@@ -80,5 +80,5 @@ def encode_conditions(encoder: ConditionEncoder, image, asset, valid, noise_aug:
             noise = torch.randn(x.shape, generator=generator, dtype=torch.float32)
         x = x + noise_aug * noise.to(x.device, x.dtype)
     dt = next(encoder.parameters()).dtype
-    latent = encoder(x.to(dt), (asset * 2.0 - 1.0).to(dt)).float()
+    latent = encoder(x.to(dt), (asset_mask * 2.0 - 1.0).to(dt)).float()
     return latent * latent_validity(valid.float(), base.downsample)

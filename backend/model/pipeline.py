@@ -3,6 +3,10 @@
 Shapes: frames F, latent channels C = 4, latent size h x w = H/8 x W/8. Latents are float32 throughout the
 sampler; only the UNet's input is cast to the model dtype (bf16/fp16 on CUDA).
 
+The UNet is called only through ``edm.Denoiser`` (x_σ, σ, condition latent, CLIP, time ids → x_0), the same
+function the training loss calls; the noise levels are the checkpoint's (``edm.Schedule`` from
+``scheduler/scheduler_config.json``, which ``checkpoint.load`` reads).
+
 Windows: the UNet denoises ``window`` frames at a time. A longer clip is covered by windows that overlap by
 ``overlap`` frames (the last one aligned to the clip's end); at every step each window predicts x_0 for its frames
 and frames seen by several windows take the mean, then one Euler step moves the whole clip. A clip that fits one
@@ -13,6 +17,8 @@ from __future__ import annotations
 
 import torch
 import torch.nn.functional as F
+
+from scpainter_blender.core.job import GENERATE_DEFAULTS
 
 from ..errors import NonFiniteError
 from . import edm
@@ -44,8 +50,12 @@ def window_starts(frames: int, window: int, overlap: int) -> list[int]:
 
 
 class SCPainterPipeline:
+    """``components``: unet, vae, image_encoder, condition_encoder, config (ScpainterConfig), clip_mean, clip_std
+    (3 numbers each) and schedule (``edm.Schedule``), as ``checkpoint.load`` returns them; a ready ``denoiser``
+    (``edm.Denoiser``, used as it is, its dtype included) may stand for unet and schedule."""
+
     def __init__(self, components: dict, device="cpu", dtype=torch.float32):
-        self.unet = components["unet"]
+        self.denoiser = components.get("denoiser") or edm.Denoiser(components["unet"], components["schedule"], dtype)
         self.vae = components["vae"]
         self.image_encoder = components["image_encoder"]
         self.condition_encoder = components["condition_encoder"]
@@ -62,6 +72,19 @@ class SCPainterPipeline:
         return cls(checkpoint.load(path, device, dtype), device, dtype)
 
     @property
+    def unet(self):
+        """The denoiser's network (assignable: ``torch.compile`` it in place)."""
+        return self.denoiser.net
+
+    @unet.setter
+    def unet(self, net):
+        self.denoiser.net = net
+
+    @property
+    def schedule(self) -> edm.Schedule:
+        return self.denoiser.schedule
+
+    @property
     def pixel_multiple(self) -> int:
         """Image sizes must be multiples of this: the VAE's 8 times the UNet's downsampling."""
         return self.condition_encoder.downsample * 2 ** (len(self.unet.config.block_out_channels) - 1)
@@ -72,47 +95,40 @@ class SCPainterPipeline:
         return clip_embeddings(self.image_encoder, image[None].to(self.device), self.clip_mean, self.clip_std)
 
     @torch.no_grad()
-    def condition_latents(self, image, asset, valid, seed: int = 0, chunk: int = 8) -> torch.Tensor:
-        """(F, C, h, w) float32 from I (F, 3, H, W), M_a and V (F, 1, H, W) in [0, 1], encoded in chunks."""
+    def condition_latents(self, image, asset_mask, valid, seed: int = GENERATE_DEFAULTS["seed"],
+                          chunk: int = 8) -> torch.Tensor:
+        """(F, C, h, w) float32 from I (F, 3, H, W), the asset mask M_a and the validity V (F, 1, H, W) in [0, 1],
+        encoded in chunks."""
         gen = torch.Generator().manual_seed(seed + 1)
         out = []
         for i in range(0, len(image), chunk):
             sl = slice(i, i + chunk)
             out.append(encode_conditions(self.condition_encoder, image[sl].to(self.device),
-                                         asset[sl].to(self.device), valid[sl].to(self.device),
+                                         asset_mask[sl].to(self.device), valid[sl].to(self.device),
                                          self.config.noise_aug_strength, gen))
         return torch.cat(out)
 
     def initial_latents(self, shape, seed: int) -> torch.Tensor:
-        """ε · √(σ_max² + 1), drawn on the CPU so a seed gives the same video on any device."""
+        """ε · the schedule's initial noise scale (√(σ_max² + 1) for SVD), drawn on the CPU so a seed gives the
+        same video on any device."""
         gen = torch.Generator().manual_seed(seed)
-        return (torch.randn(shape, generator=gen) * edm.init_noise_sigma()).to(self.device)
-
-    def _time_ids(self, batch: int) -> torch.Tensor:
-        c = self.config
-        ids = torch.tensor([[c.fps - 1, c.motion_bucket_id, c.noise_aug_strength]], dtype=self.dtype)
-        return ids.repeat(batch, 1).to(self.device)
+        return (torch.randn(shape, generator=gen) * self.schedule.init_noise_sigma).to(self.device)
 
     @torch.no_grad()
     def predict_x0(self, x, sigma, cond, clip, guidance) -> torch.Tensor:
-        """x_0 of one window: x (F, C, h, w) float32 at noise level σ; guidance (F,) per frame (≤ 1: no CFG)."""
-        scaled = edm.c_in(sigma) * x
-        inp = torch.cat([scaled, cond], dim=1)[None]                        # (1, F, 2C, h, w)
-        t = edm.c_noise(sigma).to(self.dtype)
-        if float(guidance.max()) > 1.0:
-            # one batched pass: the unconditional branch has zero CLIP and zero condition latent
-            uncond = torch.cat([scaled, torch.zeros_like(cond)], dim=1)[None]
-            v = self.unet(torch.cat([uncond, inp]).to(self.dtype), t,
-                          encoder_hidden_states=torch.cat([torch.zeros_like(clip), clip]).to(self.dtype),
-                          added_time_ids=self._time_ids(2), return_dict=False)[0].float()
-            v = edm.guide(v[0], v[1], guidance.view(-1, 1, 1, 1).to(v))
-        else:
-            v = self.unet(inp.to(self.dtype), t, encoder_hidden_states=clip.to(self.dtype),
-                          added_time_ids=self._time_ids(1), return_dict=False)[0][0].float()
-        return edm.v_to_x0(x, v, sigma)
+        """x_0 (F, C, h, w) float32 of one window: x (F, C, h, w) float32 at noise level σ, cond (F, C, h, w),
+        clip (1, 1, D), guidance (F,) per frame (≤ 1 everywhere: no classifier-free guidance)."""
+        ids = edm.time_ids(self.config, 1, self.device, self.dtype)
+        if float(guidance.max()) <= 1.0:
+            return self.denoiser(x[None], sigma, cond[None], clip, ids)[0]
+        # one batched pass: the unconditional branch (row 0) has zero CLIP and zero condition latent
+        x0 = self.denoiser(torch.stack([x, x]), sigma, torch.stack([torch.zeros_like(cond), cond]),
+                           torch.cat([torch.zeros_like(clip), clip]), ids.repeat(2, 1))
+        return edm.guide(x0[0], x0[1], guidance.view(-1, 1, 1, 1).to(x0))
 
     @torch.no_grad()
-    def sample(self, cond, clip, steps: int = 25, seed: int = 0, window: int | None = None, overlap: int = 4,
+    def sample(self, cond, clip, steps: int = GENERATE_DEFAULTS["steps"], seed: int = GENERATE_DEFAULTS["seed"],
+               window: int | None = None, overlap: int = GENERATE_DEFAULTS["overlap"],
                min_guidance: float | None = None, max_guidance: float | None = None, latents=None,
                start_step: int = 0, on_step=None) -> torch.Tensor:
         """Denoise the whole clip; returns latents (F, C, h, w) float32 (still scaled by the VAE factor).
@@ -131,7 +147,7 @@ class SCPainterPipeline:
         g_max = c.max_guidance if max_guidance is None else max_guidance
         cond = cond.to(self.device)
         frames = len(cond)
-        sigmas = edm.karras_sigmas(steps).to(self.device)
+        sigmas = self.schedule.sigmas(steps).to(self.device)
         x = self.initial_latents(cond.shape, seed) if latents is None else latents.to(self.device).float()
         starts = window_starts(frames, window, overlap)
         for i in range(start_step, steps):
@@ -154,7 +170,7 @@ class SCPainterPipeline:
         return x
 
     @torch.no_grad()
-    def decode(self, latents, chunk: int = 8) -> torch.Tensor:
+    def decode(self, latents, chunk: int = GENERATE_DEFAULTS["decode_chunk"]) -> torch.Tensor:
         """(F, 3, H, W) in [0, 1] from latents, ``chunk`` frames at a time (the temporal decoder sees each chunk).
 
         Raises ``NonFiniteError`` (``stage="decode"``, ``frames`` [first, end) of the chunk, 0-based) when the

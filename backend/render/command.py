@@ -10,33 +10,34 @@ import numpy as np
 
 from scpainter_blender.core import files
 from scpainter_blender.core import job as job_mod
+from scpainter_blender.core import job_inputs
 
 from .. import events
 from ..errors import FolderBusyError
-from . import exr
+from . import channels
 from . import frames as fr
 
 
-def conditions_dir(job_path: str, job: dict) -> str:
-    return os.path.join(job_mod.resolve(job_path, job["output_dir"]), "conditions")
+def conditions_dir(job_path: str, job: job_mod.Job) -> str:
+    return os.path.join(job_mod.resolve(job_path, job.output_dir), "conditions")
 
 
-def frame_paths(job_path: str, job: dict, frame: int) -> tuple[str, str]:
+def frame_paths(job_path: str, job: job_mod.Job, frame: int) -> tuple[str, str]:
     """(EXR, PNG preview) of one output frame's condition layers."""
     cond = conditions_dir(job_path, job)
     return os.path.join(cond, f"frame_{frame:06d}.exr"), os.path.join(cond, f"preview_{frame:06d}.png")
 
 
-def job_key(job_path: str, job: dict, point_radius: int) -> str:
+def job_key(job_path: str, job: job_mod.Job, point_radius: int) -> str:
     """A hash of everything the condition layers depend on: the job without its generation settings and output
     folder, the point radius, and the size and time of each input file. Finished frames are reused only under
     the same key, so moving a car or a camera and rendering again cannot keep stale frames."""
     import hashlib
     import json
 
-    content = {k: v for k, v in job.items() if k not in ("generate", "output_dir")}
-    files = [job["scene"]["predictions"]] if "scene" in job else []
-    files += [a["ply"] for a in job.get("assets", [])]
+    content = {k: v for k, v in job.to_dict().items() if k not in ("generate", "output_dir")}
+    files = [job.scene.predictions] if job.scene is not None else []
+    files += [a.ply for a in job.assets]
     stamps = []
     for f in files:
         st = os.stat(job_mod.resolve(job_path, f))
@@ -48,8 +49,8 @@ def job_key(job_path: str, job: dict, point_radius: int) -> str:
 RECORD = "record.json"  # in conditions/: the job key and the files this project wrote for it
 
 
-def _frame_files(job: dict) -> list:
-    return [n for e in job["frames"] for n in (f"frame_{e['frame']:06d}.exr", f"preview_{e['frame']:06d}.png")]
+def _frame_files(job: job_mod.Job) -> list:
+    return [n for e in job.frames for n in (f"frame_{e.frame:06d}.exr", f"preview_{e.frame:06d}.png")]
 
 
 def _previous_record(cond: str) -> dict | None:
@@ -62,7 +63,7 @@ def _previous_record(cond: str) -> dict | None:
     return record if ok else None
 
 
-def render_job(job_path: str, job: dict, device: str, force: bool = False, point_radius: int = 0,
+def render_job(job_path: str, job: job_mod.Job, device: str, force: bool = False, point_radius: int = 0,
                stop=(), log=None, allow_outside: bool = False, lock: bool = True, checked: dict | None = None) -> dict:
     """Render the frames not finished yet (all with ``force``, or when the job changed since they were made);
     emits progress and artifact events.
@@ -76,10 +77,11 @@ def render_job(job_path: str, job: dict, device: str, force: bool = False, point
     """
     paths = checked
     if paths is None:
-        paths = job_mod.check_inputs(job_path, job, allow_outside)
+        paths = job_inputs.check_inputs(job_path, job, allow_outside)
         files.check_output(paths["output_dir"], allow_outside)
     out = files.make_folder(paths["output_dir"], "output_dir")
-    with (files.OutputLock(out, "render", busy=FolderBusyError) if lock else contextlib.nullcontext()) as held:
+    with (files.OutputLock(out, "render", busy=FolderBusyError) if lock else contextlib.nullcontext()) as held, \
+            events.log_scope():  # an exception from here on is marked with backend.log (events.report_bug)
         log = log or events.FileLog(os.path.join(out, "backend.log"))
         if held is not None and held.stale:
             log(f"render: {held.took_over()}")
@@ -88,8 +90,8 @@ def render_job(job_path: str, job: dict, device: str, force: bool = False, point
 
 def _render(job_path, job, device, force, point_radius, stop, log, out, allow_outside) -> dict:
     cond = files.output_folder(out, "conditions", allow_outside)
-    W, H = job["resolution"]
-    total, rendered, skipped = len(job["frames"]), 0, 0
+    W, H = job.resolution
+    total, rendered, skipped = len(job.frames), 0, 0
     key = job_key(job_path, job, point_radius)
     previous = _previous_record(cond)
     if not force and previous is not None and previous["key"] != key:
@@ -105,15 +107,15 @@ def _render(job_path, job, device, force, point_radius, stop, log, out, allow_ou
                                                   "files": _frame_files(job)})
     with contextlib.suppress(FileNotFoundError):  # the record's former name (one line: the key)
         os.remove(os.path.join(cond, "job_key.txt"))
-    todo = [e for e in job["frames"] if force or not all(os.path.isfile(p) for p in frame_paths(job_path, job,
-                                                                                                 e["frame"]))]
+    todo = {e.frame for e in job.frames
+            if force or not all(os.path.isfile(p) for p in frame_paths(job_path, job, e.frame))}
     scene = None
-    for n, entry in enumerate(job["frames"]):
+    for n, entry in enumerate(job.frames):
         if stop:
             break
-        f = entry["frame"]
+        f = entry.frame
         exr_path, png_path = frame_paths(job_path, job, f)
-        if entry not in todo:
+        if f not in todo:
             skipped += 1
         else:
             if scene is None:  # loaded only when there is something to render
@@ -123,10 +125,10 @@ def _render(job_path, job, device, force, point_radius, stop, log, out, allow_ou
                     f"boxes), {len(scene.assets)} assets")
             t = time.perf_counter()
             layers = fr.render_frame(scene, entry, W, H, point_radius)
-            exr.write(exr_path, layers)
-            fr.write_png(png_path, np.stack([layers["R"], layers["G"], layers["B"]], axis=-1))
+            channels.write(exr_path, layers)
+            fr.write_png(png_path, np.stack([layers[c] for c in channels.IMAGE], axis=-1))
             rendered += 1
-            log(f"frame {f}: {time.perf_counter() - t:.3f} s, hole {layers['hole'].mean():.3f}")
+            log(f"frame {f}: {time.perf_counter() - t:.3f} s, hole {layers[channels.HOLE].mean():.3f}")
             events.artifact(exr_path, frame=f, kind="conditions")
             events.artifact(png_path, frame=f, kind="preview")
         events.progress("render", n + 1, total, frame=f)

@@ -63,37 +63,62 @@ def write(path, channels: dict) -> None:
         f.write(body.tobytes())
 
 
+class ExrError(files.InputError):
+    """An EXR ``read`` cannot read (not OpenEXR, compressed, not FLOAT, truncated, a damaged header): the file
+    and what is wrong."""
+
+
 def read(path) -> dict:
-    """Channels {name: (H, W) float32} of an uncompressed FLOAT scanline EXR (as ``write`` makes them)."""
+    """Channels {name: (H, W) float32} of an uncompressed FLOAT scanline EXR (as ``write`` makes them).
+
+    ExrError naming the file for anything else: another kind of EXR, a damaged header or a truncated file (the
+    sizes the header promises are checked against the file's before anything is allocated)."""
     path = os.fspath(path)
-    with open(path, "rb") as f:
+    with files.open_regular(path, ExrError) as f:
         data = f.read()
+    hint = "render the conditions again: python -m backend render JOB --force"
     if len(data) < 8 or struct.unpack_from("<i", data, 0)[0] != MAGIC:
-        raise ValueError(f"{os.path.basename(path)}: not an OpenEXR file")
-    pos, attrs = 8, {}
-    while True:
-        end = data.index(b"\0", pos)
-        name = data[pos:end].decode()
-        pos = end + 1
-        if not name:
-            break
-        end = data.index(b"\0", pos)
-        kind = data[pos:end].decode()
-        (size,) = struct.unpack_from("<i", data, end + 1)
-        attrs[name] = (kind, data[end + 5:end + 5 + size])
-        pos = end + 5 + size
-    if attrs.get("compression", (None, b"\1"))[1] != b"\0":
-        raise ValueError(f"{os.path.basename(path)}: only uncompressed EXR files are read here")
-    x0, y0, x1, y1 = struct.unpack("<iiii", attrs["dataWindow"][1])
-    W, H = x1 - x0 + 1, y1 - y0 + 1
-    chl, names, p = attrs["channels"][1], [], 0
-    while chl[p:p + 1] != b"\0":
-        end = chl.index(b"\0", p)
-        names.append(chl[p:end].decode())
-        if struct.unpack_from("<i", chl, end + 1)[0] != FLOAT:
-            raise ValueError(f"{os.path.basename(path)}: channel {names[-1]!r} is not FLOAT")
-        p = end + 17
+        raise ExrError(path, "(file)", "not an OpenEXR file", hint=hint)
+    try:
+        pos, attrs = 8, {}
+        while True:
+            end = data.index(b"\0", pos)
+            name = data[pos:end].decode()
+            pos = end + 1
+            if not name:
+                break
+            end = data.index(b"\0", pos)
+            kind = data[pos:end].decode()
+            (size,) = struct.unpack_from("<i", data, end + 1)
+            if size < 0 or end + 5 + size > len(data):
+                raise ExrError(path, name, f"attribute size {size} runs past the end of the file", hint=hint)
+            attrs[name] = (kind, data[end + 5:end + 5 + size])
+            pos = end + 5 + size
+        for name in ("channels", "compression", "dataWindow"):
+            if name not in attrs:
+                raise ExrError(path, name, "missing from the header", hint=hint)
+        if attrs["compression"][1] != b"\0":
+            raise ExrError(path, "compression", "only uncompressed EXR files are read here", hint=hint)
+        x0, y0, x1, y1 = struct.unpack("<iiii", attrs["dataWindow"][1])
+        W, H = x1 - x0 + 1, y1 - y0 + 1
+        chl, names, p = attrs["channels"][1], [], 0
+        while chl[p:p + 1] != b"\0":
+            end = chl.index(b"\0", p)
+            names.append(chl[p:end].decode())
+            if struct.unpack_from("<i", chl, end + 1)[0] != FLOAT:
+                raise ExrError(path, "channels", f"channel {names[-1]!r} is not FLOAT", hint=hint)
+            p = end + 17
+    except (ValueError, struct.error, UnicodeDecodeError) as e:  # (ExrError is a ValueError: passed on as is)
+        if isinstance(e, ExrError):
+            raise
+        raise ExrError(path, "(file)", f"the header is damaged ({e})", hint=hint) from None
+    row = 8 + 4 * len(names) * W  # each scanline block: y, byte count, then the channels
+    if W < 1 or H < 1 or not names or len(data) < pos + H * (8 + row):
+        raise ExrError(path, "dataWindow", f"{W}x{H} pixels of {len(names)} channels do not fit in the file's "
+                                           f"{len(data)} bytes (truncated or damaged)", hint=hint)
     offsets = np.frombuffer(data, dtype="<u8", count=H, offset=pos)
+    if np.any(offsets > len(data) - row):
+        raise ExrError(path, "(offsets)", "a scanline offset points past the end of the file", hint=hint)
     out = np.empty((H, len(names), W), np.float32)
     for y, off in enumerate(offsets):
         out[y] = np.frombuffer(data, dtype="<f4", count=len(names) * W, offset=int(off) + 8).reshape(len(names), W)

@@ -1,4 +1,4 @@
-"""Render a job's condition layers frame by frame (DESIGN §4.3): I (R G B), hole (M), asset (M_a), Z.
+"""Render a job's condition layers frame by frame: I (R G B), hole (M), asset_mask (M_a), Z (``channels``).
 
 The scene is loaded once: the reconstruction's points in world metres (float64, removal boxes applied), moved
 to a scene origin at the first camera so the device works in float32 without losing millimetres; each asset's
@@ -13,15 +13,15 @@ Nothing is computed for what the job leaves out: no ``scene``, no points; no ``a
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass, field
 
 import numpy as np
 import torch
 
-from scpainter_blender.core import cameras, files, geometry, splats, vggt
+from scpainter_blender.core import cameras, files, geometry, point_cloud, splats, vggt_io
 from scpainter_blender.core import job as job_mod
 
+from . import channels as ch
 from . import gaussians as gs
 from . import points as pts
 from . import tiles
@@ -34,7 +34,7 @@ class Asset:
     factors: torch.Tensor      # (N, 3, 3) R S in file axes
     opacities: torch.Tensor
     sh: torch.Tensor
-    object_to_world: dict      # frame (str) -> 4x4
+    object_to_world: dict      # frame (int) -> (4, 4) ndarray, as job.Asset holds it
 
 
 @dataclass
@@ -49,29 +49,27 @@ class Scene:
     removed_points: int = 0
 
 
-def load_scene(job: dict, job_path: str, device) -> Scene:
+def load_scene(job: job_mod.Job, job_path: str, device) -> Scene:
     device = torch.device(device)
-    origin = cameras.camera_centers(np.array(job["frames"][0]["world_to_camera"], np.float64))
+    origin = cameras.camera_centers(job.frames[0].world_to_camera)
     scene = Scene(origin=origin, device=device)
-    if "scene" in job:
-        sc = job["scene"]
+    if job.scene is not None:
+        sc = job.scene
         # as the import loaded it: the same reading of the poses, the same crop (NaN/inf pixels are dropped)
-        pred = vggt.load_predictions(job_mod.resolve(job_path, sc["predictions"]), world_points=False,
-                                     extrinsic_convention=sc.get("extrinsic_convention", "world_to_camera"),
-                                     crop=sc.get("crop", "none"))
-        cloud = vggt.point_cloud(pred, sc.get("confidence_percentile", 50.0),
-                                 world_from_vggt=np.array(sc["world_from_vggt"]))
+        pred = vggt_io.load_predictions(job_mod.resolve(job_path, sc.predictions), world_points=False,
+                                        extrinsic_convention=sc.extrinsic_convention, crop=list(sc.crop))
+        cloud = point_cloud.point_cloud(pred, sc.confidence_percentile, vggt_to_world=sc.vggt_to_world)
         keep = np.ones(len(cloud), bool)
-        for box in sc.get("removal_boxes", []):
-            keep &= ~geometry.points_in_box(cloud.positions, box["box_to_world"], box["size"])
+        for box in sc.removal_boxes:
+            keep &= ~geometry.points_in_box(cloud.positions, box.box_to_world, box.size)
         scene.removed_points = int((~keep).sum())
         scene.xyz = torch.as_tensor((cloud.positions[keep] - origin).astype(np.float32), device=device)
         scene.rgb = torch.as_tensor(cloud.colors[keep], device=device)
         scene.frame = torch.as_tensor(cloud.frame[keep].astype(np.int64), device=device)
         scene.frames_present = frozenset(np.unique(cloud.frame[keep]).tolist())
-    for a in job.get("assets", []):
-        scene.assets.append(make_asset(a["name"], splats.load(job_mod.resolve(job_path, a["ply"])),
-                                       a["object_to_world"], device))
+    for a in job.assets:
+        scene.assets.append(make_asset(a.name, splats.load(job_mod.resolve(job_path, a.ply)), a.object_to_world,
+                                       device))
     return scene
 
 
@@ -83,32 +81,34 @@ def make_asset(name: str, g: splats.Gaussians, object_to_world: dict, device) ->
     return Asset(name, t(g.means)[ok], factors[ok], t(g.opacities)[ok], t(g.sh)[ok], object_to_world)
 
 
-def render_frame(scene: Scene, entry: dict, width: int, height: int, point_radius_px: int = 0,
+def render_frame(scene: Scene, entry: job_mod.Frame, width: int, height: int, point_radius_px: int = 0,
                  reference: bool = False, to_numpy: bool = True, cutoff: float = gs.CUTOFF,
                  tile: int | None = None) -> dict:
-    """The condition layers of one output frame as float32 (H, W) channels R G B hole asset Z: numpy arrays, or
-    tensors on the scene's device with ``to_numpy=False``. ``reference`` composites Gaussians with the torch pair
-    rasterizer instead of the tile kernels (same result, slower; for tests and benchmarks); ``cutoff`` (σ) and
-    ``tile`` (pixels) are the Gaussian cutoff and the tile kernels' tile size (None: the device's default)."""
+    """The condition layers of one output frame as float32 (H, W) arrays keyed by ``channels.CHANNELS`` (R G B
+    hole asset_mask Z): numpy arrays, or tensors on the scene's device with ``to_numpy=False``. ``reference``
+    composites Gaussians with the torch pair rasterizer instead of the tile kernels (same result, slower; for tests
+    and benchmarks); ``cutoff`` (σ) and ``tile`` (pixels) are the Gaussian cutoff and the tile kernels' tile size
+    (None: the device's default)."""
     dev = scene.device
-    K = np.array(entry["K"], np.float64)
-    w2c = pts.relative_camera(np.array(entry["world_to_camera"], np.float64), scene.origin)
+    K = np.asarray(entry.K, np.float64)
+    w2c = pts.relative_camera(np.asarray(entry.world_to_camera, np.float64), scene.origin)
     image = torch.zeros((height, width, 3), device=dev)
     depth = torch.full((height, width), float("inf"), device=dev)
-    if scene.xyz is not None and entry.get("source_frames"):
-        if scene.frames_present is not None and scene.frames_present <= set(entry["source_frames"]):
+    if scene.xyz is not None and entry.source_frames:
+        if scene.frames_present is not None and scene.frames_present <= set(entry.source_frames):
             xyz, rgb = scene.xyz, scene.rgb  # every frame: no selection pass, no copy
         else:
-            sel = torch.isin(scene.frame, torch.as_tensor(entry["source_frames"], device=dev))
+            sel = torch.isin(scene.frame, torch.as_tensor(list(entry.source_frames), device=dev))
             xyz, rgb = scene.xyz[sel], scene.rgb[sel]
         image, depth, _ = pts.render_points(xyz, rgb, K, w2c, width, height, radius_px=point_radius_px)
-    alpha = torch.zeros((height, width), device=dev)
+    asset_mask = torch.zeros((height, width), device=dev)
     zmed = torch.full((height, width), float("inf"), device=dev)
     if scene.assets:
         means, factors, opac, sh = [], [], [], []
         K_max = max(a.sh.shape[1] for a in scene.assets)
         for a in scene.assets:
-            A = np.array(a.object_to_world[str(entry["frame"])], np.float64)
+            # a copy (np.array): the job's own float64 matrix must not be moved to the scene origin in place
+            A = np.array(a.object_to_world[entry.frame], np.float64)
             A[:3, 3] -= scene.origin  # relative to the scene origin, like the points
             # the projection runs in float64 on every device (a few hundred flops per Gaussian; it keeps thin
             # Gaussians' pixel coordinates exact, see tiles.kernel_inputs): assets are stored in float64
@@ -120,14 +120,14 @@ def render_frame(scene: Scene, entry: dict, width: int, height: int, point_radiu
         proj = gs.project_factors(torch.cat(means), torch.cat(factors), torch.cat(opac), torch.cat(sh), K, w2c,
                                   width, height, cutoff=cutoff)
         if reference:
-            color_g, alpha, zmed = gs.rasterize(proj, width, height, background_depth=depth)
+            color_g, asset_mask, zmed = gs.rasterize(proj, width, height, background_depth=depth)
         else:
-            color_g, alpha, zmed = tiles.rasterize(proj, width, height, background_depth=depth, tile=tile)
-        image = color_g + (1.0 - alpha)[..., None] * image
-    hole = torch.isinf(depth) & (alpha < gs.ALPHA_MIN)
+            color_g, asset_mask, zmed = tiles.rasterize(proj, width, height, background_depth=depth, tile=tile)
+        image = color_g + (1.0 - asset_mask)[..., None] * image
+    hole = torch.isinf(depth) & (asset_mask < gs.ALPHA_MIN)
     z = torch.where(zmed < depth, zmed, depth)
     img = image.clamp(0.0, 1.0)
-    layers = {"R": img[..., 0], "G": img[..., 1], "B": img[..., 2], "hole": hole, "asset": alpha, "Z": z}
+    layers = dict(zip(ch.CHANNELS, (img[..., 0], img[..., 1], img[..., 2], hole, asset_mask, z)))
     layers = {k: v.to(torch.float32) for k, v in layers.items()}
     return {k: v.cpu().numpy() for k, v in layers.items()} if to_numpy else layers
 

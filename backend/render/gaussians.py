@@ -9,10 +9,15 @@ Conventions (DESIGN §3, §4.3; the rules of the INRIA rasterizer and gsplat):
   the mean whose x/z, y/z are clamped to ±1.3·tan(fov/2) first (so Gaussians far off-screen stay bounded).
 * Pixel centres are at (u + 0.5, v + 0.5); a Gaussian reaches pixels within 3 σ (``cutoff``) of its mean along
   Σ₂'s major axis.
-* Per pixel, in depth order (ties by index): α = min(0.99, o · exp(-½ dᵀ Σ₂⁻¹ d)); skipped below 1/255; stop
-  before the Gaussian that would drop the transmittance below 1e-4. Only Gaussians in front of the pixel's
-  nearest point are composited: the point is the opaque background behind them.
-* Colour = max(0.5 + SH(dir), 0), dir = normalise(mean - camera centre).
+* Per pixel, in depth order (ties by index): α = min(0.99, o · exp(-½ dᵀ Σ₂⁻¹ d)) (``ALPHA_MAX``); skipped
+  below 1/255 (``ALPHA_MIN``); stop before the Gaussian that would drop the transmittance below 1e-4
+  (``TRANSMITTANCE_MIN``). Only Gaussians in front of the pixel's nearest point are composited: the point is the
+  opaque background behind them. The asset mask M_a = 1 − the transmittance left = Σ α·transmittance.
+* Colour = max(0.5 + SH(dir), 0), dir = normalise(mean - camera centre) (``core.sh``, the formula the numpy side
+  uses too).
+
+Names: ``alpha`` is always one Gaussian's α at one pixel, ``transmittance`` (``trans``) the product of (1 − α) in
+front, ``asset_mask`` the accumulated 1 − transmittance per pixel; ``w2c`` is the world_to_camera matrix.
 
 The rasterizer builds every (Gaussian, pixel) pair within the cutoff, sorts pairs by (pixel, depth) once, and
 composites with segmented cumulative products: no per-Gaussian or per-pixel Python loops.
@@ -23,35 +28,22 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-SH_C0 = 0.28209479177387814
-SH_C1 = 0.4886025119029199
-SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396)
-SH_C3 = (-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.3731763325901154, -0.4570457994644658,
-         1.445305721320277, -0.5900435899266435)
+from scpainter_blender.core import sh as core_sh
+
 ALPHA_MIN = 1.0 / 255.0
 ALPHA_MAX = 0.99
-T_MIN = 1e-4
+TRANSMITTANCE_MIN = 1e-4
 BLUR = 0.3
 CUTOFF = 3.0
 
 
 def sh_colors(sh: torch.Tensor, dirs: torch.Tensor) -> torch.Tensor:
-    """max(0.5 + Σ_k Y_k(dir) c_k, 0) for unit directions (N, 3) and coefficients (N, K, 3), K in 1, 4, 9, 16."""
-    K = sh.shape[1]
-    x, y, z = dirs[:, 0:1], dirs[:, 1:2], dirs[:, 2:3]
-    out = SH_C0 * sh[:, 0]
-    if K >= 4:
-        out = out - SH_C1 * y * sh[:, 1] + SH_C1 * z * sh[:, 2] - SH_C1 * x * sh[:, 3]
-    if K >= 9:
-        xx, yy, zz = x * x, y * y, z * z
-        out = (out + SH_C2[0] * x * y * sh[:, 4] + SH_C2[1] * y * z * sh[:, 5]
-               + SH_C2[2] * (2 * zz - xx - yy) * sh[:, 6] + SH_C2[3] * x * z * sh[:, 7]
-               + SH_C2[4] * (xx - yy) * sh[:, 8])
-    if K >= 16:
-        out = (out + SH_C3[0] * y * (3 * xx - yy) * sh[:, 9] + SH_C3[1] * x * y * z * sh[:, 10]
-               + SH_C3[2] * y * (4 * zz - xx - yy) * sh[:, 11] + SH_C3[3] * z * (2 * zz - 3 * xx - 3 * yy) * sh[:, 12]
-               + SH_C3[4] * x * (4 * zz - xx - yy) * sh[:, 13] + SH_C3[5] * z * (xx - yy) * sh[:, 14]
-               + SH_C3[6] * x * (xx - 3 * yy) * sh[:, 15])
+    """max(0.5 + Σ_k Y_k(dir) c_k, 0) for unit directions (N, 3) and coefficients (N, K, 3), K in 1, 4, 9, 16;
+    Y_k from ``core.sh.basis`` (the numpy side's formula, evaluated on tensors)."""
+    terms = core_sh.basis(dirs[:, 0:1], dirs[:, 1:2], dirs[:, 2:3], core_sh.degree_of(sh.shape[1]))
+    out = terms[0] * sh[:, 0]
+    for k in range(1, len(terms)):
+        out = out + terms[k] * sh[:, k]
     return torch.clamp(out + 0.5, min=0.0)
 
 
@@ -87,18 +79,18 @@ def project_factors(means, factors, opacities, sh, K, world_to_camera, width, he
     ``cutoff``: each Gaussian reaches pixels within that many σ (major axis) of its mean; beyond
     sqrt(2 ln 255) ≈ 3.33 σ nothing changes, since α < 1/255 there is skipped anyway."""
     dev, dt = means.device, means.dtype
-    T = torch.as_tensor(np.asarray(world_to_camera, np.float64), dtype=dt, device=dev)
+    w2c = torch.as_tensor(np.asarray(world_to_camera, np.float64), dtype=dt, device=dev)
     Kt = torch.as_tensor(np.asarray(K, np.float64), dtype=dt, device=dev)
     fx, fy, cx, cy = Kt[0, 0], Kt[1, 1], Kt[0, 2], Kt[1, 2]
     finite = (torch.isfinite(means).all(1) & torch.isfinite(factors).all(2).all(1)
               & torch.isfinite(opacities) & torch.isfinite(sh).all(2).all(1))
     if valid is not None:
         finite &= valid
-    cam = means @ T[:3, :3].T + T[:3, 3]
+    cam = means @ w2c[:3, :3].T + w2c[:3, 3]
     keep = finite & (cam[:, 2] > near) & (opacities >= ALPHA_MIN)
     index = torch.nonzero(keep).squeeze(1)
     cam = cam[index]
-    M = T[:3, :3] @ factors[index]                              # W M
+    M = w2c[:3, :3] @ factors[index]                            # W M (W: the rotation of world_to_camera)
     cov = M @ M.transpose(1, 2)                                 # W Σ Wᵀ
     tz = cam[:, 2]
     lim_x = 1.3 * 0.5 * width / fx
@@ -119,7 +111,7 @@ def project_factors(means, factors, opacities, sh, K, world_to_camera, width, he
     on = (mean2[:, 0] + radius > 0) & (mean2[:, 0] - radius < width) & (mean2[:, 1] + radius > 0) & \
         (mean2[:, 1] - radius < height) & (det > 0) & torch.isfinite(radius)
     index = index[on]
-    centre = -T[:3, :3].T @ T[:3, 3]
+    centre = -w2c[:3, :3].T @ w2c[:3, 3]
     dirs = means[index] - centre
     dirs = dirs / torch.linalg.norm(dirs, dim=1, keepdim=True).clamp_min(1e-12)
     return {"index": index, "mean2d": mean2[on], "conic": conic[on], "radius": radius[on], "depth": tz[on],
@@ -150,17 +142,17 @@ def rasterize(proj, width, height, background_depth=None, max_pairs=200_000_000)
     """Front-to-back compositing of projected Gaussians (see the module rules).
 
     ``background_depth`` (H, W): the nearest point per pixel (+inf where none); Gaussians at or behind it are
-    hidden. Returns (color (H, W, 3) premultiplied, alpha (H, W) = 1 - transmittance, depth (H, W): where the
-    accumulated opacity first reaches 0.5, +inf elsewhere).
+    hidden. Returns (color (H, W, 3) premultiplied, asset_mask (H, W) = M_a = 1 - transmittance, depth (H, W):
+    where the accumulated opacity first reaches 0.5, +inf elsewhere).
     """
     dev = proj["mean2d"].device
     dt = proj["mean2d"].dtype
     color = torch.zeros((height * width, 3), dtype=dt, device=dev)
-    alpha_acc = torch.zeros(height * width, dtype=dt, device=dev)
+    asset_mask = torch.zeros(height * width, dtype=dt, device=dev)
     zmed = torch.full((height * width,), float("inf"), dtype=dt, device=dev)
     G = len(proj["depth"])
     if G == 0:
-        return color.reshape(height, width, 3), alpha_acc.reshape(height, width), zmed.reshape(height, width)
+        return color.reshape(height, width, 3), asset_mask.reshape(height, width), zmed.reshape(height, width)
     m2 = proj["mean2d"]
     x0, x1, y0, y1 = pixel_boxes(proj, width, height).unbind(1)
     w, h = x1 - x0 + 1, y1 - y0 + 1
@@ -185,26 +177,27 @@ def rasterize(proj, width, height, background_depth=None, max_pairs=200_000_000)
     # depth order within each pixel; ties by the Gaussian's original index (rank = position in a stable sort)
     order = torch.argsort(pix * G + depth_rank(proj)[g])
     g, pix, alpha = g[order], pix[order], alpha[order]
-    # segmented exclusive cumulative product of (1 - α) per pixel, in log space. The running sum spans every pair
-    # of the image, so it is kept in float64: in float32 subtracting a segment's base loses ~1e-4 of T.
+    # segmented exclusive cumulative product of (1 - α) per pixel (the transmittance), in log space. The running
+    # sum spans every pair of the image, so it is kept in float64: in float32 subtracting a segment's base loses
+    # ~1e-4 of the transmittance.
     log1m = torch.log1p(-alpha).to(torch.float64)
     csum = torch.cumsum(log1m, 0)
     seg_start = torch.ones_like(pix, dtype=torch.bool)
     seg_start[1:] = pix[1:] != pix[:-1]
     first = torch.nonzero(seg_start).squeeze(1)
     seg_id = torch.cumsum(seg_start.to(torch.int64), 0) - 1
-    base = (csum - log1m)[first][seg_id]               # log T before the segment's first pair
-    log_t_after = csum - base
-    t_before = torch.exp(log_t_after - log1m).to(dt)
-    keep = torch.exp(log_t_after) >= T_MIN              # monotone: every pair after the first failure goes too
-    log_t_after = log_t_after.to(dt)
-    wgt = torch.where(keep, alpha * t_before, torch.zeros_like(alpha))
+    base = (csum - log1m)[first][seg_id]               # log transmittance before the segment's first pair
+    log_trans_after = csum - base
+    trans_before = torch.exp(log_trans_after - log1m).to(dt)
+    keep = torch.exp(log_trans_after) >= TRANSMITTANCE_MIN  # monotone: every pair after the first failure goes too
+    log_trans_after = log_trans_after.to(dt)
+    wgt = torch.where(keep, alpha * trans_before, torch.zeros_like(alpha))
     color.index_add_(0, pix, wgt[:, None] * proj["color"][g])
-    alpha_acc.index_add_(0, pix, wgt)                   # Σ α T = 1 - T_final
-    acc_after = 1.0 - torch.exp(log_t_after)
+    asset_mask.index_add_(0, pix, wgt)                  # Σ α·transmittance = 1 - the transmittance left
+    acc_after = 1.0 - torch.exp(log_trans_after)
     cross = keep & (acc_after >= 0.5) & ((acc_after - wgt) < 0.5)
     zmed.index_put_((pix[cross],), proj["depth"][g[cross]])
-    return color.reshape(height, width, 3), alpha_acc.reshape(height, width), zmed.reshape(height, width)
+    return color.reshape(height, width, 3), asset_mask.reshape(height, width), zmed.reshape(height, width)
 
 
 def fov_limits(K, width, height):

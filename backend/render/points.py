@@ -18,9 +18,9 @@ import torch
 
 def relative_camera(world_to_camera, origin) -> np.ndarray:
     """world_to_camera (4x4, float64) for positions expressed relative to ``origin`` (world metres)."""
-    T = np.array(world_to_camera, dtype=np.float64, copy=True)
-    T[:3, 3] = T[:3, 3] + T[:3, :3] @ np.asarray(origin, np.float64)
-    return T
+    w2c = np.array(world_to_camera, dtype=np.float64, copy=True)
+    w2c[:3, 3] = w2c[:3, 3] + w2c[:3, :3] @ np.asarray(origin, np.float64)
+    return w2c
 
 
 def _depth_keys(z: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
@@ -37,9 +37,9 @@ def render_points(xyz: torch.Tensor, rgb: torch.Tensor, K, world_to_camera, widt
     Points at or behind ``near`` (metres), outside the image, or with non-finite values are culled first.
     """
     dev = xyz.device
-    T = torch.as_tensor(np.asarray(world_to_camera, np.float64), dtype=torch.float32, device=dev)
+    w2c = torch.as_tensor(np.asarray(world_to_camera, np.float64), dtype=torch.float32, device=dev)
     Kt = torch.as_tensor(np.asarray(K, np.float64), dtype=torch.float32, device=dev)
-    cam = xyz @ T[:3, :3].T + T[:3, 3]
+    cam = xyz @ w2c[:3, :3].T + w2c[:3, 3]
     x, y, z = cam.unbind(1)
     # every test in one mask and one gather (the hot path: millions of points per frame); NaN fails every test
     u = Kt[0, 0] * x / z + Kt[0, 1] * y / z + Kt[0, 2]

@@ -55,7 +55,7 @@ def kernel_inputs(proj, bins, width, height, background_depth, dtype=None):
 
     Precision: the projection arrives in float64 (``frames.render_frame``); the CPU kernel keeps float64, the CUDA
     kernel gets float32 with means relative to the tile (values below the tile size: ~1e-6 px of rounding instead
-    of ~6e-5 px at x ~ 1000, which thin, edge-on Gaussians would turn into ~1e-4 of alpha). ``dtype`` overrides
+    of ~6e-5 px at x ~ 1000, which thin, edge-on Gaussians would turn into ~1e-4 of α). ``dtype`` overrides
     the device's choice (tests of the CUDA kernel in Triton's interpreter)."""
     dev = proj["mean2d"].device
     dt = dtype or (torch.float64 if dev.type == "cpu" else torch.float32)
@@ -76,7 +76,8 @@ def kernel_inputs(proj, bins, width, height, background_depth, dtype=None):
 
 
 def rasterize(proj, width: int, height: int, background_depth=None, tile: int | None = None):
-    """Drop-in for ``gaussians.rasterize``: (color (H, W, 3) premultiplied, alpha (H, W), depth (H, W)).
+    """Drop-in for ``gaussians.rasterize``: (color (H, W, 3) premultiplied, asset_mask (H, W) = 1 - transmittance,
+    depth (H, W)).
     ``tile``: the tile size in pixels (default ``TILE_CPU`` on the CPU, ``TILE`` elsewhere)."""
     dev = proj["mean2d"].device
     tile = tile or (TILE_CPU if dev.type == "cpu" else TILE)
@@ -95,8 +96,8 @@ def rasterize(proj, width: int, height: int, background_depth=None, tile: int | 
     else:
         return gs.rasterize(proj, width, height, background_depth)
     bins = bin_tiles(proj, width, height, tile)
-    color, alpha, depth = composite(*kernel_inputs(proj, bins, width, height, background_depth),
-                                    width, height, bins["tiles_x"], tile)
+    color, asset_mask, depth = composite(*kernel_inputs(proj, bins, width, height, background_depth),
+                                         width, height, bins["tiles_x"], tile)
     dt = proj["mean2d"].dtype
-    return (color.reshape(height, width, 3).to(dt), alpha.reshape(height, width).to(dt),
+    return (color.reshape(height, width, 3).to(dt), asset_mask.reshape(height, width).to(dt),
             depth.reshape(height, width).to(dt))

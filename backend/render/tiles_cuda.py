@@ -12,13 +12,13 @@ import torch
 import triton
 import triton.language as tl
 
-from .gaussians import ALPHA_MAX, ALPHA_MIN, T_MIN
+from .gaussians import ALPHA_MAX, ALPHA_MIN, TRANSMITTANCE_MIN
 
 
 @triton.jit
-def _composite_kernel(params_ptr, boxes_ptr, tile_start_ptr, bg_ptr, out_c_ptr, out_a_ptr, out_z_ptr,
+def _composite_kernel(params_ptr, boxes_ptr, tile_start_ptr, bg_ptr, out_c_ptr, out_mask_ptr, out_z_ptr,
                       width, height, tiles_x, TILE: tl.constexpr, ALPHA_MAX: tl.constexpr,
-                      ALPHA_MIN: tl.constexpr, T_MIN: tl.constexpr):
+                      ALPHA_MIN: tl.constexpr, TRANSMITTANCE_MIN: tl.constexpr):
     t = tl.program_id(0)
     offs = tl.arange(0, TILE * TILE)
     px = (t % tiles_x) * TILE + offs % TILE
@@ -28,7 +28,7 @@ def _composite_kernel(params_ptr, boxes_ptr, tile_start_ptr, bg_ptr, out_c_ptr, 
     zbg = tl.load(bg_ptr + pix, mask=inside, other=0.0)
     fx = (offs % TILE).to(tl.float32) + 0.5  # tile-relative, as the means are
     fy = (offs // TILE).to(tl.float32) + 0.5
-    T = tl.full([TILE * TILE], 1.0, tl.float32)
+    trans = tl.full([TILE * TILE], 1.0, tl.float32)
     r = tl.zeros([TILE * TILE], tl.float32)
     g = tl.zeros([TILE * TILE], tl.float32)
     b = tl.zeros([TILE * TILE], tl.float32)
@@ -48,34 +48,36 @@ def _composite_kernel(params_ptr, boxes_ptr, tile_start_ptr, bg_ptr, out_c_ptr, 
         dx = fx - tl.load(p)
         dy = fy - tl.load(p + 1)
         power = -0.5 * (tl.load(p + 2) * dx * dx + 2.0 * tl.load(p + 3) * dx * dy + tl.load(p + 4) * dy * dy)
-        a = tl.minimum(tl.load(p + 5) * tl.exp(power), ALPHA_MAX)
-        use = active & (px >= x0) & (px <= x1) & (py >= y0) & (py <= y1) & (power <= 0.0) & (a >= ALPHA_MIN)
-        Tn = T * (1.0 - a)
-        stop = use & (Tn < T_MIN)
+        alpha = tl.minimum(tl.load(p + 5) * tl.exp(power), ALPHA_MAX)
+        use = active & (px >= x0) & (px <= x1) & (py >= y0) & (py <= y1) & (power <= 0.0) & (alpha >= ALPHA_MIN)
+        trans_next = trans * (1.0 - alpha)
+        stop = use & (trans_next < TRANSMITTANCE_MIN)
         active = active & ~stop
         use = use & ~stop
-        w = tl.where(use, a * T, 0.0)
+        w = tl.where(use, alpha * trans, 0.0)
         r += w * tl.load(p + 7)
         g += w * tl.load(p + 8)
         b += w * tl.load(p + 9)
-        z = tl.where(use & (T > 0.5) & (Tn <= 0.5), depth, z)
-        T = tl.where(use, Tn, T)
+        z = tl.where(use & (trans > 0.5) & (trans_next <= 0.5), depth, z)
+        trans = tl.where(use, trans_next, trans)
         e += 1
         n_active = tl.sum(active.to(tl.int32), 0)
     tl.store(out_c_ptr + pix * 3, r, mask=inside)
     tl.store(out_c_ptr + pix * 3 + 1, g, mask=inside)
     tl.store(out_c_ptr + pix * 3 + 2, b, mask=inside)
-    tl.store(out_a_ptr + pix, 1.0 - T, mask=inside)
+    tl.store(out_mask_ptr + pix, 1.0 - trans, mask=inside)
     tl.store(out_z_ptr + pix, z, mask=inside)
 
 
 def composite(params, boxes, tile_start, bg, width, height, tiles_x, tile):
-    """Run the kernel on CUDA tensors; returns (color (HW, 3), alpha (HW), depth (HW)) float32."""
+    """Run the kernel on CUDA tensors; returns (color (HW, 3), asset_mask (HW) = 1 - transmittance, depth (HW))
+    float32."""
     dev = params.device
     out_c = torch.empty((height * width, 3), dtype=torch.float32, device=dev)
-    out_a = torch.empty(height * width, dtype=torch.float32, device=dev)
+    out_mask = torch.empty(height * width, dtype=torch.float32, device=dev)
     out_z = torch.empty(height * width, dtype=torch.float32, device=dev)
     n_tiles = len(tile_start) - 1
-    _composite_kernel[(n_tiles,)](params, boxes, tile_start, bg, out_c, out_a, out_z, width, height, tiles_x,
-                                  TILE=tile, ALPHA_MAX=ALPHA_MAX, ALPHA_MIN=ALPHA_MIN, T_MIN=T_MIN, num_warps=4)
-    return out_c, out_a, out_z
+    _composite_kernel[(n_tiles,)](params, boxes, tile_start, bg, out_c, out_mask, out_z, width, height, tiles_x,
+                                  TILE=tile, ALPHA_MAX=ALPHA_MAX, ALPHA_MIN=ALPHA_MIN,
+                                  TRANSMITTANCE_MIN=TRANSMITTANCE_MIN, num_warps=4)
+    return out_c, out_mask, out_z

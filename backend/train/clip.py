@@ -14,7 +14,7 @@ Layout (paths in ``clip.json`` are relative to it; docs/training.md has the full
                        "fps": 10}                                           shifted left by 2 m (evaluation only)
     predictions.npz   images (S,3,h,w), depth, depth_conf, extrinsic, intrinsic (VGGT's demo output)
     poses.npz         world_to_camera (S,4,4) OpenCV, metric world; K (S,3,3) ours, for the frame images' size;
-                      world_from_vggt (4,4) similarity taking VGGT's world to the metric one
+                      vggt_to_world (4,4) similarity taking VGGT's world to the metric one
     frames/           the real frames (any size; the targets of training, resized to the training resolution)
 
 World: the metric world of ``poses.npz`` when given; otherwise VGGT's own world (first camera = origin, scale
@@ -35,7 +35,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from scpainter_blender.core import cameras, files, vggt
+from scpainter_blender.core import cameras, files, vggt, vggt_io
+from scpainter_blender.core import fields as fields_mod
 from scpainter_blender.core import job as job_mod
 from scpainter_blender.core.job import JobError
 
@@ -43,9 +44,9 @@ SCHEMA = "scpainter.clip/1"
 
 
 class ClipError(JobError, files.InputError):
-    """A clip folder that cannot be used; ``str()`` is "<file name>: <field>: <message>". A JobError (the shared
-    job validators raise those for clip fields too) and an InputError (bad input: exit code 2, ``field`` in the
-    error event)."""
+    """A clip folder that cannot be used; ``str()`` is "<file name>: <field>: <message>". A JobError (a clip's
+    fields are checked by the job's validators, ``core.fields``) and an InputError (bad input: exit code 2,
+    ``field`` in the error event)."""
 
     def __init__(self, path, field, message, hint=None):
         files.InputError.__init__(self, path, field, message, hint)
@@ -72,7 +73,7 @@ class Clip:
     image_size: tuple              # (W, H) of the real frames
     world_to_camera: np.ndarray    # (S, 4, 4) OpenCV, clip world
     K: np.ndarray                  # (S, 3, 3) ours, for image_size
-    world_from_vggt: np.ndarray    # (4, 4)
+    vggt_to_world: np.ndarray    # (4, 4)
     cars: list = field(default_factory=list)
     fps: float = 10.0
     metric: bool = False
@@ -117,7 +118,7 @@ _INDEX_FIELD = re.compile(r"(0?[1-9]\d?)?d?")
 def _pattern(value, clip_path: str, where: str, S: int) -> list:
     """The S paths of a frame pattern such as ``frames/frame_{:06d}.png``. Only the index may be formatted: a
     pattern is a path, and ``str.format`` could otherwise read attributes or pad to a gigabyte."""
-    pattern = job_mod._str(value, clip_path, where)
+    pattern = fields_mod.string(value, clip_path, where, error=ClipError)
     try:
         fields_ = [(name, spec, conv) for _, name, spec, conv in string.Formatter().parse(pattern) if name is not None]
     except ValueError as e:
@@ -143,26 +144,31 @@ def _float_array(a, path: str, key: str, shape) -> np.ndarray:
 
 
 def _read_poses(poses_path: str, clip_path: str, S: int):
-    """world_to_camera (S, 4, 4) rigid, K (S, 3, 3) with positive focal lengths, world_from_vggt (4, 4) a
+    """world_to_camera (S, 4, 4) rigid, K (S, 3, 3) with positive focal lengths, vggt_to_world (4, 4) a
     similarity, from ``poses.npz``; ClipError naming the file and key for anything else."""
     def error(p, key, message):
         if key is None and message == "not found":
             return ClipError(clip_path, "poses", f"file not found: {poses_path}")
         return ClipError(p, key, message)
 
-    arrays = files.read_npz(poses_path, ("world_to_camera", "K", "world_from_vggt"), error=error)
+    arrays = files.read_npz(poses_path, ("world_to_camera", "K"), optional=("vggt_to_world", "world_from_vggt"),
+                            error=error)
+    if "vggt_to_world" not in arrays:  # the name before issue 15's a_to_b rule
+        if "world_from_vggt" not in arrays:
+            raise ClipError(poses_path, "vggt_to_world", "missing: the similarity from VGGT's world to metres")
+        arrays["vggt_to_world"] = arrays.pop("world_from_vggt")
     w2c = _float_array(arrays["world_to_camera"], poses_path, "world_to_camera", (S, 4, 4))
-    problem = vggt.rigid_problem(w2c, name="world_to_camera")
+    problem = cameras.rigid_problem(w2c, name="world_to_camera")
     if problem is not None:  # an inverse of it is taken for every rendered frame
         raise ClipError(poses_path, "world_to_camera", problem[1])
     K = _float_array(arrays["K"], poses_path, "K", (S, 3, 3))
     if np.any(K[:, 0, 0] <= 0) or np.any(K[:, 1, 1] <= 0) or np.any(K[:, 2] != [0, 0, 1]):
         raise ClipError(poses_path, "K", "expected intrinsics [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0")
-    M = _float_array(arrays["world_from_vggt"], poses_path, "world_from_vggt", (4, 4))
+    M = _float_array(arrays["vggt_to_world"], poses_path, "vggt_to_world", (4, 4))
     s = np.cbrt(np.linalg.det(M[:3, :3]))
     if not s > 0 or np.abs(M[:3, :3].T @ M[:3, :3] / (s * s) - np.eye(3)).max() > 1e-3 or \
             np.any(M[3] != [0, 0, 0, 1]):
-        raise ClipError(poses_path, "world_from_vggt", "expected a similarity (scale > 0 x rotation, translation, "
+        raise ClipError(poses_path, "vggt_to_world", "expected a similarity (scale > 0 x rotation, translation, "
                                                        "last row [0, 0, 0, 1])")
     return w2c, K, M
 
@@ -181,17 +187,19 @@ def load(path) -> Clip:
     if not isinstance(data, dict) or data.get("schema") != SCHEMA:
         got = data.get("schema") if isinstance(data, dict) else data
         raise ClipError(path, "schema", f"expected {SCHEMA!r}, got {_short(got)}")
-    pred_path = job_mod.resolve(path, job_mod._str(data.get("predictions"), path, "predictions"))
+    pred_path = job_mod.resolve(path, fields_mod.string(data.get("predictions"), path, "predictions",
+                                                        error=ClipError))
     files.check_regular(pred_path, lambda p, f, m: ClipError(
         path, "predictions", f"file not found: {pred_path}" if m == "not found" else f"{pred_path} {m}"))
-    pred = vggt.load_predictions(pred_path, world_points=False)  # its errors name the file and key
+    pred = vggt_io.load_predictions(pred_path, world_points=False)  # its errors name the file and key
     S = pred.num_frames
 
     frames = data.get("frames")
     if isinstance(frames, str):
         frame_paths = _pattern(frames, path, "frames", S)
     elif isinstance(frames, list) and len(frames) == S:
-        frame_paths = [job_mod.resolve(path, job_mod._str(p, path, f"frames[{i}]")) for i, p in enumerate(frames)]
+        frame_paths = [job_mod.resolve(path, fields_mod.string(p, path, f"frames[{i}]", error=ClipError))
+                       for i, p in enumerate(frames)]
     else:
         raise ClipError(path, "frames", f"expected a path pattern or a list of {S} paths (one per VGGT frame)")
     for i, frame in enumerate(frame_paths):  # cheap stats: training opens every frame, and a FIFO would block it
@@ -203,12 +211,12 @@ def load(path) -> Clip:
 
     metric = "poses" in data
     if metric:
-        poses_path = job_mod.resolve(path, job_mod._str(data["poses"], path, "poses"))
-        w2c, K, world_from_vggt = _read_poses(poses_path, path, S)
+        poses_path = job_mod.resolve(path, fields_mod.string(data["poses"], path, "poses", error=ClipError))
+        w2c, K, vggt_to_world = _read_poses(poses_path, path, S)
     else:
         w2c = cameras.orthonormalize(pred.world_to_camera)
         K = np.diag([size[0] / pred.width, size[1] / pred.height, 1.0]) @ pred.K
-        world_from_vggt = np.eye(4)
+        vggt_to_world = np.eye(4)
 
     cars = []
     if not isinstance(data.get("cars", []), list):
@@ -237,15 +245,15 @@ def load(path) -> Clip:
                 raise ClipError(path, f"{where}.boxes.{k}", "keys are frame indices") from None
             if not 0 <= f < S:
                 raise ClipError(path, f"{where}.boxes.{k}", f"frame outside the clip's 0..{S - 1}")
-            boxes[f] = job_mod._rigid(m, path, f"{where}.boxes.{k}")
+            boxes[f] = fields_mod.rigid(m, path, f"{where}.boxes.{k}", error=ClipError)
         asset = c.get("asset")
         if asset is not None:
-            asset = job_mod.resolve(path, job_mod._str(asset, path, f"{where}.asset"))
+            asset = job_mod.resolve(path, fields_mod.string(asset, path, f"{where}.asset", error=ClipError))
             _check_file(asset, path, f"{where}.asset")
         a2b = c.get("asset_to_box")
-        a2b = None if a2b is None else job_mod._affine(a2b, path, f"{where}.asset_to_box")
+        a2b = None if a2b is None else fields_mod.affine(a2b, path, f"{where}.asset_to_box", error=ClipError)
         cars.append(Car(str(car_id), car_size, boxes, asset, a2b))
-    fps = job_mod._number(data.get("fps", 10.0), path, "fps", lo=0.1)
+    fps = fields_mod.number(data.get("fps", 10.0), path, "fps", lo=0.1, error=ClipError)
     views = {}
     if not isinstance(data.get("views", {}), dict):
         raise ClipError(path, "views", "expected an object {shift in metres: frame path pattern}")
@@ -261,7 +269,7 @@ def load(path) -> Clip:
         views[shift] = _pattern(pattern, path, f"views.{k}", S)
         for frame in views[shift]:
             _check_file(frame, path, f"views.{k}", "frame file")
-    return Clip(path, pred, frame_paths, size, w2c, K, world_from_vggt, cars, fps, metric, views)
+    return Clip(path, pred, frame_paths, size, w2c, K, vggt_to_world, cars, fps, metric, views)
 
 
 def _short(v) -> str:

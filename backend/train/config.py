@@ -10,6 +10,7 @@ import math
 import os
 from dataclasses import asdict, dataclass, field, fields
 
+from scpainter_blender.core import batch as batch_mod
 from scpainter_blender.core import files
 from scpainter_blender.core import job as job_mod
 
@@ -67,7 +68,7 @@ class TrainConfig:
         for c in self.clips:
             p = self.resolve(c)
             if os.path.isfile(p) and not p.endswith(".json"):
-                out += job_mod.read_list(p)
+                out += batch_mod.read_list(p)
             else:
                 out.append(p)
         return out

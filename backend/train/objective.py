@@ -2,11 +2,13 @@
 
 For a sample with clean latent x_0 (VAE latent of the real frames × scaling factor, (F, C, h, w)):
 
-    σ = exp(p_mean + p_std · n), n ~ N(0, 1)          one noise level per sample
+    σ = exp(p_mean + p_std · n), n ~ N(0, 1)          one noise level per sample (the training config's)
     x_σ = x_0 + σ ε
-    v = UNet([c_in(σ) x_σ ‖ cond], c_noise(σ), clip, time ids)
-    x̂_0 = c_skip x_σ + c_out v                        (edm.v_to_x0)
+    x̂_0 = D(x_σ, σ; cond, clip, time ids)             edm.Denoiser: c_skip x_σ + c_out UNet(c_in x_σ ‖ cond …)
     loss = mean over the batch of  λ(σ) · mean((x̂_0 − x_0)²),   λ(σ) = (σ² + 1)/σ²
+
+D is the sampler's own denoiser (the object ``models["denoiser"]``, the function ``pipeline`` calls), so what
+training fits is exactly what generation evaluates.
 
 λ(σ) = 1/c_out² makes the loss the plain mean squared error of v against its target (x_σ c_skip − x_0)/(−c_out),
 i.e. unit weight per network output. The CLIP embedding is zeroed for a sample with probability ``drop_clip`` and,
@@ -63,16 +65,13 @@ def target_latents(vae, target: torch.Tensor, gens: list) -> torch.Tensor:
     return z.view(B, F, *z.shape[1:])
 
 
-def time_ids(config, batch: int, device) -> torch.Tensor:
-    return torch.tensor([[config.fps - 1, config.motion_bucket_id, config.noise_aug_strength]],
-                        dtype=torch.float32, device=device).repeat(batch, 1)
-
-
 def loss(models: dict, batch: dict, cfg, gens: list, device, autocast_dtype=None) -> tuple:
-    """(scalar loss, stats) for one micro-batch. ``models``: unet, condition_encoder (trained), vae, image_encoder
-    (frozen), clip_mean, clip_std, config (ScpainterConfig). ``batch``: target, image (B, F, 3, H, W), asset,
-    valid (B, F, 1, H, W) in [0, 1]. ``gens``: one generator per sample (``generators``)."""
-    unet, cond_enc, config = models["unet"], models["condition_encoder"], models["config"]
+    """(scalar loss, stats) for one micro-batch. ``models``: denoiser (``edm.Denoiser`` over the trained UNet),
+    condition_encoder (trained), vae, image_encoder (frozen), clip_mean, clip_std, config (ScpainterConfig).
+    ``batch``: target, image (B, F, 3, H, W), asset_mask, valid (B, F, 1, H, W) in [0, 1]. ``gens``: one
+    generator per sample (``generators``). ``cfg``: the training config (p_mean, p_std, drop_clip,
+    drop_condition)."""
+    denoiser, cond_enc, config = models["denoiser"], models["condition_encoder"], models["config"]
     target = batch["target"].to(device)
     B, F = target.shape[:2]
     if len(gens) != B:
@@ -89,13 +88,10 @@ def loss(models: dict, batch: dict, cfg, gens: list, device, autocast_dtype=None
     with torch.autocast(device_type=torch.device(device).type, dtype=autocast_dtype or torch.float32,
                         enabled=autocast_dtype is not None):
         cond = encode_conditions(cond_enc, batch["image"].to(device).flatten(0, 1),
-                                 batch["asset"].to(device).flatten(0, 1), batch["valid"].to(device).flatten(0, 1),
-                                 config.noise_aug_strength, noise=aug)
+                                 batch["asset_mask"].to(device).flatten(0, 1),
+                                 batch["valid"].to(device).flatten(0, 1), config.noise_aug_strength, noise=aug)
         cond = cond.float().view(B, F, *cond.shape[1:]) * r["keep_cond"].to(device).view(B, 1, 1, 1, 1)
-        inp = torch.cat([edm.c_in(sigma) * x_sigma, cond], dim=2)
-        v = unet(inp, edm.c_noise(sigma.view(B)), encoder_hidden_states=clip,
-                 added_time_ids=time_ids(config, B, device), return_dict=False)[0].float()
-    x0_hat = edm.v_to_x0(x_sigma, v, sigma)
+        x0_hat = denoiser(x_sigma, sigma.view(B), cond, clip, edm.time_ids(config, B, device))
     weight = (sigma.view(B) ** 2 + 1.0) / sigma.view(B) ** 2
     per_sample = ((x0_hat - x0) ** 2).mean(dim=(1, 2, 3, 4))
     total = (weight * per_sample).mean()

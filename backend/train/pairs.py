@@ -24,7 +24,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 import torch
 
-from scpainter_blender.core import cameras, files, splats, vggt
+from scpainter_blender.core import cameras, files, point_cloud, splats
+from scpainter_blender.core import job as job_mod
 
 from ..render import frames as fr
 from . import clip as clip_mod
@@ -68,7 +69,7 @@ class PairMaker:
             raise clip_mod.ClipError(clip.path, "predictions",
                                      f"the clip has {clip.num_frames} frames, fewer than the {s.frames} of a sample")
         self.clip, self.device = clip, torch.device(device)
-        cloud = vggt.point_cloud(clip.predictions, s.confidence_percentile, world_from_vggt=clip.world_from_vggt)
+        cloud = point_cloud.point_cloud(clip.predictions, s.confidence_percentile, vggt_to_world=clip.vggt_to_world)
         self.origin = cameras.camera_centers(clip.world_to_camera[0])
         self.xyz = torch.as_tensor((cloud.positions - self.origin).astype(np.float32), device=self.device)
         self.rgb = torch.as_tensor(cloud.colors, device=self.device)
@@ -113,7 +114,7 @@ class PairMaker:
 
     def sample(self, rng: np.random.Generator, t0: int | None = None, asset: bool | None = None,
                car: int | None = None) -> dict:
-        """One training sample: target, image (F, 3, H, W); asset, valid (F, 1, H, W); and what was drawn.
+        """One training sample: target, image (F, 3, H, W); asset_mask (M_a), valid (F, 1, H, W); and what was drawn.
         ``t0``, ``asset`` (asset pair or not) and ``car`` (its index) override the draws, for tests and samples."""
         s, S = self.settings, self.clip.num_frames
         t0 = int(rng.integers(0, S - s.frames + 1)) if t0 is None else t0
@@ -124,7 +125,7 @@ class PairMaker:
         if car is not None:
             car_i = car
         car = None if car_i is None else self.clip.cars[car_i]
-        out = {k: [] for k in ("target", "image", "asset", "valid")}
+        out = {k: [] for k in ("target", "image", "asset_mask", "valid")}
         drawn = []
         for t in targets:
             src = self.sources(t, rng)
@@ -133,12 +134,12 @@ class PairMaker:
             scene = fr.Scene(origin=self.origin, device=self.device, xyz=xyz, rgb=rgb, frames_present=frozenset(src))
             if car is not None and t in car.boxes:
                 a, a2b = self.assets[car_i]
-                scene.assets = [replace(a, object_to_world={str(t): car.boxes[t] @ a2b})]
-            entry = {"frame": t, "K": self.K[t], "world_to_camera": self.clip.world_to_camera[t], "source_frames": src}
+                scene.assets = [replace(a, object_to_world={t: car.boxes[t] @ a2b})]
+            entry = job_mod.Frame(t, self.K[t], self.clip.world_to_camera[t], list(src))
             layers = fr.render_frame(scene, entry, s.width, s.height, s.point_radius, to_numpy=False)
             out["target"].append(self.target(t))
             out["image"].append(torch.stack([layers["R"], layers["G"], layers["B"]]).cpu())
-            out["asset"].append(layers["asset"][None].cpu())
+            out["asset_mask"].append(layers["asset_mask"][None].cpu())
             out["valid"].append(1.0 - layers["hole"][None].cpu())
         sample = {k: torch.stack(v) for k, v in out.items()}
         sample.update(t0=t0, car=-1 if car_i is None else car_i, sources=drawn)
@@ -174,6 +175,6 @@ class PairDataset(torch.utils.data.Dataset):
             sample = self.maker(k).sample(rng)
         except ValueError as e:  # a plain ValueError crosses the DataLoader's process boundary with its message
             raise ValueError(f"training sample {i}: {e}") from None
-        return {"target": sample["target"], "image": sample["image"], "asset": sample["asset"],
+        return {"target": sample["target"], "image": sample["image"], "asset_mask": sample["asset_mask"],
                 "valid": sample["valid"], "clip": k, "t0": sample["t0"], "car": sample["car"], "index": int(i)}
 

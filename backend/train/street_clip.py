@@ -57,7 +57,7 @@ def export_clip(street, out: str, gaussians_per_car: int = 8000) -> str:
         _link(street.predictions_path, os.path.join(tmp, "predictions.npz"))
         metric = street.metric()
         np.savez(os.path.join(tmp, "poses.npz"), world_to_camera=metric["world_to_camera"], K=metric["K"],
-                 world_from_vggt=metric["world_from_vggt"])
+                 vggt_to_world=metric["vggt_to_world"])
         os.makedirs(os.path.join(tmp, "frames"))
         for i in range(S):
             _link(street.frame_path("recorded", i), os.path.join(tmp, "frames", f"frame_{i:06d}.png"))

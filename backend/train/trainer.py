@@ -6,7 +6,9 @@ one process otherwise), resume from the newest checkpoint in ``output_dir`` if t
 
     batch (rendered pairs, backend.train.pairs) → objective.loss → backward → clip → AdamW → EMA,
 
-logging to TensorBoard (rank 0) and saving checkpoints that ``generate`` loads directly.
+logging to TensorBoard (rank 0) and saving checkpoints that ``generate`` loads directly. The loss's x̂_0 comes from
+``self.denoiser``, an ``edm.Denoiser`` over the trained UNet holding the base checkpoint's schedule: the function
+and the noise levels ``generate`` samples with (the σ that training draws is the training config's log-normal).
 
 Determinism and exact resume: sample i of the run is drawn from (seed, i) (pairs.PairDataset) and its noise from
 a CPU generator seeded by (seed, i) (objective.generators); the learning rate is a function of the step. So the
@@ -39,6 +41,7 @@ import torch
 from .. import events
 from ..errors import NonFiniteError
 from ..model import checkpoint as ckpt_mod
+from ..model import edm
 from . import clip as clip_mod
 from . import objective
 from .config import TrainConfig, TrainConfigError
@@ -84,7 +87,7 @@ class StepSampler(torch.utils.data.Sampler):
 def _collate(items: list) -> dict:
     """Stack PairDataset items; ``index``, ``clip`` (index into the run's clip list) and ``t0`` (first target
     frame) are (B,) int64, kept so a failing step can name its samples."""
-    out = {k: torch.stack([it[k] for it in items]) for k in ("target", "image", "asset", "valid")}
+    out = {k: torch.stack([it[k] for it in items]) for k in ("target", "image", "asset_mask", "valid")}
     for k in ("index", "clip", "t0"):
         out[k] = torch.tensor([it[k] for it in items])
     return out
@@ -140,6 +143,7 @@ class Trainer:
         clip_mod.load(clip_paths[0])
         comps = ckpt_mod.load(self.base, device=self.device, dtype=torch.float32)
         self.scp_config = comps["config"]
+        self.schedule = comps["schedule"]   # the checkpoint's scheduler/scheduler_config.json (edm.Schedule)
         self.unet, self.cond = comps["unet"], comps["condition_encoder"]
         self.unet.train().requires_grad_(True)
         self.cond.train().requires_grad_(cfg.train_condition_encoder)
@@ -163,6 +167,8 @@ class Trainer:
         else:  # DDP refuses a module without trainable parameters
             self.unet_ddp, self.optimizer = self.accelerator.prepare(self.unet, self.optimizer)
             self.cond_ddp = self.cond
+        # the loss's x̂_0: the sampler's denoiser (edm.Denoiser) around the UNet as DDP runs it
+        self.denoiser = edm.Denoiser(self.unet_ddp, self.schedule)
         self.dataset = PairDataset(clip_paths, cfg.pairs, seed=cfg.seed)
         from .tensorboard_log import TrainLog
 
@@ -282,7 +288,7 @@ class Trainer:
 
     # ---------------------------------------------------------------------------------------------------------
     def _models(self) -> dict:
-        return {"unet": self.unet_ddp, "condition_encoder": self.cond_ddp, **self.frozen}
+        return {"denoiser": self.denoiser, "unet": self.unet_ddp, "condition_encoder": self.cond_ddp, **self.frozen}
 
     def sample_video(self, sample: dict, steps: int) -> torch.Tensor | None:
         """(F, 3, H, 3W) in [0, 1]: condition | generated (EMA weights) | target, for the log; None (logged) when
@@ -290,7 +296,7 @@ class Trainer:
         from ..model.pipeline import SCPainterPipeline
 
         comps = {"unet": self.unet, "vae": self.frozen["vae"], "image_encoder": self.frozen["image_encoder"],
-                 "condition_encoder": self.cond, "config": self.scp_config,
+                 "condition_encoder": self.cond, "config": self.scp_config, "schedule": self.schedule,
                  "clip_mean": self.frozen["clip_mean"].flatten().tolist(),
                  "clip_std": self.frozen["clip_std"].flatten().tolist()}
         self.unet.eval(), self.cond.eval()
@@ -298,7 +304,7 @@ class Trainer:
             ctx = self.ema.applied(self.named) if self.ema is not None else torch.no_grad()
             with ctx:
                 pipe = SCPainterPipeline(comps, self.device)
-                cond = pipe.condition_latents(sample["image"], sample["asset"], sample["valid"])
+                cond = pipe.condition_latents(sample["image"], sample["asset_mask"], sample["valid"])
                 x = pipe.sample(cond, pipe.clip_embedding(sample["target"][0]), steps=steps)
                 video = pipe.decode(x)
         except NonFiniteError as e:

@@ -1,6 +1,10 @@
-"""Camera conventions: OpenCV pinhole <-> Blender camera, trajectories, similarity fits.
+"""Camera conventions: rigid transforms and poses, OpenCV pinhole <-> Blender camera and render settings.
 
-Conventions (DESIGN §3), stated once here and assumed by every function below:
+Camera paths (heading, lateral shifts) are in ``core.trajectory``; similarity transforms and their fits in
+``core.similarity``.
+
+Conventions (docs/design.md, "Conventions as implemented"), stated once here and assumed by every module that
+takes cameras:
 
 * World: Blender's, right-handed, Z up, metres.
 * OpenCV camera: x right, y down, z forward. ``world_to_camera`` is a 4x4 rigid transform taking world
@@ -54,6 +58,25 @@ def rigid_inverse(T) -> np.ndarray:
     out[..., :3, 3] = -np.einsum("...ij,...j->...i", Rt, t)
     out[..., 3, 3] = 1.0
     return out
+
+
+def rigid_problem(T, tolerance: float = 1e-3, name: str = "extrinsic", what: str = "frame"):
+    """(index, sentence) of the first finite matrix of ``T`` (N, 4, 4) that is not a rotation + translation
+    (|R^T R - I| > ``tolerance``, a reflection, or a last row other than [0, 0, 0, 1]); None if all are. The
+    sentence calls the matrices ``what`` ("frame 3 is not ...") and the array ``name``. Camera placement inverts
+    these matrices, so readers of pose files refuse a singular one with this sentence (naming their file and
+    key) rather than fail in a solver."""
+    R = T[:, :3, :3]
+    orth = np.abs(np.swapaxes(R, 1, 2) @ R - np.eye(3)).max(axis=(1, 2))
+    bad = (orth > tolerance) | (np.linalg.det(R) < 0)
+    if bad.any():
+        i = int(np.argmax(bad))
+        return i, f"{what} {i} is not a rotation + translation (|R^T R - I| = {orth[i]:.2e})"
+    rows = np.any(T[:, 3] != [0, 0, 0, 1], axis=1)
+    if rows.any():
+        i = int(np.argmax(rows))
+        return i, f"the last row of a 4x4 {name} must be [0, 0, 0, 1] ({what} {i})"
+    return None
 
 
 def orthonormalize(world_to_camera) -> np.ndarray:
@@ -255,7 +278,7 @@ def K_from_blender_camera(cam: BlenderCamera) -> np.ndarray:
 def project(K, world_to_camera, points):
     """Project world points (N, 3) to pixel coordinates (N, 2) and camera depth z (N,), all float64.
 
-    The world->camera step is done in float64 before anything else (DESIGN §3, large coordinates). Points at or
+    The world->camera step is done in float64 before anything else (large coordinates stay exact). Points at or
     behind the camera get depth <= 0 and non-finite or meaningless pixel coordinates: callers mask on depth.
     """
     T = as_matrix4(world_to_camera, "world_to_camera")
@@ -266,209 +289,3 @@ def project(K, world_to_camera, points):
         uv = (cam[:, :2] / z[:, None]) @ np.asarray(K, np.float64)[:2, :2].T + np.asarray(K, np.float64)[:2, 2]
     return uv, z
 
-
-# --------------------------------------------------------------------------------------------------------------
-# Trajectories: heading and lateral shift
-# --------------------------------------------------------------------------------------------------------------
-
-def _unit(v, axis=-1):
-    n = np.linalg.norm(v, axis=axis, keepdims=True)
-    return v / np.where(n > 0, n, 1.0)
-
-
-def heading_directions(centers, window_m: float = 1.0, up=(0.0, 0.0, 1.0), fallback=None) -> np.ndarray:
-    """Unit direction of travel per frame, (N, 3), horizontal (perpendicular to ``up``).
-
-    The heading at frame i is the chord between the positions half a window of *travelled distance* before and
-    after it (arc length, not frame count). A vehicle that stops keeps the heading it had: its positions during
-    the stop share one arc length, so the chord still spans the motion before and after. Where the whole path is
-    shorter than a hair (a parked camera), ``fallback`` (N, 3) or (3,) is used, typically the camera's forward
-    axis; without one a ValueError explains why.
-    """
-    c = np.asarray(centers, dtype=np.float64)
-    if c.ndim != 2 or c.shape[1] != 3 or len(c) == 0:
-        raise ValueError(f"centers must be (N, 3), got {c.shape}")
-    if not np.all(np.isfinite(c)):
-        raise ValueError("centers contain NaN or inf")
-    up = _unit(np.asarray(up, dtype=np.float64))
-    rel = c - c[0]  # relative to the first centre: differences of 1e5 m coordinates stay exact
-    horiz = rel - np.outer(rel @ up, up)
-    steps = np.linalg.norm(np.diff(horiz, axis=0), axis=1)
-    s = np.concatenate([[0.0], np.cumsum(steps)])
-    total = s[-1]
-    if total < 1e-6:
-        if fallback is None:
-            raise ValueError("the trajectory does not move, so it has no direction of travel; pass the camera "
-                             "forward axis as fallback")
-        f = np.broadcast_to(np.asarray(fallback, np.float64), c.shape)
-        f = f - np.outer(f @ up, up)
-        return _unit(f)
-    half = min(window_m / 2.0, total / 2.0)
-    ahead = np.searchsorted(s, s + half, side="left").clip(0, len(s) - 1)
-    behind = (np.searchsorted(s, s - half, side="right") - 1).clip(0, len(s) - 1)
-    chord = horiz[ahead] - horiz[behind]
-    return _unit(chord)
-
-
-def left_directions(headings, up=(0.0, 0.0, 1.0)) -> np.ndarray:
-    """Unit vectors pointing to the driver's left: up x heading (right-handed world)."""
-    up = _unit(np.asarray(up, dtype=np.float64))
-    return _unit(np.cross(np.broadcast_to(up, np.shape(headings)), headings))
-
-
-def shift_trajectory(world_to_camera, left_m: float = 0.0, up_m: float = 0.0, forward_m: float = 0.0,
-                     window_m: float = 1.0, up=(0.0, 0.0, 1.0)) -> np.ndarray:
-    """Move each camera of a path by metres relative to the direction of travel; orientation is kept.
-
-    ``left_m`` > 0 moves left, < 0 right; ``forward_m`` along the heading; ``up_m`` along ``up``. Returns the new
-    world_to_camera (N, 4, 4). Parked frames keep the heading they had (see heading_directions); a path that never
-    moves uses the cameras' forward axes.
-    """
-    T = as_matrix4(world_to_camera, "world_to_camera")
-    c = camera_centers(T)
-    forward_axes = T[:, 2, :3]  # camera +z in world = third row of R
-    h = heading_directions(c, window_m=window_m, up=up, fallback=forward_axes)
-    upv = _unit(np.asarray(up, dtype=np.float64))
-    offset = left_m * left_directions(h, upv) + forward_m * h + up_m * upv
-    new_c = c + offset
-    out = T.copy()
-    out[:, :3, 3] = -np.einsum("nij,nj->ni", T[:, :3, :3], new_c)
-    return out
-
-
-# --------------------------------------------------------------------------------------------------------------
-# Similarity fits
-# --------------------------------------------------------------------------------------------------------------
-
-@dataclass(frozen=True)
-class SimilarityFit:
-    """dst ≈ scale · rotation @ src + translation, with the fit's RMS residual in dst units (metres)."""
-
-    scale: float
-    rotation: np.ndarray
-    translation: np.ndarray
-    rms: float
-    max_error: float
-    rotation_rms_deg: float | None = None
-
-    def matrix(self) -> np.ndarray:
-        return similarity_matrix(self.scale, self.rotation, self.translation)
-
-    def apply(self, points) -> np.ndarray:
-        return self.scale * np.asarray(points, np.float64) @ self.rotation.T + self.translation
-
-
-def similarity_matrix(scale: float, rotation, translation) -> np.ndarray:
-    """4x4 matrix of x -> scale · R x + t."""
-    M = np.eye(4)
-    M[:3, :3] = scale * np.asarray(rotation, np.float64)
-    M[:3, 3] = translation
-    return M
-
-
-def decompose_similarity(M):
-    """(scale, R, t) of a 4x4 similarity; raises if it is not one (shear, reflection, non-uniform scale)."""
-    M = as_matrix4(M, "similarity")
-    A = M[:3, :3]
-    s = np.cbrt(np.linalg.det(A))
-    if not np.isfinite(s) or s <= 0:
-        raise ValueError("similarity has a non-positive determinant (a reflection or a collapse)")
-    R = A / s
-    if np.abs(R.T @ R - np.eye(3)).max() > 1e-6 or np.any(M[3] != [0, 0, 0, 1]):
-        raise ValueError("matrix is not a similarity (uniform scale · rotation + translation)")
-    return float(s), R, M[:3, 3].copy()
-
-
-def _rotation_from_covariance(H):
-    """The rotation R maximising tr(R^T H) (Kabsch/Umeyama with the reflection guard)."""
-    U, _, Vt = np.linalg.svd(H)
-    D = np.eye(3)
-    D[2, 2] = np.sign(np.linalg.det(U) * np.linalg.det(Vt)) or 1.0
-    return U @ D @ Vt
-
-
-def umeyama(src, dst, with_scale: bool = True) -> SimilarityFit:
-    """Least-squares similarity dst ≈ s R src + t (Umeyama 1991), for point sets (N, 3), N >= 3.
-
-    Both sets are centred before the covariance is formed, so points 1e5 m from the origin fit to ~1e-10.
-    Raises ValueError when the points are (nearly) collinear: the rotation about that line is undetermined.
-    """
-    x = np.asarray(src, np.float64)
-    y = np.asarray(dst, np.float64)
-    if x.shape != y.shape or x.ndim != 2 or x.shape[1] != 3:
-        raise ValueError(f"src and dst must both be (N, 3), got {x.shape} and {y.shape}")
-    if len(x) < 3:
-        raise ValueError(f"need at least 3 point pairs for a similarity fit, got {len(x)}")
-    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
-        raise ValueError("point sets contain NaN or inf")
-    mx, my = x.mean(0), y.mean(0)
-    xc, yc = x - mx, y - my
-    var_x = (xc ** 2).sum() / len(x)
-    H = yc.T @ xc / len(x)
-    sv = np.linalg.svd(xc, compute_uv=False)
-    if var_x <= 0 or sv[1] <= 1e-9 * max(sv[0], 1e-300):
-        raise ValueError("points are (nearly) collinear or coincident: the rotation is undetermined "
-                         "(give camera orientations too, or a path that turns)")
-    R = _rotation_from_covariance(H)
-    s = float(np.trace(R.T @ H) / var_x) if with_scale else 1.0
-    t = my - s * R @ mx
-    return _finish_fit(s, R, t, x, y)
-
-
-def _finish_fit(s, R, t, x, y, rotation_rms_deg=None) -> SimilarityFit:
-    err = np.linalg.norm(s * x @ R.T + t - y, axis=1)
-    return SimilarityFit(scale=float(s), rotation=R, translation=t, rms=float(np.sqrt(np.mean(err ** 2))),
-                         max_error=float(err.max()), rotation_rms_deg=rotation_rms_deg)
-
-
-def fit_similarity_to_cameras(src_world_to_camera, dst_world_to_camera) -> SimilarityFit:
-    """Similarity taking the world of one camera path onto another's, using orientations as well as centres.
-
-    Centres alone cannot fix the roll about a straight drive, so the rotation maximises the agreement of the
-    camera orientations (Σ R_dst_i R_src_i^T, a chordal rotation average) plus the normalised centre covariance; the scale and
-    translation then follow from the centres with that rotation. The camera frames must be the same rigid frames
-    (for example OpenCV in both). The residual is over centres (dst units) and orientations (degrees).
-    """
-    A = as_matrix4(src_world_to_camera, "src world_to_camera")
-    B = as_matrix4(dst_world_to_camera, "dst world_to_camera")
-    if A.shape != B.shape or A.ndim != 3:
-        raise ValueError(f"camera paths must both be (N, 4, 4), got {A.shape} and {B.shape}")
-    if len(A) < 1:
-        raise ValueError("need at least one camera")
-    x, y = camera_centers(A), camera_centers(B)
-    # camera-to-world rotations: dst_c2w ≈ R · src_c2w  =>  H_rot = Σ dst_c2w src_c2w^T
-    Ra = np.swapaxes(A[:, :3, :3], 1, 2)
-    Rb = np.swapaxes(B[:, :3, :3], 1, 2)
-    H = np.einsum("nij,nkj->ik", Rb, Ra) / len(A)
-    mx, my = x.mean(0), y.mean(0)
-    xc, yc = x - mx, y - my
-    sx, sy = np.sqrt((xc ** 2).sum(1).mean()), np.sqrt((yc ** 2).sum(1).mean())
-    if sx > 0 and sy > 0:
-        H = H + (yc.T @ xc / len(x)) / (sx * sy)
-    R = _rotation_from_covariance(H)
-    if sx > 0:
-        s = float(np.einsum("ni,ij,nj->", yc, R, xc) / (xc ** 2).sum())
-    else:
-        raise ValueError("all source cameras share one centre: the scale is undetermined")
-    if s <= 0:
-        raise ValueError("the two camera paths run in opposite directions (negative scale)")
-    t = my - s * R @ mx
-    rel = np.einsum("nji,jk,nkl->nil", Rb, R, Ra)  # Rb^T R Ra, identity for a perfect fit
-    ang = np.degrees(np.arccos(np.clip((np.trace(rel, axis1=1, axis2=2) - 1) / 2, -1, 1)))
-    return _finish_fit(s, R, t, x, y, rotation_rms_deg=float(np.sqrt(np.mean(ang ** 2))))
-
-
-def transform_world_to_camera(world_to_camera, world_from_old) -> np.ndarray:
-    """Re-express cameras of an old world in a new one, given ``world_from_old`` (a similarity, 4x4).
-
-    With x_new = s R x_old + t, metric camera coordinates are s · (old camera coordinates), so the rigid
-    world_to_camera in the new world is [R_c R^T | s t_c - R_c R^T t]. Works on (..., 4, 4).
-    """
-    T = as_matrix4(world_to_camera, "world_to_camera")
-    s, R, t = decompose_similarity(world_from_old)
-    Rc = T[..., :3, :3] @ R.T
-    out = np.zeros_like(T)
-    out[..., :3, :3] = Rc
-    out[..., :3, 3] = s * T[..., :3, 3] - np.einsum("...ij,j->...i", Rc, t)
-    out[..., 3, 3] = 1.0
-    return out

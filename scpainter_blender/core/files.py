@@ -35,7 +35,15 @@ import numpy as np
 class InputError(ValueError):
     """Bad input: ``path`` (the file), ``field`` (the key, property or header line; ``"(file)"`` for the file as
     a whole), ``message`` (what is wrong), ``hint`` (what to do, optional). ``str()`` is
-    ``"<file name>: <field>: <message>"``."""
+    ``"<file name>: <field>: <message>"``.
+
+    The one error type for bad input: ``python -m backend`` exits 2 for it (and only for it), the Blender command
+    and the operators catch it by name. A plain ``ValueError`` is a bug of ours, never a user's mistake. Input
+    that is not a file names its source in parentheses as ``path``: ``COMMAND_LINE`` with the option as field
+    (``ArgumentError``), ``"(environment)"`` with the variable, ``"(add-on preferences)"`` with the preference;
+    a scene setting names the .blend (``"(unsaved .blend)"``) and the datablock or property.
+
+    It derives from ``ValueError`` only so that callers written before it still catch it; catch it by name."""
 
     def __init__(self, path, field, message, hint=None):
         self.path, self.field, self.message, self.hint = str(path), field or "(file)", message, hint
@@ -52,6 +60,18 @@ def _rebuild_error(cls, args, state):
     e.args = args
     e.__dict__.update(state)
     return e
+
+
+#: The ``path`` of an InputError about a command-line argument.
+COMMAND_LINE = "(command line)"
+
+
+class ArgumentError(InputError):
+    """A bad command-line argument (``--device cuda`` without a GPU, no job given): ``path`` is ``COMMAND_LINE``,
+    ``field`` the option (``--device``) or a positional argument's name (``jobs``)."""
+
+    def __init__(self, field, message, hint=None):
+        super().__init__(COMMAND_LINE, field, message, hint)
 
 
 # ---------------------------------------------------------------------------------------------- regular files
@@ -244,7 +264,7 @@ def read_json(path, error=InputError, max_bytes: int = MAX_JSON_BYTES, max_depth
         return call
 
     hooks = {"parse_constant": hook(_parse_constant)}
-    if re.search(r"[eE][+-]?\d{3}|\d{%d}" % min(309, MAX_INT_DIGITS + 1), text):  # one pass over the text
+    if _EXPONENT.search(text) or _longest_digit_run(data) >= min(309, MAX_INT_DIGITS + 1):
         hooks["parse_int"], hooks["parse_float"] = hook(_parse_int), hook(_parse_float)
     try:
         value = json.loads(text, **hooks)
@@ -269,19 +289,35 @@ _STRING = re.compile(r'"[^"\\]*(?:\\.[^"\\]*)*"')
 
 
 def _nesting(text: str, chunk: int = 1 << 24) -> int:
-    """The deepest bracket nesting of (valid) JSON ``text``, strings ignored: numpy over the bytes, in chunks."""
+    """The deepest bracket nesting of (valid) JSON ``text``, strings ignored: numpy over the bytes, in chunks; the
+    running level is summed over the brackets only (a 10 MB file is mostly numbers or whitespace)."""
     data = np.frombuffer(_STRING.sub('""', text).encode("ascii", "ignore"), np.uint8)
     deepest, level = 0, 0
     for start in range(0, len(data), chunk):
         b = data[start:start + chunk]
-        step = (b == ord("[")).astype(np.int32) + (b == ord("{")) - (b == ord("]")) - (b == ord("}"))
-        if len(step):
-            levels = np.cumsum(step) + level
+        opens = (b == ord("[")) | (b == ord("{"))
+        brackets = np.flatnonzero(opens | (b == ord("]")) | (b == ord("}")))
+        if len(brackets):
+            levels = np.cumsum(np.where(opens[brackets], 1, -1)) + level
             deepest, level = max(deepest, int(levels.max())), int(levels[-1])
     return deepest
 
 
 _SURROGATE_ESCAPE = re.compile(r"\\u[dD][89a-fA-F]")
+#: An exponent of three digits or more (beyond float64 from 1e309 on).
+_EXPONENT = re.compile(r"[eE][+-]?\d{3}")
+
+
+def _longest_digit_run(data: bytes) -> int:
+    """The longest run of ASCII digits in ``data`` (UTF-8: other characters' bytes are never digits), by numpy:
+    a regex for a long run of digits costs seconds on a 10 MB file."""
+    d = np.frombuffer(data, np.uint8)
+    digit = (d >= ord("0")) & (d <= ord("9"))
+    if not digit.any():
+        return 0
+    bounds = np.concatenate(([0], np.flatnonzero(digit[1:] != digit[:-1]) + 1, [len(d)]))
+    runs = np.diff(bounds)  # lengths of the alternating runs of digits and other bytes, from the first byte on
+    return int(runs[0 if digit[0] else 1::2].max())
 
 
 # ------------------------------------------------------------------------------------------------------- npz

@@ -1,25 +1,34 @@
-"""The job contract (DESIGN §4.2): ``job.json``, schema ``scpainter.job/1``, validated on load and before saving.
+"""The job contract: ``job.json`` (schema ``scpainter.job/2``), as typed dataclasses built in one place.
 
 One JSON file describes a render/generation: output resolution, per-frame cameras (our K, OpenCV
 world_to_camera, the VGGT frames whose points project into it), the scene reconstruction with its
-``world_from_vggt`` and removal boxes, Gaussian assets with a per-frame object_to_world (PLY file coordinates to
+``vggt_to_world`` and removal boxes, Gaussian assets with a per-frame object_to_world (PLY file coordinates to
 world metres), the output folder and generation settings. Paths are relative to the job file. ``scene`` and
-``assets`` may be absent. Every error names the file and the field (``frames[3].K``), never a numpy traceback.
+``assets`` may be absent. ``Job.from_dict`` validates every field, and each error names the file and the field
+(``frames[3].K``), never a numpy traceback; ``Job.to_dict`` is the file's content. The Blender export, the
+evaluation protocol, the training pairs and the backend commands build and read jobs only through these classes
+(see docs/design.md, "The job contract").
+
+Schema versions: ``scpainter.job/2`` names every transform ``a_to_b`` (``scene.vggt_to_world``). Files of
+``scpainter.job/1`` (``scene.world_from_vggt``) are still read; ``save`` always writes the current version.
 
 No bpy, no torch: numpy for the matrix checks only.
 """
 
 from __future__ import annotations
 
-import math
 import os
+from dataclasses import dataclass, field, fields, replace
+from functools import partial
 
 import numpy as np
 
-from . import cameras, files
+from . import fields as fields_mod
+from . import files, similarity
 
-SCHEMA = "scpainter.job/1"
-
+SCHEMA = "scpainter.job/2"
+#: Older schemas still read, each with its fields renamed since: {schema: {old field: current field}} (scene level)
+OLD_SCHEMAS = {"scpainter.job/1": {"world_from_vggt": "vggt_to_world"}}
 #: Bounds that keep a job inside what the renderer and the model can do (validated, with the field named).
 MAX_SIDE = 16384                   # pixels, each of width and height
 MAX_PIXELS = 8192 * 8192           # width x height
@@ -40,178 +49,325 @@ class JobError(files.InputError):
     """A job that cannot be run: ``str()`` is ``"<job file>: <field>: <what is wrong>"``."""
 
 
-def _matrix(value, path, field, shape):
-    try:
-        m = np.array(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise JobError(path, field, f"expected a {shape[0]}x{shape[1]} matrix of numbers") from None
-    if m.shape != shape:
-        raise JobError(path, field, f"expected a {shape[0]}x{shape[1]} matrix, got shape {m.shape}")
-    if not np.all(np.isfinite(m)):
-        raise JobError(path, field, "contains NaN or infinity")
-    return m
+# The field validators are core.fields' (shared with the training clip reader), raising JobError here.
+_matrix = partial(fields_mod.matrix, error=JobError)
+_rigid = partial(fields_mod.rigid, error=JobError)
+_affine = partial(fields_mod.affine, error=JobError)
+_int = partial(fields_mod.integer, error=JobError)
+_number = partial(fields_mod.number, error=JobError)
+_str = partial(fields_mod.string, error=JobError)
+_short = fields_mod.short
 
 
-def _rigid(value, path, field):
-    m = _matrix(value, path, field, (4, 4))
-    R = m[:3, :3]
-    if np.abs(R.T @ R - np.eye(3)).max() > 1e-4 or np.linalg.det(R) < 0 or np.any(m[3] != [0, 0, 0, 1]):
-        raise JobError(path, field, "is not a rotation + translation (no scale, shear or reflection)")
-    return m
-
-
-def _affine(value, path, field):
-    m = _matrix(value, path, field, (4, 4))
-    if np.any(m[3] != [0, 0, 0, 1]) or abs(np.linalg.det(m[:3, :3])) < 1e-12:
-        raise JobError(path, field, "is not an invertible affine transform (last row [0, 0, 0, 1])")
-    return m
-
-
-def _int(value, path, field, lo=None, hi=None):
-    if isinstance(value, bool) or not isinstance(value, int) or (lo is not None and value < lo) or \
-            (hi is not None and value > hi):
-        want = "" if lo is None and hi is None else f" >= {lo}" if hi is None else f" in [{lo}, {hi}]"
-        raise JobError(path, field, f"expected an integer{want}, got {_short(value)}")
+def _object(value, path, where) -> dict:
+    if not isinstance(value, dict):
+        raise JobError(path, where, "expected an object")
     return value
 
 
-def _short(value) -> str:
-    text = repr(value)
-    return text if len(text) <= 60 else text[:57] + "..."
-
-
-def _number(value, path, field, lo=None, hi=None):
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or \
-            (lo is not None and value < lo) or (hi is not None and value > hi):
-        raise JobError(path, field, f"expected a number in [{lo}, {hi}], got {_short(value)}")
-    return float(value)
-
-
-def _str(value, path, field):
-    if not isinstance(value, str) or not value:
-        raise JobError(path, field, f"expected a non-empty string, got {_short(value)}")
-    if len(value) > 4096 or "\0" in value:
-        raise JobError(path, field, "is not a usable path or name (longer than 4096 characters or a NUL byte)")
+def _list(value, path, where, what="a list") -> list:
+    if not isinstance(value, list):
+        raise JobError(path, where, f"expected {what}")
     return value
 
 
-def validate(job, path="job.json") -> dict:
-    """Check every field of a job dict; returns it unchanged, raises JobError naming the field otherwise."""
-    if not isinstance(job, dict):
-        raise JobError(path, "(top level)", "expected a JSON object")
-    if job.get("schema") != SCHEMA:
-        raise JobError(path, "schema", f"expected {SCHEMA!r}, got {job.get('schema')!r}")
-    res = job.get("resolution")
-    if not isinstance(res, list) or len(res) != 2:
-        raise JobError(path, "resolution", f"expected [width, height], got {_short(res)}")
-    for i, v in enumerate(res):
-        _int(v, path, f"resolution[{i}]", lo=1, hi=MAX_SIDE)
-    if res[0] * res[1] > MAX_PIXELS:
-        raise JobError(path, "resolution", f"{res[0]} x {res[1]} is more than {MAX_PIXELS:,} pixels")
-    frames = job.get("frames")
-    if not isinstance(frames, list) or not frames:
-        raise JobError(path, "frames", "expected a non-empty list")
-    if len(frames) > MAX_FRAMES:
-        raise JobError(path, "frames", f"{len(frames):,} frames: at most {MAX_FRAMES:,} in one job (split it)")
-    seen = set()
-    for i, fr in enumerate(frames):
-        where = f"frames[{i}]"
-        if not isinstance(fr, dict):
-            raise JobError(path, where, "expected an object")
-        f = _int(fr.get("frame"), path, f"{where}.frame", *FRAME_RANGE)
-        if f in seen:
-            raise JobError(path, f"{where}.frame", f"frame {f} appears twice")
-        seen.add(f)
-        K = _matrix(fr.get("K"), path, f"{where}.K", (3, 3))
+def _matrix_list(m: np.ndarray) -> list:
+    return np.asarray(m, np.float64).tolist()
+
+
+@dataclass(eq=False)
+class Frame:
+    """One output frame: ``K`` (3, 3) our intrinsics in pixels (pixel centres at +0.5), ``world_to_camera``
+    (4, 4) rigid, OpenCV axes (x right, y down, z forward), metres; ``source_frames``: the VGGT frames whose
+    points project into it (empty: no points)."""
+    frame: int
+    K: np.ndarray
+    world_to_camera: np.ndarray
+    source_frames: list = field(default_factory=list)
+
+    @classmethod
+    def from_dict(cls, d, path, where) -> "Frame":
+        _object(d, path, where)
+        f = _int(d.get("frame"), path, f"{where}.frame", *FRAME_RANGE)
+        K = _matrix(d.get("K"), path, f"{where}.K", (3, 3))
         if K[0, 0] <= 0 or K[1, 1] <= 0 or np.any(K[2] != [0, 0, 1]) or K[1, 0] != 0 or np.abs(K).max() > 1e8:
             raise JobError(path, f"{where}.K", "expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0 "
                                                "(pixels, at most 1e8)")
-        _rigid(fr.get("world_to_camera"), path, f"{where}.world_to_camera")
-        src = fr.get("source_frames", [])
-        if not isinstance(src, list):
-            raise JobError(path, f"{where}.source_frames", "expected a list of frame indices")
-        for j, s in enumerate(src):
-            _int(s, path, f"{where}.source_frames[{j}]", lo=0, hi=MAX_SOURCE_FRAME)
-    if "scene" in job:
-        sc = job["scene"]
-        if not isinstance(sc, dict):
-            raise JobError(path, "scene", "expected an object")
-        _str(sc.get("predictions"), path, "scene.predictions")
-        W = _matrix(sc.get("world_from_vggt"), path, "scene.world_from_vggt", (4, 4))
+        w2c = _rigid(d.get("world_to_camera"), path, f"{where}.world_to_camera")
+        src = _list(d.get("source_frames", []), path, f"{where}.source_frames", "a list of frame indices")
+        src = [_int(s, path, f"{where}.source_frames[{j}]", lo=0, hi=MAX_SOURCE_FRAME) for j, s in enumerate(src)]
+        return cls(f, K, w2c, src)
+
+    def to_dict(self) -> dict:
+        d = {"frame": int(self.frame), "K": _matrix_list(self.K), "world_to_camera": _matrix_list(self.world_to_camera)}
+        if self.source_frames:
+            d["source_frames"] = [int(s) for s in self.source_frames]
+        return d
+
+
+@dataclass(eq=False)
+class RemovalBox:
+    """Points inside this box are removed: ``box_to_world`` (4, 4) rigid, ``size`` (3,) full extents in metres
+    along the box's x, y (length), z."""
+    box_to_world: np.ndarray
+    size: np.ndarray
+
+    @classmethod
+    def from_dict(cls, d, path, where) -> "RemovalBox":
+        _object(d, path, where)
+        T = _rigid(d.get("box_to_world"), path, f"{where}.box_to_world")
+        size = d.get("size")
+        if not isinstance(size, list) or len(size) != 3:
+            raise JobError(path, f"{where}.size", f"expected [x, y, z] in metres, got {_short(size)}")
+        return cls(T, np.array([_number(v, path, f"{where}.size[{j}]", lo=0.0, hi=1e7) for j, v in enumerate(size)]))
+
+    def to_dict(self) -> dict:
+        return {"box_to_world": _matrix_list(self.box_to_world), "size": [float(v) for v in self.size]}
+
+
+@dataclass(eq=False)
+class Scene:
+    """The reconstruction: ``predictions`` (path, relative to the job file) read with ``extrinsic_convention``
+    and ``crop`` as the import read it, points kept above ``confidence_percentile``, moved to world metres by
+    ``vggt_to_world`` (4, 4 similarity), minus the points inside ``removal_boxes``."""
+    predictions: str
+    vggt_to_world: np.ndarray
+    confidence_percentile: float = 50.0
+    extrinsic_convention: str = "world_to_camera"
+    crop: list = field(default_factory=lambda: [0, 0, 0, 0])
+    removal_boxes: list = field(default_factory=list)
+
+    @classmethod
+    def from_dict(cls, d, path, where="scene", renamed: dict | None = None) -> "Scene":
+        d = dict(_object(d, path, where))
+        for old, new in (renamed or {}).items():  # an older schema's names
+            if old in d:
+                d[new] = d.pop(old)
+        old_name = {v: k for k, v in (renamed or {}).items()}
+        predictions = _str(d.get("predictions"), path, f"{where}.predictions")
+        w_field = f"{where}.{old_name.get('vggt_to_world', 'vggt_to_world')}"
+        W = _matrix(d.get("vggt_to_world"), path, w_field, (4, 4))
         try:  # the loader's own rule (point_cloud decomposes it), so what validates also runs
-            cameras.decompose_similarity(W)
+            similarity.decompose_similarity(W)
         except ValueError as e:
-            raise JobError(path, "scene.world_from_vggt", f"is not a similarity: {e}") from None
-        _number(sc.get("confidence_percentile", 50.0), path, "scene.confidence_percentile", 0.0, 100.0)
-        if sc.get("extrinsic_convention", "world_to_camera") not in EXTRINSIC_CONVENTIONS:
-            raise JobError(path, "scene.extrinsic_convention", f"expected one of {list(EXTRINSIC_CONVENTIONS)}, "
-                                                               f"got {sc['extrinsic_convention']!r}")
-        crop = sc.get("crop", [0, 0, 0, 0])
+            raise JobError(path, w_field, f"is not a similarity: {e}") from None
+        pct = _number(d.get("confidence_percentile", 50.0), path, f"{where}.confidence_percentile", 0.0, 100.0)
+        conv = d.get("extrinsic_convention", "world_to_camera")
+        if conv not in EXTRINSIC_CONVENTIONS:
+            raise JobError(path, f"{where}.extrinsic_convention",
+                           f"expected one of {list(EXTRINSIC_CONVENTIONS)}, got {_short(conv)}")
+        crop = d.get("crop", [0, 0, 0, 0])
         if not isinstance(crop, list) or len(crop) != 4:
-            raise JobError(path, "scene.crop", f"expected [left, top, right, bottom] in pixels, got {_short(crop)}")
-        for i, v in enumerate(crop):
-            _int(v, path, f"scene.crop[{i}]", lo=0)
-        boxes = sc.get("removal_boxes", [])
-        if not isinstance(boxes, list):
-            raise JobError(path, "scene.removal_boxes", "expected a list")
-        for i, b in enumerate(boxes):
-            where = f"scene.removal_boxes[{i}]"
-            if not isinstance(b, dict):
-                raise JobError(path, where, "expected an object")
-            _rigid(b.get("box_to_world"), path, f"{where}.box_to_world")
-            size = b.get("size")
-            if not isinstance(size, list) or len(size) != 3:
-                raise JobError(path, f"{where}.size", f"expected [x, y, z] in metres, got {_short(size)}")
-            for j, v in enumerate(size):
-                _number(v, path, f"{where}.size[{j}]", lo=0.0, hi=1e7)
-    if "assets" in job:
-        assets = job["assets"]
-        if not isinstance(assets, list):
-            raise JobError(path, "assets", "expected a list")
-        names = set()
-        for i, a in enumerate(assets):
-            where = f"assets[{i}]"
-            if not isinstance(a, dict):
-                raise JobError(path, where, "expected an object")
-            name = _str(a.get("name"), path, f"{where}.name")
-            if name in names:
-                raise JobError(path, f"{where}.name", f"{name!r} appears twice")
-            names.add(name)
-            _str(a.get("ply"), path, f"{where}.ply")
-            o2w = a.get("object_to_world")
-            if not isinstance(o2w, dict):
-                raise JobError(path, f"{where}.object_to_world", "expected an object of frame -> 4x4 matrix")
-            missing = [f for f in sorted(seen) if str(f) not in o2w]
-            if missing:
-                raise JobError(path, f"{where}.object_to_world", f"no transform for frames {missing[:5]}")
-            for k, m in o2w.items():
-                _affine(m, path, f"{where}.object_to_world[{k!r}]")
-    _str(job.get("output_dir"), path, "output_dir")
-    gen = job.get("generate")
-    if gen is not None:
-        if not isinstance(gen, dict):
-            raise JobError(path, "generate", "expected an object")
-        if "checkpoint" in gen:
-            _str(gen["checkpoint"], path, "generate.checkpoint")
-        check_generate_settings(gen, path)
-    return job
+            raise JobError(path, f"{where}.crop", f"expected [left, top, right, bottom] in pixels, got {_short(crop)}")
+        crop = [_int(v, path, f"{where}.crop[{i}]", lo=0) for i, v in enumerate(crop)]
+        boxes = _list(d.get("removal_boxes", []), path, f"{where}.removal_boxes")
+        boxes = [RemovalBox.from_dict(b, path, f"{where}.removal_boxes[{i}]") for i, b in enumerate(boxes)]
+        return cls(predictions, W, pct, conv, crop, boxes)
+
+    def to_dict(self) -> dict:
+        d = {"predictions": self.predictions, "vggt_to_world": _matrix_list(self.vggt_to_world),
+             "confidence_percentile": float(self.confidence_percentile),
+             "extrinsic_convention": self.extrinsic_convention, "crop": [int(v) for v in self.crop]}
+        if self.removal_boxes:
+            d["removal_boxes"] = [b.to_dict() for b in self.removal_boxes]
+        return d
+
+
+@dataclass(eq=False)
+class Asset:
+    """A Gaussian asset: ``ply`` (path, relative to the job file; any format ``core.splats.read`` accepts) and,
+    for every output frame, ``object_to_world`` (4, 4) affine from the file's coordinates to world metres."""
+    name: str
+    ply: str
+    object_to_world: dict  # {frame number (int): (4, 4) ndarray}
+
+    @classmethod
+    def from_dict(cls, d, path, where, frames) -> "Asset":
+        _object(d, path, where)
+        name = _str(d.get("name"), path, f"{where}.name")
+        ply = _str(d.get("ply"), path, f"{where}.ply")
+        o2w = d.get("object_to_world")
+        if not isinstance(o2w, dict):
+            raise JobError(path, f"{where}.object_to_world", "expected an object of frame -> 4x4 matrix")
+        missing = [f for f in sorted(frames) if str(f) not in o2w]
+        if missing:
+            raise JobError(path, f"{where}.object_to_world", f"no transform for frames {missing[:5]}")
+        out = {}
+        for k, m in o2w.items():
+            M = _affine(m, path, f"{where}.object_to_world[{k!r}]")
+            try:
+                out[int(k)] = M
+            except ValueError:
+                raise JobError(path, f"{where}.object_to_world[{k!r}]", "expected a frame number as the key") \
+                    from None
+        return cls(name, ply, out)
+
+    def to_dict(self) -> dict:
+        return {"name": self.name, "ply": self.ply,
+                "object_to_world": {str(f): _matrix_list(m) for f, m in self.object_to_world.items()}}
+
+
+#: The generation settings' defaults, the only place they are written. ``window``, ``min_guidance``,
+#: ``max_guidance`` and ``fps`` have none here: they default to the checkpoint's own (its ``scpainter.json``).
+GENERATE_DEFAULTS = {"steps": 25, "overlap": 4, "seed": 0, "decode_chunk": 8}
+CHECKPOINT_SETTINGS = ("window", "min_guidance", "max_guidance", "fps")
+
+
+@dataclass(eq=False)
+class GenerateSettings:
+    """The job's ``generate`` object: what the user chose; None = not chosen (``resolve`` fills it in)."""
+    checkpoint: str | None = None
+    steps: int | None = None
+    window: int | None = None
+    overlap: int | None = None
+    seed: int | None = None
+    min_guidance: float | None = None
+    max_guidance: float | None = None
+    fps: float | None = None
+    decode_chunk: int | None = None
+
+    @classmethod
+    def from_dict(cls, d, path, where="generate") -> "GenerateSettings":
+        _object(d, path, where)
+        if d.get("checkpoint") is not None:
+            _str(d["checkpoint"], path, f"{where}.checkpoint")
+        check_generate_settings(d, path, where)
+        known = {f.name for f in fields(cls)}
+        values = {k: d[k] for k in known if d.get(k) is not None}
+        for k in GENERATE_NUMBER_BOUNDS:
+            if k in values:
+                values[k] = float(values[k])
+        return cls(**values)
+
+    def to_dict(self) -> dict:
+        return {f.name: getattr(self, f.name) for f in fields(self) if getattr(self, f.name) is not None}
+
+    def resolve(self, checkpoint_config, overrides: dict | None = None, path="job.json") -> dict:
+        """The complete settings of a run: the command line's ``overrides``, else this job's, else (window,
+        guidance, fps) the checkpoint's own ``checkpoint_config`` (a ``ScpainterConfig``), else
+        ``GENERATE_DEFAULTS``. Raises JobError when they do not fit together (overlap ≥ window, naming where the
+        window came from)."""
+        chosen = {**self.to_dict(), **{k: v for k, v in (overrides or {}).items() if v is not None}}
+        chosen.pop("checkpoint", None)
+        out = {}
+        for key in list(GENERATE_INT_BOUNDS) + list(GENERATE_NUMBER_BOUNDS):
+            value = chosen.get(key, GENERATE_DEFAULTS.get(key))
+            if value is None and key in CHECKPOINT_SETTINGS:
+                value = getattr(checkpoint_config, key)
+            out[key] = float(value) if key in GENERATE_NUMBER_BOUNDS else int(value)
+        out = {k: out[k] for k in ("steps", "window", "overlap", "seed", "min_guidance", "max_guidance", "fps",
+                                   "decode_chunk")}
+        try:
+            check_generate_settings(out, path)
+        except JobError as e:
+            if e.field == "generate.overlap" and "window" not in chosen:
+                raise JobError(path, e.field, f"{out['overlap']} must be smaller than the checkpoint's window "
+                                              f"({out['window']}, from its scpainter.json)") from None
+            raise
+        return out
+
+
+@dataclass(eq=False)
+class Job:
+    """A whole job. ``resolution`` (width, height) pixels; ``frames`` in output order; ``output_dir`` relative to
+    the job file; ``scene`` None = no points; ``assets`` empty = no Gaussian pass; ``generate`` None = the
+    defaults and the checkpoint given on the command line."""
+    resolution: tuple
+    frames: list
+    output_dir: str
+    scene: Scene | None = None
+    assets: list = field(default_factory=list)
+    generate: GenerateSettings | None = None
+
+    @property
+    def width(self) -> int:
+        return int(self.resolution[0])
+
+    @property
+    def height(self) -> int:
+        return int(self.resolution[1])
+
+    @classmethod
+    def from_dict(cls, job, path="job.json") -> "Job":
+        """Validate every field of a job's JSON content (current or older schema); JobError names the field."""
+        path = os.fspath(path)
+        if not isinstance(job, dict):
+            raise JobError(path, "(top level)", "expected a JSON object")
+        schema = job.get("schema")
+        if schema != SCHEMA and schema not in OLD_SCHEMAS:
+            raise JobError(path, "schema", f"expected {SCHEMA!r}, got {_short(schema)}")
+        res = job.get("resolution")
+        if not isinstance(res, list) or len(res) != 2:
+            raise JobError(path, "resolution", f"expected [width, height], got {_short(res)}")
+        for i, v in enumerate(res):
+            _int(v, path, f"resolution[{i}]", lo=1, hi=MAX_SIDE)
+        if res[0] * res[1] > MAX_PIXELS:
+            raise JobError(path, "resolution", f"{res[0]} x {res[1]} is more than {MAX_PIXELS:,} pixels")
+        frames = job.get("frames")
+        if not isinstance(frames, list) or not frames:
+            raise JobError(path, "frames", "expected a non-empty list")
+        if len(frames) > MAX_FRAMES:
+            raise JobError(path, "frames", f"{len(frames):,} frames: at most {MAX_FRAMES:,} in one job (split it)")
+        out_frames, seen = [], set()
+        for i, fr in enumerate(frames):
+            f = Frame.from_dict(fr, path, f"frames[{i}]")
+            if f.frame in seen:
+                raise JobError(path, f"frames[{i}].frame", f"frame {f.frame} appears twice")
+            seen.add(f.frame)
+            out_frames.append(f)
+        scene = None
+        if "scene" in job:
+            scene = Scene.from_dict(job["scene"], path, renamed=OLD_SCHEMAS.get(schema))
+        assets, names = [], set()
+        for i, a in enumerate(_list(job.get("assets", []), path, "assets")):
+            asset = Asset.from_dict(a, path, f"assets[{i}]", seen)
+            if asset.name in names:
+                raise JobError(path, f"assets[{i}].name", f"{asset.name!r} appears twice")
+            names.add(asset.name)
+            assets.append(asset)
+        output_dir = _str(job.get("output_dir"), path, "output_dir")
+        gen = job.get("generate")
+        gen = None if gen is None else GenerateSettings.from_dict(gen, path)
+        return cls((int(res[0]), int(res[1])), out_frames, output_dir, scene, assets, gen)
+
+    def to_dict(self) -> dict:
+        """The job file's content, in the current schema."""
+        d = {"schema": SCHEMA, "resolution": [self.width, self.height], "frames": [f.to_dict() for f in self.frames]}
+        if self.scene is not None:
+            d["scene"] = self.scene.to_dict()
+        if self.assets:
+            d["assets"] = [a.to_dict() for a in self.assets]
+        d["output_dir"] = self.output_dir
+        if self.generate is not None:
+            d["generate"] = self.generate.to_dict()
+        return d
+
+    def replace(self, **changes) -> "Job":
+        return replace(self, **changes)
+
+
+def validate(job, path="job.json") -> Job:
+    """``Job.from_dict``: check every field of a job's JSON content; JobError names the field."""
+    return Job.from_dict(job, path)
 
 
 def check_generate_settings(gen: dict, path="job.json", where: str = "generate") -> dict:
-    """Bounds of the ``generate`` settings present in ``gen`` (job fields or command-line overrides, ``where``
-    names them); ``overlap < window`` and ``min_guidance <= max_guidance`` when both are given. Returns ``gen``."""
+    """Bounds of the ``generate`` settings present in ``gen``: job fields (named ``<where>.<key>``) or, with
+    ``where="--"``, command-line overrides (named ``--<key>``); ``overlap < window`` and ``min_guidance <=
+    max_guidance`` when both are given. Returns ``gen``; JobError names the field."""
+    name = (lambda k: f"--{k.replace('_', '-')}") if where == "--" else (lambda k: f"{where}.{k}")
     for key, (lo, hi) in GENERATE_INT_BOUNDS.items():
         if gen.get(key) is not None:
-            _int(gen[key], path, f"{where}.{key}", lo, hi)
+            _int(gen[key], path, name(key), lo, hi)
     for key, (lo, hi) in GENERATE_NUMBER_BOUNDS.items():
         if gen.get(key) is not None:
-            _number(gen[key], path, f"{where}.{key}", lo, hi)
+            _number(gen[key], path, name(key), lo, hi)
     if gen.get("overlap") is not None and gen.get("window") is not None and gen["overlap"] >= gen["window"]:
-        raise JobError(path, f"{where}.overlap", f"{gen['overlap']} must be smaller than {where}.window "
-                                                  f"({gen['window']})")
+        raise JobError(path, name("overlap"), f"{gen['overlap']} must be smaller than {name('window')} "
+                                              f"({gen['window']})")
     if gen.get("min_guidance") is not None and gen.get("max_guidance") is not None and \
             gen["min_guidance"] > gen["max_guidance"]:
-        raise JobError(path, f"{where}.min_guidance", "must not exceed max_guidance")
+        raise JobError(path, name("min_guidance"), f"must not exceed {name('max_guidance')}")
     return gen
 
 
@@ -221,103 +377,23 @@ def read_json(path, error=JobError):
     return files.read_json(path, error)
 
 
-def load(path) -> dict:
+def load(path) -> Job:
     """Read and validate a job file (structure and bounds; ``check_inputs`` checks what it points at)."""
     path = os.fspath(path)
-    return validate(read_json(path), path)
+    return Job.from_dict(read_json(path), path)
 
 
-def save(path, job: dict) -> None:
-    """Validate, then write atomically (a unique temporary file, renamed)."""
+def save(path, job) -> Job:
+    """Validate, then write a job atomically (a unique temporary file, renamed), in the current schema. ``job``: a
+    ``Job``, or a job's JSON content. Returns the validated Job; JobError names the field."""
     path = os.fspath(path)
-    validate(job, path)
+    content = job.to_dict() if isinstance(job, Job) else job
+    job = Job.from_dict(content, path)  # a Job built in code is validated too: nothing invalid is ever written
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-    files.write_json(path, job)
-
-
-def job_paths(job_path, job: dict, allow_outside: bool = False, checkpoint: bool = False) -> dict:
-    """``{field: absolute path}`` of every path the job names (``output_dir``, ``scene.predictions``,
-    ``assets[i].ply``, and ``generate.checkpoint`` with ``checkpoint``), relative ones taken from the job's folder.
-
-    Unless ``allow_outside``, each must resolve inside the job's folder (no ``..``, no absolute path elsewhere, no
-    symbolic link out): a job received from someone else reads and writes only its own folder. The user allows
-    more with ``--allow-outside``; the add-on does, for the output folder the user chose. JobError names the
-    field otherwise."""
-    job_path = os.fspath(job_path)
-    base = os.path.dirname(os.path.abspath(job_path))
-
-    def confine(field, value):
-        return files.confined(base, value, lambda f, m: JobError(job_path, f, m), field, allow_outside)
-
-    out = {"output_dir": confine("output_dir", job["output_dir"])}
-    if "scene" in job:
-        out["scene.predictions"] = confine("scene.predictions", job["scene"]["predictions"])
-    for i, a in enumerate(job.get("assets", [])):
-        out[f"assets[{i}].ply"] = confine(f"assets[{i}].ply", a["ply"])
-    if checkpoint and (job.get("generate") or {}).get("checkpoint"):
-        out["generate.checkpoint"] = confine("generate.checkpoint", job["generate"]["checkpoint"])
-    return out
-
-
-def check_inputs(job_path, job: dict, allow_outside: bool = False) -> dict:
-    """Everything about a validated job that can be checked before any work, from file headers: the paths
-    (``job_paths``), that the predictions file is a readable ``.npz`` whose frames include every
-    ``source_frames`` entry, and that each asset is a readable Gaussian file. Returns the paths plus
-    ``num_source_frames``; raises an InputError (JobError, PredictionsError, SplatsError) naming file and field."""
-    from . import splats, vggt
-
-    paths = job_paths(job_path, job, allow_outside)
-    if "scene" in job:
-        pred = paths["scene.predictions"]
-        shapes = files.npz_shapes(pred, ["extrinsic"], error=lambda p, k, m: vggt.PredictionsError(p, k, m))
-        if "extrinsic" not in shapes:
-            raise vggt.PredictionsError(pred, "extrinsic", "missing: the file has no camera poses")
-        shape = shapes["extrinsic"]  # (S, 3, 4), a batch axis (1, S, 3, 4), or one squeezed frame (3, 4)
-        S = shape[1] if len(shape) == 4 and shape[0] == 1 else 1 if len(shape) == 2 else shape[0]
-        if S < 1:
-            raise vggt.PredictionsError(pred, "extrinsic", f"holds no frames (shape {shape})")
-        paths["num_source_frames"] = S
-        for i, fr in enumerate(job["frames"]):
-            bad = [s for s in fr.get("source_frames", []) if s >= S]
-            if bad:
-                raise JobError(job_path, f"frames[{i}].source_frames", f"frame(s) {bad[:5]} do not exist: "
-                                                                       f"{os.path.basename(pred)} has {S} frames")
-    for i, a in enumerate(job.get("assets", [])):
-        splats.read(paths[f"assets[{i}].ply"])
-    return paths
+    files.write_json(path, job.to_dict())
+    return job
 
 
 def resolve(job_path, relative: str) -> str:
     """A path of the job, absolute (paths in a job are relative to the job file's folder)."""
     return os.path.normpath(os.path.join(os.path.dirname(os.path.abspath(job_path)), relative))
-
-
-def read_list(path) -> list:
-    """Paths from a text file, one per line (blank lines and ``#`` comments skipped), relative ones taken from the
-    file's folder: the ``--list`` of the batch commands."""
-    path = os.fspath(path)
-    base = os.path.dirname(os.path.abspath(path))
-    with files.open_regular(path) as f:
-        data = f.read(files.MAX_JSON_BYTES + 1)
-    if len(data) > files.MAX_JSON_BYTES:
-        raise files.InputError(path, "(file)", "is too large for a list of job paths")
-    try:
-        lines = [line.strip() for line in data.decode("utf-8-sig").splitlines()]
-    except UnicodeDecodeError as e:
-        raise files.InputError(path, "(file)", f"is not UTF-8 text (byte {e.start})") from None
-    return [p if os.path.isabs(p) else os.path.join(base, p) for p in lines if p and not p.startswith("#")]
-
-
-def shard(items: list, rank: int, world: int) -> list:
-    """The items of one rank of a batch: every ``world``-th, starting at ``rank`` (deterministic, order kept)."""
-    if not 0 <= rank < world:
-        raise ValueError(f"rank {rank} is not in [0, {world})")
-    return items[rank::world]
-
-
-def ranks_from_env() -> tuple[int, int, int]:
-    """(rank, world size, local rank) from torchrun/accelerate's environment; (0, 1, 0) without it."""
-    def get(name, default):
-        value = os.environ.get(name, "")
-        return int(value) if value.strip() else default
-    return get("RANK", 0), get("WORLD_SIZE", 1), get("LOCAL_RANK", 0)

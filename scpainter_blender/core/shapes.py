@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import cameras, splats
+from .similarity import decompose_similarity  # a bare name: transform_gaussians has a parameter "similarity"
 
 _BOX_SIGNS = np.array([[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1],
                        [-1, -1, 1], [1, -1, 1], [1, 1, 1], [-1, 1, 1]], float)
@@ -149,7 +150,7 @@ def transform_gaussians(g: splats.Gaussians, similarity) -> splats.Gaussians:
 
     Higher SH degrees would need rotating too; this keeps them as they are, so use it for degree 0 or identity R.
     """
-    s, R, t = cameras.decompose_similarity(similarity)
+    s, R, t = decompose_similarity(similarity)
     q = cameras.rotation_to_quaternion(R @ cameras.quaternion_to_rotation(g.quats.astype(np.float64)))
     return splats.Gaussians(means=(s * g.means.astype(np.float64) @ R.T + t).astype(np.float32),
                             scales=(s * g.scales).astype(np.float32), quats=q.astype(np.float32),
@@ -164,8 +165,8 @@ def save_as_amodal3r(path, g: splats.Gaussians) -> np.ndarray:
     lo, hi = g.means.min(axis=0).astype(np.float64), g.means.max(axis=0).astype(np.float64)
     s = 0.98 / float(np.max(hi - lo))
     A = np.eye(4)
-    A[:3, :3] = s * splats.TRELLIS_FILE_FROM_ZUP
-    A[:3, 3] = -s * splats.TRELLIS_FILE_FROM_ZUP @ ((lo + hi) / 2)
+    A[:3, :3] = s * splats.ZUP_TO_TRELLIS_FILE
+    A[:3, 3] = -s * splats.ZUP_TO_TRELLIS_FILE @ ((lo + hi) / 2)
     out = transform_gaussians(splats.Gaussians(g.means, g.scales, g.quats, g.opacities, g.sh[:, :1]), A)
     zeros = np.zeros(len(out), np.float32)
     splats.write_ply(path, splats.encode(out, extra={"nx": zeros, "ny": zeros, "nz": zeros}))

@@ -54,7 +54,7 @@ opacity logit of byte / 255 clamped to [1e-6, 1 - 1e-6] (so 0 and 255 stay finit
 No SH beyond degree 0.
 
 TRELLIS / Amodal3R write the INRIA layout with SH degree 0 (17 properties, zero normals), the object inside the
-unit cube, and positions/rotations multiplied by ``TRELLIS_FILE_FROM_ZUP`` (the file holds (x, -z, y) of their
+unit cube, and positions/rotations multiplied by ``ZUP_TO_TRELLIS_FILE`` (the file holds (x, -z, y) of their
 Z-up frame); ``detect_axes`` recognises them. Everything else decodes exactly like an INRIA file.
 
 Raw values (``GaussianPly``) are kept apart from decoded ones (``Gaussians``) so that write -> read is bit-exact.
@@ -72,9 +72,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import files
+from . import sh as _sh
+from .sh import SH_C0, SH_C1, SH_C2, SH_C3  # noqa: F401 (defined once in core.sh; splats.SH_C0 etc. stay usable)
 
-#: File axes from TRELLIS's Z-up object axes: p_file = TRELLIS_FILE_FROM_ZUP @ p (a -90° turn about X undoes it).
-TRELLIS_FILE_FROM_ZUP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+#: File axes from TRELLIS's Z-up object axes: p_file = ZUP_TO_TRELLIS_FILE @ p (a -90° turn about X undoes it).
+ZUP_TO_TRELLIS_FILE = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 
 #: What TRELLIS's ``Gaussian.save_ply`` writes (microsoft/TRELLIS ``trellis/representations/gaussian/
 #: gaussian_model.py``, ``construct_list_of_attributes`` with SH degree 0), in this order, all float32.
@@ -122,13 +124,6 @@ _COMPRESSED_LOGIT_LIMIT = 40.0
 #: antimatter15 .splat: one 32-byte little-endian record per Gaussian.
 SPLAT_RECORD = np.dtype([("xyz", "<f4", (3,)), ("scale", "<f4", (3,)), ("rgba", "u1", (4,)), ("rot", "u1", (4,))])
 _SPLAT_ALPHA_EPS = 1e-6
-
-# Real spherical-harmonic basis constants as used by 3DGS renderers (degree 0-3).
-SH_C0 = 0.28209479177387814
-SH_C1 = 0.4886025119029199
-SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396)
-SH_C3 = (-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.3731763325901154, -0.4570457994644658,
-         1.445305721320277, -0.5900435899266435)
 
 
 class SplatsError(files.InputError):
@@ -812,22 +807,9 @@ def encode(g: Gaussians, extra: dict | None = None) -> GaussianPly:
 
 def sh_basis(dirs, degree: int) -> np.ndarray:
     """Real SH basis values (N, (degree+1)^2) at unit directions (N, 3), in the 3DGS ordering and signs."""
-    if not 0 <= degree <= 3:
-        raise ValueError(f"SH degree must be 0-3, got {degree}")
     d = np.asarray(dirs, np.float64)
-    x, y, z = d[:, 0], d[:, 1], d[:, 2]
-    out = [np.full(len(d), SH_C0)]
-    if degree >= 1:
-        out += [-SH_C1 * y, SH_C1 * z, -SH_C1 * x]
-    if degree >= 2:
-        xx, yy, zz = x * x, y * y, z * z
-        out += [SH_C2[0] * x * y, SH_C2[1] * y * z, SH_C2[2] * (2 * zz - xx - yy), SH_C2[3] * x * z,
-                SH_C2[4] * (xx - yy)]
-    if degree >= 3:
-        out += [SH_C3[0] * y * (3 * xx - yy), SH_C3[1] * x * y * z, SH_C3[2] * y * (4 * zz - xx - yy),
-                SH_C3[3] * z * (2 * zz - 3 * xx - 3 * yy), SH_C3[4] * x * (4 * zz - xx - yy),
-                SH_C3[5] * z * (xx - yy), SH_C3[6] * x * (xx - 3 * yy)]
-    return np.stack(out, axis=1)
+    terms = _sh.basis(d[:, 0], d[:, 1], d[:, 2], degree)  # core.sh: the one formula (the renderer's too)
+    return np.stack([np.broadcast_to(np.asarray(t, np.float64), (len(d),)) for t in terms], axis=1)
 
 
 def sh_to_rgb(sh, dirs, degree: int | None = None) -> np.ndarray:

@@ -10,7 +10,7 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
-from ..core import cameras
+from ..core import cameras, trajectory
 from . import compat
 
 
@@ -110,7 +110,7 @@ def create_camera_path(context, source, shift_m: float, name: str | None = None)
     scene = context.scene
     frames = np.arange(scene.frame_start, scene.frame_end + 1)
     w2c = world_to_camera_per_frame(scene, source, frames)
-    shifted = cameras.shift_trajectory(w2c, left_m=shift_m)
+    shifted = trajectory.shift_trajectory(w2c, left_m=shift_m)
     name = name or f"Camera path {shift_label(shift_m)}"
     obj = bpy.data.objects.new(name, source.data.copy())
     for coll in source.users_collection:

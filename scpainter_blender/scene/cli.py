@@ -13,7 +13,11 @@ any failed; ``--shard K/N`` (or torchrun's RANK/WORLD_SIZE) takes every N-th ite
 
 ``-c`` implies background mode; the import goes into the scene that is open (``blender -b scene.blend -c ...``
 imports into scene.blend). With the ``bpy`` module (no ``-c``), call ``execute(argv)`` directly. Output: a JSON
-summary on standard output; exit code 0 done, 2 bad input, 1 anything else (the backend's convention, DESIGN §4.4).
+summary on standard output; exit code 0 done, 2 bad input, 1 anything else (the backend's convention,
+docs/design.md "Backend"). Bad input is an ``InputError``, caught by name: a file, a scene setting, a command-line
+argument (file "(command line)", field the option), or the backend's own exit 2 for the scene's job; its error
+event has ``file`` and ``field``. Any other exception, a plain ValueError included, is a bug: exit 1, its traceback
+on standard error.
 """
 
 from __future__ import annotations
@@ -21,21 +25,27 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import shutil
 import sys
 import tempfile
+import traceback
 
 import bpy
 
 from .. import backend_client
+from ..core import batch as batch_mod
 from ..core import files
-from ..core import job as job_mod
 from . import importer, preferences, runs
 
 
 class _Parser(argparse.ArgumentParser):
-    def error(self, message):  # argparse would sys.exit() from inside Blender: raise, return 2 instead
-        raise ValueError(f"{self.prog}: {message}")
+    def error(self, message):  # argparse would sys.exit() from inside Blender: bad input, exit 2 instead
+        """An ``ArgumentError`` (file "(command line)") whose field is the argument argparse names."""
+        named = re.match(r"argument ([^:]+): (.*)", message, re.S)
+        required = re.match(r"the following arguments are required: (.*)", message, re.S)
+        field = named.group(1) if named else required.group(1) if required else "(arguments)"
+        raise files.ArgumentError(field, named.group(2) if named else message, hint=f"see {self.prog} --help")
 
 
 def _parser():
@@ -49,7 +59,6 @@ def _parser():
     scale.add_argument("--camera-height", type=float, help="camera height over the road, metres")
     i.add_argument("--confidence-percentile", type=float, default=50.0)
     i.add_argument("--point-source", choices=["depth", "world_points"], default="depth")
-    i.add_argument("--backend-python", default="", help="interpreter for the backend (camera-height mode)")
     i.add_argument("--extrinsic-convention", choices=["auto", "world_to_camera", "camera_to_world"], default="auto",
                    help="what the file's extrinsic holds; auto: VGGT's world-to-camera, checked against world_points")
     i.add_argument("--crop", default="auto", help="borders to leave out: auto (VGGT's white padding), none, or "
@@ -79,7 +88,6 @@ def _parser():
 
 def _import(args) -> dict:
     opts = importer.ImportOptions(confidence_percentile=args.confidence_percentile, point_source=args.point_source,
-                                  backend_python=args.backend_python,
                                   extrinsic_convention=args.extrinsic_convention, crop=args.crop)
     if args.trajectory:
         opts.scale_mode, opts.trajectory_path = "TRAJECTORY", args.trajectory
@@ -125,8 +133,7 @@ def _progress(ev) -> None:
 
 
 def _run_blend(blend: str, command: str, args, output: str | None = None) -> dict:
-    if not os.path.isfile(blend):
-        raise ValueError(f"{blend}: no such .blend file")
+    files.check_regular(blend)  # Blender opens it by name: a FIFO would block it, a folder confuse it
     try:
         bpy.ops.wm.open_mainfile(filepath=os.path.abspath(blend), load_ui=False)
     except RuntimeError as e:  # Blender's own words ("File format is not supported"), without its traceback
@@ -137,8 +144,9 @@ def _run_blend(blend: str, command: str, args, output: str | None = None) -> dic
     job, out = runs.start(bpy.context, command)
     try:
         done = job.wait(timeout=args.timeout or None, on_event=_progress)
-    except backend_client.BackendError as e:
-        raise backend_client.BackendError(runs.failure_message(e, out)) from None
+    except backend_client.BackendError as e:  # the same error, its message saying where the log is
+        raise backend_client.BackendError(runs.failure_message(e, out), exit_code=e.exit_code, log=e.log,
+                                          file=e.file, field=e.field, log_path=e.log_path) from None
     return _outputs(done, out)
 
 
@@ -159,33 +167,48 @@ def _outputs(done: dict, out) -> dict:
 
 
 def _shard(args) -> tuple[int, int]:
+    """(K, N) from ``--shard K/N`` (ArgumentError unless 0 <= K < N) or torchrun's RANK / WORLD_SIZE
+    (``core.batch.ranks_from_env``: InputError "(environment)")."""
     if args.shard:
         try:
             k, n = (int(x) for x in args.shard.split("/"))
-        except ValueError:
-            raise ValueError(f"--shard {args.shard!r}: expected K/N, e.g. 0/4") from None
+        except ValueError:  # (int() of the user's text)
+            raise files.ArgumentError("--shard", f"{args.shard!r}: expected K/N, e.g. 0/4") from None
+        if not 0 <= k < n:
+            raise files.ArgumentError("--shard", f"{k}/{n}: K must be in [0, N)")
         return k, n
-    return job_mod.ranks_from_env()[:2]
+    return batch_mod.ranks_from_env()[:2]
+
+
+def _failure(e: Exception) -> dict:
+    """A failed batch item's fields: ``error``; bad input (an InputError, or the backend's exit code 2) adds
+    ``file`` and ``field``; a backend's internal error its ``log``; any other exception is a bug: ``bug`` true,
+    its traceback on standard error."""
+    if isinstance(e, files.InputError):
+        return {"error": str(e), "hint": e.hint, "file": e.path, "field": e.field}
+    if isinstance(e, backend_client.BackendError):
+        return {"error": str(e), **({"file": e.file, "field": e.field} if e.bad_input else {}),
+                **({"log": e.log_path} if e.log_path else {})}
+    traceback.print_exception(type(e), e, e.__traceback__, file=sys.stderr)
+    return {"error": f"{type(e).__name__}: {e}", "bug": True}
 
 
 def _batch(args) -> tuple[dict, int]:
     import time
 
-    items = list(args.items) + [p for f in args.list or [] for p in job_mod.read_list(f)]
+    items = list(args.items) + [p for f in args.list or [] for p in batch_mod.read_list(f)]
     if not items:
-        raise ValueError("batch: no .blend or job files given (paths, or --list FILE)")
+        raise files.ArgumentError("items", "no .blend or job files given", hint="give paths, or --list FILE")
     k, n = _shard(args)
-    if not 0 <= k < n:
-        raise ValueError(f"--shard {k}/{n}: K must be in [0, N)")
     results = []
-    for path in job_mod.shard(items, k, n):
+    for path in batch_mod.shard(items, k, n):
         t = time.perf_counter()
         print(f"scpainter batch: {args.what} {path}", file=sys.stderr, flush=True)
         try:
             run = _run_job if path.endswith(".json") else _run_blend
             results.append({"item": path, "status": "ok", **run(path, args.what, args)})
-        except (ValueError, RuntimeError, OSError) as e:  # BackendError is a RuntimeError; go on with the rest
-            results.append({"item": path, "status": "failed", "error": str(e)})
+        except Exception as e:  # noqa: BLE001  bad input, a failed backend or a bug: recorded; go on with the rest
+            results.append({"item": path, "status": "failed", **_failure(e)})
         results[-1]["seconds"] = time.perf_counter() - t
     failed = sum(r["status"] != "ok" for r in results)
     return {"what": args.what, "shard": f"{k}/{n}", "items": results, "failed": failed}, (1 if failed else 0)
@@ -203,19 +226,20 @@ def execute(argv) -> int:
                 summary, code = _batch(args)
             else:
                 summary = _run_blend(args.blend, args.command, args, args.output)
-    except files.InputError as e:
+    except files.InputError as e:  # bad input, caught by name (never as a ValueError): exit 2
         print(json.dumps({"event": "error", "message": str(e), "hint": e.hint, "file": e.path, "field": e.field}),
               flush=True)
         return 2
-    except (ValueError, backend_client.BackendError) as e:
-        print(json.dumps({"event": "error", "message": str(e)}), flush=True)
-        return 2 if isinstance(e, ValueError) else 1
-    except Exception as e:  # a bug or a failure of Blender itself: one error event, the traceback on stderr
-        import traceback
-
+    except backend_client.BackendError as e:  # the backend refused the scene's job (its exit 2) or failed
+        ev = {"event": "error", "message": str(e)}
+        ev.update({k: v for k, v in _failure(e).items() if k != "error"})  # file, field (bad input); log
+        print(json.dumps(ev), flush=True)
+        return 2 if e.bad_input else 1
+    except Exception as e:  # a bug (a plain ValueError included) or a failure of Blender itself: exit 1
         traceback.print_exc(file=sys.stderr)
         print(json.dumps({"event": "error", "message": f"{type(e).__name__}: {e}",
-                          "hint": "see the traceback on standard error"}), flush=True)
+                          "hint": "an internal error in SCPainter, not a problem with the input: the traceback is "
+                                  "on standard error; please report it"}), flush=True)
         return 1
     print(json.dumps({"event": "done", "command": args.command, **summary}), flush=True)
     return code

@@ -1,7 +1,7 @@
 """Gaussian-splat assets as Blender objects: every file value kept, plus a viewport preview for placing cars.
 
 Object data: a mesh with one vertex per (valid) Gaussian, in the asset's *data frame*: Z up, origin at the bottom
-centre of the Gaussians' bounds. ``scpainter_data_from_file`` (4x4, on the object) maps the PLY's own coordinates
+centre of the Gaussians' bounds. ``scpainter_file_to_data`` (4x4, on the object) maps the PLY's own coordinates
 to it (TRELLIS/Amodal3R files: their axis change undone), so object_to_world of the file = matrix_world @ it.
 
 Point attributes:
@@ -26,9 +26,9 @@ import bpy
 import numpy as np
 
 from .. import backend_client
-from ..core import cameras, splats
-from . import materials, props
-from .points import _linear_rgba, _socket_identifier, set_input
+from ..core import cameras, files, splats
+from . import materials, node_groups, props
+from .points import _linear_rgba
 
 NODE_GROUP = "SCPainter Gaussians"
 NODE_GROUP_VERSION = 1
@@ -41,71 +41,44 @@ def _material(attribute_type: str) -> bpy.types.Material:
     return materials.emission_material(MATERIALS[attribute_type], "gs_color", attribute_type, alpha=True)
 
 
-def ensure_node_group() -> bpy.types.NodeTree:
-    ng = bpy.data.node_groups.get(NODE_GROUP)
-    if ng is not None and ng.get("scpainter_version") == NODE_GROUP_VERSION:
-        return ng
-    ng = bpy.data.node_groups.new(NODE_GROUP, "GeometryNodeTree")
-    ng["scpainter_version"] = NODE_GROUP_VERSION
-    iface = ng.interface
-    iface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
-    e = iface.new_socket("Ellipsoids", in_out="INPUT", socket_type="NodeSocketBool")
-    e.default_value = False
-    size = iface.new_socket("Size", in_out="INPUT", socket_type="NodeSocketFloat")
-    size.default_value, size.min_value = 2.0, 0.0
-    iface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
-    n, link = ng.nodes, ng.links.new
-    gi, go = n.new("NodeGroupInput"), n.new("NodeGroupOutput")
+#: The preview's inputs: sprites or ellipsoids, and their size in standard deviations.
+INPUTS = (node_groups.Socket("Ellipsoids", "NodeSocketBool", False),
+          node_groups.Socket("Size", "NodeSocketFloat", 2.0, 0.0))
 
-    scale = n.new("GeometryNodeInputNamedAttribute")
-    scale.data_type = "FLOAT_VECTOR"
-    scale.inputs["Name"].default_value = "gs_scale"
-    rot = n.new("GeometryNodeInputNamedAttribute")
-    rot.data_type = "QUATERNION"
-    rot.inputs["Name"].default_value = "gs_rotation"
+
+def ensure_node_group() -> bpy.types.NodeTree:
+    """Geometry Nodes preview: sprites (points of radius Size · mean σ) or ellipsoids (an icosphere per Gaussian,
+    rotated by ``gs_rotation`` and scaled to Size · σ), each with its emission material."""
+    return node_groups.ensure_group(NODE_GROUP, NODE_GROUP_VERSION, INPUTS, _build_node_group)
+
+
+def _build_node_group(b: node_groups.Builder) -> None:
+    gi = b.group_input
+    scale = b.node("GeometryNodeInputNamedAttribute", {"Name": "gs_scale"}, data_type="FLOAT_VECTOR")
+    rot = b.node("GeometryNodeInputNamedAttribute", {"Name": "gs_rotation"}, data_type="QUATERNION")
 
     # sprites: radius = size · mean σ
-    mean_sigma = n.new("ShaderNodeVectorMath")
-    mean_sigma.operation = "DOT_PRODUCT"
-    link(scale.outputs["Attribute"], mean_sigma.inputs[0])
-    mean_sigma.inputs[1].default_value = (1 / 3, 1 / 3, 1 / 3)
-    radius = n.new("ShaderNodeMath")
-    radius.operation = "MULTIPLY"
-    link(mean_sigma.outputs["Value"], radius.inputs[0])
-    link(gi.outputs["Size"], radius.inputs[1])
-    sprites = n.new("GeometryNodeMeshToPoints")
-    link(gi.outputs["Geometry"], sprites.inputs["Mesh"])
-    link(radius.outputs[0], sprites.inputs["Radius"])
-    sprite_mat = n.new("GeometryNodeSetMaterial")
-    sprite_mat.inputs["Material"].default_value = _material("GEOMETRY")
-    link(sprites.outputs["Points"], sprite_mat.inputs["Geometry"])
+    mean_sigma = b.node("ShaderNodeVectorMath", {0: scale.outputs["Attribute"], 1: (1 / 3, 1 / 3, 1 / 3)},
+                        operation="DOT_PRODUCT")
+    radius = b.math("MULTIPLY", mean_sigma.outputs["Value"], gi.outputs["Size"])
+    sprites = b.node("GeometryNodeMeshToPoints", {"Mesh": gi.outputs["Geometry"], "Radius": radius})
+    sprite_mat = b.node("GeometryNodeSetMaterial", {"Geometry": sprites.outputs["Points"],
+                                                    "Material": _material("GEOMETRY")})
 
     # ellipsoids: an icosphere per Gaussian, rotated and scaled to size · σ
-    ico = n.new("GeometryNodeMeshIcoSphere")
-    ico.inputs["Radius"].default_value = 1.0
-    ico.inputs["Subdivisions"].default_value = 1
-    ico_mat = n.new("GeometryNodeSetMaterial")
-    ico_mat.inputs["Material"].default_value = _material("INSTANCER")
-    link(ico.outputs["Mesh"], ico_mat.inputs["Geometry"])
-    axes = n.new("ShaderNodeVectorMath")
-    axes.operation = "SCALE"
-    link(scale.outputs["Attribute"], axes.inputs[0])
-    link(gi.outputs["Size"], axes.inputs["Scale"])
-    as_points = n.new("GeometryNodeMeshToPoints")
-    link(gi.outputs["Geometry"], as_points.inputs["Mesh"])
-    inst = n.new("GeometryNodeInstanceOnPoints")
-    link(as_points.outputs["Points"], inst.inputs["Points"])
-    link(ico_mat.outputs["Geometry"], inst.inputs["Instance"])
-    link(rot.outputs["Attribute"], inst.inputs["Rotation"])
-    link(axes.outputs["Vector"], inst.inputs["Scale"])
-
-    switch = n.new("GeometryNodeSwitch")
-    switch.input_type = "GEOMETRY"
-    link(gi.outputs["Ellipsoids"], switch.inputs["Switch"])
-    link(sprite_mat.outputs["Geometry"], switch.inputs["False"])
-    link(inst.outputs["Instances"], switch.inputs["True"])
-    link(switch.outputs[0], go.inputs[0])
-    return ng
+    ico = b.node("GeometryNodeMeshIcoSphere", {"Radius": 1.0, "Subdivisions": 1})
+    ico_mat = b.node("GeometryNodeSetMaterial", {"Geometry": ico.outputs["Mesh"], "Material": _material("INSTANCER")})
+    axes = b.node("ShaderNodeVectorMath", {0: scale.outputs["Attribute"], "Scale": gi.outputs["Size"]},
+                  operation="SCALE")
+    as_points = b.node("GeometryNodeMeshToPoints", {"Mesh": gi.outputs["Geometry"]})
+    inst = b.node("GeometryNodeInstanceOnPoints", {"Points": as_points.outputs["Points"],
+                                                   "Instance": ico_mat.outputs["Geometry"],
+                                                   "Rotation": rot.outputs["Attribute"],
+                                                   "Scale": axes.outputs["Vector"]})
+    switch = b.node("GeometryNodeSwitch", {"Switch": gi.outputs["Ellipsoids"],
+                                           "False": sprite_mat.outputs["Geometry"],
+                                           "True": inst.outputs["Instances"]}, input_type="GEOMETRY")
+    b.output(switch.outputs[0])
 
 
 @dataclass
@@ -145,11 +118,11 @@ def is_mesh_file(filepath: str) -> bool:
 
 
 def _data_frame(xyz_file, axes: str):
-    """(data_from_file 4x4, F 3x3, data-frame bounds lo, hi) for file means (N, 3) read with ``axes``.
+    """(file_to_data 4x4, F 3x3, data-frame bounds lo, hi) for file means (N, 3) read with ``axes``.
 
     The data frame is Z up with its origin at the bottom centre of the means (module docstring).
     """
-    F = splats.TRELLIS_FILE_FROM_ZUP.T if axes == "TRELLIS" else np.eye(3)
+    F = splats.ZUP_TO_TRELLIS_FILE.T if axes == "TRELLIS" else np.eye(3)
     xyz = np.asarray(xyz_file, np.float64) @ F.T
     lo, hi = xyz.min(axis=0), xyz.max(axis=0)
     bottom = np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2]])
@@ -173,8 +146,8 @@ def import_gaussians(context, filepath: str, axes: str = "AUTO", target_length: 
     Gaussian files (INRIA / TRELLIS PLY, SuperSplat compressed PLY, .splat) are read here; meshes (GLB, glTF, OBJ,
     STL, OFF, mesh PLY) are first turned into surface Gaussians by ``python -m backend mesh-asset`` (trimesh, in
     the backend's Python) with ``mesh_count`` Gaussians, written to ``gaussians_path`` (default
-    ``mesh_gaussians_path``) and imported from there. Raises SplatsError / BackendError / ValueError; nothing is
-    created unless the import succeeds.
+    ``mesh_gaussians_path``) and imported from there. Raises SplatsError (an InputError) / BackendError (exit code
+    2: the mesh is bad input); nothing is created unless the import succeeds.
     """
     t0 = time.perf_counter()
     filepath = os.path.abspath(bpy.path.abspath(filepath))
@@ -183,7 +156,7 @@ def import_gaussians(context, filepath: str, axes: str = "AUTO", target_length: 
     mesh = None
     if is_mesh_file(filepath):
         out = gaussians_path or mesh_gaussians_path(context.scene, filepath, mesh_count)
-        os.makedirs(os.path.dirname(out), exist_ok=True)
+        files.make_folder(os.path.dirname(out), "assets folder")
         mesh = backend_client.run(["mesh-asset", filepath, "--out", out, "--count", int(mesh_count)],
                                   python=backend_python)["result"]
         mesh["source"] = filepath
@@ -198,8 +171,8 @@ def import_gaussians(context, filepath: str, axes: str = "AUTO", target_length: 
         axes, reason = "NONE", f"a mesh read {mesh['up'].upper()} up and turned Z up"
     else:
         axes, reason = splats.detect_axes(ply, keep)
-    data_from_file, F, lo, hi = _data_frame(ply.xyz[keep], axes)
-    pos = (ply.xyz[keep].astype(np.float64) @ data_from_file[:3, :3].T + data_from_file[:3, 3]).astype(np.float32)
+    file_to_data, F, lo, hi = _data_frame(ply.xyz[keep], axes)
+    pos = (ply.xyz[keep].astype(np.float64) @ file_to_data[:3, :3].T + file_to_data[:3, 3]).astype(np.float32)
     rot_raw = ply.rot[keep]
     sigma = np.exp(ply.scale[keep].astype(np.float64))
     opacity = 1.0 / (1.0 + np.exp(-ply.opacity[keep].astype(np.float64)))
@@ -242,13 +215,11 @@ def import_gaussians(context, filepath: str, axes: str = "AUTO", target_length: 
         target_length = TRELLIS_DEFAULT_LENGTH if unit_cube else extent
     if extent > 0:
         obj.scale = (target_length / extent,) * 3
-    mod = obj.modifiers.new("SCPainter Gaussians", "NODES")
-    mod.node_group = ensure_node_group()
-    set_input(mod, "Ellipsoids", bool(ellipsoids))
+    node_groups.add_modifier(obj, "SCPainter Gaussians", ensure_node_group(), {"Ellipsoids": bool(ellipsoids)})
     obj["scpainter_kind"] = "gaussian_asset"
     obj["scpainter_source"] = filepath
     obj["scpainter_format"] = ply.format
-    obj["scpainter_data_from_file"] = data_from_file.ravel().tolist()
+    obj["scpainter_file_to_data"] = file_to_data.ravel().tolist()
     obj["scpainter_axes"] = axes
     obj["scpainter_axes_reason"] = reason
     obj["scpainter_sh_degree"] = ply.sh_degree
@@ -281,7 +252,7 @@ def mesh_gaussians_path(scene, mesh_path: str, count: int) -> str:
     name = f"{os.path.basename(mesh_path)}.{int(count)}.{key}.gaussians.ply"
     try:
         folder = os.path.join(props.output_dir(scene), "assets")
-    except ValueError:  # unsaved .blend: its output folder is relative to it
+    except props.SceneError:  # unsaved .blend: its output folder is relative to it
         cache = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
         folder = os.path.join(cache, "scpainter", "assets")
     return os.path.join(folder, name)
@@ -289,7 +260,7 @@ def mesh_gaussians_path(scene, mesh_path: str, count: int) -> str:
 
 def set_axes(obj, axes: str) -> None:
     """Re-read an imported asset with other file axes ("TRELLIS" or "NONE"): the artist's correction when AUTO
-    chose wrong. Positions, display rotations, size and data_from_file are recomputed from the stored file values;
+    chose wrong. Positions, display rotations, size and file_to_data are recomputed from the stored file values;
     the object's placement is kept and its scale adjusted so its length stays the same."""
     if axes not in ("TRELLIS", "NONE"):
         raise ValueError(f"axes must be 'TRELLIS' or 'NONE', got {axes!r}")
@@ -297,7 +268,7 @@ def set_axes(obj, axes: str) -> None:
     n = len(me.vertices)
     pos = np.empty(n * 3, np.float32)
     me.attributes["position"].data.foreach_get("vector", pos)
-    old = np.array(obj["scpainter_data_from_file"], np.float64).reshape(4, 4)
+    old = props.matrix_property(obj, "scpainter_file_to_data")
     xyz_file = (pos.reshape(-1, 3).astype(np.float64) - old[:3, 3]) @ np.linalg.inv(old[:3, :3]).T
     D, F, lo, hi = _data_frame(xyz_file, axes)
     me.attributes["position"].data.foreach_set("vector", (xyz_file @ D[:3, :3].T + D[:3, 3]).astype(np.float32).ravel())
@@ -310,7 +281,7 @@ def set_axes(obj, axes: str) -> None:
     old_len, new_len = max(old_size[:2]), max(hi[0] - lo[0], hi[1] - lo[1])
     if new_len > 0 and old_len > 0:
         obj.scale = np.array(obj.scale) * (old_len / new_len)
-    obj["scpainter_data_from_file"] = D.ravel().tolist()
+    obj["scpainter_file_to_data"] = D.ravel().tolist()
     obj["scpainter_size"] = (hi - lo).tolist()
     obj["scpainter_axes"] = axes
     obj["scpainter_axes_reason"] = "set by hand"
@@ -320,6 +291,8 @@ def set_axes(obj, axes: str) -> None:
 
 
 def preview_input(obj, name):
-    mod = next(m for m in obj.modifiers if m.type == "NODES" and m.node_group
-               and m.node_group.name.startswith(NODE_GROUP))
-    return mod, _socket_identifier(mod.node_group, name)
+    """(the preview modifier of asset ``obj``, the property key of its input ``name``)."""
+    mod = node_groups.find_modifier(obj, NODE_GROUP)
+    if mod is None:
+        raise KeyError(f"{obj.name!r} has no {NODE_GROUP!r} modifier")
+    return mod, node_groups.socket_identifier(mod.node_group, name)

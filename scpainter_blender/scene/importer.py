@@ -1,7 +1,7 @@
 """Import a VGGT reconstruction: points + recorded camera + scene settings, in metric Blender world.
 
-The heavy lifting is numpy in ``core``; this module only turns arrays into Blender data. Metric scale from a
-camera height needs open3d, which Blender's Python lacks, so that one step runs in the backend subprocess.
+The heavy lifting is numpy in ``core``; this module only turns arrays into Blender data. All three metric-scale
+modes run here, in Blender's own process (the camera-height one with ``core.geometry``'s RANSAC; no backend).
 """
 
 from __future__ import annotations
@@ -13,12 +13,14 @@ from dataclasses import dataclass, field
 import bpy
 import numpy as np
 
-from .. import backend_client
-from ..core import cameras, vggt
+from ..core import cameras, files, geometry, metric_scale, point_cloud, similarity, vggt, vggt_io
 from . import camera as camera_mod
+from . import node_groups
 from . import points as points_mod
 
 SCALE_MODES = ("FACTOR", "TRAJECTORY", "CAMERA_HEIGHT")
+#: The ``path`` of an InputError about an import option (``field``: the ``ImportOptions`` name).
+OPTIONS = "(import options)"
 
 
 @dataclass
@@ -29,7 +31,6 @@ class ImportOptions:
     scale_factor: float = 1.0            # metres per VGGT unit (FACTOR)
     trajectory_path: str = ""            # metric camera path (TRAJECTORY)
     camera_height: float = 1.6           # metres over the road (CAMERA_HEIGHT)
-    backend_python: str = ""
     point_radius: float = 0.03           # metres
     current_frame_only: bool = False
     frame_window: int = 0
@@ -43,39 +44,83 @@ class ImportOptions:
 class ImportResult:
     points: bpy.types.Object
     camera: bpy.types.Object
-    fit: vggt.MetricFit
+    fit: metric_scale.MetricFit
     num_points: int
     timings: dict = field(default_factory=dict)
     warnings: list = field(default_factory=list)
     load_report: vggt.LoadReport | None = None   # convention (checked?), crop, NaN/inf pixels dropped
 
 
-def metric_fit(pred: vggt.VGGTPredictions, opts: ImportOptions) -> vggt.MetricFit:
-    """world_from_vggt by the chosen method (DESIGN §3)."""
+def metric_fit(pred: vggt.VGGTPredictions, opts: ImportOptions) -> metric_scale.MetricFit:
+    """vggt_to_world by the chosen method (DESIGN §3)."""
     if opts.scale_mode == "FACTOR":
-        return vggt.world_from_vggt_by_factor(opts.scale_factor)
+        return metric_scale.vggt_to_world_by_factor(opts.scale_factor)
     if opts.scale_mode == "TRAJECTORY":
         if not opts.trajectory_path:
-            raise ValueError("scale mode TRAJECTORY needs a metric trajectory file")
-        w2c, centres = vggt.load_metric_trajectory(bpy.path.abspath(opts.trajectory_path), pred.num_frames)
-        return vggt.world_from_vggt_by_trajectory(pred.world_to_camera, w2c, centres)
+            raise files.InputError(OPTIONS, "trajectory_path", "scale mode TRAJECTORY needs a metric trajectory file",
+                                   hint="choose the file: .npz world_to_camera, xyz or TUM text")
+        path = bpy.path.abspath(opts.trajectory_path)
+        w2c, centres = metric_scale.load_metric_trajectory(path, pred.num_frames)
+        return metric_scale.vggt_to_world_by_trajectory(pred.world_to_camera, w2c, centres, path=path)
     if opts.scale_mode == "CAMERA_HEIGHT":
-        rep = pred.report  # the backend loads the file as it was loaded here: same poses, same pixels
-        done = backend_client.run(["ground-plane", pred.path, "--camera-height", opts.camera_height,
-                                   "--confidence-percentile", opts.confidence_percentile,
-                                   "--extrinsic-convention", rep.extrinsic_convention,
-                                   "--crop", *rep.crop],
-                                  python=opts.backend_python)
-        r = done["result"]
-        return vggt.MetricFit(np.array(r["world_from_vggt"]), r["method"], r["scale"], r["residual_m"],
-                              r["max_error_m"], r["details"])
+        return camera_height_fit(pred, opts.camera_height, opts.confidence_percentile)
     raise ValueError(f"unknown scale mode {opts.scale_mode!r}; expected one of {SCALE_MODES}")
+
+
+class GroundPlaneError(vggt.PredictionsError):
+    """Camera-height scale impossible for this predictions file: too few confident points in the lower image rows,
+    or only collinear ones (``field`` "depth"); no level plane among them holding enough of them, or a plane the
+    cameras do not stand over (``field`` "(camera height)"). The hint says what to do instead."""
+
+
+#: What to do instead, for each way the camera-height fit fails.
+_GROUND_HINTS = {
+    "depth": "the ground is found among the confident pixels of the lower 40 % of each image: lower the "
+             "Confidence Percentile, or give the scale as a factor or a metric trajectory",
+    "(camera height)": "the road must be visible in the lower part of the images, under cameras looking ahead; "
+                       "otherwise give the scale as a factor or a metric trajectory",
+}
+
+
+def camera_height_fit(pred: vggt.VGGTPredictions, camera_height: float, confidence_percentile: float = 50.0,
+                      seed: int = 0) -> metric_scale.MetricFit:
+    """Metric ``vggt_to_world`` from a known camera height (metres) over the road, in this process.
+
+    Ground candidates (``point_cloud.ground_candidates``: confident pixels of the lower 40 % of each image, at most
+    200,000, seeded) → ``geometry.fit_ground_plane`` (seeded RANSAC within 30° of the cameras' up axis, inliers
+    closer than 1 % of the median candidate distance, refined by least squares) → ``vggt_to_world_by_camera_height``
+    (scale = height / median camera-to-plane distance; the road becomes z = 0). ``details`` adds the plane fit's
+    ``inliers``, ``candidates``, ``nonfinite_candidates``, ``inlier_rms_vggt``, ``tilt_deg``, ``threshold_vggt``
+    (VGGT units) to the fit's own (``plane_inlier_rms_m`` among them). Raises ``GroundPlaneError`` naming
+    ``pred.path``.
+    """
+    if not (np.isfinite(camera_height) and camera_height > 0):
+        raise GroundPlaneError(pred.path, "(camera height)", f"the camera height must be a positive number of "
+                                                             f"metres, got {camera_height}",
+                               hint="give the camera's height over the road in metres, such as 1.6")
+    pts = point_cloud.ground_candidates(pred, confidence_percentile, seed=seed)
+    try:
+        g = geometry.fit_ground_plane(pts, pred.world_to_camera, seed=seed)
+    except geometry.PlaneFitError as e:
+        field = "depth" if e.reason in ("too_few", "degenerate") else "(camera height)"
+        raise GroundPlaneError(pred.path, field, f"no road plane for the camera-height scale: {e}",
+                               hint=_GROUND_HINTS[field]) from None
+    try:
+        fit = metric_scale.vggt_to_world_by_camera_height(g.plane, pred.world_to_camera, camera_height,
+                                                            plane_inlier_rms=g.inlier_rms, path=pred.path)
+    except files.InputError as e:  # cameras on the plane or looking straight down at it: same error type here
+        field = "(camera height)" if e.field == "(file)" else e.field
+        raise GroundPlaneError(pred.path, field, e.message, hint=e.hint or _GROUND_HINTS["(camera height)"]) \
+            from None
+    fit.details.update({"inliers": g.num_inliers, "candidates": g.candidates, "nonfinite_candidates": g.nonfinite,
+                        "inlier_rms_vggt": g.inlier_rms, "tilt_deg": g.tilt_deg, "threshold_vggt": g.threshold})
+    return fit
 
 
 def _tag(obj, kind, filepath, fit, opts, rep: vggt.LoadReport):
     obj["scpainter_kind"] = kind
     obj["scpainter_source"] = filepath
-    obj["scpainter_world_from_vggt"] = np.asarray(fit.world_from_vggt, np.float64).ravel().tolist()
+    obj["scpainter_vggt_to_world"] = np.asarray(fit.vggt_to_world, np.float64).ravel().tolist()
     obj["scpainter_scale_method"] = fit.method
     obj["scpainter_scale_residual_m"] = float(fit.residual_m)
     obj["scpainter_confidence_percentile"] = float(opts.confidence_percentile)
@@ -89,13 +134,13 @@ def import_vggt(context, filepath: str, opts: ImportOptions | None = None) -> Im
     t0 = time.perf_counter()
     filepath = os.path.abspath(bpy.path.abspath(filepath))
     # every check and refusal happens here, before anything is created: a refused file leaves the scene as it was
-    pred = vggt.load_predictions(filepath, world_points=opts.point_source == "world_points",
-                                 extrinsic_convention=opts.extrinsic_convention, crop=opts.crop,
-                                 metres_per_unit=opts.scale_factor if opts.scale_mode == "FACTOR" else None)
+    pred = vggt_io.load_predictions(filepath, world_points=opts.point_source == "world_points",
+                                    extrinsic_convention=opts.extrinsic_convention, crop=opts.crop,
+                                    metres_per_unit=opts.scale_factor if opts.scale_mode == "FACTOR" else None)
     t_load = time.perf_counter()
     fit = metric_fit(pred, opts)
     t_fit = time.perf_counter()
-    pts = vggt.point_cloud(pred, opts.confidence_percentile, opts.point_source, fit.world_from_vggt)
+    pts = point_cloud.point_cloud(pred, opts.confidence_percentile, opts.point_source, fit.vggt_to_world)
     t_unproject = time.perf_counter()
 
     scene = context.scene
@@ -106,11 +151,11 @@ def import_vggt(context, filepath: str, opts: ImportOptions | None = None) -> Im
     obj = points_mod.create_point_cloud(f"{parent_name} points", pts.positions, pts.colors, pts.frame, coll,
                                         radius=opts.point_radius, frame_offset=opts.frame_start)
     mod = points_mod.points_modifier(obj)
-    points_mod.set_input(mod, "Current Frame Only", bool(opts.current_frame_only))
-    points_mod.set_input(mod, "Frame Window", int(opts.frame_window))
+    node_groups.set_input(mod, "Current Frame Only", bool(opts.current_frame_only))
+    node_groups.set_input(mod, "Frame Window", int(opts.frame_window))
     t_points = time.perf_counter()
 
-    w2c = cameras.transform_world_to_camera(cameras.orthonormalize(pred.world_to_camera), fit.world_from_vggt)
+    w2c = similarity.transform_world_to_camera(cameras.orthonormalize(pred.world_to_camera), fit.vggt_to_world)
     cam, p0, warnings = camera_mod.create_recorded_camera(f"{parent_name} recorded camera", w2c, pred.K,
                                                           pred.width, pred.height, opts.frame_start, coll)
     camera_mod.apply_render_settings(scene, p0)

@@ -3,7 +3,7 @@
 Asset convention (scene/gaussians.py): data frame Z up, origin at the bottom centre; the *length* is the longer of
 the two horizontal extents. Removal boxes are cube empties (display size 1, so the box spans ±scale along each
 local axis, length along local Y); their points are removed from the reconstruction by a Geometry Nodes modifier
-on the points object, placed before the points preview, and exported to the job (DESIGN §4.2 removal_boxes).
+on the points object, placed before the points preview, and exported to the job (``scene.removal_boxes``).
 """
 
 from __future__ import annotations
@@ -13,7 +13,9 @@ import numpy as np
 from mathutils import Matrix, Quaternion, Vector
 
 from ..core import geometry
+from . import node_groups
 from . import points as points_mod
+from .props import SceneError
 
 REMOVAL_GROUP = "SCPainter Removal Box"
 REMOVAL_GROUP_VERSION = 1
@@ -41,15 +43,22 @@ def _length_axis(obj) -> int:
 
 
 def fit_size(obj, length: float, width: float | None = None, height: float | None = None, uniform: bool = True):
-    """Scale an asset to a car size: uniformly to ``length``, or per axis to (length, width, height)."""
+    """Scale an asset to a car size: uniformly to ``length``, or per axis to (length, width, height). SceneError
+    for a size that is not positive or an asset without extent along an axis to scale."""
     L, Wd, H = asset_size(obj)
-    if length <= 0 or L <= 0:
-        raise ValueError("the length to fit must be positive")
+    if not length > 0:
+        raise SceneError("length", f"the length to fit must be positive, got {length}")
+    if not L > 0:
+        raise SceneError(f"objects[{obj.name!r}]", "the asset has no length to scale",
+                         hint="import the file again")
     if uniform or width is None or height is None:
         obj.scale = (length / L,) * 3
         return
-    if width <= 0 or height <= 0 or Wd <= 0 or H <= 0:
-        raise ValueError("width and height to fit must be positive")
+    if not (width > 0 and height > 0):
+        raise SceneError("width" if not width > 0 else "height", "the width and height to fit must be positive")
+    if not (Wd > 0 and H > 0):
+        raise SceneError(f"objects[{obj.name!r}]", "the asset is flat (no width or height): scale it uniformly",
+                         hint="turn on Keep Proportions")
     scale = [0.0, 0.0, height / H]
     axis = _length_axis(obj)
     scale[axis], scale[1 - axis] = length / L, width / Wd
@@ -84,6 +93,7 @@ def snap_to_ground(context, obj, points_obj, margin: float = 1.0, align: bool = 
 
     Points inside removal boxes (the car being replaced) are left out. ``align`` tilts the asset's up axis to
     the plane normal, keeping its heading. Returns the plane and the number of points it was fitted to.
+    SceneError naming the asset when there are too few points around it or they hold no level plane.
     """
     context.view_layer.update()
     P = scene_points_world(points_obj)
@@ -99,8 +109,13 @@ def snap_to_ground(context, obj, points_obj, margin: float = 1.0, align: bool = 
             sel[sel] &= ~geometry.points_in_box(P[sel], T, s)
     near = P[sel]
     if len(near) < 20:
-        raise ValueError(f"only {len(near)} scene points under the asset: move it over the reconstructed road")
-    plane, inliers, _ = geometry.fit_plane_ransac(near, threshold=threshold)
+        raise SceneError(f"objects[{obj.name!r}]", f"only {len(near)} scene points under the asset",
+                         hint="move it over the reconstructed road, or widen the margin")
+    try:
+        plane, inliers, _ = geometry.fit_plane_ransac(near, threshold=threshold)
+    except geometry.PlaneFitError as e:  # the points around it hold no plane (a wall, a line of points)
+        raise SceneError(f"objects[{obj.name!r}]", f"no ground plane among the {len(near)} scene points under "
+                                                   f"the asset: {e}", hint="move it over the reconstructed road")
     x, y = obj.matrix_world.translation.x, obj.matrix_world.translation.y
     z = geometry.plane_height(plane, x, y)
     if align:
@@ -115,54 +130,30 @@ def snap_to_ground(context, obj, points_obj, margin: float = 1.0, align: bool = 
 
 
 def _removal_group() -> bpy.types.NodeTree:
-    ng = bpy.data.node_groups.get(REMOVAL_GROUP)
-    if ng is not None and ng.get("scpainter_version") == REMOVAL_GROUP_VERSION:
-        return ng
-    ng = bpy.data.node_groups.new(REMOVAL_GROUP, "GeometryNodeTree")
-    ng["scpainter_version"] = REMOVAL_GROUP_VERSION
-    ng.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
-    ng.interface.new_socket("Box", in_out="INPUT", socket_type="NodeSocketObject")
-    ng.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
-    n, link = ng.nodes, ng.links.new
-    gi, go = n.new("NodeGroupInput"), n.new("NodeGroupOutput")
-    info = n.new("GeometryNodeObjectInfo")
-    info.transform_space = "RELATIVE"  # the box in the points object's own space
-    link(gi.outputs["Box"], info.inputs["Object"])
-    inv = n.new("FunctionNodeInvertMatrix")
-    link(info.outputs["Transform"], inv.inputs["Matrix"])
-    pos = n.new("GeometryNodeInputPosition")
-    local = n.new("FunctionNodeTransformPoint")
-    link(pos.outputs["Position"], local.inputs["Vector"])
-    link(inv.outputs["Matrix"], local.inputs["Transform"])
-    absv = n.new("ShaderNodeVectorMath")
-    absv.operation = "ABSOLUTE"
-    link(local.outputs["Vector"], absv.inputs[0])
-    sep = n.new("ShaderNodeSeparateXYZ")
-    link(absv.outputs["Vector"], sep.inputs["Vector"])
+    """Geometry Nodes: delete the points inside the Box object (a cube empty spanning ±1 in its own scaled axes);
+    no box (deleted) removes nothing."""
+    return node_groups.ensure_group(REMOVAL_GROUP, REMOVAL_GROUP_VERSION,
+                                    (node_groups.Socket("Box", "NodeSocketObject"),), _build_removal_group)
+
+
+def _build_removal_group(b: node_groups.Builder) -> None:
+    gi = b.group_input
+    # the box in the points object's own space
+    info = b.node("GeometryNodeObjectInfo", {"Object": gi.outputs["Box"]}, transform_space="RELATIVE")
+    inv = b.node("FunctionNodeInvertMatrix", {"Matrix": info.outputs["Transform"]})
+    local = b.node("FunctionNodeTransformPoint", {"Vector": b.node("GeometryNodeInputPosition").outputs["Position"],
+                                                  "Transform": inv.outputs["Matrix"]})
+    absv = b.node("ShaderNodeVectorMath", {0: local.outputs["Vector"]}, operation="ABSOLUTE")
+    sep = b.node("ShaderNodeSeparateXYZ", {"Vector": absv.outputs["Vector"]})
     inside = None
     for axis in ("X", "Y", "Z"):  # the cube empty spans ±1 in its own (scaled) axes
-        cmp = n.new("FunctionNodeCompare")
-        cmp.data_type, cmp.operation = "FLOAT", "LESS_EQUAL"
-        link(sep.outputs[axis], cmp.inputs["A"])
-        cmp.inputs["B"].default_value = 1.0
-        if inside is None:
-            inside = cmp.outputs["Result"]
-        else:
-            both = n.new("FunctionNodeBooleanMath")
-            both.operation = "AND"
-            link(inside, both.inputs[0])
-            link(cmp.outputs["Result"], both.inputs[1])
-            inside = both.outputs[0]
-    valid = n.new("FunctionNodeBooleanMath")  # no box (deleted): nothing is removed
-    valid.operation = "AND"
-    link(inside, valid.inputs[0])
-    link(inv.outputs["Invertible"], valid.inputs[1])
-    delete = n.new("GeometryNodeDeleteGeometry")
-    delete.domain = "POINT"
-    link(gi.outputs["Geometry"], delete.inputs["Geometry"])
-    link(valid.outputs[0], delete.inputs["Selection"])
-    link(delete.outputs["Geometry"], go.inputs[0])
-    return ng
+        within = b.node("FunctionNodeCompare", {"A": sep.outputs[axis], "B": 1.0}, data_type="FLOAT",
+                        operation="LESS_EQUAL").outputs["Result"]
+        inside = within if inside is None else b.boolean("AND", inside, within)
+    valid = b.boolean("AND", inside, inv.outputs["Invertible"])  # no box (deleted): nothing is removed
+    delete = b.node("GeometryNodeDeleteGeometry", {"Geometry": gi.outputs["Geometry"], "Selection": valid},
+                    domain="POINT")
+    b.output(delete.outputs["Geometry"])
 
 
 def add_removal_box(context, points_obj, box_to_world=None, size=DEFAULT_CAR, name="Removal box"):
@@ -183,9 +174,7 @@ def add_removal_box(context, points_obj, box_to_world=None, size=DEFAULT_CAR, na
     box["scpainter_kind"] = "removal_box"
     for coll in points_obj.users_collection:
         coll.objects.link(box)
-    mod = points_obj.modifiers.new(f"SCPainter Remove {box.name}", "NODES")
-    mod.node_group = _removal_group()
-    mod[next(i.identifier for i in mod.node_group.interface.items_tree if i.name == "Box")] = box
+    node_groups.add_modifier(points_obj, f"SCPainter Remove {box.name}", _removal_group(), {"Box": box})
     preview = points_mod.points_modifier(points_obj)
     if preview is not None:  # remove first, then draw what is left
         points_obj.modifiers.move(len(points_obj.modifiers) - 1, list(points_obj.modifiers).index(preview))

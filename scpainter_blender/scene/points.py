@@ -13,7 +13,7 @@ import bpy
 import numpy as np
 
 from ..core import colors
-from . import materials
+from . import materials, node_groups
 
 NODE_GROUP = "SCPainter Points"
 MATERIAL = "SCPainter Points"
@@ -21,14 +21,13 @@ NODE_GROUP_VERSION = 1
 COLOR_ATTRIBUTE = "point_color"  # not "color": Cycles does not find a point-cloud attribute of that name
 FRAME_ATTRIBUTE = "vggt_frame"
 
-# name -> (socket type, default, min)
-INPUTS = {
-    "Point Radius": ("NodeSocketFloat", 0.03, 0.0),
-    "Current Frame Only": ("NodeSocketBool", False, None),
-    "Frame Window": ("NodeSocketInt", 0, 0),
-    "Frame Offset": ("NodeSocketInt", 1, None),
-    "Material": ("NodeSocketMaterial", None, None),
-}
+INPUTS = (
+    node_groups.Socket("Point Radius", "NodeSocketFloat", 0.03, 0.0),
+    node_groups.Socket("Current Frame Only", "NodeSocketBool", False),
+    node_groups.Socket("Frame Window", "NodeSocketInt", 0, 0),
+    node_groups.Socket("Frame Offset", "NodeSocketInt", 1),
+    node_groups.Socket("Material", "NodeSocketMaterial"),
+)
 
 
 def ensure_material() -> bpy.types.Material:
@@ -38,86 +37,29 @@ def ensure_material() -> bpy.types.Material:
 
 def ensure_node_group() -> bpy.types.NodeTree:
     """Geometry Nodes: optionally keep only the points of the current frame (± window), then Mesh to Points."""
-    ng = bpy.data.node_groups.get(NODE_GROUP)
-    if ng is not None and ng.get("scpainter_version") == NODE_GROUP_VERSION:
-        return ng
-    ng = bpy.data.node_groups.new(NODE_GROUP, "GeometryNodeTree")
-    ng["scpainter_version"] = NODE_GROUP_VERSION
-    iface = ng.interface
-    iface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
-    for name, (stype, default, vmin) in INPUTS.items():
-        s = iface.new_socket(name, in_out="INPUT", socket_type=stype)
-        if default is not None:
-            s.default_value = default
-        if vmin is not None:
-            s.min_value = vmin
-    iface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
+    return node_groups.ensure_group(NODE_GROUP, NODE_GROUP_VERSION, INPUTS, _build_node_group)
 
-    n, link = ng.nodes, ng.links.new
-    gi, go = n.new("NodeGroupInput"), n.new("NodeGroupOutput")
-    frame_attr = n.new("GeometryNodeInputNamedAttribute")
-    frame_attr.data_type = "INT"
-    frame_attr.inputs["Name"].default_value = FRAME_ATTRIBUTE
-    time = n.new("GeometryNodeInputSceneTime")
 
-    def math(op, a, b=None):
-        m = n.new("ShaderNodeMath")
-        m.operation = op
-        for i, v in enumerate((a, b)):
-            if v is None:
-                continue
-            if isinstance(v, (int, float)):
-                m.inputs[i].default_value = v
-            else:
-                link(v, m.inputs[i])
-        return m.outputs[0]
-
+def _build_node_group(b: node_groups.Builder) -> None:
+    gi = b.group_input
+    frame = b.node("GeometryNodeInputNamedAttribute", {"Name": FRAME_ATTRIBUTE}, data_type="INT")
+    time = b.node("GeometryNodeInputSceneTime")
     # source frame shown now = scene frame - offset; drop points further than the window from it
-    current = math("SUBTRACT", time.outputs["Frame"], gi.outputs["Frame Offset"])
-    dist = math("ABSOLUTE", math("SUBTRACT", frame_attr.outputs["Attribute"], current))
-    outside = math("GREATER_THAN", dist, math("ADD", gi.outputs["Frame Window"], 0.5))
-    both = n.new("FunctionNodeBooleanMath")
-    both.operation = "AND"
-    link(gi.outputs["Current Frame Only"], both.inputs[0])
-    link(outside, both.inputs[1])
-    delete = n.new("GeometryNodeDeleteGeometry")
-    delete.domain = "POINT"
-    link(gi.outputs["Geometry"], delete.inputs["Geometry"])
-    link(both.outputs[0], delete.inputs["Selection"])
-    to_points = n.new("GeometryNodeMeshToPoints")
-    link(delete.outputs["Geometry"], to_points.inputs["Mesh"])
-    link(gi.outputs["Point Radius"], to_points.inputs["Radius"])
-    set_mat = n.new("GeometryNodeSetMaterial")
-    link(to_points.outputs["Points"], set_mat.inputs["Geometry"])
-    link(gi.outputs["Material"], set_mat.inputs["Material"])
-    link(set_mat.outputs["Geometry"], go.inputs[0])
-    for i, node in enumerate((gi, frame_attr, time, delete, to_points, set_mat, go)):
-        node.location = (i * 220 - 700, 0)
-    return ng
-
-
-def _socket_identifier(ng, name):
-    for item in ng.interface.items_tree:
-        if getattr(item, "in_out", None) == "INPUT" and item.name == name:
-            return item.identifier
-    raise KeyError(f"node group {ng.name!r} has no input {name!r}")
-
-
-def set_input(modifier, name, value):
-    """Set a Geometry Nodes modifier input by its interface name."""
-    modifier[_socket_identifier(modifier.node_group, name)] = value
-
-
-def get_input(modifier, name):
-    return modifier[_socket_identifier(modifier.node_group, name)]
+    current = b.math("SUBTRACT", time.outputs["Frame"], gi.outputs["Frame Offset"])
+    dist = b.math("ABSOLUTE", b.math("SUBTRACT", frame.outputs["Attribute"], current))
+    outside = b.math("GREATER_THAN", dist, b.math("ADD", gi.outputs["Frame Window"], 0.5))
+    delete = b.node("GeometryNodeDeleteGeometry", {"Geometry": gi.outputs["Geometry"],
+                                                   "Selection": b.boolean("AND", gi.outputs["Current Frame Only"],
+                                                                          outside)}, domain="POINT")
+    to_points = b.node("GeometryNodeMeshToPoints", {"Mesh": delete.outputs["Geometry"],
+                                                    "Radius": gi.outputs["Point Radius"]})
+    b.output(b.node("GeometryNodeSetMaterial", {"Geometry": to_points.outputs["Points"],
+                                                "Material": gi.outputs["Material"]}).outputs["Geometry"])
 
 
 def points_modifier(obj):
     """The SCPainter points modifier of ``obj``, or None."""
-    for m in obj.modifiers:
-        if m.type == "NODES" and m.node_group is not None and m.node_group.name.startswith(NODE_GROUP):
-            return m
-    return None
+    return node_groups.find_modifier(obj, NODE_GROUP)
 
 
 def srgb_to_linear_lut(levels: int = 256) -> np.ndarray:
@@ -178,11 +120,8 @@ def create_point_cloud(name: str, positions, colors, frame, collection, radius: 
     obj = bpy.data.objects.new(name, mesh)
     obj.location = origin.tolist()
     collection.objects.link(obj)
-    mod = obj.modifiers.new("SCPainter Points", "NODES")
-    mod.node_group = ensure_node_group()
     mat = ensure_material()
-    set_input(mod, "Point Radius", float(radius))
-    set_input(mod, "Frame Offset", int(frame_offset))
-    set_input(mod, "Material", mat)
+    node_groups.add_modifier(obj, "SCPainter Points", ensure_node_group(),
+                             {"Point Radius": float(radius), "Frame Offset": int(frame_offset), "Material": mat})
     mesh.materials.append(mat)
     return obj

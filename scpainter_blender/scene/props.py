@@ -6,16 +6,50 @@ import os
 
 import bpy
 
+from ..core import files
+
 DEFAULT_OUTPUT = "//scpainter/{scene}/"
+#: The ``path`` of a SceneError in a .blend that was never saved.
+UNSAVED = "(unsaved .blend)"
+
+
+class SceneError(files.InputError):
+    """A scene that cannot be used as it is (no camera, an output folder relative to an unsaved .blend, no road
+    points under an asset): bad input, like a bad file. ``path`` is the .blend (``UNSAVED`` before it is saved),
+    ``field`` the datablock or property at fault (``scene.camera``, ``scene.scpainter_output_dir``,
+    ``objects['Car']``)."""
+
+    def __init__(self, field, message, hint=None):
+        super().__init__(bpy.data.filepath or UNSAVED, field, message, hint)
 
 
 def output_dir(scene) -> str:
-    """The scene's output folder, absolute: its setting, or //scpainter/<scene name>/ beside the .blend."""
+    """The scene's output folder, absolute: its setting, or //scpainter/<scene name>/ beside the .blend.
+    SceneError when it is relative to a .blend that is not saved."""
     raw = scene.scpainter_output_dir or DEFAULT_OUTPUT.format(scene=bpy.path.clean_name(scene.name))
     if raw.startswith("//") and not bpy.data.filepath:
-        raise ValueError(f"the output folder {raw!r} is relative to the .blend, which is not saved yet: save it "
-                         "or set an absolute output folder in the SCPainter panel")
+        raise SceneError("scene.scpainter_output_dir", f"the output folder {raw!r} is relative to the .blend, which "
+                         "is not saved yet", hint="save the .blend or set an absolute output folder in the "
+                                                  "SCPainter panel")
     return os.path.abspath(bpy.path.abspath(raw))
+
+
+#: Object properties renamed to the ``a_to_b`` rule (issue 15): the name a .blend saved before holds.
+RENAMED_PROPERTIES = {"scpainter_vggt_to_world": "scpainter_world_from_vggt",
+                      "scpainter_file_to_data": "scpainter_data_from_file"}
+
+
+def matrix_property(obj, name: str):
+    """A 4x4 matrix stored on ``obj`` as 16 row-major floats, read under its current name or, in a .blend saved
+    before the rename, its old one (``RENAMED_PROPERTIES``). SceneError naming the object and the current name
+    when neither is set (the property was deleted: import the file again)."""
+    import numpy as np
+
+    for key in (name, RENAMED_PROPERTIES.get(name)):
+        if key is not None and key in obj:
+            return np.array(obj[key], dtype=np.float64).reshape(4, 4)
+    raise SceneError(f"objects[{obj.name!r}][{name!r}]", "missing: the matrix the import stored on the object",
+                     hint="import the file again")
 
 
 def register():

@@ -8,7 +8,11 @@ import os
 import bpy
 
 from ..backend_client import BackendError, BackendJob
+from ..core import files
 from . import job_export, preferences, props, results
+
+#: The ``path`` of an InputError about an add-on preference (``field``: the preference's name).
+PREFERENCES = "(add-on preferences)"
 
 #: The run in progress (one at a time): command, stage, done, total, out.
 ACTIVE: dict = {}
@@ -17,15 +21,18 @@ DOCTOR: dict = {}
 
 
 def start(context, command: str, extra=()) -> tuple[BackendJob, str]:
-    """Export the scene's job into its output folder and start ``python -m backend <command> job.json *extra``."""
+    """Export the scene's job into its output folder and start ``python -m backend <command> job.json *extra``.
+    InputError (SceneError, or ``PREFERENCES`` for a missing checkpoint folder) before anything is written when
+    the scene or the preferences cannot make a job; BackendError when the backend cannot be started."""
     scene = context.scene
     out = props.output_dir(scene)
     prefs = preferences.get(context)
     ckpt = bpy.path.abspath(prefs.checkpoint_dir) if prefs and prefs.checkpoint_dir else ""
     if command == "generate" and not ckpt:
-        raise ValueError("no checkpoint folder is set: Preferences > Add-ons > SCPainter > Checkpoint Folder (make "
-                         "one with `python -m backend init-checkpoint --svd SVD_DIR --out DIR`)")
-    os.makedirs(out, exist_ok=True)
+        raise files.InputError(PREFERENCES, "checkpoint_dir", "no checkpoint folder is set",
+                               hint="Preferences > Add-ons > SCPainter > Checkpoint Folder (or --checkpoint), made "
+                                    "with `python -m backend init-checkpoint --svd SVD_DIR --out DIR`")
+    files.make_folder(out, "scene.scpainter_output_dir")
     job_path = os.path.join(out, "job.json")
     job_export.export_job(context, job_path, checkpoint=ckpt)
     device = prefs.device.lower() if prefs else "auto"
@@ -48,8 +55,10 @@ def finish(context, command: str, out: str, done: dict) -> str:
 
 
 def failure_message(e: BackendError, out: str) -> str:
-    """One line for the user: the backend's message and where to read more (its log, or the end of its stderr
-    when it died before writing one)."""
+    """One line for the user: the backend's message and where to read more (the log its error event names, its
+    output folder's log, or the end of its stderr when it died before writing one)."""
+    if e.log_path:  # already in str(e): the traceback of an internal error
+        return str(e)
     log = os.path.join(out, "backend.log")
     if os.path.isfile(log):
         return f"{e} (log: {log})"

@@ -15,7 +15,7 @@ def main(argv=None):
     fields = json.loads(args.params)
     if "shifts_m" in fields:
         fields["shifts_m"] = tuple(fields["shifts_m"])
-    from .build import render_drive
+    from .render import render_drive
 
     info = render_drive(StreetParams(**fields), args.out, log=lambda m: print(m, file=sys.stderr, flush=True))
     print(json.dumps({"event": "done", "timings_s": info["timings_s"]}), flush=True)

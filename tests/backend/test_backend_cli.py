@@ -1,15 +1,13 @@
-"""``python -m backend``: the event stream, exit codes, and the ground-plane metric scale on the street."""
+"""``python -m backend``: the event stream, exit codes, and the client that runs it from Blender."""
 
 import json
 import os
 import subprocess
 import sys
 
-import numpy as np
 import pytest
 
 from scpainter_blender import backend_client
-from scpainter_blender.core import cameras as C
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
@@ -29,44 +27,50 @@ def test_doctor():
     assert report["numpy"] and report["python"].startswith("3.")
 
 
-def test_ground_plane_recovers_metric_scale(street):
-    code, events, err = run_backend("ground-plane", street.predictions_path, "--camera-height", 1.6)
-    assert code == 0, err
-    assert [e["event"] for e in events] == ["progress", "progress", "done"]
-    r = events[-1]["result"]
-    metric = street.metric()
-    truth = float(metric["metres_per_unit"])
-    assert r["scale"] == pytest.approx(truth, rel=0.005)
-    assert r["residual_m"] < 0.01 and r["details"]["tilt_deg"] < 5
-    # the levelled world: cameras 1.6 m over z = 0, the road's own points at z ≈ 0
-    M = np.array(r["world_from_vggt"])
-    from scpainter_blender.core import vggt as V
-
-    pred = V.load_predictions(street.predictions_path)
-    cams = C.camera_centers(C.transform_world_to_camera(C.orthonormalize(pred.world_to_camera), M))
-    assert np.abs(cams[:, 2] - 1.6).max() < 0.01
-
-
-def test_ground_plane_is_deterministic(street):
-    a = run_backend("ground-plane", street.predictions_path, "--camera-height", 1.5)[1][-1]["result"]
-    b = run_backend("ground-plane", street.predictions_path, "--camera-height", 1.5)[1][-1]["result"]
-    assert a == b
-
-
 def test_bad_input_exit_code_and_error_event(tmp_path):
-    bad = tmp_path / "broken.npz"
-    bad.write_bytes(b"PK\x03\x04 not really")
-    code, events, _ = run_backend("ground-plane", bad, "--camera-height", 1.6)
+    bad = tmp_path / "broken.json"
+    bad.write_text("{not json")
+    code, events, _ = run_backend("render", bad)
     assert code == 2
-    assert events[-1]["event"] == "error" and "broken.npz" in events[-1]["message"]
+    assert events[-1]["event"] == "error" and "broken.json" in events[-1]["message"]
+    assert events[-1]["file"] == str(bad) and events[-1]["field"] == "(file)"
 
 
 def test_client_raises_with_message(tmp_path):
-    with pytest.raises(backend_client.BackendError, match="missing.npz") as e:
-        backend_client.run(["ground-plane", tmp_path / "missing.npz", "--camera-height", 1.6])
+    with pytest.raises(backend_client.BackendError, match="missing.json") as e:
+        backend_client.run(["render", tmp_path / "missing.json"])
     assert e.value.exit_code == 2
     seen = []
     done = backend_client.run(["doctor"], on_event=seen.append)
     assert done["event"] == "done" and seen[-1] == done
     with pytest.raises(backend_client.BackendError, match="not found"):
         backend_client.run(["doctor"], python=str(tmp_path / "no-python"))
+
+
+#: ``python -m backend`` with a bug planted deep in the render command (an interpreter for ``BackendJob``).
+_BUGGY_BACKEND = ("import sys; from backend.render import frames; "
+                  "frames.render_frame = lambda *a, **k: (_ for _ in ()).throw(ValueError('shape bug')); "
+                  "from backend.__main__ import main; sys.exit(main(sys.argv[3:]))")
+
+
+def test_client_shows_file_and_field_of_bad_input_and_the_log_of_a_bug(tmp_path):
+    from tests_support import small_job
+
+    job = small_job(tmp_path / "job")
+    with open(job, encoding="utf-8") as f:
+        broken = json.load(f)
+    broken["resolution"] = [16, 0]
+    (tmp_path / "broken.json").write_text(json.dumps(broken))
+    with pytest.raises(backend_client.BackendError) as e:
+        backend_client.run(["render", tmp_path / "broken.json", "--device", "cpu"])
+    assert e.value.bad_input and e.value.exit_code == 2 and e.value.log_path is None
+    assert e.value.file == str(tmp_path / "broken.json") and e.value.field.startswith("resolution")
+    python = tmp_path / "python-with-a-bug"  # the real backend run by the real interpreter, render_frame broken
+    python.write_text(f'#!/bin/sh\nexec "{sys.executable}" -c "{_BUGGY_BACKEND}" "$@"\n')
+    python.chmod(0o755)
+    with pytest.raises(backend_client.BackendError) as e:
+        backend_client.run(["render", job, "--device", "cpu"], python=str(python))
+    log = str(tmp_path / "job" / "out" / "backend.log")
+    assert e.value.exit_code == 1 and not e.value.bad_input and e.value.file is None and e.value.log_path == log
+    assert str(e.value).startswith("ValueError: shape bug") and log in str(e.value)
+    assert "Traceback" in e.value.log and "Traceback" in open(log, encoding="utf-8").read()

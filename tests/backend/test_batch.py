@@ -59,6 +59,7 @@ def test_two_processes_under_torchrun(tmp_path):
     assert items["a.json"]["rank"] == 0 and items["b.json"]["rank"] == 1 and items["c.json"]["rank"] == 0
     assert items["a.json"]["status"] == "ok" and items["c.json"]["status"] == "ok"
     assert items["b.json"]["status"] == "failed" and "car.ply" in items["b.json"]["error"]
+    assert items["b.json"]["file"] == str(tmp_path / "b" / "car.ply") and "log" not in items["b.json"]  # bad input
     for name in ("a", "c"):
         made = os.listdir(tmp_path / name / f"out_{name}" / "conditions")
         assert len([f for f in made if f.startswith(("frame_", "preview_"))]) == 4   # 2 EXR + 2 PNG

@@ -33,7 +33,7 @@ def street_job(street, tmp_path_factory, addon, tiny_checkpoint):
     path = d / "job.json"
     bpy.ops.scpainter.export_job(filepath=str(path))
     bpy.ops.wm.read_homefile(use_empty=True)
-    job = J.load(path)
+    job = J.load(path).to_dict()
     job["generate"] = {"checkpoint": tiny_checkpoint, "steps": 3, "window": 14, "overlap": 4, "seed": 11}
     J.save(path, job)
     return str(path)
@@ -62,7 +62,7 @@ def test_generate_end_to_end(street_job):
 
 
 def test_sigterm_then_resume_gives_the_uninterrupted_frames(street_job, tmp_path):
-    job = J.load(street_job)
+    job = J.load(street_job).to_dict()
     reference = frames_of(J.resolve(street_job, job["output_dir"]))
     assert reference, "test_generate_end_to_end runs first and leaves its frames"
     job["output_dir"] = job["output_dir"].rstrip("/") + "_resumed"
@@ -92,7 +92,7 @@ def test_sigterm_then_resume_gives_the_uninterrupted_frames(street_job, tmp_path
 
 
 def test_no_checkpoint_fails_fast(street_job, tiny_svd, tmp_path):
-    job = J.load(street_job)
+    job = J.load(street_job).to_dict()
     del job["generate"]["checkpoint"]
     path = tmp_path / "job.json"
     shutil.copy(J.resolve(street_job, job["scene"]["predictions"]), tmp_path / "predictions.npz")
@@ -168,7 +168,7 @@ def test_generate_checks_everything_before_any_work(tiny_checkpoint, tmp_path):
     shutil.copytree(tiny_checkpoint, tmp_path / "job" / "ckpt", copy_function=os.link)
     code, ev, err = backend("generate", job_path, "--check")
     assert code == 0 and ev[-1]["check"] and ev[-1]["settings"]["window"] == 14, err[-2000:]
-    base = J.load(job_path)
+    base = J.load(job_path).to_dict()
     for change, field in [({"fps": 1e300}, "generate.fps"), ({"overlap": 14}, "generate.overlap"),
                           ({"window": 4, "overlap": 4}, "generate.overlap")]:
         job = copy.deepcopy(base)
@@ -200,3 +200,34 @@ def test_a_resume_state_holding_nan_is_never_used(tmp_path):
     assert step == 5 and torch.equal(latents, torch.ones(2, 4, 3, 3))
     G.save_state(path, torch.full((2, 4, 3, 3), float("nan")), 5, "key")
     assert G.load_state(path, "key") == (None, 0)
+
+
+def test_checkpoint_window_reaches_a_blender_exported_job(street, addon, tiny_checkpoint, tmp_path):
+    """The export writes no generation settings, so a checkpoint trained with window 8 samples in windows of 8
+    (the export used to write 14 whatever the checkpoint said)."""
+    ckpt = tmp_path / "ckpt-window8"
+    shutil.copytree(tiny_checkpoint, ckpt, copy_function=os.link)
+    config = json.loads((ckpt / "scpainter.json").read_text())
+    os.remove(ckpt / "scpainter.json")                       # a link: never edit the shared fixture through it
+    (ckpt / "scpainter.json").write_text(json.dumps({**config, "window": 8, "fps": 5}))
+    scene = street_with_car(street, tmp_path, count=2000)
+    scene.frame_start, scene.frame_end = 1, 10               # two windows of 8: [0, 8) and [2, 10), end-aligned
+    scene.render.resolution_percentage = 25
+    prefs = bpy.context.preferences.addons[addon].preferences
+    prefs.checkpoint_dir = str(ckpt)
+    try:
+        path = tmp_path / "job.json"
+        assert bpy.ops.scpainter.export_job(filepath=str(path)) == {"FINISHED"}
+    finally:
+        prefs.checkpoint_dir = ""
+        bpy.ops.wm.read_homefile(use_empty=True)
+    exported = json.loads(path.read_text())
+    assert exported["generate"] == {"checkpoint": str(ckpt)}  # no window, guidance or fps of its own
+    code, ev, err = backend("generate", str(path), "--device", "cpu", "--allow-outside", "--steps", "1")
+    assert code == 0, err[-3000:]
+    done = ev[-1]
+    assert done["window"] == 8 and done["fps"] == 5.0 and done["overlap"] == 4 and done["frames"] == 10
+    manifest = json.loads((tmp_path / "generated" / "manifest.json").read_text())
+    assert manifest["settings"]["window"] == 8
+    log = (tmp_path / "backend.log").read_text()
+    assert "window 8 overlap 4" in log

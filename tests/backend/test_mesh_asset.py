@@ -353,7 +353,7 @@ def test_trellis_glb_and_gaussian_ply_share_a_pose(tmp_path):
     # save_ply: xyz @ transform.T and rotation transform @ R, zero normals, SH 0
     g = ma.mesh_to_gaussians(obj, 20000, seed=0)
     Tply = np.array([[1, 0, 0], [0, 0, -1], [0, 1, 0]], float)
-    assert np.array_equal(Tply, splats.TRELLIS_FILE_FROM_ZUP)
+    assert np.array_equal(Tply, splats.ZUP_TO_TRELLIS_FILE)
     R = cameras.quaternion_to_rotation(g.quats.astype(float))
     saved = splats.Gaussians(means=(g.means.astype(float) @ Tply.T).astype(np.float32), scales=g.scales,
                              quats=cameras.rotation_to_quaternion(Tply @ R).astype(np.float32),
@@ -361,9 +361,9 @@ def test_trellis_glb_and_gaussian_ply_share_a_pose(tmp_path):
     zeros = np.zeros(len(g), np.float32)
     ply_path = tmp_path / "sample.ply"
     splats.write_ply(ply_path, splats.encode(saved, extra={"nx": zeros, "ny": zeros, "nz": zeros}))
-    # the project's import of the PLY: F = TRELLIS_FILE_FROM_ZUP.T (scene/gaussians.py)
+    # the project's import of the PLY: F = ZUP_TO_TRELLIS_FILE.T (scene/gaussians.py)
     loaded = splats.load(ply_path)
-    Fz = splats.TRELLIS_FILE_FROM_ZUP.T
+    Fz = splats.ZUP_TO_TRELLIS_FILE.T
     ply_means = loaded.means.astype(float) @ Fz.T
     ply_normals = (Fz @ cameras.quaternion_to_rotation(loaded.quats.astype(float)))[:, :, 2]
     # the GLB through load_mesh (auto: Y up)

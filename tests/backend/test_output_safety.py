@@ -46,7 +46,7 @@ def case(tmp_path):
 
 
 def edit(job_path, **changes):
-    job = J.load(job_path)
+    job = J.load(job_path).to_dict()
     job.update(changes)
     J.save(job_path, job)
 
@@ -70,7 +70,7 @@ def test_inputs_may_not_leave_the_job_folder(case):
     os.symlink(outside / "car.ply", os.path.join(folder, "car.ply"))   # a link pointing out counts as outside
     code, ev = run("render", job_path, "--device", "cpu")
     assert code == 2 and ev[-1]["field"] == "assets[0].ply" and "symbolic link" in ev[-1]["message"]
-    edit(job_path, scene={**J.load(job_path)["scene"], "predictions": "../outside/predictions.npz"})
+    edit(job_path, scene={**J.load(job_path).to_dict()["scene"], "predictions": "../outside/predictions.npz"})
     code, ev = run("render", job_path, "--device", "cpu")
     assert code == 2 and ev[-1]["field"] == "scene.predictions"
     # the user may say so
@@ -120,7 +120,7 @@ def test_stale_frames_clean_up_deletes_only_this_jobs_files(case):
     for name in ("frame_000777.exr", "frame_notes.txt", "preview_mine.png"):  # not this job's outputs
         with open(os.path.join(cond, name), "w") as f:
             f.write("keep me\n")
-    job = J.load(job_path)
+    job = J.load(job_path).to_dict()
     job["frames"][1]["world_to_camera"][0][3] += 0.25                   # the job changed: frames are stale
     J.save(job_path, job)
     code, ev = run("render", job_path, "--device", "cpu")
@@ -158,7 +158,7 @@ def test_check_validates_and_writes_nothing(case):
     before = snapshot(folder)
     code, ev = run("render", job_path, "--check")
     assert code == 0 and ev[-1]["check"] is True and ev[-1]["frames"] == 2 and ev[-1]["locked_by"] is None
-    job = J.load(job_path)
+    job = J.load(job_path).to_dict()
     job["frames"][0]["source_frames"] = [0, 5]                          # the predictions have 2 frames
     J.save(job_path, job)
     before = snapshot(folder)

@@ -449,9 +449,20 @@ def test_input_errors_survive_pickling():
     from scpainter_blender.core.splats import SplatsError
     from scpainter_blender.core.vggt import PredictionsError
 
+    from backend.evaluate.inception import EvaluationError
+    from backend.render.exr import ExrError
+
     for e in (F.InputError("/a/job.json", "frames[0]", "bad", hint="fix it"), SplatsError("/a/car.ply", "bad", "x"),
               PredictionsError("/a/p.npz", "depth", "bad"), MeshAssetError("/a/m.glb", "bad"),
-              TrainConfigError("/a/train.json", "steps", "bad"), ClipError("/a/clip.json", "cars", "bad")):
+              TrainConfigError("/a/train.json", "steps", "bad"), ClipError("/a/clip.json", "cars", "bad"),
+              F.ArgumentError("--device", "no GPU", hint="use --device cpu"), ExrError("/a/f.exr", None, "bad"),
+              EvaluationError("/a/w.pth", "bad")):
         back = pickle.loads(pickle.dumps(e))
         assert type(back) is type(e) and str(back) == str(e) and back.__dict__ == e.__dict__
         assert isinstance(back, F.InputError) and back.field == e.field and back.hint == e.hint
+
+
+def test_an_argument_error_names_the_command_line_and_the_option():
+    e = F.ArgumentError("--device", "cuda: torch sees no CUDA GPU", hint="use --device cpu or auto")
+    assert isinstance(e, F.InputError) and e.path == F.COMMAND_LINE == "(command line)" and e.field == "--device"
+    assert str(e) == "(command line): --device: cuda: torch sees no CUDA GPU" and e.hint == "use --device cpu or auto"

@@ -7,13 +7,14 @@ import numpy as np
 import pytest
 
 from scpainter_blender.core import job as J
+from scpainter_blender.core import job_inputs
 
 
 def minimal(frames=(1, 2)):
     return {"schema": J.SCHEMA, "resolution": [64, 32],
             "frames": [{"frame": f, "K": [[50, 0, 32], [0, 50, 16], [0, 0, 1]], "world_to_camera": np.eye(4).tolist(),
                         "source_frames": [0, 1]} for f in frames],
-            "scene": {"predictions": "recon/predictions.npz", "world_from_vggt": (2 * np.eye(4) - np.diag([0, 0, 0, 1])).tolist(),
+            "scene": {"predictions": "recon/predictions.npz", "vggt_to_world": (2 * np.eye(4) - np.diag([0, 0, 0, 1])).tolist(),
                       "confidence_percentile": 50.0,
                       "removal_boxes": [{"box_to_world": np.eye(4).tolist(), "size": [4.5, 1.9, 1.6]}]},
             "assets": [{"name": "car_01", "ply": "assets/car_01.ply",
@@ -25,7 +26,13 @@ def minimal(frames=(1, 2)):
 def test_valid_job_round_trip(tmp_path):
     job = minimal()
     J.save(tmp_path / "job.json", job)
-    assert J.load(tmp_path / "job.json") == json.loads(json.dumps(job))
+    loaded = J.load(tmp_path / "job.json")
+    assert isinstance(loaded, J.Job) and isinstance(loaded.scene, J.Scene) and isinstance(loaded.frames[0], J.Frame)
+    expected = json.loads(json.dumps(job))
+    expected["scene"].update(extrinsic_convention="world_to_camera", crop=[0, 0, 0, 0])  # defaults, written out
+    assert loaded.to_dict() == expected
+    assert json.loads((tmp_path / "job.json").read_text()) == expected
+    assert loaded.assets[0].object_to_world[2].shape == (4, 4)    # frame numbers are ints in the classes
     assert J.resolve(tmp_path / "job.json", "assets/car_01.ply") == str(tmp_path / "assets" / "car_01.ply")
     without = {k: v for k, v in job.items() if k not in ("scene", "assets", "generate")}
     J.validate(without)
@@ -42,7 +49,7 @@ def test_valid_job_round_trip(tmp_path):
     (lambda j: j["frames"][1]["K"][0].__setitem__(0, float("nan")), "frames[1].K[0][0]"),
     (lambda j: j["frames"][0].update(world_to_camera=np.diag([2.0, 2, 2, 1]).tolist()), "frames[0].world_to_camera"),
     (lambda j: j["frames"][0].update(source_frames=[-1]), "frames[0].source_frames[0]"),
-    (lambda j: j["scene"].update(world_from_vggt=np.diag([1.0, 2, 1, 1]).tolist()), "scene.world_from_vggt"),
+    (lambda j: j["scene"].update(vggt_to_world=np.diag([1.0, 2, 1, 1]).tolist()), "scene.vggt_to_world"),
     (lambda j: j["scene"].update(confidence_percentile=120), "scene.confidence_percentile"),
     (lambda j: j["scene"].update(extrinsic_convention="auto"), "scene.extrinsic_convention"),
     (lambda j: j["scene"].update(crop=[0, 5, 0]), "scene.crop"),
@@ -71,8 +78,8 @@ def test_valid_job_round_trip(tmp_path):
     (lambda j: j["generate"].update(min_guidance=4.0, max_guidance=2.0), "generate.min_guidance"),
     (lambda j: j.update(output_dir="x" * 5000), "output_dir"),
     # the loader's own similarity rule: a 1e-5 shear validated before, then failed deep in the renderer
-    (lambda j: j["scene"].update(world_from_vggt=(np.eye(4) + 1e-5 * np.eye(4, k=1)).tolist()),
-     "scene.world_from_vggt"),
+    (lambda j: j["scene"].update(vggt_to_world=(np.eye(4) + 1e-5 * np.eye(4, k=1)).tolist()),
+     "scene.vggt_to_world"),
 ])
 def test_bad_fields_are_named(tmp_path, mutate, field):
     job = minimal()
@@ -112,24 +119,24 @@ def test_paths_stay_in_the_job_folder(tmp_path):
 
     job = minimal()
     path = tmp_path / "job.json"
-    paths = J.job_paths(path, job)
+    paths = job_inputs.job_paths(path, J.validate(job))
     assert paths["output_dir"] == str(tmp_path / "out")
     assert paths["scene.predictions"] == str(tmp_path / "recon" / "predictions.npz")
     assert "generate.checkpoint" not in paths            # asked for only when the job's checkpoint is used
     with pytest.raises(J.JobError) as e:
-        J.job_paths(path, job, checkpoint=True)
+        job_inputs.job_paths(path, J.validate(job), checkpoint=True)
     assert e.value.field == "generate.checkpoint"
     for field, change in [("output_dir", {"output_dir": "../x"}), ("output_dir", {"output_dir": "a/../../x"}),
                           ("assets[0].ply", {"assets": [{**job["assets"][0], "ply": "/etc/passwd"}]})]:
         bad = {**job, **change}
         with pytest.raises(J.JobError) as e:
-            J.job_paths(path, bad)
+            job_inputs.job_paths(path, J.validate(bad))
         assert e.value.field == field and "--allow-outside" in str(e.value)
-        assert J.job_paths(path, bad, allow_outside=True)[field].startswith("/")
+        assert job_inputs.job_paths(path, J.validate(bad), allow_outside=True)[field].startswith("/")
     os.symlink(tmp_path.parent, tmp_path / "up")          # inside by name, outside in fact
     with pytest.raises(J.JobError, match="symbolic link"):
-        J.job_paths(path, {**job, "output_dir": "up/out"})
-    assert J.job_paths(path, {**job, "output_dir": "sub/../out/."})["output_dir"] == str(tmp_path / "out")
+        job_inputs.job_paths(path, J.validate({**job, "output_dir": "up/out"}))
+    assert job_inputs.job_paths(path, J.validate({**job, "output_dir": "sub/../out/."}))["output_dir"] == str(tmp_path / "out")
 
 
 def test_job_file_limits(tmp_path):
@@ -150,3 +157,60 @@ def test_job_file_limits(tmp_path):
     os.mkfifo(p)
     with pytest.raises(J.JobError, match="FIFO"):
         J.load(p)
+
+
+def test_old_schema_still_loads_and_saves_in_the_new_one(tmp_path):
+    """A scpainter.job/1 file (scene.world_from_vggt, before the a_to_b rule) loads; saving writes job/2."""
+    old = minimal()
+    old["schema"] = "scpainter.job/1"
+    old["scene"]["world_from_vggt"] = old["scene"].pop("vggt_to_world")
+    p = tmp_path / "old.json"
+    p.write_text(json.dumps(old))
+    job = J.load(p)
+    np.testing.assert_array_equal(job.scene.vggt_to_world, np.array(old["scene"]["world_from_vggt"]))
+    J.save(tmp_path / "new.json", job)
+    new = json.loads((tmp_path / "new.json").read_text())
+    assert new["schema"] == J.SCHEMA == "scpainter.job/2"
+    assert "vggt_to_world" in new["scene"] and "world_from_vggt" not in new["scene"]
+    # an old file's error names the field by the name that file uses
+    old["scene"]["world_from_vggt"] = np.diag([1.0, 2, 1, 1]).tolist()
+    p.write_text(json.dumps(old))
+    with pytest.raises(J.JobError) as e:
+        J.load(p)
+    assert e.value.field == "scene.world_from_vggt"
+    # the new schema does not accept the old name
+    new["scene"]["world_from_vggt"] = new["scene"].pop("vggt_to_world")
+    with pytest.raises(J.JobError) as e:
+        J.validate(new)
+    assert e.value.field == "scene.vggt_to_world"
+
+
+def test_generation_settings_resolve_once():
+    """Defaults live in GENERATE_DEFAULTS; window, guidance and fps default to the checkpoint's own."""
+    class Config:
+        window, min_guidance, max_guidance, fps = 8, 1.5, 2.5, 10.0
+
+    s = J.GenerateSettings().resolve(Config())
+    assert s == {"steps": 25, "window": 8, "overlap": 4, "seed": 0, "min_guidance": 1.5, "max_guidance": 2.5,
+                 "fps": 10.0, "decode_chunk": 8}
+    assert {k: s[k] for k in J.GENERATE_DEFAULTS} == J.GENERATE_DEFAULTS
+    s = J.GenerateSettings(steps=3, window=12).resolve(Config(), {"steps": 5, "seed": None})
+    assert (s["steps"], s["window"], s["seed"]) == (5, 12, 0)         # command line > job > checkpoint > default
+    class Small(Config):
+        window = 3
+
+    with pytest.raises(J.JobError, match="checkpoint's window") as e:  # overlap 4 against the checkpoint's 3
+        J.GenerateSettings().resolve(Small(), path="job.json")
+    assert e.value.field == "generate.overlap"
+    with pytest.raises(J.JobError) as e:                               # overrides are named as flags
+        J.check_generate_settings({"steps": 0}, "(command line)", "--")
+    assert e.value.field == "--steps"
+
+
+def test_job_built_in_code_is_validated_on_save(tmp_path):
+    """save() validates a Job built in code, so a bad value never reaches a file."""
+    job = J.validate(minimal())
+    job.frames[0].K = np.zeros((3, 3))
+    with pytest.raises(J.JobError) as e:
+        J.save(tmp_path / "job.json", job)
+    assert e.value.field == "frames[0].K" and not (tmp_path / "job.json").exists()

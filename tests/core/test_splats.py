@@ -36,7 +36,7 @@ def trellis_like_file(path, N=40, seed=1):
              "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
     arr = np.zeros(N, dtype=[(n, "<f4") for n in names])
     zup = rng.uniform(-0.5, 0.5, (N, 3))
-    filexyz = zup @ SP.TRELLIS_FILE_FROM_ZUP.T
+    filexyz = zup @ SP.ZUP_TO_TRELLIS_FILE.T
     for i, k in enumerate("xyz"):
         arr[k] = filexyz[:, i]
     for i in range(3):
@@ -140,7 +140,7 @@ def test_trellis_amodal3r_file(tmp_path):
     assert ply.sh_degree == 0 and set(ply.extra) == {"nx", "ny", "nz"}
     g = SP.decode(ply)
     assert len(g) == 40 and g.dropped == {}
-    back_to_zup = g.means.astype(np.float64) @ SP.TRELLIS_FILE_FROM_ZUP  # p = T^T p_file
+    back_to_zup = g.means.astype(np.float64) @ SP.ZUP_TO_TRELLIS_FILE  # p = T^T p_file
     assert np.allclose(back_to_zup, zup, atol=1e-6)
     assert np.all(np.abs(back_to_zup) <= 0.5 + 1e-6)  # TRELLIS's unit cube
 

@@ -30,8 +30,8 @@ def test_import_and_save(addon, empty_scene, street, tmp_path, capsys):
     bpy.ops.wm.open_mainfile(filepath=str(out))
     pts = next(o for o in bpy.context.scene.objects if o.get("scpainter_kind") == "points")
     assert len(pts.data.vertices) == ev["points"]
-    M = np.array(pts["scpainter_world_from_vggt"]).reshape(4, 4)
-    assert np.abs(M - street.metric()["world_from_vggt"]).max() < 1e-4
+    M = np.array(pts["scpainter_vggt_to_world"]).reshape(4, 4)
+    assert np.abs(M - street.metric()["vggt_to_world"]).max() < 1e-4
     bpy.ops.wm.read_homefile(use_empty=True)
 
 
@@ -48,6 +48,40 @@ def test_bad_input_exit_code_2(addon, empty_scene, tmp_path, capsys):
     assert cli.execute(["render", str(not_blend)]) == 2
     ev = _last_event(capsys)
     assert ev["file"] == str(not_blend) and "cannot open it as a scene" in ev["message"]
+
+
+def test_input_error_by_name_is_exit_2_anything_else_exit_1(addon, empty_scene, tmp_path, capsys, monkeypatch):
+    """Bad input is an InputError, caught by name (exit 2, file and field); a plain ValueError is a bug (exit 1,
+    its traceback on standard error), as in the backend."""
+    cli = _cli(addon)
+    files = sys.modules[addon + ".scpainter_blender.core.files"]
+    importer = sys.modules[addon + ".scpainter_blender.scene.importer"]
+    for argv, field in ((["batch", "--command", "render"], "items"), (["render", "x.blend", "--device", "gpu"],
+                                                                     "--device"),
+                        (["batch", "a.blend", "--shard", "2/2"], "--shard"), (["batch", "a.blend", "--shard", "x"],
+                                                                              "--shard")):
+        assert cli.execute(argv) == 2, argv
+        ev = _last_event(capsys)
+        assert ev["event"] == "error" and ev["file"] == files.COMMAND_LINE and ev["field"] == field, ev
+
+    def shape_bug(*args, **kwargs):
+        raise ValueError("shape bug: (3,) and (4,)")
+
+    monkeypatch.setattr(importer, "import_vggt", shape_bug)
+    assert cli.execute(["import", str(tmp_path / "p.npz")]) == 1
+    captured = capsys.readouterr()
+    ev = json.loads([line for line in captured.out.splitlines() if line.startswith("{")][-1])
+    assert ev["message"] == "ValueError: shape bug: (3,) and (4,)" and "file" not in ev
+    assert "not a problem with the input" in ev["hint"]
+    assert "Traceback (most recent call last)" in captured.err and "in shape_bug" in captured.err
+
+    def bad_file(context, path, opts):
+        raise files.InputError(path, "depth", "expected (S, H, W) or (S, H, W, 1)", hint="save it again")
+
+    monkeypatch.setattr(importer, "import_vggt", bad_file)
+    assert cli.execute(["import", str(tmp_path / "p.npz")]) == 2
+    ev = _last_event(capsys)
+    assert ev["file"] == str(tmp_path / "p.npz") and ev["field"] == "depth" and ev["hint"] == "save it again"
 
 
 def _street_blend(street, folder):

@@ -18,9 +18,40 @@ def test_zip_contents(extension_zip):
     assert "blender_manifest.toml" in names and "__init__.py" in names
     assert "scpainter_blender/core/vggt.py" in names and "backend/__main__.py" in names
     assert "operators/import_vggt.py" in names and "panels/main.py" in names
-    for excluded in ("tests/", "bench/", "docs/", "tools/", ".ci/", "Makefile", "requirements.txt", ".venv/"):
+    for excluded in ("tests/", "bench/", "docs/", "tools/", ".ci/", "Makefile", "requirements.txt", ".venv/",
+                     "scpainter_blender/street/"):
         assert not [n for n in names if n.startswith(excluded)], excluded
     assert not [n for n in names if "__pycache__" in n]
+
+
+def _street_imports(name, source):
+    """The imports of module ``name`` (its path in the zip) that reach the street package, absolute or relative."""
+    package = name.split("/")[:-1]
+    found = []
+    for node in ast.walk(ast.parse(source, name)):
+        if isinstance(node, ast.Import):
+            targets = [a.name.split(".") for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = package[:len(package) - node.level + 1] if node.level else []
+            base = base + (node.module.split(".") if node.module else [])
+            targets = [base + [a.name] for a in node.names]
+        else:
+            continue
+        found += [".".join(t) for t in targets if "street" in t[:-1] or t[-1] == "street"]
+    return found
+
+
+def test_shipped_code_never_imports_the_street(extension_zip):
+    """The procedural street is left out of the zip: no shipped module may import it (the add-on registers from
+    this very zip in test_installed_and_enabled)."""
+    with zipfile.ZipFile(extension_zip) as z:
+        sources = {n: z.read(n).decode() for n in z.namelist() if n.endswith(".py")}
+    assert "scpainter_blender/core/vggt_io.py" in sources and "backend/train/street_clip.py" in sources
+    assert _street_imports("tests/x.py", "from scpainter_blender.street import build\nfrom .street import a") == \
+        ["scpainter_blender.street.build", "tests.street.a"]  # the check sees both kinds
+    assert _street_imports("scpainter_blender/scene/x.py", "from ..street.dataset import view_name") == \
+        ["scpainter_blender.street.dataset.view_name"]
+    assert {n: _street_imports(n, src) for n, src in sources.items() if _street_imports(n, src)} == {}
 
 
 def _our_classes():
@@ -59,7 +90,7 @@ def test_register_unregister_register_leaves_nothing_behind(addon):
     assert hasattr(bpy.ops.scpainter, "import_vggt")
 
 
-# -- DESIGN §2 import rules --------------------------------------------------------------------------------------
+# -- import rules (docs/design.md, "Layout") ---------------------------------------------------------------------
 
 def _py_files(*dirs):
     for d in dirs:

@@ -49,9 +49,9 @@ def test_import_amodal3r_car(empty_scene, car_file):
     assert np.array_equal(_attr(obj, "scale", 3), raw.scale)
     assert np.array_equal(_attr(obj, "rot", 4), raw.rot)
     assert np.array_equal(_attr(obj, "ply_nx", 1), raw.extra["nx"])
-    # data frame: Z up, origin at the bottom centre; data_from_file maps the file onto it
+    # data frame: Z up, origin at the bottom centre; file_to_data maps the file onto it
     pos = _attr(obj, "position", 3).astype(np.float64)
-    M = np.array(obj["scpainter_data_from_file"]).reshape(4, 4)
+    M = np.array(obj["scpainter_file_to_data"]).reshape(4, 4)
     assert np.abs(raw.xyz @ M[:3, :3].T + M[:3, 3] - pos).max() < 1e-6
     lo, hi = pos.min(0), pos.max(0)
     assert abs(lo[2]) < 1e-7 and np.allclose((lo[:2] + hi[:2]) / 2, 0, atol=1e-6)
@@ -69,9 +69,9 @@ def test_import_amodal3r_car(empty_scene, car_file):
     # preview: sprites by default, one per Gaussian; ellipsoids as instances
     assert _evaluated(obj) == (N, 0)
     mod = obj.modifiers["SCPainter Gaussians"]
-    from scpainter_blender.scene import points
+    from scpainter_blender.scene import node_groups
 
-    points.set_input(mod, "Ellipsoids", True)
+    node_groups.set_input(mod, "Ellipsoids", True)
     obj.update_tag()
     assert _evaluated(obj) == (0, N)
 
@@ -181,7 +181,7 @@ def test_set_axes_flips_and_restores(empty_scene, tmp_path):
     bpy.ops.scpainter.import_gaussians(filepath=path)
     obj = bpy.context.active_object
     pos0, q0 = _attr(obj, "position", 3).copy(), _attr(obj, "gs_rotation", 4).copy()
-    D0, size0 = list(obj["scpainter_data_from_file"]), list(obj["scpainter_size"])
+    D0, size0 = list(obj["scpainter_file_to_data"]), list(obj["scpainter_size"])
     length0 = max(size0[:2]) * obj.scale[0]
     assert bpy.ops.scpainter.check_assets() == {"FINISHED"} and obj["scpainter_stage1"] == "ok"
     assert bpy.ops.scpainter.set_asset_axes(axes="NONE") == {"FINISHED"}
@@ -189,13 +189,13 @@ def test_set_axes_flips_and_restores(empty_scene, tmp_path):
     size1 = np.array(obj["scpainter_size"])
     assert size1[2] > size1[0]  # read as stored, the car's length is vertical: on its side
     assert max(size1[:2]) * obj.scale[0] == pytest.approx(length0, rel=1e-5)  # length kept
-    raw = splats.read_ply(path)  # data_from_file still maps the file onto the new data frame
-    M = np.array(obj["scpainter_data_from_file"]).reshape(4, 4)
+    raw = splats.read_ply(path)  # file_to_data still maps the file onto the new data frame
+    M = np.array(obj["scpainter_file_to_data"]).reshape(4, 4)
     assert np.abs(raw.xyz @ M[:3, :3].T + M[:3, 3] - _attr(obj, "position", 3)).max() < 1e-6
     assert bpy.ops.scpainter.set_asset_axes(axes="TRELLIS") == {"FINISHED"}
     assert np.abs(_attr(obj, "position", 3) - pos0).max() < 1e-6
     assert np.abs(np.abs(np.einsum("ij,ij->i", _attr(obj, "gs_rotation", 4), q0)) - 1).max() < 1e-5
-    assert np.allclose(obj["scpainter_data_from_file"], D0, atol=1e-7)
+    assert np.allclose(obj["scpainter_file_to_data"], D0, atol=1e-7)
     assert np.allclose(obj["scpainter_size"], size0, atol=1e-6)
 
 

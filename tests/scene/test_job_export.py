@@ -38,7 +38,7 @@ def test_export_matches_independent_cameras_and_transforms(empty_scene, street, 
     car, ply = _build_scene(street, tmp_path)
     path = str(tmp_path / "out" / "job.json")
     assert bpy.ops.scpainter.export_job(filepath=path) == {"FINISHED"}
-    job = J.load(path)
+    job = J.load(path).to_dict()
     metric = street.metric()
     S = street.params.num_frames
     assert job["resolution"] == [street.params.width, street.params.height]
@@ -52,12 +52,12 @@ def test_export_matches_independent_cameras_and_transforms(empty_scene, street, 
         assert fr["source_frames"] == list(range(S))
     sc = job["scene"]
     assert J.resolve(path, sc["predictions"]) == os.path.abspath(street.predictions_path)
-    assert np.abs(np.array(sc["world_from_vggt"]) - metric["world_from_vggt"]).max() < 1e-4
+    assert np.abs(np.array(sc["vggt_to_world"]) - metric["vggt_to_world"]).max() < 1e-4
     assert "removal_boxes" not in sc and "generate" not in job
-    # the asset, frame by frame: T(x(f), 12, 0) · Rz(0.3) · uniform scale · data_from_file, x linear in f
+    # the asset, frame by frame: T(x(f), 12, 0) · Rz(0.3) · uniform scale · file_to_data, x linear in f
     (asset,) = job["assets"]
     assert asset["name"] == car.name and J.resolve(path, asset["ply"]) == os.path.abspath(ply)
-    D = np.array(car["scpainter_data_from_file"]).reshape(4, 4)
+    D = np.array(car["scpainter_file_to_data"]).reshape(4, 4)
     s = car.scale[0]
     c, sn = np.cos(0.3), np.sin(0.3)
     for f in range(1, S + 1):
@@ -73,25 +73,43 @@ def test_leaves_out_what_the_scene_does_not_use(empty_scene, street, tmp_path):
     car, _ = _build_scene(street, tmp_path)
     car["scpainter_review"] = "rejected"  # stage-2 rejected assets are not rendered
     pts = next(o for o in empty_scene.objects if o.get("scpainter_kind") == "points")
-    pts.location.x += 1.0  # the artist nudged the reconstruction: world_from_vggt follows
-    from scpainter_blender.scene import points
+    pts.location.x += 1.0  # the artist nudged the reconstruction: vggt_to_world follows
+    from scpainter_blender.scene import node_groups, points
 
     mod = points.points_modifier(pts)
-    points.set_input(mod, "Current Frame Only", True)
-    points.set_input(mod, "Frame Window", 1)
+    node_groups.set_input(mod, "Current Frame Only", True)
+    node_groups.set_input(mod, "Frame Window", 1)
     job = bpy.ops.scpainter.export_job(filepath=str(tmp_path / "job.json"))
-    job = J.load(tmp_path / "job.json")
+    job = J.load(tmp_path / "job.json").to_dict()
     assert "assets" not in job
-    W = np.array(job["scene"]["world_from_vggt"])
-    assert np.abs(W[:3, 3] - (street.metric()["world_from_vggt"][:3, 3] + [1, 0, 0])).max() < 1e-4
+    W = np.array(job["scene"]["vggt_to_world"])
+    assert np.abs(W[:3, 3] - (street.metric()["vggt_to_world"][:3, 3] + [1, 0, 0])).max() < 1e-4
     assert job["frames"][0]["source_frames"] == [0, 1]
     assert job["frames"][5]["source_frames"] == [4, 5, 6]
     assert job["frames"][-1]["source_frames"] == [14, 15]
 
 
 def test_needs_a_camera_and_a_saved_blend(empty_scene, tmp_path):
-    with pytest.raises(RuntimeError, match="not saved yet"):
+    # bad input (a SceneError): the report names the .blend and the property, and says what to do
+    with pytest.raises(RuntimeError, match=r"\(unsaved \.blend\): scene\.scpainter_output_dir: .*not saved yet.*"
+                                           r"save the \.blend"):
         bpy.ops.scpainter.export_job()
-    with pytest.raises(RuntimeError, match="no active camera"):
+    with pytest.raises(RuntimeError, match=r"scene\.camera: the scene has no active camera \(add one"):
         bpy.ops.scpainter.export_job(filepath=str(tmp_path / "job.json"))
     assert not (tmp_path / "job.json").exists()
+
+
+def test_an_operator_reports_a_bug_by_its_type(addon, empty_scene, tmp_path, monkeypatch, capfd):
+    """Anything but an InputError (a plain ValueError included) is a bug of the add-on: the report says so with the
+    exception's type, the traceback goes to the console."""
+    import sys
+
+    def shape_bug(*args, **kwargs):
+        raise ValueError("shape bug: (3, 4) and (4, 4)")
+
+    monkeypatch.setattr(sys.modules[addon + ".scpainter_blender.scene.job_export"], "export_job", shape_bug)
+    with pytest.raises(RuntimeError, match=r"ValueError: shape bug: \(3, 4\) and \(4, 4\) \(an internal error in "
+                                           r"SCPainter, not a problem with the input"):
+        bpy.ops.scpainter.export_job(filepath=str(tmp_path / "job.json"))
+    err = capfd.readouterr().err
+    assert "Traceback (most recent call last)" in err and "in shape_bug" in err

@@ -59,6 +59,16 @@ def test_snap_to_ground(street_scene):
     assert np.degrees(np.arctan2(-fwd[0], fwd[1])) == pytest.approx(np.degrees(0.4), abs=1.0)
 
 
+def test_snap_away_from_the_road_is_a_scene_error(street_scene):
+    """Bad input (a SceneError naming the asset), reported as such: not a bug, and the asset stays where it is."""
+    _, car = street_scene
+    car.location = (500.0, 500.0, 2.0)
+    with pytest.raises(RuntimeError, match=rf"\(unsaved \.blend\): objects\['{car.name}'\]: only 0 scene points "
+                                           r"under the asset \(move it over the reconstructed road"):
+        bpy.ops.scpainter.snap_to_ground()
+    assert tuple(car.location) == (500.0, 500.0, 2.0)
+
+
 def test_removal_box_removes_the_parked_car_points(street_scene, street, tmp_path):
     pts, _ = street_scene
     car = street.info["cars"][0]
@@ -80,7 +90,7 @@ def test_removal_box_removes_the_parked_car_points(street_scene, street, tmp_pat
     assert len(geometry.pointcloud.attributes["position"].data) == len(world) - inside.sum()
     # exported with the job, as the box the artist placed
     bpy.ops.scpainter.export_job(filepath=str(tmp_path / "job.json"))
-    (b,) = J.load(tmp_path / "job.json")["scene"]["removal_boxes"]
+    (b,) = J.load(tmp_path / "job.json").to_dict()["scene"]["removal_boxes"]
     assert np.abs(np.array(b["box_to_world"]) - T).max() < 1e-5
     assert np.allclose(b["size"], [W + 0.1, L + 0.1, H + 0.1], rtol=1e-6)
     # a deleted box removes nothing
@@ -125,7 +135,7 @@ def test_stage1_flags_wrong_proportions_and_stage2_rejects(street_scene, tmp_pat
     assert bpy.ops.scpainter.review_asset(name=bad.name, status="rejected") == {"FINISHED"}
     assert bpy.ops.scpainter.review_asset(name=good.name, status="accepted") == {"FINISHED"}
     bpy.ops.scpainter.export_job(filepath=str(tmp_path / "job.json"))
-    assert [a["name"] for a in J.load(tmp_path / "job.json")["assets"]] == [good.name]
+    assert [a["name"] for a in J.load(tmp_path / "job.json").to_dict()["assets"]] == [good.name]
 
 
 def test_placement_needs_an_asset(empty_scene):

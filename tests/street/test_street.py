@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from scpainter_blender.core import cameras as C
-from scpainter_blender.core import vggt as V
-from scpainter_blender.street import build
+from scpainter_blender.core import point_cloud, similarity, trajectory, unproject, vggt_io
+from scpainter_blender.street import build, predictions
 from scpainter_blender.street.dataset import StreetParams, ensure_street, view_name
 
 
@@ -32,17 +32,17 @@ def test_predictions_layout_is_vggts(street):
 
 def test_scale_normalised_like_vggt(street):
     """Mean distance of the scene's points from the first camera is one VGGT unit."""
-    pred = V.load_predictions(street.predictions_path)
+    pred = vggt_io.load_predictions(street.predictions_path)
     hit = np.isfinite(street.metric()["depth"])
-    pts = V.point_cloud(pred, 0.0)
+    pts = point_cloud.point_cloud(pred, 0.0)
     keep = hit.reshape(-1)
     assert np.linalg.norm(pts.positions[keep], axis=1).mean() == pytest.approx(1.0, rel=1e-4)
 
 
 def test_metric_ground_truth_is_consistent(street):
-    pred = V.load_predictions(street.predictions_path)
+    pred = vggt_io.load_predictions(street.predictions_path)
     m = street.metric()
-    w2c = C.transform_world_to_camera(C.orthonormalize(pred.world_to_camera), m["world_from_vggt"])
+    w2c = similarity.transform_world_to_camera(C.orthonormalize(pred.world_to_camera), m["vggt_to_world"])
     assert np.abs(w2c - m["world_to_camera"]).max() < 1e-5
     assert np.allclose(C.camera_centers(m["world_to_camera"])[:, 2], street.params.camera_height_m)
     # VGGT-unit depth times the scale is the metric depth
@@ -56,7 +56,7 @@ def test_depth_is_exact_at_pixel_centres(street):
     S, H, W = m["depth"].shape
     for i in (0, S // 2, S - 1):
         rows, cols = np.meshgrid(np.arange(H - 40, H), np.arange(W // 2 - 30, W // 2 + 30), indexing="ij")
-        p = V.unproject_pixels(m["depth"][i], m["K"][i], m["world_to_camera"][i], rows.ravel(), cols.ravel())
+        p = unproject.unproject_pixels(m["depth"][i], m["K"][i], m["world_to_camera"][i], rows.ravel(), cols.ravel())
         z = p[:, 2]
         on_road = np.abs(z) < 1e-3
         on_paint = np.abs(z - 0.004) < 1e-3
@@ -70,7 +70,7 @@ def test_depth_is_exact_at_pixel_centres(street):
         half = np.array(car["size"]) / 2 + 0.02
         for i in np.unique(frames):
             f = frames == i
-            p = V.unproject_pixels(m["depth"][i], m["K"][i], m["world_to_camera"][i], rows[f], cols[f])
+            p = unproject.unproject_pixels(m["depth"][i], m["K"][i], m["world_to_camera"][i], rows[f], cols[f])
             local = (p - B[:3, 3]) @ B[:3, :3]
             assert np.all(np.abs(local) <= half), (car["name"], np.abs(local).max(0))
 
@@ -78,8 +78,8 @@ def test_depth_is_exact_at_pixel_centres(street):
 def test_shifted_views(street):
     m = street.metric()
     rec = m["world_to_camera"]
-    heading = C.heading_directions(C.camera_centers(rec))
-    left = C.left_directions(heading)
+    heading = trajectory.heading_directions(C.camera_centers(rec))
+    left = trajectory.left_directions(heading)
     for s in street.params.shifts_m:
         name = view_name(s)
         poses = m[f"world_to_camera_{name}"]
@@ -93,7 +93,7 @@ def test_shifted_views(street):
 
 def test_images_are_the_recorded_renders(street):
     """predictions images are the recorded PNGs' bytes / 255 (what VGGT reads from disk)."""
-    pred = V.load_predictions(street.predictions_path)
+    pred = vggt_io.load_predictions(street.predictions_path)
     H, W = pred.height, pred.width
     px = _pixels(street.frame_path("recorded", 3))
     assert np.abs(px.reshape(H, W, 4)[::-1, :, :3] - pred.images[3]).max() < 1e-6
@@ -141,3 +141,27 @@ def test_recorded_path_is_a_gentle_forward_drive():
     fwd = T[:, 2, :3]
     assert np.all(fwd[:, 1] > 0.99)
     assert np.allclose(np.linalg.det(T[:, :3, :3]), 1.0)
+
+
+def test_drive_files_give_back_the_metric_points(tmp_path):
+    """predictions.npz in VGGT's layout + metric.npz's vggt_to_world = the metric points, without rendering: a
+    drive over a wall (and a sky pixel per frame) written by write_drive, read back as the import reads it."""
+    S, H, W = 3, 6, 8
+    K = np.array([[8.0, 0, W / 2], [0, 8.0, H / 2], [0, 0, 1]])
+    w2c = build.recorded_path(StreetParams(num_frames=S, frame_spacing_m=1.5))
+    depth = np.full((S, H, W), 12.0, np.float32) + np.arange(W, dtype=np.float32)
+    depth[:, 0, 0] = np.inf  # sky: far, least confident, left out by the percentile
+    images = np.random.default_rng(0).random((S, H, W, 3), dtype=np.float32)
+    views = {"recorded": w2c, "left_2m": trajectory.shift_trajectory(w2c, left_m=2.0)}
+    m = predictions.write_drive(str(tmp_path), images, depth, np.zeros((S, H, W), np.uint8), K, views, 1.6)
+    with np.load(tmp_path / "metric.npz") as z:
+        assert z["metres_per_unit"] == m and np.array_equal(z["world_to_camera_left_2m"], views["left_2m"])
+        M = z["vggt_to_world"]
+    pred = vggt_io.load_predictions(tmp_path / "predictions.npz", extrinsic_convention="auto")
+    assert pred.report.convention_checked and np.allclose(pred.world_to_camera[0], np.eye(4))
+    pts = point_cloud.point_cloud(pred, 5.0, vggt_to_world=M)  # 3 sky pixels of 144: below the 5th percentile
+    hit = np.isfinite(depth)
+    truth = np.concatenate([unproject.unproject_pixels(depth[i], K, w2c[i], *np.nonzero(hit[i])) for i in range(S)])
+    assert len(pts) == hit.sum() and np.abs(pts.positions - truth).max() < 1e-4
+    # VGGT's normalisation: mean distance of the valid points from the first camera is one unit
+    assert np.linalg.norm(truth - C.camera_centers(w2c[0]), axis=1).mean() == pytest.approx(m)

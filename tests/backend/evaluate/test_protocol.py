@@ -46,12 +46,12 @@ def test_task_jobs_shift_cameras_and_reinsert_the_car(street_clip_path, tmp_path
     s = protocol.EvalSettings(clips=[street_clip_path], output_dir=str(tmp_path), width=128, height=64, frames=4)
     names = [t[0] for t in protocol.tasks(c, s)]
     assert names == ["nvs_+2m", "nvs_-2m", "nvs_+3m", "nvs_-3m", "insert", "insert_shift+2m"]
-    job = job_mod.load(protocol.task_job(c, s, str(tmp_path / "a"), 2.0, None))
+    job = job_mod.load(protocol.task_job(c, s, str(tmp_path / "a"), 2.0, None)).to_dict()
     centre = lambda T: -np.array(T)[:3, :3].T @ np.array(T)[:3, 3]  # noqa: E731
     moved = centre(job["frames"][1]["world_to_camera"]) - centre(c.world_to_camera[1])
     assert abs(np.linalg.norm(moved) - 2.0) < 1e-6 and "assets" not in job
     assert job["frames"][3]["source_frames"] == list(range(0, 12))
-    ins = job_mod.load(protocol.task_job(c, s, str(tmp_path / "b"), 0.0, 0))
+    ins = job_mod.load(protocol.task_job(c, s, str(tmp_path / "b"), 0.0, 0)).to_dict()
     assert len(ins["scene"]["removal_boxes"]) == 1 and ins["assets"][0]["name"] == c.cars[0].id
 
 

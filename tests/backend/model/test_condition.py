@@ -13,10 +13,10 @@ def test_untrained_condition_latent_equals_svd_vae_encoding(tiny_svd):
     enc = condition.ConditionEncoder.from_vae(vae)
     gen = torch.Generator().manual_seed(0)
     image = torch.rand(2, 3, 64, 96, generator=gen)
-    asset = (torch.rand(2, 1, 64, 96, generator=gen) > 0.5).float()  # any mask: its channel weighs zero
+    asset_mask = (torch.rand(2, 1, 64, 96, generator=gen) > 0.5).float()  # any mask: its channel weighs zero
     valid = torch.ones(2, 1, 64, 96)
     with torch.no_grad():
-        ours = condition.encode_conditions(enc, image, asset, valid)
+        ours = condition.encode_conditions(enc, image, asset_mask, valid)
         svd = vae.encode(image * 2 - 1).latent_dist.mode()
     assert ours.shape == (2, 4, 8, 12)
     assert torch.allclose(ours, svd, atol=1e-6)
@@ -39,9 +39,9 @@ def test_holes_zero_the_latent(tiny_svd):
     vae = AutoencoderKLTemporalDecoder.from_pretrained(tiny_svd, subfolder="vae", local_files_only=True,
                                                        use_safetensors=True)
     enc = condition.ConditionEncoder.from_vae(vae)
-    image, asset = torch.rand(1, 3, 32, 32), torch.zeros(1, 1, 32, 32)
+    image, asset_mask = torch.rand(1, 3, 32, 32), torch.zeros(1, 1, 32, 32)
     valid = torch.ones(1, 1, 32, 32)
     valid[..., :, 16:] = 0
     with torch.no_grad():
-        lat = condition.encode_conditions(enc, image, asset, valid)
+        lat = condition.encode_conditions(enc, image, asset_mask, valid)
     assert not lat[..., 2:].any() and lat[..., :2].abs().sum() > 0

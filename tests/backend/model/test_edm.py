@@ -1,4 +1,5 @@
-"""backend.model.edm against diffusers' EulerDiscreteScheduler configured as SVD's (the stock sampler)."""
+"""backend.model.edm against diffusers' EulerDiscreteScheduler configured as SVD's (the stock sampler), and the
+schedule read from a scheduler config as diffusers reads it."""
 
 import pytest
 import torch
@@ -6,24 +7,27 @@ from diffusers import EulerDiscreteScheduler
 
 from backend.model import configs, edm
 
+SVD = edm.Schedule.from_config(configs.SCHEDULER)  # stock SVD: σ from 700 to 0.002, "leading" spacing
+
 
 @pytest.mark.parametrize("steps", [1, 8, 25])
 def test_sigmas_and_timesteps_match_svd_scheduler(steps):
     sched = EulerDiscreteScheduler.from_config(configs.SCHEDULER)
     sched.set_timesteps(steps)
-    ours = edm.karras_sigmas(steps)
+    ours = SVD.sigmas(steps)
+    assert (SVD.sigma_min, SVD.sigma_max, SVD.rho, SVD.timestep_spacing) == (0.002, 700.0, 7.0, "leading")
     assert torch.allclose(ours, sched.sigmas, rtol=1e-6, atol=0)
     assert torch.allclose(edm.c_noise(ours[:-1]), sched.timesteps, rtol=1e-6, atol=1e-7)
-    assert edm.init_noise_sigma() == pytest.approx(float(sched.init_noise_sigma), rel=1e-7)
+    assert SVD.init_noise_sigma == pytest.approx(float(sched.init_noise_sigma), rel=1e-7)
 
 
 def test_euler_step_matches_scheduler_step():
     steps = 6
     sched = EulerDiscreteScheduler.from_config(configs.SCHEDULER)
     sched.set_timesteps(steps)
-    sigmas = edm.karras_sigmas(steps)
+    sigmas = SVD.sigmas(steps)
     gen = torch.Generator().manual_seed(0)
-    x = torch.randn(3, 4, 5, 6, generator=gen) * edm.init_noise_sigma()
+    x = torch.randn(3, 4, 5, 6, generator=gen) * SVD.init_noise_sigma
     x_ref = x.clone()
     for i, t in enumerate(sched.timesteps):
         v = torch.randn(x.shape, generator=gen)
@@ -39,11 +43,11 @@ def test_guidance_ramp_and_mix():
     u, c = torch.zeros(5, 2), torch.ones(5, 2)
     assert torch.allclose(edm.guide(u, c, g[:, None]), g[:, None].expand(5, 2))
     with pytest.raises(ValueError):
-        edm.karras_sigmas(0)
+        SVD.sigmas(0)
 
 
 @pytest.mark.parametrize("dtype", [torch.float16, torch.bfloat16])
-@pytest.mark.parametrize("sigma", [edm.SIGMA_MAX, 1.0, edm.SIGMA_MIN])
+@pytest.mark.parametrize("sigma", [SVD.sigma_max, 1.0, SVD.sigma_min])
 @pytest.mark.parametrize("scale", [1.0, 15.0])
 def test_low_precision_network_keeps_the_sampler_finite(dtype, sigma, scale):
     """Our path: float32 formulas, only the network's input/output rounded to fp16/bf16 — finite everywhere and
@@ -60,5 +64,79 @@ def test_low_precision_network_keeps_the_sampler_finite(dtype, sigma, scale):
     assert torch.isfinite(out).all()
     tol = 0.05 if dtype == torch.bfloat16 else 0.01
     assert float((out.double() - x0).abs().max()) < tol
-    if dtype == torch.float16 and sigma == edm.SIGMA_MAX:
+    if dtype == torch.float16 and sigma == SVD.sigma_max:
         assert float(edm.c_in(s.half())) == 0.0  # why the formulas stay in float32
+
+
+# -- the schedule from a scheduler config, as diffusers reads it ------------------------------------------------
+
+@pytest.mark.parametrize("edit", [
+    {"sigma_max": 80.0},
+    {"sigma_min": 0.02, "sigma_max": 80},
+    {"timestep_spacing": "linspace"},
+    {"timestep_spacing": "trailing", "sigma_max": 300.0},
+], ids=["sigma_max-80", "range", "linspace", "trailing"])
+def test_other_edm_configs_give_diffusers_sigmas_and_initial_noise(edit):
+    """Whatever range and spacing the config holds, our sigmas, c_noise and initial noise scale are diffusers'."""
+    config = {**configs.SCHEDULER, **edit}
+    ours = edm.Schedule.from_config(config)
+    sched = EulerDiscreteScheduler.from_config(config)
+    sched.set_timesteps(6)
+    assert ours.sigma_max == float(config["sigma_max"]) and ours.sigmas(6)[0] == pytest.approx(ours.sigma_max)
+    assert torch.allclose(ours.sigmas(6), sched.sigmas, rtol=1e-6, atol=0)
+    assert torch.allclose(edm.c_noise(ours.sigmas(6)[:-1]), sched.timesteps, rtol=1e-6, atol=1e-6)
+    assert ours.init_noise_sigma == pytest.approx(float(sched.init_noise_sigma), rel=1e-6)
+
+
+def test_missing_keys_take_diffusers_defaults():
+    """``timestep_spacing`` absent is diffusers' "linspace" (initial noise σ_max); absent use_exponential_sigmas,
+    use_beta_sigmas and final_sigmas_type are their harmless defaults."""
+    config = {k: v for k, v in configs.SCHEDULER.items() if k != "timestep_spacing"}
+    assert edm.Schedule.from_config(config).init_noise_sigma == 700.0
+    assert edm.Schedule.from_config({**configs.SCHEDULER, "_class_name": "EulerDiscreteScheduler",
+                                     "use_beta_sigmas": False, "final_sigmas_type": "zero"}) == SVD
+
+
+def _without(key):
+    return {k: v for k, v in configs.SCHEDULER.items() if k != key}
+
+
+@pytest.mark.parametrize("config, field, words", [
+    ({**configs.SCHEDULER, "prediction_type": "epsilon"}, "prediction_type", ["is 'epsilon'", '"v_prediction"']),
+    (_without("prediction_type"), "prediction_type", ["is missing", 'default: "epsilon"']),
+    ({**configs.SCHEDULER, "timestep_type": "discrete"}, "timestep_type", ['"continuous"']),
+    ({**configs.SCHEDULER, "use_karras_sigmas": False}, "use_karras_sigmas", ["expected true"]),
+    ({**configs.SCHEDULER, "use_karras_sigmas": 1}, "use_karras_sigmas", ["expected true"]),
+    ({**configs.SCHEDULER, "use_exponential_sigmas": True}, "use_exponential_sigmas", ["expected false"]),
+    ({**configs.SCHEDULER, "final_sigmas_type": "sigma_min"}, "final_sigmas_type", ['"zero"']),
+    (_without("sigma_min"), "sigma_min", ["is missing", "a number in [1e-10, 1e+10]"]),
+    ({**configs.SCHEDULER, "sigma_max": None}, "sigma_max", ["null"]),
+    ({**configs.SCHEDULER, "sigma_max": "700"}, "sigma_max", ["a string"]),
+    ({**configs.SCHEDULER, "sigma_min": 0}, "sigma_min", ["is 0"]),
+    ({**configs.SCHEDULER, "sigma_max": 10 ** 400}, "sigma_max", ["an integer of 401 digits"]),
+    ({**configs.SCHEDULER, "sigma_max": float("inf")}, "sigma_max", ["is inf"]),
+    ({**configs.SCHEDULER, "sigma_max": float("nan")}, "sigma_max", ["is nan"]),
+    ({**configs.SCHEDULER, "sigma_min": 800.0}, "sigma_min", ["not below sigma_max 700"]),
+    ({**configs.SCHEDULER, "timestep_spacing": "evenly"}, "timestep_spacing", ['"leading"']),
+    ({**configs.SCHEDULER, "_class_name": "DDIMScheduler"}, "_class_name", ['"EulerDiscreteScheduler"']),
+    ([1, 2], "(file)", ["JSON object"]),
+])
+def test_configs_that_are_not_svds_edm_are_refused_naming_file_and_field(config, field, words):
+    from backend.model.checkpoint import CheckpointError
+    from scpainter_blender.core.files import InputError
+
+    with pytest.raises(CheckpointError) as info:
+        edm.Schedule.from_config(config)
+    e = info.value
+    assert isinstance(e, InputError) and e.path == "scheduler/scheduler_config.json" and e.field == field
+    assert str(e).startswith(f"scheduler/scheduler_config.json: {field}: ") and "v_prediction" in e.hint
+    for w in words:
+        assert w in str(e), (w, str(e))
+
+
+def test_time_ids_are_svds_micro_conditioning():
+    from backend.model.checkpoint import ScpainterConfig
+
+    ids = edm.time_ids(ScpainterConfig(fps=7, motion_bucket_id=127, noise_aug_strength=0.02), 3)
+    assert ids.shape == (3, 3) and ids.dtype == torch.float32
+    assert torch.equal(ids, torch.tensor([[6.0, 127.0, 0.02]]).repeat(3, 1))

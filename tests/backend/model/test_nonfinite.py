@@ -9,7 +9,6 @@ import pytest
 import torch
 
 from backend.errors import NonFiniteError
-from backend.model import edm
 from backend.model.pipeline import SCPainterPipeline, precision_hint
 
 FRAMES, H, W, STEPS = 4, 32, 32, 3
@@ -58,7 +57,7 @@ def test_nan_at_the_first_step_names_step_one_and_sigma_max(pipe, inputs):
             _sample(pipe, inputs, seen)
     finally:
         handle.remove()
-    sigma0 = float(edm.karras_sigmas(STEPS)[0])
+    sigma0 = float(pipe.schedule.sigmas(STEPS)[0])
     assert e.value.fields == {"stage": "generate", "step": 1, "sigma": sigma0}
     assert str(e.value) == f"the model produced NaN/inf latents at step 1 of {STEPS} (σ = 700)"
     assert "--precision" not in e.value.hint and "fp32" in e.value.hint  # it ran in fp32: the weights, not rounding
@@ -79,7 +78,7 @@ def test_nan_from_a_later_step_names_that_step(pipe, inputs, rows, guided):
     finally:
         handle.remove()
     assert len(calls) == k
-    assert e.value.fields["step"] == k and e.value.fields["sigma"] == float(edm.karras_sigmas(STEPS)[k - 1])
+    assert e.value.fields["step"] == k and e.value.fields["sigma"] == float(pipe.schedule.sigmas(STEPS)[k - 1])
     assert seen == [(i, True) for i in range(1, k)]  # the good steps before it were passed on, all finite
 
 

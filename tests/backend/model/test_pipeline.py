@@ -5,7 +5,6 @@ import pytest
 import torch
 from PIL import Image
 
-from backend.model import edm
 from backend.model.pipeline import SCPainterPipeline, window_starts
 
 
@@ -42,12 +41,12 @@ def test_one_window_equals_stock_svd_pipeline(pipe, tiny_svd):
                 noise_aug_strength=0.0, latents=eps.clone(), output_type="latent").frames[0]
     cond = pipe.condition_latents(image[None].repeat(frames, 1, 1, 1), torch.zeros(frames, 1, H, W),
                                   torch.ones(frames, 1, H, W))
-    ours = pipe.sample(cond, pipe.clip_embedding(image), steps=steps, latents=eps[0] * edm.init_noise_sigma())
+    ours = pipe.sample(cond, pipe.clip_embedding(image), steps=steps, latents=eps[0] * pipe.schedule.init_noise_sigma)
     assert ours.shape == ref.shape
     assert torch.allclose(ours, ref, atol=1e-4 * float(ref.abs().max()) + 1e-5)
     # a window longer than the clip is the same single window
     again = pipe.sample(cond, pipe.clip_embedding(image), steps=steps, window=frames + 5,
-                        latents=eps[0] * edm.init_noise_sigma())
+                        latents=eps[0] * pipe.schedule.init_noise_sigma)
     assert torch.equal(again, ours)
 
 

@@ -11,14 +11,14 @@ def layers(H=7, W=11, seed=0):
     z = rng.uniform(1, 50, (H, W)).astype(np.float32)
     z[0, 0] = np.inf
     return {"R": rng.random((H, W)), "G": rng.random((H, W)), "B": rng.random((H, W)),
-            "hole": (rng.random((H, W)) > 0.5).astype(np.float32), "asset": rng.random((H, W)), "Z": z}
+            "hole": (rng.random((H, W)) > 0.5).astype(np.float32), "asset_mask": rng.random((H, W)), "Z": z}
 
 
 def test_round_trip(tmp_path):
     ch = layers()
     exr.write(tmp_path / "f.exr", ch)
     back = exr.read(tmp_path / "f.exr")
-    assert sorted(back) == ["B", "G", "R", "Z", "asset", "hole"]
+    assert sorted(back) == ["B", "G", "R", "Z", "asset_mask", "hole"]
     for k, v in ch.items():
         assert np.array_equal(back[k], np.asarray(v, np.float32)), k
     assert not list(tmp_path.glob("*.tmp"))
@@ -46,5 +46,25 @@ def test_bad_input(tmp_path):
     with pytest.raises(ValueError):
         exr.write(tmp_path / "x.exr", {"R": np.zeros((2, 2)), "G": np.zeros((2, 3))})
     (tmp_path / "not.exr").write_bytes(b"hello")
-    with pytest.raises(ValueError, match="not.exr"):
+    with pytest.raises(exr.ExrError, match="not.exr"):
         exr.read(tmp_path / "not.exr")
+
+
+def test_damaged_files_are_input_errors_naming_the_file(tmp_path):
+    """A truncated or damaged EXR (an output folder someone edited) is an ExrError naming the file, never an
+    allocation from a forged size or an IndexError."""
+    path = tmp_path / "frame.exr"
+    exr.write(path, layers())
+    data = path.read_bytes()
+    header_end = data.index(b"\0\0", data.index(b"screenWindowWidth"))
+    cases = {"truncated.exr": data[:len(data) // 2], "no_rows.exr": data[:header_end + 20],
+             "cut_header.exr": data[:40]}
+    i = data.index(b"dataWindow") + len(b"dataWindow\0box2i\0") + 4  # the box's x1, y1: a 2**31-pixel window
+    cases["forged.exr"] = data[:i + 8] + np.array([2 ** 31 - 2, 2 ** 31 - 2], "<i4").tobytes() + data[i + 16:]
+    for name, content in cases.items():
+        (tmp_path / name).write_bytes(content)
+        with pytest.raises(exr.ExrError) as e:
+            exr.read(tmp_path / name)
+        assert e.value.path == str(tmp_path / name) and name in str(e.value) and e.value.hint
+    with pytest.raises(exr.ExrError, match="not found"):
+        exr.read(tmp_path / "missing.exr")

@@ -60,8 +60,8 @@ def test_recorded_drive_reproduces_the_frames(street_jobs, street):
     psnrs = []
     for i in (0, 8, 15):
         layers = exr.read(os.path.join(cond, f"frame_{i + 1:06d}.exr"))
-        assert sorted(layers) == ["B", "G", "R", "Z", "asset", "hole"]
-        assert not layers["asset"].any()                     # no assets: an empty asset mask
+        assert sorted(layers) == ["B", "G", "R", "Z", "asset_mask", "hole"]  # the file's channels, as named
+        assert not layers["asset_mask"].any()                     # no assets: an empty asset mask
         img = np.stack([layers["R"], layers["G"], layers["B"]], -1)
         gt = _pixels(street.frame_path("recorded", i))
         covered = layers["hole"] == 0
@@ -78,7 +78,7 @@ def test_recorded_drive_reproduces_the_frames(street_jobs, street):
     assert code == 0 and ev[-1]["rendered"] == 0 and ev[-1]["skipped"] == 16
     assert os.path.getsize(os.path.join(os.path.dirname(job_path), "backend.log")) > 0
     # a changed job (a camera moved) is never served stale frames
-    job = J.load(job_path)
+    job = J.load(job_path).to_dict()
     job["frames"][3]["world_to_camera"][0][3] += 0.5
     J.save(job_path, job)
     code, ev, _ = backend("render", job_path, "--device", "cpu", "--allow-outside")
@@ -91,7 +91,7 @@ def test_shifted_drive_with_a_car(street_jobs):
     assert code == 0, err
     cond = os.path.join(os.path.dirname(job_path), "conditions")
     layers = exr.read(os.path.join(cond, "frame_000001.exr"))
-    car = layers["asset"] > 0.5
+    car = layers["asset_mask"] > 0.5
     assert car.mean() > 0.01                                   # the parked car is in view
     blue = np.stack([layers["R"], layers["G"], layers["B"]], -1)[car]
     assert np.median(blue[:, 2]) > np.median(blue[:, 0]) + 0.2   # in its own paint
@@ -146,5 +146,33 @@ def test_assets_only_job(tmp_path):
     code, ev, err = backend("render", tmp_path / "job.json", "--device", "cpu")
     assert code == 0, err
     layers = exr.read(tmp_path / "out" / "conditions" / "frame_000001.exr")
-    assert 0.05 < (layers["asset"] > 0.5).mean() < 0.9
-    assert np.array_equal(layers["hole"] == 1, layers["asset"] < 1 / 255)
+    assert 0.05 < (layers["asset_mask"] > 0.5).mean() < 0.9
+    assert np.array_equal(layers["hole"] == 1, layers["asset_mask"] < 1 / 255)
+
+
+def test_rendering_leaves_the_job_unchanged(tmp_path):
+    """The job's float64 matrices are moved to the scene origin on copies: rendering twice gives the same frame and
+    the second run finds the same job key (it skips)."""
+    from backend.render import command as render_cmd
+    from backend.render import frames as fr
+
+    shapes.save_as_amodal3r(str(tmp_path / "car.ply"), shapes.procedural_car_gaussians(count=1000, seed=2))
+    w2c = np.eye(4)
+    w2c[:3, :3] = [[1, 0, 0], [0, 0, -1], [0, 1, 0]]
+    w2c[:3, 3] = -w2c[:3, :3] @ np.array([100.0, -8.0, 0.3])     # the scene origin is far from the world's
+    job = {"schema": J.SCHEMA, "resolution": [24, 16],
+           "frames": [{"frame": 1, "K": [[20, 0, 12], [0, 20, 8], [0, 0, 1]], "world_to_camera": w2c.tolist()}],
+           "assets": [{"name": "car", "ply": "car.ply", "object_to_world": {"1": [[4.5, 0, 0, 100], [0, 0, 4.5, 0],
+                                                                                  [0, -4.5, 0, 0], [0, 0, 0, 1]]}}],
+           "output_dir": "out"}
+    J.save(tmp_path / "job.json", job)
+    path = str(tmp_path / "job.json")
+    loaded = J.load(path)
+    before = loaded.to_dict()
+    scene = fr.load_scene(loaded, path, "cpu")
+    first = fr.render_frame(scene, loaded.frames[0], 24, 16)
+    again = fr.render_frame(scene, loaded.frames[0], 24, 16)
+    assert loaded.to_dict() == before
+    assert first["asset_mask"].max() > 0.5 and all(np.array_equal(first[k], again[k]) for k in first)
+    assert render_cmd.render_job(path, loaded, "cpu")["rendered"] == 1
+    assert render_cmd.render_job(path, loaded, "cpu")["skipped"] == 1

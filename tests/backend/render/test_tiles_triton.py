@@ -26,11 +26,11 @@ for seed, bg_wall in ((0, False), (1, True)):
         bg[:, :32] = 5.0
     bins = tiles.bin_tiles(proj, 64, 48)
     inputs = tiles.kernel_inputs(proj, bins, 64, 48, bg, dtype=torch.float32)  # as on CUDA
-    c, a, z = tiles_cuda.composite(*inputs, 64, 48, bins["tiles_x"], 16)
-    rc, ra, rz = GS.rasterize(proj, 64, 48, bg)
-    assert float(ra.max()) > 0.5
+    c, mask, z = tiles_cuda.composite(*inputs, 64, 48, bins["tiles_x"], 16)
+    rc, rmask, rz = GS.rasterize(proj, 64, 48, bg)
+    assert float(rmask.max()) > 0.5
     assert float((c.reshape(48, 64, 3) - rc).abs().max()) <= 1e-5, "colour"
-    assert float((a.reshape(48, 64) - ra).abs().max()) <= 1e-5, "alpha"
+    assert float((mask.reshape(48, 64) - rmask).abs().max()) <= 1e-5, "asset mask"
     z, rz = z.reshape(48, 64), rz
     assert torch.equal(torch.isinf(z), torch.isinf(rz)) and torch.allclose(z[~torch.isinf(z)], rz[~torch.isinf(rz)])
 print("ok")

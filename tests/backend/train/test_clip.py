@@ -63,8 +63,8 @@ def _copy(street_clip_path, tmp_path, edit):
     (lambda d, f: _edit_poses(f, world_to_camera=lambda a: a * 0), "world_to_camera"),
     (lambda d, f: _edit_poses(f, K=lambda a: a > 0), "K"),
     (lambda d, f: _edit_poses(f, K=lambda a: -a), "K"),
-    (lambda d, f: _edit_poses(f, world_from_vggt=lambda a: a[:3]), "world_from_vggt"),
-    (lambda d, f: _edit_poses(f, world_from_vggt=lambda a: np.diag([1.0, 2.0, 3.0, 1.0])), "world_from_vggt"),
+    (lambda d, f: _edit_poses(f, vggt_to_world=lambda a: a[:3]), "vggt_to_world"),
+    (lambda d, f: _edit_poses(f, vggt_to_world=lambda a: np.diag([1.0, 2.0, 3.0, 1.0])), "vggt_to_world"),
     (lambda d, f: _edit_poses(f, world_to_camera=lambda a: np.array([None] * len(a), object)), "world_to_camera"),
 ])
 def test_bad_clips_name_the_field(street_clip_path, tmp_path, edit, field):
@@ -117,6 +117,6 @@ def test_clip_without_poses_uses_vggt_cameras_scaled_to_the_frames(street_clip_p
     folder = _copy(street_clip_path, tmp_path, lambda d, f: [d.pop("poses"), d.pop("views")])
     c = clip_mod.load(folder)
     assert not c.metric
-    np.testing.assert_allclose(c.world_from_vggt, np.eye(4))
+    np.testing.assert_allclose(c.vggt_to_world, np.eye(4))
     np.testing.assert_allclose(c.K, c.predictions.K, atol=1e-4)  # the street's frames are VGGT's size
     np.testing.assert_allclose(c.world_to_camera[0], np.eye(4), atol=1e-6)

@@ -15,13 +15,14 @@ def models(tiny_checkpoint):
     c = checkpoint.load(tiny_checkpoint)
     c["clip_mean"] = torch.tensor(c["clip_mean"]).view(1, 3, 1, 1)
     c["clip_std"] = torch.tensor(c["clip_std"]).view(1, 3, 1, 1)
+    c["denoiser"] = edm.Denoiser(c["unet"], c["schedule"])
     return c
 
 
 def _batch(B=2, F=2, H=64, W=64, seed=0):
     g = torch.Generator().manual_seed(seed)
     return {"target": torch.rand(B, F, 3, H, W, generator=g), "image": torch.rand(B, F, 3, H, W, generator=g),
-            "asset": (torch.rand(B, F, 1, H, W, generator=g) > 0.8).float(),
+            "asset_mask": (torch.rand(B, F, 1, H, W, generator=g) > 0.8).float(),
             "valid": (torch.rand(B, F, 1, H, W, generator=g) > 0.3).float()}
 
 
@@ -120,6 +121,7 @@ def test_tiny_model_overfits_one_batch(tiny_checkpoint):
     c = checkpoint.load(tiny_checkpoint)
     c["clip_mean"] = torch.tensor(c["clip_mean"]).view(1, 3, 1, 1)
     c["clip_std"] = torch.tensor(c["clip_std"]).view(1, 3, 1, 1)
+    c["denoiser"] = edm.Denoiser(c["unet"], c["schedule"])
     params = [p for m in (c["unet"], c["condition_encoder"]) for p in m.parameters()]
     for m in (c["unet"], c["condition_encoder"]):
         m.train().requires_grad_(True)

@@ -36,7 +36,7 @@ def test_novel_view_pair_reprojects_neighbours_onto_the_target(maker):
     assert 0.5 < float(valid.float().mean()) < 1.0       # neighbours cover most, not all, of the target
     for i in range(3):                                   # covered pixels show the target (wrong geometry: < 15 dB)
         assert _psnr(s["image"][i], s["target"][i], valid[i]) > 20.0
-    assert float(s["asset"].max()) == 0.0
+    assert float(s["asset_mask"].max()) == 0.0
 
 
 def test_asset_pair_removes_the_car_and_puts_its_asset_on_its_pixels(maker, street):
@@ -49,7 +49,7 @@ def test_asset_pair_removes_the_car_and_puts_its_asset_on_its_pixels(maker, stre
     for i, t in enumerate(range(0, 3)):
         truth = torch.from_numpy((inst[t] == car_id).astype(np.float32))[None, None]
         truth = torch.nn.functional.interpolate(truth, size=(147, 259), mode="area")[0, 0] > 0.5
-        mask = s["asset"][i, 0] > 0.5
+        mask = s["asset_mask"][i, 0] > 0.5
         if truth.sum() < 200:
             continue
         iou = float((mask & truth).sum() / (mask | truth).sum())
@@ -76,7 +76,7 @@ def test_dataset_items_depend_only_on_seed_and_index(street_clip_path):
     x, y = a[7], b[7]
     a[3]
     z = a[7]
-    for k in ("target", "image", "asset", "valid"):
+    for k in ("target", "image", "asset_mask", "valid"):
         assert torch.equal(x[k], y[k]) and torch.equal(x[k], z[k])
     assert (x["t0"], x["car"]) == (z["t0"], z["car"])
     assert not torch.equal(a[8]["image"], x["image"])

@@ -1,0 +1,55 @@
+"""What the batch commands share (``python -m backend batch`` and ``blender -c scpainter batch``): the ``--list``
+file of job or scene paths, and which items one rank of a multi-process run takes. No bpy, no torch."""
+
+from __future__ import annotations
+
+import os
+
+from . import files
+
+
+def read_list(path) -> list:
+    """Paths from a text file, one per line (blank lines and ``#`` comments skipped), relative ones taken from the
+    file's folder. InputError names the file when it is not a regular UTF-8 text file of at most
+    ``files.MAX_JSON_BYTES``."""
+    path = os.fspath(path)
+    base = os.path.dirname(os.path.abspath(path))
+    with files.open_regular(path) as f:
+        data = f.read(files.MAX_JSON_BYTES + 1)
+    if len(data) > files.MAX_JSON_BYTES:
+        raise files.InputError(path, "(file)", "is too large for a list of job paths")
+    try:
+        lines = [line.strip() for line in data.decode("utf-8-sig").splitlines()]
+    except UnicodeDecodeError as e:
+        raise files.InputError(path, "(file)", f"is not UTF-8 text (byte {e.start})") from None
+    return [p if os.path.isabs(p) else os.path.join(base, p) for p in lines if p and not p.startswith("#")]
+
+
+def shard(items: list, rank: int, world: int) -> list:
+    """The items of one rank of a batch: every ``world``-th, starting at ``rank`` (deterministic, order kept)."""
+    if not 0 <= rank < world:
+        raise ValueError(f"rank {rank} is not in [0, {world})")
+    return items[rank::world]
+
+
+def ranks_from_env() -> tuple[int, int, int]:
+    """(rank, world size, local rank) from torchrun/accelerate's environment (``RANK``, ``WORLD_SIZE``,
+    ``LOCAL_RANK``); (0, 1, 0) without it. A value that is not a non-negative integer (or a world size below 1,
+    or a rank outside it) is an InputError naming the variable."""
+    def get(name, default, lo):
+        value = os.environ.get(name, "").strip()
+        if not value:
+            return default
+        try:
+            n = int(value)
+        except ValueError:
+            n = None
+        if n is None or n < lo:
+            raise files.InputError("(environment)", name, f"expected an integer >= {lo}, got {value!r}",
+                                   hint="torchrun and accelerate set it; unset it to run one process")
+        return n
+
+    rank, world, local = get("RANK", 0, 0), get("WORLD_SIZE", 1, 1), get("LOCAL_RANK", 0, 0)
+    if rank >= world:
+        raise files.InputError("(environment)", "RANK", f"{rank} is not below WORLD_SIZE ({world})")
+    return rank, world, local

@@ -1,0 +1,79 @@
+"""Validators for the fields of a JSON document (a job, a training clip): each checks one value and returns it in
+the form the code uses, or raises ``error(path, field, message)`` naming the file and the field.
+
+``error`` is the caller's InputError subclass (``job.JobError``, the clip reader's ``ClipError``), so one set of
+rules serves every document and each reports as its own kind. No bpy, no torch.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .files import InputError
+
+#: A path or a name longer than this (or holding NUL) is not one
+MAX_STRING = 4096
+
+
+def short(value) -> str:
+    """``repr(value)``, cut to 60 characters: what an error message quotes of a bad value."""
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def matrix(value, path, field, shape, error=InputError) -> np.ndarray:
+    """A finite float64 matrix of exactly ``shape`` (rows, columns) from nested lists."""
+    try:
+        m = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise error(path, field, f"expected a {shape[0]}x{shape[1]} matrix of numbers") from None
+    if m.shape != shape:
+        raise error(path, field, f"expected a {shape[0]}x{shape[1]} matrix, got shape {m.shape}")
+    if not np.all(np.isfinite(m)):
+        raise error(path, field, "contains NaN or infinity")
+    return m
+
+
+def rigid(value, path, field, error=InputError) -> np.ndarray:
+    """A 4x4 rotation + translation (rotation orthonormal to 1e-4, det > 0, last row [0, 0, 0, 1])."""
+    m = matrix(value, path, field, (4, 4), error)
+    R = m[:3, :3]
+    if np.abs(R.T @ R - np.eye(3)).max() > 1e-4 or np.linalg.det(R) < 0 or np.any(m[3] != [0, 0, 0, 1]):
+        raise error(path, field, "is not a rotation + translation (no scale, shear or reflection)")
+    return m
+
+
+def affine(value, path, field, error=InputError) -> np.ndarray:
+    """An invertible 4x4 affine transform (|det| of the 3x3 part ≥ 1e-12, last row [0, 0, 0, 1])."""
+    m = matrix(value, path, field, (4, 4), error)
+    if np.any(m[3] != [0, 0, 0, 1]) or abs(np.linalg.det(m[:3, :3])) < 1e-12:
+        raise error(path, field, "is not an invertible affine transform (last row [0, 0, 0, 1])")
+    return m
+
+
+def integer(value, path, field, lo=None, hi=None, error=InputError) -> int:
+    """A JSON integer (not a boolean, not a float) within [lo, hi] where given."""
+    if isinstance(value, bool) or not isinstance(value, int) or (lo is not None and value < lo) or \
+            (hi is not None and value > hi):
+        want = "" if lo is None and hi is None else f" >= {lo}" if hi is None else f" in [{lo}, {hi}]"
+        raise error(path, field, f"expected an integer{want}, got {short(value)}")
+    return value
+
+
+def number(value, path, field, lo=None, hi=None, error=InputError) -> float:
+    """A finite JSON number (not a boolean) within [lo, hi] where given, as a float."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or \
+            (lo is not None and value < lo) or (hi is not None and value > hi):
+        raise error(path, field, f"expected a number in [{lo}, {hi}], got {short(value)}")
+    return float(value)
+
+
+def string(value, path, field, error=InputError) -> str:
+    """A non-empty string usable as a path or a name (at most ``MAX_STRING`` characters, no NUL)."""
+    if not isinstance(value, str) or not value:
+        raise error(path, field, f"expected a non-empty string, got {short(value)}")
+    if len(value) > MAX_STRING or "\0" in value:
+        raise error(path, field, f"is not a usable path or name (longer than {MAX_STRING} characters or a NUL byte)")
+    return value

@@ -1,0 +1,63 @@
+"""What a job points at, checked before any work: every path it names resolved and confined to the job's folder
+(``job_paths``), and the input files checked from their headers (``check_inputs``). The document itself (structure,
+bounds) is ``core.job``'s. No bpy, no torch.
+"""
+
+from __future__ import annotations
+
+import os
+
+from . import files
+from .job import Job, JobError
+
+
+def job_paths(job_path, job: Job, allow_outside: bool = False, checkpoint: bool = False) -> dict:
+    """``{field: absolute path}`` of every path the job names (``output_dir``, ``scene.predictions``,
+    ``assets[i].ply``, and ``generate.checkpoint`` with ``checkpoint``), relative ones taken from the job's folder.
+
+    Unless ``allow_outside``, each must resolve inside the job's folder (no ``..``, no absolute path elsewhere, no
+    symbolic link out): a job received from someone else reads and writes only its own folder. The user allows
+    more with ``--allow-outside``; the add-on does, for the output folder the user chose. JobError names the
+    field otherwise."""
+    job_path = os.fspath(job_path)
+    base = os.path.dirname(os.path.abspath(job_path))
+
+    def confine(field, value):
+        return files.confined(base, value, lambda f, m: JobError(job_path, f, m), field, allow_outside)
+
+    out = {"output_dir": confine("output_dir", job.output_dir)}
+    if job.scene is not None:
+        out["scene.predictions"] = confine("scene.predictions", job.scene.predictions)
+    for i, a in enumerate(job.assets):
+        out[f"assets[{i}].ply"] = confine(f"assets[{i}].ply", a.ply)
+    if checkpoint and job.generate is not None and job.generate.checkpoint:
+        out["generate.checkpoint"] = confine("generate.checkpoint", job.generate.checkpoint)
+    return out
+
+
+def check_inputs(job_path, job: Job, allow_outside: bool = False) -> dict:
+    """Everything about a validated job that can be checked before any work, from file headers: the paths
+    (``job_paths``), that the predictions file is a readable ``.npz`` whose frames include every
+    ``source_frames`` entry, and that each asset is a readable Gaussian file. Returns the paths plus
+    ``num_source_frames``; raises an InputError (JobError, PredictionsError, SplatsError) naming file and field."""
+    from . import splats, vggt
+
+    paths = job_paths(job_path, job, allow_outside)
+    if job.scene is not None:
+        pred = paths["scene.predictions"]
+        shapes = files.npz_shapes(pred, ["extrinsic"], error=lambda p, k, m: vggt.PredictionsError(p, k, m))
+        if "extrinsic" not in shapes:
+            raise vggt.PredictionsError(pred, "extrinsic", "missing: the file has no camera poses")
+        shape = shapes["extrinsic"]  # (S, 3, 4), a batch axis (1, S, 3, 4), or one squeezed frame (3, 4)
+        S = shape[1] if len(shape) == 4 and shape[0] == 1 else 1 if len(shape) == 2 else shape[0]
+        if S < 1:
+            raise vggt.PredictionsError(pred, "extrinsic", f"holds no frames (shape {shape})")
+        paths["num_source_frames"] = S
+        for i, fr in enumerate(job.frames):
+            bad = [s for s in fr.source_frames if s >= S]
+            if bad:
+                raise JobError(job_path, f"frames[{i}].source_frames", f"frame(s) {bad[:5]} do not exist: "
+                                                                       f"{os.path.basename(pred)} has {S} frames")
+    for i in range(len(job.assets)):
+        splats.read(paths[f"assets[{i}].ply"])
+    return paths

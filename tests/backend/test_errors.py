@@ -1,0 +1,133 @@
+"""One error type for bad input (issue 15): ``python -m backend`` exits 2 only for an ``InputError`` (its error event
+names file and field); any other exception, a plain ValueError included, is a bug: exit 1, its traceback on
+standard error and in the command's ``backend.log``, which the error event names. Runs ``main`` in-process."""
+
+import contextlib
+import io
+import json
+import os
+
+import pytest
+
+from backend import events
+from backend.__main__ import main
+from backend.render import frames as fr
+from scpainter_blender.core import files
+from tests_support import small_job
+
+
+def run(*args):
+    """(exit code, events, standard error) of ``python -m backend *args`` run in this process."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main([str(a) for a in args])
+    return code, [json.loads(line) for line in out.getvalue().splitlines() if line.strip()], err.getvalue()
+
+
+def broken_job(folder, **top_level):
+    """``small_job`` with top-level values the validation refuses, written as text (no validating writer)."""
+    path = small_job(folder)
+    with open(path, encoding="utf-8") as f:
+        job = json.load(f)
+    job.update(top_level)
+    with open(path, "w", encoding="utf-8") as f:
+        json.dump(job, f)
+    return path
+
+
+def _shape_bug(*args, **kwargs):
+    raise ValueError("shape bug: (12, 16) and (16, 12)")
+
+
+def test_a_value_error_inside_render_is_a_bug_with_its_traceback_in_backend_log(tmp_path, monkeypatch):
+    job = small_job(tmp_path / "job")
+    monkeypatch.setattr(fr, "render_frame", _shape_bug)  # deep inside the command, after backend.log was opened
+    code, ev, err = run("render", job, "--device", "cpu")
+    log = str(tmp_path / "job" / "out" / "backend.log")
+    assert code == events.EXIT_FAILED
+    error = ev[-1]
+    assert error["event"] == "error" and error["message"] == "ValueError: shape bug: (12, 16) and (16, 12)"
+    assert "file" not in error and "field" not in error            # not reported as bad input
+    assert "not a problem with the input" in error["hint"] and "check the input" not in error["hint"]
+    assert error["log"] == log and log in error["hint"]
+    text = open(log, encoding="utf-8").read()
+    for where in (text, err):  # the whole traceback, down to the raising function, in both places
+        assert "Traceback (most recent call last)" in where and "in _shape_bug" in where and "in _render" in where
+        assert "ValueError: shape bug" in where
+    assert text.index("render ") < text.index("Traceback")          # appended after the run's own lines
+
+
+def test_a_bug_without_an_output_folder_goes_to_standard_error(tmp_path, monkeypatch):
+    from backend import mesh_asset
+
+    monkeypatch.setattr(mesh_asset, "convert", _shape_bug)
+    code, ev, err = run("mesh-asset", tmp_path / "car.glb", "--out", tmp_path / "car.ply")
+    assert code == 1 and ev[-1]["log"] is None and "file" not in ev[-1]
+    assert "Traceback" in err and "ValueError: shape bug" in err and "standard error" in ev[-1]["hint"]
+
+
+def test_bad_input_exits_2_naming_file_and_field(tmp_path):
+    job = broken_job(tmp_path / "job", resolution=[16, -12])
+    code, ev, err = run("render", job, "--device", "cpu")
+    assert code == events.EXIT_BAD_INPUT and "Traceback" not in err
+    assert ev[-1]["event"] == "error" and ev[-1]["file"] == job and ev[-1]["field"].startswith("resolution")
+    assert "log" not in ev[-1]
+    code, ev, err = run("batch", "--device", "cpu")                 # an argument: file "(command line)"
+    assert code == 2 and ev[-1]["file"] == files.COMMAND_LINE and ev[-1]["field"] == "jobs"
+    code, ev, _ = run("mesh-asset", tmp_path / "car.glb", "--out", tmp_path / "car.ply", "--count", 0)
+    assert code == 2 and ev[-1]["file"] == files.COMMAND_LINE and ev[-1]["field"] == "--count"
+
+
+def test_device_cuda_without_a_gpu_is_an_argument_error(tmp_path):
+    import torch
+
+    if torch.cuda.is_available():
+        pytest.skip("this machine has a CUDA GPU")
+    code, ev, err = run("render", small_job(tmp_path / "job"), "--device", "cuda")
+    assert code == 2 and "Traceback" not in err
+    assert ev[-1]["file"] == "(command line)" and ev[-1]["field"] == "--device" and "--device cpu" in ev[-1]["hint"]
+
+
+def test_argparse_errors_still_exit_2(capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["render", "job.json", "--device", "gpu"])
+    assert e.value.code == 2 and "invalid choice" in capsys.readouterr().err
+
+
+def test_batch_records_a_bug_with_its_jobs_log_and_bad_input_with_file_and_field(tmp_path, monkeypatch):
+    good = small_job(tmp_path / "good")
+    bad = broken_job(tmp_path / "bad", resolution=[0, 12])
+    monkeypatch.setattr(fr, "render_frame", _shape_bug)
+    code, ev, err = run("batch", good, bad, "--device", "cpu", "--allow-outside")
+    assert code == 1
+    items = {os.path.basename(os.path.dirname(r["job"])): r for r in ev[-1]["items"]}
+    assert items["good"]["status"] == "failed" and items["good"]["error"].startswith("ValueError: shape bug")
+    log = str(tmp_path / "good" / "out" / "backend.log")
+    assert items["good"]["log"] == log and "Traceback" in open(log, encoding="utf-8").read() and "Traceback" in err
+    assert "file" not in items["good"]
+    assert items["bad"]["status"] == "failed" and items["bad"]["file"] == bad
+    assert items["bad"]["field"].startswith("resolution")
+    assert "log" not in items["bad"]
+
+
+def test_log_scope_marks_an_exception_with_the_innermost_open_log(tmp_path):
+    outer, inner = str(tmp_path / "outer.log"), str(tmp_path / "inner.log")
+    with pytest.raises(ValueError) as e:
+        with events.log_scope():
+            events.FileLog(outer)
+            with events.log_scope():
+                events.FileLog(inner)
+                raise ValueError("in the inner run")
+    assert events.log_of(e.value).path == inner
+    with pytest.raises(ValueError) as e:  # raised after the inner run ended: its log is no longer the bug's
+        with events.log_scope():
+            events.FileLog(outer)
+            with events.log_scope():
+                events.FileLog(inner)
+            raise ValueError("after the inner run")
+    assert events.log_of(e.value).path == outer
+    assert events.report_bug(e.value) == outer and "after the inner run" in open(outer, encoding="utf-8").read()
+    with pytest.raises(ValueError) as e:
+        with events.log_scope():
+            raise ValueError("no log open")
+    assert events.log_of(e.value) is None and events.report_bug(e.value) is None

@@ -1,6 +1,6 @@
 """SCPainter for Blender: insert realistic cars into recorded drives and re-render them from new camera paths.
 
-register() and unregister() only (DESIGN §2); everything else lives in scpainter_blender, operators and panels.
+register() and unregister() only (docs/design.md §2); everything else lives in scpainter_blender, operators and panels.
 """
 
 import bpy

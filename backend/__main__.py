@@ -40,10 +40,10 @@ def _cmd_doctor(args) -> int:
     if args.checkpoint:
         from scpainter_blender.core import files
 
-        from .model import checkpoint
+        from .model import checkpoint, checkpoint_config
 
         try:
-            checkpoint.ScpainterConfig.load(os.path.join(checkpoint.resolve(args.checkpoint), "scpainter.json"))
+            checkpoint_config.ScpainterConfig.load(os.path.join(checkpoint.resolve(args.checkpoint), "scpainter.json"))
             report["checkpoint"] = "ok"
         except files.InputError as e:
             report["checkpoint"] = str(e)
@@ -70,7 +70,7 @@ def _device(name: str) -> str:
 def _cmd_render(args) -> int:
     import time
 
-    from scpainter_blender.core import files, job_inputs
+    from scpainter_blender.core import job_inputs, locking, outputs
     from scpainter_blender.core import job as job_mod
 
     from .render import command
@@ -78,9 +78,9 @@ def _cmd_render(args) -> int:
     job = job_mod.load(args.job)
     if args.check:  # (render_job checks the same before it writes anything)
         paths = job_inputs.check_inputs(args.job, job, args.allow_outside)
-        files.check_output(paths["output_dir"], args.allow_outside)
+        outputs.check_output(paths["output_dir"], args.allow_outside)
         events.done(command="render", check=True, frames=len(job.frames), output_dir=paths["output_dir"],
-                    locked_by=files.lock_owner(paths["output_dir"]))
+                    locked_by=locking.lock_owner(paths["output_dir"]))
         return events.EXIT_OK
     device = _device(args.device)
     t0 = time.perf_counter()
@@ -99,7 +99,7 @@ def _cmd_render(args) -> int:
 def _cmd_generate(args) -> int:
     import time
 
-    from scpainter_blender.core import files
+    from scpainter_blender.core import locking
     from scpainter_blender.core import job as job_mod
 
     from . import generate
@@ -111,7 +111,7 @@ def _cmd_generate(args) -> int:
     plan = generate.prepare(args.job, job, args.checkpoint, overrides, args.allow_outside)
     if args.check:
         events.done(command="generate", check=True, frames=len(job.frames), checkpoint=plan.checkpoint,
-                    settings=plan.settings, output_dir=plan.output_dir, locked_by=files.lock_owner(plan.output_dir))
+                    settings=plan.settings, output_dir=plan.output_dir, locked_by=locking.lock_owner(plan.output_dir))
         return events.EXIT_OK
     device = _device(args.device)
     t0 = time.perf_counter()
@@ -127,9 +127,9 @@ def _cmd_generate(args) -> int:
 
 
 def _cmd_init_checkpoint(args) -> int:
-    from .model import checkpoint
+    from .model import checkpoint_init
 
-    out = checkpoint.init_checkpoint(args.svd, args.out, log=events.log)
+    out = checkpoint_init.init_checkpoint(args.svd, args.out, log=events.log)
     events.done(command="init-checkpoint", checkpoint=out)
     return events.EXIT_OK
 

@@ -22,4 +22,4 @@ class NonFiniteError(CleanFailure):
 
 
 class FolderBusyError(CleanFailure):
-    """Another live process holds the output folder's lock (see ``core.files.OutputLock``)."""
+    """Another live process holds the output folder's lock (see ``core.locking.OutputLock``)."""

@@ -22,7 +22,7 @@ EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT = 0, 1, 2
 
 def json_safe(value):
     """JSON has no NaN/inf: ``value`` with them as None (null), so every event line, and every result file written
-    with ``core.files.write_json`` (which refuses NaN/inf), parses with a strict parser."""
+    with ``core.outputs.write_json`` (which refuses NaN/inf), parses with a strict parser."""
     if isinstance(value, float) and not math.isfinite(value):
         return None
     if isinstance(value, dict):
@@ -71,10 +71,10 @@ class FileLog:
     ends."""
 
     def __init__(self, path: str):
-        from scpainter_blender.core import files
+        from scpainter_blender.core import outputs
 
         self.path = path
-        files.check_log(path)  # refused now, before the command writes anything, rather than at its first line
+        outputs.check_log(path)  # refused now, before the command writes anything, rather than at its first line
         _open_logs.append(self)
 
     def __call__(self, message: str) -> None:
@@ -86,9 +86,9 @@ class FileLog:
 
     def append(self, text: str) -> None:
         """``text`` appended to the file only (not standard error)."""
-        from scpainter_blender.core import files
+        from scpainter_blender.core import outputs
 
-        files.append_text(self.path, text)  # never through a planted symbolic link
+        outputs.append_text(self.path, text)  # never through a planted symbolic link
 
 
 @contextlib.contextmanager

@@ -1,4 +1,4 @@
-"""The body of ``python -m backend generate``: conditions -> SCPainter video (DESIGN §5), resumable, stoppable.
+"""The body of ``python -m backend generate``: conditions -> SCPainter video (docs/design.md §5), resumable, stoppable.
 
 Steps: render the condition layers that are missing (the render command's code); load I, M_a and the validity
 1 − hole of every frame; pad them with holes to the model's size multiple; CLIP-embed the first source frame
@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from scpainter_blender.core import files
+from scpainter_blender.core import files, locking, outputs
 from scpainter_blender.core import job as job_mod
 from scpainter_blender.core import job_inputs
 
@@ -40,7 +40,7 @@ PRECISIONS = {"fp32": torch.float32, "bf16": torch.bfloat16, "fp16": torch.float
 class Plan:
     """What ``generate`` will do, known before anything is rendered or loaded (``prepare``)."""
     checkpoint: str
-    config: object          # backend.model.checkpoint.ScpainterConfig
+    config: object          # backend.model.checkpoint_config.ScpainterConfig
     settings: dict
     output_dir: str
     paths: dict
@@ -57,8 +57,7 @@ def prepare(job_path: str, job: job_mod.Job, checkpoint: str | None, overrides: 
     if checkpoint:  # the command line's: the user's own choice, never confined
         ckpt = ckpt_mod.resolve(checkpoint)
     elif job.generate is None or not job.generate.checkpoint:
-        raise ckpt_mod.CheckpointError(job_path, "generate.checkpoint", ckpt_mod.no_checkpoint_message(),
-                                       hint=ckpt_mod.INIT_HINT)
+        ckpt = ckpt_mod.resolve(None, job_path, "generate.checkpoint")  # refused, naming the job file and field
     else:  # the job's own checkpoint path is relative to the job and confined like its other paths
         try:
             named = job_inputs.job_paths(job_path, job, allow_outside, checkpoint=True)["generate.checkpoint"]
@@ -71,7 +70,7 @@ def prepare(job_path: str, job: job_mod.Job, checkpoint: str | None, overrides: 
     config = ckpt_mod.check(ckpt)
     s = (job.generate or job_mod.GenerateSettings()).resolve(config, overrides, job_path)
     paths = job_inputs.check_inputs(job_path, job, allow_outside)
-    files.check_output(paths["output_dir"], allow_outside)
+    outputs.check_output(paths["output_dir"], allow_outside)
     paths["allow_outside"] = allow_outside
     return Plan(ckpt, config, s, paths["output_dir"], paths)
 
@@ -115,7 +114,7 @@ def state_key(ckpt: str, s: dict, precision: str, image, asset_mask, valid) -> s
 def save_state(path: str, latents: torch.Tensor, step: int, key: str) -> None:
     from safetensors.torch import save_file
 
-    with files.atomic_path(path) as tmp:
+    with outputs.atomic_path(path) as tmp:
         save_file({"latents": latents.detach().float().cpu().contiguous()}, tmp,
                   metadata={"key": key, "step": str(step)})
 
@@ -142,11 +141,11 @@ def load_state(path: str, key: str):
 def generate_job(job_path: str, job: job_mod.Job, device: str, checkpoint: str | None, precision: str = "auto",
                  force: bool = False, stop=(), overrides: dict | None = None, allow_outside: bool = False) -> dict:
     """Render the missing condition layers and generate the video (see the module docstring); validated first
-    (``prepare``), one run per output folder (``files.OutputLock``). A model producing NaN/inf raises
+    (``prepare``), one run per output folder (``locking.OutputLock``). A model producing NaN/inf raises
     ``errors.NonFiniteError`` and writes no frame, video or manifest."""
     plan = prepare(job_path, job, checkpoint, overrides, allow_outside)
-    files.make_folder(plan.output_dir, "output_dir")
-    with files.OutputLock(plan.output_dir, "generate", busy=FolderBusyError) as lock, events.log_scope():
+    outputs.make_folder(plan.output_dir, "output_dir")
+    with locking.OutputLock(plan.output_dir, "generate", busy=FolderBusyError) as lock, events.log_scope():
         return _generate(job_path, job, device, plan, precision, force, stop, lock)
 
 
@@ -159,8 +158,8 @@ def _generate(job_path, job, device, plan: Plan, precision, force, stop, lock) -
     if lock.stale:
         log(f"generate: {lock.took_over()}")
     t0 = time.perf_counter()
-    files.remove_temporaries(out, ["generated.mp4", "generate_state.safetensors"])  # left by a killed run
-    files.remove_temporaries(os.path.join(out, "generated"), ["manifest.json"] + [
+    outputs.remove_temporaries(out, ["generated.mp4", "generate_state.safetensors"])  # left by a killed run
+    outputs.remove_temporaries(os.path.join(out, "generated"), ["manifest.json"] + [
         f"frame_{e.frame:06d}.png" for e in job.frames])
     r = render_cmd.render_job(job_path, job, device, stop=stop, log=log, allow_outside=plan.paths["allow_outside"],
                               lock=False, checked=plan.paths)  # prepare() checked the inputs; the lock is held
@@ -213,7 +212,7 @@ def _generate(job_path, job, device, plan: Plan, precision, force, stop, lock) -
         return {"stopped": True, "stage": "generate", "steps_done": stopped_at[0], "steps": s["steps"]}
     video = pipe.decode(x, chunk=s["decode_chunk"])[:, :, :H, :W]
     rgb = video.permute(0, 2, 3, 1).numpy()
-    files.output_folder(out, "generated", plan.paths.get("allow_outside", False))
+    outputs.output_folder(out, "generated", plan.paths.get("allow_outside", False))
     for entry, frame in zip(job.frames, rgb):
         path = os.path.join(gen_dir, f"frame_{entry.frame:06d}.png")
         fr.write_png(path, frame)
@@ -222,8 +221,8 @@ def _generate(job_path, job, device, plan: Plan, precision, force, stop, lock) -
 
     write_mp4(mp4, (np.clip(rgb, 0, 1) * 255 + 0.5).astype(np.uint8), s["fps"])
     events.artifact(mp4, kind="video")
-    files.write_json(manifest, {"key": key, "checkpoint": ckpt, "settings": s, "precision": precision,
-                                "frames": [e.frame for e in job.frames]})
+    outputs.write_json(manifest, {"key": key, "checkpoint": ckpt, "settings": s, "precision": precision,
+                                  "frames": [e.frame for e in job.frames]})
     if os.path.exists(state_path):
         os.remove(state_path)
     log(f"generate: {mp4} in {time.perf_counter() - t0:.1f} s")

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from scpainter_blender.core import files
+from scpainter_blender.core import outputs
 
 
 def write_mp4(path: str, frames: np.ndarray, fps: float, crf: int = 18) -> str:
@@ -19,7 +19,7 @@ def write_mp4(path: str, frames: np.ndarray, fps: float, crf: int = 18) -> str:
                          f"{frames.dtype}")
     F, H, W, _ = frames.shape
     frames = np.pad(frames, ((0, 0), (0, H % 2), (0, W % 2), (0, 0)), mode="edge")
-    with files.atomic_path(path) as tmp:
+    with outputs.atomic_path(path) as tmp:
         with av.open(tmp, "w", format="mp4") as container:
             stream = container.add_stream("libx264", rate=round(fps))
             stream.width, stream.height = frames.shape[2], frames.shape[1]

@@ -27,7 +27,7 @@ sys.path.insert(0, ROOT)
 sys.path.insert(0, os.path.join(ROOT, "tests"))
 
 import fuzz_inputs as F  # noqa: E402
-from scpainter_blender.core import files  # noqa: E402
+from scpainter_blender.core import outputs  # noqa: E402
 
 
 def compact(r: dict) -> dict:
@@ -80,7 +80,7 @@ def main() -> int:
             print(f"  {kind:<10} {family:<28} {outcome:<9} {count:>3}  {example[:200]}")
 
     os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
-    files.write_json(args.out, {
+    outputs.write_json(args.out, {
         "label": args.label, "commit": commit, "local_changes": dirty, "seed": args.seed,
         "timeout_s": args.timeout, "generate_check": run["check"], "base": run["base"], "backend": run["backend"],
         "seconds": round(seconds, 1), "workers": run["workers"],

@@ -28,10 +28,10 @@ import torch  # noqa: E402
 
 from backend import events  # noqa: E402
 from backend.model import configs, edm  # noqa: E402
-from backend.model.checkpoint import ScpainterConfig  # noqa: E402
+from backend.model.checkpoint_config import ScpainterConfig  # noqa: E402
 from backend.model.condition import ConditionEncoder  # noqa: E402
 from backend.model.pipeline import SCPainterPipeline  # noqa: E402
-from scpainter_blender.core import files  # noqa: E402
+from scpainter_blender.core import outputs  # noqa: E402
 
 DTYPES = {"fp16": torch.float16, "bf16": torch.bfloat16, "fp32": torch.float32}
 
@@ -133,8 +133,8 @@ def main(argv=None):
         print(f"{r['steps']} | {r['seconds']:.2f} | {r['mean_abs_diff_vs_25']:.3e}")
     os.makedirs(args.out, exist_ok=True)
     path = os.path.join(args.out, f"generate_{args.size}_{args.device}.json")
-    files.write_json(path, events.json_safe({"device": torch.cuda.get_device_name() if dev == "cuda" else "cpu",
-                                             "rows": rows, "steps_sweep": sweep}))
+    outputs.write_json(path, events.json_safe({"device": torch.cuda.get_device_name() if dev == "cuda" else "cpu",
+                                               "rows": rows, "steps_sweep": sweep}))
     print(f"\nwrote {path}")
 
 

@@ -18,7 +18,7 @@ import numpy as np
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
-from scpainter_blender.core import files  # noqa: E402
+from scpainter_blender.core import outputs  # noqa: E402
 from tools import blender_env  # noqa: E402
 
 
@@ -86,15 +86,15 @@ def write_vggt_cases(d):
 
 
 def write_splat_cases(d):
-    from scpainter_blender.core import shapes, splats
+    from scpainter_blender.core import shapes, splats, splats_inria, splats_io
 
     out = {}
     g = shapes.procedural_car_gaussians(count=3000, seed=4)
     path = os.path.join(d, "trellis_edge.ply")
     shapes.save_as_amodal3r(path, g)
-    raw = splats.read_ply(path)
+    raw = splats_io.read_ply(path)
     raw.xyz *= np.float32(0.504 / np.abs(raw.xyz).max())
-    splats.write_ply(path, raw)
+    splats_inria.write_ply(path, raw)
     out["TRELLIS car reaching ±0.504"] = "trellis_edge.ply"
     # .splat (antimatter15): position, linear scale (float32), RGBA, quaternion (uint8, w first)
     rgba = np.clip(np.concatenate([g.base_colors(), g.opacities[:, None]], 1) * 255, 0, 255).round().astype(np.uint8)
@@ -208,7 +208,7 @@ def main(argv=None):
     for r in rows:
         print(f"{r['kind']:<{w}}  {r['status']:<9} {r['what']}")
     os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
-    files.write_json(args.out, {"checkout": ROOT, "rows": rows})
+    outputs.write_json(args.out, {"checkout": ROOT, "rows": rows})
 
 
 if __name__ == "__main__":

@@ -8,7 +8,7 @@ Meshes: the procedural test car (``core.shapes.add_car``, 4.4 m, face colours) a
 (``backend.render.gaussians.project`` + ``tiles.rasterize``, the numba kernel ``render`` uses) from ``--views``
 cameras around it (15° above the horizon, 50° horizontal field of view, the object's bounding sphere filling 80 % of
 the image height: a car close to the camera). The truth is the mesh's own silhouette from the same K and
-world_to_camera (``mesh_asset.silhouette``: exact point-in-triangle tests at pixel centres).
+world_to_camera (``mesh_silhouette.silhouette``: exact point-in-triangle tests at pixel centres).
 
 Reported per (mesh, resolution, σ factor c, count), averaged over the views: IoU of M_a >= 0.5 with the silhouette
 (and its worst view), mean |M_a - silhouette| over the pixels of either, how transparent the car is inside its
@@ -38,12 +38,14 @@ import trimesh  # noqa: E402
 
 from backend import events  # noqa: E402
 from backend import mesh_asset as ma  # noqa: E402
-from scpainter_blender.core import files, shapes  # noqa: E402
+from backend import mesh_load  # noqa: E402
+from backend import mesh_silhouette as ms  # noqa: E402
+from scpainter_blender.core import outputs, shapes  # noqa: E402
 
 REALDATA = os.environ.get("SCPAINTER_REALDATA") or os.path.join(ROOT, "..", "shared", "realdata")
 
 
-def procedural_car() -> ma.MeshAsset:
+def procedural_car() -> mesh_load.MeshAsset:
     """The test car as a face-coloured triangle mesh (Z up, metres, length along Y)."""
     b = shapes.MeshBuilder()
     shapes.add_car(b, np.random.default_rng(0), "paint", "glass", "tyre")
@@ -52,7 +54,7 @@ def procedural_car() -> ma.MeshAsset:
     colours = np.array([rgb[m] for m in b.materials])[slot]
     mesh = trimesh.Trimesh(tri.reshape(-1, 3), np.arange(3 * len(tri)).reshape(-1, 3), process=False,
                            face_colors=np.c_[np.round(255 * colours), np.full(len(tri), 255)].astype(np.uint8))
-    return ma.MeshAsset("procedural car", [mesh], "z")
+    return mesh_load.MeshAsset("procedural car", [mesh], "z")
 
 
 def meshes():
@@ -61,7 +63,7 @@ def meshes():
     if os.path.isdir(folder):
         for f in sorted(os.listdir(folder)):
             if f.endswith(".glb"):
-                out.append((f, lambda p=os.path.join(folder, f): ma.load_mesh(p)))
+                out.append((f, lambda p=os.path.join(folder, f): mesh_load.load_mesh(p)))
     else:
         print(f"(no real TRELLIS GLBs: {os.path.abspath(folder)} is absent)")
     return out
@@ -75,7 +77,7 @@ def cameras_for(asset, width, height, views):
     fov_x = 50.0
     tan_y = np.tan(np.radians(fov_x) / 2) * height / width
     dist = r / (0.8 * tan_y)                                   # the bounding sphere ~ 80 % of the image height
-    return ma.orbit_cameras(centre, dist, width, height, views=views, elevation_deg=15.0, fov_x_deg=fov_x)
+    return ms.orbit_cameras(centre, dist, width, height, views=views, elevation_deg=15.0, fov_x_deg=fov_x)
 
 
 def evaluate(asset, sils, cams, width, height, count, factor, seed=0):
@@ -85,9 +87,9 @@ def evaluate(asset, sils, cams, width, height, count, factor, seed=0):
     per_view, t_render = [], []
     for (K, w2c), sil in zip(cams, sils):
         t = time.perf_counter()
-        asset_mask = ma.render_mask(res.gaussians, K, w2c, width, height)
+        asset_mask = ms.render_mask(res.gaussians, K, w2c, width, height)
         t_render.append(time.perf_counter() - t)
-        per_view.append(ma.mask_metrics(asset_mask, sil))
+        per_view.append(ms.mask_metrics(asset_mask, sil))
     row = {k: float(np.mean([m[k] for m in per_view])) for k in per_view[0]}
     row["iou_min"] = float(min(m["iou"] for m in per_view))
     row.update(count=count, factor=factor, sigma=res.sigma, sigma_px=None, convert_s=t_convert,
@@ -122,7 +124,7 @@ def main(argv=None):
     print(" | ".join([f"{'mesh':<22}", f"{'res':>9}", f"{'c':>4}", f"{'count':>8}"]
                      + [f"{k:>{max(len(k), 8)}}" for k in head[4:]]))
     warm = procedural_car()
-    ma.render_mask(ma.mesh_to_gaussians(warm, 1000), *ma.orbit_cameras((0, 0, 0.7), 8, 64, 36, 1)[0], 64, 36)
+    ms.render_mask(ma.mesh_to_gaussians(warm, 1000), *ms.orbit_cameras((0, 0, 0.7), 8, 64, 36, 1)[0], 64, 36)
     for name, make in meshes():
         t = time.perf_counter()
         asset = make()
@@ -130,7 +132,7 @@ def main(argv=None):
         for width, height in res_list:
             cams = cameras_for(asset, width, height, args.views)
             t = time.perf_counter()
-            sils = [ma.silhouette(asset.vertices, asset.faces, K, w2c, width, height) for K, w2c in cams]
+            sils = [ms.silhouette(asset.vertices, asset.faces, K, w2c, width, height) for K, w2c in cams]
             t_sil = (time.perf_counter() - t) / len(cams)
             jobs = [(ma.SIGMA_FACTOR, n) for n in args.counts]
             if (width, height) == res_list[-1]:
@@ -138,12 +140,13 @@ def main(argv=None):
             for factor, count in jobs:
                 r = evaluate(asset, sils, cams, width, height, count, factor)
                 r.update(mesh=name, res=f"{width}x{height}", load_s=t_load, silhouette_s=t_sil,
-                         faces=int(len(asset.faces)), area=float(ma._face_areas(asset.vertices, asset.faces).sum()))
+                         faces=int(len(asset.faces)),
+                         area=float(mesh_load.face_areas(asset.vertices, asset.faces).sum()))
                 rows.append(r)
                 show(r)
     os.makedirs(os.path.dirname(args.json), exist_ok=True)
     # strict JSON: a boundary distance with no boundary to measure (inf) is written as null
-    files.write_json(args.json, events.json_safe({
+    outputs.write_json(args.json, events.json_safe({
         "machine": {"cpus": os.cpu_count(), "threads": args.threads, "platform": platform.platform(),
                     "torch": torch.__version__, "trimesh": trimesh.__version__},
         "defaults": {"sigma_factor": ma.SIGMA_FACTOR, "opacity": ma.OPACITY, "normal_ratio": ma.NORMAL_RATIO,

@@ -39,7 +39,7 @@ from backend.render import frames as fr  # noqa: E402
 from backend.render import gaussians as gs  # noqa: E402
 from backend.render import points as pts  # noqa: E402
 from backend.render import tiles  # noqa: E402
-from scpainter_blender.core import files  # noqa: E402
+from scpainter_blender.core import outputs  # noqa: E402
 
 W, H = 1024, 576
 
@@ -308,7 +308,7 @@ def main(argv=None):
                  "frame_ms"])
     os.makedirs(args.out, exist_ok=True)
     stem = os.path.join(args.out, "render_" + "_".join(args.devices))
-    files.write_json(stem + ".json", events.json_safe(result))  # a PSNR of a perfect match (inf) becomes null
+    outputs.write_json(stem + ".json", events.json_safe(result))  # a PSNR of a perfect match (inf) becomes null
     plot(result, stem + ".png")
     print(f"\nwrote {stem}.json and {stem}.png")
     return 0

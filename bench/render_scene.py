@@ -1,6 +1,6 @@
 """A synthetic street for the renderer's benchmarks, in numpy alone (no Blender, runs on the device machine too).
 
-World (DESIGN §3): metres, Z up, the road along +Y. A box street: road plane z = 0 with lane marks, building
+World (docs/design.md §3): metres, Z up, the road along +Y. A box street: road plane z = 0 with lane marks, building
 fronts at x = ±12 m, a far wall at y = 140 m standing in for the sky. The source cameras drive along the middle
 lane (x = 0, 1.6 m high, 1 m apart) at 518 x 294 pixels, fx = 300, as the ground-truth street; their pixels
 are ray-cast against the boxes to give a VGGT-like cloud (one point per source pixel, textured colours). The

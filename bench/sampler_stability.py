@@ -25,7 +25,7 @@ sys.path.insert(0, ROOT)
 
 from backend import events  # noqa: E402
 from backend.model import configs, edm  # noqa: E402
-from scpainter_blender.core import files  # noqa: E402
+from scpainter_blender.core import outputs  # noqa: E402
 
 DTYPES = {"fp16": torch.float16, "bf16": torch.bfloat16, "fp32": torch.float32}
 SVD = edm.Schedule.from_config(configs.SCHEDULER)   # SVD's scheduler config: σ from 700 to 0.002
@@ -73,7 +73,7 @@ def main():
             e_x0 = "inf/NaN" if r["max_abs_err_x0"] is None else f"{r['max_abs_err_x0']:.2e}"
             print(f"{r['sigma']:g} | {r['guidance']:g} | {r['path']} | {r['finite']} | {e_in} | {e_x0}")
     path = os.path.join(ROOT, "bench", "results", "sampler_stability.json")
-    files.write_json(path, events.json_safe(rows))
+    outputs.write_json(path, events.json_safe(rows))
     print(f"\nwrote {path}")
 
 

@@ -26,12 +26,12 @@ import torch  # noqa: E402
 
 from backend import events  # noqa: E402
 from backend.model import configs, edm  # noqa: E402
-from backend.model.checkpoint import ScpainterConfig  # noqa: E402
+from backend.model.checkpoint_config import ScpainterConfig  # noqa: E402
 from backend.model.condition import ConditionEncoder  # noqa: E402
 from backend.train import objective  # noqa: E402
 from backend.train.config import TrainConfig  # noqa: E402
 from backend.train.ema import EMA  # noqa: E402
-from scpainter_blender.core import files  # noqa: E402
+from scpainter_blender.core import outputs  # noqa: E402
 
 
 def build(size: str, device: str):
@@ -139,7 +139,7 @@ def main(argv=None):
            "frames": a.frames, "trained_parameters": n_params, "size": a.size}
     os.makedirs(os.path.join(ROOT, "bench", "results"), exist_ok=True)
     out = os.path.join(ROOT, "bench", "results", f"train_{a.size}_{a.device}.json")
-    files.write_json(out, events.json_safe({"env": env, "rows": rows, "paper_schedule": cost}))
+    outputs.write_json(out, events.json_safe({"env": env, "rows": rows, "paper_schedule": cost}))
     print(f"wrote {out}")
 
 

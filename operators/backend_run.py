@@ -12,7 +12,7 @@ from __future__ import annotations
 import bpy
 
 from ..scpainter_blender.backend_client import BackendError, BackendJob
-from ..scpainter_blender.core import files
+from ..scpainter_blender.core import outputs
 from ..scpainter_blender.scene import preferences, props
 from ..scpainter_blender.scene.runs import ACTIVE, DOCTOR, Follower, failure_message, finish, start
 from . import reports
@@ -133,7 +133,7 @@ class SCPAINTER_OT_open_output(bpy.types.Operator):
 
     @reports.reported
     def execute(self, context):
-        out = files.make_folder(props.output_dir(context.scene), "scene.scpainter_output_dir")
+        out = outputs.make_folder(props.output_dir(context.scene), "scene.scpainter_output_dir")
         bpy.ops.wm.path_open(filepath=out)
         return {"FINISHED"}
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import bpy
 
 from ..scpainter_blender.scene import camera
-from . import reports
+from . import reports, selection
 
 
 def recorded_camera(context):
@@ -36,10 +36,7 @@ class SCPAINTER_OT_new_camera_path(bpy.types.Operator):
     @reports.reported
     def execute(self, context):
         obj = camera.create_camera_path(context, recorded_camera(context), self.shift)
-        for o in context.view_layer.objects.selected:
-            o.select_set(False)
-        context.view_layer.objects.active = obj
-        obj.select_set(True)
+        selection.select_only(context, obj)
         self.report({"INFO"}, f"{obj.name!r} is the active camera, keyed on frames "
                               f"{context.scene.frame_start}-{context.scene.frame_end}")
         return {"FINISHED"}

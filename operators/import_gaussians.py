@@ -6,7 +6,7 @@ import bpy
 from bpy_extras.io_utils import ImportHelper
 
 from ..scpainter_blender.scene import gaussians, preferences
-from . import reports
+from . import reports, selection
 
 AXES_ITEMS = [("TRELLIS", "TRELLIS / Amodal3R", "Undo their (x, -z, y) file axes"),
               ("NONE", "As Stored", "Use the file's axes as Z-up")]
@@ -43,10 +43,7 @@ class SCPAINTER_OT_import_gaussians(bpy.types.Operator, ImportHelper):
         r = gaussians.import_gaussians(context, self.filepath, self.axes, self.target_length or None,
                                        self.ellipsoids, mesh_count=self.mesh_count,
                                        backend_python=prefs.backend_python if prefs else "")
-        for o in context.view_layer.objects.selected:
-            o.select_set(False)
-        context.view_layer.objects.active = r.object
-        r.object.select_set(True)
+        selection.select_only(context, r.object)
         self.report({"INFO"}, r.report())
         for w in r.warnings:
             self.report({"WARNING"}, w)

@@ -6,7 +6,7 @@ import bpy
 from bpy_extras.io_utils import ImportHelper
 
 from ..scpainter_blender.scene import importer
-from . import reports
+from . import reports, selection
 
 
 class SCPAINTER_OT_import_vggt(bpy.types.Operator, ImportHelper):
@@ -79,10 +79,7 @@ class SCPAINTER_OT_import_vggt(bpy.types.Operator, ImportHelper):
             self.report({"WARNING"}, w)
         for line in result.load_report.info:
             self.report({"INFO"}, line)
-        for o in context.view_layer.objects.selected:
-            o.select_set(False)
-        context.view_layer.objects.active = result.points
-        result.points.select_set(True)
+        selection.select_only(context, result.points)
         _show_attribute_colours(context)
         fit = result.fit
         self.report({"INFO"}, f"Imported {result.num_points:,} points and {result.camera.name!r} in "

@@ -1,4 +1,4 @@
-"""Export the scene as job.json, the backend's input (DESIGN §4.2)."""
+"""Export the scene as job.json, the backend's input (docs/design.md §4.2)."""
 
 from __future__ import annotations
 

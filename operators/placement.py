@@ -6,7 +6,7 @@ import bpy
 import numpy as np
 
 from ..scpainter_blender.scene import placement
-from . import reports
+from . import reports, selection
 
 
 def _asset(context):
@@ -91,10 +91,7 @@ class SCPAINTER_OT_add_removal_box(bpy.types.Operator):
     @reports.reported
     def execute(self, context):
         box = placement.add_removal_box(context, _points(context), size=(self.length, self.width, self.height))
-        for o in context.view_layer.objects.selected:
-            o.select_set(False)
-        context.view_layer.objects.active = box
-        box.select_set(True)
+        selection.select_only(context, box)
         return {"FINISHED"}
 
 

@@ -80,9 +80,9 @@ def tiny_svd(tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def tiny_checkpoint(tiny_svd, tmp_path_factory):
-    from backend.model import checkpoint
+    from backend.model import checkpoint_init
 
-    return checkpoint.init_checkpoint(tiny_svd, str(tmp_path_factory.mktemp("ckpt") / "scpainter-tiny"))
+    return checkpoint_init.init_checkpoint(tiny_svd, str(tmp_path_factory.mktemp("ckpt") / "scpainter-tiny"))
 
 
 @pytest.fixture(scope="session")

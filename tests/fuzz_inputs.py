@@ -4,7 +4,7 @@ Every case starts from a tiny valid job in its own folder and changes one thing:
 
     <case>/job/job.json              scpainter.job/2: 2 frames of 16 x 12, a scene, one asset, output_dir "out"
     <case>/job/predictions.npz       VGGT predictions, S = 2 frames of 16 x 12 (core.vggt_io.save_predictions)
-    <case>/job/car.ply               20 INRIA Gaussians, SH degree 1 (core.splats.write_ply)
+    <case>/job/car.ply               20 INRIA Gaussians, SH degree 1 (core.splats_inria.write_ply)
     <case>/job/out/                  the output folder
     <case>/outside/                  planted files that must never be touched (frame_000000.exr, backend.log,
                                      conditions/ with a stale job key, copies of the inputs, link targets)
@@ -38,7 +38,7 @@ SIGALRM timeout (its handler raises, which also interrupts a blocking ``open`` o
 * ``escape``    a file outside ``<case>/job/`` was created, modified or deleted (the case folder is snapshotted
                 before and after: paths, sizes, mtimes, link targets; new names beside the case folder count too).
 * ``misread``   a PLY rewritten without changing its Gaussians (a comment holding "end_header", ASCII, big endian,
-                doubles, CRLF, ...) was accepted but ``core.splats.read`` gives other values than the original.
+                doubles, CRLF, ...) was accepted but ``core.splats_io.read`` gives other values than the original.
 
 ``run()`` hands the cases to two worker processes (``python tests/fuzz_inputs.py --worker``, single-threaded,
 each case in-process there), so that a hang no signal can interrupt, a crash or a runaway allocation (workers run
@@ -126,7 +126,7 @@ class Base:
     arrays and their archives, the PLY, and (on first use) a tiny checkpoint."""
 
     def __init__(self, folder: str):
-        from scpainter_blender.core import cameras, splats, vggt, vggt_io
+        from scpainter_blender.core import cameras, splats, splats_inria, splats_io, vggt, vggt_io
         from vggt_cases import drive
 
         self.folder = folder
@@ -150,10 +150,10 @@ class Base:
                              opacities=rng.uniform(0.5, 0.9, N_GAUSSIANS).astype(np.float32),
                              sh=rng.normal(0, 0.3, (N_GAUSSIANS, 4, 3)).astype(np.float32))
         ply = os.path.join(folder, "car.ply")
-        splats.write_ply(ply, splats.encode(g))
+        splats_inria.write_ply(ply, splats.encode(g))
         with open(ply, "rb") as f:
             self.ply = f.read()
-        self.gaussians = splats.read(ply)
+        self.gaussians = splats_io.read(ply)
         end = self.ply.index(b"end_header\n") + len(b"end_header\n")
         self.ply_header = self.ply[:end].decode("ascii").splitlines()
         self.ply_data = self.ply[end:]
@@ -187,13 +187,13 @@ class Base:
         if self._checkpoint is None:
             path = os.path.join(self.folder, "ckpt-base")
             if not os.path.isfile(os.path.join(path, "scpainter.json")):
-                from backend.model import checkpoint, configs
+                from backend.model import checkpoint_init, configs
 
                 svd = os.path.join(self.folder, "svd-tiny")
                 shutil.rmtree(svd, ignore_errors=True)
                 shutil.rmtree(path, ignore_errors=True)
                 configs.save_stock_svd(svd, "tiny", seed=0)
-                checkpoint.init_checkpoint(svd, path)
+                checkpoint_init.init_checkpoint(svd, path)
             self._checkpoint = path
         return self._checkpoint
 
@@ -1968,13 +1968,13 @@ def run_case(case: Case, base: Base, workdir: str, timeout: float = TIMEOUT_S, c
     elif rc == 0:
         outcome = "accepted"
         if case.kind == "ply" and case.same_gaussians:
-            from scpainter_blender.core import splats
+            from scpainter_blender.core import splats_io
             try:
                 with alarm(timeout):
-                    same = _gaussians_equal(splats.read(c.ply), base.gaussians)
-                why = "" if same else "core.splats.read gives other values than the original file"
+                    same = _gaussians_equal(splats_io.read(c.ply), base.gaussians)
+                why = "" if same else "core.splats_io.read gives other values than the original file"
             except BaseException as e:  # noqa: BLE001
-                same, why = False, f"accepted, but core.splats.read fails: {type(e).__name__}: {e}"
+                same, why = False, f"accepted, but core.splats_io.read fails: {type(e).__name__}: {e}"
             if not same:
                 outcome = "misread"
                 result["message"] = _first_line(why)

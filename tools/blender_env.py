@@ -86,13 +86,13 @@ def install_for_script(work_dir: str) -> str:
 
 
 def write_bench_json(path: str, rows: list) -> None:
-    """A benchmark's rows with the machine they ran on, written atomically (``core.files.write_json``)."""
+    """A benchmark's rows with the machine they ran on, written atomically (``core.outputs.write_json``)."""
     import platform
 
     import bpy
 
-    from scpainter_blender.core import files
+    from scpainter_blender.core import outputs
 
     os.makedirs(os.path.dirname(path), exist_ok=True)
-    files.write_json(path, {"machine": {"cpus": os.cpu_count(), "platform": platform.platform(),
-                                        "blender": bpy.app.version_string}, "rows": rows})
+    outputs.write_json(path, {"machine": {"cpus": os.cpu_count(), "platform": platform.platform(),
+                                          "blender": bpy.app.version_string}, "rows": rows})

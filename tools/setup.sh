@@ -22,7 +22,7 @@ if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
   if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null 2>&1; then
     echo "setup: installing libusb-1.0-0 for open3d" >&2
     (apt-get install -y -q libusb-1.0-0 >/dev/null 2>&1 || { apt-get update -q >/dev/null 2>&1 && apt-get install -y -q libusb-1.0-0 >/dev/null; }) \
-      || echo "setup: could not install libusb-1.0-0; open3d's plane fit may fail to import" >&2
+      || echo "setup: could not install libusb-1.0-0; open3d may fail to import" >&2
   else
     echo "setup: open3d needs libusb-1.0; run: sudo apt-get install -y libusb-1.0-0" >&2
   fi

@@ -48,7 +48,7 @@ def main() -> None:
 
     from backend.model import configs
     from backend.train import street_clip
-    from scpainter_blender.core import files
+    from scpainter_blender.core import outputs
     from scpainter_blender.street.dataset import ensure_street
 
     clip = street_clip.export_clip(ensure_street(log=print), os.path.join(out, "street_clip"))
@@ -66,7 +66,7 @@ def main() -> None:
            "output_dir": "run", "pairs": {"width": 128, "height": 64, "frames": 8},
            "steps": args.steps, "batch_size": 1, "learning_rate": 2e-4, "warmup_steps": 20, "ema_decay": 0.99,
            "save_every": 100, "log_every": 10, "sample_every": 100, "sample_steps": 10, "num_workers": 1, "seed": 0}
-    files.write_json(os.path.join(out, "train.json"), cfg)
+    outputs.write_json(os.path.join(out, "train.json"), cfg)
     backend("train", os.path.join(out, "train.json"), "--device", "cpu")
     trained = sorted(os.listdir(os.path.join(out, "run", "checkpoints")))[-1]
     extra = ["--inception", args.inception] if args.inception else []

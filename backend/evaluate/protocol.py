@@ -34,7 +34,8 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import torch
 
-from scpainter_blender.core import files, trajectory
+from scpainter_blender.core import fields as fields_mod
+from scpainter_blender.core import files, outputs, trajectory
 from scpainter_blender.core import job as job_mod
 
 from .. import events
@@ -66,7 +67,24 @@ class EvalSettings:
 
     @classmethod
     def from_args(cls, a) -> EvalSettings:
-        """From ``python -m backend evaluate``'s arguments (backend/__main__.py)."""
+        """From ``python -m backend evaluate``'s arguments (backend/__main__.py), each checked: ``ArgumentError``
+        names the option. The bounds are the job's (``core.job``) plus what the metrics need: SSIM's 11 × 11
+        window fits the frames, and FID/KID get at least 2 frames per set."""
+        def integer(value, option, lo, hi=None):
+            return fields_mod.integer(value, files.COMMAND_LINE, option, lo, hi,
+                                      error=lambda p, f, m: files.ArgumentError(f, m))
+
+        W, H = (integer(v, "--resolution", 11, job_mod.MAX_SIDE) for v in a.resolution)
+        if W * H > job_mod.MAX_PIXELS:
+            raise files.ArgumentError("--resolution", f"{W} x {H} is more than {job_mod.MAX_PIXELS:,} pixels")
+        integer(a.frames, "--frames", 2, job_mod.MAX_FRAMES)
+        integer(a.window, "--window", 0, job_mod.MAX_SOURCE_FRAME)
+        for key in ("steps", "seed"):
+            integer(getattr(a, key), f"--{key}", *job_mod.GENERATE_INT_BOUNDS[key])
+        integer(a.crop_min_px, "--crop-min-px", 0)
+        for v in a.shifts:
+            fields_mod.number(v, files.COMMAND_LINE, "--shifts", -1000.0, 1000.0,
+                              error=lambda p, f, m: files.ArgumentError(f, m))
         return cls(clips=a.clips, output_dir=a.output_dir, checkpoint=a.checkpoint, width=a.resolution[0],
                    height=a.resolution[1], frames=a.frames, shifts=tuple(a.shifts), insertion=not a.no_insertion,
                    window=a.window, steps=a.steps, seed=a.seed, precision=a.precision, inception=a.inception,
@@ -321,7 +339,7 @@ def evaluate(s: EvalSettings, device: str, stop=(), extractor=None) -> dict:
                          "crops": {k: len(v) for k, v in crops.sets.items()}}}
     result["seconds"] = time.perf_counter() - t0
     path = os.path.join(out_dir, "evaluation.json")
-    files.write_json(path, events.json_safe(result))  # strict JSON: a NaN/inf metric (e.g. no covered pixel) is null
+    outputs.write_json(path, events.json_safe(result))  # strict JSON: a NaN/inf metric (e.g. no covered pixel) is null
     log(format_table(result))
     events.artifact(path, kind="evaluation")
     return {"evaluation": path, "seconds": result["seconds"], "ground_truth": gt_rows}

@@ -1,4 +1,4 @@
-"""SCPainter checkpoint folders: made from a stock SVD snapshot on disk, loaded with ``local_files_only``.
+"""SCPainter checkpoint folders: found, checked without loading a model, and loaded with ``local_files_only``.
 
 Layout (a diffusers folder plus two entries)::
 
@@ -12,27 +12,22 @@ Only safetensors are read or written. ``check(path)`` validates a checkpoint fol
 weighted component must have the safetensors file the library reads (``diffusion_pytorch_model.safetensors`` /
 ``model.safetensors``) or its ``*.safetensors.index.json``, whose shards must all be ``.safetensors`` files in the
 component's folder. A component with only ``.bin``/``.pt`` weights, or an index naming such a shard, is refused
-naming the file. Nothing is ever downloaded.
+naming the file. Nothing is ever downloaded. ``check_svd_folder`` is the same check of a stock SVD snapshot.
 
-Errors are ``CheckpointError`` (a ``files.InputError``: ``path``, ``field``, ``message``, ``hint``); ``str()`` is
-``"<full path>: <field>: <what is wrong>"``, e.g. ``/models/ckpt/scpainter.json: fps: expected an integer in
-[1, 240], got 300``.
+``scpainter.json`` itself and ``CheckpointError`` are ``checkpoint_config``; making a folder from an SVD snapshot
+is ``checkpoint_init``. Errors are ``CheckpointError`` (a ``files.InputError``: ``path``, ``field``, ``message``,
+``hint``); ``str()`` is ``"<full path>: <field>: <what is wrong>"``.
 """
 
 from __future__ import annotations
 
-import json
 import math
 import os
-import shutil
-import tempfile
-from dataclasses import asdict, dataclass, field
-from typing import ClassVar
 
 from scpainter_blender.core import files
-from scpainter_blender.core import job as job_mod
 
-SCHEMA = "scpainter.checkpoint/1"
+from .checkpoint_config import CheckpointError, ScpainterConfig, _json_object, _show
+
 COMPONENTS = ("unet", "vae", "image_encoder", "feature_extractor", "scheduler")
 # what from_pretrained(..., use_safetensors=True) reads in diffusers and transformers (no variant is passed)
 DIFFUSERS_WEIGHTS = "diffusion_pytorch_model.safetensors"
@@ -42,142 +37,6 @@ CHECKPOINT_WEIGHTS = dict(WEIGHTS, condition_encoder=DIFFUSERS_WEIGHTS)
 PICKLE_SUFFIXES = (".bin", ".pt", ".pth", ".ckpt", ".pkl", ".pickle")
 JSON_FILES = {"feature_extractor": "preprocessor_config.json", "scheduler": "scheduler_config.json"}
 PICKLED = "pickled weights are never loaded: convert to safetensors"
-
-# Bounds of scpainter.json's numeric fields, shared with the generate command's overrides (window, fps, guidance):
-# field -> (kind, low, high), both ends inclusive, high None: unbounded. "int" accepts an integral number (7.0).
-# fps, guidance and window are the job's own generate bounds (core.job), so a value valid in one is valid in both
-BOUNDS = {
-    "trained_steps": ("int", 0, 2 ** 63 - 1),
-    "fps": ("int", *map(int, job_mod.GENERATE_NUMBER_BOUNDS["fps"])),
-    "motion_bucket_id": ("int", 0, 1023),
-    "noise_aug_strength": ("float", 0.0, 10.0),
-    "min_guidance": ("float", *job_mod.GENERATE_NUMBER_BOUNDS["min_guidance"]),
-    "max_guidance": ("float", *job_mod.GENERATE_NUMBER_BOUNDS["max_guidance"]),
-    "window": ("int", *job_mod.GENERATE_INT_BOUNDS["window"]),
-}
-LATENT_VALIDITY = ("area",)   # the rules backend.model.condition implements (latent_validity: area average)
-
-
-class CheckpointError(files.InputError):
-    """A checkpoint or SVD folder that cannot be used: ``path`` (the file or folder), ``field`` (the key;
-    ``"(file)"`` / ``"(folder)"`` for the whole), ``message``, ``hint``. ``str()`` is ``"<path>: <field>:
-    <message>"`` with the full path (``config.json`` alone would not say which component); without a path (no
-    checkpoint configured) ``"<field>: <message>"``."""
-
-    def __init__(self, path, field, message, hint=None):
-        super().__init__(path or "", field, message, hint)
-        self.args = (f"{self.path}: {self.field}: {message}" if self.path else f"{self.field}: {message}",)
-
-    def __reduce__(self):  # picklable (worker processes): rebuilt from its parts, not from the formatted message
-        return type(self), (self.path, self.field, self.message, self.hint)
-
-
-def _show(value) -> str:
-    """A JSON value as a message quotes it."""
-    if isinstance(value, bool):
-        return f"{str(value).lower()} (a boolean)"
-    if value is None:
-        return "null"
-    if isinstance(value, str):
-        return f"{value[:60]!r} (a string)"
-    if isinstance(value, dict):
-        return "an object"
-    if isinstance(value, list):
-        return "an array"
-    if isinstance(value, int) and len(str(abs(value))) > 24:
-        return f"an integer of {len(str(abs(value)))} digits"
-    return repr(value)
-
-
-def check_field(name: str, value):
-    """``value`` for the bounded field ``name`` (see ``BOUNDS``), an integral float as int and an int as float
-    where the field is a float; ``ValueError("expected …, got …")`` (no file or field in the message: the caller
-    wraps it with its own) for a wrong type, a boolean, NaN/infinity or a value out of range."""
-    kind, low, high = BOUNDS[name]
-    rng = f"in [{low:g}, {high:g}]" if high is not None and high < 2 ** 53 else f"≥ {low:g}"
-    if kind == "int":
-        want = f"expected an integer {rng}"
-        if isinstance(value, float) and math.isfinite(value) and value.is_integer():
-            value = int(value)
-        if not isinstance(value, int) or isinstance(value, bool):
-            raise ValueError(f"{want}, got {_show(value)}")
-    else:
-        want = f"expected a finite number {rng}"
-        if not isinstance(value, (int, float)) or isinstance(value, bool):
-            raise ValueError(f"{want}, got {_show(value)}")
-        if isinstance(value, float) and not math.isfinite(value):
-            raise ValueError(f"{want}, got {value}")
-    if value < low or (high is not None and value > high):
-        raise ValueError(f"{want}, got {_show(value)}")
-    return value if kind == "int" else float(value)
-
-
-def check_guidance(min_guidance: float, max_guidance: float) -> None:
-    """``ValueError`` unless min ≤ max (both already passed ``check_field``)."""
-    if min_guidance > max_guidance:
-        raise ValueError(f"is {min_guidance:g}, greater than max_guidance {max_guidance:g}: guidance rises from "
-                         "min_guidance to max_guidance over each window")
-
-
-FIELD_HINT = "correct the field in scpainter.json (init-checkpoint and training write valid ones)"
-
-
-@dataclass
-class ScpainterConfig:
-    schema: str = SCHEMA
-    base: str = ""                    # the SVD snapshot this checkpoint was made from
-    trained_steps: int = 0            # 0: not fine-tuned yet (the condition encoder's mask channel is zero)
-    fps: int = 7                      # SVD conditions on fps - 1
-    motion_bucket_id: int = 127
-    noise_aug_strength: float = 0.02
-    min_guidance: float = 1.0
-    max_guidance: float = 3.0
-    window: int = 14                  # frames the UNet denoises together
-    latent_validity: str = "area"     # see backend.model.condition
-    extra: dict = field(default_factory=dict)
-
-    BOUNDS: ClassVar[dict] = BOUNDS
-    LATENT_VALIDITY: ClassVar[tuple] = LATENT_VALIDITY
-
-    @classmethod
-    def load(cls, path: str) -> ScpainterConfig:
-        """Read and validate ``scpainter.json``, field by field: ``schema`` exactly ``SCHEMA``; ``base`` a string;
-        the numbers within ``BOUNDS`` (no booleans, NaN or infinity), ``min_guidance`` ≤ ``max_guidance``;
-        ``latent_validity`` one of ``LATENT_VALIDITY``; ``extra`` an object. A missing field (other than
-        ``schema``) takes its default; unknown keys are ignored (a newer writer's additions). CheckpointError
-        naming the file and the field otherwise."""
-        data = files.read_json(path, error=CheckpointError)
-        if not isinstance(data, dict):
-            raise CheckpointError(path, "(file)", f"expected a JSON object, got {_show(data)}")
-        if data.get("schema") != SCHEMA:
-            got = f"is {_show(data['schema'])}" if "schema" in data else "is missing"
-            raise CheckpointError(path, "schema", f"{got}, expected {SCHEMA!r}: not an SCPainter checkpoint of "
-                                                  "this version")
-        values = {}
-        for name in cls.__dataclass_fields__:
-            if name == "schema" or name not in data:
-                continue
-            v, problem = data[name], None
-            if name in BOUNDS:
-                try:
-                    v = check_field(name, v)
-                except ValueError as e:
-                    problem = str(e)
-            elif name == "base" and not isinstance(v, str):
-                problem = f"expected a string (the SVD snapshot's folder), got {_show(v)}"
-            elif name == "latent_validity" and (not isinstance(v, str) or v not in LATENT_VALIDITY):
-                problem = f"expected one of {', '.join(map(repr, LATENT_VALIDITY))}, got {_show(v)}"
-            elif name == "extra" and not isinstance(v, dict):
-                problem = f"expected an object, got {_show(v)}"
-            if problem:
-                raise CheckpointError(path, name, problem, hint=FIELD_HINT)
-            values[name] = v
-        cfg = cls(**values)
-        try:
-            check_guidance(cfg.min_guidance, cfg.max_guidance)
-        except ValueError as e:
-            raise CheckpointError(path, "min_guidance", str(e), hint=FIELD_HINT) from None
-        return cfg
 
 
 def no_checkpoint_message() -> str:
@@ -190,14 +49,26 @@ def no_checkpoint_message() -> str:
 INIT_HINT = "make a checkpoint with `python -m backend init-checkpoint --svd SVD_FOLDER --out CHECKPOINT_FOLDER`"
 
 
+# ----------------------------------------------------------------------------------------- finding a folder
+
+def resolve(path: str | None, source: str = files.COMMAND_LINE, field: str = "--checkpoint") -> str:
+    """The checkpoint folder ``path``, or CheckpointError saying how to make one. With no ``path``, the error
+    names where one was expected: ``source`` and ``field``, the command line's ``--checkpoint`` by default, or
+    the job file and ``generate.checkpoint`` (``generate.prepare``)."""
+    if not path:
+        raise CheckpointError(source, field, no_checkpoint_message(), hint=INIT_HINT)
+    if not os.path.isdir(path):
+        raise CheckpointError(os.path.abspath(path), "(folder)", "does not exist" if not os.path.exists(path) else
+                              "is not a folder", hint="give the folder init-checkpoint or training wrote")
+    if not os.path.isfile(os.path.join(path, "scpainter.json")):
+        stock = os.path.isfile(os.path.join(path, "model_index.json"))
+        hint = " (it looks like a stock SVD snapshot: run init-checkpoint on it first)" if stock else ""
+        raise CheckpointError(path, "(folder)", f"not an SCPainter checkpoint (no scpainter.json){hint}; "
+                              + no_checkpoint_message(), hint=INIT_HINT)
+    return path
+
+
 # ----------------------------------------------------------------------------------------- checking a folder
-
-def _json_object(path: str) -> dict:
-    data = files.read_json(path, error=CheckpointError)
-    if not isinstance(data, dict):
-        raise CheckpointError(path, "(file)", f"expected a JSON object, got {_show(data)}")
-    return data
-
 
 def _folder(path: str) -> None:
     if not os.path.isdir(path):
@@ -298,7 +169,7 @@ def _check_components(root: str, weighted) -> dict:
         _folder(os.path.join(root, comp))
         data = _json_object(os.path.join(root, comp, name))
         if comp == "scheduler":
-            from .edm import Schedule   # here, not at the top: edm imports this module (and torch)
+            from .edm import Schedule   # here, not at the top: edm imports torch, which finding a folder needs not
 
             info["schedule"] = Schedule.from_config(data, os.path.join(root, comp, name))
         if comp == "feature_extractor":
@@ -356,75 +227,7 @@ def check_svd_folder(path: str) -> None:
     _check_components(path, WEIGHTS)
 
 
-# ----------------------------------------------------------------------------------------- making a folder
-
-def _link_or_copy_tree(src: str, dst: str) -> None:
-    """Hard-link files when the file system allows (multi-GB UNets), copy otherwise."""
-    for root, _, names in os.walk(src):
-        rel = os.path.relpath(root, src)
-        os.makedirs(os.path.join(dst, rel), exist_ok=True)
-        for f in names:
-            s, d = os.path.join(root, f), os.path.join(dst, rel, f)
-            try:
-                os.link(s, d)
-            except OSError:
-                shutil.copy2(s, d)
-
-
-def link_components(src: str, dst: str, components=COMPONENTS, log=lambda m: None) -> None:
-    """Hard-link (or copy) ``components`` and model_index.json of the diffusers folder ``src`` into ``dst``."""
-    for comp in components:
-        log(f"{comp}")
-        _link_or_copy_tree(os.path.join(src, comp), os.path.join(dst, comp))
-    shutil.copy2(os.path.join(src, "model_index.json"), os.path.join(dst, "model_index.json"))
-
-
-def init_checkpoint(svd: str, out: str, log=lambda m: None) -> str:
-    """Turn a stock SVD snapshot into an SCPainter checkpoint folder at ``out`` (written beside it under a
-    temporary name, renamed when complete). Returns ``out``."""
-    from diffusers import AutoencoderKLTemporalDecoder
-
-    from .condition import ConditionEncoder
-
-    svd, out = os.path.abspath(svd), os.path.abspath(out)
-    check_svd_folder(svd)
-    if os.path.exists(out):
-        raise CheckpointError(out, "(folder)", "already exists; choose another --out or remove it")
-    parent = os.path.dirname(out)
-    os.makedirs(parent, exist_ok=True)
-    tmp = tempfile.mkdtemp(prefix=".scpainter-ckpt-", dir=parent)
-    try:
-        link_components(svd, tmp, log=lambda m: log(f"init-checkpoint: {m}"))
-        vae = AutoencoderKLTemporalDecoder.from_pretrained(svd, subfolder="vae", local_files_only=True,
-                                                           use_safetensors=True)
-        log("init-checkpoint: condition encoder (SVD's VAE encoder, mask channel zero)")
-        ConditionEncoder.from_vae(vae).save_pretrained(os.path.join(tmp, "condition_encoder"),
-                                                       safe_serialization=True)
-        with open(os.path.join(tmp, "scpainter.json"), "w") as f:
-            json.dump(asdict(ScpainterConfig(base=svd)), f, indent=1)
-        os.rename(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    return out
-
-
-# ------------------------------------------------------------------------------------------------- loading
-
-def resolve(path: str | None) -> str:
-    """The checkpoint folder, or CheckpointError saying how to make one."""
-    if not path:
-        raise CheckpointError(None, "generate.checkpoint", no_checkpoint_message(), hint=INIT_HINT)
-    if not os.path.isdir(path):
-        raise CheckpointError(os.path.abspath(path), "(folder)", "does not exist" if not os.path.exists(path) else
-                              "is not a folder", hint="give the folder init-checkpoint or training wrote")
-    if not os.path.isfile(os.path.join(path, "scpainter.json")):
-        stock = os.path.isfile(os.path.join(path, "model_index.json"))
-        hint = " (it looks like a stock SVD snapshot: run init-checkpoint on it first)" if stock else ""
-        raise CheckpointError(path, "(folder)", f"not an SCPainter checkpoint (no scpainter.json){hint}; "
-                              + no_checkpoint_message(), hint=INIT_HINT)
-    return path
-
+# -------------------------------------------------------------------------------------------------- loading
 
 def load(path: str, device="cpu", dtype=None) -> dict:
     """The checkpoint's components on ``device``: UNet and CLIP in ``dtype`` (float32 when None); the VAE and the

@@ -1,4 +1,5 @@
-"""The render-condition encoder (DESIGN §5): SVD's VAE encoder over I ‖ M_a, and the validity mask in latent space.
+"""The render-condition encoder (docs/design.md §5): SVD's VAE encoder over I ‖ M_a, and the validity mask in
+latent space.
 
 Inputs, per frame: I (3, H, W) in [0, 1] (the condition image), M_a (1, H, W) in [0, 1] (the asset mask) and the
 validity V = 1 − hole (1, H, W). Both I and M_a enter the encoder mapped to [−1, 1], as SVD's VAE sees images.

@@ -39,7 +39,7 @@ from dataclasses import dataclass
 
 import torch
 
-from .checkpoint import CheckpointError, _json_object, _show
+from .checkpoint_config import CheckpointError, _json_object, _show
 
 SCHEDULER_FILE = os.path.join("scheduler", "scheduler_config.json")   # in a checkpoint or SVD snapshot folder
 KARRAS_RHO = 7.0            # diffusers' EulerDiscreteScheduler uses ρ = 7 for use_karras_sigmas (not a config key)
@@ -163,7 +163,7 @@ def v_to_x0(x, v, sigma):
 
 def time_ids(config, batch: int, device=None, dtype=torch.float32) -> torch.Tensor:
     """(batch, 3) SVD's added time ids [fps − 1, motion_bucket_id, noise_aug_strength], the same row for every
-    sample; ``config`` is a ``checkpoint.ScpainterConfig`` (or anything with those three fields)."""
+    sample; ``config`` is a ``checkpoint_config.ScpainterConfig`` (or anything with those three fields)."""
     row = [[config.fps - 1, config.motion_bucket_id, config.noise_aug_strength]]
     return torch.tensor(row, dtype=dtype, device=device).repeat(batch, 1)
 

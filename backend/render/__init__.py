@@ -1,1 +1,1 @@
-"""Condition-layer renderer (DESIGN §4.3): points z-buffer and Gaussian splatting, in torch (CPU or CUDA)."""
+"""Condition-layer renderer (docs/design.md §4.3): points z-buffer and Gaussian splatting, in torch (CPU or CUDA)."""

@@ -1,4 +1,4 @@
-"""The body of ``python -m backend render``: every frame of a job, resumable, stoppable (DESIGN §4.3, §4.4)."""
+"""The body of ``python -m backend render``: every frame of a job, resumable, stoppable (docs/design.md §4.3, §4.4)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import time
 
 import numpy as np
 
-from scpainter_blender.core import files
+from scpainter_blender.core import files, locking, outputs
 from scpainter_blender.core import job as job_mod
 from scpainter_blender.core import job_inputs
 
@@ -69,7 +69,7 @@ def render_job(job_path: str, job: job_mod.Job, device: str, force: bool = False
     emits progress and artifact events.
 
     First the job's paths and input files are checked (``job.check_inputs``: confined to the job's folder unless
-    ``allow_outside``); with ``lock`` the output folder is locked for the run (``files.OutputLock``; a second run
+    ``allow_outside``); with ``lock`` the output folder is locked for the run (``locking.OutputLock``; a second run
     raises ``errors.FolderBusyError``). ``checked``: the paths ``job.check_inputs`` returned to a caller that
     already checked the inputs and the output folder (``generate.prepare``), so they are not read twice.
     ``stop``: a list that becomes non-empty when the caller wants to stop (checked between frames). Returns counts
@@ -78,9 +78,9 @@ def render_job(job_path: str, job: job_mod.Job, device: str, force: bool = False
     paths = checked
     if paths is None:
         paths = job_inputs.check_inputs(job_path, job, allow_outside)
-        files.check_output(paths["output_dir"], allow_outside)
-    out = files.make_folder(paths["output_dir"], "output_dir")
-    with (files.OutputLock(out, "render", busy=FolderBusyError) if lock else contextlib.nullcontext()) as held, \
+        outputs.check_output(paths["output_dir"], allow_outside)
+    out = outputs.make_folder(paths["output_dir"], "output_dir")
+    with (locking.OutputLock(out, "render", busy=FolderBusyError) if lock else contextlib.nullcontext()) as held, \
             events.log_scope():  # an exception from here on is marked with backend.log (events.report_bug)
         log = log or events.FileLog(os.path.join(out, "backend.log"))
         if held is not None and held.stale:
@@ -89,7 +89,7 @@ def render_job(job_path: str, job: job_mod.Job, device: str, force: bool = False
 
 
 def _render(job_path, job, device, force, point_radius, stop, log, out, allow_outside) -> dict:
-    cond = files.output_folder(out, "conditions", allow_outside)
+    cond = outputs.output_folder(out, "conditions", allow_outside)
     W, H = job.resolution
     total, rendered, skipped = len(job.frames), 0, 0
     key = job_key(job_path, job, point_radius)
@@ -100,11 +100,11 @@ def _render(job_path, job, device, force, point_radius, stop, log, out, allow_ou
     if force or previous is None:
         # stale frames go first, so a stop half-way cannot mix old and new; only files this project wrote for the
         # job (its previous record's, and this job's own frame names), never anything else in the folder
-        files.remove_listed(cond, (previous or {}).get("files", []) + _frame_files(job))
+        outputs.remove_listed(cond, (previous or {}).get("files", []) + _frame_files(job))
         force = True
-    files.remove_temporaries(cond, _frame_files(job) + [RECORD])  # left by a run that was killed mid-write
-    files.write_json(os.path.join(cond, RECORD), {"schema": "scpainter.conditions/1", "key": key,
-                                                  "files": _frame_files(job)})
+    outputs.remove_temporaries(cond, _frame_files(job) + [RECORD])  # left by a run that was killed mid-write
+    outputs.write_json(os.path.join(cond, RECORD), {"schema": "scpainter.conditions/1", "key": key,
+                                                    "files": _frame_files(job)})
     with contextlib.suppress(FileNotFoundError):  # the record's former name (one line: the key)
         os.remove(os.path.join(cond, "job_key.txt"))
     todo = {e.frame for e in job.frames

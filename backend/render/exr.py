@@ -14,7 +14,7 @@ import struct
 
 import numpy as np
 
-from scpainter_blender.core import files
+from scpainter_blender.core import files, outputs
 
 MAGIC = 20000630
 FLOAT = 2
@@ -57,7 +57,7 @@ def write(path, channels: dict) -> None:
     lead[:, 0], lead[:, 1] = np.arange(H), row_bytes
     body = np.concatenate([lead.view(np.uint8).reshape(H, 8), rows.view(np.uint8).reshape(H, row_bytes)], axis=1)
     path = os.fspath(path)
-    with files.atomic_write(path) as f:
+    with outputs.atomic_write(path) as f:
         f.write(header)
         f.write(offsets.tobytes())
         f.write(body.tobytes())

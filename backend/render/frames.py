@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from scpainter_blender.core import cameras, files, geometry, point_cloud, splats, vggt_io
+from scpainter_blender.core import cameras, geometry, outputs, point_cloud, splats, splats_io, vggt_io
 from scpainter_blender.core import job as job_mod
 
 from . import channels as ch
@@ -68,7 +68,7 @@ def load_scene(job: job_mod.Job, job_path: str, device) -> Scene:
         scene.frame = torch.as_tensor(cloud.frame[keep].astype(np.int64), device=device)
         scene.frames_present = frozenset(np.unique(cloud.frame[keep]).tolist())
     for a in job.assets:
-        scene.assets.append(make_asset(a.name, splats.load(job_mod.resolve(job_path, a.ply)), a.object_to_world,
+        scene.assets.append(make_asset(a.name, splats_io.load(job_mod.resolve(job_path, a.ply)), a.object_to_world,
                                        device))
     return scene
 
@@ -146,5 +146,5 @@ def write_png(path, rgb) -> None:
 
     png = (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", W, H, 8, 2, 0, 0, 0))
            + chunk(b"IDAT", zlib.compress(raw, 6)) + chunk(b"IEND", b""))
-    with files.atomic_write(path) as f:
+    with outputs.atomic_write(path) as f:
         f.write(png)

@@ -1,6 +1,6 @@
 """Gaussian splats into one camera: EWA projection and front-to-back compositing, written plainly in torch.
 
-Conventions (DESIGN §3, §4.3; the rules of the INRIA rasterizer and gsplat):
+Conventions (docs/design.md §3, §4.3; the rules of the INRIA rasterizer and gsplat):
 
 * Inputs are camera-relative like ``points.render_points``: means relative to a scene origin, world_to_camera
   for that origin; quaternions (w, x, y, z) any length (normalised here; zero, NaN or inf rows are dropped),

@@ -1,6 +1,6 @@
 """Coloured points into one camera: cull early, project, z-buffer deterministically (nearest wins).
 
-Conventions (DESIGN §3): OpenCV camera, our K (pixel (u, v) covers [u, u+1) x [v, v+1)); a point lands in the
+Conventions (docs/design.md §3): OpenCV camera, our K (pixel (u, v) covers [u, u+1) x [v, v+1)); a point lands in the
 pixel that contains its projection. Inputs are *camera-relative*: positions are given relative to a scene origin
 chosen near the cameras (float32 then keeps millimetres 1e5 m from the world origin), and ``world_to_camera`` is
 expressed for that origin — see ``relative_camera``.

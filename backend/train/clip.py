@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from scpainter_blender.core import cameras, files, vggt, vggt_io
+from scpainter_blender.core import cameras, files, outputs, vggt, vggt_io
 from scpainter_blender.core import fields as fields_mod
 from scpainter_blender.core import job as job_mod
 from scpainter_blender.core.job import JobError
@@ -300,9 +300,9 @@ def asset_to_box(car: Car, means: np.ndarray | None = None) -> np.ndarray:
     if car.asset_to_box is not None:
         return car.asset_to_box
     if means is None:
-        from scpainter_blender.core import splats
+        from scpainter_blender.core import splats_io
 
-        means = splats.load(car.asset).means
+        means = splats_io.load(car.asset).means
     return fit_asset_to_box(means, car.size)
 
 
@@ -318,4 +318,4 @@ def save(path, data: dict) -> None:
     path = os.fspath(path)
     if data.get("schema") != SCHEMA:
         raise ValueError(f"{path}: schema must be {SCHEMA!r}")
-    files.write_json(path, data)  # atomic; NaN refused, as load would refuse it
+    outputs.write_json(path, data)  # atomic; NaN refused, as load would refuse it

@@ -11,7 +11,7 @@ import os
 from dataclasses import asdict, dataclass, field, fields
 
 from scpainter_blender.core import batch as batch_mod
-from scpainter_blender.core import files
+from scpainter_blender.core import files, outputs
 from scpainter_blender.core import job as job_mod
 
 from .pairs import PairSettings
@@ -187,4 +187,4 @@ def load(path: str) -> TrainConfig:
 
 
 def save(path: str, cfg: TrainConfig) -> None:
-    files.write_json(path, cfg.to_json())
+    outputs.write_json(path, cfg.to_json())

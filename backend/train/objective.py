@@ -1,4 +1,4 @@
-"""The fine-tuning objective (DESIGN §5): EDM with SVD's v-parameterisation, written out.
+"""The fine-tuning objective (docs/design.md §5): EDM with SVD's v-parameterisation, written out.
 
 For a sample with clean latent x_0 (VAE latent of the real frames × scaling factor, (F, C, h, w)):
 

@@ -1,4 +1,5 @@
-"""Training pairs (paper §3.4, DESIGN §5): condition layers rendered from a clip, with the real frames as targets.
+"""Training pairs (paper §3.4, docs/design.md §5): condition layers rendered from a clip, with the real frames as
+targets.
 
 A sample is ``frames`` consecutive target frames t0 .. t0+F−1 of one clip. For each target frame t:
 
@@ -24,7 +25,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import torch
 
-from scpainter_blender.core import cameras, files, point_cloud, splats
+from scpainter_blender.core import cameras, files, point_cloud, splats_io
 from scpainter_blender.core import job as job_mod
 
 from ..render import frames as fr
@@ -79,7 +80,7 @@ class PairMaker:
         for i, car in enumerate(clip.cars):
             if car.asset is None:
                 continue
-            g = splats.load(car.asset)
+            g = splats_io.load(car.asset)
             self.assets[i] = (fr.make_asset(car.id, g, {}, self.device), clip_mod.asset_to_box(car, g.means))
         self._targets = {}
 

@@ -14,16 +14,9 @@ import shutil
 
 import numpy as np
 
-from scpainter_blender.core import shapes, splats
+from scpainter_blender.core import outputs, shapes, splats, splats_inria
 
 from . import clip as clip_mod
-
-
-def _link(src: str, dst: str) -> None:
-    try:
-        os.link(src, dst)
-    except OSError:
-        shutil.copy2(src, dst)
 
 
 def car_paint(street, instance: int) -> tuple:
@@ -54,19 +47,19 @@ def export_clip(street, out: str, gaussians_per_car: int = 8000) -> str:
     tmp = tempfile.mkdtemp(prefix=".clip-", dir=os.path.dirname(out))
     try:
         S = street.params.num_frames
-        _link(street.predictions_path, os.path.join(tmp, "predictions.npz"))
+        outputs.link_or_copy(street.predictions_path, os.path.join(tmp, "predictions.npz"))
         metric = street.metric()
         np.savez(os.path.join(tmp, "poses.npz"), world_to_camera=metric["world_to_camera"], K=metric["K"],
                  vggt_to_world=metric["vggt_to_world"])
         os.makedirs(os.path.join(tmp, "frames"))
         for i in range(S):
-            _link(street.frame_path("recorded", i), os.path.join(tmp, "frames", f"frame_{i:06d}.png"))
+            outputs.link_or_copy(street.frame_path("recorded", i), os.path.join(tmp, "frames", f"frame_{i:06d}.png"))
         views = {}
         # ground truth for evaluation (the trainer never reads it); street.views = ["recorded", one per shift]
         for shift, name in zip(street.params.shifts_m, street.views[1:]):
             os.makedirs(os.path.join(tmp, "views", name))
             for i in range(S):
-                _link(street.frame_path(name, i), os.path.join(tmp, "views", name, f"frame_{i:06d}.png"))
+                outputs.link_or_copy(street.frame_path(name, i), os.path.join(tmp, "views", name, f"frame_{i:06d}.png"))
             views[f"{shift:g}"] = f"views/{name}/frame_{{:06d}}.png"
         os.makedirs(os.path.join(tmp, "assets"))
         cars = []
@@ -76,7 +69,7 @@ def export_clip(street, out: str, gaussians_per_car: int = 8000) -> str:
             A = clip_mod.fit_asset_to_box(g.means, np.array(car["size"]))
             A[:3, :3] = np.eye(3)  # the street's cars are the procedural shape at scale 1: centre only
             name = f"assets/car_{k}.ply"
-            splats.write_ply(os.path.join(tmp, name), splats.encode(shapes.transform_gaussians(g, A)),
+            splats_inria.write_ply(os.path.join(tmp, name), splats.encode(shapes.transform_gaussians(g, A)),
                              comment="SCPainter street clip: procedural stand-in for an Amodal3R asset")
             cars.append({"id": car["name"], "size": list(map(float, car["size"])),
                          "boxes": {str(i): car["box_to_world"] for i in range(S)}, "asset": name,

@@ -1,4 +1,4 @@
-"""``python -m backend train CONFIG``: fine-tune an SCPainter checkpoint on clip folders (DESIGN §5).
+"""``python -m backend train CONFIG``: fine-tune an SCPainter checkpoint on clip folders (docs/design.md §5).
 
 Read top to bottom: load the checkpoint's components (UNet and condition encoder trained; VAE and CLIP frozen),
 wrap what trains with ``accelerate`` (DDP over however many processes ``accelerate launch``/``torchrun`` started;
@@ -27,7 +27,6 @@ the last good state, and ``save`` refuses non-finite weights as a last guard.
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import shutil
@@ -38,10 +37,12 @@ from dataclasses import asdict
 import numpy as np
 import torch
 
+from scpainter_blender.core import files, outputs
+
 from .. import events
 from ..errors import NonFiniteError
 from ..model import checkpoint as ckpt_mod
-from ..model import edm
+from ..model import checkpoint_init, edm
 from . import clip as clip_mod
 from . import objective
 from .config import TrainConfig, TrainConfigError
@@ -179,8 +180,11 @@ class Trainer:
         from safetensors.torch import load_file
 
         st = os.path.join(folder, "training_state")
-        with open(os.path.join(st, "state.json")) as f:
-            meta = json.load(f)
+        meta = files.read_json(os.path.join(st, "state.json"), error=TrainConfigError)
+        for key in ("step", "ema_updates"):
+            if not isinstance(meta, dict) or isinstance(meta.get(key), bool) or not isinstance(meta.get(key), int):
+                raise TrainConfigError(os.path.join(st, "state.json"), key, "expected an integer (a damaged "
+                                       "training state: remove this checkpoint folder to resume from the one before)")
         raw = load_file(os.path.join(st, "weights.safetensors"))
         missing = set(self.named) - set(raw)
         if missing:
@@ -251,7 +255,7 @@ class Trainer:
             tmp = tempfile.mkdtemp(prefix=".ckpt-", dir=os.path.dirname(final))
             try:
                 frozen = [c for c in ckpt_mod.COMPONENTS if c != "unet"]  # unet/ is written below, trained
-                ckpt_mod.link_components(self.base, tmp, frozen)
+                checkpoint_init.link_components(self.base, tmp, frozen)
                 weights = self.ema.shadow if self.ema is not None else {k: p for k, p in self.named.items()}
                 unet_state = dict(self.unet.state_dict())
                 unet_state.update({k[5:]: v for k, v in weights.items() if k.startswith("unet.")})
@@ -263,8 +267,7 @@ class Trainer:
                 sc["trained_steps"] = self.scp_config.trained_steps + self.step
                 sc["extra"] = dict(sc.get("extra") or {}, trained_from=self.base, ema=self.ema is not None,
                                    train_config=self.cfg.to_json())
-                with open(os.path.join(tmp, "scpainter.json"), "w") as f:
-                    json.dump(sc, f, indent=1)
+                outputs.write_json(os.path.join(tmp, "scpainter.json"), sc)
                 st = os.path.join(tmp, "training_state")
                 os.makedirs(st)
                 save_file({k: p.detach().float().cpu().contiguous() for k, p in self.named.items()},
@@ -273,9 +276,9 @@ class Trainer:
                 if self.ema is not None:
                     save_file({k: v.cpu().contiguous() for k, v in self.ema.shadow.items()},
                               os.path.join(st, "ema.safetensors"))
-                with open(os.path.join(st, "state.json"), "w") as f:
-                    json.dump({"step": self.step, "ema_updates": 0 if self.ema is None else self.ema.updates,
-                               "world_size": self.world}, f)
+                outputs.write_json(os.path.join(st, "state.json"), {
+                    "step": self.step, "ema_updates": 0 if self.ema is None else self.ema.updates,
+                    "world_size": self.world})
                 os.rename(tmp, final)
             except BaseException:
                 shutil.rmtree(tmp, ignore_errors=True)

@@ -1,15 +1,21 @@
-"""Reading and writing files safely, for every command that takes files from users (issue 14).
+"""Reading files from users safely, for every command that takes them (issue 14).
 
 - ``InputError``: bad input, naming the file and the field, what is wrong and what to do. Every reader's error
   derives from it; the backend turns it into exit code 2 and an ``error`` event with ``file`` and ``field``.
+  ``ArgumentError`` is one about a command-line argument (``path`` ``COMMAND_LINE``).
 - Inputs are opened with ``open_regular``: a FIFO, a directory or a device is refused before anything blocks on it.
 - ``read_json``: size, depth and integer-length limits (validators then name any out-of-range field).
 - ``read_npz``: each ``.npy`` member's header is parsed and checked against the member's size before a byte of
   data is allocated; object dtypes (pickles) are refused; every zip/zlib/header failure names the file and key.
-- ``atomic_write``: a unique temporary file (``mkstemp``, never a planted link) in the target folder, renamed
-  over the target when complete; nothing half-written survives an error.
-- ``confined``: a job's paths may not leave the job's folder (``..`` or a symlink) unless the user allows it.
-- ``OutputLock``: one run per output folder; a lock whose owner died is taken over.
+
+Writing (atomic writes, confinement, output folders) is ``core.outputs``; one run per output folder is
+``core.locking``.
+
+Why one module of more than 400 lines: it is the shared reader of untrusted input. JSON and npz are the
+containers of most input files (jobs, train configs, clips, checkpoints' configs; predictions, camera poses), and
+both readers rest on the same two things here, ``open_regular`` and the ``error(path, field, message)`` callback
+that lets each caller raise its own InputError subclass; split up, the one contract "no input can traceback, hang
+or allocate what it does not hold" would be spread over three modules that only make sense together.
 
 stdlib and numpy only (no bpy): the add-on and the backend share it.
 """
@@ -22,10 +28,7 @@ import json
 import math
 import os
 import re
-import socket
 import stat
-import tempfile
-import time
 import zipfile
 import zlib
 
@@ -104,7 +107,7 @@ def _bad_name(path, error):
 
 
 #: Windows has no O_NONBLOCK (nor FIFOs that block an open); O_BINARY exists only there (no CRLF translation).
-_NONBLOCK = getattr(os, "O_NONBLOCK", 0)
+NONBLOCK = getattr(os, "O_NONBLOCK", 0)
 
 
 def check_regular(path, error=InputError) -> int:
@@ -128,7 +131,7 @@ def open_regular(path, error=InputError):
     Opened non-blocking and checked with ``fstat`` on the open descriptor: opening a FIFO this way returns at
     once (a plain open waits for a writer, forever), and the check is about the file actually opened."""
     try:
-        fd = os.open(path, os.O_RDONLY | _NONBLOCK | getattr(os, "O_CLOEXEC", 0) | getattr(os, "O_BINARY", 0))
+        fd = os.open(path, os.O_RDONLY | NONBLOCK | getattr(os, "O_CLOEXEC", 0) | getattr(os, "O_BINARY", 0))
     except OSError as e:
         raise _os_error(path, e, error) from None
     except ValueError:
@@ -140,7 +143,7 @@ def open_regular(path, error=InputError):
         try:  # regular files ignore O_NONBLOCK; clear it anyway so the descriptor behaves as usual
             import fcntl
 
-            fcntl.fcntl(fd, fcntl.F_SETFL, fcntl.fcntl(fd, fcntl.F_GETFL) & ~_NONBLOCK)
+            fcntl.fcntl(fd, fcntl.F_SETFL, fcntl.fcntl(fd, fcntl.F_GETFL) & ~NONBLOCK)
         except (ImportError, OSError):
             pass
         return os.fdopen(fd, "rb")
@@ -481,353 +484,3 @@ def npz_shapes(path, keys=None, error=InputError) -> dict:
                 with member:
                     out[name[:-4]] = _npy_header(member, path, name[:-4], error)[0]
             return out
-
-
-# ------------------------------------------------------------------------------------------- writing outputs
-
-def _umask() -> int:
-    """The process's umask, read from /proc where it can be (setting it to read it, the fallback, is
-    process-wide: a thread creating a file in that instant would get the temporary mask)."""
-    try:
-        with open("/proc/self/status", "rb") as f:
-            for line in f:
-                if line.startswith(b"Umask:"):
-                    return int(line.split()[1], 8)
-    except (OSError, ValueError, IndexError):
-        pass
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
-
-
-@contextlib.contextmanager
-def atomic_path(path):
-    """Yields a fresh temporary path in ``path``'s folder (created by ``mkstemp``: a unique name, exclusive, so a
-    planted file or link is never written through); on success it is renamed over ``path`` (a link at ``path``
-    is replaced, not followed), on any error removed. For writers that open by name (PyAV, safetensors)."""
-    path = os.fspath(path)
-    folder = os.path.dirname(os.path.abspath(path))
-    # the name is cut so that prefix + random part + suffix stays within a file system's 255-byte names
-    fd, tmp = tempfile.mkstemp(prefix=f".{os.path.basename(path)[:100]}.", suffix=".tmp", dir=folder)
-    os.close(fd)
-    try:
-        yield tmp
-        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; outputs get the user's usual permissions
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.remove(tmp)
-        raise
-
-
-@contextlib.contextmanager
-def atomic_write(path, mode: str = "wb"):
-    """``with atomic_write(path, "w") as f:`` — ``f`` writes a temporary file that replaces ``path`` only when the
-    block ends without an error (see ``atomic_path``)."""
-    with atomic_path(path) as tmp:
-        # O_NOFOLLOW: the fresh name is ours, but a link swapped in for it in a shared folder is not followed
-        with open(tmp, mode, **({} if "b" in mode else {"encoding": "utf-8"}),
-                  opener=lambda p, flags: os.open(p, flags | getattr(os, "O_NOFOLLOW", 0), 0o600)) as f:
-            yield f
-
-
-def write_json(path, value, indent: int | None = 1) -> None:
-    """``value`` as JSON (strict: NaN/inf refused), atomically."""
-    text = json.dumps(value, indent=indent, allow_nan=False)
-    with atomic_write(path, "w") as f:
-        f.write(text + "\n")
-
-
-def append_text(path, text: str) -> None:
-    """Append to a log file, never through a symbolic link (``O_NOFOLLOW``): InputError if ``path`` is one."""
-    flags = os.O_WRONLY | os.O_APPEND | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
-    try:
-        fd = os.open(path, flags | _NONBLOCK, 0o666)  # a FIFO without a reader fails at once (ENXIO), not blocks
-    except OSError as e:
-        if e.errno == errno.ELOOP:
-            raise InputError(path, "(file)", "is a symbolic link: the log is not written through links",
-                             hint="remove the link") from None
-        if e.errno in (errno.ENXIO, errno.EISDIR):
-            raise InputError(path, "(file)", "is not a regular file: the log cannot be appended to it",
-                             hint="remove it, or choose another output folder") from None
-        raise
-    with os.fdopen(fd, "a", encoding="utf-8") as f:
-        if not stat.S_ISREG(os.fstat(fd).st_mode):
-            raise InputError(path, "(file)", "is not a regular file: the log cannot be appended to it")
-        f.write(text)
-
-
-def remove_listed(folder, names) -> int:
-    """Delete the files ``names`` (bare file names, as a record of this program's outputs lists them) from
-    ``folder``; names with a path separator or ``..`` are ignored, a link is removed itself, never its target.
-    Returns how many were removed."""
-    removed = 0
-    for name in names:
-        if not isinstance(name, str) or not name or name in (".", "..") or os.sep in name or "/" in name or \
-                (os.altsep and os.altsep in name) or "\0" in name:  # a NUL makes os.path raise ValueError
-            continue
-        with contextlib.suppress(FileNotFoundError, IsADirectoryError, PermissionError):
-            p = os.path.join(folder, name)
-            if os.path.islink(p) or os.path.isfile(p):
-                os.remove(p)
-                removed += 1
-    return removed
-
-
-# ------------------------------------------------------------------------------------------------ confinement
-
-def inside(path, folder) -> bool:
-    """Whether ``path`` lies in ``folder`` (or is it) after resolving symbolic links and ``..``."""
-    p, f = os.path.realpath(path), os.path.realpath(folder)
-    return p == f or p.startswith(f.rstrip(os.sep) + os.sep)
-
-
-def confined(base, value, error, field: str, allow_outside: bool = False) -> str:
-    """The absolute path of a job's ``value`` (relative to ``base``, the job's folder). Unless ``allow_outside``,
-    ``error(field, message)`` when it resolves outside ``base`` (``..``, an absolute path elsewhere, or a symbolic
-    link pointing out): a job from someone else must not read or write beyond its own folder."""
-    path = os.path.normpath(os.path.join(os.path.abspath(base), os.fspath(value)))
-    if not allow_outside and not inside(path, base):
-        real = os.path.realpath(path)
-        how = "through a symbolic link " if os.path.realpath(os.path.dirname(path)) != os.path.dirname(path) or \
-            real != path else ""
-        raise error(field, f"{value!r} leads {how}outside the job's folder ({real}); move it into the folder, or "
-                           "run with --allow-outside if you trust this job")
-    return path
-
-
-def make_folder(path, field: str = "(folder)") -> str:
-    """``os.makedirs(path, exist_ok=True)``, with InputError naming the folder when it cannot be made (a file or a
-    FIFO in the way, a name too long, no permission)."""
-    try:
-        os.makedirs(path, exist_ok=True)
-    except FileExistsError:
-        raise InputError(path, field, "exists and is not a folder", hint="remove it or choose another output "
-                                                                         "folder") from None
-    except OSError as e:
-        raise InputError(path, field, f"cannot be made: {e.strerror or e}") from None
-    if not os.path.isdir(path):
-        raise InputError(path, field, "exists and is not a folder")
-    return path
-
-
-def output_folder(parent, name: str, allow_outside: bool = False) -> str:
-    """``parent/name`` created if missing; InputError if it is a symbolic link (or lies) outside ``parent``
-    unless ``allow_outside``: a link planted in an output folder must not carry writes elsewhere."""
-    path = os.path.join(parent, name)
-    make_folder(path)
-    if not allow_outside and not inside(path, parent):
-        raise InputError(path, "(folder)", f"leads outside the output folder ({os.path.realpath(path)})",
-                         hint="remove the link, or run with --allow-outside if you made it")
-    return path
-
-
-OUTPUT_FOLDERS = ("conditions", "generated")
-LOG_NAME = "backend.log"
-
-
-def check_output(out, allow_outside: bool = False) -> None:
-    """What a run would refuse in an output folder, checked without creating anything (``--check`` and the start
-    of every run): ``out`` not a folder; ``conditions/`` or ``generated/`` not a folder or leading outside ``out``
-    (unless ``allow_outside``); ``backend.log`` a symbolic link or not a regular file. InputError names it."""
-    if not os.path.lexists(out):
-        return
-    if not os.path.isdir(out):
-        raise InputError(out, "output_dir", "exists and is not a folder", hint="remove it or choose another "
-                                                                               "output folder")
-    for name in OUTPUT_FOLDERS:
-        path = os.path.join(out, name)
-        if not os.path.lexists(path):
-            continue
-        if not allow_outside and not inside(path, out):
-            raise InputError(path, "(folder)", f"leads outside the output folder ({os.path.realpath(path)})",
-                             hint="remove the link, or run with --allow-outside if you made it")
-        if not os.path.isdir(path):
-            raise InputError(path, "(folder)", "exists and is not a folder")
-    check_log(os.path.join(out, LOG_NAME))
-
-
-def check_log(path) -> None:
-    """InputError if the log file ``path`` exists as a symbolic link (never appended through) or as anything but a
-    regular file; a missing one is fine (it is created)."""
-    try:
-        mode = os.lstat(path).st_mode
-    except FileNotFoundError:
-        return
-    if stat.S_ISLNK(mode):
-        raise InputError(path, "(file)", "is a symbolic link: the log is not written through links",
-                         hint="remove the link")
-    if not stat.S_ISREG(mode):
-        raise InputError(path, "(file)", "is not a regular file: the log cannot be appended to it")
-
-
-def lock_owner(folder):
-    """The record of the run holding ``folder``'s lock if that run is alive on this host (or elsewhere: unknown,
-    taken as alive), else None: for ``--check`` to say a run would be refused."""
-    owner = OutputLock(folder, "check")._owner()
-    if not isinstance(owner, dict) or not isinstance(owner.get("pid"), int):
-        return None
-    if owner.get("host") == socket.gethostname() and not _alive(owner["pid"], owner.get("started")):
-        return None
-    return owner
-
-
-def remove_temporaries(folder, names) -> int:
-    """Delete what ``atomic_path`` left for the targets ``names`` in ``folder`` when a process was killed
-    (``.<name>.<random>.tmp``); only those names' temporaries, for a caller holding the folder's lock."""
-    prefixes = tuple(f".{n[:100]}." for n in names)
-    removed = 0
-    try:
-        entries = os.listdir(folder)
-    except OSError:
-        return 0
-    for entry in entries:
-        if entry.endswith(".tmp") and entry.startswith(prefixes) and "/" not in entry:
-            with contextlib.suppress(OSError):
-                p = os.path.join(folder, entry)
-                if os.path.islink(p) or os.path.isfile(p):
-                    os.remove(p)
-                    removed += 1
-    return removed
-
-
-# ---------------------------------------------------------------------------------------------------- locking
-
-LOCK_NAME = ".scpainter.lock"
-UNREADABLE_LOCK_S = 60   # a lock file nobody can read is taken over after this (a crash mid-write on old systems)
-
-
-def _process_start(pid: int):
-    """The process's start time in clock ticks (Linux ``/proc``), to tell a live owner from a reused pid; None
-    where unknown."""
-    try:
-        with open(f"/proc/{pid}/stat", "rb") as f:
-            return int(f.read().rsplit(b")", 1)[1].split()[19])
-    except (OSError, IndexError, ValueError):
-        return None
-
-
-def _process_state(pid: int):
-    """The process's state letter (``Z`` zombie) from Linux ``/proc``; None where unknown."""
-    try:
-        with open(f"/proc/{pid}/stat", "rb") as f:
-            return f.read().rsplit(b")", 1)[1].split()[0]
-    except (OSError, IndexError, ValueError):
-        return None
-
-
-def _alive(pid: int, started) -> bool:
-    if pid <= 0:  # kill(0) and kill(-1) would test our own process group / every process: garbage, not an owner
-        return False
-    if _process_state(pid) == b"Z":  # a zombie has exited; only its exit status waits for its parent
-        return False
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    except (OverflowError, ValueError):
-        return False
-    return started is None or _process_start(pid) in (None, started)
-
-
-class OutputLock:
-    """``with OutputLock(folder, command):`` — at most one run writes an output folder at a time.
-
-    The lock file ``<folder>/.scpainter.lock`` (created exclusively, never through a link) holds the owner's pid,
-    host, process start time, command and start date, and appears whole (see ``_take``). A second run raises
-    ``busy(message, hint, file=, owner=)`` naming the owner; a lock left by a process that no longer runs on this
-    host, or unreadable for ``UNREADABLE_LOCK_S``, is taken over (``stale`` is then the old owner's record, for a
-    log line). The file is removed when the block ends."""
-
-    def __init__(self, folder, command: str, busy=None):
-        self.folder, self.command = os.fspath(folder), command
-        self.path = os.path.join(self.folder, LOCK_NAME)
-        self.busy = busy or (lambda message, hint, **fields: RuntimeError(f"{message} ({hint})"))
-        self.stale = None
-        self._held = False
-
-    def _owner(self):
-        try:
-            with open_regular(self.path) as f:
-                return json.loads(f.read(4096).decode("utf-8"))
-        except (InputError, ValueError, OSError, RecursionError):
-            return None
-
-    def _take(self, me: dict) -> bool:
-        """Create the lock file whole or not at all: written to a private temporary file, then hard-linked to its
-        name (``link`` fails if the name exists, never follows a planted link), so no reader sees it empty."""
-        fd, tmp = tempfile.mkstemp(prefix=".scpainter.lock.", dir=self.folder)
-        try:
-            with os.fdopen(fd, "w", encoding="utf-8") as f:
-                json.dump(me, f)
-            try:
-                os.link(tmp, self.path)
-            except FileExistsError:
-                return False
-            except OSError:  # a file system without hard links: exclusive create, then write
-                try:
-                    fd2 = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0),
-                                  0o644)
-                except FileExistsError:
-                    return False
-                with os.fdopen(fd2, "w", encoding="utf-8") as f:
-                    json.dump(me, f)
-            return True
-        finally:
-            with contextlib.suppress(OSError):
-                os.remove(tmp)
-
-    def __enter__(self):
-        make_folder(self.folder)
-        me = {"pid": os.getpid(), "host": socket.gethostname(), "started": _process_start(os.getpid()),
-              "command": self.command, "since": time.strftime("%Y-%m-%d %H:%M:%S")}
-        for _ in range(3):
-            if self._take(me):
-                self._held = True
-                return self
-            owner = self._owner()
-            if owner is None:  # unreadable: written by a file system without links this instant, or damaged
-                time.sleep(0.05)
-                owner = self._owner()
-            if isinstance(owner, dict) and owner.get("host") == me["host"] and isinstance(owner.get("pid"), int) \
-                    and not _alive(owner["pid"], owner.get("started")):
-                self.stale = owner
-            elif owner is None and self._age() > UNREADABLE_LOCK_S:
-                self.stale = {"unreadable lock file, age s": round(self._age())}
-            elif owner is None:
-                raise self.busy(f"{self.path}: the output folder is locked and the lock file is unreadable",
-                                f"it is taken over when older than {UNREADABLE_LOCK_S} s; delete it if no other "
-                                "SCPainter run uses this folder", file=self.path, owner=None)
-            else:
-                raise self.busy(f"{self.folder} is being written by another run: pid {owner.get('pid')} on "
-                                f"{owner.get('host')} ({owner.get('command')}, since {owner.get('since')})",
-                                f"wait for it to finish or stop it; if it is gone, delete {self.path}",
-                                file=self.path, owner=owner)
-            with contextlib.suppress(FileNotFoundError):
-                os.remove(self.path)
-        raise self.busy(f"{self.path}: could not take the output folder's lock", "try again", file=self.path,
-                        owner=None)
-
-    def took_over(self) -> str | None:
-        """A log line when the lock was taken over from a run that ended without releasing it, else None."""
-        o = self.stale
-        if o is None:
-            return None
-        who = (f"pid {o.get('pid')} on {o.get('host')} ({o.get('command')}, since {o.get('since')})"
-               if "pid" in o else "an unreadable lock file")
-        return f"took over the output folder's lock from {who}: that run ended without releasing it"
-
-    def _age(self) -> float:
-        try:
-            return time.time() - os.lstat(self.path).st_mtime
-        except OSError:
-            return 0.0
-
-    def __exit__(self, *exc):
-        if self._held:
-            with contextlib.suppress(FileNotFoundError):
-                os.remove(self.path)
-            self._held = False
-        return False

@@ -24,7 +24,7 @@ from functools import partial
 import numpy as np
 
 from . import fields as fields_mod
-from . import files, similarity
+from . import files, outputs, similarity
 
 SCHEMA = "scpainter.job/2"
 #: Older schemas still read, each with its fields renamed since: {schema: {old field: current field}} (scene level)
@@ -175,7 +175,7 @@ class Scene:
 
 @dataclass(eq=False)
 class Asset:
-    """A Gaussian asset: ``ply`` (path, relative to the job file; any format ``core.splats.read`` accepts) and,
+    """A Gaussian asset: ``ply`` (path, relative to the job file; any format ``core.splats_io.read`` accepts) and,
     for every output frame, ``object_to_world`` (4, 4) affine from the file's coordinates to world metres."""
     name: str
     ply: str
@@ -390,7 +390,7 @@ def save(path, job) -> Job:
     content = job.to_dict() if isinstance(job, Job) else job
     job = Job.from_dict(content, path)  # a Job built in code is validated too: nothing invalid is ever written
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-    files.write_json(path, job.to_dict())
+    outputs.write_json(path, job.to_dict())
     return job
 
 

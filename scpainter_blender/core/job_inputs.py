@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import os
 
-from . import files
+from . import files, outputs
 from .job import Job, JobError
 
 
@@ -23,7 +23,7 @@ def job_paths(job_path, job: Job, allow_outside: bool = False, checkpoint: bool 
     base = os.path.dirname(os.path.abspath(job_path))
 
     def confine(field, value):
-        return files.confined(base, value, lambda f, m: JobError(job_path, f, m), field, allow_outside)
+        return outputs.confined(base, value, lambda f, m: JobError(job_path, f, m), field, allow_outside)
 
     out = {"output_dir": confine("output_dir", job.output_dir)}
     if job.scene is not None:
@@ -40,7 +40,7 @@ def check_inputs(job_path, job: Job, allow_outside: bool = False) -> dict:
     (``job_paths``), that the predictions file is a readable ``.npz`` whose frames include every
     ``source_frames`` entry, and that each asset is a readable Gaussian file. Returns the paths plus
     ``num_source_frames``; raises an InputError (JobError, PredictionsError, SplatsError) naming file and field."""
-    from . import splats, vggt
+    from . import splats_io, vggt
 
     paths = job_paths(job_path, job, allow_outside)
     if job.scene is not None:
@@ -59,5 +59,5 @@ def check_inputs(job_path, job: Job, allow_outside: bool = False) -> dict:
                 raise JobError(job_path, f"frames[{i}].source_frames", f"frame(s) {bad[:5]} do not exist: "
                                                                        f"{os.path.basename(pred)} has {S} frames")
     for i in range(len(job.assets)):
-        splats.read(paths[f"assets[{i}].ply"])
+        splats_io.read(paths[f"assets[{i}].ply"])
     return paths

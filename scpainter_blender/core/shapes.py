@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import cameras, splats
+from . import cameras, splats, splats_inria, trellis
+from .sh import SH_C0
 from .similarity import decompose_similarity  # a bare name: transform_gaussians has a parameter "similarity"
 
 _BOX_SIGNS = np.array([[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1],
@@ -129,7 +130,7 @@ def surface_gaussians(builder: MeshBuilder, colors: dict, count: int, seed: int 
     sigma = np.sqrt(area.sum() / count)
     scales = np.tile([sigma, sigma, flatness * sigma], (count, 1))
     rgb = np.array([colors[m] for m in builder.materials], float)[slot[pick]]
-    sh = ((rgb - 0.5) / splats.SH_C0)[:, None, :]
+    sh = ((rgb - 0.5) / SH_C0)[:, None, :]
     return splats.Gaussians(means=means.astype(np.float32), scales=scales.astype(np.float32),
                             quats=cameras.rotation_to_quaternion(R).astype(np.float32),
                             opacities=np.full(count, opacity, np.float32), sh=sh.astype(np.float32))
@@ -165,9 +166,9 @@ def save_as_amodal3r(path, g: splats.Gaussians) -> np.ndarray:
     lo, hi = g.means.min(axis=0).astype(np.float64), g.means.max(axis=0).astype(np.float64)
     s = 0.98 / float(np.max(hi - lo))
     A = np.eye(4)
-    A[:3, :3] = s * splats.ZUP_TO_TRELLIS_FILE
-    A[:3, 3] = -s * splats.ZUP_TO_TRELLIS_FILE @ ((lo + hi) / 2)
+    A[:3, :3] = s * trellis.ZUP_TO_TRELLIS_FILE
+    A[:3, 3] = -s * trellis.ZUP_TO_TRELLIS_FILE @ ((lo + hi) / 2)
     out = transform_gaussians(splats.Gaussians(g.means, g.scales, g.quats, g.opacities, g.sh[:, :1]), A)
     zeros = np.zeros(len(out), np.float32)
-    splats.write_ply(path, splats.encode(out, extra={"nx": zeros, "ny": zeros, "nz": zeros}))
+    splats_inria.write_ply(path, splats.encode(out, extra={"nx": zeros, "ny": zeros, "nz": zeros}))
     return A

@@ -24,7 +24,7 @@ import os
 
 import numpy as np
 
-from . import cameras, files, vggt, vggt_convention, vggt_crop
+from . import cameras, files, outputs, vggt, vggt_convention, vggt_crop
 from .vggt import OPTIONAL_KEYS, REQUIRED_KEYS, PredictionsError
 
 
@@ -157,7 +157,7 @@ def save_predictions(path, images, depth, depth_conf, extrinsic, intrinsic_vggt,
         arrays["world_points"] = np.asarray(world_points, np.float32)
     if world_points_conf is not None:
         arrays["world_points_conf"] = np.asarray(world_points_conf, np.float32)
-    with files.atomic_write(os.fspath(path)) as f:  # a file object: np.savez would add .npz to a temporary name
+    with outputs.atomic_write(os.fspath(path)) as f:  # a file object: np.savez would add .npz to a temporary name
         np.savez(f, **arrays)
 
 

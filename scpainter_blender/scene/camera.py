@@ -104,7 +104,7 @@ def shift_label(shift_m: float) -> str:
 def create_camera_path(context, source, shift_m: float, name: str | None = None):
     """A new camera following ``source`` (the recorded camera) shifted sideways, keyed at every scene frame.
 
-    ``shift_m`` > 0 moves left of the direction of travel, < 0 right (DESIGN §3 heading). The camera data is a
+    ``shift_m`` > 0 moves left of the direction of travel, < 0 right (docs/design.md §3 heading). The camera data is a
     copy of the source's (same lens, sensor and shift keys), the new object becomes the scene's active camera.
     """
     scene = context.scene

@@ -1,4 +1,4 @@
-"""The few Blender APIs that moved between 4.2 and 5.0, each behind one helper (DESIGN §6).
+"""The few Blender APIs that moved between 4.2 and 5.0, each behind one helper (docs/design.md §6).
 
 * Keyframes: from 4.4 they live in action slots and channelbags, and ``Action.fcurves`` is gone in 5.0.
 * Node trees: before 5.0 a new material or world has none until ``use_nodes`` is set (deprecated in 5.0).

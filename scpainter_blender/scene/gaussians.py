@@ -26,7 +26,8 @@ import bpy
 import numpy as np
 
 from .. import backend_client
-from ..core import cameras, files, splats
+from ..core import cameras, outputs, splats, splats_io, trellis
+from ..core.sh import SH_C0
 from . import materials, node_groups, props
 from .points import _linear_rgba
 
@@ -106,7 +107,7 @@ class GaussianImport:
 
 #: Car meshes are converted to Gaussians by the backend (trimesh); a .ply is a mesh when it has faces and no
 #: Gaussian properties (decided by its header).
-ASSET_EXTENSIONS = (".ply", ".splat") + splats.MESH_EXTENSIONS
+ASSET_EXTENSIONS = (".ply", ".splat") + splats_io.MESH_EXTENSIONS
 DEFAULT_MESH_COUNT = 200_000
 #: Lengths (metres) outside which an imported asset is most likely in other units: the import says so.
 MIN_CAR_LENGTH, MAX_CAR_LENGTH = 0.5, 30.0
@@ -114,7 +115,7 @@ MIN_CAR_LENGTH, MAX_CAR_LENGTH = 0.5, 30.0
 
 def is_mesh_file(filepath: str) -> bool:
     ext = os.path.splitext(filepath)[1].lower()
-    return ext in splats.MESH_EXTENSIONS or (ext == ".ply" and splats.is_mesh_ply(filepath))
+    return ext in splats_io.MESH_EXTENSIONS or (ext == ".ply" and splats_io.is_mesh_ply(filepath))
 
 
 def _data_frame(xyz_file, axes: str):
@@ -122,7 +123,7 @@ def _data_frame(xyz_file, axes: str):
 
     The data frame is Z up with its origin at the bottom centre of the means (module docstring).
     """
-    F = splats.ZUP_TO_TRELLIS_FILE.T if axes == "TRELLIS" else np.eye(3)
+    F = trellis.ZUP_TO_TRELLIS_FILE.T if axes == "TRELLIS" else np.eye(3)
     xyz = np.asarray(xyz_file, np.float64) @ F.T
     lo, hi = xyz.min(axis=0), xyz.max(axis=0)
     bottom = np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2]])
@@ -156,12 +157,12 @@ def import_gaussians(context, filepath: str, axes: str = "AUTO", target_length: 
     mesh = None
     if is_mesh_file(filepath):
         out = gaussians_path or mesh_gaussians_path(context.scene, filepath, mesh_count)
-        files.make_folder(os.path.dirname(out), "assets folder")
+        outputs.make_folder(os.path.dirname(out), "assets folder")
         mesh = backend_client.run(["mesh-asset", filepath, "--out", out, "--count", int(mesh_count)],
                                   python=backend_python)["result"]
         mesh["source"] = filepath
         filepath = out
-    ply = splats.read(filepath)
+    ply = splats_io.read(filepath)
     keep, dropped = splats.valid_rows(ply)
     if not keep.any():
         raise splats.SplatsError(filepath, f"no valid Gaussians ({len(ply)} rows, dropped {dropped})")
@@ -170,13 +171,13 @@ def import_gaussians(context, filepath: str, axes: str = "AUTO", target_length: 
     elif mesh:  # the backend already turned the mesh Z up
         axes, reason = "NONE", f"a mesh read {mesh['up'].upper()} up and turned Z up"
     else:
-        axes, reason = splats.detect_axes(ply, keep)
+        axes, reason = trellis.detect_axes(ply, keep)
     file_to_data, F, lo, hi = _data_frame(ply.xyz[keep], axes)
     pos = (ply.xyz[keep].astype(np.float64) @ file_to_data[:3, :3].T + file_to_data[:3, 3]).astype(np.float32)
     rot_raw = ply.rot[keep]
     sigma = np.exp(ply.scale[keep].astype(np.float64))
     opacity = 1.0 / (1.0 + np.exp(-ply.opacity[keep].astype(np.float64)))
-    rgba = _linear_rgba(np.clip(splats.SH_C0 * ply.f_dc[keep] + 0.5, 0.0, 1.0).astype(np.float32))
+    rgba = _linear_rgba(np.clip(SH_C0 * ply.f_dc[keep] + 0.5, 0.0, 1.0).astype(np.float32))
     rgba[:, 3] = opacity
     t_read = time.perf_counter()
 
@@ -210,7 +211,7 @@ def import_gaussians(context, filepath: str, axes: str = "AUTO", target_length: 
     obj.location = context.scene.cursor.location
     extent = max(hi[0] - lo[0], hi[1] - lo[1])
     if target_length is None:  # TRELLIS/Amodal3R make unit-cube objects, as Gaussians and as GLBs
-        in_cube = np.abs(ply.xyz[keep]).max() <= splats.TRELLIS_MEAN_BOUND
+        in_cube = np.abs(ply.xyz[keep]).max() <= trellis.TRELLIS_MEAN_BOUND
         unit_cube = axes == "TRELLIS" or (mesh is not None and in_cube)
         target_length = TRELLIS_DEFAULT_LENGTH if unit_cube else extent
     if extent > 0:

@@ -52,7 +52,7 @@ class ImportResult:
 
 
 def metric_fit(pred: vggt.VGGTPredictions, opts: ImportOptions) -> metric_scale.MetricFit:
-    """vggt_to_world by the chosen method (DESIGN §3)."""
+    """vggt_to_world by the chosen method (docs/design.md §3)."""
     if opts.scale_mode == "FACTOR":
         return metric_scale.vggt_to_world_by_factor(opts.scale_factor)
     if opts.scale_mode == "TRAJECTORY":

@@ -8,7 +8,7 @@ import os
 import bpy
 
 from ..backend_client import BackendError, BackendJob
-from ..core import files
+from ..core import files, outputs
 from . import job_export, preferences, props, results
 
 #: The ``path`` of an InputError about an add-on preference (``field``: the preference's name).
@@ -32,7 +32,7 @@ def start(context, command: str, extra=()) -> tuple[BackendJob, str]:
         raise files.InputError(PREFERENCES, "checkpoint_dir", "no checkpoint folder is set",
                                hint="Preferences > Add-ons > SCPainter > Checkpoint Folder (or --checkpoint), made "
                                     "with `python -m backend init-checkpoint --svd SVD_DIR --out DIR`")
-    files.make_folder(out, "scene.scpainter_output_dir")
+    outputs.make_folder(out, "scene.scpainter_output_dir")
     job_path = os.path.join(out, "job.json")
     job_export.export_job(context, job_path, checkpoint=ckpt)
     device = prefs.device.lower() if prefs else "auto"

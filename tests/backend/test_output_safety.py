@@ -11,7 +11,7 @@ import sys
 import pytest
 
 from backend.__main__ import main
-from scpainter_blender.core import files
+from scpainter_blender.core import files, locking
 from scpainter_blender.core import job as J
 from tests_support import small_job
 
@@ -132,7 +132,7 @@ def test_stale_frames_clean_up_deletes_only_this_jobs_files(case):
 def test_a_second_run_on_the_same_folder_is_refused(case):
     job_path, _ = case
     out = os.path.join(os.path.dirname(job_path), "out")
-    with files.OutputLock(out, "render (another process)"):
+    with locking.OutputLock(out, "render (another process)"):
         code, ev = run("render", job_path, "--check")              # --check says a run would be refused
         assert code == 0 and ev[-1]["locked_by"]["pid"] == os.getpid()
         code, ev = run("render", job_path, "--device", "cpu")
@@ -143,12 +143,12 @@ def test_a_second_run_on_the_same_folder_is_refused(case):
     # a lock left by a process that died is taken over
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
     dead.wait()
-    with open(os.path.join(out, files.LOCK_NAME), "w") as f:
+    with open(os.path.join(out, locking.LOCK_NAME), "w") as f:
         json.dump({"pid": dead.pid, "host": __import__("socket").gethostname(), "started": None,
                    "command": "render", "since": "earlier"}, f)
     code, ev = run("render", job_path, "--device", "cpu")
     assert code == 0 and ev[-1]["rendered"] == 2
-    assert not os.path.exists(os.path.join(out, files.LOCK_NAME))     # released at the end
+    assert not os.path.exists(os.path.join(out, locking.LOCK_NAME))     # released at the end
     assert f"took over the output folder's lock from pid {dead.pid}" in open(os.path.join(out, "backend.log")).read()
 
 

@@ -10,9 +10,16 @@ descriptions (not from the reader).
   positive, as floor((q_j √2/2 + 0.5) · 1023 + 0.5) in file order; SH bytes trunc((v / 8 + 0.5) · 256) in 0..255.
 * ``write_typed_ply`` writes any vertex (and optional face) layout with chosen PLY types, e.g. half floats in
   ``ushort`` slots or a mesh.
+
+And the raw Gaussians the tests of ``core.splats*`` and ``core.trellis`` share: ``random_ply`` (INRIA values, SH 0-3,
+optional normals and a label), ``random_gaussians`` (unit quaternions, SH beyond ±4), ``trellis_like_file`` (what
+TRELLIS/Amodal3R's save_ply writes), ``write_compressed`` (a GaussianPly through ``write_compressed_ply``),
+``assert_raw_equal`` (bit-exact) and ``same_rotation_error``.
 """
 
 import numpy as np
+
+from scpainter_blender.core import splats, trellis
 
 SH_C0 = 0.28209479177387814
 _NP = {"char": "i1", "uchar": "u1", "short": "i2", "ushort": "u2", "int": "i4", "uint": "u4", "float": "f4",
@@ -130,3 +137,79 @@ def write_compressed_ply(path, xyz, log_scale, quat, f_dc, opacity_logit, f_rest
     with open(path, "wb") as f:
         f.write(("\n".join(head) + "\n").encode("ascii") + body)
     return table
+
+
+# -- raw Gaussians shared by the tests -----------------------------------------------------------------------------
+
+def random_ply(N=50, degree=0, seed=0, extras=True):
+    rng = np.random.default_rng(seed)
+    K1 = splats.num_sh_coefficients(degree) - 1
+    extra = {}
+    if extras:
+        extra = {"nx": np.zeros(N, np.float32), "ny": np.zeros(N, np.float32), "nz": np.zeros(N, np.float32),
+                 "label": rng.integers(0, 255, N).astype(np.uint8)}
+    return splats.GaussianPly(
+        xyz=rng.normal(0, 1, (N, 3)).astype(np.float32), f_dc=rng.normal(0, 1, (N, 3)).astype(np.float32),
+        f_rest=rng.normal(0, 0.2, (N, 3, K1)).astype(np.float32), opacity=rng.normal(0, 2, N).astype(np.float32),
+        scale=rng.normal(-4, 1, (N, 3)).astype(np.float32), rot=rng.normal(0, 1, (N, 4)).astype(np.float32),
+        extra=extra)
+
+
+def trellis_like_file(path, N=40, seed=1):
+    """What TRELLIS/Amodal3R's save_ply writes: 17 float properties, zero normals, SH degree 0, unit-cube object."""
+    rng = np.random.default_rng(seed)
+    names = ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1",
+             "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
+    arr = np.zeros(N, dtype=[(n, "<f4") for n in names])
+    zup = rng.uniform(-0.5, 0.5, (N, 3))
+    filexyz = zup @ trellis.ZUP_TO_TRELLIS_FILE.T
+    for i, k in enumerate("xyz"):
+        arr[k] = filexyz[:, i]
+    for i in range(3):
+        arr[f"f_dc_{i}"] = rng.normal(0, 1, N)
+        arr[f"scale_{i}"] = np.log(rng.uniform(0.002, 0.02, N))
+    arr["opacity"] = rng.normal(2, 1, N)
+    q = rng.normal(0, 1, (N, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    for i in range(4):
+        arr[f"rot_{i}"] = q[:, i]
+    header = "ply\nformat binary_little_endian 1.0\nelement vertex %d\n" % N
+    header += "".join(f"property float {n}\n" for n in names) + "end_header\n"
+    with open(path, "wb") as f:
+        f.write(header.encode() + arr.tobytes())
+    return zup, arr
+
+
+def assert_raw_equal(a, b):
+    """Two GaussianPly hold the same raw values bit for bit (NaN included) and the same extras, in order."""
+    for k in ("xyz", "f_dc", "f_rest", "opacity", "scale", "rot"):
+        x, y = getattr(a, k), getattr(b, k)
+        assert x.shape == y.shape and x.dtype == y.dtype, k
+        assert np.array_equal(x.view(np.uint32), y.view(np.uint32)), k  # bit-exact, NaN included
+    assert list(a.extra) == list(b.extra)
+    for k in a.extra:
+        assert a.extra[k].dtype == b.extra[k].dtype and np.array_equal(a.extra[k], b.extra[k]), k
+
+
+def random_gaussians(N, degree, seed):
+    """Raw INRIA values, quaternions unit; some SH values beyond the compressed format's ±4 range."""
+    rng = np.random.default_rng(seed)
+    q = rng.normal(0, 1, (N, 4))
+    K1 = splats.num_sh_coefficients(degree) - 1
+    return splats.GaussianPly(
+        xyz=rng.normal(0, 2, (N, 3)).astype(np.float32), f_dc=rng.normal(0, 1, (N, 3)).astype(np.float32),
+        f_rest=rng.normal(0, 2, (N, 3, K1)).astype(np.float32), opacity=rng.normal(0, 3, N).astype(np.float32),
+        scale=rng.normal(-4, 1, (N, 3)).astype(np.float32),
+        rot=(q / np.linalg.norm(q, axis=1, keepdims=True)).astype(np.float32))
+
+
+def write_compressed(path, ply, chunk_colors=True):
+    return write_compressed_ply(path, ply.xyz, ply.scale, ply.rot, ply.f_dc, ply.opacity, ply.f_rest,
+                                  chunk_colors=chunk_colors)
+
+
+def same_rotation_error(a, b):
+    """Largest distance between unit quaternions a and b (N, 4) taken up to sign (q and -q are one rotation)."""
+    a = a / np.linalg.norm(a, axis=1, keepdims=True)
+    b = b / np.linalg.norm(b, axis=1, keepdims=True)
+    return np.minimum(np.abs(a - b).max(1), np.abs(a + b).max(1)).max()

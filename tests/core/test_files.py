@@ -1,12 +1,10 @@
 """core.files: readers that cannot be made to traceback or hang (issue 14): regular files only, JSON within limits
-and named by field, npz members checked before a byte is allocated; atomic writes, listed removals, the output
-lock."""
+and named by field, npz members checked before a byte is allocated; InputError and ArgumentError. Writing is
+tested in test_outputs.py, the output lock in test_locking.py."""
 
 import io
 import json
 import os
-import subprocess
-import sys
 import threading
 import time
 import zipfile
@@ -291,126 +289,6 @@ def test_other_compressions_read_and_their_corruption_is_named(tmp_path):
         assert refused(F.read_npz, p, ["a"]).field == "a"
 
 
-# -- writing -------------------------------------------------------------------------------------------------------
-
-def test_atomic_write_leaves_nothing_on_error(tmp_path):
-    target = tmp_path / "out.json"
-    target.write_text("old")
-    with pytest.raises(RuntimeError):
-        with F.atomic_write(target, "w") as f:
-            f.write("half")
-            raise RuntimeError("stop")
-    assert target.read_text() == "old" and sorted(os.listdir(tmp_path)) == ["out.json"]
-    with pytest.raises(ValueError):  # NaN is refused before anything is written
-        F.write_json(tmp_path / "nan.json", {"a": float("nan")})
-    assert sorted(os.listdir(tmp_path)) == ["out.json"]
-    with F.atomic_path(tmp_path / "video.mp4") as tmp:
-        assert os.path.dirname(tmp) == str(tmp_path) and os.path.exists(tmp)
-        with open(tmp, "wb") as f:
-            f.write(b"data")
-    assert (tmp_path / "video.mp4").read_bytes() == b"data" and len(os.listdir(tmp_path)) == 2
-    F.write_json(tmp_path / ("x" * 250 + ".json"), [1])  # a long name still leaves room for the temporary one
-    assert F.read_json(tmp_path / ("x" * 250 + ".json")) == [1]
-
-
-def test_atomic_write_replaces_a_planted_link(tmp_path):
-    victim = tmp_path / "victim.txt"
-    victim.write_text("precious")
-    out = tmp_path / "out"
-    out.mkdir()
-    (out / "result.json").symlink_to(victim)
-    F.write_json(out / "result.json", {"ok": True})
-    assert victim.read_text() == "precious"
-    assert not (out / "result.json").is_symlink() and F.read_json(out / "result.json") == {"ok": True}
-    mask = os.umask(0o022)
-    os.umask(mask)
-    assert (out / "result.json").stat().st_mode & 0o777 == 0o666 & ~mask
-
-
-def test_append_text_refuses_links_and_fifos(tmp_path):
-    log = tmp_path / "run.log"
-    F.append_text(log, "a\n")
-    F.append_text(log, "b\n")
-    assert log.read_text() == "a\nb\n"
-    (tmp_path / "link.log").symlink_to(tmp_path / "elsewhere.log")
-    refused(F.append_text, tmp_path / "link.log", "x", match="symbolic link")
-    assert not (tmp_path / "elsewhere.log").exists()
-    if hasattr(os, "mkfifo"):
-        os.mkfifo(tmp_path / "fifo.log")
-        refused(F.append_text, tmp_path / "fifo.log", "x", match="not a regular file")
-    (tmp_path / "dir.log").mkdir()
-    refused(F.append_text, tmp_path / "dir.log", "x", match="not a regular file")
-
-
-def test_remove_listed_ignores_names_with_separators(tmp_path):
-    folder = tmp_path / "out"
-    folder.mkdir()
-    for name in ("a.png", "b.png", "keep.png"):
-        (folder / name).write_text("x")
-    (tmp_path / "outside.png").write_text("x")
-    (folder / "sub").mkdir()
-    (folder / "sub" / "c.png").write_text("x")
-    (folder / "link.png").symlink_to(tmp_path / "outside.png")
-    names = ["a.png", "b.png", "../outside.png", "sub/c.png", str(tmp_path / "outside.png"), "..", ".", "", None, 3,
-             "nul\0.png", "link.png", "missing.png", "sub"]
-    assert F.remove_listed(folder, names) == 3
-    assert sorted(os.listdir(folder)) == ["keep.png", "sub"]
-    assert (tmp_path / "outside.png").exists() and (folder / "sub" / "c.png").exists()
-
-
-# -- the output lock -----------------------------------------------------------------------------------------------
-
-class Busy(Exception):
-    def __init__(self, message, hint, **fields):
-        self.fields = fields
-        super().__init__(f"{message} | {hint}")
-
-
-def test_second_lock_is_busy_and_the_file_goes_on_exit(tmp_path):
-    with F.OutputLock(tmp_path, "render", busy=Busy) as lock:
-        assert os.path.exists(lock.path)
-        record = json.loads(open(lock.path).read())
-        assert record["pid"] == os.getpid() and record["command"] == "render"
-        with pytest.raises(Busy, match=f"being written by another run: pid {os.getpid()}.*render"):
-            with F.OutputLock(tmp_path, "generate", busy=Busy):
-                pass
-        assert os.path.exists(lock.path)  # the refused second lock did not remove the first one's file
-    assert not os.path.exists(os.path.join(tmp_path, F.LOCK_NAME))
-    with pytest.raises(KeyError):  # removed on an error too
-        with F.OutputLock(tmp_path, "render"):
-            raise KeyError("x")
-    assert not os.path.exists(os.path.join(tmp_path, F.LOCK_NAME))
-
-
-def test_stale_lock_of_a_finished_process_is_taken_over(tmp_path):
-    child = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True,
-                           check=True)
-    dead = int(child.stdout)
-    import socket
-
-    stale = {"pid": dead, "host": socket.gethostname(), "started": 1, "command": "render", "since": "yesterday"}
-    lock_path = tmp_path / F.LOCK_NAME
-    lock_path.write_text(json.dumps(stale))
-    with F.OutputLock(tmp_path, "generate", busy=Busy) as lock:
-        assert lock.stale == stale
-        assert json.loads(lock_path.read_text())["pid"] == os.getpid()
-    assert not lock_path.exists()
-    for garbage in ({"pid": 0, "host": socket.gethostname()}, {"pid": -1, "host": socket.gethostname()}):
-        lock_path.write_text(json.dumps(garbage))  # kill(0) / kill(-1) would "find" a process: not an owner
-        with F.OutputLock(tmp_path, "generate", busy=Busy) as lock:
-            assert lock.stale == garbage
-    lock_path.write_text("[" * 5000)  # unreadable: busy, with what to do, never a traceback
-    with pytest.raises(Busy, match="lock file is unreadable") as e:
-        with F.OutputLock(tmp_path, "generate", busy=Busy):
-            pass
-    assert e.value.fields == {"file": str(lock_path), "owner": None}
-    old = time.time() - F.UNREADABLE_LOCK_S - 5          # ... until it is old: a crash mid-write, taken over
-    os.utime(lock_path, (old, old))
-    with F.OutputLock(tmp_path, "generate", busy=Busy) as lock:
-        assert "unreadable lock file" in str(lock.stale)
-    assert sorted(os.listdir(tmp_path)) == []            # neither lock nor its temporary file is left
-
-
 def test_nul_in_a_name_and_a_socket_are_named(tmp_path):
     refused(F.open_regular, str(tmp_path / "a\0b.json"), match="NUL character")
     refused(F.check_regular, str(tmp_path / "a\0b.json"), match="NUL character")
@@ -443,7 +321,7 @@ def test_input_errors_survive_pickling():
     the one text in its args."""
     import pickle
 
-    from backend.mesh_asset import MeshAssetError
+    from backend.mesh_load import MeshAssetError
     from backend.train.clip import ClipError
     from backend.train.config import TrainConfigError
     from scpainter_blender.core.splats import SplatsError

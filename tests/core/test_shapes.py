@@ -3,7 +3,7 @@
 import numpy as np
 
 from scpainter_blender.core import cameras as C
-from scpainter_blender.core import shapes, splats
+from scpainter_blender.core import shapes, splats, splats_io
 
 
 def test_car_dimensions():
@@ -48,7 +48,7 @@ def test_outward_normals():
 def test_save_as_amodal3r_round_trip(tmp_path):
     g = shapes.procedural_car_gaussians(count=3000, seed=2)
     A = shapes.save_as_amodal3r(tmp_path / "car.ply", g)
-    raw = splats.read_ply(tmp_path / "car.ply")
+    raw = splats_io.read_ply(tmp_path / "car.ply")
     assert raw.sh_degree == 0 and set(raw.extra) == {"nx", "ny", "nz"}  # TRELLIS's 17 properties
     back = splats.decode(raw)
     assert np.all(np.abs(back.means) <= 0.5)                           # TRELLIS's unit cube

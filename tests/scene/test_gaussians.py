@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from scpainter_blender.core import cameras as C
-from scpainter_blender.core import colors, shapes, splats
+from scpainter_blender.core import colors, shapes, splats, splats_compressed, splats_inria, splats_io
+from scpainter_blender.core.sh import SH_C0
 from tests_support import realdata
 
 
@@ -40,7 +41,7 @@ def test_import_amodal3r_car(empty_scene, car_file):
     obj = bpy.context.active_object
     assert obj["scpainter_kind"] == "gaussian_asset" and obj["scpainter_axes"] == "TRELLIS"
     assert obj["scpainter_source"] == os.path.abspath(path) and obj["scpainter_dropped"] == 0
-    raw = splats.read_ply(path)
+    raw = splats_io.read_ply(path)
     N = len(raw)
     assert len(obj.data.vertices) == N == 4000
     # every file value kept, bit for bit
@@ -112,7 +113,7 @@ def test_bad_rows_dropped_and_counted(empty_scene, tmp_path):
     raw.xyz[5, 0] = np.nan
     raw.scale[7] = 200.0
     path = str(tmp_path / "bad_rows.ply")
-    splats.write_ply(path, raw)
+    splats_inria.write_ply(path, raw)
     assert bpy.ops.scpainter.import_gaussians(filepath=path, axes="NONE") == {"FINISHED"}
     obj = bpy.context.active_object
     assert len(obj.data.vertices) == 95 and obj["scpainter_dropped"] == 5
@@ -126,7 +127,7 @@ def test_bad_files_report_and_create_nothing(empty_scene, tmp_path):
         bpy.ops.scpainter.import_gaussians(filepath=str(tmp_path / "junk.ply"))
     raw = splats.encode(shapes.procedural_car_gaussians(count=10, seed=0))
     raw.rot[:] = 0.0
-    splats.write_ply(tmp_path / "allbad.ply", raw)
+    splats_inria.write_ply(tmp_path / "allbad.ply", raw)
     with pytest.raises(RuntimeError, match="no valid Gaussians"):
         bpy.ops.scpainter.import_gaussians(filepath=str(tmp_path / "allbad.ply"))
     assert len(bpy.data.objects) == 0
@@ -140,7 +141,7 @@ def test_sh3_file_keeps_all_coefficients(empty_scene, tmp_path):
                              f_rest=rng.normal(0, 0.1, (N, 3, 15)).astype(np.float32),
                              opacity=np.zeros(N, np.float32), scale=np.full((N, 3), -3, np.float32),
                              rot=np.tile([1, 0, 0, 0], (N, 1)).astype(np.float32))
-    splats.write_ply(tmp_path / "inria.ply", raw)
+    splats_inria.write_ply(tmp_path / "inria.ply", raw)
     assert bpy.ops.scpainter.import_gaussians(filepath=str(tmp_path / "inria.ply")) == {"FINISHED"}
     obj = bpy.context.active_object
     assert obj["scpainter_sh_degree"] == 3 and obj["scpainter_axes"] == "NONE"
@@ -156,9 +157,9 @@ def _trellis_car_to_the_cube_edge(path, reach=0.504):
     to 0.75 voxel of 64 off its voxel centre, so a car filling the cube reaches about ±0.504."""
     g = shapes.procedural_car_gaussians(count=3000, seed=4)
     shapes.save_as_amodal3r(path, g)
-    raw = splats.read_ply(path)
+    raw = splats_io.read_ply(path)
     raw.xyz *= np.float32(reach / np.abs(raw.xyz).max())
-    splats.write_ply(path, raw)
+    splats_inria.write_ply(path, raw)
     return raw
 
 
@@ -189,7 +190,7 @@ def test_set_axes_flips_and_restores(empty_scene, tmp_path):
     size1 = np.array(obj["scpainter_size"])
     assert size1[2] > size1[0]  # read as stored, the car's length is vertical: on its side
     assert max(size1[:2]) * obj.scale[0] == pytest.approx(length0, rel=1e-5)  # length kept
-    raw = splats.read_ply(path)  # file_to_data still maps the file onto the new data frame
+    raw = splats_io.read_ply(path)  # file_to_data still maps the file onto the new data frame
     M = np.array(obj["scpainter_file_to_data"]).reshape(4, 4)
     assert np.abs(raw.xyz @ M[:3, :3].T + M[:3, 3] - _attr(obj, "position", 3)).max() < 1e-6
     assert bpy.ops.scpainter.set_asset_axes(axes="TRELLIS") == {"FINISHED"}
@@ -212,8 +213,8 @@ def test_supersplat_compressed_ply_imports(empty_scene):
 
 def test_splat_file_imports_like_its_ply(empty_scene, tmp_path):
     g = shapes.procedural_car_gaussians(count=500, seed=2, paint=(0.2, 0.6, 0.2))
-    splats.write_splat(tmp_path / "car.splat", g)
-    splats.write_ply(tmp_path / "car.ply", splats.encode(g))
+    splats_compressed.write_splat(tmp_path / "car.splat", g)
+    splats_inria.write_ply(tmp_path / "car.ply", splats.encode(g))
     assert bpy.ops.scpainter.import_gaussians(filepath=str(tmp_path / "car.ply")) == {"FINISHED"}
     from_ply = _attr(bpy.context.active_object, "position", 3).copy()
     assert bpy.ops.scpainter.import_gaussians(filepath=str(tmp_path / "car.splat")) == {"FINISHED"}
@@ -257,7 +258,7 @@ def test_mesh_car_imports_through_the_backend_and_stage1_uses_its_oriented_box(e
     assert placement.stage1_check(obj)["status"] == "ok"
     aabb = placement.asset_size(obj)
     assert aabb[1] > 1.3 * 1.9  # what stage 1 would have measured without the oriented box
-    colour = _attr(obj, "sh_0", 3) * splats.SH_C0 + 0.5  # display (sRGB-encoded) values, as f_dc colours are
+    colour = _attr(obj, "sh_0", 3) * SH_C0 + 0.5  # display (sRGB-encoded) values, as f_dc colours are
     srgb = colors.linear_to_srgb(np.array([200, 30, 30]) / 255)  # glTF's COLOR_0 is linear by the spec
     assert np.allclose(np.median(colour, axis=0), srgb, atol=0.01)
 
@@ -277,8 +278,8 @@ def test_meshes_of_one_name_never_share_their_gaussians(tmp_path, empty_scene, m
         sources.append(bpy.context.active_object["scpainter_source"])
     assert sources[0] != sources[1]
     assert all(os.path.dirname(p) == str(tmp_path / "scpainter" / "Scene" / "assets") for p in sources)
-    red = splats.read(sources[1]).f_dc * splats.SH_C0 + 0.5
-    grey = splats.read(sources[0]).f_dc * splats.SH_C0 + 0.5
+    red = splats_io.read(sources[1]).f_dc * SH_C0 + 0.5
+    grey = splats_io.read(sources[0]).f_dc * SH_C0 + 0.5
     assert red[:, 0].min() > 0.8 and np.allclose(grey, 0.5, atol=1e-6)
     mm = box.copy()
     mm.apply_scale(1000.0)

@@ -67,6 +67,15 @@ def test_export_matches_independent_cameras_and_transforms(empty_scene, street, 
         M[:3, 3] = [x, 12.0, 0.0]
         assert np.abs(np.array(asset["object_to_world"][str(f)]) - M @ D).max() < 1e-5, f
     assert job["output_dir"] == "."
+    # a .blend saved before the a_to_b rule holds the transforms under their old names: the export is the same
+    pts = next(o for o in bpy.context.scene.objects if o.get("scpainter_kind") == "points")
+    for obj, new, old in ((pts, "scpainter_vggt_to_world", "scpainter_world_from_vggt"),
+                          (car, "scpainter_file_to_data", "scpainter_data_from_file")):
+        obj[old] = obj[new]
+        del obj[new]
+    old_path = str(tmp_path / "out" / "job_old_names.json")
+    assert bpy.ops.scpainter.export_job(filepath=old_path) == {"FINISHED"}
+    assert J.load(old_path).to_dict() == job
 
 
 def test_leaves_out_what_the_scene_does_not_use(empty_scene, street, tmp_path):

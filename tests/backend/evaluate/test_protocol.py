@@ -105,3 +105,22 @@ def test_evaluate_command_refuses_missing_inception_weights_before_any_work(stre
     msg = events[-1]["message"]
     assert "nope.pth" in msg and "pt_inception-2015-12-05-6726825d.pth" in msg and "download" in msg
     assert not os.path.exists(tmp_path / "e" / "000_street")
+
+
+@pytest.mark.parametrize("args,option", [
+    (["--resolution", "8", "8"], "--resolution"),       # SSIM's 11 x 11 window must fit
+    (["--frames", "1"], "--frames"),                   # FID/KID need two frames per set
+    (["--steps", "0"], "--steps"),
+    (["--seed", "-1"], "--seed"),
+    (["--window", "-2"], "--window"),
+    (["--crop-min-px", "-1"], "--crop-min-px"),
+    (["--shifts", "nan"], "--shifts"),
+])
+def test_evaluate_arguments_are_checked_before_any_work(street_clip_path, tmp_path, args, option):
+    """A bad option is bad input (exit 2, named), not an internal error deep in the metrics."""
+    from tests_support import run_backend
+
+    code, events, _ = run_backend("evaluate", os.path.dirname(street_clip_path), "--output-dir", tmp_path / "e",
+                                  "--device", "cpu", *args)
+    assert code == 2 and events[-1]["file"] == "(command line)" and events[-1]["field"] == option, events[-1]
+    assert not os.path.exists(tmp_path / "e")

@@ -14,6 +14,10 @@ import pytest
 import torch
 
 from backend.model import checkpoint as C
+from backend.model import checkpoint_init
+from backend.model.checkpoint_config import (BOUNDS, SCHEMA, CheckpointError, ScpainterConfig, check_field,
+                                             check_guidance)
+from scpainter_blender.core import files
 from scpainter_blender.core.files import InputError
 
 
@@ -32,7 +36,7 @@ def no_unpickling(monkeypatch):
 
 def refused(path, where, field=None, *words, fn=C.check):
     """Run ``fn(path)``; assert a CheckpointError naming ``where`` (a path suffix), ``field`` and ``words``."""
-    with pytest.raises(C.CheckpointError) as info:
+    with pytest.raises(CheckpointError) as info:
         fn(path)
     e = info.value
     assert isinstance(e, InputError) and isinstance(e, ValueError)
@@ -47,14 +51,14 @@ def refused(path, where, field=None, *words, fn=C.check):
 
 def test_the_tiny_checkpoint_passes_and_loads(tiny_checkpoint, no_unpickling):
     cfg = C.check(tiny_checkpoint)
-    assert isinstance(cfg, C.ScpainterConfig) and cfg.fps == 7 and cfg.latent_validity == "area"
+    assert isinstance(cfg, ScpainterConfig) and cfg.fps == 7 and cfg.latent_validity == "area"
     comps = C.load(tiny_checkpoint)
     assert comps["config"] == cfg and len(comps["clip_mean"]) == 3 and all(s > 0 for s in comps["clip_std"])
 
 
 # -- scpainter.json, field by field ----------------------------------------------------------------------------
 
-GOOD = asdict(C.ScpainterConfig(base="/svd"))
+GOOD = asdict(ScpainterConfig(base="/svd"))
 
 
 def write_config(folder, text: str):
@@ -112,20 +116,20 @@ def test_a_non_object_or_broken_file_is_refused(ckpt, text):
 def test_missing_schema_unknown_keys_and_integral_numbers(ckpt):
     write_config(ckpt, json.dumps({k: v for k, v in GOOD.items() if k != "schema"}))
     refused(ckpt, "scpainter.json", "schema", "missing")
-    write_config(ckpt, json.dumps({"schema": C.SCHEMA, "fps": 12.0, "window": 8, "from_the_future": {"x": 1}}))
+    write_config(ckpt, json.dumps({"schema": SCHEMA, "fps": 12.0, "window": 8, "from_the_future": {"x": 1}}))
     cfg = C.check(ckpt)
     assert cfg.fps == 12 and type(cfg.fps) is int and cfg.window == 8 and cfg.motion_bucket_id == 127
     assert not hasattr(cfg, "from_the_future")
 
 
 def test_bounds_are_public_for_the_generate_overrides():
-    assert C.ScpainterConfig.BOUNDS is C.BOUNDS and C.BOUNDS["window"] == ("int", 1, 256)
-    assert C.check_field("window", 14.0) == 14 and C.check_field("min_guidance", 2) == 2.0
+    assert ScpainterConfig.BOUNDS is BOUNDS and BOUNDS["window"] == ("int", 1, 256)
+    assert check_field("window", 14.0) == 14 and check_field("min_guidance", 2) == 2.0
     for name, bad in [("window", True), ("fps", 0), ("max_guidance", float("nan")), ("noise_aug_strength", "0")]:
         with pytest.raises(ValueError, match="expected"):
-            C.check_field(name, bad)
+            check_field(name, bad)
     with pytest.raises(ValueError, match="greater than max_guidance"):
-        C.check_guidance(3.0, 1.0)
+        check_guidance(3.0, 1.0)
 
 
 # -- safetensors only -------------------------------------------------------------------------------------------
@@ -254,16 +258,35 @@ def test_check_svd_folder_uses_the_same_weights_check(tiny_svd, tmp_path, no_unp
     os.remove(svd / "vae" / "diffusion_pytorch_model.safetensors")
     torch.save({"w": torch.zeros(1)}, svd / "vae" / "diffusion_pytorch_model.bin")
     refused(str(svd), "vae/diffusion_pytorch_model.bin", "(file)", "pickled", fn=C.check_svd_folder)
-    with pytest.raises(C.CheckpointError):
-        C.init_checkpoint(str(svd), str(tmp_path / "never"))
+    with pytest.raises(CheckpointError):
+        checkpoint_init.init_checkpoint(str(svd), str(tmp_path / "never"))
     assert not (tmp_path / "never").exists()
     refused(str(tmp_path), str(tmp_path), "(folder)", "no model_index.json", fn=C.check_svd_folder)
 
 
 def test_resolve_still_fails_fast(tiny_svd):
-    e = refused(None, "", "generate.checkpoint", "init-checkpoint", fn=C.resolve)
-    assert str(e).startswith("generate.checkpoint: no SCPainter checkpoint") and "init-checkpoint" in e.hint
+    e = refused(None, files.COMMAND_LINE, "--checkpoint", "init-checkpoint", fn=C.resolve)
+    assert str(e).startswith("(command line): --checkpoint: no SCPainter checkpoint") and "init-checkpoint" in e.hint
     cls, args = e.__reduce__()   # how pickle would rebuild it in another process (not exercised: nothing unpickles)
     again = cls(*args)
     assert str(again) == str(e) and (again.path, again.field, again.hint) == (e.path, e.field, e.hint)
     refused(tiny_svd, tiny_svd, "(folder)", "stock SVD snapshot", fn=C.check)
+
+
+def test_no_checkpoint_names_where_one_was_expected(tmp_path):
+    """Without a checkpoint, the error names where one was looked for: the command line's --checkpoint by default,
+    the job file and its generate.checkpoint in ``generate.prepare`` (a job without one, no --checkpoint given);
+    never an empty path or "None"."""
+    from backend import generate
+    from scpainter_blender.core import job as J
+    from tests_support import small_job
+
+    job_path = small_job(tmp_path, asset=False)
+    e = refused(None, job_path, "generate.checkpoint", fn=lambda p: C.resolve(p, job_path, "generate.checkpoint"))
+    assert str(e).startswith(f"{job_path}: generate.checkpoint: no SCPainter checkpoint is configured")
+    with pytest.raises(CheckpointError) as info:
+        generate.prepare(job_path, J.load(job_path), None)
+    assert (info.value.path, info.value.field, info.value.hint) == (job_path, "generate.checkpoint", e.hint)
+    missing = str(tmp_path / "nowhere")   # a --checkpoint that is no folder is named itself
+    refused(missing, missing, "(folder)", "does not exist",
+            fn=lambda p: generate.prepare(job_path, J.load(job_path), p))

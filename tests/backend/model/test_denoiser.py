@@ -12,7 +12,8 @@ import shutil
 import pytest
 import torch
 
-from backend.model import checkpoint, edm
+from backend.model import checkpoint, checkpoint_init, edm
+from backend.model.checkpoint_config import CheckpointError
 from backend.model.pipeline import SCPainterPipeline
 from backend.train import objective
 from backend.train.config import TrainConfig
@@ -139,7 +140,7 @@ def test_sigma_max_comes_from_the_checkpoints_scheduler_config(tiny_checkpoint, 
 @pytest.mark.parametrize("fn", [checkpoint.check, SCPainterPipeline.from_checkpoint, checkpoint.load])
 def test_a_scheduler_that_is_not_v_prediction_is_refused_naming_file_and_field(tiny_checkpoint, tmp_path, fn):
     path = _copy(tiny_checkpoint, tmp_path, prediction_type="epsilon")
-    with pytest.raises(checkpoint.CheckpointError) as info:
+    with pytest.raises(CheckpointError) as info:
         fn(path)
     e = info.value
     assert e.path == os.path.join(path, "scheduler", "scheduler_config.json") and e.field == "prediction_type"
@@ -154,7 +155,7 @@ def test_an_svd_snapshot_without_a_sigma_range_is_refused_by_init_checkpoint(tin
     del data["sigma_max"]
     with open(cfg_path, "w") as f:
         json.dump(data, f)
-    with pytest.raises(checkpoint.CheckpointError) as info:
-        checkpoint.init_checkpoint(str(svd), str(tmp_path / "out"))
+    with pytest.raises(CheckpointError) as info:
+        checkpoint_init.init_checkpoint(str(svd), str(tmp_path / "out"))
     assert info.value.path == cfg_path and info.value.field == "sigma_max" and "is missing" in str(info.value)
     assert not os.path.exists(tmp_path / "out")

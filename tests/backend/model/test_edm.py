@@ -122,7 +122,7 @@ def _without(key):
     ([1, 2], "(file)", ["JSON object"]),
 ])
 def test_configs_that_are_not_svds_edm_are_refused_naming_file_and_field(config, field, words):
-    from backend.model.checkpoint import CheckpointError
+    from backend.model.checkpoint_config import CheckpointError
     from scpainter_blender.core.files import InputError
 
     with pytest.raises(CheckpointError) as info:
@@ -135,7 +135,7 @@ def test_configs_that_are_not_svds_edm_are_refused_naming_file_and_field(config,
 
 
 def test_time_ids_are_svds_micro_conditioning():
-    from backend.model.checkpoint import ScpainterConfig
+    from backend.model.checkpoint_config import ScpainterConfig
 
     ids = edm.time_ids(ScpainterConfig(fps=7, motion_bucket_id=127, noise_aug_strength=0.02), 3)
     assert ids.shape == (3, 3) and ids.dtype == torch.float32

@@ -1,0 +1,102 @@
+"""Colours of mesh surface samples for the ``mesh-asset`` command: textures, vertex and face colours, material
+base colours, as sRGB values in [0, 1] (the values 3DGS renders and the condition images hold).
+
+Colours (``colour_source``): "texture" (base-colour texture, bilinear at the sample's UV, glTF conventions: texel
+centres at (i + 0.5) / size, REPEAT wrap, V as trimesh stores it, i.e. v = 1 at the top row), "vertex" (vertex
+colours interpolated barycentrically), "face" (face colours, or the material's base colour when it has no
+texture), "none" (nothing in the file: ``NEUTRAL_GREY``). glTF's baseColorFactor and COLOR_0 are linear by the
+specification: they are applied in linear light and re-encoded to sRGB; textures and every other format's
+colours are taken as sRGB values. Alpha is ignored: car assets are drawn opaque.
+trimesh 5.2.0's own ``sample_surface(sample_color=True)`` is not used: it reads ``material.image``, which a
+``PBRMaterial`` (every GLB, TRELLIS's included) does not have, and it takes face colours for vertex colours.
+
+No bpy, no torch.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from scpainter_blender.core.colors import linear_to_srgb, srgb_to_linear
+
+NEUTRAL_GREY = 0.5       # sRGB value for meshes without any colour (f_dc = 0)
+
+
+def sample_texture(image, uv) -> np.ndarray:
+    """Bilinear RGB in [0, 1] (n, 3) of an image (PIL image or (H, W[, C]) array, 8 or 16 bit) at trimesh UVs (n, 2).
+
+    glTF sampling: texel (i, j) has its centre at u = (i + 0.5) / W, and trimesh stores v flipped (v = 1 at the
+    top row: row = (1 - v) H - 0.5); coordinates wrap (REPEAT). Non-finite UVs give NaN.
+    """
+    if hasattr(image, "convert"):
+        img = np.asarray(image.convert("RGB"), np.float64) / 255.0
+    else:
+        img = np.asarray(image)
+        scale = 65535.0 if img.dtype == np.uint16 else 255.0 if np.issubdtype(img.dtype, np.integer) else 1.0
+        img = img.astype(np.float64) / scale
+        if img.ndim == 2:
+            img = img[..., None]
+        img = np.repeat(img[..., :1], 3, axis=2) if img.shape[2] < 3 else img[..., :3]
+    H, W = img.shape[:2]
+    uv = np.asarray(uv, np.float64)
+    ok = np.isfinite(uv).all(axis=1)
+    x = np.where(ok, uv[:, 0], 0.0) * W - 0.5
+    y = (1.0 - np.where(ok, uv[:, 1], 0.0)) * H - 0.5
+    x0, y0 = np.floor(x), np.floor(y)
+    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+    x0, y0 = x0.astype(np.int64) % W, y0.astype(np.int64) % H
+    x1, y1 = (x0 + 1) % W, (y0 + 1) % H
+    out = ((1 - fx) * (1 - fy) * img[y0, x0] + fx * (1 - fy) * img[y0, x1]
+           + (1 - fx) * fy * img[y1, x0] + fx * fy * img[y1, x1])
+    out[~ok] = np.nan
+    return out
+
+
+def _factor(value, default=(255, 255, 255, 255)) -> np.ndarray:
+    """A material colour (uint8 0..255 or float 0..1, RGB or RGBA) as RGB floats in [0, 1]."""
+    c = np.asarray(default if value is None else value)
+    c = c.astype(np.float64) / 255.0 if np.issubdtype(c.dtype, np.integer) or c.max() > 1.0 else c.astype(np.float64)
+    return np.clip(c.reshape(-1)[:3], 0.0, 1.0)
+
+
+def _material_colour(material):
+    """(base-colour texture or None, base colour factor RGB [0, 1]) of a trimesh material."""
+    from trimesh.visual import material as mat
+
+    if isinstance(material, mat.PBRMaterial):
+        return material.baseColorTexture, _factor(material.baseColorFactor)
+    if isinstance(material, mat.SimpleMaterial):
+        return material.image, _factor(material.diffuse)
+    image = getattr(material, "image", None) or getattr(material, "baseColorTexture", None)
+    try:
+        main = material.main_color
+    except Exception:
+        main = None
+    return image, _factor(main)
+
+
+def part_colours(part, local_faces, bary, gltf: bool):
+    """sRGB RGB (n, 3) in [0, 1] at samples on ``part`` (face indices (n,), barycentric (n, 3)), and the source."""
+    from trimesh.visual import ColorVisuals, TextureVisuals
+
+    n = len(local_faces)
+    vis = part.visual
+    faces = np.asarray(part.faces)[local_faces]
+    if isinstance(vis, TextureVisuals):
+        image, factor = _material_colour(vis.material)
+        uv = None if vis.uv is None else np.asarray(vis.uv, np.float64)
+        if image is not None and uv is not None and len(uv) == len(part.vertices):
+            tex = sample_texture(image, np.einsum("nk,nkc->nc", bary, uv[faces]))
+            # glTF: base colour = texture (sRGB-decoded) x factor (linear); OBJ/MTL: the map replaces Kd
+            rgb = linear_to_srgb(srgb_to_linear(tex) * factor) if gltf else tex
+            return rgb, "texture"
+        rgb = linear_to_srgb(factor) if gltf else factor
+        return np.tile(rgb, (n, 1)), "face"
+    if isinstance(vis, ColorVisuals) and vis.kind == "vertex":
+        vc = np.asarray(vis.vertex_colors, np.float64)[:, :3] / 255.0
+        rgb = np.einsum("nk,nkc->nc", bary, vc[faces])
+        return (linear_to_srgb(rgb) if gltf else rgb), "vertex"
+    if isinstance(vis, ColorVisuals) and vis.kind == "face":
+        rgb = np.asarray(vis.face_colors, np.float64)[local_faces, :3] / 255.0
+        return (linear_to_srgb(rgb) if gltf else rgb), "face"
+    return np.full((n, 3), NEUTRAL_GREY), "none"

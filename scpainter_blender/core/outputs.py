@@ -1,0 +1,260 @@
+"""Writing outputs safely (issue 14): whole files or none, never through a planted link, never outside the folder.
+
+- ``atomic_write`` / ``atomic_path``: a unique temporary file (``mkstemp``, never a planted link) in the target
+  folder, renamed over the target when complete; nothing half-written survives an error. ``write_json`` is the
+  one JSON writer (strict: NaN/inf refused). ``remove_temporaries`` removes what a killed run left of them.
+- Log files: ``append_text`` never appends through a symbolic link; ``check_log`` refuses one beforehand.
+- Confinement: ``confined``, a job's paths may not leave the job's folder (``..`` or a symlink) unless the user
+  allows it; ``inside`` is the test.
+- Output folders: ``make_folder``, ``output_folder`` (``conditions/``, ``generated/`` may not lead elsewhere),
+  ``check_output`` (what a run would refuse, checked without creating anything), ``remove_listed`` (the files a
+  record of this program's outputs lists, and nothing else).
+
+Bad outputs (a file in the way, a link) raise ``files.InputError`` naming the path. One run per output folder is
+``core.locking``. stdlib only (no bpy): the add-on and the backend share it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import json
+import os
+import shutil
+import stat
+import tempfile
+
+from .files import NONBLOCK, InputError
+
+# -------------------------------------------------------------------------------------- writing a file whole
+
+def _umask() -> int:
+    """The process's umask, read from /proc where it can be (setting it to read it, the fallback, is
+    process-wide: a thread creating a file in that instant would get the temporary mask)."""
+    try:
+        with open("/proc/self/status", "rb") as f:
+            for line in f:
+                if line.startswith(b"Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+#: A temporary output is ``.<target's name>.<random>.tmp`` (``atomic_path``), found again by ``remove_temporaries``.
+_TEMPORARY_SUFFIX = ".tmp"
+
+
+def _temporary_prefix(name: str) -> str:
+    """``.<name>.``, the name cut so that prefix + random part + suffix stays within a file system's 255-byte
+    names."""
+    return f".{name[:100]}."
+
+
+@contextlib.contextmanager
+def atomic_path(path):
+    """Yields a fresh temporary path in ``path``'s folder (created by ``mkstemp``: a unique name, exclusive, so a
+    planted file or link is never written through); on success it is renamed over ``path`` (a link at ``path``
+    is replaced, not followed), on any error removed. For writers that open by name (PyAV, safetensors)."""
+    path = os.fspath(path)
+    folder = os.path.dirname(os.path.abspath(path))
+    fd, tmp = tempfile.mkstemp(prefix=_temporary_prefix(os.path.basename(path)), suffix=_TEMPORARY_SUFFIX,
+                               dir=folder)
+    os.close(fd)
+    try:
+        yield tmp
+        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; outputs get the user's usual permissions
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.remove(tmp)
+        raise
+
+
+@contextlib.contextmanager
+def atomic_write(path, mode: str = "wb"):
+    """``with atomic_write(path, "w") as f:`` — ``f`` writes a temporary file that replaces ``path`` only when the
+    block ends without an error (see ``atomic_path``)."""
+    with atomic_path(path) as tmp:
+        # O_NOFOLLOW: the fresh name is ours, but a link swapped in for it in a shared folder is not followed
+        with open(tmp, mode, **({} if "b" in mode else {"encoding": "utf-8"}),
+                  opener=lambda p, flags: os.open(p, flags | getattr(os, "O_NOFOLLOW", 0), 0o600)) as f:
+            yield f
+
+
+def write_json(path, value, indent: int | None = 1) -> None:
+    """``value`` as JSON (strict: NaN/inf refused), atomically."""
+    text = json.dumps(value, indent=indent, allow_nan=False)
+    with atomic_write(path, "w") as f:
+        f.write(text + "\n")
+
+
+def remove_temporaries(folder, names) -> int:
+    """Delete what ``atomic_path`` left for the targets ``names`` in ``folder`` when a process was killed
+    (``.<name>.<random>.tmp``); only those names' temporaries, for a caller holding the folder's lock."""
+    prefixes = tuple(_temporary_prefix(n) for n in names)
+    removed = 0
+    try:
+        entries = os.listdir(folder)
+    except OSError:
+        return 0
+    for entry in entries:
+        if entry.endswith(_TEMPORARY_SUFFIX) and entry.startswith(prefixes) and "/" not in entry:
+            with contextlib.suppress(OSError):
+                p = os.path.join(folder, entry)
+                if os.path.islink(p) or os.path.isfile(p):
+                    os.remove(p)
+                    removed += 1
+    return removed
+
+
+def link_or_copy(src, dst) -> None:
+    """``dst`` as a hard link to ``src`` where the file system allows (multi-GB model weights cost nothing), a
+    copy with its metadata otherwise (another device, a file system without links)."""
+    try:
+        os.link(src, dst)
+    except OSError:
+        shutil.copy2(src, dst)
+
+
+def link_or_copy_tree(src, dst) -> None:
+    """Every file under the folder ``src`` into ``dst`` (created), by ``link_or_copy``."""
+    for root, _, names in os.walk(src):
+        rel = os.path.relpath(root, src)
+        os.makedirs(os.path.join(dst, rel), exist_ok=True)
+        for f in names:
+            link_or_copy(os.path.join(root, f), os.path.join(dst, rel, f))
+
+
+# ------------------------------------------------------------------------------------------------- log files
+
+_LINKED_LOG = "is a symbolic link: the log is not written through links"
+_IRREGULAR_LOG = "is not a regular file: the log cannot be appended to it"
+
+
+def append_text(path, text: str) -> None:
+    """Append to a log file, never through a symbolic link (``O_NOFOLLOW``): InputError if ``path`` is one."""
+    flags = os.O_WRONLY | os.O_APPEND | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
+    try:
+        fd = os.open(path, flags | NONBLOCK, 0o666)  # a FIFO without a reader fails at once (ENXIO), not blocks
+    except OSError as e:
+        if e.errno == errno.ELOOP:
+            raise InputError(path, "(file)", _LINKED_LOG, hint="remove the link") from None
+        if e.errno in (errno.ENXIO, errno.EISDIR):
+            raise InputError(path, "(file)", _IRREGULAR_LOG, hint="remove it, or choose another output folder") \
+                from None
+        raise
+    with os.fdopen(fd, "a", encoding="utf-8") as f:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise InputError(path, "(file)", _IRREGULAR_LOG)
+        f.write(text)
+
+
+def check_log(path) -> None:
+    """InputError if the log file ``path`` exists as a symbolic link (never appended through) or as anything but a
+    regular file; a missing one is fine (it is created)."""
+    try:
+        mode = os.lstat(path).st_mode
+    except FileNotFoundError:
+        return
+    if stat.S_ISLNK(mode):
+        raise InputError(path, "(file)", _LINKED_LOG, hint="remove the link")
+    if not stat.S_ISREG(mode):
+        raise InputError(path, "(file)", _IRREGULAR_LOG)
+
+
+# ----------------------------------------------------------------------------------------------- confinement
+
+def inside(path, folder) -> bool:
+    """Whether ``path`` lies in ``folder`` (or is it) after resolving symbolic links and ``..``."""
+    p, f = os.path.realpath(path), os.path.realpath(folder)
+    return p == f or p.startswith(f.rstrip(os.sep) + os.sep)
+
+
+def confined(base, value, error, field: str, allow_outside: bool = False) -> str:
+    """The absolute path of a job's ``value`` (relative to ``base``, the job's folder). Unless ``allow_outside``,
+    ``error(field, message)`` when it resolves outside ``base`` (``..``, an absolute path elsewhere, or a symbolic
+    link pointing out): a job from someone else must not read or write beyond its own folder."""
+    path = os.path.normpath(os.path.join(os.path.abspath(base), os.fspath(value)))
+    if not allow_outside and not inside(path, base):
+        real = os.path.realpath(path)
+        how = "through a symbolic link " if os.path.realpath(os.path.dirname(path)) != os.path.dirname(path) or \
+            real != path else ""
+        raise error(field, f"{value!r} leads {how}outside the job's folder ({real}); move it into the folder, or "
+                           "run with --allow-outside if you trust this job")
+    return path
+
+
+# -------------------------------------------------------------------------------------------- output folders
+
+def make_folder(path, field: str = "(folder)") -> str:
+    """``os.makedirs(path, exist_ok=True)``, with InputError naming the folder when it cannot be made (a file or a
+    FIFO in the way, a name too long, no permission)."""
+    try:
+        os.makedirs(path, exist_ok=True)
+    except FileExistsError:
+        raise InputError(path, field, "exists and is not a folder", hint="remove it or choose another output "
+                                                                         "folder") from None
+    except OSError as e:
+        raise InputError(path, field, f"cannot be made: {e.strerror or e}") from None
+    if not os.path.isdir(path):
+        raise InputError(path, field, "exists and is not a folder")
+    return path
+
+
+def output_folder(parent, name: str, allow_outside: bool = False) -> str:
+    """``parent/name`` created if missing; InputError if it is a symbolic link (or lies) outside ``parent``
+    unless ``allow_outside``: a link planted in an output folder must not carry writes elsewhere."""
+    path = os.path.join(parent, name)
+    make_folder(path)
+    if not allow_outside and not inside(path, parent):
+        raise _leads_outside(path)
+    return path
+
+
+def _leads_outside(path) -> InputError:
+    return InputError(path, "(folder)", f"leads outside the output folder ({os.path.realpath(path)})",
+                      hint="remove the link, or run with --allow-outside if you made it")
+
+
+OUTPUT_FOLDERS = ("conditions", "generated")
+LOG_NAME = "backend.log"
+
+
+def check_output(out, allow_outside: bool = False) -> None:
+    """What a run would refuse in an output folder, checked without creating anything (``--check`` and the start
+    of every run): ``out`` not a folder; ``conditions/`` or ``generated/`` not a folder or leading outside ``out``
+    (unless ``allow_outside``); ``backend.log`` a symbolic link or not a regular file. InputError names it."""
+    if not os.path.lexists(out):
+        return
+    if not os.path.isdir(out):
+        raise InputError(out, "output_dir", "exists and is not a folder", hint="remove it or choose another "
+                                                                               "output folder")
+    for name in OUTPUT_FOLDERS:
+        path = os.path.join(out, name)
+        if not os.path.lexists(path):
+            continue
+        if not allow_outside and not inside(path, out):
+            raise _leads_outside(path)
+        if not os.path.isdir(path):
+            raise InputError(path, "(folder)", "exists and is not a folder")
+    check_log(os.path.join(out, LOG_NAME))
+
+
+def remove_listed(folder, names) -> int:
+    """Delete the files ``names`` (bare file names, as a record of this program's outputs lists them) from
+    ``folder``; names with a path separator or ``..`` are ignored, a link is removed itself, never its target.
+    Returns how many were removed."""
+    removed = 0
+    for name in names:
+        if not isinstance(name, str) or not name or name in (".", "..") or os.sep in name or "/" in name or \
+                (os.altsep and os.altsep in name) or "\0" in name:  # a NUL makes os.path raise ValueError
+            continue
+        with contextlib.suppress(FileNotFoundError, IsADirectoryError, PermissionError):
+            p = os.path.join(folder, name)
+            if os.path.islink(p) or os.path.isfile(p):
+                os.remove(p)
+                removed += 1
+    return removed

@@ -1,0 +1,63 @@
+"""core.locking: one run per output folder; a second run is refused naming the owner, a lock left by a dead
+process (or unreadable for long enough) is taken over, and nothing is left behind (issue 14)."""
+
+import json
+import os
+import subprocess
+import sys
+import time
+
+import pytest
+
+from scpainter_blender.core import locking
+
+
+class Busy(Exception):
+    def __init__(self, message, hint, **fields):
+        self.fields = fields
+        super().__init__(f"{message} | {hint}")
+
+
+def test_second_lock_is_busy_and_the_file_goes_on_exit(tmp_path):
+    with locking.OutputLock(tmp_path, "render", busy=Busy) as lock:
+        assert os.path.exists(lock.path)
+        record = json.loads(open(lock.path).read())
+        assert record["pid"] == os.getpid() and record["command"] == "render"
+        with pytest.raises(Busy, match=f"being written by another run: pid {os.getpid()}.*render"):
+            with locking.OutputLock(tmp_path, "generate", busy=Busy):
+                pass
+        assert os.path.exists(lock.path)  # the refused second lock did not remove the first one's file
+    assert not os.path.exists(os.path.join(tmp_path, locking.LOCK_NAME))
+    with pytest.raises(KeyError):  # removed on an error too
+        with locking.OutputLock(tmp_path, "render"):
+            raise KeyError("x")
+    assert not os.path.exists(os.path.join(tmp_path, locking.LOCK_NAME))
+
+
+def test_stale_lock_of_a_finished_process_is_taken_over(tmp_path):
+    child = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True,
+                           check=True)
+    dead = int(child.stdout)
+    import socket
+
+    stale = {"pid": dead, "host": socket.gethostname(), "started": 1, "command": "render", "since": "yesterday"}
+    lock_path = tmp_path / locking.LOCK_NAME
+    lock_path.write_text(json.dumps(stale))
+    with locking.OutputLock(tmp_path, "generate", busy=Busy) as lock:
+        assert lock.stale == stale
+        assert json.loads(lock_path.read_text())["pid"] == os.getpid()
+    assert not lock_path.exists()
+    for garbage in ({"pid": 0, "host": socket.gethostname()}, {"pid": -1, "host": socket.gethostname()}):
+        lock_path.write_text(json.dumps(garbage))  # kill(0) / kill(-1) would "find" a process: not an owner
+        with locking.OutputLock(tmp_path, "generate", busy=Busy) as lock:
+            assert lock.stale == garbage
+    lock_path.write_text("[" * 5000)  # unreadable: busy, with what to do, never a traceback
+    with pytest.raises(Busy, match="lock file is unreadable") as e:
+        with locking.OutputLock(tmp_path, "generate", busy=Busy):
+            pass
+    assert e.value.fields == {"file": str(lock_path), "owner": None}
+    old = time.time() - locking.UNREADABLE_LOCK_S - 5          # ... until it is old: a crash mid-write, taken over
+    os.utime(lock_path, (old, old))
+    with locking.OutputLock(tmp_path, "generate", busy=Busy) as lock:
+        assert "unreadable lock file" in str(lock.stale)
+    assert sorted(os.listdir(tmp_path)) == []            # neither lock nor its temporary file is left

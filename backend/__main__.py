@@ -135,7 +135,7 @@ def _cmd_init_checkpoint(args) -> int:
 
 
 def _cmd_batch(args) -> int:
-    from scpainter_blender.core import batch as batch_mod
+    from scpainter_blender.core import batch_items as batch_mod
 
     from . import batch
 
@@ -165,7 +165,7 @@ def _cmd_train(args) -> int:
         events.error(f"stopped by SIGTERM at step {result['step']}; checkpoint saved at {result['checkpoint']}",
                      hint="run the same command again to resume")
         return events.EXIT_FAILED
-    from scpainter_blender.core.batch import ranks_from_env
+    from scpainter_blender.core.batch_items import ranks_from_env
 
     if ranks_from_env()[0] == 0:  # under torchrun / accelerate launch: one done event, from rank 0
         events.done(command="train", device=device, **result)
@@ -276,7 +276,8 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--shifts", type=float, nargs="*", default=[2.0, -2.0, 3.0, -3.0],
                    help="lateral shifts in metres (+ left)")
     e.add_argument("--no-insertion", action="store_true", help="skip the asset re-insertion tasks")
-    e.add_argument("--window", type=int, default=8, help="source frames t ± window project into frame t")
+    e.add_argument("--source-window", "--window", type=int, default=8, dest="source_window",
+                   help="source frames t ± N project into frame t")
     e.add_argument("--steps", type=int, default=GENERATE_DEFAULTS["steps"], help="sampler steps")
     e.add_argument("--seed", type=int, default=GENERATE_DEFAULTS["seed"])
     e.add_argument("--crop-min-px", type=int, default=16, help="cars smaller than this (pixels) make no FID-C crop")

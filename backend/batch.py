@@ -12,9 +12,10 @@ At the end the ranks exchange their results (torch.distributed, gloo: no GPU nee
 
 from __future__ import annotations
 
+import os
 import time
 
-from scpainter_blender.core.batch import ranks_from_env, shard  # shared with blender -c scpainter batch
+from scpainter_blender.core.batch_items import ranks_from_env, shard  # shared with blender -c scpainter batch
 
 from . import events
 
@@ -69,6 +70,13 @@ def run_batch(items: list[str], command: str, device: str, checkpoint: str | Non
               allow_outside: bool = False) -> tuple[list, int]:
     """Run this rank's share; returns (every rank's results, rank)."""
     rank, world, local = ranks_from_env()  # (InputError "(environment)" naming a bad variable)
+    for name in ("MASTER_ADDR", "MASTER_PORT") if world > 1 else ():  # gather() needs them: check before any job
+        if not os.environ.get(name, "").strip():
+            from scpainter_blender.core.files import InputError
+
+            raise InputError("(environment)", name, f"not set, with WORLD_SIZE={world}: the ranks cannot gather "
+                                                    "their results", hint="start the processes with torchrun or "
+                                                                          "accelerate launch, which set it")
     if device == "cuda":
         import torch
 

@@ -1,4 +1,5 @@
-"""The body of ``python -m backend generate``: conditions -> SCPainter video (docs/design.md §5), resumable, stoppable.
+"""The body of ``python -m backend generate``: conditions -> SCPainter video (docs/design.md §11), resumable,
+stoppable.
 
 Steps: render the condition layers that are missing (the render command's code); load I, M_a and the validity
 1 − hole of every frame; pad them with holes to the model's size multiple; CLIP-embed the first source frame

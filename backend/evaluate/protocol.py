@@ -4,7 +4,7 @@ Per clip, the first ``frames`` frames at ``width`` x ``height``, as jobs (job.js
 ``render`` and ``generate`` code as users' jobs (so they resume and skip finished work):
 
 * ``nvs_<shift>``: the recorded drive shifted laterally by each shift (metres, + left; paper §4.2: ±2, ±3 m),
-  points of frames t ± window projected into frame t;
+  points of frames t ± source_window projected into frame t;
 * ``insert``: re-insertion (paper §4.1): the clip's first tracked car with an asset has its points removed (grown
   box) and its Gaussian asset placed at its boxes, recorded cameras;
 * ``insert_shift<s>``: both at once (paper §4.3), shifted by the first shift.
@@ -53,7 +53,7 @@ class EvalSettings:
     frames: int = 14
     shifts: tuple = (2.0, -2.0, 3.0, -3.0)
     insertion: bool = True
-    window: int = 8
+    source_window: int = 8            # source frames t ± source_window project into frame t
     steps: int = job_mod.GENERATE_DEFAULTS["steps"]
     seed: int = job_mod.GENERATE_DEFAULTS["seed"]
     precision: str = "auto"
@@ -78,7 +78,7 @@ class EvalSettings:
         if W * H > job_mod.MAX_PIXELS:
             raise files.ArgumentError("--resolution", f"{W} x {H} is more than {job_mod.MAX_PIXELS:,} pixels")
         integer(a.frames, "--frames", 2, job_mod.MAX_FRAMES)
-        integer(a.window, "--window", 0, job_mod.MAX_SOURCE_FRAME)
+        integer(a.source_window, "--source-window", 0, job_mod.MAX_SOURCE_FRAME)
         for key in ("steps", "seed"):
             integer(getattr(a, key), f"--{key}", *job_mod.GENERATE_INT_BOUNDS[key])
         integer(a.crop_min_px, "--crop-min-px", 0)
@@ -87,7 +87,8 @@ class EvalSettings:
                               error=lambda p, f, m: files.ArgumentError(f, m))
         return cls(clips=a.clips, output_dir=a.output_dir, checkpoint=a.checkpoint, width=a.resolution[0],
                    height=a.resolution[1], frames=a.frames, shifts=tuple(a.shifts), insertion=not a.no_insertion,
-                   window=a.window, steps=a.steps, seed=a.seed, precision=a.precision, inception=a.inception,
+                   source_window=a.source_window, steps=a.steps, seed=a.seed, precision=a.precision,
+                   inception=a.inception,
                    crop_min_px=a.crop_min_px)
 
 
@@ -126,7 +127,8 @@ def task_job(clip: clip_mod.Clip, s: EvalSettings, folder: str, shift: float, ca
     scene = job_mod.Scene(os.path.relpath(clip.predictions.path, folder), clip.vggt_to_world,
                           confidence_percentile=s.confidence_percentile, removal_boxes=boxes)
     job = job_mod.Job((s.width, s.height), [
-        job_mod.Frame(t, K[t], w2c[t], list(range(max(0, t - s.window), min(S, t + s.window + 1)))) for t in frames],
+        job_mod.Frame(t, K[t], w2c[t], list(range(max(0, t - s.source_window), min(S, t + s.source_window + 1))))
+        for t in frames],
         output_dir=".", scene=scene, assets=assets,
         generate=job_mod.GenerateSettings(steps=s.steps, seed=s.seed, fps=float(clip.fps)))
     os.makedirs(folder, exist_ok=True)

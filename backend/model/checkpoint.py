@@ -26,7 +26,7 @@ import os
 
 from scpainter_blender.core import files
 
-from .checkpoint_config import CheckpointError, ScpainterConfig, _json_object, _show
+from .checkpoint_config import CheckpointError, ScpainterConfig, json_object, show_value
 
 COMPONENTS = ("unet", "vae", "image_encoder", "feature_extractor", "scheduler")
 # what from_pretrained(..., use_safetensors=True) reads in diffusers and transformers (no variant is passed)
@@ -90,16 +90,16 @@ def _safetensors_header(path: str) -> None:
 
 def _check_index(index: str) -> None:
     """A ``*.safetensors.index.json``: its ``weight_map`` names only ``.safetensors`` files beside it."""
-    data = _json_object(index)
+    data = json_object(index)
     wmap = data.get("weight_map")
     if not isinstance(wmap, dict) or not wmap:
         raise CheckpointError(index, "weight_map", f"expected an object of parameter name -> shard file, got "
-                                                   f"{_show(wmap)}")
+                                                   f"{show_value(wmap)}")
     folder, seen = os.path.dirname(index), set()
     for param, shard in wmap.items():
         where = f"weight_map.{param}"
         if not isinstance(shard, str) or not shard:
-            raise CheckpointError(index, where, f"expected a shard file name, got {_show(shard)}")
+            raise CheckpointError(index, where, f"expected a shard file name, got {show_value(shard)}")
         if shard in seen:
             continue
         seen.add(shard)
@@ -124,7 +124,7 @@ def _check_weights(folder: str, name: str, config: dict) -> None:
         cfg_path = os.path.join(folder, "config.json")
         if not isinstance(explicit, str) or os.path.basename(explicit) != explicit or explicit in (".", "..") or \
                 not (explicit.endswith(".safetensors") or explicit.endswith(".safetensors.index.json")):
-            raise CheckpointError(cfg_path, "transformers_weights", f"is {_show(explicit)}: only a .safetensors "
+            raise CheckpointError(cfg_path, "transformers_weights", f"is {show_value(explicit)}: only a .safetensors "
                                   f"file (or its .safetensors.index.json) in this folder is loaded; {PICKLED}")
         candidates = [explicit]
     try:
@@ -157,17 +157,17 @@ def _check_components(root: str, weighted) -> dict:
     for comp, name in weighted.items():
         folder = os.path.join(root, comp)
         _folder(folder)
-        config = _json_object(os.path.join(folder, "config.json"))
+        config = json_object(os.path.join(folder, "config.json"))
         _check_weights(folder, name, config)
         if comp == "vae":
             upcast = config.get("force_upcast", True)
             if not isinstance(upcast, bool):
                 raise CheckpointError(os.path.join(folder, "config.json"), "force_upcast",
-                                      f"expected true or false, got {_show(upcast)}")
+                                      f"expected true or false, got {show_value(upcast)}")
             info["force_upcast"] = upcast
     for comp, name in JSON_FILES.items():
         _folder(os.path.join(root, comp))
-        data = _json_object(os.path.join(root, comp, name))
+        data = json_object(os.path.join(root, comp, name))
         if comp == "scheduler":
             from .edm import Schedule   # here, not at the top: edm imports torch, which finding a folder needs not
 
@@ -183,14 +183,14 @@ def _check_components(root: str, weighted) -> dict:
                 if not ok:
                     raise CheckpointError(os.path.join(root, comp, name), key,
                                           f"expected 3 finite numbers{' > 0' if key == 'image_std' else ''} (one "
-                                          f"per RGB channel), got {_show(v) if not isinstance(v, list) else v}")
+                                          f"per RGB channel), got {show_value(v) if not isinstance(v, list) else v}")
                 info["clip_mean" if key == "image_mean" else "clip_std"] = [float(x) for x in v]
     return info
 
 
 def _check(path: str) -> dict:
     cfg = ScpainterConfig.load(os.path.join(path, "scpainter.json"))
-    _json_object(os.path.join(path, "model_index.json"))
+    json_object(os.path.join(path, "model_index.json"))
     info = _check_components(path, CHECKPOINT_WEIGHTS)
     info["config"] = cfg
     return info
@@ -219,9 +219,9 @@ def check_svd_folder(path: str) -> None:
     if not os.path.isfile(index):
         raise CheckpointError(path, "(folder)", "not a diffusers folder (no model_index.json)",
                               hint="pass the folder of a Stable Video Diffusion img2vid(-xt) snapshot")
-    cls = _json_object(index).get("_class_name")
+    cls = json_object(index).get("_class_name")
     if cls != "StableVideoDiffusionPipeline":
-        raise CheckpointError(index, "_class_name", f"is {_show(cls)}, expected 'StableVideoDiffusionPipeline'")
+        raise CheckpointError(index, "_class_name", f"is {show_value(cls)}, expected 'StableVideoDiffusionPipeline'")
     for comp in COMPONENTS:
         _folder(os.path.join(path, comp))
     _check_components(path, WEIGHTS)

@@ -49,7 +49,7 @@ class CheckpointError(files.InputError):
         return type(self), (self.path, self.field, self.message, self.hint)
 
 
-def _show(value) -> str:
+def show_value(value) -> str:
     """A JSON value as a message quotes it."""
     if isinstance(value, bool):
         return f"{str(value).lower()} (a boolean)"
@@ -66,11 +66,11 @@ def _show(value) -> str:
     return repr(value)
 
 
-def _json_object(path: str) -> dict:
+def json_object(path: str) -> dict:
     """A checkpoint's JSON file that must hold an object (``files.read_json``'s limits), or CheckpointError."""
     data = files.read_json(path, error=CheckpointError)
     if not isinstance(data, dict):
-        raise CheckpointError(path, "(file)", f"expected a JSON object, got {_show(data)}")
+        raise CheckpointError(path, "(file)", f"expected a JSON object, got {show_value(data)}")
     return data
 
 
@@ -85,15 +85,15 @@ def check_field(name: str, value):
         if isinstance(value, float) and math.isfinite(value) and value.is_integer():
             value = int(value)
         if not isinstance(value, int) or isinstance(value, bool):
-            raise ValueError(f"{want}, got {_show(value)}")
+            raise ValueError(f"{want}, got {show_value(value)}")
     else:
         want = f"expected a finite number {rng}"
         if not isinstance(value, (int, float)) or isinstance(value, bool):
-            raise ValueError(f"{want}, got {_show(value)}")
+            raise ValueError(f"{want}, got {show_value(value)}")
         if isinstance(value, float) and not math.isfinite(value):
             raise ValueError(f"{want}, got {value}")
     if value < low or (high is not None and value > high):
-        raise ValueError(f"{want}, got {_show(value)}")
+        raise ValueError(f"{want}, got {show_value(value)}")
     return value if kind == "int" else float(value)
 
 
@@ -131,9 +131,9 @@ class ScpainterConfig:
         ``latent_validity`` one of ``LATENT_VALIDITY``; ``extra`` an object. A missing field (other than
         ``schema``) takes its default; unknown keys are ignored (a newer writer's additions). CheckpointError
         naming the file and the field otherwise."""
-        data = _json_object(path)
+        data = json_object(path)
         if data.get("schema") != SCHEMA:
-            got = f"is {_show(data['schema'])}" if "schema" in data else "is missing"
+            got = f"is {show_value(data['schema'])}" if "schema" in data else "is missing"
             raise CheckpointError(path, "schema", f"{got}, expected {SCHEMA!r}: not an SCPainter checkpoint of "
                                                   "this version")
         values = {}
@@ -147,11 +147,11 @@ class ScpainterConfig:
                 except ValueError as e:
                     problem = str(e)
             elif name == "base" and not isinstance(v, str):
-                problem = f"expected a string (the SVD snapshot's folder), got {_show(v)}"
+                problem = f"expected a string (the SVD snapshot's folder), got {show_value(v)}"
             elif name == "latent_validity" and (not isinstance(v, str) or v not in LATENT_VALIDITY):
-                problem = f"expected one of {', '.join(map(repr, LATENT_VALIDITY))}, got {_show(v)}"
+                problem = f"expected one of {', '.join(map(repr, LATENT_VALIDITY))}, got {show_value(v)}"
             elif name == "extra" and not isinstance(v, dict):
-                problem = f"expected an object, got {_show(v)}"
+                problem = f"expected an object, got {show_value(v)}"
             if problem:
                 raise CheckpointError(path, name, problem, hint=FIELD_HINT)
             values[name] = v

@@ -39,7 +39,7 @@ from dataclasses import dataclass
 
 import torch
 
-from .checkpoint_config import CheckpointError, _json_object, _show
+from .checkpoint_config import CheckpointError, json_object, show_value
 
 SCHEDULER_FILE = os.path.join("scheduler", "scheduler_config.json")   # in a checkpoint or SVD snapshot folder
 KARRAS_RHO = 7.0            # diffusers' EulerDiscreteScheduler uses ρ = 7 for use_karras_sigmas (not a config key)
@@ -102,11 +102,11 @@ class Schedule:
 
         def got(key, default=None):
             if key in config:
-                return f"is {_show(config[key])}"
+                return f"is {show_value(config[key])}"
             return "is missing" + (f" (diffusers' default: {json.dumps(default)})" if default is not None else "")
 
         if not isinstance(config, dict):
-            refuse("(file)", f"expected a JSON object, got {_show(config)}")
+            refuse("(file)", f"expected a JSON object, got {show_value(config)}")
         if "_class_name" in config and config["_class_name"] != "EulerDiscreteScheduler":
             refuse("_class_name", f"{got('_class_name')}, expected \"EulerDiscreteScheduler\" (SVD's "
                                   "scheduler): only its EDM configuration is implemented")
@@ -142,7 +142,7 @@ class Schedule:
     def from_folder(cls, folder: str) -> Schedule:
         """The schedule of a checkpoint or SVD snapshot folder: its ``scheduler/scheduler_config.json``."""
         path = os.path.join(folder, SCHEDULER_FILE)
-        return cls.from_config(_json_object(path), path)
+        return cls.from_config(json_object(path), path)
 
 
 # ------------------------------------------------------------------------------------------------ the denoiser

@@ -10,7 +10,7 @@ import math
 import os
 from dataclasses import asdict, dataclass, field, fields
 
-from scpainter_blender.core import batch as batch_mod
+from scpainter_blender.core import batch_items as batch_mod
 from scpainter_blender.core import files, outputs
 from scpainter_blender.core import job as job_mod
 
@@ -140,8 +140,8 @@ def _check(cfg: TrainConfig, path: str) -> TrainConfig:
         if not isinstance(c, str) or not c or "\0" in c or len(c) > 4096:
             err(f"clips[{i}]", f"expected a clip folder or list file path (a non-empty string), got {_short(c)}")
     p = cfg.pairs
-    for name, lo, hi in (("width", 64, 16384), ("height", 64, 16384), ("frames", 1, 4096), ("window", 1, 100_000),
-                         ("point_radius", 0, 64)):
+    for name, lo, hi in (("width", 64, 16384), ("height", 64, 16384), ("frames", 1, 4096),
+                         ("source_window", 1, 100_000), ("point_radius", 0, 64)):
         integer(f"pairs.{name}", getattr(p, name), lo, hi)
     if p.width % 64 or p.height % 64:
         err("pairs", f"width and height must be multiples of 64 (the VAE's 8 x the UNet's 8), got {p.width}x{p.height}")
@@ -165,6 +165,8 @@ def from_dict(data: dict, path: str = "train.json") -> TrainConfig:
         if k not in data:
             raise TrainConfigError(path, k, "required")
     pairs = data.pop("pairs", {})
+    if isinstance(pairs, dict) and "window" in pairs and "source_window" not in pairs:
+        pairs = {("source_window" if k == "window" else k): v for k, v in pairs.items()}  # its name before 15
     pk = {f.name for f in fields(PairSettings)}
     if not isinstance(pairs, dict):
         raise TrainConfigError(path, "pairs", f"expected an object of pair settings ({', '.join(sorted(pk))}), got "

@@ -3,7 +3,7 @@ targets.
 
 A sample is ``frames`` consecutive target frames t0 .. t0+F−1 of one clip. For each target frame t:
 
-* **Novel-view pair**: the points of a random subset of the frames within ±``window`` of t, never t itself (each
+* **Novel-view pair**: the points of a random subset of the frames within ±``source_window`` of t, never t itself (each
   neighbour kept with probability ``source_prob``; at least one), are projected into frame t's camera. Points
   from other frames land where frame t's own pixels would have been, with the holes and misalignments a novel
   view has, while the target stays the real frame t.
@@ -37,7 +37,7 @@ class PairSettings:
     width: int = 576
     height: int = 320
     frames: int = 14
-    window: int = 8                # sources from t − window .. t + window, t excluded
+    source_window: int = 8         # sources from t − source_window .. t + source_window, t excluded
     source_prob: float = 0.5       # each neighbour's chance of contributing points
     asset_prob: float = 0.5        # chance that a sample is an asset pair (when the clip has assets)
     grow_ratio: float = 0.1        # removal box = size · (1 + grow_ratio) + 2 · grow_m
@@ -92,7 +92,7 @@ class PairMaker:
 
     def sources(self, t: int, rng: np.random.Generator) -> list:
         s, S = self.settings, self.clip.num_frames
-        near = [f for f in range(max(0, t - s.window), min(S, t + s.window + 1)) if f != t]
+        near = [f for f in range(max(0, t - s.source_window), min(S, t + s.source_window + 1)) if f != t]
         keep = [f for f in near if rng.random() < s.source_prob]
         return keep or [near[int(rng.integers(len(near)))]]
 

@@ -7,7 +7,7 @@ world metres), the output folder and generation settings. Paths are relative to 
 ``assets`` may be absent. ``Job.from_dict`` validates every field, and each error names the file and the field
 (``frames[3].K``), never a numpy traceback; ``Job.to_dict`` is the file's content. The Blender export, the
 evaluation protocol, the training pairs and the backend commands build and read jobs only through these classes
-(see docs/design.md, "The job contract").
+(docs/design.md §4.2).
 
 Schema versions: ``scpainter.job/2`` names every transform ``a_to_b`` (``scene.vggt_to_world``). Files of
 ``scpainter.job/1`` (``scene.world_from_vggt``) are still read; ``save`` always writes the current version.
@@ -29,6 +29,7 @@ from . import files, outputs, similarity
 SCHEMA = "scpainter.job/2"
 #: Older schemas still read, each with its fields renamed since: {schema: {old field: current field}} (scene level)
 OLD_SCHEMAS = {"scpainter.job/1": {"world_from_vggt": "vggt_to_world"}}
+_OLD_NAMES = {old: new for names in OLD_SCHEMAS.values() for old, new in names.items()}
 #: Bounds that keep a job inside what the renderer and the model can do (validated, with the field named).
 MAX_SIDE = 16384                   # pixels, each of width and height
 MAX_PIXELS = 8192 * 8192           # width x height
@@ -65,6 +66,20 @@ def _object(value, path, where) -> dict:
     return value
 
 
+def _known(d: dict, path, where, known, old_names: dict | None = None) -> None:
+    """Refuse a key that is not a field of this object (a typo would otherwise fall back to a default unseen);
+    ``old_names`` {old: current} says which name this schema uses instead of an older schema's."""
+    for key in d:
+        if key in known:
+            continue
+        name = f"{where}.{key}" if where else key
+        if old_names and key in old_names:
+            raise JobError(path, name, f"is the name an older schema used: {SCHEMA} calls it {old_names[key]!r}",
+                           hint="rename the field (or give the file the schema it was written for)")
+        raise JobError(path, name, f"is not a field of {where or 'a job'} (fields: {', '.join(sorted(known))})",
+                       hint="check the spelling: an unknown field would be ignored")
+
+
 def _list(value, path, where, what="a list") -> list:
     if not isinstance(value, list):
         raise JobError(path, where, f"expected {what}")
@@ -88,6 +103,7 @@ class Frame:
     @classmethod
     def from_dict(cls, d, path, where) -> "Frame":
         _object(d, path, where)
+        _known(d, path, where, ("frame", "K", "world_to_camera", "source_frames"))
         f = _int(d.get("frame"), path, f"{where}.frame", *FRAME_RANGE)
         K = _matrix(d.get("K"), path, f"{where}.K", (3, 3))
         if K[0, 0] <= 0 or K[1, 1] <= 0 or np.any(K[2] != [0, 0, 1]) or K[1, 0] != 0 or np.abs(K).max() > 1e8:
@@ -115,6 +131,7 @@ class RemovalBox:
     @classmethod
     def from_dict(cls, d, path, where) -> "RemovalBox":
         _object(d, path, where)
+        _known(d, path, where, ("box_to_world", "size"))
         T = _rigid(d.get("box_to_world"), path, f"{where}.box_to_world")
         size = d.get("size")
         if not isinstance(size, list) or len(size) != 3:
@@ -140,6 +157,8 @@ class Scene:
     @classmethod
     def from_dict(cls, d, path, where="scene", renamed: dict | None = None) -> "Scene":
         d = dict(_object(d, path, where))
+        _known(d, path, where, [f.name for f in fields(cls)] + list(renamed or {}),
+               old_names=None if renamed else _OLD_NAMES)
         for old, new in (renamed or {}).items():  # an older schema's names
             if old in d:
                 d[new] = d.pop(old)
@@ -184,6 +203,7 @@ class Asset:
     @classmethod
     def from_dict(cls, d, path, where, frames) -> "Asset":
         _object(d, path, where)
+        _known(d, path, where, ("name", "ply", "object_to_world"))
         name = _str(d.get("name"), path, f"{where}.name")
         ply = _str(d.get("ply"), path, f"{where}.ply")
         o2w = d.get("object_to_world")
@@ -229,6 +249,7 @@ class GenerateSettings:
     @classmethod
     def from_dict(cls, d, path, where="generate") -> "GenerateSettings":
         _object(d, path, where)
+        _known(d, path, where, [f.name for f in fields(cls)])
         if d.get("checkpoint") is not None:
             _str(d["checkpoint"], path, f"{where}.checkpoint")
         check_generate_settings(d, path, where)
@@ -260,10 +281,13 @@ class GenerateSettings:
         try:
             check_generate_settings(out, path)
         except JobError as e:
-            if e.field == "generate.overlap" and "window" not in chosen:
-                raise JobError(path, e.field, f"{out['overlap']} must be smaller than the checkpoint's window "
-                                              f"({out['window']}, from its scpainter.json)") from None
-            raise
+            if e.field != "generate.overlap" or ("overlap" in chosen and "window" in chosen):
+                raise
+            overlap = f"the default overlap ({out['overlap']})" if "overlap" not in chosen else str(out["overlap"])
+            window = f"the checkpoint's window ({out['window']}, from its scpainter.json)" if "window" not in chosen \
+                else f"generate.window ({out['window']})"
+            raise JobError(path, e.field, f"{overlap} must be smaller than {window}",
+                           hint="set generate.overlap below the window") from None
         return out
 
 
@@ -296,6 +320,7 @@ class Job:
         schema = job.get("schema")
         if schema != SCHEMA and schema not in OLD_SCHEMAS:
             raise JobError(path, "schema", f"expected {SCHEMA!r}, got {_short(schema)}")
+        _known(job, path, "", ("schema", "resolution", "frames", "scene", "assets", "output_dir", "generate"))
         res = job.get("resolution")
         if not isinstance(res, list) or len(res) != 2:
             raise JobError(path, "resolution", f"expected [width, height], got {_short(res)}")

@@ -34,7 +34,7 @@ import traceback
 import bpy
 
 from .. import backend_client
-from ..core import batch as batch_mod
+from ..core import batch_items as batch_mod
 from ..core import files
 from . import importer, preferences, runs
 
@@ -94,7 +94,11 @@ def _import(args) -> dict:
     elif args.camera_height is not None:
         opts.scale_mode, opts.camera_height = "CAMERA_HEIGHT", args.camera_height
     else:
-        opts.scale_mode, opts.scale_factor = "FACTOR", args.scale_factor if args.scale_factor else 1.0
+        opts.scale_mode, opts.scale_factor = "FACTOR", 1.0 if args.scale_factor is None else args.scale_factor
+    try:
+        opts.check()
+    except files.InputError as e:  # named as the option the user typed
+        raise files.ArgumentError("--" + e.field.replace("_", "-"), e.message) from None
     result = importer.import_vggt(bpy.context, args.predictions, opts)
     out = {"points": result.num_points, "points_object": result.points.name, "camera": result.camera.name,
            "scale": result.fit.scale, "scale_method": result.fit.method, "residual_m": result.fit.residual_m,
@@ -168,7 +172,7 @@ def _outputs(done: dict, out) -> dict:
 
 def _shard(args) -> tuple[int, int]:
     """(K, N) from ``--shard K/N`` (ArgumentError unless 0 <= K < N) or torchrun's RANK / WORLD_SIZE
-    (``core.batch.ranks_from_env``: InputError "(environment)")."""
+    (``core.batch_items.ranks_from_env``: InputError "(environment)")."""
     if args.shard:
         try:
             k, n = (int(x) for x in args.shard.split("/"))

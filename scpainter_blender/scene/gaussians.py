@@ -29,7 +29,7 @@ from .. import backend_client
 from ..core import cameras, outputs, splats, splats_io, trellis
 from ..core.sh import SH_C0
 from . import materials, node_groups, props
-from .points import _linear_rgba
+from .points import linear_rgba
 
 NODE_GROUP = "SCPainter Gaussians"
 NODE_GROUP_VERSION = 1
@@ -177,7 +177,7 @@ def import_gaussians(context, filepath: str, axes: str = "AUTO", target_length: 
     rot_raw = ply.rot[keep]
     sigma = np.exp(ply.scale[keep].astype(np.float64))
     opacity = 1.0 / (1.0 + np.exp(-ply.opacity[keep].astype(np.float64)))
-    rgba = _linear_rgba(np.clip(SH_C0 * ply.f_dc[keep] + 0.5, 0.0, 1.0).astype(np.float32))
+    rgba = linear_rgba(np.clip(SH_C0 * ply.f_dc[keep] + 0.5, 0.0, 1.0).astype(np.float32))
     rgba[:, 3] = opacity
     t_read = time.perf_counter()
 

@@ -39,6 +39,28 @@ class ImportOptions:
     extrinsic_convention: str = "auto"   # "auto" (check against world_points), "world_to_camera", "camera_to_world"
     crop: str = "auto"                   # "auto" (VGGT's white padding), "none", or "left top right bottom" pixels
 
+    def check(self) -> "ImportOptions":
+        """Refuse options no import can use, before any file is read: InputError with path ``OPTIONS`` and the
+        option's name as field (the UI's property limits keep the panel inside these; scripts and the command
+        line are not)."""
+        def bad(name, message):
+            return files.InputError(OPTIONS, name, message)
+
+        number = lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)  # noqa: E731
+        if not (number(self.confidence_percentile) and 0 <= self.confidence_percentile <= 100):
+            raise bad("confidence_percentile", f"expected a percentile in [0, 100], got {self.confidence_percentile}")
+        if self.scale_mode not in SCALE_MODES:
+            raise bad("scale_mode", f"expected one of {list(SCALE_MODES)}, got {self.scale_mode!r}")
+        if self.point_source not in ("depth", "world_points"):
+            raise bad("point_source", f"expected 'depth' or 'world_points', got {self.point_source!r}")
+        if self.scale_mode == "FACTOR" and not (number(self.scale_factor) and self.scale_factor > 0):
+            raise bad("scale_factor", f"expected metres per VGGT unit > 0, got {self.scale_factor}")
+        if not (number(self.point_radius) and self.point_radius >= 0):
+            raise bad("point_radius", f"expected metres >= 0, got {self.point_radius}")
+        if isinstance(self.frame_window, bool) or not isinstance(self.frame_window, int) or self.frame_window < 0:
+            raise bad("frame_window", f"expected a number of frames >= 0, got {self.frame_window!r}")
+        return self
+
 
 @dataclass
 class ImportResult:
@@ -130,7 +152,7 @@ def _tag(obj, kind, filepath, fit, opts, rep: vggt.LoadReport):
 
 def import_vggt(context, filepath: str, opts: ImportOptions | None = None) -> ImportResult:
     """Import ``filepath`` into ``context.scene``; returns the new objects, the metric fit and timings."""
-    opts = opts or ImportOptions()
+    opts = (opts or ImportOptions()).check()
     t0 = time.perf_counter()
     filepath = os.path.abspath(bpy.path.abspath(filepath))
     # every check and refusal happens here, before anything is created: a refused file leaves the scene as it was

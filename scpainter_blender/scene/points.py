@@ -79,7 +79,7 @@ def _local_float32(positions, origin):
     return out
 
 
-def _linear_rgba(colors):
+def linear_rgba(colors):
     """Linear RGBA float32 (alpha 1) of sRGB-encoded colours in [0, 1], through the 8-bit table."""
     out = np.empty((len(colors), 4), np.float32)
     out[:, 3] = 1.0
@@ -108,7 +108,7 @@ def create_point_cloud(name: str, positions, colors, frame, collection, radius: 
         mesh.attributes["position"].data.foreach_set("vector", _local_float32(positions, origin).ravel())
     col = mesh.color_attributes.new(COLOR_ATTRIBUTE, "FLOAT_COLOR", "POINT")
     if N:
-        col.data.foreach_set("color", _linear_rgba(np.asarray(colors, np.float32)).ravel())
+        col.data.foreach_set("color", linear_rgba(np.asarray(colors, np.float32)).ravel())
     fa = mesh.attributes.new(FRAME_ATTRIBUTE, "INT", "POINT")
     if N:
         fa.data.foreach_set("value", np.asarray(frame, dtype=np.int32))

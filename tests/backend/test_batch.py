@@ -63,3 +63,15 @@ def test_two_processes_under_torchrun(tmp_path):
     for name in ("a", "c"):
         made = os.listdir(tmp_path / name / f"out_{name}" / "conditions")
         assert len([f for f in made if f.startswith(("frame_", "preview_"))]) == 4   # 2 EXR + 2 PNG
+
+
+def test_a_distributed_run_without_its_rendezvous_is_refused_before_any_job(tmp_path):
+    """WORLD_SIZE=2 without MASTER_ADDR/PORT would render its share and only then fail to gather: bad input."""
+    job = _car_job(tmp_path / "a", "a")
+    env = {k: v for k, v in os.environ.items() if k not in ("MASTER_ADDR", "MASTER_PORT")}
+    env.update(RANK="0", WORLD_SIZE="2", PYTHONPATH=ROOT)
+    proc = subprocess.run([sys.executable, "-m", "backend", "batch", job, "--command", "render", "--device", "cpu"],
+                          cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+    last = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert proc.returncode == 2 and last["file"] == "(environment)" and last["field"] == "MASTER_ADDR", last
+    assert not os.path.exists(tmp_path / "a" / "out_a")

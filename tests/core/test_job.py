@@ -178,11 +178,27 @@ def test_old_schema_still_loads_and_saves_in_the_new_one(tmp_path):
     with pytest.raises(J.JobError) as e:
         J.load(p)
     assert e.value.field == "scene.world_from_vggt"
-    # the new schema does not accept the old name
+    # the new schema does not accept the old name, and says which one it wants
     new["scene"]["world_from_vggt"] = new["scene"].pop("vggt_to_world")
     with pytest.raises(J.JobError) as e:
         J.validate(new)
-    assert e.value.field == "scene.vggt_to_world"
+    assert e.value.field == "scene.world_from_vggt" and "'vggt_to_world'" in e.value.message
+
+
+@pytest.mark.parametrize("mutate,field", [
+    (lambda j: j["generate"].update(windw=8), "generate.windw"),              # a typo would fall back silently
+    (lambda j: j["scene"].update(vgt_to_world=np.eye(4).tolist()), "scene.vgt_to_world"),
+    (lambda j: j["frames"][0].update(source_frame=[0]), "frames[0].source_frame"),
+    (lambda j: j["assets"][0].update(object_to_wrld={}), "assets[0].object_to_wrld"),
+    (lambda j: j["scene"]["removal_boxes"][0].update(sizes=[1, 1, 1]), "scene.removal_boxes[0].sizes"),
+    (lambda j: j.update(output=""), "output"),
+])
+def test_unknown_fields_are_refused(mutate, field):
+    job = minimal()
+    mutate(job)
+    with pytest.raises(J.JobError) as e:
+        J.validate(job)
+    assert e.value.field == field and "spelling" in e.value.hint
 
 
 def test_generation_settings_resolve_once():

@@ -42,6 +42,12 @@ def test_bad_input_exit_code_2(addon, empty_scene, tmp_path, capsys):
     assert cli.execute(["import"]) == 2  # argparse errors are reported, not sys.exit() from inside Blender
     assert "predictions" in _last_event(capsys)["message"]
     assert cli.execute(["import", "x.npz", "--camera-height", "1.6", "--scale-factor", "2"]) == 2
+    # options no import can use are bad input named by the option, not an internal error (0 was taken for 1.0)
+    for args, flag in ((["--scale-factor", "0"], "--scale-factor"), (["--scale-factor", "nan"], "--scale-factor"),
+                       (["--confidence-percentile", "150"], "--confidence-percentile")):
+        assert cli.execute(["import", str(tmp_path / "x.npz"), *args]) == 2, args
+        ev = _last_event(capsys)
+        assert ev["file"] == "(command line)" and ev["field"] == flag, ev
     assert len(bpy.data.objects) == 0
     not_blend = tmp_path / "predictions.npz"                   # a scene command given the wrong kind of file
     np.savez(not_blend, depth=np.zeros(3))

@@ -112,7 +112,7 @@ def test_evaluate_command_refuses_missing_inception_weights_before_any_work(stre
     (["--frames", "1"], "--frames"),                   # FID/KID need two frames per set
     (["--steps", "0"], "--steps"),
     (["--seed", "-1"], "--seed"),
-    (["--window", "-2"], "--window"),
+    (["--source-window", "-2"], "--source-window"),
     (["--crop-min-px", "-1"], "--crop-min-px"),
     (["--shifts", "nan"], "--shifts"),
 ])

@@ -114,3 +114,12 @@ def test_fifo_and_directory_are_refused_at_once(tmp_path):
         C.load(str(tmp_path))
     with pytest.raises(C.TrainConfigError, match="train.json: \\(file\\): not found"):
         C.load(str(tmp_path / "missing" / "train.json"))
+
+
+def test_source_window_keeps_its_former_name(tmp_path):
+    """pairs.source_window (the source frames t ± N) was pairs.window before issue 15 gave the generation window
+    that name alone: a train.json written then still loads."""
+    old = C.from_dict({**BASE, "pairs": {"window": 5}}, str(tmp_path / "train.json"))
+    new = C.from_dict({**BASE, "pairs": {"source_window": 5}}, str(tmp_path / "train.json"))
+    assert old.pairs.source_window == new.pairs.source_window == 5
+    assert old.to_json()["pairs"] == new.to_json()["pairs"] and "window" not in old.to_json()["pairs"]

@@ -34,8 +34,8 @@ def shard(items: list, rank: int, world: int) -> list:
 
 def ranks_from_env() -> tuple[int, int, int]:
     """(rank, world size, local rank) from torchrun/accelerate's environment (``RANK``, ``WORLD_SIZE``,
-    ``LOCAL_RANK``); (0, 1, 0) without it. A value that is not a non-negative integer (or a world size below 1,
-    or a rank outside it) is an InputError naming the variable."""
+    ``LOCAL_RANK``); (0, 1, 0) without it. A value that is not a non-negative integer (a world size below 1, a
+    rank outside it, or a world size above 1 without a rank) is an InputError naming the variable."""
     def get(name, default, lo):
         value = os.environ.get(name, "").strip()
         if not value:
@@ -50,6 +50,9 @@ def ranks_from_env() -> tuple[int, int, int]:
         return n
 
     rank, world, local = get("RANK", 0, 0), get("WORLD_SIZE", 1, 1), get("LOCAL_RANK", 0, 0)
+    if world > 1 and not os.environ.get("RANK", "").strip():  # every process would take rank 0's share
+        raise files.InputError("(environment)", "RANK", f"not set, with WORLD_SIZE={world}",
+                               hint="start the processes with torchrun or accelerate launch, which set both")
     if rank >= world:
         raise files.InputError("(environment)", "RANK", f"{rank} is not below WORLD_SIZE ({world})")
     return rank, world, local

@@ -1,0 +1,41 @@
+"""core.batch: the --list file, and which share of a batch one process of a torchrun/accelerate run takes."""
+
+import pytest
+
+from scpainter_blender.core import batch_items as batch, files
+
+
+def test_ranks_from_the_environment(monkeypatch):
+    for name in ("RANK", "WORLD_SIZE", "LOCAL_RANK"):
+        monkeypatch.delenv(name, raising=False)
+    assert batch.ranks_from_env() == (0, 1, 0)
+    monkeypatch.setenv("RANK", "3")
+    monkeypatch.setenv("WORLD_SIZE", "4")
+    monkeypatch.setenv("LOCAL_RANK", "1")
+    assert batch.ranks_from_env() == (3, 4, 1)
+
+
+@pytest.mark.parametrize("env,field", [
+    ({"RANK": "abc"}, "RANK"),
+    ({"WORLD_SIZE": "0"}, "WORLD_SIZE"),
+    ({"RANK": "2", "WORLD_SIZE": "2"}, "RANK"),         # a rank outside the world
+    ({"WORLD_SIZE": "2"}, "RANK"),                       # every process would take rank 0's share
+    ({"LOCAL_RANK": "-1"}, "LOCAL_RANK"),
+])
+def test_a_half_set_environment_is_bad_input(monkeypatch, env, field):
+    for name in ("RANK", "WORLD_SIZE", "LOCAL_RANK"):
+        monkeypatch.delenv(name, raising=False)
+    for k, v in env.items():
+        monkeypatch.setenv(k, v)
+    with pytest.raises(files.InputError) as e:
+        batch.ranks_from_env()
+    assert e.value.path == "(environment)" and e.value.field == field
+
+
+def test_list_file(tmp_path):
+    p = tmp_path / "jobs.txt"
+    p.write_text("# scenes\na/job.json\n\n/abs/job.json\n")
+    assert batch.read_list(p) == [str(tmp_path / "a" / "job.json"), "/abs/job.json"]
+    p.write_bytes(b"\xff\xfe\x00bad")
+    with pytest.raises(files.InputError, match="not UTF-8"):
+        batch.read_list(p)

@@ -119,7 +119,14 @@ def _import(args) -> dict:
 
 
 def _apply_preferences(args) -> None:
-    """Command-line settings override the add-on preferences for this process (preferences are not saved)."""
+    """Command-line settings override the add-on preferences for this process (preferences are not saved). A
+    ``--backend-python`` or ``--checkpoint`` that does not exist is bad input (``ArgumentError``)."""
+    if args.backend_python and not os.path.isfile(args.backend_python):
+        raise files.ArgumentError("--backend-python", f"{args.backend_python} is not a file",
+                                  hint="give the interpreter that has the backend's packages, e.g. .venv/bin/python")
+    if args.checkpoint and not os.path.isdir(args.checkpoint):
+        raise files.ArgumentError("--checkpoint", f"{args.checkpoint} is not a folder",
+                                  hint="make one with `python -m backend init-checkpoint --svd SVD_DIR --out DIR`")
     prefs = preferences.get(bpy.context)
     if prefs is None:
         return

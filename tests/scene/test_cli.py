@@ -65,7 +65,9 @@ def test_input_error_by_name_is_exit_2_anything_else_exit_1(addon, empty_scene, 
     for argv, field in ((["batch", "--command", "render"], "items"), (["render", "x.blend", "--device", "gpu"],
                                                                      "--device"),
                         (["batch", "a.blend", "--shard", "2/2"], "--shard"), (["batch", "a.blend", "--shard", "x"],
-                                                                              "--shard")):
+                                                                              "--shard"),
+                        (["render", "x.blend", "--backend-python", "/nonexistent/python"], "--backend-python"),
+                        (["generate", "x.blend", "--checkpoint", str(tmp_path / "none")], "--checkpoint")):
         assert cli.execute(argv) == 2, argv
         ev = _last_event(capsys)
         assert ev["event"] == "error" and ev["file"] == files.COMMAND_LINE and ev["field"] == field, ev

@@ -12,7 +12,8 @@ evaluation protocol, the training pairs and the backend commands build and read 
 Schema versions: ``scpainter.job/2`` names every transform ``a_to_b`` (``scene.vggt_to_world``). Files of
 ``scpainter.job/1`` (``scene.world_from_vggt``) are still read; ``save`` always writes the current version.
 
-No bpy, no torch: numpy for the matrix checks only.
+No bpy, no torch: numpy for the matrix checks only. (A little over 400 lines: the six classes of one document,
+each field's rule beside its ``to_dict``, read together; what the job points at on disk is ``core.job_inputs``.)
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""``python -m backend <command>``: the backend's command line (docs/design.md, "Backend").
+"""``python -m backend <command>``: the backend's command line (docs/design.md §4.4).
 
 Exit codes: 0 done; 2 bad input: an ``InputError`` (the error event has ``file`` and ``field``; a command-line
 argument is file "(command line)" with the option as field) or an argparse error; 1 anything else: a failure the

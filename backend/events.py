@@ -1,4 +1,4 @@
-"""The backend's event stream (docs/design.md, "Backend"): one JSON object per line on standard output.
+"""The backend's event stream (docs/design.md §4.4): one JSON object per line on standard output.
 
 Human-readable logs go to standard error (and to ``<output_dir>/backend.log`` for commands that have one);
 standard output carries nothing but events, so a client can parse every line.

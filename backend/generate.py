@@ -41,8 +41,7 @@ PRECISIONS = {"fp32": torch.float32, "bf16": torch.bfloat16, "fp16": torch.float
 class Plan:
     """What ``generate`` will do, known before anything is rendered or loaded (``prepare``)."""
     checkpoint: str
-    config: object          # backend.model.checkpoint_config.ScpainterConfig
-    settings: dict
+    settings: dict          # complete: job_mod.GenerateSettings.resolve's
     output_dir: str
     paths: dict
 
@@ -51,7 +50,7 @@ def prepare(job_path: str, job: job_mod.Job, checkpoint: str | None, overrides: 
             allow_outside: bool = False) -> Plan:
     """Validate a generation before any work: the command-line overrides, the checkpoint (``checkpoint.check``:
     config field by field, safetensors only), the settings the job, overrides and checkpoint make together, and
-    the job's input files (``job.check_inputs``). Raises an InputError naming the file (or "(command line)") and
+    the job's input files (``job_inputs.check_inputs``). Raises an InputError naming the file (or "(command line)") and
     the field."""
     overrides = overrides or {}
     job_mod.check_generate_settings({k: v for k, v in overrides.items() if v is not None}, files.COMMAND_LINE, "--")
@@ -73,7 +72,7 @@ def prepare(job_path: str, job: job_mod.Job, checkpoint: str | None, overrides: 
     paths = job_inputs.check_inputs(job_path, job, allow_outside)
     outputs.check_output(paths["output_dir"], allow_outside)
     paths["allow_outside"] = allow_outside
-    return Plan(ckpt, config, s, paths["output_dir"], paths)
+    return Plan(ckpt, s, paths["output_dir"], paths)
 
 
 def load_conditions(job_path: str, job: job_mod.Job):

@@ -1,4 +1,4 @@
-"""How the operators report a failure (docs/design.md, "Hostile inputs"): bad input, caught by name as an
+"""How the operators report a failure (docs/design.md §4.4, §14): bad input, caught by name as an
 ``InputError`` (a file, a scene setting, a preference), with its file, field and hint; a backend run that failed
 (``BackendError``) with the backend's message and log; anything else is a bug of the add-on, reported with the
 exception's type and its traceback printed to the system console (standard error)."""

@@ -1,4 +1,5 @@
-"""The body of ``python -m backend render``: every frame of a job, resumable, stoppable (docs/design.md §4.3, §4.4)."""
+"""The body of ``python -m backend render``: every frame of a job, resumable, stoppable (docs/design.md §4.3,
+§4.4)."""
 
 from __future__ import annotations
 
@@ -68,10 +69,11 @@ def render_job(job_path: str, job: job_mod.Job, device: str, force: bool = False
     """Render the frames not finished yet (all with ``force``, or when the job changed since they were made);
     emits progress and artifact events.
 
-    First the job's paths and input files are checked (``job.check_inputs``: confined to the job's folder unless
-    ``allow_outside``); with ``lock`` the output folder is locked for the run (``locking.OutputLock``; a second run
-    raises ``errors.FolderBusyError``). ``checked``: the paths ``job.check_inputs`` returned to a caller that
-    already checked the inputs and the output folder (``generate.prepare``), so they are not read twice.
+    First the job's paths and input files are checked (``job_inputs.check_inputs``: confined to the job's folder
+    unless ``allow_outside``); with ``lock`` the output folder is locked for the run (``locking.OutputLock``; a
+    second run raises ``errors.FolderBusyError``). ``checked``: the paths ``job_inputs.check_inputs`` returned to
+    a caller that already checked the inputs and the output folder (``generate.prepare``), so they are not read
+    twice.
     ``stop``: a list that becomes non-empty when the caller wants to stop (checked between frames). Returns counts
     and ``stopped``.
     """

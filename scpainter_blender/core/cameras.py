@@ -3,7 +3,7 @@
 Camera paths (heading, lateral shifts) are in ``core.trajectory``; similarity transforms and their fits in
 ``core.similarity``.
 
-Conventions (docs/design.md, "Conventions as implemented"), stated once here and assumed by every module that
+Conventions (docs/design.md §3), stated once here and assumed by every module that
 takes cameras:
 
 * World: Blender's, right-handed, Z up, metres.

@@ -19,7 +19,7 @@ each field's rule beside its ``to_dict``, read together; what the job points at 
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, fields
 from functools import partial
 
 import numpy as np
@@ -254,8 +254,7 @@ class GenerateSettings:
         if d.get("checkpoint") is not None:
             _str(d["checkpoint"], path, f"{where}.checkpoint")
         check_generate_settings(d, path, where)
-        known = {f.name for f in fields(cls)}
-        values = {k: d[k] for k in known if d.get(k) is not None}
+        values = {k: v for k, v in d.items() if v is not None}  # every key is a field (_known)
         for k in GENERATE_NUMBER_BOUNDS:
             if k in values:
                 values[k] = float(values[k])
@@ -367,9 +366,6 @@ class Job:
         if self.generate is not None:
             d["generate"] = self.generate.to_dict()
         return d
-
-    def replace(self, **changes) -> "Job":
-        return replace(self, **changes)
 
 
 def validate(job, path="job.json") -> Job:

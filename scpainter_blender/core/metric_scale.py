@@ -1,5 +1,5 @@
 """Metric scale: ``vggt_to_world``, the similarity from VGGT's world (first camera's OpenCV frame, VGGT units) to
-Blender's (Z up, metres), found one of three ways (docs/design.md, "Conventions as implemented"):
+Blender's (Z up, metres), found one of three ways (docs/design.md §3):
 
 (a) ``vggt_to_world_by_factor``: a given metres-per-unit factor, the first camera at the origin looking along +Y;
 (b) ``vggt_to_world_by_trajectory``: VGGT's camera path laid onto a metric one (``load_metric_trajectory`` reads

@@ -2,7 +2,7 @@
 
 World: Blender's (Z up, metres); cameras are OpenCV ``world_to_camera`` (``core.cameras``). The direction of
 travel is measured along the path's *travelled distance*, so a stop or a parked camera keeps a sensible heading
-(docs/design.md, "Conventions as implemented").
+(docs/design.md §3).
 
 No bpy, no torch: numpy only.
 """

@@ -14,7 +14,7 @@ any failed; ``--shard K/N`` (or torchrun's RANK/WORLD_SIZE) takes every N-th ite
 ``-c`` implies background mode; the import goes into the scene that is open (``blender -b scene.blend -c ...``
 imports into scene.blend). With the ``bpy`` module (no ``-c``), call ``execute(argv)`` directly. Output: a JSON
 summary on standard output; exit code 0 done, 2 bad input, 1 anything else (the backend's convention,
-docs/design.md "Backend"). Bad input is an ``InputError``, caught by name: a file, a scene setting, a command-line
+docs/design.md §4.4). Bad input is an ``InputError``, caught by name: a file, a scene setting, a command-line
 argument (file "(command line)", field the option), or the backend's own exit 2 for the scene's job; its error
 event has ``file`` and ``field``. Any other exception, a plain ValueError included, is a bug: exit 1, its traceback
 on standard error.

@@ -18,7 +18,7 @@ import bpy
 import numpy as np
 from mathutils import Matrix
 
-from ..core import cameras, trajectory
+from ..core import cameras, outputs, trajectory
 from .build import build_scene, recorded_path
 from .dataset import GENERATOR_VERSION, StreetParams, view_name
 from .materials import black_world, depth_override
@@ -137,6 +137,5 @@ def render_drive(params: StreetParams, out_dir: str, log=print) -> dict:
             "views": list(views), "cars": scene_info["cars"], "blender": bpy.app.version_string,
             "timings_s": {"build": t_build - t0, "render": t_render - t_build,
                           "total": time.perf_counter() - t0, "renders": n_renders}}
-    with open(os.path.join(out_dir, "street.json"), "w") as f:
-        json.dump(info, f, indent=1)
+    outputs.write_json(os.path.join(out_dir, "street.json"), info)
     return info

@@ -90,7 +90,7 @@ def test_register_unregister_register_leaves_nothing_behind(addon):
     assert hasattr(bpy.ops.scpainter, "import_vggt")
 
 
-# -- import rules (docs/design.md, "Layout") ---------------------------------------------------------------------
+# -- import rules (docs/design.md §2) ---------------------------------------------------------------------
 
 def _py_files(*dirs):
     for d in dirs:

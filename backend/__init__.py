@@ -3,4 +3,16 @@
 
 Importing this package imports nothing heavy: each command imports what it needs when it runs, so ``doctor`` on a
 machine without a GPU never initialises CUDA.
+
+It does set ``OMP_WAIT_POLICY=PASSIVE`` unless the environment already names a policy, before anything loads torch
+or numba: both use GNU OpenMP (torch its bundled libgomp, numba's ``omp`` threading layer the system's), whose
+threads otherwise spin for milliseconds after every parallel region (``GOMP_SPINCOUNT`` 300000). On a shared CPU
+(Blender itself, a second render), and between the two runtimes of one process, spinning threads take the cores
+the working ones need: issue 16 measured a frame 7-15x slower with one busy process beside it, ~1.5-2x with
+PASSIVE (``bench/render.py``, section ab, measures it). libgomp reads the variable once, when it is loaded, so it is
+set here, at the top of ``python -m backend``, not later.
 """
+
+import os
+
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")

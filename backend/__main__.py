@@ -22,7 +22,8 @@ def _cmd_doctor(args) -> int:
     import platform
 
     report = {"python": sys.version.split()[0], "platform": platform.platform(), "executable": sys.executable}
-    for mod in ("numpy", "torch", "numba", "diffusers", "transformers", "safetensors", "av", "open3d", "trimesh"):
+    for mod in ("numpy", "torch", "numba", "OpenEXR", "diffusers", "transformers", "safetensors", "av", "open3d",
+                "trimesh"):
         spec = importlib.util.find_spec(mod)
         report[mod] = None
         if spec is not None:
@@ -35,7 +36,7 @@ def _cmd_doctor(args) -> int:
 
         report["cuda"] = torch.cuda.is_available()
         report["devices"] = [torch.cuda.get_device_name(i) for i in range(torch.cuda.device_count())]
-    needed = ("numpy", "torch", "numba", "diffusers", "transformers", "safetensors", "av", "trimesh")
+    needed = ("numpy", "torch", "numba", "OpenEXR", "diffusers", "transformers", "safetensors", "av", "trimesh")
     report["missing"] = [m for m in needed if not report.get(m) or str(report[m]).startswith("broken")]
     if args.checkpoint:
         from scpainter_blender.core import files
@@ -86,7 +87,7 @@ def _cmd_render(args) -> int:
     t0 = time.perf_counter()
     with events.stop_on_sigterm() as stop:
         result = command.render_job(args.job, job, device, force=args.force, point_radius=args.point_radius,
-                                    stop=stop, allow_outside=args.allow_outside)
+                                    stop=stop, allow_outside=args.allow_outside, half=args.half_float)
     if result["stopped"]:
         events.error(f"stopped by SIGTERM after {result['rendered'] + result['skipped']} of {result['frames']} "
                      "frames", hint="finished frames are kept: run the same command again to resume")
@@ -144,8 +145,14 @@ def _cmd_batch(args) -> int:
         from scpainter_blender.core.files import ArgumentError
 
         raise ArgumentError("jobs", "no jobs given", hint="give job.json paths, or --list FILE")
+    if args.half_float and args.command_name != "render":
+        from scpainter_blender.core.files import ArgumentError
+
+        raise ArgumentError("--half-float", "applies to --command render only",
+                            hint="render the conditions with batch --command render --half-float first; generate "
+                                 "keeps the precision of the conditions it finds")
     results, rank = batch.run_batch(items, args.command_name, _device(args.device), args.checkpoint,
-                                    allow_outside=args.allow_outside)
+                                    allow_outside=args.allow_outside, half=args.half_float)
     failed = [r for r in results if r["status"] != "ok"]
     if rank == 0:
         events.done(command="batch", jobs=len(results), failed=len(failed), items=results)
@@ -197,6 +204,9 @@ def _cmd_mesh_asset(args) -> int:
 ALLOW_OUTSIDE_HELP = ("let the job's paths (output_dir, predictions, assets, checkpoint) lead outside the job file's "
                       "folder; without it they must stay inside (a job from someone else then cannot read or write "
                       "elsewhere)")
+HALF_FLOAT_HELP = ("store the image I and the masks M, M_a of the condition EXRs as half floats (Z stays float32): "
+                   "files ~40%% smaller than the lossless float32 default, error <= 2.4e-4; a change re-renders "
+                   "finished frames")
 
 
 def _bounded_int(lo: int, hi: int):
@@ -234,6 +244,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--force", action="store_true", help="render frames that are already finished again")
     r.add_argument("--point-radius", type=_bounded_int(0, 16), default=0,
                    help="splat each point over (2r+1)^2 pixels (0-16)")
+    r.add_argument("--half-float", action="store_true", help=HALF_FLOAT_HELP)
     _input_options(r)
     r.set_defaults(func=_cmd_render)
     n = sub.add_parser("generate", help="render missing conditions, then generate the video with a checkpoint")
@@ -256,6 +267,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--device", choices=["auto", "cpu", "cuda"], default="auto")
     b.add_argument("--checkpoint", help="checkpoint for generate (default: each job's generate.checkpoint)")
     b.add_argument("--allow-outside", action="store_true", help=ALLOW_OUTSIDE_HELP)
+    b.add_argument("--half-float", action="store_true", help=HALF_FLOAT_HELP + " (--command render)")
     b.set_defaults(func=_cmd_batch)
     c = sub.add_parser("init-checkpoint", help="make an SCPainter checkpoint folder from a stock SVD snapshot")
     c.add_argument("--svd", required=True, help="local stable-video-diffusion-img2vid(-xt) diffusers folder")

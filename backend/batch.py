@@ -20,14 +20,16 @@ from scpainter_blender.core.batch_items import ranks_from_env, shard  # shared w
 from . import events
 
 
-def run_one(job_path: str, command: str, device: str, checkpoint: str | None, stop, allow_outside: bool = False) -> dict:
+def run_one(job_path: str, command: str, device: str, checkpoint: str | None, stop, allow_outside: bool = False,
+            half: bool = False) -> dict:
+    """One job: ``render`` (``half``: half-float EXRs, ``render_cmd.render_job``) or ``generate``."""
     from scpainter_blender.core import job as job_mod
 
     job = job_mod.load(job_path)
     if command == "render":
         from .render import command as render_cmd
 
-        r = render_cmd.render_job(job_path, job, device, stop=stop, allow_outside=allow_outside)
+        r = render_cmd.render_job(job_path, job, device, stop=stop, allow_outside=allow_outside, half=half)
         return {"output_dir": r["output_dir"], "frames": r["frames"], "stopped": r["stopped"]}
     from .generate import generate_job
 
@@ -67,8 +69,8 @@ def gather(results: list, world: int) -> list:
 
 
 def run_batch(items: list[str], command: str, device: str, checkpoint: str | None = None,
-              allow_outside: bool = False) -> tuple[list, int]:
-    """Run this rank's share; returns (every rank's results, rank)."""
+              allow_outside: bool = False, half: bool = False) -> tuple[list, int]:
+    """Run this rank's share; returns (every rank's results, rank). ``half``: render half-float EXRs."""
     rank, world, local = ranks_from_env()  # (InputError "(environment)" naming a bad variable)
     for name in ("MASTER_ADDR", "MASTER_PORT") if world > 1 else ():  # gather() needs them: check before any job
         if not os.environ.get(name, "").strip():
@@ -92,7 +94,7 @@ def run_batch(items: list[str], command: str, device: str, checkpoint: str | Non
             t = time.perf_counter()
             try:
                 with events.log_scope():  # a bug's traceback goes to this job's backend.log
-                    out = run_one(path, command, device, checkpoint, stop, allow_outside)
+                    out = run_one(path, command, device, checkpoint, stop, allow_outside, half)
                 status = "stopped" if out.pop("stopped") else "ok"
                 results.append({"job": path, "rank": rank, "status": status, **out})
             except Exception as e:  # one bad scene must not stop the batch: record it and go on

@@ -1,34 +1,56 @@
-"""The condition renderer: time per frame against error, the speed targets, and coverage on the ground-truth street.
+"""The condition renderer: today's code against a baseline revision, time per frame against error, the speed
+targets, and coverage on the ground-truth street.
 
-    .venv/bin/python bench/render.py [--devices cpu cuda] [--sections speed accuracy street] [--threads 2]
+    .venv/bin/python bench/render.py [--devices cpu cuda] [--sections ab speed accuracy street] [--threads 2]
+                                     [--baseline 3fcda49] [--rounds 5] [--repeat 3] [--load-rounds 3]
 
+ab        (CPU) the working tree against ``--baseline`` (a git revision, extracted with ``git archive`` into a temp
+          folder), side by side in one run: each tree in its own worker process (``render_scene.py --worker``)
+          with the same timing code on the same inputs (1 M points + a 100 k Gaussian car at 576 x 1024, saved
+          once to an .npz), requests interleaved A/B for ``--rounds`` rounds (order alternating) of ``--repeat``
+          timed calls each. Reports, per tree: the median ms of a whole frame, of the point pass and of the
+          Gaussian pass (projection + tile compositing over the points' depth), the ratio baseline / now; whether
+          the point pass is identical (rgb, depth, winner, bit for bit); the Gaussian layers' error against the
+          float64 pair rasterizer without any cutoff; the pixel–Gaussian pairs (``pixel_boxes``). Then under load:
+          one competing CPU-bound process (a second Python process spinning in a pure-Python loop: one busy core,
+          like Blender or a second program working beside the render, and with no OpenMP of its own to make the
+          measure depend on its wait policy), each arm's frame and point pass quiet and loaded, interleaved: the
+          baseline as shipped (OpenMP's default wait policy), the working tree as shipped (``backend`` sets
+          OMP_WAIT_POLICY=PASSIVE) and the working tree with the variable removed again before torch loads.
 speed     576 x 1024 frames of the synthetic street (``render_scene``): 1 M points + 100 k Gaussians on the CPU,
           3 M + 200 k on CUDA, whole frames and each pass alone; on CUDA also gsplat's rasterizer on the same
           Gaussians when ``gsplat`` imports (a benchmark-only dependency).
-accuracy  each setting (cutoff, tile size, rasterizer, device) timed on the speed scene and compared
-          with a float64 reference on a scene whose reference is affordable (1 M points + 20 k Gaussians, car
-          8 m ahead): the torch pair rasterizer in float64 with a 4 σ cutoff, i.e. no cutoff at all (beyond
-          sqrt(2 ln 255) σ every α is under 1/255 and skipped by the rules).
+accuracy  each setting (tile size, rasterizer, device) timed on the speed scene and compared with a float64
+          reference on a scene whose reference is affordable (1 M points + 20 k Gaussians, car 8 m ahead): the torch
+          pair rasterizer in float64, whose per-axis extent holds every pixel with α >= 1/255 (the render without a
+          cutoff).
 street    the ground-truth street (CPU, needs its cache or bpy to make it): for shifts 0, ±2, ±3 m, source windows
           0, ±2, ±8 frames and splat radius 0/1, the hole fraction and the PSNR of covered pixels against the
           Cycles renders of that view.
 
-Prints tables and writes bench/results/render_<devices>.json and a plot beside it.
+Prints tables and writes bench/results/render_<devices>.json and a plot beside it. Timings on a shared machine are
+noisy: the ab section reports the spread of the per-round ratios beside their medians.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import platform
+import shutil
 import statistics
+import subprocess
 import sys
+import tempfile
 import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 sys.path.insert(0, os.path.join(ROOT, "bench"))
 
+USER_WAIT_POLICY = os.environ.get("OMP_WAIT_POLICY")  # what the user set, before the backend's default
+import backend  # noqa: E402,F401  (first, as python -m backend: OMP_WAIT_POLICY=PASSIVE before torch loads)
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
@@ -39,6 +61,7 @@ from backend.render import frames as fr  # noqa: E402
 from backend.render import gaussians as gs  # noqa: E402
 from backend.render import points as pts  # noqa: E402
 from backend.render import tiles  # noqa: E402
+from scpainter_blender.core import job as job_mod  # noqa: E402
 from scpainter_blender.core import outputs  # noqa: E402
 
 W, H = 1024, 576
@@ -133,39 +156,27 @@ def section_speed(device, rows):
 
 def section_accuracy(device, rows, speed_scene):
     acc_scene, acc_entry = render_scene.build(1_000_000, 20_000, W, H, device=device, car_distance=8.0)
-    ref = reference_layers(acc_scene, acc_entry)
+    ref = render_with(acc_scene, acc_entry, reference=True)
     scene, entry = speed_scene
-    same = {}  # float64 pair renders at each cutoff: what is left is the float32 and kernel error alone
-    settings = [("default (tiles, 3σ, tile 8 CPU / 16 CUDA)", {}),
-                ("cutoff 2σ", {"cutoff": 2.0}), ("cutoff 2.5σ", {"cutoff": 2.5}), ("cutoff 3.5σ", {"cutoff": 3.5}),
-                ("tile 8", {"tile": 8}), ("tile 16", {"tile": 16}), ("tile 32", {"tile": 32}),
-                ("pair rasterizer (the reference)", {"reference": True})]
+    settings = [("default (tiles, tile 8 CPU / 16 CUDA)", {}), ("tile 8", {"tile": 8}), ("tile 16", {"tile": 16}),
+                ("tile 32", {"tile": 32}), ("pair rasterizer (the reference)", {"reference": True})]
     for name, kw in settings:
         try:
             ms = timed(lambda: render_with(scene, entry, **kw), device, repeat=3, warmup=1)
         except MemoryError as e:  # the pair rasterizer refuses scenes over its pair budget
             ms = f"refused: {e}"
         out = render_with(acc_scene, acc_entry, **kw)
-        cutoff = kw.get("cutoff", gs.CUTOFF)
-        if cutoff not in same:
-            same[cutoff] = render_with(acc_scene, acc_entry, cutoff=cutoff, reference=True)
         dI = np.abs(out["I"] - ref["I"])
         rows.append({"device": device, "setting": name, "frame_ms": ms, "max_abs_err_I": float(dI.max()),
                      "mean_abs_err_I": float(dI.mean()),
-                     "max_abs_err_asset_mask": float(np.abs(out["asset_mask"] - ref["asset_mask"]).max()),
-                     "max_abs_err_I_same_cutoff": float(np.abs(out["I"] - same[cutoff]["I"]).max()),
-                     "max_abs_err_asset_mask_same_cutoff": float(np.abs(out["asset_mask"]
-                                                                        - same[cutoff]["asset_mask"]).max())})
+                     "max_abs_err_asset_mask": float(np.abs(out["asset_mask"] - ref["asset_mask"]).max())})
 
 
-def render_with(scene, entry, cutoff=gs.CUTOFF, tile=None, reference=False):
-    """render_frame's work with one setting changed; returns numpy I (H, W, 3) and the asset mask."""
-    layers = fr.render_frame(scene, entry, W, H, reference=reference, cutoff=cutoff, tile=tile)
+def render_with(scene, entry, tile=None, reference=False):
+    """render_frame's work with one setting changed; returns numpy I (H, W, 3) and the asset mask. The reference
+    (``reference=True``) runs on the scene's float64 projection: float64 throughout."""
+    layers = fr.render_frame(scene, entry, W, H, reference=reference, tile=tile)
     return {"I": np.stack([layers[c] for c in channels.IMAGE], -1), "asset_mask": layers[channels.ASSET_MASK]}
-
-
-def reference_layers(scene, entry):
-    return render_with(scene, entry, cutoff=4.0, reference=True)  # float64: the projection's precision
 
 
 def section_street(rows):
@@ -202,8 +213,9 @@ def street_rows(rows, percentile, radii):
             for radius in radii:
                 t, holes, se, n = 0.0, [], 0.0, 0
                 for i in range(S):
-                    entry = {"frame": i, "K": metric["K"][i].tolist(), "world_to_camera": cams[i].tolist(),
-                             "source_frames": list(range(max(0, i - window), min(S, i + window + 1)))}
+                    entry = job_mod.Frame(frame=i, K=np.asarray(metric["K"][i], np.float64),
+                                          world_to_camera=np.asarray(cams[i], np.float64),
+                                          source_frames=list(range(max(0, i - window), min(S, i + window + 1))))
                     t0 = time.perf_counter()
                     layers = fr.render_frame(scene, entry, Ws, Hs, point_radius_px=radius)
                     t += time.perf_counter() - t0
@@ -218,6 +230,242 @@ def street_rows(rows, percentile, radii):
                              "psnr_covered_db": float(10 * np.log10(1.0 / mse)) if mse > 0 else float("inf"),
                              "frame_ms": 1e3 * t / S, "confidence_percentile": percentile})
     return {"frames": S, "resolution": [Ws, Hs], "points": len(cloud.positions), "root": street.root}
+
+
+# -- ab: the working tree against a baseline revision, in worker processes -----------------------------------
+
+def baseline_tree(rev: str) -> tuple[str, str]:
+    """(folder, commit): ``backend`` and ``scpainter_blender`` of git revision ``rev`` extracted with ``git archive``
+    (the repository is only read) into a temp folder kept between runs (numba's cache in it stays warm)."""
+    import io
+    import tarfile
+
+    sha = subprocess.run(["git", "-C", ROOT, "rev-parse", "--verify", rev + "^{commit}"], capture_output=True,
+                         text=True, check=True).stdout.strip()
+    folder = os.path.join(tempfile.gettempdir(), f"scpainter-bench-{sha[:12]}")
+    marker = os.path.join(folder, ".complete")
+    if not os.path.exists(marker):
+        tar = subprocess.run(["git", "-C", ROOT, "archive", "--format=tar", sha, "backend", "scpainter_blender"],
+                             capture_output=True, check=True).stdout
+        with tarfile.open(fileobj=io.BytesIO(tar)) as t:
+            t.extractall(folder, filter="data")
+        open(marker, "w").close()
+    return folder, sha
+
+
+class Worker:
+    """A timing worker (``render_scene.py --worker``) on one source tree; ``ask`` sends one request and waits."""
+
+    def __init__(self, name, tree, data, threads, log_dir, policy="shipped"):
+        """``policy``: "shipped" (the tree's own: OMP_WAIT_POLICY absent from the environment, the tree's
+        ``backend`` package may set it), "unset" (absent, and removed again after ``backend`` is imported: OpenMP's
+        default) or a value for OMP_WAIT_POLICY. A policy the user set before running the bench goes to the
+        "shipped" arms."""
+        env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
+        if policy not in ("shipped", "unset"):
+            env["OMP_WAIT_POLICY"] = policy
+        elif policy == "shipped" and USER_WAIT_POLICY is not None:
+            env["OMP_WAIT_POLICY"] = USER_WAIT_POLICY
+        cmd = [sys.executable, os.path.join(ROOT, "bench", "render_scene.py"), "--worker", "--tree", tree,
+               "--data", data, "--threads", str(threads)] + (["--unset-wait-policy"] if policy == "unset" else [])
+        self.name = name
+        self.log = os.path.join(log_dir, f"worker_{name}.log")
+        with open(self.log, "w") as log:
+            self.proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=log, env=env,
+                                         text=True)
+        self.hello = self._read()
+
+    def _read(self):
+        line = self.proc.stdout.readline()
+        if not line:
+            with open(self.log) as f:
+                tail = f.read()[-3000:]
+            raise RuntimeError(f"worker {self.name} stopped (exit {self.proc.poll()}); its log {self.log}:\n{tail}")
+        return json.loads(line)
+
+    def ask(self, **req):
+        self.proc.stdin.write(json.dumps(req) + "\n")
+        self.proc.stdin.flush()
+        return self._read()
+
+    def close(self):
+        if self.proc.poll() is None:
+            try:
+                self.proc.stdin.write('{"cmd": "quit"}\n')
+                self.proc.stdin.flush()
+                self.proc.wait(timeout=30)
+            except (OSError, subprocess.TimeoutExpired):
+                self.proc.kill()
+                self.proc.wait()
+
+
+class Spinner:
+    """One competing CPU-bound process: Python spinning in a pure-Python loop (one core busy, no threads)."""
+
+    def __enter__(self):
+        self.proc = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+        time.sleep(0.3)  # let it reach the loop and the scheduler give it its share
+        return self
+
+    def __exit__(self, *exc):
+        self.proc.kill()
+        self.proc.wait()
+
+
+def settle():
+    """A pause between requests to different workers: OpenMP threads that spin after a parallel region (the
+    default wait policy) stop spinning before the next worker is timed."""
+    time.sleep(0.15)
+
+
+def med(xs):
+    return statistics.median(xs) if xs else None
+
+
+def layer_errors(dump, ref):
+    """Max and mean |Δ| of I (R G B) and the asset mask of a dumped frame against the reference frame."""
+    I = np.stack([dump[f"layer_{c}"] for c in channels.IMAGE], -1)
+    I_ref = np.stack([ref[f"reference_{c}"] for c in channels.IMAGE], -1)
+    dI = np.abs(I.astype(np.float64) - I_ref)
+    dM = np.abs(dump[f"layer_{channels.ASSET_MASK}"].astype(np.float64) - ref[f"reference_{channels.ASSET_MASK}"])
+    return {"max_abs_err_I": float(dI.max()), "mean_abs_err_I": float(dI.mean()),
+            "max_abs_err_asset_mask": float(dM.max())}
+
+
+QUIET_ARMS = {"baseline": ("baseline", "shipped"), "baseline_passive": ("baseline", "PASSIVE"),
+              "now": ("now", "shipped")}
+LOAD_ARMS = dict(QUIET_ARMS, now_unset=("now", "unset"))
+
+
+def section_ab(args, result):
+    """Fills result["ab"]: see the module docstring. Arms: the baseline as shipped (no OMP_WAIT_POLICY: OpenMP's
+    spinning default), the baseline with PASSIVE (its code alone, without the wait policy's share of the gain),
+    the working tree as shipped (PASSIVE from ``backend``), and under load also the working tree without it."""
+    base_dir, sha = baseline_tree(args.baseline)
+    trees = {"baseline": base_dir, "now": ROOT}
+    tmp = tempfile.mkdtemp(prefix="scpainter-bench-ab-")
+    data = os.path.join(tmp, "scene.npz")
+    np.savez(data, **render_scene.scene_arrays(args.ab_points, args.ab_gaussians, W, H))
+    ab = {"baseline": args.baseline, "baseline_commit": sha, "baseline_tree": base_dir, "points": args.ab_points,
+          "gaussians": args.ab_gaussians, "size": [W, H], "threads": args.threads, "rounds": args.rounds,
+          "repeat": args.repeat, "user_wait_policy": USER_WAIT_POLICY, "cpus": os.cpu_count(),
+          "measured": time.strftime("%Y-%m-%d %H:%M:%S"), "load_before": os.getloadavg()}
+    workers = {}
+    t_start = time.perf_counter()
+    try:
+        for arm, (tree, policy) in QUIET_ARMS.items():
+            workers[arm] = Worker(arm, trees[tree], data, args.threads, tmp, policy)
+        tasks = ("frame", "points", "gaussians")
+        for w in workers.values():  # compile (numba) and warm caches outside the timed rounds
+            for task in tasks:
+                w.ask(cmd="time", task=task, repeat=1, warmup=1)
+        arms = list(QUIET_ARMS)
+        ms = {(a, t): [] for a in arms for t in tasks}
+        ratios = {(a, t): [] for a in arms for t in tasks}
+        for rnd in range(args.rounds):
+            order = arms[rnd % len(arms):] + arms[:rnd % len(arms)]
+            for task in tasks:
+                got = {}
+                for arm in order:
+                    settle()
+                    got[arm] = workers[arm].ask(cmd="time", task=task, repeat=args.repeat, warmup=1)["ms"]
+                    ms[arm, task] += got[arm]
+                for arm in arms:
+                    ratios[arm, task].append(med(got[arm]) / med(got["now"]))
+        ab["timing"] = [{"arm": arm, "tree": QUIET_ARMS[arm][0], "wait_policy": workers[arm].hello["wait_policy"],
+                         "frame_ms": med(ms[arm, "frame"]), "points_ms": med(ms[arm, "points"]),
+                         "gaussians_ms": med(ms[arm, "gaussians"]), "samples": len(ms[arm, "frame"])}
+                        for arm in arms]
+        ab["speedup"] = [{"arm": arm, "part": t, "speedup": med(ms[arm, t]) / med(ms["now", t]),
+                          "per_round_min": min(ratios[arm, t]), "per_round_max": max(ratios[arm, t])}
+                         for arm in ("baseline", "baseline_passive") for t in tasks]
+        ab["pairs"] = [{"tree": QUIET_ARMS[arm][0], **workers[arm].ask(cmd="pairs"),
+                        "gaussians_ms": med(ms[arm, "gaussians"]), "frame_ms": med(ms[arm, "frame"])}
+                       for arm in ("baseline", "now")]
+        # outputs: the point pass bit for bit; the Gaussian layers against the float64 render without a cutoff, on
+        # this scene and on the accuracy scene (20 k Gaussians, car 8 m ahead: larger on screen)
+        ab["outputs"] = [compare_outputs(workers, "speed scene", tmp)]
+        acc = os.path.join(tmp, "accuracy_scene.npz")
+        np.savez(acc, **render_scene.scene_arrays(args.ab_points, 20_000, W, H, car_distance=8.0))
+        for arm in ("baseline", "now"):
+            workers[arm].ask(cmd="load", data=acc)
+        ab["outputs"].append(compare_outputs(workers, "accuracy scene (20 k Gaussians, 8 m)", tmp))
+        for arm in ("baseline", "now"):
+            workers[arm].ask(cmd="load", data=data)
+        ab["seconds_quiet_part"] = time.perf_counter() - t_start
+        if args.load_rounds:
+            workers["now_unset"] = Worker("now_unset", ROOT, data, args.threads, tmp, "unset")
+            workers["now_unset"].ask(cmd="time", task="frame", repeat=1, warmup=1)
+            ab["load"] = section_load(workers, args)
+        ab["workers"] = {k: w.hello for k, w in workers.items()}
+    finally:
+        for w in workers.values():
+            w.close()
+        shutil.rmtree(tmp, ignore_errors=True)  # the scene .npz and the dumps (the worker logs go with them)
+    ab["seconds"] = time.perf_counter() - t_start
+    ab["load_after"] = os.getloadavg()
+    result["ab"] = ab
+
+
+def compare_outputs(workers, scene_name, tmp):
+    """Dumps of the baseline and of the working tree (with the float64 reference frame) compared."""
+    tag = scene_name.split()[0]
+    old = np.load(workers["baseline"].ask(cmd="dump", path=os.path.join(tmp, f"baseline_{tag}.npz"))["path"])
+    new = np.load(workers["now"].ask(cmd="dump", path=os.path.join(tmp, f"now_{tag}.npz"), reference=True)["path"])
+    diff = {k: int(np.any((old[k] != new[k]).reshape(H, W, -1), -1).sum())  # pixels, not values
+            for k in ("points_rgb", "points_depth", "points_winner")}
+    return {"scene": scene_name, "points_identical": all(v == 0 for v in diff.values()),
+            "points_differing_pixels": diff,
+            "layers_vs_reference": [{"scene": scene_name, "tree": "baseline", **layer_errors(old, new)},
+                                    {"scene": scene_name, "tree": "now", **layer_errors(new, new)}]}
+
+
+def section_load(workers, args):
+    """Each arm's frame and point pass, quiet then beside one spinning process, interleaved over rounds."""
+    arms = list(LOAD_ARMS)
+    ms = {(a, t, c): [] for a in arms for t in ("frame", "points") for c in ("quiet", "loaded")}
+    for rnd in range(args.load_rounds):
+        for arm in arms[rnd % len(arms):] + arms[:rnd % len(arms)]:
+            for task in ("frame", "points"):
+                settle()
+                ms[arm, task, "quiet"] += workers[arm].ask(cmd="time", task=task, repeat=args.repeat)["ms"]
+                with Spinner():
+                    ms[arm, task, "loaded"] += workers[arm].ask(cmd="time", task=task, repeat=args.repeat)["ms"]
+    rows = []
+    for arm in arms:
+        h = workers[arm].hello
+        row = {"arm": arm, "tree": LOAD_ARMS[arm][0], "wait_policy": h["wait_policy"] or "unset (spin 300000)",
+               "threading_layer": h["threading_layer"]}
+        for task in ("frame", "points"):
+            q, lo = med(ms[arm, task, "quiet"]), med(ms[arm, task, "loaded"])
+            row.update({f"{task}_quiet_ms": q, f"{task}_loaded_ms": lo, f"{task}_loaded_over_quiet": lo / q})
+        rows.append(row)
+    return {"competitor": "one process: python -c 'while True: pass'", "rounds": args.load_rounds, "rows": rows}
+
+
+def print_ab(ab):
+    print(f"\nab: working tree vs {ab['baseline']} ({ab['baseline_commit'][:10]}), {ab['points']} points + "
+          f"{ab['gaussians']} Gaussians at {ab['size'][1]} x {ab['size'][0]}, CPU, {ab['threads']} threads of "
+          f"{ab['cpus']} CPUs, measured {ab['measured']} (load average before {ab['load_before'][0]:.2f}, after "
+          f"{ab['load_after'][0]:.2f}); {ab['rounds']} interleaved rounds x {ab['repeat']} calls")
+    print_table("median ms", ab["timing"], ["arm", "tree", "wait_policy", "frame_ms", "points_ms", "gaussians_ms",
+                                            "samples"])
+    print_table("speed-up arm / now (ratio of the medians; spread of the per-round ratios)", ab["speedup"],
+                ["arm", "part", "speedup", "per_round_min", "per_round_max"])
+    for o in ab["outputs"]:
+        print(f"\n{o['scene']}: point pass identical (rgb, depth, winner): {o['points_identical']} "
+              f"(differing pixels {o['points_differing_pixels']})")
+    print_table("Gaussian layers (whole frame) against the float64 pair rasterizer without a cutoff",
+                [r for o in ab["outputs"] for r in o["layers_vs_reference"]],
+                ["scene", "tree", "max_abs_err_I", "mean_abs_err_I", "max_abs_err_asset_mask"])
+    print_table("pixel–Gaussian pairs (pixel_boxes) and time", ab["pairs"],
+                ["tree", "pairs", "gaussians", "gaussians_ms", "frame_ms"])
+    if "load" in ab:
+        print_table(f"under load ({ab['load']['competitor']}), {ab['load']['rounds']} rounds x {ab['repeat']} calls",
+                    ab["load"]["rows"], ["arm", "tree", "wait_policy", "threading_layer", "frame_quiet_ms",
+                                         "frame_loaded_ms", "frame_loaded_over_quiet", "points_quiet_ms",
+                                         "points_loaded_ms", "points_loaded_over_quiet"])
+    print(f"\nab section: {ab['seconds']:.0f} s")
 
 
 def print_table(title, rows, cols):
@@ -274,9 +522,15 @@ def plot(result, path):
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--devices", nargs="+", default=["cpu"], choices=["cpu", "cuda"])
-    p.add_argument("--sections", nargs="+", default=["speed", "accuracy", "street"],
-                   choices=["speed", "accuracy", "street"])
+    p.add_argument("--sections", nargs="+", default=["ab", "speed", "accuracy", "street"],
+                   choices=["ab", "speed", "accuracy", "street"])
     p.add_argument("--threads", type=int, default=2, help="CPU threads (torch and numba); the target is 2 cores")
+    p.add_argument("--baseline", default="3fcda49", help="ab: the git revision to compare with (before issue 16)")
+    p.add_argument("--rounds", type=int, default=5, help="ab: interleaved A/B rounds")
+    p.add_argument("--repeat", type=int, default=3, help="ab: timed calls per request")
+    p.add_argument("--load-rounds", type=int, default=3, help="ab: rounds under load (0: leave that part out)")
+    p.add_argument("--ab-points", type=int, default=1_000_000)
+    p.add_argument("--ab-gaussians", type=int, default=100_000)
     p.add_argument("--out", default=os.path.join(ROOT, "bench", "results"))
     args = p.parse_args(argv)
     torch.set_num_threads(args.threads)
@@ -284,9 +538,11 @@ def main(argv=None):
         import numba
 
         numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
-    result = {"machine": platform.node(), "cpu_threads": args.threads, "torch": torch.__version__,
-              "gpu": torch.cuda.get_device_name() if "cuda" in args.devices else None,
-              "speed": [], "accuracy": [], "street": []}
+    result = {"machine": platform.node(), "cpu_threads": args.threads, "cpus": os.cpu_count(),
+              "torch": torch.__version__, "gpu": torch.cuda.get_device_name() if "cuda" in args.devices else None,
+              "wait_policy": os.environ.get("OMP_WAIT_POLICY"), "speed": [], "accuracy": [], "street": []}
+    if "ab" in args.sections and "cpu" in args.devices:
+        section_ab(args, result)
     for device in args.devices:
         speed_scene = section_speed(device, result["speed"]) if "speed" in args.sections or \
             "accuracy" in args.sections else None
@@ -294,15 +550,15 @@ def main(argv=None):
             section_accuracy(device, result["accuracy"], speed_scene)
     if "street" in args.sections:
         result["street_info"] = section_street(result["street"])
+    if "ab" in result:
+        print_ab(result["ab"])
     print_table("speed, 576 x 1024 (ms per frame; median of 10)", result["speed"],
                 ["device", "points", "gaussians", "frame_ms", "frame_with_download_ms", "points_ms", "gaussians_ms",
                  "gsplat_ms", "gaussians_vs_gsplat", "gsplat_mean_abs_diff_rgb", "asset_pixels",
                  "points_winner_mismatch_cpu_vs_cuda"])
-    print_table("error against run time (time: speed scene; error: 1 M points + 20 k Gaussians against float64 "
-                "without a cutoff, and against float64 with the same cutoff)",
-                result["accuracy"], ["device", "setting", "frame_ms", "max_abs_err_I", "mean_abs_err_I",
-                                     "max_abs_err_asset_mask", "max_abs_err_I_same_cutoff",
-                                     "max_abs_err_asset_mask_same_cutoff"])
+    print_table("error against run time (time: speed scene; error: 1 M points + 20 k Gaussians against the float64 "
+                "pair rasterizer)", result["accuracy"],
+                ["device", "setting", "frame_ms", "max_abs_err_I", "mean_abs_err_I", "max_abs_err_asset_mask"])
     print_table("ground-truth street (16 frames 518 x 294, CPU)", result["street"],
                 ["confidence_percentile", "shift_m", "window", "point_radius_px", "hole_fraction", "psnr_covered_db",
                  "frame_ms"])

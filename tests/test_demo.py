@@ -43,9 +43,9 @@ def test_demo_writes_blend_and_preview(street, tmp_path):
     assert cond["frames"] == 16 and len(cond["previews"]) == 16
     assert all(0.05 < h < 0.8 for h in cond["hole_fraction"])
     assert cond["asset_pixels"][0] > 1000  # the car fills part of the first frames
-    from backend.render import exr
+    from backend.render import channels
 
-    layers = exr.read(os.path.join(cond["folder"], "frame_000001.exr"))
+    layers = channels.read(os.path.join(cond["folder"], "frame_000001.exr"))
     assert sorted(layers) == ["B", "G", "R", "Z", "asset_mask", "hole"]
     assert "conditions" in proc.stderr
     assert summary["generation"]["skipped"] and "init-checkpoint" in summary["generation"]["reason"]

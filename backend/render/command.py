@@ -29,10 +29,12 @@ def frame_paths(job_path: str, job: job_mod.Job, frame: int) -> tuple[str, str]:
     return os.path.join(cond, f"frame_{frame:06d}.exr"), os.path.join(cond, f"preview_{frame:06d}.png")
 
 
-def job_key(job_path: str, job: job_mod.Job, point_radius: int) -> str:
+def job_key(job_path: str, job: job_mod.Job, point_radius: int, half: bool = False) -> str:
     """A hash of everything the condition layers depend on: the job without its generation settings and output
-    folder, the point radius, and the size and time of each input file. Finished frames are reused only under
-    the same key, so moving a car or a camera and rendering again cannot keep stale frames."""
+    folder, the point radius, the EXR precision (``half``), and the size and time of each input file. Finished
+    frames are reused only under the same key, so moving a car or a camera, or asking for another precision, and
+    rendering again cannot keep stale frames. (``half`` enters the hash only when set, so the keys of folders
+    rendered before the option existed, all float32, are unchanged.)"""
     import hashlib
     import json
 
@@ -43,11 +45,13 @@ def job_key(job_path: str, job: job_mod.Job, point_radius: int) -> str:
     for f in files:
         st = os.stat(job_mod.resolve(job_path, f))
         stamps.append([f, st.st_size, st.st_mtime_ns])
-    blob = json.dumps({"job": content, "radius": point_radius, "files": stamps}, sort_keys=True)
-    return hashlib.sha256(blob.encode()).hexdigest()[:32]
+    blob = {"job": content, "radius": point_radius, "files": stamps}
+    if half:
+        blob["exr"] = "half"
+    return hashlib.sha256(json.dumps(blob, sort_keys=True).encode()).hexdigest()[:32]
 
 
-RECORD = "record.json"  # in conditions/: the job key and the files this project wrote for it
+RECORD = "record.json"  # in conditions/: the job key, the files this project wrote for it, their precision
 
 
 def _frame_files(job: job_mod.Job) -> list:
@@ -65,7 +69,8 @@ def _previous_record(cond: str) -> dict | None:
 
 
 def render_job(job_path: str, job: job_mod.Job, device: str, force: bool = False, point_radius: int = 0,
-               stop=(), log=None, allow_outside: bool = False, lock: bool = True, checked: dict | None = None) -> dict:
+               stop=(), log=None, allow_outside: bool = False, lock: bool = True, checked: dict | None = None,
+               half: bool | None = None) -> dict:
     """Render the frames not finished yet (all with ``force``, or when the job changed since they were made);
     emits progress and artifact events.
 
@@ -74,8 +79,11 @@ def render_job(job_path: str, job: job_mod.Job, device: str, force: bool = False
     second run raises ``errors.FolderBusyError``). ``checked``: the paths ``job_inputs.check_inputs`` returned to
     a caller that already checked the inputs and the output folder (``generate.prepare``), so they are not read
     twice.
-    ``stop``: a list that becomes non-empty when the caller wants to stop (checked between frames). Returns counts
-    and ``stopped``.
+    ``stop``: a list that becomes non-empty when the caller wants to stop (checked between frames). ``half``: the
+    EXRs store I, M and M_a as half floats, Z as float32 (``channels.write``), or all float32 (False); None (for
+    callers that only need the conditions to exist: ``generate``, ``evaluate``) keeps the precision the folder's
+    finished frames were rendered with (float32 when there are none), so a ``render --half-float`` followed by
+    ``generate`` does not render every frame again. Returns counts and ``stopped``.
     """
     paths = checked
     if paths is None:
@@ -87,15 +95,17 @@ def render_job(job_path: str, job: job_mod.Job, device: str, force: bool = False
         log = log or events.FileLog(os.path.join(out, "backend.log"))
         if held is not None and held.stale:
             log(f"render: {held.took_over()}")
-        return _render(job_path, job, device, force, point_radius, stop, log, out, allow_outside)
+        return _render(job_path, job, device, force, point_radius, stop, log, out, allow_outside, half)
 
 
-def _render(job_path, job, device, force, point_radius, stop, log, out, allow_outside) -> dict:
+def _render(job_path, job, device, force, point_radius, stop, log, out, allow_outside, half) -> dict:
     cond = outputs.output_folder(out, "conditions", allow_outside)
     W, H = job.resolution
     total, rendered, skipped = len(job.frames), 0, 0
-    key = job_key(job_path, job, point_radius)
     previous = _previous_record(cond)
+    if half is None:
+        half = previous is not None and previous.get("exr") == "half"
+    key = job_key(job_path, job, point_radius, half)
     if not force and previous is not None and previous["key"] != key:
         log("render: the job changed since the finished frames were made: rendering every frame again")
         force = True
@@ -106,7 +116,7 @@ def _render(job_path, job, device, force, point_radius, stop, log, out, allow_ou
         force = True
     outputs.remove_temporaries(cond, _frame_files(job) + [RECORD])  # left by a run that was killed mid-write
     outputs.write_json(os.path.join(cond, RECORD), {"schema": "scpainter.conditions/1", "key": key,
-                                                    "files": _frame_files(job)})
+                                                    "files": _frame_files(job), "exr": "half" if half else "float32"})
     with contextlib.suppress(FileNotFoundError):  # the record's former name (one line: the key)
         os.remove(os.path.join(cond, "job_key.txt"))
     todo = {e.frame for e in job.frames
@@ -122,12 +132,13 @@ def _render(job_path, job, device, force, point_radius, stop, log, out, allow_ou
         else:
             if scene is None:  # loaded only when there is something to render
                 scene = fr.load_scene(job, job_path, device)
-                log(f"render {job_path}: {len(todo)} of {total} frames {W}x{H} on {device}; "
+                log(f"render {job_path}: {len(todo)} of {total} frames {W}x{H} on {device} "
+                    f"({'half-float' if half else 'float32'} EXRs); "
                     f"{0 if scene.xyz is None else len(scene.xyz):,} points ({scene.removed_points:,} removed by "
                     f"boxes), {len(scene.assets)} assets")
             t = time.perf_counter()
             layers = fr.render_frame(scene, entry, W, H, point_radius)
-            channels.write(exr_path, layers)
+            channels.write(exr_path, layers, half=half)
             fr.write_png(png_path, np.stack([layers[c] for c in channels.IMAGE], axis=-1))
             rendered += 1
             log(f"frame {f}: {time.perf_counter() - t:.3f} s, hole {layers[channels.HOLE].mean():.3f}")

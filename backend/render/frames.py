@@ -8,11 +8,18 @@ are z-buffered, the Gaussians composited front to back over the nearest point, a
     I = C_gaussians + (1 - M_a) · I_points,   M_a = 1 - transmittance,   hole = no point and M_a < 1/255,
     Z = depth where the asset opacity reaches 0.5 if nearer than the point, else the point's depth (+inf: empty).
 
-Nothing is computed for what the job leaves out: no ``scene``, no points; no ``assets``, no Gaussian pass.
+Nothing is computed for what the job leaves out: no ``scene``, no points; no ``assets``, no Gaussian pass. Nor
+for what a frame cannot see (``Scene.skip_unseen``): a source frame whose points' bounding box projects wholly
+outside the image (or lies behind the near plane) is not projected, and when every asset's Gaussians provably
+reach no pixel the Gaussian pass is skipped; both tests are conservative, so the layers are the same without them.
+
+The scene's points are cleaned once, at load (``scene.point_cleaning``): pixels on depth edges are left out of
+each source frame (``core.point_cloud.depth_edges``), then outliers of the whole cloud (``cleaning``).
 """
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -22,6 +29,7 @@ from scpainter_blender.core import cameras, geometry, outputs, point_cloud, spla
 from scpainter_blender.core import job as job_mod
 
 from . import channels as ch
+from . import cleaning
 from . import gaussians as gs
 from . import points as pts
 from . import tiles
@@ -35,6 +43,8 @@ class Asset:
     opacities: torch.Tensor
     sh: torch.Tensor
     object_to_world: dict      # frame (int) -> (4, 4) ndarray, as job.Asset holds it
+    bounds: np.ndarray | None = None   # (2, 3) low, high corner of the means, file coordinates (None: not known)
+    max_sigma: float = float("inf")    # the largest σ (file units) of any of its Gaussians
 
 
 @dataclass
@@ -47,63 +57,261 @@ class Scene:
     frames_present: frozenset | None = None  # the frames that have points (None: not known)
     assets: list = field(default_factory=list)
     removed_points: int = 0
+    # source frame -> (start, stop) of its points in xyz (each frame's points contiguous) and (2, 3) float64 low,
+    # high corner of their box relative to origin; None: not known (then every source frame is projected)
+    frame_slices: dict | None = None
+    frame_boxes: dict | None = None
+    skip_unseen: bool = True              # leave out source frames and assets the frame cannot see (same layers)
+    cleaning: dict = field(default_factory=dict)  # what load_scene's point cleaning dropped, and its time
 
 
 def load_scene(job: job_mod.Job, job_path: str, device) -> Scene:
+    """The job's points and assets on ``device``, once per job: the points as the import read them, cleaned by
+    ``scene.point_cleaning`` (depth edges per source frame, then outliers of the cloud left after the removal
+    boxes; ``Scene.cleaning`` says what each dropped and took), with each source frame's slice and box."""
     device = torch.device(device)
     origin = cameras.camera_centers(job.frames[0].world_to_camera)
     scene = Scene(origin=origin, device=device)
     if job.scene is not None:
         sc = job.scene
+        clean = sc.point_cleaning or job_mod.PointCleaning(None, None)
         # as the import loaded it: the same reading of the poses, the same crop (NaN/inf pixels are dropped)
         pred = vggt_io.load_predictions(job_mod.resolve(job_path, sc.predictions), world_points=False,
                                         extrinsic_convention=sc.extrinsic_convention, crop=list(sc.crop))
-        cloud = point_cloud.point_cloud(pred, sc.confidence_percentile, vggt_to_world=sc.vggt_to_world)
+        t0 = time.perf_counter()
+        cloud = point_cloud.point_cloud(pred, sc.confidence_percentile, vggt_to_world=sc.vggt_to_world,
+                                        depth_edge_ratio=clean.depth_edge_ratio)
+        t_cloud = time.perf_counter() - t0
         keep = np.ones(len(cloud), bool)
         for box in sc.removal_boxes:
             keep &= ~geometry.points_in_box(cloud.positions, box.box_to_world, box.size)
         scene.removed_points = int((~keep).sum())
-        scene.xyz = torch.as_tensor((cloud.positions[keep] - origin).astype(np.float32), device=device)
+        t0 = time.perf_counter()
+        outlier_points = 0
+        if clean.outliers is not None:
+            inliers = np.ones(len(cloud), bool)
+            inliers[keep] = cleaning.outlier_keep(cloud.positions[keep], clean.outliers)
+            outlier_points = int((~inliers).sum())
+            keep &= inliers
+        scene.cleaning = {"depth_edge_points": cloud.depth_edge_points, "outlier_points": outlier_points,
+                          "cloud_s": t_cloud, "outliers_s": time.perf_counter() - t0}
+        xyz = cloud.positions[keep] - origin
+        frame = cloud.frame[keep]
+        scene.xyz = torch.as_tensor(xyz.astype(np.float32), device=device)
         scene.rgb = torch.as_tensor(cloud.colors[keep], device=device)
-        scene.frame = torch.as_tensor(cloud.frame[keep].astype(np.int64), device=device)
-        scene.frames_present = frozenset(np.unique(cloud.frame[keep]).tolist())
+        scene.frame = torch.as_tensor(frame.astype(np.int64), device=device)
+        scene.frames_present = frozenset(np.unique(frame).tolist())
+        scene.frame_slices, scene.frame_boxes = frame_index(frame, scene.xyz.cpu().numpy())
     for a in job.assets:
         scene.assets.append(make_asset(a.name, splats_io.load(job_mod.resolve(job_path, a.ply)), a.object_to_world,
                                        device))
     return scene
 
 
+def frame_index(frame: np.ndarray, xyz: np.ndarray):
+    """Each source frame's (start, stop) in the points and its box (2, 3) float64 (low, high corner of ``xyz``, the
+    float32 positions the renderer projects), or (None, None) when a frame's points are not contiguous."""
+    frame = np.asarray(frame)
+    if len(frame) and np.any(np.diff(frame) < 0):
+        return None, None  # point_cloud writes frames in order; anything else is projected frame by frame
+    values, starts = np.unique(frame, return_index=True)
+    stops = np.append(starts[1:], len(frame))
+    slices, boxes = {}, {}
+    for f, a, b in zip(values.tolist(), starts.tolist(), stops.tolist()):
+        slices[f] = (a, b)
+        boxes[f] = np.stack([xyz[a:b].min(0), xyz[a:b].max(0)]).astype(np.float64)
+    return slices, boxes
+
+
 def make_asset(name: str, g: splats.Gaussians, object_to_world: dict, device) -> Asset:
     """An asset's Gaussians on the device in float64, the projection's precision (so no frame casts them again),
-    rows with zero or non-finite quaternions or scales dropped."""
+    rows with zero or non-finite quaternions or scales dropped; with the box of its means and its largest σ, for
+    ``asset_unseen``."""
     t = lambda x: torch.as_tensor(np.asarray(x, np.float64), device=device)  # noqa: E731
     factors, ok = gs.covariance_factors(t(g.quats), t(g.scales))
-    return Asset(name, t(g.means)[ok], factors[ok], t(g.opacities)[ok], t(g.sh)[ok], object_to_world)
+    means, factors = t(g.means)[ok], factors[ok]
+    # in numpy, on the file's arrays (tiny torch reductions cost milliseconds of thread start-up each)
+    okn = ok.cpu().numpy()
+    m, sc = np.asarray(g.means, np.float64)[okn], np.abs(np.asarray(g.scales, np.float64)[okn])
+    finite = np.isfinite(m).all(1) & np.isfinite(sc).all(1)
+    bounds, max_sigma = None, float("inf")
+    if finite.any():  # rows with non-finite values are culled by the projection; they bound nothing
+        bounds = np.stack([m[finite].min(0), m[finite].max(0)])
+        # the factor R S has singular values |scales| (R orthonormal); 1e-6 for the rotation's rounding
+        max_sigma = float(sc[finite].max()) * (1.0 + 1e-6)
+    return Asset(name, means, factors, t(g.opacities)[ok], t(g.sh)[ok], object_to_world, bounds, max_sigma)
+
+
+# -- what a frame cannot see --------------------------------------------------------------------------------------
+
+#: The Gaussian pass's near plane (metres, camera z; ``gaussians.project_factors`` culls means at or before it).
+GAUSSIAN_NEAR = 0.05
+#: The largest screen extent of a Gaussian in σ of its 2D covariance (gsplat's opacity-aware extend is at most
+#: ``gaussians.EXTEND_MAX``); the skip test must use at least the renderer's.
+EXTENT_SIGMA = gs.EXTEND_MAX
+#: The points' near plane (``points.render_points``' default, which render_frame uses).
+POINTS_NEAR = 0.05
+
+
+_BITS = (np.arange(8)[:, None] >> np.arange(3)) & 1                    # corner i takes hi on axis k when bit k is set
+_EDGES = np.array([(i, i | 1 << k) for i in range(8) for k in range(3) if not i >> k & 1])  # (12, 2) corner pairs
+
+
+def _box_corners(lo, hi) -> np.ndarray:
+    """(..., 8, 3) float64 corners of boxes with low, high corners ``lo``, ``hi`` (..., 3)."""
+    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+    return np.where(_BITS == 1, hi[..., None, :], lo[..., None, :])
+
+
+def _clip_near(corners: np.ndarray, near: float):
+    """The vertices of each convex hull of 8 camera-space corners (B, 8, 3) (a box or its affine image: corner i's
+    neighbours differ in one bit) cut by z >= near: (B, 20, 3) candidates and (B, 20) which are vertices — the
+    corners in front and the points where the 12 edges cross the plane. A linear-fractional function of x/z, y/z
+    takes its extremes over the cut solid at these vertices."""
+    z = corners[..., 2]
+    a, b = corners[:, _EDGES[:, 0]], corners[:, _EDGES[:, 1]]
+    za, zb = a[..., 2], b[..., 2]
+    cross = (za < near) != (zb < near)
+    t = np.where(cross, (near - za) / np.where(cross, zb - za, 1.0), 0.0)
+    return np.concatenate([corners, a + t[..., None] * (b - a)], 1), np.concatenate([z >= near, cross], 1)
+
+
+def _off_image(V, ok, K, reach, width, height) -> np.ndarray:
+    """(B,) bool: for each solid (vertices V (B, n, 3) where ``ok``, z > 0), every pixel u ± reach, v ± reach of
+    its points misses [0, width) x [0, height) on one side, with a margin for rounding. u, v with our K (skew
+    included); a solid with no vertex (wholly behind the near plane) is off the image too."""
+    K = np.asarray(K, np.float64)
+    z = np.where(ok, V[..., 2], 1.0)
+    u = (K[0, 0] * V[..., 0] + K[0, 1] * V[..., 1]) / z + K[0, 2]
+    v = K[1, 1] * V[..., 1] / z + K[1, 2]
+    out = ~ok.any(1)
+    for w, limit in ((u, width), (v, height)):
+        lo, hi = np.where(ok, w, np.inf).min(1), np.where(ok, w, -np.inf).max(1)
+        margin = 0.5 + 1e-4 * np.maximum(np.abs(lo), np.abs(hi))  # float32 rounding of large coordinates
+        out |= (lo - reach >= limit + margin) | (hi + reach <= -margin)
+    return out
+
+
+def points_unseen(boxes, K, world_to_camera, width: int, height: int, radius_px: int = 0,
+                  near: float = POINTS_NEAR) -> np.ndarray:
+    """(B,) bool, for boxes (B, 2, 3) (low, high corner, scene-origin-relative metres): True when no point inside
+    the box can land in the image of the camera (K; ``world_to_camera`` 4x4 relative to the same origin): every
+    point of the box is at or behind ``near`` or projects (± ``radius_px`` splat) outside the image.
+    ``render_points`` culls exactly these (in float32), so leaving them out changes nothing; the test keeps a
+    margin for that rounding. One vectorised pass for all boxes (a frame tests every source frame)."""
+    boxes = np.asarray(boxes, np.float64).reshape(-1, 2, 3)
+    w2c = np.asarray(world_to_camera, np.float64)
+    corners = _box_corners(boxes[:, 0], boxes[:, 1]) @ w2c[:3, :3].T + w2c[:3, 3]
+    scale = 1.0 + np.abs(corners).max()
+    V, ok = _clip_near(corners, near - 1e-5 * scale)
+    return _off_image(V, ok, K, float(radius_px), width, height)
+
+
+def asset_unseen(asset: Asset, frame: int, origin, K, world_to_camera, width: int, height: int,
+                 near: float = GAUSSIAN_NEAR) -> bool:
+    """True when none of the asset's Gaussians can reach a pixel of the camera at output frame ``frame``
+    (``world_to_camera`` relative to ``origin``), so the projection would cull every one of them.
+
+    Why not the 3D box ± 3.33 σ against the frustum: the renderer's footprint is the linearised (EWA) one,
+    J Σ Jᵀ + 0.3 px² at the mean, which reaches further towards the image centre than the true projection of
+    the ellipsoid for a Gaussian elongated in depth, and the 0.3 px² blur reaches beyond it. So the test bounds
+    what the projection computes. With A = object_to_world, the means lie in the hull of the 8 corners of
+    A·``bounds``, cut at z ≥ near (V, in camera axes); every σ is at most s = ‖A‖₂·``max_sigma``. For a mean at
+    (x, y, z) the projection keeps it only if its screen box (mean ± r) meets the image, where
+
+        r ≤ ⌈E·√(λ_max(J Σ Jᵀ) + 0.3)⌉ ≤ E·√(s²·‖J‖_F² + 0.3) + 1,
+        ‖J‖_F² = (fx² (1 + t_x²) + fy² (1 + t_y²)) / z²  (+ a skew term),
+
+    E = ``EXTENT_SIGMA`` and t the clamped x/z, y/z, |t| ≤ max over V of |x/z| (clamping towards 0) — or the
+    clamp's own limit when the principal point lies outside the image. z ≥ min over V of z. The mean's pixel
+    lies within the range of u, v over V (linear-fractional: extremes at vertices). If that range ± the bound
+    on r misses the image, every Gaussian is culled."""
+    if asset.bounds is None:
+        return not bool(len(asset.means))  # nothing finite to draw; unknown bounds: never skip
+    A = np.array(asset.object_to_world[frame], np.float64)
+    A[:3, 3] -= np.asarray(origin, np.float64)
+    w2c = np.asarray(world_to_camera, np.float64)
+    corners = _box_corners(asset.bounds[0], asset.bounds[1]) @ A[:3, :3].T + A[:3, 3]
+    corners = (corners @ w2c[:3, :3].T + w2c[:3, 3])[None]
+    V, ok = _clip_near(corners, near - 1e-9 * (1.0 + np.abs(corners).max()))
+    if not ok.any():
+        return True  # every mean is at or behind the near plane
+    V = V[0][ok[0]]
+    K = np.asarray(K, np.float64)
+    fx, skew, cx, fy, cy = K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2]
+    z_min = float(V[:, 2].min())
+    tx = float(np.abs(V[:, 0] / V[:, 2]).max())
+    ty = float(np.abs(V[:, 1] / V[:, 2]).max())
+    if not 0.0 <= cx <= width:  # a clamp interval that may not contain 0: bound |t| by its limits too
+        tx = max(tx, 1.3 * (abs(cx) + width) / fx)
+    if not 0.0 <= cy <= height:
+        ty = max(ty, 1.3 * (abs(cy) + height) / fy)
+    s = float(np.linalg.norm(A[:3, :3], 2)) * asset.max_sigma
+    J2 = ((fx + abs(skew)) ** 2 * (1.0 + (tx + ty) ** 2) + fy ** 2 * (1.0 + ty ** 2)) / z_min ** 2
+    reach = EXTENT_SIGMA * np.sqrt(s * s * J2 + gs.BLUR) + 1.0
+    if not np.isfinite(reach):
+        return False
+    return bool(_off_image(V[None], np.ones((1, len(V)), bool), K, reach, width, height)[0])
+
+
+def visible_frames(scene: Scene, source_frames, K, w2c, width: int, height: int, radius_px: int) -> list:
+    """The source frames (sorted, unique) whose points may land in the image; all of them when boxes are unknown."""
+    frames = sorted(set(int(f) for f in source_frames))
+    if not scene.skip_unseen or scene.frame_boxes is None:
+        return frames
+    frames = [f for f in frames if f in scene.frame_boxes]  # a frame without points has nothing to project
+    if not frames:
+        return frames
+    unseen = points_unseen(np.stack([scene.frame_boxes[f] for f in frames]), K, w2c, width, height, radius_px)
+    return [f for f, u in zip(frames, unseen) if not u]
+
+
+def select_points(scene: Scene, frames: list):
+    """(xyz, rgb) of the points of ``frames``, in the scene's order (the z-buffer's ties go to the lower index,
+    so the order is kept): the stored tensors when every frame with points is chosen (no copy), one view when
+    the chosen frames' points are contiguous, else their slices concatenated (a copy of those points only);
+    without ``frame_slices`` a selection over every point."""
+    if scene.frames_present is not None and scene.frames_present <= set(frames):
+        return scene.xyz, scene.rgb
+    if scene.frame_slices is not None:
+        ranges = sorted(scene.frame_slices[f] for f in frames if f in scene.frame_slices)
+        merged = []
+        for a, b in ranges:
+            if merged and merged[-1][1] == a:
+                merged[-1][1] = b
+            else:
+                merged.append([a, b])
+        if len(merged) == 1:
+            (a, b), = merged
+            return scene.xyz[a:b], scene.rgb[a:b]
+        return (torch.cat([scene.xyz[a:b] for a, b in merged]), torch.cat([scene.rgb[a:b] for a, b in merged]))
+    sel = torch.isin(scene.frame, torch.as_tensor(list(frames), device=scene.device))
+    return scene.xyz[sel], scene.rgb[sel]
 
 
 def render_frame(scene: Scene, entry: job_mod.Frame, width: int, height: int, point_radius_px: int = 0,
-                 reference: bool = False, to_numpy: bool = True, cutoff: float = gs.CUTOFF,
-                 tile: int | None = None) -> dict:
+                 reference: bool = False, to_numpy: bool = True, tile: int | None = None) -> dict:
     """The condition layers of one output frame as float32 (H, W) arrays keyed by ``channels.CHANNELS`` (R G B
     hole asset_mask Z): numpy arrays, or tensors on the scene's device with ``to_numpy=False``. ``reference``
     composites Gaussians with the torch pair rasterizer instead of the tile kernels (same result, slower; for tests
-    and benchmarks); ``cutoff`` (σ) and ``tile`` (pixels) are the Gaussian cutoff and the tile kernels' tile size
-    (None: the device's default)."""
+    and benchmarks); ``tile`` (pixels) is the tile kernels' tile size (None: the device's default). With
+    ``scene.skip_unseen`` the source frames ``visible_frames`` rules out are not projected and the Gaussian pass
+    is skipped when ``asset_unseen`` holds for every asset: the same layers, less work."""
     dev = scene.device
     K = np.asarray(entry.K, np.float64)
     w2c = pts.relative_camera(np.asarray(entry.world_to_camera, np.float64), scene.origin)
     image = torch.zeros((height, width, 3), device=dev)
     depth = torch.full((height, width), float("inf"), device=dev)
     if scene.xyz is not None and entry.source_frames:
-        if scene.frames_present is not None and scene.frames_present <= set(entry.source_frames):
-            xyz, rgb = scene.xyz, scene.rgb  # every frame: no selection pass, no copy
-        else:
-            sel = torch.isin(scene.frame, torch.as_tensor(list(entry.source_frames), device=dev))
-            xyz, rgb = scene.xyz[sel], scene.rgb[sel]
-        image, depth, _ = pts.render_points(xyz, rgb, K, w2c, width, height, radius_px=point_radius_px)
+        frames = visible_frames(scene, entry.source_frames, K, w2c, width, height, point_radius_px)
+        if frames:  # none: no point could land (the z-buffer of nothing is this image and depth)
+            xyz, rgb = select_points(scene, frames)
+            image, depth, _ = pts.render_points(xyz, rgb, K, w2c, width, height, radius_px=point_radius_px)
     asset_mask = torch.zeros((height, width), device=dev)
     zmed = torch.full((height, width), float("inf"), device=dev)
-    if scene.assets:
+    # no Gaussian pass when no asset can reach a pixel: its output would be no colour, M_a = 0, no depth
+    if scene.assets and not (scene.skip_unseen and all(
+            asset_unseen(a, entry.frame, scene.origin, K, w2c, width, height) for a in scene.assets)):
         means, factors, opac, sh = [], [], [], []
         K_max = max(a.sh.shape[1] for a in scene.assets)
         for a in scene.assets:
@@ -118,7 +326,7 @@ def render_frame(scene: Scene, entry: job_mod.Frame, width: int, height: int, po
             opac.append(a.opacities)
             sh.append(torch.nn.functional.pad(a.sh, (0, 0, 0, K_max - a.sh.shape[1])))
         proj = gs.project_factors(torch.cat(means), torch.cat(factors), torch.cat(opac), torch.cat(sh), K, w2c,
-                                  width, height, cutoff=cutoff)
+                                  width, height, near=GAUSSIAN_NEAR)
         if reference:
             color_g, asset_mask, zmed = gs.rasterize(proj, width, height, background_depth=depth)
         else:

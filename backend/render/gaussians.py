@@ -1,26 +1,39 @@
 """Gaussian splats into one camera: EWA projection and front-to-back compositing, written plainly in torch.
 
-Conventions (docs/design.md §3, §4.3; the rules of the INRIA rasterizer and gsplat):
+Conventions (docs/design.md §3, §4.3; the rules of the INRIA rasterizer, with gsplat 1.5.3's screen extent and
+Jacobian clamp):
 
 * Inputs are camera-relative like ``points.render_points``: means relative to a scene origin, world_to_camera
   for that origin; quaternions (w, x, y, z) any length (normalised here; zero, NaN or inf rows are dropped),
   scales are standard deviations in metres, opacities in [0, 1], SH (N, K, 3) coefficient-major.
 * Σ = R S Sᵀ Rᵀ in world, W Σ Wᵀ in camera, Σ₂ = J W Σ Wᵀ Jᵀ + 0.3 I in pixels, with J the perspective Jacobian at
-  the mean whose x/z, y/z are clamped to ±1.3·tan(fov/2) first (so Gaussians far off-screen stay bounded).
-* Pixel centres are at (u + 0.5, v + 0.5); a Gaussian reaches pixels within 3 σ (``cutoff``) of its mean along
-  Σ₂'s major axis.
+  the mean whose x/z is clamped to [-(cx/fx + 0.3·tan_x), (W - cx)/fx + 0.3·tan_x], tan_x = 0.5·W/fx (likewise
+  y/z with cy, fy, H) first, so Gaussians far off-screen stay bounded (``jacobian_limits``: gsplat's clamp, which
+  follows the principal point; with a centred K it is INRIA's ±1.3·tan(fov/2)).
+* Screen extent (gsplat 1.5.3, per axis and opacity-aware): extend = min(3.33, sqrt(2 ln(255·o))), radius_x =
+  ceil(extend·sqrt(Σ₂_xx)), radius_y = ceil(extend·sqrt(Σ₂_yy)) (``screen_extent``). It is exact, not a cutoff:
+  α ≥ 1/255 means dᵀ Σ₂⁻¹ d ≤ 2 ln(255·o), and by Cauchy–Schwarz |d_x| ≤ sqrt(Σ₂_xx)·sqrt(dᵀ Σ₂⁻¹ d) ≤ radius_x
+  (likewise y; for o ≤ 1 the 3.33 cap never binds, sqrt(2 ln 255) = 3.329), so every pixel the rules composite
+  has its centre inside the box and a render equals the one that tries every Gaussian at every pixel.
+* Pixel centres are at (u + 0.5, v + 0.5); ``pixel_boxes`` are the pixels whose centres lie within the extent.
+  Gaussians whose box holds no pixel of the image are culled.
 * Per pixel, in depth order (ties by index): α = min(0.99, o · exp(-½ dᵀ Σ₂⁻¹ d)) (``ALPHA_MAX``); skipped
   below 1/255 (``ALPHA_MIN``); stop before the Gaussian that would drop the transmittance below 1e-4
   (``TRANSMITTANCE_MIN``). Only Gaussians in front of the pixel's nearest point are composited: the point is the
   opaque background behind them. The asset mask M_a = 1 − the transmittance left = Σ α·transmittance.
+  The 0.99 cap is the INRIA rasterizer's (graphdeco-inria/diff-gaussian-rasterization), the one the TRELLIS and
+  Amodal3R assets were trained with; gsplat caps at 0.999. We keep 0.99: the assets' opacities were fitted to it.
 * Colour = max(0.5 + SH(dir), 0), dir = normalise(mean - camera centre) (``core.sh``, the formula the numpy side
   uses too).
 
 Names: ``alpha`` is always one Gaussian's α at one pixel, ``transmittance`` (``trans``) the product of (1 − α) in
 front, ``asset_mask`` the accumulated 1 − transmittance per pixel; ``w2c`` is the world_to_camera matrix.
 
-The rasterizer builds every (Gaussian, pixel) pair within the cutoff, sorts pairs by (pixel, depth) once, and
-composites with segmented cumulative products: no per-Gaussian or per-pixel Python loops.
+Two projections of one contract: ``project_factors_torch`` here (the reference, any device) and a numba kernel for
+CPU tensors (``project_cpu``, one pass per Gaussian, no 3x3 batched products or index tensors); tests compare them.
+The rasterizer here builds every (Gaussian, pixel) pair inside the boxes, sorts pairs by (pixel, depth) once, and
+composites with segmented cumulative products: no per-Gaussian or per-pixel Python loops. It is the reference for
+the tile kernels (``tiles``).
 """
 
 from __future__ import annotations
@@ -34,7 +47,7 @@ ALPHA_MIN = 1.0 / 255.0
 ALPHA_MAX = 0.99
 TRANSMITTANCE_MIN = 1e-4
 BLUR = 0.3
-CUTOFF = 3.0
+EXTEND_MAX = 3.33  # gsplat's cap on the extent in σ (just above sqrt(2 ln 255) = 3.329)
 
 
 def sh_colors(sh: torch.Tensor, dirs: torch.Tensor) -> torch.Tensor:
@@ -64,20 +77,57 @@ def covariance_factors(quats, scales):
     return quat_to_rotmat(q) * scales.abs()[:, None, :], ok
 
 
-def project(means, quats, scales, opacities, sh, K, world_to_camera, width, height, near=0.05, cutoff=CUTOFF):
+def jacobian_limits(K, width, height):
+    """gsplat's clamp of the Jacobian's x/z and y/z: (x_neg, x_pos, y_neg, y_pos), x/z is clamped to
+    [-x_neg, x_pos] and y/z to [-y_neg, y_pos]. The view's tangent range extended by 0.3·tan(half fov) on each side,
+    following the principal point: x_pos = (W - cx)/fx + 0.3·tan_x, x_neg = cx/fx + 0.3·tan_x, tan_x = 0.5·W/fx
+    (likewise y with cy, fy, H). With cx = W/2 both are INRIA's 1.3·tan(fov_x/2)."""
+    fx, fy, cx, cy = float(K[0][0]), float(K[1][1]), float(K[0][2]), float(K[1][2])
+    tan_x, tan_y = 0.5 * width / fx, 0.5 * height / fy
+    return (cx / fx + 0.3 * tan_x, (width - cx) / fx + 0.3 * tan_x,
+            cy / fy + 0.3 * tan_y, (height - cy) / fy + 0.3 * tan_y)
+
+
+def screen_extent(opacities: torch.Tensor) -> torch.Tensor:
+    """extend = min(3.33, sqrt(2 ln(255·o))) per Gaussian (gsplat 1.5.3): how many σ along each screen axis a
+    Gaussian of opacity o reaches with α ≥ 1/255 (0 at o = 1/255; rows with o < 1/255 are culled before)."""
+    return torch.sqrt(2.0 * torch.log(opacities / ALPHA_MIN).clamp_min(0.0)).clamp_max(EXTEND_MAX)
+
+
+def centre_range(m, r):
+    """The pixels u whose centres u + 0.5 lie in [m - r, m + r], as floats (lo, hi), not clipped; lo > hi when
+    none does. Written once for the torch and numba paths (``project_cpu`` repeats the same two operations)."""
+    return torch.ceil(m - r - 0.5), torch.floor(m + r - 0.5)
+
+
+def project(means, quats, scales, opacities, sh, K, world_to_camera, width, height, near=0.05, fast=True):
     """EWA projection of the visible Gaussians given quaternions and scales (see project_factors)."""
     factors, ok = covariance_factors(quats, scales)
     return project_factors(means, factors, opacities, sh, K, world_to_camera, width, height, near, valid=ok,
-                           cutoff=cutoff)
+                           fast=fast)
 
 
 def project_factors(means, factors, opacities, sh, K, world_to_camera, width, height, near=0.05, valid=None,
-                    cutoff=CUTOFF):
+                    fast=True):
     """EWA projection of Gaussians with covariance Σ = M Mᵀ (``factors`` M, (N, 3, 3), world axes: an asset's
-    affine object_to_world A gives M = A R S). Returns a dict of per-Gaussian screen quantities (M rows) and the
-    original indices ``index``; Gaussians behind ``near``, with bad values, or entirely off-screen are gone.
-    ``cutoff``: each Gaussian reaches pixels within that many σ (major axis) of its mean; beyond
-    sqrt(2 ln 255) ≈ 3.33 σ nothing changes, since α < 1/255 there is skipped anyway."""
+    affine object_to_world A gives M = A R S). Returns a dict of per-Gaussian screen quantities (G rows, in
+    ascending original index), each a tensor of ``means``' dtype and device: ``index`` (G,) int64 the original
+    rows, ``mean2d`` (G, 2) pixels, ``conic`` (G, 3) = Σ₂⁻¹ as (xx, xy, yy), ``radius`` (G, 2) the extent in pixels
+    along x and y (``screen_extent``), ``depth`` (G,) camera z in metres, ``opacity`` (G,), ``color`` (G, 3).
+    Gaussians behind ``near``, with opacity below 1/255, with bad values, or whose extent holds no pixel centre of
+    the image are gone. CPU tensors go through the numba kernel (``project_cpu``) unless ``fast`` is False; the
+    torch code (``project_factors_torch``) is the reference and runs on every other device."""
+    if fast and means.device.type == "cpu":
+        from . import project_cpu
+
+        return project_cpu.project_factors(means, factors, opacities, sh, K, world_to_camera, width, height,
+                                           near=near, valid=valid)
+    return project_factors_torch(means, factors, opacities, sh, K, world_to_camera, width, height, near=near,
+                                 valid=valid)
+
+
+def project_factors_torch(means, factors, opacities, sh, K, world_to_camera, width, height, near=0.05, valid=None):
+    """The reference projection in torch (any device): ``project_factors``' arguments and outputs."""
     dev, dt = means.device, means.dtype
     w2c = torch.as_tensor(np.asarray(world_to_camera, np.float64), dtype=dt, device=dev)
     Kt = torch.as_tensor(np.asarray(K, np.float64), dtype=dt, device=dev)
@@ -93,10 +143,9 @@ def project_factors(means, factors, opacities, sh, K, world_to_camera, width, he
     M = w2c[:3, :3] @ factors[index]                            # W M (W: the rotation of world_to_camera)
     cov = M @ M.transpose(1, 2)                                 # W Σ Wᵀ
     tz = cam[:, 2]
-    lim_x = 1.3 * 0.5 * width / fx
-    lim_y = 1.3 * 0.5 * height / fy
-    tx = torch.clamp(cam[:, 0] / tz, -lim_x, lim_x) * tz
-    ty = torch.clamp(cam[:, 1] / tz, -lim_y, lim_y) * tz
+    x_neg, x_pos, y_neg, y_pos = jacobian_limits(K, width, height)
+    tx = torch.clamp(cam[:, 0] / tz, -x_neg, x_pos) * tz
+    ty = torch.clamp(cam[:, 1] / tz, -y_neg, y_pos) * tz
     J = torch.zeros((len(index), 2, 3), dtype=dt, device=dev)
     J[:, 0, 0], J[:, 0, 2] = fx / tz, -fx * tx / tz ** 2
     J[:, 1, 1], J[:, 1, 2] = fy / tz, -fy * ty / tz ** 2
@@ -104,12 +153,15 @@ def project_factors(means, factors, opacities, sh, K, world_to_camera, width, he
     a, b, c = cov2[:, 0, 0] + BLUR, cov2[:, 0, 1], cov2[:, 1, 1] + BLUR
     det = a * c - b * b
     conic = torch.stack([c / det, -b / det, a / det], 1)
-    mid = 0.5 * (a + c)
-    lam = mid + torch.sqrt(torch.clamp(mid * mid - det, min=0.0))
-    radius = torch.ceil(cutoff * torch.sqrt(lam))
+    extend = screen_extent(opacities[index])
+    radius = torch.stack([torch.ceil(extend * torch.sqrt(a)), torch.ceil(extend * torch.sqrt(c))], 1)
     mean2 = torch.stack([fx * cam[:, 0] / tz + Kt[0, 1] * cam[:, 1] / tz + cx, fy * cam[:, 1] / tz + cy], 1)
-    on = (mean2[:, 0] + radius > 0) & (mean2[:, 0] - radius < width) & (mean2[:, 1] + radius > 0) & \
-        (mean2[:, 1] - radius < height) & (det > 0) & torch.isfinite(radius)
+    # on screen: some pixel centre of the image inside the extent (gsplat's test m + r > 0, m - r < W, per axis,
+    # on pixel centres); NaN fails every comparison
+    x0, x1 = centre_range(mean2[:, 0], radius[:, 0])
+    y0, y1 = centre_range(mean2[:, 1], radius[:, 1])
+    on = ((x0 <= x1) & (x0 <= width - 1) & (x1 >= 0) & (y0 <= y1) & (y0 <= height - 1) & (y1 >= 0)
+          & (det > 0) & torch.isfinite(radius).all(1) & torch.isfinite(conic).all(1))
     index = index[on]
     centre = -w2c[:3, :3].T @ w2c[:3, 3]
     dirs = means[index] - centre
@@ -119,13 +171,14 @@ def project_factors(means, factors, opacities, sh, K, world_to_camera, width, he
 
 
 def pixel_boxes(proj, width, height) -> torch.Tensor:
-    """(G, 4) int64 x0, x1, y0, y1: the inclusive pixel range of each Gaussian's cutoff square, clipped to the
-    image. Pixel (x, y) gets a pair with Gaussian g exactly when x0 <= x <= x1 and y0 <= y <= y1."""
+    """(G, 4) int64 x0, x1, y0, y1: the inclusive range of the pixels whose centres lie inside each Gaussian's
+    extent (``radius`` along x and y), clipped to the image. Pixel (x, y) gets a pair with Gaussian g exactly when
+    x0 <= x <= x1 and y0 <= y <= y1; the projection keeps only Gaussians whose box is not empty."""
     m2, r = proj["mean2d"], proj["radius"]
-    return torch.stack([torch.clamp(torch.floor(m2[:, 0] - r), 0, width - 1),
-                        torch.clamp(torch.floor(m2[:, 0] + r), 0, width - 1),
-                        torch.clamp(torch.floor(m2[:, 1] - r), 0, height - 1),
-                        torch.clamp(torch.floor(m2[:, 1] + r), 0, height - 1)], 1).to(torch.int64)
+    x0, x1 = centre_range(m2[:, 0], r[:, 0])
+    y0, y1 = centre_range(m2[:, 1], r[:, 1])
+    return torch.stack([torch.clamp(x0, 0, width - 1), torch.clamp(x1, 0, width - 1),
+                        torch.clamp(y0, 0, height - 1), torch.clamp(y1, 0, height - 1)], 1).to(torch.int64)
 
 
 def depth_rank(proj) -> torch.Tensor:
@@ -198,9 +251,3 @@ def rasterize(proj, width, height, background_depth=None, max_pairs=200_000_000)
     cross = keep & (acc_after >= 0.5) & ((acc_after - wgt) < 0.5)
     zmed.index_put_((pix[cross],), proj["depth"][g[cross]])
     return color.reshape(height, width, 3), asset_mask.reshape(height, width), zmed.reshape(height, width)
-
-
-def fov_limits(K, width, height):
-    """The 1.3·tan(fov/2) clamps used by project(), for tests and documentation."""
-    return 1.3 * 0.5 * width / K[0][0], 1.3 * 0.5 * height / K[1][1]
-

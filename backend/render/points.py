@@ -8,6 +8,11 @@ expressed for that origin — see ``relative_camera``.
 Determinism: the z-buffer key is (depth bits << 32 | point index) reduced with ``amin``; positive float32 bit
 patterns order like the floats, so the nearest point wins and ties go to the lower index, identically on CPU
 and CUDA, whatever the thread schedule.
+
+Two implementations of one contract (the float32 operations and their order: ``points_cpu``'s docstring): the torch
+path here (the reference, and what runs on CUDA) and a numba z-buffer for CPU tensors (``points_cpu``, one
+projection per point, no sort, no index tensors; 3-5x faster on 2 cores). Tests demand identical winners, depths
+and colours from both.
 """
 
 from __future__ import annotations
@@ -29,18 +34,33 @@ def _depth_keys(z: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
 
 
 def render_points(xyz: torch.Tensor, rgb: torch.Tensor, K, world_to_camera, width: int, height: int,
-                  near: float = 0.05, radius_px: int = 0):
-    """Z-buffer points (N, 3) with colours (N, 3) into a ``height`` x ``width`` image.
+                  near: float = 0.05, radius_px: int = 0, fast: bool = True):
+    """Z-buffer points (N, 3) float32 with colours (N, 3) into a ``height`` x ``width`` image.
 
-    Returns (rgb (H, W, 3) zeros where empty, depth (H, W) +inf where empty, index (H, W) int64 of the winning
-    point, -1 where empty). ``radius_px`` > 0 splats each point over a (2r+1)^2 square, nearest still winning.
-    Points at or behind ``near`` (metres), outside the image, or with non-finite values are culled first.
+    Returns (rgb (H, W, 3) float32, zeros where empty, depth (H, W) float32 +inf where empty, index (H, W) int64 of
+    the winning point, -1 where empty), on ``xyz``'s device. ``radius_px`` > 0 splats each point over a (2r+1)^2
+    square, nearest still winning. Points at or behind ``near`` (metres, >= 0), outside the image, or with
+    non-finite values are culled first. ``fast=False`` runs the torch reference on CPU tensors too.
     """
+    if xyz.shape[0] >= 2 ** 31:
+        raise ValueError(f"{xyz.shape[0]} points: the z-buffer key holds a 31-bit point index")
+    if fast and xyz.device.type == "cpu":
+        from . import points_cpu
+
+        return points_cpu.render_points(xyz, rgb, K, world_to_camera, width, height, near=near, radius_px=radius_px)
+    return render_points_torch(xyz, rgb, K, world_to_camera, width, height, near=near, radius_px=radius_px)
+
+
+def render_points_torch(xyz: torch.Tensor, rgb: torch.Tensor, K, world_to_camera, width: int, height: int,
+                        near: float = 0.05, radius_px: int = 0):
+    """The reference z-buffer in torch (any device): ``render_points``' arguments and outputs."""
     dev = xyz.device
     w2c = torch.as_tensor(np.asarray(world_to_camera, np.float64), dtype=torch.float32, device=dev)
     Kt = torch.as_tensor(np.asarray(K, np.float64), dtype=torch.float32, device=dev)
-    cam = xyz @ w2c[:3, :3].T + w2c[:3, 3]
-    x, y, z = cam.unbind(1)
+    X, Y, Z = xyz.to(torch.float32).unbind(1)
+    # written out rather than a matmul (whose summation order and fused multiply-adds are the BLAS's choice): the
+    # contract the numba path reproduces bit for bit (points_cpu); equal to MKL's sgemm on the CPUs measured
+    x, y, z = (((X * w2c[j, 0] + Y * w2c[j, 1]) + Z * w2c[j, 2]) + w2c[j, 3] for j in range(3))
     # every test in one mask and one gather (the hot path: millions of points per frame); NaN fails every test
     u = Kt[0, 0] * x / z + Kt[0, 1] * y / z + Kt[0, 2]
     v = Kt[1, 1] * y / z + Kt[1, 2]

@@ -1,17 +1,18 @@
-"""The fast Gaussian rasterizer: tile binning in torch, per-pixel front-to-back loops in a compiled kernel.
+"""The fast Gaussian rasterizer: tile binning, then per-pixel front-to-back loops in a compiled kernel.
 
 Same rules and the same result as ``gaussians.rasterize`` (the tested torch reference, which builds every
-(Gaussian, pixel) pair and sorts them): a pixel composites the Gaussians whose cutoff square
-(``gaussians.pixel_boxes``) contains it, in depth order with ties by original index, skips α < 1/255, stops
-before the one that would take the transmittance below 1e-4, and ignores Gaussians at or behind its nearest
-point. The difference is the cost: the reference touches every pair; here each pixel walks the depth-sorted list
-of its tile and leaves it as soon as it is saturated or the next Gaussian lies behind its point, so opaque
-surfaces cost a few Gaussians per pixel, not all of them.
+(Gaussian, pixel) pair and sorts them): a pixel composites the Gaussians whose pixel box
+(``gaussians.pixel_boxes``, the exact screen extent) contains it, in depth order with ties by original index,
+skips α < 1/255, stops before the one that would take the transmittance below 1e-4, and ignores Gaussians at or
+behind its nearest point. The difference is the cost: the reference touches every pair; here each pixel walks the
+depth-sorted list of its tile and leaves it as soon as it is saturated or the next Gaussian lies behind its point,
+so opaque surfaces cost a few Gaussians per pixel, not all of them.
 
-Binning (any device): every Gaussian is entered in each ``tile`` x ``tile`` pixel tile its square touches; the
-entries are sorted by (tile, depth rank) and ``tile_start[t] .. tile_start[t + 1]`` delimits tile t's list.
-Compositing: numba on the CPU (``tiles_cpu``), Triton on CUDA (``tiles_cuda``); the reference is used on a CUDA
-machine without Triton.
+Binning: every Gaussian is entered in each ``tile`` x ``tile`` pixel tile its box touches; the entries are sorted
+by (tile, depth rank) and ``tile_start[t] .. tile_start[t + 1]`` delimits tile t's list. ``bin_tiles`` does it in
+torch (any device; the reference); on the CPU ``tiles_cpu`` does it in numba with a counting sort and gets the
+same lists. Compositing: numba on the CPU (``tiles_cpu``), Triton on CUDA (``tiles_cuda``, fed by
+``kernel_inputs``); the reference is used on a CUDA machine without Triton.
 """
 
 from __future__ import annotations
@@ -48,17 +49,15 @@ def bin_tiles(proj, width: int, height: int, tile: int = TILE) -> dict:
             "tiles_x": tiles_x, "tiles_y": tiles_y, "tile": tile}
 
 
-def kernel_inputs(proj, bins, width, height, background_depth, dtype=None):
-    """The flat, contiguous arrays both kernels read, one row per tile entry (one layout, so the kernels cannot
-    drift apart): ``params`` (E, 12) = mean x, mean y relative to the entry's tile origin, conic a b c, opacity,
-    depth, r g b, two pads; ``boxes`` (E, 4) int32 absolute pixel boxes; ``tile_start``; the background depth.
+def kernel_inputs(proj, bins, width, height, background_depth, dtype=torch.float32):
+    """The flat, contiguous arrays the Triton kernel reads, one row per tile entry: ``params`` (E, 12) = mean x,
+    mean y relative to the entry's tile origin, conic a b c, opacity, depth, r g b, two pads; ``boxes`` (E, 4)
+    int32 absolute pixel boxes; ``tile_start``; the background depth.
 
-    Precision: the projection arrives in float64 (``frames.render_frame``); the CPU kernel keeps float64, the CUDA
-    kernel gets float32 with means relative to the tile (values below the tile size: ~1e-6 px of rounding instead
-    of ~6e-5 px at x ~ 1000, which thin, edge-on Gaussians would turn into ~1e-4 of α). ``dtype`` overrides
-    the device's choice (tests of the CUDA kernel in Triton's interpreter)."""
-    dev = proj["mean2d"].device
-    dt = dtype or (torch.float64 if dev.type == "cpu" else torch.float32)
+    Precision: the projection arrives in float64 (``frames.render_frame``); the kernel gets float32 (``dtype``)
+    with means relative to the tile (values below the tile size: ~1e-6 px of rounding instead of ~6e-5 px at
+    x ~ 1000, which thin, edge-on Gaussians would turn into ~1e-4 of α)."""
+    dev, dt = proj["mean2d"].device, dtype
     bg = (torch.full((height * width,), float("inf"), dtype=dt, device=dev) if background_depth is None
           else background_depth.reshape(-1).to(dt).contiguous())
     per_gaussian = torch.zeros((len(proj["depth"]), 12), dtype=torch.float64, device=dev)
@@ -83,21 +82,20 @@ def rasterize(proj, width: int, height: int, background_depth=None, tile: int | 
     tile = tile or (TILE_CPU if dev.type == "cpu" else TILE)
     if len(proj["depth"]) == 0:
         return gs.rasterize(proj, width, height, background_depth)
-    if dev.type == "cuda":
+    if dev.type == "cpu":
+        from . import tiles_cpu
+
+        color, asset_mask, depth = tiles_cpu.rasterize(proj, width, height, background_depth, tile)
+    elif dev.type == "cuda":
         try:
             from . import tiles_cuda
         except ImportError:  # no Triton: the reference is exact, only slower
             return gs.rasterize(proj, width, height, background_depth)
-        composite = tiles_cuda.composite
-    elif dev.type == "cpu":
-        from . import tiles_cpu
-
-        composite = tiles_cpu.composite
+        bins = bin_tiles(proj, width, height, tile)
+        color, asset_mask, depth = tiles_cuda.composite(*kernel_inputs(proj, bins, width, height, background_depth),
+                                                        width, height, bins["tiles_x"], tile)
     else:
         return gs.rasterize(proj, width, height, background_depth)
-    bins = bin_tiles(proj, width, height, tile)
-    color, asset_mask, depth = composite(*kernel_inputs(proj, bins, width, height, background_depth),
-                                         width, height, bins["tiles_x"], tile)
     dt = proj["mean2d"].dtype
     return (color.reshape(height, width, 3).to(dt), asset_mask.reshape(height, width).to(dt),
             depth.reshape(height, width).to(dt))

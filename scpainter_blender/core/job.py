@@ -3,7 +3,8 @@
 One JSON file describes a render/generation: output resolution, per-frame cameras (our K, OpenCV
 world_to_camera, the VGGT frames whose points project into it), the scene reconstruction with its
 ``vggt_to_world`` and removal boxes, Gaussian assets with a per-frame object_to_world (PLY file coordinates to
-world metres), the output folder and generation settings. Paths are relative to the job file. ``scene`` and
+world metres), the output folder and generation settings; under ``scene``, how its points are cleaned
+(``point_cleaning``). Paths are relative to the job file. ``scene`` and
 ``assets`` may be absent. ``Job.from_dict`` validates every field, and each error names the file and the field
 (``frames[3].K``), never a numpy traceback; ``Job.to_dict`` is the file's content. The Blender export, the
 evaluation protocol, the training pairs and the backend commands build and read jobs only through these classes
@@ -12,8 +13,8 @@ evaluation protocol, the training pairs and the backend commands build and read 
 Schema versions: ``scpainter.job/2`` names every transform ``a_to_b`` (``scene.vggt_to_world``). Files of
 ``scpainter.job/1`` (``scene.world_from_vggt``) are still read; ``save`` always writes the current version.
 
-No bpy, no torch: numpy for the matrix checks only. (A little over 400 lines: the six classes of one document,
-each field's rule beside its ``to_dict``, read together; what the job points at on disk is ``core.job_inputs``.)
+No bpy, no torch: numpy for the matrix checks only. (About 500 lines: the eight classes of one document, each
+field's rule beside its ``to_dict``, read together; what the job points at on disk is ``core.job_inputs``.)
 """
 
 from __future__ import annotations
@@ -45,6 +46,19 @@ GENERATE_NUMBER_BOUNDS = {"min_guidance": (0.0, 100.0), "max_guidance": (0.0, 10
 
 #: ``scene.extrinsic_convention``: what the predictions' ``extrinsic`` holds (core.vggt.EXTRINSIC_CONVENTIONS).
 EXTRINSIC_CONVENTIONS = ("world_to_camera", "camera_to_world")
+
+#: ``scene.point_cleaning``'s defaults, the only place they are written (bench/clean_points.py, measured on the
+#: ground-truth street with VGGT-like depth errors; the table is in docs/design.md §4.2): the depth-edge test at
+#: 0.05 cuts the shifted views' pixels showing a surface nearer than the true one from 7.7 % to 3.1 % of the image
+#: (confidence percentile 0; harmless at the default 50) for 3 points more holes; open3d's outlier removal stays
+#: off: on these errors it removes far, sparse, correct points (more holes) and no streaks, at 0.2-1.1 s per frame.
+POINT_CLEANING = {"depth_edge_ratio": 0.05, "outliers": None}
+#: Each outlier rule's fields with their defaults when the rule is chosen without them (the sweep's mildest useful
+#: values), and bounds (low, high).
+OUTLIER_FIELDS = {"statistical": {"neighbours": 16, "std_ratio": 2.0},
+                  "radius": {"radius_m": 0.1, "min_points": 4}}
+OUTLIER_BOUNDS = {"neighbours": (1, 1000), "std_ratio": (0.01, 100.0), "radius_m": (1e-6, 1e4), "min_points": (1, 1000)}
+DEPTH_EDGE_RATIO_BOUNDS = (1e-4, 100.0)
 
 
 class JobError(files.InputError):
@@ -144,16 +158,90 @@ class RemovalBox:
 
 
 @dataclass(eq=False)
+class OutlierRemoval:
+    """open3d's outlier removal on the scene's cloud (``backend.render.cleaning`` states the rules exactly):
+    ``method`` "statistical" (drop a point whose mean distance to its ``neighbours`` nearest, itself included, is
+    more than ``std_ratio`` standard deviations above the cloud's mean of it) or "radius" (drop a point with fewer
+    than ``min_points`` other points within ``radius_m`` metres). Only the chosen method's fields are read and
+    written; the others keep their defaults."""
+    method: str = "statistical"
+    neighbours: int = OUTLIER_FIELDS["statistical"]["neighbours"]
+    std_ratio: float = OUTLIER_FIELDS["statistical"]["std_ratio"]
+    radius_m: float = OUTLIER_FIELDS["radius"]["radius_m"]
+    min_points: int = OUTLIER_FIELDS["radius"]["min_points"]
+
+    @classmethod
+    def from_dict(cls, d, path, where) -> "OutlierRemoval":
+        _object(d, path, where)
+        method = d.get("method")
+        if method not in OUTLIER_FIELDS:
+            raise JobError(path, f"{where}.method", f"expected one of {list(OUTLIER_FIELDS)}, got {_short(method)}")
+        _known(d, path, where, ("method",) + tuple(OUTLIER_FIELDS[method]))
+        values = {}
+        for key, default in OUTLIER_FIELDS[method].items():
+            lo, hi = OUTLIER_BOUNDS[key]
+            check = _int if isinstance(default, int) else _number
+            values[key] = check(d.get(key, default), path, f"{where}.{key}", lo, hi)
+        return cls(method, **values)
+
+    def to_dict(self) -> dict:
+        # an unknown method (built in code) writes every field, so save() refuses it by name instead of a KeyError
+        names = OUTLIER_FIELDS.get(self.method, OUTLIER_BOUNDS)
+        cast = {k: int if isinstance(v, int) else float for m in OUTLIER_FIELDS.values() for k, v in m.items()}
+        return {"method": self.method, **{k: cast[k](getattr(self, k)) for k in names}}
+
+
+def _default_outliers():
+    o = POINT_CLEANING["outliers"]
+    return None if o is None else OutlierRemoval.from_dict(o, "(defaults)", "scene.point_cleaning.outliers")
+
+
+@dataclass(eq=False)
+class PointCleaning:
+    """How the scene's points are cleaned before rendering (``backend.render.frames.load_scene``, once per scene):
+    ``depth_edge_ratio`` drops the pixels of each source frame's depth map whose depth jumps by more than that
+    fraction of their own to one of their 8 neighbours (``core.point_cloud.depth_edges``); ``outliers`` removes
+    floaters from the whole cloud (``OutlierRemoval``). None turns one off; in the file, ``null`` turns it off, an
+    absent field takes the default (``POINT_CLEANING``), and ``"point_cleaning": null`` turns both off."""
+    depth_edge_ratio: float | None = POINT_CLEANING["depth_edge_ratio"]
+    outliers: OutlierRemoval | None = field(default_factory=_default_outliers)
+
+    @classmethod
+    def from_dict(cls, d, path, where="scene.point_cleaning") -> "PointCleaning":
+        if d is None:
+            return cls(None, None)
+        _object(d, path, where)
+        _known(d, path, where, [f.name for f in fields(cls)])
+        ratio = d.get("depth_edge_ratio", POINT_CLEANING["depth_edge_ratio"])
+        if ratio is not None:
+            lo, hi = DEPTH_EDGE_RATIO_BOUNDS
+            if isinstance(ratio, bool) or not isinstance(ratio, (int, float)) or not lo <= ratio <= hi:
+                raise JobError(path, f"{where}.depth_edge_ratio", f"expected a number in [{lo}, {hi}] (a fraction of "
+                               f"the pixel's depth), got {_short(ratio)}", hint="null turns the depth-edge test off")
+            ratio = _number(ratio, path, f"{where}.depth_edge_ratio", lo, hi)
+        outliers = d.get("outliers", POINT_CLEANING["outliers"])
+        if outliers is not None:
+            outliers = OutlierRemoval.from_dict(outliers, path, f"{where}.outliers")
+        return cls(ratio, outliers)
+
+    def to_dict(self) -> dict:
+        return {"depth_edge_ratio": None if self.depth_edge_ratio is None else float(self.depth_edge_ratio),
+                "outliers": None if self.outliers is None else self.outliers.to_dict()}
+
+
+@dataclass(eq=False)
 class Scene:
     """The reconstruction: ``predictions`` (path, relative to the job file) read with ``extrinsic_convention``
     and ``crop`` as the import read it, points kept above ``confidence_percentile``, moved to world metres by
-    ``vggt_to_world`` (4, 4 similarity), minus the points inside ``removal_boxes``."""
+    ``vggt_to_world`` (4, 4 similarity), minus the points inside ``removal_boxes``, cleaned by ``point_cleaning``
+    (absent from a file: the defaults, ``POINT_CLEANING``)."""
     predictions: str
     vggt_to_world: np.ndarray
     confidence_percentile: float = 50.0
     extrinsic_convention: str = "world_to_camera"
     crop: list = field(default_factory=lambda: [0, 0, 0, 0])
     removal_boxes: list = field(default_factory=list)
+    point_cleaning: PointCleaning = field(default_factory=PointCleaning)
 
     @classmethod
     def from_dict(cls, d, path, where="scene", renamed: dict | None = None) -> "Scene":
@@ -182,12 +270,16 @@ class Scene:
         crop = [_int(v, path, f"{where}.crop[{i}]", lo=0) for i, v in enumerate(crop)]
         boxes = _list(d.get("removal_boxes", []), path, f"{where}.removal_boxes")
         boxes = [RemovalBox.from_dict(b, path, f"{where}.removal_boxes[{i}]") for i, b in enumerate(boxes)]
-        return cls(predictions, W, pct, conv, crop, boxes)
+        cleaning = PointCleaning.from_dict(d.get("point_cleaning", {}), path, f"{where}.point_cleaning")
+        return cls(predictions, W, pct, conv, crop, boxes, cleaning)
 
     def to_dict(self) -> dict:
+        # point_cleaning always written out, as resolved: the render's job key (backend.render.command.job_key)
+        # hashes this, so changed settings, or changed defaults, render again
         d = {"predictions": self.predictions, "vggt_to_world": _matrix_list(self.vggt_to_world),
              "confidence_percentile": float(self.confidence_percentile),
-             "extrinsic_convention": self.extrinsic_convention, "crop": [int(v) for v in self.crop]}
+             "extrinsic_convention": self.extrinsic_convention, "crop": [int(v) for v in self.crop],
+             "point_cleaning": None if self.point_cleaning is None else self.point_cleaning.to_dict()}
         if self.removal_boxes:
             d["removal_boxes"] = [b.to_dict() for b in self.removal_boxes]
         return d

@@ -328,7 +328,7 @@ def test_input_errors_survive_pickling():
     from scpainter_blender.core.vggt import PredictionsError
 
     from backend.evaluate.inception import EvaluationError
-    from backend.render.exr import ExrError
+    from backend.render.channels import ExrError
 
     for e in (F.InputError("/a/job.json", "frames[0]", "bad", hint="fix it"), SplatsError("/a/car.ply", "bad", "x"),
               PredictionsError("/a/p.npz", "depth", "bad"), MeshAssetError("/a/m.glb", "bad"),

@@ -29,7 +29,8 @@ def test_valid_job_round_trip(tmp_path):
     loaded = J.load(tmp_path / "job.json")
     assert isinstance(loaded, J.Job) and isinstance(loaded.scene, J.Scene) and isinstance(loaded.frames[0], J.Frame)
     expected = json.loads(json.dumps(job))
-    expected["scene"].update(extrinsic_convention="world_to_camera", crop=[0, 0, 0, 0])  # defaults, written out
+    expected["scene"].update(extrinsic_convention="world_to_camera", crop=[0, 0, 0, 0],  # defaults, written out
+                             point_cleaning=J.POINT_CLEANING)
     assert loaded.to_dict() == expected
     assert json.loads((tmp_path / "job.json").read_text()) == expected
     assert loaded.assets[0].object_to_world[2].shape == (4, 4)    # frame numbers are ints in the classes
@@ -57,6 +58,23 @@ def test_valid_job_round_trip(tmp_path):
     (lambda j: j["scene"].update(crop=[0, -5, 0, 5]), "scene.crop[1]"),
     (lambda j: j["scene"].update(crop=[0, 5.5, 0, 5]), "scene.crop[1]"),
     (lambda j: j["scene"]["removal_boxes"][0].update(size=[1, 2]), "scene.removal_boxes[0].size"),
+    (lambda j: j["scene"].update(point_cleaning=[]), "scene.point_cleaning"),
+    (lambda j: j["scene"].update(point_cleaning={"depth_edge_ratio": 0}), "scene.point_cleaning.depth_edge_ratio"),
+    (lambda j: j["scene"].update(point_cleaning={"depth_edge_ratio": "on"}), "scene.point_cleaning.depth_edge_ratio"),
+    (lambda j: j["scene"].update(point_cleaning={"outliers": {"method": "voxel"}}),
+     "scene.point_cleaning.outliers.method"),
+    (lambda j: j["scene"].update(point_cleaning={"outliers": {}}), "scene.point_cleaning.outliers.method"),
+    (lambda j: j["scene"].update(point_cleaning={"outliers": "statistical"}), "scene.point_cleaning.outliers"),
+    (lambda j: j["scene"].update(point_cleaning={"outliers": {"method": "statistical", "neighbours": 0}}),
+     "scene.point_cleaning.outliers.neighbours"),
+    (lambda j: j["scene"].update(point_cleaning={"outliers": {"method": "statistical", "neighbours": 8.5}}),
+     "scene.point_cleaning.outliers.neighbours"),
+    (lambda j: j["scene"].update(point_cleaning={"outliers": {"method": "statistical", "std_ratio": -1}}),
+     "scene.point_cleaning.outliers.std_ratio"),
+    (lambda j: j["scene"].update(point_cleaning={"outliers": {"method": "radius", "radius_m": 0}}),
+     "scene.point_cleaning.outliers.radius_m"),
+    (lambda j: j["scene"].update(point_cleaning={"outliers": {"method": "radius", "min_points": True}}),
+     "scene.point_cleaning.outliers.min_points"),
     (lambda j: j["assets"][0]["object_to_world"].pop("2"), "assets[0].object_to_world"),
     (lambda j: j["assets"][0]["object_to_world"].update({"1": np.zeros((4, 4)).tolist()}),
      "assets[0].object_to_world['1']"),
@@ -191,6 +209,10 @@ def test_old_schema_still_loads_and_saves_in_the_new_one(tmp_path):
     (lambda j: j["frames"][0].update(source_frame=[0]), "frames[0].source_frame"),
     (lambda j: j["assets"][0].update(object_to_wrld={}), "assets[0].object_to_wrld"),
     (lambda j: j["scene"]["removal_boxes"][0].update(sizes=[1, 1, 1]), "scene.removal_boxes[0].sizes"),
+    (lambda j: j["scene"].update(point_cleaning={"edge_ratio": 0.1}), "scene.point_cleaning.edge_ratio"),
+    # a field of the other method is refused, not silently ignored
+    (lambda j: j["scene"].update(point_cleaning={"outliers": {"method": "radius", "neighbours": 8}}),
+     "scene.point_cleaning.outliers.neighbours"),
     (lambda j: j.update(output=""), "output"),
 ])
 def test_unknown_fields_are_refused(mutate, field):
@@ -230,3 +252,37 @@ def test_job_built_in_code_is_validated_on_save(tmp_path):
     with pytest.raises(J.JobError) as e:
         J.save(tmp_path / "job.json", job)
     assert e.value.field == "frames[0].K" and not (tmp_path / "job.json").exists()
+
+
+def test_point_cleaning_defaults_and_switches(tmp_path):
+    """scene.point_cleaning: absent = the defaults (POINT_CLEANING, the one place they are written); a field
+    absent = its default; null = off; an outlier method's own fields default per method; saved as resolved."""
+    job = minimal()
+    assert "point_cleaning" not in job["scene"]       # a job written before the setting existed
+    c = J.validate(job).scene.point_cleaning
+    assert c.to_dict() == J.POINT_CLEANING
+    assert J.Scene("p.npz", np.eye(4)).point_cleaning.to_dict() == J.POINT_CLEANING   # the dataclass default too
+    job["scene"]["point_cleaning"] = None
+    c = J.validate(job).scene.point_cleaning
+    assert c.depth_edge_ratio is None and c.outliers is None
+    job["scene"]["point_cleaning"] = {"depth_edge_ratio": None}
+    c = J.validate(job).scene.point_cleaning
+    assert c.depth_edge_ratio is None
+    assert (None if c.outliers is None else c.outliers.to_dict()) == J.POINT_CLEANING["outliers"]
+    job["scene"]["point_cleaning"] = {"depth_edge_ratio": 0.2, "outliers": {"method": "radius", "min_points": 9}}
+    saved = J.save(tmp_path / "job.json", job)
+    written = json.loads((tmp_path / "job.json").read_text())["scene"]["point_cleaning"]
+    assert written == {"depth_edge_ratio": 0.2,
+                       "outliers": {"method": "radius", "radius_m": J.OUTLIER_FIELDS["radius"]["radius_m"],
+                                    "min_points": 9}}
+    assert saved.scene.point_cleaning.outliers.min_points == 9
+    assert J.load(tmp_path / "job.json").to_dict() == saved.to_dict()
+    for method, names in J.OUTLIER_FIELDS.items():
+        o = J.OutlierRemoval.from_dict({"method": method}, "job.json", "x")
+        assert o.to_dict() == {"method": method, **names}
+    # a Job built in code with an unknown method is refused by name on save, never a KeyError
+    bad = J.validate(minimal())
+    bad.scene.point_cleaning.outliers = J.OutlierRemoval("voxel")
+    with pytest.raises(J.JobError) as e:
+        J.save(tmp_path / "bad.json", bad)
+    assert e.value.field == "scene.point_cleaning.outliers.method"

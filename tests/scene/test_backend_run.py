@@ -78,7 +78,7 @@ def test_followed_runs_cancel_finish_and_time_out(street_scene, tmp_path, addon)
     done and leaves the scene alone; a followed run to the end loads its results; a hung backend times out."""
     import time
 
-    from backend.render import exr
+    from backend.render import channels
 
     runs = sys.modules[f"{addon}.scpainter_blender.scene.runs"]  # the installed add-on's module
     before = _state()
@@ -92,7 +92,7 @@ def test_followed_runs_cancel_finish_and_time_out(street_scene, tmp_path, addon)
     level, message = follow.report(bpy.context, "cancelled")
     assert level == "WARNING" and "kept" in message and not runs.ACTIVE
     frames = sorted((tmp_path / "out" / "conditions").glob("frame_*.exr"))
-    assert 1 <= len(frames) <= 4 and all(exr.read(f)["R"].shape == (147, 259) for f in frames)
+    assert 1 <= len(frames) <= 4 and all(channels.read(f)["R"].shape == (147, 259) for f in frames)
     assert not list((tmp_path / "out" / "conditions").glob("*.tmp"))
     assert _state() == before
     # followed to the end: resumes, finishes, loads the previews behind the camera

@@ -1,15 +1,28 @@
-"""backend.render.channels: the condition EXR's channel names, written once and read back by ``generate``,
-including condition folders rendered before the asset mask was named ``asset_mask`` (channel ``asset``)."""
+"""backend.render.channels in the render and generate commands: the named channels written by ``render``, read back
+by ``generate``; folders rendered by the earlier writer (flat names, the mask once called ``asset``) kept and
+read; the half-float option through ``render``/``batch`` and the resume key."""
 
 import numpy as np
+import OpenEXR
 import pytest
 
 from backend import generate as gen
-from backend.render import channels, exr
+from backend.render import channels
 from backend.render import command as render_cmd
 from scpainter_blender.core import files
 from scpainter_blender.core import job as J
 from scpainter_blender.core import shapes
+
+
+def raw(path) -> dict:
+    """{file channel name: array} as OpenEXR reads the file."""
+    return {n: c.pixels for n, c in OpenEXR.File(str(path), separate_channels=True).channels().items()}
+
+
+def save_raw(path, named: dict) -> None:
+    """What this project's former hand-made writer made: flat FLOAT channels, uncompressed scanlines."""
+    OpenEXR.File({"compression": OpenEXR.NO_COMPRESSION}, {n: np.asarray(v, np.float32) for n, v in named.items()}
+                 ).write(str(path))
 
 
 @pytest.fixture
@@ -38,60 +51,99 @@ def car_job(tmp_path):
 def test_written_channels_are_the_named_ones(car_job):
     _, _, paths = car_job
     for p in paths:
-        raw = exr.read(p)
-        assert sorted(raw) == sorted(["R", "G", "B", "hole", "asset_mask", "Z"]) == sorted(channels.CHANNELS)
-        assert 0.05 < (raw["asset_mask"] > 0.5).mean() < 0.95                   # the car is in view
-        assert channels.read(p).keys() == raw.keys()
+        f = OpenEXR.File(p, separate_channels=True)
+        assert sorted(f.channels()) == sorted(channels.FILE_NAMES.values()) == [
+            "asset_mask.Y", "depth.Z", "hole.Y", "image.B", "image.G", "image.R"]
+        assert f.header()["compression"] == OpenEXR.ZIP_COMPRESSION
+        layers = channels.read(p)
+        assert sorted(layers) == sorted(channels.CHANNELS)
+        assert 0.05 < (layers["asset_mask"] > 0.5).mean() < 0.95                   # the car is in view
+        for c in channels.CHANNELS:
+            assert np.array_equal(layers[c], f.channels()[channels.FILE_NAMES[c]].pixels), c
 
 
 def test_conditions_written_before_the_rename_still_load(car_job):
-    """An output folder rendered when the channel was called ``asset``: the render keeps its frames (same job) and
-    generate's loader gives exactly the tensors of the current files."""
+    """An output folder rendered by the former writer (flat names, uncompressed) when the mask was called
+    ``asset``: the render keeps its frames (same job, same key) and generate's loader gives exactly the tensors of
+    the current files."""
     path, job, paths = car_job
     image, asset_mask, valid = gen.load_conditions(path, job)
     assert asset_mask.shape == (2, 1, 32, 48) and float(asset_mask.max()) > 0.5
-    for p in paths:  # what the earlier writer made: the same exr.write, the mask under its former name
-        old = exr.read(p)
-        old["asset"] = old.pop("asset_mask")
-        exr.write(p, old)
-        assert "asset" in exr.read(p) and "asset_mask" not in exr.read(p)
+    for p in paths:
+        layers = channels.read(p)
+        layers["asset"] = layers.pop("asset_mask")
+        save_raw(p, layers)
+        assert "asset" in raw(p) and "image.R" not in raw(p)
     r = render_cmd.render_job(path, job, "cpu")
     assert r["rendered"] == 0 and r["skipped"] == 2                           # kept, not rendered again
-    assert "asset" in exr.read(paths[0])
+    assert "asset" in raw(paths[0])
     again = gen.load_conditions(path, job)
     for a, b in zip((image, asset_mask, valid), again):
-        assert torch_equal(a, b)
+        assert a.shape == b.shape and bool((a == b).all())
     layers = channels.read(paths[1])
     assert "asset" not in layers and np.array_equal(layers["asset_mask"], asset_mask[1, 0].numpy())
 
 
 def test_missing_channel_names_file_and_channel(car_job):
     path, job, paths = car_job
-    raw = exr.read(paths[1])
-    del raw["asset_mask"]
-    exr.write(paths[1], raw)
+    named = raw(paths[1])
+    del named["asset_mask.Y"]
+    save_raw(paths[1], named)
     with pytest.raises(channels.ConditionsError) as e:
         gen.load_conditions(path, job)
     assert isinstance(e.value, files.InputError) and e.value.field == "channels"
     assert "frame_000002.exr" in str(e.value) and "asset_mask" in e.value.message and "render" in e.value.hint
     # Z is not needed to generate, but a reader asking for every channel is told it is missing
-    raw = exr.read(paths[0])
-    del raw["Z"]
-    exr.write(paths[0], raw)
+    named = raw(paths[0])
+    del named["depth.Z"]
+    save_raw(paths[0], named)
     with pytest.raises(channels.ConditionsError, match="'Z'"):
         channels.read(paths[0])
 
 
-def test_writer_takes_exactly_the_channels(tmp_path):
-    z = np.zeros((2, 3), np.float32)
-    layers = {c: z for c in channels.CHANNELS}
-    channels.write(tmp_path / "ok.exr", layers)
-    assert sorted(exr.read(tmp_path / "ok.exr")) == sorted(channels.CHANNELS)
-    for bad in ({**{c: z for c in channels.CHANNELS if c != "asset_mask"}, "asset": z}, {**layers, "extra": z}):
-        with pytest.raises(ValueError, match="condition layers"):
-            channels.write(tmp_path / "bad.exr", bad)
-    assert not (tmp_path / "bad.exr").exists()
+def test_half_float_is_part_of_the_resume_key(car_job):
+    """``half``: I, M, M_a stored as HALF; another precision renders every frame again; ``half=None`` (generate,
+    evaluate) keeps what the folder has; the job key of a float32 render is the one of earlier versions."""
+    path, job, paths = car_job
+    float_layers = channels.read(paths[0])
+    assert render_cmd.job_key(path, job, 0) == render_cmd.job_key(path, job, 0, half=False)
+    assert render_cmd.job_key(path, job, 0, half=True) != render_cmd.job_key(path, job, 0)
+    r = render_cmd.render_job(path, job, "cpu", half=True)
+    assert r["rendered"] == 2                                                 # another precision: rendered again
+    f = OpenEXR.File(paths[0], separate_channels=True)
+    assert f.channels()["image.R"].type() == OpenEXR.HALF and f.channels()["depth.Z"].type() == OpenEXR.FLOAT
+    half_layers = channels.read(paths[0])
+    for c in channels.HALF_LAYERS:
+        assert np.array_equal(half_layers[c], float_layers[c].astype(np.float16).astype(np.float32)), c
+    assert np.array_equal(half_layers["Z"], float_layers["Z"])
+    assert render_cmd.render_job(path, job, "cpu")["skipped"] == 2            # generate's call keeps them
+    gen.load_conditions(path, job)
+    assert render_cmd.render_job(path, job, "cpu", half=False)["rendered"] == 2
+    assert OpenEXR.File(paths[0], separate_channels=True).channels()["image.R"].type() == OpenEXR.FLOAT
 
 
-def torch_equal(a, b) -> bool:
-    return a.shape == b.shape and bool((a == b).all())
+def test_half_float_options_of_render_and_batch(car_job, capsys):
+    """``--half-float`` of ``render`` and ``batch`` (the command line parsed and run in this process: the
+    subprocess start-up, torch's import, is what makes ``python -m backend`` slow)."""
+    import json
+
+    from backend.__main__ import main
+
+    path, job, paths = car_job
+
+    def run(*argv):
+        capsys.readouterr()
+        code = main([str(a) for a in argv])
+        return code, [json.loads(line) for line in capsys.readouterr().out.splitlines() if line.strip()]
+
+    def stored():
+        return OpenEXR.File(paths[1], separate_channels=True).channels()["hole.Y"].type()
+
+    code, ev = run("render", path, "--device", "cpu", "--half-float")
+    assert code == 0 and ev[-1]["event"] == "done" and ev[-1]["rendered"] == 2 and stored() == OpenEXR.HALF
+    code, ev = run("batch", path, "--device", "cpu")                       # float32 again: rendered again
+    assert code == 0 and ev[-1]["items"][0]["status"] == "ok" and stored() == OpenEXR.FLOAT
+    code, ev = run("batch", path, "--device", "cpu", "--half-float")
+    assert code == 0 and stored() == OpenEXR.HALF
+    code, ev = run("batch", path, "--command", "generate", "--half-float")
+    assert code == 2 and ev[-1]["field"] == "--half-float" and "render" in ev[-1]["message"]

@@ -10,7 +10,7 @@ import bpy
 import numpy as np
 import pytest
 
-from backend.render import exr
+from backend.render import channels
 from scpainter_blender.core import job as J
 from scpainter_blender.core import shapes
 from tests_support import run_backend
@@ -59,8 +59,8 @@ def test_recorded_drive_reproduces_the_frames(street_jobs, street):
     cond = os.path.join(os.path.dirname(job_path), "conditions")
     psnrs = []
     for i in (0, 8, 15):
-        layers = exr.read(os.path.join(cond, f"frame_{i + 1:06d}.exr"))
-        assert sorted(layers) == ["B", "G", "R", "Z", "asset_mask", "hole"]  # the file's channels, as named
+        layers = channels.read(os.path.join(cond, f"frame_{i + 1:06d}.exr"))
+        assert sorted(layers) == ["B", "G", "R", "Z", "asset_mask", "hole"]  # the layers, by their in-memory names
         assert not layers["asset_mask"].any()                     # no assets: an empty asset mask
         img = np.stack([layers["R"], layers["G"], layers["B"]], -1)
         gt = _pixels(street.frame_path("recorded", i))
@@ -70,7 +70,7 @@ def test_recorded_drive_reproduces_the_frames(street_jobs, street):
         mse = np.mean((img[covered] - gt[covered]) ** 2)
         psnrs.append(10 * np.log10(1.0 / mse))
     assert min(psnrs) > 25.0, psnrs  # the frame's own points and its neighbours' land where they were seen
-    first = exr.read(os.path.join(cond, "frame_000001.exr"))
+    first = channels.read(os.path.join(cond, "frame_000001.exr"))
     preview = _pixels(os.path.join(cond, "preview_000001.png"))  # the PNG is the EXR's image in 8 bits
     assert np.abs(preview - np.stack([first[c] for c in "RGB"], -1)).max() <= 0.5 / 255 + 1e-6
     # resume: finished frames are skipped; --force renders them again
@@ -90,7 +90,7 @@ def test_shifted_drive_with_a_car(street_jobs):
     code, ev, err = backend("render", job_path, "--device", "cpu", "--allow-outside")
     assert code == 0, err
     cond = os.path.join(os.path.dirname(job_path), "conditions")
-    layers = exr.read(os.path.join(cond, "frame_000001.exr"))
+    layers = channels.read(os.path.join(cond, "frame_000001.exr"))
     car = layers["asset_mask"] > 0.5
     assert car.mean() > 0.01                                   # the parked car is in view
     blue = np.stack([layers["R"], layers["G"], layers["B"]], -1)[car]
@@ -117,7 +117,7 @@ def test_sigterm_keeps_finished_frames_and_resumes(street_jobs):
     cond = os.path.join(os.path.dirname(job_path), "conditions")
     assert not [f for f in os.listdir(cond) if f.endswith(".tmp")]
     for e in done:
-        exr.read(os.path.join(cond, f"frame_{e['frame']:06d}.exr"))  # complete, readable files
+        channels.read(os.path.join(cond, f"frame_{e['frame']:06d}.exr"))  # complete, readable files
     code, ev, _ = backend("render", job_path, "--device", "cpu", "--allow-outside")
     assert code == 0 and ev[-1]["rendered"] + ev[-1]["skipped"] == 16 and ev[-1]["skipped"] >= len(done)
 
@@ -145,7 +145,7 @@ def test_assets_only_job(tmp_path):
     J.save(tmp_path / "job.json", job)
     code, ev, err = backend("render", tmp_path / "job.json", "--device", "cpu")
     assert code == 0, err
-    layers = exr.read(tmp_path / "out" / "conditions" / "frame_000001.exr")
+    layers = channels.read(tmp_path / "out" / "conditions" / "frame_000001.exr")
     assert 0.05 < (layers["asset_mask"] > 0.5).mean() < 0.9
     assert np.array_equal(layers["hole"] == 1, layers["asset_mask"] < 1 / 255)
 

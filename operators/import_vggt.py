@@ -54,11 +54,17 @@ class SCPAINTER_OT_import_vggt(bpy.types.Operator, ImportHelper):
         name="Crop", default="auto",
         description="Borders to leave out, in pixels: 'auto' (the white padding of VGGT's pad preprocessing), "
                     "'none', or 'left top right bottom'. The camera's principal point and resolution follow")
+    depth_edge_ratio: bpy.props.FloatProperty(
+        name="Depth Edge Ratio", default=importer.DEPTH_EDGE_RATIO or 0.0, min=0.0, max=100.0, soft_max=0.5,
+        precision=3, step=1,
+        description="Drop pixels whose depth jumps by more than this fraction of their own depth to one of their 8 "
+                    "neighbours: VGGT's \"flying pixels\", smeared across depth edges, which show as streaks from a "
+                    "shifted camera. 0 turns it off. The exported job renders with the same setting")
 
     def draw(self, context):
         col = self.layout.column()
         col.use_property_split = True
-        for name in ("confidence_percentile", "point_source", "scale_mode"):
+        for name in ("confidence_percentile", "depth_edge_ratio", "point_source", "scale_mode"):
             col.prop(self, name)
         col.prop(self, {"FACTOR": "scale_factor", "TRAJECTORY": "trajectory_path",
                         "CAMERA_HEIGHT": "camera_height"}[self.scale_mode])
@@ -73,7 +79,9 @@ class SCPAINTER_OT_import_vggt(bpy.types.Operator, ImportHelper):
             camera_height=self.camera_height,
             point_radius=self.point_radius, current_frame_only=self.current_frame_only,
             frame_window=self.frame_window, frame_start=context.scene.frame_start,
-            extrinsic_convention=self.extrinsic_convention, crop=self.crop)
+            extrinsic_convention=self.extrinsic_convention, crop=self.crop,
+            # the property is float32 (0.05 reads 0.0500000007): back to the decimal typed (6 digits survive float32)
+            depth_edge_ratio=float(f"{self.depth_edge_ratio:.6g}"))
         result = importer.import_vggt(context, self.filepath, opts)  # InputError: reported by @reports.reported
         for w in result.warnings:
             self.report({"WARNING"}, w)
@@ -82,7 +90,9 @@ class SCPAINTER_OT_import_vggt(bpy.types.Operator, ImportHelper):
         selection.select_only(context, result.points)
         _show_attribute_colours(context)
         fit = result.fit
-        self.report({"INFO"}, f"Imported {result.num_points:,} points and {result.camera.name!r} in "
+        edges = "depth-edge test off" if result.depth_edge_ratio is None else \
+            f"{result.depth_edge_points:,} on depth edges left out (ratio {result.depth_edge_ratio:g})"
+        self.report({"INFO"}, f"Imported {result.num_points:,} points ({edges}) and {result.camera.name!r} in "
                               f"{result.timings['total']:.2f} s; scale {fit.scale:.4g} m/unit ({fit.method}, "
                               f"residual {fit.residual_m:.3g} m)")
         return {"FINISHED"}

@@ -45,8 +45,21 @@ def test_demo_writes_blend_and_preview(street, tmp_path):
     assert cond["asset_pixels"][0] > 1000  # the car fills part of the first frames
     from backend.render import channels
 
-    layers = channels.read(os.path.join(cond["folder"], "frame_000001.exr"))
+    first = os.path.join(cond["folder"], "frame_000001.exr")
+    layers = channels.read(first)
     assert sorted(layers) == ["B", "G", "R", "Z", "asset_mask", "hole"]
+    import OpenEXR
+
+    with OpenEXR.File(first, header_only=True) as f:  # lossless ZIP, the passes named for compositors
+        assert f.header()["compression"] == OpenEXR.ZIP_COMPRESSION
+        assert sorted(c.name for c in f.header()["channels"]) == sorted(channels.FILE_NAMES.values())
+    img = bpy.data.images.load(first)  # Blender opens it as one image of four passes
+    node_tree = bpy.data.node_groups.new("demo_passes", "CompositorNodeTree")
+    node = node_tree.nodes.new("CompositorNodeImage")
+    node.image = img
+    assert img.type == "MULTILAYER" and {"image", "hole", "asset_mask", "depth"} <= {o.name for o in node.outputs}
+    bpy.data.node_groups.remove(node_tree)
+    bpy.data.images.remove(img)
     assert "conditions" in proc.stderr
     assert summary["generation"]["skipped"] and "init-checkpoint" in summary["generation"]["reason"]
     assert "generation skipped" in proc.stderr

@@ -319,7 +319,7 @@ def render_frame(scene: Scene, entry: job_mod.Frame, width: int, height: int, po
             A = np.array(a.object_to_world[entry.frame], np.float64)
             A[:3, 3] -= scene.origin  # relative to the scene origin, like the points
             # the projection runs in float64 on every device (a few hundred flops per Gaussian; it keeps thin
-            # Gaussians' pixel coordinates exact, see tiles.kernel_inputs): assets are stored in float64
+            # Gaussians' pixel coordinates exact, see tiles_cpu): assets are stored in float64
             At = torch.as_tensor(A, dtype=torch.float64, device=dev)
             means.append(a.means @ At[:3, :3].T + At[:3, 3])
             factors.append(At[:3, :3] @ a.factors)

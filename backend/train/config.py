@@ -76,6 +76,10 @@ class TrainConfig:
     def to_json(self) -> dict:
         d = asdict(self)
         d.pop("path")
+        # as the job writes it (only the chosen outlier method's fields), resolved: a checkpoint's config says
+        # what its pairs were cleaned with even after the defaults change (None, in code: both filters off)
+        c = self.pairs.point_cleaning or job_mod.PointCleaning(None, None)
+        d["pairs"]["point_cleaning"] = c.to_dict()
         return {"schema": SCHEMA, **d}
 
 
@@ -83,6 +87,16 @@ def _short(v) -> str:
     """A value for a message: its repr, cut (a setting can be a 100 MB list)."""
     text = repr(v)
     return text if len(text) <= 80 else text[:77] + "..."
+
+
+def point_cleaning(value, path: str) -> job_mod.PointCleaning:
+    """``pairs.point_cleaning``: read by the job's own reader (``job.PointCleaning.from_dict``: the same fields,
+    bounds and defaults as a job's ``scene.point_cleaning``; absent fields take ``job.POINT_CLEANING``, ``null``
+    turns a filter or both off), its errors raised as this file's, naming ``pairs.point_cleaning.<field>``."""
+    try:
+        return job_mod.PointCleaning.from_dict(value, path, "pairs.point_cleaning")
+    except job_mod.JobError as e:
+        raise TrainConfigError(e.path, e.field, e.message, e.hint) from None
 
 
 #: Integers beyond this are refused: torch and the data loader take C ints, and no setting needs more.
@@ -174,6 +188,8 @@ def from_dict(data: dict, path: str = "train.json") -> TrainConfig:
     if set(pairs) - pk:
         raise TrainConfigError(path, "pairs", f"unknown keys {sorted(set(pairs) - pk)} (known: "
                                               f"{', '.join(sorted(pk))})")
+    if "point_cleaning" in pairs:  # checked here, whole (absent: PairSettings' default, the job's defaults)
+        pairs = {**pairs, "point_cleaning": point_cleaning(pairs["point_cleaning"], path)}
     if isinstance(data.get("adam_betas"), list):  # JSON has no tuples; anything else is refused by _check
         data["adam_betas"] = tuple(data["adam_betas"])
     try:

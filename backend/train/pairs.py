@@ -12,7 +12,10 @@ A sample is ``frames`` consecutive target frames t0 .. t0+F−1 of one clip. For
   is composited at its box in frame t. The rendered asset mask M_a at this observed viewpoint comes out with I.
 
 Rendering is the inference renderer's (``backend.render.frames.render_frame``) at the training resolution, with the
-clip's intrinsics scaled to it. Layers, as ``generate`` loads them: I (3, H, W) and M_a, validity = 1 − hole
+clip's intrinsics scaled to it, and the clip's points are cleaned as a job's scene is (``PairSettings.point_cleaning``,
+a ``core.job.PointCleaning`` with the job's defaults): pixels on depth edges left out of each source frame, then,
+when set, outliers of the whole cloud; so the condition layers the model learns from have the artefacts (and the
+holes) of those it gets at inference. Layers, as ``generate`` loads them: I (3, H, W) and M_a, validity = 1 − hole
 (1, H, W), float32 in [0, 1]. All randomness comes from the generator the caller passes, so a sample index and a
 seed determine the sample (exact resume, identical across DataLoader workers).
 """
@@ -20,7 +23,7 @@ seed determine the sample (exact resume, identical across DataLoader workers).
 from __future__ import annotations
 
 from collections import OrderedDict
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
@@ -28,6 +31,7 @@ import torch
 from scpainter_blender.core import cameras, files, point_cloud, splats_io
 from scpainter_blender.core import job as job_mod
 
+from ..render import cleaning
 from ..render import frames as fr
 from . import clip as clip_mod
 
@@ -44,6 +48,8 @@ class PairSettings:
     grow_m: float = 0.2
     confidence_percentile: float = 50.0
     point_radius: int = 0
+    # the job's scene.point_cleaning, with its defaults (job.POINT_CLEANING); None: no cleaning
+    point_cleaning: job_mod.PointCleaning | None = field(default_factory=job_mod.PointCleaning)
 
 
 def load_resized(path: str, width: int, height: int) -> torch.Tensor:
@@ -60,9 +66,32 @@ def load_resized(path: str, width: int, height: int) -> torch.Tensor:
         raise files.InputError(path, "(file)", f"cannot read the image ({e})") from None
 
 
+def clean_cloud(pred, confidence_percentile: float, vggt_to_world, point_cleaning):
+    """The clip's points as ``frames.load_scene`` makes a scene's, cleaned by ``point_cleaning`` (a
+    ``job.PointCleaning``; None: not cleaned): ``point_cloud`` with the depth-edge test per source frame, then
+    ``cleaning.outlier_keep`` on the whole cloud. Returns (positions (N, 3) float64 output world, colors (N, 3)
+    float32 sRGB, offsets (S + 1,) int64: source frame i's points are [offsets[i], offsets[i + 1]), stats dict).
+
+    The same calls as load_scene, in the same order. One difference: a job's removal boxes are applied before its
+    outlier removal, while an asset pair removes its car's points per sample, after it (open3d once per sample
+    would cost seconds), so with ``outliers`` set the car's points take part in judging their neighbours."""
+    clean = point_cleaning or job_mod.PointCleaning(None, None)
+    cloud = point_cloud.point_cloud(pred, confidence_percentile, vggt_to_world=vggt_to_world,
+                                    depth_edge_ratio=clean.depth_edge_ratio)
+    keep = cleaning.outlier_keep(cloud.positions, clean.outliers)
+    stats = {"depth_edge_points": cloud.depth_edge_points, "outlier_points": int((~keep).sum())}
+    if keep.all():  # no outlier removal, or nothing removed: no copies
+        return cloud.positions, cloud.colors, cloud.offsets, stats
+    # point_cloud writes the frames in order, so the kept points stay grouped by frame; count them again
+    counts = np.bincount(cloud.frame[keep], minlength=pred.num_frames)
+    offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    return cloud.positions[keep], cloud.colors[keep], offsets, stats
+
+
 class PairMaker:
-    """Renders training samples of one clip. Holds the clip's point cloud (relative to the first camera, float32,
-    grouped by source frame), its assets, and the targets resized to the training resolution."""
+    """Renders training samples of one clip. Holds the clip's point cloud (cleaned by ``settings.point_cleaning``,
+    relative to the first camera, float32, grouped by source frame), its assets, and the targets resized to the
+    training resolution. ``cleaning`` says how many points each filter dropped."""
 
     def __init__(self, clip: clip_mod.Clip, settings: PairSettings, device="cpu"):
         s = self.settings = settings
@@ -70,11 +99,11 @@ class PairMaker:
             raise clip_mod.ClipError(clip.path, "predictions",
                                      f"the clip has {clip.num_frames} frames, fewer than the {s.frames} of a sample")
         self.clip, self.device = clip, torch.device(device)
-        cloud = point_cloud.point_cloud(clip.predictions, s.confidence_percentile, vggt_to_world=clip.vggt_to_world)
+        positions, colors, self.offsets, self.cleaning = clean_cloud(clip.predictions, s.confidence_percentile,
+                                                                     clip.vggt_to_world, s.point_cleaning)
         self.origin = cameras.camera_centers(clip.world_to_camera[0])
-        self.xyz = torch.as_tensor((cloud.positions - self.origin).astype(np.float32), device=self.device)
-        self.rgb = torch.as_tensor(cloud.colors, device=self.device)
-        self.offsets = cloud.offsets
+        self.xyz = torch.as_tensor((positions - self.origin).astype(np.float32), device=self.device)
+        self.rgb = torch.as_tensor(colors, device=self.device)
         self.K = clip.K_for(s.width, s.height)
         self.assets = {}
         for i, car in enumerate(clip.cars):

@@ -2,6 +2,7 @@
 
     blender -c scpainter import predictions.npz --camera-height 1.6 --save scene.blend
     blender -c scpainter import predictions.npz --extrinsic-convention camera_to_world --crop "0 77 0 77"
+    blender -c scpainter import predictions.npz --depth-edge-ratio off
     blender -c scpainter render scene.blend [--output DIR] [--device cpu|cuda|auto]
     blender -c scpainter generate scene.blend --checkpoint /models/scpainter
     blender -c scpainter batch a.blend b.blend jobs/c.json [--list scenes.txt] --command generate [--shard 0/4]
@@ -48,6 +49,17 @@ class _Parser(argparse.ArgumentParser):
         raise files.ArgumentError(field, named.group(2) if named else message, hint=f"see {self.prog} --help")
 
 
+def _ratio_or_off(text: str) -> float | None:
+    """``--depth-edge-ratio``: a number, or "off" (None); its range is ``ImportOptions.check``'s."""
+    if text.strip().lower() == "off":
+        return None
+    try:
+        return float(text)
+    except ValueError:  # (float() of the user's text)
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a fraction of the pixel's depth such as 0.05, "
+                                         f"or off") from None
+
+
 def _parser():
     p = _Parser(prog="blender -c scpainter", description=__doc__.split("\n\n")[0])
     sub = p.add_subparsers(dest="command", required=True)
@@ -63,6 +75,10 @@ def _parser():
                    help="what the file's extrinsic holds; auto: VGGT's world-to-camera, checked against world_points")
     i.add_argument("--crop", default="auto", help="borders to leave out: auto (VGGT's white padding), none, or "
                                                   "'LEFT TOP RIGHT BOTTOM' pixels")
+    i.add_argument("--depth-edge-ratio", type=_ratio_or_off, default=importer.DEPTH_EDGE_RATIO,
+                   help="drop pixels whose depth jumps by more than this fraction of their own to a neighbour "
+                        "(VGGT's flying pixels across depth edges); off or 0: keep them; the exported job renders "
+                        f"with the same setting (default {importer.DEPTH_EDGE_RATIO})")
     i.add_argument("--save", help="write the scene to this .blend (written to a temporary file, then renamed)")
     for name in ("render", "generate", "batch"):
         c = sub.add_parser(name, help={"render": "render a .blend's condition layers",
@@ -88,7 +104,8 @@ def _parser():
 
 def _import(args) -> dict:
     opts = importer.ImportOptions(confidence_percentile=args.confidence_percentile, point_source=args.point_source,
-                                  extrinsic_convention=args.extrinsic_convention, crop=args.crop)
+                                  extrinsic_convention=args.extrinsic_convention, crop=args.crop,
+                                  depth_edge_ratio=args.depth_edge_ratio)
     if args.trajectory:
         opts.scale_mode, opts.trajectory_path = "TRAJECTORY", args.trajectory
     elif args.camera_height is not None:
@@ -98,9 +115,10 @@ def _import(args) -> dict:
     try:
         opts.check()
     except files.InputError as e:  # named as the option the user typed
-        raise files.ArgumentError("--" + e.field.replace("_", "-"), e.message) from None
+        raise files.ArgumentError("--" + e.field.replace("_", "-"), e.message, hint=e.hint) from None
     result = importer.import_vggt(bpy.context, args.predictions, opts)
     out = {"points": result.num_points, "points_object": result.points.name, "camera": result.camera.name,
+           "depth_edge_ratio": result.depth_edge_ratio, "depth_edge_points": result.depth_edge_points,
            "scale": result.fit.scale, "scale_method": result.fit.method, "residual_m": result.fit.residual_m,
            "warnings": result.warnings, "predictions": result.load_report.to_json(), "timings_s": result.timings}
     if args.save:

@@ -14,6 +14,7 @@ import bpy
 import numpy as np
 
 from ..core import cameras, files, geometry, metric_scale, point_cloud, similarity, vggt, vggt_io
+from ..core import job as job_mod
 from . import camera as camera_mod
 from . import node_groups
 from . import points as points_mod
@@ -21,6 +22,9 @@ from . import points as points_mod
 SCALE_MODES = ("FACTOR", "TRAJECTORY", "CAMERA_HEIGHT")
 #: The ``path`` of an InputError about an import option (``field``: the ``ImportOptions`` name).
 OPTIONS = "(import options)"
+#: The depth-edge test's ratio when none is given: the job's own default (``core.job.POINT_CLEANING``, the one place
+#: it is written), so the viewport shows the points a job exported with no further setting renders.
+DEPTH_EDGE_RATIO = job_mod.POINT_CLEANING["depth_edge_ratio"]
 
 
 @dataclass
@@ -38,6 +42,14 @@ class ImportOptions:
     set_scene_camera: bool = True
     extrinsic_convention: str = "auto"   # "auto" (check against world_points), "world_to_camera", "camera_to_world"
     crop: str = "auto"                   # "auto" (VGGT's white padding), "none", or "left top right bottom" pixels
+    # drop pixels whose depth jumps by more than this fraction of their own to a neighbour (VGGT's "flying pixels",
+    # core.point_cloud.depth_edges); None or 0: off. Stored on the objects; the exported job renders with it.
+    depth_edge_ratio: float | None = DEPTH_EDGE_RATIO
+
+    @property
+    def edge_ratio(self) -> float | None:
+        """The depth-edge ratio as ``point_cloud`` and the job take it: None when off (None or 0)."""
+        return None if self.depth_edge_ratio is None or self.depth_edge_ratio == 0 else float(self.depth_edge_ratio)
 
     def check(self) -> "ImportOptions":
         """Refuse options no import can use, before any file is read: InputError with path ``OPTIONS`` and the
@@ -59,6 +71,12 @@ class ImportOptions:
             raise bad("point_radius", f"expected metres >= 0, got {self.point_radius}")
         if isinstance(self.frame_window, bool) or not isinstance(self.frame_window, int) or self.frame_window < 0:
             raise bad("frame_window", f"expected a number of frames >= 0, got {self.frame_window!r}")
+        lo, hi = job_mod.DEPTH_EDGE_RATIO_BOUNDS  # the job's bounds: whatever the import takes, the export writes
+        r = self.depth_edge_ratio
+        if r is not None and not (number(r) and (r == 0 or lo <= r <= hi)):
+            raise files.InputError(OPTIONS, "depth_edge_ratio", f"expected a fraction of the pixel's depth in "
+                                   f"[{lo:g}, {hi:g}], or 0 for off, got {r!r}",
+                                   hint=f"0 turns the depth-edge test off; the default is {DEPTH_EDGE_RATIO}")
         return self
 
 
@@ -71,6 +89,8 @@ class ImportResult:
     timings: dict = field(default_factory=dict)
     warnings: list = field(default_factory=list)
     load_report: vggt.LoadReport | None = None   # convention (checked?), crop, NaN/inf pixels dropped
+    depth_edge_ratio: float | None = None        # the depth-edge test's ratio used (None: off)
+    depth_edge_points: int = 0                   # confident pixels it left out
 
 
 def metric_fit(pred: vggt.VGGTPredictions, opts: ImportOptions) -> metric_scale.MetricFit:
@@ -148,6 +168,9 @@ def _tag(obj, kind, filepath, fit, opts, rep: vggt.LoadReport):
     obj["scpainter_confidence_percentile"] = float(opts.confidence_percentile)
     obj["scpainter_extrinsic_convention"] = rep.extrinsic_convention
     obj["scpainter_crop"] = [int(c) for c in rep.crop]
+    # a custom property cannot hold None: 0.0 is off. A scene imported before this property existed has none: its
+    # points were not filtered, and job_export writes null (off) for it
+    obj["scpainter_depth_edge_ratio"] = opts.edge_ratio or 0.0
 
 
 def import_vggt(context, filepath: str, opts: ImportOptions | None = None) -> ImportResult:
@@ -162,7 +185,8 @@ def import_vggt(context, filepath: str, opts: ImportOptions | None = None) -> Im
     t_load = time.perf_counter()
     fit = metric_fit(pred, opts)
     t_fit = time.perf_counter()
-    pts = point_cloud.point_cloud(pred, opts.confidence_percentile, opts.point_source, fit.vggt_to_world)
+    pts = point_cloud.point_cloud(pred, opts.confidence_percentile, opts.point_source, fit.vggt_to_world,
+                                  depth_edge_ratio=opts.edge_ratio)
     t_unproject = time.perf_counter()
 
     scene = context.scene
@@ -194,4 +218,5 @@ def import_vggt(context, filepath: str, opts: ImportOptions | None = None) -> Im
     t_end = time.perf_counter()
     timings = {"load": t_load - t0, "metric_fit": t_fit - t_load, "unproject": t_unproject - t_fit,
                "points_object": t_points - t_unproject, "camera": t_end - t_points, "total": t_end - t0}
-    return ImportResult(obj, cam, fit, len(pts), timings, list(pred.report.warnings) + list(warnings), pred.report)
+    return ImportResult(obj, cam, fit, len(pts), timings, list(pred.report.warnings) + list(warnings), pred.report,
+                        opts.edge_ratio, pts.depth_edge_points)

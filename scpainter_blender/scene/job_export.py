@@ -2,10 +2,11 @@
 
 Per output frame the scene is evaluated, so keyframes, drivers, constraints and parents are all honoured:
 K comes from the camera's lens, sensor, shift and the render settings; world_to_camera from its matrix_world; an
-asset's object_to_world is its matrix_world composed with ``scpainter_file_to_data``. What the scene does not
-use is left out: no reconstruction, no ``scene``; no (accepted) assets, no ``assets``; no checkpoint, no
-``generate``. Generation settings are not written: the backend takes them from the checkpoint (window, guidance,
-fps) and ``core.job.GENERATE_DEFAULTS``.
+asset's object_to_world is its matrix_world composed with ``scpainter_file_to_data``; the points' cleaning is the
+depth-edge ratio they were imported with (``point_cleaning``), so the render loads the points the viewport shows.
+What the scene does not use is left out: no reconstruction, no ``scene``; no (accepted) assets, no ``assets``; no
+checkpoint, no ``generate``. Generation settings are not written: the backend takes them from the checkpoint
+(window, guidance, fps) and ``core.job.GENERATE_DEFAULTS``.
 """
 
 from __future__ import annotations
@@ -43,6 +44,15 @@ def source_frames(obj, scene_frame: int) -> list:
         centre = scene_frame - int(node_groups.get_input(mod, "Frame Offset"))
         return [i for i in range(centre - k, centre + k + 1) if 0 <= i < n]
     return list(range(n))
+
+
+def point_cleaning(obj) -> job_mod.PointCleaning:
+    """The job's point cleaning for a points object: the depth-edge ratio its viewport points were imported with
+    (``scpainter_depth_edge_ratio``; 0.0 is off), so the backend renders the points the artist saw; a points object
+    imported before that property existed was not filtered: null (off). Outlier removal, which the import does not
+    run, stays at the job's default."""
+    ratio = float(obj.get("scpainter_depth_edge_ratio", 0.0))
+    return job_mod.PointCleaning(depth_edge_ratio=ratio if ratio > 0 else None)
 
 
 def removal_box(obj) -> job_mod.RemovalBox:
@@ -95,7 +105,7 @@ def build_job(context, job_path: str, output_dir: str | None = None, checkpoint:
                            # how the import read the file: the backend loads the same poses and pixels
                            extrinsic_convention=str(pts.get("scpainter_extrinsic_convention", "world_to_camera")),
                            crop=[int(v) for v in pts.get("scpainter_crop", [0, 0, 0, 0])],
-                           removal_boxes=[removal_box(b) for b in boxes])
+                           removal_boxes=[removal_box(b) for b in boxes], point_cleaning=point_cleaning(pts))
     return job_mod.Job((W, H), out_frames, os.path.relpath(output_dir or job_dir, job_dir), scene=sc,
                        assets=[job_mod.Asset(a.name, os.path.relpath(a["scpainter_source"], job_dir), asset_m[a.name])
                                for a in assets],

@@ -185,3 +185,32 @@ def test_import_convention_crop_and_report(addon, empty_scene, tmp_path, capsys)
     assert any("not checked (the file has no world_points)" in w for w in ev["warnings"])
     assert any("dropped 2 pixels" in w for w in ev["warnings"])
     bpy.ops.wm.read_homefile(use_empty=True)
+
+
+def test_import_depth_edge_ratio(addon, empty_scene, tmp_path, capsys):
+    """--depth-edge-ratio: a ratio, or off / 0; the default is the job's; the summary says what it left out; a
+    ratio no job can hold is bad input named by the option."""
+    from vggt_cases import drive, write
+
+    from scpainter_blender.core import job as J
+
+    cli = _cli(addon)
+    S, H, W = 2, 12, 16
+    path = write(tmp_path, drive(S=S, H=H, W=W)[0])  # random depth per pixel: every pixel is a depth edge
+    default = J.POINT_CLEANING["depth_edge_ratio"]
+    for args, ratio, points in (([], default, 0), (["--depth-edge-ratio", "off"], None, S * H * W),
+                                (["--depth-edge-ratio", "0"], None, S * H * W),
+                                (["--depth-edge-ratio", "100"], 100.0, S * H * W)):   # no jump is 100× a depth
+        bpy.ops.wm.read_homefile(use_empty=True)
+        assert cli.execute(["import", path, "--confidence-percentile", "0", *args]) == 0, args
+        ev = _last_event(capsys)
+        assert (ev["depth_edge_ratio"], ev["points"], ev["depth_edge_points"]) == (ratio, points, S * H * W - points)
+        pts = next(o for o in bpy.context.scene.objects if o.get("scpainter_kind") == "points")
+        assert pts["scpainter_depth_edge_ratio"] == (ratio or 0.0) and len(pts.data.vertices) == points
+    bpy.ops.wm.read_homefile(use_empty=True)
+    for value in ("-0.1", "1e-5", "nan", "200", "sometimes"):
+        assert cli.execute(["import", path, "--depth-edge-ratio", value]) == 2, value
+        ev = _last_event(capsys)
+        assert ev["file"] == "(command line)" and ev["field"] == "--depth-edge-ratio", ev
+        assert "expected a fraction of the pixel's depth" in ev["message"] and "off" in ev["message"]
+    assert len(bpy.data.objects) == 0

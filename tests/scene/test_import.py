@@ -8,8 +8,13 @@ import numpy as np
 import pytest
 
 from scpainter_blender.core import cameras as C
+from scpainter_blender.core import job as J
 from scpainter_blender.core import metric_scale, point_cloud, similarity, unproject, vggt_io
 from scpainter_blender.core import vggt as V
+
+
+#: The depth-edge ratio an import uses when none is given: the job's default.
+EDGE_RATIO = J.POINT_CLEANING["depth_edge_ratio"]
 
 
 def _metric_path(street):
@@ -47,10 +52,12 @@ def test_import_matches_ground_truth(empty_scene, street):
     assert pts_obj["scpainter_scale_residual_m"] < 1e-4
     assert pts_obj["scpainter_source"] == os.path.abspath(street.predictions_path)
     assert pts_obj["scpainter_scale_method"] == "trajectory"
+    assert pts_obj["scpainter_depth_edge_ratio"] == EDGE_RATIO   # the job's default, when none is given
 
-    # the points: exactly the core's point cloud, in metric Blender world, on the street's true surfaces
-    ref = point_cloud.point_cloud(pred, 50.0, vggt_to_world=M)
-    assert len(pts_obj.data.vertices) == len(ref) > 100_000
+    # the points: exactly the core's point cloud (depth edges left out), in metric Blender world, on the street's
+    # true surfaces
+    ref = point_cloud.point_cloud(pred, 50.0, vggt_to_world=M, depth_edge_ratio=EDGE_RATIO)
+    assert len(pts_obj.data.vertices) == len(ref) > 100_000 and ref.depth_edge_points > 1000
     world = _world_vertices(pts_obj)
     assert np.abs(world - ref.positions).max() < 1e-4
     frames = np.empty(len(ref), np.int32)
@@ -60,6 +67,7 @@ def test_import_matches_ground_truth(empty_scene, street):
                                    metric["world_to_camera"])
     conf = pred.depth_conf
     keep = (conf >= np.percentile(conf, 50)) & (conf > 1e-5) & (pred.depth > 0)
+    keep &= ~np.stack([point_cloud.depth_edges(d, EDGE_RATIO) for d in pred.depth])
     assert np.abs(world - gt[keep]).max() < 2e-3  # float32 depth in VGGT units, float32 vertices
 
     # colours: the source image values, as 8-bit sRGB
@@ -85,7 +93,8 @@ def test_import_matches_ground_truth(empty_scene, street):
 
 def test_current_frame_only_shows_that_frame(empty_scene, street):
     pts_obj, _ = _import(street, current_frame_only=True, frame_window=0)
-    ref = point_cloud.point_cloud(vggt_io.load_predictions(street.predictions_path), 50.0)
+    ref = point_cloud.point_cloud(vggt_io.load_predictions(street.predictions_path), 50.0,
+                                  depth_edge_ratio=EDGE_RATIO)
     counts = np.diff(ref.offsets)
     from scpainter_blender.scene import node_groups, points
 
@@ -283,8 +292,9 @@ def test_import_menu_and_large_coordinates(empty_scene, tmp_path):
     pred = vggt_io.load_predictions(path)
     M = similarity.similarity_matrix(10.0, metric_scale.OPENCV_TO_BLENDER_AXES, [1e5, 2e5, 50.0])
     np.savez(traj, world_to_camera=similarity.transform_world_to_camera(pred.world_to_camera, M))
+    # (random depth per pixel is all depth edges: the test off, as for every synthetic file below)
     assert bpy.ops.scpainter.import_vggt(filepath=path, scale_mode="TRAJECTORY", trajectory_path=traj,
-                                         confidence_percentile=0.0) == {"FINISHED"}
+                                         confidence_percentile=0.0, depth_edge_ratio=0.0) == {"FINISHED"}
     obj = next(o for o in bpy.context.scene.objects if o.get("scpainter_kind") == "points")
     ref = point_cloud.point_cloud(pred, 0.0, vggt_to_world=M)
     local = np.empty(len(ref) * 3, np.float32)
@@ -315,8 +325,8 @@ def _installed(addon, module):
     return sys.modules[f"{addon}.scpainter_blender.{module}"]
 
 
-def _job_scene_points(tmp_path):
-    """The job the scene exports, and the points the backend loads from it (world metres)."""
+def _job_scene_points(tmp_path, with_scene=False):
+    """The job the scene exports, and the points the backend loads from it (world metres) (and its Scene)."""
     from backend.render import frames
 
     from scpainter_blender.scene import job_export
@@ -324,7 +334,8 @@ def _job_scene_points(tmp_path):
     path = str(tmp_path / "job.json")
     job = job_export.export_job(bpy.context, path)
     scene = frames.load_scene(job, path, "cpu")
-    return job, scene.xyz.numpy().astype(np.float64) + scene.origin
+    points = scene.xyz.numpy().astype(np.float64) + scene.origin
+    return (job, points, scene) if with_scene else (job, points)
 
 
 def test_camera_to_world_file_refused_then_imported(empty_scene, tmp_path):
@@ -341,8 +352,9 @@ def test_camera_to_world_file_refused_then_imported(empty_scene, tmp_path):
     assert "Extrinsic Convention" in msg and "camera_to_world" in msg
     assert len(bpy.data.objects) == n  # nothing half-imported
 
+    # the drive's depth is random per pixel, every pixel a depth edge: imported with the test off
     assert bpy.ops.scpainter.import_vggt(filepath=path, scale_factor=2.0, confidence_percentile=0.0,
-                                         extrinsic_convention="camera_to_world") == {"FINISHED"}
+                                         extrinsic_convention="camera_to_world", depth_edge_ratio=0.0) == {"FINISHED"}
     pts = next(o for o in empty_scene.objects if o.get("scpainter_kind") == "points")
     cam = empty_scene.camera
     for o in (pts, cam):
@@ -358,6 +370,7 @@ def test_camera_to_world_file_refused_then_imported(empty_scene, tmp_path):
     # the job carries the convention; the backend loads the very same points
     job, backend_points = _job_scene_points(tmp_path)
     assert job.scene.extrinsic_convention == "camera_to_world" and job.scene.crop == [0, 0, 0, 0]
+    assert job.scene.point_cleaning.depth_edge_ratio is None     # off at import: off in the job
     assert np.abs(backend_points - truth).max() < 1e-4
 
 
@@ -366,7 +379,8 @@ def test_padded_file_cropped_camera_and_job(empty_scene, tmp_path):
 
     arrays, w2c, intr = drive(H=22, W=32)
     padded = write(tmp_path, pad(arrays, 5, 5))
-    assert bpy.ops.scpainter.import_vggt(filepath=padded, confidence_percentile=0.0) == {"FINISHED"}
+    assert bpy.ops.scpainter.import_vggt(filepath=padded, confidence_percentile=0.0,
+                                         depth_edge_ratio=0.0) == {"FINISHED"}   # random depth: all edges
     scene = empty_scene
     assert (scene.render.resolution_x, scene.render.resolution_y) == (32, 22)
     pts = next(o for o in scene.objects if o.get("scpainter_kind") == "points")
@@ -379,7 +393,7 @@ def test_padded_file_cropped_camera_and_job(empty_scene, tmp_path):
     truth = truth @ metric_scale.OPENCV_TO_BLENDER_AXES.T
     assert np.abs(_world_vertices(pts) - truth).max() < 1e-4   # none of the padding's points
     job, backend_points = _job_scene_points(tmp_path)
-    assert job.scene.crop == [0, 5, 0, 5]
+    assert job.scene.crop == [0, 5, 0, 5] and job.scene.point_cleaning.depth_edge_ratio is None
     assert np.abs(backend_points - truth).max() < 1e-4
     # explicit crop, and no crop at all
     for crop, size in (("0 5 0 5", (32, 22)), ("none", (32, 32))):
@@ -399,15 +413,18 @@ def test_nan_pixels_and_unchecked_convention_in_the_report(addon, empty_scene, t
     arrays["depth_conf"][1, 7, 7] = np.nan
     path = write(tmp_path, arrays)
     importer = _installed(addon, "scene.importer")
-    result = importer.import_vggt(bpy.context, path, importer.ImportOptions(confidence_percentile=0.0))
-    assert result.num_points == 4 * 24 * 32 - 5
+    result = importer.import_vggt(bpy.context, path,
+                                  importer.ImportOptions(confidence_percentile=0.0, depth_edge_ratio=None))
+    assert result.num_points == 4 * 24 * 32 - 5 and result.depth_edge_points == 0
     assert any("extrinsic convention not checked (the file has no world_points)" in w for w in result.warnings)
     assert any("dropped 5 pixels with NaN/inf depth or confidence (frame 1: 1, frame 3: 4)" in w
                for w in result.warnings)
     assert result.load_report.nonfinite == {"depth": [0, 0, 0, 4], "depth_conf": [0, 1, 0, 0]}
-    assert bpy.ops.scpainter.import_vggt(filepath=path) == {"FINISHED"}  # the operator reports, does not refuse
+    bpy.ops.wm.read_homefile(use_empty=True)           # one points object: the one the job is exported from
+    assert bpy.ops.scpainter.import_vggt(filepath=path, depth_edge_ratio=0.0) == {"FINISHED"}  # reports, imports
     _, backend_points = _job_scene_points(tmp_path)     # the backend drops the same pixels
-    assert np.all(np.isfinite(backend_points))
+    pts = next(o for o in bpy.context.scene.objects if o.get("scpainter_kind") == "points")
+    assert len(backend_points) == len(pts.data.vertices) > 0 and np.all(np.isfinite(backend_points))
 
 
 def test_camera_height_with_convention_and_crop(empty_scene, street, tmp_path):
@@ -449,3 +466,72 @@ def test_camera_height_with_convention_and_crop(empty_scene, street, tmp_path):
     for f in (1, S):
         empty_scene.frame_set(f)
         assert cam.matrix_world.translation.z == pytest.approx(1.6, abs=0.02)
+
+
+# -- depth edges: one setting for the viewport and the render -------------------------------------------------
+
+def _stepped_drive(S, H, W):
+    """``vggt_cases.drive`` with a real depth edge: a near wall (depth 2) on the left half of every frame, a far one
+    (4) on the right, the column between them smeared to 3 as a network's depth is, 0.3 % noise on all; the
+    world_points from that depth (so the convention check passes). For any ratio in (0.015, 0.25) the depth-edge
+    test takes 3 columns (the smeared one and one on each side); at 0.3, 2 (the far side's jump, 1/4, is under it)."""
+    from vggt_cases import drive
+
+    arrays, w2c, intr = drive(S=S, H=H, W=W)
+    depth = np.where(np.arange(W) < W // 2, 2.0, 4.0) * np.ones((S, H, 1))
+    depth[:, :, W // 2] = 3.0
+    depth *= 1.0 + np.random.default_rng(1).uniform(-0.003, 0.003, depth.shape)
+    arrays["depth"] = depth.astype(np.float32)
+    arrays["world_points"] = unproject.unproject_depth(arrays["depth"], V.vggt_K_to_ours(intr), w2c).astype(np.float32)
+    return arrays
+
+
+def test_depth_edges_left_out_as_the_render_loads_them(addon, empty_scene, tmp_path):
+    """The import leaves out the depth-edge pixels with the ratio it is given (default: the job's), stores it on
+    the points, and the exported job carries it: the backend loads exactly the points the viewport shows."""
+    from vggt_cases import write
+
+    S, H, W = 3, 16, 24
+    path = write(tmp_path, _stepped_drive(S, H, W))
+    assert 0.015 < EDGE_RATIO < 0.25  # (what _stepped_drive's 3 columns assume)
+    importer = _installed(addon, "scene.importer")
+    result = importer.import_vggt(bpy.context, path, importer.ImportOptions(confidence_percentile=0.0))
+    assert result.depth_edge_ratio == EDGE_RATIO and result.depth_edge_points == S * H * 3
+    assert result.num_points == S * H * (W - 3)
+    for kw, ratio, columns in (({}, EDGE_RATIO, 3), ({"depth_edge_ratio": 0.3}, 0.3, 2),
+                               ({"depth_edge_ratio": 0.0}, None, 0)):
+        bpy.ops.wm.read_homefile(use_empty=True)
+        assert bpy.ops.scpainter.import_vggt(filepath=path, confidence_percentile=0.0, **kw) == {"FINISHED"}
+        pts = next(o for o in bpy.context.scene.objects if o.get("scpainter_kind") == "points")
+        cam = bpy.context.scene.camera
+        assert pts["scpainter_depth_edge_ratio"] == cam["scpainter_depth_edge_ratio"] == (ratio or 0.0)
+        assert len(pts.data.vertices) == S * H * (W - columns), kw
+        job, backend_points, scene = _job_scene_points(tmp_path, with_scene=True)
+        clean = J.load(tmp_path / "job.json").scene.point_cleaning
+        assert clean.depth_edge_ratio == job.scene.point_cleaning.depth_edge_ratio == ratio   # exact: 0.3, not float32
+        assert clean.to_dict()["outliers"] == J.PointCleaning().to_dict()["outliers"]       # the job's default
+        assert scene.cleaning["depth_edge_points"] == S * H * columns
+        # the same points in the same order (frame by frame, pixel order), float32 on both sides
+        assert np.abs(backend_points - _world_vertices(pts)).max() < 1e-4, kw
+
+
+def test_depth_edge_ratio_checked_before_reading(addon, empty_scene, tmp_path):
+    """A ratio no job can hold is bad input named "(import options)" / depth_edge_ratio, before any file is read;
+    None and 0 are off."""
+    importer = _installed(addon, "scene.importer")
+    files = _installed(addon, "core.files")
+    for bad in (-0.1, 1e-5, 101.0, float("nan"), float("inf"), True, "0.05"):
+        with pytest.raises(files.InputError) as e:
+            importer.ImportOptions(depth_edge_ratio=bad).check()
+        assert (e.value.path, e.value.field) == ("(import options)", "depth_edge_ratio") and e.value.hint, bad
+    for off in (None, 0, 0.0):
+        assert importer.ImportOptions(depth_edge_ratio=off).check().edge_ratio is None
+    lo, hi = J.DEPTH_EDGE_RATIO_BOUNDS
+    assert [importer.ImportOptions(depth_edge_ratio=r).check().edge_ratio for r in (lo, 1, hi)] == [lo, 1.0, hi]
+    assert importer.ImportOptions().depth_edge_ratio == EDGE_RATIO == importer.DEPTH_EDGE_RATIO
+    with pytest.raises(RuntimeError, match=r"\(import options\): depth_edge_ratio: expected a fraction"):
+        bpy.ops.scpainter.import_vggt(filepath=str(tmp_path / "never-read.npz"), depth_edge_ratio=1e-5)
+    # the operator's property: the job's default, 0 = off, and a tooltip saying what it does
+    prop = bpy.ops.scpainter.import_vggt.get_rna_type().properties["depth_edge_ratio"]
+    assert prop.default == pytest.approx(EDGE_RATIO) and prop.hard_min == 0.0
+    assert "flying pixels" in prop.description and "0 turns it off" in prop.description

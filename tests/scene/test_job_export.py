@@ -54,6 +54,8 @@ def test_export_matches_independent_cameras_and_transforms(empty_scene, street, 
     assert J.resolve(path, sc["predictions"]) == os.path.abspath(street.predictions_path)
     assert np.abs(np.array(sc["vggt_to_world"]) - metric["vggt_to_world"]).max() < 1e-4
     assert "removal_boxes" not in sc and "generate" not in job
+    # imported with the default depth-edge ratio: the job's own defaults (outliers included)
+    assert sc["point_cleaning"] == J.PointCleaning().to_dict()
     # the asset, frame by frame: T(x(f), 12, 0) · Rz(0.3) · uniform scale · file_to_data, x linear in f
     (asset,) = job["assets"]
     assert asset["name"] == car.name and J.resolve(path, asset["ply"]) == os.path.abspath(ply)
@@ -96,6 +98,29 @@ def test_leaves_out_what_the_scene_does_not_use(empty_scene, street, tmp_path):
     assert job["frames"][0]["source_frames"] == [0, 1]
     assert job["frames"][5]["source_frames"] == [4, 5, 6]
     assert job["frames"][-1]["source_frames"] == [14, 15]
+
+
+def test_scene_imported_before_the_depth_edge_setting_exports_it_off(empty_scene, tmp_path):
+    """A points object without ``scpainter_depth_edge_ratio`` (imported before the import had the depth-edge test)
+    shows unfiltered points: its job says null (off), so the backend loads the same points, not the default's."""
+    from backend.render import frames
+    from vggt_cases import drive, write
+
+    arrays, _, _ = drive(S=2, H=12, W=16)   # random depth per pixel: every pixel is a depth edge
+    path = write(tmp_path, arrays)
+    assert bpy.ops.scpainter.import_vggt(filepath=path, confidence_percentile=0.0,
+                                         depth_edge_ratio=0.0) == {"FINISHED"}   # what an old import did
+    pts = next(o for o in empty_scene.objects if o.get("scpainter_kind") == "points")
+    assert pts["scpainter_depth_edge_ratio"] == 0.0
+    for o in (pts, empty_scene.camera):
+        del o["scpainter_depth_edge_ratio"]
+    job_path = str(tmp_path / "job.json")
+    assert bpy.ops.scpainter.export_job(filepath=job_path) == {"FINISHED"}
+    job = J.load(job_path)
+    assert job.to_dict()["scene"]["point_cleaning"] == {"depth_edge_ratio": None,
+                                                        "outliers": J.PointCleaning().to_dict()["outliers"]}
+    scene = frames.load_scene(job, job_path, "cpu")
+    assert len(scene.xyz) == len(pts.data.vertices) == 2 * 12 * 16 and scene.cleaning["depth_edge_points"] == 0
 
 
 def test_needs_a_camera_and_a_saved_blend(empty_scene, tmp_path):

@@ -9,6 +9,7 @@ import pytest
 
 from backend.train import config as C
 from scpainter_blender.core import files
+from scpainter_blender.core import job as J
 
 BASE = {"schema": "scpainter.train/1", "checkpoint": "ckpt", "clips": ["clips/a"], "output_dir": "out"}
 
@@ -46,7 +47,8 @@ def test_every_pair_setting_of_the_wrong_type_is_named(tmp_path, name):
         try:
             C.from_dict({**BASE, "pairs": {name: value}}, str(tmp_path / "train.json"))
         except C.TrainConfigError as e:
-            assert e.field in (f"pairs.{name}", "pairs"), (name, value, str(e))
+            # point_cleaning is an object: its own fields are named below it (pairs.point_cleaning.outliers)
+            assert e.field in (f"pairs.{name}", "pairs") or e.field.startswith(f"pairs.{name}."), (name, value, str(e))
 
 
 @pytest.mark.parametrize("edit, field, message", [
@@ -123,3 +125,55 @@ def test_source_window_keeps_its_former_name(tmp_path):
     new = C.from_dict({**BASE, "pairs": {"source_window": 5}}, str(tmp_path / "train.json"))
     assert old.pairs.source_window == new.pairs.source_window == 5
     assert old.to_json()["pairs"] == new.to_json()["pairs"] and "window" not in old.to_json()["pairs"]
+
+
+# -- pairs.point_cleaning: the job's scene.point_cleaning, read by the job's own reader -----------------------------
+
+def test_point_cleaning_defaults_are_the_jobs(tmp_path):
+    """A config without the field (every config written before it) cleans as a job without it does; absent fields
+    take their defaults, null turns one or both off; the file written back holds it resolved and loads the same."""
+    path = str(tmp_path / "train.json")
+    assert C.from_dict(BASE, path).pairs.point_cleaning.to_dict() == J.POINT_CLEANING
+    assert C.PairSettings().point_cleaning.to_dict() == J.POINT_CLEANING       # built in code, too
+    for field in ({}, {"outliers": None}, J.POINT_CLEANING):
+        assert C.from_dict({**BASE, "pairs": {"point_cleaning": field}}, path).pairs.point_cleaning.to_dict() \
+            == J.POINT_CLEANING
+    off = C.from_dict({**BASE, "pairs": {"point_cleaning": None}}, path).pairs.point_cleaning
+    assert off.depth_edge_ratio is None and off.outliers is None
+    cfg = C.from_dict({**BASE, "pairs": {"point_cleaning": {"depth_edge_ratio": 0.1,
+                                                             "outliers": {"method": "radius"}}}}, path)
+    want = {"depth_edge_ratio": 0.1, "outliers": {"method": "radius", **J.OUTLIER_FIELDS["radius"]}}
+    assert cfg.pairs.point_cleaning.to_dict() == want and cfg.to_json()["pairs"]["point_cleaning"] == want
+    C.save(str(tmp_path / "again.json"), cfg)
+    assert C.load(str(tmp_path / "again.json")).to_json() == cfg.to_json()
+    assert C.from_dict(BASE, path).to_json()["pairs"]["point_cleaning"] == J.POINT_CLEANING
+    assert C.from_dict(C.from_dict({**BASE, "pairs": {"point_cleaning": None}}, path).to_json(), path) \
+        .pairs.point_cleaning.to_dict() == {"depth_edge_ratio": None, "outliers": None}
+
+
+@pytest.mark.parametrize("value, field", [
+    ([], "pairs.point_cleaning"),
+    ("on", "pairs.point_cleaning"),
+    ({"edge_ratio": 0.1}, "pairs.point_cleaning.edge_ratio"),
+    ({"depth_edge_ratio": 0}, "pairs.point_cleaning.depth_edge_ratio"),
+    ({"depth_edge_ratio": "0.05"}, "pairs.point_cleaning.depth_edge_ratio"),
+    ({"depth_edge_ratio": True}, "pairs.point_cleaning.depth_edge_ratio"),
+    ({"outliers": "statistical"}, "pairs.point_cleaning.outliers"),
+    ({"outliers": {}}, "pairs.point_cleaning.outliers.method"),
+    ({"outliers": {"method": "voxel"}}, "pairs.point_cleaning.outliers.method"),
+    ({"outliers": {"method": "radius", "neighbours": 8}}, "pairs.point_cleaning.outliers.neighbours"),
+    ({"outliers": {"method": "statistical", "neighbours": 0}}, "pairs.point_cleaning.outliers.neighbours"),
+    ({"outliers": {"method": "statistical", "std_ratio": -1}}, "pairs.point_cleaning.outliers.std_ratio"),
+    ({"outliers": {"method": "radius", "radius_m": 0}}, "pairs.point_cleaning.outliers.radius_m"),
+])
+def test_bad_point_cleaning_names_file_and_field_as_the_job_does(tmp_path, value, field):
+    """The job's validation, word for word, as this file's error: the file, the field under pairs, the message and
+    the hint a job's scene.point_cleaning gets."""
+    with pytest.raises(C.TrainConfigError) as e:
+        C.from_dict({**BASE, "pairs": {"point_cleaning": value}}, str(tmp_path / "train.json"))
+    assert isinstance(e.value, files.InputError) and e.value.path == str(tmp_path / "train.json")
+    assert e.value.field == field and str(e.value).startswith(f"train.json: {field}: ")
+    with pytest.raises(J.JobError) as job_error:
+        J.PointCleaning.from_dict(value, "job.json", "pairs.point_cleaning")
+    assert (job_error.value.field, job_error.value.message, job_error.value.hint) == \
+        (e.value.field, e.value.message, e.value.hint)

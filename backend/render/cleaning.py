@@ -1,4 +1,5 @@
-"""Point cleaning on the whole scene's cloud: open3d's outlier removal, once per scene (``frames.load_scene``).
+"""Point cleaning, once per scene: ``clean_cloud`` makes a scene's points as the renderer (``frames.load_scene``)
+and the training pairs (``train.pairs``) both take them; ``outlier_keep`` is open3d's outlier removal.
 
 The depth-edge test runs earlier, per source frame on its depth map (``core.point_cloud.depth_edges``); what is
 left here are points that no depth map shows as odd: floaters a little off every surface, sparse where real
@@ -21,7 +22,39 @@ it). Positions go in relative to a point near the cloud so float64 keeps them ex
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
+
+from scpainter_blender.core import geometry, point_cloud
+from scpainter_blender.core import job as job_mod
+
+
+def clean_cloud(pred, confidence_percentile: float, vggt_to_world, point_cleaning, removal_boxes=()):
+    """A scene's points, cleaned: ``point_cloud.point_cloud`` (confidence filter and, with
+    ``point_cleaning.depth_edge_ratio``, the depth-edge test per source frame), then the ``removal_boxes``
+    (``job.RemovalBox``), then ``outlier_keep`` among the points still kept. ``point_cleaning``: a
+    ``job.PointCleaning``, None: no cleaning.
+
+    Returns (cloud ``point_cloud.FramePoints``, keep (N,) bool over its points, stats {``removed_points``,
+    ``depth_edge_points``, ``outlier_points``, ``cloud_s``, ``outliers_s``}). One function, so the points the
+    model is trained on and those it is given at inference are cleaned alike."""
+    clean = point_cleaning or job_mod.PointCleaning(None, None)
+    t0 = time.perf_counter()
+    cloud = point_cloud.point_cloud(pred, confidence_percentile, vggt_to_world=vggt_to_world,
+                                    depth_edge_ratio=clean.depth_edge_ratio)
+    t_cloud = time.perf_counter() - t0
+    keep = np.ones(len(cloud), bool)
+    for box in removal_boxes:
+        keep &= ~geometry.points_in_box(cloud.positions, box.box_to_world, box.size)
+    removed = int((~keep).sum())
+    t0 = time.perf_counter()
+    inliers = np.ones(len(cloud), bool)
+    inliers[keep] = outlier_keep(cloud.positions[keep], clean.outliers)
+    keep &= inliers
+    stats = {"removed_points": removed, "depth_edge_points": cloud.depth_edge_points,
+             "outlier_points": int((~inliers).sum()), "cloud_s": t_cloud, "outliers_s": time.perf_counter() - t0}
+    return cloud, keep, stats
 
 
 def outlier_keep(positions, outliers) -> np.ndarray:

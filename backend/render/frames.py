@@ -19,13 +19,12 @@ each source frame (``core.point_cloud.depth_edges``), then outliers of the whole
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, field
 
 import numpy as np
 import torch
 
-from scpainter_blender.core import cameras, geometry, outputs, point_cloud, splats, splats_io, vggt_io
+from scpainter_blender.core import cameras, outputs, splats, splats_io, vggt_io
 from scpainter_blender.core import job as job_mod
 
 from . import channels as ch
@@ -74,27 +73,13 @@ def load_scene(job: job_mod.Job, job_path: str, device) -> Scene:
     scene = Scene(origin=origin, device=device)
     if job.scene is not None:
         sc = job.scene
-        clean = sc.point_cleaning or job_mod.PointCleaning(None, None)
         # as the import loaded it: the same reading of the poses, the same crop (NaN/inf pixels are dropped)
         pred = vggt_io.load_predictions(job_mod.resolve(job_path, sc.predictions), world_points=False,
                                         extrinsic_convention=sc.extrinsic_convention, crop=list(sc.crop))
-        t0 = time.perf_counter()
-        cloud = point_cloud.point_cloud(pred, sc.confidence_percentile, vggt_to_world=sc.vggt_to_world,
-                                        depth_edge_ratio=clean.depth_edge_ratio)
-        t_cloud = time.perf_counter() - t0
-        keep = np.ones(len(cloud), bool)
-        for box in sc.removal_boxes:
-            keep &= ~geometry.points_in_box(cloud.positions, box.box_to_world, box.size)
-        scene.removed_points = int((~keep).sum())
-        t0 = time.perf_counter()
-        outlier_points = 0
-        if clean.outliers is not None:
-            inliers = np.ones(len(cloud), bool)
-            inliers[keep] = cleaning.outlier_keep(cloud.positions[keep], clean.outliers)
-            outlier_points = int((~inliers).sum())
-            keep &= inliers
-        scene.cleaning = {"depth_edge_points": cloud.depth_edge_points, "outlier_points": outlier_points,
-                          "cloud_s": t_cloud, "outliers_s": time.perf_counter() - t0}
+        cloud, keep, stats = cleaning.clean_cloud(pred, sc.confidence_percentile, sc.vggt_to_world,
+                                                  sc.point_cleaning, sc.removal_boxes)
+        scene.removed_points = stats.pop("removed_points")
+        scene.cleaning = stats
         xyz = cloud.positions[keep] - origin
         frame = cloud.frame[keep]
         scene.xyz = torch.as_tensor(xyz.astype(np.float32), device=device)

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import torch
 
-from scpainter_blender.core import cameras, files, point_cloud, splats_io
+from scpainter_blender.core import cameras, files, splats_io
 from scpainter_blender.core import job as job_mod
 
 from ..render import cleaning
@@ -72,14 +72,11 @@ def clean_cloud(pred, confidence_percentile: float, vggt_to_world, point_cleanin
     ``cleaning.outlier_keep`` on the whole cloud. Returns (positions (N, 3) float64 output world, colors (N, 3)
     float32 sRGB, offsets (S + 1,) int64: source frame i's points are [offsets[i], offsets[i + 1]), stats dict).
 
-    The same calls as load_scene, in the same order. One difference: a job's removal boxes are applied before its
-    outlier removal, while an asset pair removes its car's points per sample, after it (open3d once per sample
-    would cost seconds), so with ``outliers`` set the car's points take part in judging their neighbours."""
-    clean = point_cleaning or job_mod.PointCleaning(None, None)
-    cloud = point_cloud.point_cloud(pred, confidence_percentile, vggt_to_world=vggt_to_world,
-                                    depth_edge_ratio=clean.depth_edge_ratio)
-    keep = cleaning.outlier_keep(cloud.positions, clean.outliers)
-    stats = {"depth_edge_points": cloud.depth_edge_points, "outlier_points": int((~keep).sum())}
+    The same function as load_scene (``cleaning.clean_cloud``). One difference: a job's removal boxes are applied
+    before its outlier removal, while an asset pair removes its car's points per sample, after it (open3d once per
+    sample would cost seconds), so with ``outliers`` set the car's points take part in judging their neighbours."""
+    cloud, keep, stats = cleaning.clean_cloud(pred, confidence_percentile, vggt_to_world, point_cleaning)
+    stats = {k: stats[k] for k in ("depth_edge_points", "outlier_points")}
     if keep.all():  # no outlier removal, or nothing removed: no copies
         return cloud.positions, cloud.colors, cloud.offsets, stats
     # point_cloud writes the frames in order, so the kept points stay grouped by frame; count them again

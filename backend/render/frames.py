@@ -186,10 +186,12 @@ def points_unseen(boxes, K, world_to_camera, width: int, height: int, radius_px:
     margin for that rounding. One vectorised pass for all boxes (a frame tests every source frame)."""
     boxes = np.asarray(boxes, np.float64).reshape(-1, 2, 3)
     w2c = np.asarray(world_to_camera, np.float64)
-    corners = _box_corners(boxes[:, 0], boxes[:, 1]) @ w2c[:3, :3].T + w2c[:3, 3]
-    scale = 1.0 + np.abs(corners).max()
-    V, ok = _clip_near(corners, near - 1e-5 * scale)
-    return _off_image(V, ok, K, float(radius_px), width, height)
+    with np.errstate(all="ignore"):  # huge poses overflow to inf: such a box is never left out (below)
+        corners = _box_corners(boxes[:, 0], boxes[:, 1]) @ w2c[:3, :3].T + w2c[:3, 3]
+        scale = 1.0 + np.abs(corners).max()
+        V, ok = _clip_near(corners, near - 1e-5 * scale)
+        unseen = _off_image(V, ok, K, float(radius_px), width, height)
+    return unseen & np.isfinite(corners).all((1, 2))  # when unsure, project: the z-buffer culls what is not there
 
 
 def asset_unseen(asset: Asset, frame: int, origin, K, world_to_camera, width: int, height: int,
@@ -213,25 +215,33 @@ def asset_unseen(asset: Asset, frame: int, origin, K, world_to_camera, width: in
     on r misses the image, every Gaussian is culled."""
     if asset.bounds is None:
         return not bool(len(asset.means))  # nothing finite to draw; unknown bounds: never skip
+    with np.errstate(all="ignore"):  # huge transforms overflow to inf: then the pass runs (never skipped unsure)
+        return _asset_unseen(asset, frame, origin, K, world_to_camera, width, height, near)
+
+
+def _asset_unseen(asset, frame, origin, K, world_to_camera, width, height, near) -> bool:
     A = np.array(asset.object_to_world[frame], np.float64)
     A[:3, 3] -= np.asarray(origin, np.float64)
     w2c = np.asarray(world_to_camera, np.float64)
     corners = _box_corners(asset.bounds[0], asset.bounds[1]) @ A[:3, :3].T + A[:3, 3]
     corners = (corners @ w2c[:3, :3].T + w2c[:3, 3])[None]
+    if not np.isfinite(corners).all():
+        return False
     V, ok = _clip_near(corners, near - 1e-9 * (1.0 + np.abs(corners).max()))
     if not ok.any():
         return True  # every mean is at or behind the near plane
     V = V[0][ok[0]]
     K = np.asarray(K, np.float64)
     fx, skew, cx, fy, cy = K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2]
-    z_min = float(V[:, 2].min())
-    tx = float(np.abs(V[:, 0] / V[:, 2]).max())
-    ty = float(np.abs(V[:, 1] / V[:, 2]).max())
+    # numpy scalars, not Python floats: an overflow gives inf (and no skip), not an OverflowError
+    z_min = V[:, 2].min()
+    tx = np.abs(V[:, 0] / V[:, 2]).max()
+    ty = np.abs(V[:, 1] / V[:, 2]).max()
     if not 0.0 <= cx <= width:  # a clamp interval that may not contain 0: bound |t| by its limits too
         tx = max(tx, 1.3 * (abs(cx) + width) / fx)
     if not 0.0 <= cy <= height:
         ty = max(ty, 1.3 * (abs(cy) + height) / fy)
-    s = float(np.linalg.norm(A[:3, :3], 2)) * asset.max_sigma
+    s = np.linalg.norm(A[:3, :3], 2) * np.float64(asset.max_sigma)
     J2 = ((fx + abs(skew)) ** 2 * (1.0 + (tx + ty) ** 2) + fy ** 2 * (1.0 + ty ** 2)) / z_min ** 2
     reach = EXTENT_SIGMA * np.sqrt(s * s * J2 + gs.BLUR) + 1.0
     if not np.isfinite(reach):

@@ -197,3 +197,24 @@ def test_selection_keeps_the_order_and_copies_only_when_it_must():
 def test_frames_out_of_order_are_not_sliced():
     slices, boxes = fr.frame_index(np.array([0, 0, 1, 0]), np.zeros((4, 3), np.float32))
     assert slices is None and boxes is None
+
+
+def test_overflowing_transforms_never_raise_and_skip_only_what_the_projection_culls():
+    """A scale of 1e200 or a camera 1e300 m away (the hostile-input fuzzing's cases) overflow the bounds: no
+    OverflowError, and "unseen" still means the projection keeps nothing; bounds that overflow to inf are
+    never skipped."""
+    g = _gaussians(np.random.default_rng(9), n=10)
+    far = np.eye(4)
+    far[:3, 3] = [1e300, -1e300, 1e300]
+    for scale, w2c in ((1e200, np.eye(4)), (1.0, far), (1e-300, np.eye(4)), (1e200, far)):
+        a = _asset(g, [0.0, 0.0, 5.0], scale=scale)
+        unseen = fr.asset_unseen(a, 0, np.zeros(3), K, w2c, W, H)
+        assert isinstance(unseen, bool)
+        if unseen:
+            with np.errstate(all="ignore"):
+                assert len(_project(a, 0, K, w2c, W, H)["depth"]) == 0, (scale, w2c[0, 3])
+    boxes = np.array([[[-1e308, -1e308, 1.0], [1e308, 1e308, 1e308]], [[0.0, 0.0, 1.0], [1.0, 1.0, 2.0]]])
+    rotated = np.eye(4)
+    rotated[:3, :3] = [[0.6, 0.8, 0.0], [-0.8, 0.6, 0.0], [0.0, 0.0, 1.0]]
+    rotated[:3, 3] = [1e308, 1e308, 0.0]  # the first box's corners overflow to inf: not skipped
+    assert fr.points_unseen(boxes, K, rotated, W, H)[0] == False  # noqa: E712

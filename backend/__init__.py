@@ -11,8 +11,16 @@ threads otherwise spin for milliseconds after every parallel region (``GOMP_SPIN
 the working ones need: issue 16 measured a frame 7-15x slower with one busy process beside it, ~1.5-2x with
 PASSIVE (``bench/render.py``, section ab, measures it). libgomp reads the variable once, when it is loaded, so it is
 set here, at the top of ``python -m backend``, not later.
+
+Likewise ``NUMBA_CACHE_DIR`` (unless set): the renderer's numba kernels (``cache=True``) compile once, ~15 s, and
+are kept in the user's cache (``$XDG_CACHE_HOME/scpainter/numba``), never beside the source, which for an installed
+extension is the add-on's own folder (docs/design.md §6).
 """
 
 import os
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+if "NUMBA_CACHE_DIR" not in os.environ:
+    from scpainter_blender.core import outputs as _outputs
+
+    os.environ["NUMBA_CACHE_DIR"] = _outputs.user_cache_dir("numba")

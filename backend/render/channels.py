@@ -67,7 +67,8 @@ HALF_LAYERS = (*IMAGE, HOLE, ASSET_MASK)
 #: Former flat channel names -> current ones (condition EXRs written before the rename).
 FORMER_NAMES = {"asset": ASSET_MASK}
 
-HINT = "render the conditions again: python -m backend render JOB --force"
+HINT = ("render this frame again: delete the file and run python -m backend render JOB (--force renders "
+        "every frame)")
 
 #: More pixels than any condition frame has (an 8K frame is 33 M): a header claiming more is damaged, refused
 #: before OpenEXR allocates for it.

@@ -136,6 +136,9 @@ def _render(job_path, job, device, force, point_radius, stop, log, out, allow_ou
                     f"({'half-float' if half else 'float32'} EXRs); "
                     f"{0 if scene.xyz is None else len(scene.xyz):,} points ({scene.removed_points:,} removed by "
                     f"boxes), {len(scene.assets)} assets")
+                _log_cleaning(scene, log)
+                if stop:  # asked to stop while the scene loaded (outlier removal can take a while)
+                    break
             t = time.perf_counter()
             layers = fr.render_frame(scene, entry, W, H, point_radius)
             channels.write(exr_path, layers, half=half)
@@ -146,3 +149,18 @@ def _render(job_path, job, device, force, point_radius, stop, log, out, allow_ou
             events.artifact(png_path, frame=f, kind="preview")
         events.progress("render", n + 1, total, frame=f)
     return {"frames": total, "rendered": rendered, "skipped": skipped, "output_dir": out, "stopped": bool(stop)}
+
+
+def _log_cleaning(scene: fr.Scene, log) -> None:
+    """What the scene's point cleaning dropped and took, and a warning when it dropped most of the points (a
+    depth-edge ratio too small for the clip's resolution, or outlier settings too strict)."""
+    c = scene.cleaning
+    if not c:
+        return
+    kept = 0 if scene.xyz is None else len(scene.xyz)
+    dropped = c["depth_edge_points"] + c["outlier_points"]
+    log(f"point cleaning: {c['depth_edge_points']:,} points on depth edges and {c['outlier_points']:,} outliers "
+        f"left out ({c['cloud_s']:.2f} s for the cloud, {c['outliers_s']:.2f} s for outliers)")
+    if dropped > kept:
+        log(f"warning: point cleaning left out {dropped:,} of {dropped + kept:,} points: check "
+            "scene.point_cleaning (a larger depth_edge_ratio, or null to turn a filter off)")

@@ -258,3 +258,10 @@ def remove_listed(folder, names) -> int:
                 os.remove(p)
                 removed += 1
     return removed
+
+
+def user_cache_dir(*parts: str) -> str:
+    """``$XDG_CACHE_HOME/scpainter/<parts>`` (``~/.cache/scpainter/...`` without it): the user's cache, for what
+    must never be written into the add-on's own folder (an installed extension may be read-only or shared)."""
+    cache = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return os.path.join(cache, "scpainter", *parts)

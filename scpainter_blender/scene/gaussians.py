@@ -254,8 +254,7 @@ def mesh_gaussians_path(scene, mesh_path: str, count: int) -> str:
     try:
         folder = os.path.join(props.output_dir(scene), "assets")
     except props.SceneError:  # unsaved .blend: its output folder is relative to it
-        cache = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-        folder = os.path.join(cache, "scpainter", "assets")
+        folder = outputs.user_cache_dir("assets")
     return os.path.join(folder, name)
 
 

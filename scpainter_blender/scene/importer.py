@@ -218,5 +218,9 @@ def import_vggt(context, filepath: str, opts: ImportOptions | None = None) -> Im
     t_end = time.perf_counter()
     timings = {"load": t_load - t0, "metric_fit": t_fit - t_load, "unproject": t_unproject - t_fit,
                "points_object": t_points - t_unproject, "camera": t_end - t_points, "total": t_end - t0}
+    if pts.depth_edge_points > len(pts):  # a ratio too small for the clip's resolution: most points gone
+        warnings = list(warnings) + [
+            f"the depth-edge test left out {pts.depth_edge_points:,} of {pts.depth_edge_points + len(pts):,} points: "
+            f"the ratio {opts.edge_ratio} is small for this clip (the default is {DEPTH_EDGE_RATIO}; 0 turns it off)"]
     return ImportResult(obj, cam, fit, len(pts), timings, list(pred.report.warnings) + list(warnings), pred.report,
                         opts.edge_ratio, pts.depth_edge_points)

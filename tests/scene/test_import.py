@@ -498,6 +498,12 @@ def test_depth_edges_left_out_as_the_render_loads_them(addon, empty_scene, tmp_p
     result = importer.import_vggt(bpy.context, path, importer.ImportOptions(confidence_percentile=0.0))
     assert result.depth_edge_ratio == EDGE_RATIO and result.depth_edge_points == S * H * 3
     assert result.num_points == S * H * (W - 3)
+    assert not [w for w in result.warnings if "depth-edge" in w]
+    # a ratio so small that every pixel is an edge leaves nothing, and says so
+    bpy.ops.wm.read_homefile(use_empty=True)
+    tiny = importer.import_vggt(bpy.context, path, importer.ImportOptions(confidence_percentile=0.0,
+                                                                          depth_edge_ratio=1e-4))
+    assert tiny.num_points < tiny.depth_edge_points and any("depth-edge test left out" in w for w in tiny.warnings)
     for kw, ratio, columns in (({}, EDGE_RATIO, 3), ({"depth_edge_ratio": 0.3}, 0.3, 2),
                                ({"depth_edge_ratio": 0.0}, None, 0)):
         bpy.ops.wm.read_homefile(use_empty=True)

@@ -220,7 +220,7 @@ def test_reader_errors_name_the_file_and_say_render_again(tmp_path):
         with pytest.raises(channels.ExrError) as e:
             channels.read(tmp_path / name)
         assert isinstance(e.value, files.InputError) and e.value.path == str(tmp_path / name)
-        assert name in str(e.value) and "render JOB --force" in e.value.hint, name
+        assert name in str(e.value) and "delete the file and run python -m backend render JOB" in e.value.hint, name
     with pytest.raises(channels.ExrError, match="not found"):
         channels.read(tmp_path / "missing.exr")
     os.mkfifo(tmp_path / "fifo.exr")

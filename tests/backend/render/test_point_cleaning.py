@@ -126,3 +126,18 @@ def test_changed_cleaning_renders_again(tmp_path):
     assert len(keys) == 5
     p, explicit = _job(tmp_path, J.POINT_CLEANING)
     assert render_cmd.job_key(p, explicit, 0) == render_cmd.job_key(path, default, 0)
+
+
+def test_render_logs_what_cleaning_dropped_and_warns_when_it_dropped_most():
+    import torch
+
+    lines = []
+    stats = {"depth_edge_points": 900, "outlier_points": 50, "cloud_s": 0.1, "outliers_s": 2.0}
+    scene = fr.Scene(origin=np.zeros(3), device=torch.device("cpu"), xyz=torch.zeros((100, 3)), cleaning=stats)
+    render_cmd._log_cleaning(scene, lines.append)
+    assert "900 points on depth edges and 50 outliers" in lines[0]
+    assert lines[1].startswith("warning: point cleaning left out 950 of 1,050 points")
+    lines.clear()
+    scene.xyz = torch.zeros((5000, 3))
+    render_cmd._log_cleaning(scene, lines.append)
+    assert len(lines) == 1 and "warning" not in lines[0]

@@ -23,10 +23,10 @@ and ``depth`` (values); Nuke reads ``layer.channel`` as a layer of that name (``
 I holds display-referred values (what the model sees, like the PNG preview); a compositor takes EXR values as
 scene-linear, so it shows ``image`` lighter than the preview unless told they are display values.
 
-A single-part scanline file with lossless ZIP compression (4.1× smaller than raw float32 on the demo's frames,
+A single-part scanline file with lossless ZIP compression (3.5× smaller than raw float32 on the demo's frames,
 bench/exr_sizes.py; zlib's checksum also makes damaged pixel data an error rather than wrong values). Every channel
 is FLOAT (bit-exact: resume keys and tests compare the layers), or with ``half=True`` I, M and M_a are HALF (their
-values lie in [0, 1]: error ≤ 2^-12 ≈ 2.4e-4, 0 and 1 exact; 6.6× smaller than raw) and Z stays FLOAT (metres to
+values lie in [0, 1]: error ≤ 2^-12 ≈ 2.4e-4, 0 and 1 exact; 5.6× smaller than raw) and Z stays FLOAT (metres to
 hundreds of metres need float's range and precision).
 
 ``read`` takes what other tools make of such a file when they re-save it: any compression (lossy ones give

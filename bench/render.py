@@ -519,6 +519,21 @@ def plot(result, path):
     fig.savefig(path, dpi=110)
 
 
+def keep_previous_sections(path, result, sections):
+    """The sections not run this time keep their figures from the previous run's JSON (if any), so running one
+    section does not wipe the others' results."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            previous = json.load(f)
+    except (OSError, ValueError):
+        return
+    for key, section in (("ab", "ab"), ("speed", "speed"), ("accuracy", "accuracy"), ("street", "street"),
+                         ("street_info", "street")):
+        ran = section in sections or (key == "speed" and "accuracy" in sections)
+        if not ran and key in previous:
+            result[key] = previous[key]
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--devices", nargs="+", default=["cpu"], choices=["cpu", "cuda"])
@@ -564,6 +579,7 @@ def main(argv=None):
                  "frame_ms"])
     os.makedirs(args.out, exist_ok=True)
     stem = os.path.join(args.out, "render_" + "_".join(args.devices))
+    keep_previous_sections(stem + ".json", result, args.sections)
     outputs.write_json(stem + ".json", events.json_safe(result))  # a PSNR of a perfect match (inf) becomes null
     plot(result, stem + ".png")
     print(f"\nwrote {stem}.json and {stem}.png")

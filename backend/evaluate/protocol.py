@@ -242,6 +242,16 @@ def run_task(job_path: str, device: str, s: EvalSettings, stop) -> dict:
     return out
 
 
+def temporal_metrics(video) -> dict:
+    """The flow-warping error (``temporal.warping_error``) of a video given as (T, 3, H, W) values in [0, 1] (a
+    tensor or a list of (3, H, W) frames): ``warping_error`` and the mean fraction of pixels that ``counted``."""
+    from .temporal import warping_error
+
+    frames = torch.stack(list(video)) if not torch.is_tensor(video) else video
+    r = warping_error(frames.permute(0, 2, 3, 1).float().cpu().numpy())
+    return {"warping_error": r.mean, "counted": float(r.counted.mean()) if len(r.counted) else float("nan")}
+
+
 def ground_truth_metrics(pred: torch.Tensor, gt: torch.Tensor, valid: torch.Tensor) -> dict:
     from .image_metrics import psnr, ssim
 
@@ -290,7 +300,7 @@ def evaluate(s: EvalSettings, device: str, stop=(), extractor=None) -> dict:
     log = events.FileLog(os.path.join(out_dir, "evaluate.log"))
     t0 = time.perf_counter()
     whole, crops = ImageSets(), ImageSets()
-    gt_rows = []
+    gt_rows, temporal_rows = [], []
     n_tasks_done = 0
     clips = [clip_mod.load(p) for p in s.clips]
     total = sum(len(tasks(c, s)) for c in clips)
@@ -300,6 +310,8 @@ def evaluate(s: EvalSettings, device: str, stop=(), extractor=None) -> dict:
         K = clip.K_for(s.width, s.height)
         real = [_read_png(clip.frame_paths[t], s.width, s.height) for t in frames]
         whole.add("real", real)
+        temporal_rows.append({"clip": name, "task": "recorded", "shift_m": 0.0, "output": "real",
+                              **temporal_metrics(real)})
         for car in clip.cars:  # real car crops for FID-C, from the boxes on the recorded frames
             for t in frames:
                 if t in car.boxes:
@@ -321,6 +333,8 @@ def evaluate(s: EvalSettings, device: str, stop=(), extractor=None) -> dict:
             if r["generated"] is not None:
                 kinds["generated"] = r["generated"]
             for kind, video in kinds.items():
+                temporal_rows.append({"clip": name, "task": task, "shift_m": shift, "output": kind,
+                                      **temporal_metrics(video)})
                 whole.add(f"{task}/{kind}", video)
                 if car is not None:
                     for f, asset_mask in zip(video, r["asset_mask"]):
@@ -329,11 +343,13 @@ def evaluate(s: EvalSettings, device: str, stop=(), extractor=None) -> dict:
                             crops.add(f"{task}/{kind}", [crop(f, b, s.crop_size)])
             if car is None and shift in clip.views:
                 gt = torch.stack([_read_png(clip.views[shift][t], s.width, s.height) for t in frames])
+                temporal_rows.append({"clip": name, "task": task, "shift_m": shift, "output": "ground_truth",
+                                      **temporal_metrics(gt)})  # the floor: real motion the flow cannot explain
                 for kind, video in kinds.items():
                     gt_rows.append({"clip": name, "task": task, "shift_m": shift, "output": kind,
                                     "frames": len(frames), "hole_fraction": float(1 - r["valid"].mean()),
                                     **ground_truth_metrics(video, gt, r["valid"])})
-    result = {"settings": asdict(s), "seconds": None, "ground_truth": gt_rows,
+    result = {"settings": asdict(s), "seconds": None, "ground_truth": gt_rows, "temporal": temporal_rows,
               "fid": feature_metrics(whole.sets, "real", extractor, device, log),
               "fid_c": (feature_metrics(crops.sets, "real", extractor, device, log) if "real" in crops.sets
                         else {"skipped": "no real car crops (no tracked cars in view)"}),
@@ -354,6 +370,10 @@ def format_table(result: dict) -> str:
         r = {k: float("nan") if v is None else v for k, v in r.items()}  # evaluation.json holds NaN/inf as null
         lines.append(f"{r['task']:<16}{r['output']:<11}{r['hole_fraction']:>7.3f}{r['psnr']:>8.2f}{r['ssim']:>7.3f}"
                      f"{r['psnr_covered']:>10.2f}{r['ssim_covered']:>9.3f}")
+    lines.append("temporal consistency (flow-warping error, lower is steadier; counted = pixels the flows agree on):")
+    for r in result.get("temporal", []):
+        r = {k: float("nan") if v is None else v for k, v in r.items()}
+        lines.append(f"  {r['task']:<16}{r['output']:<13}{r['warping_error']:>10.5f}  counted {r['counted']:.2f}")
     for key in ("fid", "fid_c"):
         m = result[key]
         if "skipped" in m:

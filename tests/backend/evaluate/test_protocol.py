@@ -78,6 +78,10 @@ def test_evaluate_end_to_end(street_clip_path, tiny_checkpoint, tmp_path):
         ev = json.load(f)
     rows = {(g["task"], g["output"]): g for g in ev["ground_truth"]}
     assert set(rows) == {("nvs_+2m", "naive"), ("nvs_+2m", "generated")}
+    temporal = {(r["task"], r["output"]): r for r in ev["temporal"]}
+    assert {("recorded", "real"), ("nvs_+2m", "naive"), ("nvs_+2m", "generated"), ("nvs_+2m", "ground_truth"),
+            ("insert", "naive"), ("insert", "generated")} <= set(temporal)
+    assert all(r["warping_error"] is not None and r["warping_error"] >= 0 for r in ev["temporal"])
     naive = rows[("nvs_+2m", "naive")]
     assert 0.1 < naive["hole_fraction"] < 0.7 and naive["psnr_covered"] > naive["psnr"] > 5
     assert ev["counts"]["whole"] == {"real": 3, "nvs_+2m/naive": 3, "nvs_+2m/generated": 3, "insert/naive": 3,

@@ -39,6 +39,7 @@ from scpainter_blender.core import files, outputs, trajectory
 from scpainter_blender.core import job as job_mod
 
 from .. import events
+from . import pictures
 from ..train import clip as clip_mod
 from ..train.pairs import load_resized
 
@@ -341,14 +342,17 @@ def evaluate(s: EvalSettings, device: str, stop=(), extractor=None) -> dict:
                         b = mask_crop_box(asset_mask[0].numpy(), s.crop_grow, s.crop_min_px)
                         if b is not None:
                             crops.add(f"{task}/{kind}", [crop(f, b, s.crop_size)])
+            sheet = {"condition I": r["image"], **({"generated": r["generated"]} if r["generated"] is not None else {})}
             if car is None and shift in clip.views:
                 gt = torch.stack([_read_png(clip.views[shift][t], s.width, s.height) for t in frames])
+                sheet["ground truth"] = gt
                 temporal_rows.append({"clip": name, "task": task, "shift_m": shift, "output": "ground_truth",
                                       **temporal_metrics(gt)})  # the floor: real motion the flow cannot explain
                 for kind, video in kinds.items():
                     gt_rows.append({"clip": name, "task": task, "shift_m": shift, "output": kind,
                                     "frames": len(frames), "hole_fraction": float(1 - r["valid"].mean()),
                                     **ground_truth_metrics(video, gt, r["valid"])})
+            pictures.contact_sheet(os.path.join(out_dir, name, task, "contact_sheet.png"), sheet)
     result = {"settings": asdict(s), "seconds": None, "ground_truth": gt_rows, "temporal": temporal_rows,
               "fid": feature_metrics(whole.sets, "real", extractor, device, log),
               "fid_c": (feature_metrics(crops.sets, "real", extractor, device, log) if "real" in crops.sets
@@ -356,6 +360,7 @@ def evaluate(s: EvalSettings, device: str, stop=(), extractor=None) -> dict:
               "counts": {"whole": {k: len(v) for k, v in whole.sets.items()},
                          "crops": {k: len(v) for k, v in crops.sets.items()}}}
     result["seconds"] = time.perf_counter() - t0
+    pictures.metrics_plot(os.path.join(out_dir, "metrics.png"), gt_rows, temporal_rows)
     path = os.path.join(out_dir, "evaluation.json")
     outputs.write_json(path, events.json_safe(result))  # strict JSON: a NaN/inf metric (e.g. no covered pixel) is null
     log(format_table(result))

@@ -82,6 +82,13 @@ def test_evaluate_end_to_end(street_clip_path, tiny_checkpoint, tmp_path):
     assert {("recorded", "real"), ("nvs_+2m", "naive"), ("nvs_+2m", "generated"), ("nvs_+2m", "ground_truth"),
             ("insert", "naive"), ("insert", "generated")} <= set(temporal)
     assert all(r["warping_error"] is not None and r["warping_error"] >= 0 for r in ev["temporal"])
+    import cv2  # the pictures: a contact sheet per task (condition, generated, ground truth), the metrics plot
+
+    sheet = cv2.imread(str(tmp_path / "eval" / "000_street" / "nvs_+2m" / "contact_sheet.png"))
+    assert sheet is not None and sheet.shape[1] == 3 * (ev["settings"]["width"] + 2)
+    assert cv2.imread(str(tmp_path / "eval" / "000_street" / "insert" / "contact_sheet.png")).shape[1] == \
+        2 * (ev["settings"]["width"] + 2)   # no ground-truth view for an inserted car
+    assert cv2.imread(str(tmp_path / "eval" / "metrics.png")) is not None
     naive = rows[("nvs_+2m", "naive")]
     assert 0.1 < naive["hole_fraction"] < 0.7 and naive["psnr_covered"] > naive["psnr"] > 5
     assert ev["counts"]["whole"] == {"real": 3, "nvs_+2m/naive": 3, "nvs_+2m/generated": 3, "insert/naive": 3,

@@ -221,7 +221,7 @@ class PointCleaning:
             if isinstance(ratio, bool) or not isinstance(ratio, (int, float)) or not lo <= ratio <= hi:
                 raise JobError(path, f"{where}.depth_edge_ratio", f"expected a number in [{lo}, {hi}] (a fraction of "
                                f"the pixel's depth), got {_short(ratio)}", hint="null turns the depth-edge test off")
-            ratio = _number(ratio, path, f"{where}.depth_edge_ratio", lo, hi)
+            ratio = float(ratio)  # (the test above is _number's, with the hint: a bool, NaN or inf fails it)
         outliers = d.get("outliers", POINT_CLEANING["outliers"])
         if outliers is not None:
             outliers = OutlierRemoval.from_dict(outliers, path, f"{where}.outliers")

@@ -106,13 +106,15 @@ def _cmd_generate(args) -> int:
     from . import generate
 
     job = job_mod.load(args.job)
-    overrides = {"steps": args.steps, "seed": args.seed}
+    overrides = {"steps": args.steps, "seed": args.seed, "model": args.model, "inpaint": args.inpaint,
+                 "inpaint_radius": args.inpaint_radius}
     # everything is checked before anything is rendered or loaded: the job, the overrides, the checkpoint (its
     # config and that it holds only safetensors), the settings they make together, and the input files
     plan = generate.prepare(args.job, job, args.checkpoint, overrides, args.allow_outside)
     if args.check:
-        events.done(command="generate", check=True, frames=len(job.frames), checkpoint=plan.checkpoint,
-                    settings=plan.settings, output_dir=plan.output_dir, locked_by=locking.lock_owner(plan.output_dir))
+        events.done(command="generate", check=True, frames=len(job.frames), model=plan.model,
+                    description=plan.description(), checkpoint=plan.checkpoint, settings=plan.settings,
+                    output_dir=plan.output_dir, locked_by=locking.lock_owner(plan.output_dir))
         return events.EXIT_OK
     device = _device(args.device)
     t0 = time.perf_counter()
@@ -120,7 +122,9 @@ def _cmd_generate(args) -> int:
         result = generate.generate_job(args.job, job, device, args.checkpoint, args.precision, args.force, stop,
                                        overrides, allow_outside=args.allow_outside)
     if result.pop("stopped"):
-        events.error(f"stopped by SIGTERM during {result['stage']} ({result['steps_done']} sampler steps done)",
+        done = (f"{result['steps_done']} baseline frames done" if plan.model == "baseline" else
+                f"{result['steps_done']} sampler steps done")
+        events.error(f"stopped by SIGTERM during {result['stage']} ({done})",
                      hint="finished work is kept: run the same command again to resume")
         return events.EXIT_FAILED
     events.done(command="generate", device=device, seconds=time.perf_counter() - t0, **result)
@@ -230,7 +234,8 @@ def _input_options(p) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from scpainter_blender.core.job import GENERATE_DEFAULTS  # numpy only: no torch or CUDA at start-up
+    # numpy only: no torch or CUDA at start-up
+    from scpainter_blender.core.job import BASELINE_DEFAULTS, GENERATE_DEFAULTS, GENERATE_MODELS, INPAINT_METHODS
 
     p = argparse.ArgumentParser(prog="python -m backend", description=__doc__)
     sub = p.add_subparsers(dest="command", required=True)
@@ -247,9 +252,19 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--half-float", action="store_true", help=HALF_FLOAT_HELP)
     _input_options(r)
     r.set_defaults(func=_cmd_render)
-    n = sub.add_parser("generate", help="render missing conditions, then generate the video with a checkpoint")
+    n = sub.add_parser("generate", help="render missing conditions, then generate the video: with a checkpoint "
+                                        "the SCPainter model, without one the OpenCV inpainting baseline")
     n.add_argument("job", help="job.json (the job contract: docs/design.md)")
     n.add_argument("--checkpoint", help="SCPainter checkpoint folder (default: the job's generate.checkpoint)")
+    n.add_argument("--model", choices=GENERATE_MODELS,
+                   help="scpainter (needs a checkpoint) or baseline (the condition image with its holes inpainted "
+                        "by OpenCV; no weights); default: the job's generate.model, else auto = scpainter when a "
+                        "checkpoint is configured, baseline otherwise")
+    n.add_argument("--inpaint", choices=INPAINT_METHODS,
+                   help=f"the baseline's OpenCV method (default: the job's, else {BASELINE_DEFAULTS['inpaint']})")
+    n.add_argument("--inpaint-radius", type=int,
+                   help=f"the baseline's inpainting radius in pixels (default: the job's, else "
+                        f"{BASELINE_DEFAULTS['inpaint_radius']})")
     n.add_argument("--device", choices=["auto", "cpu", "cuda"], default="auto",
                    help="auto: CUDA when torch sees a GPU, else the CPU")
     n.add_argument("--precision", choices=["auto", "fp32", "bf16", "fp16"], default="auto",
@@ -282,7 +297,7 @@ def build_parser() -> argparse.ArgumentParser:
     e = sub.add_parser("evaluate", help="FID / FID-C / KID on validation clips and ground-truth PSNR/SSIM")
     e.add_argument("clips", nargs="+", help="validation clip folders (clip.json, docs/training.md)")
     e.add_argument("--output-dir", required=True, help="jobs, renders, videos and evaluation.json go here")
-    e.add_argument("--checkpoint", help="SCPainter checkpoint to evaluate (without: the naive baselines only)")
+    e.add_argument("--checkpoint", help="SCPainter checkpoint to evaluate (without: the baselines only)")
     e.add_argument("--resolution", type=int, nargs=2, default=[576, 320], metavar=("W", "H"))
     e.add_argument("--frames", type=int, default=14, help="frames per clip, from its start")
     e.add_argument("--shifts", type=float, nargs="*", default=[2.0, -2.0, 3.0, -3.0],
@@ -294,6 +309,8 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--seed", type=int, default=GENERATE_DEFAULTS["seed"])
     e.add_argument("--crop-min-px", type=int, default=16, help="cars smaller than this (pixels) make no FID-C crop")
     e.add_argument("--precision", choices=["auto", "fp32", "bf16", "fp16"], default="auto")
+    e.add_argument("--inpaint", choices=INPAINT_METHODS,
+                   help=f"the inpainting baseline's OpenCV method (default {BASELINE_DEFAULTS['inpaint']})")
     e.add_argument("--inception", help="FID Inception weights (pytorch-fid's pt_inception-2015-12-05-6726825d.pth "
                                        "or a safetensors copy); without it FID/KID are skipped")
     e.add_argument("--device", choices=["auto", "cpu", "cuda"], default="auto")

@@ -1,5 +1,7 @@
 """The body of ``python -m backend generate``: conditions -> SCPainter video (docs/design.md §11), resumable,
-stoppable.
+stoppable. Without a checkpoint (or with ``--model baseline``) the video is the baseline's instead: the condition
+image with its holes filled by OpenCV inpainting (``backend/baseline.py``), marked as such in the manifest, the
+events and the MP4's metadata.
 
 Steps: render the condition layers that are missing (the render command's code); load I, M_a and the validity
 1 − hole of every frame; pad them with holes to the model's size multiple; CLIP-embed the first source frame
@@ -27,7 +29,7 @@ from scpainter_blender.core import files, locking, outputs
 from scpainter_blender.core import job as job_mod
 from scpainter_blender.core import job_inputs
 
-from . import events
+from . import baseline, events
 from .errors import FolderBusyError
 from .model import checkpoint as ckpt_mod
 from .render import command as render_cmd
@@ -40,10 +42,23 @@ PRECISIONS = {"fp32": torch.float32, "bf16": torch.bfloat16, "fp16": torch.float
 @dataclass
 class Plan:
     """What ``generate`` will do, known before anything is rendered or loaded (``prepare``)."""
-    checkpoint: str
-    settings: dict          # complete: job_mod.GenerateSettings.resolve's
+    checkpoint: str | None  # None for the baseline
+    settings: dict          # complete: GenerateSettings.resolve's (the model) or resolve_baseline's (the baseline)
     output_dir: str
     paths: dict
+    model: str = "scpainter"   # "scpainter" or "baseline" (never "auto": prepare decides)
+
+    def description(self) -> str:
+        """What the video will be, in one line (logs, events, the manifest, the MP4's metadata)."""
+        if self.model == "baseline":
+            return baseline.describe(self.settings["inpaint"], self.settings["inpaint_radius"])
+        return f"SCPainter model: checkpoint {self.checkpoint}"
+
+
+#: How to get the model's video instead of the baseline's (events, the demo, the Blender report).
+USE_CHECKPOINT_HINT = ("this is the inpainting baseline, not the model: for SCPainter's video pass --checkpoint DIR "
+                       "(python -m backend init-checkpoint --svd SVD_SNAPSHOT --out DIR makes one from a Stable Video "
+                       "Diffusion snapshot on disk) or set generate.checkpoint in the job")
 
 
 def prepare(job_path: str, job: job_mod.Job, checkpoint: str | None, overrides: dict | None = None,
@@ -51,9 +66,23 @@ def prepare(job_path: str, job: job_mod.Job, checkpoint: str | None, overrides: 
     """Validate a generation before any work: the command-line overrides, the checkpoint (``checkpoint.check``:
     config field by field, safetensors only), the settings the job, overrides and checkpoint make together, and
     the job's input files (``job_inputs.check_inputs``). Raises an InputError naming the file (or "(command line)") and
-    the field."""
+    the field.
+
+    The generator: ``overrides["model"]``, else the job's ``generate.model``, else ``auto`` — the model when a
+    checkpoint is configured (``checkpoint`` or the job's ``generate.checkpoint``), the baseline otherwise. An
+    explicit ``scpainter`` without a checkpoint is refused, saying how to make one; ``baseline`` ignores any
+    checkpoint."""
     overrides = overrides or {}
     job_mod.check_generate_settings({k: v for k, v in overrides.items() if v is not None}, files.COMMAND_LINE, "--")
+    gen = job.generate or job_mod.GenerateSettings()
+    model = gen.model_choice(overrides)
+    if model == "auto":
+        model = "scpainter" if checkpoint or gen.checkpoint else "baseline"
+    if model == "baseline":
+        paths = job_inputs.check_inputs(job_path, job, allow_outside)
+        outputs.check_output(paths["output_dir"], allow_outside)
+        paths["allow_outside"] = allow_outside
+        return Plan(None, gen.resolve_baseline(overrides), paths["output_dir"], paths, "baseline")
     if checkpoint:  # the command line's: the user's own choice, never confined
         ckpt = ckpt_mod.resolve(checkpoint)
     elif job.generate is None or not job.generate.checkpoint:
@@ -103,12 +132,17 @@ def clip_source(job_path: str, job: job_mod.Job, first_condition: torch.Tensor) 
     return first_condition
 
 
-def state_key(ckpt: str, s: dict, precision: str, image, asset_mask, valid) -> str:
-    h = hashlib.sha256(json.dumps({"checkpoint": os.path.abspath(ckpt), "settings": s, "precision": precision},
-                                  sort_keys=True).encode())
+def conditions_key(identity: dict, image, asset_mask, valid) -> str:
+    """A key for "the same video": ``identity`` (what made it: checkpoint, settings, ...) and the condition layers."""
+    h = hashlib.sha256(json.dumps(identity, sort_keys=True).encode())
     for t in (image, asset_mask, valid):
         h.update(t.numpy().tobytes())
     return h.hexdigest()[:32]
+
+
+def state_key(ckpt: str, s: dict, precision: str, image, asset_mask, valid) -> str:
+    return conditions_key({"checkpoint": os.path.abspath(ckpt), "settings": s, "precision": precision},
+                          image, asset_mask, valid)
 
 
 def save_state(path: str, latents: torch.Tensor, step: int, key: str) -> None:
@@ -167,18 +201,18 @@ def _generate(job_path, job, device, plan: Plan, precision, force, stop, lock) -
         return {"stopped": True, "stage": "render", "steps_done": 0}
     image, asset_mask, valid = load_conditions(job_path, job)
     frames_n, _, H, W = image.shape
-    key = state_key(ckpt, s, precision, image, asset_mask, valid)
     gen_dir = os.path.join(out, "generated")
     mp4 = os.path.join(out, "generated.mp4")
-    manifest = os.path.join(gen_dir, "manifest.json")
-    if not force and os.path.isfile(manifest) and os.path.isfile(mp4):
-        try:
-            done_key = files.read_json(manifest).get("key")
-        except (files.InputError, AttributeError):  # an unreadable manifest only means generating again
-            done_key = None
-        if done_key == key:
-            log(f"generate: {mp4} is up to date (same checkpoint, settings and conditions)")
-            return {"stopped": False, "skipped": True, "video": mp4, "frames_dir": gen_dir, "frames": frames_n}
+    if plan.model == "baseline":
+        key = conditions_key({"model": "baseline", "settings": s}, image, asset_mask, valid)
+        if not force and _up_to_date(gen_dir, mp4, key):
+            log(f"generate: {mp4} is up to date (the same baseline settings and conditions)")
+            return _result(plan, mp4, gen_dir, frames_n, skipped=True)
+        return _baseline(job, plan, image, valid, key, stop, log, t0)
+    key = state_key(ckpt, s, precision, image, asset_mask, valid)
+    if not force and _up_to_date(gen_dir, mp4, key):
+        log(f"generate: {mp4} is up to date (same checkpoint, settings and conditions)")
+        return _result(plan, mp4, gen_dir, frames_n, skipped=True)
 
     from .model.pipeline import SCPainterPipeline, pad_to_multiple
 
@@ -211,20 +245,67 @@ def _generate(job_path, job, device, plan: Plan, precision, force, stop, lock) -
     if stopped_at:
         return {"stopped": True, "stage": "generate", "steps_done": stopped_at[0], "steps": s["steps"]}
     video = pipe.decode(x, chunk=s["decode_chunk"])[:, :, :H, :W]
-    rgb = video.permute(0, 2, 3, 1).numpy()
-    outputs.output_folder(out, "generated", plan.paths.get("allow_outside", False))
-    for entry, frame in zip(job.frames, rgb):
-        path = os.path.join(gen_dir, f"frame_{entry.frame:06d}.png")
-        fr.write_png(path, frame)
-        events.artifact(path, frame=entry.frame, kind="generated")
-    from .video import write_mp4
-
-    write_mp4(mp4, (np.clip(rgb, 0, 1) * 255 + 0.5).astype(np.uint8), s["fps"])
-    events.artifact(mp4, kind="video")
-    outputs.write_json(manifest, {"key": key, "checkpoint": ckpt, "settings": s, "precision": precision,
-                                  "frames": [e.frame for e in job.frames]})
+    rgb = baseline.to_uint8(video.permute(0, 2, 3, 1).numpy())
+    _write_outputs(job, plan, rgb, mp4, {"key": key, "checkpoint": ckpt, "settings": s, "precision": precision})
     if os.path.exists(state_path):
         os.remove(state_path)
     log(f"generate: {mp4} in {time.perf_counter() - t0:.1f} s")
-    return {"stopped": False, "skipped": False, "video": mp4, "frames_dir": gen_dir, "frames": frames_n,
-            "precision": precision, **s}
+    return {**_result(plan, mp4, gen_dir, frames_n), "precision": precision, **s}
+
+
+def _baseline(job, plan: Plan, image, valid, key, stop, log, t0) -> dict:
+    """The baseline's frames, one at a time (a stop keeps nothing: the whole video takes seconds)."""
+    s, out = plan.settings, plan.output_dir
+    log(f"generate: {plan.description()}; {len(job.frames)} frames")
+    events.log(f"generate: {USE_CHECKPOINT_HINT}")
+
+    def on_frame(i, frame):
+        events.progress("generate", i + 1, len(job.frames), model="baseline")
+        return bool(stop) and i + 1 < len(job.frames)
+
+    rgb = baseline.inpaint_video(image.numpy(), 1.0 - valid.numpy(), s["inpaint"], s["inpaint_radius"], on_frame)
+    if len(rgb) < len(job.frames):
+        return {"stopped": True, "stage": "generate", "steps_done": len(rgb), "steps": len(job.frames)}
+    mp4 = os.path.join(out, "generated.mp4")
+    _write_outputs(job, plan, rgb, mp4, {"key": key, "checkpoint": None, "settings": s})
+    log(f"generate: {mp4} (baseline) in {time.perf_counter() - t0:.1f} s")
+    return {**_result(plan, mp4, os.path.join(out, "generated"), len(rgb)), **s}
+
+
+def _up_to_date(gen_dir: str, mp4: str, key: str) -> bool:
+    """A finished run with the same key left the video and its manifest."""
+    manifest = os.path.join(gen_dir, "manifest.json")
+    if not (os.path.isfile(manifest) and os.path.isfile(mp4)):
+        return False
+    try:
+        return files.read_json(manifest).get("key") == key
+    except (files.InputError, AttributeError):  # an unreadable manifest only means generating again
+        return False
+
+
+def _result(plan: Plan, mp4: str, gen_dir: str, frames: int, skipped: bool = False) -> dict:
+    """The ``done`` event's fields every generation shares; the baseline's say what it is and how to get the model."""
+    r = {"stopped": False, "skipped": skipped, "video": mp4, "frames_dir": gen_dir, "frames": frames,
+         "model": plan.model, "description": plan.description()}
+    if plan.model == "baseline":
+        r["hint"] = USE_CHECKPOINT_HINT
+    return r
+
+
+def _write_outputs(job, plan: Plan, rgb: np.ndarray, mp4: str, manifest: dict) -> None:
+    """``generated/frame_NNNNNN.png`` per output frame, ``generated.mp4`` and ``generated/manifest.json`` (written
+    last: it marks the run finished). rgb: (F, H, W, 3) uint8. The manifest and the MP4's metadata say which
+    generator made them (``model``, ``description``), so a baseline video is not taken for the model's."""
+    from .video import write_mp4
+
+    gen_dir = outputs.output_folder(plan.output_dir, "generated", plan.paths.get("allow_outside", False))
+    for entry, frame in zip(job.frames, rgb):
+        path = os.path.join(gen_dir, f"frame_{entry.frame:06d}.png")
+        fr.write_png(path, frame)
+        events.artifact(path, frame=entry.frame, kind="generated", model=plan.model)
+    write_mp4(mp4, rgb, plan.settings["fps"], metadata={"title": f"SCPainter {plan.model}",
+                                                        "comment": plan.description()})
+    events.artifact(mp4, kind="video", model=plan.model)
+    outputs.write_json(os.path.join(gen_dir, "manifest.json"),
+                       {**manifest, "model": plan.model, "description": plan.description(),
+                        "frames": [e.frame for e in job.frames]})

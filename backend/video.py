@@ -8,9 +8,10 @@ import numpy as np
 from scpainter_blender.core import outputs
 
 
-def write_mp4(path: str, frames: np.ndarray, fps: float, crf: int = 18) -> str:
+def write_mp4(path: str, frames: np.ndarray, fps: float, crf: int = 18, metadata: dict | None = None) -> str:
     """frames (F, H, W, 3) uint8 RGB -> an MP4 any player opens (yuv420p). Odd sizes are padded by one edge row or
-    column (4:2:0 chroma needs even sizes)."""
+    column (4:2:0 chroma needs even sizes). ``metadata``: container tags (``title``, ``comment``), which players and
+    ``ffprobe`` show."""
     import av
 
     frames = np.asarray(frames)
@@ -21,6 +22,7 @@ def write_mp4(path: str, frames: np.ndarray, fps: float, crf: int = 18) -> str:
     frames = np.pad(frames, ((0, 0), (0, H % 2), (0, W % 2), (0, 0)), mode="edge")
     with outputs.atomic_path(path) as tmp:
         with av.open(tmp, "w", format="mp4") as container:
+            container.metadata.update(metadata or {})
             stream = container.add_stream("libx264", rate=round(fps))
             stream.width, stream.height = frames.shape[2], frames.shape[1]
             stream.pix_fmt = "yuv420p"
@@ -39,3 +41,11 @@ def read_mp4(path: str) -> np.ndarray:
 
     with av.open(path) as container:
         return np.stack([f.to_ndarray(format="rgb24") for f in container.decode(video=0)])
+
+
+def mp4_metadata(path: str) -> dict:
+    """The container tags of a video (``write_mp4``'s ``metadata``)."""
+    import av
+
+    with av.open(path) as container:
+        return dict(container.metadata)

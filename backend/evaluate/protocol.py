@@ -9,8 +9,10 @@ Per clip, the first ``frames`` frames at ``width`` x ``height``, as jobs (job.js
   box) and its Gaussian asset placed at its boxes, recorded cameras;
 * ``insert_shift<s>``: both at once (paper §4.3), shifted by the first shift.
 
-Each task has a *generated* video (with ``--checkpoint``) and the *naive* baseline, its condition image I (points
-and asset composited, holes black): the paper's "naive insertion" and our condition-only baseline.
+Each task has a *generated* video (with ``--checkpoint``), the *naive* baseline, its condition image I (points
+and asset composited, holes black: the paper's "naive insertion"), and the *baseline*: I with its holes filled by
+OpenCV inpainting (``backend/baseline.py``, what ``generate`` makes without a checkpoint; also written as the task's
+``baseline.mp4``).
 
 Metrics (``evaluation.json``, and a table on standard error):
 
@@ -65,6 +67,8 @@ class EvalSettings:
     grow_m: float = 0.2                 # removal box margin, as in training pairs
     grow_ratio: float = 0.1
     confidence_percentile: float = 50.0
+    inpaint: str = job_mod.BASELINE_DEFAULTS["inpaint"]             # the baseline's OpenCV method
+    inpaint_radius: int = job_mod.BASELINE_DEFAULTS["inpaint_radius"]
 
     @classmethod
     def from_args(cls, a) -> EvalSettings:
@@ -89,8 +93,8 @@ class EvalSettings:
         return cls(clips=a.clips, output_dir=a.output_dir, checkpoint=a.checkpoint, width=a.resolution[0],
                    height=a.resolution[1], frames=a.frames, shifts=tuple(a.shifts), insertion=not a.no_insertion,
                    source_window=a.source_window, steps=a.steps, seed=a.seed, precision=a.precision,
-                   inception=a.inception,
-                   crop_min_px=a.crop_min_px)
+                   inception=a.inception, crop_min_px=a.crop_min_px,
+                   inpaint=a.inpaint or job_mod.BASELINE_DEFAULTS["inpaint"])
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -243,6 +247,18 @@ def run_task(job_path: str, device: str, s: EvalSettings, stop) -> dict:
     return out
 
 
+def baseline_video(task: dict, s: EvalSettings, folder: str, fps: float) -> torch.Tensor:
+    """(T, 3, H, W) float in [0, 1]: the task's condition image with its holes inpainted (``baseline``, the same
+    function ``generate`` uses without a checkpoint), also written as ``folder/baseline.mp4`` for people."""
+    from .. import baseline
+    from ..video import write_mp4
+
+    rgb = baseline.inpaint_video(task["image"].numpy(), 1.0 - task["valid"].numpy(), s.inpaint, s.inpaint_radius)
+    write_mp4(os.path.join(folder, "baseline.mp4"), rgb, min(max(fps, 1.0), 240.0),
+              metadata={"title": "SCPainter baseline", "comment": baseline.describe(s.inpaint, s.inpaint_radius)})
+    return torch.from_numpy(rgb).permute(0, 3, 1, 2).float() / 255.0
+
+
 def temporal_metrics(video) -> dict:
     """The flow-warping error (``temporal.warping_error``) of a video given as (T, 3, H, W) values in [0, 1] (a
     tensor or a list of (3, H, W) frames): ``warping_error`` and the mean fraction of pixels that ``counted``."""
@@ -330,7 +346,8 @@ def evaluate(s: EvalSettings, device: str, stop=(), extractor=None) -> dict:
                 return {"stopped": True}
             n_tasks_done += 1
             events.progress("evaluate", n_tasks_done, total, clip=name, task=task)
-            kinds = {"naive": r["image"]}
+            kinds = {"naive": r["image"],
+                     "baseline": baseline_video(r, s, os.path.join(out_dir, name, task), clip.fps)}
             if r["generated"] is not None:
                 kinds["generated"] = r["generated"]
             for kind, video in kinds.items():
@@ -342,7 +359,8 @@ def evaluate(s: EvalSettings, device: str, stop=(), extractor=None) -> dict:
                         b = mask_crop_box(asset_mask[0].numpy(), s.crop_grow, s.crop_min_px)
                         if b is not None:
                             crops.add(f"{task}/{kind}", [crop(f, b, s.crop_size)])
-            sheet = {"condition I": r["image"], **({"generated": r["generated"]} if r["generated"] is not None else {})}
+            sheet = {"condition I": r["image"], "baseline": kinds["baseline"],
+                     **({"generated": r["generated"]} if r["generated"] is not None else {})}
             if car is None and shift in clip.views:
                 gt = torch.stack([_read_png(clip.views[shift][t], s.width, s.height) for t in frames])
                 sheet["ground truth"] = gt

@@ -336,11 +336,12 @@ def render_frame(scene: Scene, entry: job_mod.Frame, width: int, height: int, po
 
 
 def write_png(path, rgb) -> None:
-    """8-bit RGB PNG (the condition image is display-referred already), stdlib only, written atomically."""
+    """8-bit RGB PNG (the condition image is display-referred already), stdlib only, written atomically. rgb:
+    (H, W, 3) float in [0, 1] (rounded to 8 bits) or uint8 (written as it is)."""
     import struct
     import zlib
 
-    a = (np.clip(rgb, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+    a = rgb if rgb.dtype == np.uint8 else (np.clip(rgb, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
     H, W, _ = a.shape
     raw = np.concatenate([np.zeros((H, 1), np.uint8), a.reshape(H, W * 3)], axis=1).tobytes()
 

@@ -327,6 +327,15 @@ class Asset:
 #: ``max_guidance`` and ``fps`` have none here: they default to the checkpoint's own (its ``scpainter.json``).
 GENERATE_DEFAULTS = {"steps": 25, "overlap": 4, "seed": 0, "decode_chunk": 8}
 CHECKPOINT_SETTINGS = ("window", "min_guidance", "max_guidance", "fps")
+#: ``generate.model``: ``scpainter`` needs a checkpoint; ``baseline`` fills the condition holes by OpenCV inpainting
+#: (backend/baseline.py) and needs none; ``auto`` (the default) is ``scpainter`` when a checkpoint is configured (the
+#: command line's or the job's), else ``baseline``.
+GENERATE_MODELS = ("auto", "scpainter", "baseline")
+#: The baseline's settings: ``inpaint`` (OpenCV's method), ``inpaint_radius`` (px) and its ``fps``. The fps is the
+#: stock SVD's (a checkpoint's own default), so a job plays at one speed with either generator.
+INPAINT_METHODS = ("telea", "navier-stokes")
+BASELINE_DEFAULTS = {"model": "auto", "inpaint": "telea", "inpaint_radius": 3, "fps": 7.0}
+INPAINT_RADIUS_BOUNDS = (1, 64)
 
 
 @dataclass(eq=False)
@@ -341,6 +350,9 @@ class GenerateSettings:
     max_guidance: float | None = None
     fps: float | None = None
     decode_chunk: int | None = None
+    model: str | None = None           # GENERATE_MODELS; None: auto
+    inpaint: str | None = None         # INPAINT_METHODS (the baseline's)
+    inpaint_radius: int | None = None
 
     @classmethod
     def from_dict(cls, d, path, where="generate") -> "GenerateSettings":
@@ -364,7 +376,9 @@ class GenerateSettings:
         ``GENERATE_DEFAULTS``. Raises JobError when they do not fit together (overlap ≥ window, naming where the
         window came from)."""
         chosen = {**self.to_dict(), **{k: v for k, v in (overrides or {}).items() if v is not None}}
-        chosen.pop("checkpoint", None)
+        for key in ("checkpoint", *BASELINE_DEFAULTS):  # not the model's settings (fps: its own, below)
+            if key != "fps":
+                chosen.pop(key, None)
         out = {}
         for key in list(GENERATE_INT_BOUNDS) + list(GENERATE_NUMBER_BOUNDS):
             value = chosen.get(key, GENERATE_DEFAULTS.get(key))
@@ -384,6 +398,17 @@ class GenerateSettings:
             raise JobError(path, e.field, f"{overlap} must be smaller than {window}",
                            hint="set generate.overlap below the window") from None
         return out
+
+    def model_choice(self, overrides: dict | None = None) -> str:
+        """``generate.model`` as chosen: the command line's ``model``, else the job's, else ``auto``."""
+        return (overrides or {}).get("model") or self.model or BASELINE_DEFAULTS["model"]
+
+    def resolve_baseline(self, overrides: dict | None = None) -> dict:
+        """The complete settings of a baseline run: ``inpaint``, ``inpaint_radius`` and ``fps``, each the command
+        line's ``overrides``, else this job's, else ``BASELINE_DEFAULTS``. The model's settings do not apply."""
+        chosen = {**self.to_dict(), **{k: v for k, v in (overrides or {}).items() if v is not None}}
+        out = {k: chosen.get(k, BASELINE_DEFAULTS[k]) for k in ("inpaint", "inpaint_radius", "fps")}
+        return {**out, "inpaint_radius": int(out["inpaint_radius"]), "fps": float(out["fps"])}
 
 
 @dataclass(eq=False)
@@ -479,6 +504,11 @@ def check_generate_settings(gen: dict, path="job.json", where: str = "generate")
     for key, (lo, hi) in GENERATE_NUMBER_BOUNDS.items():
         if gen.get(key) is not None:
             _number(gen[key], path, name(key), lo, hi)
+    for key, allowed in (("model", GENERATE_MODELS), ("inpaint", INPAINT_METHODS)):
+        if gen.get(key) is not None and gen[key] not in allowed:
+            raise JobError(path, name(key), f"expected one of {list(allowed)}, got {_short(gen[key])}")
+    if gen.get("inpaint_radius") is not None:
+        _int(gen["inpaint_radius"], path, name("inpaint_radius"), *INPAINT_RADIUS_BOUNDS)
     if gen.get("overlap") is not None and gen.get("window") is not None and gen["overlap"] >= gen["window"]:
         raise JobError(path, name("overlap"), f"{gen['overlap']} must be smaller than {name('window')} "
                                               f"({gen['window']})")

@@ -91,7 +91,7 @@ def test_sigterm_then_resume_gives_the_uninterrupted_frames(street_job, tmp_path
     assert all(np.array_equal(resumed[k], reference[k]) for k in reference)
 
 
-def test_no_checkpoint_fails_fast(street_job, tiny_svd, tmp_path):
+def test_asking_for_the_model_without_a_checkpoint_fails_fast(street_job, tiny_svd, tmp_path):
     job = J.load(street_job).to_dict()
     del job["generate"]["checkpoint"]
     path = tmp_path / "job.json"
@@ -99,7 +99,7 @@ def test_no_checkpoint_fails_fast(street_job, tiny_svd, tmp_path):
     job["scene"]["predictions"] = "predictions.npz"
     job.pop("assets")
     J.save(path, job)
-    code, ev, _ = backend("generate", path, "--device", "cpu")
+    code, ev, _ = backend("generate", path, "--device", "cpu", "--model", "scpainter")  # without: the baseline
     assert code == 2 and "init-checkpoint" in ev[-1]["message"]
     assert not (tmp_path / "out").exists()                           # nothing rendered before failing
     code, ev, _ = backend("generate", path, "--device", "cpu", "--checkpoint", tiny_svd)

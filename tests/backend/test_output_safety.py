@@ -191,7 +191,7 @@ def test_check_refuses_what_the_run_would_and_temporaries_of_a_killed_run_go(cas
 
 def test_generate_names_a_missing_checkpoint(case, tmp_path):
     job_path, _ = case
-    code, ev = run("generate", job_path, "--check")
+    code, ev = run("generate", job_path, "--check", "--model", "scpainter")  # without --model: the baseline
     assert code == 2 and ev[-1]["file"] == job_path and ev[-1]["field"] == "generate.checkpoint"
     code, ev = run("generate", job_path, "--check", "--checkpoint", tmp_path / "nonexistent")
     assert code == 2 and "does not exist" in ev[-1]["message"] and ev[-1]["file"] == str(tmp_path / "nonexistent")

@@ -77,23 +77,29 @@ def test_evaluate_end_to_end(street_clip_path, tiny_checkpoint, tmp_path):
     with open(r["evaluation"]) as f:
         ev = json.load(f)
     rows = {(g["task"], g["output"]): g for g in ev["ground_truth"]}
-    assert set(rows) == {("nvs_+2m", "naive"), ("nvs_+2m", "generated")}
+    assert set(rows) == {("nvs_+2m", "naive"), ("nvs_+2m", "baseline"), ("nvs_+2m", "generated")}
     temporal = {(r["task"], r["output"]): r for r in ev["temporal"]}
-    assert {("recorded", "real"), ("nvs_+2m", "naive"), ("nvs_+2m", "generated"), ("nvs_+2m", "ground_truth"),
-            ("insert", "naive"), ("insert", "generated")} <= set(temporal)
+    assert {("recorded", "real"), ("nvs_+2m", "naive"), ("nvs_+2m", "baseline"), ("nvs_+2m", "generated"),
+            ("nvs_+2m", "ground_truth"), ("insert", "naive"), ("insert", "baseline"),
+            ("insert", "generated")} <= set(temporal)
     assert all(r["warping_error"] is not None and r["warping_error"] >= 0 for r in ev["temporal"])
-    import cv2  # the pictures: a contact sheet per task (condition, generated, ground truth), the metrics plot
+    import cv2  # the pictures: a contact sheet per task (condition, baseline, generated, ground truth), the plot
 
     sheet = cv2.imread(str(tmp_path / "eval" / "000_street" / "nvs_+2m" / "contact_sheet.png"))
-    assert sheet is not None and sheet.shape[1] == 3 * (ev["settings"]["width"] + 2)
+    assert sheet is not None and sheet.shape[1] == 4 * (ev["settings"]["width"] + 2)
     assert cv2.imread(str(tmp_path / "eval" / "000_street" / "insert" / "contact_sheet.png")).shape[1] == \
-        2 * (ev["settings"]["width"] + 2)   # no ground-truth view for an inserted car
+        3 * (ev["settings"]["width"] + 2)   # no ground-truth view for an inserted car
     assert cv2.imread(str(tmp_path / "eval" / "metrics.png")) is not None
-    naive = rows[("nvs_+2m", "naive")]
+    naive, inpainted = rows[("nvs_+2m", "naive")], rows[("nvs_+2m", "baseline")]
     assert 0.1 < naive["hole_fraction"] < 0.7 and naive["psnr_covered"] > naive["psnr"] > 5
-    assert ev["counts"]["whole"] == {"real": 3, "nvs_+2m/naive": 3, "nvs_+2m/generated": 3, "insert/naive": 3,
-                                     "insert/generated": 3, "insert_shift+2m/naive": 3,
-                                     "insert_shift+2m/generated": 3}
+    # inpainting fills the holes with something closer to the street than black; covered pixels stay (8-bit I)
+    assert inpainted["psnr"] > naive["psnr"] + 1 and abs(inpainted["psnr_covered"] - naive["psnr_covered"]) < 0.1
+    from backend.video import mp4_metadata
+
+    assert "no model" in mp4_metadata(str(tmp_path / "eval" / "000_street" / "insert" / "baseline.mp4"))["comment"]
+    assert ev["counts"]["whole"] == {"real": 3, **{f"{task}/{kind}": 3 for task in ("nvs_+2m", "insert",
+                                                                                     "insert_shift+2m")
+                                                   for kind in ("naive", "baseline", "generated")}}
     assert ev["counts"]["crops"]["real"] >= 2 and ev["counts"]["crops"]["insert/naive"] == 3
     for key in ("fid", "fid_c"):
         for name, v in ev[key].items():

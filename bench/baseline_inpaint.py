@@ -48,6 +48,7 @@ def main(argv=None) -> None:
     from backend.render import command as render_cmd
     from backend.train import clip as clip_mod
     from backend.train import street_clip
+    from backend.train.pairs import load_clip_frames
     from scpainter_blender.core import job as job_mod
     from scpainter_blender.street.dataset import ensure_street
 
@@ -63,7 +64,7 @@ def main(argv=None) -> None:
         job = job_mod.load(path)
         render_cmd.render_job(path, job, "cpu", allow_outside=True)
         image, _, valid = load_conditions(path, job)
-        gt = torch.stack([protocol._read_png(clip.views[shift][t], W, H) for t in frames])
+        gt = load_clip_frames(clip, W, H, list(frames), view=shift).float() / 255.0
         tasks.append((shift, image.numpy(), 1.0 - valid.numpy(), gt))
     methods = [(m, r) for m in job_mod.INPAINT_METHODS for r in args.radii]
     times = {key: [] for key in methods}
@@ -97,7 +98,7 @@ def main(argv=None) -> None:
     holes = float(np.mean([hole.mean() for _, _, hole, _ in tasks]))
     print(f"\nstreet, {W}x{H}, {len(frames)} frames, shifts {shifts}, hole fraction {holes:.3f}; "
           f"ground truth's own warping error {floor:.5f}")
-    print(f"| output | PSNR dB | PSNR holes dB | warping error | ms/frame |\n|---|---|---|---|---|")
+    print("| output | PSNR dB | PSNR holes dB | warping error | ms/frame |\n|---|---|---|---|---|")
     for r in rows:
         print(f"| {r['output']} | {r['psnr']:.2f} | {r['psnr_holes']:.2f} | {r['warping_error']:.5f} | "
               f"{r['ms_per_frame']:.1f} |")

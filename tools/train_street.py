@@ -58,7 +58,7 @@ def main() -> None:
 
         tmp = svd + ".tmp"
         configs.save_stock_svd(tmp, "tiny", seed=0)
-        print("fit tiny VAE:", configs.fit_vae(tmp, clip_mod.load(clip).frame_paths, 128, 64, log=print))
+        print("fit tiny VAE:", configs.fit_vae(tmp, clip_mod.load(clip), 128, 64, log=print))
         os.rename(tmp, svd)
     if not os.path.isdir(ckpt):
         backend("init-checkpoint", "--svd", svd, "--out", ckpt)

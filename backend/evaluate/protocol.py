@@ -43,7 +43,7 @@ from scpainter_blender.core import job as job_mod
 from .. import events
 from . import pictures
 from ..train import clip as clip_mod
-from ..train.pairs import load_resized
+from ..train.pairs import load_clip_frames, load_resized
 
 
 @dataclass
@@ -325,7 +325,8 @@ def evaluate(s: EvalSettings, device: str, stop=(), extractor=None) -> dict:
         name = f"{ci:03d}_{os.path.basename(clip.folder)}"
         frames = range(min(s.frames, clip.num_frames))
         K = clip.K_for(s.width, s.height)
-        real = [_read_png(clip.frame_paths[t], s.width, s.height) for t in frames]
+        # undistorted (clip.json's distortion) and resized as training's targets are; a video clip decoded once
+        real = list(load_clip_frames(clip, s.width, s.height, list(frames)).float() / 255.0)
         whole.add("real", real)
         temporal_rows.append({"clip": name, "task": "recorded", "shift_m": 0.0, "output": "real",
                               **temporal_metrics(real)})
@@ -362,7 +363,7 @@ def evaluate(s: EvalSettings, device: str, stop=(), extractor=None) -> dict:
             sheet = {"condition I": r["image"], "baseline": kinds["baseline"],
                      **({"generated": r["generated"]} if r["generated"] is not None else {})}
             if car is None and shift in clip.views:
-                gt = torch.stack([_read_png(clip.views[shift][t], s.width, s.height) for t in frames])
+                gt = load_clip_frames(clip, s.width, s.height, list(frames), view=shift).float() / 255.0
                 sheet["ground truth"] = gt
                 temporal_rows.append({"clip": name, "task": task, "shift_m": shift, "output": "ground_truth",
                                       **temporal_metrics(gt)})  # the floor: real motion the flow cannot explain

@@ -80,18 +80,25 @@ def save_stock_svd(path: str, size: str = "tiny", seed: int = 0) -> str:
     return path
 
 
-def fit_vae(svd: str, frames: list, width: int, height: int, steps: int = 400, seed: int = 0, log=None) -> dict:
+def fit_vae(svd: str, frames, width: int, height: int, steps: int = 400, seed: int = 0, log=None) -> dict:
     """Fit the VAE of an SVD folder made by ``save_stock_svd`` (encoder and temporal decoder) to reconstruct clips
-    of 4 consecutive ``frames`` (image files) at width x height: MSE + 1e-6 KL, AdamW 1e-3. A random tiny VAE
+    of 4 consecutive ``frames`` at width x height: MSE + 1e-6 KL, AdamW 1e-3. ``frames``: a training clip
+    (``train.clip.Clip``: its frames as training sees them, undistorted, a video decoded) or a list of image
+    files (resized with Lanczos). A random tiny VAE
     cannot make an image, so the documented street run (tools/train_street.py) fits one first, standing in for
     SVD's pretrained VAE. Saves it in place; returns the mean loss of the first and last 10 steps."""
     from diffusers import AutoencoderKLTemporalDecoder
 
-    from ..train.pairs import load_resized
+    from ..train.clip import Clip
+    from ..train.pairs import load_clip_frames, load_resized
 
     torch.manual_seed(seed)
     vae = AutoencoderKLTemporalDecoder.from_pretrained(svd, subfolder="vae", local_files_only=True)
-    video = torch.stack([load_resized(f, width, height) for f in frames]).float() / 255.0 * 2 - 1
+    if isinstance(frames, Clip):
+        video = load_clip_frames(frames, width, height).contiguous()
+    else:
+        video = torch.stack([load_resized(f, width, height) for f in frames])
+    video = video.float() / 255.0 * 2 - 1
     opt = torch.optim.AdamW(vae.parameters(), lr=1e-3)
     g = torch.Generator().manual_seed(seed)
     losses = []

@@ -4,7 +4,9 @@ Layout (paths in ``clip.json`` are relative to it; docs/training.md has the full
 
     clip.json         {"schema": "scpainter.clip/1",
                        "predictions": "predictions.npz",           VGGT demo layout, S frames (required)
-                       "frames": "frames/frame_{:06d}.png",        the real frames, a pattern or a list of S paths
+                       "frames": "frames/frame_{:06d}.png",        the real frames: a pattern, a list of S paths,
+                                                                   or a video file ("drive.mp4": no {} field)
+                       "distortion": [k1, k2, p1, p2, k3],         optional OpenCV lens distortion (needs poses)
                        "poses": "poses.npz",                       optional metric poses (below)
                        "cars": [{"id": "car 3", "size": [w, l, h],  optional tracked cars: box size in metres,
                                  "boxes": {"0": 4x4, ...},          per-frame box_to_world (frames the car is in),
@@ -13,7 +15,8 @@ Layout (paths in ``clip.json`` are relative to it; docs/training.md has the full
                        "views": {"2": "views/left_2m/frame_{:06d}.png"},   optional ground truth of the drive
                        "fps": 10}                                           shifted left by 2 m (evaluation only)
     predictions.npz   images (S,3,h,w), depth, depth_conf, extrinsic, intrinsic (VGGT's demo output)
-    poses.npz         world_to_camera (S,4,4) OpenCV, metric world; K (S,3,3) ours, for the frame images' size;
+    poses.npz         world_to_camera (S,4,4) OpenCV, metric world; K (S,3,3) ours, for the frame images' size
+                      (with ``distortion``: the calibrated K of the recorded, distorted frames);
                       vggt_to_world (4,4) similarity taking VGGT's world to the metric one
     frames/           the real frames (any size; the targets of training, resized to the training resolution)
 
@@ -22,7 +25,15 @@ normalised), with VGGT's cameras, and box sizes/asset alignment then in VGGT uni
 convention: ``box_to_world`` maps the box frame (centre at the origin, axes along the box's width x, length y,
 height z, Z up) to the world; ``size`` is the box's full extent along those axes.
 
-No torch here: numpy, Pillow for the frames. Every error names the file and the field.
+Camera frames (``Clip.load_frames``): with ``distortion`` (OpenCV's coefficients, 4 to 14), every frame and
+ground-truth view is undistorted at its own size to ``Clip.K`` — the pinhole K that ``undistorted_K`` chooses
+(cv2.getOptimalNewCameraMatrix, alpha 0: no black borders; the frame's pixel aspect kept) — and then resized with
+Lanczos; ``Clip.K_recorded`` keeps the calibrated K. ``K``, ``K_for``, training pairs and evaluation jobs all
+project with the undistorted K. Without distortion the frames are only resized, as always.
+
+No torch here: numpy, Pillow, OpenCV and PyAV (``camera_frames``). Every error names the file and the field.
+(Just over 400 lines: ``load`` checks every field of clip.json in one pass, in the file's order, so its errors read
+top to bottom; the camera and video code lives in ``camera_frames``.)
 """
 
 from __future__ import annotations
@@ -39,6 +50,8 @@ from scpainter_blender.core import cameras, files, outputs, vggt, vggt_io
 from scpainter_blender.core import fields as fields_mod
 from scpainter_blender.core import job as job_mod
 from scpainter_blender.core.job import JobError
+
+from . import camera_frames
 
 SCHEMA = "scpainter.clip/1"
 
@@ -69,15 +82,20 @@ class Car:
 class Clip:
     path: str                      # the clip.json
     predictions: vggt.VGGTPredictions
-    frame_paths: list
+    frame_paths: list | None       # the S frame image files; None when the frames are a video
     image_size: tuple              # (W, H) of the real frames
     world_to_camera: np.ndarray    # (S, 4, 4) OpenCV, clip world
-    K: np.ndarray                  # (S, 3, 3) ours, for image_size
+    K: np.ndarray                  # (S, 3, 3) ours, for image_size; of the undistorted frames when distortion is set
     vggt_to_world: np.ndarray    # (4, 4)
     cars: list = field(default_factory=list)
     fps: float = 10.0
     metric: bool = False
     views: dict = field(default_factory=dict)   # lateral shift (m, + left) -> S ground-truth frame paths
+    video: str | None = None       # the video file holding the S frames (frame_paths is None then)
+    distortion: np.ndarray | None = None   # OpenCV coefficients of the recorded frames and views; None: pinhole
+    K_recorded: np.ndarray | None = None   # (S, 3, 3) ours, for image_size: the recorded frames' calibrated K
+    _undistort: camera_frames.Undistorter = field(default_factory=camera_frames.Undistorter, repr=False,
+                                                  compare=False)
 
     @property
     def num_frames(self) -> int:
@@ -92,6 +110,53 @@ class Clip:
         plain scale of rows 0 and 1)."""
         sx, sy = width / self.image_size[0], height / self.image_size[1]
         return np.diag([sx, sy, 1.0]) @ self.K
+
+    def load_frames(self, width: int, height: int, indices=None, view: float | None = None) -> np.ndarray:
+        """(N, height, width, 3) uint8 RGB: the recorded frames ``indices`` (default all S, in the order given), or
+        those of the ground-truth view ``view`` (a lateral shift, a key of ``views``), as the model sees them —
+        with ``distortion``: undistorted at their own size to ``K``, then resized with Lanczos; without:
+        only resized with Lanczos (bit-identical to ``pairs.load_resized``). Their intrinsics are
+        ``K_for(width, height)``. A video is decoded once, up to the last frame asked for, and only the
+        resized frames are kept. ClipError naming clip.json and ``frames[t]`` / ``views.<shift>[t]`` for a
+        frame file that cannot be read."""
+        S = self.num_frames
+        indices = list(range(S)) if indices is None else [int(t) for t in indices]
+        if any(not 0 <= t < S for t in indices):
+            raise IndexError(f"frame indices {indices} outside the clip's 0..{S - 1}")
+        out = np.empty((len(indices), height, width, 3), np.uint8)
+        if view is None and self.video is not None:
+            at: dict = {}
+            for i, t in enumerate(indices):
+                at.setdefault(t, []).append(i)
+            for t, rgb in camera_frames.decode_video(self.video, max(indices, default=-1) + 1,
+                                                     lambda m: ClipError(self.path, "frames", m)):
+                if t in at:
+                    if (rgb.shape[1], rgb.shape[0]) != tuple(self.image_size):
+                        raise ClipError(self.path, "frames", f"frame {t} of the video {self.video} is "
+                                                             f"{rgb.shape[1]}x{rgb.shape[0]}, not {self.image_size}")
+                    out[at[t]] = self._camera_frame(rgb, t, width, height)
+            return out
+        paths, where = (self.frame_paths, "frames") if view is None else (self.views[view], f"views.{view:g}")
+        for i, t in enumerate(indices):
+            image = camera_frames.read_image(paths[t], lambda m: ClipError(self.path, f"{where}[{t}]", m))
+            out[i] = self._camera_frame(image, t, width, height)
+        return out
+
+    def load_frame(self, t: int, width: int, height: int, view: float | None = None) -> np.ndarray:
+        """(height, width, 3) uint8 RGB: frame t, as ``load_frames`` gives it (for a video, ``load_frames`` of
+        all the frames needed at once decodes it once)."""
+        return self.load_frames(width, height, [t], view)[0]
+
+    def _camera_frame(self, image, t: int, width: int, height: int) -> np.ndarray:
+        """A recorded image of frame t (PIL RGB or (h, w, 3) uint8, any size) -> (height, width, 3) uint8."""
+        if self.distortion is None:
+            return camera_frames.resized(image, width, height)
+        rgb = np.asarray(image)
+        size = (rgb.shape[1], rgb.shape[0])  # a view may have another size than the frames: K scales with it
+        K = camera_frames.scale_K(self.K_recorded[t], self.image_size, size)
+        K_new = camera_frames.scale_K(self.K[t], self.image_size, size)
+        undistorted = self._undistort(rgb, K, self.distortion, K_new, out_size=(width, height))
+        return camera_frames.resized(undistorted, width, height)
 
 
 def _image_size(path: str, where: str, clip_path: str) -> tuple:
@@ -113,6 +178,14 @@ def _image_size(path: str, where: str, clip_path: str) -> tuple:
 
 #: A frame pattern's only replacement field: the frame index, optionally zero-padded (``{:06d}``, ``{}``, ``{0}``).
 _INDEX_FIELD = re.compile(r"(0?[1-9]\d?)?d?")
+
+
+def _has_field(text: str) -> bool:
+    """Whether ``text`` holds a replacement field ({...}): a frame pattern does, a video file's path does not."""
+    try:
+        return any(name is not None for _, name, _, _ in string.Formatter().parse(text))
+    except ValueError:
+        return True  # a broken pattern: _pattern says why
 
 
 def _pattern(value, clip_path: str, where: str, S: int) -> list:
@@ -195,19 +268,29 @@ def load(path) -> Clip:
     S = pred.num_frames
 
     frames = data.get("frames")
-    if isinstance(frames, str):
+    video = None
+    if isinstance(frames, str) and not _has_field(frames):  # a video file
+        video = job_mod.resolve(path, fields_mod.string(frames, path, "frames", error=ClipError))
+        count, size = camera_frames.probe_video(video, lambda m: ClipError(path, "frames", m))
+        if count != S:
+            raise ClipError(path, "frames", f"the video {video} has {count} frames, the predictions {S}: one frame "
+                                            f"per VGGT frame", "cut the video to the frames VGGT was run on")
+        frame_paths = None
+    elif isinstance(frames, str):
         frame_paths = _pattern(frames, path, "frames", S)
     elif isinstance(frames, list) and len(frames) == S:
         frame_paths = [job_mod.resolve(path, fields_mod.string(p, path, f"frames[{i}]", error=ClipError))
                        for i, p in enumerate(frames)]
     else:
-        raise ClipError(path, "frames", f"expected a path pattern or a list of {S} paths (one per VGGT frame)")
-    for i, frame in enumerate(frame_paths):  # cheap stats: training opens every frame, and a FIFO would block it
+        raise ClipError(path, "frames", f"expected a path pattern, a list of {S} paths (one per VGGT frame) or a "
+                                        f"video file")
+    for i, frame in enumerate(frame_paths or ()):  # cheap stats: training opens every frame; a FIFO would block it
         _check_file(frame, path, f"frames[{i}]", "frame file")
-    size = _image_size(frame_paths[0], "frames[0]", path)
-    for i in (S // 2, S - 1):  # the ends and the middle: a wrong count or size fails here, not mid-training
-        if _image_size(frame_paths[i], f"frames[{i}]", path) != size:
-            raise ClipError(path, f"frames[{i}]", f"size differs from frames[0] {size}")
+    if frame_paths is not None:
+        size = _image_size(frame_paths[0], "frames[0]", path)
+        for i in (S // 2, S - 1):  # the ends and the middle: a wrong count or size fails here, not mid-training
+            if _image_size(frame_paths[i], f"frames[{i}]", path) != size:
+                raise ClipError(path, f"frames[{i}]", f"size differs from frames[0] {size}")
 
     metric = "poses" in data
     if metric:
@@ -217,6 +300,17 @@ def load(path) -> Clip:
         w2c = cameras.orthonormalize(pred.world_to_camera)
         K = np.diag([size[0] / pred.width, size[1] / pred.height, 1.0]) @ pred.K
         vggt_to_world = np.eye(4)
+    distortion = camera_frames.distortion_coefficients(data.get("distortion"), path, "distortion", error=ClipError)
+    K_recorded = K
+    if distortion is not None:
+        if not metric:
+            raise ClipError(path, "distortion", "needs poses: the coefficients go with the calibrated K of the "
+                                                "recorded frames (poses.npz), not with VGGT's pinhole estimate")
+        if np.any(K[:, 0, 1] != 0):
+            raise ClipError(poses_path, "K", "has skew (K[0, 1] != 0): undistortion needs K without skew")
+        K = camera_frames.undistorted_Ks(K_recorded, distortion, size, lambda m: ClipError(
+            path, "distortion", m, "give the frames' calibration: OpenCV's coefficients k1, k2, p1, p2[, k3, ...] "
+                                   "that go with the K of poses.npz"))
 
     cars = []
     if not isinstance(data.get("cars", []), list):
@@ -269,7 +363,8 @@ def load(path) -> Clip:
         views[shift] = _pattern(pattern, path, f"views.{k}", S)
         for frame in views[shift]:
             _check_file(frame, path, f"views.{k}", "frame file")
-    return Clip(path, pred, frame_paths, size, w2c, K, vggt_to_world, cars, fps, metric, views)
+    return Clip(path, pred, frame_paths, size, w2c, K, vggt_to_world, cars, fps, metric, views, video, distortion,
+                K_recorded)
 
 
 def _short(v) -> str:

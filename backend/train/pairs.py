@@ -66,6 +66,18 @@ def load_resized(path: str, width: int, height: int) -> torch.Tensor:
         raise files.InputError(path, "(file)", f"cannot read the image ({e})") from None
 
 
+def load_clip_frames(clip: clip_mod.Clip, width: int, height: int, indices=None, view=None) -> torch.Tensor:
+    """(N, 3, height, width) uint8: a clip's frames ``indices`` (default all), or those of its ground-truth view
+    ``view`` (a lateral shift), as training and evaluation use them: ``Clip.load_frames`` (undistorted to
+    ``clip.K`` when the clip gives its lens distortion, a video decoded once, resized with Lanczos)."""
+    return torch.from_numpy(clip.load_frames(width, height, indices, view)).permute(0, 3, 1, 2)
+
+
+def load_clip_frame(clip: clip_mod.Clip, t: int, width: int, height: int, view=None) -> torch.Tensor:
+    """(3, height, width) uint8: frame t of a clip (or of its view ``view``), as ``load_clip_frames``."""
+    return load_clip_frames(clip, width, height, [t], view)[0]
+
+
 def clean_cloud(pred, confidence_percentile: float, vggt_to_world, point_cleaning):
     """The clip's points as ``frames.load_scene`` makes a scene's, cleaned by ``point_cleaning`` (a
     ``job.PointCleaning``; None: not cleaned): ``point_cloud`` with the depth-edge test per source frame, then
@@ -111,9 +123,14 @@ class PairMaker:
         self._targets = {}
 
     def target(self, t: int) -> torch.Tensor:
-        """(3, H, W) float32 in [0, 1]: real frame t, resized with Lanczos (antialiased), cached as uint8."""
+        """(3, H, W) float32 in [0, 1]: real frame t as ``Clip.load_frames`` gives it (undistorted to the clip's K
+        when it has lens distortion, resized with Lanczos), cached as uint8. A video clip is decoded once, whole."""
         if t not in self._targets:
-            self._targets[t] = load_resized(self.clip.frame_paths[t], self.settings.width, self.settings.height)
+            s = self.settings
+            if self.clip.video is not None:  # seeking costs a decode from the last key frame: take them all now
+                self._targets.update(enumerate(load_clip_frames(self.clip, s.width, s.height)))
+            else:
+                self._targets[t] = load_clip_frame(self.clip, t, s.width, s.height)
         return self._targets[t].float() / 255.0
 
     def sources(self, t: int, rng: np.random.Generator) -> list:

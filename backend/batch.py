@@ -34,7 +34,7 @@ def run_one(job_path: str, command: str, device: str, checkpoint: str | None, st
     from .generate import generate_job
 
     r = generate_job(job_path, job, device, checkpoint, stop=stop, allow_outside=allow_outside)
-    return {"video": r.get("video"), "frames": r.get("frames"), "stopped": r["stopped"]}
+    return {"video": r.get("video"), "frames": r.get("frames"), "stopped": r["stopped"], "model": r.get("model")}
 
 
 def failure(e: Exception, path: str) -> dict:

@@ -5,6 +5,9 @@ the status bar, Esc stops the backend (SIGTERM: the frame or sampler step in pro
 is kept, running again resumes). In background mode (``blender -b``, the bpy module, ``blender -c scpainter``)
 ``execute`` runs the same work blocking. Nothing in the .blend changes unless the run finished: the job file goes
 to the output folder, and the results are loaded only after success.
+
+Generate without a checkpoint folder in the preferences makes the baseline (OpenCV inpainting of the condition
+holes, no model); its tooltip, progress text and report say so.
 """
 
 from __future__ import annotations
@@ -14,7 +17,8 @@ import bpy
 from ..scpainter_blender.backend_client import BackendError, BackendJob
 from ..scpainter_blender.core import outputs
 from ..scpainter_blender.scene import preferences, props
-from ..scpainter_blender.scene.runs import ACTIVE, DOCTOR, Follower, failure_message, finish, start
+from ..scpainter_blender.scene.runs import (ACTIVE, DOCTOR, Follower, failure_message, finish, planned_model,
+                                            progress_text, start)
 from . import reports
 
 
@@ -42,10 +46,12 @@ class _BackendRun:
     def execute(self, context):
         """Blocking: background mode and scripts."""
         job, out = start(context, self.command, self.extra_args())
+        model = planned_model(context, self.command)
 
         def show(ev):
             if ev.get("event") == "progress":
-                print(f"scpainter {self.command}: {ev['stage']} {ev['done']}/{ev['total']}", flush=True)
+                active = {**ev, "command": self.command, "model": ev.get("model") or model}
+                print(f"scpainter {progress_text(active)}", flush=True)
 
         try:
             done = job.wait(timeout=self.timeout or None, on_event=show)
@@ -60,7 +66,7 @@ class _BackendRun:
         if bpy.app.background:
             return self.execute(context)
         job, out = start(context, self.command, self.extra_args())
-        self._follow = Follower(self.command, job, out, self.timeout)
+        self._follow = Follower(self.command, job, out, self.timeout, model=planned_model(context, self.command))
         wm = context.window_manager
         self._timer = wm.event_timer_add(0.25, window=context.window)
         wm.progress_begin(0, 1000)
@@ -112,14 +118,25 @@ class SCPAINTER_OT_render_conditions(_BackendRun, bpy.types.Operator):
 
 
 class SCPAINTER_OT_generate(_BackendRun, bpy.types.Operator):
-    """Generate the video with the SCPainter checkpoint (renders missing conditions first)"""
+    """Generate the video (renders missing conditions first): with the checkpoint folder of the preferences,
+    SCPainter's model; without one, the baseline (OpenCV inpainting of the holes, no model)"""
 
     bl_idname = "scpainter.generate"
     bl_label = "Generate"
     command = "generate"
 
     steps: bpy.props.IntProperty(name="Steps", default=0, min=0, soft_max=50,
-                                 description="Sampler steps (0: the job's, 25); fewer is faster and rougher")
+                                 description="The model's sampler steps (0: the job's, 25); fewer is faster and "
+                                             "rougher; the baseline has none")
+
+    @classmethod
+    def description(cls, context, properties):
+        """The tooltip says which generator the button runs now."""
+        if planned_model(context) == "baseline":
+            return ("No checkpoint folder is set: generate the baseline video, the condition images with their holes "
+                    "filled by OpenCV inpainting (no model, not SCPainter's output). For the model set Preferences > "
+                    "Add-ons > SCPainter > Checkpoint Folder")
+        return "Generate the video with the SCPainter checkpoint of the preferences (renders missing conditions first)"
 
     def extra_args(self):
         return ("--steps", str(self.steps)) if self.steps else ()
@@ -162,7 +179,9 @@ class SCPAINTER_OT_check_backend(bpy.types.Operator):
             problems.append(report["checkpoint"])
         gpu = ", ".join(report.get("devices") or []) or "no CUDA GPU"
         text = (f"Python {report['python']}, torch {report.get('torch')}, {gpu}"
-                + (f"; {'; '.join(problems)}" if problems else "; ready"))
+                + (f"; {'; '.join(problems)}" if problems else "; ready")
+                + ("" if prefs and prefs.checkpoint_dir else " (no checkpoint: Generate makes the inpainting "
+                                                             "baseline, not the model)"))
         DOCTOR.update(ok=not problems, text=text, report=report)
         self.report({"WARNING" if problems else "INFO"}, text)
         return {"FINISHED"}

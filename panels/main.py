@@ -31,7 +31,7 @@ class SCPAINTER_PT_main(bpy.types.Panel):
         box.label(text="Job", icon="FILE")
         box.prop(context.scene, "scpainter_output_dir", text="")
         box.operator("scpainter.export_job", icon="EXPORT")
-        self.draw_backend(box)
+        self.draw_backend(context, box)
         obj = context.active_object
         if obj is None or "scpainter_kind" not in obj or obj["scpainter_kind"] not in ("points", "recorded_camera"):
             return
@@ -46,16 +46,22 @@ class SCPAINTER_PT_main(bpy.types.Panel):
 
 
     @staticmethod
-    def draw_backend(box):
-        from ..scpainter_blender.scene.runs import ACTIVE
+    def draw_backend(context, box):
+        from ..scpainter_blender.scene import runs
 
-        if ACTIVE:
-            frac = ACTIVE["done"] / max(ACTIVE["total"], 1)
-            box.progress(factor=frac, type="BAR",
-                         text=f"{ACTIVE['command']}: {ACTIVE['stage']} {ACTIVE['done']}/{ACTIVE['total']} (Esc stops)")
+        if runs.ACTIVE:
+            frac = runs.ACTIVE["done"] / max(runs.ACTIVE["total"], 1)
+            box.progress(factor=frac, type="BAR", text=f"{runs.progress_text()} (Esc stops)")
+        # without a checkpoint Generate makes the inpainting baseline: the button and a note say so
+        text, note = runs.generate_ui(context)
         row = box.row(align=True)
         row.operator("scpainter.render_conditions", icon="RENDER_STILL")
-        row.operator("scpainter.generate", icon="RENDER_ANIMATION")
+        row.operator("scpainter.generate", text=text, icon="RENDER_ANIMATION")
+        if note:
+            col = box.column(align=True)
+            for i, line in enumerate(note):
+                col.label(text=line, icon="INFO" if i == 0 else "BLANK1")
+            col.prop(context.scene, "scpainter_baseline_inpaint", text="Inpainting")
         box.operator("scpainter.open_output", icon="FILE_FOLDER")
 
     @staticmethod

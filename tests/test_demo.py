@@ -30,8 +30,9 @@ def test_demo_writes_blend_and_preview(street, tmp_path):
     scene.frame_set(scene.frame_start)
     gap = (by_kind["camera_path"].matrix_world.translation - by_kind["recorded_camera"].matrix_world.translation)
     assert scene.camera.name == summary["camera_path"] and abs(gap.length - 2.0) < 1e-3  # the 2 m shifted path
-    bg = scene.camera.data.background_images   # the condition previews, loaded by Render Conditions
-    assert scene.camera.data.show_background_images and bg[0].image.name == "SCPainter Conditions"
+    bg = scene.camera.data.background_images   # the condition previews (Render Conditions), then the video
+    assert "SCPainter Conditions" in bpy.data.images   # kept in the .blend although the video replaced it
+    assert scene.camera.data.show_background_images and bg[0].image.name == "SCPainter Baseline"
     assert kinds == ["camera_path", "gaussian_asset", "points", "recorded_camera"]
     assert abs(summary["asset_location"][2]) < 0.05  # stood on the road (z = 0)
     from scpainter_blender.core import job
@@ -61,8 +62,16 @@ def test_demo_writes_blend_and_preview(street, tmp_path):
     bpy.data.node_groups.remove(node_tree)
     bpy.data.images.remove(img)
     assert "conditions" in proc.stderr
-    assert summary["generation"]["skipped"] and "init-checkpoint" in summary["generation"]["reason"]
-    assert "generation skipped" in proc.stderr
+    # no checkpoint: the demo still ends in a video, the inpainting baseline, and says so and how to use the model
+    gen = summary["generation"]
+    assert gen["model"] == "baseline" and "no model" in gen["description"]
+    assert "init-checkpoint" in gen["use_a_checkpoint"] and "--checkpoint" in gen["use_a_checkpoint"]
+    assert "not the model" in proc.stderr and gen["video"] in proc.stderr
+    from backend.video import mp4_metadata, read_mp4
+
+    assert read_mp4(gen["video"]).shape[0] == 16 and "no model" in mp4_metadata(gen["video"])["comment"]
+    assert len([f for f in os.listdir(gen["frames_dir"]) if f.endswith(".png")]) == 16
+    assert "SCPainter Video (Baseline)" in bpy.data.movieclips  # the .blend was saved after the run
     bpy.ops.wm.read_homefile(use_empty=True)
 
 
@@ -74,6 +83,7 @@ def test_demo_generates_when_a_checkpoint_is_configured(street, tiny_checkpoint,
     assert proc.returncode == 0, proc.stderr[-3000:]
     summary = json.loads(proc.stdout[proc.stdout.index("{"):])
     gen = summary["generation"]
-    assert gen["skipped"] is False and os.path.getsize(gen["video"]) > 1000
+    assert gen["skipped"] is False and os.path.getsize(gen["video"]) > 1000 and gen["model"] == "scpainter"
+    assert "use_a_checkpoint" not in gen and "not the model" not in proc.stderr
     assert len([f for f in os.listdir(gen["frames_dir"]) if f.endswith(".png")]) == 16
     assert "generate 2/2" in proc.stdout

@@ -1,8 +1,8 @@
 """The README's main command: build the ground-truth street, import it into a new .blend, park a procedural
 Gaussian car beside the road, add a camera path 2 m to the left of the drive, export the job, render the
-condition layers with the backend (``python -m backend render``), generate the video when a checkpoint is
-configured (``--checkpoint`` or ``$SCPAINTER_CHECKPOINT``; otherwise it says what it skipped and how to make one),
-and render a Cycles preview.
+condition layers with the backend (``python -m backend render``), generate the video — with the SCPainter model when
+a checkpoint is configured (``--checkpoint`` or ``$SCPAINTER_CHECKPOINT``), otherwise the OpenCV inpainting
+baseline, saying so and how to use a checkpoint instead — and render a Cycles preview.
 
     .venv/bin/python tools/demo.py [--out build/demo] [--scale camera_height|trajectory|factor]
 
@@ -111,17 +111,11 @@ def main(argv=None):
     cond = conditions_summary(out)
 
     t_gen = time.perf_counter()
-    if args.checkpoint:
-        log(f"backend: generating the video with {args.checkpoint} ...")
-        if bpy.ops.scpainter.generate(steps=args.steps or 0) != {"FINISHED"}:
-            raise SystemExit("generation failed: see the message above")
-        generation = {"video": os.path.join(out, "generated.mp4"), "frames_dir": os.path.join(out, "generated"),
-                      "skipped": False}
-    else:
-        from backend.model.checkpoint import no_checkpoint_message
-
-        generation = {"skipped": True, "reason": no_checkpoint_message()}
-        log(f"generation skipped: {generation['reason']}")
+    log(f"backend: generating the video with {args.checkpoint} ..." if args.checkpoint else
+        "backend: generating the baseline video (no checkpoint: OpenCV inpainting of the holes, no model) ...")
+    if bpy.ops.scpainter.generate(steps=args.steps or 0) != {"FINISHED"}:
+        raise SystemExit("generation failed: see the message above")
+    generation = generation_summary(out)
     t_gen = time.perf_counter() - t_gen
     bpy.ops.wm.save_mainfile()  # again, now with the results loaded behind the camera path
 
@@ -154,8 +148,29 @@ def main(argv=None):
                            "preview": t_render,
                            "total": time.perf_counter() - t0}}
     print(json.dumps(summary, indent=1))
-    log(f"\nSaved {blend}\n      {preview}\n      {cond['folder']} ({cond['frames']} frames of condition layers)")
+    log(f"\nSaved {blend}\n      {preview}\n      {cond['folder']} ({cond['frames']} frames of condition layers)"
+        f"\n      {generation['video']} ({generation['description']})")
+    if generation["model"] == "baseline":
+        log(f"\nThis video is the baseline, not the model. {USE_A_CHECKPOINT}")
     return 0
+
+
+#: What the demo says after a baseline video: how to get the model's instead.
+USE_A_CHECKPOINT = ("For SCPainter's video, make a checkpoint from a Stable Video Diffusion img2vid(-xt) snapshot on "
+                    "disk (`.venv/bin/python -m backend init-checkpoint --svd SVD_DIR --out CHECKPOINT_DIR`) and run "
+                    "`make demo ARGS=\"--checkpoint CHECKPOINT_DIR\"` (or set $SCPAINTER_CHECKPOINT).")
+
+
+def generation_summary(output_dir: str) -> dict:
+    """Where the video is and which generator made it (``generated/manifest.json``'s ``model``, ``description``)."""
+    from scpainter_blender.core import files
+
+    manifest = files.read_json(os.path.join(output_dir, "generated", "manifest.json"))
+    summary = {"video": os.path.join(output_dir, "generated.mp4"), "frames_dir": os.path.join(output_dir, "generated"),
+               "skipped": False, "model": manifest["model"], "description": manifest["description"]}
+    if manifest["model"] == "baseline":
+        summary["use_a_checkpoint"] = USE_A_CHECKPOINT
+    return summary
 
 
 def conditions_summary(output_dir: str) -> dict:

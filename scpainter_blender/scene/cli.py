@@ -5,12 +5,15 @@
     blender -c scpainter import predictions.npz --depth-edge-ratio off
     blender -c scpainter render scene.blend [--output DIR] [--device cpu|cuda|auto]
     blender -c scpainter generate scene.blend --checkpoint /models/scpainter
+    blender -c scpainter generate scene.blend [--inpaint telea|navier-stokes]    # no checkpoint: the baseline
     blender -c scpainter batch a.blend b.blend jobs/c.json [--list scenes.txt] --command generate [--shard 0/4]
 
 ``render``/``generate`` open the .blend, write its job into the scene's output folder and run the backend there
-(blocking); the .blend itself is never written. ``batch`` does that for every .blend (job files go straight to
-the backend), goes on past failures, prints one summary with each item's status, time and outputs, and exits 1 if
-any failed; ``--shard K/N`` (or torchrun's RANK/WORLD_SIZE) takes every N-th item from K.
+(blocking); the .blend itself is never written. Without a checkpoint (``--checkpoint`` or the preference)
+``generate`` makes the baseline, OpenCV inpainting of the condition holes (no model); each output says which
+(``model``: "scpainter" or "baseline", and ``description``). ``batch`` does that for every .blend (job files go
+straight to the backend), goes on past failures, prints one summary with each item's status, time and outputs, and
+exits 1 if any failed; ``--shard K/N`` (or torchrun's RANK/WORLD_SIZE) takes every N-th item from K.
 
 ``-c`` implies background mode; the import goes into the scene that is open (``blender -b scene.blend -c ...``
 imports into scene.blend). With the ``bpy`` module (no ``-c``), call ``execute(argv)`` directly. Output: a JSON
@@ -37,7 +40,8 @@ import bpy
 from .. import backend_client
 from ..core import batch_items as batch_mod
 from ..core import files
-from . import importer, preferences, runs
+from ..core import job as job_mod
+from . import importer, preferences, props, runs
 
 
 class _Parser(argparse.ArgumentParser):
@@ -99,6 +103,11 @@ def _parser():
         c.add_argument("--backend-python", help="interpreter for the backend (default: the add-on preference)")
         c.add_argument("--checkpoint", help="SCPainter checkpoint folder (default: the add-on preference)")
         c.add_argument("--timeout", type=float, default=0.0, help="stop a scene's backend after this many s")
+        if name != "render":
+            c.add_argument("--inpaint", choices=job_mod.INPAINT_METHODS,
+                           help="the baseline's OpenCV method, used without a checkpoint (default: the scene's "
+                                "Baseline Inpainting, else the job's, else "
+                                f"{job_mod.BASELINE_DEFAULTS['inpaint']})")
     return p
 
 
@@ -170,6 +179,9 @@ def _run_blend(blend: str, command: str, args, output: str | None = None) -> dic
                                hint="give a .blend file saved by Blender") from None
     if output:
         bpy.context.scene.scpainter_output_dir = os.path.abspath(output)
+    if getattr(args, "inpaint", None):  # for this run only: the .blend is not written
+        bpy.context.scene.scpainter_baseline_inpaint = next(k for k, v in props.INPAINT_ITEMS.items()
+                                                            if v == args.inpaint)
     job, out = runs.start(bpy.context, command)
     try:
         done = job.wait(timeout=args.timeout or None, on_event=_progress)
@@ -183,6 +195,7 @@ def _run_job(path: str, command: str, args) -> dict:
     prefs = preferences.get(bpy.context)
     device = args.device or (prefs.device.lower() if prefs else "auto")
     extra = ["--checkpoint", os.path.abspath(args.checkpoint)] if command == "generate" and args.checkpoint else []
+    extra += ["--inpaint", args.inpaint] if command == "generate" and getattr(args, "inpaint", None) else []
     extra += ["--allow-outside"] if getattr(args, "allow_outside", False) else []
     done = backend_client.BackendJob([command, os.path.abspath(path), "--device", device, *extra],
                                      python=prefs.backend_python if prefs else "").wait(
@@ -191,7 +204,8 @@ def _run_job(path: str, command: str, args) -> dict:
 
 
 def _outputs(done: dict, out) -> dict:
-    keep = ("frames", "rendered", "skipped", "video", "frames_dir", "seconds")
+    # model / description: which generator made the video ("baseline": OpenCV inpainting, no model)
+    keep = ("frames", "rendered", "skipped", "video", "frames_dir", "model", "description", "seconds")
     return {"output_dir": out or os.path.dirname(done.get("video", "")), **{k: done[k] for k in keep if k in done}}
 
 

@@ -6,7 +6,8 @@ asset's object_to_world is its matrix_world composed with ``scpainter_file_to_da
 depth-edge ratio they were imported with (``point_cleaning``), so the render loads the points the viewport shows.
 What the scene does not use is left out: no reconstruction, no ``scene``; no (accepted) assets, no ``assets``; no
 checkpoint, no ``generate``. Generation settings are not written: the backend takes them from the checkpoint
-(window, guidance, fps) and ``core.job.GENERATE_DEFAULTS``.
+(window, guidance, fps) and ``core.job.GENERATE_DEFAULTS``; the one exception is the baseline's inpainting method
+(``generate.inpaint``), written when the scene chooses one (``Scene.scpainter_baseline_inpaint`` not Default).
 """
 
 from __future__ import annotations
@@ -109,7 +110,15 @@ def build_job(context, job_path: str, output_dir: str | None = None, checkpoint:
     return job_mod.Job((W, H), out_frames, os.path.relpath(output_dir or job_dir, job_dir), scene=sc,
                        assets=[job_mod.Asset(a.name, os.path.relpath(a["scpainter_source"], job_dir), asset_m[a.name])
                                for a in assets],
-                       generate=job_mod.GenerateSettings(checkpoint=checkpoint) if checkpoint else None)
+                       generate=_generate_settings(checkpoint, props.baseline_inpaint(scene)))
+
+
+def _generate_settings(checkpoint: str, inpaint: str | None) -> job_mod.GenerateSettings | None:
+    """``generate``: the checkpoint (when the preferences name one) and the baseline's inpainting method (when the
+    scene chooses one); None when neither, so the backend's defaults and its ``auto`` generator apply."""
+    if not checkpoint and inpaint is None:
+        return None
+    return job_mod.GenerateSettings(checkpoint=checkpoint or None, inpaint=inpaint)
 
 
 def export_job(context, job_path: str, **kw) -> job_mod.Job:

@@ -17,7 +17,8 @@ class SCPAINTER_AP_preferences(bpy.types.AddonPreferences):
                     "torch)")
     checkpoint_dir: bpy.props.StringProperty(
         name="Checkpoint Folder", subtype="DIR_PATH",
-        description="Local folder of the SCPainter / Stable Video Diffusion weights (nothing is downloaded)")
+        description="Local folder of the SCPainter / Stable Video Diffusion weights (nothing is downloaded); "
+                    "empty: Generate makes the OpenCV inpainting baseline, not the model")
     device: bpy.props.EnumProperty(
         name="Device", default="AUTO",
         items=[("AUTO", "Auto", "CUDA when available, else CPU"), ("CUDA", "CUDA", "First CUDA GPU"),
@@ -27,6 +28,8 @@ class SCPAINTER_AP_preferences(bpy.types.AddonPreferences):
         col = self.layout.column()
         col.prop(self, "backend_python")
         col.prop(self, "checkpoint_dir")
+        if not self.checkpoint_dir:
+            col.label(text="No checkpoint: Generate makes the OpenCV inpainting baseline (no model)", icon="INFO")
         col.prop(self, "device")
         from .runs import DOCTOR
 

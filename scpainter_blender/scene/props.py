@@ -7,6 +7,7 @@ import os
 import bpy
 
 from ..core import files
+from ..core import job as job_mod
 
 DEFAULT_OUTPUT = "//scpainter/{scene}/"
 #: The ``path`` of a SceneError in a .blend that was never saved.
@@ -52,11 +53,32 @@ def matrix_property(obj, name: str):
                      hint="import the file again")
 
 
+#: The baseline's OpenCV inpainting methods (``generate.inpaint``, ``core.job.INPAINT_METHODS``) as the UI names them.
+INPAINT_NAMES = {"telea": "Telea", "navier-stokes": "Navier-Stokes"}
+#: ``Scene.scpainter_baseline_inpaint``'s identifiers -> ``generate.inpaint`` ("DEFAULT": not chosen, not exported).
+INPAINT_ITEMS = {"DEFAULT": None, "TELEA": "telea", "NAVIER_STOKES": "navier-stokes"}
+
+
+def baseline_inpaint(scene) -> str | None:
+    """The scene's ``generate.inpaint`` for the job: "telea", "navier-stokes", or None (the backend's default)."""
+    return INPAINT_ITEMS[scene.scpainter_baseline_inpaint]
+
+
 def register():
     bpy.types.Scene.scpainter_output_dir = bpy.props.StringProperty(
         name="Output Folder", subtype="DIR_PATH", default="",
         description="Where jobs, condition layers and videos go (empty: //scpainter/<scene name>/)")
+    default = INPAINT_NAMES[job_mod.BASELINE_DEFAULTS["inpaint"]]
+    bpy.types.Scene.scpainter_baseline_inpaint = bpy.props.EnumProperty(
+        name="Baseline Inpainting", default="DEFAULT",
+        description="How the baseline (Generate without a checkpoint: no model) fills the holes of each condition "
+                    "image; the job's generate.inpaint",
+        items=[("DEFAULT", f"Default ({default})", f"The backend's default, OpenCV {default}; not written to the job"),
+               ("TELEA", "Telea", "OpenCV Telea: fast marching from the hole's border (Telea 2004)"),
+               ("NAVIER_STOKES", "Navier-Stokes", "OpenCV Navier-Stokes: isophotes carried into the hole "
+                                                  "(Bertalmio et al. 2001)")])
 
 
 def unregister():
+    del bpy.types.Scene.scpainter_baseline_inpaint
     del bpy.types.Scene.scpainter_output_dir

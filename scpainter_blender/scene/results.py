@@ -3,7 +3,15 @@ movie clip, shown behind the scene camera, frame-synchronised with the timeline.
 
 Files are numbered by scene frame (``preview_000012.png`` is frame 12), so an image sequence with frame_start = 1
 and no offset shows file N at frame N. Loading reuses datablocks of the same path (running twice does not pile
-up images). Nothing here runs unless a backend run finished.
+up images). Nothing here runs unless a backend run finished. Every result carries a fake user, so saving the .blend
+keeps it even when nothing shows it (a movie clip no editor has opened, the conditions once the video is behind the
+camera).
+
+The model's video and the baseline's (OpenCV inpainting, no model) are written to the same files
+(``generated/``, ``generated.mp4``), so they are loaded under names that say which one is there (``NAMES``): loading
+one kind renames the other kind's image sequence (the camera background keeps it) and replaces its movie clip, so
+the scene never shows one generator's frames under the other's name. Each datablock also carries
+``scpainter_model`` and ``scpainter_description`` (the backend's one line about what made it).
 """
 
 from __future__ import annotations
@@ -15,21 +23,36 @@ import bpy
 CONDITIONS = "SCPainter Conditions"
 GENERATED = "SCPainter Generated"
 VIDEO = "SCPainter Video"
+BASELINE = "SCPainter Baseline"
+BASELINE_VIDEO = "SCPainter Video (Baseline)"
+#: (image sequence, movie clip) of each generator (the ``done`` event's ``model``).
+NAMES = {"scpainter": (GENERATED, VIDEO), "baseline": (BASELINE, BASELINE_VIDEO)}
 
 
-def _sequence(name: str, folder: str, prefix: str) -> bpy.types.Image | None:
+def _sequence(name: str, folder: str, prefix: str, replaces=()) -> bpy.types.Image | None:
+    """The PNG sequence ``folder/prefix*.png`` as image ``name``, reloaded. The datablock of that name is reused
+    (else the first of ``replaces`` there is, renamed; the others' users are moved to it), so the camera background
+    and image editors that show it keep showing it."""
     files = sorted(f for f in os.listdir(folder) if f.startswith(prefix) and f.endswith(".png")) \
         if os.path.isdir(folder) else []
     if not files:
         return None
     first = os.path.join(folder, files[0])
     img = bpy.data.images.get(name)
-    if img is None or bpy.path.abspath(img.filepath) != first:
-        if img is not None:
-            bpy.data.images.remove(img)
+    for other in replaces:  # one datablock per set of files: the other generator's becomes this one
+        old = bpy.data.images.get(other)
+        if old is not None and img is None:
+            old.name, img = name, old
+        elif old is not None:
+            old.user_remap(img)
+            bpy.data.images.remove(old)
+    if img is None:
         img = bpy.data.images.load(first, check_existing=False)
         img.name = name
+    elif bpy.path.abspath(img.filepath) != first:  # another output folder: the same datablock, pointed there
+        img.filepath = first
     img.source = "SEQUENCE"
+    img.use_fake_user = True  # kept in the saved .blend when the camera background shows another result
     img.reload()
     img["scpainter_frames"] = len(files)
     return img
@@ -39,16 +62,27 @@ def load_conditions(output_dir: str) -> bpy.types.Image | None:
     return _sequence(CONDITIONS, os.path.join(output_dir, "conditions"), "preview_")
 
 
-def load_generated(output_dir: str) -> tuple[bpy.types.Image | None, bpy.types.MovieClip | None]:
-    img = _sequence(GENERATED, os.path.join(output_dir, "generated"), "frame_")
-    clip = None
+def load_generated(output_dir: str, model: str = "scpainter", description: str = "") \
+        -> tuple[bpy.types.Image | None, bpy.types.MovieClip | None]:
+    """``generated/frame_*.png`` and ``generated.mp4`` under the names of ``model`` ("scpainter" or "baseline",
+    ``NAMES``), the other generator's datablocks renamed or removed (they show the same files)."""
+    name, video = NAMES[model]
+    others = [n for m, n in NAMES.items() if m != model]
+    img = _sequence(name, os.path.join(output_dir, "generated"), "frame_", replaces=[n for n, _ in others])
     mp4 = os.path.join(output_dir, "generated.mp4")
-    if os.path.isfile(mp4):
-        clip = bpy.data.movieclips.get(VIDEO)
-        if clip is not None:
-            bpy.data.movieclips.remove(clip)
-        clip = bpy.data.movieclips.load(mp4)
-        clip.name = VIDEO
+    # a clip is loaded afresh (it does not reload its file); the old ones' users (clip editors, strips) move to it
+    clip = bpy.data.movieclips.load(mp4, check_existing=False) if os.path.isfile(mp4) else None
+    for stale in [video, *(v for _, v in others)]:
+        if (old := bpy.data.movieclips.get(stale)) is not None and old != clip:
+            if clip is not None:
+                old.user_remap(clip)
+            bpy.data.movieclips.remove(old)
+    if clip is not None:
+        clip.name = video
+        clip.use_fake_user = True  # nothing uses a fresh clip yet: without this, saving the .blend would drop it
+    for block in (img, clip):
+        if block is not None:
+            block["scpainter_model"], block["scpainter_description"] = model, description
     return img, clip
 
 
@@ -59,7 +93,7 @@ def show_behind_camera(scene, image: bpy.types.Image, alpha: float = 1.0) -> Non
         return
     data = cam.data
     bg = next((b for b in data.background_images if b.image is not None and b.image.name in
-               (CONDITIONS, GENERATED)), None) or data.background_images.new()
+               (CONDITIONS, GENERATED, BASELINE)), None) or data.background_images.new()
     bg.source = "IMAGE"
     bg.image = image
     bg.alpha = alpha

@@ -8,33 +8,59 @@ import os
 import bpy
 
 from ..backend_client import BackendError, BackendJob
-from ..core import files, outputs
+from ..core import outputs
 from . import job_export, preferences, props, results
 
-#: The ``path`` of an InputError about an add-on preference (``field``: the preference's name).
-PREFERENCES = "(add-on preferences)"
-
-#: The run in progress (one at a time): command, stage, done, total, out.
+#: The run in progress (one at a time): command, model (the generator, None for render), stage, done, total, out.
 ACTIVE: dict = {}
 #: The last "Check Backend" report: ok, text, report.
 DOCTOR: dict = {}
 
 
+#: What the UI calls each generator (panel, status bar, reports): the baseline is never to be taken for the model.
+MODEL_NAMES = {"scpainter": "SCPainter", "baseline": "Baseline"}
+#: The Generate button and the note under it when no checkpoint is set (``generate_ui``).
+BASELINE_BUTTON = "Generate (Baseline)"
+BASELINE_NOTE = ("No checkpoint: shows the OpenCV inpainting",
+                 "baseline, not the SCPainter model.",
+                 "Set one: Preferences > Add-ons > SCPainter",
+                 "> Checkpoint Folder")
+
+
+def checkpoint_dir(context) -> str:
+    """The preferences' checkpoint folder, absolute; "" when none is set."""
+    prefs = preferences.get(context)
+    return bpy.path.abspath(prefs.checkpoint_dir) if prefs and prefs.checkpoint_dir else ""
+
+
+def planned_model(context, command: str = "generate") -> str | None:
+    """The generator a run of ``command`` from this context will use: "scpainter" when the preferences name a
+    checkpoint folder, else "baseline" (the backend's ``auto`` rule applied to the job ``start`` exports, which names
+    the checkpoint only when one is set); None for ``render``."""
+    if command != "generate":
+        return None
+    return "scpainter" if checkpoint_dir(context) else "baseline"
+
+
+def generate_ui(context) -> tuple[str, tuple[str, ...]]:
+    """(text of the Generate button, lines of the note under it): "Generate" and no note with a checkpoint; the
+    baseline's button and ``BASELINE_NOTE`` without one."""
+    if planned_model(context) == "baseline":
+        return BASELINE_BUTTON, BASELINE_NOTE
+    return "Generate", ()
+
+
 def start(context, command: str, extra=()) -> tuple[BackendJob, str]:
     """Export the scene's job into its output folder and start ``python -m backend <command> job.json *extra``.
-    InputError (SceneError, or ``PREFERENCES`` for a missing checkpoint folder) before anything is written when
-    the scene or the preferences cannot make a job; BackendError when the backend cannot be started."""
+    The job names the preferences' checkpoint folder when one is set; without one ``generate`` makes the OpenCV
+    inpainting baseline (the backend's ``generate.model`` auto). InputError (SceneError) before anything is written
+    when the scene cannot make a job; BackendError when the backend cannot be started."""
     scene = context.scene
     out = props.output_dir(scene)
     prefs = preferences.get(context)
-    ckpt = bpy.path.abspath(prefs.checkpoint_dir) if prefs and prefs.checkpoint_dir else ""
-    if command == "generate" and not ckpt:
-        raise files.InputError(PREFERENCES, "checkpoint_dir", "no checkpoint folder is set",
-                               hint="Preferences > Add-ons > SCPainter > Checkpoint Folder (or --checkpoint), made "
-                                    "with `python -m backend init-checkpoint --svd SVD_DIR --out DIR`")
     outputs.make_folder(out, "scene.scpainter_output_dir")
     job_path = os.path.join(out, "job.json")
-    job_export.export_job(context, job_path, checkpoint=ckpt)
+    job_export.export_job(context, job_path, checkpoint=checkpoint_dir(context))
     device = prefs.device.lower() if prefs else "auto"
     # the job's output folder is the one the user set (and its inputs are the files they imported): the add-on
     # says so with --allow-outside, which a job from someone else, run by hand, does not get
@@ -44,14 +70,28 @@ def start(context, command: str, extra=()) -> tuple[BackendJob, str]:
 
 
 def finish(context, command: str, out: str, done: dict) -> str:
-    """Load what the run made and show it behind the camera; returns a one-line report."""
+    """Load what the run made and show it behind the camera; returns a one-line report, which for the baseline
+    says that it is the baseline (the ``done`` event's ``model``) and how to get the model's video."""
     if command == "render":
         img = results.load_conditions(out)
         results.show_behind_camera(context.scene, img)
         return f"Condition layers of {done.get('frames', '?')} frames in {os.path.join(out, 'conditions')}"
-    img, _clip = results.load_generated(out)
+    model = done.get("model", "scpainter")  # a backend from before the baseline: always the model
+    img, _clip = results.load_generated(out, model, done.get("description", ""))
     results.show_behind_camera(context.scene, img)
+    if model == "baseline":
+        method = props.INPAINT_NAMES.get(done.get("inpaint"), "")
+        return (f"Baseline video (OpenCV {method + ' ' if method else ''}inpainting, no model): {done.get('video')}"
+                f"; for SCPainter's video set Preferences > Add-ons > SCPainter > Checkpoint Folder")
     return f"Video {done.get('video')}"
+
+
+def progress_text(active: dict | None = None) -> str:
+    """The run in progress in a few words (panel and status bar): "generate (Baseline): render 2/4"."""
+    a = ACTIVE if active is None else active
+    model = MODEL_NAMES.get(a.get("model") or "")
+    what = f"{a['command']} ({model})" if model else a["command"]
+    return f"{what}: {a['stage']} {a['done']}/{a['total']}"
 
 
 def failure_message(e: BackendError, out: str) -> str:
@@ -71,13 +111,15 @@ class Follower:
     (progress for the panel), and says whether the run is still going; ``stop()`` is Esc. The modal operator only
     adds the window-manager calls around it, so this logic is tested without a display."""
 
-    def __init__(self, command: str, job: BackendJob, out: str, timeout: float = 0.0):
+    def __init__(self, command: str, job: BackendJob, out: str, timeout: float = 0.0, model: str | None = None):
+        """``model``: the generator the run is expected to use (``planned_model``), shown from the start; the
+        backend's progress events correct it."""
         import time
 
         self.command, self.job, self.out, self.timeout = command, job, out, timeout
         self.t0 = time.monotonic()
         ACTIVE.clear()
-        ACTIVE.update(command=command, stage="starting", done=0, total=1, out=out)
+        ACTIVE.update(command=command, model=model, stage="starting", done=0, total=1, out=out)
 
     @property
     def fraction(self) -> float:
@@ -85,7 +127,7 @@ class Follower:
 
     @property
     def status_text(self) -> str:
-        return f"SCPainter {self.command}: {ACTIVE['stage']} {ACTIVE['done']}/{ACTIVE['total']}  (Esc to stop)"
+        return f"SCPainter {progress_text()}  (Esc to stop)"
 
     def tick(self) -> str:
         """'running', 'finished', 'failed' or 'timeout' (the last three end the run and clear ``ACTIVE``)."""
@@ -94,6 +136,8 @@ class Follower:
         for ev in self.job.poll():
             if ev.get("event") == "progress":
                 ACTIVE.update(stage=ev["stage"], done=ev["done"], total=max(ev["total"], 1))
+                if ev.get("model"):
+                    ACTIVE["model"] = ev["model"]
         if self.timeout and time.monotonic() - self.t0 > self.timeout:
             self.stop()
             return "timeout"

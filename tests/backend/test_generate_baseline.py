@@ -141,3 +141,12 @@ def test_baseline_ignores_a_configured_checkpoint_when_asked(tmp_path):
     assert code == 2 and "does not exist" in ev[-1]["message"] and ev[-1]["file"].endswith("no/such/checkpoint")
     code, ev, err = run_backend("generate", path, "--device", "cpu", "--model", "baseline")
     assert code == 0 and ev[-1]["model"] == "baseline", err[-2000:]
+
+
+def test_batch_generate_without_a_checkpoint_makes_each_jobs_baseline(tmp_path):
+    jobs = [small_job(tmp_path / name, asset=False) for name in ("a", "b")]
+    code, ev, err = run_backend("batch", *jobs, "--command", "generate", "--device", "cpu")
+    assert code == 0, err[-2000:]
+    items = ev[-1]["items"]
+    assert [r["status"] for r in items] == ["ok", "ok"] and all(r["model"] == "baseline" for r in items)
+    assert all(os.path.isfile(r["video"]) for r in items)

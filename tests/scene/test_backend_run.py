@@ -1,6 +1,8 @@
 """Render Conditions / Generate through the operators (blocking in background mode), with the real backend in a
-subprocess; failures (crash, hang, missing interpreter or checkpoint) leave the scene and finished outputs alone."""
+subprocess; without a checkpoint Generate makes the inpainting baseline, labelled as such everywhere; failures
+(crash, hang, missing interpreter) leave the scene and finished outputs alone."""
 
+import json
 import stat
 import sys
 
@@ -30,7 +32,7 @@ def _state():
             len(cam.data.background_images), cam.data.show_background_images)
 
 
-def test_render_then_generate_load_results_behind_the_camera(street_scene, tmp_path):
+def test_render_then_generate_load_results_behind_the_camera(street_scene, tmp_path, addon, capsys, tiny_checkpoint):
     assert bpy.ops.scpainter.render_conditions() == {"FINISHED"}
     out = tmp_path / "out"
     assert len(list((out / "conditions").glob("frame_*.exr"))) == 4
@@ -39,11 +41,32 @@ def test_render_then_generate_load_results_behind_the_camera(street_scene, tmp_p
     cam = street_scene.camera.data
     assert cam.show_background_images and cam.background_images[0].image == img
     assert cam.background_images[0].image_user.frame_start == 1      # file N shows at frame N
+    # no checkpoint: the baseline (OpenCV inpainting), under names that say so
+    prefs = bpy.context.preferences.addons[addon].preferences
+    prefs.checkpoint_dir = ""
+    capsys.readouterr()
     assert bpy.ops.scpainter.generate() == {"FINISHED"}
+    assert "scpainter generate (Baseline): generate 4/4" in capsys.readouterr().out   # the progress lines
+    manifest = json.loads((out / "generated" / "manifest.json").read_text())
+    assert manifest["model"] == "baseline" and manifest["checkpoint"] is None
+    assert "generate" not in json.loads((out / "job.json").read_text())   # no checkpoint, no setting: nothing
+    baseline = bpy.data.images["SCPainter Baseline"]
+    assert baseline.source == "SEQUENCE" and baseline["scpainter_frames"] == 4
+    assert baseline["scpainter_model"] == "baseline" and "OpenCV Telea" in baseline["scpainter_description"]
+    assert bpy.data.movieclips["SCPainter Video (Baseline)"].frame_duration == 4
+    assert "SCPainter Generated" not in bpy.data.images and "SCPainter Video" not in bpy.data.movieclips
+    assert cam.background_images[0].image == baseline and len(cam.background_images) == 1
+    # with the checkpoint: the model's video replaces the baseline's datablocks (the same files on disk)
+    prefs.checkpoint_dir = tiny_checkpoint
+    assert bpy.ops.scpainter.generate() == {"FINISHED"}
+    assert json.loads((out / "generated" / "manifest.json").read_text())["model"] == "scpainter"
     assert (out / "generated.mp4").is_file() and len(list((out / "generated").glob("frame_*.png"))) == 4
     assert bpy.data.images["SCPainter Generated"].source == "SEQUENCE"
+    assert bpy.data.images["SCPainter Generated"]["scpainter_model"] == "scpainter"
     assert bpy.data.movieclips["SCPainter Video"].frame_duration == 4
+    assert "SCPainter Baseline" not in bpy.data.images and "SCPainter Video (Baseline)" not in bpy.data.movieclips
     assert cam.background_images[0].image.name == "SCPainter Generated" and len(cam.background_images) == 1
+    assert len([i for i in bpy.data.images if i.name.startswith("SCPainter")]) == 2   # conditions, generated
 
 
 def _fake_python(tmp_path, body):
@@ -67,8 +90,8 @@ def test_crash_hang_and_missing_pieces_leave_the_scene_alone(street_scene, tmp_p
     prefs.backend_python = str(tmp_path / "no-such-python")
     with pytest.raises(RuntimeError, match="Backend Python not found.*no-such-python"):
         bpy.ops.scpainter.render_conditions()
-    prefs.backend_python, prefs.checkpoint_dir = sys.executable, ""
-    with pytest.raises(RuntimeError, match="no checkpoint folder is set.*init-checkpoint"):
+    prefs.backend_python, prefs.checkpoint_dir = sys.executable, str(tmp_path / "no-such-checkpoint")
+    with pytest.raises(RuntimeError, match="no-such-checkpoint"):
         bpy.ops.scpainter.generate()
     assert _state() == before and not (tmp_path / "out" / "generated").exists()
 
@@ -102,8 +125,21 @@ def test_followed_runs_cancel_finish_and_time_out(street_scene, tmp_path, addon)
     assert status == "finished"
     level, message = follow.report(bpy.context, status)
     assert level == "INFO" and bpy.data.images["SCPainter Conditions"]["scpainter_frames"] == 4
-    # a backend that never answers
+    # Generate followed without a checkpoint: the baseline, said from the first tick to the report
     prefs = bpy.context.preferences.addons[addon].preferences
+    prefs.checkpoint_dir = ""
+    follow = runs.Follower("generate", *runs.start(bpy.context, "generate"),
+                           model=runs.planned_model(bpy.context, "generate"))
+    texts = [follow.status_text]
+    while (status := follow.tick()) == "running":
+        texts.append(follow.status_text if runs.ACTIVE else "")
+        time.sleep(0.05)
+    assert status == "finished" and texts[0].startswith("SCPainter generate (Baseline): starting 0/1")
+    assert len(texts) > 1 and all(t.startswith("SCPainter generate (Baseline): ") for t in texts if t), texts
+    level, message = follow.report(bpy.context, status)
+    assert level == "INFO" and message.startswith("Baseline video (OpenCV Telea inpainting, no model): ")
+    assert "Checkpoint Folder" in message and bpy.data.images["SCPainter Baseline"]["scpainter_frames"] == 4
+    # a backend that never answers
     prefs.backend_python = _fake_python(tmp_path, "exec sleep 60")
     follow = runs.Follower("render", *runs.start(bpy.context, "render"), timeout=1.0)
     while (status := follow.tick()) == "running":

@@ -117,10 +117,19 @@ def test_render_generate_and_batch_headless(addon, street, tmp_path, capsys, tin
     assert code == 0, ev
     out = tmp_path / "scpainter" / "Scene"                       # the default: //scpainter/<scene name>/
     assert ev["output_dir"] == str(out) and ev["frames"] == 3 and len(list((out / "conditions").glob("*.exr"))) == 3
+    # no checkpoint (none given, none in the preferences): the OpenCV inpainting baseline, said in the output
+    code = cli.execute(["generate", blend, *common, "--inpaint", "navier-stokes", "--output", str(tmp_path / "gen")])
+    ev = _last_event(capsys)
+    assert code == 0, ev
+    assert ev["model"] == "baseline" and "OpenCV Navier-Stokes inpainting" in ev["description"], ev
+    assert os.path.isfile(ev["video"]) and ev["video"].startswith(str(tmp_path / "gen"))
+    job = json.load(open(tmp_path / "gen" / "job.json"))
+    assert job["generate"] == {"inpaint": "navier-stokes"}                 # the scene's setting, for this run
     code = cli.execute(["generate", blend, *common, "--checkpoint", tiny_checkpoint, "--output",
                         str(tmp_path / "gen")])
     ev = _last_event(capsys)
     assert code == 0, ev
+    assert ev["model"] == "scpainter" and ev["description"].startswith("SCPainter model")
     assert os.path.isfile(ev["video"]) and ev["video"].startswith(str(tmp_path / "gen"))
     # a batch over a scene, a missing scene and the job file the first run wrote: one summary, exit 1
     (tmp_path / "list.txt").write_text("scpainter/Scene/job.json\n")
@@ -137,8 +146,17 @@ def test_render_generate_and_batch_headless(addon, street, tmp_path, capsys, tin
                         *common])
     ev = _last_event(capsys)
     assert code == 0 and [r["item"] for r in ev["items"]] == [blend] and ev["shard"] == "0/2"
-    assert hashlib.sha256(open(blend, "rb").read()).hexdigest() == digest   # the .blend is never written
+    # batch generate without a checkpoint (a fresh process has only the preferences, here emptied): the baseline for
+    # the scene, and its job file (the same job: up to date) says so too
     prefs = bpy.context.preferences.addons[addon].preferences
+    prefs.checkpoint_dir = ""
+    code = cli.execute(["batch", blend, "--list", str(tmp_path / "list.txt"), "--command", "generate",
+                        "--allow-outside", *common])
+    ev = _last_event(capsys)
+    assert code == 0, ev
+    assert [(r["status"], r["model"], r["skipped"]) for r in ev["items"]] == [("ok", "baseline", False),
+                                                                               ("ok", "baseline", True)]
+    assert hashlib.sha256(open(blend, "rb").read()).hexdigest() == digest   # the .blend is never written
     prefs.backend_python, prefs.device, prefs.checkpoint_dir = "", "AUTO", ""
     bpy.ops.wm.read_homefile(use_empty=True)
 

@@ -1,0 +1,68 @@
+"""Without a checkpoint, Generate makes the OpenCV inpainting baseline: what the panel, the tooltip, the progress text
+and the exported job say, without running the backend (the runs themselves: test_backend_run.py, test_cli.py)."""
+
+import json
+import sys
+
+import bpy
+import pytest
+
+
+def _module(addon, name):
+    return sys.modules[f"{addon}.{name}"]  # the installed add-on's module
+
+
+@pytest.fixture
+def prefs(addon):
+    p = bpy.context.preferences.addons[addon].preferences
+    yield p
+    p.checkpoint_dir = ""
+
+
+def test_generate_button_and_tooltip_say_baseline_without_a_checkpoint(empty_scene, addon, prefs, tmp_path):
+    runs = _module(addon, "scpainter_blender.scene.runs")
+    generate = _module(addon, "operators.backend_run").SCPAINTER_OT_generate
+    prefs.checkpoint_dir = ""
+    text, note = runs.generate_ui(bpy.context)                      # what the panel draws by the button
+    assert text == "Generate (Baseline)" and runs.planned_model(bpy.context) == "baseline"
+    said = " ".join(note)
+    assert "OpenCV inpainting baseline, not the SCPainter model" in said
+    assert "Preferences > Add-ons > SCPainter > Checkpoint Folder" in said
+    tip = generate.description(bpy.context, None)
+    assert "baseline" in tip and "not SCPainter's output" in tip and "Checkpoint Folder" in tip
+    prefs.checkpoint_dir = str(tmp_path)
+    assert runs.generate_ui(bpy.context) == ("Generate", ()) and runs.planned_model(bpy.context) == "scpainter"
+    assert "baseline" not in generate.description(bpy.context, None)
+    assert runs.planned_model(bpy.context, "render") is None
+
+
+def test_progress_text_names_the_generator(addon):
+    runs = _module(addon, "scpainter_blender.scene.runs")
+    run = {"command": "generate", "model": "baseline", "stage": "render", "done": 2, "total": 4}
+    assert runs.progress_text(run) == "generate (Baseline): render 2/4"
+    assert runs.progress_text({**run, "model": "scpainter"}) == "generate (SCPainter): render 2/4"
+    assert runs.progress_text({**run, "command": "render", "model": None}) == "render: render 2/4"
+
+
+def test_job_export_writes_the_inpainting_method_only_when_chosen(empty_scene, addon, prefs, tmp_path):
+    """``generate`` holds the checkpoint of the preferences and the scene's Baseline Inpainting, each only when
+    set: a default scene leaves the backend's defaults (and its auto generator) in charge."""
+    job_export = _module(addon, "scpainter_blender.scene.job_export")
+    cam = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
+    empty_scene.collection.objects.link(cam)
+    empty_scene.camera = cam
+    empty_scene.frame_start, empty_scene.frame_end = 1, 2
+    path = str(tmp_path / "job.json")
+
+    def exported(**kw):
+        job_export.export_job(bpy.context, path, **kw)
+        return json.loads(open(path).read()).get("generate")
+
+    assert empty_scene.scpainter_baseline_inpaint == "DEFAULT" and exported() is None
+    empty_scene.scpainter_baseline_inpaint = "NAVIER_STOKES"
+    assert exported() == {"inpaint": "navier-stokes"}
+    assert exported(checkpoint=str(tmp_path)) == {"checkpoint": str(tmp_path), "inpaint": "navier-stokes"}
+    empty_scene.scpainter_baseline_inpaint = "TELEA"
+    assert exported() == {"inpaint": "telea"}
+    empty_scene.scpainter_baseline_inpaint = "DEFAULT"
+    assert exported(checkpoint=str(tmp_path)) == {"checkpoint": str(tmp_path)}

@@ -122,9 +122,12 @@ def _cmd_generate(args) -> int:
         result = generate.generate_job(args.job, job, device, args.checkpoint, args.precision, args.force, stop,
                                        overrides, allow_outside=args.allow_outside)
     if result.pop("stopped"):
-        done = (f"{result['steps_done']} baseline frames done" if plan.model == "baseline" else
-                f"{result['steps_done']} sampler steps done")
-        events.error(f"stopped by SIGTERM during {result['stage']} ({done})",
+        if plan.model == "baseline" and result["stage"] == "generate":  # seconds of work: it keeps none of it
+            events.error(f"stopped by SIGTERM during the baseline ({result['steps_done']} frames inpainted, not "
+                         "kept)", hint="run the same command again: the baseline starts again from its first frame "
+                                       "(the condition layers are kept)")
+            return events.EXIT_FAILED
+        events.error(f"stopped by SIGTERM during {result['stage']} ({result['steps_done']} sampler steps done)",
                      hint="finished work is kept: run the same command again to resume")
         return events.EXIT_FAILED
     events.done(command="generate", device=device, seconds=time.perf_counter() - t0, **result)
@@ -155,8 +158,20 @@ def _cmd_batch(args) -> int:
         raise ArgumentError("--half-float", "applies to --command render only",
                             hint="render the conditions with batch --command render --half-float first; generate "
                                  "keeps the precision of the conditions it finds")
-    results, rank = batch.run_batch(items, args.command_name, _device(args.device), args.checkpoint,
-                                    allow_outside=args.allow_outside, half=args.half_float)
+    if args.ray is not None:  # Ray schedules the jobs (backend/batch_ray.py); this process is the driver
+        from . import batch_ray
+
+        events.reserve_stdout()  # Ray's driver prints its workers' errors to sys.stdout
+        batch_ray.connect(args.ray)  # before our SIGTERM handler: ray.init installs its own
+        with events.stop_on_sigterm() as stop:
+            results = batch_ray.run_ray_batch(items, args.command_name, args.device, args.checkpoint,
+                                              allow_outside=args.allow_outside, half=args.half_float,
+                                              address=args.ray, retries=args.retries,
+                                              cpus_per_job=args.cpus_per_job, stop=stop)
+        rank = 0
+    else:
+        results, rank = batch.run_batch(items, args.command_name, _device(args.device), args.checkpoint,
+                                        allow_outside=args.allow_outside, half=args.half_float)
     failed = [r for r in results if r["status"] != "ok"]
     if rank == 0:
         events.done(command="batch", jobs=len(results), failed=len(failed), items=results)
@@ -283,6 +298,15 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--checkpoint", help="checkpoint for generate (default: each job's generate.checkpoint)")
     b.add_argument("--allow-outside", action="store_true", help=ALLOW_OUTSIDE_HELP)
     b.add_argument("--half-float", action="store_true", help=HALF_FLOAT_HELP + " (--command render)")
+    b.add_argument("--ray", nargs="?", const="", metavar="ADDRESS",
+                   help="schedule the jobs on a Ray cluster (one task per job, one GPU each, retried when a worker "
+                        "dies): the cluster at ADDRESS (HOST:PORT of its head), else RAY_ADDRESS or the one `ray "
+                        "start` started here, else a new local one; files on a shared file system (README)")
+    b.add_argument("--retries", type=_bounded_int(0, 100), default=2,
+                   help="--ray: run a job again at most this often when its worker dies or it fails unexpectedly "
+                        "(bad input is never retried; default 2)")
+    b.add_argument("--cpus-per-job", type=float, default=1.0,
+                   help="--ray on a cluster without GPUs: CPUs each job asks for (default 1)")
     b.set_defaults(func=_cmd_batch)
     c = sub.add_parser("init-checkpoint", help="make an SCPainter checkpoint folder from a stock SVD snapshot")
     c.add_argument("--svd", required=True, help="local stable-video-diffusion-img2vid(-xt) diffusers folder")

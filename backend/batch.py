@@ -30,11 +30,13 @@ def run_one(job_path: str, command: str, device: str, checkpoint: str | None, st
         from .render import command as render_cmd
 
         r = render_cmd.render_job(job_path, job, device, stop=stop, allow_outside=allow_outside, half=half)
-        return {"output_dir": r["output_dir"], "frames": r["frames"], "stopped": r["stopped"]}
+        return {"output_dir": r["output_dir"], "frames": r["frames"], "rendered": r["rendered"],
+                "skipped": not r["stopped"] and r["rendered"] == 0, "stopped": r["stopped"]}
     from .generate import generate_job
 
     r = generate_job(job_path, job, device, checkpoint, stop=stop, allow_outside=allow_outside)
-    return {"video": r.get("video"), "frames": r.get("frames"), "stopped": r["stopped"], "model": r.get("model")}
+    return {"video": r.get("video"), "frames": r.get("frames"), "skipped": bool(r.get("skipped")),
+            "stopped": r["stopped"], "model": r.get("model")}
 
 
 def failure(e: Exception, path: str) -> dict:

@@ -32,8 +32,22 @@ def json_safe(value):
     return value
 
 
+#: Where events go once ``reserve_stdout`` ran (the process's real standard output); None: ``sys.stdout``.
+_EVENT_STREAM = None
+
+
+def reserve_stdout() -> None:
+    """From now on, standard output carries only events: anything else printed to ``sys.stdout`` (a library's own
+    messages: Ray's driver prints its workers' failures there, from a thread of its own) goes to standard error.
+    For the rest of the process (such a thread may print after the command's work)."""
+    global _EVENT_STREAM
+    if _EVENT_STREAM is None:
+        _EVENT_STREAM = sys.stdout
+        sys.stdout = sys.stderr
+
+
 def emit(event: str, stream=None, **fields) -> None:
-    stream = stream or sys.stdout
+    stream = stream or _EVENT_STREAM or sys.stdout
     stream.write(json.dumps(json_safe({"event": event, **fields}), allow_nan=False) + "\n")
     stream.flush()
 

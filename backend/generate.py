@@ -207,7 +207,7 @@ def _generate(job_path, job, device, plan: Plan, precision, force, stop, lock) -
         key = conditions_key({"model": "baseline", "settings": s}, image, asset_mask, valid)
         if not force and _up_to_date(gen_dir, mp4, key):
             log(f"generate: {mp4} is up to date (the same baseline settings and conditions)")
-            return _result(plan, mp4, gen_dir, frames_n, skipped=True)
+            return {**_result(plan, mp4, gen_dir, frames_n, skipped=True), **s}
         return _baseline(job, plan, image, valid, key, stop, log, t0)
     key = state_key(ckpt, s, precision, image, asset_mask, valid)
     if not force and _up_to_date(gen_dir, mp4, key):
@@ -254,7 +254,7 @@ def _generate(job_path, job, device, plan: Plan, precision, force, stop, lock) -
 
 
 def _baseline(job, plan: Plan, image, valid, key, stop, log, t0) -> dict:
-    """The baseline's frames, one at a time (a stop keeps nothing: the whole video takes seconds)."""
+    """The baseline's frames, one at a time (a stop keeps nothing: the whole video takes seconds to a minute)."""
     s, out = plan.settings, plan.output_dir
     log(f"generate: {plan.description()}; {len(job.frames)} frames")
     events.log(f"generate: {USE_CHECKPOINT_HINT}")
@@ -265,6 +265,7 @@ def _baseline(job, plan: Plan, image, valid, key, stop, log, t0) -> dict:
 
     rgb = baseline.inpaint_video(image.numpy(), 1.0 - valid.numpy(), s["inpaint"], s["inpaint_radius"], on_frame)
     if len(rgb) < len(job.frames):
+        log(f"generate: stopped after {len(rgb)} of {len(job.frames)} baseline frames (not kept: it starts again)")
         return {"stopped": True, "stage": "generate", "steps_done": len(rgb), "steps": len(job.frames)}
     mp4 = os.path.join(out, "generated.mp4")
     _write_outputs(job, plan, rgb, mp4, {"key": key, "checkpoint": None, "settings": s})

@@ -47,6 +47,15 @@ def main(argv=None):
     from scpainter_blender.street.dataset import ensure_street
 
     log("street: generating or loading from the cache ...")
+    if args.checkpoint:  # checked before minutes of work: a wrong path is one clear message, exit 2
+        from backend.model import checkpoint as ckpt_mod
+        from scpainter_blender.core.files import InputError
+
+        try:
+            ckpt_mod.check(ckpt_mod.resolve(args.checkpoint))
+        except InputError as e:
+            log(f"demo: --checkpoint: {e}" + (f" ({e.hint})" if e.hint else ""))
+            return 2
     street = ensure_street(log=lambda m: None)
     made = street.info.get("generated_in_s")
     log(f"street: {street.root} ({'generated in %.0f s' % made if made else 'cached'})")

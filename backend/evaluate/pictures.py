@@ -61,6 +61,7 @@ def metrics_plot(path: str, ground_truth: list, temporal: list) -> None:
                          and not math.isnan(r[key]))
             if pts:
                 ax.plot([p[0] for p in pts], [p[1] for p in pts], "o-", label=name)
+        ax.ticklabel_format(axis="y", useOffset=False)  # equal values must not look far apart on an offset axis
         ax.set_xlabel("lateral shift (m)")
         ax.set_ylabel(label)
         if ax.get_legend_handles_labels()[0]:

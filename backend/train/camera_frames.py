@@ -38,8 +38,9 @@ def distortion_coefficients(value, path, field, error=files.InputError) -> np.nd
         return None
     if not isinstance(value, list) or len(value) not in DISTORTION_LENGTHS or not all(
             isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
+        got = f"a list of {len(value)}" if isinstance(value, list) else f"{type(value).__name__}"
         raise error(path, field, "expected OpenCV's distortion coefficients: a list of 4, 5, 8, 12 or 14 numbers "
-                                 "[k1, k2, p1, p2, k3, ...]", "give the coefficients of the frames' calibration, "
+                                 f"[k1, k2, p1, p2, k3, ...], got {got}", "give the coefficients of the frames' calibration, "
                                  "in OpenCV's order")
     d = np.array(value, np.float64)
     if not np.all(np.isfinite(d)) or np.any(np.abs(d) > COEFFICIENT_BOUND):

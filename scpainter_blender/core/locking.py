@@ -1,8 +1,9 @@
 """One run per output folder (issue 14): ``OutputLock``, and ``lock_owner`` for ``--check``.
 
 The lock file ``<output folder>/.scpainter.lock`` holds the owner's pid, host, process start time, command and
-start date. A second run is refused naming the owner; a lock whose owner died (on this host), or that nobody can
-read for ``UNREADABLE_LOCK_S``, is taken over.
+start date. A second run is refused naming the owner; a lock whose owner died (on this host), that nobody can
+read for ``UNREADABLE_LOCK_S``, or that an earlier attempt of the same scheduled task left (``TASK_ENV``), is taken
+over.
 
 stdlib only (no bpy): the add-on and the backend share it.
 """
@@ -21,6 +22,10 @@ from .outputs import make_folder
 
 LOCK_NAME = ".scpainter.lock"
 UNREADABLE_LOCK_S = 60   # a lock file nobody can read is taken over after this (a crash mid-write on old systems)
+#: Set by a scheduler that retries a job only after the job's previous attempt ended (``backend/batch_ray.py``: the
+#: Ray task's id): the lock records it, and a lock holding the same id is taken over on any host — the previous
+#: attempt's worker died, possibly on another machine, where its pid cannot be checked.
+TASK_ENV = "SCPAINTER_LOCK_TASK"
 
 
 def _process_start(pid: int):
@@ -109,6 +114,8 @@ class OutputLock:
         make_folder(self.folder)
         me = {"pid": os.getpid(), "host": socket.gethostname(), "started": _process_start(os.getpid()),
               "command": self.command, "since": time.strftime("%Y-%m-%d %H:%M:%S")}
+        if os.environ.get(TASK_ENV):
+            me["task"] = os.environ[TASK_ENV]
         for _ in range(3):
             if self._take(me):
                 self._held = True
@@ -120,6 +127,8 @@ class OutputLock:
             if isinstance(owner, dict) and owner.get("host") == me["host"] and isinstance(owner.get("pid"), int) \
                     and not _alive(owner["pid"], owner.get("started")):
                 self.stale = owner
+            elif isinstance(owner, dict) and me.get("task") and owner.get("task") == me["task"]:
+                self.stale = owner  # this job's previous attempt, which the scheduler saw end
             elif owner is None and self._age() > UNREADABLE_LOCK_S:
                 self.stale = {"unreadable lock file, age s": round(self._age())}
             elif owner is None:

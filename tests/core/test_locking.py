@@ -61,3 +61,24 @@ def test_stale_lock_of_a_finished_process_is_taken_over(tmp_path):
     with locking.OutputLock(tmp_path, "generate", busy=Busy) as lock:
         assert "unreadable lock file" in str(lock.stale)
     assert sorted(os.listdir(tmp_path)) == []            # neither lock nor its temporary file is left
+
+
+def test_a_retried_task_takes_over_its_own_lock_from_another_host(tmp_path, monkeypatch):
+    """A scheduler's retry (``TASK_ENV``: the same task id) takes over the lock its dead attempt left on another
+    machine, where the pid cannot be checked; another task's lock from another machine stays busy."""
+    left = {"pid": 4242, "host": "node-that-died", "started": 1, "command": "render", "since": "now",
+            "task": "run1:7"}
+    lock_path = tmp_path / locking.LOCK_NAME
+    lock_path.write_text(json.dumps(left))
+    monkeypatch.setenv(locking.TASK_ENV, "run1:8")
+    with pytest.raises(Busy, match="node-that-died"):
+        with locking.OutputLock(tmp_path, "render", busy=Busy):
+            pass
+    monkeypatch.setenv(locking.TASK_ENV, "run1:7")
+    with locking.OutputLock(tmp_path, "render", busy=Busy) as lock:
+        assert lock.stale == left and json.loads(lock_path.read_text())["task"] == "run1:7"
+    monkeypatch.delenv(locking.TASK_ENV)
+    lock_path.write_text(json.dumps(left))
+    with pytest.raises(Busy):  # a run outside any scheduler never takes over another host's lock
+        with locking.OutputLock(tmp_path, "render", busy=Busy):
+            pass

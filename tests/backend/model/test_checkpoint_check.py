@@ -284,8 +284,9 @@ def test_no_checkpoint_names_where_one_was_expected(tmp_path):
     job_path = small_job(tmp_path, asset=False)
     e = refused(None, job_path, "generate.checkpoint", fn=lambda p: C.resolve(p, job_path, "generate.checkpoint"))
     assert str(e).startswith(f"{job_path}: generate.checkpoint: no SCPainter checkpoint is configured")
-    with pytest.raises(CheckpointError) as info:
-        generate.prepare(job_path, J.load(job_path), None)
+    assert generate.prepare(job_path, J.load(job_path), None).model == "baseline"  # auto: no checkpoint, baseline
+    with pytest.raises(CheckpointError) as info:                            # the model asked for: refused
+        generate.prepare(job_path, J.load(job_path), None, {"model": "scpainter"})
     assert (info.value.path, info.value.field, info.value.hint) == (job_path, "generate.checkpoint", e.hint)
     missing = str(tmp_path / "nowhere")   # a --checkpoint that is no folder is named itself
     refused(missing, missing, "(folder)", "does not exist",

@@ -111,3 +111,20 @@ def small_job(folder, frames=(1, 2), resolution=(16, 12), asset=True, **extra):
     path = os.path.join(folder, "job.json")
     J.save(path, job)
     return path
+
+
+def copy_clip(clip_json_path, tmp_path, edit, name="clip"):
+    """A copy of a clip folder (the one holding ``clip_json_path``) at ``tmp_path / name``, its clip.json passed
+    through ``edit(data, folder)`` (which changes ``data`` in place and may write files into the copy)."""
+    import json
+    import os
+    import shutil
+
+    folder = tmp_path / name
+    shutil.copytree(os.path.dirname(clip_json_path), folder)
+    with open(folder / "clip.json") as f:
+        data = json.load(f)
+    edit(data, folder)
+    with open(folder / "clip.json", "w") as f:
+        json.dump(data, f)
+    return folder

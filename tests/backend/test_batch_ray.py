@@ -20,8 +20,9 @@ ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)
 
 @pytest.fixture(scope="module")
 def cluster():
-    """A local Ray cluster of 2 CPUs (2 workers at a time), shared by this module's tests."""
-    ray.init(num_cpus=2, log_to_driver=False, include_dashboard=False, configure_logging=False,
+    """A new local Ray cluster of 2 CPUs (2 workers at a time; never one `ray start` left running), shared by this
+    module's tests."""
+    ray.init(address="local", num_cpus=2, log_to_driver=False, include_dashboard=False, configure_logging=False,
              runtime_env={"env_vars": {"PYTHONPATH": ROOT}})
     yield
     ray.shutdown()

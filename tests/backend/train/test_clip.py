@@ -1,8 +1,6 @@
 """Clip folders: the street exported as a clip, and the errors bad clips give."""
 
-import json
 import os
-import shutil
 
 import numpy as np
 import pytest
@@ -10,6 +8,7 @@ import pytest
 from backend.train import clip as clip_mod
 from scpainter_blender.core import files
 from scpainter_blender.core.job import JobError  # ClipError is one; the shared validators raise it
+from tests_support import copy_clip
 
 
 def test_street_clip_loads_with_metric_poses_cars_and_views(street, street_clip_path):
@@ -24,15 +23,7 @@ def test_street_clip_loads_with_metric_poses_cars_and_views(street, street_clip_
     assert os.path.samefile(c.views[2.0][5], street.frame_path("left_2m", 5))
 
 
-def _copy(street_clip_path, tmp_path, edit):
-    folder = tmp_path / "clip"
-    shutil.copytree(os.path.dirname(street_clip_path), folder)
-    with open(folder / "clip.json") as f:
-        data = json.load(f)
-    edit(data, folder)
-    with open(folder / "clip.json", "w") as f:
-        json.dump(data, f)
-    return folder
+_copy = copy_clip  # tests_support: a copy of the street clip with clip.json edited
 
 
 @pytest.mark.parametrize("edit, field", [

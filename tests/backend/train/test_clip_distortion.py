@@ -1,9 +1,7 @@
 """Lens distortion of a clip's camera: OpenCV's model against a plain reference, synthetic round trips (points and
 images, radial and tangential terms) within 0.1 px, frames unchanged without it, bad coefficients refused."""
 
-import json
 import os
-import shutil
 
 import cv2
 import numpy as np
@@ -15,6 +13,7 @@ from backend.train import camera_frames as cf
 from backend.train import clip as clip_mod
 from backend.train import pairs
 from scpainter_blender.core.job import JobError
+from tests_support import copy_clip
 
 #: Waymo-like coefficients: radial k1, k2 and tangential p1, p2 (k3 0, as Waymo's calibrations have)
 WAYMO = [-0.3, 0.1, 1e-3, -1e-3, 0.0]
@@ -109,15 +108,7 @@ def test_points_round_trip_through_the_undistortion_maps(dist):
 
 # -- clip folders ------------------------------------------------------------------------------------------------
 
-def _copy(street_clip_path, tmp_path, edit, name="clip"):
-    folder = tmp_path / name
-    shutil.copytree(os.path.dirname(street_clip_path), folder)
-    with open(folder / "clip.json") as f:
-        data = json.load(f)
-    edit(data, folder)
-    with open(folder / "clip.json", "w") as f:
-        json.dump(data, f)
-    return folder
+_copy = copy_clip  # tests_support: a copy of the street clip with clip.json edited
 
 
 def _set_poses_K(folder, K):

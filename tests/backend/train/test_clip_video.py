@@ -1,7 +1,6 @@
 """A clip's frames given as a video file: the same frames as the image pattern (exactly when the video is
 lossless), one decode for training, undistorted like images, and bad videos refused naming ``frames``."""
 
-import json
 import os
 import shutil
 import threading
@@ -16,6 +15,7 @@ from backend.train import clip as clip_mod
 from backend.train import pairs
 from scpainter_blender.core import files
 from scpainter_blender.core.job import JobError
+from tests_support import copy_clip
 
 WAYMO = [-0.3, 0.1, 1e-3, -1e-3, 0.0]
 
@@ -39,15 +39,7 @@ def _street_frames(clip):
     return np.stack([np.asarray(Image.open(p).convert("RGB")) for p in clip.frame_paths])
 
 
-def _copy(street_clip_path, tmp_path, edit, name="clip"):
-    folder = tmp_path / name
-    shutil.copytree(os.path.dirname(street_clip_path), folder)
-    with open(folder / "clip.json") as f:
-        data = json.load(f)
-    edit(data, folder)
-    with open(folder / "clip.json", "w") as f:
-        json.dump(data, f)
-    return folder
+_copy = copy_clip  # tests_support: a copy of the street clip with clip.json edited
 
 
 def _video_clip(street_clip_path, tmp_path, frames, lossless=True, distortion=None, name="video_clip"):

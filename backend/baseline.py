@@ -24,7 +24,7 @@ from scpainter_blender.core import job as job_mod
 
 #: The OpenCV flag of each ``generate.inpaint`` value (``job.INPAINT_METHODS``; cv2's constants, resolved lazily).
 METHODS = {"telea": "INPAINT_TELEA", "navier-stokes": "INPAINT_NS"}
-NAMES = {"telea": "Telea", "navier-stokes": "Navier-Stokes"}
+NAMES = job_mod.INPAINT_NAMES
 #: The defaults live with the job's other generation defaults (radius: the neighbourhood each hole pixel is filled
 #: from, in pixels; OpenCV's documentation examples use 3).
 DEFAULT_METHOD = job_mod.BASELINE_DEFAULTS["inpaint"]

@@ -128,3 +128,29 @@ def copy_clip(clip_json_path, tmp_path, edit, name="clip"):
     with open(folder / "clip.json", "w") as f:
         json.dump(data, f)
     return folder
+
+
+def refusal_beside_fifo(load, fifo, error, what: str, timeout: float = 20.0):
+    """The ``error`` that ``load()`` raises when a file it reads is the FIFO ``fifo``, asserting it came at once: a
+    loader still waiting after ``timeout`` s fails the test with "``what`` blocked on a FIFO" (the FIFO is then
+    opened for writing, so the waiting thread ends)."""
+    import threading
+
+    import pytest
+
+    result = {}
+
+    def attempt():
+        try:
+            load()
+        except error as e:
+            result["error"] = e
+
+    worker = threading.Thread(target=attempt, daemon=True)
+    worker.start()
+    worker.join(timeout)
+    if worker.is_alive():
+        with open(fifo, "wb"):
+            pass
+        pytest.fail(f"{what} blocked on a FIFO")
+    return result["error"]

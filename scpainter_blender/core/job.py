@@ -334,6 +334,8 @@ GENERATE_MODELS = ("auto", "scpainter", "baseline")
 #: The baseline's settings: ``inpaint`` (OpenCV's method), ``inpaint_radius`` (px) and its ``fps``. The fps is the
 #: stock SVD's (a checkpoint's own default), so a job plays at one speed with either generator.
 INPAINT_METHODS = ("telea", "navier-stokes")
+#: How people are shown each method (logs, the MP4's tags, the Blender UI).
+INPAINT_NAMES = {"telea": "Telea", "navier-stokes": "Navier-Stokes"}
 BASELINE_DEFAULTS = {"model": "auto", "inpaint": "telea", "inpaint_radius": 3, "fps": 7.0}
 INPAINT_RADIUS_BOUNDS = (1, 64)
 

@@ -53,8 +53,6 @@ def matrix_property(obj, name: str):
                      hint="import the file again")
 
 
-#: The baseline's OpenCV inpainting methods (``generate.inpaint``, ``core.job.INPAINT_METHODS``) as the UI names them.
-INPAINT_NAMES = {"telea": "Telea", "navier-stokes": "Navier-Stokes"}
 #: ``Scene.scpainter_baseline_inpaint``'s identifiers -> ``generate.inpaint`` ("DEFAULT": not chosen, not exported).
 INPAINT_ITEMS = {"DEFAULT": None, "TELEA": "telea", "NAVIER_STOKES": "navier-stokes"}
 
@@ -68,7 +66,7 @@ def register():
     bpy.types.Scene.scpainter_output_dir = bpy.props.StringProperty(
         name="Output Folder", subtype="DIR_PATH", default="",
         description="Where jobs, condition layers and videos go (empty: //scpainter/<scene name>/)")
-    default = INPAINT_NAMES[job_mod.BASELINE_DEFAULTS["inpaint"]]
+    default = job_mod.INPAINT_NAMES[job_mod.BASELINE_DEFAULTS["inpaint"]]
     bpy.types.Scene.scpainter_baseline_inpaint = bpy.props.EnumProperty(
         name="Baseline Inpainting", default="DEFAULT",
         description="How the baseline (Generate without a checkpoint: no model) fills the holes of each condition "

@@ -8,6 +8,7 @@ import os
 import bpy
 
 from ..backend_client import BackendError, BackendJob
+from ..core import job as job_mod
 from ..core import outputs
 from . import job_export, preferences, props, results
 
@@ -80,7 +81,7 @@ def finish(context, command: str, out: str, done: dict) -> str:
     img, _clip = results.load_generated(out, model, done.get("description", ""))
     results.show_behind_camera(context.scene, img)
     if model == "baseline":
-        method = props.INPAINT_NAMES.get(done.get("inpaint"), "")
+        method = job_mod.INPAINT_NAMES.get(done.get("inpaint"), "")
         return (f"Baseline video (OpenCV {method + ' ' if method else ''}inpainting, no model): {done.get('video')}"
                 f"; for SCPainter's video set Preferences > Add-ons > SCPainter > Checkpoint Folder")
     return f"Video {done.get('video')}"

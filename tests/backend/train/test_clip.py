@@ -8,7 +8,7 @@ import pytest
 from backend.train import clip as clip_mod
 from scpainter_blender.core import files
 from scpainter_blender.core.job import JobError  # ClipError is one; the shared validators raise it
-from tests_support import copy_clip
+from tests_support import copy_clip, refusal_beside_fifo
 
 
 def test_street_clip_loads_with_metric_poses_cars_and_views(street, street_clip_path):
@@ -79,27 +79,11 @@ def _edit_poses(folder, **change):
                                          ("views/left_2m/frame_000000.png", "views.2")])
 def test_fifos_named_by_a_clip_are_refused_at_once(street_clip_path, tmp_path, name, field):
     """A FIFO in place of any file a clip names once blocked the loader for ever; now it is refused at once."""
-    import threading
 
     folder = _copy(street_clip_path, tmp_path, lambda d, f: None)
     os.remove(folder / name)  # after _copy, which writes clip.json (a write would block on a FIFO too)
     os.mkfifo(folder / name)
-    result = {}
-
-    def attempt():
-        try:
-            clip_mod.load(folder)
-        except JobError as e:
-            result["error"] = e
-
-    worker = threading.Thread(target=attempt, daemon=True)
-    worker.start()
-    worker.join(20.0)
-    if worker.is_alive():
-        with open(folder / name, "wb"):
-            pass
-        pytest.fail(f"loading the clip blocked on a FIFO {name}")
-    e = result["error"]
+    e = refusal_beside_fifo(lambda: clip_mod.load(folder), folder / name, JobError, f"loading the clip's {name}")
     assert "is a FIFO (named pipe)" in str(e) and e.field == field, str(e)
     assert isinstance(e, files.InputError)
 

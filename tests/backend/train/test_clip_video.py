@@ -3,7 +3,6 @@ lossless), one decode for training, undistorted like images, and bad videos refu
 
 import os
 import shutil
-import threading
 
 import av
 import numpy as np
@@ -15,7 +14,7 @@ from backend.train import clip as clip_mod
 from backend.train import pairs
 from scpainter_blender.core import files
 from scpainter_blender.core.job import JobError
-from tests_support import copy_clip
+from tests_support import copy_clip, refusal_beside_fifo
 
 WAYMO = [-0.3, 0.1, 1e-3, -1e-3, 0.0]
 
@@ -137,22 +136,7 @@ def test_bad_videos_are_refused_naming_frames(street_clip_path, tmp_path, kind, 
 def test_a_fifo_in_place_of_the_video_is_refused_at_once(street_clip_path, tmp_path):
     folder = _copy(street_clip_path, tmp_path, lambda d, f: d.update(frames="drive.mp4"))
     os.mkfifo(folder / "drive.mp4")
-    result = {}
-
-    def attempt():
-        try:
-            clip_mod.load(folder)
-        except JobError as e:
-            result["error"] = e
-
-    worker = threading.Thread(target=attempt, daemon=True)
-    worker.start()
-    worker.join(20.0)
-    if worker.is_alive():
-        with open(folder / "drive.mp4", "wb"):
-            pass
-        pytest.fail("loading the clip blocked on a FIFO video")
-    e = result["error"]
+    e = refusal_beside_fifo(lambda: clip_mod.load(folder), folder / "drive.mp4", JobError, "loading the clip's video")
     assert "is a FIFO (named pipe)" in str(e) and e.field == "frames", str(e)
 
 

@@ -3,13 +3,13 @@ read within core.files' limits (a FIFO refused at once), and save/load round-tri
 
 import json
 import os
-import threading
 
 import pytest
 
 from backend.train import config as C
 from scpainter_blender.core import files
 from scpainter_blender.core import job as J
+from tests_support import refusal_beside_fifo
 
 BASE = {"schema": "scpainter.train/1", "checkpoint": "ckpt", "clips": ["clips/a"], "output_dir": "out"}
 
@@ -96,22 +96,9 @@ def test_file_limits_name_the_field(tmp_path, text, field, message):
 @pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this system")
 def test_fifo_and_directory_are_refused_at_once(tmp_path):
     os.mkfifo(tmp_path / "train.json")
-    result = {}
-
-    def attempt():
-        try:
-            C.load(str(tmp_path / "train.json"))
-        except C.TrainConfigError as e:
-            result["error"] = e
-
-    worker = threading.Thread(target=attempt, daemon=True)
-    worker.start()
-    worker.join(5.0)
-    if worker.is_alive():
-        with open(tmp_path / "train.json", "w"):
-            pass
-        pytest.fail("loading the config blocked on a FIFO")
-    assert "train.json: (file): is a FIFO" in str(result["error"])
+    e = refusal_beside_fifo(lambda: C.load(str(tmp_path / "train.json")), tmp_path / "train.json",
+                            C.TrainConfigError, "loading the config", timeout=5.0)
+    assert "train.json: (file): is a FIFO" in str(e)
     with pytest.raises(C.TrainConfigError, match="is a directory"):
         C.load(str(tmp_path))
     with pytest.raises(C.TrainConfigError, match="train.json: \\(file\\): not found"):

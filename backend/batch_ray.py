@@ -73,7 +73,7 @@ def _run_job(path: str, command: str, device: str, checkpoint, allow_outside: bo
 
     worker = f"{socket.gethostname()}:{os.getpid()}"
     # not waited for here: a task blocked in ray.get gives its CPUs back, and Ray would start another job on them
-    noted = board.started.remote(path, worker)
+    noted = board.started.remote(task, worker)
     os.environ[locking.TASK_ENV] = task
     t0, started = time.perf_counter(), time.time()
     try:
@@ -89,19 +89,27 @@ def _run_job(path: str, command: str, device: str, checkpoint, allow_outside: bo
         os.environ.pop(locking.TASK_ENV, None)
     result = {**result, "worker": worker, "seconds": time.perf_counter() - t0, "started": started,
               "finished": time.time()}
-    ray.get(noted)  # recorded before the driver sees the result (it reads the board for ``attempts``)
+    ray.get([noted, board.ended.remote(task)])  # recorded before the driver sees the result
     return result
 
 
 class _Board:
-    """Which jobs have started and how often (a Ray actor the tasks tell; the driver reads it for ``running`` and
-    ``attempts``)."""
+    """Which tasks (``run_id:index``) have started, where and how often, and which are running now: a Ray actor the
+    tasks tell. The driver asks it for ``active_tasks`` after each batch of ended jobs (``running``: a small set, at
+    most one per worker plus attempts whose worker died) and for ``snapshot`` once at the end (``attempts``)."""
 
     def __init__(self):
-        self.starts = {}
+        self.starts, self.active = {}, set()
 
-    def started(self, path: str, worker: str) -> None:
-        self.starts.setdefault(path, []).append(worker)
+    def started(self, task: str, worker: str) -> None:
+        self.starts.setdefault(task, []).append(worker)
+        self.active.add(task)
+
+    def ended(self, task: str) -> None:
+        self.active.discard(task)
+
+    def active_tasks(self) -> set:
+        return self.active
 
     def snapshot(self) -> dict:
         return self.starts
@@ -131,20 +139,22 @@ def run_ray_batch(items: list[str], command: str, device: str = "auto", checkpoi
     resources = {"num_gpus": 1, "num_cpus": 1} if use_gpu else {"num_cpus": cpus_per_job}
     task = ray.remote(_run_job).options(max_retries=retries, retry_exceptions=True, **resources)
     board = ray.remote(_Board).options(num_cpus=0).remote()
-    ray.get(board.snapshot.remote())  # up before any task calls it: a call queued for it dies with a killed caller
+    ray.get(board.active_tasks.remote())  # up before any task calls it: a call queued for it dies with its caller
     run_id = uuid.uuid4().hex[:12]
     refs = {task.remote(os.path.abspath(p), command, "cuda" if use_gpu else "cpu", checkpoint, allow_outside, half,
                         f"{run_id}:{i}", board, job_fn): i for i, p in enumerate(items)}
     events.log(f"batch --ray: {len(items)} jobs on {ray.cluster_resources().get('CPU', 0):g} CPUs and {gpus:g} GPUs "
                f"({'1 GPU' if use_gpu else f'{cpus_per_job:g} CPUs'} per job, {retries} retries)")
     results: list = [None] * len(items)
-    pending, failed, cancelled = dict(refs), 0, False
+    pending, failed, cancelled, ended_ids = dict(refs), 0, False, set()
     while pending:
         if stop and not cancelled:
             for ref in pending:
                 ray.cancel(ref)
             cancelled = True
-        ready, _ = ray.wait(list(pending), num_returns=1, timeout=0.5)
+        # every job that ended within the half second: one pass over the pending list per wait, not per job
+        ready, _ = ray.wait(list(pending), num_returns=len(pending), timeout=0.5)
+        ended = []
         for ref in ready:
             i = pending.pop(ref)
             try:
@@ -155,15 +165,19 @@ def run_ray_batch(items: list[str], command: str, device: str = "auto", checkpoi
                 r = {"status": "failed", "error": _ray_error(e),
                      "log": getattr(getattr(e, "cause", None), "scpainter_log", None)}
             results[i] = {"job": items[i], **r}
-            failed += r["status"] != "ok"
-            starts = ray.get(board.snapshot.remote())
-            done = len(items) - len(pending)
-            running = sum(1 for j, p in enumerate(items) if os.path.abspath(p) in starts and results[j] is None)
-            events.progress("batch", done, len(items), failed=failed, running=running, job=items[i],
-                            status=r["status"])
+            ended.append(i)
+            ended_ids.add(f"{run_id}:{i}")  # also those whose last attempt died before telling the board
+        if not ended:
+            continue
+        running = len(ray.get(board.active_tasks.remote()) - ended_ids)  # after the whole batch ended
+        before = len(items) - len(pending) - len(ended)
+        for n, i in enumerate(ended, 1):
+            failed += results[i]["status"] != "ok"
+            events.progress("batch", before + n, len(items), failed=failed, running=running, job=items[i],
+                            status=results[i]["status"])
     starts = ray.get(board.snapshot.remote())
-    for r in results:
-        r["attempts"] = len(starts.get(os.path.abspath(r["job"]), []))
+    for i, r in enumerate(results):
+        r["attempts"] = len(starts.get(f"{run_id}:{i}", []))
     ray.kill(board)
     return results
 

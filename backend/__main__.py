@@ -1,11 +1,11 @@
 """``python -m backend <command>``: the backend's command line (docs/design.md §4.4).
 
 Exit codes: 0 done; 2 bad input: an ``InputError`` (the error event has ``file`` and ``field``; a command-line
-argument is file "(command line)" with the option as field) or an argparse error; 1 anything else: a failure the
-command explains (``errors.CleanFailure``: a busy output folder, a model producing NaN; no traceback), or a bug
-(any other exception, a plain ValueError included): its traceback on standard error and in the command's log
-(``<output_dir>/backend.log``), whose path the error event's ``log`` field gives. Standard output carries JSON
-events only.
+argument is file "(command line)" with the option as field, argparse's own errors included); 1 anything else: a
+failure the command explains (``errors.CleanFailure``: a busy output folder, a model producing NaN; no
+traceback), or a bug (any other exception, a plain ValueError included): its traceback on standard error and in the
+command's log (``<output_dir>/backend.log``), whose path the error event's ``log`` field gives. Standard output
+carries JSON events only.
 """
 
 from __future__ import annotations
@@ -111,8 +111,15 @@ def _cmd_generate(args) -> int:
     # everything is checked before anything is rendered or loaded: the job, the overrides, the checkpoint (its
     # config and that it holds only safetensors), the settings they make together, and the input files
     plan = generate.prepare(args.job, job, args.checkpoint, overrides, args.allow_outside)
+    # the model's settings mean nothing to the baseline: said, rather than silently dropped
+    ignored = [o for o, v in (("--checkpoint", args.checkpoint), ("--steps", args.steps), ("--seed", args.seed),
+                              ("--precision", args.precision != "auto" or None)) if v is not None]
+    ignored = ignored if plan.model == "baseline" else []
+    if ignored:
+        events.log(f"generate: the baseline ignores {', '.join(ignored)} (model settings; the baseline is OpenCV "
+                   "inpainting)")
     if args.check:
-        events.done(command="generate", check=True, frames=len(job.frames), model=plan.model,
+        events.done(command="generate", check=True, frames=len(job.frames), model=plan.model, ignored=ignored,
                     description=plan.description(), checkpoint=plan.checkpoint, settings=plan.settings,
                     output_dir=plan.output_dir, locked_by=locking.lock_owner(plan.output_dir))
         return events.EXIT_OK
@@ -130,7 +137,7 @@ def _cmd_generate(args) -> int:
         events.error(f"stopped by SIGTERM during {result['stage']} ({result['steps_done']} sampler steps done)",
                      hint="finished work is kept: run the same command again to resume")
         return events.EXIT_FAILED
-    events.done(command="generate", device=device, seconds=time.perf_counter() - t0, **result)
+    events.done(command="generate", device=device, seconds=time.perf_counter() - t0, ignored=ignored, **result)
     return events.EXIT_OK
 
 
@@ -147,7 +154,15 @@ def _cmd_batch(args) -> int:
 
     from . import batch
 
-    items = list(args.jobs) + [p for f in args.list or [] for p in batch_mod.read_list(f)]
+    trusted = [p for f in args.trusted_list or [] for p in batch_mod.read_list(f)]
+    items = list(args.jobs) + [p for f in args.list or [] for p in batch_mod.read_list(f)] + trusted
+    # --allow-outside: every job; --trusted-list: its own jobs (a tool's exports), as they are written in the list
+    allow_outside = True if args.allow_outside else frozenset(trusted)
+    overrides = {"inpaint": args.inpaint} if args.inpaint else None
+    if overrides and args.command_name != "generate":
+        from scpainter_blender.core.files import ArgumentError
+
+        raise ArgumentError("--inpaint", "applies to --command generate only")
     if not items:
         from scpainter_blender.core.files import ArgumentError
 
@@ -161,20 +176,25 @@ def _cmd_batch(args) -> int:
     if args.ray is not None:  # Ray schedules the jobs (backend/batch_ray.py); this process is the driver
         from . import batch_ray
 
+        batch_mod.check_ray_options(args.retries, args.cpus_per_job)  # before a cluster is started or joined
         events.reserve_stdout()  # Ray's driver prints its workers' errors to sys.stdout
         batch_ray.connect(args.ray)  # before our SIGTERM handler: ray.init installs its own
-        with events.stop_on_sigterm() as stop:
-            results = batch_ray.run_ray_batch(items, args.command_name, args.device, args.checkpoint,
-                                              allow_outside=args.allow_outside, half=args.half_float,
+        # Ctrl-C too: jobs on other machines are cancelled and the summary still says what ran (a second one aborts)
+        with events.stop_on_sigterm(sigint=True) as stop:
+            # the checkpoint absolute: a worker's working directory is not this process's
+            checkpoint = os.path.abspath(args.checkpoint) if args.checkpoint else None
+            results = batch_ray.run_ray_batch(items, args.command_name, args.device, checkpoint,
+                                              allow_outside=allow_outside, half=args.half_float,
                                               address=args.ray, retries=args.retries,
-                                              cpus_per_job=args.cpus_per_job, stop=stop)
+                                              cpus_per_job=args.cpus_per_job, stop=stop, overrides=overrides)
         rank = 0
     else:
         results, rank = batch.run_batch(items, args.command_name, _device(args.device), args.checkpoint,
-                                        allow_outside=args.allow_outside, half=args.half_float)
+                                        allow_outside=allow_outside, half=args.half_float, overrides=overrides)
     failed = [r for r in results if r["status"] != "ok"]
-    if rank == 0:
-        events.done(command="batch", jobs=len(results), failed=len(failed), items=results)
+    if rank == 0:  # failed: every job not ok; counts: how many ended each way (ok, failed, stopped, not run)
+        counts = {k: sum(r["status"] == k for r in results) for k in dict.fromkeys(r["status"] for r in results)}
+        events.done(command="batch", jobs=len(results), failed=len(failed), counts=counts, items=results)
     return events.EXIT_FAILED if failed else events.EXIT_OK
 
 
@@ -201,8 +221,17 @@ def _cmd_train(args) -> int:
 def _cmd_evaluate(args) -> int:
     from .evaluate import protocol
 
-    with events.stop_on_sigterm() as stop:
-        result = protocol.evaluate(protocol.EvalSettings.from_args(args), _device(args.device), stop)
+    settings, pool = protocol.EvalSettings.from_args(args), protocol.RayPool.from_args(args)
+    if pool is not None:  # the tasks' jobs run on a Ray cluster (backend/batch_ray.py); the metrics here
+        from . import batch_ray
+
+        events.reserve_stdout()  # Ray's driver prints its workers' errors to sys.stdout
+        batch_ray.connect(pool.address)  # before our SIGTERM handler: ray.init installs its own
+    # with --ray, --device names the workers' device (run_ray_batch checks it against the cluster); this process
+    # computes the metrics on its own GPU if it has one, so a CPU head node may drive GPU workers
+    device = _device(args.device if pool is None or args.device == "cpu" else "auto")
+    with events.stop_on_sigterm(sigint=pool is not None) as stop:
+        result = protocol.evaluate(settings, device, stop, pool=pool)
     if result.pop("stopped", False):
         events.error("stopped by SIGTERM", hint="finished renders and videos are kept: run again to resume")
         return events.EXIT_FAILED
@@ -248,11 +277,40 @@ def _input_options(p) -> None:
                         + (" and the checkpoint" if p.prog.endswith("generate") else ""))
 
 
+def _ray_options(p, what: str) -> None:
+    """``--ray [ADDRESS]``, ``--retries`` and ``--cpus-per-job``, the same for ``batch`` and ``evaluate``
+    (``backend/batch_ray.py``); ``what``: what runs on the cluster."""
+    from scpainter_blender.core.batch_items import DEFAULT_CPUS_PER_JOB, DEFAULT_RETRIES, MAX_RETRIES
+
+    p.add_argument("--ray", nargs="?", const="", metavar="ADDRESS",
+                   help=f"run {what} on a Ray cluster (one task per job, one GPU each, retried when a worker "
+                        "dies): the cluster at ADDRESS (HOST:PORT of its head), else RAY_ADDRESS or the one `ray "
+                        "start` started here, else a new local one; files on a shared file system (README)")
+    p.add_argument("--retries", type=_bounded_int(0, MAX_RETRIES), default=DEFAULT_RETRIES,
+                   help="--ray: run a job again at most this often when its worker dies or it fails unexpectedly "
+                        f"(bad input is never retried; default {DEFAULT_RETRIES})")
+    p.add_argument("--cpus-per-job", type=float, default=DEFAULT_CPUS_PER_JOB,
+                   help=f"--ray on a cluster without GPUs: CPUs each job asks for (default {DEFAULT_CPUS_PER_JOB:g})")
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):
+        """argparse's usage and message on standard error, as always, and the error event a pipeline reads on
+        standard output (file "(command line)", field the argument: ``ArgumentError.from_argparse``); exit 2."""
+        from scpainter_blender.core.files import ArgumentError
+
+        e = ArgumentError.from_argparse(message, self.prog)
+        self.print_usage(sys.stderr)
+        print(f"{self.prog}: error: {message}", file=sys.stderr)
+        events.error(str(e), hint=e.hint, file=e.path, field=e.field)
+        sys.exit(events.EXIT_BAD_INPUT)
+
+
 def build_parser() -> argparse.ArgumentParser:
     # numpy only: no torch or CUDA at start-up
     from scpainter_blender.core.job import BASELINE_DEFAULTS, GENERATE_DEFAULTS, GENERATE_MODELS, INPAINT_METHODS
 
-    p = argparse.ArgumentParser(prog="python -m backend", description=__doc__)
+    p = _Parser(prog="python -m backend", description=__doc__)
     sub = p.add_subparsers(dest="command", required=True)
     d = sub.add_parser("doctor", help="report the Python, packages and devices the backend would use")
     d.add_argument("--checkpoint", help="also check this SCPainter checkpoint folder")
@@ -297,16 +355,14 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--device", choices=["auto", "cpu", "cuda"], default="auto")
     b.add_argument("--checkpoint", help="checkpoint for generate (default: each job's generate.checkpoint)")
     b.add_argument("--allow-outside", action="store_true", help=ALLOW_OUTSIDE_HELP)
+    b.add_argument("--trusted-list", action="append", metavar="FILE",
+                   help="like --list, and these jobs may lead outside their folder (--allow-outside for them only): "
+                        "jobs a tool wrote itself, such as blender -c scpainter batch's exports of .blend files")
+    b.add_argument("--inpaint", choices=INPAINT_METHODS,
+                   help="--command generate: the baseline's OpenCV method for every job made without a checkpoint "
+                        "(default: each job's)")
     b.add_argument("--half-float", action="store_true", help=HALF_FLOAT_HELP + " (--command render)")
-    b.add_argument("--ray", nargs="?", const="", metavar="ADDRESS",
-                   help="schedule the jobs on a Ray cluster (one task per job, one GPU each, retried when a worker "
-                        "dies): the cluster at ADDRESS (HOST:PORT of its head), else RAY_ADDRESS or the one `ray "
-                        "start` started here, else a new local one; files on a shared file system (README)")
-    b.add_argument("--retries", type=_bounded_int(0, 100), default=2,
-                   help="--ray: run a job again at most this often when its worker dies or it fails unexpectedly "
-                        "(bad input is never retried; default 2)")
-    b.add_argument("--cpus-per-job", type=float, default=1.0,
-                   help="--ray on a cluster without GPUs: CPUs each job asks for (default 1)")
+    _ray_options(b, "the jobs")
     b.set_defaults(func=_cmd_batch)
     c = sub.add_parser("init-checkpoint", help="make an SCPainter checkpoint folder from a stock SVD snapshot")
     c.add_argument("--svd", required=True, help="local stable-video-diffusion-img2vid(-xt) diffusers folder")
@@ -337,7 +393,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"the inpainting baseline's OpenCV method (default {BASELINE_DEFAULTS['inpaint']})")
     e.add_argument("--inception", help="FID Inception weights (pytorch-fid's pt_inception-2015-12-05-6726825d.pth "
                                        "or a safetensors copy); without it FID/KID are skipped")
-    e.add_argument("--device", choices=["auto", "cpu", "cuda"], default="auto")
+    e.add_argument("--device", choices=["auto", "cpu", "cuda"], default="auto",
+                   help="auto: CUDA when torch sees a GPU, else the CPU; with --ray the workers' (cuda when the "
+                        "cluster has GPUs), while the metrics use this machine's GPU if it has one")
+    _ray_options(e, "the tasks' render/generate jobs (then the metrics here)")
     e.set_defaults(func=_cmd_evaluate)
     m = sub.add_parser("mesh-asset", help="a car mesh (GLB, glTF, OBJ, PLY, STL, OFF) as flat surface Gaussians "
                                           "(an INRIA-layout PLY, Z up, the mesh's units)")
@@ -351,7 +410,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)  # argparse errors: usage on standard error, exit 2
+    args = build_parser().parse_args(argv)  # argparse errors: usage on standard error, an error event, exit 2
     from scpainter_blender.core.files import InputError  # (numpy: not imported before doctor can report it)
 
     from .errors import CleanFailure

@@ -21,8 +21,9 @@ from . import events
 
 
 def run_one(job_path: str, command: str, device: str, checkpoint: str | None, stop, allow_outside: bool = False,
-            half: bool = False) -> dict:
-    """One job: ``render`` (``half``: half-float EXRs, ``render_cmd.render_job``) or ``generate``."""
+            half: bool = False, precision: str = "auto", overrides: dict | None = None) -> dict:
+    """One job: ``render`` (``half``: half-float EXRs, ``render_cmd.render_job``) or ``generate`` (``precision``
+    and ``overrides`` as ``generate_job``'s: the settings a job's ``generate`` block sets, e.g. ``inpaint``)."""
     from scpainter_blender.core import job as job_mod
 
     job = job_mod.load(job_path)
@@ -34,9 +35,16 @@ def run_one(job_path: str, command: str, device: str, checkpoint: str | None, st
                 "skipped": not r["stopped"] and r["rendered"] == 0, "stopped": r["stopped"]}
     from .generate import generate_job
 
-    r = generate_job(job_path, job, device, checkpoint, stop=stop, allow_outside=allow_outside)
+    r = generate_job(job_path, job, device, checkpoint, precision, stop=stop, overrides=overrides,
+                     allow_outside=allow_outside)
     return {"video": r.get("video"), "frames": r.get("frames"), "skipped": bool(r.get("skipped")),
             "stopped": r["stopped"], "model": r.get("model")}
+
+
+def allows_outside(allow_outside, path: str) -> bool:
+    """Whether the job at ``path`` may lead outside its folder: ``allow_outside`` True (every job, the user said
+    ``--allow-outside``) or a collection of paths (those jobs: ``--trusted-list``, the jobs a tool wrote itself)."""
+    return allow_outside is True or (not isinstance(allow_outside, bool) and path in allow_outside)
 
 
 def failure(e: Exception, path: str) -> dict:
@@ -71,8 +79,9 @@ def gather(results: list, world: int) -> list:
 
 
 def run_batch(items: list[str], command: str, device: str, checkpoint: str | None = None,
-              allow_outside: bool = False, half: bool = False) -> tuple[list, int]:
-    """Run this rank's share; returns (every rank's results, rank). ``half``: render half-float EXRs."""
+              allow_outside=False, half: bool = False, overrides: dict | None = None) -> tuple[list, int]:
+    """Run this rank's share; returns (every rank's results, rank). ``allow_outside``: ``allows_outside``'s;
+    ``half``: render half-float EXRs; ``overrides``: generate settings for every job (``run_one``)."""
     rank, world, local = ranks_from_env()  # (InputError "(environment)" naming a bad variable)
     for name in ("MASTER_ADDR", "MASTER_PORT") if world > 1 else ():  # gather() needs them: check before any job
         if not os.environ.get(name, "").strip():
@@ -96,7 +105,8 @@ def run_batch(items: list[str], command: str, device: str, checkpoint: str | Non
             t = time.perf_counter()
             try:
                 with events.log_scope():  # a bug's traceback goes to this job's backend.log
-                    out = run_one(path, command, device, checkpoint, stop, allow_outside, half)
+                    out = run_one(path, command, device, checkpoint, stop, allows_outside(allow_outside, path),
+                                  half, overrides=overrides)
                 status = "stopped" if out.pop("stopped") else "ok"
                 results.append({"job": path, "rank": rank, "status": status, **out})
             except Exception as e:  # one bad scene must not stop the batch: record it and go on

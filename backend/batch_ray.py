@@ -22,6 +22,17 @@ dead worker run again elsewhere.
   ``done``, ``total``, ``failed`` and ``running``, then the same ``done`` event as ``batch`` (``items``: one result
   per job, in the order given, with ``worker`` "host:pid", ``attempts`` and its own ``seconds``). Each job's own
   events and log go to its ``backend.log`` and Ray's worker logs, never to the driver's standard output.
+* **SIGTERM** on the driver (``stop`` for a caller) cancels every job not finished (``ray.cancel``, asked again
+  every ``CANCEL_AGAIN_S`` while any is pending: Ray's cancel is best effort). A queued job never starts: its result
+  is ``not run (SIGTERM)`` with ``attempts`` 0. A running job gets the cancel as its ``stop`` flag (``_run_job``
+  turns Ray's interrupt into it), so it ends as ``render`` and ``generate`` end on SIGTERM: after its current frame
+  or sampler step, every file it wrote whole, its output lock released; its result is ``stopped`` with its counts
+  (``rendered``: the frames it finished). A job Ray interrupted outside that flag is ``stopped`` too, with an
+  ``error`` saying its counts are unknown. The driver then prints its ``done`` event and ``batch`` exits 1; the
+  same command again renders only the missing frames, on workers that are free at once.
+* **Refused at once, where Ray would wait for ever:** an address (HOST:PORT) where no head answers within
+  ``CONNECT_TIMEOUT_S``, and ``cpus_per_job`` above the largest node's CPUs (``ArgumentError``). A job listed twice
+  runs once; its copy is a ``failed`` item naming the first.
 * **Files.** Jobs, their inputs and outputs, and this code must be on a file system every node mounts at the same
   path (the tasks get the job's path, a string, and open the files themselves; each worker imports this code from
   the driver's ``PYTHONPATH``). Nothing from a user's file is pickled: tasks take strings and numbers and return
@@ -34,11 +45,17 @@ import os
 import socket
 import time
 
+from scpainter_blender.core import batch_items
+
 from . import events
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 #: A job is run again at most this many times after its worker died or it raised an unexpected exception.
-DEFAULT_RETRIES = 2
+DEFAULT_RETRIES = batch_items.DEFAULT_RETRIES
+#: How long ``connect`` waits for a Ray head at HOST:PORT to answer before calling the address wrong (s).
+CONNECT_TIMEOUT_S = 10.0
+#: After SIGTERM the driver cancels the jobs still pending again this often (s): Ray's ``ray.cancel`` is best effort.
+CANCEL_AGAIN_S = 2.0
 
 
 def connect(address: str | None = None):
@@ -51,6 +68,7 @@ def connect(address: str | None = None):
     import ray
 
     if not ray.is_initialized():
+        _check_reachable(address)
         # workers import this code from the driver's checkout (the same path on every node: a shared file system)
         python_path = os.pathsep.join(p for p in (ROOT, os.environ.get("PYTHONPATH", "")) if p)
         ray.init(address=address or None, log_to_driver=False, include_dashboard=False, configure_logging=False,
@@ -58,11 +76,40 @@ def connect(address: str | None = None):
     return ray
 
 
-def _run_job(path: str, command: str, device: str, checkpoint, allow_outside: bool, half: bool, task: str,
-             board, job_fn=None) -> dict:
-    """One job in a Ray worker (``job_fn``, default ``batch.run_one``). Bad input and explained failures come back
+def _check_reachable(address: str | None) -> None:
+    """A head at HOST:PORT (``address``, else ``RAY_ADDRESS``) that does not answer within ``CONNECT_TIMEOUT_S``:
+    ``ArgumentError`` naming ``--ray`` (``InputError`` "(environment)" ``RAY_ADDRESS``), where ``ray.init`` would
+    retry for ever. ``auto``, ``ray://`` (Ray Client) and no address at all are left to Ray."""
+    from scpainter_blender.core import files
+
+    given = address or os.environ.get("RAY_ADDRESS", "").strip()
+    if not given or given == "auto" or "://" in given:
+        return
+
+    def bad(message):
+        hint = ("the address `ray start --head` printed (HOST:6379); is the cluster up, and this machine allowed to "
+                "reach it?")
+        if address:
+            return files.ArgumentError("--ray", message, hint=hint)
+        return files.InputError("(environment)", "RAY_ADDRESS", message, hint=hint + " (or unset RAY_ADDRESS)")
+
+    host, _, port = given.rpartition(":")
+    if not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise bad(f"{given!r}: expected HOST:PORT of the cluster's head, e.g. 10.0.0.5:6379")
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=CONNECT_TIMEOUT_S).close()
+    except OSError as e:
+        raise bad(f"no Ray head answers at {given} ({e.strerror or e})") from None
+
+
+def _run_job(path: str, command: str, device: str, options: dict, task: str, board, job_fn=None) -> dict:
+    """One job in a Ray worker: ``job_fn`` (default ``batch.run_one``) with ``options`` (its keyword arguments:
+    checkpoint, allow_outside, half, precision, overrides; plain values). Bad input and explained failures come back
     as a ``failed`` result; any other exception propagates, so Ray retries it. ``task`` marks the output lock so a
-    retry may take over the lock its dead attempt left, on any host."""
+    retry may take over the lock its dead attempt left, on any host. The driver's ``ray.cancel`` (its SIGTERM) sets
+    the job's ``stop`` flag: the job ends after its current frame or sampler step and returns ``stopped``."""
+    import signal
+
     from scpainter_blender.core import locking
     from scpainter_blender.core.files import InputError
 
@@ -71,26 +118,53 @@ def _run_job(path: str, command: str, device: str, checkpoint, allow_outside: bo
 
     import ray
 
-    worker = f"{socket.gethostname()}:{os.getpid()}"
-    # not waited for here: a task blocked in ray.get gives its CPUs back, and Ray would start another job on them
-    noted = board.started.remote(task, worker)
-    os.environ[locking.TASK_ENV] = task
-    t0, started = time.perf_counter(), time.time()
+    stop: list = []
+    # ray.cancel reaches a running task as SIGINT would (_thread.interrupt_main): by default a KeyboardInterrupt
+    # raised wherever the job is (mid-write, inside the output lock's release, in a finalizer that swallows it), and
+    # Ray then reports the task as cancelled, hiding the frames it finished. As the job's stop flag it ends the job
+    # as SIGTERM ends `render`: after the current frame, outputs whole, lock released, counts reported.
     try:
-        with events.log_scope():  # a bug's traceback goes to this job's backend.log
-            out = (job_fn or batch.run_one)(path, command, device, checkpoint, (), allow_outside, half)
-        result = {"status": "stopped" if out.pop("stopped") else "ok", **out}
-    except (InputError, CleanFailure) as e:
-        result = {"status": "failed", **batch.failure(e, path)}
-    except Exception as e:  # a bug or a transient failure: its traceback to the job's log, then Ray retries it
-        e.scpainter_log = events.report_bug(e, f"batch: {path} failed on {worker}")
-        raise
+        previous = signal.signal(signal.SIGINT, lambda *_: stop.append(True))
+    except ValueError:  # not the main thread (a threaded actor): Ray's KeyboardInterrupt stands
+        previous = None
+    try:
+        worker = f"{socket.gethostname()}:{os.getpid()}"
+        # not waited for here: a task blocked in ray.get gives its CPUs back, and Ray would start another job on them
+        noted = board.started.remote(task, worker)
+        os.environ[locking.TASK_ENV] = task
+        t0, started = time.perf_counter(), time.time()
+        try:
+            with events.log_scope():  # a bug's traceback goes to this job's backend.log
+                out = (job_fn or batch.run_one)(path, command, device, stop=stop, **options)
+            result = {"status": "stopped" if out.pop("stopped") else "ok", **out}
+        except (InputError, CleanFailure) as e:
+            result = {"status": "failed", **batch.failure(e, path)}
+        except Exception as e:  # a bug or a transient failure: its traceback to the job's log, then Ray retries it
+            e.scpainter_log = events.report_bug(e, f"batch: {path} failed on {worker}")
+            raise
+        finally:
+            os.environ.pop(locking.TASK_ENV, None)
+        result = {**result, "worker": worker, "seconds": time.perf_counter() - t0, "started": started,
+                  "finished": time.time()}
+        ray.get([noted, board.ended.remote(task)])  # recorded before the driver sees the result
+        return result
     finally:
-        os.environ.pop(locking.TASK_ENV, None)
-    result = {**result, "worker": worker, "seconds": time.perf_counter() - t0, "started": started,
-              "finished": time.time()}
-    ray.get([noted, board.ended.remote(task)])  # recorded before the driver sees the result
-    return result
+        if previous is not None:  # the worker runs other tasks next
+            signal.signal(signal.SIGINT, previous)
+
+
+def job_device(device: str = "auto", address: str | None = None) -> str:
+    """The device the pool's jobs run on: ``cuda`` when the cluster (``connect(address)``) has GPUs and ``device``
+    is not ``cpu`` (each task then asks for one GPU), else ``cpu``. Callers that key outputs on the device's
+    defaults (``evaluate``: ``precision auto`` is bf16 on CUDA, fp32 on CPU) resolve them with it before the pool
+    starts. ``device`` ``cuda`` on a cluster without GPUs is an ``ArgumentError``."""
+    from scpainter_blender.core.files import ArgumentError
+
+    gpus = connect(address).cluster_resources().get("GPU", 0)
+    if device == "cuda" and not gpus:
+        raise ArgumentError("--device", "cuda, but the Ray cluster has no GPU",
+                            hint="start the workers on GPU machines, or use --device cpu")
+    return "cuda" if gpus > 0 and device != "cpu" else "cpu"
 
 
 class _Board:
@@ -116,51 +190,76 @@ class _Board:
 
 
 def run_ray_batch(items: list[str], command: str, device: str = "auto", checkpoint: str | None = None,
-                  allow_outside: bool = False, half: bool = False, address: str | None = None,
-                  retries: int = DEFAULT_RETRIES, cpus_per_job: float = 1.0, stop=(), job_fn=None) -> list[dict]:
+                  allow_outside=False, half: bool = False, address: str | None = None,
+                  retries: int = DEFAULT_RETRIES, cpus_per_job: float = batch_items.DEFAULT_CPUS_PER_JOB, stop=(),
+                  job_fn=None,
+                  precision: str = "auto", overrides: dict | None = None, stage: str = "batch") -> list[dict]:
     """Run every job of ``items`` as a Ray task (see the module docstring); returns one result per item, in order:
     ``job``, ``status`` (``ok``, ``stopped``, ``failed``, ``not run (SIGTERM)``), the job's outputs, ``worker``,
-    ``attempts``, ``seconds``. ``stop`` (truthy once SIGTERM came): jobs not finished are cancelled; running ones
-    stop where they are, their finished frames kept. ``device`` ``cuda`` on a cluster without GPUs is an
-    ``ArgumentError``. ``job_fn``: what a task runs instead of ``batch.run_one`` (same arguments and result; the
-    tests' transient failures)."""
+    ``attempts``, ``seconds``. ``allow_outside``: True, or the paths of the jobs that may lead outside their folder
+    (``batch.allows_outside``); ``precision`` and ``overrides``: ``batch.run_one``'s, for every job; ``stage``: the
+    progress events' (``evaluate`` runs its tasks here too). ``stop`` (truthy once SIGTERM came): every job not
+    finished is cancelled; queued ones come back ``not run (SIGTERM)`` (``attempts`` 0), running ones stop after
+    their current frame or step and come back ``stopped`` with their counts, finished frames kept, nothing
+    half-written, their output locks released (module docstring, **SIGTERM**); it returns once every job has ended.
+    ``device`` ``cuda`` on a cluster without GPUs is an ``ArgumentError``. ``job_fn``: what a task runs instead of
+    ``batch.run_one`` (same arguments and result; the tests' transient failures)."""
     import uuid
 
     from scpainter_blender.core.files import ArgumentError
 
-    if not cpus_per_job > 0:
-        raise ArgumentError("--cpus-per-job", f"expected a number of CPUs above 0, got {cpus_per_job}")
+    from . import batch
+
+    batch_items.check_ray_options(retries, cpus_per_job)
     ray = connect(address)
     gpus = ray.cluster_resources().get("GPU", 0)
-    if device == "cuda" and not gpus:
-        raise ArgumentError("--device", "cuda, but the Ray cluster has no GPU",
-                            hint="start the workers on GPU machines, or use --device cpu")
-    use_gpu = gpus > 0 and device != "cpu"
+    use_gpu = job_device(device, address) == "cuda"
     resources = {"num_gpus": 1, "num_cpus": 1} if use_gpu else {"num_cpus": cpus_per_job}
+    largest = max((n["Resources"].get("CPU", 0) for n in ray.nodes() if n.get("Alive")), default=0)
+    if resources["num_cpus"] > largest:  # Ray would queue every job for ever, silently
+        raise ArgumentError("--cpus-per-job", f"{resources['num_cpus']:g} CPUs per job, but the largest node of the "
+                                              f"Ray cluster has {largest:g}: no job could ever start",
+                            hint=f"ask for at most {largest:g}, or add bigger nodes (ray start --num-cpus N)")
     task = ray.remote(_run_job).options(max_retries=retries, retry_exceptions=True, **resources)
     board = ray.remote(_Board).options(num_cpus=0).remote()
     ray.get(board.active_tasks.remote())  # up before any task calls it: a call queued for it dies with its caller
     run_id = uuid.uuid4().hex[:12]
-    refs = {task.remote(os.path.abspath(p), command, "cuda" if use_gpu else "cpu", checkpoint, allow_outside, half,
-                        f"{run_id}:{i}", board, job_fn): i for i, p in enumerate(items)}
-    events.log(f"batch --ray: {len(items)} jobs on {ray.cluster_resources().get('CPU', 0):g} CPUs and {gpus:g} GPUs "
-               f"({'1 GPU' if use_gpu else f'{cpus_per_job:g} CPUs'} per job, {retries} retries)")
+    options = {"checkpoint": checkpoint, "half": half, "precision": precision, "overrides": overrides}
     results: list = [None] * len(items)
-    pending, failed, cancelled, ended_ids = dict(refs), 0, False, set()
+    first: dict = {}   # absolute job path -> its first item
+    for i, p in enumerate(items):
+        j = first.setdefault(os.path.abspath(p), i)
+        if j != i:  # run at once, the two copies would meet at their output lock: one run, the copy reported
+            results[i] = {"job": p, "status": "failed", "error": f"the same job as item {j} ({items[j]}): each job "
+                          "runs once per batch", "hint": "list each job once", "file": p, "field": "(file)"}
+    refs = {task.remote(os.path.abspath(p), command, "cuda" if use_gpu else "cpu",
+                        {**options, "allow_outside": batch.allows_outside(allow_outside, p)}, f"{run_id}:{i}", board,
+                        job_fn): i for i, p in enumerate(items) if results[i] is None}
+    events.log(f"batch --ray: {len(refs)} jobs on {ray.cluster_resources().get('CPU', 0):g} CPUs and {gpus:g} GPUs "
+               f"({'1 GPU' if use_gpu else f'{cpus_per_job:g} CPUs'} per job, {retries} retries)")
+    failed = 0
+    for n, i in enumerate(i for i, r in enumerate(results) if r is not None):  # the copies, reported at once
+        failed += 1
+        events.progress(stage, n + 1, len(items), failed=failed, running=0, job=items[i], status="failed")
+    pending, ended_ids, cancelled_at = dict(refs), set(), None
     while pending:
-        if stop and not cancelled:
+        if stop and (cancelled_at is None or time.monotonic() - cancelled_at > CANCEL_AGAIN_S):
+            # Ray's cancel is best effort (its docs), so what is still pending is asked again now and then; a running
+            # job already stopping only sees its stop flag set again (_run_job). Not recursive: a job's own calls to
+            # the board must complete, or its last ray.get would fail the stopped job.
             for ref in pending:
-                ray.cancel(ref)
-            cancelled = True
+                ray.cancel(ref, recursive=False)
+            cancelled_at = time.monotonic()
         # every job that ended within the half second: one pass over the pending list per wait, not per job
         ready, _ = ray.wait(list(pending), num_returns=len(pending), timeout=0.5)
-        ended = []
+        ended, interrupted = [], []
         for ref in ready:
             i = pending.pop(ref)
             try:
                 r = ray.get(ref)
-            except ray.exceptions.TaskCancelledError:
+            except ray.exceptions.TaskCancelledError:  # never started, or interrupted outside its job (below)
                 r = {"status": "not run (SIGTERM)"}
+                interrupted.append(i)
             except ray.exceptions.RayError as e:  # retries used up: the worker died, or a bug raised each time
                 r = {"status": "failed", "error": _ray_error(e),
                      "log": getattr(getattr(e, "cause", None), "scpainter_log", None)}
@@ -169,15 +268,27 @@ def run_ray_batch(items: list[str], command: str, device: str = "auto", checkpoi
             ended_ids.add(f"{run_id}:{i}")  # also those whose last attempt died before telling the board
         if not ended:
             continue
+        if interrupted:
+            # a task Ray reports cancelled although it started (Ray's KeyboardInterrupt reached it outside the job's
+            # stop flag: a thread that is not the main one, or a retry waiting after its worker died) did run: its
+            # finished frames are kept, its counts unknown; "not run" would be a lie
+            starts = ray.get(board.snapshot.remote())
+            for i in interrupted:
+                if starts.get(f"{run_id}:{i}"):
+                    results[i] = {"job": items[i], "status": "stopped", "worker": starts[f"{run_id}:{i}"][-1],
+                                  "error": "cancelled by SIGTERM while it ran: its finished outputs are kept, how "
+                                           "many is not known"}
         running = len(ray.get(board.active_tasks.remote()) - ended_ids)  # after the whole batch ended
         before = len(items) - len(pending) - len(ended)
         for n, i in enumerate(ended, 1):
             failed += results[i]["status"] != "ok"
-            events.progress("batch", before + n, len(items), failed=failed, running=running, job=items[i],
+            events.progress(stage, before + n, len(items), failed=failed, running=running, job=items[i],
                             status=results[i]["status"])
     starts = ray.get(board.snapshot.remote())
     for i, r in enumerate(results):
         r["attempts"] = len(starts.get(f"{run_id}:{i}", []))
+        if r["attempts"] and "worker" not in r:  # its last worker died with it: where it ran, from the board
+            r["worker"] = starts[f"{run_id}:{i}"][-1]
     ray.kill(board)
     return results
 

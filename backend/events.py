@@ -149,12 +149,22 @@ def report_bug(e: BaseException, what: str = "") -> str | None:
 
 
 @contextlib.contextmanager
-def stop_on_sigterm():
+def stop_on_sigterm(sigint: bool = False):
     """Within the block SIGTERM does not kill the process: it appends to the yielded list, which long loops check
-    between units of work (a frame, a sampler step) to stop cleanly with finished outputs kept."""
+    between units of work (a frame, a sampler step) to stop cleanly with finished outputs kept. ``sigint``: the
+    first Ctrl-C (SIGINT) does the same, a second one raises KeyboardInterrupt (the impatient user's way out)."""
     stop: list = []
+
+    def on_sigint(*_):
+        if stop:
+            raise KeyboardInterrupt
+        stop.append(True)
+
     previous = signal.signal(signal.SIGTERM, lambda *_: stop.append(True))
+    previous_int = signal.signal(signal.SIGINT, on_sigint) if sigint else None
     try:
         yield stop
     finally:
         signal.signal(signal.SIGTERM, previous)
+        if sigint:
+            signal.signal(signal.SIGINT, previous_int)

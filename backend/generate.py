@@ -172,6 +172,15 @@ def load_state(path: str, key: str):
     return latents, step
 
 
+def resolve_precision(precision: str, device: str) -> str:
+    """``precision`` with ``auto`` made concrete: bf16 on CUDA, fp32 on the CPU. A finished video's up-to-date key
+    holds the concrete value, so whoever checks a video made on another device (``evaluate --ray``: GPU workers, a
+    CPU driver) must resolve it for the device that made it."""
+    if precision != "auto":
+        return precision
+    return "bf16" if device == "cuda" else "fp32"
+
+
 def generate_job(job_path: str, job: job_mod.Job, device: str, checkpoint: str | None, precision: str = "auto",
                  force: bool = False, stop=(), overrides: dict | None = None, allow_outside: bool = False) -> dict:
     """Render the missing condition layers and generate the video (see the module docstring); validated first
@@ -185,8 +194,7 @@ def generate_job(job_path: str, job: job_mod.Job, device: str, checkpoint: str |
 
 def _generate(job_path, job, device, plan: Plan, precision, force, stop, lock) -> dict:
     ckpt, s, out = plan.checkpoint, plan.settings, plan.output_dir
-    if precision == "auto":
-        precision = "bf16" if device == "cuda" else "fp32"
+    precision = resolve_precision(precision, device)
     dtype = PRECISIONS[precision]
     log = events.FileLog(os.path.join(out, "backend.log"))
     if lock.stale:

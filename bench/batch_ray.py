@@ -1,16 +1,18 @@
 """Ray against static sharding on a job list of uneven lengths, on this machine's CPUs.
 
     .venv/bin/python bench/batch_ray.py [--workers 2] [--long 160] [--short 2] [--jobs 8] [--size 320 240]
-                                        [--repeats 2]
+                                        [--repeats 2] [--out batch_ray.json]
 
 The jobs (``tests_support.small_job``: synthetic predictions and a 300-Gaussian car) alternate long and short
 (``--long`` and ``--short`` frames at ``--size``), so static sharding (``torchrun --standalone --nproc_per_node N
 -m backend batch``: rank r takes jobs r, r + N, …) gives rank 0 every long job, while Ray (``batch --ray`` on a local
-cluster of N CPUs started beforehand with ``ray start``, as a pipeline's is, one CPU per job) hands each job to whichever worker is free. Both arms run the same command line
-in a fresh process (the arms alternated ``--repeats`` times), each on fresh copies of the jobs, one thread per worker (``NUMBA_NUM_THREADS`` and
-``OMP_NUM_THREADS`` 1, so N workers use N cores). Reported: wall time of the command, and per worker its busy time
+cluster of N CPUs started beforehand with ``ray start``, as a pipeline's is, one CPU per job) hands each job to
+whichever worker is free. Both arms run the same command line in a fresh process (the arms alternated ``--repeats``
+times), each on fresh copies of the jobs, one thread per worker (``NUMBA_NUM_THREADS`` and ``OMP_NUM_THREADS`` 1, so
+N workers use N cores). Reported: wall time of the command, and per worker its busy time
 (the sum of its jobs' own ``seconds``) and idle time (wall − busy: start-up, waiting for the slowest rank, and
-scheduling). Prints a table; writes bench/results/batch_ray.json.
+scheduling). Prints a table; writes bench/results/batch_ray.json (``--out``). It runs ``ray stop --force`` after
+each Ray arm, which ends every Ray process on the machine: run it alone, never beside the tests.
 """
 
 from __future__ import annotations
@@ -74,6 +76,7 @@ def main(argv=None) -> None:
     ap.add_argument("--short", type=int, default=2)
     ap.add_argument("--size", type=int, nargs=2, default=[320, 240])
     ap.add_argument("--repeats", type=int, default=2)
+    ap.add_argument("--out", default="batch_ray.json", help="file name under bench/results/")
     args = ap.parse_args(argv)
     work = tempfile.mkdtemp(prefix="batch_ray_")
     rows = []
@@ -82,15 +85,15 @@ def main(argv=None) -> None:
             folder = os.path.join(work, f"{arm}{r}")
             rows.append(run(arm, make_jobs(folder, args.jobs, args.long, args.short, args.size), args.workers))
     shutil.rmtree(work, ignore_errors=True)
-    print(f"\n{args.jobs} render jobs alternating {args.long} and {args.short} frames at {args.size[0]}x{args.size[1]}, "
-          f"{args.workers} workers, one thread each")
+    print(f"\n{args.jobs} render jobs alternating {args.long} and {args.short} frames at "
+          f"{args.size[0]}x{args.size[1]}, {args.workers} workers, one thread each")
     print("| arm | wall s | busy s per worker | idle s per worker | idle share |\n|---|---|---|---|---|")
     for r in rows:
         idle = sum(r["idle_s"].values()) / (r["wall_s"] * max(len(r["idle_s"]), 1))
         print(f"| {r['arm']} | {r['wall_s']:.1f} | {', '.join(f'{v:.1f}' for v in r['busy_s'].values())} | "
               f"{', '.join(f'{v:.1f}' for v in r['idle_s'].values())} | {idle:.0%} |")
     os.makedirs(os.path.join(ROOT, "bench", "results"), exist_ok=True)
-    with open(os.path.join(ROOT, "bench", "results", "batch_ray.json"), "w") as f:
+    with open(os.path.join(ROOT, "bench", "results", args.out), "w") as f:
         json.dump({"settings": vars(args), "rows": rows}, f, indent=1)
 
 

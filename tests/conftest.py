@@ -91,3 +91,17 @@ def street_clip_path(street, tmp_path_factory):
     from backend.train import street_clip
 
     return street_clip.export_clip(street, str(tmp_path_factory.mktemp("clips") / "street"))
+
+
+# -- Ray ---------------------------------------------------------------------------------------------------------
+
+@pytest.fixture(scope="session")
+def ray_cluster():
+    """A new local Ray cluster of 2 CPUs (2 workers at a time; never a `ray start` left running), shared by every
+    test that asks for it; yields its address (``HOST:PORT`` of its head), which a subprocess such as
+    ``python -m backend batch --ray ADDRESS`` connects to. Skipped without ``ray``."""
+    ray = pytest.importorskip("ray")
+    ray.init(address="local", num_cpus=2, log_to_driver=False, include_dashboard=False, configure_logging=False,
+             runtime_env={"env_vars": {"PYTHONPATH": ROOT}})
+    yield ray.get_runtime_context().gcs_address
+    ray.shutdown()

@@ -14,6 +14,12 @@ and asset composited, holes black: the paper's "naive insertion"), and the *base
 OpenCV inpainting (``backend/baseline.py``, what ``generate`` makes without a checkpoint; also written as the task's
 ``baseline.mp4``).
 
+Every task's job is written first (``write_jobs``), then each is run and scored in turn. With ``--ray``
+(``RayPool``) the jobs all run on a Ray cluster first (``run_jobs_on_pool``: ``batch_ray``'s scheduling, retries and
+progress), a failed one ending the evaluation before any metric; the same loop then finds every output up to date
+and only reads it, so the metrics are computed here exactly as without Ray. ``precision auto`` is resolved once for
+the device the videos are made on (``generate.resolve_precision``), since a video's up-to-date key holds it.
+
 Metrics (``evaluation.json``, and a table on standard error):
 
 * FID / KID (Inception pool3 from ``--inception``, never downloaded) of every NVS task's frames against the
@@ -25,22 +31,27 @@ Metrics (``evaluation.json``, and a table on standard error):
 
 With a handful of frames FID is dominated by its sample bias (it needs thousands of images); the numbers are
 computed exactly as for a full validation set and reported with the image counts so nobody mistakes them.
+
+Over ~400 lines because the protocol is one piece: its tasks, their jobs, the crops and the metrics loop must agree
+(names, folders, frames), and reading them together is how that is checked.
 """
 
 from __future__ import annotations
 
 import os
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 import torch
 
+from scpainter_blender.core import batch_items
 from scpainter_blender.core import fields as fields_mod
 from scpainter_blender.core import files, outputs, trajectory
 from scpainter_blender.core import job as job_mod
 
-from .. import events
+from .. import batch_ray, events
+from ..errors import CleanFailure
 from . import pictures
 from ..train import clip as clip_mod
 from ..train.pairs import load_clip_frames, load_resized
@@ -97,6 +108,28 @@ class EvalSettings:
                    inpaint=a.inpaint or job_mod.BASELINE_DEFAULTS["inpaint"])
 
 
+@dataclass(frozen=True)
+class RayPool:
+    """``evaluate --ray``: the tasks' jobs run on a Ray cluster first (``run_jobs_on_pool``), with
+    ``batch_ray.run_ray_batch``'s options; the metrics are then computed in this process, as without it."""
+
+    address: str | None = None          # HOST:PORT of the head; None or "": RAY_ADDRESS, `ray start`'s, a new one
+    device: str = "auto"                # the workers': cuda (one GPU per job) when the cluster has GPUs
+    retries: int = batch_items.DEFAULT_RETRIES
+    cpus_per_job: float = batch_items.DEFAULT_CPUS_PER_JOB     # on a cluster without GPUs
+
+    def __post_init__(self):
+        # batch --ray's check (run_ray_batch), made here too so evaluate refuses it before writing anything
+        batch_items.check_ray_options(self.retries, self.cpus_per_job)
+
+    @classmethod
+    def from_args(cls, a) -> RayPool | None:
+        """From ``python -m backend evaluate``'s arguments: None without ``--ray``."""
+        if a.ray is None:
+            return None
+        return cls(address=a.ray or None, device=a.device, retries=a.retries, cpus_per_job=a.cpus_per_job)
+
+
 # ---------------------------------------------------------------------------------------------------------------
 # Jobs
 # ---------------------------------------------------------------------------------------------------------------
@@ -151,6 +184,96 @@ def tasks(clip: clip_mod.Clip, s: EvalSettings) -> list:
         if s.shifts:
             out.append((f"insert_shift{s.shifts[0]:+g}m", s.shifts[0], car))
     return out
+
+
+@dataclass(frozen=True)
+class EvalTask:
+    """One task of one clip, its job written (``write_jobs``); the job's folder holds the task's outputs."""
+
+    clip: int                           # index into the settings' clips
+    clip_name: str                      # "000_street": the clip's folder under the output folder
+    name: str                           # nvs_+2m, insert, insert_shift+2m (``tasks``)
+    shift: float                        # metres, + left
+    car: int | None                     # the re-inserted car (index into clip.cars), None for NVS
+    job: str                            # absolute path of the task's job.json
+
+    @property
+    def folder(self) -> str:
+        return os.path.dirname(self.job)
+
+
+def clip_name(index: int, clip: clip_mod.Clip) -> str:
+    """The clip's folder under the output folder and its name in evaluation.json: "000_street"."""
+    return f"{index:03d}_{os.path.basename(clip.folder)}"
+
+
+def write_jobs(clips: list, s: EvalSettings, out_dir: str) -> list[EvalTask]:
+    """Every task of every clip (``tasks``), its job written to ``out_dir/<clip_name>/<task>/job.json``, in the
+    order the metrics visit them. ``ClipError`` (bad input) for a clip that cannot make a task."""
+    work = []
+    for ci, clip in enumerate(clips):
+        folder = os.path.join(os.path.abspath(out_dir), clip_name(ci, clip))
+        for name, shift, car in tasks(clip, s):
+            job = task_job(clip, s, os.path.join(folder, name), shift, car)
+            work.append(EvalTask(ci, clip_name(ci, clip), name, shift, car, job))
+    return work
+
+
+class TaskInputError(files.InputError):
+    """Bad input a task's job met on the pool: the job's file and field, and its message as the job wrote it
+    (which already names them: ``str()`` does not put them in front again), followed by the task."""
+
+    def __init__(self, path, field, text: str, hint=None):
+        super().__init__(path, field, text, hint)
+        self.args = (text,)
+
+
+def run_jobs_on_pool(work: list[EvalTask], s: EvalSettings, pool: RayPool, stop=(), log=events.log) -> list | None:
+    """Every task's job on the Ray pool (``batch_ray.run_ray_batch``, progress stage ``evaluate-jobs``):
+    ``generate`` with ``s.checkpoint`` (at ``s.precision``, resolved: ``generate.resolve_precision``), else
+    ``render``. A job finished before is skipped by its own key, so a second evaluation only checks. Returns per
+    task ``clip``, ``task``, ``worker`` (host:pid), ``attempts``, ``seconds``, ``skipped``; None when ``stop``
+    (SIGTERM) ended it.
+
+    Raises when a task failed, so no metric is computed from a partial evaluation: bad input (the job's result names
+    a file and field) a ``TaskInputError`` naming them; anything else a ``CleanFailure`` naming the failed tasks with
+    their errors and logs (``failed``)."""
+    t0 = time.perf_counter()
+    results = batch_ray.run_ray_batch(
+        [t.job for t in work], "generate" if s.checkpoint else "render", pool.device,
+        # absolute: a worker's working directory is not this process's
+        os.path.abspath(s.checkpoint) if s.checkpoint else None,
+        allow_outside=True,  # the protocol writes these jobs itself, pointing at the clip folders the user named
+        half=None,  # as run_task's render: keep the precision of the frames already there (float32 when none)
+        address=pool.address, retries=pool.retries, cpus_per_job=pool.cpus_per_job, stop=stop,
+        precision=s.precision, stage="evaluate-jobs")
+    if stop:
+        return None
+    failed = [(t, r) for t, r in zip(work, results) if r["status"] != "ok"]
+    # bad input: an InputError's result (batch.failure) has its file and field; a CleanFailure's may name a file
+    bad = [(t, r) for t, r in failed if r.get("field")]
+    if bad:
+        t, r = bad[0]
+        others = f"; {len(failed) - 1} other task(s) failed too" if len(failed) > 1 else ""
+        log(f"evaluate: task {t.clip_name}/{t.name} ({t.job}): bad input: {r['error']}{others}")
+        raise TaskInputError(r["file"], r["field"], f"{r['error']} (evaluation task {t.clip_name}/{t.name}, job "
+                                                    f"{t.job}{others})",
+                             hint=r.get("hint") or "fix the file named, then run the same command again: finished "
+                                                   "tasks are kept")
+    if failed:
+        listed = [{"clip": t.clip_name, "task": t.name, "job": t.job, "status": r["status"],
+                   "error": r.get("error"), "log": r.get("log")} for t, r in failed]
+        lines = "; ".join(f"{f['clip']}/{f['task']}: {f['error'] or f['status']}"
+                          + (f" (log {f['log']})" if f["log"] else "") for f in listed)
+        log(f"evaluate: {len(failed)} of {len(work)} tasks failed on the Ray pool: {lines}")
+        raise CleanFailure(f"{len(failed)} of {len(work)} evaluation tasks failed on the Ray pool, so no metric was "
+                           f"computed: {lines}",
+                           hint="each task's error says what failed (a bug's traceback is in the log named); run "
+                                "the same command again once fixed: finished tasks are kept", failed=listed)
+    log(f"evaluate: {len(work)} jobs on the Ray pool in {time.perf_counter() - t0:.1f} s "
+        f"({sum(bool(r.get('skipped')) for r in results)} already finished)")
+    return [{"clip": t.clip_name, "task": t.name, "worker": r["worker"], "attempts": r["attempts"],
+             "seconds": r["seconds"], "skipped": bool(r.get("skipped"))} for t, r in zip(work, results)]
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -305,30 +428,43 @@ def feature_metrics(sets: dict, reference: str, net, device: str, log) -> dict:
     return out
 
 
-def evaluate(s: EvalSettings, device: str, stop=(), extractor=None) -> dict:
-    """Run every task of every clip and write ``evaluation.json``. ``extractor`` replaces the Inception network
-    given by ``s.inception`` (tests use a tiny random one; FID's statistics do not depend on the extractor)."""
+def evaluate(s: EvalSettings, device: str, stop=(), extractor=None, pool: RayPool | None = None) -> dict:
+    """Run every task of every clip and write ``evaluation.json``; returns its path, ``seconds`` and the ground-truth
+    rows, or ``{"stopped": True}`` when ``stop`` (SIGTERM) ended it. ``device``: this process's (the metrics, and
+    any job not finished yet). ``pool``: every task's job runs on a Ray pool first (``run_jobs_on_pool``; its
+    failures raise before any metric), and evaluation.json lists where each ran (``jobs``); the tasks' loop then
+    finds every output up to date and only reads it. ``extractor`` replaces the Inception network given by
+    ``s.inception`` (tests use a tiny random one; FID's statistics do not depend on the extractor)."""
     if extractor is None and s.inception:
         from .inception import load_inception
 
         extractor = load_inception(s.inception, device)  # fail fast: before hours of generation
+    # precision auto resolved once, for the device the videos are made on (the pool's workers when there is one),
+    # and asked for by the pool and this process alike: it is part of a video's up-to-date key
+    from ..generate import resolve_precision
+
+    s = replace(s, precision=resolve_precision(s.precision, batch_ray.job_device(pool.device, pool.address)
+                                                if pool is not None else device))
     out_dir = os.path.abspath(s.output_dir)
     os.makedirs(out_dir, exist_ok=True)
     log = events.FileLog(os.path.join(out_dir, "evaluate.log"))
     t0 = time.perf_counter()
+    clips = [clip_mod.load(p) for p in s.clips]
+    work = write_jobs(clips, s, out_dir)
+    jobs = None
+    if pool is not None:
+        jobs = run_jobs_on_pool(work, s, pool, stop, log)
+        if jobs is None:
+            return {"stopped": True}
     whole, crops = ImageSets(), ImageSets()
     gt_rows, temporal_rows = [], []
-    n_tasks_done = 0
-    clips = [clip_mod.load(p) for p in s.clips]
-    total = sum(len(tasks(c, s)) for c in clips)
     for ci, clip in enumerate(clips):
-        name = f"{ci:03d}_{os.path.basename(clip.folder)}"
         frames = range(min(s.frames, clip.num_frames))
         K = clip.K_for(s.width, s.height)
         # undistorted (clip.json's distortion) and resized as training's targets are; a video clip decoded once
         real = list(load_clip_frames(clip, s.width, s.height, list(frames)).float() / 255.0)
         whole.add("real", real)
-        temporal_rows.append({"clip": name, "task": "recorded", "shift_m": 0.0, "output": "real",
+        temporal_rows.append({"clip": clip_name(ci, clip), "task": "recorded", "shift_m": 0.0, "output": "real",
                               **temporal_metrics(real)})
         for car in clip.cars:  # real car crops for FID-C, from the boxes on the recorded frames
             for t in frames:
@@ -337,47 +473,47 @@ def evaluate(s: EvalSettings, device: str, stop=(), extractor=None) -> dict:
                                      s.crop_grow, s.crop_min_px)
                     if b is not None:
                         crops.add("real", [crop(real[t], b, s.crop_size)])
-        for task, shift, car in tasks(clip, s):
+        for n, task in ((n, t) for n, t in enumerate(work, 1) if t.clip == ci):
             if stop:
                 return {"stopped": True}
-            job_path = task_job(clip, s, os.path.join(out_dir, name, task), shift, car)
-            log(f"evaluate: {name} {task}")
-            r = run_task(job_path, device, s, stop)
+            name, shift, car = task.clip_name, task.shift, task.car
+            log(f"evaluate: {name} {task.name}")
+            r = run_task(task.job, device, s, stop)
             if r.get("stopped"):
                 return {"stopped": True}
-            n_tasks_done += 1
-            events.progress("evaluate", n_tasks_done, total, clip=name, task=task)
-            kinds = {"naive": r["image"],
-                     "baseline": baseline_video(r, s, os.path.join(out_dir, name, task), clip.fps)}
+            events.progress("evaluate", n, len(work), clip=name, task=task.name)
+            kinds = {"naive": r["image"], "baseline": baseline_video(r, s, task.folder, clip.fps)}
             if r["generated"] is not None:
                 kinds["generated"] = r["generated"]
             for kind, video in kinds.items():
-                temporal_rows.append({"clip": name, "task": task, "shift_m": shift, "output": kind,
+                temporal_rows.append({"clip": name, "task": task.name, "shift_m": shift, "output": kind,
                                       **temporal_metrics(video)})
-                whole.add(f"{task}/{kind}", video)
+                whole.add(f"{task.name}/{kind}", video)
                 if car is not None:
                     for f, asset_mask in zip(video, r["asset_mask"]):
                         b = mask_crop_box(asset_mask[0].numpy(), s.crop_grow, s.crop_min_px)
                         if b is not None:
-                            crops.add(f"{task}/{kind}", [crop(f, b, s.crop_size)])
+                            crops.add(f"{task.name}/{kind}", [crop(f, b, s.crop_size)])
             sheet = {"condition I": r["image"], "baseline": kinds["baseline"],
                      **({"generated": r["generated"]} if r["generated"] is not None else {})}
             if car is None and shift in clip.views:
                 gt = load_clip_frames(clip, s.width, s.height, list(frames), view=shift).float() / 255.0
                 sheet["ground truth"] = gt
-                temporal_rows.append({"clip": name, "task": task, "shift_m": shift, "output": "ground_truth",
+                temporal_rows.append({"clip": name, "task": task.name, "shift_m": shift, "output": "ground_truth",
                                       **temporal_metrics(gt)})  # the floor: real motion the flow cannot explain
                 for kind, video in kinds.items():
-                    gt_rows.append({"clip": name, "task": task, "shift_m": shift, "output": kind,
+                    gt_rows.append({"clip": name, "task": task.name, "shift_m": shift, "output": kind,
                                     "frames": len(frames), "hole_fraction": float(1 - r["valid"].mean()),
                                     **ground_truth_metrics(video, gt, r["valid"])})
-            pictures.contact_sheet(os.path.join(out_dir, name, task, "contact_sheet.png"), sheet)
+            pictures.contact_sheet(os.path.join(task.folder, "contact_sheet.png"), sheet)
     result = {"settings": asdict(s), "seconds": None, "ground_truth": gt_rows, "temporal": temporal_rows,
               "fid": feature_metrics(whole.sets, "real", extractor, device, log),
               "fid_c": (feature_metrics(crops.sets, "real", extractor, device, log) if "real" in crops.sets
                         else {"skipped": "no real car crops (no tracked cars in view)"}),
               "counts": {"whole": {k: len(v) for k, v in whole.sets.items()},
                          "crops": {k: len(v) for k, v in crops.sets.items()}}}
+    if jobs is not None:  # where each task's job ran on the pool, and how long it took there
+        result["jobs"] = jobs
     result["seconds"] = time.perf_counter() - t0
     pictures.metrics_plot(os.path.join(out_dir, "metrics.png"), gt_rows, temporal_rows)
     path = os.path.join(out_dir, "evaluation.json")

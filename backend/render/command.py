@@ -147,7 +147,7 @@ def _render(job_path, job, device, force, point_radius, stop, log, out, allow_ou
             log(f"frame {f}: {time.perf_counter() - t:.3f} s, hole {layers[channels.HOLE].mean():.3f}")
             events.artifact(exr_path, frame=f, kind="conditions")
             events.artifact(png_path, frame=f, kind="preview")
-        events.progress("render", n + 1, total, frame=f)
+        events.progress("render", n + 1, total, frame=f, reused=f not in todo)  # reused: found up to date
     return {"frames": total, "rendered": rendered, "skipped": skipped, "output_dir": out, "stopped": bool(stop)}
 
 

@@ -3,9 +3,29 @@ file of job or scene paths, and which items one rank of a multi-process run take
 
 from __future__ import annotations
 
+import math
 import os
 
 from . import files
+
+#: ``--ray``: a job is run again at most this many times after its worker died or it failed unexpectedly (default,
+#: and the most ``--retries`` accepts).
+DEFAULT_RETRIES = 2
+MAX_RETRIES = 100
+#: ``--cpus-per-job``: what each job asks of a Ray cluster without GPUs (a GPU cluster's jobs take 1 GPU, 1 CPU).
+DEFAULT_CPUS_PER_JOB = 1.0
+
+
+def check_ray_options(retries, cpus_per_job) -> None:
+    """The ``--ray`` options both batch commands take, checked before any work: ``--retries`` an integer in
+    [0, ``MAX_RETRIES``], ``--cpus-per-job`` a finite number above 0 (whether a node has that many CPUs is the
+    cluster's to say: ``backend.batch_ray``). ``ArgumentError`` naming the option."""
+    if isinstance(retries, bool) or not isinstance(retries, int) or not 0 <= retries <= MAX_RETRIES:
+        raise files.ArgumentError("--retries", f"expected an integer in [0, {MAX_RETRIES}], got {retries!r}")
+    if isinstance(cpus_per_job, bool) or not isinstance(cpus_per_job, (int, float)) \
+            or not math.isfinite(cpus_per_job) or not cpus_per_job > 0:
+        raise files.ArgumentError("--cpus-per-job", f"expected a finite number of CPUs above 0, got {cpus_per_job!r}",
+                                  hint="e.g. --cpus-per-job 4 for jobs that use 4 threads each")
 
 
 def read_list(path) -> list:

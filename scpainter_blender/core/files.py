@@ -76,6 +76,15 @@ class ArgumentError(InputError):
     def __init__(self, field, message, hint=None):
         super().__init__(COMMAND_LINE, field, message, hint)
 
+    @classmethod
+    def from_argparse(cls, message: str, prog: str) -> ArgumentError:
+        """argparse's error message as an ArgumentError: the argument it names ("argument --device: invalid
+        choice …") or the required ones it lists as ``field``, else "(arguments)"; the hint points at ``--help``."""
+        named = re.match(r"argument ([^:]+): (.*)", message, re.S)
+        required = re.match(r"the following arguments are required: (.*)", message, re.S)
+        field = named.group(1) if named else required.group(1) if required else "(arguments)"
+        return cls(field, named.group(2) if named else message, hint=f"see {prog} --help")
+
 
 # ---------------------------------------------------------------------------------------------- regular files
 

@@ -7,6 +7,7 @@
     blender -c scpainter generate scene.blend --checkpoint /models/scpainter
     blender -c scpainter generate scene.blend [--inpaint telea|navier-stokes]    # no checkpoint: the baseline
     blender -c scpainter batch a.blend b.blend jobs/c.json [--list scenes.txt] --command generate [--shard 0/4]
+    blender -c scpainter batch a.blend b.blend jobs/c.json --command generate --ray [HEAD:6379] [--retries 2]
 
 ``render``/``generate`` open the .blend, write its job into the scene's output folder and run the backend there
 (blocking); the .blend itself is never written. Without a checkpoint (``--checkpoint`` or the preference)
@@ -14,6 +15,8 @@
 (``model``: "scpainter" or "baseline", and ``description``). ``batch`` does that for every .blend (job files go
 straight to the backend), goes on past failures, prints one summary with each item's status, time and outputs, and
 exits 1 if any failed; ``--shard K/N`` (or torchrun's RANK/WORLD_SIZE) takes every N-th item from K.
+``--ray`` exports every .blend's job first, then runs all the jobs as one Ray batch (``python -m backend batch
+--ray``, backend/batch_ray.py): the same summary, each item with its ``worker`` and ``attempts``.
 
 ``-c`` implies background mode; the import goes into the scene that is open (``blender -b scene.blend -c ...``
 imports into scene.blend). With the ``bpy`` module (no ``-c``), call ``execute(argv)`` directly. Output: a JSON
@@ -29,7 +32,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import re
 import shutil
 import sys
 import tempfile
@@ -47,10 +49,7 @@ from . import importer, preferences, props, runs
 class _Parser(argparse.ArgumentParser):
     def error(self, message):  # argparse would sys.exit() from inside Blender: bad input, exit 2 instead
         """An ``ArgumentError`` (file "(command line)") whose field is the argument argparse names."""
-        named = re.match(r"argument ([^:]+): (.*)", message, re.S)
-        required = re.match(r"the following arguments are required: (.*)", message, re.S)
-        field = named.group(1) if named else required.group(1) if required else "(arguments)"
-        raise files.ArgumentError(field, named.group(2) if named else message, hint=f"see {self.prog} --help")
+        raise files.ArgumentError.from_argparse(message, self.prog)
 
 
 def _ratio_or_off(text: str) -> float | None:
@@ -96,13 +95,25 @@ def _parser():
             c.add_argument("--allow-outside", action="store_true",
                            help="let job.json items' paths lead outside their folder (.blend items always may: "
                                 "their output folder is the one the scene names)")
+            c.add_argument("--ray", nargs="?", const="", metavar="ADDRESS",
+                           help="export every .blend's job, then run all jobs as one Ray batch (python -m backend "
+                                "batch --ray: one task per job, retried when a worker dies): the cluster at ADDRESS, "
+                                "else RAY_ADDRESS or the one `ray start` started here, else a new local one; files "
+                                "on a shared file system (README)")
+            c.add_argument("--retries", type=int, default=batch_mod.DEFAULT_RETRIES,
+                           help="--ray: run a job again at most this often when its worker dies (default "
+                                f"{batch_mod.DEFAULT_RETRIES}, at most {batch_mod.MAX_RETRIES})")
+            c.add_argument("--cpus-per-job", type=float, default=batch_mod.DEFAULT_CPUS_PER_JOB,
+                           help="--ray on a cluster without GPUs: CPUs each job asks for (default "
+                                f"{batch_mod.DEFAULT_CPUS_PER_JOB:g})")
         else:
             c.add_argument("blend", help="the scene (.blend)")
             c.add_argument("--output", help="output folder (default: the scene's SCPainter output folder)")
         c.add_argument("--device", choices=["auto", "cpu", "cuda"], help="default: the add-on preference")
         c.add_argument("--backend-python", help="interpreter for the backend (default: the add-on preference)")
         c.add_argument("--checkpoint", help="SCPainter checkpoint folder (default: the add-on preference)")
-        c.add_argument("--timeout", type=float, default=0.0, help="stop a scene's backend after this many s")
+        c.add_argument("--timeout", type=float, default=0.0,
+                       help="stop a scene's backend after this many s (batch --ray: the whole batch's)")
         if name != "render":
             c.add_argument("--inpaint", choices=job_mod.INPAINT_METHODS,
                            help="the baseline's OpenCV method, used without a checkpoint (default: the scene's "
@@ -167,10 +178,12 @@ def _apply_preferences(args) -> None:
 
 def _progress(ev) -> None:
     if ev.get("event") == "progress":
-        print(f"scpainter: {ev['stage']} {ev['done']}/{ev['total']}", file=sys.stderr, flush=True)
+        job = f" {ev['status']}: {ev['job']}" if "job" in ev and "status" in ev else ""  # batch --ray: a job ended
+        print(f"scpainter: {ev['stage']} {ev['done']}/{ev['total']}{job}", file=sys.stderr, flush=True)
 
 
-def _run_blend(blend: str, command: str, args, output: str | None = None) -> dict:
+def _open_blend(blend: str, args, output: str | None = None) -> None:
+    """Open the .blend (never written) with this run's settings: ``output`` folder, ``--inpaint``."""
     files.check_regular(blend)  # Blender opens it by name: a FIFO would block it, a folder confuse it
     try:
         bpy.ops.wm.open_mainfile(filepath=os.path.abspath(blend), load_ui=False)
@@ -182,6 +195,10 @@ def _run_blend(blend: str, command: str, args, output: str | None = None) -> dic
     if getattr(args, "inpaint", None):  # for this run only: the .blend is not written
         bpy.context.scene.scpainter_baseline_inpaint = next(k for k, v in props.INPAINT_ITEMS.items()
                                                             if v == args.inpaint)
+
+
+def _run_blend(blend: str, command: str, args, output: str | None = None) -> dict:
+    _open_blend(blend, args, output)
     job, out = runs.start(bpy.context, command)
     try:
         done = job.wait(timeout=args.timeout or None, on_event=_progress)
@@ -206,7 +223,7 @@ def _run_job(path: str, command: str, args) -> dict:
 def _outputs(done: dict, out) -> dict:
     # model / description: which generator made the video ("baseline": OpenCV inpainting, no model)
     keep = ("frames", "rendered", "skipped", "video", "frames_dir", "model", "description", "seconds")
-    return {"output_dir": out or os.path.dirname(done.get("video", "")), **{k: done[k] for k in keep if k in done}}
+    return {"output_dir": out or os.path.dirname(done.get("video") or ""), **{k: done[k] for k in keep if k in done}}
 
 
 def _shard(args) -> tuple[int, int]:
@@ -242,6 +259,8 @@ def _batch(args) -> tuple[dict, int]:
     items = list(args.items) + [p for f in args.list or [] for p in batch_mod.read_list(f)]
     if not items:
         raise files.ArgumentError("items", "no .blend or job files given", hint="give paths, or --list FILE")
+    if args.ray is not None:
+        return _batch_ray(args, items)
     k, n = _shard(args)
     results = []
     for path in batch_mod.shard(items, k, n):
@@ -255,6 +274,98 @@ def _batch(args) -> tuple[dict, int]:
         results[-1]["seconds"] = time.perf_counter() - t
     failed = sum(r["status"] != "ok" for r in results)
     return {"what": args.what, "shard": f"{k}/{n}", "items": results, "failed": failed}, (1 if failed else 0)
+
+
+def _batch_ray(args, items: list) -> tuple[dict, int]:
+    """``batch --ray``: every .blend's job exported here (into the output folder its scene names, as ``render``
+    does), then all jobs run as one ``python -m backend batch --ray`` (backend/batch_ray.py; its progress goes to
+    standard error as it comes), its results mapped back to the items in order. An item whose scene cannot make a
+    job fails here and is not sent; two scenes naming the same output folder are refused (their jobs would be the
+    same file). SIGTERM is passed on to the backend, which cancels the jobs not finished and still reports."""
+    import time
+
+    if args.shard:
+        raise files.ArgumentError("--shard", "not with --ray: Ray schedules every item",
+                                  hint="give each Ray batch its whole list; --shard splits a list over processes")
+    batch_mod.check_ray_options(args.retries, args.cpus_per_job)  # before any scene is exported
+    t0 = time.perf_counter()
+    results, jobs, seen = {}, [], {}   # item index -> failed result; (index, job path, exported); job -> item
+    for i, path in enumerate(items):
+        try:
+            if path.endswith(".json"):
+                job_path, exported = os.path.abspath(path), False
+                if job_path in seen:  # two tasks on one job at once: one would find the folder busy
+                    raise files.InputError(path, "(file)", f"is the same job as item {seen[job_path]}",
+                                           hint="list each job once")
+            else:
+                print(f"scpainter batch: exporting {path}", file=sys.stderr, flush=True)
+                _open_blend(path, args)
+                job_path, exported = os.path.join(props.output_dir(bpy.context.scene), "job.json"), True
+                if job_path in seen:  # checked before exporting: the other item's job stays as it is
+                    raise files.InputError(path, "scene.scpainter_output_dir",
+                                           f"{os.path.dirname(job_path)} is also the output folder of "
+                                           f"{seen[job_path]}", hint="give each scene its own SCPainter output folder")
+                runs.export(bpy.context)  # (writes job_path)
+            seen[job_path] = path
+            jobs.append((i, job_path, exported))
+        except Exception as e:  # noqa: BLE001  bad input or a bug: recorded; go on with the rest
+            results[i] = {"item": path, "status": "failed", **_failure(e)}
+    if jobs:
+        for i, r in zip([i for i, _, _ in jobs], _run_ray_jobs(args, jobs)):
+            results[i] = {"item": items[i], **r}
+    ordered = [results[i] for i in range(len(items))]
+    failed = sum(r["status"] != "ok" for r in ordered)
+    return {"what": args.what, "ray": args.ray or None, "items": ordered, "failed": failed,
+            "seconds": time.perf_counter() - t0}, (1 if failed else 0)
+
+
+def _run_ray_jobs(args, jobs: list) -> list:
+    """One backend ``batch --ray`` over ``jobs`` ((index, job path, exported here) in order); its result per job
+    (status, outputs, ``worker``, ``attempts``, ``seconds``; a failure's ``error``, ``file``, ``field``,
+    ``log``). BackendError when the batch itself could not run (a bad address, no cluster)."""
+    import signal
+
+    prefs = preferences.get(bpy.context)
+    lists = tempfile.mkdtemp(prefix="scpainter-batch-")
+    try:
+        # jobs from job.json items as given; the ones exported from .blend files may lead outside their folder
+        for name, exported in (("jobs.txt", False), ("trusted.txt", True)):
+            with open(os.path.join(lists, name), "w", encoding="utf-8") as f:
+                f.writelines(p + "\n" for _, p, e in jobs if e == exported)
+        cmd = ["batch", "--command", args.what, "--list", os.path.join(lists, "jobs.txt"),
+               "--trusted-list", os.path.join(lists, "trusted.txt"), "--ray", *([args.ray] if args.ray else []),
+               "--retries", str(args.retries), "--cpus-per-job", str(args.cpus_per_job),
+               "--device", args.device or (prefs.device.lower() if prefs else "auto")]
+        cmd += ["--checkpoint", os.path.abspath(args.checkpoint)] if args.what == "generate" and args.checkpoint else []
+        cmd += ["--inpaint", args.inpaint] if args.what == "generate" and args.inpaint else []
+        cmd += ["--allow-outside"] if args.allow_outside else []
+        job = backend_client.BackendJob(cmd, python=prefs.backend_python if prefs else "")
+        # SIGTERM to Blender: the backend's driver cancels what is not finished and still sends its summary
+        previous = signal.signal(signal.SIGTERM, lambda *_: job.proc.terminate())
+        try:
+            done = job.wait(timeout=args.timeout or None, on_event=_progress)
+        except backend_client.BackendError:
+            if job.done is None:  # no summary: the batch itself failed (its error event is raised)
+                raise
+            done = job.done       # exit 1: some jobs failed; each says why in the summary
+        finally:
+            signal.signal(signal.SIGTERM, previous)
+    finally:
+        shutil.rmtree(lists, ignore_errors=True)
+    # the backend's order: --list, then --trusted-list
+    order = [k for k, (_, _, e) in enumerate(jobs) if not e] + [k for k, (_, _, e) in enumerate(jobs) if e]
+    returned = [None] * len(jobs)
+    for k, r in zip(order, done["items"], strict=True):
+        returned[k] = r
+    out = []
+    for r in returned:
+        keep = {k: r[k] for k in ("status", "error", "hint", "file", "field", "log", "worker", "attempts", "seconds")
+                if k in r}
+        if args.what == "render" and r.get("status") == "ok":  # frames reused, as the render command counts them
+            r = {**r, "skipped": r["frames"] - r["rendered"]}
+        made = "frames" in r or "video" in r  # ok, or stopped with its finished frames
+        out.append({**keep, **(_outputs(r, r.get("output_dir")) if made else {})})
+    return out
 
 
 def execute(argv) -> int:

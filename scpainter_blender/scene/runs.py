@@ -51,20 +51,26 @@ def generate_ui(context) -> tuple[str, tuple[str, ...]]:
     return "Generate", ()
 
 
-def start(context, command: str, extra=()) -> tuple[BackendJob, str]:
-    """Export the scene's job into its output folder and start ``python -m backend <command> job.json *extra``.
-    The job names the preferences' checkpoint folder when one is set; without one ``generate`` makes the OpenCV
-    inpainting baseline (the backend's ``generate.model`` auto). InputError (SceneError) before anything is written
-    when the scene cannot make a job; BackendError when the backend cannot be started."""
-    scene = context.scene
-    out = props.output_dir(scene)
-    prefs = preferences.get(context)
+def export(context) -> tuple[str, str]:
+    """Export the scene's job into its output folder: (job.json path, output folder). The job names the
+    preferences' checkpoint folder when one is set; without one ``generate`` makes the OpenCV inpainting baseline
+    (the backend's ``generate.model`` auto). InputError (SceneError) before anything is written when the scene
+    cannot make a job. Its output folder is the one the user set and its inputs the files they imported: whoever
+    runs it says so with ``--allow-outside`` (or lists it in ``batch --trusted-list``), which a job from someone
+    else, run by hand, does not get."""
+    out = props.output_dir(context.scene)
     outputs.make_folder(out, "scene.scpainter_output_dir")
     job_path = os.path.join(out, "job.json")
     job_export.export_job(context, job_path, checkpoint=checkpoint_dir(context))
+    return job_path, out
+
+
+def start(context, command: str, extra=()) -> tuple[BackendJob, str]:
+    """Export the scene's job (``export``) and start ``python -m backend <command> job.json *extra`` on the
+    preferences' device and interpreter. BackendError when the backend cannot be started."""
+    prefs = preferences.get(context)
+    job_path, out = export(context)
     device = prefs.device.lower() if prefs else "auto"
-    # the job's output folder is the one the user set (and its inputs are the files they imported): the add-on
-    # says so with --allow-outside, which a job from someone else, run by hand, does not get
     job = BackendJob([command, job_path, "--device", device, "--allow-outside", *extra],
                      python=prefs.backend_python if prefs else "")
     return job, out

@@ -4,6 +4,8 @@ import glob
 import json
 import os
 import signal
+import subprocess
+import sys
 import threading
 import time
 
@@ -18,16 +20,6 @@ ray = pytest.importorskip("ray")
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 
-@pytest.fixture(scope="module")
-def cluster():
-    """A new local Ray cluster of 2 CPUs (2 workers at a time; never one `ray start` left running), shared by this
-    module's tests."""
-    ray.init(address="local", num_cpus=2, log_to_driver=False, include_dashboard=False, configure_logging=False,
-             runtime_env={"env_vars": {"PYTHONPATH": ROOT}})
-    yield
-    ray.shutdown()
-
-
 def events_of(text):
     return [json.loads(line) for line in text.splitlines() if line.startswith("{")]
 
@@ -37,9 +29,22 @@ def exr_mtimes(job_path):
     return {f: os.stat(f).st_mtime_ns for f in glob.glob(os.path.join(folder, "*.exr"))}
 
 
-def test_six_jobs_over_two_workers_then_a_rerun_skips_them(cluster, tmp_path, capsys):
+def test_six_jobs_over_two_workers_then_a_rerun_skips_them(ray_cluster, tmp_path, capsys):
     jobs = [small_job(tmp_path / f"job{i}", frames=tuple(range(1, 2 + i))) for i in range(6)]
-    results = batch_ray.run_ray_batch(jobs, "render", "cpu")
+    arrived = tmp_path / "arrived"
+    arrived.mkdir()
+
+    def two_at_once(path, *args, **options):
+        """The real job, once a second job has started too. These jobs take milliseconds: a worker left warm by an
+        earlier test would finish all six before the cluster's second worker is up (seconds), so nothing would show
+        that the pool runs two at a time."""
+        (arrived / os.path.basename(os.path.dirname(path))).touch()
+        deadline = time.monotonic() + 120
+        while len(os.listdir(arrived)) < 2 and time.monotonic() < deadline:
+            time.sleep(0.02)
+        return batch.run_one(path, *args, **options)
+
+    results = batch_ray.run_ray_batch(jobs, "render", "cpu", job_fn=two_at_once)
     assert [r["job"] for r in results] == jobs and all(r["status"] == "ok" for r in results)
     assert [r["rendered"] for r in results] == [1, 2, 3, 4, 5, 6] and not any(r["skipped"] for r in results)
     assert all(r["attempts"] == 1 for r in results)
@@ -58,17 +63,17 @@ def test_six_jobs_over_two_workers_then_a_rerun_skips_them(cluster, tmp_path, ca
     assert {j: exr_mtimes(j) for j in jobs} == before
 
 
-def test_a_job_that_fails_once_succeeds_on_retry_and_one_that_always_fails_is_reported(cluster, tmp_path):
+def test_a_job_that_fails_once_succeeds_on_retry_and_one_that_always_fails_is_reported(ray_cluster, tmp_path):
     marker = str(tmp_path / "failed_once")
 
-    def flaky(path, *args):
+    def flaky(path, *args, **options):
         """A transient failure (a GPU error, a network file system hiccup) on this job's first attempt only."""
         if path.endswith("flaky/job.json") and not os.path.exists(marker):
             open(marker, "w").close()
             raise OSError("transient: the shared file system went away for a moment")
         if path.endswith("broken/job.json"):
             raise RuntimeError("a bug that fails every time")
-        return batch.run_one(path, *args)
+        return batch.run_one(path, *args, **options)
 
     good, flaky_job, broken = (small_job(tmp_path / n) for n in ("good", "flaky", "broken"))
     bad_input = small_job(tmp_path / "bad_input")
@@ -85,7 +90,7 @@ def test_a_job_that_fails_once_succeeds_on_retry_and_one_that_always_fails_is_re
     assert by["bad_input"]["file"].endswith("predictions.npz") and "not found" in by["bad_input"]["error"]
 
 
-def test_a_worker_killed_mid_job_reruns_it_without_losing_or_repeating_a_frame(cluster, tmp_path):
+def test_a_worker_killed_mid_job_reruns_it_without_losing_or_repeating_a_frame(ray_cluster, tmp_path):
     job = small_job(tmp_path / "long", frames=tuple(range(1, 61)), resolution=(320, 240))
     out = tmp_path / "long" / "out"
     box = {}
@@ -122,6 +127,166 @@ def test_the_command_line_driver_prints_one_stream_and_exits_1_when_a_job_failed
     assert [e["event"] for e in ev] == ["progress", "progress", "done"]   # only the driver's own events
     done = ev[-1]
     assert done["command"] == "batch" and done["jobs"] == 2 and done["failed"] == 1
+    assert done["counts"] == {"ok": 1, "failed": 1}
     assert [i["status"] for i in done["items"]] == ["ok", "failed"] and done["items"][1]["file"].endswith("car.ply")
     code, ev, _ = run_backend("batch", good, "--ray", "--device", "cpu", "--cpus-per-job", "0")
     assert code == 2 and ev[-1]["field"] == "--cpus-per-job"
+
+
+def finished_frames(job_path):
+    """The frames of a job whose EXR and preview both exist (the render writes the EXR first, then the preview)."""
+    folder = os.path.join(os.path.dirname(job_path), "out", "conditions")
+    return {p for p in glob.glob(os.path.join(folder, "frame_*.exr"))
+            if os.path.exists(p.replace("frame_", "preview_").replace(".exr", ".png"))}
+
+
+def test_sigterm_on_the_driver_stops_running_jobs_cancels_queued_ones_and_a_rerun_renders_only_the_rest(
+        ray_cluster, tmp_path):
+    n = 40   # frames per job: a few seconds each on a CPU worker, so the driver is stopped mid-job
+    jobs = [small_job(tmp_path / f"job{i}", frames=tuple(range(1, n + 1)), resolution=(320, 240)) for i in range(4)]
+    locks = [os.path.join(os.path.dirname(j), "out", locking.LOCK_NAME) for j in jobs]
+    command = [sys.executable, "-m", "backend", "batch", *jobs, "--ray", ray_cluster, "--device", "cpu",
+               "--command", "render"]
+    with open(tmp_path / "stderr.txt", "w") as err:
+        driver = subprocess.Popen(command, cwd=ROOT, stdout=subprocess.PIPE, stderr=err, text=True)
+        try:
+            # stopped while the two CPUs each run a job (its output folder locked; one has finished frames, the
+            # other may still load its scene) and the other two jobs wait
+            deadline = time.monotonic() + 120
+            while time.monotonic() < deadline and driver.poll() is None:
+                running = sum(os.path.exists(p) for p in locks)
+                counts = sorted(len(finished_frames(j)) for j in jobs)
+                if running == 2 and counts[-1] >= 3:
+                    break
+                time.sleep(0.01)
+            assert running == 2 and 3 <= counts[-1] < n, f"not two jobs mid-way: {running} running, {counts} frames"
+            driver.send_signal(signal.SIGTERM)
+            sent = time.monotonic()
+            out, _ = driver.communicate(timeout=60)
+            stopped_in = time.monotonic() - sent
+        finally:
+            if driver.poll() is None:
+                driver.kill()
+    stderr = (tmp_path / "stderr.txt").read_text()
+    assert driver.returncode == 1, stderr[-3000:]
+    ev = [json.loads(line) for line in out.splitlines()]          # standard output: JSON events only
+    assert ev[-1]["event"] == "done" and all(e["event"] == "progress" for e in ev[:-1]), out
+    done = ev[-1]
+    items = done["items"]
+    assert [i["job"] for i in items] == jobs and done["failed"] == 4
+    # the running jobs stop after their current frame, keeping and counting what they finished
+    ran = [i for i in items if i["status"] == "stopped"]
+    queued = [i for i in items if i["status"] == "not run (SIGTERM)"]
+    assert len(ran) == 2 and len(queued) == 2, [(i["status"], i.get("error")) for i in items]
+    assert stopped_in < 10, f"the driver took {stopped_in:.1f} s to stop"
+    kept = {}
+    for i in ran:
+        frames = finished_frames(i["job"])
+        assert i["attempts"] == 1 and i["frames"] == n and i["rendered"] < n and not i["skipped"]
+        assert len(frames) == i["rendered"] and "error" not in i
+        kept[i["job"]] = {p: os.stat(p).st_mtime_ns for p in frames}
+    assert max(len(f) for f in kept.values()) >= 3
+    for i in queued:   # never started: nothing written, no attempt recorded
+        assert i["attempts"] == 0 and not os.path.exists(os.path.join(os.path.dirname(i["job"]), "out"))
+    # nothing half-written, no output folder left locked, and nothing still writing after the driver exited
+    time.sleep(1.0)
+    for j in jobs:
+        out_dir = os.path.join(os.path.dirname(j), "out")
+        assert not glob.glob(os.path.join(out_dir, "conditions", ".*.tmp"))
+        assert not os.path.exists(os.path.join(out_dir, locking.LOCK_NAME))
+    assert {j: {p: os.stat(p).st_mtime_ns for p in finished_frames(j)} for j in kept} == kept
+    # the same command again finishes everything, at once (no stopped job still holds a worker), rendering only
+    # the missing frames
+    t0 = time.time()
+    code, ev, err = run_backend(*command[3:])
+    assert code == 0, err[-3000:]
+    again = {i["job"]: i for i in ev[-1]["items"]}
+    assert all(i["status"] == "ok" and i["attempts"] == 1 for i in again.values())
+    assert sorted(i["started"] for i in again.values())[1] - t0 < 20   # two jobs at once, as soon as it is up
+    for j in jobs:
+        assert again[j]["rendered"] == n - len(kept.get(j, {}))
+        exrs = sorted(glob.glob(os.path.join(os.path.dirname(j), "out", "conditions", "frame_*.exr")))
+        assert [os.path.basename(p) for p in exrs] == [f"frame_{f:06d}.exr" for f in range(1, n + 1)]
+        assert all(channels.read(p)["R"].shape == (240, 320) for p in exrs)   # every frame whole
+    for j, frames in kept.items():   # frames finished before the SIGTERM were not rendered again
+        assert {p: os.stat(p).st_mtime_ns for p in frames} == frames
+
+
+def test_a_job_interrupted_outside_its_stop_flag_is_reported_as_run_and_a_queued_one_as_not_run(ray_cluster,
+                                                                                               tmp_path):
+    marker = tmp_path / "started"
+
+    def deaf(path, *args, **options):
+        """A job that never sees its stop flag: Ray's cancel reaches it as a KeyboardInterrupt (as it would a job
+        running in a thread), so its task ends as "cancelled" although it ran."""
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        marker.touch()
+        for _ in range(6000):  # short sleeps: Ray's interrupt is seen between them, not within one
+            time.sleep(0.01)
+
+    jobs = [small_job(tmp_path / "first"), small_job(tmp_path / "second")]
+    stop, box = [], {}
+    driver = threading.Thread(target=lambda: box.update(results=batch_ray.run_ray_batch(
+        jobs, "render", "cpu", cpus_per_job=2, stop=stop, job_fn=deaf)))   # 2 CPUs each: one at a time
+    driver.start()
+    deadline = time.monotonic() + 60
+    while not marker.exists() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert marker.exists(), "the job did not start"
+    stop.append(True)   # what the driver's SIGTERM handler does
+    sent = time.monotonic()
+    driver.join(timeout=30)
+    assert not driver.is_alive() and time.monotonic() - sent < 10
+    ran, queued = sorted(box["results"], key=lambda r: -r["attempts"])
+    # it ran (the board saw it start), so "stopped", saying its counts are unknown; never "not run"
+    assert ran["status"] == "stopped" and ran["attempts"] == 1 and "not known" in ran["error"] and ran["worker"]
+    assert queued == {"job": queued["job"], "status": "not run (SIGTERM)", "attempts": 0}
+
+
+def test_an_address_nobody_answers_at_is_bad_input_at_once_not_a_hang(monkeypatch):
+    from scpainter_blender.core import files
+
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    t = time.monotonic()
+    with pytest.raises(files.ArgumentError) as e:
+        batch_ray._check_reachable("127.0.0.1:1")       # nothing listens on port 1: refused at once
+    assert e.value.field == "--ray" and "no Ray head answers at 127.0.0.1:1" in e.value.message
+    with pytest.raises(files.ArgumentError) as e:
+        batch_ray._check_reachable("head-without-port")
+    assert e.value.field == "--ray" and "HOST:PORT" in e.value.message
+    monkeypatch.setenv("RAY_ADDRESS", "127.0.0.1:1")
+    with pytest.raises(files.InputError) as e:
+        batch_ray._check_reachable(None)
+    assert (e.value.path, e.value.field) == ("(environment)", "RAY_ADDRESS")
+    assert time.monotonic() - t < batch_ray.CONNECT_TIMEOUT_S
+    for left_to_ray in ("auto", "ray://head:10001"):
+        batch_ray._check_reachable(left_to_ray)
+
+
+def test_more_cpus_per_job_than_any_node_has_and_a_job_listed_twice(ray_cluster, tmp_path):
+    from scpainter_blender.core import files
+
+    job = small_job(tmp_path / "job")
+    with pytest.raises(files.ArgumentError) as e:       # Ray would queue it for ever
+        batch_ray.run_ray_batch([job], "render", "cpu", cpus_per_job=3)
+    assert e.value.field == "--cpus-per-job" and "largest node" in e.value.message
+    with pytest.raises(files.ArgumentError) as e:
+        batch_ray.run_ray_batch([job], "render", "cpu", cpus_per_job=float("inf"))
+    assert e.value.field == "--cpus-per-job"
+    again = os.path.join(str(tmp_path), ".", "job", "job.json")   # the same file, spelled another way
+    results = batch_ray.run_ray_batch([job, again], "render", "cpu")
+    assert [r["status"] for r in results] == ["ok", "failed"] and results[0]["rendered"] == 2
+    assert "the same job as item 0" in results[1]["error"] and results[1]["attempts"] == 0
+
+
+def test_ctrl_c_on_a_driver_is_a_stop_and_a_second_one_aborts():
+    from backend import events
+
+    with events.stop_on_sigterm(sigint=True) as stop:
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(0.05)
+        assert stop == [True]
+        with pytest.raises(KeyboardInterrupt):
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(1)
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler

@@ -88,10 +88,22 @@ def test_device_cuda_without_a_gpu_is_an_argument_error(tmp_path):
     assert ev[-1]["file"] == "(command line)" and ev[-1]["field"] == "--device" and "--device cpu" in ev[-1]["hint"]
 
 
-def test_argparse_errors_still_exit_2(capsys):
+def test_argparse_errors_exit_2_with_usage_and_an_error_event(capsys):
     with pytest.raises(SystemExit) as e:
         main(["render", "job.json", "--device", "gpu"])
-    assert e.value.code == 2 and "invalid choice" in capsys.readouterr().err
+    out, err = capsys.readouterr()
+    assert e.value.code == 2 and "invalid choice" in err and "usage:" in err
+    (ev,) = [json.loads(line) for line in out.splitlines()]     # standard output: the event, nothing else
+    assert ev["event"] == "error" and ev["file"] == files.COMMAND_LINE and ev["field"] == "--device"
+    assert "invalid choice: 'gpu'" in ev["message"] and "--help" in ev["hint"]
+    with pytest.raises(SystemExit) as e:
+        main(["batch", "--inpaint", "telea", "--bogus"])
+    ev = json.loads(capsys.readouterr().out.splitlines()[-1])
+    assert e.value.code == 2 and ev["field"] == "(arguments)" and "--bogus" in ev["message"]
+    with pytest.raises(SystemExit) as e:
+        main(["mesh-asset"])
+    ev = json.loads(capsys.readouterr().out.splitlines()[-1])
+    assert e.value.code == 2 and ev["field"] == "mesh, --out"
 
 
 def test_batch_records_a_bug_with_its_jobs_log_and_bad_input_with_file_and_field(tmp_path, monkeypatch):

@@ -231,3 +231,10 @@ def test_checkpoint_window_reaches_a_blender_exported_job(street, addon, tiny_ch
     assert manifest["settings"]["window"] == 8
     log = (tmp_path / "backend.log").read_text()
     assert "window 8 overlap 4" in log
+
+
+def test_precision_auto_is_resolved_for_the_device_that_makes_the_video():
+    from backend.generate import resolve_precision
+
+    assert [resolve_precision("auto", d) for d in ("cuda", "cpu")] == ["bf16", "fp32"]
+    assert [resolve_precision(p, "cuda") for p in ("fp32", "fp16", "bf16")] == ["fp32", "fp16", "bf16"]

@@ -113,7 +113,12 @@ def test_generate_without_a_checkpoint_writes_the_baseline_video_marked_as_such(
         assert np.array_equal(np.asarray(Image.open(out / "generated" / f"frame_{f:06d}.png")), expected)
 
     code, ev, _ = run_backend("generate", path, "--device", "cpu")    # the same again: up to date
-    assert code == 0 and ev[-1]["skipped"] is True and ev[-1]["model"] == "baseline"
+    assert code == 0 and ev[-1]["skipped"] is True and ev[-1]["model"] == "baseline" and ev[-1]["ignored"] == []
+    # the model's settings given to the baseline: said, not silently dropped
+    code, ev, err = run_backend("generate", path, "--device", "cpu", "--model", "baseline", "--steps", "9",
+                                "--precision", "bf16")
+    assert code == 0 and ev[-1]["skipped"] is True and ev[-1]["ignored"] == ["--steps", "--precision"]
+    assert "the baseline ignores --steps, --precision" in err
     code, ev, _ = run_backend("generate", path, "--device", "cpu", "--inpaint", "navier-stokes")
     assert code == 0 and ev[-1]["skipped"] is False and ev[-1]["inpaint"] == "navier-stokes"
     assert J.read_json(out / "generated" / "manifest.json")["settings"]["inpaint"] == "navier-stokes"

@@ -39,3 +39,14 @@ def test_list_file(tmp_path):
     p.write_bytes(b"\xff\xfe\x00bad")
     with pytest.raises(files.InputError, match="not UTF-8"):
         batch.read_list(p)
+
+
+def test_ray_options_are_checked_before_any_work():
+    batch.check_ray_options(0, 0.5)
+    batch.check_ray_options(batch.MAX_RETRIES, 64)
+    for retries, cpus, field in ((-1, 1.0, "--retries"), (batch.MAX_RETRIES + 1, 1.0, "--retries"),
+                                 (1.5, 1.0, "--retries"), (2, 0.0, "--cpus-per-job"), (2, -1, "--cpus-per-job"),
+                                 (2, float("inf"), "--cpus-per-job"), (2, float("nan"), "--cpus-per-job")):
+        with pytest.raises(files.ArgumentError) as e:
+            batch.check_ray_options(retries, cpus)
+        assert e.value.path == files.COMMAND_LINE and e.value.field == field

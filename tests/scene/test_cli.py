@@ -232,3 +232,55 @@ def test_import_depth_edge_ratio(addon, empty_scene, tmp_path, capsys):
         assert ev["file"] == "(command line)" and ev["field"] == "--depth-edge-ratio", ev
         assert "expected a fraction of the pixel's depth" in ev["message"] and "off" in ev["message"]
     assert len(bpy.data.objects) == 0
+
+
+def test_batch_on_ray_exports_the_scenes_and_runs_every_job_as_one_ray_batch(addon, street, tmp_path, capsys,
+                                                                              ray_cluster):
+    import hashlib
+    import shutil
+
+    from tests_support import small_job
+
+    cli = _cli(addon)
+    os.makedirs(tmp_path / "a")
+    a = _street_blend(street, tmp_path / "a")
+    b = str(tmp_path / "b" / "street.blend")               # a second scene, its own output folder beside it
+    os.makedirs(os.path.dirname(b))
+    shutil.copy(a, b)
+    digest = hashlib.sha256(open(a, "rb").read()).hexdigest()
+    job = small_job(tmp_path / "job")                       # a job file: straight to the backend, as given
+    common = ["--device", "cpu", "--backend-python", sys.executable, "--ray", ray_cluster]
+    items = [a, str(tmp_path / "missing.blend"), job, b]
+    code = cli.execute(["batch", *items, "--command", "render", *common])
+    captured = capsys.readouterr()
+    ev = json.loads([line for line in captured.out.splitlines() if line.startswith("{")][-1])
+    assert code == 1 and ev["failed"] == 1, ev                                 # the missing scene, and only it
+    assert [r["item"] for r in ev["items"]] == items
+    assert [r["status"] for r in ev["items"]] == ["ok", "failed", "ok", "ok"]
+    assert "missing.blend" in ev["items"][1]["error"] and "worker" not in ev["items"][1]   # never sent to Ray
+    for r, out, frames in ((ev["items"][0], tmp_path / "a" / "scpainter" / "Scene", 3),
+                           (ev["items"][2], tmp_path / "job" / "out", 2),
+                           (ev["items"][3], tmp_path / "b" / "scpainter" / "Scene", 3)):
+        assert r["output_dir"] == str(out) and r["frames"] == frames and r["skipped"] == 0, r
+        assert len(list((out / "conditions").glob("*.exr"))) == frames
+        assert r["attempts"] == 1 and int(r["worker"].rsplit(":", 1)[1]) != os.getpid()   # in a Ray worker
+    assert "scpainter: batch 3/3" in captured.err                               # the backend's progress, as it came
+    # again, generating: the conditions are up to date; without a checkpoint each scene's video is the baseline
+    bpy.context.preferences.addons[addon].preferences.checkpoint_dir = ""
+    code = cli.execute(["batch", a, b, "--command", "generate", *common])
+    ev = _last_event(capsys)
+    assert code == 0, ev
+    assert [(r["status"], r["model"], r["skipped"]) for r in ev["items"]] == [("ok", "baseline", False)] * 2
+    assert all(os.path.isfile(r["video"]) for r in ev["items"])
+    # two scenes naming one output folder: the second is refused before anything runs; --shard is not for Ray
+    code = cli.execute(["batch", a, a, "--command", "render", *common])
+    ev = _last_event(capsys)
+    assert code == 1 and [r["status"] for r in ev["items"]] == ["ok", "failed"]
+    assert ev["items"][0]["skipped"] == 3 and ev["items"][1]["field"] == "scene.scpainter_output_dir"
+    assert cli.execute(["batch", a, "--shard", "0/2", *common]) == 2 and _last_event(capsys)["field"] == "--shard"
+    for option, value in (("--retries", "1000"), ("--cpus-per-job", "inf")):   # refused before any export
+        assert cli.execute(["batch", a, option, value, *common]) == 2 and _last_event(capsys)["field"] == option
+    assert hashlib.sha256(open(a, "rb").read()).hexdigest() == digest       # the .blend is never written
+    prefs = bpy.context.preferences.addons[addon].preferences
+    prefs.backend_python, prefs.device, prefs.checkpoint_dir = "", "AUTO", ""
+    bpy.ops.wm.read_homefile(use_empty=True)

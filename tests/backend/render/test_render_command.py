@@ -76,6 +76,7 @@ def test_recorded_drive_reproduces_the_frames(street_jobs, street):
     # resume: finished frames are skipped; --force renders them again
     code, ev, _ = backend("render", job_path, "--device", "cpu", "--allow-outside")
     assert code == 0 and ev[-1]["rendered"] == 0 and ev[-1]["skipped"] == 16
+    assert all(e["reused"] for e in ev if e["event"] == "progress")     # said: nothing was rendered
     assert os.path.getsize(os.path.join(os.path.dirname(job_path), "backend.log")) > 0
     # a changed job (a camera moved) is never served stale frames
     job = J.load(job_path).to_dict()

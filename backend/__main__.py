@@ -178,9 +178,9 @@ def _cmd_batch(args) -> int:
 
         batch_mod.check_ray_options(args.retries, args.cpus_per_job)  # before a cluster is started or joined
         events.reserve_stdout()  # Ray's driver prints its workers' errors to sys.stdout
-        batch_ray.connect(args.ray)  # before our SIGTERM handler: ray.init installs its own
         # Ctrl-C too: jobs on other machines are cancelled and the summary still says what ran (a second one aborts)
         with events.stop_on_sigterm(sigint=True) as stop:
+            batch_ray.connect(args.ray, stop)  # keeps our handler (ray.init installs its own); SIGTERM in it: stop
             # the checkpoint absolute: a worker's working directory is not this process's
             checkpoint = os.path.abspath(args.checkpoint) if args.checkpoint else None
             results = batch_ray.run_ray_batch(items, args.command_name, args.device, checkpoint,
@@ -226,11 +226,12 @@ def _cmd_evaluate(args) -> int:
         from . import batch_ray
 
         events.reserve_stdout()  # Ray's driver prints its workers' errors to sys.stdout
-        batch_ray.connect(pool.address)  # before our SIGTERM handler: ray.init installs its own
     # with --ray, --device names the workers' device (run_ray_batch checks it against the cluster); this process
     # computes the metrics on its own GPU if it has one, so a CPU head node may drive GPU workers
     device = _device(args.device if pool is None or args.device == "cpu" else "auto")
     with events.stop_on_sigterm(sigint=pool is not None) as stop:
+        if pool is not None:
+            batch_ray.connect(pool.address, stop)  # keeps our handler (ray.init installs its own)
         result = protocol.evaluate(settings, device, stop, pool=pool)
     if result.pop("stopped", False):
         events.error("stopped by SIGTERM", hint="finished renders and videos are kept: run again to resume")

@@ -58,21 +58,41 @@ CONNECT_TIMEOUT_S = 10.0
 CANCEL_AGAIN_S = 2.0
 
 
-def connect(address: str | None = None):
+def connect(address: str | None = None, stop: list | None = None):
     """The ``ray`` module, connected: to ``address`` (``HOST:PORT`` of a cluster's head, ``ray://HOST:PORT`` for Ray
     Client, ``auto``), else to ``RAY_ADDRESS`` or the cluster ``ray start`` started on this machine, else to a new
     local cluster of this machine's CPUs and GPUs (Ray's own order), whose workers import this code from ``ROOT``
     (``PYTHONPATH``). Already connected (a caller's ``ray.init``): that connection, as it is (its workers must be
     able to import ``backend``: started from this checkout, or with it on their ``PYTHONPATH``). Workers' output
-    stays in Ray's logs (``log_to_driver=False``): the driver's standard output carries only this command's events."""
+    stays in Ray's logs (``log_to_driver=False``): the driver's standard output carries only this command's events.
+
+    The caller's SIGTERM handler (``events.stop_on_sigterm``) is kept: ``ray.init`` installs its own (``sys.exit``)
+    and it is put back once the cluster is joined. ``stop`` (that handler's list): a SIGTERM that came while
+    ``ray.init`` ran is appended to it, with the cluster left, instead of ending the process before its summary;
+    the caller then runs nothing (``run_ray_batch`` with ``stop`` set). None: ``SystemExit`` as Ray raises it."""
+    import signal
+    import threading
+
     import ray
 
     if not ray.is_initialized():
         _check_reachable(address)
         # workers import this code from the driver's checkout (the same path on every node: a shared file system)
         python_path = os.pathsep.join(p for p in (ROOT, os.environ.get("PYTHONPATH", "")) if p)
-        ray.init(address=address or None, log_to_driver=False, include_dashboard=False, configure_logging=False,
-                 runtime_env={"env_vars": {"PYTHONPATH": python_path}})
+        main = threading.current_thread() is threading.main_thread()  # only there does ray.init set its handler
+        previous = signal.getsignal(signal.SIGTERM) if main else None
+        try:
+            ray.init(address=address or None, log_to_driver=False, include_dashboard=False, configure_logging=False,
+                     runtime_env={"env_vars": {"PYTHONPATH": python_path}})
+        except SystemExit as e:  # Ray's handler: SIGTERM while it started or joined the cluster
+            if stop is None or e.code != signal.SIGTERM:
+                raise
+            stop.append(True)
+            ray.shutdown()  # what it had started (a local cluster's processes) goes with it
+            events.log("batch --ray: SIGTERM while joining the Ray cluster: no job is sent")
+        finally:
+            if main:
+                signal.signal(signal.SIGTERM, previous)
     return ray
 
 
@@ -211,6 +231,9 @@ def run_ray_batch(items: list[str], command: str, device: str = "auto", checkpoi
     from . import batch
 
     batch_items.check_ray_options(retries, cpus_per_job)
+    if stop:  # SIGTERM before any job was sent (while the cluster was joined: connect's stop): none runs
+        events.log(f"batch --ray: stopped by SIGTERM before any job was sent: {len(items)} jobs not run")
+        return [{"job": p, "status": "not run (SIGTERM)", "attempts": 0} for p in items]
     ray = connect(address)
     gpus = ray.cluster_resources().get("GPU", 0)
     use_gpu = job_device(device, address) == "cuda"

@@ -212,6 +212,59 @@ def test_sigterm_on_the_driver_stops_running_jobs_cancels_queued_ones_and_a_reru
         assert {p: os.stat(p).st_mtime_ns for p in frames} == frames
 
 
+def proc_stat(pid):
+    """(state, parent pid) of a process from /proc, None once it is gone."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+    return fields[0], int(fields[1])
+
+
+def children(pid):
+    """The live (not zombie) processes whose parent is ``pid``."""
+    stats = {int(p.split("/")[2]): proc_stat(p.split("/")[2]) for p in glob.glob("/proc/[0-9]*/stat")}
+    return [c for c, st in stats.items() if st is not None and st[1] == pid and st[0] != "Z"]
+
+
+def alive(pid):
+    st = proc_stat(pid)
+    return st is not None and st[0] != "Z"
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc"), reason="needs /proc to see the driver's child processes")
+def test_sigterm_while_the_driver_starts_its_cluster_ends_in_a_summary_with_nothing_run(tmp_path):
+    # ray.init puts in its own SIGTERM handler (sys.exit) while it starts a local cluster; a SIGTERM then must still
+    # end in the summary (nothing run), not in an exit with no JSON, and the cluster's processes must go
+    job = small_job(tmp_path / "job")
+    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}   # a new local cluster
+    driver = subprocess.Popen([sys.executable, "-m", "backend", "batch", job, "--ray", "--device", "cpu",
+                               "--command", "render"], cwd=ROOT, env=env, stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and driver.poll() is None and not children(driver.pid):
+            time.sleep(0.005)
+        started = children(driver.pid)   # ray.init is starting the cluster's processes
+        assert started, "the driver started no cluster"
+        driver.send_signal(signal.SIGTERM)
+        out, err = driver.communicate(timeout=60)
+    finally:
+        if driver.poll() is None:
+            driver.kill()
+    assert driver.returncode == 1, err[-3000:]
+    ev = events_of(out)
+    assert len(ev) == 1 and len(out.splitlines()) == 1, out   # standard output: the summary, nothing else
+    assert ev[0]["event"] == "done" and ev[0]["counts"] == {"not run (SIGTERM)": 1}
+    assert ev[0]["items"] == [{"job": job, "status": "not run (SIGTERM)", "attempts": 0}]
+    assert "no job is sent" in err and not os.path.exists(os.path.join(os.path.dirname(job), "out"))
+    deadline = time.monotonic() + 20
+    while time.monotonic() < deadline and any(alive(p) for p in started):
+        time.sleep(0.1)
+    assert not any(alive(p) for p in started), "the cluster's processes outlived the driver"
+
+
 def test_a_job_interrupted_outside_its_stop_flag_is_reported_as_run_and_a_queued_one_as_not_run(ray_cluster,
                                                                                                tmp_path):
     marker = tmp_path / "started"

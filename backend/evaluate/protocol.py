@@ -508,10 +508,12 @@ def evaluate(s: EvalSettings, device: str, stop=(), extractor=None, pool: RayPoo
             pictures.contact_sheet(os.path.join(task.folder, "contact_sheet.png"), sheet)
     result = {"settings": asdict(s), "seconds": None, "ground_truth": gt_rows, "temporal": temporal_rows,
               "fid": feature_metrics(whole.sets, "real", extractor, device, log),
-              "fid_c": (feature_metrics(crops.sets, "real", extractor, device, log) if "real" in crops.sets
-                        else {"skipped": "no real car crops (no tracked cars in view)"}),
+              "fid_c": (feature_metrics(crops.sets, "real", extractor, device, log)
+                        if (skip_c := crops_skipped(crops.sets, s, work)) is None else {"skipped": skip_c}),
               "counts": {"whole": {k: len(v) for k, v in whole.sets.items()},
                          "crops": {k: len(v) for k, v in crops.sets.items()}}}
+    if not gt_rows:  # say why the table is empty rather than print an empty one
+        result["ground_truth_skipped"] = ground_truth_skipped(clips, s)
     if jobs is not None:  # where each task's job ran on the pool, and how long it took there
         result["jobs"] = jobs
     result["seconds"] = time.perf_counter() - t0
@@ -523,9 +525,32 @@ def evaluate(s: EvalSettings, device: str, stop=(), extractor=None, pool: RayPoo
     return {"evaluation": path, "seconds": result["seconds"], "ground_truth": gt_rows}
 
 
+def crops_skipped(sets: dict, s: EvalSettings, work: list) -> str | None:
+    """Why FID-C / KID-C cannot be computed from the car crops ``sets`` (ImageSets.sets), or None when they can."""
+    if not any(t.car is not None for t in work):
+        return ("no insertion task (--no-insertion)" if not s.insertion else
+                "no insertion task: no clip has a tracked car with an asset in its first frames")
+    if "real" not in sets:
+        return "no real car crops (no tracked car's box in view on the recorded frames)"
+    if len(sets) == 1:
+        return "no inserted car in view (its asset mask is empty on every frame)"
+    return None
+
+
+def ground_truth_skipped(clips: list, s: EvalSettings) -> str:
+    """Why no task was compared with a ground-truth view: the shifts asked and the views the clips have."""
+    have = sorted({float(v) for c in clips for v in c.views})
+    if not have:
+        return "no clip has ground-truth views (clip.json's \"views\")"
+    return (f"no ground-truth view at the shifts asked ({', '.join(f'{x:+g}' for x in s.shifts) or 'none'} m); "
+            f"the clips have views at {', '.join(f'{x:+g}' for x in have)} m (--shifts)")
+
+
 def format_table(result: dict) -> str:
     lines = ["ground truth (PSNR dB / SSIM; all pixels | covered pixels):",
              f"{'task':<16}{'output':<11}{'holes':>7}{'PSNR':>8}{'SSIM':>7}{'PSNR cov':>10}{'SSIM cov':>9}"]
+    if "ground_truth_skipped" in result:
+        lines[1:] = [f"  skipped: {result['ground_truth_skipped']}"]
     for r in result["ground_truth"]:
         r = {k: float("nan") if v is None else v for k, v in r.items()}  # evaluation.json holds NaN/inf as null
         lines.append(f"{r['task']:<16}{r['output']:<11}{r['hole_fraction']:>7.3f}{r['psnr']:>8.2f}{r['ssim']:>7.3f}"

@@ -113,6 +113,20 @@ def test_evaluate_end_to_end(street_clip_path, tiny_checkpoint, tmp_path):
         assert json.load(f)["ground_truth"] == ev["ground_truth"]
 
 
+def test_evaluate_says_why_a_metric_is_empty(street_clip_path, tmp_path):
+    # a shift with no ground-truth view and no insertion task: both tables say why they are empty
+    s = protocol.EvalSettings(clips=[street_clip_path], output_dir=str(tmp_path / "eval"), width=64, height=32,
+                              frames=2, shifts=(7.0,), insertion=False, steps=1, crop_min_px=4)
+    r = protocol.evaluate(s, "cpu", extractor=tiny_extractor())
+    with open(r["evaluation"]) as f:
+        ev = json.load(f)
+    assert ev["ground_truth"] == [] and "+7" in ev["ground_truth_skipped"] and "+2" in ev["ground_truth_skipped"]
+    assert ev["fid_c"] == {"skipped": "no insertion task (--no-insertion)"}
+    assert "nvs_+7m/naive" in ev["fid"]   # the whole-frame metrics are still there
+    table = protocol.format_table(ev)
+    assert "skipped: no ground-truth view at the shifts asked (+7 m)" in table and "fid_c: skipped" in table
+
+
 def test_evaluate_command_refuses_missing_inception_weights_before_any_work(street_clip_path, tmp_path):
     from tests_support import run_backend
 

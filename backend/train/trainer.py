@@ -40,7 +40,7 @@ import torch
 from scpainter_blender.core import files, outputs
 
 from .. import events
-from ..errors import NonFiniteError
+from ..errors import FolderBusyError, NonFiniteError
 from ..model import checkpoint as ckpt_mod
 from ..model import checkpoint_init, edm
 from . import clip as clip_mod
@@ -394,8 +394,25 @@ class Trainer:
 
 
 def train(cfg: TrainConfig, device: str | None = None, stop=(), max_steps: int | None = None) -> dict:
-    trainer = Trainer(cfg, device)
-    try:
-        return trainer.train(stop, max_steps)
-    finally:
-        trainer.tb.close()
+    """Train (or resume) the run of ``cfg`` up to ``cfg.steps`` (or ``max_steps``): ``Trainer.train``'s result.
+
+    One run writes a run folder at a time: rank 0 holds the output folder's lock (``core.locking.OutputLock``, as
+    ``render`` and ``generate`` do) for every rank, from before the last checkpoint is read until the last one is
+    written, so a second ``train`` on the same ``output_dir`` raises ``errors.FolderBusyError`` naming the first
+    (pid, host, since) instead of interleaving its checkpoints with it. A lock left by a run that died is taken over."""
+    import contextlib
+
+    from scpainter_blender.core import locking
+    from scpainter_blender.core.batch_items import ranks_from_env
+
+    out = cfg.resolve(cfg.output_dir)
+    os.makedirs(out, exist_ok=True)
+    held = locking.OutputLock(out, "train", busy=FolderBusyError) if ranks_from_env()[0] == 0 else None
+    with held or contextlib.nullcontext():
+        trainer = Trainer(cfg, device)
+        if held is not None and held.stale:
+            trainer.log(f"train: {held.took_over()}")
+        try:
+            return trainer.train(stop, max_steps)
+        finally:
+            trainer.tb.close()

@@ -99,8 +99,18 @@ def test_8bit_optimizer_without_bitsandbytes_says_what_to_install(tmp_path):
 
 def test_train_command(tmp_path, tiny_checkpoint, street_clip_path):
     cfg = _config(tmp_path, tiny_checkpoint, street_clip_path, steps=3)
+    from scpainter_blender.core import locking
+
+    out = str(tmp_path / "out")
+    os.makedirs(out)
+    with locking.OutputLock(out, "train"):   # another live run writes this run folder: refused, nothing written
+        code, events, err = run_backend("train", cfg, "--device", "cpu", "--max-steps", "1")
+        assert code == 1 and events[-1]["event"] == "error", err
+        assert f"being written by another run: pid {os.getpid()}" in events[-1]["message"]
+        assert events[-1]["owner"]["command"] == "train" and os.listdir(out) == [locking.LOCK_NAME]
     code, events, err = run_backend("train", cfg, "--device", "cpu", "--max-steps", "1")
     assert code == 0, err
+    assert not os.path.exists(os.path.join(out, locking.LOCK_NAME))
     done = events[-1]
     assert done["event"] == "done" and done["step"] == 1 and os.path.isdir(done["checkpoint"])
     assert [e["done"] for e in events if e["event"] == "progress"] == [1]

@@ -18,6 +18,7 @@ from . import events
 
 
 def _cmd_doctor(args) -> int:
+    import importlib.metadata
     import importlib.util
     import platform
 
@@ -36,6 +37,10 @@ def _cmd_doctor(args) -> int:
 
         report["cuda"] = torch.cuda.is_available()
         report["devices"] = [torch.cuda.get_device_name(i) for i in range(torch.cuda.device_count())]
+    try:  # optional (batch --ray, evaluate --ray); its version without importing it (a second)
+        report["ray"] = importlib.metadata.version("ray") if importlib.util.find_spec("ray") else None
+    except importlib.metadata.PackageNotFoundError:
+        report["ray"] = "installed, version unknown"
     needed = ("numpy", "torch", "numba", "OpenEXR", "diffusers", "transformers", "safetensors", "av", "trimesh")
     report["missing"] = [m for m in needed if not report.get(m) or str(report[m]).startswith("broken")]
     if args.checkpoint:

@@ -69,11 +69,21 @@ def connect(address: str | None = None, stop: list | None = None):
     The caller's SIGTERM handler (``events.stop_on_sigterm``) is kept: ``ray.init`` installs its own (``sys.exit``)
     and it is put back once the cluster is joined. ``stop`` (that handler's list): a SIGTERM that came while
     ``ray.init`` ran is appended to it, with the cluster left, instead of ending the process before its summary;
-    the caller then runs nothing (``run_ray_batch`` with ``stop`` set). None: ``SystemExit`` as Ray raises it."""
+    the caller then runs nothing (``run_ray_batch`` with ``stop`` set). None: ``SystemExit`` as Ray raises it.
+    Without the ``ray`` package: ``ArgumentError`` naming ``--ray``, with what to install."""
     import signal
+    import sys
     import threading
 
-    import ray
+    try:
+        import ray
+    except ImportError as e:  # an optional package of the backend: say so, not "an internal error"
+        from scpainter_blender.core.files import ArgumentError
+
+        raise ArgumentError("--ray", f"needs the ray package, which this Python ({sys.executable}) cannot import "
+                                     f"({e})", hint="pip install ray (requirements.txt pins the version tested) "
+                                                    "here and on every node of the cluster, or run without --ray") \
+            from None
 
     if not ray.is_initialized():
         _check_reachable(address)

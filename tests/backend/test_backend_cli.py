@@ -19,12 +19,22 @@ def run_backend(*args):
     return proc.returncode, events, proc.stderr
 
 
+def ray_version():
+    import importlib.metadata
+
+    try:
+        return importlib.metadata.version("ray")
+    except importlib.metadata.PackageNotFoundError:
+        return None
+
+
 def test_doctor():
     code, events, _ = run_backend("doctor")
     assert code == 0
     assert events[-1]["event"] == "done"
     report = events[-1]["report"]
     assert report["numpy"] and report["python"].startswith("3.")
+    assert report["ray"] == ray_version() and "ray" not in report["missing"]   # optional: batch --ray
 
 
 def test_bad_input_exit_code_and_error_event(tmp_path):

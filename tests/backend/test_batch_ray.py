@@ -265,6 +265,20 @@ def test_sigterm_while_the_driver_starts_its_cluster_ends_in_a_summary_with_noth
     assert not any(alive(p) for p in started), "the cluster's processes outlived the driver"
 
 
+def test_without_the_ray_package_the_option_is_refused_saying_what_to_install(tmp_path):
+    # sys.modules["ray"] = None: Python's own way to make a package unimportable (a backend environment without it)
+    job = small_job(tmp_path / "job")
+    run = ("import runpy, sys; sys.modules['ray'] = None; "
+           "runpy.run_module('backend', run_name='__main__', alter_sys=True)")
+    r = subprocess.run([sys.executable, "-c", run, "batch", job, "--ray", "--command", "render"], cwd=ROOT,
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2, r.stderr[-2000:]
+    (error,) = events_of(r.stdout)
+    assert error["event"] == "error" and error["field"] == "--ray" and "needs the ray package" in error["message"]
+    assert "pip install ray" in error["hint"] and "Traceback" not in r.stderr
+    assert not os.path.exists(os.path.join(os.path.dirname(job), "out"))
+
+
 def test_a_job_interrupted_outside_its_stop_flag_is_reported_as_run_and_a_queued_one_as_not_run(ray_cluster,
                                                                                                tmp_path):
     marker = tmp_path / "started"

@@ -294,8 +294,9 @@ def run_ray_batch(items: list[str], command: str, device: str = "auto", checkpoi
                 r = {"status": "not run (SIGTERM)"}
                 interrupted.append(i)
             except ray.exceptions.RayError as e:  # retries used up: the worker died, or a bug raised each time
+                # a bug's traceback went to its job's log; a dead worker's job wrote there until it died
                 r = {"status": "failed", "error": _ray_error(e),
-                     "log": getattr(getattr(e, "cause", None), "scpainter_log", None)}
+                     "log": getattr(getattr(e, "cause", None), "scpainter_log", None) or _job_log(items[i])}
             results[i] = {"job": items[i], **r}
             ended.append(i)
             ended_ids.add(f"{run_id}:{i}")  # also those whose last attempt died before telling the board
@@ -324,6 +325,22 @@ def run_ray_batch(items: list[str], command: str, device: str = "auto", checkpoi
             r["worker"] = starts[f"{run_id}:{i}"][-1]
     ray.kill(board)
     return results
+
+
+def _job_log(path: str) -> str | None:
+    """The job's own log, ``<output_dir>/backend.log`` (what ``render`` or ``generate`` wrote there as it ran), when
+    it exists; None for a job that never opened it or cannot be read here. Only a path is worked out: nothing in
+    the output folder is read."""
+    from scpainter_blender.core import job as job_mod
+    from scpainter_blender.core import job_inputs
+    from scpainter_blender.core.files import InputError
+
+    try:  # allow_outside: the path is only shown, never opened
+        out = job_inputs.job_paths(path, job_mod.load(path), allow_outside=True)["output_dir"]
+    except (InputError, OSError, ValueError):
+        return None
+    log = os.path.join(out, "backend.log")
+    return log if os.path.isfile(log) else None
 
 
 def _ray_error(e) -> str:

@@ -90,6 +90,19 @@ def test_a_job_that_fails_once_succeeds_on_retry_and_one_that_always_fails_is_re
     assert by["bad_input"]["file"].endswith("predictions.npz") and "not found" in by["bad_input"]["error"]
 
 
+def test_a_job_whose_worker_died_and_has_no_retry_left_names_its_log(ray_cluster, tmp_path):
+    def dies_at_the_end(path, *args, **options):
+        """The job runs (writing its backend.log), then its worker dies (out of memory, say) before it returns."""
+        batch.run_one(path, *args, **options)
+        os.kill(os.getpid(), signal.SIGKILL)
+
+    job = small_job(tmp_path / "dies")
+    (r,) = batch_ray.run_ray_batch([job], "render", "cpu", retries=0, job_fn=dies_at_the_end)
+    assert r["status"] == "failed" and r["attempts"] == 1 and r["worker"]
+    assert "died" in r["error"].lower() or "worker" in r["error"].lower(), r["error"]
+    assert r["log"] == str(tmp_path / "dies" / "out" / "backend.log") and os.path.isfile(r["log"])
+
+
 def test_a_worker_killed_mid_job_reruns_it_without_losing_or_repeating_a_frame(ray_cluster, tmp_path):
     job = small_job(tmp_path / "long", frames=tuple(range(1, 61)), resolution=(320, 240))
     out = tmp_path / "long" / "out"

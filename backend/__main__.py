@@ -198,8 +198,8 @@ def _cmd_batch(args) -> int:
                                         allow_outside=allow_outside, half=args.half_float, overrides=overrides)
     failed = [r for r in results if r["status"] != "ok"]
     if rank == 0:  # failed: every job not ok; counts: how many ended each way (ok, failed, stopped, not run)
-        counts = {k: sum(r["status"] == k for r in results) for k in dict.fromkeys(r["status"] for r in results)}
-        events.done(command="batch", jobs=len(results), failed=len(failed), counts=counts, items=results)
+        events.done(command="batch", jobs=len(results), failed=len(failed), counts=batch_mod.status_counts(results),
+                    items=results)
     return events.EXIT_FAILED if failed else events.EXIT_OK
 
 
@@ -289,9 +289,10 @@ def _ray_options(p, what: str) -> None:
     from scpainter_blender.core.batch_items import DEFAULT_CPUS_PER_JOB, DEFAULT_RETRIES, MAX_RETRIES
 
     p.add_argument("--ray", nargs="?", const="", metavar="ADDRESS",
-                   help=f"run {what} on a Ray cluster (one task per job, one GPU each, retried when a worker "
-                        "dies): the cluster at ADDRESS (HOST:PORT of its head), else RAY_ADDRESS or the one `ray "
-                        "start` started here, else a new local one; files on a shared file system (README)")
+                   help=f"run {what} on a Ray cluster (one task per job: one GPU each, or --cpus-per-job CPUs on "
+                        "a cluster without GPUs; retried when a worker dies): the cluster at ADDRESS (HOST:PORT of "
+                        "its head), else RAY_ADDRESS or the one `ray start` started here, else a new local one; "
+                        "files on a shared file system (README)")
     p.add_argument("--retries", type=_bounded_int(0, MAX_RETRIES), default=DEFAULT_RETRIES,
                    help="--ray: run a job again at most this often when its worker dies or it fails unexpectedly "
                         f"(bad input is never retried; default {DEFAULT_RETRIES})")
@@ -356,9 +357,12 @@ def build_parser() -> argparse.ArgumentParser:
     n.set_defaults(func=_cmd_generate)
     b = sub.add_parser("batch", help="run render or generate over many jobs; sharded under torchrun/accelerate")
     b.add_argument("jobs", nargs="*", help="job.json files")
-    b.add_argument("--list", action="append", help="a text file of job paths, one per line (repeatable)")
-    b.add_argument("--command", dest="command_name", choices=["render", "generate"], default="render")
-    b.add_argument("--device", choices=["auto", "cpu", "cuda"], default="auto")
+    b.add_argument("--list", action="append", help="a text file of job paths, one per line, relative ones taken "
+                                                   "from the list file's folder (repeatable)")
+    b.add_argument("--command", dest="command_name", choices=["render", "generate"], default="render",
+                   help="what each job runs (default render)")
+    b.add_argument("--device", choices=["auto", "cpu", "cuda"], default="auto",
+                   help="each job's device (default auto: CUDA when there is one); with --ray, the workers'")
     b.add_argument("--checkpoint", help="checkpoint for generate (default: each job's generate.checkpoint)")
     b.add_argument("--allow-outside", action="store_true", help=ALLOW_OUTSIDE_HELP)
     b.add_argument("--trusted-list", action="append", metavar="FILE",

@@ -31,8 +31,10 @@ dead worker run again elsewhere.
   ``error`` saying its counts are unknown. The driver then prints its ``done`` event and ``batch`` exits 1; the
   same command again renders only the missing frames, on workers that are free at once.
 * **Refused at once, where Ray would wait for ever:** an address (HOST:PORT) where no head answers within
-  ``CONNECT_TIMEOUT_S``, and ``cpus_per_job`` above the largest node's CPUs (``ArgumentError``). A job listed twice
-  runs once; its copy is a ``failed`` item naming the first.
+  ``CONNECT_TIMEOUT_S`` (or that answers, but not as a Ray head), and ``cpus_per_job`` above the largest node's CPUs
+  (``ArgumentError``). A job listed twice (or through a link to its file) runs once; the copy's item repeats its
+  result with ``duplicate_of`` (the item that ran it) and ``attempts`` 0, so the exit code is the same as without
+  Ray.
 * **Files.** Jobs, their inputs and outputs, and this code must be on a file system every node mounts at the same
   path (the tasks get the job's path, a string, and open the files themselves; each worker imports this code from
   the driver's ``PYTHONPATH``). Nothing from a user's file is pickled: tasks take strings and numbers and return
@@ -94,42 +96,66 @@ def connect(address: str | None = None, stop: list | None = None):
         try:
             ray.init(address=address or None, log_to_driver=False, include_dashboard=False, configure_logging=False,
                      runtime_env={"env_vars": {"PYTHONPATH": python_path}})
+        except ConnectionError as e:  # a head that answers but cannot be joined (Ray Client, a proxy, versions)
+            if not (address or os.environ.get("RAY_ADDRESS")):
+                raise
+            raise _address_error(address or None, f"could not join the Ray cluster at "
+                                                  f"{address or os.environ.get('RAY_ADDRESS') or 'auto'}: {e}") \
+                from None
         except SystemExit as e:  # Ray's handler: SIGTERM while it started or joined the cluster
             if stop is None or e.code != signal.SIGTERM:
                 raise
             stop.append(True)
             ray.shutdown()  # what it had started (a local cluster's processes) goes with it
-            events.log("batch --ray: SIGTERM while joining the Ray cluster: no job is sent")
+            events.log("batch --ray: SIGTERM while joining the Ray cluster: no job is sent")  # (Ctrl-C: stop, above)
         finally:
             if main:
                 signal.signal(signal.SIGTERM, previous)
     return ray
 
 
-def _check_reachable(address: str | None) -> None:
-    """A head at HOST:PORT (``address``, else ``RAY_ADDRESS``) that does not answer within ``CONNECT_TIMEOUT_S``:
-    ``ArgumentError`` naming ``--ray`` (``InputError`` "(environment)" ``RAY_ADDRESS``), where ``ray.init`` would
-    retry for ever. ``auto``, ``ray://`` (Ray Client) and no address at all are left to Ray."""
+def _address_error(address: str | None, message: str):
+    """The error for a Ray address that does not lead to a head: ``ArgumentError`` naming ``--ray`` when the user
+    gave it, else ``InputError`` "(environment)" ``RAY_ADDRESS``."""
     from scpainter_blender.core import files
 
+    hint = ("the address `ray start --head` printed (HOST:6379, the GCS port, not the dashboard's 8265); is the "
+            "cluster up, and this machine allowed to reach it?")
+    if address:
+        return files.ArgumentError("--ray", message, hint=hint)
+    return files.InputError("(environment)", "RAY_ADDRESS", message, hint=hint + " (or unset RAY_ADDRESS)")
+
+
+def _check_reachable(address: str | None) -> None:
+    """A head at HOST:PORT (``address``, else ``RAY_ADDRESS``) that does not answer within ``CONNECT_TIMEOUT_S``,
+    or answers but not as a gRPC server (a Ray head's GCS is one; a web server, Redis or the dashboard's port is
+    not): ``_address_error``, where ``ray.init`` would retry for ever. The second test opens a gRPC channel and
+    waits for it to be ready (HTTP/2 set up), skipped with ``RAY_USE_TLS`` (the head then needs Ray's
+    certificates). ``auto``, ``ray://`` (Ray Client) and no address at all are left to Ray."""
     given = address or os.environ.get("RAY_ADDRESS", "").strip()
     if not given or given == "auto" or "://" in given:
         return
-
-    def bad(message):
-        hint = ("the address `ray start --head` printed (HOST:6379); is the cluster up, and this machine allowed to "
-                "reach it?")
-        if address:
-            return files.ArgumentError("--ray", message, hint=hint)
-        return files.InputError("(environment)", "RAY_ADDRESS", message, hint=hint + " (or unset RAY_ADDRESS)")
-
     host, _, port = given.rpartition(":")
     if not host or not port.isdigit() or not 0 < int(port) < 65536:
-        raise bad(f"{given!r}: expected HOST:PORT of the cluster's head, e.g. 10.0.0.5:6379")
+        raise _address_error(address, f"{given!r}: expected HOST:PORT of the cluster's head, e.g. 10.0.0.5:6379")
     try:
         socket.create_connection((host.strip("[]"), int(port)), timeout=CONNECT_TIMEOUT_S).close()
     except OSError as e:
-        raise bad(f"no Ray head answers at {given} ({e.strerror or e})") from None
+        raise _address_error(address, f"no Ray head answers at {given} ({e.strerror or e})") from None
+    if os.environ.get("RAY_USE_TLS", "0").strip().lower() in ("1", "true"):
+        return
+    try:
+        import grpc
+    except ImportError:  # Ray's own dependency; without it only the TCP test stands
+        return
+    channel = grpc.insecure_channel(given)
+    try:
+        grpc.channel_ready_future(channel).result(timeout=CONNECT_TIMEOUT_S)
+    except grpc.FutureTimeoutError:
+        raise _address_error(address, f"{given} answers, but not as a Ray head (no gRPC within "
+                                      f"{CONNECT_TIMEOUT_S:g} s): another service listens there") from None
+    finally:
+        channel.close()
 
 
 def _run_job(path: str, command: str, device: str, options: dict, task: str, board, job_fn=None) -> dict:
@@ -242,7 +268,7 @@ def run_ray_batch(items: list[str], command: str, device: str = "auto", checkpoi
 
     batch_items.check_ray_options(retries, cpus_per_job)
     if stop:  # SIGTERM before any job was sent (while the cluster was joined: connect's stop): none runs
-        events.log(f"batch --ray: stopped by SIGTERM before any job was sent: {len(items)} jobs not run")
+        events.log(f"batch --ray: stopped (SIGTERM or Ctrl-C) before any job was sent: {len(items)} jobs not run")
         return [{"job": p, "status": "not run (SIGTERM)", "attempts": 0} for p in items]
     ray = connect(address)
     gpus = ray.cluster_resources().get("GPU", 0)
@@ -259,21 +285,20 @@ def run_ray_batch(items: list[str], command: str, device: str = "auto", checkpoi
     run_id = uuid.uuid4().hex[:12]
     options = {"checkpoint": checkpoint, "half": half, "precision": precision, "overrides": overrides}
     results: list = [None] * len(items)
-    first: dict = {}   # absolute job path -> its first item
+    # a job listed twice (or through a link) runs once: run at once, the two would meet at their output lock
+    first: dict = {}    # the job file's real path -> its first item
+    copies: dict = {}   # a first item -> the later items of the same job, which get its result
     for i, p in enumerate(items):
-        j = first.setdefault(os.path.abspath(p), i)
-        if j != i:  # run at once, the two copies would meet at their output lock: one run, the copy reported
-            results[i] = {"job": p, "status": "failed", "error": f"the same job as item {j} ({items[j]}): each job "
-                          "runs once per batch", "hint": "list each job once", "file": p, "field": "(file)"}
+        j = first.setdefault(os.path.realpath(p), i)
+        if j != i:
+            copies.setdefault(j, []).append(i)
     refs = {task.remote(os.path.abspath(p), command, "cuda" if use_gpu else "cpu",
                         {**options, "allow_outside": batch.allows_outside(allow_outside, p)}, f"{run_id}:{i}", board,
-                        job_fn): i for i, p in enumerate(items) if results[i] is None}
+                        job_fn): i for i, p in enumerate(items) if first[os.path.realpath(p)] == i}
     events.log(f"batch --ray: {len(refs)} jobs on {ray.cluster_resources().get('CPU', 0):g} CPUs and {gpus:g} GPUs "
-               f"({'1 GPU' if use_gpu else f'{cpus_per_job:g} CPUs'} per job, {retries} retries)")
-    failed = 0
-    for n, i in enumerate(i for i, r in enumerate(results) if r is not None):  # the copies, reported at once
-        failed += 1
-        events.progress(stage, n + 1, len(items), failed=failed, running=0, job=items[i], status="failed")
+               f"({'1 GPU' if use_gpu else f'{cpus_per_job:g} CPUs'} per job, {retries} retries)"
+               + (f"; {len(items) - len(refs)} listed again, run once" if len(refs) < len(items) else ""))
+    done, failed = 0, 0
     pending, ended_ids, cancelled_at = dict(refs), set(), None
     while pending:
         if stop and (cancelled_at is None or time.monotonic() - cancelled_at > CANCEL_AGAIN_S):
@@ -313,14 +338,17 @@ def run_ray_batch(items: list[str], command: str, device: str = "auto", checkpoi
                                   "error": "cancelled by SIGTERM while it ran: its finished outputs are kept, how "
                                            "many is not known"}
         running = len(ray.get(board.active_tasks.remote()) - ended_ids)  # after the whole batch ended
-        before = len(items) - len(pending) - len(ended)
-        for n, i in enumerate(ended, 1):
-            failed += results[i]["status"] != "ok"
-            events.progress(stage, before + n, len(items), failed=failed, running=running, job=items[i],
-                            status=results[i]["status"])
+        for i in ended:
+            for k in (i, *copies.get(i, ())):
+                if k != i:  # the copy's item: the job's result, saying which item ran it
+                    results[k] = {**results[i], "job": items[k], "duplicate_of": i}
+                done += 1
+                failed += results[k]["status"] != "ok"
+                events.progress(stage, done, len(items), failed=failed, running=running, job=items[k],
+                                status=results[k]["status"])
     starts = ray.get(board.snapshot.remote())
     for i, r in enumerate(results):
-        r["attempts"] = len(starts.get(f"{run_id}:{i}", []))
+        r["attempts"] = len(starts.get(f"{run_id}:{i}", []))   # 0 for a copy: its first item ran the job
         if r["attempts"] and "worker" not in r:  # its last worker died with it: where it ran, from the board
             r["worker"] = starts[f"{run_id}:{i}"][-1]
     ray.kill(board)

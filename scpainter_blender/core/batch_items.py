@@ -45,6 +45,15 @@ def read_list(path) -> list:
     return [p if os.path.isabs(p) else os.path.join(base, p) for p in lines if p and not p.startswith("#")]
 
 
+def status_counts(results: list) -> dict:
+    """How many batch items ended each way (``ok``, ``failed``, ``stopped``, ``not run (SIGTERM)``), in the order
+    first met: the ``counts`` of every batch's ``done`` event (the backend's and the add-on's)."""
+    counts: dict = {}
+    for r in results:
+        counts[r["status"]] = counts.get(r["status"], 0) + 1
+    return counts
+
+
 def shard(items: list, rank: int, world: int) -> list:
     """The items of one rank of a batch: every ``world``-th, starting at ``rank`` (deterministic, order kept)."""
     if not 0 <= rank < world:

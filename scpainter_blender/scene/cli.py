@@ -273,7 +273,8 @@ def _batch(args) -> tuple[dict, int]:
             results.append({"item": path, "status": "failed", **_failure(e)})
         results[-1]["seconds"] = time.perf_counter() - t
     failed = sum(r["status"] != "ok" for r in results)
-    return {"what": args.what, "shard": f"{k}/{n}", "items": results, "failed": failed}, (1 if failed else 0)
+    return {"what": args.what, "shard": f"{k}/{n}", "jobs": len(results), "failed": failed,
+            "counts": batch_mod.status_counts(results), "items": results}, (1 if failed else 0)
 
 
 def _batch_ray(args, items: list) -> tuple[dict, int]:
@@ -292,11 +293,8 @@ def _batch_ray(args, items: list) -> tuple[dict, int]:
     results, jobs, seen = {}, [], {}   # item index -> failed result; (index, job path, exported); job -> item
     for i, path in enumerate(items):
         try:
-            if path.endswith(".json"):
+            if path.endswith(".json"):  # listed twice: the backend runs it once and gives each item its result
                 job_path, exported = os.path.abspath(path), False
-                if job_path in seen:  # two tasks on one job at once: one would find the folder busy
-                    raise files.InputError(path, "(file)", f"is the same job as item {seen[job_path]}",
-                                           hint="list each job once")
             else:
                 print(f"scpainter batch: exporting {path}", file=sys.stderr, flush=True)
                 _open_blend(path, args)
@@ -306,7 +304,7 @@ def _batch_ray(args, items: list) -> tuple[dict, int]:
                                            f"{os.path.dirname(job_path)} is also the output folder of "
                                            f"{seen[job_path]}", hint="give each scene its own SCPainter output folder")
                 runs.export(bpy.context)  # (writes job_path)
-            seen[job_path] = path
+            seen.setdefault(job_path, path)
             jobs.append((i, job_path, exported))
         except Exception as e:  # noqa: BLE001  bad input or a bug: recorded; go on with the rest
             results[i] = {"item": path, "status": "failed", **_failure(e)}
@@ -315,7 +313,9 @@ def _batch_ray(args, items: list) -> tuple[dict, int]:
             results[i] = {"item": items[i], **r}
     ordered = [results[i] for i in range(len(items))]
     failed = sum(r["status"] != "ok" for r in ordered)
-    return {"what": args.what, "ray": args.ray or None, "items": ordered, "failed": failed,
+    # the cluster asked for: the address given, else RAY_ADDRESS, else "auto" (`ray start`'s here, or a new one)
+    return {"what": args.what, "ray": args.ray or os.environ.get("RAY_ADDRESS") or "auto", "jobs": len(ordered),
+            "failed": failed, "counts": batch_mod.status_counts(ordered), "items": ordered,
             "seconds": time.perf_counter() - t0}, (1 if failed else 0)
 
 
@@ -361,14 +361,18 @@ def _run_ray_jobs(args, jobs: list) -> list:
     for r in returned:
         keep = {k: r[k] for k in ("status", "error", "hint", "file", "field", "log", "worker", "attempts", "seconds")
                 if k in r}
-        if args.what == "render" and r.get("status") == "ok":  # frames reused, as the render command counts them
-            r = {**r, "skipped": r["frames"] - r["rendered"]}
+        if args.what == "render":  # skipped: frames reused, as the render command counts them (known when ok)
+            r = {k: v for k, v in r.items() if k != "skipped"}
+            if r.get("status") == "ok":
+                r["skipped"] = r["frames"] - r["rendered"]
         made = "frames" in r or "video" in r  # ok, or stopped with its finished frames
         out.append({**keep, **(_outputs(r, r.get("output_dir")) if made else {})})
     return out
 
 
 def execute(argv) -> int:
+    if not props.registered():  # the bpy module with the add-on not enabled: the scene settings it reads
+        props.register()
     try:
         args = _parser().parse_args(list(argv))
         code = 0

@@ -62,6 +62,11 @@ def baseline_inpaint(scene) -> str | None:
     return INPAINT_ITEMS[scene.scpainter_baseline_inpaint]
 
 
+def registered() -> bool:
+    """Whether ``register`` ran in this Blender (the add-on enabled, or ``cli.execute`` outside it)."""
+    return hasattr(bpy.types.Scene, "scpainter_output_dir")
+
+
 def register():
     bpy.types.Scene.scpainter_output_dir = bpy.props.StringProperty(
         name="Output Folder", subtype="DIR_PATH", default="",

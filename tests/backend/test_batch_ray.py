@@ -343,6 +343,27 @@ def test_an_address_nobody_answers_at_is_bad_input_at_once_not_a_hang(monkeypatc
         batch_ray._check_reachable(left_to_ray)
 
 
+def test_an_address_where_another_service_listens_is_refused_not_a_hang(ray_cluster, monkeypatch):
+    # a web server (or Redis, or the dashboard's port) accepts the TCP connection; ray.init would then wait for ever
+    import http.server
+
+    from scpainter_blender.core import files
+
+    monkeypatch.setattr(batch_ray, "CONNECT_TIMEOUT_S", 2.0)
+    server = http.server.HTTPServer(("127.0.0.1", 0), http.server.BaseHTTPRequestHandler)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    try:
+        t = time.monotonic()
+        with pytest.raises(files.ArgumentError) as e:
+            batch_ray._check_reachable(f"127.0.0.1:{server.server_address[1]}")
+        assert e.value.field == "--ray" and "not as a Ray head" in e.value.message and "8265" in e.value.hint
+        assert time.monotonic() - t < 2.0 + 1.0
+    finally:
+        server.shutdown()
+        server.server_close()
+    batch_ray._check_reachable(ray_cluster)   # a real head passes both tests
+
+
 def test_more_cpus_per_job_than_any_node_has_and_a_job_listed_twice(ray_cluster, tmp_path):
     from scpainter_blender.core import files
 
@@ -354,9 +375,13 @@ def test_more_cpus_per_job_than_any_node_has_and_a_job_listed_twice(ray_cluster,
         batch_ray.run_ray_batch([job], "render", "cpu", cpus_per_job=float("inf"))
     assert e.value.field == "--cpus-per-job"
     again = os.path.join(str(tmp_path), ".", "job", "job.json")   # the same file, spelled another way
-    results = batch_ray.run_ray_batch([job, again], "render", "cpu")
-    assert [r["status"] for r in results] == ["ok", "failed"] and results[0]["rendered"] == 2
-    assert "the same job as item 0" in results[1]["error"] and results[1]["attempts"] == 0
+    os.symlink(tmp_path / "job", tmp_path / "link")
+    linked = str(tmp_path / "link" / "job.json")                    # and through a link to its folder
+    results = batch_ray.run_ray_batch([job, again, linked], "render", "cpu")
+    # run once (together they would meet at the output lock); each copy gets the job's result, so nothing "fails"
+    assert [r["status"] for r in results] == ["ok"] * 3 and results[0]["rendered"] == 2
+    assert [r.get("duplicate_of") for r in results] == [None, 0, 0] and [r["attempts"] for r in results] == [1, 0, 0]
+    assert [r["job"] for r in results] == [job, again, linked] and results[2]["rendered"] == 2
 
 
 def test_ctrl_c_on_a_driver_is_a_stop_and_a_second_one_aborts():

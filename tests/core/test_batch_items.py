@@ -50,3 +50,11 @@ def test_ray_options_are_checked_before_any_work():
         with pytest.raises(files.ArgumentError) as e:
             batch.check_ray_options(retries, cpus)
         assert e.value.path == files.COMMAND_LINE and e.value.field == field
+
+
+def test_status_counts_in_the_order_first_met():
+    results = [{"status": "ok"}, {"status": "failed"}, {"status": "ok"}, {"status": "not run (SIGTERM)"}]
+    counts = batch.status_counts(results)
+    assert counts == {"ok": 2, "failed": 1, "not run (SIGTERM)": 1} and list(counts) == ["ok", "failed",
+                                                                                         "not run (SIGTERM)"]
+    assert batch.status_counts([]) == {}

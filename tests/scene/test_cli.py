@@ -265,6 +265,7 @@ def test_batch_on_ray_exports_the_scenes_and_runs_every_job_as_one_ray_batch(add
         assert len(list((out / "conditions").glob("*.exr"))) == frames
         assert r["attempts"] == 1 and int(r["worker"].rsplit(":", 1)[1]) != os.getpid()   # in a Ray worker
     assert "scpainter: batch 3/3" in captured.err                               # the backend's progress, as it came
+    assert ev["ray"] == ray_cluster and ev["jobs"] == 4 and ev["counts"] == {"ok": 3, "failed": 1}
     # again, generating: the conditions are up to date; without a checkpoint each scene's video is the baseline
     bpy.context.preferences.addons[addon].preferences.checkpoint_dir = ""
     code = cli.execute(["batch", a, b, "--command", "generate", *common])
@@ -284,3 +285,22 @@ def test_batch_on_ray_exports_the_scenes_and_runs_every_job_as_one_ray_batch(add
     prefs = bpy.context.preferences.addons[addon].preferences
     prefs.backend_python, prefs.device, prefs.checkpoint_dir = "", "AUTO", ""
     bpy.ops.wm.read_homefile(use_empty=True)
+
+
+def test_execute_works_with_the_bpy_module_without_the_add_on_enabled(tmp_path):
+    # README: "with the bpy module the same entry point is execute(argv)": it must not need register() first
+    import subprocess
+
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    blend = tmp_path / "empty.blend"
+    script = ("import sys, json, bpy; bpy.ops.wm.read_homefile(use_empty=True); "
+              f"bpy.ops.wm.save_as_mainfile(filepath={str(blend)!r}); "
+              "from scpainter_blender.scene import cli; sys.exit(cli.execute(['batch', sys.argv[1]]))")
+    r = subprocess.run([sys.executable, "-c", script, str(blend)], cwd=root, capture_output=True, text=True,
+                       timeout=300)
+    done = json.loads([line for line in r.stdout.splitlines() if line.startswith("{")][-1])
+    assert r.returncode == 1 and done["event"] == "done", r.stderr[-2000:]
+    (item,) = done["items"]
+    # the scene has nothing to render: bad input named, not an AttributeError reported as a bug
+    assert item["status"] == "failed" and "bug" not in item and item.get("field"), item
+    assert done["counts"] == {"failed": 1} and done["jobs"] == 1

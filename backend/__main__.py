@@ -4,8 +4,8 @@ Exit codes: 0 done; 2 bad input: an ``InputError`` (the error event has ``file``
 argument is file "(command line)" with the option as field, argparse's own errors included); 1 anything else: a
 failure the command explains (``errors.CleanFailure``: a busy output folder, a model producing NaN; no
 traceback), or a bug (any other exception, a plain ValueError included): its traceback on standard error and in the
-command's log (``<output_dir>/backend.log``), whose path the error event's ``log`` field gives. Standard output
-carries JSON events only.
+command's log (``<output_dir>/backend.log``), whose path the error event's ``log`` field gives; 130 interrupted by
+Ctrl-C (an error event). Standard output carries JSON events only.
 """
 
 from __future__ import annotations
@@ -434,9 +434,10 @@ def main(argv=None) -> int:
     except CleanFailure as e:  # explained by the command itself: no traceback
         events.error(str(e), hint=e.hint, **e.fields)
         return events.EXIT_FAILED
-    except KeyboardInterrupt:
-        events.error("interrupted")
-        return events.EXIT_FAILED
+    except KeyboardInterrupt:  # Ctrl-C (for batch --ray and evaluate --ray the second one: the first stops)
+        events.error("interrupted (Ctrl-C)", hint="finished frames and checkpoints are kept (each written whole); run "
+                                                  "the same command again to resume")
+        return events.EXIT_INTERRUPTED
     except Exception as e:  # a bug (a plain ValueError included): the whole traceback, never "bad input"
         log = events.report_bug(e, f"{args.command} failed")
         where = f"{log} and standard error" if log else "standard error"

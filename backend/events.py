@@ -18,6 +18,8 @@ import sys
 import traceback
 
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT = 0, 1, 2
+#: Interrupted by Ctrl-C before it could stop cleanly (128 + SIGINT, the shell's convention).
+EXIT_INTERRUPTED = 130
 
 
 def json_safe(value):

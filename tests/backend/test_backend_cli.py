@@ -46,6 +46,33 @@ def test_bad_input_exit_code_and_error_event(tmp_path):
     assert events[-1]["file"] == str(bad) and events[-1]["field"] == "(file)"
 
 
+def test_ctrl_c_is_exit_130_with_an_error_event_and_nothing_half_written(tmp_path):
+    import glob
+    import signal
+
+    from scpainter_blender.core import locking
+    from tests_support import small_job
+
+    job = small_job(tmp_path / "job", frames=tuple(range(1, 41)), resolution=(320, 240))
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    p = subprocess.Popen([sys.executable, "-m", "backend", "render", job, "--device", "cpu"], cwd=root,
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        for line in p.stdout:   # the first finished frame
+            if json.loads(line)["event"] == "progress":
+                break
+        p.send_signal(signal.SIGINT)
+        out, err = p.communicate(timeout=60)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert p.returncode == 130, err[-2000:]
+    last = json.loads(out.splitlines()[-1])
+    assert last["event"] == "error" and "interrupted" in last["message"] and "resume" in last["hint"]
+    out_dir = tmp_path / "job" / "out"
+    assert not glob.glob(str(out_dir / "conditions" / ".*.tmp")) and not (out_dir / locking.LOCK_NAME).exists()
+
+
 def test_client_raises_with_message(tmp_path):
     with pytest.raises(backend_client.BackendError, match="missing.json") as e:
         backend_client.run(["render", tmp_path / "missing.json"])

@@ -159,6 +159,12 @@ def _cmd_batch(args) -> int:
 
     from . import batch
 
+    # checked before a cluster is started or joined; given without --ray they are refused, not ignored
+    args.retries, args.cpus_per_job = batch_mod.ray_options(args.ray, args.retries, args.cpus_per_job)
+    if args.checkpoint and args.command_name == "generate":  # once, before any job (not a failure per job)
+        from .model import checkpoint as ckpt_mod
+
+        ckpt_mod.resolve(args.checkpoint)
     trusted = [p for f in args.trusted_list or [] for p in batch_mod.read_list(f)]
     items = list(args.jobs) + [p for f in args.list or [] for p in batch_mod.read_list(f)] + trusted
     # --allow-outside: every job; --trusted-list: its own jobs (a tool's exports), as they are written in the list
@@ -181,7 +187,6 @@ def _cmd_batch(args) -> int:
     if args.ray is not None:  # Ray schedules the jobs (backend/batch_ray.py); this process is the driver
         from . import batch_ray
 
-        batch_mod.check_ray_options(args.retries, args.cpus_per_job)  # before a cluster is started or joined
         events.reserve_stdout()  # Ray's driver prints its workers' errors to sys.stdout
         # Ctrl-C too: jobs on other machines are cancelled and the summary still says what ran (a second one aborts)
         with events.stop_on_sigterm(sigint=True) as stop:
@@ -226,6 +231,9 @@ def _cmd_train(args) -> int:
 def _cmd_evaluate(args) -> int:
     from .evaluate import protocol
 
+    from scpainter_blender.core.batch_items import ray_options
+
+    args.retries, args.cpus_per_job = ray_options(args.ray, args.retries, args.cpus_per_job)
     settings, pool = protocol.EvalSettings.from_args(args), protocol.RayPool.from_args(args)
     if pool is not None:  # the tasks' jobs run on a Ray cluster (backend/batch_ray.py); the metrics here
         from . import batch_ray
@@ -293,10 +301,10 @@ def _ray_options(p, what: str) -> None:
                         "a cluster without GPUs; retried when a worker dies): the cluster at ADDRESS (HOST:PORT of "
                         "its head), else RAY_ADDRESS or the one `ray start` started here, else a new local one; "
                         "files on a shared file system (README)")
-    p.add_argument("--retries", type=_bounded_int(0, MAX_RETRIES), default=DEFAULT_RETRIES,
+    p.add_argument("--retries", type=_bounded_int(0, MAX_RETRIES), default=None,
                    help="--ray: run a job again at most this often when its worker dies or it fails unexpectedly "
                         f"(bad input is never retried; default {DEFAULT_RETRIES})")
-    p.add_argument("--cpus-per-job", type=float, default=DEFAULT_CPUS_PER_JOB,
+    p.add_argument("--cpus-per-job", type=float, default=None,
                    help=f"--ray on a cluster without GPUs: CPUs each job asks for (default {DEFAULT_CPUS_PER_JOB:g})")
 
 

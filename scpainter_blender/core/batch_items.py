@@ -28,6 +28,22 @@ def check_ray_options(retries, cpus_per_job) -> None:
                                   hint="e.g. --cpus-per-job 4 for jobs that use 4 threads each")
 
 
+def ray_options(ray, retries=None, cpus_per_job=None) -> tuple[int, float]:
+    """``(retries, cpus_per_job)`` of a batch from its ``--ray``, ``--retries`` and ``--cpus-per-job`` (None: not
+    given, the default), checked with ``check_ray_options``. Without ``--ray`` (``ray`` None) either option would
+    be ignored: ``ArgumentError`` naming it."""
+    if ray is None:
+        for option, value in (("--retries", retries), ("--cpus-per-job", cpus_per_job)):
+            if value is not None:
+                raise files.ArgumentError(option, "applies to --ray only: without it the option would be ignored",
+                                          hint="add --ray [ADDRESS], or leave the option out")
+    retries = DEFAULT_RETRIES if retries is None else retries
+    cpus_per_job = DEFAULT_CPUS_PER_JOB if cpus_per_job is None else cpus_per_job
+    if ray is not None:
+        check_ray_options(retries, cpus_per_job)
+    return retries, cpus_per_job
+
+
 def read_list(path) -> list:
     """Paths from a text file, one per line (blank lines and ``#`` comments skipped), relative ones taken from the
     file's folder. InputError names the file when it is not a regular UTF-8 text file of at most

@@ -100,10 +100,10 @@ def _parser():
                                 "batch --ray: one task per job, retried when a worker dies): the cluster at ADDRESS, "
                                 "else RAY_ADDRESS or the one `ray start` started here, else a new local one; files "
                                 "on a shared file system (README)")
-            c.add_argument("--retries", type=int, default=batch_mod.DEFAULT_RETRIES,
+            c.add_argument("--retries", type=int, default=None,
                            help="--ray: run a job again at most this often when its worker dies (default "
                                 f"{batch_mod.DEFAULT_RETRIES}, at most {batch_mod.MAX_RETRIES})")
-            c.add_argument("--cpus-per-job", type=float, default=batch_mod.DEFAULT_CPUS_PER_JOB,
+            c.add_argument("--cpus-per-job", type=float, default=None,
                            help="--ray on a cluster without GPUs: CPUs each job asks for (default "
                                 f"{batch_mod.DEFAULT_CPUS_PER_JOB:g})")
         else:
@@ -256,6 +256,8 @@ def _failure(e: Exception) -> dict:
 def _batch(args) -> tuple[dict, int]:
     import time
 
+    # checked before any scene is exported; given without --ray they are refused, not ignored
+    args.retries, args.cpus_per_job = batch_mod.ray_options(args.ray, args.retries, args.cpus_per_job)
     items = list(args.items) + [p for f in args.list or [] for p in batch_mod.read_list(f)]
     if not items:
         raise files.ArgumentError("items", "no .blend or job files given", hint="give paths, or --list FILE")
@@ -288,7 +290,6 @@ def _batch_ray(args, items: list) -> tuple[dict, int]:
     if args.shard:
         raise files.ArgumentError("--shard", "not with --ray: Ray schedules every item",
                                   hint="give each Ray batch its whole list; --shard splits a list over processes")
-    batch_mod.check_ray_options(args.retries, args.cpus_per_job)  # before any scene is exported
     t0 = time.perf_counter()
     results, jobs, seen = {}, [], {}   # item index -> failed result; (index, job path, exported); job -> item
     for i, path in enumerate(items):

@@ -75,3 +75,21 @@ def test_a_distributed_run_without_its_rendezvous_is_refused_before_any_job(tmp_
     last = json.loads(proc.stdout.strip().splitlines()[-1])
     assert proc.returncode == 2 and last["file"] == "(environment)" and last["field"] == "MASTER_ADDR", last
     assert not os.path.exists(tmp_path / "a" / "out_a")
+
+
+def test_ray_options_without_ray_are_refused_not_ignored(tmp_path):
+    job = _car_job(tmp_path / "a", "a")
+    proc = subprocess.run([sys.executable, "-m", "backend", "batch", job, "--retries", "3"], cwd=ROOT,
+                          capture_output=True, text=True, timeout=300)
+    last = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert proc.returncode == 2 and last["field"] == "--retries" and "--ray only" in last["message"], last
+    assert not os.path.exists(tmp_path / "a" / "out_a")
+
+
+def test_a_checkpoint_that_is_not_one_is_refused_before_any_job(tmp_path):
+    job = _car_job(tmp_path / "a", "a")
+    proc = subprocess.run([sys.executable, "-m", "backend", "batch", job, "--command", "generate", "--checkpoint",
+                           str(tmp_path / "nope")], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    last = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert proc.returncode == 2 and last["event"] == "error" and last["file"] == str(tmp_path / "nope"), last
+    assert not os.path.exists(tmp_path / "a" / "out_a")

@@ -52,6 +52,19 @@ def test_ray_options_are_checked_before_any_work():
         assert e.value.path == files.COMMAND_LINE and e.value.field == field
 
 
+def test_ray_options_default_when_not_given_and_are_refused_without_ray():
+    assert batch.ray_options("", None, None) == (batch.DEFAULT_RETRIES, batch.DEFAULT_CPUS_PER_JOB)
+    assert batch.ray_options("head:6379", 0, 2.0) == (0, 2.0) and batch.ray_options(None) == (
+        batch.DEFAULT_RETRIES, batch.DEFAULT_CPUS_PER_JOB)
+    for retries, cpus, field in ((3, None, "--retries"), (None, 2.0, "--cpus-per-job")):  # would be ignored
+        with pytest.raises(files.ArgumentError, match="applies to --ray only") as e:
+            batch.ray_options(None, retries, cpus)
+        assert e.value.field == field
+    with pytest.raises(files.ArgumentError) as e:       # checked with --ray
+        batch.ray_options("", -1, None)
+    assert e.value.field == "--retries"
+
+
 def test_status_counts_in_the_order_first_met():
     results = [{"status": "ok"}, {"status": "failed"}, {"status": "ok"}, {"status": "not run (SIGTERM)"}]
     counts = batch.status_counts(results)

@@ -156,6 +156,7 @@ def _cmd_init_checkpoint(args) -> int:
 
 def _cmd_batch(args) -> int:
     from scpainter_blender.core import batch_items as batch_mod
+    from scpainter_blender.core.files import ArgumentError
 
     from . import batch
 
@@ -171,16 +172,10 @@ def _cmd_batch(args) -> int:
     allow_outside = True if args.allow_outside else frozenset(trusted)
     overrides = {"inpaint": args.inpaint} if args.inpaint else None
     if overrides and args.command_name != "generate":
-        from scpainter_blender.core.files import ArgumentError
-
         raise ArgumentError("--inpaint", "applies to --command generate only")
     if not items:
-        from scpainter_blender.core.files import ArgumentError
-
         raise ArgumentError("jobs", "no jobs given", hint="give job.json paths, or --list FILE")
     if args.half_float and args.command_name != "render":
-        from scpainter_blender.core.files import ArgumentError
-
         raise ArgumentError("--half-float", "applies to --command render only",
                             hint="render the conditions with batch --command render --half-float first; generate "
                                  "keeps the precision of the conditions it finds")

@@ -97,11 +97,10 @@ def connect(address: str | None = None, stop: list | None = None):
             ray.init(address=address or None, log_to_driver=False, include_dashboard=False, configure_logging=False,
                      runtime_env={"env_vars": {"PYTHONPATH": python_path}})
         except ConnectionError as e:  # a head that answers but cannot be joined (Ray Client, a proxy, versions)
-            if not (address or os.environ.get("RAY_ADDRESS")):
+            given = address or os.environ.get("RAY_ADDRESS")
+            if not given:  # a local cluster that would not start: not an address to blame
                 raise
-            raise _address_error(address or None, f"could not join the Ray cluster at "
-                                                  f"{address or os.environ.get('RAY_ADDRESS') or 'auto'}: {e}") \
-                from None
+            raise _address_error(address, f"could not join the Ray cluster at {given}: {e}") from None
         except SystemExit as e:  # Ray's handler: SIGTERM while it started or joined the cluster
             if stop is None or e.code != signal.SIGTERM:
                 raise

@@ -108,7 +108,7 @@ def _cmd_generate(args) -> int:
     from scpainter_blender.core import locking
     from scpainter_blender.core import job as job_mod
 
-    from . import generate
+    from .generate import command as generate
 
     job = job_mod.load(args.job)
     overrides = {"steps": args.steps, "seed": args.seed, "model": args.model, "inpaint": args.inpaint,
@@ -158,7 +158,7 @@ def _cmd_batch(args) -> int:
     from scpainter_blender.core import batch_items as batch_mod
     from scpainter_blender.core.files import ArgumentError
 
-    from . import batch
+    from .batch import command as batch
 
     # checked before a cluster is started or joined; given without --ray they are refused, not ignored
     args.retries, args.cpus_per_job = batch_mod.ray_options(args.ray, args.retries, args.cpus_per_job)
@@ -179,8 +179,8 @@ def _cmd_batch(args) -> int:
         raise ArgumentError("--half-float", "applies to --command render only",
                             hint="render the conditions with batch --command render --half-float first; generate "
                                  "keeps the precision of the conditions it finds")
-    if args.ray is not None:  # Ray schedules the jobs (backend/batch_ray.py); this process is the driver
-        from . import batch_ray
+    if args.ray is not None:  # Ray schedules the jobs (backend/batch/ray_pool.py); this process is the driver
+        from .batch import ray_pool as batch_ray
 
         events.reserve_stdout()  # Ray's driver prints its workers' errors to sys.stdout
         # Ctrl-C too: jobs on other machines are cancelled and the summary still says what ran (a second one aborts)
@@ -230,8 +230,8 @@ def _cmd_evaluate(args) -> int:
 
     args.retries, args.cpus_per_job = ray_options(args.ray, args.retries, args.cpus_per_job)
     settings, pool = protocol.EvalSettings.from_args(args), protocol.RayPool.from_args(args)
-    if pool is not None:  # the tasks' jobs run on a Ray cluster (backend/batch_ray.py); the metrics here
-        from . import batch_ray
+    if pool is not None:  # the tasks' jobs run on a Ray cluster (backend/batch/ray_pool.py); the metrics here
+        from .batch import ray_pool as batch_ray
 
         events.reserve_stdout()  # Ray's driver prints its workers' errors to sys.stdout
     # with --ray, --device names the workers' device (run_ray_batch checks it against the cluster); this process
@@ -249,7 +249,7 @@ def _cmd_evaluate(args) -> int:
 
 
 def _cmd_mesh_asset(args) -> int:
-    from . import mesh_asset
+    from .mesh import asset as mesh_asset
 
     result = mesh_asset.convert(args.mesh, args.out, count=args.count, up=args.up, seed=args.seed,
                                 progress=events.progress)
@@ -288,7 +288,7 @@ def _input_options(p) -> None:
 
 def _ray_options(p, what: str) -> None:
     """``--ray [ADDRESS]``, ``--retries`` and ``--cpus-per-job``, the same for ``batch`` and ``evaluate``
-    (``backend/batch_ray.py``); ``what``: what runs on the cluster."""
+    (``backend/batch/ray_pool.py``); ``what``: what runs on the cluster."""
     from scpainter_blender.core.batch_items import DEFAULT_CPUS_PER_JOB, DEFAULT_RETRIES, MAX_RETRIES
 
     p.add_argument("--ray", nargs="?", const="", metavar="ADDRESS",

@@ -1,4 +1,4 @@
-"""The inpainting baseline (``backend/baseline.py``) on the ground-truth street: its error against run time.
+"""The inpainting baseline (``backend/generate/baseline.py``) on the ground-truth street: its error against run time.
 
     .venv/bin/python bench/baseline_inpaint.py [--resolution 518 294] [--frames 16] [--radii 3 8] [--repeats 3]
 
@@ -40,11 +40,11 @@ def main(argv=None) -> None:
     args = ap.parse_args(argv)
     import torch
 
-    from backend import baseline
+    from backend.generate import baseline
     from backend.evaluate import protocol
     from backend.evaluate.image_metrics import psnr
     from backend.evaluate.temporal import warping_error
-    from backend.generate import load_conditions
+    from backend.generate.command import load_conditions
     from backend.render import command as render_cmd
     from backend.train import clip as clip_mod
     from backend.train import street_clip

@@ -58,7 +58,8 @@ from scipy import ndimage  # noqa: E402
 
 from backend.render import frames as fr  # noqa: E402
 from scpainter_blender.core import job as job_mod  # noqa: E402
-from scpainter_blender.core import outputs, shapes, vggt_io  # noqa: E402
+from scpainter_blender.core import outputs, shapes
+from scpainter_blender.core.vggt import npz as vggt_io  # noqa: E402
 
 BLUR_PX = 1.5
 FIELD_PX = 8.0

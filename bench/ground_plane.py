@@ -28,7 +28,9 @@ sys.path.insert(0, ROOT)
 
 import numpy as np  # noqa: E402
 
-from scpainter_blender.core import cameras, geometry, metric_scale, outputs, point_cloud, vggt_io  # noqa: E402
+from scpainter_blender.core.geometry import cameras, fits as geometry, metric_scale, point_cloud
+from scpainter_blender.core import outputs
+from scpainter_blender.core.vggt import npz as vggt_io  # noqa: E402
 from scpainter_blender.street.dataset import ensure_street  # noqa: E402
 
 

@@ -24,7 +24,8 @@ from tools import blender_env  # noqa: E402
 
 def analytic_clip(S=3, H=48, W=64, seed=0):
     """A road plane and a wall seen by a camera driving forward: VGGT-layout arrays with exact world_points."""
-    from scpainter_blender.core import cameras, unproject, vggt
+    from scpainter_blender.core.geometry import cameras, unproject
+    from scpainter_blender.core.vggt import predictions as vggt
 
     rng = np.random.default_rng(seed)
     K = np.array([[50.0, 0, W / 2], [0, 50.0, H / 2], [0, 0, 1]])
@@ -51,7 +52,8 @@ def analytic_clip(S=3, H=48, W=64, seed=0):
 
 
 def write_vggt_cases(d):
-    from scpainter_blender.core import cameras, vggt_io
+    from scpainter_blender.core.geometry import cameras
+    from scpainter_blender.core.vggt import npz as vggt_io
 
     base = analytic_clip()
     out = {}
@@ -86,7 +88,8 @@ def write_vggt_cases(d):
 
 
 def write_splat_cases(d):
-    from scpainter_blender.core import shapes, splats, splats_inria, splats_io
+    from scpainter_blender.core import shapes
+    from scpainter_blender.core.splats import gaussians as splats, inria as splats_inria, reader as splats_io
 
     out = {}
     g = shapes.procedural_car_gaussians(count=3000, seed=4)
@@ -165,7 +168,8 @@ def run(op, path, **kw):
 
 def point_error(path):
     """How far the imported points (depth unprojected with 'extrinsic' as stored) are from world_points, median."""
-    from scpainter_blender.core import unproject, vggt_io
+    from scpainter_blender.core.geometry import unproject
+    from scpainter_blender.core.vggt import npz as vggt_io
 
     try:
         with np.load(path, allow_pickle=False) as z:

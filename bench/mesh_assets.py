@@ -4,7 +4,7 @@
 
 Meshes: the procedural test car (``core.shapes.add_car``, 4.4 m, face colours) and, when ``shared/realdata/trellis``
 (or ``$SCPAINTER_REALDATA/trellis``) holds them, the real TRELLIS GLBs. Each is converted with
-``backend.mesh_asset.sample_gaussians`` and rendered by the condition renderer on the CPU
+``backend.mesh.asset.sample_gaussians`` and rendered by the condition renderer on the CPU
 (``backend.render.gaussians.project`` + ``tiles.rasterize``, the numba kernel ``render`` uses) from ``--views``
 cameras around it (15° above the horizon, 50° horizontal field of view, the object's bounding sphere filling 80 % of
 the image height: a car close to the camera). The truth is the mesh's own silhouette from the same K and
@@ -37,9 +37,9 @@ import torch  # noqa: E402
 import trimesh  # noqa: E402
 
 from backend import events  # noqa: E402
-from backend import mesh_asset as ma  # noqa: E402
-from backend import mesh_load  # noqa: E402
-from backend import mesh_silhouette as ms  # noqa: E402
+from backend.mesh import asset as ma  # noqa: E402
+from backend.mesh import load as mesh_load  # noqa: E402
+from backend.mesh import silhouette as ms  # noqa: E402
 from scpainter_blender.core import outputs, shapes  # noqa: E402
 
 REALDATA = os.environ.get("SCPAINTER_REALDATA") or os.path.join(ROOT, "..", "shared", "realdata")

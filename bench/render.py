@@ -189,7 +189,8 @@ def section_street(rows):
 def street_rows(rows, percentile, radii):
     from PIL import Image
 
-    from scpainter_blender.core import point_cloud, vggt_io
+    from scpainter_blender.core.geometry import point_cloud
+    from scpainter_blender.core.vggt import npz as vggt_io
     from scpainter_blender.street.dataset import ensure_street, view_name
 
     street = ensure_street(log=lambda m: None)

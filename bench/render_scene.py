@@ -124,7 +124,7 @@ def scene_from_arrays(a: dict, device="cpu"):
 
     from backend.render import frames as fr
     from scpainter_blender.core import job as job_mod
-    from scpainter_blender.core import splats
+    from scpainter_blender.core.splats import gaussians as splats
 
     dev = torch.device(device)
     scene = fr.Scene(origin=np.asarray(a["origin"], np.float64), device=dev)

@@ -3,8 +3,8 @@
 Every case starts from a tiny valid job in its own folder and changes one thing::
 
     <case>/job/job.json              scpainter.job/2: 2 frames of 16 x 12, a scene, one asset, output_dir "out"
-    <case>/job/predictions.npz       VGGT predictions, S = 2 frames of 16 x 12 (core.vggt_io.save_predictions)
-    <case>/job/car.ply               20 INRIA Gaussians, SH degree 1 (core.splats_inria.write_ply)
+    <case>/job/predictions.npz       VGGT predictions, S = 2 frames of 16 x 12 (core.vggt.npz.save_predictions)
+    <case>/job/car.ply               20 INRIA Gaussians, SH degree 1 (core.splats.inria.write_ply)
     <case>/job/out/                  the output folder
     <case>/outside/                  planted files that must never be touched (frame_000000.exr, backend.log,
                                      conditions/ with a stale job key, copies of the inputs, link targets)
@@ -38,7 +38,7 @@ SIGALRM timeout (its handler raises, which also interrupts a blocking ``open`` o
 * ``escape``    a file outside ``<case>/job/`` was created, modified or deleted (the case folder is snapshotted
                 before and after: paths, sizes, mtimes, link targets; new names beside the case folder count too).
 * ``misread``   a PLY rewritten without changing its Gaussians (a comment holding "end_header", ASCII, big endian,
-                doubles, CRLF, ...) was accepted but ``core.splats_io.read`` gives other values than the original.
+                doubles, CRLF, ...) was accepted but ``core.splats.reader.read`` gives other values than the original.
 
 ``run()`` hands the cases to two worker processes (``python tests/fuzz_inputs.py --worker``, single-threaded,
 each case in-process there), so that a hang no signal can interrupt, a crash or a runaway allocation (workers run
@@ -126,7 +126,9 @@ class Base:
     arrays and their archives, the PLY, and (on first use) a tiny checkpoint."""
 
     def __init__(self, folder: str):
-        from scpainter_blender.core import cameras, splats, splats_inria, splats_io, vggt, vggt_io
+        from scpainter_blender.core.geometry import cameras
+        from scpainter_blender.core.splats import gaussians as splats, inria as splats_inria, reader as splats_io
+        from scpainter_blender.core.vggt import predictions as vggt, npz as vggt_io
         from vggt_cases import drive
 
         self.folder = folder
@@ -1968,13 +1970,13 @@ def run_case(case: Case, base: Base, workdir: str, timeout: float = TIMEOUT_S, c
     elif rc == 0:
         outcome = "accepted"
         if case.kind == "ply" and case.same_gaussians:
-            from scpainter_blender.core import splats_io
+            from scpainter_blender.core.splats import reader as splats_io
             try:
                 with alarm(timeout):
                     same = _gaussians_equal(splats_io.read(c.ply), base.gaussians)
-                why = "" if same else "core.splats_io.read gives other values than the original file"
+                why = "" if same else "core.splats.reader.read gives other values than the original file"
             except BaseException as e:  # noqa: BLE001
-                same, why = False, f"accepted, but core.splats_io.read fails: {type(e).__name__}: {e}"
+                same, why = False, f"accepted, but core.splats.reader.read fails: {type(e).__name__}: {e}"
             if not same:
                 outcome = "misread"
                 result["message"] = _first_line(why)

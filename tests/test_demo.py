@@ -67,7 +67,7 @@ def test_demo_writes_blend_and_preview(street, tmp_path):
     assert gen["model"] == "baseline" and "no model" in gen["description"]
     assert "init-checkpoint" in gen["use_a_checkpoint"] and "--checkpoint" in gen["use_a_checkpoint"]
     assert "not the model" in proc.stderr and gen["video"] in proc.stderr
-    from backend.video import mp4_metadata, read_mp4
+    from backend.generate.video import mp4_metadata, read_mp4
 
     assert read_mp4(gen["video"]).shape[0] == 16 and "no model" in mp4_metadata(gen["video"])["comment"]
     assert len([f for f in os.listdir(gen["frames_dir"]) if f.endswith(".png")]) == 16

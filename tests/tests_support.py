@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from scpainter_blender.core import cameras as C
+from scpainter_blender.core.geometry import cameras as C
 
 
 def synthetic_predictions(S=3, H=14, W=21, seed=0):
@@ -88,7 +88,7 @@ def small_job(folder, frames=(1, 2), resolution=(16, 12), asset=True, **extra):
 
     from scpainter_blender.core import job as J
     from scpainter_blender.core import shapes
-    from scpainter_blender.core import vggt_io
+    from scpainter_blender.core.vggt import npz as vggt_io
 
     folder = str(folder)
     os.makedirs(folder, exist_ok=True)

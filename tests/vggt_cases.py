@@ -3,8 +3,9 @@ with its depth (as VGGT's independent point head does, to a few percent), and VG
 
 import numpy as np
 
-from scpainter_blender.core import unproject, vggt_io
-from scpainter_blender.core import vggt as V
+from scpainter_blender.core.geometry import unproject
+from scpainter_blender.core.vggt import npz as vggt_io
+from scpainter_blender.core.vggt import predictions as V
 
 
 def drive(S=4, H=24, W=32, seed=0, noise=0.02):

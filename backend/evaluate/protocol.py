@@ -11,7 +11,7 @@ Per clip, the first ``frames`` frames at ``width`` x ``height``, as jobs (job.js
 
 Each task has a *generated* video (with ``--checkpoint``), the *naive* baseline, its condition image I (points
 and asset composited, holes black: the paper's "naive insertion"), and the *baseline*: I with its holes filled by
-OpenCV inpainting (``backend/baseline.py``, what ``generate`` makes without a checkpoint; also written as the task's
+OpenCV inpainting (``backend/generate/baseline.py``, what ``generate`` makes without a checkpoint; also written as the task's
 ``baseline.mp4``).
 
 Every task's job is written first (``write_jobs``), then each is run and scored in turn. With ``--ray``
@@ -47,10 +47,12 @@ import torch
 
 from scpainter_blender.core import batch_items
 from scpainter_blender.core import fields as fields_mod
-from scpainter_blender.core import files, outputs, trajectory
+from scpainter_blender.core import files, outputs
+from scpainter_blender.core.geometry import trajectory
 from scpainter_blender.core import job as job_mod
 
-from .. import batch_ray, events
+from ..batch import ray_pool as batch_ray
+from .. import events
 from ..errors import CleanFailure
 from . import pictures
 from ..train import clip as clip_mod
@@ -349,7 +351,7 @@ def _read_png(path: str, width: int, height: int) -> torch.Tensor:
 
 def run_task(job_path: str, device: str, s: EvalSettings, stop) -> dict:
     """Render (and generate, with a checkpoint) one task; returns its I, M_a, validity and generated frames."""
-    from .. import generate as gen_mod
+    from ..generate import command as gen_mod
     from ..render import command as render_cmd
 
     job = job_mod.load(job_path)
@@ -373,8 +375,8 @@ def run_task(job_path: str, device: str, s: EvalSettings, stop) -> dict:
 def baseline_video(task: dict, s: EvalSettings, folder: str, fps: float) -> torch.Tensor:
     """(T, 3, H, W) float in [0, 1]: the task's condition image with its holes inpainted (``baseline``, the same
     function ``generate`` uses without a checkpoint), also written as ``folder/baseline.mp4`` for people."""
-    from .. import baseline
-    from ..video import write_mp4
+    from ..generate import baseline
+    from ..generate.video import write_mp4
 
     rgb = baseline.inpaint_video(task["image"].numpy(), 1.0 - task["valid"].numpy(), s.inpaint, s.inpaint_radius)
     write_mp4(os.path.join(folder, "baseline.mp4"), rgb, min(max(fps, 1.0), 240.0),
@@ -441,7 +443,7 @@ def evaluate(s: EvalSettings, device: str, stop=(), extractor=None, pool: RayPoo
         extractor = load_inception(s.inception, device)  # fail fast: before hours of generation
     # precision auto resolved once, for the device the videos are made on (the pool's workers when there is one),
     # and asked for by the pool and this process alike: it is part of a video's up-to-date key
-    from ..generate import resolve_precision
+    from ..generate.command import resolve_precision
 
     s = replace(s, precision=resolve_precision(s.precision, batch_ray.job_device(pool.device, pool.address)
                                                 if pool is not None else device))

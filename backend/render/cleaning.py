@@ -1,7 +1,7 @@
 """Point cleaning, once per scene: ``clean_cloud`` makes a scene's points as the renderer (``frames.load_scene``)
 and the training pairs (``train.pairs``) both take them; ``outlier_keep`` is open3d's outlier removal.
 
-The depth-edge test runs earlier, per source frame on its depth map (``core.point_cloud.depth_edges``); what is
+The depth-edge test runs earlier, per source frame on its depth map (``core.geometry.point_cloud.depth_edges``); what is
 left here are points that no depth map shows as odd: floaters a little off every surface, sparse where real
 surfaces are dense. Two rules, open3d's own (``job.OutlierRemoval`` holds the settings, ``job.POINT_CLEANING``
 the measured defaults):
@@ -26,7 +26,7 @@ import time
 
 import numpy as np
 
-from scpainter_blender.core import geometry, point_cloud
+from scpainter_blender.core.geometry import fits as geometry, point_cloud
 from scpainter_blender.core import job as job_mod
 
 

@@ -14,7 +14,7 @@ outside the image (or lies behind the near plane) is not projected, and when eve
 reach no pixel the Gaussian pass is skipped; both tests are conservative, so the layers are the same without them.
 
 The scene's points are cleaned once, at load (``scene.point_cleaning``): pixels on depth edges are left out of
-each source frame (``core.point_cloud.depth_edges``), then outliers of the whole cloud (``cleaning``).
+each source frame (``core.geometry.point_cloud.depth_edges``), then outliers of the whole cloud (``cleaning``).
 """
 
 from __future__ import annotations
@@ -24,7 +24,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from scpainter_blender.core import cameras, outputs, splats, splats_io, vggt_io
+from scpainter_blender.core.geometry import cameras
+from scpainter_blender.core import outputs
+from scpainter_blender.core.splats import gaussians as splats, reader as splats_io
+from scpainter_blender.core.vggt import npz as vggt_io
 from scpainter_blender.core import job as job_mod
 
 from . import channels as ch

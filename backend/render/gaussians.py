@@ -23,7 +23,7 @@ Jacobian clamp):
   opaque background behind them. The asset mask M_a = 1 − the transmittance left = Σ α·transmittance.
   The 0.99 cap is the INRIA rasterizer's (graphdeco-inria/diff-gaussian-rasterization), the one the TRELLIS and
   Amodal3R assets were trained with; gsplat caps at 0.999. We keep 0.99: the assets' opacities were fitted to it.
-* Colour = max(0.5 + SH(dir), 0), dir = normalise(mean - camera centre) (``core.sh``, the formula the numpy side
+* Colour = max(0.5 + SH(dir), 0), dir = normalise(mean - camera centre) (``core.splats.sh``, the formula the numpy side
   uses too).
 
 Names: ``alpha`` is always one Gaussian's α at one pixel, ``transmittance`` (``trans``) the product of (1 − α) in
@@ -41,7 +41,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from scpainter_blender.core import sh as core_sh
+from scpainter_blender.core.splats import sh as core_sh
 
 ALPHA_MIN = 1.0 / 255.0
 ALPHA_MAX = 0.99
@@ -52,7 +52,7 @@ EXTEND_MAX = 3.33  # gsplat's cap on the extent in σ (just above sqrt(2 ln 255)
 
 def sh_colors(sh: torch.Tensor, dirs: torch.Tensor) -> torch.Tensor:
     """max(0.5 + Σ_k Y_k(dir) c_k, 0) for unit directions (N, 3) and coefficients (N, K, 3), K in 1, 4, 9, 16;
-    Y_k from ``core.sh.basis`` (the numpy side's formula, evaluated on tensors)."""
+    Y_k from ``core.splats.sh.basis`` (the numpy side's formula, evaluated on tensors)."""
     terms = core_sh.basis(dirs[:, 0:1], dirs[:, 1:2], dirs[:, 2:3], core_sh.degree_of(sh.shape[1]))
     out = terms[0] * sh[:, 0]
     for k in range(1, len(terms)):

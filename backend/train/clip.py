@@ -46,7 +46,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from scpainter_blender.core import cameras, files, outputs, vggt, vggt_io
+from scpainter_blender.core.geometry import cameras
+from scpainter_blender.core import files, outputs
+from scpainter_blender.core.vggt import predictions as vggt, npz as vggt_io
 from scpainter_blender.core import fields as fields_mod
 from scpainter_blender.core import job as job_mod
 from scpainter_blender.core.job import JobError
@@ -395,7 +397,7 @@ def asset_to_box(car: Car, means: np.ndarray | None = None) -> np.ndarray:
     if car.asset_to_box is not None:
         return car.asset_to_box
     if means is None:
-        from scpainter_blender.core import splats_io
+        from scpainter_blender.core.splats import reader as splats_io
 
         means = splats_io.load(car.asset).means
     return fit_asset_to_box(means, car.size)

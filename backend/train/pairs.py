@@ -28,7 +28,9 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import torch
 
-from scpainter_blender.core import cameras, files, splats_io
+from scpainter_blender.core.geometry import cameras
+from scpainter_blender.core import files
+from scpainter_blender.core.splats import reader as splats_io
 from scpainter_blender.core import job as job_mod
 
 from ..render import cleaning

@@ -14,7 +14,8 @@ import shutil
 
 import numpy as np
 
-from scpainter_blender.core import outputs, shapes, splats, splats_inria
+from scpainter_blender.core import outputs, shapes
+from scpainter_blender.core.splats import gaussians as splats, inria as splats_inria
 
 from . import clip as clip_mod
 

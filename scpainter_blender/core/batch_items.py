@@ -19,7 +19,7 @@ DEFAULT_CPUS_PER_JOB = 1.0
 def check_ray_options(retries, cpus_per_job) -> None:
     """The ``--ray`` options both batch commands take, checked before any work: ``--retries`` an integer in
     [0, ``MAX_RETRIES``], ``--cpus-per-job`` a finite number above 0 (whether a node has that many CPUs is the
-    cluster's to say: ``backend.batch_ray``). ``ArgumentError`` naming the option."""
+    cluster's to say: ``backend.batch.ray_pool``). ``ArgumentError`` naming the option."""
     if isinstance(retries, bool) or not isinstance(retries, int) or not 0 <= retries <= MAX_RETRIES:
         raise files.ArgumentError("--retries", f"expected an integer in [0, {MAX_RETRIES}], got {retries!r}")
     if isinstance(cpus_per_job, bool) or not isinstance(cpus_per_job, (int, float)) \

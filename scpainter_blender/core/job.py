@@ -26,7 +26,8 @@ from functools import partial
 import numpy as np
 
 from . import fields as fields_mod
-from . import files, outputs, similarity
+from . import files, outputs
+from .geometry import similarity
 
 SCHEMA = "scpainter.job/2"
 #: Older schemas still read, each with its fields renamed since: {schema: {old field: current field}} (scene level)
@@ -44,7 +45,7 @@ GENERATE_INT_BOUNDS = {"steps": (1, 1000), "window": (1, 256), "overlap": (0, 25
                        "decode_chunk": (1, 256)}
 GENERATE_NUMBER_BOUNDS = {"min_guidance": (0.0, 100.0), "max_guidance": (0.0, 100.0), "fps": (1.0, 240.0)}
 
-#: ``scene.extrinsic_convention``: what the predictions' ``extrinsic`` holds (core.vggt.EXTRINSIC_CONVENTIONS).
+#: ``scene.extrinsic_convention``: what the predictions' ``extrinsic`` holds (core.vggt.predictions.EXTRINSIC_CONVENTIONS).
 EXTRINSIC_CONVENTIONS = ("world_to_camera", "camera_to_world")
 
 #: ``scene.point_cleaning``'s defaults, the only place they are written (bench/clean_points.py, measured on the
@@ -203,7 +204,7 @@ def _default_outliers():
 class PointCleaning:
     """How the scene's points are cleaned before rendering (``backend.render.frames.load_scene``, once per scene):
     ``depth_edge_ratio`` drops the pixels of each source frame's depth map whose depth jumps by more than that
-    fraction of their own to one of their 8 neighbours (``core.point_cloud.depth_edges``); ``outliers`` removes
+    fraction of their own to one of their 8 neighbours (``core.geometry.point_cloud.depth_edges``); ``outliers`` removes
     floaters from the whole cloud (``OutlierRemoval``). None turns one off; in the file, ``null`` turns it off, an
     absent field takes the default (``POINT_CLEANING``), and ``"point_cleaning": null`` turns both off."""
     depth_edge_ratio: float | None = POINT_CLEANING["depth_edge_ratio"]
@@ -290,7 +291,7 @@ class Scene:
 
 @dataclass(eq=False)
 class Asset:
-    """A Gaussian asset: ``ply`` (path, relative to the job file; any format ``core.splats_io.read`` accepts) and,
+    """A Gaussian asset: ``ply`` (path, relative to the job file; any format ``core.splats.reader.read`` accepts) and,
     for every output frame, ``object_to_world`` (4, 4) affine from the file's coordinates to world metres."""
     name: str
     ply: str
@@ -328,7 +329,7 @@ class Asset:
 GENERATE_DEFAULTS = {"steps": 25, "overlap": 4, "seed": 0, "decode_chunk": 8}
 CHECKPOINT_SETTINGS = ("window", "min_guidance", "max_guidance", "fps")
 #: ``generate.model``: ``scpainter`` needs a checkpoint; ``baseline`` fills the condition holes by OpenCV inpainting
-#: (backend/baseline.py) and needs none; ``auto`` (the default) is ``scpainter`` when a checkpoint is configured (the
+#: (backend/generate/baseline.py) and needs none; ``auto`` (the default) is ``scpainter`` when a checkpoint is configured (the
 #: command line's or the job's), else ``baseline``.
 GENERATE_MODELS = ("auto", "scpainter", "baseline")
 #: The baseline's settings: ``inpaint`` (OpenCV's method), ``inpaint_radius`` (px) and its ``fps``. The fps is the

@@ -40,7 +40,8 @@ def check_inputs(job_path, job: Job, allow_outside: bool = False) -> dict:
     (``job_paths``), that the predictions file is a readable ``.npz`` whose frames include every
     ``source_frames`` entry, and that each asset is a readable Gaussian file. Returns the paths plus
     ``num_source_frames``; raises an InputError (JobError, PredictionsError, SplatsError) naming file and field."""
-    from . import splats_io, vggt
+    from .splats import reader as splats_io
+    from .vggt import predictions as vggt
 
     paths = job_paths(job_path, job, allow_outside)
     if job.scene is not None:

@@ -22,7 +22,7 @@ from .outputs import make_folder
 
 LOCK_NAME = ".scpainter.lock"
 UNREADABLE_LOCK_S = 60   # a lock file nobody can read is taken over after this (a crash mid-write on old systems)
-#: Set by a scheduler that retries a job only after the job's previous attempt ended (``backend/batch_ray.py``: the
+#: Set by a scheduler that retries a job only after the job's previous attempt ended (``backend/batch/ray_pool.py``: the
 #: Ray task's id): the lock records it, and a lock holding the same id is taken over on any host — the previous
 #: attempt's worker died, possibly on another machine, where its pid cannot be checked.
 TASK_ENV = "SCPAINTER_LOCK_TASK"

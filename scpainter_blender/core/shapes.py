@@ -11,9 +11,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import cameras, splats, splats_inria, trellis
-from .sh import SH_C0
-from .similarity import decompose_similarity  # a bare name: transform_gaussians has a parameter "similarity"
+from .geometry import cameras
+from .splats import gaussians as splats, inria as splats_inria, trellis
+from .splats.sh import SH_C0
+from .geometry.similarity import decompose_similarity  # a bare name: transform_gaussians has a parameter "similarity"
 
 _BOX_SIGNS = np.array([[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1],
                        [-1, -1, 1], [1, -1, 1], [1, 1, 1], [-1, 1, 1]], float)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
-from ..core import cameras, trajectory
+from ..core.geometry import cameras, trajectory
 from . import compat
 
 

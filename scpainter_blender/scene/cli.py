@@ -16,7 +16,7 @@
 straight to the backend), goes on past failures, prints one summary with each item's status, time and outputs, and
 exits 1 if any failed; ``--shard K/N`` (or torchrun's RANK/WORLD_SIZE) takes every N-th item from K.
 ``--ray`` exports every .blend's job first, then runs all the jobs as one Ray batch (``python -m backend batch
---ray``, backend/batch_ray.py): the same summary, each item with its ``worker`` and ``attempts``.
+--ray``, backend/batch/ray_pool.py): the same summary, each item with its ``worker`` and ``attempts``.
 
 ``-c`` implies background mode; the import goes into the scene that is open (``blender -b scene.blend -c ...``
 imports into scene.blend). With the ``bpy`` module (no ``-c``), call ``execute(argv)`` directly. Output: a JSON
@@ -281,7 +281,7 @@ def _batch(args) -> tuple[dict, int]:
 
 def _batch_ray(args, items: list) -> tuple[dict, int]:
     """``batch --ray``: every .blend's job exported here (into the output folder its scene names, as ``render``
-    does), then all jobs run as one ``python -m backend batch --ray`` (backend/batch_ray.py; its progress goes to
+    does), then all jobs run as one ``python -m backend batch --ray`` (backend/batch/ray_pool.py; its progress goes to
     standard error as it comes), its results mapped back to the items in order. An item whose scene cannot make a
     job fails here and is not sent; two scenes naming the same output folder are refused (their jobs would be the
     same file). SIGTERM is passed on to the backend, which cancels the jobs not finished and still reports."""

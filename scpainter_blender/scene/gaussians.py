@@ -26,8 +26,10 @@ import bpy
 import numpy as np
 
 from .. import backend_client
-from ..core import cameras, outputs, splats, splats_io, trellis
-from ..core.sh import SH_C0
+from ..core.geometry import cameras
+from ..core import outputs
+from ..core.splats import gaussians as splats, reader as splats_io, trellis
+from ..core.splats.sh import SH_C0
 from . import materials, node_groups, props
 from .points import linear_rgba
 

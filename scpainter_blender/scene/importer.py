@@ -1,7 +1,7 @@
 """Import a VGGT reconstruction: points + recorded camera + scene settings, in metric Blender world.
 
 The heavy lifting is numpy in ``core``; this module only turns arrays into Blender data. All three metric-scale
-modes run here, in Blender's own process (the camera-height one with ``core.geometry``'s RANSAC; no backend).
+modes run here, in Blender's own process (the camera-height one with ``core.geometry.fits``'s RANSAC; no backend).
 """
 
 from __future__ import annotations
@@ -13,7 +13,9 @@ from dataclasses import dataclass, field
 import bpy
 import numpy as np
 
-from ..core import cameras, files, geometry, metric_scale, point_cloud, similarity, vggt, vggt_io
+from ..core.geometry import cameras, fits as geometry, metric_scale, point_cloud, similarity
+from ..core import files
+from ..core.vggt import predictions as vggt, npz as vggt_io
 from ..core import job as job_mod
 from . import camera as camera_mod
 from . import node_groups
@@ -43,7 +45,7 @@ class ImportOptions:
     extrinsic_convention: str = "auto"   # "auto" (check against world_points), "world_to_camera", "camera_to_world"
     crop: str = "auto"                   # "auto" (VGGT's white padding), "none", or "left top right bottom" pixels
     # drop pixels whose depth jumps by more than this fraction of their own to a neighbour (VGGT's "flying pixels",
-    # core.point_cloud.depth_edges); None or 0: off. Stored on the objects; the exported job renders with it.
+    # core.geometry.point_cloud.depth_edges); None or 0: off. Stored on the objects; the exported job renders with it.
     depth_edge_ratio: float | None = DEPTH_EDGE_RATIO
 
     @property

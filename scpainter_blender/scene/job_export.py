@@ -16,7 +16,7 @@ import os
 
 import numpy as np
 
-from ..core import cameras
+from ..core.geometry import cameras
 from ..core import job as job_mod
 from . import camera as camera_mod
 from . import node_groups

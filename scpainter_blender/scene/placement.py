@@ -12,7 +12,7 @@ import bpy
 import numpy as np
 from mathutils import Matrix, Quaternion, Vector
 
-from ..core import geometry
+from ..core.geometry import fits as geometry
 from . import node_groups
 from . import points as points_mod
 from .props import SceneError

@@ -7,9 +7,9 @@ import numpy as np
 import trimesh
 from PIL import Image
 
-from backend import mesh_load
-from scpainter_blender.core import cameras
-from scpainter_blender.core.sh import SH_C0
+from backend.mesh import load as mesh_load
+from scpainter_blender.core.geometry import cameras
+from scpainter_blender.core.splats.sh import SH_C0
 
 R_GLTF = mesh_load.Y_UP_TO_Z_UP            # p_zup = R_GLTF @ p_gltf
 TRELLIS_GLB = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # to_glb: vertices @ TRELLIS_GLB

@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 
-from backend import batch
+from backend.batch import command as batch
 from scpainter_blender.core import job as J
 from scpainter_blender.core import shapes
 

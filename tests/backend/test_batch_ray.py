@@ -1,4 +1,4 @@
-"""``python -m backend batch --ray``: jobs scheduled on a local Ray cluster of 2 CPUs (``backend/batch_ray.py``)."""
+"""``python -m backend batch --ray``: jobs scheduled on a local Ray cluster of 2 CPUs (``backend/batch/ray_pool.py``)."""
 
 import glob
 import json
@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from backend import batch, batch_ray
+from backend.batch import command as batch, ray_pool as batch_ray
 from backend.render import channels
 from scpainter_blender.core import locking
 from tests_support import run_backend, small_job

@@ -58,7 +58,7 @@ def test_a_value_error_inside_render_is_a_bug_with_its_traceback_in_backend_log(
 
 
 def test_a_bug_without_an_output_folder_goes_to_standard_error(tmp_path, monkeypatch):
-    from backend import mesh_asset
+    from backend.mesh import asset as mesh_asset
 
     monkeypatch.setattr(mesh_asset, "convert", _shape_bug)
     code, ev, err = run("mesh-asset", tmp_path / "car.glb", "--out", tmp_path / "car.ply")

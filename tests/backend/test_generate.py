@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from backend.video import read_mp4
+from backend.generate.video import read_mp4
 from scpainter_blender.core import job as J
 from tests_support import run_backend, street_with_car
 
@@ -192,7 +192,7 @@ def test_a_resume_state_holding_nan_is_never_used(tmp_path):
     ignored, so it can neither be resumed from nor decoded into a black video."""
     import torch
 
-    from backend import generate as G
+    from backend.generate import command as G
 
     path = str(tmp_path / "generate_state.safetensors")
     G.save_state(path, torch.ones(2, 4, 3, 3), 5, "key")
@@ -234,7 +234,7 @@ def test_checkpoint_window_reaches_a_blender_exported_job(street, addon, tiny_ch
 
 
 def test_precision_auto_is_resolved_for_the_device_that_makes_the_video():
-    from backend.generate import resolve_precision
+    from backend.generate.command import resolve_precision
 
     assert [resolve_precision("auto", d) for d in ("cuda", "cpu")] == ["bf16", "fp32"]
     assert [resolve_precision(p, "cuda") for p in ("fp32", "fp16", "bf16")] == ["fp32", "fp16", "bf16"]

@@ -1,4 +1,4 @@
-"""The baseline generator (``backend/baseline.py``) and ``python -m backend generate`` without a checkpoint."""
+"""The baseline generator (``backend/generate/baseline.py``) and ``python -m backend generate`` without a checkpoint."""
 
 import os
 
@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from backend import baseline
+from backend.generate import baseline
 from backend.render import channels
-from backend.video import mp4_metadata, read_mp4
+from backend.generate.video import mp4_metadata, read_mp4
 from scpainter_blender.core import job as J
 from tests_support import run_backend, small_job
 

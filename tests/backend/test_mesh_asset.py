@@ -1,4 +1,4 @@
-"""Mesh assets (``backend.mesh_asset``, ``python -m backend mesh-asset``): flat Gaussians on the surface (normals,
+"""Mesh assets (``backend.mesh.asset``, ``python -m backend mesh-asset``): flat Gaussians on the surface (normals,
 σ, seeds, degenerate faces), the TRELLIS GLB/PLY pose, the command, and real TRELLIS files. Loading, colours, the box
 and the silhouette have their own test files (test_mesh_load, test_mesh_colors, test_mesh_box,
 test_mesh_silhouette)."""
@@ -8,9 +8,10 @@ import pytest
 import trimesh
 
 import mesh_fixtures as MF
-from backend import mesh_asset as ma
-from backend import mesh_colors, mesh_load
-from scpainter_blender.core import cameras, splats, splats_inria, splats_io, trellis
+from backend.mesh import asset as ma
+from backend.mesh import colors as mesh_colors, load as mesh_load
+from scpainter_blender.core.geometry import cameras
+from scpainter_blender.core.splats import gaussians as splats, inria as splats_inria, reader as splats_io, trellis
 from tests_support import realdata, run_backend
 
 

@@ -1,10 +1,10 @@
-"""backend.mesh_box: the upright oriented box (stage-1 size, yaw only) and the 3D box, degenerate footprints."""
+"""backend.mesh.box: the upright oriented box (stage-1 size, yaw only) and the 3D box, degenerate footprints."""
 
 import numpy as np
 import pytest
 import trimesh
 
-from backend import mesh_box
+from backend.mesh import box as mesh_box
 
 
 @pytest.mark.parametrize("yaw", [0.0, 30.0, -55.0, 90.0, 12.5])

@@ -1,4 +1,4 @@
-"""backend.mesh_colors through the sampler: texture colours (glTF sampling conventions), linear glTF factors and
+"""backend.mesh.colors through the sampler: texture colours (glTF sampling conventions), linear glTF factors and
 vertex colours, face colours, no colour at all, a textured OBJ."""
 
 import os
@@ -7,8 +7,8 @@ import numpy as np
 import trimesh
 
 import mesh_fixtures as MF
-from backend import mesh_asset as ma
-from backend import mesh_colors, mesh_load
+from backend.mesh import asset as ma
+from backend.mesh import colors as mesh_colors, load as mesh_load
 from scpainter_blender.core.colors import linear_to_srgb
 
 

@@ -1,4 +1,4 @@
-"""backend.mesh_load: mesh files into Z-up parts (Y-up glTF/GLB/OBJ turned, Z-up PLY/STL/OFF as stored, scene
+"""backend.mesh.load: mesh files into Z-up parts (Y-up glTF/GLB/OBJ turned, Z-up PLY/STL/OFF as stored, scene
 nodes applied), and the files refused naming themselves: broken, point clouds, Gaussian PLYs, counts the file cannot
 hold, FIFOs as the mesh or named by it (issue 14)."""
 
@@ -10,9 +10,10 @@ import pytest
 import trimesh
 
 import mesh_fixtures as MF
-from backend import mesh_asset as ma
-from backend import mesh_load
-from scpainter_blender.core import files, splats, splats_inria
+from backend.mesh import asset as ma
+from backend.mesh import load as mesh_load
+from scpainter_blender.core import files
+from scpainter_blender.core.splats import gaussians as splats, inria as splats_inria
 
 
 # -- axes ----------------------------------------------------------------------------------------------------------

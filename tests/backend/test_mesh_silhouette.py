@@ -1,12 +1,12 @@
-"""backend.mesh_silhouette: the mesh's own silhouette, and the rendered asset mask of its Gaussians against it (how
+"""backend.mesh.silhouette: the mesh's own silhouette, and the rendered asset mask of its Gaussians against it (how
 the default σ factor was chosen)."""
 
 import numpy as np
 import trimesh
 
 import mesh_fixtures as MF
-from backend import mesh_asset as ma
-from backend.mesh_silhouette import look_at, mask_metrics, orbit_cameras, render_mask, silhouette
+from backend.mesh import asset as ma
+from backend.mesh.silhouette import look_at, mask_metrics, orbit_cameras, render_mask, silhouette
 
 
 def test_silhouette_of_a_square():

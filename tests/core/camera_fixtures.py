@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from scpainter_blender.core import cameras as C
+from scpainter_blender.core.geometry import cameras as C
 
 
 def random_rotation(rng):

@@ -1,4 +1,4 @@
-"""Test helpers for core.splats: writers of the formats the reader must understand, written from the formats'
+"""Test helpers for core.splats.gaussians: writers of the formats the reader must understand, written from the formats'
 descriptions (not from the reader).
 
 * ``write_compressed_ply`` quantises known Gaussians the way SuperSplat's exporter does (playcanvas/supersplat
@@ -11,7 +11,7 @@ descriptions (not from the reader).
 * ``write_typed_ply`` writes any vertex (and optional face) layout with chosen PLY types, e.g. half floats in
   ``ushort`` slots or a mesh.
 
-And the raw Gaussians the tests of ``core.splats*`` and ``core.trellis`` share: ``random_ply`` (INRIA values, SH 0-3,
+And the raw Gaussians the tests of ``core.splats.gaussians*`` and ``core.splats.trellis`` share: ``random_ply`` (INRIA values, SH 0-3,
 optional normals and a label), ``random_gaussians`` (unit quaternions, SH beyond ±4), ``trellis_like_file`` (what
 TRELLIS/Amodal3R's save_ply writes), ``write_compressed`` (a GaussianPly through ``write_compressed_ply``),
 ``assert_raw_equal`` (bit-exact) and ``same_rotation_error``.
@@ -19,7 +19,7 @@ TRELLIS/Amodal3R's save_ply writes), ``write_compressed`` (a GaussianPly through
 
 import numpy as np
 
-from scpainter_blender.core import splats, trellis
+from scpainter_blender.core.splats import gaussians as splats, trellis
 
 SH_C0 = 0.28209479177387814
 _NP = {"char": "i1", "uchar": "u1", "short": "i2", "ushort": "u2", "int": "i4", "uint": "u4", "float": "f4",

@@ -1,9 +1,9 @@
-"""core.cameras: conventions, exact round trips (also 1e5 m from the origin), intrinsics <-> Blender cameras."""
+"""core.geometry.cameras: conventions, exact round trips (also 1e5 m from the origin), intrinsics <-> Blender cameras."""
 
 import numpy as np
 import pytest
 
-from scpainter_blender.core import cameras as C
+from scpainter_blender.core.geometry import cameras as C
 from camera_fixtures import random_rotation, random_w2c
 
 

@@ -1,9 +1,10 @@
-"""core.point_cloud.depth_edges: the depth-edge ("flying pixel") rule, its reference, and point_cloud's use of it."""
+"""core.geometry.point_cloud.depth_edges: the depth-edge ("flying pixel") rule, its reference, and point_cloud's use of it."""
 
 import numpy as np
 import pytest
 
-from scpainter_blender.core import point_cloud, vggt, vggt_io
+from scpainter_blender.core.geometry import point_cloud
+from scpainter_blender.core.vggt import predictions as vggt, npz as vggt_io
 
 
 def test_fast_equals_the_rule_pixel_by_pixel():

@@ -321,11 +321,11 @@ def test_input_errors_survive_pickling():
     the one text in its args."""
     import pickle
 
-    from backend.mesh_load import MeshAssetError
+    from backend.mesh.load import MeshAssetError
     from backend.train.clip import ClipError
     from backend.train.config import TrainConfigError
-    from scpainter_blender.core.splats import SplatsError
-    from scpainter_blender.core.vggt import PredictionsError
+    from scpainter_blender.core.splats.gaussians import SplatsError
+    from scpainter_blender.core.vggt.predictions import PredictionsError
 
     from backend.evaluate.inception import EvaluationError
     from backend.render.channels import ExrError

@@ -1,10 +1,10 @@
-"""core.geometry: RANSAC plane, box membership, stage-1 proportions."""
+"""core.geometry.fits: RANSAC plane, box membership, stage-1 proportions."""
 
 import numpy as np
 import pytest
 
-from scpainter_blender.core import cameras as C
-from scpainter_blender.core import geometry as G
+from scpainter_blender.core.geometry import cameras as C
+from scpainter_blender.core.geometry import fits as G
 
 
 def test_ransac_finds_ground_under_clutter():

@@ -122,7 +122,7 @@ def test_not_json(tmp_path):
 
 def test_scene_reading_of_the_predictions():
     """scene.extrinsic_convention and scene.crop: optional (VGGT's world-to-camera, no crop), checked."""
-    from scpainter_blender.core import vggt
+    from scpainter_blender.core.vggt import predictions as vggt
 
     assert J.EXTRINSIC_CONVENTIONS == vggt.EXTRINSIC_CONVENTIONS
     job = minimal()

@@ -1,12 +1,13 @@
-"""core.metric_scale: vggt_to_world by factor, trajectory and camera height; metric trajectory files."""
+"""core.geometry.metric_scale: vggt_to_world by factor, trajectory and camera height; metric trajectory files."""
 
 import os
 
 import numpy as np
 import pytest
 
-from scpainter_blender.core import cameras as C
-from scpainter_blender.core import metric_scale, similarity, vggt
+from scpainter_blender.core.geometry import cameras as C
+from scpainter_blender.core.geometry import metric_scale, similarity
+from scpainter_blender.core.vggt import predictions as vggt
 
 
 def test_scale_factor():

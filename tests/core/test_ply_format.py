@@ -1,4 +1,4 @@
-"""core.ply_format: the PLY header (where it ends, CRLF, its limits, what is refused, naming the line) and element
+"""core.splats.ply_format: the PLY header (where it ends, CRLF, its limits, what is refused, naming the line) and element
 counts the file cannot hold (issue 14), through the Gaussian readers."""
 
 import time
@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 import splat_fixtures as F
-from scpainter_blender.core import files, ply_format, splats, splats_inria, splats_io
+from scpainter_blender.core import files
+from scpainter_blender.core.splats import ply_format, gaussians as splats, inria as splats_inria, reader as splats_io
 
 
 def _with_header_lines(data: bytes, before_elements=(), before_end=()) -> bytes:

@@ -1,9 +1,10 @@
-"""core.point_cloud and core.unproject: VGGT's unprojection and confidence semantics, exactly."""
+"""core.geometry.point_cloud and core.geometry.unproject: VGGT's unprojection and confidence semantics, exactly."""
 
 import numpy as np
 import pytest
 
-from scpainter_blender.core import metric_scale, point_cloud, similarity, vggt, vggt_io
+from scpainter_blender.core.geometry import metric_scale, point_cloud, similarity
+from scpainter_blender.core.vggt import predictions as vggt, npz as vggt_io
 from tests_support import synthetic_predictions as make_arrays
 from vggt_fixtures import save
 

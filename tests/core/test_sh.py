@@ -1,13 +1,13 @@
-"""core.sh: the one SH basis (core.splats and the condition renderer evaluate it), checked against the definition:
+"""core.splats.sh: the one SH basis (core.splats.gaussians and the condition renderer evaluate it), checked against the definition:
 orthonormal real harmonics in the 3DGS order and signs. The renderer's torch evaluation is compared with
-core.splats in tests/backend/render/test_render_reference.py."""
+core.splats.gaussians in tests/backend/render/test_render_reference.py."""
 
 import math
 
 import numpy as np
 import pytest
 
-from scpainter_blender.core import sh, splats
+from scpainter_blender.core.splats import sh, gaussians as splats
 
 
 def sphere_quadrature():
@@ -40,7 +40,7 @@ def test_constants_are_the_closed_forms():
                                       -0.25 * math.sqrt(21 / 2) * r, 0.25 * math.sqrt(7) * r,
                                       -0.25 * math.sqrt(21 / 2) * r, 0.25 * math.sqrt(105) * r,
                                       -0.25 * math.sqrt(35 / 2) * r], abs=1e-14)
-    assert not hasattr(splats, "SH_C0")   # one definition: core.sh, imported from there (no re-export)
+    assert not hasattr(splats, "SH_C0")   # one definition: core.splats.sh, imported from there (no re-export)
 
 
 def test_3dgs_order_and_signs():

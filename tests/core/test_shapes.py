@@ -2,8 +2,9 @@
 
 import numpy as np
 
-from scpainter_blender.core import cameras as C
-from scpainter_blender.core import shapes, splats, splats_io
+from scpainter_blender.core.geometry import cameras as C
+from scpainter_blender.core import shapes
+from scpainter_blender.core.splats import gaussians as splats, reader as splats_io
 
 
 def test_car_dimensions():

@@ -1,10 +1,10 @@
-"""core.similarity: Umeyama and camera-path fits, exact 1e5 m from the origin; cameras re-expressed in a new world."""
+"""core.geometry.similarity: Umeyama and camera-path fits, exact 1e5 m from the origin; cameras re-expressed in a new world."""
 
 import numpy as np
 import pytest
 
-from scpainter_blender.core import cameras as C
-from scpainter_blender.core import similarity
+from scpainter_blender.core.geometry import cameras as C
+from scpainter_blender.core.geometry import similarity
 from camera_fixtures import random_rotation, random_w2c
 
 

@@ -1,4 +1,4 @@
-"""core.splats: the values: decoding raw file values (activations, bad rows dropped and counted), encoding them
+"""core.splats.gaussians: the values: decoding raw file values (activations, bad rows dropped and counted), encoding them
 back, and the SH colour (basis orthonormal, sh_to_rgb). Files: test_splats_io (read/load, dispatch, fuzz),
 test_ply_format, test_splats_inria, test_splats_compressed, test_trellis."""
 
@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 import splat_fixtures as F
-from scpainter_blender.core import splats
-from scpainter_blender.core.sh import SH_C0, SH_C1
+from scpainter_blender.core.splats import gaussians as splats
+from scpainter_blender.core.splats.sh import SH_C0, SH_C1
 
 
 def test_decoding_activations():

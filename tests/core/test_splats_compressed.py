@@ -1,4 +1,4 @@
-"""core.splats_compressed: SuperSplat compressed PLY against an independent encoder (tests/core/splat_fixtures.py)
+"""core.splats.compressed: SuperSplat compressed PLY against an independent encoder (tests/core/splat_fixtures.py)
 and SuperSplat's own export, and antimatter15 .splat (byte conventions, round trip, sizes)."""
 
 import time
@@ -8,9 +8,9 @@ import pytest
 
 import splat_fixtures as F
 from tests_support import realdata
-from scpainter_blender.core import cameras as C
-from scpainter_blender.core import splats, splats_compressed, splats_io
-from scpainter_blender.core.sh import SH_C0
+from scpainter_blender.core.geometry import cameras as C
+from scpainter_blender.core.splats import gaussians as splats, compressed as splats_compressed, reader as splats_io
+from scpainter_blender.core.splats.sh import SH_C0
 
 
 # -- SuperSplat compressed PLY -------------------------------------------------------------------------------------
@@ -124,7 +124,7 @@ def test_compressed_errors_name_the_file_and_problem(tmp_path):
 
 
 def _chunk_table(path):
-    """The chunk element of a compressed PLY, parsed here independently of core.splats."""
+    """The chunk element of a compressed PLY, parsed here independently of core.splats.gaussians."""
     raw = open(path, "rb").read(1 << 16)
     end = raw.index(b"end_header\n") + len(b"end_header\n")
     lines = raw[:end].decode("ascii").splitlines()

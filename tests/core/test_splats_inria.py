@@ -1,11 +1,11 @@
-"""core.splats_inria: the INRIA layout written and read back bit-exact (both byte orders, SH 0-3, extras), missing
+"""core.splats.inria: the INRIA layout written and read back bit-exact (both byte orders, SH 0-3, extras), missing
 and misnumbered properties named, half floats in ushort slots, integer Gaussian properties refused."""
 
 import numpy as np
 import pytest
 
 import splat_fixtures as F
-from scpainter_blender.core import splats, splats_inria, splats_io
+from scpainter_blender.core.splats import gaussians as splats, inria as splats_inria, reader as splats_io
 
 
 @pytest.mark.parametrize("degree", [0, 1, 2, 3])

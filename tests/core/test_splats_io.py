@@ -1,4 +1,4 @@
-"""core.splats_io: one entry point (read/load by content, .splat by extension), meshes told apart, other files
+"""core.splats.reader: one entry point (read/load by content, .splat by extension), meshes told apart, other files
 naming the accepted formats, FIFOs and folders refused at once, real files, and a fuzz test."""
 
 import os
@@ -10,7 +10,14 @@ import pytest
 
 import splat_fixtures as F
 from tests_support import realdata
-from scpainter_blender.core import ply_format, splats, splats_compressed, splats_inria, splats_io, trellis
+from scpainter_blender.core.splats import (
+    ply_format,
+    gaussians as splats,
+    compressed as splats_compressed,
+    inria as splats_inria,
+    reader as splats_io,
+    trellis,
+)
 
 
 def test_read_dispatches_by_content(tmp_path):

@@ -1,10 +1,10 @@
-"""core.trajectory: the direction of travel (straight, curved, stopping, parked, far away) and lateral shifts."""
+"""core.geometry.trajectory: the direction of travel (straight, curved, stopping, parked, far away) and lateral shifts."""
 
 import numpy as np
 import pytest
 
-from scpainter_blender.core import cameras as C
-from scpainter_blender.core import trajectory
+from scpainter_blender.core.geometry import cameras as C
+from scpainter_blender.core.geometry import trajectory
 
 
 def test_heading_straight_and_curved():

@@ -1,9 +1,10 @@
-"""core.trellis: TRELLIS/Amodal3R files (their axes, the decoder's bound) and detect_axes, both ways."""
+"""core.splats.trellis: TRELLIS/Amodal3R files (their axes, the decoder's bound) and detect_axes, both ways."""
 
 import numpy as np
 
 import splat_fixtures as F
-from scpainter_blender.core import shapes, splats, splats_inria, splats_io, trellis
+from scpainter_blender.core import shapes
+from scpainter_blender.core.splats import gaussians as splats, inria as splats_inria, reader as splats_io, trellis
 
 
 def test_trellis_amodal3r_file(tmp_path):

@@ -1,9 +1,10 @@
-"""core.vggt: VGGT's K against ours, the refusal every predictions reader raises, the numeric-array rule."""
+"""core.vggt.predictions: VGGT's K against ours, the refusal every predictions reader raises, the numeric-array rule."""
 
 import numpy as np
 import pytest
 
-from scpainter_blender.core import files, vggt
+from scpainter_blender.core import files
+from scpainter_blender.core.vggt import predictions as vggt
 
 
 def test_K_conversion_moves_the_principal_point_half_a_pixel():

@@ -1,11 +1,12 @@
-"""core.vggt_convention: world-to-camera files pass the point-head check, camera-to-world files and files
+"""core.vggt.convention: world-to-camera files pass the point-head check, camera-to-world files and files
 neither reading fits are refused naming the frame."""
 
 import numpy as np
 import pytest
 
-from scpainter_blender.core import cameras as C
-from scpainter_blender.core import point_cloud, unproject, vggt, vggt_convention, vggt_io
+from scpainter_blender.core.geometry import cameras as C
+from scpainter_blender.core.geometry import point_cloud, unproject
+from scpainter_blender.core.vggt import predictions as vggt, convention as vggt_convention, npz as vggt_io
 from vggt_cases import drive, write
 
 

@@ -1,9 +1,10 @@
-"""core.vggt_crop: VGGT's white pad borders found and cut like the unpadded file, explicit crops, bad crops."""
+"""core.vggt.crop: VGGT's white pad borders found and cut like the unpadded file, explicit crops, bad crops."""
 
 import numpy as np
 import pytest
 
-from scpainter_blender.core import point_cloud, vggt, vggt_crop, vggt_io
+from scpainter_blender.core.geometry import point_cloud
+from scpainter_blender.core.vggt import predictions as vggt, crop as vggt_crop, npz as vggt_io
 from vggt_cases import drive, pad, write
 
 

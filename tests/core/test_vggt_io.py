@@ -1,4 +1,4 @@
-"""core.vggt_io: VGGT's file layout in all its variants, NaN/inf pixels, and bad files refused naming file and key."""
+"""core.vggt.npz: VGGT's file layout in all its variants, NaN/inf pixels, and bad files refused naming file and key."""
 
 import os
 import zipfile
@@ -6,8 +6,10 @@ import zipfile
 import numpy as np
 import pytest
 
-from scpainter_blender.core import cameras as C
-from scpainter_blender.core import files, point_cloud, vggt, vggt_io
+from scpainter_blender.core.geometry import cameras as C
+from scpainter_blender.core import files
+from scpainter_blender.core.geometry import point_cloud
+from scpainter_blender.core.vggt import predictions as vggt, npz as vggt_io
 from tests_support import synthetic_predictions as make_arrays
 from vggt_cases import drive, write
 from vggt_fixtures import save

@@ -1,4 +1,4 @@
-"""Predictions files written as raw ``np.savez`` archives (any keys, any layout), for the core.vggt* tests."""
+"""Predictions files written as raw ``np.savez`` archives (any keys, any layout), for the core.vggt.predictions* tests."""
 
 import numpy as np
 

@@ -6,7 +6,7 @@ import bpy
 import numpy as np
 import pytest
 
-from scpainter_blender.core import cameras as C
+from scpainter_blender.core.geometry import cameras as C
 
 
 @pytest.mark.parametrize("shift", [2.0, -2.0, 3.0, -3.0])

@@ -165,7 +165,7 @@ def test_import_convention_crop_and_report(addon, empty_scene, tmp_path, capsys)
     """--extrinsic-convention and --crop; the JSON summary says what loading decided and dropped."""
     from vggt_cases import drive, pad, write
 
-    from scpainter_blender.core import cameras as C
+    from scpainter_blender.core.geometry import cameras as C
 
     cli = _cli(addon)
     arrays, w2c, _ = drive(H=22, W=32)

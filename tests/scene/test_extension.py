@@ -16,7 +16,7 @@ ROOT = blender_env.ROOT
 def test_zip_contents(extension_zip):
     names = zipfile.ZipFile(extension_zip).namelist()
     assert "blender_manifest.toml" in names and "__init__.py" in names
-    assert "scpainter_blender/core/vggt.py" in names and "backend/__main__.py" in names
+    assert "scpainter_blender/core/vggt/predictions.py" in names and "backend/__main__.py" in names
     assert "operators/import_vggt.py" in names and "panels/main.py" in names
     for excluded in ("tests/", "bench/", "docs/", "tools/", ".ci/", "Makefile", "requirements.txt", ".venv/",
                      "scpainter_blender/street/"):
@@ -46,7 +46,7 @@ def test_shipped_code_never_imports_the_street(extension_zip):
     this very zip in test_installed_and_enabled)."""
     with zipfile.ZipFile(extension_zip) as z:
         sources = {n: z.read(n).decode() for n in z.namelist() if n.endswith(".py")}
-    assert "scpainter_blender/core/vggt_io.py" in sources and "backend/train/street_clip.py" in sources
+    assert "scpainter_blender/core/vggt/npz.py" in sources and "backend/train/street_clip.py" in sources
     assert _street_imports("tests/x.py", "from scpainter_blender.street import build\nfrom .street import a") == \
         ["scpainter_blender.street.build", "tests.street.a"]  # the check sees both kinds
     assert _street_imports("scpainter_blender/scene/x.py", "from ..street.dataset import view_name") == \

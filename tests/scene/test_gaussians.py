@@ -6,9 +6,15 @@ import bpy
 import numpy as np
 import pytest
 
-from scpainter_blender.core import cameras as C
-from scpainter_blender.core import colors, shapes, splats, splats_compressed, splats_inria, splats_io
-from scpainter_blender.core.sh import SH_C0
+from scpainter_blender.core.geometry import cameras as C
+from scpainter_blender.core import colors, shapes
+from scpainter_blender.core.splats import (
+    gaussians as splats,
+    compressed as splats_compressed,
+    inria as splats_inria,
+    reader as splats_io,
+)
+from scpainter_blender.core.splats.sh import SH_C0
 from tests_support import realdata
 
 

@@ -7,10 +7,11 @@ import bpy
 import numpy as np
 import pytest
 
-from scpainter_blender.core import cameras as C
+from scpainter_blender.core.geometry import cameras as C
 from scpainter_blender.core import job as J
-from scpainter_blender.core import metric_scale, point_cloud, similarity, unproject, vggt_io
-from scpainter_blender.core import vggt as V
+from scpainter_blender.core.geometry import metric_scale, point_cloud, similarity, unproject
+from scpainter_blender.core.vggt import npz as vggt_io
+from scpainter_blender.core.vggt import predictions as V
 
 
 #: The depth-edge ratio an import uses when none is given: the job's default.
@@ -149,7 +150,7 @@ def test_import_renders_in_colour(empty_scene, street, tmp_path):
 
 
 def test_camera_height_scale_in_process(addon, empty_scene, street):
-    """The camera-height scale is fitted inside Blender's process (core.geometry's RANSAC): with the backend's
+    """The camera-height scale is fitted inside Blender's process (core.geometry.fits's RANSAC): with the backend's
     interpreter pointing nowhere the import still works, recovers the street's true scale, and is repeatable."""
     prefs = _installed(addon, "scene.preferences").get(bpy.context)
     before = prefs.backend_python

@@ -6,7 +6,7 @@ import bpy
 import numpy as np
 import pytest
 
-from scpainter_blender.core import cameras as C
+from scpainter_blender.core.geometry import cameras as C
 from scpainter_blender.core import job as J
 from scpainter_blender.core import shapes
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from mathutils import Matrix
 
-from scpainter_blender.core import geometry as G
+from scpainter_blender.core.geometry import fits as G
 from scpainter_blender.core import job as J
 from scpainter_blender.core import shapes
 

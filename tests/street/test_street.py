@@ -7,8 +7,9 @@ import time
 import numpy as np
 import pytest
 
-from scpainter_blender.core import cameras as C
-from scpainter_blender.core import point_cloud, similarity, trajectory, unproject, vggt_io
+from scpainter_blender.core.geometry import cameras as C
+from scpainter_blender.core.geometry import point_cloud, similarity, trajectory, unproject
+from scpainter_blender.core.vggt import npz as vggt_io
 from scpainter_blender.street import build, predictions
 from scpainter_blender.street.dataset import StreetParams, ensure_street, view_name
 

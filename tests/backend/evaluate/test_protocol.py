@@ -94,7 +94,7 @@ def test_evaluate_end_to_end(street_clip_path, tiny_checkpoint, tmp_path):
     assert 0.1 < naive["hole_fraction"] < 0.7 and naive["psnr_covered"] > naive["psnr"] > 5
     # inpainting fills the holes with something closer to the street than black; covered pixels stay (8-bit I)
     assert inpainted["psnr"] > naive["psnr"] + 1 and abs(inpainted["psnr_covered"] - naive["psnr_covered"]) < 0.1
-    from backend.video import mp4_metadata
+    from backend.generate.video import mp4_metadata
 
     assert "no model" in mp4_metadata(str(tmp_path / "eval" / "000_street" / "insert" / "baseline.mp4"))["comment"]
     assert ev["counts"]["whole"] == {"real": 3, **{f"{task}/{kind}": 3 for task in ("nvs_+2m", "insert",

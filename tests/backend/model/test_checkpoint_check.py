@@ -277,7 +277,7 @@ def test_no_checkpoint_names_where_one_was_expected(tmp_path):
     """Without a checkpoint, the error names where one was looked for: the command line's --checkpoint by default,
     the job file and its generate.checkpoint in ``generate.prepare`` (a job without one, no --checkpoint given);
     never an empty path or "None"."""
-    from backend import generate
+    from backend.generate import command as generate
     from scpainter_blender.core import job as J
     from tests_support import small_job
 

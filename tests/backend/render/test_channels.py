@@ -6,7 +6,7 @@ import numpy as np
 import OpenEXR
 import pytest
 
-from backend import generate as gen
+from backend.generate import command as gen
 from backend.render import channels
 from backend.render import command as render_cmd
 from scpainter_blender.core import files

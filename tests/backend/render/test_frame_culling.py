@@ -13,7 +13,7 @@ from backend.render import frames as fr
 from backend.render import gaussians as gs
 from backend.render import points as pts
 from scpainter_blender.core import job as job_mod
-from scpainter_blender.core import splats
+from scpainter_blender.core.splats import gaussians as splats
 
 W, H = 32, 24
 K = np.array([[30.0, 0, 16], [0, 30.0, 12], [0, 0, 1]])

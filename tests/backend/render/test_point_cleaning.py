@@ -10,7 +10,8 @@ from backend.render import cleaning
 from backend.render import command as render_cmd
 from backend.render import frames as fr
 from scpainter_blender.core import job as J
-from scpainter_blender.core import point_cloud, vggt, vggt_io
+from scpainter_blender.core.geometry import point_cloud
+from scpainter_blender.core.vggt import predictions as vggt, npz as vggt_io
 
 
 def _cloud(rng):

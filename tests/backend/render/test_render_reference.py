@@ -9,8 +9,8 @@ import torch
 from backend.render import gaussians as GS
 from backend.render import points as PT
 from backend.render import tiles as TL
-from scpainter_blender.core import cameras as C
-from scpainter_blender.core import splats
+from scpainter_blender.core.geometry import cameras as C
+from scpainter_blender.core.splats import gaussians as splats
 
 
 # -- the reference: float64 numpy, one Gaussian at a time over every pixel --------------------------------------
@@ -345,7 +345,7 @@ def test_points_on_a_4096_wide_image():
 
 
 def test_torch_and_numpy_evaluate_one_formula():
-    """The renderer's SH colours (torch) and core.splats' (numpy): both from core.sh.basis, equal to rounding."""
+    """The renderer's SH colours (torch) and core.splats.gaussians' (numpy): both from core.splats.sh.basis, equal to rounding."""
     rng = np.random.default_rng(0)
     d = rng.normal(size=(50, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)

@@ -63,7 +63,7 @@ def test_car_points_inside_the_grown_box_are_removed(maker):
     with_car = maker._points([0, 1, 2], None)[0]
     without = maker._points([0, 1, 2], car)[0]
     T, size = clip_mod.grown_box(car.boxes[0], car.size, 0.2, 0.1)
-    from scpainter_blender.core.geometry import points_in_box
+    from scpainter_blender.core.geometry.fits import points_in_box
 
     inside = points_in_box(with_car.numpy().astype(np.float64) + maker.origin, T, size)
     assert inside.sum() > 100 and len(without) == len(with_car) - inside.sum()

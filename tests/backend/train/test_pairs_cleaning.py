@@ -16,7 +16,8 @@ from backend.train import clip as clip_mod
 from backend.train import config as C
 from backend.train import pairs
 from scpainter_blender.core import job as J
-from scpainter_blender.core import point_cloud, similarity, vggt, vggt_io
+from scpainter_blender.core.geometry import point_cloud, similarity
+from scpainter_blender.core.vggt import predictions as vggt, npz as vggt_io
 
 S, H, W = 4, 20, 24
 SIZE = 64           # the training resolution (a multiple of 64, as the config requires)

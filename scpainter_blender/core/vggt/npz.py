@@ -6,9 +6,9 @@ decided and dropped is in its ``report`` (``vggt.LoadReport``):
 
 * ``extrinsic`` holding camera-to-world poses (a common mix-up): ``extrinsic_convention="auto"`` checks each
   frame's depth unprojection against ``world_points`` and refuses such a file, saying how to re-import;
-  "camera_to_world" inverts on load (``core.vggt_convention``).
+  "camera_to_world" inverts on load (``core.vggt.convention``).
 * VGGT's "pad" preprocessing adds white borders to make the images square: ``crop="auto"`` finds and removes
-  them (or give the pixels), moving the principal point with the crop (``core.vggt_crop``).
+  them (or give the pixels), moving the principal point with the crop (``core.vggt.crop``).
 * NaN/inf depth, confidence or world-point pixels are dropped (``valid`` masks) and counted; a frame without a
   finite pixel, or a non-finite pose or intrinsic, is refused naming the frame.
 
@@ -24,8 +24,10 @@ import os
 
 import numpy as np
 
-from . import cameras, files, outputs, vggt, vggt_convention, vggt_crop
-from .vggt import OPTIONAL_KEYS, REQUIRED_KEYS, PredictionsError
+from ..geometry import cameras
+from .. import files, outputs
+from . import predictions as vggt, convention as vggt_convention, crop as vggt_crop
+from .predictions import OPTIONAL_KEYS, REQUIRED_KEYS, PredictionsError
 
 
 def load_predictions(path, world_points: bool = True, *, extrinsic_convention: str = "world_to_camera",

@@ -3,7 +3,7 @@ floats; TRELLIS/Amodal3R files are this layout too), and ``write_ply``, which wr
 
 The layout (graphdeco-inria/gaussian-splatting ``scene/gaussian_model.py``, ``save_ply``): one ``vertex`` element
 with the properties ``x y z [nx ny nz] f_dc_0..2 [f_rest_0..M-1] opacity scale_0..2 rot_0..3``, binary little- or
-big-endian, holding the raw values ``core.splats.GaussianPly`` describes (logit opacity, log scales, quaternion
+big-endian, holding the raw values ``core.splats.gaussians.GaussianPly`` describes (logit opacity, log scales, quaternion
 (w, x, y, z), f_rest channel-major with M = 0, 9, 24 or 45).
 
 Property types: ``float`` and ``double`` are read as float32 ("inria"). A file whose every Gaussian property
@@ -21,8 +21,9 @@ import os
 
 import numpy as np
 
-from . import outputs, ply_format
-from .splats import GaussianPly, SplatsError, num_sh_coefficients
+from .. import outputs
+from . import ply_format
+from .gaussians import GaussianPly, SplatsError, num_sh_coefficients
 
 #: The vertex properties every Gaussian PLY of this layout has.
 REQUIRED = ("x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2",

@@ -5,7 +5,7 @@ VGGT's conventions (facebookresearch/vggt), which this package converts from:
 * World frame = the first camera's OpenCV frame (x right, y down, z forward), scale normalised (not metric).
 * ``extrinsic`` (S, 3, 4) world-to-camera; ``intrinsic`` (S, 3, 3) with the principal point at the image centre
   and pixel (u, v) unprojected at *integer* coordinates: x = (u - cx) d / fx. Our pixel convention puts pixel
-  centres at u + 0.5 (``core.cameras``), so our K is VGGT's with cx + 0.5, cy + 0.5 and both unproject
+  centres at u + 0.5 (``core.geometry.cameras``), so our K is VGGT's with cx + 0.5, cy + 0.5 and both unproject
   identically.
 * ``depth`` (S, H, W, 1) camera z; ``depth_conf`` (S, H, W) = 1 + exp(x) >= 1; ``images`` (S, 3, H, W) in [0, 1]
   (sRGB-encoded display values); optional ``world_points`` (S, H, W, 3) and ``world_points_conf``.
@@ -14,13 +14,13 @@ VGGT's conventions (facebookresearch/vggt), which this package converts from:
 
 Where the rest lives (each module numpy only, no bpy, no torch):
 
-* ``core.vggt_io`` reads and writes predictions files (``load_predictions``, ``save_predictions``): shapes,
+* ``core.vggt.npz`` reads and writes predictions files (``load_predictions``, ``save_predictions``): shapes,
   dtypes, NaN/inf pixels (dropped and counted in ``LoadReport``), refusals naming file and key;
-* ``core.vggt_crop`` VGGT's white "pad" borders and explicit crops;
-* ``core.vggt_convention`` whether ``extrinsic`` holds world-to-camera (VGGT's) or camera-to-world poses, checked
+* ``core.vggt.crop`` VGGT's white "pad" borders and explicit crops;
+* ``core.vggt.convention`` whether ``extrinsic`` holds world-to-camera (VGGT's) or camera-to-world poses, checked
   against the point head;
-* ``core.unproject`` pixels to points and VGGT's confidence filter; ``core.point_cloud`` a clip's coloured points;
-* ``core.metric_scale`` ``vggt_to_world``: VGGT's world to Blender's in metres.
+* ``core.geometry.unproject`` pixels to points and VGGT's confidence filter; ``core.geometry.point_cloud`` a clip's coloured points;
+* ``core.geometry.metric_scale`` ``vggt_to_world``: VGGT's world to Blender's in metres.
 """
 
 from __future__ import annotations
@@ -31,10 +31,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from . import files
+from .. import files
 
 if TYPE_CHECKING:  # for the annotation only: vggt_convention imports this module
-    from .vggt_convention import ConventionCheck
+    from .convention import ConventionCheck
 
 REQUIRED_KEYS = ("images", "depth", "depth_conf", "extrinsic", "intrinsic")
 OPTIONAL_KEYS = ("world_points", "world_points_conf")
@@ -133,7 +133,7 @@ class LoadReport:
     extrinsic_convention: str = "world_to_camera"  # resolved: never "auto"
     convention_requested: str = "world_to_camera"
     convention_checked: bool = False
-    check: ConventionCheck | None = None           # core.vggt_convention's figures (None: not checked)
+    check: ConventionCheck | None = None           # core.vggt.convention's figures (None: not checked)
     crop: tuple = (0, 0, 0, 0)                     # (left, top, right, bottom) pixels removed
     crop_requested: str = "none"                   # "none", "auto" or "explicit"
     original_size: tuple = (0, 0)                  # (W, H) before the crop

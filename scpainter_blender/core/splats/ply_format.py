@@ -1,12 +1,12 @@
 """The PLY format as a container: the header (format, elements, typed properties), and reading elements' rows without
-trusting the header's counts. The Gaussian readers (``core.splats_io``, ``core.splats_inria``,
-``core.splats_compressed``) and the mesh import's pre-check (``backend.mesh_load``) build on it.
+trusting the header's counts. The Gaussian readers (``core.splats.reader``, ``core.splats.inria``,
+``core.splats.compressed``) and the mesh import's pre-check (``backend.mesh.load``) build on it.
 
 The header ends at the first line whose only word is ``end_header`` (PLY's rule; surrounding spaces, tabs and a CR
 of CRLF files are allowed, as plyfile allows them); ``comment`` and ``obj_info`` lines are free text, never
 parsed, so words in them can never shift the data. Headers are read from the first ``MAX_HEADER`` bytes, at most
 ``MAX_HEADER_LINES`` lines. An element's rows are read only once the file is known to hold them (counts are
-claims: nothing is allocated from them). Problems raise ``core.splats.SplatsError`` naming the file and the header
+claims: nothing is allocated from them). Problems raise ``core.splats.gaussians.SplatsError`` naming the file and the header
 line, element or property at fault.
 
 No bpy, no torch: numpy only.
@@ -19,7 +19,7 @@ import re
 
 import numpy as np
 
-from .splats import ACCEPTED, SplatsError, open_file
+from .gaussians import ACCEPTED, SplatsError, open_file
 
 MAX_HEADER = 1 << 16        # bytes: a degree-3 INRIA header is ~1.5 KB
 MAX_HEADER_LINES = 4096     # an INRIA header has 62 property lines at most; more is not a splat file

@@ -1,7 +1,7 @@
 """Camera conventions: rigid transforms and poses, OpenCV pinhole <-> Blender camera and render settings.
 
-Camera paths (heading, lateral shifts) are in ``core.trajectory``; similarity transforms and their fits in
-``core.similarity``.
+Camera paths (heading, lateral shifts) are in ``core.geometry.trajectory``; similarity transforms and their fits in
+``core.geometry.similarity``.
 
 Conventions (docs/design.md §3), stated once here and assumed by every module that
 takes cameras:

@@ -1,6 +1,6 @@
 """TRELLIS / Amodal3R Gaussian files: their axes, and how to recognise them (``detect_axes``).
 
-TRELLIS (microsoft/TRELLIS) and Amodal3R write the INRIA layout (``core.splats_inria``) with SH degree 0
+TRELLIS (microsoft/TRELLIS) and Amodal3R write the INRIA layout (``core.splats.inria``) with SH degree 0
 (``TRELLIS_PROPERTIES``: 17 float properties, zero normals), the object inside the unit cube
 (``TRELLIS_MEAN_BOUND``), and positions/rotations multiplied by ``ZUP_TO_TRELLIS_FILE`` (the file holds (x, -z, y)
 of their Z-up frame); the Gaussian import undoes it with ``ZUP_TO_TRELLIS_FILE.T`` when ``detect_axes`` says
@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import splats_inria
-from .splats import FORMAT_NAMES, GaussianPly, valid_rows
+from . import inria as splats_inria
+from .gaussians import FORMAT_NAMES, GaussianPly, valid_rows
 
 #: File axes from TRELLIS's Z-up object axes: p_file = ZUP_TO_TRELLIS_FILE @ p (a -90° turn about X undoes it).
 ZUP_TO_TRELLIS_FILE = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])

@@ -49,7 +49,7 @@ import time
 
 from scpainter_blender.core import batch_items
 
-from . import events
+from .. import events
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 #: A job is run again at most this many times after its worker died or it raised an unexpected exception.
@@ -168,8 +168,8 @@ def _run_job(path: str, command: str, device: str, options: dict, task: str, boa
     from scpainter_blender.core import locking
     from scpainter_blender.core.files import InputError
 
-    from . import batch
-    from .errors import CleanFailure
+    from . import command as batch
+    from ..errors import CleanFailure
 
     import ray
 
@@ -263,7 +263,7 @@ def run_ray_batch(items: list[str], command: str, device: str = "auto", checkpoi
 
     from scpainter_blender.core.files import ArgumentError
 
-    from . import batch
+    from . import command as batch
 
     batch_items.check_ray_options(retries, cpus_per_job)
     if stop:  # SIGTERM before any job was sent (while the cluster was joined: connect's stop): none runs

@@ -19,8 +19,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import cameras, files, similarity, vggt
-from .vggt import PredictionsError
+from . import cameras, similarity
+from .. import files
+from ..vggt import predictions as vggt
+from ..vggt.predictions import PredictionsError
 
 
 #: Blender world axes from VGGT's (first camera's OpenCV) axes: x stays right, camera forward (z) becomes +Y,

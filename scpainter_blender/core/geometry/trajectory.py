@@ -1,6 +1,6 @@
 """Camera paths: the direction of travel per frame, and paths shifted sideways, up or forward by metres.
 
-World: Blender's (Z up, metres); cameras are OpenCV ``world_to_camera`` (``core.cameras``). The direction of
+World: Blender's (Z up, metres); cameras are OpenCV ``world_to_camera`` (``core.geometry.cameras``). The direction of
 travel is measured along the path's *travelled distance*, so a stop or a parked camera keeps a sensible heading
 (docs/design.md §3).
 

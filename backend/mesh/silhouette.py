@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from scpainter_blender.core import splats
+from scpainter_blender.core.splats import gaussians as splats
 
 
 def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
@@ -103,8 +103,8 @@ def render_mask(g: splats.Gaussians, K, world_to_camera, width: int, height: int
     ``reference``)."""
     import torch
 
-    from .render import gaussians as gs
-    from .render import tiles
+    from ..render import gaussians as gs
+    from ..render import tiles
 
     t = lambda a: torch.as_tensor(np.asarray(a, np.float64))  # noqa: E731
     proj = gs.project(t(g.means), t(g.quats), t(g.scales), t(g.opacities), t(g.sh), K, world_to_camera,

@@ -3,7 +3,7 @@ and placed in the output world by ``vggt_to_world``; pixels on depth edges ("fly
 and the points likely on the road, for the ground plane.
 
 Outputs are float64 positions in the requested world (Blender's: Z up, metres, when a ``vggt_to_world``
-similarity from ``core.metric_scale`` is given) and sRGB-encoded colours as the images hold them.
+similarity from ``core.geometry.metric_scale`` is given) and sRGB-encoded colours as the images hold them.
 
 No bpy, no torch: numpy only.
 """
@@ -14,7 +14,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import similarity, unproject, vggt
+from . import similarity, unproject
+from ..vggt import predictions as vggt
 
 
 @dataclass

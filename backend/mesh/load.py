@@ -1,5 +1,5 @@
 """Mesh files (GLB, glTF, OBJ, PLY, STL, OFF) read with trimesh into Z-up parts for the ``mesh-asset`` command
-(``backend.mesh_asset``), and refused with a ``MeshAssetError`` naming the file when they are not a usable mesh.
+(``backend.mesh.asset``), and refused with a ``MeshAssetError`` naming the file when they are not a usable mesh.
 
 Frames and units
 ----------------
@@ -16,13 +16,13 @@ Frames and units
 * TRELLIS (microsoft/TRELLIS): ``trellis/utils/postprocessing_utils.py:to_glb`` writes the GLB with
   ``vertices @ [[1,0,0],[0,0,-1],[0,1,0]]``, i.e. (x, z, -y) of TRELLIS's Z-up frame: plain glTF Y-up, so the
   conversion above returns TRELLIS's own Z-up frame. ``trellis/representations/gaussian/gaussian_model.py:save_ply``
-  writes its Gaussians as ``xyz @ T.T`` with the same matrix T, i.e. (x, -z, y) (``core.trellis.ZUP_TO_TRELLIS_FILE``),
+  writes its Gaussians as ``xyz @ T.T`` with the same matrix T, i.e. (x, -z, y) (``core.splats.trellis.ZUP_TO_TRELLIS_FILE``),
   which the Gaussian import undoes with ``F = ZUP_TO_TRELLIS_FILE.T``. The two files of one TRELLIS asset
   therefore land in the same pose (``tests/backend/test_mesh_asset.py`` builds both and checks it).
 
 Only regular files are opened, the mesh and every file it names (glTF buffers and images, OBJ materials and
 textures): a FIFO would block trimesh's read forever. A PLY's header is checked before trimesh reads it
-(``core.ply_format``): a Gaussian-splat PLY, or counts the file cannot hold, are refused at once.
+(``core.splats.ply_format``): a Gaussian-splat PLY, or counts the file cannot hold, are refused at once.
 
 No bpy, no torch.
 """
@@ -34,7 +34,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from scpainter_blender.core import files, ply_format, splats
+from scpainter_blender.core import files
+from scpainter_blender.core.splats import ply_format, gaussians as splats
 
 #: p_zup = Y_UP_TO_Z_UP @ p for Y-up files: (x, y, z) -> (x, -z, y), Blender's glTF import.
 Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])

@@ -1,5 +1,5 @@
 """The two compact Gaussian formats of web viewers, both quantised: SuperSplat's compressed PLY (read) and
-antimatter15's ``.splat`` (read and write), as the raw INRIA values of ``core.splats.GaussianPly``.
+antimatter15's ``.splat`` (read and write), as the raw INRIA values of ``core.splats.gaussians.GaussianPly``.
 
 SuperSplat compressed PLY ("supersplat_compressed"; writers: playcanvas/supersplat ``src/splat-serialize.ts``
 ``serializePlyCompressed``, playcanvas/splat-transform ``src/lib/writers/write-compressed-ply.ts`` and
@@ -40,9 +40,10 @@ import os
 
 import numpy as np
 
-from . import outputs, ply_format
+from .. import outputs
+from . import ply_format
 from .sh import SH_C0
-from .splats import GaussianPly, SplatsError, decode, open_file
+from .gaussians import GaussianPly, SplatsError, decode, open_file
 
 #: SuperSplat compressed PLY: splats per chunk, and the chunk/vertex properties (module docstring; the readers
 #: choose this layout by the ``chunk`` element or ``packed_*`` vertex properties).

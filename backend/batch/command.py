@@ -17,7 +17,7 @@ import time
 
 from scpainter_blender.core.batch_items import ranks_from_env, shard  # shared with blender -c scpainter batch
 
-from . import events
+from .. import events
 
 
 def run_one(job_path: str, command: str, device: str, checkpoint: str | None, stop, allow_outside: bool = False,
@@ -28,12 +28,12 @@ def run_one(job_path: str, command: str, device: str, checkpoint: str | None, st
 
     job = job_mod.load(job_path)
     if command == "render":
-        from .render import command as render_cmd
+        from ..render import command as render_cmd
 
         r = render_cmd.render_job(job_path, job, device, stop=stop, allow_outside=allow_outside, half=half)
         return {"output_dir": r["output_dir"], "frames": r["frames"], "rendered": r["rendered"],
                 "skipped": not r["stopped"] and r["rendered"] == 0, "stopped": r["stopped"]}
-    from .generate import generate_job
+    from ..generate.command import generate_job
 
     r = generate_job(job_path, job, device, checkpoint, precision, stop=stop, overrides=overrides,
                      allow_outside=allow_outside)
@@ -53,7 +53,7 @@ def failure(e: Exception, path: str) -> dict:
     traceback goes to standard error and the job's ``backend.log``, named by ``log``."""
     from scpainter_blender.core.files import InputError
 
-    from .errors import CleanFailure
+    from ..errors import CleanFailure
 
     if isinstance(e, InputError):
         events.log(f"batch: {path}: bad input: {e}")

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import vggt
+from . import predictions as vggt
 
 
 class CropError(vggt.PredictionsError):

@@ -2,10 +2,10 @@
 elements) or, for headerless ``.splat``, by extension; ``load(path) = decode(read(path))``; mesh files are told
 apart from Gaussian ones (``is_mesh_ply``, ``MESH_EXTENSIONS``) and refused with a message that says where they go.
 
-The readers (every one returns a ``core.splats.GaussianPly`` of raw INRIA values): ``core.splats_inria`` (INRIA,
-TRELLIS/Amodal3R and half-float PLY), ``core.splats_compressed`` (SuperSplat compressed PLY, antimatter15
-``.splat``), on top of ``core.ply_format`` (the PLY header and elements). Only regular files are opened (a FIFO or
-a directory is refused at once, not waited on). Unusable files raise ``core.splats.SplatsError`` naming the file
+The readers (every one returns a ``core.splats.gaussians.GaussianPly`` of raw INRIA values): ``core.splats.inria`` (INRIA,
+TRELLIS/Amodal3R and half-float PLY), ``core.splats.compressed`` (SuperSplat compressed PLY, antimatter15
+``.splat``), on top of ``core.splats.ply_format`` (the PLY header and elements). Only regular files are opened (a FIFO or
+a directory is refused at once, not waited on). Unusable files raise ``core.splats.gaussians.SplatsError`` naming the file
 and what is wrong.
 
 No bpy, no torch: numpy only.
@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import os
 
-from . import ply_format, splats_compressed, splats_inria
-from .splats import ACCEPTED, GaussianPly, Gaussians, SplatsError, decode, open_file
+from . import ply_format, compressed as splats_compressed, inria as splats_inria
+from .gaussians import ACCEPTED, GaussianPly, Gaussians, SplatsError, decode, open_file
 
 #: Mesh files: not splats, but what the car-asset import converts to Gaussians (backend ``mesh-asset``, trimesh);
 #: a ``.ply`` is a mesh when ``is_mesh_ply`` says so.

@@ -3,7 +3,7 @@
 Some tools around VGGT save camera-to-world poses under ``extrinsic`` (facebookresearch/vggt issues 275, 370).
 VGGT's depth and point heads are independent estimates of the same points, so a file's poses can be checked:
 unproject each frame's depth with ``extrinsic`` as stored and with its inverse, and see which lands on the file's
-``world_points``. ``resolve_convention`` applies the requested convention when loading (``core.vggt_io``), checking
+``world_points``. ``resolve_convention`` applies the requested convention when loading (``core.vggt.npz``), checking
 first when it is "auto", and refuses a camera-to-world file, or one that neither reading fits, naming the frame.
 
 No bpy, no torch: numpy only.
@@ -15,7 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import cameras, unproject, vggt
+from ..geometry import cameras, unproject
+from . import predictions as vggt
 
 #: A reading of ``extrinsic`` agrees with the file's ``world_points`` in a frame when the depth it unprojects
 #: lands within this fraction of the frame's median depth of the point head (median over confident pixels).

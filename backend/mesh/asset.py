@@ -3,10 +3,10 @@ flat Gaussian per sample, written as an INRIA-layout PLY with what the command r
 
 Where the rest lives (no bpy; trimesh):
 
-* ``backend.mesh_load``: reading the file into Z-up parts (formats, axes, glTF/OBJ scenes), ``MeshAssetError``;
-* ``backend.mesh_colors``: the samples' colours (textures, vertex/face colours, materials);
-* ``backend.mesh_box``: the upright oriented box (stage-1 size) and the 3D box the command reports;
-* ``backend.mesh_silhouette``: the rendered asset mask against the mesh's silhouette (how "Choice of c" below
+* ``backend.mesh.load``: reading the file into Z-up parts (formats, axes, glTF/OBJ scenes), ``MeshAssetError``;
+* ``backend.mesh.colors``: the samples' colours (textures, vertex/face colours, materials);
+* ``backend.mesh.box``: the upright oriented box (stage-1 size) and the 3D box the command reports;
+* ``backend.mesh.silhouette``: the rendered asset mask against the mesh's silhouette (how "Choice of c" below
   was measured).
 
 Gaussians
@@ -44,12 +44,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from scpainter_blender.core import cameras, files, outputs, shapes, splats, splats_inria
-from scpainter_blender.core.sh import SH_C0
+from scpainter_blender.core.geometry import cameras
+from scpainter_blender.core import files, outputs, shapes
+from scpainter_blender.core.splats import gaussians as splats, inria as splats_inria
+from scpainter_blender.core.splats.sh import SH_C0
 
-from .mesh_box import oriented_box_3d, upright_box
-from .mesh_colors import part_colours
-from .mesh_load import MeshAsset, MeshAssetError, as_parts, face_areas, load_mesh
+from .box import oriented_box_3d, upright_box
+from .colors import part_colours
+from .load import MeshAsset, MeshAssetError, as_parts, face_areas, load_mesh
 
 SIGMA_FACTOR = 0.6       # c in σ = c sqrt(A / N); see "Choice of c" above
 NORMAL_RATIO = 1e-3      # σ along the normal / σ in the plane

@@ -1,6 +1,6 @@
 """The body of ``python -m backend generate``: conditions -> SCPainter video (docs/design.md §11), resumable,
 stoppable. Without a checkpoint (or with ``--model baseline``) the video is the baseline's instead: the condition
-image with its holes filled by OpenCV inpainting (``backend/baseline.py``), marked as such in the manifest, the
+image with its holes filled by OpenCV inpainting (``backend/generate/baseline.py``), marked as such in the manifest, the
 events and the MP4's metadata.
 
 Steps: render the condition layers that are missing (the render command's code); load I, M_a and the validity
@@ -29,12 +29,13 @@ from scpainter_blender.core import files, locking, outputs
 from scpainter_blender.core import job as job_mod
 from scpainter_blender.core import job_inputs
 
-from . import baseline, events
-from .errors import FolderBusyError
-from .model import checkpoint as ckpt_mod
-from .render import command as render_cmd
-from .render import channels
-from .render import frames as fr
+from . import baseline
+from .. import events
+from ..errors import FolderBusyError
+from ..model import checkpoint as ckpt_mod
+from ..render import command as render_cmd
+from ..render import channels
+from ..render import frames as fr
 
 PRECISIONS = {"fp32": torch.float32, "bf16": torch.bfloat16, "fp16": torch.float16}
 
@@ -123,7 +124,7 @@ def clip_source(job_path: str, job: job_mod.Job, first_condition: torch.Tensor) 
     """(3, H, W) in [0, 1]: the recorded image of the first output frame's first source frame, if any."""
     scene, sources = job.scene, job.frames[0].source_frames
     if scene is not None and sources:
-        from scpainter_blender.core import vggt
+        from scpainter_blender.core.vggt import predictions as vggt
 
         path = job_mod.resolve(job_path, scene.predictions)
         images = files.read_npz(path, ["images"], error=vggt.PredictionsError)["images"]
@@ -222,7 +223,7 @@ def _generate(job_path, job, device, plan: Plan, precision, force, stop, lock) -
         log(f"generate: {mp4} is up to date (same checkpoint, settings and conditions)")
         return _result(plan, mp4, gen_dir, frames_n, skipped=True)
 
-    from .model.pipeline import SCPainterPipeline, pad_to_multiple
+    from ..model.pipeline import SCPainterPipeline, pad_to_multiple
 
     log(f"generate {job_path}: {frames_n} frames {W}x{H}, {s['steps']} steps, window {s['window']} overlap "
         f"{s['overlap']}, {precision} on {device}, checkpoint {ckpt}")

@@ -5,7 +5,7 @@ point sets, and a camera-path fit that uses orientations as well as centres (a s
 the roll). Everything is float64 and centred before it is multiplied, so 1e5 m coordinates fit to ~1e-10.
 
 Argument errors (shapes, collinear points, opposite paths) raise ValueError: callers that fit user data (a
-trajectory file) turn them into an InputError naming the file (``core.metric_scale``).
+trajectory file) turn them into an InputError naming the file (``core.geometry.metric_scale``).
 
 No bpy, no torch: numpy only.
 """

@@ -8,19 +8,19 @@
 * ``rot`` is a quaternion (w, x, y, z), not necessarily unit (decoded by normalising),
 * ``f_rest`` holds SH degree d >= 1 coefficients channel-major: M = 3 ((d+1)^2 - 1), first all of red's
   coefficients 1..K-1, then green's, then blue's. Colour = max(0.5 + Σ_k SH_k(dir) c_k, 0), dir = normalise(mean -
-  camera centre) (``sh_to_rgb``; the constants and the basis are ``core.sh``'s).
+  camera centre) (``sh_to_rgb``; the constants and the basis are ``core.splats.sh``'s).
 
 Raw values are kept apart from decoded ones so that write -> read is bit-exact. Rows with NaN/inf, zero
 quaternions or scales that overflow are dropped on decoding and counted, never passed on.
 
 The files (``GaussianPly.format`` says which layout a file had, ``FORMAT_NAMES`` its human name):
 
-* ``core.splats_io``: ``read(path)`` for any accepted file (by content, or ``.splat`` by extension),
+* ``core.splats.reader``: ``read(path)`` for any accepted file (by content, or ``.splat`` by extension),
   ``load(path) = decode(read(path))``, ``read_ply``, and telling mesh files from Gaussian ones (``is_mesh_ply``);
-* ``core.ply_format``: the PLY container (header, elements, property types) every PLY reader here uses;
-* ``core.splats_inria``: the INRIA layout (float, double or half floats; TRELLIS/Amodal3R too) and ``write_ply``;
-* ``core.splats_compressed``: SuperSplat compressed PLY and antimatter15 ``.splat`` (``write_splat``);
-* ``core.trellis``: TRELLIS/Amodal3R files: their axes (``ZUP_TO_TRELLIS_FILE``) and ``detect_axes``.
+* ``core.splats.ply_format``: the PLY container (header, elements, property types) every PLY reader here uses;
+* ``core.splats.inria``: the INRIA layout (float, double or half floats; TRELLIS/Amodal3R too) and ``write_ply``;
+* ``core.splats.compressed``: SuperSplat compressed PLY and antimatter15 ``.splat`` (``write_splat``);
+* ``core.splats.trellis``: TRELLIS/Amodal3R files: their axes (``ZUP_TO_TRELLIS_FILE``) and ``detect_axes``.
 
 No bpy, no torch: numpy only.
 """
@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import files
+from .. import files
 from . import sh as _sh
 
 #: Human names of ``GaussianPly.format`` values, for import reports.
@@ -185,7 +185,7 @@ def encode(g: Gaussians, extra: dict | None = None) -> GaussianPly:
 def sh_basis(dirs, degree: int) -> np.ndarray:
     """Real SH basis values (N, (degree+1)^2) at unit directions (N, 3), in the 3DGS ordering and signs."""
     d = np.asarray(dirs, np.float64)
-    terms = _sh.basis(d[:, 0], d[:, 1], d[:, 2], degree)  # core.sh: the one formula (the renderer's too)
+    terms = _sh.basis(d[:, 0], d[:, 1], d[:, 2], degree)  # core.splats.sh: the one formula (the renderer's too)
     return np.stack([np.broadcast_to(np.asarray(t, np.float64), (len(d),)) for t in terms], axis=1)
 
 

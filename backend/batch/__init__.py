@@ -1,0 +1,1 @@
+"""Many jobs: the sequential / torchrun-sharded batch and the Ray pool."""

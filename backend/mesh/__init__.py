@@ -1,0 +1,1 @@
+"""Mesh cars: mesh files into Z-up parts, their colours and boxes, surface Gaussians, silhouettes."""

@@ -1,0 +1,1 @@
+"""Geometry in numpy: cameras, similarities, trajectories, fits, metric scale, unprojection."""

@@ -1,0 +1,1 @@
+"""Gaussian splat files and values: INRIA PLY, SuperSplat compressed PLY, .splat, TRELLIS, SH."""

@@ -1,0 +1,1 @@
+"""VGGT's predictions: conventions and values, the npz file, white-border crop, pose convention."""

@@ -44,14 +44,14 @@ def _cmd_doctor(args) -> int:
     needed = ("numpy", "torch", "numba", "OpenEXR", "diffusers", "transformers", "safetensors", "av", "trimesh")
     report["missing"] = [m for m in needed if not report.get(m) or str(report[m]).startswith("broken")]
     if args.checkpoint:
-        from scpainter_blender.core import files
+        from scpainter_blender.core import errors
 
         from .model import checkpoint, checkpoint_config
 
         try:
             checkpoint_config.ScpainterConfig.load(os.path.join(checkpoint.resolve(args.checkpoint), "scpainter.json"))
             report["checkpoint"] = "ok"
-        except files.InputError as e:
+        except errors.InputError as e:
             report["checkpoint"] = str(e)
     events.done(command="doctor", report=report)
     return events.EXIT_OK
@@ -66,7 +66,7 @@ def _device(name: str) -> str:
     if torch.cuda.is_available():
         return "cuda"
     if name == "cuda":
-        from scpainter_blender.core.files import ArgumentError
+        from scpainter_blender.core.errors import ArgumentError
 
         raise ArgumentError("--device", "cuda: torch sees no CUDA GPU on this machine",
                             hint="use --device cpu or auto")
@@ -156,7 +156,7 @@ def _cmd_init_checkpoint(args) -> int:
 
 def _cmd_batch(args) -> int:
     from scpainter_blender.core import batch_items as batch_mod
-    from scpainter_blender.core.files import ArgumentError
+    from scpainter_blender.core.errors import ArgumentError
 
     from .batch import command as batch
 
@@ -307,7 +307,7 @@ class _Parser(argparse.ArgumentParser):
     def error(self, message):
         """argparse's usage and message on standard error, as always, and the error event a pipeline reads on
         standard output (file "(command line)", field the argument: ``ArgumentError.from_argparse``); exit 2."""
-        from scpainter_blender.core.files import ArgumentError
+        from scpainter_blender.core.errors import ArgumentError
 
         e = ArgumentError.from_argparse(message, self.prog)
         self.print_usage(sys.stderr)
@@ -424,7 +424,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)  # argparse errors: usage on standard error, an error event, exit 2
-    from scpainter_blender.core.files import InputError  # (numpy: not imported before doctor can report it)
+    from scpainter_blender.core.errors import InputError  # (numpy: not imported before doctor can report it)
 
     from .errors import CleanFailure
 

@@ -1,7 +1,7 @@
 """Failures that are not bad input but still end a command cleanly, with a message and no traceback.
 
 ``python -m backend`` turns each into an ``error`` event (message, hint, the fields below) and exit code 1; bad
-input (``scpainter_blender.core.files.InputError`` and nothing else) is exit code 2; any other exception (a plain
+input (``scpainter_blender.core.errors.InputError`` and nothing else) is exit code 2; any other exception (a plain
 ``ValueError`` included) is a bug: exit code 1 with its traceback (``events.report_bug``).
 """
 

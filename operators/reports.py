@@ -11,7 +11,7 @@ import sys
 import traceback
 
 from ..scpainter_blender.backend_client import BackendError
-from ..scpainter_blender.core.files import InputError
+from ..scpainter_blender.core.errors import InputError
 
 
 def describe(e: InputError) -> str:

@@ -49,7 +49,7 @@ def main(argv=None):
     log("street: generating or loading from the cache ...")
     if args.checkpoint:  # checked before minutes of work: a wrong path is one clear message, exit 2
         from backend.model import checkpoint as ckpt_mod
-        from scpainter_blender.core.files import InputError
+        from scpainter_blender.core.errors import InputError
 
         try:
             ckpt_mod.check(ckpt_mod.resolve(args.checkpoint))

@@ -51,7 +51,7 @@ def failure(e: Exception, path: str) -> dict:
     """The fields of a failed job's result: ``error`` (the message); for bad input (an ``InputError``) ``file``
     and ``field``; for a failure the job explains (``CleanFailure``) its fields; for anything else (a bug) the
     traceback goes to standard error and the job's ``backend.log``, named by ``log``."""
-    from scpainter_blender.core.files import InputError
+    from scpainter_blender.core.errors import InputError
 
     from ..errors import CleanFailure
 
@@ -85,7 +85,7 @@ def run_batch(items: list[str], command: str, device: str, checkpoint: str | Non
     rank, world, local = ranks_from_env()  # (InputError "(environment)" naming a bad variable)
     for name in ("MASTER_ADDR", "MASTER_PORT") if world > 1 else ():  # gather() needs them: check before any job
         if not os.environ.get(name, "").strip():
-            from scpainter_blender.core.files import InputError
+            from scpainter_blender.core.errors import InputError
 
             raise InputError("(environment)", name, f"not set, with WORLD_SIZE={world}: the ranks cannot gather "
                                                     "their results", hint="start the processes with torchrun or "

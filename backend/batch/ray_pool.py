@@ -80,7 +80,7 @@ def connect(address: str | None = None, stop: list | None = None):
     try:
         import ray
     except ImportError as e:  # an optional package of the backend: say so, not "an internal error"
-        from scpainter_blender.core.files import ArgumentError
+        from scpainter_blender.core.errors import ArgumentError
 
         raise ArgumentError("--ray", f"needs the ray package, which this Python ({sys.executable}) cannot import "
                                      f"({e})", hint="pip install ray (requirements.txt pins the version tested) "
@@ -116,13 +116,13 @@ def connect(address: str | None = None, stop: list | None = None):
 def _address_error(address: str | None, message: str):
     """The error for a Ray address that does not lead to a head: ``ArgumentError`` naming ``--ray`` when the user
     gave it, else ``InputError`` "(environment)" ``RAY_ADDRESS``."""
-    from scpainter_blender.core import files
+    from scpainter_blender.core import errors
 
     hint = ("the address `ray start --head` printed (HOST:6379, the GCS port, not the dashboard's 8265); is the "
             "cluster up, and this machine allowed to reach it?")
     if address:
-        return files.ArgumentError("--ray", message, hint=hint)
-    return files.InputError("(environment)", "RAY_ADDRESS", message, hint=hint + " (or unset RAY_ADDRESS)")
+        return errors.ArgumentError("--ray", message, hint=hint)
+    return errors.InputError("(environment)", "RAY_ADDRESS", message, hint=hint + " (or unset RAY_ADDRESS)")
 
 
 def _check_reachable(address: str | None) -> None:
@@ -166,7 +166,7 @@ def _run_job(path: str, command: str, device: str, options: dict, task: str, boa
     import signal
 
     from scpainter_blender.core import locking
-    from scpainter_blender.core.files import InputError
+    from scpainter_blender.core.errors import InputError
 
     from . import command as batch
     from ..errors import CleanFailure
@@ -213,7 +213,7 @@ def job_device(device: str = "auto", address: str | None = None) -> str:
     is not ``cpu`` (each task then asks for one GPU), else ``cpu``. Callers that key outputs on the device's
     defaults (``evaluate``: ``precision auto`` is bf16 on CUDA, fp32 on CPU) resolve them with it before the pool
     starts. ``device`` ``cuda`` on a cluster without GPUs is an ``ArgumentError``."""
-    from scpainter_blender.core.files import ArgumentError
+    from scpainter_blender.core.errors import ArgumentError
 
     gpus = connect(address).cluster_resources().get("GPU", 0)
     if device == "cuda" and not gpus:
@@ -261,7 +261,7 @@ def run_ray_batch(items: list[str], command: str, device: str = "auto", checkpoi
     ``batch.run_one`` (same arguments and result; the tests' transient failures)."""
     import uuid
 
-    from scpainter_blender.core.files import ArgumentError
+    from scpainter_blender.core.errors import ArgumentError
 
     from . import command as batch
 
@@ -360,7 +360,7 @@ def _job_log(path: str) -> str | None:
     the output folder is read."""
     from scpainter_blender.core import job as job_mod
     from scpainter_blender.core import job_inputs
-    from scpainter_blender.core.files import InputError
+    from scpainter_blender.core.errors import InputError
 
     try:  # allow_outside: the path is only shown, never opened
         out = job_inputs.job_paths(path, job_mod.load(path), allow_outside=True)["output_dir"]

@@ -20,19 +20,19 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from scpainter_blender.core import files
+from scpainter_blender.core import errors
 
 WEIGHTS_FILE = "pt_inception-2015-12-05-6726825d.pth"
 FEATURE_DIM = 2048
 INPUT_SIZE = 299
 
 
-class EvaluationError(files.InputError):
+class EvaluationError(errors.InputError):
     """Evaluation input that cannot be used (the ``--inception`` weights file): ``str()`` is ``"<full path>:
     <what is wrong>"``; ``field`` the part at fault (``"(file)"`` for the file as a whole)."""
 
     def __init__(self, path, message, field=None, hint=None):
-        files.InputError.__init__(self, path, field, message, hint)
+        errors.InputError.__init__(self, path, field, message, hint)
         self.args = (f"{self.path}: {message}",)
 
 

@@ -47,7 +47,7 @@ import torch
 
 from scpainter_blender.core import batch_items
 from scpainter_blender.core import fields as fields_mod
-from scpainter_blender.core import files, outputs
+from scpainter_blender.core import errors, outputs
 from scpainter_blender.core.geometry import trajectory
 from scpainter_blender.core import job as job_mod
 
@@ -89,20 +89,20 @@ class EvalSettings:
         names the option. The bounds are the job's (``core.job``) plus what the metrics need: SSIM's 11 × 11
         window fits the frames, and FID/KID get at least 2 frames per set."""
         def integer(value, option, lo, hi=None):
-            return fields_mod.integer(value, files.COMMAND_LINE, option, lo, hi,
-                                      error=lambda p, f, m: files.ArgumentError(f, m))
+            return fields_mod.integer(value, errors.COMMAND_LINE, option, lo, hi,
+                                      error=lambda p, f, m: errors.ArgumentError(f, m))
 
         W, H = (integer(v, "--resolution", 11, job_mod.MAX_SIDE) for v in a.resolution)
         if W * H > job_mod.MAX_PIXELS:
-            raise files.ArgumentError("--resolution", f"{W} x {H} is more than {job_mod.MAX_PIXELS:,} pixels")
+            raise errors.ArgumentError("--resolution", f"{W} x {H} is more than {job_mod.MAX_PIXELS:,} pixels")
         integer(a.frames, "--frames", 2, job_mod.MAX_FRAMES)
         integer(a.source_window, "--source-window", 0, job_mod.MAX_SOURCE_FRAME)
         for key in ("steps", "seed"):
             integer(getattr(a, key), f"--{key}", *job_mod.GENERATE_INT_BOUNDS[key])
         integer(a.crop_min_px, "--crop-min-px", 0)
         for v in a.shifts:
-            fields_mod.number(v, files.COMMAND_LINE, "--shifts", -1000.0, 1000.0,
-                              error=lambda p, f, m: files.ArgumentError(f, m))
+            fields_mod.number(v, errors.COMMAND_LINE, "--shifts", -1000.0, 1000.0,
+                              error=lambda p, f, m: errors.ArgumentError(f, m))
         return cls(clips=a.clips, output_dir=a.output_dir, checkpoint=a.checkpoint, width=a.resolution[0],
                    height=a.resolution[1], frames=a.frames, shifts=tuple(a.shifts), insertion=not a.no_insertion,
                    source_window=a.source_window, steps=a.steps, seed=a.seed, precision=a.precision,
@@ -221,7 +221,7 @@ def write_jobs(clips: list, s: EvalSettings, out_dir: str) -> list[EvalTask]:
     return work
 
 
-class TaskInputError(files.InputError):
+class TaskInputError(errors.InputError):
     """Bad input a task's job met on the pool: the job's file and field, and its message as the job wrote it
     (which already names them: ``str()`` does not put them in front again), followed by the task."""
 

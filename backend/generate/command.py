@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from scpainter_blender.core import files, locking, outputs
+from scpainter_blender.core import errors, files, locking, outputs
 from scpainter_blender.core import job as job_mod
 from scpainter_blender.core import job_inputs
 
@@ -74,7 +74,7 @@ def prepare(job_path: str, job: job_mod.Job, checkpoint: str | None, overrides: 
     explicit ``scpainter`` without a checkpoint is refused, saying how to make one; ``baseline`` ignores any
     checkpoint."""
     overrides = overrides or {}
-    job_mod.check_generate_settings({k: v for k, v in overrides.items() if v is not None}, files.COMMAND_LINE, "--")
+    job_mod.check_generate_settings({k: v for k, v in overrides.items() if v is not None}, errors.COMMAND_LINE, "--")
     gen = job.generate or job_mod.GenerateSettings()
     model = gen.model_choice(overrides)
     if model == "auto":
@@ -289,7 +289,7 @@ def _up_to_date(gen_dir: str, mp4: str, key: str) -> bool:
         return False
     try:
         return files.read_json(manifest).get("key") == key
-    except (files.InputError, AttributeError):  # an unreadable manifest only means generating again
+    except (errors.InputError, AttributeError):  # an unreadable manifest only means generating again
         return False
 
 

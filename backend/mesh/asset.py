@@ -45,7 +45,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from scpainter_blender.core.geometry import cameras
-from scpainter_blender.core import files, outputs, shapes
+from scpainter_blender.core import errors, outputs, shapes
 from scpainter_blender.core.splats import gaussians as splats, inria as splats_inria
 from scpainter_blender.core.splats.sh import SH_C0
 
@@ -150,12 +150,12 @@ def convert(path, out, count: int = DEFAULT_COUNT, up: str = "auto", seed: int =
             sigma_factor: float = SIGMA_FACTOR, progress=None) -> dict:
     """``python -m backend mesh-asset``: mesh file -> INRIA-layout Gaussian PLY (Z up, the mesh's units, SH 0, no
     normals), written atomically. ``progress(stage, done, total)`` is called between steps. Returns the ``done``
-    event's result (see the backend docs). Raises MeshAssetError (the mesh, ``--out``) or ``files.ArgumentError``
+    event's result (see the backend docs). Raises MeshAssetError (the mesh, ``--out``) or ``errors.ArgumentError``
     (``--count``) on bad input."""
     progress = progress or (lambda *a: None)
     path, out = os.fspath(path), os.fspath(out)
     if not 1 <= int(count) <= MAX_COUNT:
-        raise files.ArgumentError("--count", f"must be between 1 and {MAX_COUNT:,}, got {count}")
+        raise errors.ArgumentError("--count", f"must be between 1 and {MAX_COUNT:,}, got {count}")
     if os.path.exists(out) and os.path.exists(path) and os.path.samefile(path, out):
         raise MeshAssetError(out, "--out is the input mesh itself: choose another file", "--out")
     if not out.lower().endswith(".ply"):

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from scpainter_blender.core import files
+from scpainter_blender.core import errors, files
 from scpainter_blender.core.splats import ply_format, gaussians as splats
 
 #: p_zup = Y_UP_TO_Z_UP @ p for Y-up files: (x, y, z) -> (x, -z, y), Blender's glTF import.
@@ -43,12 +43,12 @@ Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 UP_BY_EXTENSION = {".glb": "y", ".gltf": "y", ".obj": "y", ".ply": "z", ".stl": "z", ".off": "z"}
 
 
-class MeshAssetError(files.InputError):
+class MeshAssetError(errors.InputError):
     """A mesh file that cannot be made into Gaussians; the message names the file and what to do. ``field``: the
     part of the file at fault ("(file)" for the file as a whole; an element, or a texture/buffer the file names)."""
 
     def __init__(self, path, message, field=None, hint=None):
-        files.InputError.__init__(self, path, field, message, hint)
+        errors.InputError.__init__(self, path, field, message, hint)
         self.args = (f"{os.path.basename(self.path)}: {message} ({self.path})",)  # the text it has always had
 
 

@@ -15,7 +15,7 @@ component's folder. A component with only ``.bin``/``.pt`` weights, or an index 
 naming the file. Nothing is ever downloaded. ``check_svd_folder`` is the same check of a stock SVD snapshot.
 
 ``scpainter.json`` itself and ``CheckpointError`` are ``checkpoint_config``; making a folder from an SVD snapshot
-is ``checkpoint_init``. Errors are ``CheckpointError`` (a ``files.InputError``: ``path``, ``field``, ``message``,
+is ``checkpoint_init``. Errors are ``CheckpointError`` (a ``errors.InputError``: ``path``, ``field``, ``message``,
 ``hint``); ``str()`` is ``"<full path>: <field>: <what is wrong>"``.
 """
 
@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 import os
 
-from scpainter_blender.core import files
+from scpainter_blender.core import errors, files
 
 from .checkpoint_config import CheckpointError, ScpainterConfig, json_object, show_value
 
@@ -51,7 +51,7 @@ INIT_HINT = "make a checkpoint with `python -m backend init-checkpoint --svd SVD
 
 # ----------------------------------------------------------------------------------------- finding a folder
 
-def resolve(path: str | None, source: str = files.COMMAND_LINE, field: str = "--checkpoint") -> str:
+def resolve(path: str | None, source: str = errors.COMMAND_LINE, field: str = "--checkpoint") -> str:
     """The checkpoint folder ``path``, or CheckpointError saying how to make one. With no ``path``, the error
     names where one was expected: ``source`` and ``field``, the command line's ``--checkpoint`` by default, or
     the job file and ``generate.checkpoint`` (``generate.prepare``)."""

@@ -4,7 +4,7 @@
 ``check_field`` and ``check_guidance``. ``CheckpointError`` is the error of everything about a checkpoint folder
 (``checkpoint``: finding, checking and loading one; ``checkpoint_init``: making one). stdlib and core only.
 
-Errors are ``CheckpointError`` (a ``files.InputError``: ``path``, ``field``, ``message``, ``hint``); ``str()`` is
+Errors are ``CheckpointError`` (a ``errors.InputError``: ``path``, ``field``, ``message``, ``hint``); ``str()`` is
 ``"<full path>: <field>: <what is wrong>"``, e.g. ``/models/ckpt/scpainter.json: fps: expected an integer in
 [1, 240], got 300``.
 """
@@ -15,7 +15,7 @@ import math
 from dataclasses import dataclass, field
 from typing import ClassVar
 
-from scpainter_blender.core import files
+from scpainter_blender.core import errors, files
 from scpainter_blender.core import job as job_mod
 
 SCHEMA = "scpainter.checkpoint/1"
@@ -35,8 +35,8 @@ BOUNDS = {
 LATENT_VALIDITY = ("area",)   # the rules backend.model.condition implements (latent_validity: area average)
 
 
-class CheckpointError(files.InputError):
-    """A checkpoint or SVD folder that cannot be used: ``path`` (the file or folder; ``files.COMMAND_LINE`` or the
+class CheckpointError(errors.InputError):
+    """A checkpoint or SVD folder that cannot be used: ``path`` (the file or folder; ``errors.COMMAND_LINE`` or the
     job file when no checkpoint is given, see ``checkpoint.resolve``), ``field`` (the key; ``"(file)"`` /
     ``"(folder)"`` for the whole), ``message``, ``hint``. ``str()`` is ``"<path>: <field>: <message>"`` with the
     full path (``config.json`` alone would not say which component)."""

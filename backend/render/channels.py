@@ -49,7 +49,7 @@ import os
 
 import numpy as np
 
-from scpainter_blender.core import files, outputs
+from scpainter_blender.core import errors, files, outputs
 
 IMAGE = ("R", "G", "B")
 HOLE = "hole"
@@ -78,7 +78,7 @@ MAX_PIXELS = 1 << 27
 MAGIC = b"\x76\x2f\x31\x01"
 
 
-class ExrError(files.InputError):
+class ExrError(errors.InputError):
     """A condition EXR this reader cannot use (not OpenEXR, truncated, damaged, another shape of image): the
     file, the field (``(file)``, ``dataWindow``, ``channels``, ...) and what is wrong; the hint says to render
     again."""

@@ -9,7 +9,7 @@ import time
 
 import numpy as np
 
-from scpainter_blender.core import files, locking, outputs
+from scpainter_blender.core import errors, files, locking, outputs
 from scpainter_blender.core import job as job_mod
 from scpainter_blender.core import job_inputs
 
@@ -62,7 +62,7 @@ def _previous_record(cond: str) -> dict | None:
     """The conditions folder's record ({"key", "files"}), None when there is none or it is unreadable."""
     try:
         record = files.read_json(os.path.join(cond, RECORD))
-    except files.InputError:
+    except errors.InputError:
         return None
     ok = isinstance(record, dict) and isinstance(record.get("key"), str) and isinstance(record.get("files"), list)
     return record if ok else None

@@ -16,7 +16,7 @@ from collections import OrderedDict
 
 import numpy as np
 
-from scpainter_blender.core import files
+from scpainter_blender.core import errors, files
 
 #: The coefficient counts OpenCV accepts (``distCoeffs`` of 4, 5, 8, 12 or 14 elements)
 DISTORTION_LENGTHS = (4, 5, 8, 12, 14)
@@ -30,7 +30,7 @@ MAX_ZOOM = 2.0
 MAPS_KEPT = 4
 
 
-def distortion_coefficients(value, path, field, error=files.InputError) -> np.ndarray | None:
+def distortion_coefficients(value, path, field, error=errors.InputError) -> np.ndarray | None:
     """The clip's ``distortion`` field: a list of 4, 5, 8, 12 or 14 finite numbers within ±COEFFICIENT_BOUND, as
     float64; None when absent or all zero (a pinhole camera: frames are used as they are). ``error(path, field,
     message)`` otherwise."""

@@ -47,7 +47,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from scpainter_blender.core.geometry import cameras
-from scpainter_blender.core import files, outputs
+from scpainter_blender.core import errors, files, outputs
 from scpainter_blender.core.vggt import predictions as vggt, npz as vggt_io
 from scpainter_blender.core import fields as fields_mod
 from scpainter_blender.core import job as job_mod
@@ -58,13 +58,13 @@ from . import camera_frames
 SCHEMA = "scpainter.clip/1"
 
 
-class ClipError(JobError, files.InputError):
+class ClipError(JobError, errors.InputError):
     """A clip folder that cannot be used; ``str()`` is "<file name>: <field>: <message>". A JobError (a clip's
     fields are checked by the job's validators, ``core.fields``) and an InputError (bad input: exit code 2,
     ``field`` in the error event)."""
 
     def __init__(self, path, field, message, hint=None):
-        files.InputError.__init__(self, path, field, message, hint)
+        errors.InputError.__init__(self, path, field, message, hint)
 
 
 @dataclass

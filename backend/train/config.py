@@ -11,7 +11,7 @@ import os
 from dataclasses import asdict, dataclass, field, fields
 
 from scpainter_blender.core import batch_items as batch_mod
-from scpainter_blender.core import files, outputs
+from scpainter_blender.core import errors, files, outputs
 from scpainter_blender.core import job as job_mod
 
 from .pairs import PairSettings
@@ -19,12 +19,12 @@ from .pairs import PairSettings
 SCHEMA = "scpainter.train/1"
 
 
-class TrainConfigError(files.InputError):
+class TrainConfigError(errors.InputError):
     """A training config that cannot be used: ``str()`` is "<file name>: <setting>: <message>"; ``field`` the
     setting (``pairs.width``), ``"(file)"`` for the file as a whole."""
 
     def __init__(self, path, field_name, message, hint=None):
-        files.InputError.__init__(self, path, field_name, message, hint)
+        errors.InputError.__init__(self, path, field_name, message, hint)
 
 
 @dataclass

@@ -29,7 +29,7 @@ import numpy as np
 import torch
 
 from scpainter_blender.core.geometry import cameras
-from scpainter_blender.core import files
+from scpainter_blender.core import errors, files
 from scpainter_blender.core.splats import reader as splats_io
 from scpainter_blender.core import job as job_mod
 
@@ -65,7 +65,7 @@ def load_resized(path: str, width: int, height: int) -> torch.Tensor:
                 im = im.resize((width, height), Image.LANCZOS)
             return torch.from_numpy(np.asarray(im).copy()).permute(2, 0, 1)
     except (OSError, Image.DecompressionBombError, SyntaxError) as e:
-        raise files.InputError(path, "(file)", f"cannot read the image ({e})") from None
+        raise errors.InputError(path, "(file)", f"cannot read the image ({e})") from None
 
 
 def load_clip_frames(clip: clip_mod.Clip, width: int, height: int, indices=None, view=None) -> torch.Tensor:

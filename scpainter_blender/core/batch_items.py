@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 import os
 
-from . import files
+from . import errors, files
 
 #: ``--ray``: a job is run again at most this many times after its worker died or it failed unexpectedly (default,
 #: and the most ``--retries`` accepts).
@@ -21,10 +21,10 @@ def check_ray_options(retries, cpus_per_job) -> None:
     [0, ``MAX_RETRIES``], ``--cpus-per-job`` a finite number above 0 (whether a node has that many CPUs is the
     cluster's to say: ``backend.batch.ray_pool``). ``ArgumentError`` naming the option."""
     if isinstance(retries, bool) or not isinstance(retries, int) or not 0 <= retries <= MAX_RETRIES:
-        raise files.ArgumentError("--retries", f"expected an integer in [0, {MAX_RETRIES}], got {retries!r}")
+        raise errors.ArgumentError("--retries", f"expected an integer in [0, {MAX_RETRIES}], got {retries!r}")
     if isinstance(cpus_per_job, bool) or not isinstance(cpus_per_job, (int, float)) \
             or not math.isfinite(cpus_per_job) or not cpus_per_job > 0:
-        raise files.ArgumentError("--cpus-per-job", f"expected a finite number of CPUs above 0, got {cpus_per_job!r}",
+        raise errors.ArgumentError("--cpus-per-job", f"expected a finite number of CPUs above 0, got {cpus_per_job!r}",
                                   hint="e.g. --cpus-per-job 4 for jobs that use 4 threads each")
 
 
@@ -35,7 +35,7 @@ def ray_options(ray, retries=None, cpus_per_job=None) -> tuple[int, float]:
     if ray is None:
         for option, value in (("--retries", retries), ("--cpus-per-job", cpus_per_job)):
             if value is not None:
-                raise files.ArgumentError(option, "applies to --ray only: without it the option would be ignored",
+                raise errors.ArgumentError(option, "applies to --ray only: without it the option would be ignored",
                                           hint="add --ray [ADDRESS], or leave the option out")
     retries = DEFAULT_RETRIES if retries is None else retries
     cpus_per_job = DEFAULT_CPUS_PER_JOB if cpus_per_job is None else cpus_per_job
@@ -53,11 +53,11 @@ def read_list(path) -> list:
     with files.open_regular(path) as f:
         data = f.read(files.MAX_JSON_BYTES + 1)
     if len(data) > files.MAX_JSON_BYTES:
-        raise files.InputError(path, "(file)", "is too large for a list of job paths")
+        raise errors.InputError(path, "(file)", "is too large for a list of job paths")
     try:
         lines = [line.strip() for line in data.decode("utf-8-sig").splitlines()]
     except UnicodeDecodeError as e:
-        raise files.InputError(path, "(file)", f"is not UTF-8 text (byte {e.start})") from None
+        raise errors.InputError(path, "(file)", f"is not UTF-8 text (byte {e.start})") from None
     return [p if os.path.isabs(p) else os.path.join(base, p) for p in lines if p and not p.startswith("#")]
 
 
@@ -90,14 +90,14 @@ def ranks_from_env() -> tuple[int, int, int]:
         except ValueError:
             n = None
         if n is None or n < lo:
-            raise files.InputError("(environment)", name, f"expected an integer >= {lo}, got {value!r}",
+            raise errors.InputError("(environment)", name, f"expected an integer >= {lo}, got {value!r}",
                                    hint="torchrun and accelerate set it; unset it to run one process")
         return n
 
     rank, world, local = get("RANK", 0, 0), get("WORLD_SIZE", 1, 1), get("LOCAL_RANK", 0, 0)
     if world > 1 and not os.environ.get("RANK", "").strip():  # every process would take rank 0's share
-        raise files.InputError("(environment)", "RANK", f"not set, with WORLD_SIZE={world}",
+        raise errors.InputError("(environment)", "RANK", f"not set, with WORLD_SIZE={world}",
                                hint="start the processes with torchrun or accelerate launch, which set both")
     if rank >= world:
-        raise files.InputError("(environment)", "RANK", f"{rank} is not below WORLD_SIZE ({world})")
+        raise errors.InputError("(environment)", "RANK", f"{rank} is not below WORLD_SIZE ({world})")
     return rank, world, local

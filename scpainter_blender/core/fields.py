@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from .files import InputError
+from .errors import InputError
 
 #: A path or a name longer than this (or holding NUL) is not one
 MAX_STRING = 4096

@@ -26,7 +26,7 @@ from functools import partial
 import numpy as np
 
 from . import fields as fields_mod
-from . import files, outputs
+from . import errors, files, outputs
 from .geometry import similarity
 
 SCHEMA = "scpainter.job/2"
@@ -65,7 +65,7 @@ OUTLIER_BOUNDS = {"neighbours": (1, 100), "std_ratio": (0.01, 100.0), "radius_m"
 DEPTH_EDGE_RATIO_BOUNDS = (1e-4, 100.0)
 
 
-class JobError(files.InputError):
+class JobError(errors.InputError):
     """A job that cannot be run: ``str()`` is ``"<job file>: <field>: <what is wrong>"``."""
 
 

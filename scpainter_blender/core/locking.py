@@ -17,7 +17,8 @@ import socket
 import tempfile
 import time
 
-from .files import InputError, open_regular
+from .errors import InputError
+from .files import open_regular
 from .outputs import make_folder
 
 LOCK_NAME = ".scpainter.lock"

@@ -10,7 +10,7 @@
   ``check_output`` (what a run would refuse, checked without creating anything), ``remove_listed`` (the files a
   record of this program's outputs lists, and nothing else).
 
-Bad outputs (a file in the way, a link) raise ``files.InputError`` naming the path. One run per output folder is
+Bad outputs (a file in the way, a link) raise ``errors.InputError`` naming the path. One run per output folder is
 ``core.locking``. stdlib only (no bpy): the add-on and the backend share it.
 """
 
@@ -24,7 +24,8 @@ import shutil
 import stat
 import tempfile
 
-from .files import NONBLOCK, InputError
+from .errors import InputError
+from .files import NONBLOCK
 
 # -------------------------------------------------------------------------------------- writing a file whole
 

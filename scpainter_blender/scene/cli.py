@@ -41,7 +41,7 @@ import bpy
 
 from .. import backend_client
 from ..core import batch_items as batch_mod
-from ..core import files
+from ..core import errors, files
 from ..core import job as job_mod
 from . import importer, preferences, props, runs
 
@@ -49,7 +49,7 @@ from . import importer, preferences, props, runs
 class _Parser(argparse.ArgumentParser):
     def error(self, message):  # argparse would sys.exit() from inside Blender: bad input, exit 2 instead
         """An ``ArgumentError`` (file "(command line)") whose field is the argument argparse names."""
-        raise files.ArgumentError.from_argparse(message, self.prog)
+        raise errors.ArgumentError.from_argparse(message, self.prog)
 
 
 def _ratio_or_off(text: str) -> float | None:
@@ -134,8 +134,8 @@ def _import(args) -> dict:
         opts.scale_mode, opts.scale_factor = "FACTOR", 1.0 if args.scale_factor is None else args.scale_factor
     try:
         opts.check()
-    except files.InputError as e:  # named as the option the user typed
-        raise files.ArgumentError("--" + e.field.replace("_", "-"), e.message, hint=e.hint) from None
+    except errors.InputError as e:  # named as the option the user typed
+        raise errors.ArgumentError("--" + e.field.replace("_", "-"), e.message, hint=e.hint) from None
     result = importer.import_vggt(bpy.context, args.predictions, opts)
     out = {"points": result.num_points, "points_object": result.points.name, "camera": result.camera.name,
            "depth_edge_ratio": result.depth_edge_ratio, "depth_edge_points": result.depth_edge_points,
@@ -160,10 +160,10 @@ def _apply_preferences(args) -> None:
     """Command-line settings override the add-on preferences for this process (preferences are not saved). A
     ``--backend-python`` or ``--checkpoint`` that does not exist is bad input (``ArgumentError``)."""
     if args.backend_python and not os.path.isfile(args.backend_python):
-        raise files.ArgumentError("--backend-python", f"{args.backend_python} is not a file",
+        raise errors.ArgumentError("--backend-python", f"{args.backend_python} is not a file",
                                   hint="give the interpreter that has the backend's packages, e.g. .venv/bin/python")
     if args.checkpoint and not os.path.isdir(args.checkpoint):
-        raise files.ArgumentError("--checkpoint", f"{args.checkpoint} is not a folder",
+        raise errors.ArgumentError("--checkpoint", f"{args.checkpoint} is not a folder",
                                   hint="make one with `python -m backend init-checkpoint --svd SVD_DIR --out DIR`")
     prefs = preferences.get(bpy.context)
     if prefs is None:
@@ -188,7 +188,7 @@ def _open_blend(blend: str, args, output: str | None = None) -> None:
     try:
         bpy.ops.wm.open_mainfile(filepath=os.path.abspath(blend), load_ui=False)
     except RuntimeError as e:  # Blender's own words ("File format is not supported"), without its traceback
-        raise files.InputError(blend, "(file)", f"Blender cannot open it as a scene: {str(e).strip()}",
+        raise errors.InputError(blend, "(file)", f"Blender cannot open it as a scene: {str(e).strip()}",
                                hint="give a .blend file saved by Blender") from None
     if output:
         bpy.context.scene.scpainter_output_dir = os.path.abspath(output)
@@ -233,9 +233,9 @@ def _shard(args) -> tuple[int, int]:
         try:
             k, n = (int(x) for x in args.shard.split("/"))
         except ValueError:  # (int() of the user's text)
-            raise files.ArgumentError("--shard", f"{args.shard!r}: expected K/N, e.g. 0/4") from None
+            raise errors.ArgumentError("--shard", f"{args.shard!r}: expected K/N, e.g. 0/4") from None
         if not 0 <= k < n:
-            raise files.ArgumentError("--shard", f"{k}/{n}: K must be in [0, N)")
+            raise errors.ArgumentError("--shard", f"{k}/{n}: K must be in [0, N)")
         return k, n
     return batch_mod.ranks_from_env()[:2]
 
@@ -244,7 +244,7 @@ def _failure(e: Exception) -> dict:
     """A failed batch item's fields: ``error``; bad input (an InputError, or the backend's exit code 2) adds
     ``file`` and ``field``; a backend's internal error its ``log``; any other exception is a bug: ``bug`` true,
     its traceback on standard error."""
-    if isinstance(e, files.InputError):
+    if isinstance(e, errors.InputError):
         return {"error": str(e), "hint": e.hint, "file": e.path, "field": e.field}
     if isinstance(e, backend_client.BackendError):
         return {"error": str(e), **({"file": e.file, "field": e.field} if e.bad_input else {}),
@@ -260,7 +260,7 @@ def _batch(args) -> tuple[dict, int]:
     args.retries, args.cpus_per_job = batch_mod.ray_options(args.ray, args.retries, args.cpus_per_job)
     items = list(args.items) + [p for f in args.list or [] for p in batch_mod.read_list(f)]
     if not items:
-        raise files.ArgumentError("items", "no .blend or job files given", hint="give paths, or --list FILE")
+        raise errors.ArgumentError("items", "no .blend or job files given", hint="give paths, or --list FILE")
     if args.ray is not None:
         return _batch_ray(args, items)
     k, n = _shard(args)
@@ -288,7 +288,7 @@ def _batch_ray(args, items: list) -> tuple[dict, int]:
     import time
 
     if args.shard:
-        raise files.ArgumentError("--shard", "not with --ray: Ray schedules every item",
+        raise errors.ArgumentError("--shard", "not with --ray: Ray schedules every item",
                                   hint="give each Ray batch its whole list; --shard splits a list over processes")
     t0 = time.perf_counter()
     results, jobs, seen = {}, [], {}   # item index -> failed result; (index, job path, exported); job -> item
@@ -301,7 +301,7 @@ def _batch_ray(args, items: list) -> tuple[dict, int]:
                 _open_blend(path, args)
                 job_path, exported = os.path.join(props.output_dir(bpy.context.scene), "job.json"), True
                 if job_path in seen:  # checked before exporting: the other item's job stays as it is
-                    raise files.InputError(path, "scene.scpainter_output_dir",
+                    raise errors.InputError(path, "scene.scpainter_output_dir",
                                            f"{os.path.dirname(job_path)} is also the output folder of "
                                            f"{seen[job_path]}", hint="give each scene its own SCPainter output folder")
                 runs.export(bpy.context)  # (writes job_path)
@@ -385,7 +385,7 @@ def execute(argv) -> int:
                 summary, code = _batch(args)
             else:
                 summary = _run_blend(args.blend, args.command, args, args.output)
-    except files.InputError as e:  # bad input, caught by name (never as a ValueError): exit 2
+    except errors.InputError as e:  # bad input, caught by name (never as a ValueError): exit 2
         print(json.dumps({"event": "error", "message": str(e), "hint": e.hint, "file": e.path, "field": e.field}),
               flush=True)
         return 2

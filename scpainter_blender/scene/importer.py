@@ -14,7 +14,7 @@ import bpy
 import numpy as np
 
 from ..core.geometry import cameras, fits as geometry, metric_scale, point_cloud, similarity
-from ..core import files
+from ..core import errors
 from ..core.vggt import predictions as vggt, npz as vggt_io
 from ..core import job as job_mod
 from . import camera as camera_mod
@@ -58,7 +58,7 @@ class ImportOptions:
         option's name as field (the UI's property limits keep the panel inside these; scripts and the command
         line are not)."""
         def bad(name, message):
-            return files.InputError(OPTIONS, name, message)
+            return errors.InputError(OPTIONS, name, message)
 
         number = lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)  # noqa: E731
         if not (number(self.confidence_percentile) and 0 <= self.confidence_percentile <= 100):
@@ -76,7 +76,7 @@ class ImportOptions:
         lo, hi = job_mod.DEPTH_EDGE_RATIO_BOUNDS  # the job's bounds: whatever the import takes, the export writes
         r = self.depth_edge_ratio
         if r is not None and not (number(r) and (r == 0 or lo <= r <= hi)):
-            raise files.InputError(OPTIONS, "depth_edge_ratio", f"expected a fraction of the pixel's depth in "
+            raise errors.InputError(OPTIONS, "depth_edge_ratio", f"expected a fraction of the pixel's depth in "
                                    f"[{lo:g}, {hi:g}], or 0 for off, got {r!r}",
                                    hint=f"0 turns the depth-edge test off; the default is {DEPTH_EDGE_RATIO}")
         return self
@@ -101,7 +101,7 @@ def metric_fit(pred: vggt.VGGTPredictions, opts: ImportOptions) -> metric_scale.
         return metric_scale.vggt_to_world_by_factor(opts.scale_factor)
     if opts.scale_mode == "TRAJECTORY":
         if not opts.trajectory_path:
-            raise files.InputError(OPTIONS, "trajectory_path", "scale mode TRAJECTORY needs a metric trajectory file",
+            raise errors.InputError(OPTIONS, "trajectory_path", "scale mode TRAJECTORY needs a metric trajectory file",
                                    hint="choose the file: .npz world_to_camera, xyz or TUM text")
         path = bpy.path.abspath(opts.trajectory_path)
         w2c, centres = metric_scale.load_metric_trajectory(path, pred.num_frames)
@@ -152,7 +152,7 @@ def camera_height_fit(pred: vggt.VGGTPredictions, camera_height: float, confiden
     try:
         fit = metric_scale.vggt_to_world_by_camera_height(g.plane, pred.world_to_camera, camera_height,
                                                             plane_inlier_rms=g.inlier_rms, path=pred.path)
-    except files.InputError as e:  # cameras on the plane or looking straight down at it: same error type here
+    except errors.InputError as e:  # cameras on the plane or looking straight down at it: same error type here
         field = "(camera height)" if e.field == "(file)" else e.field
         raise GroundPlaneError(pred.path, field, e.message, hint=e.hint or _GROUND_HINTS["(camera height)"]) \
             from None

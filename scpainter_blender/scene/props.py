@@ -6,7 +6,7 @@ import os
 
 import bpy
 
-from ..core import files
+from ..core import errors
 from ..core import job as job_mod
 
 DEFAULT_OUTPUT = "//scpainter/{scene}/"
@@ -14,7 +14,7 @@ DEFAULT_OUTPUT = "//scpainter/{scene}/"
 UNSAVED = "(unsaved .blend)"
 
 
-class SceneError(files.InputError):
+class SceneError(errors.InputError):
     """A scene that cannot be used as it is (no camera, an output folder relative to an unsaved .blend, no road
     points under an asset): bad input, like a bad file. ``path`` is the .blend (``UNSAVED`` before it is saved),
     ``field`` the datablock or property at fault (``scene.camera``, ``scene.scpainter_output_dir``,

@@ -324,18 +324,18 @@ def test_a_job_interrupted_outside_its_stop_flag_is_reported_as_run_and_a_queued
 
 
 def test_an_address_nobody_answers_at_is_bad_input_at_once_not_a_hang(monkeypatch):
-    from scpainter_blender.core import files
+    from scpainter_blender.core import errors
 
     monkeypatch.delenv("RAY_ADDRESS", raising=False)
     t = time.monotonic()
-    with pytest.raises(files.ArgumentError) as e:
+    with pytest.raises(errors.ArgumentError) as e:
         batch_ray._check_reachable("127.0.0.1:1")       # nothing listens on port 1: refused at once
     assert e.value.field == "--ray" and "no Ray head answers at 127.0.0.1:1" in e.value.message
-    with pytest.raises(files.ArgumentError) as e:
+    with pytest.raises(errors.ArgumentError) as e:
         batch_ray._check_reachable("head-without-port")
     assert e.value.field == "--ray" and "HOST:PORT" in e.value.message
     monkeypatch.setenv("RAY_ADDRESS", "127.0.0.1:1")
-    with pytest.raises(files.InputError) as e:
+    with pytest.raises(errors.InputError) as e:
         batch_ray._check_reachable(None)
     assert (e.value.path, e.value.field) == ("(environment)", "RAY_ADDRESS")
     assert time.monotonic() - t < batch_ray.CONNECT_TIMEOUT_S
@@ -347,14 +347,14 @@ def test_an_address_where_another_service_listens_is_refused_not_a_hang(ray_clus
     # a web server (or Redis, or the dashboard's port) accepts the TCP connection; ray.init would then wait for ever
     import http.server
 
-    from scpainter_blender.core import files
+    from scpainter_blender.core import errors
 
     monkeypatch.setattr(batch_ray, "CONNECT_TIMEOUT_S", 2.0)
     server = http.server.HTTPServer(("127.0.0.1", 0), http.server.BaseHTTPRequestHandler)
     threading.Thread(target=server.serve_forever, daemon=True).start()
     try:
         t = time.monotonic()
-        with pytest.raises(files.ArgumentError) as e:
+        with pytest.raises(errors.ArgumentError) as e:
             batch_ray._check_reachable(f"127.0.0.1:{server.server_address[1]}")
         assert e.value.field == "--ray" and "not as a Ray head" in e.value.message and "8265" in e.value.hint
         assert time.monotonic() - t < 2.0 + 1.0
@@ -365,13 +365,13 @@ def test_an_address_where_another_service_listens_is_refused_not_a_hang(ray_clus
 
 
 def test_more_cpus_per_job_than_any_node_has_and_a_job_listed_twice(ray_cluster, tmp_path):
-    from scpainter_blender.core import files
+    from scpainter_blender.core import errors
 
     job = small_job(tmp_path / "job")
-    with pytest.raises(files.ArgumentError) as e:       # Ray would queue it for ever
+    with pytest.raises(errors.ArgumentError) as e:       # Ray would queue it for ever
         batch_ray.run_ray_batch([job], "render", "cpu", cpus_per_job=3)
     assert e.value.field == "--cpus-per-job" and "largest node" in e.value.message
-    with pytest.raises(files.ArgumentError) as e:
+    with pytest.raises(errors.ArgumentError) as e:
         batch_ray.run_ray_batch([job], "render", "cpu", cpus_per_job=float("inf"))
     assert e.value.field == "--cpus-per-job"
     again = os.path.join(str(tmp_path), ".", "job", "job.json")   # the same file, spelled another way

@@ -12,7 +12,7 @@ import pytest
 from backend import events
 from backend.__main__ import main
 from backend.render import frames as fr
-from scpainter_blender.core import files
+from scpainter_blender.core import errors
 from tests_support import small_job
 
 
@@ -73,9 +73,9 @@ def test_bad_input_exits_2_naming_file_and_field(tmp_path):
     assert ev[-1]["event"] == "error" and ev[-1]["file"] == job and ev[-1]["field"].startswith("resolution")
     assert "log" not in ev[-1]
     code, ev, err = run("batch", "--device", "cpu")                 # an argument: file "(command line)"
-    assert code == 2 and ev[-1]["file"] == files.COMMAND_LINE and ev[-1]["field"] == "jobs"
+    assert code == 2 and ev[-1]["file"] == errors.COMMAND_LINE and ev[-1]["field"] == "jobs"
     code, ev, _ = run("mesh-asset", tmp_path / "car.glb", "--out", tmp_path / "car.ply", "--count", 0)
-    assert code == 2 and ev[-1]["file"] == files.COMMAND_LINE and ev[-1]["field"] == "--count"
+    assert code == 2 and ev[-1]["file"] == errors.COMMAND_LINE and ev[-1]["field"] == "--count"
 
 
 def test_device_cuda_without_a_gpu_is_an_argument_error(tmp_path):
@@ -94,7 +94,7 @@ def test_argparse_errors_exit_2_with_usage_and_an_error_event(capsys):
     out, err = capsys.readouterr()
     assert e.value.code == 2 and "invalid choice" in err and "usage:" in err
     (ev,) = [json.loads(line) for line in out.splitlines()]     # standard output: the event, nothing else
-    assert ev["event"] == "error" and ev["file"] == files.COMMAND_LINE and ev["field"] == "--device"
+    assert ev["event"] == "error" and ev["file"] == errors.COMMAND_LINE and ev["field"] == "--device"
     assert "invalid choice: 'gpu'" in ev["message"] and "--help" in ev["hint"]
     with pytest.raises(SystemExit) as e:
         main(["batch", "--inpaint", "telea", "--bogus"])

@@ -12,7 +12,7 @@ import trimesh
 import mesh_fixtures as MF
 from backend.mesh import asset as ma
 from backend.mesh import load as mesh_load
-from scpainter_blender.core import files
+from scpainter_blender.core import errors
 from scpainter_blender.core.splats import gaussians as splats, inria as splats_inria
 
 
@@ -171,7 +171,7 @@ def test_gaussian_ply_detected_by_its_properties_not_its_comments(tmp_path):
     splats_inria.write_ply(tmp_path / "splat.ply", splats.encode(g), comment="exported by end_header tools")
     with pytest.raises(mesh_load.MeshAssetError, match="Gaussian-splat PLY") as e:
         mesh_load.load_mesh(tmp_path / "splat.ply")
-    assert isinstance(e.value, files.InputError)
+    assert isinstance(e.value, errors.InputError)
     box = trimesh.creation.box()
     data = box.export(file_type="ply")  # binary; a comment naming Gaussian properties is not a Gaussian file
     data = data.replace(b"\nelement vertex", b"\ncomment not f_dc_0 scale_0 rot_0\nelement vertex", 1)

@@ -2,7 +2,7 @@
 
 import pytest
 
-from scpainter_blender.core import batch_items as batch, files
+from scpainter_blender.core import batch_items as batch, errors
 
 
 def test_ranks_from_the_environment(monkeypatch):
@@ -27,7 +27,7 @@ def test_a_half_set_environment_is_bad_input(monkeypatch, env, field):
         monkeypatch.delenv(name, raising=False)
     for k, v in env.items():
         monkeypatch.setenv(k, v)
-    with pytest.raises(files.InputError) as e:
+    with pytest.raises(errors.InputError) as e:
         batch.ranks_from_env()
     assert e.value.path == "(environment)" and e.value.field == field
 
@@ -37,7 +37,7 @@ def test_list_file(tmp_path):
     p.write_text("# scenes\na/job.json\n\n/abs/job.json\n")
     assert batch.read_list(p) == [str(tmp_path / "a" / "job.json"), "/abs/job.json"]
     p.write_bytes(b"\xff\xfe\x00bad")
-    with pytest.raises(files.InputError, match="not UTF-8"):
+    with pytest.raises(errors.InputError, match="not UTF-8"):
         batch.read_list(p)
 
 
@@ -47,9 +47,9 @@ def test_ray_options_are_checked_before_any_work():
     for retries, cpus, field in ((-1, 1.0, "--retries"), (batch.MAX_RETRIES + 1, 1.0, "--retries"),
                                  (1.5, 1.0, "--retries"), (2, 0.0, "--cpus-per-job"), (2, -1, "--cpus-per-job"),
                                  (2, float("inf"), "--cpus-per-job"), (2, float("nan"), "--cpus-per-job")):
-        with pytest.raises(files.ArgumentError) as e:
+        with pytest.raises(errors.ArgumentError) as e:
             batch.check_ray_options(retries, cpus)
-        assert e.value.path == files.COMMAND_LINE and e.value.field == field
+        assert e.value.path == errors.COMMAND_LINE and e.value.field == field
 
 
 def test_ray_options_default_when_not_given_and_are_refused_without_ray():
@@ -57,10 +57,10 @@ def test_ray_options_default_when_not_given_and_are_refused_without_ray():
     assert batch.ray_options("head:6379", 0, 2.0) == (0, 2.0) and batch.ray_options(None) == (
         batch.DEFAULT_RETRIES, batch.DEFAULT_CPUS_PER_JOB)
     for retries, cpus, field in ((3, None, "--retries"), (None, 2.0, "--cpus-per-job")):  # would be ignored
-        with pytest.raises(files.ArgumentError, match="applies to --ray only") as e:
+        with pytest.raises(errors.ArgumentError, match="applies to --ray only") as e:
             batch.ray_options(None, retries, cpus)
         assert e.value.field == field
-    with pytest.raises(files.ArgumentError) as e:       # checked with --ray
+    with pytest.raises(errors.ArgumentError) as e:       # checked with --ray
         batch.ray_options("", -1, None)
     assert e.value.field == "--retries"
 

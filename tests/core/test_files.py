@@ -12,6 +12,7 @@ import zipfile
 import numpy as np
 import pytest
 
+from scpainter_blender.core import errors as E
 from scpainter_blender.core import files as F
 
 
@@ -28,8 +29,8 @@ def write_zip(path, members: dict, compression=zipfile.ZIP_STORED):
     return path
 
 
-def refused(fn, *args, match=None, **kwargs) -> F.InputError:
-    with pytest.raises(F.InputError, match=match) as e:
+def refused(fn, *args, match=None, **kwargs) -> E.InputError:
+    with pytest.raises(E.InputError, match=match) as e:
         fn(*args, **kwargs)
     return e.value
 
@@ -51,7 +52,7 @@ def test_fifo_is_refused_without_blocking(tmp_path):
             try:
                 call()
                 result[name] = "accepted"
-            except F.InputError as e:
+            except E.InputError as e:
                 result[name] = e
         result["seconds"] = time.perf_counter() - t
 
@@ -64,7 +65,7 @@ def test_fifo_is_refused_without_blocking(tmp_path):
         pytest.fail("a reader blocked on a FIFO")
     assert result.pop("seconds") < 1.0
     for name, e in result.items():
-        assert isinstance(e, F.InputError), name
+        assert isinstance(e, E.InputError), name
         assert "FIFO" in str(e) and "pipe.json" in str(e) and e.field == "(file)", (name, str(e))
 
 
@@ -330,17 +331,17 @@ def test_input_errors_survive_pickling():
     from backend.evaluate.inception import EvaluationError
     from backend.render.channels import ExrError
 
-    for e in (F.InputError("/a/job.json", "frames[0]", "bad", hint="fix it"), SplatsError("/a/car.ply", "bad", "x"),
+    for e in (E.InputError("/a/job.json", "frames[0]", "bad", hint="fix it"), SplatsError("/a/car.ply", "bad", "x"),
               PredictionsError("/a/p.npz", "depth", "bad"), MeshAssetError("/a/m.glb", "bad"),
               TrainConfigError("/a/train.json", "steps", "bad"), ClipError("/a/clip.json", "cars", "bad"),
-              F.ArgumentError("--device", "no GPU", hint="use --device cpu"), ExrError("/a/f.exr", None, "bad"),
+              E.ArgumentError("--device", "no GPU", hint="use --device cpu"), ExrError("/a/f.exr", None, "bad"),
               EvaluationError("/a/w.pth", "bad")):
         back = pickle.loads(pickle.dumps(e))
         assert type(back) is type(e) and str(back) == str(e) and back.__dict__ == e.__dict__
-        assert isinstance(back, F.InputError) and back.field == e.field and back.hint == e.hint
+        assert isinstance(back, E.InputError) and back.field == e.field and back.hint == e.hint
 
 
 def test_an_argument_error_names_the_command_line_and_the_option():
-    e = F.ArgumentError("--device", "cuda: torch sees no CUDA GPU", hint="use --device cpu or auto")
-    assert isinstance(e, F.InputError) and e.path == F.COMMAND_LINE == "(command line)" and e.field == "--device"
+    e = E.ArgumentError("--device", "cuda: torch sees no CUDA GPU", hint="use --device cpu or auto")
+    assert isinstance(e, E.InputError) and e.path == E.COMMAND_LINE == "(command line)" and e.field == "--device"
     assert str(e) == "(command line): --device: cuda: torch sees no CUDA GPU" and e.hint == "use --device cpu or auto"

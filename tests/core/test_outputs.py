@@ -5,7 +5,7 @@ import os
 
 import pytest
 
-from scpainter_blender.core import files, outputs
+from scpainter_blender.core import errors, files, outputs
 
 
 def test_atomic_write_leaves_nothing_on_error(tmp_path):
@@ -48,15 +48,15 @@ def test_append_text_refuses_links_and_fifos(tmp_path):
     outputs.append_text(log, "b\n")
     assert log.read_text() == "a\nb\n"
     (tmp_path / "link.log").symlink_to(tmp_path / "elsewhere.log")
-    with pytest.raises(files.InputError, match="symbolic link"):
+    with pytest.raises(errors.InputError, match="symbolic link"):
         outputs.append_text(tmp_path / "link.log", "x")
     assert not (tmp_path / "elsewhere.log").exists()
     if hasattr(os, "mkfifo"):
         os.mkfifo(tmp_path / "fifo.log")
-        with pytest.raises(files.InputError, match="not a regular file"):
+        with pytest.raises(errors.InputError, match="not a regular file"):
             outputs.append_text(tmp_path / "fifo.log", "x")
     (tmp_path / "dir.log").mkdir()
-    with pytest.raises(files.InputError, match="not a regular file"):
+    with pytest.raises(errors.InputError, match="not a regular file"):
         outputs.append_text(tmp_path / "dir.log", "x")
 
 

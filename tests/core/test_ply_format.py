@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import splat_fixtures as F
-from scpainter_blender.core import files
+from scpainter_blender.core import errors
 from scpainter_blender.core.splats import ply_format, gaussians as splats, inria as splats_inria, reader as splats_io
 
 
@@ -56,7 +56,7 @@ def test_header_problems_are_clean_errors(tmp_path):
         (tmp_path / name).write_bytes(raw)
         with pytest.raises(splats.SplatsError, match=match) as e:
             splats_io.read(tmp_path / name)
-        assert isinstance(e.value, files.InputError) and name in str(e.value)
+        assert isinstance(e.value, errors.InputError) and name in str(e.value)
         return e.value
 
     err("glued.ply", head + b"end_header", "ends without a newline after 'end_header'")

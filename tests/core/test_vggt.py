@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from scpainter_blender.core import files
+from scpainter_blender.core import errors
 from scpainter_blender.core.vggt import predictions as vggt
 
 
@@ -17,7 +17,7 @@ def test_K_conversion_moves_the_principal_point_half_a_pixel():
 
 def test_predictions_error_names_file_and_key():
     e = vggt.PredictionsError("/data/clip/predictions.npz", "depth", "holds integers")
-    assert isinstance(e, files.InputError) and isinstance(e, ValueError)
+    assert isinstance(e, errors.InputError) and isinstance(e, ValueError)
     assert (e.path, e.field, e.key) == ("/data/clip/predictions.npz", "depth", "depth")
     assert str(e) == "predictions.npz: 'depth': holds integers (/data/clip/predictions.npz)"
     whole = vggt.PredictionsError("/data/p.npz", "(file)", "is a directory")

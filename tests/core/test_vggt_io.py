@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from scpainter_blender.core.geometry import cameras as C
-from scpainter_blender.core import files
+from scpainter_blender.core import errors
 from scpainter_blender.core.geometry import point_cloud
 from scpainter_blender.core.vggt import predictions as vggt, npz as vggt_io
 from tests_support import synthetic_predictions as make_arrays
@@ -230,7 +230,7 @@ def test_fifo_and_directory_refused_at_once(tmp_path):
     t = time.perf_counter()
     with pytest.raises(vggt.PredictionsError, match=r"pipe\.npz: is a FIFO \(named pipe\), not a regular file") as e:
         vggt_io.load_predictions(tmp_path / "pipe.npz")
-    assert isinstance(e.value, files.InputError) and e.value.field == "(file)" and e.value.key is None
+    assert isinstance(e.value, errors.InputError) and e.value.field == "(file)" and e.value.key is None
     assert time.perf_counter() - t < 1.0
     with pytest.raises(vggt.PredictionsError, match="is a directory"):
         vggt_io.load_predictions(tmp_path)

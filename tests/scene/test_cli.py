@@ -60,7 +60,7 @@ def test_input_error_by_name_is_exit_2_anything_else_exit_1(addon, empty_scene, 
     """Bad input is an InputError, caught by name (exit 2, file and field); a plain ValueError is a bug (exit 1,
     its traceback on standard error), as in the backend."""
     cli = _cli(addon)
-    files = sys.modules[addon + ".scpainter_blender.core.files"]
+    errors = sys.modules[addon + ".scpainter_blender.core.errors"]
     importer = sys.modules[addon + ".scpainter_blender.scene.importer"]
     for argv, field in ((["batch", "--command", "render"], "items"), (["render", "x.blend", "--device", "gpu"],
                                                                      "--device"),
@@ -70,7 +70,7 @@ def test_input_error_by_name_is_exit_2_anything_else_exit_1(addon, empty_scene, 
                         (["generate", "x.blend", "--checkpoint", str(tmp_path / "none")], "--checkpoint")):
         assert cli.execute(argv) == 2, argv
         ev = _last_event(capsys)
-        assert ev["event"] == "error" and ev["file"] == files.COMMAND_LINE and ev["field"] == field, ev
+        assert ev["event"] == "error" and ev["file"] == errors.COMMAND_LINE and ev["field"] == field, ev
 
     def shape_bug(*args, **kwargs):
         raise ValueError("shape bug: (3,) and (4,)")
@@ -84,7 +84,7 @@ def test_input_error_by_name_is_exit_2_anything_else_exit_1(addon, empty_scene, 
     assert "Traceback (most recent call last)" in captured.err and "in shape_bug" in captured.err
 
     def bad_file(context, path, opts):
-        raise files.InputError(path, "depth", "expected (S, H, W) or (S, H, W, 1)", hint="save it again")
+        raise errors.InputError(path, "depth", "expected (S, H, W) or (S, H, W, 1)", hint="save it again")
 
     monkeypatch.setattr(importer, "import_vggt", bad_file)
     assert cli.execute(["import", str(tmp_path / "p.npz")]) == 2

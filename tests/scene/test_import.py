@@ -526,9 +526,9 @@ def test_depth_edge_ratio_checked_before_reading(addon, empty_scene, tmp_path):
     """A ratio no job can hold is bad input named "(import options)" / depth_edge_ratio, before any file is read;
     None and 0 are off."""
     importer = _installed(addon, "scene.importer")
-    files = _installed(addon, "core.files")
+    errors = _installed(addon, "core.errors")
     for bad in (-0.1, 1e-5, 101.0, float("nan"), float("inf"), True, "0.05"):
-        with pytest.raises(files.InputError) as e:
+        with pytest.raises(errors.InputError) as e:
             importer.ImportOptions(depth_edge_ratio=bad).check()
         assert (e.value.path, e.value.field) == ("(import options)", "depth_edge_ratio") and e.value.hint, bad
     for off in (None, 0, 0.0):

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import cameras, similarity
-from .. import files
+from .. import errors, files
 from ..vggt import predictions as vggt
 from ..vggt.predictions import PredictionsError
 
@@ -152,7 +152,7 @@ def _npz_keys(path) -> list:
     try:
         with files.open_regular(path) as fh, zipfile.ZipFile(fh) as zf:
             return sorted(n[:-4] if n.endswith(".npy") else n for n in zf.namelist())
-    except (files.InputError, zipfile.BadZipFile, OSError, ValueError, EOFError):
+    except (errors.InputError, zipfile.BadZipFile, OSError, ValueError, EOFError):
         return []
 
 

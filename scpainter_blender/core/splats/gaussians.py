@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .. import files
+from .. import errors, files
 from . import sh as _sh
 
 #: Human names of ``GaussianPly.format`` values, for import reports.
@@ -43,12 +43,12 @@ ACCEPTED = ("binary INRIA 3DGS PLY (float, double or half floats in ushort slots
             "SuperSplat compressed PLY (.compressed.ply) and antimatter15 .splat")
 
 
-class SplatsError(files.InputError):
+class SplatsError(errors.InputError):
     """A Gaussian file that cannot be used; the message names the file and what is wrong. ``field``: the property,
     element or "header line N" at fault ("(file)" for the file as a whole)."""
 
     def __init__(self, path, message, field=None, hint=None):
-        files.InputError.__init__(self, path, field, message, hint)
+        errors.InputError.__init__(self, path, field, message, hint)
         self.args = (f"{os.path.basename(self.path)}: {message} ({self.path})",)  # the text it has always had
 
 

@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .. import files
+from .. import errors
 
 if TYPE_CHECKING:  # for the annotation only: vggt_convention imports this module
     from .convention import ConventionCheck
@@ -48,13 +48,13 @@ EXTRINSIC_CONVENTIONS = ("world_to_camera", "camera_to_world")
 FLOAT_KEYS = ("depth", "depth_conf", "world_points", "world_points_conf")
 
 
-class PredictionsError(files.InputError):
+class PredictionsError(errors.InputError):
     """A predictions (or trajectory) file that cannot be used; the message names the file and the key (``key``,
     also ``field``; None / "(file)" for the file as a whole)."""
 
     def __init__(self, path, key, message, hint=None):
         key = None if key == "(file)" else key  # files' callbacks name the whole file so
-        files.InputError.__init__(self, path, key, message, hint)
+        errors.InputError.__init__(self, path, key, message, hint)
         self.key = key
         where = f"{os.path.basename(self.path)}" + (f": '{key}'" if key else "")
         self.args = (f"{where}: {message} ({self.path})",)  # the text it has always had

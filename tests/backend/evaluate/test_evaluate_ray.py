@@ -15,7 +15,7 @@ from backend.evaluate import protocol
 from backend.train import clip as clip_mod
 from scpainter_blender.core import job as job_mod
 from scpainter_blender.core import job_inputs, locking
-from scpainter_blender.core.files import InputError
+from scpainter_blender.core.errors import InputError
 from tests_support import copy_clip, run_backend
 
 ray = pytest.importorskip("ray")

@@ -17,8 +17,8 @@ from backend.model import checkpoint as C
 from backend.model import checkpoint_init
 from backend.model.checkpoint_config import (BOUNDS, SCHEMA, CheckpointError, ScpainterConfig, check_field,
                                              check_guidance)
-from scpainter_blender.core import files
-from scpainter_blender.core.files import InputError
+from scpainter_blender.core import errors
+from scpainter_blender.core.errors import InputError
 
 
 @pytest.fixture
@@ -265,7 +265,7 @@ def test_check_svd_folder_uses_the_same_weights_check(tiny_svd, tmp_path, no_unp
 
 
 def test_resolve_still_fails_fast(tiny_svd):
-    e = refused(None, files.COMMAND_LINE, "--checkpoint", "init-checkpoint", fn=C.resolve)
+    e = refused(None, errors.COMMAND_LINE, "--checkpoint", "init-checkpoint", fn=C.resolve)
     assert str(e).startswith("(command line): --checkpoint: no SCPainter checkpoint") and "init-checkpoint" in e.hint
     cls, args = e.__reduce__()   # how pickle would rebuild it in another process (not exercised: nothing unpickles)
     again = cls(*args)

@@ -123,7 +123,7 @@ def _without(key):
 ])
 def test_configs_that_are_not_svds_edm_are_refused_naming_file_and_field(config, field, words):
     from backend.model.checkpoint_config import CheckpointError
-    from scpainter_blender.core.files import InputError
+    from scpainter_blender.core.errors import InputError
 
     with pytest.raises(CheckpointError) as info:
         edm.Schedule.from_config(config)

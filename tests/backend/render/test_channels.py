@@ -9,7 +9,7 @@ import pytest
 from backend.generate import command as gen
 from backend.render import channels
 from backend.render import command as render_cmd
-from scpainter_blender.core import files
+from scpainter_blender.core import errors
 from scpainter_blender.core import job as J
 from scpainter_blender.core import shapes
 
@@ -91,7 +91,7 @@ def test_missing_channel_names_file_and_channel(car_job):
     save_raw(paths[1], named)
     with pytest.raises(channels.ConditionsError) as e:
         gen.load_conditions(path, job)
-    assert isinstance(e.value, files.InputError) and e.value.field == "channels"
+    assert isinstance(e.value, errors.InputError) and e.value.field == "channels"
     assert "frame_000002.exr" in str(e.value) and "asset_mask" in e.value.message and "render" in e.value.hint
     # Z is not needed to generate, but a reader asking for every channel is told it is missing
     named = raw(paths[0])

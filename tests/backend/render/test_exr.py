@@ -9,7 +9,7 @@ import OpenEXR
 import pytest
 
 from backend.render import channels
-from scpainter_blender.core import files
+from scpainter_blender.core import errors
 
 PASSES = {"image": "RGBA", "hole": "VALUE", "asset_mask": "VALUE", "depth": "VALUE"}  # Blender's outputs, types
 
@@ -219,7 +219,7 @@ def test_reader_errors_name_the_file_and_say_render_again(tmp_path):
         (tmp_path / name).write_bytes(content)
         with pytest.raises(channels.ExrError) as e:
             channels.read(tmp_path / name)
-        assert isinstance(e.value, files.InputError) and e.value.path == str(tmp_path / name)
+        assert isinstance(e.value, errors.InputError) and e.value.path == str(tmp_path / name)
         assert name in str(e.value) and "delete the file and run python -m backend render JOB" in e.value.hint, name
     with pytest.raises(channels.ExrError, match="not found"):
         channels.read(tmp_path / "missing.exr")

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from backend.train import clip as clip_mod
-from scpainter_blender.core import files
+from scpainter_blender.core import errors
 from scpainter_blender.core.job import JobError  # ClipError is one; the shared validators raise it
 from tests_support import copy_clip, refusal_beside_fifo
 
@@ -85,7 +85,7 @@ def test_fifos_named_by_a_clip_are_refused_at_once(street_clip_path, tmp_path, n
     os.mkfifo(folder / name)
     e = refusal_beside_fifo(lambda: clip_mod.load(folder), folder / name, JobError, f"loading the clip's {name}")
     assert "is a FIFO (named pipe)" in str(e) and e.field == field, str(e)
-    assert isinstance(e, files.InputError)
+    assert isinstance(e, errors.InputError)
 
 
 def test_clip_without_poses_uses_vggt_cameras_scaled_to_the_frames(street_clip_path, tmp_path):

@@ -12,7 +12,7 @@ from PIL import Image
 
 from backend.train import clip as clip_mod
 from backend.train import pairs
-from scpainter_blender.core import files
+from scpainter_blender.core import errors
 from scpainter_blender.core.job import JobError
 from tests_support import copy_clip, refusal_beside_fifo
 
@@ -129,7 +129,7 @@ def test_bad_videos_are_refused_naming_frames(street_clip_path, tmp_path, kind, 
     with pytest.raises(JobError) as info:
         clip_mod.load(folder)
     e = info.value
-    assert isinstance(e, files.InputError) and e.field == "frames" and words in e.message, str(e)
+    assert isinstance(e, errors.InputError) and e.field == "frames" and words in e.message, str(e)
 
 
 @pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this system")

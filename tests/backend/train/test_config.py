@@ -7,7 +7,7 @@ import os
 import pytest
 
 from backend.train import config as C
-from scpainter_blender.core import files
+from scpainter_blender.core import errors
 from scpainter_blender.core import job as J
 from tests_support import refusal_beside_fifo
 
@@ -38,7 +38,7 @@ def test_every_setting_of_the_wrong_type_is_named(tmp_path, name):
         except C.TrainConfigError as e:
             assert e.field == name or e.field.startswith(f"{name}["), (name, value, str(e))
             assert str(e).startswith(f"train.json: {e.field}: ")
-            assert isinstance(e, files.InputError)
+            assert isinstance(e, errors.InputError)
 
 
 @pytest.mark.parametrize("name", sorted(C.PairSettings.__dataclass_fields__))
@@ -158,7 +158,7 @@ def test_bad_point_cleaning_names_file_and_field_as_the_job_does(tmp_path, value
     the hint a job's scene.point_cleaning gets."""
     with pytest.raises(C.TrainConfigError) as e:
         C.from_dict({**BASE, "pairs": {"point_cleaning": value}}, str(tmp_path / "train.json"))
-    assert isinstance(e.value, files.InputError) and e.value.path == str(tmp_path / "train.json")
+    assert isinstance(e.value, errors.InputError) and e.value.path == str(tmp_path / "train.json")
     assert e.value.field == field and str(e.value).startswith(f"train.json: {field}: ")
     with pytest.raises(J.JobError) as job_error:
         J.PointCleaning.from_dict(value, "job.json", "pairs.point_cleaning")

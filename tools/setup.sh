@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Create .venv (Python 3.11) with the pinned requirements, and the system library open3d needs.
+# Create .venv (Python 3.11) with the pinned requirements and this project installed (editable: the
+# `scpainter-backend` command), and the system library open3d needs.
 # Idempotent: a stamp of requirements.txt's hash skips the pip step when nothing changed.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -31,9 +32,11 @@ fi
 if [ ! -x .venv/bin/python ]; then
   "$PY" -m venv .venv
 fi
-stamp=".venv/.requirements-$(sha256sum requirements.txt | cut -c1-16)"
-if [ ! -f "$stamp" ]; then
+stamp=".venv/.requirements-$(cat requirements.txt pyproject.toml | sha256sum | cut -c1-16)"
+if [ ! -f "$stamp" ] || [ ! -x .venv/bin/scpainter-backend ]; then
   .venv/bin/python -m pip install -q --disable-pip-version-check -r requirements.txt
+  # the project itself, editable, without dependencies (they are the pins above): the `scpainter-backend` command
+  .venv/bin/python -m pip install -q --disable-pip-version-check --no-deps --no-build-isolation -e .
   rm -f .venv/.requirements-*
   touch "$stamp"
 fi

@@ -233,10 +233,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def from_arguments(args) -> ImportOptions:
     """``ImportOptions`` from ``add_arguments``' parsed ``args``, checked: ``ArgumentError`` names the flag."""
     opts = ImportOptions(**{o.name: getattr(args, o.name) for o in _OPTIONS if o.flag and not o.scale_mode})
-    given = [o for o in _OPTIONS if o.scale_mode and getattr(args, o.name) not in (None, "")]
-    for o in given[:1]:   # (argparse lets at most one through)
-        opts.scale_mode = o.scale_mode
-        setattr(opts, o.name, getattr(args, o.name))
+    for o in _OPTIONS:   # the scale value given (argparse lets one at most through) chooses the scale mode
+        if o.scale_mode and getattr(args, o.name) not in (None, ""):
+            opts.scale_mode = o.scale_mode
+            setattr(opts, o.name, getattr(args, o.name))
     try:
         return opts.check()
     except errors.InputError as e:  # named as the option the user typed

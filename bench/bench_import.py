@@ -44,6 +44,7 @@ def main(argv=None):
     pkg = blender_env.install_for_script(work)
     import bpy
     importer = sys.modules[pkg + ".scpainter_blender.scene.importer"]
+    options = sys.modules[pkg + ".scpainter_blender.core.import_options"]
     rows = []
     for S in args.frames:
         path = os.path.join(work, f"pred_{S}.npz")
@@ -56,7 +57,7 @@ def main(argv=None):
                 assert bpy.ops.scpainter.import_vggt(filepath=path, confidence_percentile=pct) == {"FINISHED"}
                 op = time.perf_counter() - t
                 bpy.ops.wm.read_homefile(use_empty=True)
-                r = importer.import_vggt(bpy.context, path, importer.ImportOptions(confidence_percentile=pct))
+                r = importer.import_vggt(bpy.context, path, options.ImportOptions(confidence_percentile=pct))
                 row = {"frames": S, "percentile": pct, "points": r.num_points, "operator_s": op,
                        **{f"{k}_s": v for k, v in r.timings.items()}}
                 if best is None or op < best["operator_s"]:

@@ -48,7 +48,7 @@ import torch
 from scpainter_blender.core import batch_items
 from scpainter_blender.core import fields as fields_mod
 from scpainter_blender.core import errors, outputs
-from scpainter_blender.core.geometry import trajectory
+from scpainter_blender.core.geometry import point_cloud, trajectory
 from scpainter_blender.core import job as job_mod
 
 from ..batch import ray_pool as batch_ray
@@ -79,7 +79,7 @@ class EvalSettings:
     crop_min_px: int = 16               # smaller cars (2D box side, pixels at the evaluation size) are left out
     grow_m: float = 0.2                 # removal box margin, as in training pairs
     grow_ratio: float = 0.1
-    confidence_percentile: float = 50.0
+    confidence_percentile: float = point_cloud.CONFIDENCE_PERCENTILE
     inpaint: str = job_mod.BASELINE_DEFAULTS["inpaint"]             # the baseline's OpenCV method
     inpaint_radius: int = job_mod.BASELINE_DEFAULTS["inpaint_radius"]
 

@@ -27,7 +27,8 @@ import numpy as np
 
 from . import fields as fields_mod
 from . import errors, files, outputs
-from .geometry import similarity
+from .geometry import point_cloud, similarity
+from .vggt.predictions import EXTRINSIC_CONVENTIONS  # scene.extrinsic_convention: what the predictions' extrinsic holds
 
 SCHEMA = "scpainter.job/2"
 #: Older schemas still read, each with its fields renamed since: {schema: {old field: current field}} (scene level)
@@ -44,9 +45,6 @@ MAX_SEED = 2 ** 63 - 1
 GENERATE_INT_BOUNDS = {"steps": (1, 1000), "window": (1, 256), "overlap": (0, 255), "seed": (0, MAX_SEED),
                        "decode_chunk": (1, 256)}
 GENERATE_NUMBER_BOUNDS = {"min_guidance": (0.0, 100.0), "max_guidance": (0.0, 100.0), "fps": (1.0, 240.0)}
-
-#: ``scene.extrinsic_convention``: what the predictions' ``extrinsic`` holds (core.vggt.predictions.EXTRINSIC_CONVENTIONS).
-EXTRINSIC_CONVENTIONS = ("world_to_camera", "camera_to_world")
 
 #: ``scene.point_cleaning``'s defaults, the only place they are written (bench/clean_points.py, measured on the
 #: ground-truth street with VGGT-like depth errors; the table is in docs/design.md §4.2): the depth-edge test at
@@ -241,7 +239,7 @@ class Scene:
     (absent from a file: the defaults, ``POINT_CLEANING``)."""
     predictions: str
     vggt_to_world: np.ndarray
-    confidence_percentile: float = 50.0
+    confidence_percentile: float = point_cloud.CONFIDENCE_PERCENTILE
     extrinsic_convention: str = "world_to_camera"
     crop: list = field(default_factory=lambda: [0, 0, 0, 0])
     removal_boxes: list = field(default_factory=list)
@@ -263,7 +261,8 @@ class Scene:
             similarity.decompose_similarity(W)
         except ValueError as e:
             raise JobError(path, w_field, f"is not a similarity: {e}") from None
-        pct = _number(d.get("confidence_percentile", 50.0), path, f"{where}.confidence_percentile", 0.0, 100.0)
+        pct = _number(d.get("confidence_percentile", point_cloud.CONFIDENCE_PERCENTILE), path,
+                      f"{where}.confidence_percentile", 0.0, 100.0)
         conv = d.get("extrinsic_convention", "world_to_camera")
         if conv not in EXTRINSIC_CONVENTIONS:
             raise JobError(path, f"{where}.extrinsic_convention",

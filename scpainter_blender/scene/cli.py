@@ -41,7 +41,7 @@ import bpy
 
 from .. import backend_client
 from ..core import batch_items as batch_mod
-from ..core import errors, files
+from ..core import errors, files, import_options
 from ..core import job as job_mod
 from . import importer, preferences, props, runs
 
@@ -52,36 +52,12 @@ class _Parser(argparse.ArgumentParser):
         raise errors.ArgumentError.from_argparse(message, self.prog)
 
 
-def _ratio_or_off(text: str) -> float | None:
-    """``--depth-edge-ratio``: a number, or "off" (None); its range is ``ImportOptions.check``'s."""
-    if text.strip().lower() == "off":
-        return None
-    try:
-        return float(text)
-    except ValueError:  # (float() of the user's text)
-        raise argparse.ArgumentTypeError(f"{text!r}: expected a fraction of the pixel's depth such as 0.05, "
-                                         f"or off") from None
-
-
 def _parser():
     p = _Parser(prog="blender -c scpainter", description=__doc__.split("\n\n")[0])
     sub = p.add_subparsers(dest="command", required=True)
     i = sub.add_parser("import", help="import VGGT predictions as points + recorded camera")
     i.add_argument("predictions")
-    scale = i.add_mutually_exclusive_group()
-    scale.add_argument("--scale-factor", type=float, help="metres per VGGT unit")
-    scale.add_argument("--trajectory", help="metric camera path (.npz world_to_camera, xyz or TUM text)")
-    scale.add_argument("--camera-height", type=float, help="camera height over the road, metres")
-    i.add_argument("--confidence-percentile", type=float, default=50.0)
-    i.add_argument("--point-source", choices=["depth", "world_points"], default="depth")
-    i.add_argument("--extrinsic-convention", choices=["auto", "world_to_camera", "camera_to_world"], default="auto",
-                   help="what the file's extrinsic holds; auto: VGGT's world-to-camera, checked against world_points")
-    i.add_argument("--crop", default="auto", help="borders to leave out: auto (VGGT's white padding), none, or "
-                                                  "'LEFT TOP RIGHT BOTTOM' pixels")
-    i.add_argument("--depth-edge-ratio", type=_ratio_or_off, default=importer.DEPTH_EDGE_RATIO,
-                   help="drop pixels whose depth jumps by more than this fraction of their own to a neighbour "
-                        "(VGGT's flying pixels across depth edges); off or 0: keep them; the exported job renders "
-                        f"with the same setting (default {importer.DEPTH_EDGE_RATIO})")
+    import_options.add_arguments(i)  # the import options, as core.import_options defines them
     i.add_argument("--save", help="write the scene to this .blend (written to a temporary file, then renamed)")
     for name in ("render", "generate", "batch"):
         c = sub.add_parser(name, help={"render": "render a .blend's condition layers",
@@ -123,19 +99,7 @@ def _parser():
 
 
 def _import(args) -> dict:
-    opts = importer.ImportOptions(confidence_percentile=args.confidence_percentile, point_source=args.point_source,
-                                  extrinsic_convention=args.extrinsic_convention, crop=args.crop,
-                                  depth_edge_ratio=args.depth_edge_ratio)
-    if args.trajectory:
-        opts.scale_mode, opts.trajectory_path = "TRAJECTORY", args.trajectory
-    elif args.camera_height is not None:
-        opts.scale_mode, opts.camera_height = "CAMERA_HEIGHT", args.camera_height
-    else:
-        opts.scale_mode, opts.scale_factor = "FACTOR", 1.0 if args.scale_factor is None else args.scale_factor
-    try:
-        opts.check()
-    except errors.InputError as e:  # named as the option the user typed
-        raise errors.ArgumentError("--" + e.field.replace("_", "-"), e.message, hint=e.hint) from None
+    opts = import_options.from_arguments(args)  # checked: ArgumentError names the option
     result = importer.import_vggt(bpy.context, args.predictions, opts)
     out = {"points": result.num_points, "points_object": result.points.name, "camera": result.camera.name,
            "depth_edge_ratio": result.depth_edge_ratio, "depth_edge_points": result.depth_edge_points,

@@ -1,7 +1,8 @@
 """Import a VGGT reconstruction: points + recorded camera + scene settings, in metric Blender world.
 
-The heavy lifting is numpy in ``core``; this module only turns arrays into Blender data. All three metric-scale
-modes run here, in Blender's own process (the camera-height one with ``core.geometry.fits``'s RANSAC; no backend).
+The heavy lifting is numpy in ``core``; this module only turns arrays into Blender data. The options and their
+checks live in ``core.import_options``. All three metric-scale modes run here, in Blender's own process (the
+camera-height one is ``core.geometry.metric_scale.camera_height_fit``; no backend).
 """
 
 from __future__ import annotations
@@ -13,73 +14,13 @@ from dataclasses import dataclass, field
 import bpy
 import numpy as np
 
-from ..core.geometry import cameras, fits as geometry, metric_scale, point_cloud, similarity
+from ..core.geometry import cameras, metric_scale, point_cloud, similarity
 from ..core import errors
+from ..core.import_options import DEPTH_EDGE_RATIO, ERROR_PATH, SCALE_MODES, ImportOptions
 from ..core.vggt import predictions as vggt, npz as vggt_io
-from ..core import job as job_mod
 from . import camera as camera_mod
 from . import node_groups
 from . import points as points_mod
-
-SCALE_MODES = ("FACTOR", "TRAJECTORY", "CAMERA_HEIGHT")
-#: The ``path`` of an InputError about an import option (``field``: the ``ImportOptions`` name).
-OPTIONS = "(import options)"
-#: The depth-edge test's ratio when none is given: the job's own default (``core.job.POINT_CLEANING``, the one place
-#: it is written), so the viewport shows the points a job exported with no further setting renders.
-DEPTH_EDGE_RATIO = job_mod.POINT_CLEANING["depth_edge_ratio"]
-
-
-@dataclass
-class ImportOptions:
-    confidence_percentile: float = 50.0
-    point_source: str = "depth"          # "depth" or "world_points"
-    scale_mode: str = "FACTOR"           # one of SCALE_MODES
-    scale_factor: float = 1.0            # metres per VGGT unit (FACTOR)
-    trajectory_path: str = ""            # metric camera path (TRAJECTORY)
-    camera_height: float = 1.6           # metres over the road (CAMERA_HEIGHT)
-    point_radius: float = 0.03           # metres
-    current_frame_only: bool = False
-    frame_window: int = 0
-    frame_start: int = 1
-    set_scene_camera: bool = True
-    extrinsic_convention: str = "auto"   # "auto" (check against world_points), "world_to_camera", "camera_to_world"
-    crop: str = "auto"                   # "auto" (VGGT's white padding), "none", or "left top right bottom" pixels
-    # drop pixels whose depth jumps by more than this fraction of their own to a neighbour (VGGT's "flying pixels",
-    # core.geometry.point_cloud.depth_edges); None or 0: off. Stored on the objects; the exported job renders with it.
-    depth_edge_ratio: float | None = DEPTH_EDGE_RATIO
-
-    @property
-    def edge_ratio(self) -> float | None:
-        """The depth-edge ratio as ``point_cloud`` and the job take it: None when off (None or 0)."""
-        return None if self.depth_edge_ratio is None or self.depth_edge_ratio == 0 else float(self.depth_edge_ratio)
-
-    def check(self) -> "ImportOptions":
-        """Refuse options no import can use, before any file is read: InputError with path ``OPTIONS`` and the
-        option's name as field (the UI's property limits keep the panel inside these; scripts and the command
-        line are not)."""
-        def bad(name, message):
-            return errors.InputError(OPTIONS, name, message)
-
-        number = lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)  # noqa: E731
-        if not (number(self.confidence_percentile) and 0 <= self.confidence_percentile <= 100):
-            raise bad("confidence_percentile", f"expected a percentile in [0, 100], got {self.confidence_percentile}")
-        if self.scale_mode not in SCALE_MODES:
-            raise bad("scale_mode", f"expected one of {list(SCALE_MODES)}, got {self.scale_mode!r}")
-        if self.point_source not in ("depth", "world_points"):
-            raise bad("point_source", f"expected 'depth' or 'world_points', got {self.point_source!r}")
-        if self.scale_mode == "FACTOR" and not (number(self.scale_factor) and self.scale_factor > 0):
-            raise bad("scale_factor", f"expected metres per VGGT unit > 0, got {self.scale_factor}")
-        if not (number(self.point_radius) and self.point_radius >= 0):
-            raise bad("point_radius", f"expected metres >= 0, got {self.point_radius}")
-        if isinstance(self.frame_window, bool) or not isinstance(self.frame_window, int) or self.frame_window < 0:
-            raise bad("frame_window", f"expected a number of frames >= 0, got {self.frame_window!r}")
-        lo, hi = job_mod.DEPTH_EDGE_RATIO_BOUNDS  # the job's bounds: whatever the import takes, the export writes
-        r = self.depth_edge_ratio
-        if r is not None and not (number(r) and (r == 0 or lo <= r <= hi)):
-            raise errors.InputError(OPTIONS, "depth_edge_ratio", f"expected a fraction of the pixel's depth in "
-                                   f"[{lo:g}, {hi:g}], or 0 for off, got {r!r}",
-                                   hint=f"0 turns the depth-edge test off; the default is {DEPTH_EDGE_RATIO}")
-        return self
 
 
 @dataclass
@@ -101,64 +42,14 @@ def metric_fit(pred: vggt.VGGTPredictions, opts: ImportOptions) -> metric_scale.
         return metric_scale.vggt_to_world_by_factor(opts.scale_factor)
     if opts.scale_mode == "TRAJECTORY":
         if not opts.trajectory_path:
-            raise errors.InputError(OPTIONS, "trajectory_path", "scale mode TRAJECTORY needs a metric trajectory file",
-                                   hint="choose the file: .npz world_to_camera, xyz or TUM text")
+            raise errors.InputError(ERROR_PATH, "trajectory_path", "scale mode TRAJECTORY needs a metric trajectory "
+                                    "file", hint="choose the file: .npz world_to_camera, xyz or TUM text")
         path = bpy.path.abspath(opts.trajectory_path)
         w2c, centres = metric_scale.load_metric_trajectory(path, pred.num_frames)
         return metric_scale.vggt_to_world_by_trajectory(pred.world_to_camera, w2c, centres, path=path)
     if opts.scale_mode == "CAMERA_HEIGHT":
-        return camera_height_fit(pred, opts.camera_height, opts.confidence_percentile)
+        return metric_scale.camera_height_fit(pred, opts.camera_height, opts.confidence_percentile)
     raise ValueError(f"unknown scale mode {opts.scale_mode!r}; expected one of {SCALE_MODES}")
-
-
-class GroundPlaneError(vggt.PredictionsError):
-    """Camera-height scale impossible for this predictions file: too few confident points in the lower image rows,
-    or only collinear ones (``field`` "depth"); no level plane among them holding enough of them, or a plane the
-    cameras do not stand over (``field`` "(camera height)"). The hint says what to do instead."""
-
-
-#: What to do instead, for each way the camera-height fit fails.
-_GROUND_HINTS = {
-    "depth": "the ground is found among the confident pixels of the lower 40 % of each image: lower the "
-             "Confidence Percentile, or give the scale as a factor or a metric trajectory",
-    "(camera height)": "the road must be visible in the lower part of the images, under cameras looking ahead; "
-                       "otherwise give the scale as a factor or a metric trajectory",
-}
-
-
-def camera_height_fit(pred: vggt.VGGTPredictions, camera_height: float, confidence_percentile: float = 50.0,
-                      seed: int = 0) -> metric_scale.MetricFit:
-    """Metric ``vggt_to_world`` from a known camera height (metres) over the road, in this process.
-
-    Ground candidates (``point_cloud.ground_candidates``: confident pixels of the lower 40 % of each image, at most
-    200,000, seeded) → ``geometry.fit_ground_plane`` (seeded RANSAC within 30° of the cameras' up axis, inliers
-    closer than 1 % of the median candidate distance, refined by least squares) → ``vggt_to_world_by_camera_height``
-    (scale = height / median camera-to-plane distance; the road becomes z = 0). ``details`` adds the plane fit's
-    ``inliers``, ``candidates``, ``nonfinite_candidates``, ``inlier_rms_vggt``, ``tilt_deg``, ``threshold_vggt``
-    (VGGT units) to the fit's own (``plane_inlier_rms_m`` among them). Raises ``GroundPlaneError`` naming
-    ``pred.path``.
-    """
-    if not (np.isfinite(camera_height) and camera_height > 0):
-        raise GroundPlaneError(pred.path, "(camera height)", f"the camera height must be a positive number of "
-                                                             f"metres, got {camera_height}",
-                               hint="give the camera's height over the road in metres, such as 1.6")
-    pts = point_cloud.ground_candidates(pred, confidence_percentile, seed=seed)
-    try:
-        g = geometry.fit_ground_plane(pts, pred.world_to_camera, seed=seed)
-    except geometry.PlaneFitError as e:
-        field = "depth" if e.reason in ("too_few", "degenerate") else "(camera height)"
-        raise GroundPlaneError(pred.path, field, f"no road plane for the camera-height scale: {e}",
-                               hint=_GROUND_HINTS[field]) from None
-    try:
-        fit = metric_scale.vggt_to_world_by_camera_height(g.plane, pred.world_to_camera, camera_height,
-                                                            plane_inlier_rms=g.inlier_rms, path=pred.path)
-    except errors.InputError as e:  # cameras on the plane or looking straight down at it: same error type here
-        field = "(camera height)" if e.field == "(file)" else e.field
-        raise GroundPlaneError(pred.path, field, e.message, hint=e.hint or _GROUND_HINTS["(camera height)"]) \
-            from None
-    fit.details.update({"inliers": g.num_inliers, "candidates": g.candidates, "nonfinite_candidates": g.nonfinite,
-                        "inlier_rms_vggt": g.inlier_rms, "tilt_deg": g.tilt_deg, "threshold_vggt": g.threshold})
-    return fit
 
 
 def _tag(obj, kind, filepath, fit, opts, rep: vggt.LoadReport):

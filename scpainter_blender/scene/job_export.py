@@ -16,7 +16,7 @@ import os
 
 import numpy as np
 
-from ..core.geometry import cameras
+from ..core.geometry import cameras, point_cloud
 from ..core import job as job_mod
 from . import camera as camera_mod
 from . import node_groups
@@ -102,7 +102,8 @@ def build_job(context, job_path: str, output_dir: str | None = None, checkpoint:
     sc = None
     if pts is not None:
         sc = job_mod.Scene(os.path.relpath(pts["scpainter_source"], job_dir), effective_vggt_to_world(pts),
-                           confidence_percentile=float(pts.get("scpainter_confidence_percentile", 50.0)),
+                           confidence_percentile=float(pts.get("scpainter_confidence_percentile",
+                                                                    point_cloud.CONFIDENCE_PERCENTILE)),
                            # how the import read the file: the backend loads the same poses and pixels
                            extrinsic_convention=str(pts.get("scpainter_extrinsic_convention", "world_to_camera")),
                            crop=[int(v) for v in pts.get("scpainter_crop", [0, 0, 0, 0])],

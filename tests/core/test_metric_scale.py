@@ -135,3 +135,60 @@ def test_trajectory_fifo_refused_at_once(tmp_path):
     assert time.perf_counter() - t < 1.0
     with pytest.raises(vggt.PredictionsError, match="trajectory file not found"):
         metric_scale.load_metric_trajectory(tmp_path / "none.txt")
+
+
+def _road(S=4, H=40, W=60, height=0.8, seed=0):
+    """Predictions of cameras ``height`` VGGT units over a flat road (OpenCV y = height in every camera frame,
+    driving along +z): the lower rows see the road, the upper ones a far wall."""
+    from scpainter_blender.core.geometry import unproject
+    from scpainter_blender.core.vggt import npz
+
+    rng = np.random.default_rng(seed)
+    w2c = np.tile(np.eye(4), (S, 1, 1))
+    w2c[:, 2, 3] = -0.5 * np.arange(S)
+    intr = np.tile(np.array([[30.0, 0, W / 2 - 0.5], [0, 30.0, H / 2 - 0.5], [0, 0, 1]]), (S, 1, 1))  # VGGT's K
+    ray_y = unproject.unproject_depth(np.ones((S, H, W)), vggt.vggt_K_to_ours(intr), np.tile(np.eye(4), (S, 1, 1)))
+    ray_y = ray_y[..., 1]
+    depth = np.where(ray_y > 0.05, height / np.maximum(ray_y, 0.05), 20.0).astype(np.float32)
+    arrays = {"images": rng.random((S, H, W, 3), dtype=np.float32), "depth": depth,
+              "depth_conf": (1.0 + rng.exponential(2.0, (S, H, W))).astype(np.float32),
+              "extrinsic": w2c[:, :3].astype(np.float32), "intrinsic": intr.astype(np.float32)}
+    return npz.predictions_from_arrays(arrays, "road.npz")
+
+
+def test_camera_height_fit_finds_the_road_in_predictions():
+    """Candidates → RANSAC plane → scale: cameras 0.8 units over the road at 1.6 m give 2 m per unit, the road
+    z = 0; seeded, so the same matrix every time; its details carry the plane fit's figures."""
+    pred = _road()
+    fit = metric_scale.camera_height_fit(pred, 1.6)
+    assert fit.method == "camera_height" and fit.scale == pytest.approx(2.0, rel=1e-4)
+    assert fit.residual_m < 1e-4
+    c = C.camera_centers(similarity.transform_world_to_camera(pred.world_to_camera, fit.vggt_to_world))
+    assert np.allclose(c[:, 2], 1.6, atol=1e-4)
+    d = fit.details
+    assert d["candidates"] > 100 and d["inliers"] > 0.9 * d["candidates"] and d["nonfinite_candidates"] == 0
+    assert {"inlier_rms_vggt", "tilt_deg", "threshold_vggt", "plane_inlier_rms_m"} <= set(d)
+    again = metric_scale.camera_height_fit(pred, 1.6)
+    assert np.array_equal(fit.vggt_to_world, again.vggt_to_world) and fit.details == again.details
+
+
+def test_camera_height_fit_refusals_name_the_file_and_field():
+    """No road, too few points, a height that is not a positive number: GroundPlaneError (a PredictionsError)
+    naming the predictions file and the field, with a hint."""
+    from scpainter_blender.core.vggt import npz
+    from tests_support import synthetic_predictions
+
+    arrays = synthetic_predictions(S=1, H=40, W=60)
+    arrays["depth"][:] = 2.0  # a wall 2 units in front of the camera fills the image: nothing level
+    wall = npz.predictions_from_arrays(arrays, "wall.npz")
+    few = npz.predictions_from_arrays(synthetic_predictions(S=1, H=14, W=21), "few.npz")  # under 100 points
+    for pred, field, confidence in ((wall, "(camera height)", 0.0), (few, "depth", 50.0)):
+        with pytest.raises(metric_scale.GroundPlaneError) as e:
+            metric_scale.camera_height_fit(pred, 1.6, confidence)
+        assert e.value.path == pred.path and e.value.field == field
+        assert "factor or a metric trajectory" in e.value.hint
+        assert isinstance(e.value, vggt.PredictionsError)
+    for height in (-1.0, 0.0, float("nan")):
+        with pytest.raises(metric_scale.GroundPlaneError, match="positive number of metres") as e:
+            metric_scale.camera_height_fit(_road(), height)
+        assert e.value.field == "(camera height)" and e.value.hint

@@ -172,9 +172,11 @@ def test_camera_height_scale_in_process(addon, empty_scene, street):
 
     # the fit on its own: seeded (the same matrix every time, the one the objects carry), its report, its time
     importer = _installed(addon, "scene.importer")
+    fit = _installed(addon, "core.geometry.metric_scale")
+    options = _installed(addon, "core.import_options")
     pred = vggt_io.load_predictions(street.predictions_path)
-    a = importer.camera_height_fit(pred, 1.6)
-    b = importer.camera_height_fit(pred, 1.6)
+    a = fit.camera_height_fit(pred, 1.6)
+    b = fit.camera_height_fit(pred, 1.6)
     assert np.array_equal(a.vggt_to_world, b.vggt_to_world) and a.details == b.details
     assert np.allclose(a.vggt_to_world, M, rtol=1e-6, atol=1e-6)  # (the custom property holds float32)
     d = a.details
@@ -184,7 +186,7 @@ def test_camera_height_scale_in_process(addon, empty_scene, street):
     assert d["threshold_vggt"] > d["inlier_rms_vggt"]
     empty_scene.frame_set(1)
     result = importer.import_vggt(bpy.context, street.predictions_path,
-                                  importer.ImportOptions(scale_mode="CAMERA_HEIGHT", camera_height=1.6))
+                                  options.ImportOptions(scale_mode="CAMERA_HEIGHT", camera_height=1.6))
     assert np.array_equal(result.fit.vggt_to_world, a.vggt_to_world)  # the import's own fit, bit for bit
     # measured on 2 busy cores: ~0.2 s of a ~2 s import (the RANSAC itself ~0.1 s); the bound only catches a
     # fit that would freeze Blender's UI
@@ -196,7 +198,7 @@ def test_camera_height_refusals_name_the_file_and_field(addon, empty_scene, tmp_
     """No usable road: an InputError naming the predictions file and the field, with a hint; nothing created."""
     from tests_support import synthetic_predictions
 
-    importer = _installed(addon, "scene.importer")
+    fit = _installed(addon, "core.geometry.metric_scale")
     arrays = synthetic_predictions(S=1, H=40, W=60)
     arrays["depth"][:] = 2.0  # a wall 2 units in front of the camera fills the image: nothing level
     wall = str(tmp_path / "wall.npz")
@@ -210,13 +212,13 @@ def test_camera_height_refusals_name_the_file_and_field(addon, empty_scene, tmp_
                                           confidence_percentile=confidence, extrinsic_convention="world_to_camera")
         assert f"'{field}'" in str(e.value) and "factor or a metric trajectory" in str(e.value)  # the hint
         pred = vggt_io.load_predictions(path, extrinsic_convention="world_to_camera")
-        with pytest.raises(importer.GroundPlaneError) as e:
-            importer.camera_height_fit(pred, 1.6, confidence)
+        with pytest.raises(fit.GroundPlaneError) as e:
+            fit.camera_height_fit(pred, 1.6, confidence)
         assert e.value.path == path and e.value.field == field and e.value.hint
         assert isinstance(e.value, _installed(addon, "core.files").InputError)
     assert len(bpy.data.objects) == n
-    with pytest.raises(importer.GroundPlaneError, match="positive number of metres") as e:
-        importer.camera_height_fit(pred, -1.0)
+    with pytest.raises(fit.GroundPlaneError, match="positive number of metres") as e:
+        fit.camera_height_fit(pred, -1.0)
     assert e.value.field == "(camera height)"
     # headless: exit 2 and an error event naming file and field
     cli = _installed(addon, "scene.cli")
@@ -414,8 +416,9 @@ def test_nan_pixels_and_unchecked_convention_in_the_report(addon, empty_scene, t
     arrays["depth_conf"][1, 7, 7] = np.nan
     path = write(tmp_path, arrays)
     importer = _installed(addon, "scene.importer")
+    options = _installed(addon, "core.import_options")
     result = importer.import_vggt(bpy.context, path,
-                                  importer.ImportOptions(confidence_percentile=0.0, depth_edge_ratio=None))
+                                  options.ImportOptions(confidence_percentile=0.0, depth_edge_ratio=None))
     assert result.num_points == 4 * 24 * 32 - 5 and result.depth_edge_points == 0
     assert any("extrinsic convention not checked (the file has no world_points)" in w for w in result.warnings)
     assert any("dropped 5 pixels with NaN/inf depth or confidence (frame 1: 1, frame 3: 4)" in w
@@ -496,14 +499,15 @@ def test_depth_edges_left_out_as_the_render_loads_them(addon, empty_scene, tmp_p
     path = write(tmp_path, _stepped_drive(S, H, W))
     assert 0.015 < EDGE_RATIO < 0.25  # (what _stepped_drive's 3 columns assume)
     importer = _installed(addon, "scene.importer")
-    result = importer.import_vggt(bpy.context, path, importer.ImportOptions(confidence_percentile=0.0))
+    options = _installed(addon, "core.import_options")
+    result = importer.import_vggt(bpy.context, path, options.ImportOptions(confidence_percentile=0.0))
     assert result.depth_edge_ratio == EDGE_RATIO and result.depth_edge_points == S * H * 3
     assert result.num_points == S * H * (W - 3)
     assert not [w for w in result.warnings if "depth-edge" in w]
     # a ratio so small that every pixel is an edge leaves nothing, and says so
     bpy.ops.wm.read_homefile(use_empty=True)
-    tiny = importer.import_vggt(bpy.context, path, importer.ImportOptions(confidence_percentile=0.0,
-                                                                          depth_edge_ratio=1e-4))
+    tiny = importer.import_vggt(bpy.context, path, options.ImportOptions(confidence_percentile=0.0,
+                                                                         depth_edge_ratio=1e-4))
     assert tiny.num_points < tiny.depth_edge_points and any("depth-edge test left out" in w for w in tiny.warnings)
     for kw, ratio, columns in (({}, EDGE_RATIO, 3), ({"depth_edge_ratio": 0.3}, 0.3, 2),
                                ({"depth_edge_ratio": 0.0}, None, 0)):
@@ -525,17 +529,17 @@ def test_depth_edges_left_out_as_the_render_loads_them(addon, empty_scene, tmp_p
 def test_depth_edge_ratio_checked_before_reading(addon, empty_scene, tmp_path):
     """A ratio no job can hold is bad input named "(import options)" / depth_edge_ratio, before any file is read;
     None and 0 are off."""
-    importer = _installed(addon, "scene.importer")
+    options = _installed(addon, "core.import_options")
     errors = _installed(addon, "core.errors")
     for bad in (-0.1, 1e-5, 101.0, float("nan"), float("inf"), True, "0.05"):
         with pytest.raises(errors.InputError) as e:
-            importer.ImportOptions(depth_edge_ratio=bad).check()
+            options.ImportOptions(depth_edge_ratio=bad).check()
         assert (e.value.path, e.value.field) == ("(import options)", "depth_edge_ratio") and e.value.hint, bad
     for off in (None, 0, 0.0):
-        assert importer.ImportOptions(depth_edge_ratio=off).check().edge_ratio is None
+        assert options.ImportOptions(depth_edge_ratio=off).check().edge_ratio is None
     lo, hi = J.DEPTH_EDGE_RATIO_BOUNDS
-    assert [importer.ImportOptions(depth_edge_ratio=r).check().edge_ratio for r in (lo, 1, hi)] == [lo, 1.0, hi]
-    assert importer.ImportOptions().depth_edge_ratio == EDGE_RATIO == importer.DEPTH_EDGE_RATIO
+    assert [options.ImportOptions(depth_edge_ratio=r).check().edge_ratio for r in (lo, 1, hi)] == [lo, 1.0, hi]
+    assert options.ImportOptions().depth_edge_ratio == EDGE_RATIO == options.DEPTH_EDGE_RATIO
     with pytest.raises(RuntimeError, match=r"\(import options\): depth_edge_ratio: expected a fraction"):
         bpy.ops.scpainter.import_vggt(filepath=str(tmp_path / "never-read.npz"), depth_edge_ratio=1e-5)
     # the operator's property: the job's default, 0 = off, and a tooltip saying what it does

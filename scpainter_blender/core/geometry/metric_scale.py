@@ -5,10 +5,12 @@ Blender's (Z up, metres), found one of three ways (docs/design.md §3):
 (b) ``vggt_to_world_by_trajectory``: VGGT's camera path laid onto a metric one (``load_metric_trajectory`` reads
     it from .npz, x y z text or TUM text);
 (c) ``vggt_to_world_by_camera_height``: a known camera height over a ground plane found in VGGT's world, the
-    world levelled so the road is z = 0.
+    world levelled so the road is z = 0; ``camera_height_fit`` finds that plane in a clip's predictions first
+    (``fits.fit_ground_plane`` on ``point_cloud.ground_candidates``).
 
-Files and data that cannot give a scale raise ``vggt.PredictionsError`` naming the file and key; arguments out of
-range (a negative factor or height) raise ValueError. No bpy, no torch: numpy only.
+Files and data that cannot give a scale raise ``vggt.PredictionsError`` naming the file and key (``camera_height_fit``
+its ``GroundPlaneError``, with a hint); arguments out of range (a negative factor or height) raise ValueError. No
+bpy, no torch: numpy only.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import cameras, similarity
+from . import cameras, fits, point_cloud, similarity
 from .. import errors, files
 from ..vggt import predictions as vggt
 from ..vggt.predictions import PredictionsError
@@ -229,3 +231,53 @@ def vggt_to_world_by_camera_height(plane, vggt_world_to_camera, camera_height: f
         details["plane_inlier_rms_m"] = float(plane_inlier_rms * s)
     return MetricFit(M, "camera_height", float(s), float(np.sqrt(np.mean(err ** 2))), float(np.abs(err).max()),
                      details)
+
+
+class GroundPlaneError(vggt.PredictionsError):
+    """Camera-height scale impossible for this predictions file: too few confident points in the lower image rows,
+    or only collinear ones (``field`` "depth"); no level plane among them holding enough of them, or a plane the
+    cameras do not stand over (``field`` "(camera height)"). The hint says what to do instead."""
+
+
+#: What to do instead, for each way the camera-height fit fails.
+_GROUND_HINTS = {
+    "depth": "the ground is found among the confident pixels of the lower 40 % of each image: lower the "
+             "Confidence Percentile, or give the scale as a factor or a metric trajectory",
+    "(camera height)": "the road must be visible in the lower part of the images, under cameras looking ahead; "
+                       "otherwise give the scale as a factor or a metric trajectory",
+}
+
+
+def camera_height_fit(pred: vggt.VGGTPredictions, camera_height: float,
+                      confidence_percentile: float = point_cloud.CONFIDENCE_PERCENTILE, seed: int = 0) -> MetricFit:
+    """(c) in full: metric ``vggt_to_world`` from a known camera height (metres) over the road of ``pred``.
+
+    Ground candidates (``point_cloud.ground_candidates``: confident pixels of the lower 40 % of each image, at most
+    200,000, seeded) → ``fits.fit_ground_plane`` (seeded RANSAC within 30° of the cameras' up axis, inliers
+    closer than 1 % of the median candidate distance, refined by least squares) → ``vggt_to_world_by_camera_height``
+    (scale = height / median camera-to-plane distance; the road becomes z = 0). ``details`` adds the plane fit's
+    ``inliers``, ``candidates``, ``nonfinite_candidates``, ``inlier_rms_vggt``, ``tilt_deg``, ``threshold_vggt``
+    (VGGT units) to the fit's own (``plane_inlier_rms_m`` among them). Raises ``GroundPlaneError`` naming
+    ``pred.path``.
+    """
+    if not (np.isfinite(camera_height) and camera_height > 0):
+        raise GroundPlaneError(pred.path, "(camera height)", f"the camera height must be a positive number of "
+                                                             f"metres, got {camera_height}",
+                               hint="give the camera's height over the road in metres, such as 1.6")
+    pts = point_cloud.ground_candidates(pred, confidence_percentile, seed=seed)
+    try:
+        g = fits.fit_ground_plane(pts, pred.world_to_camera, seed=seed)
+    except fits.PlaneFitError as e:
+        key = "depth" if e.reason in ("too_few", "degenerate") else "(camera height)"
+        raise GroundPlaneError(pred.path, key, f"no road plane for the camera-height scale: {e}",
+                               hint=_GROUND_HINTS[key]) from None
+    try:
+        fit = vggt_to_world_by_camera_height(g.plane, pred.world_to_camera, camera_height,
+                                             plane_inlier_rms=g.inlier_rms, path=pred.path)
+    except errors.InputError as e:  # cameras on the plane or looking straight down at it: same error type here
+        key = "(camera height)" if e.field == "(file)" else e.field
+        raise GroundPlaneError(pred.path, key, e.message, hint=e.hint or _GROUND_HINTS["(camera height)"]) \
+            from None
+    fit.details.update({"inliers": g.num_inliers, "candidates": g.candidates, "nonfinite_candidates": g.nonfinite,
+                        "inlier_rms_vggt": g.inlier_rms, "tilt_deg": g.tilt_deg, "threshold_vggt": g.threshold})
+    return fit

@@ -17,6 +17,10 @@ import numpy as np
 from . import similarity, unproject
 from ..vggt import predictions as vggt
 
+#: The confidence percentile when none is given, the one place it is written: VGGT's demo drops the less
+#: confident half of the pixels. The import's, the job's and the training and evaluation default.
+CONFIDENCE_PERCENTILE = 50.0
+
 
 @dataclass
 class FramePoints:
@@ -41,7 +45,7 @@ class FramePoints:
         return slice(int(self.offsets[i]), int(self.offsets[i + 1]))
 
 
-def point_cloud(pred: vggt.VGGTPredictions, confidence_percentile: float = 50.0, source: str = "depth",
+def point_cloud(pred: vggt.VGGTPredictions, confidence_percentile: float = CONFIDENCE_PERCENTILE, source: str = "depth",
                 vggt_to_world=None, frames=None, depth_edge_ratio: float | None = None) -> FramePoints:
     """Coloured points of the clip, filtered by confidence percentile (VGGT demo semantics), per frame.
 
@@ -173,7 +177,8 @@ def depth_edges_reference(depth, ratio: float, valid=None) -> np.ndarray:
     return out
 
 
-def ground_candidates(pred: vggt.VGGTPredictions, confidence_percentile: float = 50.0, lower_fraction: float = 0.4,
+def ground_candidates(pred: vggt.VGGTPredictions, confidence_percentile: float = CONFIDENCE_PERCENTILE,
+                      lower_fraction: float = 0.4,
                       max_points: int = 200_000, seed: int = 0) -> np.ndarray:
     """Points likely on the road, in VGGT's world: confident pixels from the lower part of each image.
 

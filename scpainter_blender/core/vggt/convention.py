@@ -152,7 +152,7 @@ def resolve_convention(pred: vggt.VGGTPredictions, requested: str, metres_per_un
                                f"the points look scattered and the camera path wrong, {redo}: camera_to_world")
         return
     report.convention_checked = True
-    w2c, c2w = "world_to_camera", "camera_to_world"
+    w2c, c2w = vggt.EXTRINSIC_CONVENTIONS
     if check.agrees(w2c):
         k = check.worst(w2c)
         note = (f"extrinsic checked against world_points in {len(check.frames)} frames: world-to-camera agrees "

@@ -246,7 +246,7 @@ def _all_finite(a) -> bool:
 def _check_convention(value) -> None:
     """The caller's option (an enum in every user interface): a wrong one is a programming error, ValueError."""
     if value not in ("auto",) + vggt.EXTRINSIC_CONVENTIONS:
-        raise ValueError(f"extrinsic_convention must be 'auto', 'world_to_camera' or 'camera_to_world', "
+        raise ValueError(f"extrinsic_convention must be one of {['auto', *vggt.EXTRINSIC_CONVENTIONS]}, "
                          f"got {value!r}")
 
 

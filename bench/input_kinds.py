@@ -19,6 +19,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
 from scpainter_blender.core import outputs  # noqa: E402
+from scpainter_blender.scene import kinds  # noqa: E402
 from tools import blender_env  # noqa: E402
 
 
@@ -151,8 +152,6 @@ def run(op, path, **kw):
         r = op(filepath=path, **kw)
     except RuntimeError as e:
         return "refused", str(e).strip().splitlines()[-1][:300]
-    from scpainter_blender.scene import kinds
-
     objs = [o for o in bpy.context.scene.objects if kinds.kind_of(o) is not None]
     facts = []
     for o in objs:

@@ -3,8 +3,9 @@
 Per output frame the scene is evaluated, so keyframes, drivers, constraints and parents are all honoured:
 K, world_to_camera and the resolution are scene/camera.py's (``K_of_camera_object``, ``world_to_camera``,
 ``render_size``), the removal boxes scene/placement.py's (``box_matrix``), the objects found by kind
-(scene/kinds.py); an asset's object_to_world is its matrix_world composed with ``scpainter_file_to_data``; the points' cleaning is the
-depth-edge ratio they were imported with (``point_cleaning``), so the render loads the points the viewport shows.
+(scene/kinds.py); an asset's object_to_world is its matrix_world composed with ``scpainter_file_to_data``; the
+points' cleaning is the depth-edge ratio they were imported with (``point_cleaning``), so the render loads the
+points the viewport shows.
 What the scene does not use is left out: no reconstruction, no ``scene``; no (accepted) assets, no ``assets``; no
 checkpoint, no ``generate``. Generation settings are not written: the backend takes them from the checkpoint
 (window, guidance, fps) and ``core.job.GENERATE_DEFAULTS``; the one exception is the baseline's inpainting method
@@ -74,8 +75,8 @@ def build_job(context, job_path: str, output_dir: str | None = None, checkpoint:
     try:
         for f in frames:
             scene.frame_set(f)
-            out_frames.append(job_mod.Frame(f, camera_mod.K_of_camera_object(scene, cam),
-                                            camera_mod.world_to_camera(cam), source_frames(pts, f) if pts is not None else []))
+            K, w2c = camera_mod.K_of_camera_object(scene, cam), camera_mod.world_to_camera(cam)
+            out_frames.append(job_mod.Frame(f, K, w2c, source_frames(pts, f) if pts is not None else []))
             for a in assets:
                 asset_m[a.name][f] = (np.array(a.matrix_world, dtype=np.float64)
                                       @ props.matrix_property(a, "scpainter_file_to_data"))

@@ -80,7 +80,8 @@ def _spelled_kinds(source, name, values=True):
         if isinstance(node, ast.Constant) and node.value == kinds.PROPERTY:
             found.append((node.lineno, kinds.PROPERTY))
         elif values and isinstance(node, ast.Compare):
-            found += [(c.lineno, c.value) for operand in [node.left, *node.comparators] for c in kind_constants(operand)]
+            operands = [node.left, *node.comparators]
+            found += [(c.lineno, c.value) for operand in operands for c in kind_constants(operand)]
         elif values and isinstance(node, ast.Assign) and any(isinstance(t, ast.Subscript) for t in node.targets):
             found += [(c.lineno, c.value) for c in kind_constants(node.value)]
     return sorted(found)

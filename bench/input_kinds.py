@@ -19,6 +19,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
 from scpainter_blender.core import outputs  # noqa: E402
+from scpainter_blender.scene import kinds  # noqa: E402
 from tools import blender_env  # noqa: E402
 
 
@@ -151,15 +152,15 @@ def run(op, path, **kw):
         r = op(filepath=path, **kw)
     except RuntimeError as e:
         return "refused", str(e).strip().splitlines()[-1][:300]
-    objs = [o for o in bpy.context.scene.objects if "scpainter_kind" in o]
+    objs = [o for o in bpy.context.scene.objects if kinds.kind_of(o) is not None]
     facts = []
     for o in objs:
-        k = o["scpainter_kind"]
-        if k == "points":
+        k = kinds.kind_of(o)
+        if k == kinds.POINTS:
             facts.append(f"{len(o.data.vertices):,} points")
-        elif k == "recorded_camera":
+        elif k == kinds.RECORDED_CAMERA:
             facts.append(f"camera {bpy.context.scene.render.resolution_x}x{bpy.context.scene.render.resolution_y}")
-        elif k == "gaussian_asset":
+        elif k == kinds.GAUSSIAN_ASSET:
             s = np.array(o["scpainter_size"]) * np.array(o.scale)
             facts.append(f"{len(o.data.vertices):,} Gaussians, axes {o['scpainter_axes']}, "
                          f"size {s[0]:.2f}x{s[1]:.2f}x{s[2]:.2f} (x y z)")

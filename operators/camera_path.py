@@ -4,16 +4,13 @@ from __future__ import annotations
 
 import bpy
 
-from ..scpainter_blender.scene import camera
+from ..scpainter_blender.scene import camera, kinds
 from . import reports, selection
 
 
 def recorded_camera(context):
     """The scene's recorded camera: the active object or scene camera if it is one, else the first found."""
-    for obj in (context.active_object, context.scene.camera):
-        if obj is not None and obj.get("scpainter_kind") == "recorded_camera":
-            return obj
-    return next((o for o in context.scene.objects if o.get("scpainter_kind") == "recorded_camera"), None)
+    return kinds.recorded_camera(context.scene, prefer=(context.active_object, context.scene.camera))
 
 
 class SCPAINTER_OT_new_camera_path(bpy.types.Operator):

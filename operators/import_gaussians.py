@@ -5,7 +5,7 @@ from __future__ import annotations
 import bpy
 from bpy_extras.io_utils import ImportHelper
 
-from ..scpainter_blender.scene import gaussians, preferences
+from ..scpainter_blender.scene import gaussians, kinds, preferences
 from . import reports, selection
 
 AXES_ITEMS = [("TRELLIS", "TRELLIS / Amodal3R", "Undo their (x, -z, y) file axes"),
@@ -61,8 +61,7 @@ class SCPAINTER_OT_set_asset_axes(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        obj = context.active_object
-        return obj is not None and obj.get("scpainter_kind") == "gaussian_asset"
+        return kinds.is_kind(context.active_object, kinds.GAUSSIAN_ASSET)
 
     @reports.reported
     def execute(self, context):

@@ -5,17 +5,17 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
-from ..scpainter_blender.scene import placement
+from ..scpainter_blender.scene import kinds, placement
 from . import reports, selection
 
 
 def _asset(context):
     obj = context.active_object
-    return obj if obj is not None and obj.get("scpainter_kind") == "gaussian_asset" else None
+    return obj if kinds.is_kind(obj, kinds.GAUSSIAN_ASSET) else None
 
 
 def _points(context):
-    return next((o for o in context.scene.objects if o.get("scpainter_kind") == "points"), None)
+    return kinds.point_cloud(context.scene)
 
 
 class _AssetOperator:
@@ -107,7 +107,7 @@ class SCPAINTER_OT_replace_car(_AssetOperator, bpy.types.Operator):
 
     @reports.reported
     def execute(self, context):
-        boxes = [o for o in context.selected_objects if o.get("scpainter_kind") == "removal_box"]
+        boxes = [o for o in context.selected_objects if kinds.is_kind(o, kinds.REMOVAL_BOX)]
         if len(boxes) != 1:
             self.report({"ERROR"}, "select exactly one removal box together with the asset")
             return {"CANCELLED"}
@@ -132,7 +132,7 @@ class SCPAINTER_OT_check_assets(bpy.types.Operator):
 
     @reports.reported
     def execute(self, context):
-        assets = [o for o in context.scene.objects if o.get("scpainter_kind") == "gaussian_asset"]
+        assets = kinds.gaussian_assets(context.scene)
         flagged = []
         for o in assets:
             r = placement.stage1_check(o, tolerance=self.tolerance)
@@ -158,7 +158,7 @@ class SCPAINTER_OT_review_asset(bpy.types.Operator):
     @reports.reported
     def execute(self, context):
         obj = bpy.data.objects.get(self.name) or _asset(context)
-        if obj is None or obj.get("scpainter_kind") != "gaussian_asset":
+        if not kinds.is_kind(obj, kinds.GAUSSIAN_ASSET):
             self.report({"ERROR"}, f"no Gaussian asset named {self.name!r}")
             return {"CANCELLED"}
         obj["scpainter_review"] = self.status

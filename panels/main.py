@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import bpy
 
-from ..scpainter_blender.scene import node_groups, points
+from ..scpainter_blender.scene import kinds, node_groups, points
 
 
 class SCPAINTER_PT_main(bpy.types.Panel):
@@ -33,10 +33,10 @@ class SCPAINTER_PT_main(bpy.types.Panel):
         box.operator("scpainter.export_job", icon="EXPORT")
         self.draw_backend(context, box)
         obj = context.active_object
-        if obj is None or "scpainter_kind" not in obj or obj["scpainter_kind"] not in ("points", "recorded_camera"):
+        if not kinds.is_kind(obj, kinds.POINTS, kinds.RECORDED_CAMERA):
             return
         box = layout.box()
-        box.label(text=obj.name, icon="POINTCLOUD_DATA" if obj["scpainter_kind"] == "points" else "CAMERA_DATA")
+        box.label(text=obj.name, icon="POINTCLOUD_DATA" if kinds.is_kind(obj, kinds.POINTS) else "CAMERA_DATA")
         box.label(text=f"Scale: {obj.get('scpainter_scale_method', '?')}, "
                        f"residual {obj.get('scpainter_scale_residual_m', 0.0):.3g} m")
         mod = points.points_modifier(obj)
@@ -74,7 +74,7 @@ class SCPAINTER_PT_main(bpy.types.Panel):
         col.operator("scpainter.replace_car")
         col.operator("scpainter.check_assets")
         active = context.active_object
-        if active is not None and active.get("scpainter_kind") == "gaussian_asset":
+        if kinds.is_kind(active, kinds.GAUSSIAN_ASSET):
             row = box.row(align=True)  # how the file's axes were read, and the way to correct it
             row.label(text=f"Axes: {active.get('scpainter_axes', '?')}", icon="ORIENTATION_GLOBAL")
             for axes, text in (("TRELLIS", "TRELLIS"), ("NONE", "As Stored")):
@@ -83,9 +83,7 @@ class SCPAINTER_PT_main(bpy.types.Panel):
             if active.get("scpainter_axes_reason"):
                 box.label(text=active["scpainter_axes_reason"])
         icons = {"accepted": "CHECKMARK", "rejected": "X", "unchecked": "QUESTION"}
-        for obj in context.scene.objects:  # stage 2: a person accepts or rejects each asset
-            if obj.get("scpainter_kind") != "gaussian_asset":
-                continue
+        for obj in kinds.gaussian_assets(context.scene):  # stage 2: a person accepts or rejects each asset
             row = box.row(align=True)
             stage1 = obj.get("scpainter_stage1", "")
             row.label(text=f"{obj.name}{'  (size flagged)' if stage1 == 'flagged' else ''}",

@@ -77,8 +77,9 @@ def main(argv=None):
     if bpy.ops.scpainter.import_vggt(filepath=street.predictions_path, **kw) != {"FINISHED"}:
         raise SystemExit("import failed")
     t_import = time.perf_counter() - t_import
-    pts = next(o for o in scene.objects if o.get("scpainter_kind") == "points")
-    cam = next(o for o in scene.objects if o.get("scpainter_kind") == "recorded_camera")
+    from scpainter_blender.scene import kinds
+
+    pts, cam = kinds.point_cloud(scene), kinds.recorded_camera(scene)
     import numpy as np
 
     # a procedural car saved the way Amodal3R saves its output, parked on the left strip, stood on the road

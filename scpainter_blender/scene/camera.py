@@ -11,7 +11,7 @@ import bpy
 import numpy as np
 
 from ..core.geometry import cameras, trajectory
-from . import compat
+from . import compat, kinds
 
 
 def create_recorded_camera(name: str, world_to_camera, K, width: int, height: int, frame_start: int,
@@ -56,15 +56,27 @@ def apply_render_settings(scene, cam: cameras.BlenderCamera):
     r.pixel_aspect_x, r.pixel_aspect_y = cam.pixel_aspect_x, cam.pixel_aspect_y
 
 
+def render_size(scene) -> tuple:
+    """(width, height) in pixels the scene renders at: its resolution times its percentage, rounded."""
+    r = scene.render
+    return round(r.resolution_x * r.resolution_percentage / 100), round(r.resolution_y * r.resolution_percentage / 100)
+
+
 def K_of_camera_object(scene, cam_obj) -> np.ndarray:
     """Our K for a Blender camera object with the scene's render settings (at the current frame)."""
     d, r = cam_obj.data, scene.render
-    W = round(r.resolution_x * r.resolution_percentage / 100)
-    H = round(r.resolution_y * r.resolution_percentage / 100)
+    W, H = render_size(scene)
     return cameras.K_from_blender_camera(cameras.BlenderCamera(
         lens=d.lens, sensor_width=d.sensor_width, sensor_height=d.sensor_height, sensor_fit=d.sensor_fit,
         shift_x=d.shift_x, shift_y=d.shift_y, resolution_x=W, resolution_y=H,
         pixel_aspect_x=r.pixel_aspect_x, pixel_aspect_y=r.pixel_aspect_y))
+
+
+def world_to_camera(cam_obj) -> np.ndarray:
+    """OpenCV world_to_camera (4, 4) of a camera object as the scene is evaluated now (its matrix_world)."""
+    M = np.array(cam_obj.matrix_world, dtype=np.float64)
+    M[:3, :3] /= np.linalg.norm(M[:3, :3], axis=0)  # a scaled camera object still sees the same rays
+    return cameras.world_to_camera_from_blender(M)
 
 
 def world_to_camera_per_frame(scene, cam_obj, frames) -> np.ndarray:
@@ -75,9 +87,7 @@ def world_to_camera_per_frame(scene, cam_obj, frames) -> np.ndarray:
     try:
         for i, f in enumerate(frames):
             scene.frame_set(int(f))
-            M = np.array(cam_obj.matrix_world, dtype=np.float64)
-            M[:3, :3] /= np.linalg.norm(M[:3, :3], axis=0)  # a scaled camera object still sees the same rays
-            out[i] = cameras.world_to_camera_from_blender(M)
+            out[i] = world_to_camera(cam_obj)
     finally:
         scene.frame_set(current)
     return out
@@ -116,7 +126,7 @@ def create_camera_path(context, source, shift_m: float, name: str | None = None)
     for coll in source.users_collection:
         coll.objects.link(obj)
     key_camera_path(obj, shifted, frames, f"{name} path")
-    obj["scpainter_kind"] = "camera_path"
+    kinds.mark(obj, kinds.CAMERA_PATH)
     obj["scpainter_shift_m"] = float(shift_m)
     obj["scpainter_source_camera"] = source.name
     scene.camera = obj

@@ -29,8 +29,7 @@ from .. import backend_client
 from ..core.geometry import cameras
 from ..core import outputs
 from ..core.splats import gaussians as splats, reader as splats_io, trellis
-from ..core.splats.sh import SH_C0
-from . import materials, node_groups, props
+from . import kinds, materials, node_groups, props
 from .points import linear_rgba
 
 NODE_GROUP = "SCPainter Gaussians"
@@ -135,9 +134,7 @@ def _data_frame(xyz_file, axes: str):
 
 
 def _display_rotations(rot_raw, F):
-    q = np.asarray(rot_raw, np.float64)
-    q = q / np.linalg.norm(q, axis=1, keepdims=True)
-    return cameras.rotation_to_quaternion(F @ cameras.quaternion_to_rotation(q))
+    return cameras.rotation_to_quaternion(F @ cameras.quaternion_to_rotation(splats.unit_quaternions(rot_raw)))
 
 
 def import_gaussians(context, filepath: str, axes: str = "AUTO", target_length: float | None = None,
@@ -177,10 +174,10 @@ def import_gaussians(context, filepath: str, axes: str = "AUTO", target_length: 
     file_to_data, F, lo, hi = _data_frame(ply.xyz[keep], axes)
     pos = (ply.xyz[keep].astype(np.float64) @ file_to_data[:3, :3].T + file_to_data[:3, 3]).astype(np.float32)
     rot_raw = ply.rot[keep]
-    sigma = np.exp(ply.scale[keep].astype(np.float64))
-    opacity = 1.0 / (1.0 + np.exp(-ply.opacity[keep].astype(np.float64)))
-    rgba = linear_rgba(np.clip(SH_C0 * ply.f_dc[keep] + 0.5, 0.0, 1.0).astype(np.float32))
-    rgba[:, 3] = opacity
+    # the display attributes are splats.decode's activations of the raw values kept beside them
+    sigma = splats.scales_from_logs(ply.scale[keep])
+    rgba = linear_rgba(np.minimum(splats.dc_colors(ply.f_dc[keep]), 1.0))
+    rgba[:, 3] = splats.opacities_from_logits(ply.opacity[keep])
     t_read = time.perf_counter()
 
     N = len(pos)
@@ -193,7 +190,7 @@ def import_gaussians(context, filepath: str, axes: str = "AUTO", target_length: 
         a = mesh_data.attributes.new(attr_name, kind, "POINT")  # written at once: a new one may move the others
         a.data.foreach_set(prop, np.ascontiguousarray(values, dtype=np.float32 if kind != "INT" else np.int32).ravel())
 
-    sh = np.concatenate([ply.f_dc[keep][:, None, :], np.swapaxes(ply.f_rest[keep], 1, 2)], axis=1)
+    sh = splats.sh_coefficients(ply.f_dc[keep], ply.f_rest[keep])
     for k in range(sh.shape[1]):
         put(f"sh_{k}", "FLOAT_VECTOR", sh[:, k], "vector")
     put("opacity", "FLOAT", ply.opacity[keep], "value")
@@ -219,7 +216,7 @@ def import_gaussians(context, filepath: str, axes: str = "AUTO", target_length: 
     if extent > 0:
         obj.scale = (target_length / extent,) * 3
     node_groups.add_modifier(obj, "SCPainter Gaussians", ensure_node_group(), {"Ellipsoids": bool(ellipsoids)})
-    obj["scpainter_kind"] = "gaussian_asset"
+    kinds.mark(obj, kinds.GAUSSIAN_ASSET)
     obj["scpainter_source"] = filepath
     obj["scpainter_format"] = ply.format
     obj["scpainter_file_to_data"] = file_to_data.ravel().tolist()

@@ -19,6 +19,7 @@ from ..core import errors
 from ..core.import_options import DEPTH_EDGE_RATIO, ERROR_PATH, SCALE_MODES, ImportOptions
 from ..core.vggt import predictions as vggt, npz as vggt_io
 from . import camera as camera_mod
+from . import kinds
 from . import node_groups
 from . import points as points_mod
 
@@ -53,7 +54,7 @@ def metric_fit(pred: vggt.VGGTPredictions, opts: ImportOptions) -> metric_scale.
 
 
 def _tag(obj, kind, filepath, fit, opts, rep: vggt.LoadReport):
-    obj["scpainter_kind"] = kind
+    kinds.mark(obj, kind)
     obj["scpainter_source"] = filepath
     obj["scpainter_vggt_to_world"] = np.asarray(fit.vggt_to_world, np.float64).ravel().tolist()
     obj["scpainter_scale_method"] = fit.method
@@ -102,7 +103,7 @@ def import_vggt(context, filepath: str, opts: ImportOptions | None = None) -> Im
     scene.frame_end = opts.frame_start + pred.num_frames - 1
     if opts.set_scene_camera:
         scene.camera = cam
-    for o, kind in ((obj, "points"), (cam, "recorded_camera")):
+    for o, kind in ((obj, kinds.POINTS), (cam, kinds.RECORDED_CAMERA)):
         _tag(o, kind, filepath, fit, opts, pred.report)
     obj["scpainter_num_frames"] = pred.num_frames
     obj["scpainter_matrix_world_at_import"] = np.array(obj.matrix_basis, dtype=np.float64).ravel().tolist()

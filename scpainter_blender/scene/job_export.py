@@ -1,9 +1,11 @@
 """Write the scene as a ``job.json`` (``core.job.Job``): active camera per frame, points, removal boxes, assets.
 
 Per output frame the scene is evaluated, so keyframes, drivers, constraints and parents are all honoured:
-K comes from the camera's lens, sensor, shift and the render settings; world_to_camera from its matrix_world; an
-asset's object_to_world is its matrix_world composed with ``scpainter_file_to_data``; the points' cleaning is the
-depth-edge ratio they were imported with (``point_cleaning``), so the render loads the points the viewport shows.
+K, world_to_camera and the resolution are scene/camera.py's (``K_of_camera_object``, ``world_to_camera``,
+``render_size``), the removal boxes scene/placement.py's (``box_matrix``), the objects found by kind
+(scene/kinds.py); an asset's object_to_world is its matrix_world composed with ``scpainter_file_to_data``; the
+points' cleaning is the depth-edge ratio they were imported with (``point_cleaning``), so the render loads the
+points the viewport shows.
 What the scene does not use is left out: no reconstruction, no ``scene``; no (accepted) assets, no ``assets``; no
 checkpoint, no ``generate``. Generation settings are not written: the backend takes them from the checkpoint
 (window, guidance, fps) and ``core.job.GENERATE_DEFAULTS``; the one exception is the baseline's inpainting method
@@ -16,12 +18,11 @@ import os
 
 import numpy as np
 
-from ..core.geometry import cameras, point_cloud
+from ..core.geometry import point_cloud
 from ..core import job as job_mod
 from . import camera as camera_mod
-from . import node_groups
+from . import kinds, node_groups, placement, props
 from . import points as points_mod
-from . import props
 
 
 def _m(value):
@@ -56,15 +57,6 @@ def point_cleaning(obj) -> job_mod.PointCleaning:
     return job_mod.PointCleaning(depth_edge_ratio=ratio if ratio > 0 else None)
 
 
-def removal_box(obj) -> job_mod.RemovalBox:
-    """A removal box from a cube empty: rigid box_to_world and full size in metres (scale · 2 · display size)."""
-    M = np.array(obj.matrix_world, dtype=np.float64)
-    scale = np.linalg.norm(M[:3, :3], axis=0)
-    rigid = M.copy()
-    rigid[:3, :3] = M[:3, :3] / scale
-    return job_mod.RemovalBox(rigid, 2.0 * obj.empty_display_size * scale)
-
-
 def build_job(context, job_path: str, output_dir: str | None = None, checkpoint: str = "",
               camera=None) -> job_mod.Job:
     """The job for the scene's frame range, seen by ``camera`` (default: the scene camera)."""
@@ -75,25 +67,17 @@ def build_job(context, job_path: str, output_dir: str | None = None, checkpoint:
                                hint="add one (or a camera path) before exporting a job")
     job_dir = os.path.dirname(os.path.abspath(job_path))
     frames = list(range(scene.frame_start, scene.frame_end + 1))
-    objs = list(scene.objects)
-    pts = next((o for o in objs if o.get("scpainter_kind") == "points"), None)
-    boxes = [o for o in objs if o.get("scpainter_kind") == "removal_box"]
-    assets = [o for o in objs if o.get("scpainter_kind") == "gaussian_asset"
-              and o.get("scpainter_review") != "rejected" and not o.hide_render]
-    r = scene.render
-    W = round(r.resolution_x * r.resolution_percentage / 100)
-    H = round(r.resolution_y * r.resolution_percentage / 100)
+    pts = kinds.point_cloud(scene)
+    boxes = kinds.removal_boxes(scene)
+    assets = [o for o in kinds.gaussian_assets(scene) if o.get("scpainter_review") != "rejected" and not o.hide_render]
     out_frames = []
     asset_m = {a.name: {} for a in assets}
     current = scene.frame_current
     try:
         for f in frames:
             scene.frame_set(f)
-            M = np.array(cam.matrix_world, dtype=np.float64)
-            M[:3, :3] /= np.linalg.norm(M[:3, :3], axis=0)
-            out_frames.append(job_mod.Frame(f, camera_mod.K_of_camera_object(scene, cam),
-                                            cameras.world_to_camera_from_blender(M),
-                                            source_frames(pts, f) if pts is not None else []))
+            K, w2c = camera_mod.K_of_camera_object(scene, cam), camera_mod.world_to_camera(cam)
+            out_frames.append(job_mod.Frame(f, K, w2c, source_frames(pts, f) if pts is not None else []))
             for a in assets:
                 asset_m[a.name][f] = (np.array(a.matrix_world, dtype=np.float64)
                                       @ props.matrix_property(a, "scpainter_file_to_data"))
@@ -107,8 +91,10 @@ def build_job(context, job_path: str, output_dir: str | None = None, checkpoint:
                            # how the import read the file: the backend loads the same poses and pixels
                            extrinsic_convention=str(pts.get("scpainter_extrinsic_convention", "world_to_camera")),
                            crop=[int(v) for v in pts.get("scpainter_crop", [0, 0, 0, 0])],
-                           removal_boxes=[removal_box(b) for b in boxes], point_cleaning=point_cleaning(pts))
-    return job_mod.Job((W, H), out_frames, os.path.relpath(output_dir or job_dir, job_dir), scene=sc,
+                           removal_boxes=[job_mod.RemovalBox(*placement.box_matrix(b)) for b in boxes],
+                           point_cleaning=point_cleaning(pts))
+    return job_mod.Job(camera_mod.render_size(scene), out_frames, os.path.relpath(output_dir or job_dir, job_dir),
+                       scene=sc,
                        assets=[job_mod.Asset(a.name, os.path.relpath(a["scpainter_source"], job_dir), asset_m[a.name])
                                for a in assets],
                        generate=_generate_settings(checkpoint, props.baseline_inpaint(scene)))

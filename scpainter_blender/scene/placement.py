@@ -13,7 +13,7 @@ import numpy as np
 from mathutils import Matrix, Quaternion, Vector
 
 from ..core.geometry import fits as geometry
-from . import node_groups
+from . import kinds, node_groups
 from . import points as points_mod
 from .props import SceneError
 
@@ -75,10 +75,6 @@ def scene_points_world(points_obj) -> np.ndarray:
     return co.reshape(-1, 3).astype(np.float64) @ M[:3, :3].T + M[:3, 3]
 
 
-def removal_boxes(scene):
-    return [o for o in scene.objects if o.get("scpainter_kind") == "removal_box"]
-
-
 def box_matrix(box) -> tuple:
     """(rigid box_to_world 4x4, full size (3,)) of a removal box empty."""
     M = np.array(box.matrix_world, dtype=np.float64)
@@ -103,7 +99,7 @@ def snap_to_ground(context, obj, points_obj, margin: float = 1.0, align: bool = 
     foot = corners @ M[:3, :3].T + M[:3, 3]
     lo, hi = foot[:, :2].min(0) - margin, foot[:, :2].max(0) + margin
     sel = np.all((P[:, :2] >= lo) & (P[:, :2] <= hi), axis=1)
-    for box in removal_boxes(context.scene):
+    for box in kinds.removal_boxes(context.scene):
         if sel.any():
             T, s = box_matrix(box)
             sel[sel] &= ~geometry.points_in_box(P[sel], T, s)
@@ -171,7 +167,7 @@ def add_removal_box(context, points_obj, box_to_world=None, size=DEFAULT_CAR, na
         box_to_world[:3, 3] = np.array(context.scene.cursor.location) + [0.0, 0.0, H / 2]
     box.matrix_world = Matrix(np.asarray(box_to_world, np.float64).tolist())
     box.scale = (Wd / 2, L / 2, H / 2)
-    box["scpainter_kind"] = "removal_box"
+    kinds.mark(box, kinds.REMOVAL_BOX)
     for coll in points_obj.users_collection:
         coll.objects.link(box)
     node_groups.add_modifier(points_obj, f"SCPainter Remove {box.name}", _removal_group(), {"Box": box})

@@ -110,7 +110,7 @@ class Gaussians:
 
     def base_colors(self) -> np.ndarray:
         """View-independent colour (the DC term only), (N, 3) in [0, ...)."""
-        return np.maximum(_sh.SH_C0 * self.sh[:, 0] + 0.5, 0.0).astype(np.float32)
+        return dc_colors(self.sh[:, 0])
 
     def extents(self):
         """Axis-aligned bounds (min (3,), max (3,)) of the means; zeros for an empty set."""
@@ -133,6 +133,36 @@ def open_file(path):
 # --------------------------------------------------------------------------------------------------------------
 # Decoding and encoding
 # --------------------------------------------------------------------------------------------------------------
+
+# The activations, one formula each: decode uses them, and so does the Blender import (scene/gaussians.py), which
+# keeps the raw values beside the decoded ones.
+
+def opacities_from_logits(logit) -> np.ndarray:
+    """Opacities in [0, 1] (float64) of raw logits (N,): the sigmoid."""
+    return 1.0 / (1.0 + np.exp(-np.asarray(logit).astype(np.float64)))
+
+
+def scales_from_logs(log_scale) -> np.ndarray:
+    """Standard deviations (float64) of raw natural-log scales (N, 3): exp."""
+    return np.exp(np.asarray(log_scale).astype(np.float64))
+
+
+def unit_quaternions(rot) -> np.ndarray:
+    """Unit (w, x, y, z) quaternions (N, 4) float64 of raw ones; a zero quaternion gives NaN (decode drops it)."""
+    q = np.asarray(rot).astype(np.float64)
+    return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+
+def sh_coefficients(f_dc, f_rest) -> np.ndarray:
+    """SH coefficients (N, K, 3) coefficient-major (``[:, 0]`` is the DC term) of raw f_dc (N, 3) and channel-major
+    f_rest (N, 3, K - 1); the input dtype is kept."""
+    return np.concatenate([np.asarray(f_dc)[:, None, :], np.swapaxes(f_rest, 1, 2)], axis=1)
+
+
+def dc_colors(f_dc) -> np.ndarray:
+    """View-independent colour (N, 3) float32 in [0, ...) of DC coefficients (N, 3): max(SH_C0 · f_dc + 0.5, 0)."""
+    return np.maximum(_sh.SH_C0 * np.asarray(f_dc) + 0.5, 0.0).astype(np.float32)
+
 
 def decode(ply: GaussianPly) -> Gaussians:
     """Activate raw values: exp scales, sigmoid opacity, normalised quaternions; drop and count bad rows.
@@ -159,13 +189,10 @@ def valid_rows(ply: GaussianPly):
 
 def _decode(ply: GaussianPly) -> Gaussians:
     keep, dropped = valid_rows(ply)
-    rot = ply.rot[keep].astype(np.float64)
-    q = rot / np.linalg.norm(rot, axis=1, keepdims=True)
-    opac = 1.0 / (1.0 + np.exp(-ply.opacity[keep].astype(np.float64)))
-    sh = np.concatenate([ply.f_dc[keep][:, None, :], np.swapaxes(ply.f_rest[keep], 1, 2)], axis=1)  # (N, K, 3)
-    return Gaussians(means=ply.xyz[keep].copy(), scales=np.exp(ply.scale[keep].astype(np.float64)).astype(np.float32),
-                     quats=q.astype(np.float32), opacities=opac.astype(np.float32), sh=sh.astype(np.float32),
-                     dropped=dropped)
+    return Gaussians(means=ply.xyz[keep].copy(), scales=scales_from_logs(ply.scale[keep]).astype(np.float32),
+                     quats=unit_quaternions(ply.rot[keep]).astype(np.float32),
+                     opacities=opacities_from_logits(ply.opacity[keep]).astype(np.float32),
+                     sh=sh_coefficients(ply.f_dc[keep], ply.f_rest[keep]).astype(np.float32), dropped=dropped)
 
 
 def encode(g: Gaussians, extra: dict | None = None) -> GaussianPly:

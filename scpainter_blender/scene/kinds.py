@@ -1,0 +1,73 @@
+"""The kinds of scene object SCPainter makes, and how to find them: the one place their names are spelled.
+
+Each object SCPainter creates carries its kind as the custom property ``scpainter_kind`` (``PROPERTY``). The values
+are saved in .blend files: never rename them.
+
+* ``POINTS``: the VGGT point cloud (scene/importer.py, scene/points.py);
+* ``RECORDED_CAMERA``: the camera keyed with the recorded drive (scene/importer.py, scene/camera.py);
+* ``CAMERA_PATH``: a camera following the recorded one shifted sideways (scene/camera.py);
+* ``GAUSSIAN_ASSET``: a Gaussian car asset (scene/gaussians.py);
+* ``REMOVAL_BOX``: a cube empty whose points are removed from the points object (scene/placement.py).
+
+Objects are anything with ``get`` (Blender objects, ``None`` allowed where noted); no bpy needed here.
+"""
+
+from __future__ import annotations
+
+PROPERTY = "scpainter_kind"
+
+POINTS = "points"
+RECORDED_CAMERA = "recorded_camera"
+CAMERA_PATH = "camera_path"
+GAUSSIAN_ASSET = "gaussian_asset"
+REMOVAL_BOX = "removal_box"
+ALL = (POINTS, RECORDED_CAMERA, CAMERA_PATH, GAUSSIAN_ASSET, REMOVAL_BOX)
+
+
+def mark(obj, kind: str) -> None:
+    """Tag ``obj`` as one of ``ALL``; ValueError for any other name (a typo would make an object no finder sees)."""
+    if kind not in ALL:
+        raise ValueError(f"unknown scene object kind {kind!r}; one of {ALL}")
+    obj[PROPERTY] = kind
+
+
+def kind_of(obj) -> str | None:
+    """The kind ``obj`` was marked with; None for None or an object SCPainter did not make."""
+    return None if obj is None else obj.get(PROPERTY)
+
+
+def is_kind(obj, *kinds: str) -> bool:
+    """Whether ``obj`` (None allowed: False) is of one of ``kinds``."""
+    return kind_of(obj) in kinds
+
+
+def objects_of_kind(scene, kind: str) -> list:
+    """The scene's objects of ``kind``, in ``scene.objects`` order."""
+    return [o for o in scene.objects if is_kind(o, kind)]
+
+
+def first_of_kind(scene, kind: str):
+    """The scene's first object of ``kind``, or None."""
+    return next((o for o in scene.objects if is_kind(o, kind)), None)
+
+
+def point_cloud(scene):
+    """The scene's (first) points object, or None."""
+    return first_of_kind(scene, POINTS)
+
+
+def recorded_camera(scene, prefer=()):
+    """The scene's recorded camera: the first of ``prefer`` (e.g. the active object, the scene camera) that is one,
+    else the first in the scene; None without one."""
+    found = next((o for o in prefer if is_kind(o, RECORDED_CAMERA)), None)
+    return found if found is not None else first_of_kind(scene, RECORDED_CAMERA)
+
+
+def gaussian_assets(scene) -> list:
+    """The scene's Gaussian car assets (accepted, rejected or unchecked)."""
+    return objects_of_kind(scene, GAUSSIAN_ASSET)
+
+
+def removal_boxes(scene) -> list:
+    """The scene's removal boxes."""
+    return objects_of_kind(scene, REMOVAL_BOX)

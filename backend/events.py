@@ -48,14 +48,14 @@ def reserve_stdout() -> None:
         sys.stdout = sys.stderr
 
 
-def write(ev: dict, stream=None) -> None:
+def write(ev: dict, /, stream=None) -> None:
     """One event (``core.backend_protocol``'s dict) as a line of standard output."""
     stream = stream or _EVENT_STREAM or sys.stdout
     stream.write(json.dumps(json_safe(ev), allow_nan=False) + "\n")
     stream.flush()
 
 
-def emit(kind: str, stream=None, **fields) -> None:
+def emit(kind: str, /, stream=None, **fields) -> None:
     write(protocol.event(kind, **fields), stream)
 
 

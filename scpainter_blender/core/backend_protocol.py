@@ -34,12 +34,12 @@ ERROR_FIELDS = ("message", "hint", "file", "field", "log")
 PROGRESS_FIELDS = ("stage", "done", "total")
 
 
-def event(kind: str, **fields) -> dict:
+def event(kind: str, /, **fields) -> dict:
     """An event of ``kind`` (one of the four above) as the dict written on one line."""
     return {KIND: kind, **fields}
 
 
-def error_event(message: str, hint: str | None = None, **fields) -> dict:
+def error_event(message: str, /, hint: str | None = None, **fields) -> dict:
     """An ``error`` event: ``message``, ``hint`` and any of ``file``, ``field``, ``log`` (``ERROR_FIELDS``), plus
     what a failure says of itself (a ``CleanFailure``'s fields, e.g. ``stage``)."""
     return event(ERROR, message=message, hint=hint, **fields)

@@ -296,12 +296,15 @@ def _run_jobs(args, jobs: list) -> list:
 
     ray = args.ray is not None
     generate = args.what == "generate"
+    # the jobs exported here from .blend files may lead outside their folder (a job.json item naming one of them is
+    # that same file); the other job.json items as given. Each list in the items' order: the backend runs them so
+    exported = {p for _, p, e in jobs if e}
+    trusted = [p in exported for _, p, _ in jobs]
     lists = tempfile.mkdtemp(prefix="scpainter-batch-")
     try:
-        # jobs from job.json items as given; the ones exported from .blend files may lead outside their folder
-        for name, exported in (("jobs.txt", False), ("trusted.txt", True)):
+        for name, which in (("jobs.txt", False), ("trusted.txt", True)):
             with open(os.path.join(lists, name), "w", encoding="utf-8") as f:
-                f.writelines(p + "\n" for _, p, e in jobs if e == exported)
+                f.writelines(p + "\n" for (_, p, _), t in zip(jobs, trusted) if t == which)
         run = _invocation(args, "batch", batch_command=args.what, lists=(os.path.join(lists, "jobs.txt"),),
                           trusted_lists=(os.path.join(lists, "trusted.txt"),), allow_outside=args.allow_outside,
                           checkpoint=_checkpoint(args) if generate else None,
@@ -322,7 +325,7 @@ def _run_jobs(args, jobs: list) -> list:
     finally:
         shutil.rmtree(lists, ignore_errors=True)
     # the backend's order: --list, then --trusted-list
-    order = [k for k, (_, _, e) in enumerate(jobs) if not e] + [k for k, (_, _, e) in enumerate(jobs) if e]
+    order = [k for k, t in enumerate(trusted) if not t] + [k for k, t in enumerate(trusted) if t]
     returned = [None] * len(jobs)
     for k, r in zip(order, done["items"], strict=True):
         returned[k] = r

@@ -30,12 +30,12 @@ class _BackendRun:
     timeout: bpy.props.FloatProperty(name="Timeout", default=0.0, min=0.0, unit="TIME_ABSOLUTE",
                                      description="Stop the backend if it runs longer (seconds; 0: no limit)")
 
-    def options(self) -> dict:
+    def backend_options(self) -> dict:
         """This run's backend options beyond the preferences' (``Invocation``'s fields)."""
         return {}
 
     def _start(self, context):
-        return start(context, invocation(context, self.command, **self.options()))
+        return start(context, invocation(context, self.command, **self.backend_options()))
 
     @classmethod
     def poll(cls, context):
@@ -143,7 +143,7 @@ class SCPAINTER_OT_generate(_BackendRun, bpy.types.Operator):
                     "Add-ons > SCPainter > Checkpoint Folder")
         return "Generate the video with the SCPainter checkpoint of the preferences (renders missing conditions first)"
 
-    def options(self) -> dict:
+    def backend_options(self) -> dict:
         return {"steps": self.steps or None}
 
 

@@ -5,7 +5,13 @@ argument is file "(command line)" with the option as field, argparse's own error
 failure the command explains (``errors.CleanFailure``: a busy output folder, a model producing NaN; no
 traceback), or a bug (any other exception, a plain ValueError included): its traceback on standard error and in the
 command's log (``<output_dir>/backend.log``), whose path the error event's ``log`` field gives; 130 interrupted by
-Ctrl-C (an error event). Standard output carries JSON events only.
+Ctrl-C (an error event). Standard output carries JSON events only. The codes, device names and event kinds:
+``scpainter_blender.core.backend_protocol``; the add-on writes this command line with
+``scpainter_blender.backend_client.Invocation`` (a test parses its ``argv()`` with ``build_parser``).
+
+Over 400 lines because it is the whole command line in one place: ``build_parser`` (every option and its help) and
+one thin handler per command (``_cmd_*``: check the arguments, call the command's module, emit its events), so an
+option sits beside the code that reads it; the work itself lives in the command modules.
 """
 
 from __future__ import annotations

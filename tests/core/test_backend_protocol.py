@@ -77,3 +77,8 @@ def test_invocation_argv_round_trips_through_the_backend_parser(run):
 def test_invocation_refuses_a_device_nobody_knows():
     with pytest.raises(ValueError):
         Invocation("render", device="gpu")
+
+
+def test_blender_cli_never_writes_a_command_line_value_into_the_preferences():
+    source = open(os.path.join(ROOT, "scpainter_blender", "scene", "cli.py"), encoding="utf-8").read()
+    assert not re.search(r"prefs\.\w+\s*=(?!=)", source)

@@ -5,7 +5,13 @@ argument is file "(command line)" with the option as field, argparse's own error
 failure the command explains (``errors.CleanFailure``: a busy output folder, a model producing NaN; no
 traceback), or a bug (any other exception, a plain ValueError included): its traceback on standard error and in the
 command's log (``<output_dir>/backend.log``), whose path the error event's ``log`` field gives; 130 interrupted by
-Ctrl-C (an error event). Standard output carries JSON events only.
+Ctrl-C (an error event). Standard output carries JSON events only. The codes, device names and event kinds:
+``scpainter_blender.core.backend_protocol``; the add-on writes this command line with
+``scpainter_blender.backend_client.Invocation`` (a test parses its ``argv()`` with ``build_parser``).
+
+Over 400 lines because it is the whole command line in one place: ``build_parser`` (every option and its help) and
+one thin handler per command (``_cmd_*``: check the arguments, call the command's module, emit its events), so an
+option sits beside the code that reads it; the work itself lives in the command modules.
 """
 
 from __future__ import annotations
@@ -179,6 +185,7 @@ def _cmd_batch(args) -> int:
         raise ArgumentError("--half-float", "applies to --command render only",
                             hint="render the conditions with batch --command render --half-float first; generate "
                                  "keeps the precision of the conditions it finds")
+    shard = batch_mod.shard_option(args.shard, args.ray)  # checked before any job
     if args.ray is not None:  # Ray schedules the jobs (backend/batch/ray_pool.py); this process is the driver
         from .batch import ray_pool as batch_ray
 
@@ -192,12 +199,13 @@ def _cmd_batch(args) -> int:
                                               allow_outside=allow_outside, half=args.half_float,
                                               address=args.ray, retries=args.retries,
                                               cpus_per_job=args.cpus_per_job, stop=stop, overrides=overrides)
-        rank = 0
+        reports = True
     else:
-        results, rank = batch.run_batch(items, args.command_name, _device(args.device), args.checkpoint,
-                                        allow_outside=allow_outside, half=args.half_float, overrides=overrides)
+        results, reports = batch.run_batch(items, args.command_name, _device(args.device), args.checkpoint,
+                                           allow_outside=allow_outside, half=args.half_float, overrides=overrides,
+                                           shard_of=shard)
     failed = [r for r in results if r["status"] != "ok"]
-    if rank == 0:  # failed: every job not ok; counts: how many ended each way (ok, failed, stopped, not run)
+    if reports:  # failed: every job not ok; counts: how many ended each way (ok, failed, stopped, not run)
         events.done(command="batch", jobs=len(results), failed=len(failed), counts=batch_mod.status_counts(results),
                     items=results)
     return events.EXIT_FAILED if failed else events.EXIT_OK
@@ -318,6 +326,7 @@ class _Parser(argparse.ArgumentParser):
 
 def build_parser() -> argparse.ArgumentParser:
     # numpy only: no torch or CUDA at start-up
+    from scpainter_blender.core.backend_protocol import DEFAULT_DEVICE, DEVICE_NAMES
     from scpainter_blender.core.job import BASELINE_DEFAULTS, GENERATE_DEFAULTS, GENERATE_MODELS, INPAINT_METHODS
 
     p = _Parser(prog="python -m backend", description=__doc__)
@@ -327,7 +336,7 @@ def build_parser() -> argparse.ArgumentParser:
     d.set_defaults(func=_cmd_doctor)
     r = sub.add_parser("render", help="render a job's condition layers (EXR + PNG previews) frame by frame")
     r.add_argument("job", help="job.json (the job contract: docs/design.md)")
-    r.add_argument("--device", choices=["auto", "cpu", "cuda"], default="auto",
+    r.add_argument("--device", choices=DEVICE_NAMES, default=DEFAULT_DEVICE,
                    help="auto: CUDA when torch sees a GPU, else the CPU")
     r.add_argument("--force", action="store_true", help="render frames that are already finished again")
     r.add_argument("--point-radius", type=_bounded_int(0, 16), default=0,
@@ -348,7 +357,7 @@ def build_parser() -> argparse.ArgumentParser:
     n.add_argument("--inpaint-radius", type=int,
                    help=f"the baseline's inpainting radius in pixels (default: the job's, else "
                         f"{BASELINE_DEFAULTS['inpaint_radius']})")
-    n.add_argument("--device", choices=["auto", "cpu", "cuda"], default="auto",
+    n.add_argument("--device", choices=DEVICE_NAMES, default=DEFAULT_DEVICE,
                    help="auto: CUDA when torch sees a GPU, else the CPU")
     n.add_argument("--precision", choices=["auto", "fp32", "bf16", "fp16"], default="auto",
                    help="UNet/CLIP dtype (auto: bf16 on CUDA, fp32 on CPU); latents stay float32")
@@ -364,7 +373,7 @@ def build_parser() -> argparse.ArgumentParser:
                                                    "from the list file's folder (repeatable)")
     b.add_argument("--command", dest="command_name", choices=["render", "generate"], default="render",
                    help="what each job runs (default render)")
-    b.add_argument("--device", choices=["auto", "cpu", "cuda"], default="auto",
+    b.add_argument("--device", choices=DEVICE_NAMES, default=DEFAULT_DEVICE,
                    help="each job's device (default auto: CUDA when there is one); with --ray, the workers'")
     b.add_argument("--checkpoint", help="checkpoint for generate (default: each job's generate.checkpoint)")
     b.add_argument("--allow-outside", action="store_true", help=ALLOW_OUTSIDE_HELP)
@@ -375,6 +384,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="--command generate: the baseline's OpenCV method for every job made without a checkpoint "
                         "(default: each job's)")
     b.add_argument("--half-float", action="store_true", help=HALF_FLOAT_HELP + " (--command render)")
+    b.add_argument("--shard", help="K/N: run every N-th job starting at K in this process alone, reporting only "
+                                   "those (default: RANK/WORLD_SIZE of torchrun / accelerate, the ranks gathering "
+                                   "one summary); 0/1 runs every job here whatever the environment says")
     _ray_options(b, "the jobs")
     b.set_defaults(func=_cmd_batch)
     c = sub.add_parser("init-checkpoint", help="make an SCPainter checkpoint folder from a stock SVD snapshot")
@@ -384,7 +396,7 @@ def build_parser() -> argparse.ArgumentParser:
     t = sub.add_parser("train", help="fine-tune a checkpoint on clip folders (run under accelerate launch/torchrun "
                                      "for several GPUs); resumes from the newest checkpoint in output_dir")
     t.add_argument("config", help="training config JSON (schema scpainter.train/1, docs/training.md)")
-    t.add_argument("--device", choices=["auto", "cpu", "cuda"], default="auto")
+    t.add_argument("--device", choices=DEVICE_NAMES, default=DEFAULT_DEVICE)
     t.add_argument("--max-steps", type=int, help="stop (with a checkpoint) after this step this time")
     t.set_defaults(func=_cmd_train)
     e = sub.add_parser("evaluate", help="FID / FID-C / KID on validation clips and ground-truth PSNR/SSIM")
@@ -406,7 +418,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"the inpainting baseline's OpenCV method (default {BASELINE_DEFAULTS['inpaint']})")
     e.add_argument("--inception", help="FID Inception weights (pytorch-fid's pt_inception-2015-12-05-6726825d.pth "
                                        "or a safetensors copy); without it FID/KID are skipped")
-    e.add_argument("--device", choices=["auto", "cpu", "cuda"], default="auto",
+    e.add_argument("--device", choices=DEVICE_NAMES, default=DEFAULT_DEVICE,
                    help="auto: CUDA when torch sees a GPU, else the CPU; with --ray the workers' (cuda when the "
                         "cluster has GPUs), while the metrics use this machine's GPU if it has one")
     _ray_options(e, "the tasks' render/generate jobs (then the metrics here)")

@@ -1,8 +1,9 @@
 """Failures that are not bad input but still end a command cleanly, with a message and no traceback.
 
-``python -m backend`` turns each into an ``error`` event (message, hint, the fields below) and exit code 1; bad
-input (``scpainter_blender.core.errors.InputError`` and nothing else) is exit code 2; any other exception (a plain
-``ValueError`` included) is a bug: exit code 1 with its traceback (``events.report_bug``).
+``python -m backend`` turns each into an ``error`` event (message, hint, the fields below) and ``EXIT_FAILED``; bad
+input (``scpainter_blender.core.errors.InputError`` and nothing else) is ``EXIT_BAD_INPUT``; any other exception (a
+plain ``ValueError`` included) is a bug: ``EXIT_FAILED`` with its traceback (``events.report_bug``). The codes and
+the event's fields: ``scpainter_blender.core.backend_protocol``.
 """
 
 from __future__ import annotations

@@ -17,9 +17,9 @@ import signal
 import sys
 import traceback
 
-EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT = 0, 1, 2
-#: Interrupted by Ctrl-C before it could stop cleanly (128 + SIGINT, the shell's convention).
-EXIT_INTERRUPTED = 130
+from scpainter_blender.core import backend_protocol as protocol
+# the exit codes, here too: the commands return events.EXIT_* (their values: core/backend_protocol.py)
+from scpainter_blender.core.backend_protocol import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK  # noqa: F401
 
 
 def json_safe(value):
@@ -48,26 +48,31 @@ def reserve_stdout() -> None:
         sys.stdout = sys.stderr
 
 
-def emit(event: str, stream=None, **fields) -> None:
+def write(ev: dict, /, stream=None) -> None:
+    """One event (``core.backend_protocol``'s dict) as a line of standard output."""
     stream = stream or _EVENT_STREAM or sys.stdout
-    stream.write(json.dumps(json_safe({"event": event, **fields}), allow_nan=False) + "\n")
+    stream.write(json.dumps(json_safe(ev), allow_nan=False) + "\n")
     stream.flush()
 
 
+def emit(kind: str, /, stream=None, **fields) -> None:
+    write(protocol.event(kind, **fields), stream)
+
+
 def progress(stage: str, done: int, total: int, **fields) -> None:
-    emit("progress", stage=stage, done=done, total=total, **fields)
+    emit(protocol.PROGRESS, stage=stage, done=done, total=total, **fields)
 
 
 def artifact(path: str, **fields) -> None:
-    emit("artifact", path=path, **fields)
+    emit(protocol.ARTIFACT, path=path, **fields)
 
 
 def done(**fields) -> None:
-    emit("done", **fields)
+    emit(protocol.DONE, **fields)
 
 
 def error(message: str, hint: str | None = None, **fields) -> None:
-    emit("error", message=message, hint=hint, **fields)
+    write(protocol.error_event(message, hint, **fields))
 
 
 def log(message: str) -> None:

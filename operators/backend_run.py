@@ -14,11 +14,12 @@ from __future__ import annotations
 
 import bpy
 
-from ..scpainter_blender.backend_client import BackendError, BackendJob
+from ..scpainter_blender.backend_client import BackendError, Invocation
+from ..scpainter_blender.core import backend_protocol as protocol
 from ..scpainter_blender.core import outputs
 from ..scpainter_blender.scene import preferences, props
-from ..scpainter_blender.scene.runs import (ACTIVE, DOCTOR, Follower, failure_message, finish, planned_model,
-                                            progress_text, start)
+from ..scpainter_blender.scene.runs import (ACTIVE, DOCTOR, Follower, failure_message, finish, invocation,
+                                            planned_model, progress_text, start)
 from . import reports
 
 
@@ -29,8 +30,12 @@ class _BackendRun:
     timeout: bpy.props.FloatProperty(name="Timeout", default=0.0, min=0.0, unit="TIME_ABSOLUTE",
                                      description="Stop the backend if it runs longer (seconds; 0: no limit)")
 
-    def extra_args(self):
-        return ()
+    def backend_options(self) -> dict:
+        """This run's backend options beyond the preferences' (``Invocation``'s fields)."""
+        return {}
+
+    def _start(self, context):
+        return start(context, invocation(context, self.command, **self.backend_options()))
 
     @classmethod
     def poll(cls, context):
@@ -45,11 +50,11 @@ class _BackendRun:
     @reports.reported
     def execute(self, context):
         """Blocking: background mode and scripts."""
-        job, out = start(context, self.command, self.extra_args())
+        job, out = self._start(context)
         model = planned_model(context, self.command)
 
         def show(ev):
-            if ev.get("event") == "progress":
+            if protocol.kind_of(ev) == protocol.PROGRESS:
                 active = {**ev, "command": self.command, "model": ev.get("model") or model}
                 print(f"scpainter {progress_text(active)}", flush=True)
 
@@ -65,7 +70,7 @@ class _BackendRun:
     def invoke(self, context, event):
         if bpy.app.background:
             return self.execute(context)
-        job, out = start(context, self.command, self.extra_args())
+        job, out = self._start(context)
         self._follow = Follower(self.command, job, out, self.timeout, model=planned_model(context, self.command))
         wm = context.window_manager
         self._timer = wm.event_timer_add(0.25, window=context.window)
@@ -138,8 +143,8 @@ class SCPAINTER_OT_generate(_BackendRun, bpy.types.Operator):
                     "Add-ons > SCPainter > Checkpoint Folder")
         return "Generate the video with the SCPainter checkpoint of the preferences (renders missing conditions first)"
 
-    def extra_args(self):
-        return ("--steps", str(self.steps)) if self.steps else ()
+    def backend_options(self) -> dict:
+        return {"steps": self.steps or None}
 
 
 class SCPAINTER_OT_open_output(bpy.types.Operator):
@@ -164,12 +169,11 @@ class SCPAINTER_OT_check_backend(bpy.types.Operator):
     @reports.reported
     def execute(self, context):
         prefs = preferences.get(context)
-        args = ["doctor"]
-        if prefs and prefs.checkpoint_dir:
-            args += ["--checkpoint", bpy.path.abspath(prefs.checkpoint_dir)]
+        doctor = Invocation("doctor", checkpoint=bpy.path.abspath(prefs.checkpoint_dir) if prefs and prefs.checkpoint_dir
+                            else None, python=prefs.backend_python if prefs else "")
         DOCTOR.clear()
         try:
-            report = BackendJob(args, python=prefs.backend_python if prefs else "").wait(timeout=120)["report"]
+            report = doctor.start().wait(timeout=120)["report"]
         except BackendError as e:
             DOCTOR.update(ok=False, text=str(e))
             self.report({"ERROR"}, str(e))

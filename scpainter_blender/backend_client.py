@@ -1,16 +1,23 @@
 """Start the backend (``python -m backend ...``) in a subprocess and read its event stream (docs/design.md,
 "Running the backend from Blender").
 
+``Invocation`` is the one place the add-on spells the backend's command line: the operators build it from the
+preferences, ``blender -c scpainter`` from its arguments; ``argv()`` turns it into arguments, ``start()`` into a
+``BackendJob``. Device names, exit codes and event kinds: ``core.backend_protocol``.
+
 No bpy, no torch: the add-on calls this from Blender's Python, where neither torch nor open3d exist; the
 backend runs under the interpreter chosen in the add-on preferences.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import subprocess
 import sys
+
+from .core import backend_protocol as protocol
 
 #: The folder that holds both ``backend/`` and ``scpainter_blender/`` (the extension root).
 EXTENSION_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -33,7 +40,7 @@ class BackendError(RuntimeError):
     @property
     def bad_input(self) -> bool:
         """The backend refused its input (exit code 2): ``file`` and ``field`` say which."""
-        return self.exit_code == 2
+        return self.exit_code == protocol.EXIT_BAD_INPUT
 
 
 def backend_python(preference: str = "") -> str:
@@ -115,12 +122,12 @@ class BackendJob:
                 ev = self._events.get_nowait()
             except queue.Empty:
                 break
-            kind = ev.get("event")
-            if kind == "done":
+            kind = protocol.kind_of(ev)
+            if kind == protocol.DONE:
                 self.done = ev
-            elif kind == "error":
+            elif kind == protocol.ERROR:
                 self.error = ev
-            elif kind == "progress":
+            elif kind == protocol.PROGRESS:
                 self.progress = ev
             out.append(ev)
         return out
@@ -155,7 +162,7 @@ class BackendJob:
                                file=e.get("file"), field=e.get("field"), log_path=e.get("log"))
         if self.cancelled:
             raise BackendError("cancelled", "finished outputs are kept", code, self.stderr_tail)
-        if code != 0 or self.done is None:
+        if code != protocol.EXIT_OK or self.done is None:
             tail = self.stderr_tail.strip().splitlines()[-1:] or ["no output"]
             raise BackendError(f"backend exited with code {code}: {tail[0]}", exit_code=code, log=self.stderr_tail)
         return self.done
@@ -199,3 +206,70 @@ def run(args, python: str = "", on_event=None, cwd=None, timeout=None) -> dict:
     ``on_event(event_dict)`` sees every event as it arrives (progress for a UI, artifacts).
     """
     return BackendJob(args, python, cwd).wait(timeout=timeout, on_event=on_event)
+
+
+#: ``Invocation``'s fields that are backend options, each with its flag, in the order ``argv()`` writes them. A
+#: value of None, False or () leaves the flag out; True writes the flag alone; a tuple repeats it per value.
+_FLAGS = (("batch_command", "--command"), ("lists", "--list"), ("trusted_lists", "--trusted-list"),
+          ("device", "--device"), ("checkpoint", "--checkpoint"), ("model", "--model"), ("steps", "--steps"),
+          ("seed", "--seed"), ("inpaint", "--inpaint"), ("point_radius", "--point-radius"), ("force", "--force"),
+          ("allow_outside", "--allow-outside"), ("shard", "--shard"), ("ray", "--ray"), ("retries", "--retries"),
+          ("cpus_per_job", "--cpus-per-job"))
+
+
+@dataclasses.dataclass(frozen=True)
+class Invocation:
+    """One ``python -m backend`` command: ``command`` (render, generate, batch, doctor), its positional ``jobs``
+    (job.json paths) and the options below (None / False: the backend's default), run by ``python`` (the
+    ``backend_python`` rule: "" for the running interpreter when it has torch). Which command takes which option
+    is the backend's parser's to say (``backend/__main__.py``); a test parses ``argv()`` with it.
+
+    ``device``: one of ``core.backend_protocol.DEVICE_NAMES``. ``checkpoint``: overrides the job's (generate,
+    batch) or the folder to check (doctor). ``ray``: None without Ray, "" for the default cluster, else its
+    address. ``shard``: "K/N" (batch)."""
+
+    command: str
+    jobs: tuple = ()
+    batch_command: str | None = None
+    lists: tuple = ()
+    trusted_lists: tuple = ()
+    device: str | None = None
+    checkpoint: str | None = None
+    model: str | None = None
+    steps: int | None = None
+    seed: int | None = None
+    inpaint: str | None = None
+    point_radius: int | None = None
+    force: bool = False
+    allow_outside: bool = False
+    shard: str | None = None
+    ray: str | None = None
+    retries: int | None = None
+    cpus_per_job: float | None = None
+    python: str = ""
+
+    def __post_init__(self):
+        if self.device is not None and self.device not in protocol.DEVICE_NAMES:
+            raise ValueError(f"device {self.device!r} is not one of {protocol.DEVICE_NAMES}")  # a bug of the caller
+
+    def argv(self) -> list[str]:
+        """The arguments after ``python -m backend``: the command, the jobs, then each option that is set."""
+        out = [self.command, *(os.fspath(j) for j in self.jobs)]
+        for name, flag in _FLAGS:
+            value = getattr(self, name)
+            if value is None or value is False or value == ():
+                continue
+            if value is True or (name == "ray" and value == ""):
+                out.append(flag)
+            elif isinstance(value, tuple):
+                out += [a for v in value for a in (flag, os.fspath(v))]
+            else:
+                out += [flag, str(value)]
+        return out
+
+    def replace(self, **changes) -> Invocation:
+        return dataclasses.replace(self, **changes)
+
+    def start(self, cwd=None, log_path: str | None = None) -> BackendJob:
+        """Start it (``BackendJob``); BackendError when the interpreter cannot run the backend."""
+        return BackendJob(self.argv(), self.python, cwd, log_path)

@@ -20,6 +20,7 @@ import time
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
+from scpainter_blender.core.backend_protocol import DEFAULT_DEVICE, DEVICE_NAMES  # noqa: E402
 from tools import blender_env  # noqa: E402
 
 
@@ -34,7 +35,7 @@ def main(argv=None):
                    help="how the import finds metric scale (default: the known 1.6 m camera height)")
     p.add_argument("--samples", type=int, default=4, help="Cycles samples for the preview")
     p.add_argument("--shift", type=float, default=2.0, help="sideways shift of the new camera path (m, + left)")
-    p.add_argument("--device", choices=["auto", "cpu", "cuda"], default="auto", help="backend device")
+    p.add_argument("--device", choices=DEVICE_NAMES, default=DEFAULT_DEVICE, help="backend device")
     p.add_argument("--checkpoint", default=os.environ.get("SCPAINTER_CHECKPOINT", ""),
                    help="SCPainter checkpoint folder (python -m backend init-checkpoint makes one); set as the "
                         "add-on preference, so the exported job generates")

@@ -8,6 +8,8 @@ process without them), on GPU LOCAL_RANK when CUDA is there. A job that fails is
 (``failure``: bad input with its ``file`` and ``field``, a bug with the ``log`` holding its traceback).
 At the end the ranks exchange their results (torch.distributed, gloo: no GPU needed for this) and rank 0 emits one
 ``done`` event listing every job with its rank, status, time and outputs. Every rank exits 1 if any job failed.
+``--shard K/N`` instead: this process runs its share alone (no gathering) and reports it (``blender -c scpainter
+batch`` passes 0/1 for the share of scenes it exported).
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ from __future__ import annotations
 import os
 import time
 
-from scpainter_blender.core.batch_items import ranks_from_env, shard  # shared with blender -c scpainter batch
+from scpainter_blender.core.batch_items import ranks_from_env, shard
 
 from .. import events
 
@@ -38,7 +40,7 @@ def run_one(job_path: str, command: str, device: str, checkpoint: str | None, st
     r = generate_job(job_path, job, device, checkpoint, precision, stop=stop, overrides=overrides,
                      allow_outside=allow_outside)
     return {"video": r.get("video"), "frames": r.get("frames"), "skipped": bool(r.get("skipped")),
-            "stopped": r["stopped"], "model": r.get("model")}
+            "stopped": r["stopped"], "model": r.get("model"), "description": r.get("description")}
 
 
 def allows_outside(allow_outside, path: str) -> bool:
@@ -51,13 +53,14 @@ def failure(e: Exception, path: str) -> dict:
     """The fields of a failed job's result: ``error`` (the message); for bad input (an ``InputError``) ``file``
     and ``field``; for a failure the job explains (``CleanFailure``) its fields; for anything else (a bug) the
     traceback goes to standard error and the job's ``backend.log``, named by ``log``."""
+    from scpainter_blender.core.batch_items import bad_input_fields
     from scpainter_blender.core.errors import InputError
 
     from ..errors import CleanFailure
 
     if isinstance(e, InputError):
         events.log(f"batch: {path}: bad input: {e}")
-        return {"error": str(e), "hint": e.hint, "file": e.path, "field": e.field}
+        return bad_input_fields(e)
     if isinstance(e, CleanFailure):
         events.log(f"batch: {path} failed: {e}")
         return {"error": str(e), "hint": e.hint, **e.fields}
@@ -79,11 +82,17 @@ def gather(results: list, world: int) -> list:
 
 
 def run_batch(items: list[str], command: str, device: str, checkpoint: str | None = None,
-              allow_outside=False, half: bool = False, overrides: dict | None = None) -> tuple[list, int]:
-    """Run this rank's share; returns (every rank's results, rank). ``allow_outside``: ``allows_outside``'s;
-    ``half``: render half-float EXRs; ``overrides``: generate settings for every job (``run_one``)."""
-    rank, world, local = ranks_from_env()  # (InputError "(environment)" naming a bad variable)
-    for name in ("MASTER_ADDR", "MASTER_PORT") if world > 1 else ():  # gather() needs them: check before any job
+              allow_outside=False, half: bool = False, overrides: dict | None = None,
+              shard_of: tuple[int, int] | None = None) -> tuple[list, bool]:
+    """Run this process's share; returns (the results, whether this process reports them). ``allow_outside``:
+    ``allows_outside``'s; ``half``: render half-float EXRs; ``overrides``: generate settings for every job
+    (``run_one``). ``shard_of``: (K, N) of ``--shard``: this process runs its share alone and reports it; None:
+    the share of torchrun's RANK / WORLD_SIZE, every rank's results gathered and rank 0 reporting them."""
+    if shard_of is not None:
+        (rank, world), local = shard_of, 0
+    else:
+        rank, world, local = ranks_from_env()  # (InputError "(environment)" naming a bad variable)
+    for name in ("MASTER_ADDR", "MASTER_PORT") if world > 1 and shard_of is None else ():  # gather() needs them: check before any job
         if not os.environ.get(name, "").strip():
             from scpainter_blender.core.errors import InputError
 
@@ -113,4 +122,6 @@ def run_batch(items: list[str], command: str, device: str, checkpoint: str | Non
                 results.append({"job": path, "rank": rank, "status": "failed", **failure(e, path)})
             results[-1]["seconds"] = time.perf_counter() - t
             events.progress("batch", n + 1, len(mine), rank=rank, job=path, status=results[-1]["status"])
-    return gather(results, world), rank
+    if shard_of is not None:
+        return results, True
+    return gather(results, world), rank == 0

@@ -1,5 +1,6 @@
 """What the batch commands share (``python -m backend batch`` and ``blender -c scpainter batch``): the ``--list``
-file of job or scene paths, and which items one rank of a multi-process run takes. No bpy, no torch."""
+file of job or scene paths, which items one rank of a multi-process run takes (``--shard`` or the environment), the
+``--ray`` options and the summary's counts. No bpy, no torch."""
 
 from __future__ import annotations
 
@@ -61,6 +62,12 @@ def read_list(path) -> list:
     return [p if os.path.isabs(p) else os.path.join(base, p) for p in lines if p and not p.startswith("#")]
 
 
+def bad_input_fields(e: errors.InputError) -> dict:
+    """A batch item failed by bad input: its ``error`` (the message), ``hint``, ``file`` and ``field`` (either
+    batch command's items; the error event's names, ``core.backend_protocol.ERROR_FIELDS``)."""
+    return {"error": str(e), "hint": e.hint, "file": e.path, "field": e.field}
+
+
 def status_counts(results: list) -> dict:
     """How many batch items ended each way (``ok``, ``failed``, ``stopped``, ``not run (SIGTERM)``), in the order
     first met: the ``counts`` of every batch's ``done`` event (the backend's and the add-on's)."""
@@ -68,6 +75,28 @@ def status_counts(results: list) -> dict:
     for r in results:
         counts[r["status"]] = counts.get(r["status"], 0) + 1
     return counts
+
+
+def parse_shard(text: str) -> tuple[int, int]:
+    """(K, N) from ``--shard K/N`` (either batch command's): ArgumentError unless two integers with 0 <= K < N."""
+    try:
+        k, n = (int(x) for x in text.split("/"))
+    except ValueError:  # (int() of the user's text, or not two parts)
+        raise errors.ArgumentError("--shard", f"{text!r}: expected K/N, e.g. 0/4") from None
+    if not 0 <= k < n:
+        raise errors.ArgumentError("--shard", f"{k}/{n}: K must be in [0, N)")
+    return k, n
+
+
+def shard_option(text: str | None, ray) -> tuple[int, int] | None:
+    """``--shard`` of a batch with its ``--ray`` (None: not given): (K, N), or None when not given; ArgumentError
+    when it is bad (``parse_shard``) or given with ``--ray`` (Ray schedules every item itself)."""
+    if not text:
+        return None
+    if ray is not None:
+        raise errors.ArgumentError("--shard", "not with --ray: Ray schedules every item",
+                                   hint="give each Ray batch its whole list; --shard splits a list over processes")
+    return parse_shard(text)
 
 
 def shard(items: list, rank: int, world: int) -> list:

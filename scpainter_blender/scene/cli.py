@@ -12,16 +12,19 @@
 ``render``/``generate`` open the .blend, write its job into the scene's output folder and run the backend there
 (blocking); the .blend itself is never written. Without a checkpoint (``--checkpoint`` or the preference)
 ``generate`` makes the baseline, OpenCV inpainting of the condition holes (no model); each output says which
-(``model``: "scpainter" or "baseline", and ``description``). ``batch`` does that for every .blend (job files go
-straight to the backend), goes on past failures, prints one summary with each item's status, time and outputs, and
-exits 1 if any failed; ``--shard K/N`` (or torchrun's RANK/WORLD_SIZE) takes every N-th item from K.
-``--ray`` exports every .blend's job first, then runs all the jobs as one Ray batch (``python -m backend batch
---ray``, backend/batch/ray_pool.py): the same summary, each item with its ``worker`` and ``attempts``.
+(``model``: "scpainter" or "baseline", and ``description``). ``batch`` takes its share of the items (``--shard
+K/N``, or torchrun's RANK/WORLD_SIZE: every N-th item from K), exports every .blend's job, then runs all the jobs
+(job files as given) as the backend's one ``python -m backend batch``, here or with ``--ray`` on a Ray cluster
+(backend/batch/ray_pool.py; each item then has its ``worker`` and ``attempts``): it goes on past failures, prints
+one summary with each item's status, time and outputs, and exits 1 if any failed.
+
+The backend's command line is built by ``backend_client.Invocation`` from these arguments, the add-on preferences
+filling in what they do not give (the preferences are never changed).
 
 ``-c`` implies background mode; the import goes into the scene that is open (``blender -b scene.blend -c ...``
 imports into scene.blend). With the ``bpy`` module (no ``-c``), call ``execute(argv)`` directly. Output: a JSON
-summary on standard output; exit code 0 done, 2 bad input, 1 anything else (the backend's convention,
-docs/design.md §4.4). Bad input is an ``InputError``, caught by name: a file, a scene setting, a command-line
+summary on standard output; exit code 0 done, 2 bad input, 1 anything else (the backend's convention:
+``core.backend_protocol``). Bad input is an ``InputError``, caught by name: a file, a scene setting, a command-line
 argument (file "(command line)", field the option), or the backend's own exit 2 for the scene's job; its error
 event has ``file`` and ``field``. Any other exception, a plain ValueError included, is a bug: exit 1, its traceback
 on standard error.
@@ -40,10 +43,11 @@ import traceback
 import bpy
 
 from .. import backend_client
+from ..core import backend_protocol as protocol
 from ..core import batch_items as batch_mod
 from ..core import errors, files, import_options
 from ..core import job as job_mod
-from . import importer, preferences, props, runs
+from . import importer, props, runs
 
 
 class _Parser(argparse.ArgumentParser):
@@ -85,11 +89,11 @@ def _parser():
         else:
             c.add_argument("blend", help="the scene (.blend)")
             c.add_argument("--output", help="output folder (default: the scene's SCPainter output folder)")
-        c.add_argument("--device", choices=["auto", "cpu", "cuda"], help="default: the add-on preference")
+        c.add_argument("--device", choices=protocol.DEVICE_NAMES, help="default: the add-on preference")
         c.add_argument("--backend-python", help="interpreter for the backend (default: the add-on preference)")
         c.add_argument("--checkpoint", help="SCPainter checkpoint folder (default: the add-on preference)")
         c.add_argument("--timeout", type=float, default=0.0,
-                       help="stop a scene's backend after this many s (batch --ray: the whole batch's)")
+                       help="stop the backend after this many s (batch: the whole batch's)")
         if name != "render":
             c.add_argument("--inpaint", choices=job_mod.INPAINT_METHODS,
                            help="the baseline's OpenCV method, used without a checkpoint (default: the scene's "
@@ -120,29 +124,33 @@ def _import(args) -> dict:
     return out
 
 
-def _apply_preferences(args) -> None:
-    """Command-line settings override the add-on preferences for this process (preferences are not saved). A
-    ``--backend-python`` or ``--checkpoint`` that does not exist is bad input (``ArgumentError``)."""
+def _check_paths(args) -> None:
+    """A ``--backend-python`` or ``--checkpoint`` that does not exist is bad input (``ArgumentError``), said before
+    any scene is opened."""
     if args.backend_python and not os.path.isfile(args.backend_python):
         raise errors.ArgumentError("--backend-python", f"{args.backend_python} is not a file",
-                                  hint="give the interpreter that has the backend's packages, e.g. .venv/bin/python")
+                                   hint="give the interpreter that has the backend's packages, e.g. .venv/bin/python")
     if args.checkpoint and not os.path.isdir(args.checkpoint):
         raise errors.ArgumentError("--checkpoint", f"{args.checkpoint} is not a folder",
-                                  hint="make one with `python -m backend init-checkpoint --svd SVD_DIR --out DIR`")
-    prefs = preferences.get(bpy.context)
-    if prefs is None:
-        return
-    if args.backend_python:
-        prefs.backend_python = os.path.abspath(args.backend_python)
-    if args.checkpoint:
-        prefs.checkpoint_dir = os.path.abspath(args.checkpoint)
-    if args.device:
-        prefs.device = args.device.upper()
+                                   hint="make one with `python -m backend init-checkpoint --svd SVD_DIR --out DIR`")
+
+
+def _checkpoint(args) -> str | None:
+    """The checkpoint folder the command line gives (absolute), None when it gives none."""
+    return os.path.abspath(args.checkpoint) if args.checkpoint else None
+
+
+def _invocation(args, command: str, **options) -> backend_client.Invocation:
+    """``python -m backend <command>`` with this command line's device and interpreter, the add-on preferences'
+    where it gives none (the preferences themselves are never changed), and ``options``."""
+    run = runs.invocation(bpy.context, command, **options)
+    return run.replace(device=args.device or run.device,
+                       python=os.path.abspath(args.backend_python) if args.backend_python else run.python)
 
 
 def _progress(ev) -> None:
-    if ev.get("event") == "progress":
-        job = f" {ev['status']}: {ev['job']}" if "job" in ev and "status" in ev else ""  # batch --ray: a job ended
+    if protocol.kind_of(ev) == protocol.PROGRESS:
+        job = f" {ev['status']}: {ev['job']}" if "job" in ev and "status" in ev else ""  # batch: a job ended
         print(f"scpainter: {ev['stage']} {ev['done']}/{ev['total']}{job}", file=sys.stderr, flush=True)
 
 
@@ -153,7 +161,7 @@ def _open_blend(blend: str, args, output: str | None = None) -> None:
         bpy.ops.wm.open_mainfile(filepath=os.path.abspath(blend), load_ui=False)
     except RuntimeError as e:  # Blender's own words ("File format is not supported"), without its traceback
         raise errors.InputError(blend, "(file)", f"Blender cannot open it as a scene: {str(e).strip()}",
-                               hint="give a .blend file saved by Blender") from None
+                                hint="give a .blend file saved by Blender") from None
     if output:
         bpy.context.scene.scpainter_output_dir = os.path.abspath(output)
     if getattr(args, "inpaint", None):  # for this run only: the .blend is not written
@@ -161,9 +169,10 @@ def _open_blend(blend: str, args, output: str | None = None) -> None:
                                                             if v == args.inpaint)
 
 
-def _run_blend(blend: str, command: str, args, output: str | None = None) -> dict:
-    _open_blend(blend, args, output)
-    job, out = runs.start(bpy.context, command)
+def _run_blend(args) -> dict:
+    """``render`` / ``generate``: the scene's job exported (naming ``--checkpoint``, else the preference's) and run."""
+    _open_blend(args.blend, args, args.output)
+    job, out = runs.start(bpy.context, _invocation(args, args.command), _checkpoint(args))
     try:
         done = job.wait(timeout=args.timeout or None, on_event=_progress)
     except backend_client.BackendError as e:  # the same error, its message saying where the log is
@@ -172,36 +181,10 @@ def _run_blend(blend: str, command: str, args, output: str | None = None) -> dic
     return _outputs(done, out)
 
 
-def _run_job(path: str, command: str, args) -> dict:
-    prefs = preferences.get(bpy.context)
-    device = args.device or (prefs.device.lower() if prefs else "auto")
-    extra = ["--checkpoint", os.path.abspath(args.checkpoint)] if command == "generate" and args.checkpoint else []
-    extra += ["--inpaint", args.inpaint] if command == "generate" and getattr(args, "inpaint", None) else []
-    extra += ["--allow-outside"] if getattr(args, "allow_outside", False) else []
-    done = backend_client.BackendJob([command, os.path.abspath(path), "--device", device, *extra],
-                                     python=prefs.backend_python if prefs else "").wait(
-        timeout=args.timeout or None, on_event=_progress)
-    return _outputs(done, done.get("output_dir"))
-
-
 def _outputs(done: dict, out) -> dict:
     # model / description: which generator made the video ("baseline": OpenCV inpainting, no model)
     keep = ("frames", "rendered", "skipped", "video", "frames_dir", "model", "description", "seconds")
     return {"output_dir": out or os.path.dirname(done.get("video") or ""), **{k: done[k] for k in keep if k in done}}
-
-
-def _shard(args) -> tuple[int, int]:
-    """(K, N) from ``--shard K/N`` (ArgumentError unless 0 <= K < N) or torchrun's RANK / WORLD_SIZE
-    (``core.batch_items.ranks_from_env``: InputError "(environment)")."""
-    if args.shard:
-        try:
-            k, n = (int(x) for x in args.shard.split("/"))
-        except ValueError:  # (int() of the user's text)
-            raise errors.ArgumentError("--shard", f"{args.shard!r}: expected K/N, e.g. 0/4") from None
-        if not 0 <= k < n:
-            raise errors.ArgumentError("--shard", f"{k}/{n}: K must be in [0, N)")
-        return k, n
-    return batch_mod.ranks_from_env()[:2]
 
 
 def _failure(e: Exception) -> dict:
@@ -209,7 +192,7 @@ def _failure(e: Exception) -> dict:
     ``file`` and ``field``; a backend's internal error its ``log``; any other exception is a bug: ``bug`` true,
     its traceback on standard error."""
     if isinstance(e, errors.InputError):
-        return {"error": str(e), "hint": e.hint, "file": e.path, "field": e.field}
+        return batch_mod.bad_input_fields(e)
     if isinstance(e, backend_client.BackendError):
         return {"error": str(e), **({"file": e.file, "field": e.field} if e.bad_input else {}),
                 **({"log": e.log_path} if e.log_path else {})}
@@ -218,45 +201,25 @@ def _failure(e: Exception) -> dict:
 
 
 def _batch(args) -> tuple[dict, int]:
+    """``batch``: this process's share of the items (``--shard K/N``, else torchrun's RANK / WORLD_SIZE; with
+    ``--ray`` every item), every .blend's job exported into the output folder its scene names (as ``render``
+    does), then all the jobs run as one ``python -m backend batch`` (``_run_jobs``), its results mapped back to the
+    items in order. An item whose scene cannot make a job fails here and is not sent; two scenes naming the same
+    output folder are refused (their jobs would be the same file)."""
     import time
 
     # checked before any scene is exported; given without --ray they are refused, not ignored
     args.retries, args.cpus_per_job = batch_mod.ray_options(args.ray, args.retries, args.cpus_per_job)
+    shard = batch_mod.shard_option(args.shard, args.ray)
     items = list(args.items) + [p for f in args.list or [] for p in batch_mod.read_list(f)]
     if not items:
         raise errors.ArgumentError("items", "no .blend or job files given", hint="give paths, or --list FILE")
-    if args.ray is not None:
-        return _batch_ray(args, items)
-    k, n = _shard(args)
-    results = []
-    for path in batch_mod.shard(items, k, n):
-        t = time.perf_counter()
-        print(f"scpainter batch: {args.what} {path}", file=sys.stderr, flush=True)
-        try:
-            run = _run_job if path.endswith(".json") else _run_blend
-            results.append({"item": path, "status": "ok", **run(path, args.what, args)})
-        except Exception as e:  # noqa: BLE001  bad input, a failed backend or a bug: recorded; go on with the rest
-            results.append({"item": path, "status": "failed", **_failure(e)})
-        results[-1]["seconds"] = time.perf_counter() - t
-    failed = sum(r["status"] != "ok" for r in results)
-    return {"what": args.what, "shard": f"{k}/{n}", "jobs": len(results), "failed": failed,
-            "counts": batch_mod.status_counts(results), "items": results}, (1 if failed else 0)
-
-
-def _batch_ray(args, items: list) -> tuple[dict, int]:
-    """``batch --ray``: every .blend's job exported here (into the output folder its scene names, as ``render``
-    does), then all jobs run as one ``python -m backend batch --ray`` (backend/batch/ray_pool.py; its progress goes to
-    standard error as it comes), its results mapped back to the items in order. An item whose scene cannot make a
-    job fails here and is not sent; two scenes naming the same output folder are refused (their jobs would be the
-    same file). SIGTERM is passed on to the backend, which cancels the jobs not finished and still reports."""
-    import time
-
-    if args.shard:
-        raise errors.ArgumentError("--shard", "not with --ray: Ray schedules every item",
-                                  hint="give each Ray batch its whole list; --shard splits a list over processes")
+    k, n = (0, 1) if args.ray is not None else shard or batch_mod.ranks_from_env()[:2]
+    items = batch_mod.shard(items, k, n)   # the others' scenes are not even opened
     t0 = time.perf_counter()
     results, jobs, seen = {}, [], {}   # item index -> failed result; (index, job path, exported); job -> item
     for i, path in enumerate(items):
+        t = time.perf_counter()
         try:
             if path.endswith(".json"):  # listed twice: the backend runs it once and gives each item its result
                 job_path, exported = os.path.abspath(path), False
@@ -266,46 +229,54 @@ def _batch_ray(args, items: list) -> tuple[dict, int]:
                 job_path, exported = os.path.join(props.output_dir(bpy.context.scene), "job.json"), True
                 if job_path in seen:  # checked before exporting: the other item's job stays as it is
                     raise errors.InputError(path, "scene.scpainter_output_dir",
-                                           f"{os.path.dirname(job_path)} is also the output folder of "
-                                           f"{seen[job_path]}", hint="give each scene its own SCPainter output folder")
-                runs.export(bpy.context)  # (writes job_path)
+                                            f"{os.path.dirname(job_path)} is also the output folder of "
+                                            f"{seen[job_path]}", hint="give each scene its own SCPainter output folder")
+                runs.export(bpy.context, _checkpoint(args))  # (writes job_path)
             seen.setdefault(job_path, path)
             jobs.append((i, job_path, exported))
         except Exception as e:  # noqa: BLE001  bad input or a bug: recorded; go on with the rest
-            results[i] = {"item": path, "status": "failed", **_failure(e)}
+            results[i] = {"item": path, "status": "failed", **_failure(e), "seconds": time.perf_counter() - t}
     if jobs:
-        for i, r in zip([i for i, _, _ in jobs], _run_ray_jobs(args, jobs)):
+        for i, r in zip([i for i, _, _ in jobs], _run_jobs(args, jobs)):
             results[i] = {"item": items[i], **r}
     ordered = [results[i] for i in range(len(items))]
     failed = sum(r["status"] != "ok" for r in ordered)
     # the cluster asked for: the address given, else RAY_ADDRESS, else "auto" (`ray start`'s here, or a new one)
-    return {"what": args.what, "ray": args.ray or os.environ.get("RAY_ADDRESS") or "auto", "jobs": len(ordered),
-            "failed": failed, "counts": batch_mod.status_counts(ordered), "items": ordered,
-            "seconds": time.perf_counter() - t0}, (1 if failed else 0)
+    where = ({"ray": args.ray or os.environ.get("RAY_ADDRESS") or "auto"} if args.ray is not None
+             else {"shard": f"{k}/{n}"})
+    return {"what": args.what, **where, "jobs": len(ordered), "failed": failed,
+            "counts": batch_mod.status_counts(ordered), "items": ordered,
+            "seconds": time.perf_counter() - t0}, (protocol.EXIT_FAILED if failed else protocol.EXIT_OK)
 
 
-def _run_ray_jobs(args, jobs: list) -> list:
-    """One backend ``batch --ray`` over ``jobs`` ((index, job path, exported here) in order); its result per job
-    (status, outputs, ``worker``, ``attempts``, ``seconds``; a failure's ``error``, ``file``, ``field``,
-    ``log``). BackendError when the batch itself could not run (a bad address, no cluster)."""
+def _run_jobs(args, jobs: list) -> list:
+    """One backend ``batch`` over ``jobs`` ((index, job path, exported here) in order): with ``--ray`` on the
+    cluster (backend/batch/ray_pool.py), else here, all of them (``--shard 0/1``: this process's share is already
+    taken). Its result per job (status, outputs, ``seconds``; a failure's ``error``, ``hint``, ``file``, ``field``,
+    ``log``; on Ray ``worker`` and ``attempts``). BackendError when the batch itself could not run (a bad address,
+    no cluster, a bad ``--device``). SIGTERM is passed on to the backend, which stops the jobs not finished and
+    still reports."""
     import signal
 
-    prefs = preferences.get(bpy.context)
+    ray = args.ray is not None
+    generate = args.what == "generate"
+    # the jobs exported here from .blend files may lead outside their folder (a job.json item naming one of them is
+    # that same file); the other job.json items as given. Each list in the items' order: the backend runs them so
+    exported = {p for _, p, e in jobs if e}
+    trusted = [p in exported for _, p, _ in jobs]
     lists = tempfile.mkdtemp(prefix="scpainter-batch-")
     try:
-        # jobs from job.json items as given; the ones exported from .blend files may lead outside their folder
-        for name, exported in (("jobs.txt", False), ("trusted.txt", True)):
+        for name, which in (("jobs.txt", False), ("trusted.txt", True)):
             with open(os.path.join(lists, name), "w", encoding="utf-8") as f:
-                f.writelines(p + "\n" for _, p, e in jobs if e == exported)
-        cmd = ["batch", "--command", args.what, "--list", os.path.join(lists, "jobs.txt"),
-               "--trusted-list", os.path.join(lists, "trusted.txt"), "--ray", *([args.ray] if args.ray else []),
-               "--retries", str(args.retries), "--cpus-per-job", str(args.cpus_per_job),
-               "--device", args.device or (prefs.device.lower() if prefs else "auto")]
-        cmd += ["--checkpoint", os.path.abspath(args.checkpoint)] if args.what == "generate" and args.checkpoint else []
-        cmd += ["--inpaint", args.inpaint] if args.what == "generate" and args.inpaint else []
-        cmd += ["--allow-outside"] if args.allow_outside else []
-        job = backend_client.BackendJob(cmd, python=prefs.backend_python if prefs else "")
-        # SIGTERM to Blender: the backend's driver cancels what is not finished and still sends its summary
+                f.writelines(p + "\n" for (_, p, _), t in zip(jobs, trusted) if t == which)
+        run = _invocation(args, "batch", batch_command=args.what, lists=(os.path.join(lists, "jobs.txt"),),
+                          trusted_lists=(os.path.join(lists, "trusted.txt"),), allow_outside=args.allow_outside,
+                          checkpoint=_checkpoint(args) if generate else None,
+                          inpaint=args.inpaint if generate else None, shard=None if ray else "0/1",
+                          ray=args.ray, retries=args.retries if ray else None,
+                          cpus_per_job=args.cpus_per_job if ray else None)
+        job = run.start()
+        # SIGTERM to Blender: the backend's batch stops what is not finished and still sends its summary
         previous = signal.signal(signal.SIGTERM, lambda *_: job.proc.terminate())
         try:
             done = job.wait(timeout=args.timeout or None, on_event=_progress)
@@ -318,12 +289,12 @@ def _run_ray_jobs(args, jobs: list) -> list:
     finally:
         shutil.rmtree(lists, ignore_errors=True)
     # the backend's order: --list, then --trusted-list
-    order = [k for k, (_, _, e) in enumerate(jobs) if not e] + [k for k, (_, _, e) in enumerate(jobs) if e]
+    order = [k for k, t in enumerate(trusted) if not t] + [k for k, t in enumerate(trusted) if t]
     returned = [None] * len(jobs)
     for k, r in zip(order, done["items"], strict=True):
         returned[k] = r
     out = []
-    for r in returned:
+    for r in returned:  # the backend's "job" (and "rank") left out: the caller names the item
         keep = {k: r[k] for k in ("status", "error", "hint", "file", "field", "log", "worker", "attempts", "seconds")
                 if k in r}
         if args.what == "render":  # skipped: frames reused, as the render command counts them (known when ok)
@@ -344,27 +315,25 @@ def execute(argv) -> int:
         if args.command == "import":
             summary = _import(args)
         else:
-            _apply_preferences(args)
+            _check_paths(args)
             if args.command == "batch":
                 summary, code = _batch(args)
             else:
-                summary = _run_blend(args.blend, args.command, args, args.output)
+                summary = _run_blend(args)
     except errors.InputError as e:  # bad input, caught by name (never as a ValueError): exit 2
-        print(json.dumps({"event": "error", "message": str(e), "hint": e.hint, "file": e.path, "field": e.field}),
-              flush=True)
-        return 2
+        print(json.dumps(protocol.error_event(str(e), e.hint, file=e.path, field=e.field)), flush=True)
+        return protocol.EXIT_BAD_INPUT
     except backend_client.BackendError as e:  # the backend refused the scene's job (its exit 2) or failed
-        ev = {"event": "error", "message": str(e)}
-        ev.update({k: v for k, v in _failure(e).items() if k != "error"})  # file, field (bad input); log
-        print(json.dumps(ev), flush=True)
-        return 2 if e.bad_input else 1
+        fields = {k: v for k, v in _failure(e).items() if k != "error"}  # file, field (bad input); log
+        print(json.dumps(protocol.error_event(str(e), **fields)), flush=True)
+        return protocol.EXIT_BAD_INPUT if e.bad_input else protocol.EXIT_FAILED
     except Exception as e:  # a bug (a plain ValueError included) or a failure of Blender itself: exit 1
         traceback.print_exc(file=sys.stderr)
-        print(json.dumps({"event": "error", "message": f"{type(e).__name__}: {e}",
-                          "hint": "an internal error in SCPainter, not a problem with the input: the traceback is "
-                                  "on standard error; please report it"}), flush=True)
-        return 1
-    print(json.dumps({"event": "done", "command": args.command, **summary}), flush=True)
+        print(json.dumps(protocol.error_event(f"{type(e).__name__}: {e}", "an internal error in SCPainter, not a "
+                                              "problem with the input: the traceback is on standard error; please "
+                                              "report it")), flush=True)
+        return protocol.EXIT_FAILED
+    print(json.dumps(protocol.event(protocol.DONE, command=args.command, **summary)), flush=True)
     return code
 
 

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import bpy
 
+from ..core import backend_protocol
+
 #: The extension's package (``bl_ext.<repo>.scpainter`` when installed): two levels above this module.
 ADDON_PACKAGE = __package__.rsplit(".", 2)[0]
 
@@ -19,10 +21,9 @@ class SCPAINTER_AP_preferences(bpy.types.AddonPreferences):
         name="Checkpoint Folder", subtype="DIR_PATH",
         description="Local folder of the SCPainter / Stable Video Diffusion weights (nothing is downloaded); "
                     "empty: Generate makes the OpenCV inpainting baseline, not the model")
-    device: bpy.props.EnumProperty(
-        name="Device", default="AUTO",
-        items=[("AUTO", "Auto", "CUDA when available, else CPU"), ("CUDA", "CUDA", "First CUDA GPU"),
-               ("CPU", "CPU", "CPU only (slow)")])
+    device: bpy.props.EnumProperty(  # the backend's --device names, upper-case (Blender's enum style); device()
+        name="Device", default=backend_protocol.DEFAULT_DEVICE.upper(),
+        items=[(name.upper(), label, text) for name, (label, text) in backend_protocol.DEVICES.items()])
 
     def draw(self, context):
         col = self.layout.column()
@@ -37,6 +38,12 @@ class SCPAINTER_AP_preferences(bpy.types.AddonPreferences):
         row.operator("scpainter.check_backend", icon="CHECKMARK")
         if DOCTOR:
             row.label(text=DOCTOR["text"], icon="CHECKMARK" if DOCTOR.get("ok") else "ERROR")
+
+
+def device(prefs: SCPAINTER_AP_preferences | None) -> str:
+    """The backend's ``--device`` the preferences choose (``core.backend_protocol.DEVICE_NAMES``); its default
+    without them."""
+    return prefs.device.lower() if prefs else backend_protocol.DEFAULT_DEVICE
 
 
 def get(context=None) -> SCPAINTER_AP_preferences | None:

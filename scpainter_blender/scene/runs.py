@@ -7,7 +7,8 @@ import os
 
 import bpy
 
-from ..backend_client import BackendError, BackendJob
+from ..backend_client import BackendError, BackendJob, Invocation
+from ..core import backend_protocol as protocol
 from ..core import job as job_mod
 from ..core import outputs
 from . import job_export, preferences, props, results
@@ -51,29 +52,36 @@ def generate_ui(context) -> tuple[str, tuple[str, ...]]:
     return "Generate", ()
 
 
-def export(context) -> tuple[str, str]:
-    """Export the scene's job into its output folder: (job.json path, output folder). The job names the
-    preferences' checkpoint folder when one is set; without one ``generate`` makes the OpenCV inpainting baseline
-    (the backend's ``generate.model`` auto). InputError (SceneError) before anything is written when the scene
+def export(context, checkpoint: str | None = None) -> tuple[str, str]:
+    """Export the scene's job into its output folder: (job.json path, output folder). The job names
+    ``checkpoint`` (None: the preferences' checkpoint folder) when one is set; without one ``generate`` makes the
+    OpenCV inpainting baseline (the backend's ``generate.model`` auto). InputError (SceneError) before anything is written when the scene
     cannot make a job. Its output folder is the one the user set and its inputs the files they imported: whoever
     runs it says so with ``--allow-outside`` (or lists it in ``batch --trusted-list``), which a job from someone
     else, run by hand, does not get."""
     out = props.output_dir(context.scene)
     outputs.make_folder(out, "scene.scpainter_output_dir")
     job_path = os.path.join(out, "job.json")
-    job_export.export_job(context, job_path, checkpoint=checkpoint_dir(context))
+    job_export.export_job(context, job_path, checkpoint=checkpoint_dir(context) if checkpoint is None else checkpoint)
     return job_path, out
 
 
-def start(context, command: str, extra=()) -> tuple[BackendJob, str]:
-    """Export the scene's job (``export``) and start ``python -m backend <command> job.json *extra`` on the
-    preferences' device and interpreter. BackendError when the backend cannot be started."""
+def invocation(context, command: str, **options) -> Invocation:
+    """``python -m backend <command>`` as the preferences set it up (their device and interpreter), with
+    ``options`` (``Invocation``'s fields, e.g. ``steps``); the job is ``start``'s to add. ``allow_outside``: the job
+    ``start`` exports is the user's own (``export``)."""
     prefs = preferences.get(context)
-    job_path, out = export(context)
-    device = prefs.device.lower() if prefs else "auto"
-    job = BackendJob([command, job_path, "--device", device, "--allow-outside", *extra],
-                     python=prefs.backend_python if prefs else "")
-    return job, out
+    return Invocation(command, **{"device": preferences.device(prefs), "python": prefs.backend_python if prefs else "",
+                                  "allow_outside": True, **options})
+
+
+def start(context, run: Invocation | str, checkpoint: str | None = None) -> tuple[BackendJob, str]:
+    """Export the scene's job (``export``, naming ``checkpoint``) and start ``run`` on it: an ``Invocation`` (the
+    operators': ``invocation``; the command line's: ``blender -c scpainter``), or a command run as the preferences
+    say. BackendError when the backend cannot be started."""
+    run = invocation(context, run) if isinstance(run, str) else run
+    job_path, out = export(context, checkpoint)
+    return run.replace(jobs=(job_path,)).start(), out
 
 
 def finish(context, command: str, out: str, done: dict) -> str:
@@ -141,7 +149,7 @@ class Follower:
         import time
 
         for ev in self.job.poll():
-            if ev.get("event") == "progress":
+            if protocol.kind_of(ev) == protocol.PROGRESS:
                 ACTIVE.update(stage=ev["stage"], done=ev["done"], total=max(ev["total"], 1))
                 if ev.get("model"):
                     ACTIVE["model"] = ev["model"]

@@ -71,3 +71,12 @@ def test_status_counts_in_the_order_first_met():
     assert counts == {"ok": 2, "failed": 1, "not run (SIGTERM)": 1} and list(counts) == ["ok", "failed",
                                                                                          "not run (SIGTERM)"]
     assert batch.status_counts([]) == {}
+
+
+def test_shard_option_is_one_rule_for_both_batch_commands():
+    assert batch.shard_option(None, None) is None and batch.shard_option("", "") is None
+    assert batch.shard_option("1/4", None) == (1, 4) and batch.parse_shard("0/1") == (0, 1)
+    for text, ray in (("2/2", None), ("x", None), ("1/2/3", None), ("-1/2", None), ("0/2", ""), ("0/2", "head:6379")):
+        with pytest.raises(errors.ArgumentError) as e:
+            batch.shard_option(text, ray)
+        assert e.value.field == "--shard", (text, ray)

@@ -1,0 +1,50 @@
+"""What ``python -m backend`` and its callers (the add-on's operators, ``blender -c scpainter``, scripts) agree on:
+the device names, the exit codes and the event stream's kinds and fields (docs/design.md §4.4). Both sides import
+these names; none of them is spelled anywhere else.
+
+stdlib only, no bpy, no torch: the backend imports it as ``scpainter_blender.core.backend_protocol``, the extension
+relatively.
+"""
+
+from __future__ import annotations
+
+#: ``--device``: the names, in the order the add-on preference lists them, each with its label and description.
+DEVICES = {"auto": ("Auto", "CUDA when available, else CPU"),
+           "cuda": ("CUDA", "First CUDA GPU"),
+           "cpu": ("CPU", "CPU only (slow)")}
+#: The ``--device`` of a command that is given none: CUDA when torch sees a GPU, else the CPU.
+DEFAULT_DEVICE = "auto"
+DEVICE_NAMES = tuple(DEVICES)
+
+#: Exit codes: done; a failure (explained, or a bug with its traceback); bad input (an ``InputError``: the error
+#: event names ``file`` and ``field``); interrupted by Ctrl-C (128 + SIGINT, the shell's convention).
+EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
+
+#: Every event is one JSON object on a line of standard output; this field names its kind.
+KIND = "event"
+#: The kinds: ``progress`` (``stage``, ``done``, ``total`` and more), ``artifact`` (``path``: a file made),
+#: ``done`` (the command's result: the last line of a run that succeeded; a batch's summary even when jobs failed),
+#: ``error`` (``ERROR_FIELDS``: why the run ended).
+PROGRESS, ARTIFACT, DONE, ERROR = "progress", "artifact", "done", "error"
+#: An error event's fields: ``message``, ``hint`` (what to do, may be None), ``file`` and ``field`` (bad input: the
+#: file or "(command line)", and the key or option), ``log`` (a bug's traceback: ``<output_dir>/backend.log``); a
+#: failure the command explains may add its own (``stage``, ``step``).
+ERROR_FIELDS = ("message", "hint", "file", "field", "log")
+#: A progress event's fields: the stage, how many of its units are done, of how many.
+PROGRESS_FIELDS = ("stage", "done", "total")
+
+
+def event(kind: str, /, **fields) -> dict:
+    """An event of ``kind`` (one of the four above) as the dict written on one line."""
+    return {KIND: kind, **fields}
+
+
+def error_event(message: str, /, hint: str | None = None, **fields) -> dict:
+    """An ``error`` event: ``message``, ``hint`` and any of ``file``, ``field``, ``log`` (``ERROR_FIELDS``), plus
+    what a failure says of itself (a ``CleanFailure``'s fields, e.g. ``stage``)."""
+    return event(ERROR, message=message, hint=hint, **fields)
+
+
+def kind_of(ev: dict) -> str | None:
+    """The kind of a parsed event (None for a line that is not one)."""
+    return ev.get(KIND) if isinstance(ev, dict) else None

@@ -324,12 +324,18 @@ class _Parser(argparse.ArgumentParser):
         sys.exit(events.EXIT_BAD_INPUT)
 
 
+#: The command pyproject.toml installs (``[project.scripts]``): the same ``main`` as ``python -m backend``.
+CONSOLE_COMMAND = "scpainter-backend"
+
+
 def build_parser() -> argparse.ArgumentParser:
     # numpy only: no torch or CUDA at start-up
     from scpainter_blender.core.backend_protocol import DEFAULT_DEVICE, DEVICE_NAMES
     from scpainter_blender.core.job import BASELINE_DEFAULTS, GENERATE_DEFAULTS, GENERATE_MODELS, INPAINT_METHODS
 
-    p = _Parser(prog="python -m backend", description=__doc__)
+    # the console command (pyproject.toml) names itself in usage and hints; `python -m backend` otherwise
+    command = os.path.basename(sys.argv[0]) if sys.argv else ""
+    p = _Parser(prog=CONSOLE_COMMAND if command == CONSOLE_COMMAND else "python -m backend", description=__doc__)
     sub = p.add_subparsers(dest="command", required=True)
     d = sub.add_parser("doctor", help="report the Python, packages and devices the backend would use")
     d.add_argument("--checkpoint", help="also check this SCPainter checkpoint folder")

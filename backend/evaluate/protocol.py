@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import os
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 
 import numpy as np
 import torch
@@ -86,14 +86,15 @@ class EvalSettings(ViewSettings):
         argparse default is None), the rest from this class and ``ViewSettings``, so a default is written once.
         Each value is checked: ``ArgumentError`` names the option. The bounds are the job's (``core.job``) plus
         what the metrics need: SSIM's 11 × 11 window fits the frames, and FID/KID get at least 2 frames per set."""
-        given = {"checkpoint": a.checkpoint, "frames": a.frames, "source_window": a.source_window,
-                 "steps": a.steps, "seed": a.seed, "precision": a.precision, "inception": a.inception,
-                 "crop_min_px": a.crop_min_px, "inpaint": a.inpaint,
-                 "shifts": None if a.shifts is None else tuple(a.shifts),
-                 "insertion": False if a.no_insertion else None}
+        # an option whose dest is a field's name is taken as given; --resolution W H and --no-insertion are mapped
+        given = {f.name: getattr(a, f.name) for f in fields(cls) if getattr(a, f.name, None) is not None}
         if a.resolution is not None:
             given["width"], given["height"] = a.resolution
-        s = cls(clips=a.clips, output_dir=a.output_dir, **{k: v for k, v in given.items() if v is not None})
+        if "shifts" in given:
+            given["shifts"] = tuple(given["shifts"])
+        if a.no_insertion:
+            given["insertion"] = False
+        s = cls(**given)
 
         def integer(value, option, lo, hi=None):
             return fields_mod.integer(value, errors.COMMAND_LINE, option, lo, hi,

@@ -409,17 +409,17 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("clips", nargs="+", help="validation clip folders (clip.json, docs/training.md)")
     e.add_argument("--output-dir", required=True, help="jobs, renders, videos and evaluation.json go here")
     e.add_argument("--checkpoint", help="SCPainter checkpoint to evaluate (without: the baselines only)")
-    e.add_argument("--resolution", type=int, nargs=2, default=[576, 320], metavar=("W", "H"))
-    e.add_argument("--frames", type=int, default=14, help="frames per clip, from its start")
-    e.add_argument("--shifts", type=float, nargs="*", default=[2.0, -2.0, 3.0, -3.0],
-                   help="lateral shifts in metres (+ left)")
+    # no defaults here (None: not given): EvalSettings and its ViewSettings hold them (backend/train/view_settings.py)
+    e.add_argument("--resolution", type=int, nargs=2, metavar=("W", "H"))
+    e.add_argument("--frames", type=int, help="frames per clip, from its start")
+    e.add_argument("--shifts", type=float, nargs="*", help="lateral shifts in metres (+ left)")
     e.add_argument("--no-insertion", action="store_true", help="skip the asset re-insertion tasks")
-    e.add_argument("--source-window", "--window", type=int, default=8, dest="source_window",
+    e.add_argument("--source-window", "--window", type=int, dest="source_window",
                    help="source frames t ± N project into frame t")
-    e.add_argument("--steps", type=int, default=GENERATE_DEFAULTS["steps"], help="sampler steps")
-    e.add_argument("--seed", type=int, default=GENERATE_DEFAULTS["seed"])
-    e.add_argument("--crop-min-px", type=int, default=16, help="cars smaller than this (pixels) make no FID-C crop")
-    e.add_argument("--precision", choices=["auto", "fp32", "bf16", "fp16"], default="auto")
+    e.add_argument("--steps", type=int, help="sampler steps")
+    e.add_argument("--seed", type=int)
+    e.add_argument("--crop-min-px", type=int, help="cars smaller than this (pixels) make no FID-C crop")
+    e.add_argument("--precision", choices=["auto", "fp32", "bf16", "fp16"])
     e.add_argument("--inpaint", choices=INPAINT_METHODS,
                    help=f"the inpainting baseline's OpenCV method (default {BASELINE_DEFAULTS['inpaint']})")
     e.add_argument("--inception", help="FID Inception weights (pytorch-fid's pt_inception-2015-12-05-6726825d.pth "

@@ -26,6 +26,7 @@ import torch  # noqa: E402
 
 from backend import events  # noqa: E402
 from backend.model import configs, edm  # noqa: E402
+from backend.model.checkpoint import CLIP_MEAN, CLIP_STD  # noqa: E402
 from backend.model.checkpoint_config import ScpainterConfig  # noqa: E402
 from backend.model.condition import ConditionEncoder  # noqa: E402
 from backend.train import objective  # noqa: E402
@@ -45,8 +46,8 @@ def build(size: str, device: str):
     schedule = edm.Schedule.from_config(dict(c["scheduler"].config))   # SVD's scheduler config
     return {"unet": c["unet"], "denoiser": edm.Denoiser(c["unet"], schedule), "condition_encoder": cond,
             "vae": c["vae"], "image_encoder": c["image_encoder"],
-            "clip_mean": torch.tensor([0.48145466, 0.4578275, 0.40821073]).view(1, 3, 1, 1),
-            "clip_std": torch.tensor([0.26862954, 0.26130258, 0.27577711]).view(1, 3, 1, 1),
+            "clip_mean": torch.tensor(CLIP_MEAN).view(1, 3, 1, 1),
+            "clip_std": torch.tensor(CLIP_STD).view(1, 3, 1, 1),
             "config": ScpainterConfig()}
 
 

@@ -47,7 +47,7 @@ def main() -> None:
     os.makedirs(out, exist_ok=True)
 
     from backend.model import configs
-    from backend.train import street_clip
+    from backend.train import street_clip, vae_fit
     from scpainter_blender.core import outputs
     from scpainter_blender.street.dataset import ensure_street
 
@@ -56,10 +56,9 @@ def main() -> None:
     if not os.path.isdir(svd):
         from backend.train import clip as clip_mod
 
-        tmp = svd + ".tmp"
-        configs.save_stock_svd(tmp, "tiny", seed=0)
-        print("fit tiny VAE:", configs.fit_vae(tmp, clip_mod.load(clip), 128, 64, log=print))
-        os.rename(tmp, svd)
+        with outputs.atomic_folder(svd) as tmp:
+            configs.save_stock_svd(tmp, "tiny", seed=0)
+            print("fit tiny VAE:", vae_fit.fit_vae(tmp, clip_mod.load(clip), 128, 64, log=print))
     if not os.path.isdir(ckpt):
         backend("init-checkpoint", "--svd", svd, "--out", ckpt)
     cfg = {"schema": "scpainter.train/1", "checkpoint": "scpainter-tiny", "clips": ["street_clip"],

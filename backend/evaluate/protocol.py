@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import os
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 
 import numpy as np
 import torch
@@ -48,7 +48,7 @@ import torch
 from scpainter_blender.core import batch_items
 from scpainter_blender.core import fields as fields_mod
 from scpainter_blender.core import errors, outputs
-from scpainter_blender.core.geometry import point_cloud, trajectory
+from scpainter_blender.core.geometry import trajectory
 from scpainter_blender.core import job as job_mod
 
 from ..batch import ray_pool as batch_ray
@@ -57,19 +57,19 @@ from ..errors import CleanFailure
 from . import pictures
 from ..train import clip as clip_mod
 from ..train.pairs import load_clip_frames, load_resized
+from ..train.view_settings import ViewSettings
 
 
-@dataclass
-class EvalSettings:
+@dataclass(frozen=True)
+class EvalSettings(ViewSettings):
+    """The view (``ViewSettings``: resolution, frames, source window, removal-box growth as in training pairs,
+    confidence), the tasks and the metrics."""
+
     clips: list
     output_dir: str
     checkpoint: str | None = None       # None: baselines only
-    width: int = 576
-    height: int = 320
-    frames: int = 14
     shifts: tuple = (2.0, -2.0, 3.0, -3.0)
     insertion: bool = True
-    source_window: int = 8            # source frames t ± source_window project into frame t
     steps: int = job_mod.GENERATE_DEFAULTS["steps"]
     seed: int = job_mod.GENERATE_DEFAULTS["seed"]
     precision: str = "auto"
@@ -77,37 +77,41 @@ class EvalSettings:
     crop_size: int = 128                # crops are resized to this square before the feature extractor
     crop_grow: float = 1.2
     crop_min_px: int = 16               # smaller cars (2D box side, pixels at the evaluation size) are left out
-    grow_m: float = 0.2                 # removal box margin, as in training pairs
-    grow_ratio: float = 0.1
-    confidence_percentile: float = point_cloud.CONFIDENCE_PERCENTILE
     inpaint: str = job_mod.BASELINE_DEFAULTS["inpaint"]             # the baseline's OpenCV method
     inpaint_radius: int = job_mod.BASELINE_DEFAULTS["inpaint_radius"]
 
     @classmethod
     def from_args(cls, a) -> EvalSettings:
-        """From ``python -m backend evaluate``'s arguments (backend/__main__.py), each checked: ``ArgumentError``
-        names the option. The bounds are the job's (``core.job``) plus what the metrics need: SSIM's 11 × 11
-        window fits the frames, and FID/KID get at least 2 frames per set."""
+        """From ``python -m backend evaluate``'s arguments (backend/__main__.py): only the options given (their
+        argparse default is None), the rest from this class and ``ViewSettings``, so a default is written once.
+        Each value is checked: ``ArgumentError`` names the option. The bounds are the job's (``core.job``) plus
+        what the metrics need: SSIM's 11 × 11 window fits the frames, and FID/KID get at least 2 frames per set."""
+        # an option whose dest is a field's name is taken as given; --resolution W H and --no-insertion are mapped
+        given = {f.name: getattr(a, f.name) for f in fields(cls) if getattr(a, f.name, None) is not None}
+        if a.resolution is not None:
+            given["width"], given["height"] = a.resolution
+        if "shifts" in given:
+            given["shifts"] = tuple(given["shifts"])
+        if a.no_insertion:
+            given["insertion"] = False
+        s = cls(**given)
+
         def integer(value, option, lo, hi=None):
             return fields_mod.integer(value, errors.COMMAND_LINE, option, lo, hi,
                                       error=lambda p, f, m: errors.ArgumentError(f, m))
 
-        W, H = (integer(v, "--resolution", 11, job_mod.MAX_SIDE) for v in a.resolution)
+        W, H = (integer(v, "--resolution", 11, job_mod.MAX_SIDE) for v in (s.width, s.height))
         if W * H > job_mod.MAX_PIXELS:
             raise errors.ArgumentError("--resolution", f"{W} x {H} is more than {job_mod.MAX_PIXELS:,} pixels")
-        integer(a.frames, "--frames", 2, job_mod.MAX_FRAMES)
-        integer(a.source_window, "--source-window", 0, job_mod.MAX_SOURCE_FRAME)
+        integer(s.frames, "--frames", 2, job_mod.MAX_FRAMES)
+        integer(s.source_window, "--source-window", 0, job_mod.MAX_SOURCE_FRAME)
         for key in ("steps", "seed"):
-            integer(getattr(a, key), f"--{key}", *job_mod.GENERATE_INT_BOUNDS[key])
-        integer(a.crop_min_px, "--crop-min-px", 0)
-        for v in a.shifts:
+            integer(getattr(s, key), f"--{key}", *job_mod.GENERATE_INT_BOUNDS[key])
+        integer(s.crop_min_px, "--crop-min-px", 0)
+        for v in s.shifts:
             fields_mod.number(v, errors.COMMAND_LINE, "--shifts", -1000.0, 1000.0,
                               error=lambda p, f, m: errors.ArgumentError(f, m))
-        return cls(clips=a.clips, output_dir=a.output_dir, checkpoint=a.checkpoint, width=a.resolution[0],
-                   height=a.resolution[1], frames=a.frames, shifts=tuple(a.shifts), insertion=not a.no_insertion,
-                   source_window=a.source_window, steps=a.steps, seed=a.seed, precision=a.precision,
-                   inception=a.inception, crop_min_px=a.crop_min_px,
-                   inpaint=a.inpaint or job_mod.BASELINE_DEFAULTS["inpaint"])
+        return s
 
 
 @dataclass(frozen=True)

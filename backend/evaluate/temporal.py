@@ -11,10 +11,10 @@ pair of consecutive frames (t, t + 1):
   |F(x) + B(x + F(x))|² < ALPHA · (|F(x)|² + |B(x + F(x))|²) + BETA (Sundaram's test, Lai's constants);
 * the pair's error is the mean over counted pixels and the 3 channels of (I_t − W)².
 
-``warping_error`` returns the mean over the pairs (the video's E_warp) and the per-pair values. A static video
-scores 0, a camera moving smoothly over a textured scene scores near 0, flicker (noise that changes every frame)
-scores high; a generated video's score is read against its ground truth's own (its floor: real motion has
-occlusions and lighting the flow does not explain).
+``warping_error`` returns a ``WarpingScore``: the mean over the pairs (the video's E_warp) and the per-pair
+values. A static video scores 0, a camera moving smoothly over a textured scene scores near 0, flicker (noise that
+changes every frame) scores high; a generated video's score is read against its ground truth's own (its floor:
+real motion has occlusions and lighting the flow does not explain).
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ BETA = 0.5     # forward-backward tolerance, absolute (px²)
 
 
 @dataclass
-class WarpingError:
+class WarpingScore:
     """``mean``: the mean of ``pairs`` (NaN for a video of fewer than two frames); ``pairs`` (T - 1,) the error of
     each consecutive pair (NaN where no pixel counts); ``counted`` (T - 1,) the fraction of pixels that counted."""
 
@@ -74,7 +74,7 @@ def pair_error(a: np.ndarray, b: np.ndarray, flow_engine=None) -> tuple[float, f
     return float(sq[counted].mean()), float(counted.mean())
 
 
-def warping_error(video) -> WarpingError:
+def warping_error(video) -> WarpingScore:
     """The flow-warping error of ``video`` (T, H, W, 3) float in [0, 1] (see the module docstring). ValueError for
     another shape (a programming error: callers read videos through checked loaders)."""
     import cv2
@@ -87,4 +87,4 @@ def warping_error(video) -> WarpingError:
     pairs = np.array([r[0] for r in results], np.float64)
     counted = np.array([r[1] for r in results], np.float64)
     finite = pairs[np.isfinite(pairs)]
-    return WarpingError(float(finite.mean()) if len(finite) else float("nan"), pairs, counted)
+    return WarpingScore(float(finite.mean()) if len(finite) else float("nan"), pairs, counted)

@@ -30,12 +30,11 @@ from scpainter_blender.core import job as job_mod
 from scpainter_blender.core import job_inputs
 
 from . import baseline
-from .. import events
+from .. import events, png
 from ..errors import FolderBusyError
 from ..model import checkpoint as ckpt_mod
 from ..render import command as render_cmd
 from ..render import channels
-from ..render import frames as fr
 
 PRECISIONS = {"fp32": torch.float32, "bf16": torch.bfloat16, "fp16": torch.float16}
 
@@ -311,7 +310,7 @@ def _write_outputs(job, plan: Plan, rgb: np.ndarray, mp4: str, manifest: dict) -
     gen_dir = outputs.output_folder(plan.output_dir, "generated", plan.paths.get("allow_outside", False))
     for entry, frame in zip(job.frames, rgb):
         path = os.path.join(gen_dir, f"frame_{entry.frame:06d}.png")
-        fr.write_png(path, frame)
+        png.write_png(path, frame)
         events.artifact(path, frame=entry.frame, kind="generated", model=plan.model)
     write_mp4(mp4, rgb, plan.settings["fps"], metadata={"title": f"SCPainter {plan.model}",
                                                         "comment": plan.description()})

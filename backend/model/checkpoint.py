@@ -28,6 +28,11 @@ from scpainter_blender.core import errors, files
 
 from .checkpoint_config import CheckpointError, ScpainterConfig, json_object, show_value
 
+#: OpenAI CLIP's input normalisation per RGB channel (of values in [0, 1]): the stock SVD feature extractor's
+#: ``image_mean`` / ``image_std``, and the default when a checkpoint's ``preprocessor_config.json`` leaves them out.
+CLIP_MEAN = (0.48145466, 0.4578275, 0.40821073)
+CLIP_STD = (0.26862954, 0.26130258, 0.27577711)
+
 COMPONENTS = ("unet", "vae", "image_encoder", "feature_extractor", "scheduler")
 # what from_pretrained(..., use_safetensors=True) reads in diffusers and transformers (no variant is passed)
 DIFFUSERS_WEIGHTS = "diffusion_pytorch_model.safetensors"
@@ -173,8 +178,7 @@ def _check_components(root: str, weighted) -> dict:
 
             info["schedule"] = Schedule.from_config(data, os.path.join(root, comp, name))
         if comp == "feature_extractor":
-            for key, default in (("image_mean", [0.48145466, 0.4578275, 0.40821073]),
-                                 ("image_std", [0.26862954, 0.26130258, 0.27577711])):
+            for key, default in (("image_mean", list(CLIP_MEAN)), ("image_std", list(CLIP_STD))):
                 v = data.get(key, default)
                 ok = isinstance(v, list) and len(v) == 3 and all(
                     isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v)

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import os
 import shutil
-import tempfile
 from dataclasses import asdict
 
 from scpainter_blender.core import outputs
@@ -37,8 +36,7 @@ def init_checkpoint(svd: str, out: str, log=lambda m: None) -> str:
         raise CheckpointError(out, "(folder)", "already exists; choose another --out or remove it")
     parent = os.path.dirname(out)
     os.makedirs(parent, exist_ok=True)
-    tmp = tempfile.mkdtemp(prefix=".scpainter-ckpt-", dir=parent)
-    try:
+    with outputs.atomic_folder(out) as tmp:
         link_components(svd, tmp, log=lambda m: log(f"init-checkpoint: {m}"))
         vae = AutoencoderKLTemporalDecoder.from_pretrained(svd, subfolder="vae", local_files_only=True,
                                                            use_safetensors=True)
@@ -46,8 +44,4 @@ def init_checkpoint(svd: str, out: str, log=lambda m: None) -> str:
         ConditionEncoder.from_vae(vae).save_pretrained(os.path.join(tmp, "condition_encoder"),
                                                        safe_serialization=True)
         outputs.write_json(os.path.join(tmp, "scpainter.json"), asdict(ScpainterConfig(base=svd)))
-        os.rename(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return out

@@ -9,9 +9,9 @@ are random, folders are written with ``save_pretrained`` (safetensors) exactly a
 
 from __future__ import annotations
 
-import os
-
 import torch
+
+from .checkpoint import CLIP_MEAN, CLIP_STD
 
 SCHEDULER = {"beta_end": 0.012, "beta_schedule": "scaled_linear", "beta_start": 0.00085, "clip_sample": False,
              "interpolation_type": "linear", "num_train_timesteps": 1000, "prediction_type": "v_prediction",
@@ -64,8 +64,7 @@ def build_components(size: str = "tiny", seed: int = 0) -> dict:
     image = cfg["clip"]["image_size"]
     feature_extractor = CLIPImageProcessor(crop_size={"height": image, "width": image},
                                            size={"shortest_edge": image}, do_center_crop=True, do_normalize=True,
-                                           image_mean=[0.48145466, 0.4578275, 0.40821073],
-                                           image_std=[0.26862954, 0.26130258, 0.27577711])
+                                           image_mean=list(CLIP_MEAN), image_std=list(CLIP_STD))
     scheduler = EulerDiscreteScheduler.from_config(SCHEDULER)  # as a stock scheduler_config.json loads
     return {"unet": unet, "vae": vae, "image_encoder": image_encoder, "feature_extractor": feature_extractor,
             "scheduler": scheduler}
@@ -78,44 +77,3 @@ def save_stock_svd(path: str, size: str = "tiny", seed: int = 0) -> str:
 
     StableVideoDiffusionPipeline(**build_components(size, seed)).save_pretrained(path, safe_serialization=True)
     return path
-
-
-def fit_vae(svd: str, frames, width: int, height: int, steps: int = 400, seed: int = 0, log=None) -> dict:
-    """Fit the VAE of an SVD folder made by ``save_stock_svd`` (encoder and temporal decoder) to reconstruct clips
-    of 4 consecutive ``frames`` at width x height: MSE + 1e-6 KL, AdamW 1e-3. ``frames``: a training clip
-    (``train.clip.Clip``: its frames as training sees them, undistorted, a video decoded) or a list of image
-    files (resized with Lanczos). A random tiny VAE
-    cannot make an image, so the documented street run (tools/train_street.py) fits one first, standing in for
-    SVD's pretrained VAE. Saves it in place; returns the mean loss of the first and last 10 steps."""
-    from diffusers import AutoencoderKLTemporalDecoder
-
-    from ..train.clip import Clip
-    from ..train.pairs import load_clip_frames, load_resized
-
-    torch.manual_seed(seed)
-    vae = AutoencoderKLTemporalDecoder.from_pretrained(svd, subfolder="vae", local_files_only=True)
-    if isinstance(frames, Clip):
-        video = load_clip_frames(frames, width, height).contiguous()
-    else:
-        video = torch.stack([load_resized(f, width, height) for f in frames])
-    video = video.float() / 255.0 * 2 - 1
-    opt = torch.optim.AdamW(vae.parameters(), lr=1e-3)
-    g = torch.Generator().manual_seed(seed)
-    losses = []
-    vae.train()
-    for step in range(steps):
-        t0 = int(torch.randint(0, len(video) - 3, (1,), generator=g))
-        x = video[t0:t0 + 4]
-        dist = vae.encode(x).latent_dist
-        z = dist.mean + dist.std * torch.randn(dist.mean.shape, generator=g)
-        rec = vae.decode(z, num_frames=4).sample
-        kl = 0.5 * (dist.mean ** 2 + dist.var - 1 - dist.logvar).mean()
-        loss = torch.nn.functional.mse_loss(rec, x) + 1e-6 * kl
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        losses.append(float(loss.detach()))
-        if log is not None and step % 50 == 0:
-            log(f"fit VAE: step {step}: loss {losses[-1]:.4f}")
-    vae.eval().save_pretrained(os.path.join(svd, "vae"), safe_serialization=True)
-    return {"first": sum(losses[:10]) / 10, "last": sum(losses[-10:]) / 10}

@@ -13,7 +13,7 @@ from scpainter_blender.core import errors, files, locking, outputs
 from scpainter_blender.core import job as job_mod
 from scpainter_blender.core import job_inputs
 
-from .. import events
+from .. import events, png
 from ..errors import FolderBusyError
 from . import channels
 from . import frames as fr
@@ -142,7 +142,7 @@ def _render(job_path, job, device, force, point_radius, stop, log, out, allow_ou
             t = time.perf_counter()
             layers = fr.render_frame(scene, entry, W, H, point_radius)
             channels.write(exr_path, layers, half=half)
-            fr.write_png(png_path, np.stack([layers[c] for c in channels.IMAGE], axis=-1))
+            png.write_png(png_path, np.stack([layers[c] for c in channels.IMAGE], axis=-1))
             rendered += 1
             log(f"frame {f}: {time.perf_counter() - t:.3f} s, hole {layers[channels.HOLE].mean():.3f}")
             events.artifact(exr_path, frame=f, kind="conditions")

@@ -25,7 +25,6 @@ import numpy as np
 import torch
 
 from scpainter_blender.core.geometry import cameras
-from scpainter_blender.core import outputs
 from scpainter_blender.core.splats import gaussians as splats, reader as splats_io
 from scpainter_blender.core.vggt import npz as vggt_io
 from scpainter_blender.core import job as job_mod
@@ -336,22 +335,3 @@ def render_frame(scene: Scene, entry: job_mod.Frame, width: int, height: int, po
     layers = dict(zip(ch.CHANNELS, (img[..., 0], img[..., 1], img[..., 2], hole, asset_mask, z)))
     layers = {k: v.to(torch.float32) for k, v in layers.items()}
     return {k: v.cpu().numpy() for k, v in layers.items()} if to_numpy else layers
-
-
-def write_png(path, rgb) -> None:
-    """8-bit RGB PNG (the condition image is display-referred already), stdlib only, written atomically. rgb:
-    (H, W, 3) float in [0, 1] (rounded to 8 bits) or uint8 (written as it is)."""
-    import struct
-    import zlib
-
-    a = rgb if rgb.dtype == np.uint8 else (np.clip(rgb, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
-    H, W, _ = a.shape
-    raw = np.concatenate([np.zeros((H, 1), np.uint8), a.reshape(H, W * 3)], axis=1).tobytes()
-
-    def chunk(kind, data):
-        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
-
-    png = (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", W, H, 8, 2, 0, 0, 0))
-           + chunk(b"IDAT", zlib.compress(raw, 6)) + chunk(b"IEND", b""))
-    with outputs.atomic_write(path) as f:
-        f.write(png)

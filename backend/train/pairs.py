@@ -28,7 +28,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import torch
 
-from scpainter_blender.core.geometry import cameras, point_cloud
+from scpainter_blender.core.geometry import cameras
 from scpainter_blender.core import errors, files
 from scpainter_blender.core.splats import reader as splats_io
 from scpainter_blender.core import job as job_mod
@@ -36,19 +36,16 @@ from scpainter_blender.core import job as job_mod
 from ..render import cleaning
 from ..render import frames as fr
 from . import clip as clip_mod
+from .view_settings import ViewSettings
 
 
 @dataclass(frozen=True)
-class PairSettings:
-    width: int = 576
-    height: int = 320
-    frames: int = 14
-    source_window: int = 8         # sources from t − source_window .. t + source_window, t excluded
+class PairSettings(ViewSettings):
+    """The view (``ViewSettings``: resolution, frames, source window, removal-box growth, confidence), and how a
+    sample is drawn and rendered. A pair's sources are a random subset of the window, frame t itself excluded."""
+
     source_prob: float = 0.5       # each neighbour's chance of contributing points
     asset_prob: float = 0.5        # chance that a sample is an asset pair (when the clip has assets)
-    grow_ratio: float = 0.1        # removal box = size · (1 + grow_ratio) + 2 · grow_m
-    grow_m: float = 0.2
-    confidence_percentile: float = point_cloud.CONFIDENCE_PERCENTILE
     point_radius: int = 0
     # the job's scene.point_cleaning, with its defaults (job.POINT_CLEANING); None: no cleaning
     point_cleaning: job_mod.PointCleaning | None = field(default_factory=job_mod.PointCleaning)

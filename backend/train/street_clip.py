@@ -10,7 +10,6 @@ evaluation's ground truth, which the trainer never reads.
 from __future__ import annotations
 
 import os
-import shutil
 
 import numpy as np
 
@@ -39,14 +38,11 @@ def car_paint(street, instance: int) -> tuple:
 def export_clip(street, out: str, gaussians_per_car: int = 8000) -> str:
     """Write the street's recorded drive as a clip folder at ``out`` (built beside it, renamed when complete).
     Returns the path of its clip.json."""
-    import tempfile
-
     out = os.path.abspath(out)
     if os.path.exists(os.path.join(out, "clip.json")):
         return os.path.join(out, "clip.json")
     os.makedirs(os.path.dirname(out), exist_ok=True)
-    tmp = tempfile.mkdtemp(prefix=".clip-", dir=os.path.dirname(out))
-    try:
+    with outputs.atomic_folder(out) as tmp:
         S = street.params.num_frames
         outputs.link_or_copy(street.predictions_path, os.path.join(tmp, "predictions.npz"))
         metric = street.metric()
@@ -79,8 +75,4 @@ def export_clip(street, out: str, gaussians_per_car: int = 8000) -> str:
             "schema": clip_mod.SCHEMA, "predictions": "predictions.npz", "frames": "frames/frame_{:06d}.png",
             "poses": "poses.npz", "cars": cars, "views": views, "fps": 10.0,
             "source": {"street": street.root, "params": street.info["params"]}})
-        os.rename(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return os.path.join(out, "clip.json")

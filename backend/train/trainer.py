@@ -23,6 +23,10 @@ optimiser state — read back with ``torch.load(weights_only=True)`` — EMA, st
 A non-finite loss or gradient norm stops the run with ``NonFiniteError`` before the optimiser step, so neither the
 weights nor the EMA take anything from that step and no checkpoint is written after it; the newest checkpoint is
 the last good state, and ``save`` refuses non-finite weights as a last guard.
+
+Over ~400 lines because ``Trainer`` is one piece of state (models, optimiser, EMA, step, ranks) that loading,
+resuming, the step, the non-finite guard and saving all read and write; its helpers (the pairs, the objective, the
+EMA, the log) are modules of their own already.
 """
 
 from __future__ import annotations
@@ -30,7 +34,6 @@ from __future__ import annotations
 import math
 import os
 import shutil
-import tempfile
 import time
 from dataclasses import asdict
 
@@ -252,8 +255,7 @@ class Trainer:
             from safetensors.torch import save_file
 
             os.makedirs(os.path.dirname(final), exist_ok=True)
-            tmp = tempfile.mkdtemp(prefix=".ckpt-", dir=os.path.dirname(final))
-            try:
+            with outputs.atomic_folder(final) as tmp:
                 frozen = [c for c in ckpt_mod.COMPONENTS if c != "unet"]  # unet/ is written below, trained
                 checkpoint_init.link_components(self.base, tmp, frozen)
                 weights = self.ema.shadow if self.ema is not None else {k: p for k, p in self.named.items()}
@@ -279,10 +281,6 @@ class Trainer:
                 outputs.write_json(os.path.join(st, "state.json"), {
                     "step": self.step, "ema_updates": 0 if self.ema is None else self.ema.updates,
                     "world_size": self.world})
-                os.rename(tmp, final)
-            except BaseException:
-                shutil.rmtree(tmp, ignore_errors=True)
-                raise
             for old in checkpoints(self.out)[:-self.cfg.keep_checkpoints]:
                 shutil.rmtree(old, ignore_errors=True)
             events.artifact(final, kind="checkpoint", step=self.step)

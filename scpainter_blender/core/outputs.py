@@ -1,8 +1,9 @@
 """Writing outputs safely (issue 14): whole files or none, never through a planted link, never outside the folder.
 
 - ``atomic_write`` / ``atomic_path``: a unique temporary file (``mkstemp``, never a planted link) in the target
-  folder, renamed over the target when complete; nothing half-written survives an error. ``write_json`` is the
-  one JSON writer (strict: NaN/inf refused). ``remove_temporaries`` removes what a killed run left of them.
+  folder, renamed over the target when complete; nothing half-written survives an error. ``atomic_folder`` the
+  same for a folder built whole (a checkpoint, a clip, a cached street). ``write_json`` is the one JSON writer
+  (strict: NaN/inf refused). ``remove_temporaries`` removes the temporary files a killed run left.
 - Log files: ``append_text`` never appends through a symbolic link; ``check_log`` refuses one beforehand.
 - Confinement: ``confined``, a job's paths may not leave the job's folder (``..`` or a symlink) unless the user
   allows it; ``inside`` is the test.
@@ -72,6 +73,28 @@ def atomic_path(path):
         with contextlib.suppress(OSError):
             os.remove(tmp)
         raise
+
+
+@contextlib.contextmanager
+def atomic_folder(path, keep_existing: bool = False):
+    """Yields a fresh empty folder beside ``path`` (``mkdtemp``: ``.<name>.<random>.tmp``, a unique name, mode 0700
+    as mkdtemp makes it); when the block ends without an error it is renamed to ``path``, on any error removed with
+    everything in it, so ``path`` appears whole or not at all. The parent folder must exist. ``keep_existing``:
+    when ``path`` appeared meanwhile (another process finished first), ours is removed and theirs kept; otherwise
+    the rename's OSError is raised (``path`` a folder that is not empty)."""
+    path = os.path.abspath(os.fspath(path))
+    tmp = tempfile.mkdtemp(prefix=_temporary_prefix(os.path.basename(path)), suffix=_TEMPORARY_SUFFIX,
+                           dir=os.path.dirname(path))
+    try:
+        yield tmp
+        try:
+            os.rename(tmp, path)
+        except OSError:
+            if not (keep_existing and os.path.isdir(path)):
+                raise
+    finally:  # after an error, or when theirs was kept (renamed, it is gone)
+        if os.path.isdir(tmp) and not os.path.islink(tmp):
+            shutil.rmtree(tmp, ignore_errors=True)
 
 
 @contextlib.contextmanager

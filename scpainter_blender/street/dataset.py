@@ -24,14 +24,14 @@ import dataclasses
 import hashlib
 import json
 import os
-import shutil
 import subprocess
 import sys
-import tempfile
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from ..core import outputs
 
 GENERATOR_VERSION = 2  # 2: a_to_b names (vggt_to_world) in the files it writes
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -124,25 +124,18 @@ def ensure_street(params: StreetParams | None = None, cache_dir: str | None = No
     if os.path.isfile(os.path.join(root, "street.json")):
         return load_street(root)
     os.makedirs(os.path.dirname(root), exist_ok=True)
-    tmp = tempfile.mkdtemp(prefix=".street-tmp-", dir=os.path.dirname(root))
     env = dict(os.environ)
     env["PYTHONPATH"] = REPO_ROOT + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
-    cmd = [sys.executable, "-m", "scpainter_blender.street", "--out", tmp,
-           "--params", json.dumps(dataclasses.asdict(params))]
     t0 = time.perf_counter()
-    try:
+    # another process finishing first: theirs is kept
+    with outputs.atomic_folder(root, keep_existing=True) as tmp:
+        cmd = [sys.executable, "-m", "scpainter_blender.street", "--out", tmp,
+               "--params", json.dumps(dataclasses.asdict(params))]
         proc = subprocess.run(cmd, env=env, cwd=REPO_ROOT, capture_output=True, text=True, timeout=timeout)
         if proc.returncode != 0:
             raise RuntimeError(f"street generation failed (exit {proc.returncode}):\n{proc.stderr[-4000:]}")
         if log:
             log(proc.stderr.strip())
-        try:
-            os.rename(tmp, root)
-        except OSError:  # another process finished first: keep theirs
-            shutil.rmtree(tmp, ignore_errors=True)
-    finally:
-        if os.path.isdir(tmp):
-            shutil.rmtree(tmp, ignore_errors=True)
     street = load_street(root)
     street.info["generated_in_s"] = time.perf_counter() - t0
     return street

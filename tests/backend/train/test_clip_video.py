@@ -157,10 +157,11 @@ def test_fit_vae_takes_a_video_clip(street_clip_path, tmp_path, street_images):
     from diffusers import AutoencoderKLTemporalDecoder
 
     from backend.model import configs
+    from backend.train.vae_fit import fit_vae
 
     _, frames = street_images
     c = clip_mod.load(_video_clip(street_clip_path, tmp_path, frames))
     torch.manual_seed(0)
     AutoencoderKLTemporalDecoder(**configs.TINY["vae"]).save_pretrained(str(tmp_path / "svd" / "vae"))
-    r = configs.fit_vae(str(tmp_path / "svd"), c, 64, 32, steps=2)
+    r = fit_vae(str(tmp_path / "svd"), c, 64, 32, steps=2)
     assert np.isfinite(r["first"]) and np.isfinite(r["last"]) and r["first"] > 0

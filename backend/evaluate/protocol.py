@@ -50,6 +50,7 @@ from scpainter_blender.core import fields as fields_mod
 from scpainter_blender.core import errors, outputs
 from scpainter_blender.core.geometry import trajectory
 from scpainter_blender.core import job as job_mod
+from scpainter_blender.core.output_layout import GENERATED_FRAME, OutputLayout
 
 from ..batch import ray_pool as batch_ray
 from .. import events
@@ -172,7 +173,7 @@ def task_job(clip: clip_mod.Clip, s: EvalSettings, folder: str, shift: float, ca
         output_dir=".", scene=scene, assets=assets,
         generate=job_mod.GenerateSettings(steps=s.steps, seed=s.seed, fps=float(clip.fps)))
     os.makedirs(folder, exist_ok=True)
-    path = os.path.join(folder, "job.json")
+    path = OutputLayout(folder).job  # the task's output folder (output_dir ".")
     job_mod.save(path, job)
     return path
 
@@ -361,7 +362,7 @@ def run_task(job_path: str, device: str, s: EvalSettings, stop) -> dict:
         r = gen_mod.generate_job(job_path, job, device, s.checkpoint, s.precision, stop=stop, allow_outside=True)
         if r.get("stopped"):
             return {"stopped": True}
-        out["generated"] = torch.stack([_read_png(os.path.join(r["frames_dir"], f"frame_{e.frame:06d}.png"),
+        out["generated"] = torch.stack([_read_png(os.path.join(r["frames_dir"], GENERATED_FRAME.name(e.frame)),
                                                   s.width, s.height) for e in job.frames])
     else:
         r = render_cmd.render_job(job_path, job, device, stop=stop, allow_outside=True)

@@ -177,7 +177,8 @@ def generation_summary(output_dir: str) -> dict:
 
     layout = OutputLayout(output_dir)
     manifest = files.read_json(layout.manifest)
-    summary = {"video": layout.video, "frames_dir": layout.generated, "skipped": False, "model": manifest["model"], "description": manifest["description"]}
+    summary = {"video": layout.video, "frames_dir": layout.generated, "skipped": False,
+               "model": manifest["model"], "description": manifest["description"]}
     if manifest["model"] == "baseline":
         summary["use_a_checkpoint"] = USE_A_CHECKPOINT
     return summary

@@ -380,7 +380,7 @@ def baseline_video(task: dict, s: EvalSettings, folder: str, fps: float) -> torc
     from ..generate.video import write_mp4
 
     rgb = baseline.inpaint_video(task["image"].numpy(), 1.0 - task["valid"].numpy(), s.inpaint, s.inpaint_radius)
-    write_mp4(os.path.join(folder, "baseline.mp4"), rgb, min(max(fps, 1.0), 240.0),
+    write_mp4(OutputLayout(folder).eval_baseline, rgb, min(max(fps, 1.0), 240.0),
               metadata={"title": "SCPainter baseline", "comment": baseline.describe(s.inpaint, s.inpaint_radius)})
     return torch.from_numpy(rgb).permute(0, 3, 1, 2).float() / 255.0
 
@@ -508,7 +508,7 @@ def evaluate(s: EvalSettings, device: str, stop=(), extractor=None, pool: RayPoo
                     gt_rows.append({"clip": name, "task": task.name, "shift_m": shift, "output": kind,
                                     "frames": len(frames), "hole_fraction": float(1 - r["valid"].mean()),
                                     **ground_truth_metrics(video, gt, r["valid"])})
-            pictures.contact_sheet(os.path.join(task.folder, "contact_sheet.png"), sheet)
+            pictures.contact_sheet(OutputLayout(task.folder).eval_sheet, sheet)
     result = {"settings": asdict(s), "seconds": None, "ground_truth": gt_rows, "temporal": temporal_rows,
               "fid": feature_metrics(whole.sets, "real", extractor, device, log),
               "fid_c": (feature_metrics(crops.sets, "real", extractor, device, log)

@@ -1,9 +1,9 @@
 """One run per output folder (issue 14): ``OutputLock``, and ``lock_owner`` for ``--check``.
 
 The lock file ``<output folder>/.scpainter.lock`` (``OutputLayout.LOCK``) holds the owner's pid, host, process
-start time, command and start date. A second run is refused naming the owner; a lock whose owner died (on this host), that nobody can
-read for ``UNREADABLE_LOCK_S``, or that an earlier attempt of the same scheduled task left (``TASK_ENV``), is taken
-over.
+start time, command and start date. A second run is refused naming the owner; a lock whose owner died (on this
+host), that nobody can read for ``UNREADABLE_LOCK_S``, or that an earlier attempt of the same scheduled task left
+(``TASK_ENV``), is taken over.
 
 stdlib only (no bpy): the add-on and the backend share it.
 """

@@ -13,6 +13,7 @@
         generated/manifest.json         written last: the generation finished (key, model, description, frames)
         generated.mp4                   the video
         generate_state.safetensors      the sampler's latents after each step (resume); removed when finished
+        baseline.mp4, contact_sheet.png only in ``evaluate``'s task folders: the baseline's video, the task's pictures
 
 Frames are numbered by scene frame (``frame_000012.exr`` is frame 12) in ``FRAME_DIGITS`` digits (``FrameFiles``:
 the one place that formats a frame's file name). Paths come from ``OutputLayout(output_dir)``; bare names (what
@@ -71,6 +72,8 @@ class OutputLayout:
     MANIFEST = "manifest.json"        # in generated/
     VIDEO = "generated.mp4"
     STATE = "generate_state.safetensors"
+    EVAL_BASELINE = "baseline.mp4"        # evaluate's task folders only
+    EVAL_SHEET = "contact_sheet.png"      # evaluate's task folders only
 
     def __init__(self, output_dir):
         self.root = os.fspath(output_dir)
@@ -101,6 +104,14 @@ class OutputLayout:
     @property
     def state(self) -> str:
         return self._at(self.STATE)
+
+    @property
+    def eval_baseline(self) -> str:
+        return self._at(self.EVAL_BASELINE)
+
+    @property
+    def eval_sheet(self) -> str:
+        return self._at(self.EVAL_SHEET)
 
     # conditions/
     @property

@@ -11,7 +11,8 @@
   record of this program's outputs lists, and nothing else).
 
 Bad outputs (a file in the way, a link) raise ``errors.InputError`` naming the path. One run per output folder is
-``core.locking``; the names in an output folder are ``core.output_layout``. stdlib only (no bpy): the add-on and the backend share it.
+``core.locking``; the names in an output folder are ``core.output_layout``. stdlib only (no bpy): the add-on and
+the backend share it.
 """
 
 from __future__ import annotations

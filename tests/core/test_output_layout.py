@@ -30,6 +30,8 @@ def test_paths(tmp_path):
     assert lay.former_record == os.path.join(root, "conditions", "job_key.txt")
     assert lay.generated == os.path.join(root, "generated")
     assert lay.manifest == os.path.join(root, "generated", "manifest.json")
+    assert (lay.eval_baseline, lay.eval_sheet) == (os.path.join(root, "baseline.mp4"),
+                                                   os.path.join(root, "contact_sheet.png"))
     assert OutputLayout.FOLDERS == ("conditions", "generated")
 
 
@@ -71,7 +73,7 @@ def test_the_other_core_modules_use_it(tmp_path):
 
 #: Output file names: no string in the shipped code may contain one, outside ``HOME``.
 NAMES = ("generated.mp4", "manifest.json", "backend.log", "generate_state.safetensors", "record.json",
-         ".scpainter.lock", "job_key.txt", "preview_")
+         ".scpainter.lock", "job_key.txt", "preview_", "baseline.mp4", "contact_sheet.png")
 #: Folder names: none may be a path component outside ``HOME`` (a dictionary key or an event's ``kind`` may).
 FOLDERS = tuple(OutputLayout.FOLDERS)
 #: A folder name beside a slash, as a whole component ("scpainter.conditions/1", a schema, is not one).
@@ -114,7 +116,8 @@ def test_the_scan_sees_each_spelling():
     assert spelled('"""backend.log in a docstring"""\n# generated.mp4 in a comment\nx = {"generated": 1}\n'
                    'artifact(p, kind="conditions")\n') == []
     assert spelled('a = os.path.join(out, "conditions")\nb = out / "generated"\nc = f"{out}/generated/x"\n'
-                   'd = "backend.log"\ne = f"preview_{n:06d}.png"\nf = "conditions/x"\ng = "scpainter.conditions/1"\n') == \
+                   'd = "backend.log"\ne = f"preview_{n:06d}.png"\nf = "conditions/x"\n'
+                   'g = "scpainter.conditions/1"\n') == \
         [(1, "conditions"), (2, "generated"), (3, "/generated/x"), (4, "backend.log"), (5, "preview_"),
          (6, "conditions/x")]
 

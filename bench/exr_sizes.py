@@ -19,7 +19,6 @@ Prints a table and writes bench/results/exr_sizes.json.
 from __future__ import annotations
 
 import argparse
-import glob
 import os
 import platform
 import statistics
@@ -35,6 +34,7 @@ import OpenEXR  # noqa: E402
 
 from backend.render import channels  # noqa: E402
 from scpainter_blender.core import outputs  # noqa: E402
+from scpainter_blender.core.output_layout import CONDITION_EXR, OutputLayout  # noqa: E402
 
 #: name -> (OpenEXR compression, half): the variants measured.
 VARIANTS = {
@@ -69,9 +69,10 @@ def main(argv=None) -> int:
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--json", default=os.path.join(ROOT, "bench", "results", "exr_sizes.json"))
     args = p.parse_args(argv)
-    sources = sorted(glob.glob(os.path.join(args.demo, "conditions", "frame_*.exr")))
+    folder = OutputLayout(args.demo).conditions
+    sources = CONDITION_EXR.in_folder(folder)
     if not sources:
-        raise SystemExit(f"no condition frames in {args.demo}/conditions: run tools/demo.py --out {args.demo}")
+        raise SystemExit(f"no condition frames in {folder}: run tools/demo.py --out {args.demo}")
     frames = [channels.read(f) for f in sources]
     H, W = frames[0]["R"].shape
     print(f"{len(frames)} demo frames {W}x{H} from {args.demo}; {args.repeats} repeats", file=sys.stderr)

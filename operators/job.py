@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-import os
-
 import bpy
 
+from ..scpainter_blender.core.output_layout import OutputLayout
 from ..scpainter_blender.scene import job_export, preferences, props
 from . import reports
 
@@ -23,7 +22,7 @@ class SCPAINTER_OT_export_job(bpy.types.Operator):
     @reports.reported
     def execute(self, context):
         path = bpy.path.abspath(self.filepath) if self.filepath else \
-            os.path.join(props.output_dir(context.scene), "job.json")
+            OutputLayout(props.output_dir(context.scene)).job
         prefs = preferences.get(context)
         job = job_export.export_job(context, path, checkpoint=bpy.path.abspath(prefs.checkpoint_dir)
                                     if prefs and prefs.checkpoint_dir else "")

@@ -21,6 +21,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
 from scpainter_blender.core.backend_protocol import DEFAULT_DEVICE, DEVICE_NAMES  # noqa: E402
+from scpainter_blender.core.output_layout import OutputLayout  # noqa: E402
 from tools import blender_env  # noqa: E402
 
 
@@ -102,7 +103,7 @@ def main(argv=None):
     if args.checkpoint:
         bpy.context.preferences.addons[pkg].preferences.checkpoint_dir = os.path.abspath(args.checkpoint)
     scene.scpainter_output_dir = out  # jobs, conditions and the video go here (saved with the .blend)
-    job_path = os.path.join(out, "job.json")
+    job_path = OutputLayout(out).job
     bpy.ops.scpainter.export_job(filepath=job_path)
     truth = float(street.metric()["metres_per_unit"])
     scale = float(np.cbrt(np.linalg.det(np.array(pts["scpainter_vggt_to_world"]).reshape(4, 4)[:3, :3])))
@@ -176,9 +177,10 @@ def generation_summary(output_dir: str) -> dict:
     """Where the video is and which generator made it (``generated/manifest.json``'s ``model``, ``description``)."""
     from scpainter_blender.core import files
 
-    manifest = files.read_json(os.path.join(output_dir, "generated", "manifest.json"))
-    summary = {"video": os.path.join(output_dir, "generated.mp4"), "frames_dir": os.path.join(output_dir, "generated"),
-               "skipped": False, "model": manifest["model"], "description": manifest["description"]}
+    layout = OutputLayout(output_dir)
+    manifest = files.read_json(layout.manifest)
+    summary = {"video": layout.video, "frames_dir": layout.generated, "skipped": False,
+               "model": manifest["model"], "description": manifest["description"]}
     if manifest["model"] == "baseline":
         summary["use_a_checkpoint"] = USE_A_CHECKPOINT
     return summary
@@ -187,16 +189,17 @@ def generation_summary(output_dir: str) -> dict:
 def conditions_summary(output_dir: str) -> dict:
     """Where the condition layers are and what they hold: per-frame hole fraction and asset-mask coverage."""
     from backend.render import channels
+    from scpainter_blender.core.output_layout import CONDITION_EXR, CONDITION_PREVIEW
 
-    folder = os.path.join(output_dir, "conditions")
-    files = sorted(f for f in os.listdir(folder) if f.endswith(".exr"))
+    folder = OutputLayout(output_dir).conditions
+    exrs = CONDITION_EXR.in_folder(folder)
     holes, asset_pixels = [], []
-    for f in files:
-        layers = channels.read(os.path.join(folder, f))
+    for f in exrs:
+        layers = channels.read(f)
         holes.append(float(layers[channels.HOLE].mean()))
         asset_pixels.append(int((layers[channels.ASSET_MASK] > 0.5).sum()))
-    return {"folder": folder, "frames": len(files), "hole_fraction": holes, "asset_pixels": asset_pixels,
-            "previews": sorted(os.path.join(folder, f) for f in os.listdir(folder) if f.endswith(".png"))}
+    return {"folder": folder, "frames": len(exrs), "hole_fraction": holes, "asset_pixels": asset_pixels,
+            "previews": CONDITION_PREVIEW.in_folder(folder)}
 
 
 if __name__ == "__main__":

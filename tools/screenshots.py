@@ -41,10 +41,12 @@ def main(argv=None):
     args = p.parse_args(argv)
     from backend.render import channels
     from scpainter_blender.core import job as job_mod
+    from scpainter_blender.core.output_layout import OutputLayout
     from scpainter_blender.street.dataset import ensure_street, view_name
 
-    job = job_mod.load(os.path.join(args.demo, "job.json"))
-    cond = channels.read(os.path.join(args.demo, "conditions", f"frame_{args.frame:06d}.exr"))
+    layout = OutputLayout(args.demo)
+    job = job_mod.load(layout.job)
+    cond = channels.read(layout.condition_exr(args.frame))
     image = np.stack([cond[c] for c in channels.IMAGE], -1)
     masks = np.repeat(cond[channels.HOLE][..., None], 3, -1) * 0.85
     masks[cond[channels.ASSET_MASK] > 0.5] = (0.9, 0.2, 0.2)
@@ -53,7 +55,7 @@ def main(argv=None):
                   "1. the scene in Blender from the 2 m path (Cycles)", W),
              tile(image, "2. Render Conditions: image I (points + car)", W),
              tile(masks, "3. hole mask M (grey) and asset mask M_a (red)", W)]
-    generated = os.path.join(args.demo, "generated", f"frame_{args.frame:06d}.png")
+    generated = layout.generated_frame(args.frame)
     if os.path.isfile(generated):
         tiles.append(tile(np.asarray(Image.open(generated).convert("RGB")), "4. Generate: the video frame", W))
     else:

@@ -39,8 +39,9 @@ def run_one(job_path: str, command: str, device: str, checkpoint: str | None, st
 
     r = generate_job(job_path, job, device, checkpoint, precision, stop=stop, overrides=overrides,
                      allow_outside=allow_outside)
-    return {"video": r.get("video"), "frames": r.get("frames"), "skipped": bool(r.get("skipped")),
-            "stopped": r["stopped"], "model": r.get("model"), "description": r.get("description")}
+    return {"output_dir": r.get("output_dir"), "video": r.get("video"), "frames": r.get("frames"),
+            "skipped": bool(r.get("skipped")), "stopped": r["stopped"], "model": r.get("model"),
+            "description": r.get("description")}
 
 
 def allows_outside(allow_outside, path: str) -> bool:

@@ -361,12 +361,13 @@ def _job_log(path: str) -> str | None:
     from scpainter_blender.core import job as job_mod
     from scpainter_blender.core import job_inputs
     from scpainter_blender.core.errors import InputError
+    from scpainter_blender.core.output_layout import OutputLayout
 
     try:  # allow_outside: the path is only shown, never opened
         out = job_inputs.job_paths(path, job_mod.load(path), allow_outside=True)["output_dir"]
     except (InputError, OSError, ValueError):
         return None
-    log = os.path.join(out, "backend.log")
+    log = OutputLayout(out).log
     return log if os.path.isfile(log) else None
 
 

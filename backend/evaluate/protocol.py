@@ -50,6 +50,7 @@ from scpainter_blender.core import fields as fields_mod
 from scpainter_blender.core import errors, outputs
 from scpainter_blender.core.geometry import trajectory
 from scpainter_blender.core import job as job_mod
+from scpainter_blender.core.output_layout import GENERATED_FRAME, OutputLayout
 
 from ..batch import ray_pool as batch_ray
 from .. import events
@@ -176,7 +177,7 @@ def task_job(clip: clip_mod.Clip, s: EvalSettings, folder: str, shift: float, ca
         output_dir=".", scene=scene, assets=assets,
         generate=job_mod.GenerateSettings(steps=s.steps, seed=s.seed, fps=float(clip.fps)))
     os.makedirs(folder, exist_ok=True)
-    path = os.path.join(folder, "job.json")
+    path = OutputLayout(folder).job  # the task's output folder (output_dir ".")
     job_mod.save(path, job)
     return path
 
@@ -365,7 +366,7 @@ def run_task(job_path: str, device: str, s: EvalSettings, stop) -> dict:
         r = gen_mod.generate_job(job_path, job, device, s.checkpoint, s.precision, stop=stop, allow_outside=True)
         if r.get("stopped"):
             return {"stopped": True}
-        out["generated"] = torch.stack([_read_png(os.path.join(r["frames_dir"], f"frame_{e.frame:06d}.png"),
+        out["generated"] = torch.stack([_read_png(os.path.join(r["frames_dir"], GENERATED_FRAME.name(e.frame)),
                                                   s.width, s.height) for e in job.frames])
     else:
         r = render_cmd.render_job(job_path, job, device, stop=stop, allow_outside=True)
@@ -383,7 +384,7 @@ def baseline_video(task: dict, s: EvalSettings, folder: str, fps: float) -> torc
     from ..generate.video import write_mp4
 
     rgb = baseline.inpaint_video(task["image"].numpy(), 1.0 - task["valid"].numpy(), s.inpaint, s.inpaint_radius)
-    write_mp4(os.path.join(folder, "baseline.mp4"), rgb, min(max(fps, 1.0), 240.0),
+    write_mp4(OutputLayout(folder).eval_baseline, rgb, min(max(fps, 1.0), 240.0),
               metadata={"title": "SCPainter baseline", "comment": baseline.describe(s.inpaint, s.inpaint_radius)})
     return torch.from_numpy(rgb).permute(0, 3, 1, 2).float() / 255.0
 
@@ -511,7 +512,7 @@ def evaluate(s: EvalSettings, device: str, stop=(), extractor=None, pool: RayPoo
                     gt_rows.append({"clip": name, "task": task.name, "shift_m": shift, "output": kind,
                                     "frames": len(frames), "hole_fraction": float(1 - r["valid"].mean()),
                                     **ground_truth_metrics(video, gt, r["valid"])})
-            pictures.contact_sheet(os.path.join(task.folder, "contact_sheet.png"), sheet)
+            pictures.contact_sheet(OutputLayout(task.folder).eval_sheet, sheet)
     result = {"settings": asdict(s), "seconds": None, "ground_truth": gt_rows, "temporal": temporal_rows,
               "fid": feature_metrics(whole.sets, "real", extractor, device, log),
               "fid_c": (feature_metrics(crops.sets, "real", extractor, device, log)

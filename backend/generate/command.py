@@ -28,6 +28,7 @@ import torch
 from scpainter_blender.core import errors, files, locking, outputs
 from scpainter_blender.core import job as job_mod
 from scpainter_blender.core import job_inputs
+from scpainter_blender.core.output_layout import GENERATED_FRAME, OutputLayout
 
 from . import baseline
 from .. import events, png
@@ -196,21 +197,21 @@ def _generate(job_path, job, device, plan: Plan, precision, force, stop, lock) -
     ckpt, s, out = plan.checkpoint, plan.settings, plan.output_dir
     precision = resolve_precision(precision, device)
     dtype = PRECISIONS[precision]
-    log = events.FileLog(os.path.join(out, "backend.log"))
+    layout = OutputLayout(out)
+    log = events.FileLog(layout.log)
     if lock.stale:
         log(f"generate: {lock.took_over()}")
     t0 = time.perf_counter()
-    outputs.remove_temporaries(out, ["generated.mp4", "generate_state.safetensors"])  # left by a killed run
-    outputs.remove_temporaries(os.path.join(out, "generated"), ["manifest.json"] + [
-        f"frame_{e.frame:06d}.png" for e in job.frames])
+    outputs.remove_temporaries(out, [OutputLayout.VIDEO, OutputLayout.STATE])  # left by a killed run
+    outputs.remove_temporaries(layout.generated, [OutputLayout.MANIFEST] + [
+        GENERATED_FRAME.name(e.frame) for e in job.frames])
     r = render_cmd.render_job(job_path, job, device, stop=stop, log=log, allow_outside=plan.paths["allow_outside"],
                               lock=False, checked=plan.paths)  # prepare() checked the inputs; the lock is held
     if r["stopped"]:
         return {"stopped": True, "stage": "render", "steps_done": 0}
     image, asset_mask, valid = load_conditions(job_path, job)
     frames_n, _, H, W = image.shape
-    gen_dir = os.path.join(out, "generated")
-    mp4 = os.path.join(out, "generated.mp4")
+    gen_dir, mp4 = layout.generated, layout.video
     if plan.model == "baseline":
         key = conditions_key({"model": "baseline", "settings": s}, image, asset_mask, valid)
         if not force and _up_to_date(gen_dir, mp4, key):
@@ -231,7 +232,7 @@ def _generate(job_path, job, device, plan: Plan, precision, force, stop, lock) -
     cond = pipe.condition_latents(pad_to_multiple(image, m), pad_to_multiple(asset_mask, m),
                                   pad_to_multiple(valid, m, 0.0), seed=s["seed"])
     clip = pipe.clip_embedding(clip_source(job_path, job, image[0]))
-    state_path = os.path.join(out, "generate_state.safetensors")
+    state_path = layout.state
     latents, start = (None, 0) if force else load_state(state_path, key)
     if start:
         log(f"generate: resuming after step {start} of {s['steps']}")
@@ -263,7 +264,7 @@ def _generate(job_path, job, device, plan: Plan, precision, force, stop, lock) -
 
 def _baseline(job, plan: Plan, image, valid, key, stop, log, t0) -> dict:
     """The baseline's frames, one at a time (a stop keeps nothing: the whole video takes seconds to a minute)."""
-    s, out = plan.settings, plan.output_dir
+    s, layout = plan.settings, OutputLayout(plan.output_dir)
     log(f"generate: {plan.description()}; {len(job.frames)} frames")
     events.log(f"generate: {USE_CHECKPOINT_HINT}")
 
@@ -275,15 +276,15 @@ def _baseline(job, plan: Plan, image, valid, key, stop, log, t0) -> dict:
     if len(rgb) < len(job.frames):
         log(f"generate: stopped after {len(rgb)} of {len(job.frames)} baseline frames (not kept: it starts again)")
         return {"stopped": True, "stage": "generate", "steps_done": len(rgb), "steps": len(job.frames)}
-    mp4 = os.path.join(out, "generated.mp4")
+    mp4 = layout.video
     _write_outputs(job, plan, rgb, mp4, {"key": key, "checkpoint": None, "settings": s})
     log(f"generate: {mp4} (baseline) in {time.perf_counter() - t0:.1f} s")
-    return {**_result(plan, mp4, os.path.join(out, "generated"), len(rgb)), **s}
+    return {**_result(plan, mp4, layout.generated, len(rgb)), **s}
 
 
 def _up_to_date(gen_dir: str, mp4: str, key: str) -> bool:
     """A finished run with the same key left the video and its manifest."""
-    manifest = os.path.join(gen_dir, "manifest.json")
+    manifest = os.path.join(gen_dir, OutputLayout.MANIFEST)
     if not (os.path.isfile(manifest) and os.path.isfile(mp4)):
         return False
     try:
@@ -294,8 +295,8 @@ def _up_to_date(gen_dir: str, mp4: str, key: str) -> bool:
 
 def _result(plan: Plan, mp4: str, gen_dir: str, frames: int, skipped: bool = False) -> dict:
     """The ``done`` event's fields every generation shares; the baseline's say what it is and how to get the model."""
-    r = {"stopped": False, "skipped": skipped, "video": mp4, "frames_dir": gen_dir, "frames": frames,
-         "model": plan.model, "description": plan.description()}
+    r = {"stopped": False, "skipped": skipped, "output_dir": plan.output_dir, "video": mp4, "frames_dir": gen_dir,
+         "frames": frames, "model": plan.model, "description": plan.description()}
     if plan.model == "baseline":
         r["hint"] = USE_CHECKPOINT_HINT
     return r
@@ -307,14 +308,14 @@ def _write_outputs(job, plan: Plan, rgb: np.ndarray, mp4: str, manifest: dict) -
     generator made them (``model``, ``description``), so a baseline video is not taken for the model's."""
     from .video import write_mp4
 
-    gen_dir = outputs.output_folder(plan.output_dir, "generated", plan.paths.get("allow_outside", False))
+    gen_dir = outputs.output_folder(plan.output_dir, OutputLayout.GENERATED, plan.paths.get("allow_outside", False))
     for entry, frame in zip(job.frames, rgb):
-        path = os.path.join(gen_dir, f"frame_{entry.frame:06d}.png")
+        path = os.path.join(gen_dir, GENERATED_FRAME.name(entry.frame))
         png.write_png(path, frame)
         events.artifact(path, frame=entry.frame, kind="generated", model=plan.model)
     write_mp4(mp4, rgb, plan.settings["fps"], metadata={"title": f"SCPainter {plan.model}",
                                                         "comment": plan.description()})
     events.artifact(mp4, kind="video", model=plan.model)
-    outputs.write_json(os.path.join(gen_dir, "manifest.json"),
+    outputs.write_json(os.path.join(gen_dir, OutputLayout.MANIFEST),
                        {**manifest, "model": plan.model, "description": plan.description(),
                         "frames": [e.frame for e in job.frames]})

@@ -12,6 +12,7 @@ import numpy as np
 from scpainter_blender.core import errors, files, locking, outputs
 from scpainter_blender.core import job as job_mod
 from scpainter_blender.core import job_inputs
+from scpainter_blender.core.output_layout import OutputLayout
 
 from .. import events, png
 from ..errors import FolderBusyError
@@ -19,14 +20,10 @@ from . import channels
 from . import frames as fr
 
 
-def conditions_dir(job_path: str, job: job_mod.Job) -> str:
-    return os.path.join(job_mod.resolve(job_path, job.output_dir), "conditions")
-
-
 def frame_paths(job_path: str, job: job_mod.Job, frame: int) -> tuple[str, str]:
     """(EXR, PNG preview) of one output frame's condition layers."""
-    cond = conditions_dir(job_path, job)
-    return os.path.join(cond, f"frame_{frame:06d}.exr"), os.path.join(cond, f"preview_{frame:06d}.png")
+    layout = OutputLayout(job_mod.resolve(job_path, job.output_dir))
+    return layout.condition_exr(frame), layout.condition_preview(frame)
 
 
 def job_key(job_path: str, job: job_mod.Job, point_radius: int, half: bool = False) -> str:
@@ -51,17 +48,14 @@ def job_key(job_path: str, job: job_mod.Job, point_radius: int, half: bool = Fal
     return hashlib.sha256(json.dumps(blob, sort_keys=True).encode()).hexdigest()[:32]
 
 
-RECORD = "record.json"  # in conditions/: the job key, the files this project wrote for it, their precision
-
-
 def _frame_files(job: job_mod.Job) -> list:
-    return [n for e in job.frames for n in (f"frame_{e.frame:06d}.exr", f"preview_{e.frame:06d}.png")]
+    return OutputLayout.condition_names(e.frame for e in job.frames)
 
 
-def _previous_record(cond: str) -> dict | None:
+def _previous_record(layout: OutputLayout) -> dict | None:
     """The conditions folder's record ({"key", "files"}), None when there is none or it is unreadable."""
     try:
-        record = files.read_json(os.path.join(cond, RECORD))
+        record = files.read_json(layout.record)
     except errors.InputError:
         return None
     ok = isinstance(record, dict) and isinstance(record.get("key"), str) and isinstance(record.get("files"), list)
@@ -92,17 +86,18 @@ def render_job(job_path: str, job: job_mod.Job, device: str, force: bool = False
     out = outputs.make_folder(paths["output_dir"], "output_dir")
     with (locking.OutputLock(out, "render", busy=FolderBusyError) if lock else contextlib.nullcontext()) as held, \
             events.log_scope():  # an exception from here on is marked with backend.log (events.report_bug)
-        log = log or events.FileLog(os.path.join(out, "backend.log"))
+        log = log or events.FileLog(OutputLayout(out).log)
         if held is not None and held.stale:
             log(f"render: {held.took_over()}")
         return _render(job_path, job, device, force, point_radius, stop, log, out, allow_outside, half)
 
 
 def _render(job_path, job, device, force, point_radius, stop, log, out, allow_outside, half) -> dict:
-    cond = outputs.output_folder(out, "conditions", allow_outside)
+    layout = OutputLayout(out)
+    cond = outputs.output_folder(out, OutputLayout.CONDITIONS, allow_outside)
     W, H = job.resolution
     total, rendered, skipped = len(job.frames), 0, 0
-    previous = _previous_record(cond)
+    previous = _previous_record(layout)
     if half is None:
         half = previous is not None and previous.get("exr") == "half"
     key = job_key(job_path, job, point_radius, half)
@@ -114,11 +109,11 @@ def _render(job_path, job, device, force, point_radius, stop, log, out, allow_ou
         # job (its previous record's, and this job's own frame names), never anything else in the folder
         outputs.remove_listed(cond, (previous or {}).get("files", []) + _frame_files(job))
         force = True
-    outputs.remove_temporaries(cond, _frame_files(job) + [RECORD])  # left by a run that was killed mid-write
-    outputs.write_json(os.path.join(cond, RECORD), {"schema": "scpainter.conditions/1", "key": key,
-                                                    "files": _frame_files(job), "exr": "half" if half else "float32"})
+    outputs.remove_temporaries(cond, _frame_files(job) + [OutputLayout.RECORD])  # left by a run killed mid-write
+    outputs.write_json(layout.record, {"schema": "scpainter.conditions/1", "key": key,
+                                       "files": _frame_files(job), "exr": "half" if half else "float32"})
     with contextlib.suppress(FileNotFoundError):  # the record's former name (one line: the key)
-        os.remove(os.path.join(cond, "job_key.txt"))
+        os.remove(layout.former_record)
     todo = {e.frame for e in job.frames
             if force or not all(os.path.isfile(p) for p in frame_paths(job_path, job, e.frame))}
     scene = None

@@ -1,9 +1,9 @@
 """One run per output folder (issue 14): ``OutputLock``, and ``lock_owner`` for ``--check``.
 
-The lock file ``<output folder>/.scpainter.lock`` holds the owner's pid, host, process start time, command and
-start date. A second run is refused naming the owner; a lock whose owner died (on this host), that nobody can
-read for ``UNREADABLE_LOCK_S``, or that an earlier attempt of the same scheduled task left (``TASK_ENV``), is taken
-over.
+The lock file ``<output folder>/.scpainter.lock`` (``OutputLayout.LOCK``) holds the owner's pid, host, process
+start time, command and start date. A second run is refused naming the owner; a lock whose owner died (on this
+host), that nobody can read for ``UNREADABLE_LOCK_S``, or that an earlier attempt of the same scheduled task left
+(``TASK_ENV``), is taken over.
 
 stdlib only (no bpy): the add-on and the backend share it.
 """
@@ -19,9 +19,10 @@ import time
 
 from .errors import InputError
 from .files import open_regular
+from .output_layout import OutputLayout
 from .outputs import make_folder
 
-LOCK_NAME = ".scpainter.lock"
+LOCK_NAME = OutputLayout.LOCK  # the lock's name in any folder it guards (a job's output folder, train's)
 UNREADABLE_LOCK_S = 60   # a lock file nobody can read is taken over after this (a crash mid-write on old systems)
 #: Set by a scheduler that retries a job only after the job's previous attempt ended (``backend/batch/ray_pool.py``: the
 #: Ray task's id): the lock records it, and a lock holding the same id is taken over on any host — the previous
@@ -90,7 +91,7 @@ class OutputLock:
     def _take(self, me: dict) -> bool:
         """Create the lock file whole or not at all: written to a private temporary file, then hard-linked to its
         name (``link`` fails if the name exists, never follows a planted link), so no reader sees it empty."""
-        fd, tmp = tempfile.mkstemp(prefix=".scpainter.lock.", dir=self.folder)
+        fd, tmp = tempfile.mkstemp(prefix=f"{LOCK_NAME}.", dir=self.folder)
         try:
             with os.fdopen(fd, "w", encoding="utf-8") as f:
                 json.dump(me, f)

@@ -12,7 +12,8 @@
   record of this program's outputs lists, and nothing else).
 
 Bad outputs (a file in the way, a link) raise ``errors.InputError`` naming the path. One run per output folder is
-``core.locking``. stdlib only (no bpy): the add-on and the backend share it.
+``core.locking``; the names in an output folder are ``core.output_layout``. stdlib only (no bpy): the add-on and
+the backend share it.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ import tempfile
 
 from .errors import InputError
 from .files import NONBLOCK
+from .output_layout import OutputLayout
 
 # -------------------------------------------------------------------------------------- writing a file whole
 
@@ -243,10 +245,6 @@ def _leads_outside(path) -> InputError:
                       hint="remove the link, or run with --allow-outside if you made it")
 
 
-OUTPUT_FOLDERS = ("conditions", "generated")
-LOG_NAME = "backend.log"
-
-
 def check_output(out, allow_outside: bool = False) -> None:
     """What a run would refuse in an output folder, checked without creating anything (``--check`` and the start
     of every run): ``out`` not a folder; ``conditions/`` or ``generated/`` not a folder or leading outside ``out``
@@ -256,7 +254,8 @@ def check_output(out, allow_outside: bool = False) -> None:
     if not os.path.isdir(out):
         raise InputError(out, "output_dir", "exists and is not a folder", hint="remove it or choose another "
                                                                                "output folder")
-    for name in OUTPUT_FOLDERS:
+    layout = OutputLayout(out)
+    for name in OutputLayout.FOLDERS:
         path = os.path.join(out, name)
         if not os.path.lexists(path):
             continue
@@ -264,7 +263,7 @@ def check_output(out, allow_outside: bool = False) -> None:
             raise _leads_outside(path)
         if not os.path.isdir(path):
             raise InputError(path, "(folder)", "exists and is not a folder")
-    check_log(os.path.join(out, LOG_NAME))
+    check_log(layout.log)
 
 
 def remove_listed(folder, names) -> int:

@@ -182,9 +182,10 @@ def _run_blend(args) -> dict:
 
 
 def _outputs(done: dict, out) -> dict:
-    # model / description: which generator made the video ("baseline": OpenCV inpainting, no model)
+    # model / description: which generator made the video ("baseline": OpenCV inpainting, no model); the paths are
+    # the done event's (render and generate name their output_dir), never worked out here
     keep = ("frames", "rendered", "skipped", "video", "frames_dir", "model", "description", "seconds")
-    return {"output_dir": out or os.path.dirname(done.get("video") or ""), **{k: done[k] for k in keep if k in done}}
+    return {"output_dir": out or done.get("output_dir") or "", **{k: done[k] for k in keep if k in done}}
 
 
 def _failure(e: Exception) -> dict:

@@ -7,7 +7,8 @@ up images). Nothing here runs unless a backend run finished. Every result carrie
 keeps it even when nothing shows it (a movie clip no editor has opened, the conditions once the video is behind the
 camera).
 
-The model's video and the baseline's (OpenCV inpainting, no model) are written to the same files
+The files are named by ``core.output_layout``; their folders and the video come from the backend's ``done`` event
+(``runs.finish``). The model's video and the baseline's (OpenCV inpainting, no model) are written to the same files
 (``generated/``, ``generated.mp4``), so they are loaded under names that say which one is there (``NAMES``): loading
 one kind renames the other kind's image sequence (the camera background keeps it) and replaces its movie clip, so
 the scene never shows one generator's frames under the other's name. Each datablock also carries
@@ -20,6 +21,8 @@ import os
 
 import bpy
 
+from ..core.output_layout import CONDITION_PREVIEW, GENERATED_FRAME
+
 CONDITIONS = "SCPainter Conditions"
 GENERATED = "SCPainter Generated"
 VIDEO = "SCPainter Video"
@@ -29,15 +32,13 @@ BASELINE_VIDEO = "SCPainter Video (Baseline)"
 NAMES = {"scpainter": (GENERATED, VIDEO), "baseline": (BASELINE, BASELINE_VIDEO)}
 
 
-def _sequence(name: str, folder: str, prefix: str, replaces=()) -> bpy.types.Image | None:
-    """The PNG sequence ``folder/prefix*.png`` as image ``name``, reloaded. The datablock of that name is reused
-    (else the first of ``replaces`` there is, renamed; the others' users are moved to it), so the camera background
-    and image editors that show it keep showing it."""
-    files = sorted(f for f in os.listdir(folder) if f.startswith(prefix) and f.endswith(".png")) \
-        if os.path.isdir(folder) else []
+def _sequence(name: str, files: list, replaces=()) -> bpy.types.Image | None:
+    """The PNG sequence ``files`` (paths sorted by frame, ``FrameFiles.in_folder``) as image ``name``, reloaded. The
+    datablock of that name is reused (else the first of ``replaces`` there is, renamed; the others' users are moved
+    to it), so the camera background and image editors that show it keep showing it."""
     if not files:
         return None
-    first = os.path.join(folder, files[0])
+    first = files[0]
     img = bpy.data.images.get(name)
     for other in replaces:  # one datablock per set of files: the other generator's becomes this one
         old = bpy.data.images.get(other)
@@ -58,18 +59,19 @@ def _sequence(name: str, folder: str, prefix: str, replaces=()) -> bpy.types.Ima
     return img
 
 
-def load_conditions(output_dir: str) -> bpy.types.Image | None:
-    return _sequence(CONDITIONS, os.path.join(output_dir, "conditions"), "preview_")
+def load_conditions(folder: str) -> bpy.types.Image | None:
+    """The condition previews in ``folder`` (``<output_dir>/conditions``)."""
+    return _sequence(CONDITIONS, CONDITION_PREVIEW.in_folder(folder))
 
 
-def load_generated(output_dir: str, model: str = "scpainter", description: str = "") \
+def load_generated(frames_dir: str, mp4: str, model: str = "scpainter", description: str = "") \
         -> tuple[bpy.types.Image | None, bpy.types.MovieClip | None]:
-    """``generated/frame_*.png`` and ``generated.mp4`` under the names of ``model`` ("scpainter" or "baseline",
-    ``NAMES``), the other generator's datablocks renamed or removed (they show the same files)."""
+    """The frames in ``frames_dir`` and the video ``mp4`` (the ``done`` event's ``frames_dir`` and ``video``) under
+    the names of ``model`` ("scpainter" or "baseline", ``NAMES``), the other generator's datablocks renamed or
+    removed (they show the same files)."""
     name, video = NAMES[model]
     others = [n for m, n in NAMES.items() if m != model]
-    img = _sequence(name, os.path.join(output_dir, "generated"), "frame_", replaces=[n for n, _ in others])
-    mp4 = os.path.join(output_dir, "generated.mp4")
+    img = _sequence(name, GENERATED_FRAME.in_folder(frames_dir), replaces=[n for n, _ in others])
     # a clip is loaded afresh (it does not reload its file); the old ones' users (clip editors, strips) move to it
     clip = bpy.data.movieclips.load(mp4, check_existing=False) if os.path.isfile(mp4) else None
     for stale in [video, *(v for _, v in others)]:

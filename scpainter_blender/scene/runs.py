@@ -11,6 +11,7 @@ from ..backend_client import BackendError, BackendJob, Invocation
 from ..core import backend_protocol as protocol
 from ..core import job as job_mod
 from ..core import outputs
+from ..core.output_layout import OutputLayout
 from . import job_export, preferences, props, results
 
 #: The run in progress (one at a time): command, model (the generator, None for render), stage, done, total, out.
@@ -61,7 +62,7 @@ def export(context, checkpoint: str | None = None) -> tuple[str, str]:
     else, run by hand, does not get."""
     out = props.output_dir(context.scene)
     outputs.make_folder(out, "scene.scpainter_output_dir")
-    job_path = os.path.join(out, "job.json")
+    job_path = OutputLayout(out).job
     job_export.export_job(context, job_path, checkpoint=checkpoint_dir(context) if checkpoint is None else checkpoint)
     return job_path, out
 
@@ -87,12 +88,15 @@ def start(context, run: Invocation | str, checkpoint: str | None = None) -> tupl
 def finish(context, command: str, out: str, done: dict) -> str:
     """Load what the run made and show it behind the camera; returns a one-line report, which for the baseline
     says that it is the baseline (the ``done`` event's ``model``) and how to get the model's video."""
+    layout = OutputLayout(done.get("output_dir") or out)  # for the paths the done event does not carry
     if command == "render":
-        img = results.load_conditions(out)
+        folder = layout.conditions
+        img = results.load_conditions(folder)
         results.show_behind_camera(context.scene, img)
-        return f"Condition layers of {done.get('frames', '?')} frames in {os.path.join(out, 'conditions')}"
+        return f"Condition layers of {done.get('frames', '?')} frames in {folder}"
     model = done.get("model", "scpainter")  # a backend from before the baseline: always the model
-    img, _clip = results.load_generated(out, model, done.get("description", ""))
+    img, _clip = results.load_generated(done.get("frames_dir") or layout.generated, done.get("video") or layout.video,
+                                        model, done.get("description", ""))
     results.show_behind_camera(context.scene, img)
     if model == "baseline":
         method = job_mod.INPAINT_NAMES.get(done.get("inpaint"), "")
@@ -114,7 +118,7 @@ def failure_message(e: BackendError, out: str) -> str:
     output folder's log, or the end of its stderr when it died before writing one)."""
     if e.log_path:  # already in str(e): the traceback of an internal error
         return str(e)
-    log = os.path.join(out, "backend.log")
+    log = OutputLayout(out).log
     if os.path.isfile(log):
         return f"{e} (log: {log})"
     tail = " | ".join(line for line in (e.log or "").strip().splitlines()[-3:])

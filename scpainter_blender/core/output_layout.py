@@ -1,0 +1,150 @@
+"""A job's output folder, named once: every file and folder the backend writes there and Blender reads (issue 26).
+
+::
+
+    <output_dir>/
+        job.json                        the job Blender exports (``runs.export``) and the backend reads
+        .scpainter.lock                 one run at a time (``core.locking``; train's folder has one too)
+        backend.log                     the commands' human log; a bug's traceback (the error event's ``log``)
+        conditions/frame_NNNNNN.exr     condition layers of output frame NNNNNN (``backend/render/channels.py``)
+        conditions/preview_NNNNNN.png   the same image for people (what Blender shows behind the camera)
+        conditions/record.json          the render's job key, the files it wrote, their precision
+        generated/frame_NNNNNN.png      the video's frames
+        generated/manifest.json         written last: the generation finished (key, model, description, frames)
+        generated.mp4                   the video
+        generate_state.safetensors      the sampler's latents after each step (resume); removed when finished
+        baseline.mp4, contact_sheet.png only in ``evaluate``'s task folders: the baseline's video, the task's pictures
+
+Frames are numbered by scene frame (``frame_000012.exr`` is frame 12) in ``FRAME_DIGITS`` digits (``FrameFiles``:
+the one place that formats a frame's file name). Paths come from ``OutputLayout(output_dir)``; bare names (what
+``outputs.remove_listed`` / ``remove_temporaries`` take) from the class constants and ``FrameFiles.name``.
+Where a backend event carries a path (``done``'s ``video``, ``frames_dir``, ``output_dir``; ``artifact``'s
+``path``; ``error``'s ``log``) the reader takes the event's. stdlib only (no bpy): the add-on and the backend share
+it.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+#: Digits of the frame number in a per-frame file name (``frame_000012.png``).
+FRAME_DIGITS = 6
+
+
+@dataclass(frozen=True)
+class FrameFiles:
+    """One kind of per-frame file: ``<prefix><frame, FRAME_DIGITS digits><ext>``."""
+
+    prefix: str
+    ext: str
+
+    def name(self, frame: int) -> str:
+        """The bare file name of scene frame ``frame`` (an int >= 0)."""
+        return f"{self.prefix}{int(frame):0{FRAME_DIGITS}d}{self.ext}"
+
+    def in_folder(self, folder) -> list[str]:
+        """The paths of the files of this kind in ``folder``, sorted by name (= by frame); [] when the folder is
+        missing."""
+        if not os.path.isdir(folder):
+            return []
+        return [os.path.join(folder, f) for f in sorted(os.listdir(folder))
+                if f.startswith(self.prefix) and f.endswith(self.ext)]
+
+
+CONDITION_EXR = FrameFiles("frame_", ".exr")       # in conditions/
+CONDITION_PREVIEW = FrameFiles("preview_", ".png")  # in conditions/
+GENERATED_FRAME = FrameFiles("frame_", ".png")      # in generated/
+
+
+class OutputLayout:
+    """The paths of one output folder (``root``, as given: nothing is resolved, created or checked here)."""
+
+    JOB = "job.json"
+    LOCK = ".scpainter.lock"
+    LOG = "backend.log"
+    CONDITIONS = "conditions"
+    GENERATED = "generated"
+    #: The folders a run creates inside the output folder (``outputs.check_output`` refuses one leading elsewhere).
+    FOLDERS = (CONDITIONS, GENERATED)
+    RECORD = "record.json"            # in conditions/
+    FORMER_RECORD = "job_key.txt"     # in conditions/: the record's former name (one line: the key), removed
+    MANIFEST = "manifest.json"        # in generated/
+    VIDEO = "generated.mp4"
+    STATE = "generate_state.safetensors"
+    EVAL_BASELINE = "baseline.mp4"        # evaluate's task folders only
+    EVAL_SHEET = "contact_sheet.png"      # evaluate's task folders only
+
+    def __init__(self, output_dir):
+        self.root = os.fspath(output_dir)
+
+    def __repr__(self) -> str:
+        return f"OutputLayout({self.root!r})"
+
+    def _at(self, *parts: str) -> str:
+        return os.path.join(self.root, *parts)
+
+    # the output folder's own files
+    @property
+    def job(self) -> str:
+        return self._at(self.JOB)
+
+    @property
+    def lock(self) -> str:
+        return self._at(self.LOCK)
+
+    @property
+    def log(self) -> str:
+        return self._at(self.LOG)
+
+    @property
+    def video(self) -> str:
+        return self._at(self.VIDEO)
+
+    @property
+    def state(self) -> str:
+        return self._at(self.STATE)
+
+    @property
+    def eval_baseline(self) -> str:
+        return self._at(self.EVAL_BASELINE)
+
+    @property
+    def eval_sheet(self) -> str:
+        return self._at(self.EVAL_SHEET)
+
+    # conditions/
+    @property
+    def conditions(self) -> str:
+        return self._at(self.CONDITIONS)
+
+    @property
+    def record(self) -> str:
+        return self._at(self.CONDITIONS, self.RECORD)
+
+    @property
+    def former_record(self) -> str:
+        return self._at(self.CONDITIONS, self.FORMER_RECORD)
+
+    def condition_exr(self, frame: int) -> str:
+        return self._at(self.CONDITIONS, CONDITION_EXR.name(frame))
+
+    def condition_preview(self, frame: int) -> str:
+        return self._at(self.CONDITIONS, CONDITION_PREVIEW.name(frame))
+
+    @staticmethod
+    def condition_names(frames) -> list[str]:
+        """The bare names a render writes in ``conditions/`` for ``frames`` (ints): EXR then preview, per frame."""
+        return [n for f in frames for n in (CONDITION_EXR.name(f), CONDITION_PREVIEW.name(f))]
+
+    # generated/
+    @property
+    def generated(self) -> str:
+        return self._at(self.GENERATED)
+
+    @property
+    def manifest(self) -> str:
+        return self._at(self.GENERATED, self.MANIFEST)
+
+    def generated_frame(self, frame: int) -> str:
+        return self._at(self.GENERATED, GENERATED_FRAME.name(frame))

@@ -47,6 +47,7 @@ from ..core import backend_protocol as protocol
 from ..core import batch_items as batch_mod
 from ..core import errors, files, import_options
 from ..core import job as job_mod
+from ..core.output_layout import OutputLayout
 from . import importer, props, runs
 
 
@@ -227,7 +228,7 @@ def _batch(args) -> tuple[dict, int]:
             else:
                 print(f"scpainter batch: exporting {path}", file=sys.stderr, flush=True)
                 _open_blend(path, args)
-                job_path, exported = os.path.join(props.output_dir(bpy.context.scene), "job.json"), True
+                job_path, exported = OutputLayout(props.output_dir(bpy.context.scene)).job, True
                 if job_path in seen:  # checked before exporting: the other item's job stays as it is
                     raise errors.InputError(path, "scene.scpainter_output_dir",
                                             f"{os.path.dirname(job_path)} is also the output folder of "

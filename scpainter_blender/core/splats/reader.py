@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import os
 
-from . import ply_format, compressed as splats_compressed, inria as splats_inria
+from . import compressed, inria, ply_format
 from .gaussians import ACCEPTED, GaussianPly, Gaussians, SplatsError, decode, open_file
 
 #: Mesh files: not splats, but what the car-asset import converts to Gaussians (backend ``mesh-asset``, trimesh);
@@ -35,7 +35,7 @@ def read(path) -> GaussianPly:
         return read_ply(path)
     ext = os.path.splitext(path)[1].lower()
     if ext == ".splat":
-        return splats_compressed.read_splat(path)
+        return compressed.read_splat(path)
     raise SplatsError(path, _not_accepted(head, ext))
 
 
@@ -69,7 +69,7 @@ def _not_accepted(head: bytes, ext: str) -> str:
 
 #: Vertex properties only Gaussian PLYs have: a PLY with none of them is a mesh or a point cloud.
 _GAUSSIAN_HINTS = ("f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1",
-                   "rot_2", "rot_3") + splats_compressed.PACKED_PROPS
+                   "rot_2", "rot_3") + compressed.PACKED_PROPS
 
 
 def _mesh_message(elements):
@@ -117,11 +117,11 @@ def read_ply(path) -> GaussianPly:
                 raise SplatsError(path, "no 'vertex' element", "vertex")
             vnames = [p for p, _ in vertex[1]]
             if ply_format.element(elements, "chunk") is not None or "packed_position" in vnames:
-                splats_compressed.check_header(elements, path)
+                compressed.check_header(elements, path)
                 wanted = ("chunk", "vertex") + (("sh",) if ply_format.element(elements, "sh") is not None else ())
                 arrays = ply_format.read_elements(f, path, size, order, elements, start, wanted)
-                return splats_compressed.from_elements(arrays, path)
+                return compressed.from_elements(arrays, path)
             data = ply_format.read_elements(f, path, size, order, elements, start, ("vertex",))["vertex"]
     except OSError as e:
         raise SplatsError(path, f"cannot be read: {e}") from None
-    return splats_inria.from_vertex(data, vnames, path)
+    return inria.from_vertex(data, vnames, path)

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import inria as splats_inria
+from . import inria
 from .gaussians import FORMAT_NAMES, GaussianPly, valid_rows
 
 #: File axes from TRELLIS's Z-up object axes: p_file = ZUP_TO_TRELLIS_FILE @ p (a -90° turn about X undoes it).
@@ -36,7 +36,7 @@ TRELLIS_MEAN_BOUND = 0.5 + 0.75 / 64 + 1e-5
 
 def _layout(ply: GaussianPly) -> tuple:
     """The vertex properties of ``ply``'s file, or for an in-memory one those ``write_ply`` would write."""
-    return tuple(ply.properties) if ply.properties else tuple(splats_inria.write_names(ply))
+    return tuple(ply.properties) if ply.properties else tuple(inria.write_names(ply))
 
 
 def detect_axes(ply: GaussianPly, keep=None) -> tuple[str, str]:

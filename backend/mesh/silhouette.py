@@ -1,5 +1,5 @@
 """How well a mesh asset's Gaussians cover the mesh: the rendered asset mask M_a = 1 - transmittance against the
-mesh's own silhouette, seen from cameras around it (``bench/mesh_assets.py`` chooses ``mesh_asset.SIGMA_FACTOR``
+mesh's own silhouette, seen from cameras around it (``bench/mesh_assets.py`` chooses ``mesh.asset.SIGMA_FACTOR``
 with it; the tests check the default).
 
 Cameras are OpenCV world_to_camera matrices (x right, y down, z forward) with pixel centres at (u + 0.5, v + 0.5),

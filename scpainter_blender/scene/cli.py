@@ -322,6 +322,8 @@ def execute(argv) -> int:
                 summary, code = _batch(args)
             else:
                 summary = _run_blend(args)
+    except SystemExit as e:  # --help: argparse printed it and exits, which would end Blender; return instead
+        return e.code if isinstance(e.code, int) else protocol.EXIT_OK
     except errors.InputError as e:  # bad input, caught by name (never as a ValueError): exit 2
         print(json.dumps(protocol.error_event(str(e), e.hint, file=e.path, field=e.field)), flush=True)
         return protocol.EXIT_BAD_INPUT

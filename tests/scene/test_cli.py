@@ -287,6 +287,14 @@ def test_batch_on_ray_exports_the_scenes_and_runs_every_job_as_one_ray_batch(add
     bpy.ops.wm.read_homefile(use_empty=True)
 
 
+def test_help_returns_instead_of_exiting(addon, capsys):
+    """--help prints the usage and returns 0: argparse's sys.exit would end Blender."""
+    cli = _cli(addon)
+    for argv in (["--help"], ["render", "--help"], ["batch", "--help"]):
+        assert cli.execute(argv) == 0, argv
+        assert capsys.readouterr().out.startswith("usage: "), argv
+
+
 def test_execute_works_with_the_bpy_module_without_the_add_on_enabled(tmp_path):
     # README: "with the bpy module the same entry point is execute(argv)": it must not need register() first
     import subprocess

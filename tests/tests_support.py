@@ -1,5 +1,8 @@
 """Helpers shared by the tests (data they make themselves; nothing is downloaded)."""
 
+import os
+import subprocess
+
 import numpy as np
 
 from scpainter_blender.core.geometry import cameras as C
@@ -154,3 +157,30 @@ def refusal_beside_fifo(load, fifo, error, what: str, timeout: float = 20.0):
             pass
         pytest.fail(f"{what} blocked on a FIFO")
     return result["error"]
+
+
+#: The top-level parts of the checkout that ship or run for a user: the extension and the backend.
+SHIPPED = ("scpainter_blender", "operators", "panels", "backend", "__init__.py")
+
+
+def tracked_sources(exclude=(), shipped_only=False) -> dict:
+    """{path: text} of the git-tracked .py files outside tests/ (paths relative to the checkout, with "/"), for the
+    tests that check a fact is spelled only in its one home: ``shipped_only`` keeps only ``SHIPPED``; ``exclude``
+    leaves out paths and folder prefixes ("bench/", the fact's home). Skips the calling test outside a git
+    checkout."""
+    import pytest
+
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    try:
+        listed = subprocess.run(["git", "ls-files", "*.py"], cwd=root, capture_output=True, text=True, check=True)
+    except (OSError, subprocess.CalledProcessError):
+        pytest.skip("not a git checkout")
+    out = {}
+    for path in listed.stdout.split():
+        if path.startswith("tests/") or (shipped_only and path.split("/")[0] not in SHIPPED) or \
+                any(path == e or (e.endswith("/") and path.startswith(e)) for e in exclude):
+            continue
+        with open(os.path.join(root, path), encoding="utf-8") as f:
+            out[path] = f.read()
+    assert "backend/__main__.py" in out or "backend/__main__.py" in exclude, "the checkout was not listed"
+    return out

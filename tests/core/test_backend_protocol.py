@@ -4,7 +4,6 @@ backend_client.Invocation.argv() is a command line the backend's own parser read
 import ast
 import os
 import re
-import subprocess
 
 import pytest
 
@@ -15,18 +14,14 @@ ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)
 HOME = os.path.join("scpainter_blender", "core", "backend_protocol.py")
 
 
-def _shipped_py():
-    """The tracked .py files outside tests/ (the tests spell the codes they assert)."""
-    out = subprocess.run(["git", "ls-files", "*.py"], cwd=ROOT, capture_output=True, text=True, check=True).stdout
-    return [p for p in out.split() if not p.startswith("tests/") and p != HOME]
-
-
 def test_device_names_and_exit_codes_are_spelled_only_in_their_home():
     device_list = re.compile(r"""[\[(]\s*(["'](auto|cpu|cuda)["']\s*,\s*){2}["'](auto|cpu|cuda)["']""")
     exit_def = re.compile(r"^\s*EXIT_\w+(\s*,\s*EXIT_\w+)*\s*=", re.M)
     found = []
-    for path in _shipped_py():
-        text = open(os.path.join(ROOT, path), encoding="utf-8").read()
+    from tests_support import tracked_sources
+
+    # every tracked .py outside tests/ (the tests spell the codes they assert) and the home
+    for path, text in tracked_sources(exclude=(HOME.replace(os.sep, "/"),)).items():
         found += [f"{path}: device list" for _ in device_list.finditer(text)]
         found += [f"{path}: exit code defined" for _ in exit_def.finditer(text)]
         for node in ast.walk(ast.parse(text, path)):

@@ -4,8 +4,6 @@ options and the Blender property keywords made from it; the facts it shares writ
 import argparse
 import ast
 import dataclasses
-import os
-import subprocess
 
 import pytest
 
@@ -15,7 +13,6 @@ from scpainter_blender.core import job as J
 from scpainter_blender.core.geometry import point_cloud
 from scpainter_blender.core.vggt import predictions as vggt
 
-ROOT = os.path.join(os.path.dirname(__file__), "..", "..")
 #: The caller's fields of ImportOptions, not options a user sets.
 CALLERS = {"frame_start", "set_scene_camera"}
 
@@ -102,13 +99,6 @@ def test_blender_property_keywords_are_made_from_the_options():
                 assert kw[bound] == getattr(o, bound), (name, bound)
 
 
-def _shipped_python():
-    """The tracked .py files of what ships or runs (the extension, the backend), not tests or benchmarks."""
-    out = subprocess.run(["git", "ls-files", "*.py"], cwd=ROOT, capture_output=True, text=True, check=True).stdout
-    return [p for p in out.split() if p.split("/")[0] in ("scpainter_blender", "operators", "panels", "backend")
-            or p == "__init__.py"]
-
-
 def test_shared_facts_are_written_once():
     """The default confidence percentile lives in core.geometry.point_cloud and the extrinsic conventions in
     core.vggt.predictions: no other shipped module spells them (a 50 on a line about a percentile; a tuple or list
@@ -116,8 +106,9 @@ def test_shared_facts_are_written_once():
     homes = {"percentile": "scpainter_blender/core/geometry/point_cloud.py",
              "conventions": "scpainter_blender/core/vggt/predictions.py"}
     found = []
-    for path in _shipped_python():
-        text = open(os.path.join(ROOT, path), encoding="utf-8").read()
+    from tests_support import tracked_sources
+
+    for path, text in tracked_sources(shipped_only=True).items():
         lines = text.splitlines()
         for node in ast.walk(ast.parse(text)):
             if isinstance(node, ast.Constant) and type(node.value) in (int, float) and node.value == 50 \

@@ -4,7 +4,6 @@ shipped code for a name spelled anywhere else."""
 import ast
 import os
 import re
-import subprocess
 
 import pytest
 
@@ -123,16 +122,13 @@ def test_the_scan_sees_each_spelling():
 
 
 def test_output_names_are_spelled_only_in_the_layout():
-    try:
-        listed = subprocess.run(["git", "ls-files", "*.py"], cwd=ROOT, capture_output=True, text=True, check=True)
-    except (OSError, subprocess.CalledProcessError):
-        pytest.skip("not a git checkout")
-    paths = [p for p in listed.stdout.splitlines() if not p.startswith("tests/") and p != HOME]
-    assert HOME in listed.stdout and "backend/render/command.py" in paths
+    from tests_support import tracked_sources
+
+    sources = tracked_sources(exclude=(HOME,))
+    assert "backend/render/command.py" in sources and os.path.isfile(os.path.join(ROOT, HOME))
     found = {}
-    for rel in paths:
-        with open(os.path.join(ROOT, rel), encoding="utf-8") as f:
-            hits = spelled(f.read(), rel)
+    for rel, text in sources.items():
+        hits = spelled(text, rel)
         if hits:
             found[rel] = hits
     assert found == {}, "use scpainter_blender.core.output_layout instead of spelling these names"

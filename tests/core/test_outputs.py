@@ -98,17 +98,10 @@ def test_atomic_folder_appears_whole_or_not_at_all(tmp_path):
 
 def test_folders_are_built_whole_only_by_atomic_folder():
     """No hand-rolled copy of atomic_folder (a temporary folder renamed into place) in shipped code."""
-    import subprocess
+    from tests_support import tracked_sources
 
-    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-    listed = subprocess.run(["git", "ls-files", "*.py"], cwd=root, capture_output=True, text=True,
-                            check=True).stdout.split()
     copies = []
-    for f in listed:
-        if f.startswith(("tests/", "bench/")) or f == "scpainter_blender/core/outputs.py":
-            continue
-        with open(os.path.join(root, f), encoding="utf-8") as fh:
-            text = fh.read()
+    for f, text in tracked_sources(exclude=("bench/", "scpainter_blender/core/outputs.py")).items():
         if "mkdtemp(" in text and "rename(" in text:
             copies.append(f)
     assert copies == []

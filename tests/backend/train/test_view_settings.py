@@ -2,16 +2,13 @@
 command line takes its defaults from the dataclasses, and the values are written nowhere else."""
 
 import dataclasses
-import os
 import re
-import subprocess
 
 from backend.__main__ import build_parser
 from backend.evaluate import protocol
 from backend.train import pairs
 from backend.train.view_settings import ViewSettings
 
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
 VIEW = {f.name for f in dataclasses.fields(ViewSettings)}
 
 
@@ -61,15 +58,13 @@ SPELLED = [re.compile(r"\b576\s*(?:,|x|×|\*)\s*320\b"),
 
 
 def test_the_view_defaults_are_written_only_in_their_home():
-    files = subprocess.run(["git", "ls-files", "*.py"], cwd=ROOT, capture_output=True, text=True,
-                           check=True).stdout.split()
-    shipped = [f for f in files if f.split("/")[0] in ("backend", "scpainter_blender", "operators", "panels")
-               and f != "backend/train/view_settings.py"]
+    from tests_support import tracked_sources
+
+    shipped = tracked_sources(exclude=("backend/train/view_settings.py",), shipped_only=True)
     assert len(shipped) > 50
     hits = []
-    for f in shipped:
-        with open(os.path.join(ROOT, f), encoding="utf-8") as fh:
-            for i, line in enumerate(fh, 1):
-                if any(p.search(line) for p in SPELLED):
-                    hits.append(f"{f}:{i}: {line.strip()}")
+    for f, text in shipped.items():
+        for i, line in enumerate(text.splitlines(), 1):
+            if any(p.search(line) for p in SPELLED):
+                hits.append(f"{f}:{i}: {line.strip()}")
     assert hits == []

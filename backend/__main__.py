@@ -330,7 +330,6 @@ CONSOLE_COMMAND = "scpainter-backend"
 
 def build_parser() -> argparse.ArgumentParser:
     # numpy only: no torch or CUDA at start-up
-    from scpainter_blender.core import backend_protocol as protocol
     from scpainter_blender.core.backend_protocol import DEFAULT_DEVICE, DEVICE_NAMES
     from scpainter_blender.core.job import BASELINE_DEFAULTS, GENERATE_DEFAULTS, GENERATE_MODELS, INPAINT_METHODS
 
@@ -339,8 +338,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog=CONSOLE_COMMAND if command == CONSOLE_COMMAND else "python -m backend", description=(
         "SCPainter's backend: render a job's condition layers, generate its video (the SCPainter model, or the "
         "inpainting baseline without a checkpoint), run many jobs, train and evaluate. Standard output carries one "
-        f"JSON event per line; exit codes: {protocol.EXIT_OK} done, {protocol.EXIT_FAILED} failed, "
-        f"{protocol.EXIT_BAD_INPUT} bad input, {protocol.EXIT_INTERRUPTED} interrupted."))
+        f"JSON event per line; exit codes: {events.EXIT_OK} done, {events.EXIT_FAILED} failed, "
+        f"{events.EXIT_BAD_INPUT} bad input, {events.EXIT_INTERRUPTED} interrupted."))
     sub = p.add_subparsers(dest="command", required=True)
     d = sub.add_parser("doctor", help="report the Python, packages and devices the backend would use")
     d.add_argument("--checkpoint", help="also check this SCPainter checkpoint folder")

@@ -169,8 +169,8 @@ class SCPAINTER_OT_check_backend(bpy.types.Operator):
     @reports.reported
     def execute(self, context):
         prefs = preferences.get(context)
-        doctor = Invocation("doctor", checkpoint=bpy.path.abspath(prefs.checkpoint_dir) if prefs and prefs.checkpoint_dir
-                            else None, python=prefs.backend_python if prefs else "")
+        checkpoint = bpy.path.abspath(prefs.checkpoint_dir) if prefs and prefs.checkpoint_dir else None
+        doctor = Invocation("doctor", checkpoint=checkpoint, python=prefs.backend_python if prefs else "")
         DOCTOR.clear()
         try:
             report = doctor.start().wait(timeout=120)["report"]

@@ -93,7 +93,8 @@ def run_batch(items: list[str], command: str, device: str, checkpoint: str | Non
         (rank, world), local = shard_of, 0
     else:
         rank, world, local = ranks_from_env()  # (InputError "(environment)" naming a bad variable)
-    for name in ("MASTER_ADDR", "MASTER_PORT") if world > 1 and shard_of is None else ():  # gather() needs them: check before any job
+    gathered = world > 1 and shard_of is None
+    for name in ("MASTER_ADDR", "MASTER_PORT") if gathered else ():  # gather() needs them: checked before any job
         if not os.environ.get(name, "").strip():
             from scpainter_blender.core.errors import InputError
 

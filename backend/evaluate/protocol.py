@@ -11,8 +11,8 @@ Per clip, the first ``frames`` frames at ``width`` x ``height``, as jobs (job.js
 
 Each task has a *generated* video (with ``--checkpoint``), the *naive* baseline, its condition image I (points
 and asset composited, holes black: the paper's "naive insertion"), and the *baseline*: I with its holes filled by
-OpenCV inpainting (``backend/generate/baseline.py``, what ``generate`` makes without a checkpoint; also written as the task's
-``baseline.mp4``).
+OpenCV inpainting (``backend/generate/baseline.py``, what ``generate`` makes without a checkpoint; also written as the
+task's ``baseline.mp4``).
 
 Every task's job is written first (``write_jobs``), then each is run and scored in turn. With ``--ray``
 (``RayPool``) the jobs all run on a Ray cluster first (``run_jobs_on_pool``: ``batch_ray``'s scheduling, retries and

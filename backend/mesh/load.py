@@ -16,7 +16,8 @@ Frames and units
 * TRELLIS (microsoft/TRELLIS): ``trellis/utils/postprocessing_utils.py:to_glb`` writes the GLB with
   ``vertices @ [[1,0,0],[0,0,-1],[0,1,0]]``, i.e. (x, z, -y) of TRELLIS's Z-up frame: plain glTF Y-up, so the
   conversion above returns TRELLIS's own Z-up frame. ``trellis/representations/gaussian/gaussian_model.py:save_ply``
-  writes its Gaussians as ``xyz @ T.T`` with the same matrix T, i.e. (x, -z, y) (``core.splats.trellis.ZUP_TO_TRELLIS_FILE``),
+  writes its Gaussians as ``xyz @ T.T`` with the same matrix T, i.e. (x, -z, y)
+  (``core.splats.trellis.ZUP_TO_TRELLIS_FILE``),
   which the Gaussian import undoes with ``F = ZUP_TO_TRELLIS_FILE.T``. The two files of one TRELLIS asset
   therefore land in the same pose (``tests/backend/test_mesh_asset.py`` builds both and checks it).
 

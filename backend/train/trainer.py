@@ -12,8 +12,8 @@ and the noise levels ``generate`` samples with (the σ that training draws is th
 
 Determinism and exact resume: sample i of the run is drawn from (seed, i) (pairs.PairDataset) and its noise from
 a CPU generator seeded by (seed, i) (objective.generators); the learning rate is a function of the step. So the
-run does not depend on how the global batch is split over processes either. A checkpoint holds the weights, the optimiser state and the EMA, so resuming at step k and training to
-n gives the weights of an uninterrupted run to n.
+run does not depend on how the global batch is split over processes either. A checkpoint holds the weights, the
+optimiser state and the EMA, so resuming at step k and training to n gives the weights of an uninterrupted run to n.
 
 Checkpoint folder ``checkpoints/step_NNNNNNN`` (written under a temporary name, renamed when complete): an
 SCPainter checkpoint (scpainter.json with trained_steps, the base's frozen components hard-linked, unet/ and

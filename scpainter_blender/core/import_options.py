@@ -144,8 +144,8 @@ class ImportOptions:
         """Refuse options no import can use, before any file is read: InputError with path ``ERROR_PATH`` and the
         option's name as field (the UI's property limits keep the panel inside these; scripts and the command
         line are not)."""
-        def bad(name, message):
-            return errors.InputError(ERROR_PATH, name, message)
+        def bad(name, message, hint=None):
+            return errors.InputError(ERROR_PATH, name, message, hint)
 
         number = lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)  # noqa: E731
         lo, hi = OPTIONS["confidence_percentile"].min, OPTIONS["confidence_percentile"].max
@@ -165,9 +165,9 @@ class ImportOptions:
         lo, hi = job_mod.DEPTH_EDGE_RATIO_BOUNDS  # the job's bounds: whatever the import takes, the export writes
         r = self.depth_edge_ratio
         if r is not None and not (number(r) and (r == 0 or lo <= r <= hi)):
-            raise errors.InputError(ERROR_PATH, "depth_edge_ratio", f"expected a fraction of the pixel's depth in "
-                                    f"[{lo:g}, {hi:g}], or 0 for off, got {r!r}",
-                                    hint=f"0 turns the depth-edge test off; the default is {DEPTH_EDGE_RATIO}")
+            raise bad("depth_edge_ratio", f"expected a fraction of the pixel's depth in [{lo:g}, {hi:g}], or 0 for "
+                                          f"off, got {r!r}",
+                      hint=f"0 turns the depth-edge test off; the default is {DEPTH_EDGE_RATIO}")
         return self
 
 

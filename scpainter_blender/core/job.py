@@ -328,8 +328,8 @@ class Asset:
 GENERATE_DEFAULTS = {"steps": 25, "overlap": 4, "seed": 0, "decode_chunk": 8}
 CHECKPOINT_SETTINGS = ("window", "min_guidance", "max_guidance", "fps")
 #: ``generate.model``: ``scpainter`` needs a checkpoint; ``baseline`` fills the condition holes by OpenCV inpainting
-#: (backend/generate/baseline.py) and needs none; ``auto`` (the default) is ``scpainter`` when a checkpoint is configured (the
-#: command line's or the job's), else ``baseline``.
+#: (backend/generate/baseline.py) and needs none; ``auto`` (the default) is ``scpainter`` when a checkpoint is
+#: configured (the command line's or the job's), else ``baseline``.
 GENERATE_MODELS = ("auto", "scpainter", "baseline")
 #: The baseline's settings: ``inpaint`` (OpenCV's method), ``inpaint_radius`` (px) and its ``fps``. The fps is the
 #: stock SVD's (a checkpoint's own default), so a job plays at one speed with either generator.

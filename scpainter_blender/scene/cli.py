@@ -182,11 +182,11 @@ def _run_blend(args) -> dict:
     return _outputs(done, out)
 
 
-def _outputs(done: dict, out) -> dict:
-    # model / description: which generator made the video ("baseline": OpenCV inpainting, no model); the paths are
-    # the done event's (render and generate name their output_dir), never worked out here
+def _outputs(done: dict, out: str) -> dict:
+    # model / description: which generator made the video ("baseline": OpenCV inpainting, no model); output_dir is
+    # the folder the scene names (the one its job was exported to), the other paths the done event's
     keep = ("frames", "rendered", "skipped", "video", "frames_dir", "model", "description", "seconds")
-    return {"output_dir": out or done.get("output_dir") or "", **{k: done[k] for k in keep if k in done}}
+    return {"output_dir": out, **{k: done[k] for k in keep if k in done}}
 
 
 def _failure(e: Exception) -> dict:

@@ -56,10 +56,10 @@ def generate_ui(context) -> tuple[str, tuple[str, ...]]:
 def export(context, checkpoint: str | None = None) -> tuple[str, str]:
     """Export the scene's job into its output folder: (job.json path, output folder). The job names
     ``checkpoint`` (None: the preferences' checkpoint folder) when one is set; without one ``generate`` makes the
-    OpenCV inpainting baseline (the backend's ``generate.model`` auto). InputError (SceneError) before anything is written when the scene
-    cannot make a job. Its output folder is the one the user set and its inputs the files they imported: whoever
-    runs it says so with ``--allow-outside`` (or lists it in ``batch --trusted-list``), which a job from someone
-    else, run by hand, does not get."""
+    OpenCV inpainting baseline (the backend's ``generate.model`` auto). InputError (SceneError) before anything is
+    written when the scene cannot make a job. Its output folder is the one the user set and its inputs the files
+    they imported: whoever runs it says so with ``--allow-outside`` (or lists it in ``batch --trusted-list``), which
+    a job from someone else, run by hand, does not get."""
     out = props.output_dir(context.scene)
     outputs.make_folder(out, "scene.scpainter_output_dir")
     job_path = OutputLayout(out).job

@@ -1,7 +1,7 @@
 """The rendered drive as files: ``predictions.npz`` in VGGT's layout and ``metric.npz`` with the exact answers.
 
-VGGT's layout (``core.vggt.predictions``): the first camera's OpenCV frame is the world, lengths are normalised so the mean
-distance of all valid points from the first camera is 1 (``metres_per_unit``), depth comes with a VGGT-like
+VGGT's layout (``core.vggt.predictions``): the first camera's OpenCV frame is the world, lengths are normalised so the
+mean distance of all valid points from the first camera is 1 (``metres_per_unit``), depth comes with a VGGT-like
 confidence, and ``world_points`` are the depth unprojected. ``metric.npz`` keeps the metric Blender world (see
 ``dataset.py`` for its keys). Sky pixels (no hit, depth inf) get a far depth and the lowest confidence.
 

@@ -1,7 +1,7 @@
 """Render the ground-truth drive with Cycles on the CPU and write the street folder (bpy).
 
-Cameras are OpenCV (``core.geometry.cameras``); a pixel's depth and instance id come from a second, one-sample render whose
-material override emits (camera z, object index) sampled at pixel centres (a 0.01 px box filter), so depth is
+Cameras are OpenCV (``core.geometry.cameras``); a pixel's depth and instance id come from a second, one-sample render
+whose material override emits (camera z, object index) sampled at pixel centres (a 0.01 px box filter), so depth is
 exact at (u + 0.5, v + 0.5) rather than an anti-aliased blend of foreground and background. Renders carry no
 stamp (time, date), so reruns are byte-identical.
 

@@ -105,8 +105,8 @@ def fit_similarity_to_cameras(src_world_to_camera, dst_world_to_camera) -> Simil
 
     Centres alone cannot fix the roll about a straight drive, so the rotation maximises the agreement of the
     camera orientations (Σ R_dst_i R_src_i^T, a chordal rotation average) plus the normalised centre covariance;
-    the scale and translation then follow from the centres with that rotation. The camera frames must be the same rigid frames
-    (for example OpenCV in both). The residual is over centres (dst units) and orientations (degrees).
+    the scale and translation then follow from the centres with that rotation. The camera frames must be the same rigid
+    frames (for example OpenCV in both). The residual is over centres (dst units) and orientations (degrees).
     """
     A = cameras.as_matrix4(src_world_to_camera, "src world_to_camera")
     B = cameras.as_matrix4(dst_world_to_camera, "dst world_to_camera")

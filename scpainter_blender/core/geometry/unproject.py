@@ -1,8 +1,8 @@
 """Pixels to points: depth unprojected with our K and a camera's pose, and VGGT's confidence filter.
 
 Pixel centres are at (col + 0.5, row + 0.5) in the coordinates our K maps to (``core.geometry.cameras``); VGGT's K
-(``core.vggt.predictions``) unprojects integer coordinates, and ``vggt.vggt_K_to_ours`` makes the two agree exactly. Depth is
-camera z; world points come back float64 in the world ``world_to_camera`` maps from.
+(``core.vggt.predictions``) unprojects integer coordinates, and ``vggt.vggt_K_to_ours`` makes the two agree exactly.
+Depth is camera z; world points come back float64 in the world ``world_to_camera`` maps from.
 
 No bpy, no torch: numpy only.
 """

@@ -3,8 +3,8 @@ floats; TRELLIS/Amodal3R files are this layout too), and ``write_ply``, which wr
 
 The layout (graphdeco-inria/gaussian-splatting ``scene/gaussian_model.py``, ``save_ply``): one ``vertex`` element
 with the properties ``x y z [nx ny nz] f_dc_0..2 [f_rest_0..M-1] opacity scale_0..2 rot_0..3``, binary little- or
-big-endian, holding the raw values ``core.splats.gaussians.GaussianPly`` describes (logit opacity, log scales, quaternion
-(w, x, y, z), f_rest channel-major with M = 0, 9, 24 or 45).
+big-endian, holding the raw values ``core.splats.gaussians.GaussianPly`` describes (logit opacity, log scales,
+quaternion (w, x, y, z), f_rest channel-major with M = 0, 9, 24 or 45).
 
 Property types: ``float`` and ``double`` are read as float32 ("inria"). A file whose every Gaussian property
 (x y z f_dc_* opacity scale_* rot_* f_rest_*) is ``ushort``/``uint16`` is a half-float export: the 16 bits are

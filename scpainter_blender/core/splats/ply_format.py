@@ -6,8 +6,8 @@ The header ends at the first line whose only word is ``end_header`` (PLY's rule;
 of CRLF files are allowed, as plyfile allows them); ``comment`` and ``obj_info`` lines are free text, never
 parsed, so words in them can never shift the data. Headers are read from the first ``MAX_HEADER`` bytes, at most
 ``MAX_HEADER_LINES`` lines. An element's rows are read only once the file is known to hold them (counts are
-claims: nothing is allocated from them). Problems raise ``core.splats.gaussians.SplatsError`` naming the file and the header
-line, element or property at fault.
+claims: nothing is allocated from them). Problems raise ``core.splats.gaussians.SplatsError`` naming the file and the
+header line, element or property at fault.
 
 No bpy, no torch: numpy only.
 """

@@ -2,11 +2,11 @@
 elements) or, for headerless ``.splat``, by extension; ``load(path) = decode(read(path))``; mesh files are told
 apart from Gaussian ones (``is_mesh_ply``, ``MESH_EXTENSIONS``) and refused with a message that says where they go.
 
-The readers (every one returns a ``core.splats.gaussians.GaussianPly`` of raw INRIA values): ``core.splats.inria`` (INRIA,
-TRELLIS/Amodal3R and half-float PLY), ``core.splats.compressed`` (SuperSplat compressed PLY, antimatter15
-``.splat``), on top of ``core.splats.ply_format`` (the PLY header and elements). Only regular files are opened (a FIFO or
-a directory is refused at once, not waited on). Unusable files raise ``core.splats.gaussians.SplatsError`` naming the file
-and what is wrong.
+The readers (every one returns a ``core.splats.gaussians.GaussianPly`` of raw INRIA values): ``core.splats.inria``
+(INRIA, TRELLIS/Amodal3R and half-float PLY), ``core.splats.compressed`` (SuperSplat compressed PLY, antimatter15
+``.splat``), on top of ``core.splats.ply_format`` (the PLY header and elements). Only regular files are opened (a
+FIFO or a directory is refused at once, not waited on). Unusable files raise ``core.splats.gaussians.SplatsError``
+naming the file and what is wrong.
 
 No bpy, no torch: numpy only.
 """

@@ -2,9 +2,9 @@
 
 The INRIA rasterizer's ordering and signs (``SH_C0`` … ``SH_C3``, ``basis``): colour = max(0.5 + Σ_k Y_k(d) c_k, 0)
 for the unit view direction d = normalise(mean − camera centre), in the Gaussians' frame. Plain Python floats and
-arithmetic only (no numpy): ``basis`` runs unchanged on numpy arrays (``core.splats.gaussians.sh_basis``, the Blender side and
-the tests' reference) and on torch tensors (``backend.render.gaussians.sh_colors``, the condition renderer), so the
-two evaluate one formula.
+arithmetic only (no numpy): ``basis`` runs unchanged on numpy arrays (``core.splats.gaussians.sh_basis``, the Blender
+side and the tests' reference) and on torch tensors (``backend.render.gaussians.sh_colors``, the condition renderer), so
+the two evaluate one formula.
 """
 
 from __future__ import annotations

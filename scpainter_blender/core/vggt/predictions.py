@@ -19,7 +19,8 @@ Where the rest lives (each module numpy only, no bpy, no torch):
 * ``core.vggt.crop`` VGGT's white "pad" borders and explicit crops;
 * ``core.vggt.convention`` whether ``extrinsic`` holds world-to-camera (VGGT's) or camera-to-world poses, checked
   against the point head;
-* ``core.geometry.unproject`` pixels to points and VGGT's confidence filter; ``core.geometry.point_cloud`` a clip's coloured points;
+* ``core.geometry.unproject`` pixels to points and VGGT's confidence filter; ``core.geometry.point_cloud`` a clip's
+  coloured points;
 * ``core.geometry.metric_scale`` ``vggt_to_world``: VGGT's world to Blender's in metres.
 """
 

@@ -6,11 +6,10 @@ import os
 import pytest
 
 from scpainter_blender.scene import kinds
-from tools import blender_env
 
-ROOT = blender_env.ROOT
 HOME = os.path.join("scpainter_blender", "scene", "kinds.py")
-#: Everything but the tests: the extension, the backend and the tools and benchmarks that drive the add-on.
+#: Everything but the tests: the extension, the backend and the tools and benchmarks that drive the add-on
+#: (what ``tests_support.tracked_sources`` lists).
 SHIPPED = ("__init__.py", "operators", "panels", "scpainter_blender", "backend", "tools", "bench")
 #: Where the objects are (the Blender layer): there a kind's value is never compared with or assigned. Elsewhere
 #: "points" is an ordinary word (a dict key, a task name); reading a kind there needs the property name, checked
@@ -56,16 +55,6 @@ def test_mark_and_find():
         kinds.mark(_Obj(), "point")
 
 
-def _shipped_files():
-    for d in SHIPPED:
-        base = os.path.join(ROOT, d)
-        if os.path.isfile(base):
-            yield d
-            continue
-        for dirpath, _, files in os.walk(base):
-            yield from (os.path.relpath(os.path.join(dirpath, f), ROOT) for f in files if f.endswith(".py"))
-
-
 def _spelled_kinds(source, name, values=True):
     """Sorted (line, what) for each place ``source`` spells the vocabulary itself: the property name anywhere, or
     (``values``) a kind's value compared with (``== "points"``, ``in ("points", ...)``) or assigned as an item
@@ -97,13 +86,15 @@ def test_the_check_sees_each_spelling():
 
 def test_kinds_are_spelled_only_in_their_module():
     """Code names kinds through scene/kinds.py (its constants and finders), never by their strings."""
-    files = sorted(_shipped_files())
-    assert HOME in files and os.path.join("operators", "placement.py") in files
+    from tests_support import tracked_sources
+
+    sources = tracked_sources()  # every tracked .py outside tests/ (SHIPPED)
+    assert HOME.replace(os.sep, "/") in sources and "operators/placement.py" in sources
+    assert {rel.split("/")[0] for rel in sources} <= set(SHIPPED)
     spelled = {}
-    for rel in files:
-        if rel != HOME:
-            found = _spelled_kinds(open(os.path.join(ROOT, rel), encoding="utf-8").read(), rel,
-                                   values=rel.startswith(BLENDER_SIDE))
+    for rel, text in sources.items():
+        if rel != HOME.replace(os.sep, "/"):
+            found = _spelled_kinds(text, rel, values=rel.startswith(BLENDER_SIDE))
             if found:
                 spelled[rel] = found
     assert spelled == {}

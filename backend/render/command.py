@@ -27,15 +27,15 @@ def frame_paths(job_path: str, job: job_mod.Job, frame: int) -> tuple[str, str]:
 
 
 def job_key(job_path: str, job: job_mod.Job, point_radius: int, half: bool = False) -> str:
-    """A hash of everything the condition layers depend on: the job without its generation settings and output
-    folder, the point radius, the EXR precision (``half``), and the size and time of each input file. Finished
+    """A hash of everything the condition layers depend on: the job without its generation settings, output
+    folder and label-only fields (``Job.layers_dict``), the point radius, the EXR precision (``half``), and the size and time of each input file. Finished
     frames are reused only under the same key, so moving a car or a camera, or asking for another precision, and
     rendering again cannot keep stale frames. (``half`` enters the hash only when set, so the keys of folders
     rendered before the option existed, all float32, are unchanged.)"""
     import hashlib
     import json
 
-    content = {k: v for k, v in job.to_dict().items() if k not in ("generate", "output_dir")}
+    content = job.layers_dict()
     files = [job.scene.predictions] if job.scene is not None else []
     files += [a.ply for a in job.assets]
     stamps = []

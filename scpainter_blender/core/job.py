@@ -244,6 +244,8 @@ class Scene:
     crop: list = field(default_factory=lambda: [0, 0, 0, 0])
     removal_boxes: list = field(default_factory=list)
     point_cleaning: PointCleaning = field(default_factory=PointCleaning)
+    recorded_frames: list | None = None     # [first, last] output frames the recording covers (None: not known)
+    recorded_objects: list = field(default_factory=list)  # RecordedObject: the drive's own tracked objects
 
     @classmethod
     def from_dict(cls, d, path, where="scene", renamed: dict | None = None) -> "Scene":
@@ -274,7 +276,21 @@ class Scene:
         boxes = _list(d.get("removal_boxes", []), path, f"{where}.removal_boxes")
         boxes = [RemovalBox.from_dict(b, path, f"{where}.removal_boxes[{i}]") for i, b in enumerate(boxes)]
         cleaning = PointCleaning.from_dict(d.get("point_cleaning", {}), path, f"{where}.point_cleaning")
-        return cls(predictions, W, pct, conv, crop, boxes, cleaning)
+        recorded = d.get("recorded_frames")
+        if recorded is not None:
+            if not isinstance(recorded, list) or len(recorded) != 2:
+                raise JobError(path, f"{where}.recorded_frames", f"expected [first, last] output frame numbers, got "
+                               f"{_short(recorded)}")
+            recorded = [_int(v, path, f"{where}.recorded_frames[{i}]", *FRAME_RANGE) for i, v in enumerate(recorded)]
+            if recorded[1] < recorded[0]:
+                raise JobError(path, f"{where}.recorded_frames", f"last frame {recorded[1]} before first {recorded[0]}")
+        objects = _list(d.get("recorded_objects", []), path, f"{where}.recorded_objects")
+        objects = [RecordedObject.from_dict(o, path, f"{where}.recorded_objects[{i}]") for i, o in enumerate(objects)]
+        ids = [o.id for o in objects]
+        for i, o in enumerate(objects):
+            if o.id in ids[:i]:
+                raise JobError(path, f"{where}.recorded_objects[{i}].id", f"{o.id!r} appears twice")
+        return cls(predictions, W, pct, conv, crop, boxes, cleaning, recorded, objects)
 
     def to_dict(self) -> dict:
         # point_cleaning always written out, as resolved: the render's job key (backend.render.command.job_key)
@@ -285,21 +301,69 @@ class Scene:
              "point_cleaning": None if self.point_cleaning is None else self.point_cleaning.to_dict()}
         if self.removal_boxes:
             d["removal_boxes"] = [b.to_dict() for b in self.removal_boxes]
+        if self.recorded_frames is not None:
+            d["recorded_frames"] = [int(v) for v in self.recorded_frames]
+        if self.recorded_objects:
+            d["recorded_objects"] = [o.to_dict() for o in self.recorded_objects]
         return d
+
+
+#: The class an asset or a recorded object is labelled with when the job names none.
+DEFAULT_CLASS = "car"
+#: A class name: at most this many characters (it becomes a KITTI type, a COCO category, an OpenLABEL type).
+MAX_CLASS = 64
+
+
+def _class(d, path, where) -> str:
+    c = d.get("class", DEFAULT_CLASS)
+    if not isinstance(c, str) or not c or len(c) > MAX_CLASS or any(ch.isspace() for ch in c):
+        raise JobError(path, where, f"expected a class name without spaces (at most {MAX_CLASS} characters), "
+                       f"got {_short(c)}", hint=f"for example {DEFAULT_CLASS!r}")
+    return c
+
+
+def _box_size(size, path, where, what="[width, length, height]") -> np.ndarray:
+    if not isinstance(size, list) or len(size) != 3:
+        raise JobError(path, where, f"expected {what}, got {_short(size)}")
+    return np.array([_number(v, path, f"{where}[{j}]", lo=0.0, hi=1e7) for j, v in enumerate(size)])
+
+
+@dataclass(eq=False)
+class AssetBox:
+    """An asset's 3D box in its own file coordinates: ``box_to_file`` (4, 4) rigid from the box frame (centre at
+    the origin; x across the width, y along the length with +y the front, z up: the convention of removal boxes
+    and of the clip format's cars) to the file's coordinates, ``size`` (3,) full extents along x, y, z (width,
+    length, height) in file units. ``object_to_world`` then places it per frame (``core.geometry.boxes``)."""
+    box_to_file: np.ndarray
+    size: np.ndarray
+
+    @classmethod
+    def from_dict(cls, d, path, where) -> "AssetBox":
+        _object(d, path, where)
+        _known(d, path, where, ("box_to_file", "size"))
+        return cls(_rigid(d.get("box_to_file"), path, f"{where}.box_to_file"),
+                   _box_size(d.get("size"), path, f"{where}.size"))
+
+    def to_dict(self) -> dict:
+        return {"box_to_file": _matrix_list(self.box_to_file), "size": [float(v) for v in self.size]}
 
 
 @dataclass(eq=False)
 class Asset:
     """A Gaussian asset: ``ply`` (path, relative to the job file; any format ``core.splats.reader.read`` accepts) and,
-    for every output frame, ``object_to_world`` (4, 4) affine from the file's coordinates to world metres."""
+    for every output frame, ``object_to_world`` (4, 4) affine from the file's coordinates to world metres; its label
+    ``category`` (the file's ``class``, default ``DEFAULT_CLASS``) and its ``box`` (``AssetBox``; None: estimated
+    from the Gaussians when labels are made, and marked so)."""
     name: str
     ply: str
     object_to_world: dict  # {frame number (int): (4, 4) ndarray}
+    category: str = DEFAULT_CLASS
+    box: AssetBox | None = None
 
     @classmethod
     def from_dict(cls, d, path, where, frames) -> "Asset":
         _object(d, path, where)
-        _known(d, path, where, ("name", "ply", "object_to_world"))
+        _known(d, path, where, ("name", "ply", "object_to_world", "class", "box"))
         name = _str(d.get("name"), path, f"{where}.name")
         ply = _str(d.get("ply"), path, f"{where}.ply")
         o2w = d.get("object_to_world")
@@ -316,11 +380,54 @@ class Asset:
             except ValueError:
                 raise JobError(path, f"{where}.object_to_world[{k!r}]", "expected a frame number as the key") \
                     from None
-        return cls(name, ply, out)
+        box = d.get("box")
+        box = None if box is None else AssetBox.from_dict(box, path, f"{where}.box")
+        return cls(name, ply, out, _class(d, path, f"{where}.class"), box)
 
     def to_dict(self) -> dict:
-        return {"name": self.name, "ply": self.ply,
-                "object_to_world": {str(f): _matrix_list(m) for f, m in self.object_to_world.items()}}
+        d = {"name": self.name, "ply": self.ply,
+             "object_to_world": {str(f): _matrix_list(m) for f, m in self.object_to_world.items()}}
+        if self.category != DEFAULT_CLASS:
+            d["class"] = self.category
+        if self.box is not None:
+            d["box"] = self.box.to_dict()
+        return d
+
+
+@dataclass(eq=False)
+class RecordedObject:
+    """An object of the recording (a tracked car of the drive): ``id`` (its track name), ``category`` (the file's
+    ``class``), ``size`` (3,) [width, length, height] metres and ``boxes`` {output frame: (4, 4) rigid
+    box_to_world} for the frames it is in (the box convention of ``AssetBox``). Labelled as a recorded
+    (``synthetic: false``) object; one inside a removal box is listed as removed."""
+    id: str
+    size: np.ndarray
+    boxes: dict
+    category: str = DEFAULT_CLASS
+
+    @classmethod
+    def from_dict(cls, d, path, where) -> "RecordedObject":
+        _object(d, path, where)
+        _known(d, path, where, ("id", "class", "size", "boxes"))
+        boxes = d.get("boxes")
+        if not isinstance(boxes, dict) or not boxes:
+            raise JobError(path, f"{where}.boxes", "expected a non-empty object {output frame: box_to_world 4x4}")
+        out = {}
+        for k, m in boxes.items():
+            try:
+                f = int(k)
+            except ValueError:
+                raise JobError(path, f"{where}.boxes[{k!r}]", "expected a frame number as the key") from None
+            out[f] = _rigid(m, path, f"{where}.boxes[{k!r}]")
+        return cls(_str(d.get("id"), path, f"{where}.id"), _box_size(d.get("size"), path, f"{where}.size"), out,
+                   _class(d, path, f"{where}.class"))
+
+    def to_dict(self) -> dict:
+        d = {"id": self.id, "size": [float(v) for v in self.size],
+             "boxes": {str(f): _matrix_list(m) for f, m in sorted(self.boxes.items())}}
+        if self.category != DEFAULT_CLASS:
+            d["class"] = self.category
+        return d
 
 
 #: The generation settings' defaults, the only place they are written. ``window``, ``min_guidance``,
@@ -424,6 +531,7 @@ class Job:
     scene: Scene | None = None
     assets: list = field(default_factory=list)
     generate: GenerateSettings | None = None
+    fps: float | None = None   # output frames per second (the scene's); None: not known (LABEL_FPS for timestamps)
 
     @property
     def width(self) -> int:
@@ -442,7 +550,7 @@ class Job:
         schema = job.get("schema")
         if schema != SCHEMA and schema not in OLD_SCHEMAS:
             raise JobError(path, "schema", f"expected {SCHEMA!r}, got {_short(schema)}")
-        _known(job, path, "", ("schema", "resolution", "frames", "scene", "assets", "output_dir", "generate"))
+        _known(job, path, "", ("schema", "resolution", "frames", "scene", "assets", "output_dir", "generate", "fps"))
         res = job.get("resolution")
         if not isinstance(res, list) or len(res) != 2:
             raise JobError(path, "resolution", f"expected [width, height], got {_short(res)}")
@@ -475,7 +583,9 @@ class Job:
         output_dir = _str(job.get("output_dir"), path, "output_dir")
         gen = job.get("generate")
         gen = None if gen is None else GenerateSettings.from_dict(gen, path)
-        return cls((int(res[0]), int(res[1])), out_frames, output_dir, scene, assets, gen)
+        fps = job.get("fps")
+        fps = None if fps is None else _number(fps, path, "fps", *GENERATE_NUMBER_BOUNDS["fps"])
+        return cls((int(res[0]), int(res[1])), out_frames, output_dir, scene, assets, gen, fps)
 
     def to_dict(self) -> dict:
         """The job file's content, in the current schema."""
@@ -487,6 +597,28 @@ class Job:
         d["output_dir"] = self.output_dir
         if self.generate is not None:
             d["generate"] = self.generate.to_dict()
+        if self.fps is not None:
+            d["fps"] = float(self.fps)
+        return d
+
+    def frame_rate(self) -> tuple:
+        """(fps, source) of the output frames' timeline: the job's ``fps`` ("job"), else the baseline video's
+        rate ("default", ``BASELINE_DEFAULTS``), which the MP4 then plays at too."""
+        return (float(self.fps), "job") if self.fps is not None else (float(BASELINE_DEFAULTS["fps"]), "default")
+
+    #: What labels depend on and the condition layers do not: left out of the render's layer key
+    #: (``backend.render.command.job_key``), so editing a box or a class rewrites labels, not layers.
+    LABEL_ONLY = ("fps", "assets[].class", "assets[].box", "scene.recorded_frames", "scene.recorded_objects")
+
+    def layers_dict(self) -> dict:
+        """``to_dict`` without the generation settings, the output folder and the ``LABEL_ONLY`` fields: what the
+        condition layers depend on."""
+        d = {k: v for k, v in self.to_dict().items() if k not in ("generate", "output_dir", "fps")}
+        for a in d.get("assets", []):
+            a.pop("class", None)
+            a.pop("box", None)
+        for k in ("recorded_frames", "recorded_objects"):
+            d.get("scene", {}).pop(k, None)
         return d
 
 

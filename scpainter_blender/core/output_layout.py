@@ -8,12 +8,15 @@
         backend.log                     the commands' human log; a bug's traceback (the error event's ``log``)
         conditions/frame_NNNNNN.exr     condition layers of output frame NNNNNN (``backend/render/channels.py``)
         conditions/preview_NNNNNN.png   the same image for people (what Blender shows behind the camera)
+        conditions/labels_NNNNNN.json   the frame's labels (``core/labels.py``, schema ``scpainter.labels/1``)
+        conditions/labelled_NNNNNN.png  the preview with the labels drawn (boxes, ids, visible fractions)
         conditions/record.json          the render's job key, the files it wrote, their precision
         generated/frame_NNNNNN.png      the video's frames
         generated/manifest.json         written last: the generation finished (key, model, description, frames)
         generated.mp4                   the video
         generate_state.safetensors      the sampler's latents after each step (resume); removed when finished
         baseline.mp4, contact_sheet.png only in ``evaluate``'s task folders: the baseline's video, the task's pictures
+        export/<format>/                ``export``'s default destination (KITTI, COCO, OpenLABEL: ``backend/export``)
 
 Frames are numbered by scene frame (``frame_000012.exr`` is frame 12) in ``FRAME_DIGITS`` digits (``FrameFiles``:
 the one place that formats a frame's file name). Paths come from ``OutputLayout(output_dir)``; bare names (what
@@ -54,6 +57,8 @@ class FrameFiles:
 
 CONDITION_EXR = FrameFiles("frame_", ".exr")       # in conditions/
 CONDITION_PREVIEW = FrameFiles("preview_", ".png")  # in conditions/
+FRAME_LABELS = FrameFiles("labels_", ".json")       # in conditions/
+LABELLED_PREVIEW = FrameFiles("labelled_", ".png")  # in conditions/
 GENERATED_FRAME = FrameFiles("frame_", ".png")      # in generated/
 
 
@@ -74,6 +79,7 @@ class OutputLayout:
     STATE = "generate_state.safetensors"
     EVAL_BASELINE = "baseline.mp4"        # evaluate's task folders only
     EVAL_SHEET = "contact_sheet.png"      # evaluate's task folders only
+    EXPORT = "export"                     # export/<format>/: the exporters' default destination
 
     def __init__(self, output_dir):
         self.root = os.fspath(output_dir)
@@ -132,10 +138,22 @@ class OutputLayout:
     def condition_preview(self, frame: int) -> str:
         return self._at(self.CONDITIONS, CONDITION_PREVIEW.name(frame))
 
+    def frame_labels(self, frame: int) -> str:
+        return self._at(self.CONDITIONS, FRAME_LABELS.name(frame))
+
+    def labelled_preview(self, frame: int) -> str:
+        return self._at(self.CONDITIONS, LABELLED_PREVIEW.name(frame))
+
     @staticmethod
     def condition_names(frames) -> list[str]:
-        """The bare names a render writes in ``conditions/`` for ``frames`` (ints): EXR then preview, per frame."""
-        return [n for f in frames for n in (CONDITION_EXR.name(f), CONDITION_PREVIEW.name(f))]
+        """The bare names a render writes in ``conditions/`` for ``frames`` (ints): EXR, preview, labels, labelled
+        preview, per frame."""
+        return [n for f in frames for kind in (CONDITION_EXR, CONDITION_PREVIEW, FRAME_LABELS, LABELLED_PREVIEW)
+                for n in [kind.name(f)]]
+
+    def export(self, fmt: str) -> str:
+        """``export/<fmt>``: where ``export --format fmt`` writes unless told ``--out``."""
+        return self._at(self.EXPORT, fmt)
 
     # generated/
     @property

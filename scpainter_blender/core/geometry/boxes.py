@@ -1,0 +1,271 @@
+"""3D boxes of objects: estimated from points, placed in the world, projected into a camera, described as label
+formats want them.
+
+Conventions (docs/design.md §15):
+
+- **Box frame** (the job's: removal boxes, asset boxes, the clip format's cars): a rigid ``box_to_x`` from the box
+  frame (centre at the origin; x across the width, y along the length with +y the front, z up) and ``size`` =
+  full extents (width, length, height) along x, y, z.
+- **Object frame** of labels (ISO 8855, nuScenes, Waymo, OpenLABEL): x forward (the box's +y), y left (the box's
+  −x), z up; ``OBJECT_TO_BOX`` maps it into the box frame, and label sizes are (length, width, height).
+- **Camera**: OpenCV (x right, y down, z forward), ``K`` with pixel centres at +0.5 (docs/design.md §3).
+- Quaternions are (w, x, y, z), unit, w ≥ 0. ``yaw`` is the heading of the object's forward axis about the
+  frame's z (world: from +x towards +y).
+
+numpy only (Blender's import estimates boxes too).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: Object frame (x forward, y left, z up) -> box frame (x width, y length/front, z up): a rotation about z.
+OBJECT_TO_BOX = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+
+#: Points beyond a gap of this fraction of the body's robust extent, along any box axis, are floaters.
+GAP_FRACTION = 0.05
+#: The robust extent that scales the gap: the range between these quantiles.
+BODY_QUANTILES = (0.02, 0.98)
+#: At most this many points drive the heading search (a fixed subsample: the estimate is deterministic).
+SEARCH_POINTS = 20_000
+
+_CORNER_SIGNS = np.array([[sx, sy, sz] for sx in (-0.5, 0.5) for sy in (-0.5, 0.5) for sz in (-0.5, 0.5)])
+_EDGES = np.array([(i, j) for i in range(8) for j in range(i + 1, 8)
+                   if np.count_nonzero(_CORNER_SIGNS[i] != _CORNER_SIGNS[j]) == 1])  # (12, 2)
+
+
+# -- estimating a box --------------------------------------------------------------------------------------------
+
+def body_range(x: np.ndarray) -> tuple:
+    """(low, high) of the body of 1-D coordinates ``x``: starting from the median, the range grows outwards
+    through the sorted values until a gap wider than ``GAP_FRACTION`` of the robust extent (``BODY_QUANTILES``).
+    A clean object gives its exact min and max; isolated floaters beyond a gap are left out, however far."""
+    x = np.sort(np.asarray(x, np.float64))
+    lo_q, hi_q = np.quantile(x, BODY_QUANTILES)
+    gap = max(GAP_FRACTION * (hi_q - lo_q), 1e-9 * (1.0 + abs(hi_q)))
+    mid = len(x) // 2
+    d = np.diff(x)
+    big = np.flatnonzero(d > gap)
+    below, above = big[big < mid], big[big >= mid]
+    lo = x[below[-1] + 1] if len(below) else x[0]
+    hi = x[above[0]] if len(above) else x[-1]
+    return float(lo), float(hi)
+
+
+def _basis(up) -> np.ndarray:
+    """(3, 3) rows e1, e2, u: an orthonormal basis with u = ``up`` normalised (e2 as close to +y as possible, so a
+    Z-up frame's e1, e2 are its x, y)."""
+    u = np.asarray(up, np.float64)
+    u = u / np.linalg.norm(u)
+    ref = np.array([0.0, 1.0, 0.0]) if abs(u[1]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    e2 = ref - (ref @ u) * u
+    e2 /= np.linalg.norm(e2)
+    return np.stack([np.cross(e2, u), e2, u])
+
+
+def _footprint_area(q: np.ndarray, theta: float) -> float:
+    c, s = np.cos(theta), np.sin(theta)
+    a, b = body_range(q @ [c, s]), body_range(q @ [-s, c])
+    return (a[1] - a[0]) * (b[1] - b[0])
+
+
+def estimate_box(points, up=(0.0, 0.0, 1.0)):
+    """The upright box of an object's points (N, 3) in their own frame: (box_to_frame (4, 4) rigid, size (3,)
+    width, length, height in the points' units).
+
+    Upright: the box's z is ``up`` (a direction in the points' frame). Its heading minimises the footprint's area
+    (a search over 0–90° in 1° steps, refined to 0.02°, on at most ``SEARCH_POINTS`` points); along each box axis
+    the extent is ``body_range``'s, so floaters beyond a gap are left out. The length (y) is the longer horizontal
+    extent, its front (+y) the one closer to the frame's +y (the axis TRELLIS/Amodal3R and the procedural cars
+    face); the user may flip it. Rows with NaN/inf are ignored. ValueError when fewer than 4 finite points."""
+    P = np.asarray(points, np.float64).reshape(-1, 3)
+    P = P[np.isfinite(P).all(1)]
+    if len(P) < 4:
+        raise ValueError(f"a box needs at least 4 finite points, got {len(P)}")
+    B = _basis(up)
+    origin = np.median(P, axis=0)
+    local = (P - origin) @ B.T            # e1, e2, up coordinates, relative to the median (large coordinates)
+    q = local[:, :2]
+    sample = q if len(q) <= SEARCH_POINTS else q[np.random.default_rng(0).choice(len(q), SEARCH_POINTS, False)]
+    angles = np.radians(np.arange(0.0, 90.0, 1.0))
+    best = angles[int(np.argmin([_footprint_area(sample, a) for a in angles]))]
+    fine = best + np.radians(np.arange(-1.0, 1.0001, 0.02))
+    theta = float(fine[int(np.argmin([_footprint_area(sample, a) for a in fine]))])
+    c, s = np.cos(theta), np.sin(theta)
+    axes2 = np.array([[c, s], [-s, c]])
+    ranges = [body_range(q @ a) for a in axes2] + [body_range(local[:, 2])]
+    extent = np.array([hi - lo for lo, hi in ranges])
+    centre_local = np.array([(lo + hi) / 2 for lo, hi in ranges])
+    if extent[0] > extent[1]:             # the length is the longer horizontal axis: y
+        axes2 = np.array([axes2[1], -axes2[0]])
+        extent[[0, 1]] = extent[[1, 0]]
+        centre_local[[0, 1]] = centre_local[[1, 0]] * [1.0, -1.0]
+    y_dir = axes2[1] @ B[:2]
+    if y_dir @ B[1] < 0 or (abs(y_dir @ B[1]) < 1e-12 and y_dir @ B[0] < 0):   # front towards the frame's +y
+        axes2 = -axes2
+        centre_local[:2] = -centre_local[:2]
+    x_dir, y_dir = axes2[0] @ B[:2], axes2[1] @ B[:2]
+    R = np.stack([x_dir, y_dir, B[2]], axis=1)          # columns: box x, y, z in the points' frame
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = origin + R @ centre_local
+    return T, extent
+
+
+# -- placing and describing a box --------------------------------------------------------------------------------
+
+def nearest_rotation(M) -> np.ndarray:
+    """The rotation nearest to a 3x3 matrix (polar decomposition through the SVD; det +1)."""
+    U, _, Vt = np.linalg.svd(np.asarray(M, np.float64))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
+    return U @ D @ Vt
+
+
+def place_box(box_to_file, size, object_to_world) -> tuple:
+    """An asset's box in the world: (box_to_world (4, 4) rigid, size (3,) metres) from its box in file coordinates
+    and the asset's ``object_to_world`` (any affine). The box's axes are mapped by the affine's linear part: sizes
+    scale by the lengths of the mapped axes, the rotation is the nearest one to the mapped axes (exact for
+    similarities; for a shear, the nearest box)."""
+    A = np.asarray(object_to_world, np.float64) @ np.asarray(box_to_file, np.float64)
+    lengths = np.linalg.norm(A[:3, :3], axis=0)
+    T = np.eye(4)
+    T[:3, :3] = nearest_rotation(A[:3, :3] / np.where(lengths > 0, lengths, 1.0))
+    T[:3, 3] = A[:3, 3]
+    return T, np.asarray(size, np.float64) * lengths
+
+
+def rigid_box(M) -> tuple:
+    """(box_to_x (4, 4) rigid, size (3,)) of an affine ``M`` that maps the unit cube [−0.5, 0.5]³ onto a box (a
+    Blender cube empty of display size 0.5 has that matrix_world)."""
+    return place_box(np.eye(4), np.ones(3), M)
+
+
+def corners(box_to_world, size) -> np.ndarray:
+    """(8, 3) corners of a box; corner i has sign bits (x: bit 2, y: bit 1, z: bit 0) of ``_CORNER_SIGNS``."""
+    T = np.asarray(box_to_world, np.float64)
+    return (_CORNER_SIGNS * np.asarray(size, np.float64)) @ T[:3, :3].T + T[:3, 3]
+
+
+def contains(box_to_world, size, point, margin: float = 0.0) -> bool:
+    """Whether ``point`` (3,) lies inside the box grown by ``margin`` on every side."""
+    T = np.asarray(box_to_world, np.float64)
+    local = (np.asarray(point, np.float64) - T[:3, 3]) @ T[:3, :3]
+    return bool(np.all(np.abs(local) <= np.asarray(size, np.float64) / 2 + margin))
+
+
+def quaternion(R) -> np.ndarray:
+    """(w, x, y, z) of a rotation matrix, unit, w ≥ 0 (Shepperd's method)."""
+    R = np.asarray(R, np.float64)
+    t = np.trace(R)
+    if t > 0:
+        s = 2.0 * np.sqrt(1.0 + t)
+        q = [0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s]
+    else:
+        i = int(np.argmax(np.diag(R)))
+        j, k = (i + 1) % 3, (i + 2) % 3
+        s = 2.0 * np.sqrt(1.0 + R[i, i] - R[j, j] - R[k, k])
+        q = np.empty(4)
+        q[0] = (R[k, j] - R[j, k]) / s
+        q[1 + i] = 0.25 * s
+        q[1 + j] = (R[j, i] + R[i, j]) / s
+        q[1 + k] = (R[k, i] + R[i, k]) / s
+    q = np.asarray(q, np.float64)
+    q /= np.linalg.norm(q)
+    return -q if q[0] < 0 else q
+
+
+def object_pose(box_to_x, size) -> dict:
+    """A box as labels describe it in frame x: ``center`` (3,), ``size`` (length, width, height), ``rotation`` the
+    object_to_x rotation (3, 3) of the object frame (x forward, y left, z up), its ``quaternion`` (w, x, y, z)
+    and ``yaw`` = atan2 of the forward axis' y and x components in frame x (radians, −π..π)."""
+    T = np.asarray(box_to_x, np.float64)
+    R = T[:3, :3] @ OBJECT_TO_BOX
+    w, l, h = np.asarray(size, np.float64)
+    return {"center": T[:3, 3].copy(), "size": np.array([l, w, h]), "rotation": R, "quaternion": quaternion(R),
+            "yaw": float(np.arctan2(R[1, 0], R[0, 0]))}
+
+
+def rotation_y(object_to_camera_rotation) -> float:
+    """KITTI's ``rotation_y`` of an object in OpenCV camera axes: the angle about the camera's y axis such that
+    the object's forward axis, projected on the camera's x–z plane, points along (cos ry, 0, −sin ry)."""
+    f = np.asarray(object_to_camera_rotation, np.float64)[:, 0]
+    return float(np.arctan2(-f[2], f[0]))
+
+
+# -- projecting a box --------------------------------------------------------------------------------------------
+
+def _clipped_vertices(corners_cam: np.ndarray, near: float) -> np.ndarray:
+    """The vertices of a box (8 corners in camera axes) cut by the plane z = near, keeping z >= near: the corners
+    in front and the points where the 12 edges cross the plane. (M, 3); empty when the box lies wholly behind."""
+    keep = [corners_cam[corners_cam[:, 2] >= near]]
+    a, b = corners_cam[_EDGES[:, 0]], corners_cam[_EDGES[:, 1]]
+    cross = (a[:, 2] < near) != (b[:, 2] < near)
+    if cross.any():
+        a, b = a[cross], b[cross]
+        t = (near - a[:, 2]) / (b[:, 2] - a[:, 2])
+        keep.append(a + t[:, None] * (b - a))
+    return np.concatenate(keep)
+
+
+def project_box(box_to_world, size, K, world_to_camera, width: int, height: int, near: float = 0.05) -> dict:
+    """A box seen by a camera: ``polygon`` (M, 2) pixel coordinates of the convex hull of the projected box (cut at
+    z = ``near`` first, so boxes reaching behind the camera project correctly; empty when wholly behind),
+    ``bbox`` [x0, y0, x1, y1] its bounding rectangle clipped to the image [0, width] x [0, height] (continuous
+    pixel coordinates; None when it misses the image), ``truncation`` = 1 − area(clipped) / area(unclipped)
+    (0: inside the image; 1: outside or behind), and ``depth_range`` (z min, z max) of the cut box."""
+    w2c = np.asarray(world_to_camera, np.float64)
+    cam = corners(box_to_world, size) @ w2c[:3, :3].T + w2c[:3, 3]
+    V = _clipped_vertices(cam, near)
+    out = {"polygon": np.zeros((0, 2)), "bbox": None, "truncation": 1.0, "depth_range": None}
+    if len(V) == 0:
+        return out
+    K = np.asarray(K, np.float64)
+    uv = (V @ K.T)[:, :2] / V[:, 2:3]
+    out["polygon"] = convex_hull(uv)
+    out["depth_range"] = (float(V[:, 2].min()), float(V[:, 2].max()))
+    x0, y0 = uv.min(0)
+    x1, y1 = uv.max(0)
+    cx0, cy0, cx1, cy1 = max(x0, 0.0), max(y0, 0.0), min(x1, float(width)), min(y1, float(height))
+    area = (x1 - x0) * (y1 - y0)
+    if cx1 <= cx0 or cy1 <= cy0 or not np.isfinite(area):
+        return out
+    out["bbox"] = [float(cx0), float(cy0), float(cx1), float(cy1)]
+    out["truncation"] = float(np.clip(1.0 - (cx1 - cx0) * (cy1 - cy0) / area, 0.0, 1.0)) if area > 0 else 0.0
+    return out
+
+
+def convex_hull(xy) -> np.ndarray:
+    """(M, 2) counter-clockwise (in pixel axes: clockwise on screen) hull of 2-D points (Andrew's monotone
+    chain)."""
+    P = np.unique(np.asarray(xy, np.float64), axis=0)
+    if len(P) < 3:
+        return P
+
+    def half(points):
+        h = []
+        for p in points:
+            while len(h) >= 2 and np.cross(h[-1] - h[-2], p - h[-2]) <= 0:
+                h.pop()
+            h.append(p)
+        return h[:-1]
+
+    return np.array(half(P) + half(P[::-1]))
+
+
+def polygon_mask(polygon, width: int, height: int) -> np.ndarray:
+    """(height, width) bool: the pixels whose centres (u + 0.5, v + 0.5) lie inside a convex polygon (M, 2)."""
+    mask = np.zeros((height, width), bool)
+    P = np.asarray(polygon, np.float64)
+    if len(P) < 3:
+        return mask
+    x0, y0 = np.clip(np.floor(P.min(0)).astype(np.int64), 0, [width, height])
+    x1, y1 = np.clip(np.ceil(P.max(0)).astype(np.int64) + 1, 0, [width, height])
+    if x1 <= x0 or y1 <= y0:
+        return mask
+    u, v = np.meshgrid(np.arange(x0, x1) + 0.5, np.arange(y0, y1) + 0.5)
+    inside = np.ones(u.shape, bool)
+    orient = np.sign(np.cross(P[1] - P[0], P[2] - P[0])) or 1.0
+    for a, b in zip(P, np.roll(P, -1, axis=0)):
+        inside &= orient * ((b[0] - a[0]) * (v - a[1]) - (b[1] - a[1]) * (u - a[0])) >= 0
+    mask[y0:y1, x0:x1] = inside
+    return mask

@@ -75,6 +75,12 @@ def error(message: str, hint: str | None = None, **fields) -> None:
     write(protocol.error_event(message, hint, **fields))
 
 
+def warning(message: str, code: str, **fields) -> None:
+    """A ``warning`` event (``core.backend_protocol.WARNING_FIELDS``), also written to the human log (stderr)."""
+    emit(protocol.WARNING, message=message, code=code, **fields)
+    log(f"warning: {message}")
+
+
 def log(message: str) -> None:
     print(message, file=sys.stderr, flush=True)
 

@@ -85,6 +85,7 @@ class BackendJob:
         self._stderr = collections.deque(maxlen=200)
         self.done = self.error = None
         self.progress = None          # the last progress event
+        self.warnings = []            # every warning event, in order (core.backend_protocol.WARNING)
         self.cancelled = False
         self._threads = [threading.Thread(target=self._read_stdout, daemon=True),
                          threading.Thread(target=self._read_stderr, daemon=True)]
@@ -129,6 +130,8 @@ class BackendJob:
                 self.error = ev
             elif kind == protocol.PROGRESS:
                 self.progress = ev
+            elif kind == protocol.WARNING:
+                self.warnings.append(ev)
             out.append(ev)
         return out
 

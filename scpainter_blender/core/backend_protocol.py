@@ -24,8 +24,12 @@ EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 KIND = "event"
 #: The kinds: ``progress`` (``stage``, ``done``, ``total`` and more), ``artifact`` (``path``: a file made),
 #: ``done`` (the command's result: the last line of a run that succeeded; a batch's summary even when jobs failed),
-#: ``error`` (``ERROR_FIELDS``: why the run ended).
-PROGRESS, ARTIFACT, DONE, ERROR = "progress", "artifact", "done", "error"
+#: ``error`` (``ERROR_FIELDS``: why the run ended), ``warning`` (``WARNING_FIELDS``: the run goes on, but what it
+#: makes is weak or suspect — a frame mostly holes, a camera inside a car; clients show it and keep reading).
+PROGRESS, ARTIFACT, DONE, ERROR, WARNING = "progress", "artifact", "done", "error", "warning"
+#: A warning event's fields: ``message``, ``code`` (a stable name: ``core.labels.FLAGS``), and where it applies
+#: (``frame``, ``object``) when it does.
+WARNING_FIELDS = ("message", "code", "frame", "object")
 #: An error event's fields: ``message``, ``hint`` (what to do, may be None), ``file`` and ``field`` (bad input: the
 #: file or "(command line)", and the key or option), ``log`` (a bug's traceback: ``<output_dir>/backend.log``); a
 #: failure the command explains may add its own (``stage``, ``step``).
@@ -35,7 +39,7 @@ PROGRESS_FIELDS = ("stage", "done", "total")
 
 
 def event(kind: str, /, **fields) -> dict:
-    """An event of ``kind`` (one of the four above) as the dict written on one line."""
+    """An event of ``kind`` (one of the kinds above) as the dict written on one line."""
     return {KIND: kind, **fields}
 
 

@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import cameras
+
 #: Object frame (x forward, y left, z up) -> box frame (x width, y length/front, z up): a rotation about z.
 OBJECT_TO_BOX = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
 
@@ -153,27 +155,6 @@ def contains(box_to_world, size, point, margin: float = 0.0) -> bool:
     return bool(np.all(np.abs(local) <= np.asarray(size, np.float64) / 2 + margin))
 
 
-def quaternion(R) -> np.ndarray:
-    """(w, x, y, z) of a rotation matrix, unit, w ≥ 0 (Shepperd's method)."""
-    R = np.asarray(R, np.float64)
-    t = np.trace(R)
-    if t > 0:
-        s = 2.0 * np.sqrt(1.0 + t)
-        q = [0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s]
-    else:
-        i = int(np.argmax(np.diag(R)))
-        j, k = (i + 1) % 3, (i + 2) % 3
-        s = 2.0 * np.sqrt(1.0 + R[i, i] - R[j, j] - R[k, k])
-        q = np.empty(4)
-        q[0] = (R[k, j] - R[j, k]) / s
-        q[1 + i] = 0.25 * s
-        q[1 + j] = (R[j, i] + R[i, j]) / s
-        q[1 + k] = (R[k, i] + R[i, k]) / s
-    q = np.asarray(q, np.float64)
-    q /= np.linalg.norm(q)
-    return -q if q[0] < 0 else q
-
-
 def object_pose(box_to_x, size) -> dict:
     """A box as labels describe it in frame x: ``center`` (3,), ``size`` (length, width, height), ``rotation`` the
     object_to_x rotation (3, 3) of the object frame (x forward, y left, z up), its ``quaternion`` (w, x, y, z)
@@ -181,7 +162,7 @@ def object_pose(box_to_x, size) -> dict:
     T = np.asarray(box_to_x, np.float64)
     R = T[:3, :3] @ OBJECT_TO_BOX
     w, l, h = np.asarray(size, np.float64)
-    return {"center": T[:3, 3].copy(), "size": np.array([l, w, h]), "rotation": R, "quaternion": quaternion(R),
+    return {"center": T[:3, 3].copy(), "size": np.array([l, w, h]), "rotation": R, "quaternion": cameras.rotation_to_quaternion(R).reshape(4),
             "yaw": float(np.arctan2(R[1, 0], R[0, 0]))}
 
 

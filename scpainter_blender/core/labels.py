@@ -1,0 +1,229 @@
+"""Per-frame labels of a rendered job: ``conditions/labels_NNNNNN.json``, schema ``scpainter.labels/1``.
+
+``render`` writes one file per output frame beside its condition EXR (``core/output_layout.FRAME_LABELS``); the
+exporters (``backend/export``: KITTI, COCO, OpenLABEL) read them with the EXR's ``instance`` pass. The file::
+
+    {"schema": "scpainter.labels/1",
+     "key": "…",                       what the labels were made from (the render's resume key for them)
+     "frame": 12, "index": 0,          scene frame number; position in the job's frames
+     "timestamp_s": 0.0,               (frame − the job's first frame) / fps
+     "fps": 10.0, "fps_source": "job", the job's ``fps``, or "default" (``Job.frame_rate``: the MP4 plays at it)
+     "image_size": [W, H],
+     "camera": {"K": 3x3, "world_to_camera": 4x4, "camera_to_world": 4x4, "vggt_to_world": 4x4 | null,
+                "convention": CAMERA_CONVENTION},
+     "coverage": 0.83,                 1 − the hole fraction (pixels with a point or an asset)
+     "in_recording": true,             within ``scene.recorded_frames`` (null: the job does not say)
+     "flags": ["low_coverage", …],     FLAGS: why a training pipeline may want to drop the frame
+     "objects": [OBJECT, …]}
+
+    OBJECT = {"track_id": 1,            stable across frames: an asset's is its instance id (1-based index in
+                                        ``job.assets``); a recorded object's is len(assets) + 1 + its index
+              "name": "car_01", "class": "car",
+              "synthetic": true,        an inserted asset (false: an object of the recording)
+              "asset": {"file": "assets/car.ply", "sha256": "…"} | null,
+              "box_source": "job" | "estimated" | "recording",
+              "removed": false,         a recorded object inside a removal box (replaced or removed): not drawn
+              "box_world":  {"center": [x, y, z], "size": [l, w, h], "yaw": rad, "quaternion": [w, x, y, z]},
+              "box_camera": {"center": [x, y, z], "size": [l, w, h], "yaw": rotation_y, "quaternion": [w, x, y, z]},
+              "velocity": [vx, vy, vz] | null,   world m/s from the neighbouring frames' boxes (null: one frame)
+              "bbox_amodal": [x0, y0, x1, y1] | null,  the projected 3D box, clipped to the image
+              "bbox_visible": [x0, y0, x1, y1] | null, the visible pixels' box (instance pass; depth for recorded)
+              "visible_pixels": n, "amodal_pixels": n, "visible_fraction": f | null,
+              "truncation": 0..1, "occlusion": 0 | 1 | 2 | 3,
+              "in_view": bool, "camera_inside": bool}
+
+Conventions: world is the job's (Blender's: Z up, metres). Boxes use ``core.geometry.boxes``' object frame (x
+forward, y left, z up) for ``quaternion`` (object_to_world, object_to_camera) and sizes (length, width, height);
+``box_world.yaw`` is the forward axis' heading from world +x towards +y; ``box_camera.yaw`` is KITTI's
+``rotation_y``. 2D boxes are in continuous pixel coordinates (pixel (u, v) covers [u, u+1) × [v, v+1)), x1/y1
+exclusive edges. ``visible_pixels``: pixels of the instance pass with the object's id (synthetic); pixels inside
+the projected box whose depth lies within the box's depth range ± ``DEPTH_MARGIN_M`` (recorded: an estimate).
+``amodal_pixels``: pixels the object alone would cover (synthetic: its own render; recorded: the projected box's
+pixels). ``truncation`` = 1 − clipped/unclipped area of the projected box. ``occlusion`` (KITTI's levels): 0 when
+at most ``OCCLUSION_LEVELS[0]`` of the in-image amodal pixels are hidden, 1 up to ``OCCLUSION_LEVELS[1]``, 2 above,
+3 unknown (no amodal pixel in the image).
+
+numpy only; ``render`` computes the pixel counts, this module the geometry and the file.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import job as job_mod
+from .geometry import boxes, cameras
+
+SCHEMA = "scpainter.labels/1"
+
+CAMERA_CONVENTION = ("OpenCV pinhole: world_to_camera maps world metres (Z up) to camera axes x right, y down, "
+                     "z forward; K in pixels with pixel centres at +0.5; camera_to_world is its inverse; "
+                     "vggt_to_world maps the recording's VGGT frame to world")
+
+#: Why a frame may be dropped: its coverage is below the threshold (``LOW_COVERAGE``), it lies outside the
+#: recording's frames, or the camera is inside an object's box.
+LOW_COVERAGE_FLAG, OUTSIDE_FLAG, CAMERA_INSIDE_FLAG = "low_coverage", "outside_recording", "camera_inside_object"
+FLAGS = (LOW_COVERAGE_FLAG, OUTSIDE_FLAG, CAMERA_INSIDE_FLAG)
+#: The default coverage below which a frame is flagged (a fraction of its pixels).
+LOW_COVERAGE = 0.5
+#: Hidden fraction of an object's in-image amodal pixels at or below which it is level 0, then level 1.
+OCCLUSION_LEVELS = (0.05, 0.5)
+#: A recorded object's pixel counts as visible when the depth there lies within its box's depth range ± this.
+DEPTH_MARGIN_M = 0.5
+#: Near plane of the box projection (metres; the renderer's).
+NEAR = 0.05
+
+
+def occlusion_level(visible: int, amodal: int) -> int:
+    """KITTI's occlusion level from the visible and amodal (in-image) pixel counts (``OCCLUSION_LEVELS``)."""
+    if amodal <= 0:
+        return 3
+    hidden = 1.0 - min(visible, amodal) / amodal
+    return 0 if hidden <= OCCLUSION_LEVELS[0] else 1 if hidden <= OCCLUSION_LEVELS[1] else 2
+
+
+def pixel_box(mask) -> list | None:
+    """[x0, y0, x1, y1] (x1, y1 exclusive pixel edges) of the True pixels of (H, W) ``mask``; None when empty."""
+    ys, xs = np.nonzero(mask)
+    if not len(xs):
+        return None
+    return [float(xs.min()), float(ys.min()), float(xs.max() + 1), float(ys.max() + 1)]
+
+
+def _box_dict(pose: dict, yaw: float) -> dict:
+    return {"center": [float(v) for v in pose["center"]], "size": [float(v) for v in pose["size"]],
+            "yaw": float(yaw), "quaternion": [float(v) for v in pose["quaternion"]]}
+
+
+def _in_camera(box_to_world, world_to_camera) -> np.ndarray:
+    return np.asarray(world_to_camera, np.float64) @ np.asarray(box_to_world, np.float64)
+
+
+def asset_box_to_world(asset: job_mod.Asset, box: tuple, frame: int) -> tuple:
+    """(box_to_world rigid, size in metres) of an asset at an output frame; ``box`` = (box_to_file, size)."""
+    return boxes.place_box(box[0], box[1], asset.object_to_world[frame])
+
+
+def asset_up(asset: job_mod.Asset) -> np.ndarray:
+    """The file-frame direction the asset's transform at its first frame maps to world up (for estimating an
+    upright box of a job that gives none): object_to_world⁻¹ applied to +z (linear part)."""
+    A = asset.object_to_world[min(asset.object_to_world)]
+    up = np.linalg.solve(np.asarray(A, np.float64)[:3, :3], [0.0, 0.0, 1.0])
+    return up / np.linalg.norm(up)
+
+
+def _velocity(centres: dict, frames: list, i: int, fps: float):
+    """World m/s of a box centre at frames[i] from its neighbours in the job's frame list (central difference
+    where both exist); None when it appears in no neighbour."""
+    f = frames[i]
+    before = frames[i - 1] if i > 0 and frames[i - 1] in centres else None
+    after = frames[i + 1] if i + 1 < len(frames) and frames[i + 1] in centres else None
+    a, b = (before if before is not None else f), (after if after is not None else f)
+    if a == b:
+        return None
+    return [float(v) for v in (centres[b] - centres[a]) * fps / (b - a)]
+
+
+def _object(track_id, name, category, synthetic, box_to_world, size, entry, width, height, *, frames, index, fps,
+            centres):
+    w2c = np.asarray(entry.world_to_camera, np.float64)
+    cam_box = _in_camera(box_to_world, w2c)
+    pose_w, pose_c = boxes.object_pose(box_to_world, size), boxes.object_pose(cam_box, size)
+    proj = boxes.project_box(box_to_world, size, entry.K, w2c, width, height, NEAR)
+    centre = cameras.camera_centers(w2c)
+    return {"track_id": int(track_id), "name": name, "class": category, "synthetic": synthetic,
+            "box_world": _box_dict(pose_w, pose_w["yaw"]),
+            "box_camera": _box_dict(pose_c, boxes.rotation_y(pose_c["rotation"])),
+            "velocity": _velocity(centres, frames, index, fps),
+            "bbox_amodal": proj["bbox"], "truncation": float(proj["truncation"]),
+            "in_view": proj["bbox"] is not None,
+            "camera_inside": boxes.contains(box_to_world, size, centre)}, proj
+
+
+def frame_labels(job: job_mod.Job, index: int, *, instance, hole, depth, amodal_pixels, asset_boxes, asset_hashes,
+                 key: str = "", low_coverage: float = LOW_COVERAGE) -> dict:
+    """The labels of output frame ``job.frames[index]`` (the module's schema).
+
+    ``instance``, ``hole``, ``depth``: the frame's layers (H, W) (``backend.render.channels``); ``amodal_pixels``
+    (A,) each asset's pixels when rendered alone (``backend.render.frames.amodal_pixels``); ``asset_boxes`` one
+    (box_to_file, size, source) per asset, source "job" or "estimated"; ``asset_hashes`` one SHA-256 (hex) per
+    asset file."""
+    entry = job.frames[index]
+    W, H = job.width, job.height
+    frames = [e.frame for e in job.frames]
+    fps, fps_source = job.frame_rate()
+    w2c = np.asarray(entry.world_to_camera, np.float64)
+    instance = np.asarray(instance)
+    hole = np.asarray(hole) > 0.5
+    coverage = float(1.0 - hole.mean())
+    sc = job.scene
+    in_recording = None
+    if sc is not None and sc.recorded_frames is not None:
+        in_recording = bool(sc.recorded_frames[0] <= entry.frame <= sc.recorded_frames[1])
+    objects = []
+    ids = np.rint(instance).astype(np.int64)
+    visible_counts = np.bincount(ids.ravel(), minlength=len(job.assets) + 1)
+    for a_i, (asset, (box_to_file, size, source)) in enumerate(zip(job.assets, asset_boxes)):
+        track = a_i + 1
+        centres = {f: asset_box_to_world(asset, (box_to_file, size), f)[0][:3, 3] for f in frames}
+        bw, sw = asset_box_to_world(asset, (box_to_file, size), entry.frame)
+        obj, _ = _object(track, asset.name, asset.category, True, bw, sw, entry, W, H, frames=frames, index=index,
+                         fps=fps, centres=centres)
+        visible, amodal = int(visible_counts[track]), int(amodal_pixels[a_i])
+        obj.update({"asset": {"file": asset.ply, "sha256": asset_hashes[a_i]}, "box_source": source,
+                    "removed": False, "bbox_visible": pixel_box(ids == track) if visible else None,
+                    "visible_pixels": visible, "amodal_pixels": amodal,
+                    "visible_fraction": min(1.0, visible / amodal) if amodal else None,
+                    "occlusion": occlusion_level(visible, amodal)})
+        objects.append(obj)
+    depth = np.asarray(depth, np.float64)
+    for r_i, rec in enumerate(sc.recorded_objects if sc is not None else []):
+        if entry.frame not in rec.boxes:
+            continue
+        track = len(job.assets) + 1 + r_i
+        bw = rec.boxes[entry.frame]
+        centres = {f: m[:3, 3] for f, m in rec.boxes.items()}
+        obj, proj = _object(track, rec.id, rec.category, False, bw, rec.size, entry, W, H, frames=frames,
+                            index=index, fps=fps, centres=centres)
+        removed = any(boxes.contains(b.box_to_world, b.size, bw[:3, 3]) for b in sc.removal_boxes)
+        amodal_mask = boxes.polygon_mask(proj["polygon"], W, H) if proj["bbox"] is not None else np.zeros((H, W), bool)
+        seen = np.zeros((H, W), bool)
+        if proj["depth_range"] is not None and not removed:
+            z0, z1 = proj["depth_range"]
+            seen = amodal_mask & ~hole & (depth >= z0 - DEPTH_MARGIN_M) & (depth <= z1 + DEPTH_MARGIN_M)
+        visible, amodal = int(seen.sum()), int(amodal_mask.sum())
+        obj.update({"asset": None, "box_source": "recording", "removed": removed,
+                    "bbox_visible": pixel_box(seen) if visible else None,
+                    "visible_pixels": visible, "amodal_pixels": amodal,
+                    "visible_fraction": min(1.0, visible / amodal) if amodal else None,
+                    "occlusion": occlusion_level(visible, amodal)})
+        objects.append(obj)
+    flags = []
+    if coverage < low_coverage:
+        flags.append(LOW_COVERAGE_FLAG)
+    if in_recording is False:
+        flags.append(OUTSIDE_FLAG)
+    if any(o["camera_inside"] and not o["removed"] for o in objects):
+        flags.append(CAMERA_INSIDE_FLAG)
+    return {"schema": SCHEMA, "key": key, "frame": int(entry.frame), "index": int(index),
+            "timestamp_s": float((entry.frame - frames[0]) / fps), "fps": fps, "fps_source": fps_source,
+            "image_size": [W, H],
+            "camera": {"K": np.asarray(entry.K, np.float64).tolist(), "world_to_camera": w2c.tolist(),
+                       "camera_to_world": cameras.rigid_inverse(w2c).tolist(),
+                       "vggt_to_world": None if sc is None else np.asarray(sc.vggt_to_world, np.float64).tolist(),
+                       "convention": CAMERA_CONVENTION},
+            "coverage": coverage, "in_recording": in_recording, "flags": flags, "objects": objects}
+
+
+def warnings(labels: dict) -> list:
+    """(code, message, object name or None) for each flag of a frame's labels, in words for a warning event."""
+    out, f = [], labels["frame"]
+    if LOW_COVERAGE_FLAG in labels["flags"]:
+        out.append((LOW_COVERAGE_FLAG, f"frame {f}: only {labels['coverage']:.0%} of the pixels have a point or an "
+                    "asset (the rest are holes the generator must invent)", None))
+    if OUTSIDE_FLAG in labels["flags"]:
+        out.append((OUTSIDE_FLAG, f"frame {f} lies outside the recording's frames (scene.recorded_frames)", None))
+    for o in labels["objects"]:
+        if o["camera_inside"] and not o["removed"]:
+            out.append((CAMERA_INSIDE_FLAG, f"frame {f}: the camera is inside the box of {o['name']!r} (the camera "
+                        "path drives through it)", o["name"]))
+    return out

@@ -214,12 +214,12 @@ def _generate(job_path, job, device, plan: Plan, precision, force, stop, lock) -
     gen_dir, mp4 = layout.generated, layout.video
     if plan.model == "baseline":
         key = conditions_key({"model": "baseline", "settings": s}, image, asset_mask, valid)
-        if not force and _up_to_date(gen_dir, mp4, key):
+        if not force and _up_to_date(gen_dir, mp4, key, playback_fps(job, plan)):
             log(f"generate: {mp4} is up to date (the same baseline settings and conditions)")
             return {**_result(plan, mp4, gen_dir, frames_n, skipped=True), **s}
         return _baseline(job, plan, image, valid, key, stop, log, t0)
     key = state_key(ckpt, s, precision, image, asset_mask, valid)
-    if not force and _up_to_date(gen_dir, mp4, key):
+    if not force and _up_to_date(gen_dir, mp4, key, playback_fps(job, plan)):
         log(f"generate: {mp4} is up to date (same checkpoint, settings and conditions)")
         return _result(plan, mp4, gen_dir, frames_n, skipped=True)
 
@@ -282,14 +282,23 @@ def _baseline(job, plan: Plan, image, valid, key, stop, log, t0) -> dict:
     return {**_result(plan, mp4, layout.generated, len(rgb)), **s}
 
 
-def _up_to_date(gen_dir: str, mp4: str, key: str) -> bool:
-    """A finished run with the same key left the video and its manifest."""
+def playback_fps(job: job_mod.Job, plan: Plan) -> float:
+    """The rate the MP4 plays at: the job's frame rate (the scene's, which the labels' timestamps use) when it
+    has one, else the generation's ``fps`` setting (the baseline's default or the checkpoint's)."""
+    return float(job.fps) if job.fps is not None else float(plan.settings["fps"])
+
+
+def _up_to_date(gen_dir: str, mp4: str, key: str, fps: float) -> bool:
+    """A finished run with the same key left the video and its manifest, at the same playback rate (a manifest
+    written before the rate was recorded played at the generation's ``fps``, which is then what ``fps`` is)."""
     manifest = os.path.join(gen_dir, OutputLayout.MANIFEST)
     if not (os.path.isfile(manifest) and os.path.isfile(mp4)):
         return False
     try:
-        return files.read_json(manifest).get("key") == key
-    except (errors.InputError, AttributeError):  # an unreadable manifest only means generating again
+        m = files.read_json(manifest)
+        written = m.get("playback_fps", m.get("settings", {}).get("fps"))
+        return m.get("key") == key and (written is None or abs(float(written) - fps) < 1e-9)
+    except (errors.InputError, AttributeError, TypeError, ValueError):  # unreadable: generate again
         return False
 
 
@@ -313,9 +322,9 @@ def _write_outputs(job, plan: Plan, rgb: np.ndarray, mp4: str, manifest: dict) -
         path = os.path.join(gen_dir, GENERATED_FRAME.name(entry.frame))
         png.write_png(path, frame)
         events.artifact(path, frame=entry.frame, kind="generated", model=plan.model)
-    write_mp4(mp4, rgb, plan.settings["fps"], metadata={"title": f"SCPainter {plan.model}",
-                                                        "comment": plan.description()})
+    fps = playback_fps(job, plan)
+    write_mp4(mp4, rgb, fps, metadata={"title": f"SCPainter {plan.model}", "comment": plan.description()})
     events.artifact(mp4, kind="video", model=plan.model)
     outputs.write_json(os.path.join(gen_dir, OutputLayout.MANIFEST),
-                       {**manifest, "model": plan.model, "description": plan.description(),
+                       {**manifest, "model": plan.model, "description": plan.description(), "playback_fps": fps,
                         "frames": [e.frame for e in job.frames]})

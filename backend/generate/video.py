@@ -1,7 +1,7 @@
 """H.264 MP4 output through PyAV (FFmpeg's libx264), written to a temporary file and renamed when complete."""
 
 from __future__ import annotations
-
+from fractions import Fraction
 
 import numpy as np
 
@@ -10,7 +10,7 @@ from scpainter_blender.core import outputs
 
 def write_mp4(path: str, frames: np.ndarray, fps: float, crf: int = 18, metadata: dict | None = None) -> str:
     """frames (F, H, W, 3) uint8 RGB -> an MP4 any player opens (yuv420p). Odd sizes are padded by one edge row or
-    column (4:2:0 chroma needs even sizes). ``metadata``: container tags (``title``, ``comment``), which players and
+    column (4:2:0 chroma needs even sizes). ``fps``: frames per second, any positive rate (29.97 is kept exact). ``metadata``: container tags (``title``, ``comment``), which players and
     ``ffprobe`` show."""
     import av
 
@@ -23,7 +23,8 @@ def write_mp4(path: str, frames: np.ndarray, fps: float, crf: int = 18, metadata
     with outputs.atomic_path(path) as tmp:
         with av.open(tmp, "w", format="mp4") as container:
             container.metadata.update(metadata or {})
-            stream = container.add_stream("libx264", rate=round(fps))
+            # an exact rational rate: 29.97 plays as 30000/1001, not 30
+            stream = container.add_stream("libx264", rate=Fraction(fps).limit_denominator(1001))
             stream.width, stream.height = frames.shape[2], frames.shape[1]
             stream.pix_fmt = "yuv420p"
             stream.options = {"crf": str(crf)}

@@ -12,12 +12,15 @@ import numpy as np
 from scpainter_blender.core import errors, files, locking, outputs
 from scpainter_blender.core import job as job_mod
 from scpainter_blender.core import job_inputs
+from scpainter_blender.core import labels as labels_mod
+from scpainter_blender.core.geometry import boxes
 from scpainter_blender.core.output_layout import OutputLayout
 
 from .. import events, png
 from ..errors import FolderBusyError
 from . import channels
 from . import frames as fr
+from . import labelled
 
 
 def frame_paths(job_path: str, job: job_mod.Job, frame: int) -> tuple[str, str]:
@@ -46,6 +49,67 @@ def job_key(job_path: str, job: job_mod.Job, point_radius: int, half: bool = Fal
     if half:
         blob["exr"] = "half"
     return hashlib.sha256(json.dumps(blob, sort_keys=True).encode()).hexdigest()[:32]
+
+
+def labels_key(layers_key: str, job: job_mod.Job) -> str:
+    """What a frame's labels depend on beyond its layers: the layers' key and the whole job but its generation
+    settings and output folder (so editing a box, a class or the frame rate makes new labels)."""
+    import hashlib
+    import json
+
+    content = {k: v for k, v in job.to_dict().items() if k not in ("generate", "output_dir")}
+    blob = json.dumps({"layers": layers_key, "job": content, "schema": labels_mod.SCHEMA}, sort_keys=True)
+    return hashlib.sha256(blob.encode()).hexdigest()[:32]
+
+
+def _finished_labels(path: str, key: str) -> dict | None:
+    """The frame's labels when they exist and were made under ``key`` (else None: the frame is rendered again)."""
+    try:
+        lab = files.read_json(path)
+    except errors.InputError:
+        return None
+    return lab if isinstance(lab, dict) and lab.get("key") == key and lab.get("schema") == labels_mod.SCHEMA else None
+
+
+def asset_boxes(job: job_mod.Job, scene: fr.Scene, log) -> list:
+    """(box_to_file, size, source) per asset: the job's box ("job"), else the upright box of its Gaussians' means
+    (``core.geometry.boxes.estimate_box``, up = the file direction its first transform makes vertical) marked
+    "estimated"."""
+    out = []
+    for a, loaded in zip(job.assets, scene.assets):
+        if a.box is not None:
+            out.append((a.box.box_to_file, a.box.size, "job"))
+            continue
+        means = loaded.means.cpu().numpy()
+        try:
+            T, size = boxes.estimate_box(means, labels_mod.asset_up(a))
+        except ValueError:  # fewer than 4 usable Gaussians: a degenerate box at their centre
+            T, size = np.eye(4), np.zeros(3)
+            if len(means):
+                T[:3, 3] = np.nanmean(means, axis=0)
+        log(f"labels: {a.name}: no box in the job; estimated {size[1]:.3g} x {size[0]:.3g} x {size[2]:.3g} "
+            "(length x width x height, file units) from its Gaussians")
+        out.append((T, size, "estimated"))
+    return out
+
+
+def file_hash(path: str) -> str:
+    """SHA-256 (hex) of a file's content."""
+    import hashlib
+
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _warn(lab: dict) -> int:
+    """A ``warning`` event for each flag of a frame's labels (``core.labels.warnings``); their number."""
+    found = labels_mod.warnings(lab)
+    for code, message, obj in found:
+        events.warning(message, code, frame=lab["frame"], **({"object": obj} if obj else {}))
+    return len(found)
 
 
 def _frame_files(job: job_mod.Job) -> list:
@@ -114,9 +178,18 @@ def _render(job_path, job, device, force, point_radius, stop, log, out, allow_ou
                                        "files": _frame_files(job), "exr": "half" if half else "float32"})
     with contextlib.suppress(FileNotFoundError):  # the record's former name (one line: the key)
         os.remove(layout.former_record)
-    todo = {e.frame for e in job.frames
-            if force or not all(os.path.isfile(p) for p in frame_paths(job_path, job, e.frame))}
-    scene = None
+    lkey = labels_key(key, job)
+    todo, warned = set(), 0
+    for e in job.frames:
+        lab = None
+        if not force and all(os.path.isfile(p) for p in frame_paths(job_path, job, e.frame)) \
+                and os.path.isfile(layout.labelled_preview(e.frame)):
+            lab = _finished_labels(layout.frame_labels(e.frame), lkey)
+        if lab is None:
+            todo.add(e.frame)
+        else:
+            warned += _warn(lab)  # a finished frame's flags are reported again: every run says what is weak
+    scene = boxes_ = hashes = None
     for n, entry in enumerate(job.frames):
         if stop:
             break
@@ -132,18 +205,32 @@ def _render(job_path, job, device, force, point_radius, stop, log, out, allow_ou
                     f"{0 if scene.xyz is None else len(scene.xyz):,} points ({scene.removed_points:,} removed by "
                     f"boxes), {len(scene.assets)} assets")
                 _log_cleaning(scene, log)
+                boxes_ = asset_boxes(job, scene, log)
+                hashes = [file_hash(job_mod.resolve(job_path, a.ply)) for a in job.assets]
                 if stop:  # asked to stop while the scene loaded (outlier removal can take a while)
                     break
             t = time.perf_counter()
             layers = fr.render_frame(scene, entry, W, H, point_radius)
+            amodal = fr.amodal_pixels(scene, entry, W, H)
+            lab = labels_mod.frame_labels(job, n, instance=layers[channels.INSTANCE], hole=layers[channels.HOLE],
+                                          depth=layers[channels.DEPTH], amodal_pixels=amodal, asset_boxes=boxes_,
+                                          asset_hashes=hashes, key=lkey)
+            rgb = np.stack([layers[c] for c in channels.IMAGE], axis=-1)
             channels.write(exr_path, layers, half=half)
-            png.write_png(png_path, np.stack([layers[c] for c in channels.IMAGE], axis=-1))
+            png.write_png(png_path, rgb)
+            labelled.write(layout.labelled_preview(f), rgb, lab)
+            outputs.write_json(layout.frame_labels(f), lab)  # last: its key marks the frame finished
             rendered += 1
-            log(f"frame {f}: {time.perf_counter() - t:.3f} s, hole {layers[channels.HOLE].mean():.3f}")
+            warned += _warn(lab)
+            log(f"frame {f}: {time.perf_counter() - t:.3f} s, hole {layers[channels.HOLE].mean():.3f}, "
+                f"{sum(o['visible_pixels'] > 0 for o in lab['objects'])} objects visible")
             events.artifact(exr_path, frame=f, kind="conditions")
             events.artifact(png_path, frame=f, kind="preview")
+            events.artifact(layout.frame_labels(f), frame=f, kind="labels")
+            events.artifact(layout.labelled_preview(f), frame=f, kind="labelled")
         events.progress("render", n + 1, total, frame=f, reused=f not in todo)  # reused: found up to date
-    return {"frames": total, "rendered": rendered, "skipped": skipped, "output_dir": out, "stopped": bool(stop)}
+    return {"frames": total, "rendered": rendered, "skipped": skipped, "output_dir": out, "stopped": bool(stop),
+            "warnings": warned}
 
 
 def _log_cleaning(scene: fr.Scene, log) -> None:

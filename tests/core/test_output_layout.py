@@ -40,8 +40,12 @@ def test_per_frame_names(tmp_path):
     assert lay.condition_exr(12) == os.path.join(str(tmp_path), "conditions", "frame_000012.exr")
     assert lay.condition_preview(12) == os.path.join(str(tmp_path), "conditions", "preview_000012.png")
     assert lay.generated_frame(1234567) == os.path.join(str(tmp_path), "generated", "frame_1234567.png")
-    assert OutputLayout.condition_names(iter([3, 1])) == ["frame_000003.exr", "preview_000003.png",
-                                                          "frame_000001.exr", "preview_000001.png"]
+    assert lay.frame_labels(12) == os.path.join(str(tmp_path), "conditions", "labels_000012.json")
+    assert lay.labelled_preview(12) == os.path.join(str(tmp_path), "conditions", "labelled_000012.png")
+    assert lay.export("kitti") == os.path.join(str(tmp_path), "export", "kitti")
+    assert OutputLayout.condition_names(iter([3, 1])) == [
+        "frame_000003.exr", "preview_000003.png", "labels_000003.json", "labelled_000003.png",
+        "frame_000001.exr", "preview_000001.png", "labels_000001.json", "labelled_000001.png"]
     assert GENERATED_FRAME.name(0) == "frame_000000.png" and FrameFiles("x_", ".y").name(7) == "x_000007.y"
 
 

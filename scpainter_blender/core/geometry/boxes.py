@@ -32,7 +32,8 @@ BODY_QUANTILES = (0.02, 0.98)
 SEARCH_POINTS = 20_000
 
 _CORNER_SIGNS = np.array([[sx, sy, sz] for sx in (-0.5, 0.5) for sy in (-0.5, 0.5) for sz in (-0.5, 0.5)])
-_EDGES = np.array([(i, j) for i in range(8) for j in range(i + 1, 8)
+#: The 12 edges of a box as pairs of ``corners`` indices (corners differing in one sign).
+EDGES = np.array([(i, j) for i in range(8) for j in range(i + 1, 8)
                    if np.count_nonzero(_CORNER_SIGNS[i] != _CORNER_SIGNS[j]) == 1])  # (12, 2)
 
 
@@ -77,7 +78,8 @@ def estimate_box(points, up=(0.0, 0.0, 1.0)):
 
     Upright: the box's z is ``up`` (a direction in the points' frame). Its heading minimises the footprint's area
     (a search over 0–90° in 1° steps, refined to 0.02°, on at most ``SEARCH_POINTS`` points); along each box axis
-    the extent is ``body_range``'s, so floaters beyond a gap are left out. The length (y) is the longer horizontal
+    the extent is ``body_range``'s, so floaters beyond a gap are left out (first along the frame's axes, keeping
+    the points inside all three ranges, up to three times: a floater far out on one axis leaves the others). The length (y) is the longer horizontal
     extent, its front (+y) the one closer to the frame's +y (the axis TRELLIS/Amodal3R and the procedural cars
     face); the user may flip it. Rows with NaN/inf are ignored. ValueError when fewer than 4 finite points."""
     P = np.asarray(points, np.float64).reshape(-1, 3)
@@ -87,6 +89,12 @@ def estimate_box(points, up=(0.0, 0.0, 1.0)):
     B = _basis(up)
     origin = np.median(P, axis=0)
     local = (P - origin) @ B.T            # e1, e2, up coordinates, relative to the median (large coordinates)
+    for _ in range(3):                    # a floater far out on one axis may sit inside another's range: a point
+        ranges = [body_range(local[:, k]) for k in range(3)]  # counts only inside all three
+        inside = np.all([(local[:, k] >= lo) & (local[:, k] <= hi) for k, (lo, hi) in enumerate(ranges)], axis=0)
+        if inside.all() or inside.sum() < 4:
+            break
+        local = local[inside]
     q = local[:, :2]
     sample = q if len(q) <= SEARCH_POINTS else q[np.random.default_rng(0).choice(len(q), SEARCH_POINTS, False)]
     angles = np.radians(np.arange(0.0, 90.0, 1.0))
@@ -179,7 +187,7 @@ def _clipped_vertices(corners_cam: np.ndarray, near: float) -> np.ndarray:
     """The vertices of a box (8 corners in camera axes) cut by the plane z = near, keeping z >= near: the corners
     in front and the points where the 12 edges cross the plane. (M, 3); empty when the box lies wholly behind."""
     keep = [corners_cam[corners_cam[:, 2] >= near]]
-    a, b = corners_cam[_EDGES[:, 0]], corners_cam[_EDGES[:, 1]]
+    a, b = corners_cam[EDGES[:, 0]], corners_cam[EDGES[:, 1]]
     cross = (a[:, 2] < near) != (b[:, 2] < near)
     if cross.any():
         a, b = a[cross], b[cross]

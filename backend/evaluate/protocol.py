@@ -169,12 +169,17 @@ def task_job(clip: clip_mod.Clip, s: EvalSettings, folder: str, shift: float, ca
             boxes.append(job_mod.RemovalBox(box_to_world, size))
         a2b = clip_mod.asset_to_box(c)
         assets.append(job_mod.Asset(c.id, os.path.relpath(c.asset, folder), {t: c.boxes[t] @ a2b for t in frames}))
+    # the clip's tracked cars travel with the job as recorded objects, so the task's frames are labelled (the
+    # re-inserted car's own track lies in its removal boxes: listed as removed, its asset labelled instead)
+    recorded = [job_mod.RecordedObject(str(c.id), c.size, {t: c.boxes[t] for t in frames if t in c.boxes})
+                for c in clip.cars if any(t in c.boxes for t in frames)]
     scene = job_mod.Scene(os.path.relpath(clip.predictions.path, folder), clip.vggt_to_world,
-                          confidence_percentile=s.confidence_percentile, removal_boxes=boxes)
+                          confidence_percentile=s.confidence_percentile, removal_boxes=boxes,
+                          recorded_frames=[0, S - 1], recorded_objects=recorded)
     job = job_mod.Job((s.width, s.height), [
         job_mod.Frame(t, K[t], w2c[t], list(range(max(0, t - s.source_window), min(S, t + s.source_window + 1))))
         for t in frames],
-        output_dir=".", scene=scene, assets=assets,
+        output_dir=".", scene=scene, assets=assets, fps=float(clip.fps),
         generate=job_mod.GenerateSettings(steps=s.steps, seed=s.seed, fps=float(clip.fps)))
     os.makedirs(folder, exist_ok=True)
     path = OutputLayout(folder).job  # the task's output folder (output_dir ".")

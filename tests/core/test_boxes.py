@@ -57,6 +57,7 @@ def test_up_axis_of_a_trellis_file():
     P = _box_surface(size) @ np.array([[1, 0, 0], [0, 0, -1], [0, 1, 0.0]]).T   # TRELLIS's file axes (x, -z, y)
     T, got = boxes.estimate_box(P, up=(0, -1, 0))
     assert np.allclose(got, size, atol=2e-3) and np.allclose(T[:3, 2], [0, -1, 0])
+    assert np.allclose(T[:3, 1], [0, 0, 1])     # the front: the file's +z, where TRELLIS's +y (front) goes
 
 
 def test_too_few_points():

@@ -56,14 +56,19 @@ def body_range(x: np.ndarray) -> tuple:
 
 
 def _basis(up) -> np.ndarray:
-    """(3, 3) rows e1, e2, u: an orthonormal basis with u = ``up`` normalised (e2 as close to +y as possible, so a
-    Z-up frame's e1, e2 are its x, y)."""
+    """(3, 3) rows e1, e2, u: the frame's x, y, z turned by the smallest rotation that takes +z to ``up`` (so a
+    Z-up frame keeps its axes, and TRELLIS's file frame, up = −y, gets e2 = +z: the direction its cars face)."""
     u = np.asarray(up, np.float64)
     u = u / np.linalg.norm(u)
-    ref = np.array([0.0, 1.0, 0.0]) if abs(u[1]) < 0.9 else np.array([1.0, 0.0, 0.0])
-    e2 = ref - (ref @ u) * u
-    e2 /= np.linalg.norm(e2)
-    return np.stack([np.cross(e2, u), e2, u])
+    z = np.array([0.0, 0.0, 1.0])
+    c = float(u @ z)
+    if c < -1.0 + 1e-12:                  # up = −z: half a turn about x
+        R = np.diag([1.0, -1.0, -1.0])
+    else:                                 # Rodrigues' formula for the rotation z -> u
+        v = np.cross(z, u)
+        V = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+        R = np.eye(3) + V + V @ V / (1.0 + c)
+    return R.T                            # rows: R x, R y, R z = u
 
 
 def _footprint_area(q: np.ndarray, theta: float) -> float:
@@ -80,8 +85,8 @@ def estimate_box(points, up=(0.0, 0.0, 1.0)):
     (a search over 0–90° in 1° steps, refined to 0.02°, on at most ``SEARCH_POINTS`` points); along each box axis
     the extent is ``body_range``'s, so floaters beyond a gap are left out (first along the frame's axes, keeping
     the points inside all three ranges, up to three times: a floater far out on one axis leaves the others). The length (y) is the longer horizontal
-    extent, its front (+y) the one closer to the frame's +y (the axis TRELLIS/Amodal3R and the procedural cars
-    face); the user may flip it. Rows with NaN/inf are ignored. ValueError when fewer than 4 finite points."""
+    extent, its front (+y) the one closer to the frame's +y turned with its up (``_basis``: the axis the procedural
+    cars and TRELLIS/Amodal3R's face); the user may flip it. Rows with NaN/inf are ignored. ValueError when fewer than 4 finite points."""
     P = np.asarray(points, np.float64).reshape(-1, 3)
     P = P[np.isfinite(P).all(1)]
     if len(P) < 4:

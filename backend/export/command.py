@@ -150,20 +150,28 @@ def export_job(job_path: str, job: job_mod.Job, fmt: str, out: str | None = None
         result = {"format": fmt, "out": dest, "output_dir": output_dir, "rendered": rendered["rendered"]}
         if rendered["stopped"]:
             return {**result, "stopped": True}
-        images, why = image_source(layout, job)
-        if images == "conditions":
-            events.warning(f"exporting the condition previews as images: {why} (run generate first for the "
-                           "generated video's frames)", NO_GENERATED)
-        frames = [_frame(layout, e.frame, images, fmt in NEEDS_INSTANCE) for e in job.frames]
-        total = len(frames)
-        outputs.make_folder(os.path.dirname(dest), "--out" if out else "(folder)")
-        with _replacing(dest) as moved_aside, outputs.atomic_folder(dest) as tmp:
-            counts = FORMATS[fmt].write(tmp, frames, progress=lambda i: events.progress(
-                "export", i + 1, total, frame=job.frames[i].frame))
-            outputs.write_json(os.path.join(tmp, OutputLayout.EXPORT_RECORD), {
-                "schema": EXPORT_SCHEMA, "format": fmt, "job": os.path.abspath(job_path), "images": images,
-                "frames": [e.frame for e in job.frames], **counts})
-            os.chmod(tmp, 0o777 & ~outputs._umask())  # mkdtemp made it 0700: the usual permissions instead
-            moved_aside()
+        return {**result, **write_export(job_path, job, layout, fmt, dest, log), "stopped": False}
+
+
+def write_export(job_path: str, job: job_mod.Job, layout: OutputLayout, fmt: str, dest: str, log=None) -> dict:
+    """The export itself, once the frames are rendered (labels and layers in ``layout``): the images chosen (a
+    warning event when they are the condition previews), every frame read, the destination written whole (a
+    previous export there replaced only when this one is complete). Returns the format's counts and ``images``."""
+    images, why = image_source(layout, job)
+    if images == "conditions":
+        events.warning(f"exporting the condition previews as images: {why} (run generate first for the "
+                       "generated video's frames)", NO_GENERATED)
+    frames = [_frame(layout, e.frame, images, fmt in NEEDS_INSTANCE) for e in job.frames]
+    total = len(frames)
+    outputs.make_folder(os.path.dirname(dest), "(folder)")
+    with _replacing(dest) as moved_aside, outputs.atomic_folder(dest) as tmp:
+        counts = FORMATS[fmt].write(tmp, frames, progress=lambda i: events.progress(
+            "export", i + 1, total, frame=job.frames[i].frame))
+        outputs.write_json(os.path.join(tmp, OutputLayout.EXPORT_RECORD), {
+            "schema": EXPORT_SCHEMA, "format": fmt, "job": os.path.abspath(job_path), "images": images,
+            **counts, "scene_frames": [e.frame for e in job.frames]})
+        os.chmod(tmp, 0o777 & ~outputs._umask())  # mkdtemp made it 0700: the usual permissions instead
+        moved_aside()
+    if log:
         log(f"export {fmt}: {counts['frames']} frames, {counts['objects']} objects ({images} images) -> {dest}")
-        return {**result, **counts, "images": images, "stopped": False}
+    return {**counts, "images": images}

@@ -61,16 +61,16 @@ def layers(j: job_mod.Job, index: int) -> dict:
     instance = np.zeros((H, W), np.float32)
     depth = np.full((H, W), 24.0, np.float32)
     amodal = []
-    order = sorted(range(len(j.assets)), key=lambda a: -labels.asset_box_to_world(j.assets[a], CAR, entry.frame)[0][1, 3])
+    placed_boxes = [labels.asset_box_to_world(a, CAR, entry.frame) for a in j.assets]
+    depths = [float((entry.world_to_camera @ bw)[2, 3]) for bw, _ in placed_boxes]
     masks = {}
-    for a in range(len(j.assets)):
-        bw, size = labels.asset_box_to_world(j.assets[a], CAR, entry.frame)
+    for a, (bw, size) in enumerate(placed_boxes):
         proj = boxes.project_box(bw, size, entry.K, entry.world_to_camera, W, H)
         masks[a] = boxes.polygon_mask(proj["polygon"], W, H)
         amodal.append(int(masks[a].sum()))
-    for a in order:
+    for a in sorted(range(len(j.assets)), key=lambda a: -depths[a]):   # the farthest first
         instance[masks[a]] = a + 1
-        depth[masks[a]] = float((entry.world_to_camera @ labels.asset_box_to_world(j.assets[a], CAR, entry.frame)[0])[2, 3])
+        depth[masks[a]] = depths[a]
     return {"instance": instance, "hole": np.zeros((H, W), np.float32), "depth": depth, "amodal_pixels": amodal}
 
 

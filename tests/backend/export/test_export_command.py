@@ -101,7 +101,8 @@ def test_write_export_from_an_output_folder(tmp_path, capsys, fmt):
     assert [e["code"] for e in evs if e["event"] == "warning"] == [command.NO_GENERATED]
     assert [(e["done"], e["frame"]) for e in evs if e["event"] == "progress"] == [(1, 4), (2, 5)]
     record = json.load(open(os.path.join(dest, OutputLayout.EXPORT_RECORD)))
-    assert record["format"] == fmt and record["scene_frames"] == [4, 5] and record["frames"] == 2 and record["images"] == "conditions"
+    assert (record["format"], record["scene_frames"], record["frames"]) == (fmt, [4, 5], 2)
+    assert record["images"] == "conditions"
     assert not [n for n in os.listdir(os.path.dirname(dest)) if n.endswith(".tmp")]
     assert os.stat(dest).st_mode & 0o777 == 0o777 & ~outputs._umask()         # not mkdtemp's 0700
 

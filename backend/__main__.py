@@ -108,6 +108,30 @@ def _cmd_render(args) -> int:
     return events.EXIT_OK
 
 
+def _cmd_export(args) -> int:
+    import time
+
+    from scpainter_blender.core import job as job_mod
+
+    from .export import command
+
+    if args.out is not None and not args.out.strip():
+        from scpainter_blender.core.errors import ArgumentError
+
+        raise ArgumentError("--out", "is empty", hint="give a folder, or leave --out out for export/<format>/")
+    job = job_mod.load(args.job)
+    device = _device(args.device)
+    t0 = time.perf_counter()
+    with events.stop_on_sigterm() as stop:
+        result = command.export_job(args.job, job, args.format, args.out, device, args.allow_outside, stop)
+    if result.pop("stopped"):
+        events.error("stopped by SIGTERM while rendering the missing frames: nothing exported",
+                     hint="finished frames are kept: run the same command again to resume")
+        return events.EXIT_FAILED
+    events.done(command="export", device=device, seconds=time.perf_counter() - t0, **result)
+    return events.EXIT_OK
+
+
 def _cmd_generate(args) -> int:
     import time
 
@@ -330,7 +354,7 @@ CONSOLE_COMMAND = "scpainter-backend"
 
 def build_parser() -> argparse.ArgumentParser:
     # numpy only: no torch or CUDA at start-up
-    from scpainter_blender.core.backend_protocol import DEFAULT_DEVICE, DEVICE_NAMES
+    from scpainter_blender.core.backend_protocol import DEFAULT_DEVICE, DEVICE_NAMES, EXPORT_FORMAT_NAMES
     from scpainter_blender.core.job import BASELINE_DEFAULTS, GENERATE_DEFAULTS, GENERATE_MODELS, INPAINT_METHODS
 
     # the console command (pyproject.toml) names itself in usage and hints; `python -m backend` otherwise
@@ -377,6 +401,19 @@ def build_parser() -> argparse.ArgumentParser:
     n.add_argument("--force", action="store_true", help="generate again even if the video is up to date")
     _input_options(n)
     n.set_defaults(func=_cmd_generate)
+    x = sub.add_parser("export", help="a job's labels as a training dataset (KITTI, COCO or OpenLABEL), rendering "
+                                      "missing frames first; images: the generated frames, else the condition "
+                                      "previews")
+    x.add_argument("job", help="job.json (the job contract: docs/design.md)")
+    x.add_argument("--format", required=True, choices=EXPORT_FORMAT_NAMES,
+                   help="kitti (image_2, label_2, calib), coco (annotations.json with RLE masks) or openlabel "
+                        "(ASAM OpenLABEL 1.0 JSON): docs/design.md §15")
+    x.add_argument("--out", help="destination folder, written whole (default: <output_dir>/export/<format>); an "
+                                 "existing one must be empty or a previous export")
+    x.add_argument("--device", choices=DEVICE_NAMES, default=DEFAULT_DEVICE,
+                   help="for rendering missing frames; auto: CUDA when torch sees a GPU, else the CPU")
+    x.add_argument("--allow-outside", action="store_true", help=ALLOW_OUTSIDE_HELP)
+    x.set_defaults(func=_cmd_export)
     b = sub.add_parser("batch", help="run render or generate over many jobs; sharded under torchrun/accelerate")
     b.add_argument("jobs", nargs="*", help="job.json files")
     b.add_argument("--list", action="append", help="a text file of job paths, one per line, relative ones taken "

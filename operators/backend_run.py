@@ -1,4 +1,5 @@
-"""Render Conditions / Generate: write the job, run the backend in a subprocess, follow it, load the results.
+"""Render Conditions / Generate / Export Labels: write the job, run the backend in a subprocess, follow it, load the
+results (an export's are files: its report says where).
 
 From the UI the operators are modal: a timer polls the backend's event stream, progress shows in the panel and
 the status bar, Esc stops the backend (SIGTERM: the frame or sampler step in progress finishes, everything done
@@ -147,6 +148,23 @@ class SCPAINTER_OT_generate(_BackendRun, bpy.types.Operator):
         return {"steps": self.steps or None}
 
 
+class SCPAINTER_OT_export_labels(_BackendRun, bpy.types.Operator):
+    """Export the labels (boxes, masks, camera) of every frame as a training dataset, rendering missing frames
+    first; the images are the generated video's frames, else the condition previews"""
+
+    bl_idname = "scpainter.export_labels"
+    bl_label = "Export Labels"
+    command = "export"
+
+    format: bpy.props.EnumProperty(
+        name="Format", default="kitti",
+        items=[(k, label, text) for k, (label, text) in protocol.EXPORT_FORMATS.items()],
+        description="The dataset format (written into <output folder>/export/<format>)")
+
+    def backend_options(self) -> dict:
+        return {"export_format": self.format}
+
+
 class SCPAINTER_OT_open_output(bpy.types.Operator):
     """Open the scene's SCPainter output folder in the file browser of the system"""
 
@@ -191,5 +209,5 @@ class SCPAINTER_OT_check_backend(bpy.types.Operator):
         return {"FINISHED"}
 
 
-classes = (SCPAINTER_OT_render_conditions, SCPAINTER_OT_generate, SCPAINTER_OT_open_output,
-           SCPAINTER_OT_check_backend)
+classes = (SCPAINTER_OT_render_conditions, SCPAINTER_OT_generate, SCPAINTER_OT_export_labels,
+           SCPAINTER_OT_open_output, SCPAINTER_OT_check_backend)

@@ -62,6 +62,7 @@ class SCPAINTER_PT_main(bpy.types.Panel):
             for i, line in enumerate(note):
                 col.label(text=line, icon="INFO" if i == 0 else "BLANK1")
             col.prop(context.scene, "scpainter_baseline_inpaint", text="Inpainting")
+        box.operator_menu_enum("scpainter.export_labels", "format", text="Export Labels", icon="EXPORT")
         box.operator("scpainter.open_output", icon="FILE_FOLDER")
 
     @staticmethod

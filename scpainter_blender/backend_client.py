@@ -217,19 +217,20 @@ _FLAGS = (("batch_command", "--command"), ("lists", "--list"), ("trusted_lists",
           ("device", "--device"), ("checkpoint", "--checkpoint"), ("model", "--model"), ("steps", "--steps"),
           ("seed", "--seed"), ("inpaint", "--inpaint"), ("point_radius", "--point-radius"), ("force", "--force"),
           ("allow_outside", "--allow-outside"), ("shard", "--shard"), ("ray", "--ray"), ("retries", "--retries"),
-          ("cpus_per_job", "--cpus-per-job"))
+          ("cpus_per_job", "--cpus-per-job"), ("export_format", "--format"), ("out", "--out"))
 
 
 @dataclasses.dataclass(frozen=True)
 class Invocation:
-    """One ``python -m backend`` command: ``command`` (render, generate, batch, doctor), its positional ``jobs``
+    """One ``python -m backend`` command: ``command`` (render, generate, export, batch, doctor), its positional ``jobs``
     (job.json paths) and the options below (None / False: the backend's default), run by ``python`` (the
     ``backend_python`` rule: "" for the running interpreter when it has torch). Which command takes which option
     is the backend's parser's to say (``backend/__main__.py``); a test parses ``argv()`` with it.
 
     ``device``: one of ``core.backend_protocol.DEVICE_NAMES``. ``checkpoint``: overrides the job's (generate,
     batch) or the folder to check (doctor). ``ray``: None without Ray, "" for the default cluster, else its
-    address. ``shard``: "K/N" (batch)."""
+    address. ``shard``: "K/N" (batch). ``export_format``: one of ``core.backend_protocol.EXPORT_FORMAT_NAMES``
+    and ``out`` the destination folder (export)."""
 
     command: str
     jobs: tuple = ()
@@ -249,11 +250,15 @@ class Invocation:
     ray: str | None = None
     retries: int | None = None
     cpus_per_job: float | None = None
+    export_format: str | None = None
+    out: str | None = None
     python: str = ""
 
     def __post_init__(self):
         if self.device is not None and self.device not in protocol.DEVICE_NAMES:
             raise ValueError(f"device {self.device!r} is not one of {protocol.DEVICE_NAMES}")  # a bug of the caller
+        if self.export_format is not None and self.export_format not in protocol.EXPORT_FORMAT_NAMES:
+            raise ValueError(f"format {self.export_format!r} is not one of {protocol.EXPORT_FORMAT_NAMES}")
 
     def argv(self) -> list[str]:
         """The arguments after ``python -m backend``: the command, the jobs, then each option that is set."""

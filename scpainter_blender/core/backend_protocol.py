@@ -16,6 +16,12 @@ DEVICES = {"auto": ("Auto", "CUDA when available, else CPU"),
 DEFAULT_DEVICE = "auto"
 DEVICE_NAMES = tuple(DEVICES)
 
+#: ``export --format``: the dataset formats, each with its label and description (``backend/export``, design §15).
+EXPORT_FORMATS = {"kitti": ("KITTI", "KITTI object: image_2, label_2, calib per frame"),
+                  "coco": ("COCO", "COCO instances: annotations.json with RLE masks, images"),
+                  "openlabel": ("OpenLABEL", "ASAM OpenLABEL 1.0 JSON: cuboids, boxes, camera per frame")}
+EXPORT_FORMAT_NAMES = tuple(EXPORT_FORMATS)
+
 #: Exit codes: done; a failure (explained, or a bug with its traceback); bad input (an ``InputError``: the error
 #: event names ``file`` and ``field``); interrupted by Ctrl-C (128 + SIGINT, the shell's convention).
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130

@@ -17,6 +17,8 @@
         generate_state.safetensors      the sampler's latents after each step (resume); removed when finished
         baseline.mp4, contact_sheet.png only in ``evaluate``'s task folders: the baseline's video, the task's pictures
         export/<format>/                ``export``'s default destination (KITTI, COCO, OpenLABEL: ``backend/export``)
+        export/<format>/export.json     in every export (any ``--out``): what made it; an existing folder is
+                                        replaced by a new export only when it has one (or is empty)
 
 Frames are numbered by scene frame (``frame_000012.exr`` is frame 12) in ``FRAME_DIGITS`` digits (``FrameFiles``:
 the one place that formats a frame's file name). Paths come from ``OutputLayout(output_dir)``; bare names (what
@@ -80,6 +82,7 @@ class OutputLayout:
     EVAL_BASELINE = "baseline.mp4"        # evaluate's task folders only
     EVAL_SHEET = "contact_sheet.png"      # evaluate's task folders only
     EXPORT = "export"                     # export/<format>/: the exporters' default destination
+    EXPORT_RECORD = "export.json"         # in an export's folder: marks it as one (replaced whole by the next)
 
     def __init__(self, output_dir):
         self.root = os.fspath(output_dir)

@@ -6,6 +6,7 @@
     blender -c scpainter render scene.blend [--output DIR] [--device cpu|cuda|auto]
     blender -c scpainter generate scene.blend --checkpoint /models/scpainter
     blender -c scpainter generate scene.blend [--inpaint telea|navier-stokes]    # no checkpoint: the baseline
+    blender -c scpainter export scene.blend --format kitti|coco|openlabel [--out DIR]
     blender -c scpainter batch a.blend b.blend jobs/c.json [--list scenes.txt] --command generate [--shard 0/4]
     blender -c scpainter batch a.blend b.blend jobs/c.json --command generate --ray [HEAD:6379] [--retries 2]
 
@@ -16,7 +17,9 @@
 K/N``, or torchrun's RANK/WORLD_SIZE: every N-th item from K), exports every .blend's job, then runs all the jobs
 (job files as given) as the backend's one ``python -m backend batch``, here or with ``--ray`` on a Ray cluster
 (backend/batch/ray_pool.py; each item then has its ``worker`` and ``attempts``): it goes on past failures, prints
-one summary with each item's status, time and outputs, and exits 1 if any failed.
+one summary with each item's status, time and outputs, and exits 1 if any failed. ``export`` writes the .blend's job
+as ``render`` does and runs ``python -m backend export`` on it (missing frames rendered first; the dataset in
+``--out``, default ``<output folder>/export/<format>``; docs/design.md §15).
 
 The backend's command line is built by ``backend_client.Invocation`` from these arguments, the add-on preferences
 filling in what they do not give (the preferences are never changed).
@@ -90,17 +93,30 @@ def _parser():
         else:
             c.add_argument("blend", help="the scene (.blend)")
             c.add_argument("--output", help="output folder (default: the scene's SCPainter output folder)")
-        c.add_argument("--device", choices=protocol.DEVICE_NAMES, help="default: the add-on preference")
-        c.add_argument("--backend-python", help="interpreter for the backend (default: the add-on preference)")
+        _common_options(c)
         c.add_argument("--checkpoint", help="SCPainter checkpoint folder (default: the add-on preference)")
-        c.add_argument("--timeout", type=float, default=0.0,
-                       help="stop the backend after this many s (batch: the whole batch's)")
         if name != "render":
             c.add_argument("--inpaint", choices=job_mod.INPAINT_METHODS,
                            help="the baseline's OpenCV method, used without a checkpoint (default: the scene's "
                                 "Baseline Inpainting, else the job's, else "
                                 f"{job_mod.BASELINE_DEFAULTS['inpaint']})")
+    x = sub.add_parser("export", help="a .blend's labels as a dataset (KITTI, COCO or OpenLABEL), rendering missing "
+                                      "frames first")
+    x.add_argument("blend", help="the scene (.blend)")
+    x.add_argument("--format", required=True, choices=protocol.EXPORT_FORMAT_NAMES)
+    x.add_argument("--out", help="destination folder, written whole (default: <output folder>/export/<format>); an "
+                                 "existing one must be empty or a previous export")
+    x.add_argument("--output", help="output folder (default: the scene's SCPainter output folder)")
+    _common_options(x)
     return p
+
+
+def _common_options(c) -> None:
+    """The options every scene command has: the device, the backend's interpreter, a timeout."""
+    c.add_argument("--device", choices=protocol.DEVICE_NAMES, help="default: the add-on preference")
+    c.add_argument("--backend-python", help="interpreter for the backend (default: the add-on preference)")
+    c.add_argument("--timeout", type=float, default=0.0,
+                   help="stop the backend after this many s (batch: the whole batch's)")
 
 
 def _import(args) -> dict:
@@ -131,14 +147,14 @@ def _check_paths(args) -> None:
     if args.backend_python and not os.path.isfile(args.backend_python):
         raise errors.ArgumentError("--backend-python", f"{args.backend_python} is not a file",
                                    hint="give the interpreter that has the backend's packages, e.g. .venv/bin/python")
-    if args.checkpoint and not os.path.isdir(args.checkpoint):
+    if getattr(args, "checkpoint", None) and not os.path.isdir(args.checkpoint):
         raise errors.ArgumentError("--checkpoint", f"{args.checkpoint} is not a folder",
                                    hint="make one with `python -m backend init-checkpoint --svd SVD_DIR --out DIR`")
 
 
 def _checkpoint(args) -> str | None:
     """The checkpoint folder the command line gives (absolute), None when it gives none."""
-    return os.path.abspath(args.checkpoint) if args.checkpoint else None
+    return os.path.abspath(args.checkpoint) if getattr(args, "checkpoint", None) else None
 
 
 def _invocation(args, command: str, **options) -> backend_client.Invocation:
@@ -171,9 +187,13 @@ def _open_blend(blend: str, args, output: str | None = None) -> None:
 
 
 def _run_blend(args) -> dict:
-    """``render`` / ``generate``: the scene's job exported (naming ``--checkpoint``, else the preference's) and run."""
+    """``render`` / ``generate`` / ``export``: the scene's job exported (naming ``--checkpoint``, else the
+    preference's) and run."""
     _open_blend(args.blend, args, args.output)
-    job, out = runs.start(bpy.context, _invocation(args, args.command), _checkpoint(args))
+    options = {}
+    if args.command == "export":
+        options = {"export_format": args.format, "out": os.path.abspath(args.out) if args.out else None}
+    job, out = runs.start(bpy.context, _invocation(args, args.command, **options), _checkpoint(args))
     try:
         done = job.wait(timeout=args.timeout or None, on_event=_progress)
     except backend_client.BackendError as e:  # the same error, its message saying where the log is
@@ -185,7 +205,8 @@ def _run_blend(args) -> dict:
 def _outputs(done: dict, out: str) -> dict:
     # model / description: which generator made the video ("baseline": OpenCV inpainting, no model); output_dir is
     # the folder the scene names (the one its job was exported to), the other paths the done event's
-    keep = ("frames", "rendered", "skipped", "video", "frames_dir", "model", "description", "seconds")
+    keep = ("frames", "rendered", "skipped", "video", "frames_dir", "model", "description", "seconds", "format", "out",
+            "objects", "images")
     return {"output_dir": out, **{k: done[k] for k in keep if k in done}}
 
 

@@ -89,6 +89,11 @@ def finish(context, command: str, out: str, done: dict) -> str:
     """Load what the run made and show it behind the camera; returns a one-line report, which for the baseline
     says that it is the baseline (the ``done`` event's ``model``) and how to get the model's video."""
     layout = OutputLayout(done.get("output_dir") or out)  # for the paths the done event does not carry
+    if command == "export":  # nothing to load: the dataset is files for a training pipeline
+        name = protocol.EXPORT_FORMATS.get(done.get("format"), (done.get("format"),))[0]
+        images = "generated frames" if done.get("images") == "generated" else "condition previews (no video yet)"
+        return (f"{name} export: {done.get('frames', '?')} frames, {done.get('objects', '?')} objects, images: "
+                f"{images}, in {done.get('out')}")
     if command == "render":
         folder = layout.conditions
         img = results.load_conditions(folder)

@@ -49,6 +49,9 @@ def test_device_names_match_the_preferences_enum_order():
     Invocation("batch", jobs=("a.json",), batch_command="render", ray="", retries=3, cpus_per_job=2.5),
     Invocation("batch", jobs=("a.json",), ray="head:6379"),
     Invocation("doctor", checkpoint="/ck"),
+    Invocation("export", jobs=("/x/job.json",), export_format="openlabel", out="/x/dataset", device="cpu",
+               allow_outside=True),
+    Invocation("export", jobs=("job.json",), export_format="kitti"),
 ])
 def test_invocation_argv_round_trips_through_the_backend_parser(run):
     from backend.__main__ import build_parser
@@ -58,8 +61,9 @@ def test_invocation_argv_round_trips_through_the_backend_parser(run):
                 "steps": run.steps, "seed": run.seed, "inpaint": run.inpaint, "point_radius": run.point_radius,
                 "force": run.force, "allow_outside": run.allow_outside, "shard": run.shard, "ray": run.ray,
                 "retries": run.retries, "cpus_per_job": run.cpus_per_job, "command_name": run.batch_command,
-                "list": list(run.lists) or None, "trusted_list": list(run.trusted_lists) or None}
-    if run.command in ("render", "generate"):
+                "list": list(run.lists) or None, "trusted_list": list(run.trusted_lists) or None,
+                "format": run.export_format, "out": run.out}
+    if run.command in ("render", "generate", "export"):
         expected["job"] = run.jobs[0]
     elif run.command == "batch":
         expected["jobs"] = list(run.jobs)
@@ -72,6 +76,8 @@ def test_invocation_argv_round_trips_through_the_backend_parser(run):
 def test_invocation_refuses_a_device_nobody_knows():
     with pytest.raises(ValueError):
         Invocation("render", device="gpu")
+    with pytest.raises(ValueError):
+        Invocation("export", export_format="yolo")
 
 
 def test_blender_cli_never_writes_a_command_line_value_into_the_preferences():

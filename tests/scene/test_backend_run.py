@@ -163,3 +163,16 @@ def test_check_backend_reports_what_is_missing(addon, tiny_checkpoint, tmp_path)
         assert not runs.DOCTOR["ok"]
     finally:
         prefs.backend_python, prefs.checkpoint_dir = "", ""
+
+
+def test_export_labels_operator_and_its_report(addon, empty_scene):
+    """The operator offers the backend's formats (their one home: core.backend_protocol); the report of a finished
+    export says the format, counts and where (nothing is loaded into the scene)."""
+    protocol = sys.modules[addon + ".scpainter_blender.core.backend_protocol"]
+    runs = sys.modules[addon + ".scpainter_blender.scene.runs"]
+    rna = bpy.ops.scpainter.export_labels.get_rna_type()
+    assert [i.identifier for i in rna.properties["format"].enum_items] == list(protocol.EXPORT_FORMAT_NAMES)
+    done = {"format": "openlabel", "frames": 3, "objects": 7, "images": "conditions", "out": "/x/export/openlabel"}
+    text = runs.finish(bpy.context, "export", "/x", done)
+    assert text.startswith("OpenLABEL export: 3 frames, 7 objects") and "/x/export/openlabel" in text
+    assert "condition previews" in text and len(bpy.data.images) == 0

@@ -1,0 +1,177 @@
+"""The body of ``python -m backend export JOB --format kitti|coco|openlabel [--out DIR]`` (docs/design.md §15).
+
+Steps: the job's inputs and output folder are checked and the folder locked (``locking.OutputLock``, as
+``render`` does); ``render_job`` renders what is missing (it resumes: after ``render`` or ``generate`` it renders
+nothing) and writes each frame's labels (``conditions/labels_NNNNNN.json``, ``core.labels``); each frame's labels
+are read (a missing or other-schema file is an ``InputError`` naming it: render again), for COCO with the frame's
+``instance`` layer (``backend.render.channels``). Images: the generated frames when a finished generation
+(``generated/manifest.json`` listing the job's frames, every PNG present, written after the condition EXRs) is
+there, else the condition previews, with a ``warning`` event (code ``NO_GENERATED``) saying so; the ``done`` event
+says which (``images``). The destination (default ``OutputLayout(output_dir).export(format)``) is written whole
+(``outputs.atomic_folder``): a killed export leaves no half dataset, and a previous export there (a folder with
+``OutputLayout.EXPORT_RECORD``) is replaced only when the new one is complete. A folder that is not empty and not
+an export is refused (``--out``), never overwritten.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import tempfile
+
+from scpainter_blender.core import errors, files, job_inputs, labels, locking, outputs
+from scpainter_blender.core import job as job_mod
+from scpainter_blender.core.output_layout import OutputLayout
+
+from .. import events
+from ..errors import FolderBusyError
+from . import coco, common, kitti, openlabel
+
+FORMATS = {"kitti": kitti, "coco": coco, "openlabel": openlabel}
+#: The formats whose writer needs the instance layer.
+NEEDS_INSTANCE = ("coco",)
+NO_GENERATED = "no_generated_frames"
+RENDER_AGAIN = "render again: python -m backend render JOB --force (this export renders only missing frames)"
+EXPORT_SCHEMA = "scpainter.export/1"
+
+
+def check_format(fmt: str) -> str:
+    if fmt not in FORMATS:  # (FORMATS' keys are core.backend_protocol.EXPORT_FORMAT_NAMES: a test says so)
+        raise errors.ArgumentError("--format", f"expected one of {list(FORMATS)}, got {fmt!r}")
+    return fmt
+
+
+def check_destination(out: str, output_dir: str, given: bool) -> None:
+    """What an export may replace: nothing, an empty folder, or a previous export (its ``EXPORT_RECORD``); never
+    a file, a link, another folder with content, or a folder holding the job's output folder. ``given``: the user
+    named it (``--out``: an ``ArgumentError``), else the default (an ``InputError`` naming the folder)."""
+    def refuse(message, hint="give a new or empty folder, or a previous export of this command"):
+        raise (errors.ArgumentError("--out", f"{out} {message}", hint) if given
+               else errors.InputError(out, "(folder)", message, hint))
+
+    real, real_out = os.path.realpath(out), os.path.realpath(output_dir)
+    if real == real_out or real_out.startswith(real.rstrip(os.sep) + os.sep):
+        refuse("holds the job's output folder: an export there would replace it")
+    if not os.path.lexists(out):
+        return
+    if os.path.islink(out) or not os.path.isdir(out):
+        refuse("exists and is not a folder")
+    if os.listdir(out) and not os.path.isfile(os.path.join(out, OutputLayout.EXPORT_RECORD)):
+        refuse("is a folder with other content (not an export of this command): it is never overwritten")
+
+
+def read_labels(path: str, frame: int) -> dict:
+    """A frame's labels file (``core.labels``' schema); InputError naming it when missing, unreadable, of another
+    schema or of another frame."""
+    lab = files.read_json(path)
+    hint = RENDER_AGAIN
+    if not isinstance(lab, dict) or lab.get("schema") != labels.SCHEMA:
+        got = lab.get("schema") if isinstance(lab, dict) else type(lab).__name__
+        raise errors.InputError(path, "schema", f"expected {labels.SCHEMA!r}, got {got!r}", hint=hint)
+    if lab.get("frame") != frame or not isinstance(lab.get("objects"), list):
+        raise errors.InputError(path, "frame", f"expected the labels of frame {frame}, got {lab.get('frame')!r}",
+                                hint=hint)
+    return lab
+
+
+def image_source(layout: OutputLayout, job: job_mod.Job) -> tuple[str, str]:
+    """("generated", "") when a finished generation of these frames is newer than their conditions, else
+    ("conditions", why not)."""
+    try:
+        manifest = files.read_json(layout.manifest)
+    except errors.InputError:
+        return "conditions", "no finished generation (generated/ has no manifest)"
+    frames = [e.frame for e in job.frames]
+    if not isinstance(manifest, dict) or manifest.get("frames") != frames:
+        return "conditions", "the finished generation is of other frames"
+    if not all(os.path.isfile(layout.generated_frame(f)) for f in frames):
+        return "conditions", "generated frames are missing"
+    newest = max(os.stat(layout.condition_exr(f)).st_mtime_ns for f in frames)
+    if os.stat(layout.manifest).st_mtime_ns < newest:
+        return "conditions", "the generated frames are older than the conditions (the job changed since)"
+    return "generated", ""
+
+
+def _frame(layout: OutputLayout, frame: int, images: str, instance: bool) -> common.ExportFrame:
+    from ..render import channels
+
+    lab = read_labels(layout.frame_labels(frame), frame)
+    image = layout.generated_frame(frame) if images == "generated" else layout.condition_preview(frame)
+    layer = channels.read(layout.condition_exr(frame), required=(channels.INSTANCE,))[channels.INSTANCE] \
+        if instance else None
+    return common.ExportFrame(lab, image, layer)
+
+
+@contextlib.contextmanager
+def _replacing(out: str):
+    """Around ``outputs.atomic_folder(out)``: a previous export at ``out`` is moved aside just before the new one
+    is renamed into place (``moved_aside``, called by the writer at its end), removed once it is, and put back
+    if that fails."""
+    aside = []
+
+    def moved_aside():
+        if os.path.lexists(out):
+            aside.append(tempfile.mkdtemp(prefix=f".{os.path.basename(out)}.", suffix=".old.tmp",
+                                          dir=os.path.dirname(out)))
+            os.rename(out, os.path.join(aside[0], "previous"))
+
+    try:
+        yield moved_aside
+    except BaseException:
+        if aside and not os.path.lexists(out):
+            os.rename(os.path.join(aside[0], "previous"), out)
+        raise
+    finally:
+        if aside:
+            shutil.rmtree(aside[0], ignore_errors=True)
+
+
+def export_job(job_path: str, job: job_mod.Job, fmt: str, out: str | None = None, device: str = "cpu",
+               allow_outside: bool = False, stop=()) -> dict:
+    """Export a job's labels as ``fmt`` into ``out`` (None: ``OutputLayout(output_dir).export(fmt)``), rendering
+    what is missing first; emits progress and warning events. Returns the counts, ``out``, ``images``,
+    ``stopped`` (SIGTERM during the render: nothing exported)."""
+    check_format(fmt)
+    paths = job_inputs.check_inputs(job_path, job, allow_outside)
+    outputs.check_output(paths["output_dir"], allow_outside)
+    output_dir = outputs.make_folder(paths["output_dir"], "output_dir")
+    layout = OutputLayout(output_dir)
+    dest = os.path.abspath(out) if out else layout.export(fmt)
+    check_destination(dest, output_dir, given=bool(out))
+    with locking.OutputLock(output_dir, "export", busy=FolderBusyError) as held, events.log_scope():
+        log = events.FileLog(layout.log)
+        if held.stale:
+            log(f"export: {held.took_over()}")
+        from ..render import command as render_cmd
+
+        rendered = render_cmd.render_job(job_path, job, device, stop=stop, log=log, allow_outside=allow_outside,
+                                         lock=False, checked=paths)
+        result = {"format": fmt, "out": dest, "output_dir": output_dir, "rendered": rendered["rendered"]}
+        if rendered["stopped"]:
+            return {**result, "stopped": True}
+        return {**result, **write_export(job_path, job, layout, fmt, dest, log), "stopped": False}
+
+
+def write_export(job_path: str, job: job_mod.Job, layout: OutputLayout, fmt: str, dest: str, log=None) -> dict:
+    """The export itself, once the frames are rendered (labels and layers in ``layout``): the images chosen (a
+    warning event when they are the condition previews), every frame read, the destination written whole (a
+    previous export there replaced only when this one is complete). Returns the format's counts and ``images``."""
+    images, why = image_source(layout, job)
+    if images == "conditions":
+        events.warning(f"exporting the condition previews as images: {why} (run generate first for the "
+                       "generated video's frames)", NO_GENERATED)
+    frames = [_frame(layout, e.frame, images, fmt in NEEDS_INSTANCE) for e in job.frames]
+    total = len(frames)
+    outputs.make_folder(os.path.dirname(dest), "(folder)")
+    with _replacing(dest) as moved_aside, outputs.atomic_folder(dest) as tmp:
+        counts = FORMATS[fmt].write(tmp, frames, progress=lambda i: events.progress(
+            "export", i + 1, total, frame=job.frames[i].frame))
+        outputs.write_json(os.path.join(tmp, OutputLayout.EXPORT_RECORD), {
+            "schema": EXPORT_SCHEMA, "format": fmt, "job": os.path.abspath(job_path), "images": images,
+            **counts, "scene_frames": [e.frame for e in job.frames]})
+        os.chmod(tmp, 0o777 & ~outputs._umask())  # mkdtemp made it 0700: the usual permissions instead
+        moved_aside()
+    if log:
+        log(f"export {fmt}: {counts['frames']} frames, {counts['objects']} objects ({images} images) -> {dest}")
+    return {**counts, "images": images}

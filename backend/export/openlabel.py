@@ -1,0 +1,148 @@
+"""ASAM OpenLABEL 1.0 JSON (``openlabel.json``; valid against the official schema,
+``openlabel_json_schema-v1.0.0.json``, draft-07) and the frames' images (``images/NNNNNN.png``).
+
+Conventions, with their sources:
+
+- **Frames**: OpenLABEL frame numbers are the frames' positions in the job (0, 1, …: the schema allows only
+  non-negative keys, scene frames may be negative); ``frame_properties`` carries ``timestamp`` (seconds from the
+  job's first frame, the labels' ``timestamp_s``), ``scene_frame`` and the image (``streams.camera.uri``).
+- **Coordinate systems**: ``odom`` (type ``scene_cs``, the root: the job's world, Z up, metres) and ``camera``
+  (``sensor_cs``, child of ``odom``). The camera's axes are OpenCV's, x right, y down, z forward: what the
+  schema's ``camera_matrix`` assumes ("x-to-right, y-down, z-forward") and what Vicomtech's VCD tutorial
+  ``02_From_pose_to_transform_opencv_camera`` sets up — the same axes as ours, so no axis change is needed.
+- **Transforms**: ``matrix4x4`` row-major (VCD reads it with ``reshape(4, 4)``), mapping column vectors
+  X_dst = M · X_src (the schema's words). ``pose_wrt_parent`` is the pose of the child in its parent, i.e. the
+  child-to-parent transform (VCD's tutorial: ``T_fv_to_lcs = P_fv_wrt_lcs``): the camera's is camera_to_world of
+  the first frame, and every frame has ``transforms.camera_to_odom`` (src ``camera``, dst ``odom``) with that
+  frame's camera_to_world.
+- **Stream** ``camera``: ``intrinsics_pinhole`` with ``width_px``, ``height_px``, ``camera_matrix_3x4`` (and the
+  schema's ``camera_matrix``: the same 12 numbers) = K [I | 0] in OpenCV's pixel convention (pixel centres at
+  integers: ``common.opencv_K``), ``distortion_coeffs`` five zeros (a rendered pinhole). A frame whose K differs
+  from the first frame's repeats the stream's properties in its ``frame_properties.streams``.
+- **Objects**: one per track (key = the labels' ``track_id``), ``type`` the class, static
+  ``boolean synthetic``; per frame (every frame whose labels list it) ``cuboid`` ``box3d`` in ``odom``:
+  [x, y, z, qx, qy, qz, qw, sx, sy, sz] with the object frame x forward, y left, z up (ISO 8855, OpenLABEL's
+  object convention) and sizes length, width, height; ``bbox`` ``visible`` and ``amodal`` in ``camera``:
+  [cx, cy, w, h] (centre, OpenCV pixel convention) when known; ``num`` ``visible_fraction``, ``occlusion``
+  (KITTI's levels), ``truncation``; ``boolean`` ``removed``. ``frame_intervals`` say where each exists.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+
+from . import common
+
+IMAGES, FILE = "images", "openlabel.json"
+SCHEMA_VERSION = "1.0.0"
+WORLD, CAMERA = "odom", "camera"
+
+
+def _matrix(m) -> list:
+    return [float(v) for v in np.asarray(m, np.float64).ravel()]
+
+
+def intrinsics(K, width: int, height: int) -> dict:
+    """The camera stream's ``stream_properties`` for our intrinsics ``K``."""
+    P = _matrix(np.hstack([common.opencv_K(K), np.zeros((3, 1))]))
+    return {"intrinsics_pinhole": {"width_px": int(width), "height_px": int(height), "camera_matrix_3x4": P,
+                                   "camera_matrix": P, "distortion_coeffs": [0.0] * 5}}
+
+
+def cuboid_val(box_world: dict) -> list:
+    """[x, y, z, qx, qy, qz, qw, sx, sy, sz] of a labels ``box_world`` (quaternion (w, x, y, z), size l w h)."""
+    w, x, y, z = box_world["quaternion"]
+    return [*map(float, box_world["center"]), float(x), float(y), float(z), float(w), *map(float, box_world["size"])]
+
+
+def bbox_val(box) -> list:
+    """[cx, cy, w, h] in OpenCV pixel coordinates of our [x0, y0, x1, y1]."""
+    x0, y0, x1, y1 = box
+    return [(x0 + x1) / 2 - common.OPENCV_SHIFT, (y0 + y1) / 2 - common.OPENCV_SHIFT, x1 - x0, y1 - y0]
+
+
+def intervals(indices) -> list:
+    """Closed ``frame_interval``s covering the sorted frame ``indices``."""
+    out = []
+    for i in indices:
+        if out and out[-1]["frame_end"] == i - 1:
+            out[-1]["frame_end"] = i
+        else:
+            out.append({"frame_start": i, "frame_end": i})
+    return out
+
+
+def _frame_object(o: dict) -> dict:
+    data = {"cuboid": [{"name": "box3d", "val": cuboid_val(o["box_world"]), "coordinate_system": WORLD}]}
+    boxes = [{"name": n, "val": bbox_val(o[k]), "coordinate_system": CAMERA}
+             for n, k in (("visible", "bbox_visible"), ("amodal", "bbox_amodal")) if o[k] is not None]
+    if boxes:
+        data["bbox"] = boxes
+    nums = [("occlusion", o["occlusion"]), ("truncation", o["truncation"])]
+    if o["visible_fraction"] is not None:
+        nums.insert(0, ("visible_fraction", o["visible_fraction"]))
+    data["num"] = [{"name": n, "val": float(v)} for n, v in nums]
+    data["boolean"] = [{"name": "removed", "val": bool(o["removed"])}]
+    return {"object_data": data}
+
+
+def document(frames: list, image_names: list, name: str = "scpainter") -> dict:
+    """The OpenLABEL document of ``frames`` (``common.ExportFrame``, in order) whose images are ``image_names``
+    (relative to the document)."""
+    first = frames[0].labels
+    K0 = np.asarray(first["camera"]["K"], np.float64)
+    W, H = first["image_size"]
+    objects, seen = {}, {}
+    out_frames = {}
+    for i, (fr, image) in enumerate(zip(frames, image_names)):
+        lab = fr.labels
+        stream = {"uri": image}
+        if not np.array_equal(np.asarray(lab["camera"]["K"], np.float64), K0):
+            stream["stream_properties"] = intrinsics(lab["camera"]["K"], *lab["image_size"])
+        props = {"timestamp": float(lab["timestamp_s"]), "scene_frame": int(lab["frame"]),
+                 "streams": {CAMERA: stream},
+                 "transforms": {f"{CAMERA}_to_{WORLD}": {"src": CAMERA, "dst": WORLD, "transform_src_to_dst": {
+                     "matrix4x4": _matrix(lab["camera"]["camera_to_world"])}}}}
+        frame_objects = {}
+        for o in lab["objects"]:
+            key = str(int(o["track_id"]))
+            seen.setdefault(key, []).append(i)
+            objects.setdefault(key, {"name": o["name"], "type": o["class"], "object_data": {
+                "boolean": [{"name": "synthetic", "val": bool(o["synthetic"])}]}})
+            frame_objects[key] = _frame_object(o)
+        out_frames[str(i)] = {"frame_properties": props, **({"objects": frame_objects} if frame_objects else {})}
+    for key, idx in seen.items():
+        objects[key]["frame_intervals"] = intervals(idx)
+    doc = {"metadata": {"schema_version": SCHEMA_VERSION, "name": name, "annotator": "SCPainter (rendered labels)",
+                        "comment": "world: the job's (Z up, metres); camera: OpenCV axes; see backend/export/"
+                                   "openlabel.py"},
+           "coordinate_systems": {
+               WORLD: {"type": "scene_cs", "parent": "", "children": [CAMERA]},
+               CAMERA: {"type": "sensor_cs", "parent": WORLD,
+                        "pose_wrt_parent": {"matrix4x4": _matrix(first["camera"]["camera_to_world"])}}},
+           "streams": {CAMERA: {"type": "camera", "description": "the rendered camera (pinhole, no distortion)",
+                                "stream_properties": intrinsics(K0, W, H)}},
+           "frame_intervals": [{"frame_start": 0, "frame_end": len(frames) - 1}],
+           "frames": out_frames}
+    if objects:
+        doc["objects"] = dict(sorted(objects.items(), key=lambda kv: int(kv[0])))
+    return {"openlabel": doc}
+
+
+def write(folder: str, frames: list, progress=None, name: str = "scpainter") -> dict:
+    """``openlabel.json`` and ``images/`` into ``folder`` (existing, empty). Returns {"frames", "objects"}
+    (objects: per-frame object entries)."""
+    os.makedirs(os.path.join(folder, IMAGES))
+    names = [f"{IMAGES}/{common.index_name(i, '.png')}" for i in range(len(frames))]
+    for i, (fr, rel) in enumerate(zip(frames, names)):
+        common.copy_image(fr.image, os.path.join(folder, rel))
+        if progress:
+            progress(i)
+    doc = document(frames, names, name)
+    with open(os.path.join(folder, FILE), "w", encoding="utf-8") as f:
+        json.dump(doc, f, allow_nan=False)
+    count = sum(len(f.get("objects", {})) for f in doc["openlabel"]["frames"].values())
+    return {"frames": len(frames), "objects": count}

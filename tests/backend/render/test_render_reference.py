@@ -118,7 +118,7 @@ def fast(means, quats, scales, opac, sh, K, w2c, W, H, bg=None, dtype=torch.floa
     t = lambda a: torch.as_tensor(np.asarray(a), dtype=dtype, device=device)  # noqa: E731
     proj = GS.project(t(means), t(quats), t(scales), t(opac), t(sh), K, w2c, W, H, fast=kind == "tiles")
     rasterize = GS.rasterize if kind == "pairs" else TL.rasterize
-    col, asset_mask, _ = rasterize(proj, W, H, None if bg is None else t(bg))
+    col, asset_mask, *_ = rasterize(proj, W, H, None if bg is None else t(bg))
     return col.double().cpu().numpy(), asset_mask.double().cpu().numpy()
 
 

@@ -21,6 +21,9 @@ Jacobian clamp):
   below 1/255 (``ALPHA_MIN``); stop before the Gaussian that would drop the transmittance below 1e-4
   (``TRANSMITTANCE_MIN``). Only Gaussians in front of the pixel's nearest point are composited: the point is the
   opaque background behind them. The asset mask M_a = 1 − the transmittance left = Σ α·transmittance.
+* Instance: each Gaussian belongs to an asset (``proj["asset_id"]``, 1-based; ``asset_ids``). Per pixel w_a =
+  Σ α·transmittance over the composited Gaussians of asset a and T_rest = the transmittance left; the instance is
+  argmax_a w_a (ties to the lower id) where max_a w_a > T_rest, else 0 (one asset: where its M_a > 0.5).
   The 0.99 cap is the INRIA rasterizer's (graphdeco-inria/diff-gaussian-rasterization), the one the TRELLIS and
   Amodal3R assets were trained with; gsplat caps at 0.999. We keep 0.99: the assets' opacities were fitted to it.
 * Colour = max(0.5 + SH(dir), 0), dir = normalise(mean - camera centre) (``core.splats.sh``, the formula the numpy side

@@ -18,6 +18,9 @@ the layers are identical too (tested: the kernel fed either list).
   an asset covers a few neighbouring tiles, which a static split would give to one thread.
   Transmittance and colour are accumulated in float64 so the 1e-4 stop decision matches the reference's float64
   log-space product; outputs are float32.
+* Instance: the asset id rides in ``params``' column 7 (``_ASSET``); each pixel sums its weights per asset in a
+  small float64 accumulator (one per tile, reset per pixel) and takes the first maximum; with a single asset only
+  the sum is kept (the same additions), so one car costs no per-asset work.
 """
 
 from __future__ import annotations

@@ -6,10 +6,11 @@ targets, and coverage on the ground-truth street.
 
 ab        (CPU) the working tree against ``--baseline`` (a git revision, extracted with ``git archive`` into a temp
           folder), side by side in one run: each tree in its own worker process (``render_scene.py --worker``)
-          with the same timing code on the same inputs (1 M points + a 100 k Gaussian car at 576 x 1024, saved
-          once to an .npz), requests interleaved A/B for ``--rounds`` rounds (order alternating) of ``--repeat``
-          timed calls each. Reports, per tree: the median ms of a whole frame, of the point pass and of the
-          Gaussian pass (projection + tile compositing over the points' depth), the ratio baseline / now; whether
+          with the same timing code on the same inputs (1 M points + a 100 k Gaussian car, or ``--ab-cars`` 2–3
+          cars sharing them, at 576 x 1024, saved once to an .npz), requests interleaved A/B for ``--rounds``
+          rounds (order alternating) of ``--repeat`` timed calls each. Reports, per tree: the median ms of a
+          whole frame, of the point pass and of the Gaussian pass (projection + tile compositing over the points'
+          depth), the ratio baseline / now; the working tree's ``frames.amodal_pixels`` alone; whether
           the point pass is identical (rgb, depth, winner, bit for bit); the Gaussian layers' error against the
           float64 pair rasterizer without any cutoff; the pixel–Gaussian pairs (``pixel_boxes``). Then under load:
           one competing CPU-bound process (a second Python process spinning in a pure-Python loop: one busy core,
@@ -346,10 +347,10 @@ def section_ab(args, result):
     trees = {"baseline": base_dir, "now": ROOT}
     tmp = tempfile.mkdtemp(prefix="scpainter-bench-ab-")
     data = os.path.join(tmp, "scene.npz")
-    np.savez(data, **render_scene.scene_arrays(args.ab_points, args.ab_gaussians, W, H))
+    np.savez(data, **render_scene.scene_arrays(args.ab_points, args.ab_gaussians, W, H, cars=args.ab_cars))
     ab = {"baseline": args.baseline, "baseline_commit": sha, "baseline_tree": base_dir, "points": args.ab_points,
-          "gaussians": args.ab_gaussians, "size": [W, H], "threads": args.threads, "rounds": args.rounds,
-          "repeat": args.repeat, "user_wait_policy": USER_WAIT_POLICY, "cpus": os.cpu_count(),
+          "gaussians": args.ab_gaussians, "cars": args.ab_cars, "size": [W, H], "threads": args.threads,
+          "rounds": args.rounds, "repeat": args.repeat, "user_wait_policy": USER_WAIT_POLICY, "cpus": os.cpu_count(),
           "measured": time.strftime("%Y-%m-%d %H:%M:%S"), "load_before": os.getloadavg()}
     workers = {}
     t_start = time.perf_counter()
@@ -380,6 +381,8 @@ def section_ab(args, result):
         ab["speedup"] = [{"arm": arm, "part": t, "speedup": med(ms[arm, t]) / med(ms["now", t]),
                           "per_round_min": min(ratios[arm, t]), "per_round_max": max(ratios[arm, t])}
                          for arm in ("baseline", "baseline_passive") for t in tasks]
+        # frames.amodal_pixels (the working tree only): a separate cost, not part of the frame
+        ab["amodal_ms"] = med(workers["now"].ask(cmd="time", task="amodal", repeat=args.repeat, warmup=1)["ms"])
         ab["pairs"] = [{"tree": QUIET_ARMS[arm][0], **workers[arm].ask(cmd="pairs"),
                         "gaussians_ms": med(ms[arm, "gaussians"]), "frame_ms": med(ms[arm, "frame"])}
                        for arm in ("baseline", "now")]
@@ -387,7 +390,8 @@ def section_ab(args, result):
         # this scene and on the accuracy scene (20 k Gaussians, car 8 m ahead: larger on screen)
         ab["outputs"] = [compare_outputs(workers, "speed scene", tmp)]
         acc = os.path.join(tmp, "accuracy_scene.npz")
-        np.savez(acc, **render_scene.scene_arrays(args.ab_points, 20_000, W, H, car_distance=8.0))
+        np.savez(acc, **render_scene.scene_arrays(args.ab_points, 20_000, W, H, car_distance=8.0,
+                                                  cars=args.ab_cars))
         for arm in ("baseline", "now"):
             workers[arm].ask(cmd="load", data=acc)
         ab["outputs"].append(compare_outputs(workers, "accuracy scene (20 k Gaussians, 8 m)", tmp))
@@ -415,8 +419,11 @@ def compare_outputs(workers, scene_name, tmp):
     new = np.load(workers["now"].ask(cmd="dump", path=os.path.join(tmp, f"now_{tag}.npz"), reference=True)["path"])
     diff = {k: int(np.any((old[k] != new[k]).reshape(H, W, -1), -1).sum())  # pixels, not values
             for k in ("points_rgb", "points_depth", "points_winner")}
+    inst = f"layer_{channels.INSTANCE}"
     return {"scene": scene_name, "points_identical": all(v == 0 for v in diff.values()),
             "points_differing_pixels": diff,
+            "instance_differing_pixels": (int((new[inst] != new[f"reference_{channels.INSTANCE}"]).sum())
+                                          if inst in new.files else None),
             "layers_vs_reference": [{"scene": scene_name, "tree": "baseline", **layer_errors(old, new)},
                                     {"scene": scene_name, "tree": "now", **layer_errors(new, new)}]}
 
@@ -451,11 +458,15 @@ def print_ab(ab):
           f"{ab['load_after'][0]:.2f}); {ab['rounds']} interleaved rounds x {ab['repeat']} calls")
     print_table("median ms", ab["timing"], ["arm", "tree", "wait_policy", "frame_ms", "points_ms", "gaussians_ms",
                                             "samples"])
+    if ab.get("amodal_ms") is not None:
+        print(f"\nframes.amodal_pixels (working tree, {ab['cars']} cars, separate from the frame): "
+              f"{ab['amodal_ms']:.1f} ms")
     print_table("speed-up arm / now (ratio of the medians; spread of the per-round ratios)", ab["speedup"],
                 ["arm", "part", "speedup", "per_round_min", "per_round_max"])
     for o in ab["outputs"]:
         print(f"\n{o['scene']}: point pass identical (rgb, depth, winner): {o['points_identical']} "
-              f"(differing pixels {o['points_differing_pixels']})")
+              f"(differing pixels {o['points_differing_pixels']}); instance pixels differing from the reference "
+              f"frame's: {o.get('instance_differing_pixels')}")
     print_table("Gaussian layers (whole frame) against the float64 pair rasterizer without a cutoff",
                 [r for o in ab["outputs"] for r in o["layers_vs_reference"]],
                 ["scene", "tree", "max_abs_err_I", "mean_abs_err_I", "max_abs_err_asset_mask"])
@@ -547,6 +558,8 @@ def main(argv=None):
     p.add_argument("--load-rounds", type=int, default=3, help="ab: rounds under load (0: leave that part out)")
     p.add_argument("--ab-points", type=int, default=1_000_000)
     p.add_argument("--ab-gaussians", type=int, default=100_000)
+    p.add_argument("--ab-cars", type=int, default=1, choices=[1, 2, 3],
+                   help="ab: the Gaussians split between this many cars (render_scene.CAR_OFFSETS)")
     p.add_argument("--out", default=os.path.join(ROOT, "bench", "results"))
     args = p.parse_args(argv)
     torch.set_num_threads(args.threads)

@@ -92,13 +92,20 @@ def car_gaussians(n: int, seed: int = 0):
     return shapes.procedural_car_gaussians(count=n, seed=seed, paint=(0.7, 0.1, 0.1))
 
 
+#: Where the cars of ``scene_arrays(..., cars=n)`` stand, relative to (0, car_distance): the first in the right
+#: lane; the second 7 m behind it and 1 m further left (half hidden by the first); the third in the left lane.
+CAR_OFFSETS = ((3.5, 0.0), (2.5, 7.0), (-3.5, -3.0))
+
+
 def scene_arrays(n_points: int, n_gaussians: int, width: int = 1024, height: int = 576, seed: int = 0,
-                 car_distance: float = 12.0) -> dict:
+                 car_distance: float = 12.0, cars: int = 1) -> dict:
     """The benchmark scene as plain arrays (an .npz holds them without pickles): ``xyz`` (P, 3) float32 relative to
     ``origin``, ``rgb`` (P, 3) float32, ``frame`` (P,) int64, the car's Gaussians ``g_means`` ``g_scales``
     ``g_quats`` ``g_opacities`` ``g_sh`` in its own frame with ``object_to_world`` (4, 4), and the output frame
     ``K``, ``world_to_camera`` (frame 0, camera at the start of the drive, the car ``car_distance`` m ahead in the
-    right lane), ``source_frames`` and ``size`` (width, height). ``n_points`` are drawn from the source cloud."""
+    right lane), ``source_frames`` and ``size`` (width, height). ``n_points`` are drawn from the source cloud.
+    With ``cars`` > 1 (at most 3, ``CAR_OFFSETS``) the ``n_gaussians`` are split between that many cars (seeds
+    seed, seed + 1, ...), concatenated, ``g_car`` (N,) the car of each row and ``object_to_world`` (cars, 4, 4)."""
     rng = np.random.default_rng(seed)
     frames = max(1, int(np.ceil(n_points / (SRC_W * SRC_H))))
     xyz, rgb, frame = source_cloud(frames)
@@ -108,12 +115,20 @@ def scene_arrays(n_points: int, n_gaussians: int, width: int = 1024, height: int
     out = {"origin": origin, "xyz": (xyz - origin).astype(np.float32), "rgb": rgb, "frame": frame,
            "K": intrinsics(width, height), "world_to_camera": world_to_camera(0.0, 0.0),
            "source_frames": np.arange(frames, dtype=np.int64), "size": np.array([width, height])}
-    if n_gaussians:
+    if n_gaussians and cars == 1:
         g = car_gaussians(n_gaussians, seed)
         A = np.eye(4)
         A[:3, 3] = (3.5, car_distance, 0.0)
         out.update(g_means=g.means, g_scales=g.scales, g_quats=g.quats, g_opacities=g.opacities, g_sh=g.sh,
                    object_to_world=A)
+    elif n_gaussians:
+        gs = [car_gaussians(n_gaussians // cars, seed + c) for c in range(cars)]
+        A = np.tile(np.eye(4), (cars, 1, 1))
+        for c in range(cars):
+            A[c, :3, 3] = (CAR_OFFSETS[c][0], car_distance + CAR_OFFSETS[c][1], 0.0)
+        out.update({f"g_{k}": np.concatenate([getattr(g, k) for g in gs])
+                    for k in ("means", "scales", "quats", "opacities", "sh")})
+        out.update(g_car=np.repeat(np.arange(cars), [len(g.means) for g in gs]), object_to_world=A)
     return out
 
 
@@ -134,9 +149,13 @@ def scene_from_arrays(a: dict, device="cpu"):
         scene.frame = torch.as_tensor(np.asarray(a["frame"], np.int64), device=dev)
         scene.frames_present = frozenset(np.unique(a["frame"]).tolist())
     if "g_means" in a:
-        g = splats.Gaussians(means=a["g_means"], scales=a["g_scales"], quats=a["g_quats"],
-                             opacities=a["g_opacities"], sh=a["g_sh"])
-        scene.assets.append(fr.make_asset("car", g, {0: np.asarray(a["object_to_world"], np.float64)}, dev))
+        A = np.asarray(a["object_to_world"], np.float64).reshape(-1, 4, 4)
+        car = np.asarray(a["g_car"]) if "g_car" in a else np.zeros(len(a["g_means"]), np.int64)
+        for c in range(len(A)):
+            g = splats.Gaussians(means=a["g_means"][car == c], scales=a["g_scales"][car == c],
+                                 quats=a["g_quats"][car == c], opacities=a["g_opacities"][car == c],
+                                 sh=a["g_sh"][car == c])
+            scene.assets.append(fr.make_asset(f"car{c}" if c else "car", g, {0: A[c]}, dev))
     entry = job_mod.Frame(frame=0, K=np.asarray(a["K"], np.float64),
                           world_to_camera=np.asarray(a["world_to_camera"], np.float64),
                           source_frames=[int(f) for f in a["source_frames"]])
@@ -184,12 +203,29 @@ class Passes:
         return self.pts.render_points(self.scene.xyz, self.scene.rgb, self.K, self.w2c, self.W, self.H)
 
     def projection(self):
-        torch, a = self.torch, self.scene.assets[0]
-        A = np.array(a.object_to_world[self.entry.frame], np.float64)
-        A[:3, 3] -= self.scene.origin
-        At = torch.as_tensor(A, dtype=torch.float64, device=self.scene.device)
-        means, factors = a.means @ At[:3, :3].T + At[:3, 3], At[:3, :3] @ a.factors
-        return self.gs.project_factors(means, factors, a.opacities, a.sh, self.K, self.w2c, self.W, self.H)
+        """Every asset's Gaussians projected together, as render_frame does; with ``asset_id`` where the tree has
+        an instance pass (``gaussians.asset_ids``)."""
+        torch = self.torch
+        means, factors, ids = [], [], []
+        for i, a in enumerate(self.scene.assets):
+            A = np.array(a.object_to_world[self.entry.frame], np.float64)
+            A[:3, 3] -= self.scene.origin
+            At = torch.as_tensor(A, dtype=torch.float64, device=self.scene.device)
+            means.append(a.means @ At[:3, :3].T + At[:3, 3])
+            factors.append(At[:3, :3] @ a.factors)
+            ids.append(torch.full((len(a.means),), i + 1, dtype=torch.int64))
+        assets = self.scene.assets
+        proj = self.gs.project_factors(torch.cat(means), torch.cat(factors), torch.cat([a.opacities for a in assets]),
+                                       torch.cat([a.sh for a in assets]), self.K, self.w2c, self.W, self.H)
+        if hasattr(self.gs, "asset_ids"):
+            proj["asset_id"] = torch.cat(ids)[proj["index"]]
+        return proj
+
+    def amodal(self):
+        """``frames.amodal_pixels`` (trees that have it; else None)."""
+        if not hasattr(self.fr, "amodal_pixels"):
+            return None
+        return self.fr.amodal_pixels(self.scene, self.entry, self.W, self.H)
 
     def gaussians(self):
         return self.tiles.rasterize(self.projection(), self.W, self.H, background_depth=self.depth)
@@ -213,13 +249,17 @@ def timed_ms(fn, repeat, warmup):
 
 
 def worker_request(passes: Passes, req: dict) -> dict:
-    """One request: {"cmd": "time", "task": "frame" | "points" | "gaussians", "repeat", "warmup"} -> {"ms": [...]};
+    """One request: {"cmd": "time", "task": "frame" | "points" | "gaussians" | "amodal", "repeat", "warmup"} ->
+    {"ms": [...]} ("amodal": ``frames.amodal_pixels``, [] in a tree without it);
     {"cmd": "pairs"} -> {"pairs", "gaussians"}; {"cmd": "dump", "path", "reference": bool} writes the frame's
     layers (``layer_<name>``), the point pass (``points_rgb``, ``points_depth``, ``points_winner``) and with
     ``reference`` the float64 pair rasterizer's frame (``reference_<name>``) to an .npz -> {"path"}."""
     cmd = req["cmd"]
     if cmd == "time":
-        fn = {"frame": passes.frame, "points": passes.points, "gaussians": passes.gaussians}[req["task"]]
+        if req["task"] == "amodal" and passes.amodal() is None:
+            return {"ms": []}
+        fn = {"frame": passes.frame, "points": passes.points, "gaussians": passes.gaussians,
+              "amodal": passes.amodal}[req["task"]]
         return {"ms": timed_ms(fn, int(req.get("repeat", 3)), int(req.get("warmup", 1)))}
     if cmd == "pairs":
         pairs, g = passes.pairs()

@@ -10,15 +10,19 @@ exactly these keys):
     asset_mask   M_a = 1 − the transmittance of the assets' Gaussians, [0, 1]
     Z            depth (metres along the optical axis) of what the pixel shows: where the asset's opacity first
                  reaches 0.5 if nearer than the point, else the point; +inf where empty
+    instance     the id of the asset that dominates the pixel (1-based, the job's ``assets`` order), 0 where the
+                 scene's point or nothing wins (``gaussians.rasterize``' rule), as float32 (exact below 2^24)
 
-In the file each is a channel named ``layer.channel`` (``FILE_NAMES``), so that compositors show four passes of one
-image: Blender's Image node (bpy 5.0.1, measured) lists the outputs ``image`` (colour), ``hole``, ``asset_mask``
-and ``depth`` (values); Nuke reads ``layer.channel`` as a layer of that name (``depth.Z`` is its own depth layer).
+In the file each is a channel named ``layer.channel`` (``FILE_NAMES``), so that compositors show five passes of one
+image: Blender's Image node (bpy 5.0.1, measured with the first four) lists the outputs ``image`` (colour),
+``hole``, ``asset_mask``, ``depth`` (values) and ``instance``; Nuke reads ``layer.channel`` as a layer of that name
+(``depth.Z`` is its own depth layer).
 
     image.R image.G image.B    I
     hole.Y                     M      (Y: OpenEXR's name for a single grey channel; viewers show it as grey)
     asset_mask.Y               M_a
     depth.Z                    Z
+    instance.Y                 instance (always FLOAT: ids stay exact)
 
 I holds display-referred values (what the model sees, like the PNG preview); a compositor takes EXR values as
 scene-linear, so it shows ``image`` lighter than the preview unless told they are display values.
@@ -26,14 +30,16 @@ scene-linear, so it shows ``image`` lighter than the preview unless told they ar
 A single-part scanline file with lossless ZIP compression (3.5× smaller than raw float32 on the demo's frames,
 bench/exr_sizes.py; zlib's checksum also makes damaged pixel data an error rather than wrong values). Every channel
 is FLOAT (bit-exact: resume keys and tests compare the layers), or with ``half=True`` I, M and M_a are HALF (their
-values lie in [0, 1]: error ≤ 2^-12 ≈ 2.4e-4, 0 and 1 exact; 5.6× smaller than raw) and Z stays FLOAT (metres to
-hundreds of metres need float's range and precision).
+values lie in [0, 1]: error ≤ 2^-12 ≈ 2.4e-4, 0 and 1 exact; 5.6× smaller than raw) and Z and instance stay FLOAT
+(metres to hundreds of metres need float's range and precision; ids must stay exact).
 
 ``read`` takes what other tools make of such a file when they re-save it: any compression (lossy ones give
 their own values back), any channel order, tiled or scanline, several parts, HALF/UINT channels (converted to
 float32), a prefix before the layer (Blender's ``ViewLayer.image.R``), a single-channel layer under another
 channel letter (``hole.V``), and the flat names this project wrote before (``R G B hole asset_mask Z``, the asset
-mask also as ``asset``: ``FORMER_NAMES``). A file it cannot use raises ``ExrError`` (an ``InputError``) naming
+mask also as ``asset``: ``FORMER_NAMES``). A file without a layer the caller requires (by default every layer:
+files written before the instance pass lack ``instance``) raises ``ConditionsError`` naming it. A file it cannot
+use raises ``ExrError`` (an ``InputError``) naming
 the file and what is wrong, with the hint to render again; never an exception from inside OpenEXR or numpy.
 
 Only numpy and OpenEXR (imported when a file is read or written): tools that just read the layers do not import
@@ -55,13 +61,15 @@ IMAGE = ("R", "G", "B")
 HOLE = "hole"
 ASSET_MASK = "asset_mask"
 DEPTH = "Z"
-CHANNELS = (*IMAGE, HOLE, ASSET_MASK, DEPTH)
+INSTANCE = "instance"
+CHANNELS = (*IMAGE, HOLE, ASSET_MASK, DEPTH, INSTANCE)
 
 #: Each layer's channel name in the file: ``layer.channel`` (see the module's docstring).
 FILE_NAMES = {"R": "image.R", "G": "image.G", "B": "image.B", HOLE: "hole.Y", ASSET_MASK: "asset_mask.Y",
-              DEPTH: "depth.Z"}
+              DEPTH: "depth.Z", INSTANCE: "instance.Y"}
 
-#: The layers ``write(..., half=True)`` stores as HALF (values in [0, 1]); the others (depth) stay FLOAT.
+#: The layers ``write(..., half=True)`` stores as HALF (values in [0, 1]); the others (depth, instance ids) stay
+#: FLOAT.
 HALF_LAYERS = (*IMAGE, HOLE, ASSET_MASK)
 
 #: Former flat channel names -> current ones (condition EXRs written before the rename).
@@ -201,7 +209,7 @@ def _open(data: bytes, error, path: str, header_only: bool):
 
 
 #: Each layer's name in the file (its last component, compared case-insensitively) and its channel letters.
-_LAYERS = {HOLE: ("hole", "Y"), ASSET_MASK: ("asset_mask", "Y"), DEPTH: ("depth", "Z")}
+_LAYERS = {HOLE: ("hole", "Y"), ASSET_MASK: ("asset_mask", "Y"), DEPTH: ("depth", "Z"), INSTANCE: ("instance", "Y")}
 _COLOURS = {"red": "R", "green": "G", "blue": "B"}  # (Nuke's names for a layer's R G B)
 
 

@@ -1,4 +1,5 @@
-"""Render a job's condition layers frame by frame: I (R G B), hole (M), asset_mask (M_a), Z (``channels``).
+"""Render a job's condition layers frame by frame: I (R G B), hole (M), asset_mask (M_a), Z, instance
+(``channels``).
 
 The scene is loaded once: the reconstruction's points in world metres (float64, removal boxes applied), moved
 to a scene origin at the first camera so the device works in float32 without losing millimetres; each asset's
@@ -6,7 +7,10 @@ Gaussians in its file coordinates, mapped per frame by its object_to_world. Per 
 are z-buffered, the Gaussians composited front to back over the nearest point, and
 
     I = C_gaussians + (1 - M_a) · I_points,   M_a = 1 - transmittance,   hole = no point and M_a < 1/255,
-    Z = depth where the asset opacity reaches 0.5 if nearer than the point, else the point's depth (+inf: empty).
+    Z = depth where the asset opacity reaches 0.5 if nearer than the point, else the point's depth (+inf: empty),
+    instance = the asset (1-based id, ``Scene.assets`` order) with the largest Σ α·T if that exceeds the
+    transmittance left, else 0 (``gaussians.rasterize``); ``visible_pixels`` counts it per asset and
+    ``amodal_pixels`` counts what each asset would cover alone.
 
 Nothing is computed for what the job leaves out: no ``scene``, no points; no ``assets``, no Gaussian pass. Nor
 for what a frame cannot see (``Scene.skip_unseen``): a source frame whose points' bounding box projects wholly
@@ -19,6 +23,7 @@ each source frame (``core.geometry.point_cloud.depth_edges``), then outliers of 
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -289,7 +294,10 @@ def select_points(scene: Scene, frames: list):
 def render_frame(scene: Scene, entry: job_mod.Frame, width: int, height: int, point_radius_px: int = 0,
                  reference: bool = False, to_numpy: bool = True, tile: int | None = None) -> dict:
     """The condition layers of one output frame as float32 (H, W) arrays keyed by ``channels.CHANNELS`` (R G B
-    hole asset_mask Z): numpy arrays, or tensors on the scene's device with ``to_numpy=False``. ``reference``
+    hole asset_mask Z instance): numpy arrays, or tensors on the scene's device with ``to_numpy=False``.
+    ``instance`` holds the asset id (1-based, the asset's place in ``scene.assets``, i.e. the job's ``assets``)
+    that dominates the pixel (``gaussians.rasterize``' rule), 0 where the scene or nothing wins and wherever no
+    Gaussian pass ran. ``reference``
     composites Gaussians with the torch pair rasterizer instead of the tile kernels (same result, slower; for tests
     and benchmarks); ``tile`` (pixels) is the tile kernels' tile size (None: the device's default). With
     ``scene.skip_unseen`` the source frames ``visible_frames`` rules out are not projected and the Gaussian pass
@@ -306,32 +314,68 @@ def render_frame(scene: Scene, entry: job_mod.Frame, width: int, height: int, po
             image, depth, _ = pts.render_points(xyz, rgb, K, w2c, width, height, radius_px=point_radius_px)
     asset_mask = torch.zeros((height, width), device=dev)
     zmed = torch.full((height, width), float("inf"), device=dev)
+    instance = torch.zeros((height, width), dtype=torch.int32, device=dev)
     # no Gaussian pass when no asset can reach a pixel: its output would be no colour, M_a = 0, no depth
     if scene.assets and not (scene.skip_unseen and all(
             asset_unseen(a, entry.frame, scene.origin, K, w2c, width, height) for a in scene.assets)):
-        means, factors, opac, sh = [], [], [], []
-        K_max = max(a.sh.shape[1] for a in scene.assets)
-        for a in scene.assets:
-            # a copy (np.array): the job's own float64 matrix must not be moved to the scene origin in place
-            A = np.array(a.object_to_world[entry.frame], np.float64)
-            A[:3, 3] -= scene.origin  # relative to the scene origin, like the points
-            # the projection runs in float64 on every device (a few hundred flops per Gaussian; it keeps thin
-            # Gaussians' pixel coordinates exact, see tiles_cpu): assets are stored in float64
-            At = torch.as_tensor(A, dtype=torch.float64, device=dev)
-            means.append(a.means @ At[:3, :3].T + At[:3, 3])
-            factors.append(At[:3, :3] @ a.factors)
-            opac.append(a.opacities)
-            sh.append(torch.nn.functional.pad(a.sh, (0, 0, 0, K_max - a.sh.shape[1])))
-        proj = gs.project_factors(torch.cat(means), torch.cat(factors), torch.cat(opac), torch.cat(sh), K, w2c,
-                                  width, height, near=GAUSSIAN_NEAR)
-        if reference:
-            color_g, asset_mask, zmed = gs.rasterize(proj, width, height, background_depth=depth)
-        else:
-            color_g, asset_mask, zmed = tiles.rasterize(proj, width, height, background_depth=depth, tile=tile)
+        proj = project_assets(scene, range(len(scene.assets)), entry.frame, K, w2c, width, height)
+        rasterize = gs.rasterize if reference else functools.partial(tiles.rasterize, tile=tile)
+        color_g, asset_mask, zmed, instance = rasterize(proj, width, height, background_depth=depth)
         image = color_g + (1.0 - asset_mask)[..., None] * image
     hole = torch.isinf(depth) & (asset_mask < gs.ALPHA_MIN)
     z = torch.where(zmed < depth, zmed, depth)
     img = image.clamp(0.0, 1.0)
-    layers = dict(zip(ch.CHANNELS, (img[..., 0], img[..., 1], img[..., 2], hole, asset_mask, z)))
+    layers = dict(zip(ch.CHANNELS, (img[..., 0], img[..., 1], img[..., 2], hole, asset_mask, z, instance)))
     layers = {k: v.to(torch.float32) for k, v in layers.items()}
     return {k: v.cpu().numpy() for k, v in layers.items()} if to_numpy else layers
+
+
+def project_assets(scene: Scene, which, frame: int, K, w2c, width: int, height: int) -> dict:
+    """``gaussians.project_factors`` of the assets ``scene.assets[i]`` for i in ``which`` (in that order) at output
+    frame ``frame`` (``w2c`` relative to the scene origin), their rows concatenated, with ``asset_id`` (G,) int64:
+    i + 1, the 1-based id of the asset each projected Gaussian came from (the projection's ``index`` row tells)."""
+    dev = scene.device
+    means, factors, opac, sh, ids = [], [], [], [], []
+    K_max = max(scene.assets[i].sh.shape[1] for i in which)
+    for i in which:
+        a = scene.assets[i]
+        # a copy (np.array): the job's own float64 matrix must not be moved to the scene origin in place
+        A = np.array(a.object_to_world[frame], np.float64)
+        A[:3, 3] -= scene.origin  # relative to the scene origin, like the points
+        # the projection runs in float64 on every device (a few hundred flops per Gaussian; it keeps thin
+        # Gaussians' pixel coordinates exact, see tiles_cpu): assets are stored in float64
+        At = torch.as_tensor(A, dtype=torch.float64, device=dev)
+        means.append(a.means @ At[:3, :3].T + At[:3, 3])
+        factors.append(At[:3, :3] @ a.factors)
+        opac.append(a.opacities)
+        sh.append(torch.nn.functional.pad(a.sh, (0, 0, 0, K_max - a.sh.shape[1])))
+        ids.append(torch.full((len(a.means),), i + 1, dtype=torch.int64, device=dev))
+    proj = gs.project_factors(torch.cat(means), torch.cat(factors), torch.cat(opac), torch.cat(sh), K, w2c,
+                              width, height, near=GAUSSIAN_NEAR)
+    proj["asset_id"] = torch.cat(ids)[proj["index"]]
+    return proj
+
+
+def visible_pixels(instance, n_assets: int) -> np.ndarray:
+    """(n_assets,) int64: the pixels of each asset (ids 1..n_assets) in an ``instance`` layer (render_frame's,
+    numpy or tensor, float32 ids); 0 (no asset) is not counted."""
+    ids = np.asarray(instance.cpu() if isinstance(instance, torch.Tensor) else instance).astype(np.int64).ravel()
+    return np.bincount(ids, minlength=n_assets + 1)[1:n_assets + 1].astype(np.int64)
+
+
+def amodal_pixels(scene: Scene, entry: job_mod.Frame, width: int, height: int) -> np.ndarray:
+    """(A,) int64, A = len(scene.assets): for each asset the pixels it would be the instance of if it were
+    rendered alone (no points, no other asset: no background depth), i.e. where its own M_a > 0.5 (its Σ α·T
+    exceeds the transmittance left). 0 for an asset ``asset_unseen`` rules out (no pass for it). One projection
+    and ``tiles.rasterize`` per asset: a separate cost, not part of ``render_frame``. An asset nothing hides
+    (no point or other asset in front of it, nor behind it where it would count) has
+    ``visible_pixels`` == ``amodal_pixels``."""
+    K = np.asarray(entry.K, np.float64)
+    w2c = pts.relative_camera(np.asarray(entry.world_to_camera, np.float64), scene.origin)
+    out = np.zeros(len(scene.assets), np.int64)
+    for i, a in enumerate(scene.assets):
+        if asset_unseen(a, entry.frame, scene.origin, K, w2c, width, height):
+            continue
+        proj = project_assets(scene, [i], entry.frame, K, w2c, width, height)
+        out[i] = int((tiles.rasterize(proj, width, height)[3] > 0).sum())
+    return out

@@ -21,6 +21,9 @@ Jacobian clamp):
   below 1/255 (``ALPHA_MIN``); stop before the Gaussian that would drop the transmittance below 1e-4
   (``TRANSMITTANCE_MIN``). Only Gaussians in front of the pixel's nearest point are composited: the point is the
   opaque background behind them. The asset mask M_a = 1 − the transmittance left = Σ α·transmittance.
+* Instance: each Gaussian belongs to an asset (``proj["asset_id"]``, 1-based; ``asset_ids``). Per pixel w_a =
+  Σ α·transmittance over the composited Gaussians of asset a and T_rest = the transmittance left; the instance is
+  argmax_a w_a (ties to the lower id) where max_a w_a > T_rest, else 0 (one asset: where its M_a > 0.5).
   The 0.99 cap is the INRIA rasterizer's (graphdeco-inria/diff-gaussian-rasterization), the one the TRELLIS and
   Amodal3R assets were trained with; gsplat caps at 0.999. We keep 0.99: the assets' opacities were fitted to it.
 * Colour = max(0.5 + SH(dir), 0), dir = normalise(mean - camera centre) (``core.splats.sh``, the formula the numpy side
@@ -191,21 +194,36 @@ def depth_rank(proj) -> torch.Tensor:
     return rank
 
 
+def asset_ids(proj) -> torch.Tensor:
+    """(G,) int64: each projected Gaussian's asset id (``proj["asset_id"]``, 1-based; every Gaussian is asset 1
+    when the projection carries none)."""
+    if "asset_id" in proj:
+        return proj["asset_id"].to(torch.int64)
+    return torch.ones(len(proj["depth"]), dtype=torch.int64, device=proj["depth"].device)
+
+
 def rasterize(proj, width, height, background_depth=None, max_pairs=200_000_000):
     """Front-to-back compositing of projected Gaussians (see the module rules).
 
     ``background_depth`` (H, W): the nearest point per pixel (+inf where none); Gaussians at or behind it are
     hidden. Returns (color (H, W, 3) premultiplied, asset_mask (H, W) = M_a = 1 - transmittance, depth (H, W):
-    where the accumulated opacity first reaches 0.5, +inf elsewhere).
+    where the accumulated opacity first reaches 0.5, +inf elsewhere, instance (H, W) int32).
+
+    Instance (``asset_ids``: ``proj["asset_id"]``, 1-based, else every Gaussian is asset 1): per pixel
+    w_a = Σ α·transmittance over the composited Gaussians of asset a (the weights of colour and M_a, the same
+    stop rules) and T_rest = the transmittance left (what the point behind, or nothing, receives); instance =
+    argmax_a w_a, ties to the lower id, where max_a w_a > T_rest, else 0. Here T_rest = 1 - Σ_a w_a in float64.
     """
     dev = proj["mean2d"].device
     dt = proj["mean2d"].dtype
     color = torch.zeros((height * width, 3), dtype=dt, device=dev)
     asset_mask = torch.zeros(height * width, dtype=dt, device=dev)
     zmed = torch.full((height * width,), float("inf"), dtype=dt, device=dev)
+    instance = torch.zeros(height * width, dtype=torch.int32, device=dev)
     G = len(proj["depth"])
     if G == 0:
-        return color.reshape(height, width, 3), asset_mask.reshape(height, width), zmed.reshape(height, width)
+        return (color.reshape(height, width, 3), asset_mask.reshape(height, width), zmed.reshape(height, width),
+                instance.reshape(height, width))
     m2 = proj["mean2d"]
     x0, x1, y0, y1 = pixel_boxes(proj, width, height).unbind(1)
     w, h = x1 - x0 + 1, y1 - y0 + 1
@@ -250,4 +268,14 @@ def rasterize(proj, width, height, background_depth=None, max_pairs=200_000_000)
     acc_after = 1.0 - torch.exp(log_trans_after)
     cross = keep & (acc_after >= 0.5) & ((acc_after - wgt) < 0.5)
     zmed.index_put_((pix[cross],), proj["depth"][g[cross]])
-    return color.reshape(height, width, 3), asset_mask.reshape(height, width), zmed.reshape(height, width)
+    # per (pixel, asset) weights in float64, then the argmax (torch.argmax returns the first maximum: the lower id)
+    aid = asset_ids(proj)
+    n_assets = int(aid.max())
+    w_asset = torch.zeros((height * width, n_assets), dtype=torch.float64, device=dev)
+    w_asset.view(-1).index_add_(0, pix * n_assets + aid[g] - 1, wgt.to(torch.float64))
+    best = torch.argmax(w_asset, 1)
+    best_w = w_asset.gather(1, best[:, None])[:, 0]
+    t_rest = 1.0 - w_asset.sum(1)
+    instance = torch.where(best_w > t_rest, best + 1, 0).to(torch.int32)
+    return (color.reshape(height, width, 3), asset_mask.reshape(height, width), zmed.reshape(height, width),
+            instance.reshape(height, width))

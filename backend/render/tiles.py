@@ -12,7 +12,12 @@ Binning: every Gaussian is entered in each ``tile`` x ``tile`` pixel tile its bo
 by (tile, depth rank) and ``tile_start[t] .. tile_start[t + 1]`` delimits tile t's list. ``bin_tiles`` does it in
 torch (any device; the reference); on the CPU ``tiles_cpu`` does it in numba with a counting sort and gets the
 same lists. Compositing: numba on the CPU (``tiles_cpu``), Triton on CUDA (``tiles_cuda``, fed by
-``kernel_inputs``); the reference is used on a CUDA machine without Triton.
+``kernel_inputs``); the reference is used on a CUDA machine without Triton, and on CUDA for more than
+``MAX_ASSETS_CUDA`` assets (the Triton kernel keeps one weight per pixel and asset in registers).
+
+Every path also returns the instance (``gaussians.rasterize``' rule: per pixel the asset with the largest
+Σ α·transmittance, ties to the lower id, where that weight exceeds the transmittance left; else 0), from each
+Gaussian's asset id (``proj["asset_id"]``, 1-based; none: every Gaussian is asset 1).
 """
 
 from __future__ import annotations
@@ -23,6 +28,9 @@ from . import gaussians as gs
 
 TILE = 16       # CUDA: one Triton program per 16 x 16 tile (256 lanes)
 TILE_CPU = 8    # CPU: smaller tiles mean shorter lists per pixel (measured faster: bench/render.py)
+#: More assets than this in one frame: CUDA composites with the torch reference (the Triton kernel's per-pixel,
+#: per-asset accumulator is a [TILE², A_PAD] block, A_PAD the next power of two ≥ the number of assets).
+MAX_ASSETS_CUDA = 32
 
 
 def bin_tiles(proj, width: int, height: int, tile: int = TILE) -> dict:
@@ -51,8 +59,9 @@ def bin_tiles(proj, width: int, height: int, tile: int = TILE) -> dict:
 
 def kernel_inputs(proj, bins, width, height, background_depth, dtype=torch.float32):
     """The flat, contiguous arrays the Triton kernel reads, one row per tile entry: ``params`` (E, 12) = mean x,
-    mean y relative to the entry's tile origin, conic a b c, opacity, depth, r g b, two pads; ``boxes`` (E, 4)
-    int32 absolute pixel boxes; ``tile_start``; the background depth.
+    mean y relative to the entry's tile origin, conic a b c, opacity, depth, r g b, the asset id (1-based,
+    ``gaussians.asset_ids``; exact in float32 below 2^24), one pad; ``boxes`` (E, 4) int32 absolute pixel boxes;
+    ``tile_start``; the background depth.
 
     Precision: the projection arrives in float64 (``frames.render_frame``); the kernel gets float32 (``dtype``)
     with means relative to the tile (values below the tile size: ~1e-6 px of rounding instead of ~6e-5 px at
@@ -66,6 +75,7 @@ def kernel_inputs(proj, bins, width, height, background_depth, dtype=torch.float
     per_gaussian[:, 5] = proj["opacity"]
     per_gaussian[:, 6] = proj["depth"]
     per_gaussian[:, 7:10] = proj["color"]
+    per_gaussian[:, 10] = gs.asset_ids(proj)
     e = bins["entries"].to(torch.int64)
     params = per_gaussian[e]                              # one gather: entry order, read front to back
     t, tile = bins["entry_tile"], bins["tile"]
@@ -76,7 +86,7 @@ def kernel_inputs(proj, bins, width, height, background_depth, dtype=torch.float
 
 def rasterize(proj, width: int, height: int, background_depth=None, tile: int | None = None):
     """Drop-in for ``gaussians.rasterize``: (color (H, W, 3) premultiplied, asset_mask (H, W) = 1 - transmittance,
-    depth (H, W)).
+    depth (H, W), instance (H, W) int32).
     ``tile``: the tile size in pixels (default ``TILE_CPU`` on the CPU, ``TILE`` elsewhere)."""
     dev = proj["mean2d"].device
     tile = tile or (TILE_CPU if dev.type == "cpu" else TILE)
@@ -85,17 +95,21 @@ def rasterize(proj, width: int, height: int, background_depth=None, tile: int | 
     if dev.type == "cpu":
         from . import tiles_cpu
 
-        color, asset_mask, depth = tiles_cpu.rasterize(proj, width, height, background_depth, tile)
+        color, asset_mask, depth, instance = tiles_cpu.rasterize(proj, width, height, background_depth, tile)
     elif dev.type == "cuda":
+        n_assets = int(gs.asset_ids(proj).max())
         try:
             from . import tiles_cuda
         except ImportError:  # no Triton: the reference is exact, only slower
             return gs.rasterize(proj, width, height, background_depth)
+        if n_assets > MAX_ASSETS_CUDA:
+            return gs.rasterize(proj, width, height, background_depth)
         bins = bin_tiles(proj, width, height, tile)
-        color, asset_mask, depth = tiles_cuda.composite(*kernel_inputs(proj, bins, width, height, background_depth),
-                                                        width, height, bins["tiles_x"], tile)
+        color, asset_mask, depth, instance = tiles_cuda.composite(
+            *kernel_inputs(proj, bins, width, height, background_depth), width, height, bins["tiles_x"], tile,
+            n_assets)
     else:
         return gs.rasterize(proj, width, height, background_depth)
     dt = proj["mean2d"].dtype
     return (color.reshape(height, width, 3).to(dt), asset_mask.reshape(height, width).to(dt),
-            depth.reshape(height, width).to(dt))
+            depth.reshape(height, width).to(dt), instance.reshape(height, width))

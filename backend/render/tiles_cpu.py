@@ -18,6 +18,9 @@ the layers are identical too (tested: the kernel fed either list).
   an asset covers a few neighbouring tiles, which a static split would give to one thread.
   Transmittance and colour are accumulated in float64 so the 1e-4 stop decision matches the reference's float64
   log-space product; outputs are float32.
+* Instance: the asset id rides in ``params``' column 7 (``_ASSET``); each pixel sums its weights per asset in a
+  small float64 accumulator (one per tile, reset per pixel) and takes the first maximum; with a single asset only
+  the sum is kept (the same additions), so one car costs no per-asset work.
 """
 
 from __future__ import annotations
@@ -28,12 +31,13 @@ import numpy as np
 import torch
 from numba import njit, prange, set_parallel_chunksize
 
+from . import gaussians as gs
 from .gaussians import ALPHA_MAX, ALPHA_MIN, TRANSMITTANCE_MIN, pixel_boxes
 
 CHUNK_TILES = 8  # tiles per work item of the compositing loop, handed out dynamically (measured: design note)
 
 # columns of params (G, 8), one 64-byte row per Gaussian in depth order; colours (G, 3) apart
-_DEPTH, _MX, _MY, _CA, _CB, _CC, _OPACITY = 0, 1, 2, 3, 4, 5, 6
+_DEPTH, _MX, _MY, _CA, _CB, _CC, _OPACITY, _ASSET = 0, 1, 2, 3, 4, 5, 6, 7
 
 
 def depth_order(proj) -> np.ndarray:
@@ -96,8 +100,12 @@ def _bin(boxes, tile, tiles_x, n_tiles):
 
 
 @njit(parallel=True, cache=True, nogil=True)
-def _composite(params, colors, boxes, entries, tile_start, bg, width, height, tiles_x, tile, out_c, out_mask, out_z):
-    """Run under ``numba.set_parallel_chunksize(CHUNK_TILES)`` (``rasterize``): tiles handed out dynamically."""
+def _composite(params, colors, boxes, entries, tile_start, bg, width, height, tiles_x, tile, n_assets, out_c,
+               out_mask, out_z, out_inst):
+    """Run under ``numba.set_parallel_chunksize(CHUNK_TILES)`` (``rasterize``): tiles handed out dynamically.
+    ``out_inst`` (HW,) int32 must hold 0 on entry (tiles without Gaussians are not written). The instance: per
+    pixel a small per-asset accumulator w[a] (``n_assets`` entries, allocated per tile, reset per pixel), then the
+    first maximum; with one asset only the sum of the weights (the same additions in the same order)."""
     n_tiles = len(tile_start) - 1
     for t in prange(n_tiles):
         first, last = tile_start[t], tile_start[t + 1]
@@ -108,8 +116,11 @@ def _composite(params, colors, boxes, entries, tile_start, bg, width, height, ti
         n = last - first
         loc = np.empty((n, 10), np.float64)
         loc_box = np.empty((n, 4), np.int32)
+        loc_asset = np.empty(n, np.int32)  # 0-based asset of each entry
+        w_asset = np.empty(n_assets, np.float64)
         for j in range(n):
             k = entries[first + j]
+            loc_asset[j] = np.int32(params[k, _ASSET]) - 1
             loc[j, 0] = params[k, _DEPTH]
             loc[j, 1] = params[k, _MX] - tx0  # relative to the tile, in float64 as tiles.kernel_inputs does
             loc[j, 2] = params[k, _MY] - ty0
@@ -121,7 +132,9 @@ def _composite(params, colors, boxes, entries, tile_start, bg, width, height, ti
         for py in range(ty0, min(ty0 + tile, height)):
             for px in range(tx0, min(tx0 + tile, width)):
                 pix = py * width + px
-                trans, r, g, b, z = 1.0, 0.0, 0.0, 0.0, np.inf
+                trans, r, g, b, z, w_sum = 1.0, 0.0, 0.0, 0.0, np.inf, 0.0
+                if n_assets > 1:
+                    w_asset[:] = 0.0
                 fx, fy = px - tx0 + 0.5, py - ty0 + 0.5  # tile-relative, as the means are
                 zbg = bg[pix]
                 for e in range(n):
@@ -143,26 +156,39 @@ def _composite(params, colors, boxes, entries, tile_start, bg, width, height, ti
                     r += w * loc[e, 7]
                     g += w * loc[e, 8]
                     b += w * loc[e, 9]
+                    if n_assets > 1:
+                        w_asset[loc_asset[e]] += w
+                    else:
+                        w_sum += w
                     if trans > 0.5 and trans_next <= 0.5:
                         z = loc[e, 0]
                     trans = trans_next
                 out_c[pix, 0], out_c[pix, 1], out_c[pix, 2] = r, g, b
                 out_mask[pix] = 1.0 - trans
                 out_z[pix] = z
+                if n_assets > 1:
+                    best = 0
+                    for a in range(1, n_assets):
+                        if w_asset[a] > w_asset[best]:  # strictly greater: ties keep the lower id
+                            best = a
+                    if w_asset[best] > trans:
+                        out_inst[pix] = best + 1
+                elif w_sum > trans:
+                    out_inst[pix] = 1
 
 
 @njit(cache=True, nogil=True)
-def _pack(order, depth, mean2d, conic, opacity, color, radius, width, height, params, colors, boxes):
+def _pack(order, depth, mean2d, conic, opacity, color, radius, asset, width, height, params, colors, boxes):
     """Row r of params / colors / boxes = proj row order[r], float64 (one sequential pass: ~1 ms for 10^5
-    Gaussians, less than numba's parallel start-up). The boxes are ``gaussians.pixel_boxes``, the same operations
-    in the same order (``centre_range``, then the clip)."""
+    Gaussians, less than numba's parallel start-up), the asset id (1-based) in column ``_ASSET``. The boxes are
+    ``gaussians.pixel_boxes``, the same operations in the same order (``centre_range``, then the clip)."""
     for r in range(order.shape[0]):
         i = order[r]
         params[r, _DEPTH] = depth[i]
         params[r, _MX], params[r, _MY] = mean2d[i, 0], mean2d[i, 1]
         params[r, _CA], params[r, _CB], params[r, _CC] = conic[i, 0], conic[i, 1], conic[i, 2]
         params[r, _OPACITY] = opacity[i]
-        params[r, 7] = 0.0
+        params[r, _ASSET] = asset[i]
         colors[r, 0], colors[r, 1], colors[r, 2] = color[i, 0], color[i, 1], color[i, 2]
         x0, x1 = np.ceil(mean2d[i, 0] - radius[i, 0] - 0.5), np.floor(mean2d[i, 0] + radius[i, 0] - 0.5)
         y0, y1 = np.ceil(mean2d[i, 1] - radius[i, 1] - 0.5), np.floor(mean2d[i, 1] + radius[i, 1] - 0.5)
@@ -173,7 +199,8 @@ def _pack(order, depth, mean2d, conic, opacity, color, radius, width, height, pa
 
 
 def prepare(proj, width: int, height: int, tile: int):
-    """The kernels' inputs: (order (G,) proj rows in depth order, params (G, 8) float64, colors (G, 3) float64,
+    """The kernels' inputs: (order (G,) proj rows in depth order, params (G, 8) float64 (column 7: the asset id,
+    ``gaussians.asset_ids``), colors (G, 3) float64,
     boxes (G, 4) int32, all in depth order; tile_start (tiles + 1,) int64, entries (E,) int32 depth ranks; tiles_x).
     float32 projections are widened exactly to float64, as ``tiles.kernel_inputs`` did for this kernel."""
     order = depth_order(proj)
@@ -182,7 +209,8 @@ def prepare(proj, width: int, height: int, tile: int):
     params = np.empty((G, 8), np.float64)
     colors = np.empty((G, 3), np.float64)
     boxes = np.empty((G, 4), np.int32)
-    _pack(order, f64("depth"), f64("mean2d"), f64("conic"), f64("opacity"), f64("color"), f64("radius"),
+    asset = gs.asset_ids(proj).numpy().astype(np.float64)
+    _pack(order, f64("depth"), f64("mean2d"), f64("conic"), f64("opacity"), f64("color"), f64("radius"), asset,
           width, height, params, colors, boxes)
     if proj["mean2d"].dtype != torch.float64:  # the boxes in the projection's own arithmetic, as pixel_boxes has them
         boxes[:] = pixel_boxes(proj, width, height).numpy()[order]
@@ -203,18 +231,21 @@ def bin_tiles(proj, width: int, height: int, tile: int) -> dict:
 
 
 def rasterize(proj, width: int, height: int, background_depth, tile: int):
-    """``tiles.rasterize`` on CPU tensors: (color (HW, 3), asset_mask (HW) = 1 - transmittance, depth (HW)) float32."""
+    """``tiles.rasterize`` on CPU tensors: (color (HW, 3), asset_mask (HW) = 1 - transmittance, depth (HW)) float32
+    and instance (HW) int32 (``gaussians.rasterize``' rule; T_rest is the running product of (1 - α))."""
     _, params, colors, boxes, tile_start, entries, tiles_x = prepare(proj, width, height, tile)
+    n_assets = int(params[:, _ASSET].max()) if len(params) else 1
     bg = (np.full(height * width, np.inf) if background_depth is None
           else np.ascontiguousarray(background_depth.reshape(-1).numpy(), dtype=np.float64))
     out_c = torch.zeros((height * width, 3), dtype=torch.float32)
     out_mask = torch.zeros(height * width, dtype=torch.float32)
     out_z = torch.full((height * width,), float("inf"), dtype=torch.float32)
+    out_inst = torch.zeros(height * width, dtype=torch.int32)
     # dynamic scheduling: an asset fills a few neighbouring tiles, which static halves would leave to one thread
     previous = set_parallel_chunksize(CHUNK_TILES)
     try:
-        _composite(params, colors, boxes, entries, tile_start, bg, width, height, tiles_x, tile,
-                   out_c.numpy(), out_mask.numpy(), out_z.numpy())
+        _composite(params, colors, boxes, entries, tile_start, bg, width, height, tiles_x, tile, n_assets,
+                   out_c.numpy(), out_mask.numpy(), out_z.numpy(), out_inst.numpy())
     finally:
         set_parallel_chunksize(previous)
-    return out_c, out_mask, out_z
+    return out_c, out_mask, out_z, out_inst

@@ -53,11 +53,14 @@ def test_written_channels_are_the_named_ones(car_job):
     for p in paths:
         f = OpenEXR.File(p, separate_channels=True)
         assert sorted(f.channels()) == sorted(channels.FILE_NAMES.values()) == [
-            "asset_mask.Y", "depth.Z", "hole.Y", "image.B", "image.G", "image.R"]
+            "asset_mask.Y", "depth.Z", "hole.Y", "image.B", "image.G", "image.R", "instance.Y"]
+        assert f.channels()["instance.Y"].type() == OpenEXR.FLOAT
         assert f.header()["compression"] == OpenEXR.ZIP_COMPRESSION
         layers = channels.read(p)
         assert sorted(layers) == sorted(channels.CHANNELS)
         assert 0.05 < (layers["asset_mask"] > 0.5).mean() < 0.95                   # the car is in view
+        # one asset, no points: its instance region is where M_a > 0.5 (a tie at exactly 0.5 has measure zero)
+        assert np.array_equal(layers["instance"], (layers["asset_mask"] > 0.5).astype(np.float32))
         for c in channels.CHANNELS:
             assert np.array_equal(layers[c], f.channels()[channels.FILE_NAMES[c]].pixels), c
 
@@ -116,6 +119,8 @@ def test_half_float_is_part_of_the_resume_key(car_job):
     for c in channels.HALF_LAYERS:
         assert np.array_equal(half_layers[c], float_layers[c].astype(np.float16).astype(np.float32)), c
     assert np.array_equal(half_layers["Z"], float_layers["Z"])
+    assert f.channels()["instance.Y"].type() == OpenEXR.FLOAT                 # ids stay exact
+    assert np.array_equal(half_layers["instance"], float_layers["instance"]) and half_layers["instance"].max() == 1
     assert render_cmd.render_job(path, job, "cpu")["skipped"] == 2            # generate's call keeps them
     gen.load_conditions(path, job)
     assert render_cmd.render_job(path, job, "cpu", half=False)["rendered"] == 2

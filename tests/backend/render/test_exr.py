@@ -11,17 +11,20 @@ import pytest
 from backend.render import channels
 from scpainter_blender.core import errors
 
-PASSES = {"image": "RGBA", "hole": "VALUE", "asset_mask": "VALUE", "depth": "VALUE"}  # Blender's outputs, types
+PASSES = {"image": "RGBA", "hole": "VALUE", "asset_mask": "VALUE", "depth": "VALUE",  # Blender's outputs, types
+          "instance": "VALUE"}
 
 
 def layers(H=5, W=7, seed=0):
     """Random condition layers with float32's awkward values: the largest, the smallest normal, denormals, -0,
-    and +inf in Z (an empty pixel)."""
+    and +inf in Z (an empty pixel); instance ids 0..3 and 2049 (which half cannot hold)."""
     rng = np.random.default_rng(seed)
     out = {c: rng.random((H, W)).astype(np.float32) for c in channels.CHANNELS}
     out["hole"] = (rng.random((H, W)) > 0.5).astype(np.float32)
     out["Z"] = rng.uniform(0.5, 80, (H, W)).astype(np.float32)
     out["Z"][0, 0], out["Z"][0, 1] = np.inf, np.finfo(np.float32).max
+    out["instance"] = rng.integers(0, 4, (H, W)).astype(np.float32)
+    out["instance"][0, 2] = 2049.0
     out["R"][1, 1], out["G"][1, 2] = np.float32(1e-45), np.finfo(np.float32).tiny  # a denormal, smallest normal
     out["B"][2, 2], out["asset_mask"][2, 3] = np.float32(3e-39), np.float32(-0.0)   # a denormal, negative zero
     return out
@@ -47,7 +50,7 @@ def test_float32_round_trip_is_bit_exact_and_zip_compressed(tmp_path):
     f = OpenEXR.File(str(path), separate_channels=True)
     assert f.header()["compression"] == OpenEXR.ZIP_COMPRESSION and f.header()["type"] == OpenEXR.scanlineimage
     assert {n: c.type() for n, c in f.channels().items()} == {
-        n: OpenEXR.FLOAT for n in ["image.R", "image.G", "image.B", "hole.Y", "asset_mask.Y", "depth.Z"]}
+        n: OpenEXR.FLOAT for n in ["image.R", "image.G", "image.B", "hole.Y", "asset_mask.Y", "depth.Z", "instance.Y"]}
     assert sorted(os.listdir(tmp_path)) == ["f.exr"]                      # written through a temporary, renamed
 
 
@@ -58,25 +61,27 @@ def test_zip_is_smaller_than_raw_on_smooth_layers(tmp_path):
     smooth["hole"] = (x > 50).astype(np.float32)
     channels.write(tmp_path / "zip.exr", smooth)
     channels.write(tmp_path / "half.exr", smooth, half=True)
-    raw_bytes = 6 * 4 * H * W
+    raw_bytes = len(channels.CHANNELS) * 4 * H * W
     assert os.path.getsize(tmp_path / "zip.exr") < raw_bytes
     assert os.path.getsize(tmp_path / "half.exr") < os.path.getsize(tmp_path / "zip.exr")
 
 
-def test_half_float_stores_i_m_ma_as_half_and_z_as_float(tmp_path):
+def test_half_float_stores_i_m_ma_as_half_and_z_and_instance_as_float(tmp_path):
     ch = layers(seed=1)
     ch["G"][1, 2] = 0.5  # (the smallest normal float32 is below half's range: it rounds to 0, as documented)
     channels.write(tmp_path / "h.exr", ch, half=True)
     f = OpenEXR.File(str(tmp_path / "h.exr"), separate_channels=True)
     types = {n: c.type() for n, c in f.channels().items()}
     assert types == {"image.R": OpenEXR.HALF, "image.G": OpenEXR.HALF, "image.B": OpenEXR.HALF,
-                     "hole.Y": OpenEXR.HALF, "asset_mask.Y": OpenEXR.HALF, "depth.Z": OpenEXR.FLOAT}
+                     "hole.Y": OpenEXR.HALF, "asset_mask.Y": OpenEXR.HALF, "depth.Z": OpenEXR.FLOAT,
+                     "instance.Y": OpenEXR.FLOAT}
     back = channels.read(tmp_path / "h.exr")
     for k in channels.HALF_LAYERS:  # exactly numpy's float16 rounding of the float32 values
         assert back[k].dtype == np.float32 and np.array_equal(back[k], ch[k].astype(np.float16).astype(np.float32))
         assert np.abs(back[k] - ch[k]).max() <= 2.0 ** -12       # half's rounding error on [0, 1]
     assert np.array_equal(back["hole"], ch["hole"])               # 0/1 exactly
     assert np.array_equal(bits(back["Z"]), bits(ch["Z"]))         # depth keeps float32, inf included
+    assert np.array_equal(bits(back["instance"]), bits(ch["instance"])) and back["instance"][0, 2] == 2049  # exact
 
 
 def test_writer_refuses_other_keys_and_shapes(tmp_path):
@@ -89,8 +94,9 @@ def test_writer_refuses_other_keys_and_shapes(tmp_path):
     assert not os.listdir(tmp_path)
 
 
-def test_blender_shows_four_passes_and_reads_each_as_written(tmp_path):
-    """Blender's own EXR reader: an Image node on the file lists the passes image, hole, asset_mask, depth; the
+def test_blender_shows_five_passes_and_reads_each_as_written(tmp_path):
+    """Blender's own EXR reader: an Image node on the file lists the passes image, hole, asset_mask, depth,
+    instance; the
     compositor (bpy 5.0 node-group API) writes each pass to a file of its own (a File Output node), and what
     Blender decoded is what was written, bit for bit (float32 file) or float16's values (half file).
 
@@ -132,7 +138,7 @@ def test_blender_shows_four_passes_and_reads_each_as_written(tmp_path):
                 return v.astype(np.float16).astype(np.float32) if half and k in channels.HALF_LAYERS else v
             for i, c in enumerate(channels.IMAGE):
                 assert np.array_equal(bits(written["image"]["RGB"[i]]), bits(want(c))), (name, c)
-            for p, k in (("hole", "hole"), ("asset_mask", "asset_mask"), ("depth", "Z")):
+            for p, k in (("hole", "hole"), ("asset_mask", "asset_mask"), ("depth", "Z"), ("instance", "instance")):
                 assert np.array_equal(bits(written[p]["R"]), bits(want(k))), (name, p)
     finally:
         bpy.data.scenes.remove(scene)
@@ -164,7 +170,8 @@ def test_reader_takes_files_resaved_by_other_tools(tmp_path):
         "zips": dict(compression=OpenEXR.ZIPS_COMPRESSION), "none": dict(compression=OpenEXR.NO_COMPRESSION),
         "zstd": dict(compression=OpenEXR.ZSTD_COMPRESSION),
         "tiled": dict(tiles=(4, 4, OpenEXR.ONE_LEVEL)),                   # tiles that do not divide the image
-        "two_parts": dict(parts=[["depth.Z", "hole.Y"], ["image.B", "image.G", "image.R", "asset_mask.Y"]]),
+        "two_parts": dict(parts=[["depth.Z", "hole.Y"], ["image.B", "image.G", "image.R", "asset_mask.Y",
+                                 "instance.Y"]]),
     }
     for name, how in exact.items():
         _save(tmp_path / f"{name}.exr", {n: ours[n] for n in reversed(list(ours))}, **how)
@@ -173,10 +180,10 @@ def test_reader_takes_files_resaved_by_other_tools(tmp_path):
     renamed = {  # other names for the same channels
         "blender_prefix": {f"ViewLayer.{n}": v for n, v in ours.items()},
         "other_letters": {"image.R": ch["R"], "image.G": ch["G"], "image.B": ch["B"], "hole.V": ch["hole"],
-                          "asset_mask.X": ch["asset_mask"], "Depth.Z": ch["Z"]},
+                          "asset_mask.X": ch["asset_mask"], "Depth.Z": ch["Z"], "Instance.V": ch["instance"]},
         "nuke_colours": {**{n: v for n, v in ours.items() if not n.startswith("image")},
                          "image.red": ch["R"], "image.green": ch["G"], "image.blue": ch["B"]},
-        "flat_before": {c: ch[c] for c in channels.CHANNELS},              # what this project wrote before
+        "flat_before": {c: ch[c] for c in channels.CHANNELS},              # the flat names (instance added)
         "flat_asset": {**{c: ch[c] for c in channels.CHANNELS if c != "asset_mask"}, "asset": ch["asset_mask"]},
         "extra_alpha": {**ours, "image.A": np.ones_like(ch["R"]), "notes.Y": np.zeros_like(ch["R"])},
     }
@@ -247,6 +254,16 @@ def test_reader_errors_name_the_file_and_say_render_again(tmp_path):
     assert e.value.field == "channels" and "asset_mask" in e.value.message and "render" in e.value.hint
     assert set(channels.read(tmp_path / "no_mask.exr", required=("R", "Z"))) == set(channels.CHANNELS) - {
         "asset_mask"}
+    # a file written before the instance pass (every other layer, named as now): refused by name by default, read
+    # by a caller that does not need the instance (generate)
+    _save(tmp_path / "before_instance.exr", {channels.FILE_NAMES[c]: v for c, v in layers().items()
+                                             if c != channels.INSTANCE})
+    with pytest.raises(channels.ConditionsError) as e:
+        channels.read(tmp_path / "before_instance.exr")
+    assert e.value.field == "channels" and "['instance']" in e.value.message and "render" in e.value.hint
+    need = (*channels.IMAGE, channels.HOLE, channels.ASSET_MASK)
+    old = channels.read(tmp_path / "before_instance.exr", required=need)
+    assert set(old) == set(channels.CHANNELS) - {channels.INSTANCE}
 
 
 def test_damage_never_reaches_standard_output(tmp_path, capfd):

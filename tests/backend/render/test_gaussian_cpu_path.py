@@ -100,14 +100,15 @@ def test_kernel_gives_identical_layers_from_either_list():
     for background in (np.full(48 * 64, np.inf), bg):
         outs = []
         for ent, start in ((entries, tile_start), (torch_entries, ref["tile_start"].numpy())):
-            out = (np.zeros((48 * 64, 3), np.float32), np.zeros(48 * 64, np.float32), np.zeros(48 * 64, np.float32))
+            out = (np.zeros((48 * 64, 3), np.float32), np.zeros(48 * 64, np.float32), np.zeros(48 * 64, np.float32),
+                   np.zeros(48 * 64, np.int32))
             tiles_cpu._composite(params, colors, boxes, np.ascontiguousarray(ent), np.ascontiguousarray(start),
-                                 background, 64, 48, tiles_x, 8, *out)
+                                 background, 64, 48, tiles_x, 8, 1, *out)
             outs.append(out)
         assert all(np.array_equal(a, b) for a, b in zip(*outs))
         assert outs[0][1].max() > 0.5
     # and the production entry point returns those layers
-    col, mask, _ = TL.rasterize(proj, 64, 48, torch.from_numpy(bg.reshape(48, 64)))
+    col, mask, *_ = TL.rasterize(proj, 64, 48, torch.from_numpy(bg.reshape(48, 64)))
     assert np.array_equal(mask.numpy().reshape(-1).astype(np.float32), outs[1][1])
 
 

@@ -60,8 +60,8 @@ def test_recorded_drive_reproduces_the_frames(street_jobs, street):
     psnrs = []
     for i in (0, 8, 15):
         layers = channels.read(os.path.join(cond, f"frame_{i + 1:06d}.exr"))
-        assert sorted(layers) == ["B", "G", "R", "Z", "asset_mask", "hole"]  # the layers, by their in-memory names
-        assert not layers["asset_mask"].any()                     # no assets: an empty asset mask
+        assert sorted(layers) == ["B", "G", "R", "Z", "asset_mask", "hole", "instance"]  # by their in-memory names
+        assert not layers["asset_mask"].any() and not layers["instance"].any()  # no assets: no mask, no instance
         img = np.stack([layers["R"], layers["G"], layers["B"]], -1)
         gt = _pixels(street.frame_path("recorded", i))
         covered = layers["hole"] == 0

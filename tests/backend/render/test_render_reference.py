@@ -23,10 +23,14 @@ def jacobian_limits(K, W, H):
     return -(cx / fx + 0.3 * tan_x), (W - cx) / fx + 0.3 * tan_x, -(cy / fy + 0.3 * tan_y), (H - cy) / fy + 0.3 * tan_y
 
 
-def reference_gaussians(means, quats, scales, opac, sh, K, w2c, W, H, bg_depth=None, near=0.05, limits=None):
+def reference_gaussians(means, quats, scales, opac, sh, K, w2c, W, H, bg_depth=None, near=0.05, limits=None,
+                        asset_id=None):
     """Every Gaussian at every pixel in depth order (ties by index): no screen extent, no tiles. The same
     compositing rules as the renderer, written independently and in float64. ``limits`` overrides the Jacobian
-    clamp (lo_x, hi_x, lo_y, hi_y) (default: gsplat's, ``jacobian_limits``)."""
+    clamp (lo_x, hi_x, lo_y, hi_y) (default: gsplat's, ``jacobian_limits``). Returns (colour, asset mask); with
+    ``asset_id`` (N,) (1-based, per Gaussian) also the instance (H, W) int: per pixel the asset whose weights
+    Σ α·T sum highest (np.argmax: the first, the lower id, on ties) where that sum exceeds the transmittance
+    left, else 0."""
     means, quats, scales = (np.asarray(a, np.float64) for a in (means, quats, scales))
     R_w, t_w = w2c[:3, :3], w2c[:3, 3]
     fx, fy, cx, cy, skew = K[0, 0], K[1, 1], K[0, 2], K[1, 2], K[0, 1]
@@ -35,6 +39,8 @@ def reference_gaussians(means, quats, scales, opac, sh, K, w2c, W, H, bg_depth=N
     trans = np.ones((H, W))  # transmittance
     done = np.zeros((H, W), bool)
     col = np.zeros((H, W, 3))
+    n_assets = 1 if asset_id is None else int(np.max(asset_id, initial=1))
+    w_asset = np.zeros((H, W, n_assets))
     centre = -R_w.T @ t_w
     items = []
     for i in range(len(means)):
@@ -68,8 +74,14 @@ def reference_gaussians(means, quats, scales, opac, sh, K, w2c, W, H, bg_depth=N
         done |= stop
         use &= ~stop
         col += np.where(use[..., None], (alpha * trans)[..., None] * rgb, 0)
+        if asset_id is not None:
+            w_asset[..., asset_id[i] - 1] += np.where(use, alpha * trans, 0.0)
         trans = np.where(use, trans_next, trans)
-    return col, 1 - trans  # colour, asset mask
+    if asset_id is None:
+        return col, 1 - trans  # colour, asset mask
+    best = np.argmax(w_asset, -1)
+    won = np.take_along_axis(w_asset, best[..., None], -1)[..., 0] > trans
+    return col, 1 - trans, np.where(won, best + 1, 0)
 
 
 def random_scene(n, seed, degree=1, spread=2.0):
@@ -118,7 +130,7 @@ def fast(means, quats, scales, opac, sh, K, w2c, W, H, bg=None, dtype=torch.floa
     t = lambda a: torch.as_tensor(np.asarray(a), dtype=dtype, device=device)  # noqa: E731
     proj = GS.project(t(means), t(quats), t(scales), t(opac), t(sh), K, w2c, W, H, fast=kind == "tiles")
     rasterize = GS.rasterize if kind == "pairs" else TL.rasterize
-    col, asset_mask, _ = rasterize(proj, W, H, None if bg is None else t(bg))
+    col, asset_mask, *_ = rasterize(proj, W, H, None if bg is None else t(bg))
     return col.double().cpu().numpy(), asset_mask.double().cpu().numpy()
 
 

@@ -98,11 +98,35 @@ class ConditionsError(ExrError):
 
 # ------------------------------------------------------------------------------------------------------- write
 
-def write(path, layers: dict, half: bool = False) -> None:
+#: OpenEXR's camera axes (its standard attributes, "the same as Pixar's RenderMan"): x right, y up, z forward
+#: (left-handed); ours are OpenCV's (y down). This maps ours to theirs.
+OPENCV_TO_EXR_CAMERA = np.diag([1.0, -1.0, 1.0, 1.0])
+
+
+def camera_attributes(K, world_to_camera, width: int, height: int) -> dict:
+    """OpenEXR's standard ``worldToCamera`` and ``worldToNDC`` header attributes (M44f) of a pinhole camera (our K,
+    OpenCV ``world_to_camera``), so compositors and other tools can place the layers in the world.
+
+    Imath matrices multiply row vectors (p' = p · M: the translation in the last row), so each is stored transposed.
+    ``worldToCamera`` maps to OpenEXR's camera axes (``OPENCV_TO_EXR_CAMERA``). ``worldToNDC`` maps a world point to
+    NDC after the homogeneous divide: x = u / width, y = v / height (0, 0 the display window's upper-left corner,
+    (1, 1) its lower-right, y down; u, v in our pixel coordinates, whose pixel edges are integers), z = 1 / depth
+    (OpenEXR says to discard it; a finite row keeps the matrix invertible)."""
+    K = np.asarray(K, np.float64)
+    w2c = np.asarray(world_to_camera, np.float64)
+    to_ndc = np.array([[K[0, 0] / width, K[0, 1] / width, K[0, 2] / width, 0.0],
+                       [0.0, K[1, 1] / height, K[1, 2] / height, 0.0],
+                       [0.0, 0.0, 0.0, 1.0],
+                       [0.0, 0.0, 1.0, 0.0]])
+    return {"worldToCamera": np.ascontiguousarray((OPENCV_TO_EXR_CAMERA @ w2c).T, np.float32),
+            "worldToNDC": np.ascontiguousarray((to_ndc @ w2c).T, np.float32)}
+
+
+def write(path, layers: dict, half: bool = False, camera: dict | None = None) -> None:
     """One frame's layers (``CHANNELS`` -> (H, W) arrays, as ``frames.render_frame`` returns them) as a condition
     EXR: ZIP-compressed (lossless), channels named ``FILE_NAMES``, FLOAT; with ``half`` the ``HALF_LAYERS`` as
-    HALF. Written atomically (a temporary file renamed over ``path``). ValueError (a programming error, not input)
-    for any other set of keys or unequal shapes."""
+    HALF. ``camera``: header attributes (``camera_attributes``). Written atomically (a temporary file renamed over
+    ``path``). ValueError (a programming error, not input) for any other set of keys or unequal shapes."""
     import OpenEXR
 
     if set(layers) != set(CHANNELS):
@@ -114,7 +138,7 @@ def write(path, layers: dict, half: bool = False) -> None:
     for c in CHANNELS:
         dtype = np.float16 if half and c in HALF_LAYERS else np.float32
         pixels[FILE_NAMES[c]] = np.ascontiguousarray(layers[c], dtype=dtype)
-    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage, **(camera or {})}
     # (OpenEXR.File replaces the values of the dict it is given with its Channel objects: ``pixels`` is ours)
     image = OpenEXR.File(header, pixels)
     with outputs.atomic_write(path) as f:  # a stream: the temporary file is opened without following links

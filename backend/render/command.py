@@ -216,7 +216,8 @@ def _render(job_path, job, device, force, point_radius, stop, log, out, allow_ou
                                           depth=layers[channels.DEPTH], amodal_pixels=amodal, asset_boxes=boxes_,
                                           asset_hashes=hashes, key=lkey)
             rgb = np.stack([layers[c] for c in channels.IMAGE], axis=-1)
-            channels.write(exr_path, layers, half=half)
+            channels.write(exr_path, layers, half=half,
+                           camera=channels.camera_attributes(entry.K, entry.world_to_camera, W, H))
             png.write_png(png_path, rgb)
             labelled.write(layout.labelled_preview(f), rgb, lab)
             outputs.write_json(layout.frame_labels(f), lab)  # last: its key marks the frame finished

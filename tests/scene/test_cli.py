@@ -175,8 +175,6 @@ def test_export_arguments_are_bad_input(addon, empty_scene, tmp_path, capsys):
     assert _last_event(capsys)["file"] == str(not_blend)
 
 
-@pytest.mark.skip(reason="needs labels from render (render writes conditions/labels_*.json and the instance layer: "
-                         "another engineer's change; enable after merging)")
 def test_export_headless(addon, street, tmp_path, capsys):
     cli = _cli(addon)
     blend = _street_blend(street, tmp_path)

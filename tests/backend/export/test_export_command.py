@@ -162,8 +162,6 @@ def _tiny_job(tmp_path) -> str:
     return str(tmp_path / "job.json")
 
 
-@pytest.mark.skip(reason="needs labels from render (render writes conditions/labels_*.json and the instance layer: "
-                         "another engineer's change; enable after merging)")
 def test_export_command_end_to_end(tmp_path):
     job = _tiny_job(tmp_path)
     code, ev, err = run_backend("export", job, "--format", "coco", "--device", "cpu")

@@ -134,3 +134,19 @@ def test_files_events_and_resume(rendered):
     code, ev3, err = backend("render", tmp / "job.json", "--device", "cpu")
     done = [e for e in ev3 if e.get("event") == "done"][0]
     assert done["rendered"] == 0 and done["skipped"] == 2 and done["warnings"] == 2
+
+
+def test_exr_header_carries_the_camera(rendered):
+    """OpenEXR's standard worldToCamera / worldToNDC (row vectors times the matrix, RenderMan axes, NDC over the
+    display window) place a world point where the labels' camera puts it."""
+    import OpenEXR
+
+    _, _, labs, layout = rendered
+    header = OpenEXR.File(layout.condition_exr(1)).header()
+    w2c = np.array(labs[0]["camera"]["world_to_camera"])
+    p = np.array([1.0, 14.0, 0.3, 1.0])
+    cam = w2c @ p
+    assert np.allclose(p @ header["worldToCamera"], [cam[0], -cam[1], cam[2], 1.0], atol=1e-4)
+    ndc = p @ header["worldToNDC"]
+    u, v = (np.array(K) @ cam[:3])[:2] / cam[2]
+    assert np.allclose(ndc[:2] / ndc[3], [u / W, v / H], atol=1e-6)

@@ -4,6 +4,7 @@ Asset convention (scene/gaussians.py): data frame Z up, origin at the bottom cen
 the two horizontal extents. Removal boxes are cube empties (display size 1, so the box spans ±scale along each
 local axis, length along local Y); their points are removed from the reconstruction by a Geometry Nodes modifier
 on the points object, placed before the points preview, and exported to the job (``scene.removal_boxes``).
+Every cube empty (removal boxes, asset boxes of scene/asset_box.py) becomes a box through ``cube_matrix``.
 """
 
 from __future__ import annotations

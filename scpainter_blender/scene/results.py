@@ -4,9 +4,9 @@ movie clip, shown behind the scene camera, frame-synchronised with the timeline.
 A render's condition previews are loaded as "SCPainter Conditions", its labelled previews (when it wrote them) as
 "SCPainter Labels". Files are numbered by scene frame (``preview_000012.png`` is frame 12), so an image sequence
 with frame_start = 1 and no offset shows file N at frame N. Loading reuses datablocks of the same path (running
-twice does not pile up images). Nothing here runs unless a backend run finished. Every result carries a fake user, so saving the .blend
-keeps it even when nothing shows it (a movie clip no editor has opened, the conditions once the video is behind the
-camera).
+twice does not pile up images). Nothing here runs unless a backend run finished. Every result carries a fake
+user, so saving the .blend keeps it even when nothing shows it (a movie clip no editor has opened, the conditions
+once the video is behind the camera).
 
 The files are named by ``core.output_layout``; their folders and the video come from the backend's ``done`` event
 (``runs.finish``). The model's video and the baseline's (OpenCV inpainting, no model) are written to the same files

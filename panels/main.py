@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import bpy
 
-from ..scpainter_blender.scene import kinds, node_groups, points
+from ..scpainter_blender.scene import asset_box, kinds, node_groups, points
 
 
 class SCPAINTER_PT_main(bpy.types.Panel):
@@ -83,6 +83,16 @@ class SCPAINTER_PT_main(bpy.types.Panel):
                              depress=active.get("scpainter_axes") == axes).axes = axes
             if active.get("scpainter_axes_reason"):
                 box.label(text=active["scpainter_axes_reason"])
+        owner = kinds.owning_asset(active)  # the asset, or the one whose box (or front arrow) is active
+        if owner is not None:  # its label: class and 3D box (the box empty is edited in the viewport)
+            if asset_box.CLASS_PROPERTY in owner:
+                box.prop(owner, f'["{asset_box.CLASS_PROPERTY}"]', text="Class")
+            else:  # imported before classes: the default until the property is added
+                box.label(text=f"Class: {asset_box.category(owner)}")
+            row = box.row(align=True)
+            row.label(text="Box" if kinds.asset_box(owner) is not None else "No box", icon="MESH_CUBE")
+            row.operator("scpainter.estimate_asset_box", text="Estimate")
+            row.operator("scpainter.flip_asset_front", text="Flip Front")
         icons = {"accepted": "CHECKMARK", "rejected": "X", "unchecked": "QUESTION"}
         for obj in kinds.gaussian_assets(context.scene):  # stage 2: a person accepts or rejects each asset
             row = box.row(align=True)

@@ -11,6 +11,9 @@ Point attributes:
 * for display, derived: ``gs_rotation`` (unit QUATERNION, data frame), ``gs_scale`` (standard deviations),
   ``gs_color`` (linear RGBA: the DC colour and the opacity).
 
+Its upright 3D box (for labels) is estimated at import and shown as a child cube empty (scene/asset_box.py); its
+class is ``scpainter_class``.
+
 The Geometry Nodes preview draws either sprites (points of radius size·mean σ) or oriented ellipsoids (an
 icosphere instanced per Gaussian, scaled to size·σ along its axes), both coloured and opacity-blended.
 """
@@ -27,9 +30,9 @@ import numpy as np
 
 from .. import backend_client
 from ..core.geometry import cameras
-from ..core import outputs
+from ..core import job as job_mod, outputs
 from ..core.splats import gaussians as splats, reader as splats_io, trellis
-from . import kinds, materials, node_groups, props
+from . import asset_box, kinds, materials, node_groups, props
 from .points import linear_rgba
 
 NODE_GROUP = "SCPainter Gaussians"
@@ -226,6 +229,8 @@ def import_gaussians(context, filepath: str, axes: str = "AUTO", target_length: 
     obj["scpainter_dropped"] = int(sum(dropped.values()))
     obj["scpainter_size"] = (hi - lo).tolist()  # data-frame extents (before the object's scale)
     obj["scpainter_review"] = "unchecked"
+    obj[asset_box.CLASS_PROPERTY] = job_mod.DEFAULT_CLASS
+    asset_box.estimate(obj, pos)  # its upright box in the data frame, a child cube empty (scene/asset_box.py)
     if mesh:
         obj["scpainter_mesh_source"] = mesh["source"]
         # trimesh's upright oriented box (length, width, height) of the mesh, for stage 1 (placement.asset_size)
@@ -260,7 +265,8 @@ def mesh_gaussians_path(scene, mesh_path: str, count: int) -> str:
 def set_axes(obj, axes: str) -> None:
     """Re-read an imported asset with other file axes ("TRELLIS" or "NONE"): the artist's correction when AUTO
     chose wrong. Positions, display rotations, size and file_to_data are recomputed from the stored file values;
-    the object's placement is kept and its scale adjusted so its length stays the same."""
+    the object's placement is kept and its scale adjusted so its length stays the same; its box is estimated again
+    (an edited box is replaced: it stood in the old data frame)."""
     if axes not in ("TRELLIS", "NONE"):
         raise ValueError(f"axes must be 'TRELLIS' or 'NONE', got {axes!r}")
     me = obj.data
@@ -270,7 +276,8 @@ def set_axes(obj, axes: str) -> None:
     old = props.matrix_property(obj, "scpainter_file_to_data")
     xyz_file = (pos.reshape(-1, 3).astype(np.float64) - old[:3, 3]) @ np.linalg.inv(old[:3, :3]).T
     D, F, lo, hi = _data_frame(xyz_file, axes)
-    me.attributes["position"].data.foreach_set("vector", (xyz_file @ D[:3, :3].T + D[:3, 3]).astype(np.float32).ravel())
+    xyz_data = (xyz_file @ D[:3, :3].T + D[:3, 3]).astype(np.float32)
+    me.attributes["position"].data.foreach_set("vector", xyz_data.ravel())
     rot = np.empty(n * 4, np.float32)
     me.attributes["rot"].data.foreach_get("value", rot)
     me.attributes["gs_rotation"].data.foreach_set("value", _display_rotations(rot.reshape(-1, 4), F)
@@ -284,6 +291,7 @@ def set_axes(obj, axes: str) -> None:
     obj["scpainter_size"] = (hi - lo).tolist()
     obj["scpainter_axes"] = axes
     obj["scpainter_axes_reason"] = "set by hand"
+    asset_box.estimate(obj, xyz_data)  # the old box stood in the old data frame: estimated again
     for key in ("scpainter_stage1", "scpainter_stage1_deviation"):  # measured on the old axes: check again
         if key in obj:
             del obj[key]

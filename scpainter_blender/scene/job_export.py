@@ -5,7 +5,9 @@ K, world_to_camera and the resolution are scene/camera.py's (``K_of_camera_objec
 ``render_size``), the removal boxes scene/placement.py's (``box_matrix``), the objects found by kind
 (scene/kinds.py); an asset's object_to_world is its matrix_world composed with ``scpainter_file_to_data``; the
 points' cleaning is the depth-edge ratio they were imported with (``point_cleaning``), so the render loads the
-points the viewport shows.
+points the viewport shows. For labels: each asset's ``class`` and ``box`` (its box object in the PLY file's
+coordinates, scene/asset_box.py; an asset without one exports no box and the backend estimates it), the scene's
+``fps`` and ``scene.recorded_frames`` (``recorded_frames``).
 What the scene does not use is left out: no reconstruction, no ``scene``; no (accepted) assets, no ``assets``; no
 checkpoint, no ``generate``. Generation settings are not written: the backend takes them from the checkpoint
 (window, guidance, fps) and ``core.job.GENERATE_DEFAULTS``; the one exception is the baseline's inpainting method
@@ -21,7 +23,7 @@ import numpy as np
 from ..core.geometry import point_cloud
 from ..core import job as job_mod
 from . import camera as camera_mod
-from . import kinds, node_groups, placement, props
+from . import asset_box, kinds, node_groups, placement, props
 from . import points as points_mod
 
 
@@ -72,6 +74,7 @@ def build_job(context, job_path: str, output_dir: str | None = None, checkpoint:
     assets = [o for o in kinds.gaussian_assets(scene) if o.get("scpainter_review") != "rejected" and not o.hide_render]
     out_frames = []
     asset_m = {a.name: {} for a in assets}
+    asset_boxes = {}
     current = scene.frame_current
     try:
         for f in frames:
@@ -81,6 +84,8 @@ def build_job(context, job_path: str, output_dir: str | None = None, checkpoint:
             for a in assets:
                 asset_m[a.name][f] = (np.array(a.matrix_world, dtype=np.float64)
                                       @ props.matrix_property(a, "scpainter_file_to_data"))
+                if a.name not in asset_boxes:  # the box in the asset's own frame, as it stands at the first frame
+                    asset_boxes[a.name] = asset_box.job_box(a)
     finally:
         scene.frame_set(current)
     sc = None
@@ -92,12 +97,34 @@ def build_job(context, job_path: str, output_dir: str | None = None, checkpoint:
                            extrinsic_convention=str(pts.get("scpainter_extrinsic_convention", "world_to_camera")),
                            crop=[int(v) for v in pts.get("scpainter_crop", [0, 0, 0, 0])],
                            removal_boxes=[job_mod.RemovalBox(*placement.box_matrix(b)) for b in boxes],
-                           point_cleaning=point_cleaning(pts))
+                           point_cleaning=point_cleaning(pts),
+                           recorded_frames=recorded_frames(scene, pts))
     return job_mod.Job(camera_mod.render_size(scene), out_frames, os.path.relpath(output_dir or job_dir, job_dir),
                        scene=sc,
-                       assets=[job_mod.Asset(a.name, os.path.relpath(a["scpainter_source"], job_dir), asset_m[a.name])
+                       assets=[job_mod.Asset(a.name, os.path.relpath(a["scpainter_source"], job_dir), asset_m[a.name],
+                                             asset_box.category(a), asset_boxes[a.name])
                                for a in assets],
-                       generate=_generate_settings(checkpoint, props.baseline_inpaint(scene)))
+                       generate=_generate_settings(checkpoint, props.baseline_inpaint(scene)),
+                       fps=frame_rate(scene))
+
+
+def frame_rate(scene) -> float | None:
+    """The job's ``fps``: the scene's frames per second, ``render.fps / render.fps_base``; None (not written) when
+    outside the job's bounds (``GENERATE_NUMBER_BOUNDS["fps"]``), which only label timestamps would use."""
+    fps = scene.render.fps / scene.render.fps_base
+    lo, hi = job_mod.GENERATE_NUMBER_BOUNDS["fps"]
+    return float(fps) if lo <= fps <= hi else None
+
+
+def recorded_frames(scene, pts) -> list | None:
+    """``scene.recorded_frames``: [first, last] scene frames the recording covers, [frame_start, frame_start +
+    num_frames − 1] from the recorded camera's ``scpainter_frame_start`` and the points' ``scpainter_num_frames``;
+    None when either is missing (a .blend imported before them, or a recorded camera deleted)."""
+    cam = kinds.recorded_camera(scene)
+    if cam is None or "scpainter_frame_start" not in cam or "scpainter_num_frames" not in pts:
+        return None
+    start, n = int(cam["scpainter_frame_start"]), int(pts["scpainter_num_frames"])
+    return [start, start + n - 1] if n > 0 else None
 
 
 def _generate_settings(checkpoint: str, inpaint: str | None) -> job_mod.GenerateSettings | None:

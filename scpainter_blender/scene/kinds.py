@@ -7,7 +7,9 @@ are saved in .blend files: never rename them.
 * ``RECORDED_CAMERA``: the camera keyed with the recorded drive (scene/importer.py, scene/camera.py);
 * ``CAMERA_PATH``: a camera following the recorded one shifted sideways (scene/camera.py);
 * ``GAUSSIAN_ASSET``: a Gaussian car asset (scene/gaussians.py);
-* ``REMOVAL_BOX``: a cube empty whose points are removed from the points object (scene/placement.py).
+* ``REMOVAL_BOX``: a cube empty whose points are removed from the points object (scene/placement.py);
+* ``ASSET_BOX``: a Gaussian asset's upright 3D box, a cube empty parented to the asset (scene/asset_box.py);
+* ``ASSET_FRONT``: the arrow that marks the front (+y) of an asset box, parented to the box (scene/asset_box.py).
 
 Objects are anything with ``get`` (Blender objects, ``None`` allowed where noted); no bpy needed here.
 """
@@ -21,7 +23,9 @@ RECORDED_CAMERA = "recorded_camera"
 CAMERA_PATH = "camera_path"
 GAUSSIAN_ASSET = "gaussian_asset"
 REMOVAL_BOX = "removal_box"
-ALL = (POINTS, RECORDED_CAMERA, CAMERA_PATH, GAUSSIAN_ASSET, REMOVAL_BOX)
+ASSET_BOX = "asset_box"
+ASSET_FRONT = "asset_front"
+ALL = (POINTS, RECORDED_CAMERA, CAMERA_PATH, GAUSSIAN_ASSET, REMOVAL_BOX, ASSET_BOX, ASSET_FRONT)
 
 
 def mark(obj, kind: str) -> None:
@@ -71,3 +75,26 @@ def gaussian_assets(scene) -> list:
 def removal_boxes(scene) -> list:
     """The scene's removal boxes."""
     return objects_of_kind(scene, REMOVAL_BOX)
+
+
+def child_of_kind(obj, kind: str):
+    """The first of ``obj``'s direct children (``obj.children``) of ``kind``, or None (also for ``obj`` None)."""
+    return None if obj is None else next((c for c in obj.children if is_kind(c, kind)), None)
+
+
+def asset_box(asset):
+    """The box of a Gaussian asset (its child of kind ``ASSET_BOX``), or None: none estimated yet, or deleted."""
+    return child_of_kind(asset, ASSET_BOX)
+
+
+def asset_front(box):
+    """The front arrow of an asset box (its child of kind ``ASSET_FRONT``), or None."""
+    return child_of_kind(box, ASSET_FRONT)
+
+
+def owning_asset(obj):
+    """The Gaussian asset ``obj`` belongs to: itself, or the asset above its box or front arrow (through
+    ``parent``); None for anything else."""
+    while obj is not None and is_kind(obj, ASSET_BOX, ASSET_FRONT):
+        obj = obj.parent
+    return obj if is_kind(obj, GAUSSIAN_ASSET) else None

@@ -4,6 +4,7 @@ Asset convention (scene/gaussians.py): data frame Z up, origin at the bottom cen
 the two horizontal extents. Removal boxes are cube empties (display size 1, so the box spans ±scale along each
 local axis, length along local Y); their points are removed from the reconstruction by a Geometry Nodes modifier
 on the points object, placed before the points preview, and exported to the job (``scene.removal_boxes``).
+Every cube empty (removal boxes, asset boxes of scene/asset_box.py) becomes a box through ``cube_matrix``.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ import bpy
 import numpy as np
 from mathutils import Matrix, Quaternion, Vector
 
-from ..core.geometry import fits as geometry
+from ..core.geometry import boxes, fits as geometry
 from . import kinds, node_groups
 from . import points as points_mod
 from .props import SceneError
@@ -75,13 +76,20 @@ def scene_points_world(points_obj) -> np.ndarray:
     return co.reshape(-1, 3).astype(np.float64) @ M[:3, :3].T + M[:3, 3]
 
 
+def cube_matrix(empty, matrix=None) -> np.ndarray:
+    """The affine (4, 4) that maps the unit cube [−0.5, 0.5]³ onto the box a cube empty draws: ``matrix`` (default
+    its ``matrix_world``) times 2 · ``empty_display_size`` (a cube empty draws [−size, size]³ in its own axes).
+    The one place a cube empty becomes a box: removal boxes (display size 1) and asset boxes (0.5,
+    scene/asset_box.py) both go through it."""
+    M = np.array(empty.matrix_world if matrix is None else matrix, dtype=np.float64)
+    M[:3, :3] *= 2.0 * empty.empty_display_size
+    return M
+
+
 def box_matrix(box) -> tuple:
-    """(rigid box_to_world 4x4, full size (3,)) of a removal box empty."""
-    M = np.array(box.matrix_world, dtype=np.float64)
-    scale = np.linalg.norm(M[:3, :3], axis=0)
-    R = M.copy()
-    R[:3, :3] /= scale
-    return R, 2.0 * box.empty_display_size * scale
+    """(rigid box_to_world 4x4, full size (3,) metres) of a cube empty (a removal box, an asset box): the nearest
+    rigid box (``boxes.rigid_box``) of its ``cube_matrix``."""
+    return boxes.rigid_box(cube_matrix(box))
 
 
 def snap_to_ground(context, obj, points_obj, margin: float = 1.0, align: bool = True, threshold: float = 0.05):

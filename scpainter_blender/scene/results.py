@@ -1,11 +1,12 @@
 """Backend results back in Blender: condition previews and generated frames as image sequences, the video as a
 movie clip, shown behind the scene camera, frame-synchronised with the timeline.
 
-Files are numbered by scene frame (``preview_000012.png`` is frame 12), so an image sequence with frame_start = 1
-and no offset shows file N at frame N. Loading reuses datablocks of the same path (running twice does not pile
-up images). Nothing here runs unless a backend run finished. Every result carries a fake user, so saving the .blend
-keeps it even when nothing shows it (a movie clip no editor has opened, the conditions once the video is behind the
-camera).
+A render's condition previews are loaded as "SCPainter Conditions", its labelled previews (when it wrote them) as
+"SCPainter Labels". Files are numbered by scene frame (``preview_000012.png`` is frame 12), so an image sequence
+with frame_start = 1 and no offset shows file N at frame N. Loading reuses datablocks of the same path (running
+twice does not pile up images). Nothing here runs unless a backend run finished. Every result carries a fake
+user, so saving the .blend keeps it even when nothing shows it (a movie clip no editor has opened, the conditions
+once the video is behind the camera).
 
 The files are named by ``core.output_layout``; their folders and the video come from the backend's ``done`` event
 (``runs.finish``). The model's video and the baseline's (OpenCV inpainting, no model) are written to the same files
@@ -21,9 +22,10 @@ import os
 
 import bpy
 
-from ..core.output_layout import CONDITION_PREVIEW, GENERATED_FRAME
+from ..core.output_layout import CONDITION_PREVIEW, GENERATED_FRAME, LABELLED_PREVIEW
 
 CONDITIONS = "SCPainter Conditions"
+LABELS = "SCPainter Labels"   # the condition previews with the labels drawn (boxes, ids), beside CONDITIONS
 GENERATED = "SCPainter Generated"
 VIDEO = "SCPainter Video"
 BASELINE = "SCPainter Baseline"
@@ -64,6 +66,12 @@ def load_conditions(folder: str) -> bpy.types.Image | None:
     return _sequence(CONDITIONS, CONDITION_PREVIEW.in_folder(folder))
 
 
+def load_labels(folder: str) -> bpy.types.Image | None:
+    """The labelled previews in ``folder`` (``<output_dir>/conditions``) as image sequence ``LABELS``; None when
+    the render wrote none (a backend from before labels)."""
+    return _sequence(LABELS, LABELLED_PREVIEW.in_folder(folder))
+
+
 def load_generated(frames_dir: str, mp4: str, model: str = "scpainter", description: str = "") \
         -> tuple[bpy.types.Image | None, bpy.types.MovieClip | None]:
     """The frames in ``frames_dir`` and the video ``mp4`` (the ``done`` event's ``frames_dir`` and ``video``) under
@@ -95,7 +103,7 @@ def show_behind_camera(scene, image: bpy.types.Image, alpha: float = 1.0) -> Non
         return
     data = cam.data
     bg = next((b for b in data.background_images if b.image is not None and b.image.name in
-               (CONDITIONS, GENERATED, BASELINE)), None) or data.background_images.new()
+               (CONDITIONS, LABELS, GENERATED, BASELINE)), None) or data.background_images.new()
     bg.source = "IMAGE"
     bg.image = image
     bg.alpha = alpha

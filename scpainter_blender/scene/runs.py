@@ -97,6 +97,7 @@ def finish(context, command: str, out: str, done: dict) -> str:
     if command == "render":
         folder = layout.conditions
         img = results.load_conditions(folder)
+        results.load_labels(folder)  # beside the conditions, for an image editor: the camera shows the conditions
         results.show_behind_camera(context.scene, img)
         return f"Condition layers of {done.get('frames', '?')} frames in {folder}"
     model = done.get("model", "scpainter")  # a backend from before the baseline: always the model

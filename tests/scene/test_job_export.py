@@ -147,3 +147,32 @@ def test_an_operator_reports_a_bug_by_its_type(addon, empty_scene, tmp_path, mon
         bpy.ops.scpainter.export_job(filepath=str(tmp_path / "job.json"))
     err = capfd.readouterr().err
     assert "Traceback (most recent call last)" in err and "in shape_bug" in err
+
+
+def test_labels_fields_fps_and_recorded_frames(empty_scene, tmp_path):
+    """``fps`` is the scene's (fps / fps_base); ``scene.recorded_frames`` the scene frames the recording covers,
+    from the recorded camera's first frame and the points' frame count; a .blend imported before these properties
+    exports without it."""
+    from vggt_cases import drive, write
+
+    arrays, _, _ = drive(S=3, H=12, W=16)
+    path = write(tmp_path, arrays)
+    scene = empty_scene
+    scene.frame_start = 5  # the import starts the recording at the scene's first frame
+    assert bpy.ops.scpainter.import_vggt(filepath=path, depth_edge_ratio=0.0) == {"FINISHED"}
+    assert (scene.frame_start, scene.frame_end) == (5, 7)
+    scene.frame_end = 9  # the output runs past the recording
+    scene.render.fps, scene.render.fps_base = 30, 1.001
+    job_path = str(tmp_path / "job.json")
+    assert bpy.ops.scpainter.export_job(filepath=job_path) == {"FINISHED"}
+    job = J.load(job_path)
+    assert job.fps == scene.render.fps / scene.render.fps_base == pytest.approx(30 / 1.001, rel=1e-7)
+    assert job.scene.recorded_frames == [5, 7]
+    assert [f.frame for f in job.frames] == [5, 6, 7, 8, 9]
+    pts = next(o for o in scene.objects if o.get("scpainter_kind") == "points")
+    del pts["scpainter_num_frames"]  # an old .blend (or a recorded camera without its first frame)
+    assert bpy.ops.scpainter.export_job(filepath=job_path) == {"FINISHED"}
+    assert "recorded_frames" not in J.load(job_path).to_dict()["scene"]
+    scene.render.fps, scene.render.fps_base = 1000, 1.0  # beyond what a job holds: not written, not refused
+    assert bpy.ops.scpainter.export_job(filepath=job_path) == {"FINISHED"}
+    assert J.load(job_path).fps is None

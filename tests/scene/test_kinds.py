@@ -20,11 +20,18 @@ BLENDER_SIDE = ("__init__.py", "operators", "panels", os.path.join("scpainter_bl
 def test_stored_values_never_change():
     """Saved .blend files hold these strings: renaming one loses every object of that kind."""
     assert kinds.PROPERTY == "scpainter_kind"
-    assert kinds.ALL == ("points", "recorded_camera", "camera_path", "gaussian_asset", "removal_box")
+    assert kinds.ALL == ("points", "recorded_camera", "camera_path", "gaussian_asset", "removal_box", "asset_box",
+                         "asset_front")
 
 
 class _Obj(dict):
-    """What the finders use of a Blender object: ``get`` and item assignment."""
+    """What the finders use of a Blender object: ``get``, item assignment, ``parent`` and ``children``."""
+
+    def __init__(self, parent=None, **kw):
+        super().__init__(**kw)
+        self.parent, self.children = parent, []
+        if parent is not None:
+            parent.children.append(self)
 
 
 class _Scene:
@@ -53,6 +60,23 @@ def test_mark_and_find():
     assert kinds.point_cloud(_Scene(other)) is None and kinds.recorded_camera(_Scene(), prefer=(None,)) is None
     with pytest.raises(ValueError, match="unknown scene object kind 'point'"):
         kinds.mark(_Obj(), "point")
+
+
+def test_asset_box_finders():
+    asset, lone = _Obj(), _Obj()
+    kinds.mark(asset, kinds.GAUSSIAN_ASSET)
+    other_child = _Obj(asset)
+    box = _Obj(asset)
+    front = _Obj(box)
+    kinds.mark(box, kinds.ASSET_BOX)
+    kinds.mark(front, kinds.ASSET_FRONT)
+    assert kinds.asset_box(asset) is box and kinds.asset_front(box) is front
+    assert kinds.asset_box(lone) is None and kinds.asset_box(None) is None and kinds.asset_front(other_child) is None
+    assert kinds.owning_asset(asset) is asset and kinds.owning_asset(box) is asset
+    assert kinds.owning_asset(front) is asset
+    assert kinds.owning_asset(other_child) is None and kinds.owning_asset(None) is None
+    kinds.mark(lone, kinds.ASSET_BOX)  # a box whose asset is gone (unparented)
+    assert kinds.owning_asset(lone) is None
 
 
 def _spelled_kinds(source, name, values=True):

@@ -48,7 +48,7 @@ def test_demo_writes_blend_and_preview(street, tmp_path):
 
     first = os.path.join(cond["folder"], "frame_000001.exr")
     layers = channels.read(first)
-    assert sorted(layers) == ["B", "G", "R", "Z", "asset_mask", "hole"]
+    assert sorted(layers) == ["B", "G", "R", "Z", "asset_mask", "hole", "instance"]
     import OpenEXR
 
     with OpenEXR.File(first, header_only=True) as f:  # lossless ZIP, the passes named for compositors
@@ -72,6 +72,16 @@ def test_demo_writes_blend_and_preview(street, tmp_path):
     assert read_mp4(gen["video"]).shape[0] == 16 and "no model" in mp4_metadata(gen["video"])["comment"]
     assert len([f for f in os.listdir(gen["frames_dir"]) if f.endswith(".png")]) == 16
     assert "SCPainter Video (Baseline)" in bpy.data.movieclips  # the .blend was saved after the run
+    # labels for every frame, the parked car among them, drawn on the previews and exported in three formats
+    labs = summary["labels"]
+    assert len(labs["frames"]) == 16 and len(labs["labelled_previews"]) == 16
+    seen = [o for f in labs["frames"] for o in f["objects"] if o["synthetic"]]
+    assert seen and all(o["track_id"] == 1 and o["class"] == "car" for o in seen)
+    assert "SCPainter Labels" in bpy.data.images
+    ex = summary["exports"]
+    assert sorted(os.listdir(os.path.join(ex["kitti"], "label_2")))[0] == "000000.txt"
+    assert os.path.isfile(os.path.join(ex["coco"], "annotations.json"))
+    assert os.path.isfile(os.path.join(ex["openlabel"], "openlabel.json"))
     bpy.ops.wm.read_homefile(use_empty=True)
 
 

@@ -1,8 +1,9 @@
 """The README's main command: build the ground-truth street, import it into a new .blend, park a procedural
 Gaussian car beside the road, add a camera path 2 m to the left of the drive, export the job, render the
-condition layers with the backend (``python -m backend render``), generate the video — with the SCPainter model when
-a checkpoint is configured (``--checkpoint`` or ``$SCPAINTER_CHECKPOINT``), otherwise the OpenCV inpainting
-baseline, saying so and how to use a checkpoint instead — and render a Cycles preview.
+condition layers and their labels with the backend (``python -m backend render``), generate the video — with the
+SCPainter model when a checkpoint is configured (``--checkpoint`` or ``$SCPAINTER_CHECKPOINT``), otherwise the
+OpenCV inpainting baseline, saying so and how to use a checkpoint instead —, export the labels as KITTI, COCO and
+OpenLABEL datasets and render a Cycles preview.
 
     .venv/bin/python tools/demo.py [--out build/demo] [--scale camera_height|trajectory|factor]
 
@@ -20,7 +21,7 @@ import time
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
-from scpainter_blender.core.backend_protocol import DEFAULT_DEVICE, DEVICE_NAMES  # noqa: E402
+from scpainter_blender.core.backend_protocol import DEFAULT_DEVICE, DEVICE_NAMES, EXPORT_FORMATS  # noqa: E402
 from scpainter_blender.core.output_layout import OutputLayout  # noqa: E402
 from tools import blender_env  # noqa: E402
 
@@ -129,6 +130,17 @@ def main(argv=None):
         raise SystemExit("generation failed: see the message above")
     generation = generation_summary(out)
     t_gen = time.perf_counter() - t_gen
+
+    # the labels as datasets: every frame's boxes, masks and camera (rendered with the conditions) in each format
+    t_export = time.perf_counter()
+    exports = {}
+    for fmt in EXPORT_FORMATS:
+        log(f"backend: exporting the labels as {fmt} ...")
+        if bpy.ops.scpainter.export_labels(format=fmt) != {"FINISHED"}:
+            raise SystemExit(f"the {fmt} export failed: see the message above")
+        exports[fmt] = OutputLayout(out).export(fmt)
+    t_export = time.perf_counter() - t_export
+    labels = labels_summary(out)
     bpy.ops.wm.save_mainfile()  # again, now with the results loaded behind the camera path
 
     # a viewport-free preview: Cycles on the CPU from the recorded camera, points in their own colours
@@ -150,6 +162,7 @@ def main(argv=None):
 
     summary = {"blend": blend, "preview": preview, "job": job_path, "asset": car_ply,
                "camera_path": path_cam.name, "shift_m": args.shift, "conditions": cond, "generation": generation,
+               "labels": labels, "exports": exports,
                "asset_location": list(car.location), "asset_stage1": car["scpainter_stage1"],
                "ground_truth_frame": street.frame_path("recorded", 0),
                "street": street.root, "points": len(pts.data.vertices), "camera": cam.name,
@@ -157,11 +170,14 @@ def main(argv=None):
                "scale_truth_m_per_unit": truth, "scale_error_percent": 100 * (scale / truth - 1),
                "scale_residual_m": pts["scpainter_scale_residual_m"],
                "seconds": {"street": made or 0.0, "import": t_import, "conditions": t_cond, "generation": t_gen,
-                           "preview": t_render,
+                           "exports": t_export, "preview": t_render,
                            "total": time.perf_counter() - t0}}
     print(json.dumps(summary, indent=1))
     log(f"\nSaved {blend}\n      {preview}\n      {cond['folder']} ({cond['frames']} frames of condition layers)"
-        f"\n      {generation['video']} ({generation['description']})")
+        f"\n      {generation['video']} ({generation['description']})"
+        f"\n      {labels['labelled_previews'][0] if labels['labelled_previews'] else ''} (labels drawn; "
+        f"{len(labels['labelled_previews'])} frames)"
+        + "".join(f"\n      {path} ({fmt})" for fmt, path in exports.items()))
     if generation["model"] == "baseline":
         log(f"\nThis video is the baseline, not the model. {USE_A_CHECKPOINT}")
     return 0
@@ -184,6 +200,24 @@ def generation_summary(output_dir: str) -> dict:
     if manifest["model"] == "baseline":
         summary["use_a_checkpoint"] = USE_A_CHECKPOINT
     return summary
+
+
+def labels_summary(output_dir: str) -> dict:
+    """The labels render wrote: per frame the objects seen (track, class, visible fraction) and the flags; where the
+    labelled previews are."""
+    from scpainter_blender.core import files
+    from scpainter_blender.core.output_layout import FRAME_LABELS, LABELLED_PREVIEW
+
+    folder = OutputLayout(output_dir).conditions
+    frames = []
+    for path in FRAME_LABELS.in_folder(folder):
+        lab = files.read_json(path)
+        frames.append({"frame": lab["frame"], "timestamp_s": lab["timestamp_s"], "coverage": lab["coverage"],
+                       "flags": lab["flags"],
+                       "objects": [{"track_id": o["track_id"], "class": o["class"], "synthetic": o["synthetic"],
+                                    "visible_fraction": o["visible_fraction"], "occlusion": o["occlusion"],
+                                    "truncation": o["truncation"]} for o in lab["objects"] if o["visible_pixels"]]})
+    return {"frames": frames, "labelled_previews": LABELLED_PREVIEW.in_folder(folder)}
 
 
 def conditions_summary(output_dir: str) -> dict:

@@ -13,11 +13,8 @@ from backend.export import common, openlabel
 from scpainter_blender.core import labels
 from scpainter_blender.core.geometry import boxes, cameras
 
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
-#: The official schema (Vicomtech's snapshot, MIT) lives in the project's shared folder beside the checkout
-#: (``../shared/formats``; a worktree sits one level deeper).
-SCHEMA = next((p for p in (os.path.join(ROOT, *[".."] * up, "shared", "formats", "openlabel_json_schema-v1.0.0.json")
-                           for up in (0, 1, 2)) if os.path.isfile(p)), "")
+#: The official schema (Vicomtech's snapshot, MIT; README.md beside this file says where from).
+SCHEMA = os.path.join(os.path.dirname(os.path.abspath(__file__)), "openlabel_json_schema-v1.0.0.json")
 
 
 @pytest.fixture(scope="module")
@@ -30,7 +27,6 @@ def exported(tmp_path_factory):
     return out, frames, counts, json.loads((out / "openlabel.json").read_text())["openlabel"]
 
 
-@pytest.mark.skipif(not os.path.isfile(SCHEMA), reason="the shared OpenLABEL schema is not beside the worktree")
 def test_valid_against_the_official_schema(exported):
     out, _, _, doc = exported
     schema = json.load(open(SCHEMA, encoding="utf-8"))

@@ -210,8 +210,9 @@ def _render(job_path, job, device, force, point_radius, stop, log, out, allow_ou
                 if stop:  # asked to stop while the scene loaded (outlier removal can take a while)
                     break
             t = time.perf_counter()
-            layers = fr.render_frame(scene, entry, W, H, point_radius)
-            amodal = fr.amodal_pixels(scene, entry, W, H)
+            kept = {}
+            layers = fr.render_frame(scene, entry, W, H, point_radius, keep=kept)
+            amodal = fr.amodal_pixels(scene, entry, W, H, projection=kept["projection"])
             lab = labels_mod.frame_labels(job, n, instance=layers[channels.INSTANCE], hole=layers[channels.HOLE],
                                           depth=layers[channels.DEPTH], amodal_pixels=amodal, asset_boxes=boxes_,
                                           asset_hashes=hashes, key=lkey)

@@ -292,7 +292,8 @@ def select_points(scene: Scene, frames: list):
 
 
 def render_frame(scene: Scene, entry: job_mod.Frame, width: int, height: int, point_radius_px: int = 0,
-                 reference: bool = False, to_numpy: bool = True, tile: int | None = None) -> dict:
+                 reference: bool = False, to_numpy: bool = True, tile: int | None = None,
+                 keep: dict | None = None) -> dict:
     """The condition layers of one output frame as float32 (H, W) arrays keyed by ``channels.CHANNELS`` (R G B
     hole asset_mask Z instance): numpy arrays, or tensors on the scene's device with ``to_numpy=False``.
     ``instance`` holds the asset id (1-based, the asset's place in ``scene.assets``, i.e. the job's ``assets``)
@@ -301,7 +302,9 @@ def render_frame(scene: Scene, entry: job_mod.Frame, width: int, height: int, po
     composites Gaussians with the torch pair rasterizer instead of the tile kernels (same result, slower; for tests
     and benchmarks); ``tile`` (pixels) is the tile kernels' tile size (None: the device's default). With
     ``scene.skip_unseen`` the source frames ``visible_frames`` rules out are not projected and the Gaussian pass
-    is skipped when ``asset_unseen`` holds for every asset: the same layers, less work."""
+    is skipped when ``asset_unseen`` holds for every asset: the same layers, less work. ``keep``: a dict that
+    receives the Gaussians' projection as ``keep["projection"]`` (None when the pass was skipped), for
+    ``amodal_pixels``."""
     dev = scene.device
     K = np.asarray(entry.K, np.float64)
     w2c = pts.relative_camera(np.asarray(entry.world_to_camera, np.float64), scene.origin)
@@ -315,10 +318,14 @@ def render_frame(scene: Scene, entry: job_mod.Frame, width: int, height: int, po
     asset_mask = torch.zeros((height, width), device=dev)
     zmed = torch.full((height, width), float("inf"), device=dev)
     instance = torch.zeros((height, width), dtype=torch.int32, device=dev)
+    if keep is not None:
+        keep["projection"] = None
     # no Gaussian pass when no asset can reach a pixel: its output would be no colour, M_a = 0, no depth
     if scene.assets and not (scene.skip_unseen and all(
             asset_unseen(a, entry.frame, scene.origin, K, w2c, width, height) for a in scene.assets)):
         proj = project_assets(scene, range(len(scene.assets)), entry.frame, K, w2c, width, height)
+        if keep is not None:
+            keep["projection"] = proj
         rasterize = gs.rasterize if reference else functools.partial(tiles.rasterize, tile=tile)
         color_g, asset_mask, zmed, instance = rasterize(proj, width, height, background_depth=depth)
         image = color_g + (1.0 - asset_mask)[..., None] * image
@@ -363,19 +370,27 @@ def visible_pixels(instance, n_assets: int) -> np.ndarray:
     return np.bincount(ids, minlength=n_assets + 1)[1:n_assets + 1].astype(np.int64)
 
 
-def amodal_pixels(scene: Scene, entry: job_mod.Frame, width: int, height: int) -> np.ndarray:
+def amodal_pixels(scene: Scene, entry: job_mod.Frame, width: int, height: int, projection="project") -> np.ndarray:
     """(A,) int64, A = len(scene.assets): for each asset the pixels it would be the instance of if it were
     rendered alone (no points, no other asset: no background depth), i.e. where its own M_a > 0.5 (its Σ α·T
-    exceeds the transmittance left). 0 for an asset ``asset_unseen`` rules out (no pass for it). One projection
-    and ``tiles.rasterize`` per asset: a separate cost, not part of ``render_frame``. An asset nothing hides
-    (no point or other asset in front of it, nor behind it where it would count) has
-    ``visible_pixels`` == ``amodal_pixels``."""
+    exceeds the transmittance left). 0 for an asset ``asset_unseen`` rules out (no pass for it). One
+    ``tiles.rasterize`` per asset: a separate cost, not part of ``render_frame``. ``projection``: the frame's
+    projection of every asset from ``render_frame(keep=...)`` (None: its Gaussian pass was skipped, nothing to
+    count), whose rows of one asset are exactly that asset's own projection (each row is projected on its own,
+    the order kept); by default each asset is projected here. An asset nothing hides (no point or other asset in
+    front of it, nor behind it where it would count) has ``visible_pixels`` == ``amodal_pixels``."""
     K = np.asarray(entry.K, np.float64)
     w2c = pts.relative_camera(np.asarray(entry.world_to_camera, np.float64), scene.origin)
     out = np.zeros(len(scene.assets), np.int64)
+    if projection is None:
+        return out
     for i, a in enumerate(scene.assets):
         if asset_unseen(a, entry.frame, scene.origin, K, w2c, width, height):
             continue
-        proj = project_assets(scene, [i], entry.frame, K, w2c, width, height)
+        if isinstance(projection, dict):
+            sel = projection["asset_id"] == i + 1
+            proj = {k: v[sel] for k, v in projection.items()}
+        else:
+            proj = project_assets(scene, [i], entry.frame, K, w2c, width, height)
         out[i] = int((tiles.rasterize(proj, width, height)[3] > 0).sum())
     return out

@@ -149,11 +149,8 @@ class RemovalBox:
     def from_dict(cls, d, path, where) -> "RemovalBox":
         _object(d, path, where)
         _known(d, path, where, ("box_to_world", "size"))
-        T = _rigid(d.get("box_to_world"), path, f"{where}.box_to_world")
-        size = d.get("size")
-        if not isinstance(size, list) or len(size) != 3:
-            raise JobError(path, f"{where}.size", f"expected [x, y, z] in metres, got {_short(size)}")
-        return cls(T, np.array([_number(v, path, f"{where}.size[{j}]", lo=0.0, hi=1e7) for j, v in enumerate(size)]))
+        return cls(_rigid(d.get("box_to_world"), path, f"{where}.box_to_world"),
+                   _box_size(d.get("size"), path, f"{where}.size", "[x, y, z] in metres"))
 
     def to_dict(self) -> dict:
         return {"box_to_world": _matrix_list(self.box_to_world), "size": [float(v) for v in self.size]}

@@ -98,3 +98,12 @@ def export_frames(tmp_path) -> list:
         lab, inst = frame_labels(j, i)
         out.append(common.ExportFrame(lab, write_png(tmp_path / f"img_{i}.png", i), inst))
     return out
+
+
+def write_dataset(tmp_path_factory, fmt_module, name: str):
+    """(out folder, frames, counts) of ``fmt_module.write`` on ``export_frames`` in a fresh temporary folder."""
+    tmp = tmp_path_factory.mktemp(name)
+    frames = export_frames(tmp)
+    out = tmp / "dataset"
+    out.mkdir()
+    return out, frames, fmt_module.write(str(out), frames)

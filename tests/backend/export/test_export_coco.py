@@ -35,12 +35,7 @@ def test_rle_matches_pycocotools(seed):
 
 @pytest.fixture(scope="module")
 def exported(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("coco")
-    frames = F.export_frames(tmp)
-    out = tmp / "dataset"
-    out.mkdir()
-    counts = coco.write(str(out), frames)
-    return out, frames, counts
+    return F.write_dataset(tmp_path_factory, coco, "coco")
 
 
 def test_pycocotools_reads_it_back(exported):

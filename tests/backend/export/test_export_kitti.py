@@ -31,12 +31,7 @@ def _devkit_corners(h, w, l, loc, ry) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def exported(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("kitti")
-    frames = F.export_frames(tmp)
-    out = tmp / "dataset"
-    out.mkdir()
-    counts = kitti.write(str(out), frames)
-    return out, frames, counts
+    return F.write_dataset(tmp_path_factory, kitti, "kitti")
 
 
 def test_layout_images_and_index(exported):

@@ -19,11 +19,7 @@ SCHEMA = os.path.join(os.path.dirname(os.path.abspath(__file__)), "openlabel_jso
 
 @pytest.fixture(scope="module")
 def exported(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("openlabel")
-    frames = F.export_frames(tmp)
-    out = tmp / "dataset"
-    out.mkdir()
-    counts = openlabel.write(str(out), frames)
+    out, frames, counts = F.write_dataset(tmp_path_factory, openlabel, "openlabel")
     return out, frames, counts, json.loads((out / "openlabel.json").read_text())["openlabel"]
 
 

@@ -156,5 +156,13 @@ def test_visible_and_amodal_pixels():
     alone = car_scene(cars=(CARS[0], CARS[2]))
     lay = fr.render_frame(*alone, W, H)
     assert np.array_equal(fr.visible_pixels(lay["instance"], 2), fr.amodal_pixels(*alone, W, H))
+    # from the frame's own projection (render_frame(keep=...)): the same counts as projecting each asset alone
+    kept = {}
+    fr.render_frame(scene, entry, W, H, keep=kept)
+    assert np.array_equal(fr.amodal_pixels(scene, entry, W, H, projection=kept["projection"]), amodal)
+    kept = {}
+    fr.render_frame(*car_scene(cars=((0.0, -10.0),)), W, H, keep=kept)
+    assert kept["projection"] is None
+    assert not fr.amodal_pixels(*car_scene(cars=((0.0, -10.0),)), W, H, projection=None).any()
     # tensors are counted too (render_frame(..., to_numpy=False))
     assert np.array_equal(fr.visible_pixels(torch.as_tensor(lay["instance"]), 2), fr.visible_pixels(lay["instance"], 2))

@@ -33,7 +33,7 @@ def test_demo_writes_blend_and_preview(street, tmp_path):
     bg = scene.camera.data.background_images   # the condition previews (Render Conditions), then the video
     assert "SCPainter Conditions" in bpy.data.images   # kept in the .blend although the video replaced it
     assert scene.camera.data.show_background_images and bg[0].image.name == "SCPainter Baseline"
-    assert kinds == ["camera_path", "gaussian_asset", "points", "recorded_camera"]
+    assert kinds == ["asset_box", "asset_front", "camera_path", "gaussian_asset", "points", "recorded_camera"]
     assert abs(summary["asset_location"][2]) < 0.05  # stood on the road (z = 0)
     from scpainter_blender.core import job
 

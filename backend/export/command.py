@@ -15,10 +15,7 @@ an export is refused (``--out``), never overwritten.
 
 from __future__ import annotations
 
-import contextlib
 import os
-import shutil
-import tempfile
 
 from scpainter_blender.core import errors, files, job_inputs, labels, locking, outputs
 from scpainter_blender.core import job as job_mod
@@ -103,30 +100,6 @@ def _frame(layout: OutputLayout, frame: int, images: str, instance: bool) -> com
     return common.ExportFrame(lab, image, layer)
 
 
-@contextlib.contextmanager
-def _replacing(out: str):
-    """Around ``outputs.atomic_folder(out)``: a previous export at ``out`` is moved aside just before the new one
-    is renamed into place (``moved_aside``, called by the writer at its end), removed once it is, and put back
-    if that fails."""
-    aside = []
-
-    def moved_aside():
-        if os.path.lexists(out):
-            aside.append(tempfile.mkdtemp(prefix=f".{os.path.basename(out)}.", suffix=".old.tmp",
-                                          dir=os.path.dirname(out)))
-            os.rename(out, os.path.join(aside[0], "previous"))
-
-    try:
-        yield moved_aside
-    except BaseException:
-        if aside and not os.path.lexists(out):
-            os.rename(os.path.join(aside[0], "previous"), out)
-        raise
-    finally:
-        if aside:
-            shutil.rmtree(aside[0], ignore_errors=True)
-
-
 def export_job(job_path: str, job: job_mod.Job, fmt: str, out: str | None = None, device: str = "cpu",
                allow_outside: bool = False, stop=()) -> dict:
     """Export a job's labels as ``fmt`` into ``out`` (None: ``OutputLayout(output_dir).export(fmt)``), rendering
@@ -164,14 +137,13 @@ def write_export(job_path: str, job: job_mod.Job, layout: OutputLayout, fmt: str
     frames = [_frame(layout, e.frame, images, fmt in NEEDS_INSTANCE) for e in job.frames]
     total = len(frames)
     outputs.make_folder(os.path.dirname(dest), "(folder)")
-    with _replacing(dest) as moved_aside, outputs.atomic_folder(dest) as tmp:
+    # check_destination said what may be replaced (nothing, an empty folder, a previous export)
+    with outputs.atomic_folder(dest, replace=True, usual_mode=True) as tmp:
         counts = FORMATS[fmt].write(tmp, frames, progress=lambda i: events.progress(
             "export", i + 1, total, frame=job.frames[i].frame))
         outputs.write_json(os.path.join(tmp, OutputLayout.EXPORT_RECORD), {
             "schema": EXPORT_SCHEMA, "format": fmt, "job": os.path.abspath(job_path), "images": images,
             **counts, "scene_frames": [e.frame for e in job.frames]})
-        os.chmod(tmp, 0o777 & ~outputs._umask())  # mkdtemp made it 0700: the usual permissions instead
-        moved_aside()
     if log:
         log(f"export {fmt}: {counts['frames']} frames, {counts['objects']} objects ({images} images) -> {dest}")
     return {**counts, "images": images}

@@ -48,8 +48,9 @@ def copy_image(src: str, dst: str) -> None:
 
 
 def exported(obj: dict) -> bool:
-    """Whether an object of the labels appears in the image: some visible pixel, and not removed."""
-    return obj["visible_pixels"] > 0 and not obj["removed"]
+    """Whether an object of the labels appears in the image: some visible pixel, not removed, and a box (labels
+    leave it out, ``box_world`` null, when the object's transform overflows)."""
+    return obj["visible_pixels"] > 0 and not obj["removed"] and obj["box_world"] is not None
 
 
 def class_name(category: str) -> str:

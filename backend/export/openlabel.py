@@ -108,6 +108,8 @@ def document(frames: list, image_names: list, name: str = "scpainter") -> dict:
                      "matrix4x4": _matrix(lab["camera"]["camera_to_world"])}}}}
         frame_objects = {}
         for o in lab["objects"]:
+            if o["box_world"] is None:  # its transform overflows: no box to give (core.labels)
+                continue
             key = str(int(o["track_id"]))
             seen.setdefault(key, []).append(i)
             objects.setdefault(key, {"name": o["name"], "type": o["class"], "object_data": {

@@ -110,7 +110,7 @@ def render_mask(g: splats.Gaussians, K, world_to_camera, width: int, height: int
     proj = gs.project(t(g.means), t(g.quats), t(g.scales), t(g.opacities), t(g.sh), K, world_to_camera,
                       width, height)
     raster = gs.rasterize if reference else tiles.rasterize
-    _, asset_mask, _ = raster(proj, width, height)
+    asset_mask = raster(proj, width, height)[1]
     return asset_mask.numpy()
 
 

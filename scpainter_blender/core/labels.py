@@ -98,9 +98,19 @@ def _in_camera(box_to_world, world_to_camera) -> np.ndarray:
     return np.asarray(world_to_camera, np.float64) @ np.asarray(box_to_world, np.float64)
 
 
-def asset_box_to_world(asset: job_mod.Asset, box: tuple, frame: int) -> tuple:
-    """(box_to_world rigid, size in metres) of an asset at an output frame; ``box`` = (box_to_file, size)."""
-    return boxes.place_box(box[0], box[1], asset.object_to_world[frame])
+def asset_box_to_world(asset: job_mod.Asset, box: tuple, frame: int):
+    """(box_to_world rigid, size in metres) of an asset at an output frame; ``box`` = (box_to_file, size). None
+    when the placement overflows (a transform scaled by 1e200 is a valid affine: such a box is not labelled)."""
+    with np.errstate(all="ignore"):
+        try:
+            T, size = boxes.place_box(box[0], box[1], asset.object_to_world[frame])
+        except np.linalg.LinAlgError:
+            return None
+    return (T, size) if _finite(T, size) else None
+
+
+def _finite(*arrays) -> bool:
+    return all(np.isfinite(np.asarray(a, np.float64)).all() and np.abs(a).max(initial=0) < 1e150 for a in arrays)
 
 
 def asset_up(asset: job_mod.Asset) -> np.ndarray:
@@ -123,15 +133,27 @@ def _velocity(centres: dict, frames: list, i: int, fps: float):
     return [float(v) for v in (centres[b] - centres[a]) * fps / (b - a)]
 
 
-def _object(track_id, name, category, synthetic, box_to_world, size, entry, width, height, *, frames, index, fps,
-            centres):
+#: An object's geometry when its box cannot be placed (non-finite or overflowing transforms).
+_NO_GEOMETRY = {"box_world": None, "box_camera": None, "velocity": None, "bbox_amodal": None, "truncation": 1.0,
+                "in_view": False, "camera_inside": False}
+_NO_PROJECTION = {"polygon": np.zeros((0, 2)), "bbox": None, "truncation": 1.0, "depth_range": None}
+
+
+def _object(track_id, name, category, synthetic, placed, entry, width, height, *, frames, index, fps, centres):
+    """The object's identity and geometry (``placed`` = (box_to_world, size), or None: no geometry) and its box's
+    projection."""
+    head = {"track_id": int(track_id), "name": name, "class": category, "synthetic": synthetic}
+    if placed is None:
+        return {**head, **_NO_GEOMETRY}, _NO_PROJECTION
+    box_to_world, size = placed
     w2c = np.asarray(entry.world_to_camera, np.float64)
     cam_box = _in_camera(box_to_world, w2c)
     pose_w, pose_c = boxes.object_pose(box_to_world, size), boxes.object_pose(cam_box, size)
     proj = boxes.project_box(box_to_world, size, entry.K, w2c, width, height, NEAR)
+    if not _finite(cam_box, proj["polygon"]):
+        return {**head, **_NO_GEOMETRY}, _NO_PROJECTION
     centre = cameras.camera_centers(w2c)
-    return {"track_id": int(track_id), "name": name, "class": category, "synthetic": synthetic,
-            "box_world": _box_dict(pose_w, pose_w["yaw"]),
+    return {**head, "box_world": _box_dict(pose_w, pose_w["yaw"]),
             "box_camera": _box_dict(pose_c, boxes.rotation_y(pose_c["rotation"])),
             "velocity": _velocity(centres, frames, index, fps),
             "bbox_amodal": proj["bbox"], "truncation": float(proj["truncation"]),
@@ -164,10 +186,10 @@ def frame_labels(job: job_mod.Job, index: int, *, instance, hole, depth, amodal_
     visible_counts = np.bincount(ids.ravel(), minlength=len(job.assets) + 1)
     for a_i, (asset, (box_to_file, size, source)) in enumerate(zip(job.assets, asset_boxes)):
         track = a_i + 1
-        centres = {f: asset_box_to_world(asset, (box_to_file, size), f)[0][:3, 3] for f in frames}
-        bw, sw = asset_box_to_world(asset, (box_to_file, size), entry.frame)
-        obj, _ = _object(track, asset.name, asset.category, True, bw, sw, entry, W, H, frames=frames, index=index,
-                         fps=fps, centres=centres)
+        placed = {f: asset_box_to_world(asset, (box_to_file, size), f) for f in frames}
+        centres = {f: p[0][:3, 3] for f, p in placed.items() if p is not None}
+        obj, _ = _object(track, asset.name, asset.category, True, placed[entry.frame], entry, W, H, frames=frames,
+                         index=index, fps=fps, centres=centres)
         visible, amodal = int(visible_counts[track]), int(amodal_pixels[a_i])
         obj.update({"asset": {"file": asset.ply, "sha256": asset_hashes[a_i]}, "box_source": source,
                     "removed": False, "bbox_visible": pixel_box(ids == track) if visible else None,
@@ -181,8 +203,9 @@ def frame_labels(job: job_mod.Job, index: int, *, instance, hole, depth, amodal_
             continue
         track = len(job.assets) + 1 + r_i
         bw = rec.boxes[entry.frame]
-        centres = {f: m[:3, 3] for f, m in rec.boxes.items()}
-        obj, proj = _object(track, rec.id, rec.category, False, bw, rec.size, entry, W, H, frames=frames,
+        centres = {f: m[:3, 3] for f, m in rec.boxes.items() if _finite(m)}
+        placed = (bw, rec.size) if _finite(bw, rec.size) else None
+        obj, proj = _object(track, rec.id, rec.category, False, placed, entry, W, H, frames=frames,
                             index=index, fps=fps, centres=centres)
         removed = any(boxes.contains(b.box_to_world, b.size, bw[:3, 3]) for b in sc.removal_boxes)
         amodal_mask = boxes.polygon_mask(proj["polygon"], W, H) if proj["bbox"] is not None else np.zeros((H, W), bool)

@@ -78,25 +78,38 @@ def atomic_path(path):
 
 
 @contextlib.contextmanager
-def atomic_folder(path, keep_existing: bool = False):
+def atomic_folder(path, keep_existing: bool = False, replace: bool = False, usual_mode: bool = False):
     """Yields a fresh empty folder beside ``path`` (``mkdtemp``: ``.<name>.<random>.tmp``, a unique name, mode 0700
     as mkdtemp makes it); when the block ends without an error it is renamed to ``path``, on any error removed with
     everything in it, so ``path`` appears whole or not at all. The parent folder must exist. ``keep_existing``:
     when ``path`` appeared meanwhile (another process finished first), ours is removed and theirs kept; otherwise
-    the rename's OSError is raised (``path`` a folder that is not empty)."""
+    the rename's OSError is raised (``path`` a folder that is not empty). ``replace``: an existing ``path`` (the
+    caller decided it may go) is moved aside just before ours takes its name, deleted once it has, and put back
+    if the rename fails. ``usual_mode``: the folder gets the permissions a new folder would (0777 less the umask)
+    before it is renamed."""
     path = os.path.abspath(os.fspath(path))
-    tmp = tempfile.mkdtemp(prefix=_temporary_prefix(os.path.basename(path)), suffix=_TEMPORARY_SUFFIX,
-                           dir=os.path.dirname(path))
+    parent, name = os.path.dirname(path), os.path.basename(path)
+    tmp = tempfile.mkdtemp(prefix=_temporary_prefix(name), suffix=_TEMPORARY_SUFFIX, dir=parent)
+    aside = None
     try:
         yield tmp
+        if usual_mode:
+            os.chmod(tmp, 0o777 & ~_umask())
+        if replace and os.path.lexists(path):
+            aside = tempfile.mkdtemp(prefix=_temporary_prefix(name), suffix=".old" + _TEMPORARY_SUFFIX, dir=parent)
+            os.rename(path, os.path.join(aside, name))
         try:
             os.rename(tmp, path)
         except OSError:
+            if aside is not None and not os.path.lexists(path):
+                os.rename(os.path.join(aside, name), path)
             if not (keep_existing and os.path.isdir(path)):
                 raise
-    finally:  # after an error, or when theirs was kept (renamed, it is gone)
+    finally:  # after an error, or when theirs was kept (renamed, it is gone); the replaced folder once it is
         if os.path.isdir(tmp) and not os.path.islink(tmp):
             shutil.rmtree(tmp, ignore_errors=True)
+        if aside is not None:
+            shutil.rmtree(aside, ignore_errors=True)
 
 
 @contextlib.contextmanager

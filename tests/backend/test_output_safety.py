@@ -116,7 +116,8 @@ def test_stale_frames_clean_up_deletes_only_this_jobs_files(case):
     code, _ = run("render", job_path, "--device", "cpu")
     assert code == 0
     record = files.read_json(os.path.join(cond, "record.json"))
-    assert record["files"] == ["frame_000001.exr", "preview_000001.png", "frame_000002.exr", "preview_000002.png"]
+    assert record["files"] == ["frame_000001.exr", "preview_000001.png", "labels_000001.json", "labelled_000001.png",
+                               "frame_000002.exr", "preview_000002.png", "labels_000002.json", "labelled_000002.png"]
     for name in ("frame_000777.exr", "frame_notes.txt", "preview_mine.png"):  # not this job's outputs
         with open(os.path.join(cond, name), "w") as f:
             f.write("keep me\n")

@@ -123,3 +123,17 @@ def test_recorded_objects_visibility_from_depth_and_removal():
     assert lab["objects"][1]["visible_pixels"] == lab["objects"][1]["amodal_pixels"]
     assert lab["objects"][1]["occlusion"] == 0
     assert len(_labels(job, 2)["objects"]) == 1                     # frame 3: no recorded box, not labelled
+
+
+def test_an_overflowing_transform_gives_no_geometry():
+    """A transform scaled by 1e200 is a valid affine (the render draws nothing): its object is listed without a
+    box, and the labels stay strict JSON."""
+    import json
+
+    d = _job().to_dict()
+    d["assets"][0]["object_to_world"]["2"] = (np.diag([1e200, 1e200, 1e200, 1.0])).tolist()
+    lab = _labels(J.Job.from_dict(d), 1)
+    o = lab["objects"][0]
+    assert o["box_world"] is None and o["bbox_amodal"] is None and not o["in_view"] and o["velocity"] is None
+    json.dumps(lab, allow_nan=False)
+    assert _labels(J.Job.from_dict(d), 0)["objects"][0]["velocity"] is None   # its neighbour has no box

@@ -66,7 +66,9 @@ def test_render_then_generate_load_results_behind_the_camera(street_scene, tmp_p
     assert bpy.data.movieclips["SCPainter Video"].frame_duration == 4
     assert "SCPainter Baseline" not in bpy.data.images and "SCPainter Video (Baseline)" not in bpy.data.movieclips
     assert cam.background_images[0].image.name == "SCPainter Generated" and len(cam.background_images) == 1
-    assert len([i for i in bpy.data.images if i.name.startswith("SCPainter")]) == 2   # conditions, generated
+    # conditions, their labelled previews, generated
+    assert sorted(i.name for i in bpy.data.images if i.name.startswith("SCPainter")) == [
+        "SCPainter Conditions", "SCPainter Generated", "SCPainter Labels"]
 
 
 def _fake_python(tmp_path, body):

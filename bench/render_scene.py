@@ -222,10 +222,13 @@ class Passes:
         return proj
 
     def amodal(self):
-        """``frames.amodal_pixels`` (trees that have it; else None)."""
+        """``frames.amodal_pixels`` (trees that have it; else None) as ``render`` runs it: on the frame's own
+        projection (made once, outside the timing: the frame paid for it)."""
         if not hasattr(self.fr, "amodal_pixels"):
             return None
-        return self.fr.amodal_pixels(self.scene, self.entry, self.W, self.H)
+        if not hasattr(self, "_frame_projection"):
+            self._frame_projection = self.projection()
+        return self.fr.amodal_pixels(self.scene, self.entry, self.W, self.H, projection=self._frame_projection)
 
     def gaussians(self):
         return self.tiles.rasterize(self.projection(), self.W, self.H, background_depth=self.depth)

@@ -4,7 +4,8 @@ One JSON file describes a render/generation: output resolution, per-frame camera
 world_to_camera, the VGGT frames whose points project into it), the scene reconstruction with its
 ``vggt_to_world`` and removal boxes, Gaussian assets with a per-frame object_to_world (PLY file coordinates to
 world metres), the output folder and generation settings; under ``scene``, how its points are cleaned
-(``point_cleaning``). Paths are relative to the job file. ``scene`` and
+(``point_cleaning``); for labels (docs/design.md §15), each asset's ``class`` and ``box``, the recording's frames
+and tracked objects, and the frame rate (``Job.LABEL_ONLY``). Paths are relative to the job file. ``scene`` and
 ``assets`` may be absent. ``Job.from_dict`` validates every field, and each error names the file and the field
 (``frames[3].K``), never a numpy traceback; ``Job.to_dict`` is the file's content. The Blender export, the
 evaluation protocol, the training pairs and the backend commands build and read jobs only through these classes
@@ -13,7 +14,7 @@ evaluation protocol, the training pairs and the backend commands build and read 
 Schema versions: ``scpainter.job/2`` names every transform ``a_to_b`` (``scene.vggt_to_world``). Files of
 ``scpainter.job/1`` (``scene.world_from_vggt``) are still read; ``save`` always writes the current version.
 
-No bpy, no torch: numpy for the matrix checks only. (About 500 lines: the eight classes of one document, each
+No bpy, no torch: numpy for the matrix checks only. (About 680 lines: the ten classes of one document, each
 field's rule beside its ``to_dict``, read together; what the job points at on disk is ``core.job_inputs``.)
 """
 
@@ -610,12 +611,12 @@ class Job:
     def layers_dict(self) -> dict:
         """``to_dict`` without the generation settings, the output folder and the ``LABEL_ONLY`` fields: what the
         condition layers depend on."""
-        d = {k: v for k, v in self.to_dict().items() if k not in ("generate", "output_dir", "fps")}
-        for a in d.get("assets", []):
-            a.pop("class", None)
-            a.pop("box", None)
-        for k in ("recorded_frames", "recorded_objects"):
-            d.get("scene", {}).pop(k, None)
+        d = {k: v for k, v in self.to_dict().items() if k not in ("generate", "output_dir")}
+        for name in self.LABEL_ONLY:
+            where, _, key = name.rpartition(".")
+            parents = d.get("assets", []) if where == "assets[]" else [d.get("scene", {})] if where == "scene" else [d]
+            for parent in parents:
+                parent.pop(key, None)
         return d
 
 

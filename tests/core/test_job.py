@@ -286,3 +286,37 @@ def test_point_cleaning_defaults_and_switches(tmp_path):
     with pytest.raises(J.JobError) as e:
         J.save(tmp_path / "bad.json", bad)
     assert e.value.field == "scene.point_cleaning.outliers.method"
+
+
+def test_label_fields_round_trip_and_stay_out_of_the_layers():
+    """assets[].class/.box, scene.recorded_frames/.recorded_objects and fps are read, written back, validated by
+    name, and left out of layers_dict (the render's layer key): editing them changes labels only."""
+    d = minimal()
+    d["scene"] = {"predictions": "p.npz", "vggt_to_world": np.eye(4).tolist()}
+    d["assets"] = [{"name": "car", "ply": "car.ply", "object_to_world": {"1": np.eye(4).tolist(),
+                                                                        "2": np.eye(4).tolist()}}]
+    plain = J.Job.from_dict(d).layers_dict()
+    d["fps"] = 12.5
+    d["assets"][0].update({"class": "van", "box": {"box_to_file": np.eye(4).tolist(), "size": [1.9, 4.5, 1.6]}})
+    d["scene"].update({"recorded_frames": [1, 2], "recorded_objects": [
+        {"id": "parked", "size": [1.8, 4.4, 1.5], "boxes": {"1": np.eye(4).tolist()}}]})
+    job = J.Job.from_dict(d)
+    assert job.to_dict()["fps"] == 12.5 and job.frame_rate() == (12.5, "job")
+    assert job.assets[0].category == "van" and job.assets[0].box.size.tolist() == [1.9, 4.5, 1.6]
+    assert job.scene.recorded_objects[0].boxes[1].shape == (4, 4) and job.scene.recorded_frames == [1, 2]
+    assert J.Job.from_dict(job.to_dict()).to_dict() == job.to_dict()
+    assert job.layers_dict() == plain
+    for edit, field in (({"class": "a car"}, "assets[0].class"),
+                        ({"box": {"box_to_file": (2 * np.eye(4)).tolist(), "size": [1, 2, 3]}},
+                         "assets[0].box.box_to_file"),
+                        ({"box": {"box_to_file": np.eye(4).tolist(), "size": [1, 2]}}, "assets[0].box.size")):
+        bad = {**d, "assets": [{**d["assets"][0], **edit}]}
+        with pytest.raises(J.JobError) as e:
+            J.Job.from_dict(bad)
+        assert e.value.field == field
+    twice = {**d, "scene": {**d["scene"], "recorded_objects": d["scene"]["recorded_objects"] * 2}}
+    with pytest.raises(J.JobError, match="appears twice"):
+        J.Job.from_dict(twice)
+    with pytest.raises(J.JobError) as e:
+        J.Job.from_dict({**d, "scene": {**d["scene"], "recorded_frames": [3, 1]}})
+    assert e.value.field == "scene.recorded_frames"

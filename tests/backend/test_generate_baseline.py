@@ -1,6 +1,7 @@
 """The baseline generator (``backend/generate/baseline.py``) and ``python -m backend generate`` without a checkpoint."""
 
 import os
+from fractions import Fraction
 
 import numpy as np
 import pytest
@@ -155,3 +156,31 @@ def test_batch_generate_without_a_checkpoint_makes_each_jobs_baseline(tmp_path):
     items = ev[-1]["items"]
     assert [r["status"] for r in items] == ["ok", "ok"] and all(r["model"] == "baseline" for r in items)
     assert all(os.path.isfile(r["video"]) for r in items)
+
+
+def test_the_video_plays_at_the_jobs_frame_rate(tmp_path):
+    """With ``fps`` in the job (the scene's rate, which the labels' timestamps use) the MP4 plays at it, exactly
+    (29.97 stays 2997/100); changing it alone writes the video again; without it, the generation's fps (7)."""
+    import av
+
+    from scpainter_blender.core import files
+
+    def rate(job_path):
+        with av.open(os.path.join(os.path.dirname(job_path), "out", "generated.mp4")) as c:
+            return c.streams.video[0].average_rate
+
+    job = small_job(tmp_path / "a", frames=(1, 2, 3), fps=29.97)
+    code, ev, err = run_backend("generate", job, "--device", "cpu")
+    assert code == 0, err
+    assert rate(job) == Fraction(2997, 100)
+    manifest = files.read_json(os.path.join(os.path.dirname(job), "out", "generated", "manifest.json"))
+    assert manifest["playback_fps"] == 29.97
+    labels = files.read_json(os.path.join(os.path.dirname(job), "out", "conditions", "labels_000002.json"))
+    assert labels["fps"] == 29.97 and abs(labels["timestamp_s"] - 1 / 29.97) < 1e-12
+    d = J.load(job).to_dict()
+    d["fps"] = 10.0
+    J.save(job, d)
+    code, ev, err = run_backend("generate", job, "--device", "cpu")
+    assert code == 0 and not ev[-1]["skipped"] and rate(job) == 10
+    other = small_job(tmp_path / "b", frames=(1, 2))
+    assert run_backend("generate", other, "--device", "cpu")[0] == 0 and rate(other) == 7

@@ -20,7 +20,7 @@ from ..scpainter_blender.core import backend_protocol as protocol
 from ..scpainter_blender.core import outputs
 from ..scpainter_blender.scene import preferences, props
 from ..scpainter_blender.scene.runs import (ACTIVE, DOCTOR, Follower, failure_message, finish, invocation,
-                                            planned_model, progress_text, start)
+                                            planned_model, progress_text, start, with_warnings)
 from . import reports
 
 
@@ -64,7 +64,8 @@ class _BackendRun:
         except BackendError as e:
             self.report({"ERROR"}, failure_message(e, out))
             return {"CANCELLED"}
-        self.report({"INFO"}, finish(context, self.command, out, done))
+        level, message = with_warnings(finish(context, self.command, out, done), job.warnings)
+        self.report({level}, message)
         return {"FINISHED"}
 
     @reports.reported_invoke

@@ -111,6 +111,16 @@ def finish(context, command: str, out: str, done: dict) -> str:
     return f"Video {done.get('video')}"
 
 
+def with_warnings(message: str, warnings: list) -> tuple[str, str]:
+    """(report level, message) of a finished run: INFO, or WARNING with the backend's ``warning`` events counted
+    and the first one quoted (a frame mostly holes, a camera inside a car: the labels flag the frames)."""
+    if not warnings:
+        return "INFO", message
+    first = warnings[0].get("message", "")
+    more = f" (and {len(warnings) - 1} more, in backend.log)" if len(warnings) > 1 else ""
+    return "WARNING", f"{message}; {len(warnings)} warning{'s' * (len(warnings) > 1)}: {first}{more}"
+
+
 def progress_text(active: dict | None = None) -> str:
     """The run in progress in a few words (panel and status bar): "generate (Baseline): render 2/4"."""
     a = ACTIVE if active is None else active
@@ -185,4 +195,4 @@ class Follower:
             done = self.job.result()
         except BackendError as e:
             return "ERROR", failure_message(e, self.out)
-        return "INFO", finish(context, self.command, self.out, done)
+        return with_warnings(finish(context, self.command, self.out, done), self.job.warnings)

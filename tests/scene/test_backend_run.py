@@ -178,3 +178,15 @@ def test_export_labels_operator_and_its_report(addon, empty_scene):
     text = runs.finish(bpy.context, "export", "/x", done)
     assert text.startswith("OpenLABEL export: 3 frames, 7 objects") and "/x/export/openlabel" in text
     assert "condition previews" in text and len(bpy.data.images) == 0
+
+
+def test_a_run_with_warnings_is_reported_as_a_warning():
+    """The backend's warning events (weak frames, a camera inside a car) turn a finished run's report into a
+    warning quoting the first and counting the rest."""
+    from scpainter_blender.scene import runs
+
+    assert runs.with_warnings("Condition layers of 4 frames", []) == ("INFO", "Condition layers of 4 frames")
+    level, text = runs.with_warnings("Condition layers of 4 frames", [
+        {"event": "warning", "code": "camera_inside_object", "message": "frame 3: the camera is inside 'car'"},
+        {"event": "warning", "code": "low_coverage", "message": "frame 4: only 40% ..."}])
+    assert level == "WARNING" and "2 warnings: frame 3: the camera is inside 'car' (and 1 more" in text

@@ -90,7 +90,7 @@ def dataset(frames: list, file_names: list) -> dict:
         lab = fr.labels
         W, H = lab["image_size"]
         images.append({"id": i + 1, "file_name": name, "width": W, "height": H, "frame": lab["frame"],
-                       "timestamp_s": lab["timestamp_s"]})
+                       "timestamp_s": lab["timestamp_s"], **common.frame_quality(lab)})
         ids = None if fr.instance is None else np.rint(np.asarray(fr.instance)).astype(np.int64)
         for o in objs:
             ann = {"id": len(annotations) + 1, "image_id": i + 1, "category_id": category[o["class"]], "iscrowd": 0}

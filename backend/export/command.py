@@ -39,10 +39,11 @@ def check_format(fmt: str) -> str:
     return fmt
 
 
-def check_destination(out: str, output_dir: str, given: bool) -> None:
-    """What an export may replace: nothing, an empty folder, or a previous export (its ``EXPORT_RECORD``); never
-    a file, a link, another folder with content, or a folder holding the job's output folder. ``given``: the user
-    named it (``--out``: an ``ArgumentError``), else the default (an ``InputError`` naming the folder)."""
+def check_destination(out: str, output_dir: str, given: bool, fmt: str | None = None) -> None:
+    """What an export may replace: nothing, an empty folder, or a previous export (its ``EXPORT_RECORD``) — of
+    the same format ``fmt`` when given; never a file, a link, another folder with content, or a folder holding the
+    job's output folder. ``given``: the user named it (``--out``: an ``ArgumentError``), else the default (an
+    ``InputError`` naming the folder)."""
     def refuse(message, hint="give a new or empty folder, or a previous export of this command"):
         raise (errors.ArgumentError("--out", f"{out} {message}", hint) if given
                else errors.InputError(out, "(folder)", message, hint))
@@ -54,8 +55,17 @@ def check_destination(out: str, output_dir: str, given: bool) -> None:
         return
     if os.path.islink(out) or not os.path.isdir(out):
         refuse("exists and is not a folder")
-    if os.listdir(out) and not os.path.isfile(os.path.join(out, OutputLayout.EXPORT_RECORD)):
+    record = os.path.join(out, OutputLayout.EXPORT_RECORD)
+    if os.listdir(out) and not os.path.isfile(record):
         refuse("is a folder with other content (not an export of this command): it is never overwritten")
+    if fmt is not None and os.path.isfile(record):
+        try:
+            previous = files.read_json(record).get("format")
+        except (errors.InputError, AttributeError):
+            previous = None
+        if previous != fmt:
+            refuse(f"holds a {previous or 'damaged'} export, not {fmt}: another format is never written over it",
+                   hint=f"give a new folder, or the {previous} export's own command")
 
 
 def read_labels(path: str, frame: int) -> dict:
@@ -111,7 +121,7 @@ def export_job(job_path: str, job: job_mod.Job, fmt: str, out: str | None = None
     output_dir = outputs.make_folder(paths["output_dir"], "output_dir")
     layout = OutputLayout(output_dir)
     dest = os.path.abspath(out) if out else layout.export(fmt)
-    check_destination(dest, output_dir, given=bool(out))
+    check_destination(dest, output_dir, given=bool(out), fmt=fmt)
     with locking.OutputLock(output_dir, "export", busy=FolderBusyError) as held, events.log_scope():
         log = events.FileLog(layout.log)
         if held.stale:

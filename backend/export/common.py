@@ -47,10 +47,20 @@ def copy_image(src: str, dst: str) -> None:
     shutil.copyfile(src, dst)
 
 
-def exported(obj: dict) -> bool:
-    """Whether an object of the labels appears in the image: some visible pixel, not removed, and a box (labels
-    leave it out, ``box_world`` null, when the object's transform overflows)."""
-    return obj["visible_pixels"] > 0 and not obj["removed"] and obj["box_world"] is not None
+def exported(obj: dict, hidden: bool = False) -> bool:
+    """Whether an object of the labels is exported: not removed, with a box (labels leave it out, ``box_world``
+    null, when the object's transform overflows), and some visible pixel — or, with ``hidden`` (KITTI, whose 3D
+    detectors expect occluded objects, marked ``occluded`` 2 or 3), only its projected box in the image."""
+    if obj["removed"] or obj["box_world"] is None:
+        return False
+    return obj["in_view"] if hidden else obj["visible_pixels"] > 0
+
+
+def frame_quality(labels: dict) -> dict:
+    """What every format carries of a frame's quality, so a pipeline reading only the export can drop weak
+    frames: ``coverage`` and ``flags`` (``core.labels.FLAGS``: low coverage, outside the recording, the camera
+    inside an object)."""
+    return {"coverage": float(labels["coverage"]), "flags": list(labels["flags"])}
 
 
 def class_name(category: str) -> str:

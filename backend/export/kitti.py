@@ -86,13 +86,14 @@ def write(folder: str, frames: list, progress=None) -> dict:
         lab = fr.labels
         W, H = lab["image_size"]
         common.copy_image(fr.image, os.path.join(folder, IMAGES, common.index_name(i, ".png")))
-        lines = [label_line(o, W, H) for o in lab["objects"] if common.exported(o)]
+        lines = [label_line(o, W, H) for o in lab["objects"] if common.exported(o, hidden=True)]
         objects += len(lines)
         with open(os.path.join(folder, LABELS, common.index_name(i, ".txt")), "w", encoding="utf-8") as f:
             f.write("".join(line + "\n" for line in lines))
         with open(os.path.join(folder, CALIB, common.index_name(i, ".txt")), "w", encoding="utf-8") as f:
             f.write(calib_text(lab["camera"]["K"]))
-        index.append({"index": common.index_name(i, ""), "frame": lab["frame"], "timestamp_s": lab["timestamp_s"]})
+        index.append({"index": common.index_name(i, ""), "frame": lab["frame"], "timestamp_s": lab["timestamp_s"],
+                      **common.frame_quality(lab)})
         if progress:
             progress(i)
     with open(os.path.join(folder, FRAMES), "w", encoding="utf-8") as f:

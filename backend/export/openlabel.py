@@ -102,7 +102,7 @@ def document(frames: list, image_names: list, name: str = "scpainter") -> dict:
         stream = {"uri": image}
         if not np.array_equal(np.asarray(lab["camera"]["K"], np.float64), K0):
             stream["stream_properties"] = intrinsics(lab["camera"]["K"], *lab["image_size"])
-        props = {"timestamp": float(lab["timestamp_s"]), "scene_frame": int(lab["frame"]),
+        props = {"timestamp": float(lab["timestamp_s"]), "scene_frame": int(lab["frame"]), **common.frame_quality(lab),
                  "streams": {CAMERA: stream},
                  "transforms": {f"{CAMERA}_to_{WORLD}": {"src": CAMERA, "dst": WORLD, "transform_src_to_dst": {
                      "matrix4x4": _matrix(lab["camera"]["camera_to_world"])}}}}

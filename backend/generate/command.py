@@ -216,12 +216,12 @@ def _generate(job_path, job, device, plan: Plan, precision, force, stop, lock) -
         key = conditions_key({"model": "baseline", "settings": s}, image, asset_mask, valid)
         if not force and _up_to_date(gen_dir, mp4, key, playback_fps(job, plan)):
             log(f"generate: {mp4} is up to date (the same baseline settings and conditions)")
-            return {**_result(plan, mp4, gen_dir, frames_n, skipped=True), **s}
+            return {**_result(job, plan, mp4, gen_dir, frames_n, skipped=True), **s}
         return _baseline(job, plan, image, valid, key, stop, log, t0)
     key = state_key(ckpt, s, precision, image, asset_mask, valid)
     if not force and _up_to_date(gen_dir, mp4, key, playback_fps(job, plan)):
         log(f"generate: {mp4} is up to date (same checkpoint, settings and conditions)")
-        return _result(plan, mp4, gen_dir, frames_n, skipped=True)
+        return _result(job, plan, mp4, gen_dir, frames_n, skipped=True)
 
     from ..model.pipeline import SCPainterPipeline, pad_to_multiple
 
@@ -259,7 +259,7 @@ def _generate(job_path, job, device, plan: Plan, precision, force, stop, lock) -
     if os.path.exists(state_path):
         os.remove(state_path)
     log(f"generate: {mp4} in {time.perf_counter() - t0:.1f} s")
-    return {**_result(plan, mp4, gen_dir, frames_n), "precision": precision, **s}
+    return {**_result(job, plan, mp4, gen_dir, frames_n), "precision": precision, **s}
 
 
 def _baseline(job, plan: Plan, image, valid, key, stop, log, t0) -> dict:
@@ -279,7 +279,7 @@ def _baseline(job, plan: Plan, image, valid, key, stop, log, t0) -> dict:
     mp4 = layout.video
     _write_outputs(job, plan, rgb, mp4, {"key": key, "checkpoint": None, "settings": s})
     log(f"generate: {mp4} (baseline) in {time.perf_counter() - t0:.1f} s")
-    return {**_result(plan, mp4, layout.generated, len(rgb)), **s}
+    return {**_result(job, plan, mp4, layout.generated, len(rgb)), **s}
 
 
 def playback_fps(job: job_mod.Job, plan: Plan) -> float:
@@ -302,10 +302,11 @@ def _up_to_date(gen_dir: str, mp4: str, key: str, fps: float) -> bool:
         return False
 
 
-def _result(plan: Plan, mp4: str, gen_dir: str, frames: int, skipped: bool = False) -> dict:
+def _result(job: job_mod.Job, plan: Plan, mp4: str, gen_dir: str, frames: int, skipped: bool = False) -> dict:
     """The ``done`` event's fields every generation shares; the baseline's say what it is and how to get the model."""
     r = {"stopped": False, "skipped": skipped, "output_dir": plan.output_dir, "video": mp4, "frames_dir": gen_dir,
-         "frames": frames, "model": plan.model, "description": plan.description()}
+         "frames": frames, "model": plan.model, "description": plan.description(),
+         "playback_fps": playback_fps(job, plan)}  # the MP4's rate ("fps" is the generation's setting)
     if plan.model == "baseline":
         r["hint"] = USE_CHECKPOINT_HINT
     return r

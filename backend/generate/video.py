@@ -10,8 +10,8 @@ from scpainter_blender.core import outputs
 
 def write_mp4(path: str, frames: np.ndarray, fps: float, crf: int = 18, metadata: dict | None = None) -> str:
     """frames (F, H, W, 3) uint8 RGB -> an MP4 any player opens (yuv420p). Odd sizes are padded by one edge row or
-    column (4:2:0 chroma needs even sizes). ``fps``: frames per second, any positive rate (29.97 is kept exact). ``metadata``: container tags (``title``, ``comment``), which players and
-    ``ffprobe`` show."""
+    column (4:2:0 chroma needs even sizes). ``fps``: frames per second, any positive rate (29.97 is kept exact).
+    ``metadata``: container tags (``title``, ``comment``), which players and ``ffprobe`` show."""
     import av
 
     frames = np.asarray(frames)

@@ -31,10 +31,10 @@ def frame_paths(job_path: str, job: job_mod.Job, frame: int) -> tuple[str, str]:
 
 def job_key(job_path: str, job: job_mod.Job, point_radius: int, half: bool = False) -> str:
     """A hash of everything the condition layers depend on: the job without its generation settings, output
-    folder and label-only fields (``Job.layers_dict``), the point radius, the EXR precision (``half``), and the size and time of each input file. Finished
-    frames are reused only under the same key, so moving a car or a camera, or asking for another precision, and
-    rendering again cannot keep stale frames. (``half`` enters the hash only when set, so the keys of folders
-    rendered before the option existed, all float32, are unchanged.)"""
+    folder and label-only fields (``Job.layers_dict``), the point radius, the EXR precision (``half``), and the
+    size and time of each input file. Finished frames are reused only under the same key, so moving a car or a
+    camera, or asking for another precision, and rendering again cannot keep stale frames. (``half`` enters the
+    hash only when set, so the keys of folders rendered before the option existed, all float32, are unchanged.)"""
     import hashlib
     import json
 
@@ -62,13 +62,15 @@ def labels_key(layers_key: str, job: job_mod.Job) -> str:
     return hashlib.sha256(blob.encode()).hexdigest()[:32]
 
 
-def _finished_labels(path: str, key: str) -> dict | None:
-    """The frame's labels when they exist and were made under ``key`` (else None: the frame is rendered again)."""
+def _finished_labels(path: str, key: str, field: str = "key") -> dict | None:
+    """The frame's labels when they exist and their ``field`` (``key``: the labels', ``layers_key``: the layers'
+    they were made from) is ``key``; else None."""
     try:
         lab = files.read_json(path)
     except errors.InputError:
         return None
-    return lab if isinstance(lab, dict) and lab.get("key") == key and lab.get("schema") == labels_mod.SCHEMA else None
+    ok = isinstance(lab, dict) and lab.get(field) == key and lab.get("schema") == labels_mod.SCHEMA
+    return lab if ok else None
 
 
 def asset_boxes(job: job_mod.Job, scene: fr.Scene, log) -> list:
@@ -87,8 +89,11 @@ def asset_boxes(job: job_mod.Job, scene: fr.Scene, log) -> list:
             T, size = np.eye(4), np.zeros(3)
             if len(means):
                 T[:3, 3] = np.nanmean(means, axis=0)
+        placed = labels_mod.asset_box_to_world(a, (T, size), job.frames[0].frame)
+        metres = "" if placed is None else (f" ({placed[1][1]:.2f} x {placed[1][0]:.2f} x {placed[1][2]:.2f} m at "
+                                            f"frame {job.frames[0].frame})")
         log(f"labels: {a.name}: no box in the job; estimated {size[1]:.3g} x {size[0]:.3g} x {size[2]:.3g} "
-            "(length x width x height, file units) from its Gaussians")
+            f"(length x width x height, file units){metres} from its Gaussians")
         out.append((T, size, "estimated"))
     return out
 
@@ -179,26 +184,42 @@ def _render(job_path, job, device, force, point_radius, stop, log, out, allow_ou
     with contextlib.suppress(FileNotFoundError):  # the record's former name (one line: the key)
         os.remove(layout.former_record)
     lkey = labels_key(key, job)
-    todo, warned = set(), 0
+    todo, relabel, warned = set(), {}, 0
     for e in job.frames:
         lab = None
-        if not force and all(os.path.isfile(p) for p in frame_paths(job_path, job, e.frame)) \
-                and os.path.isfile(layout.labelled_preview(e.frame)):
+        if not force and all(os.path.isfile(p) for p in frame_paths(job_path, job, e.frame)):
             lab = _finished_labels(layout.frame_labels(e.frame), lkey)
+            if lab is None:  # the layers are there: labels made from them under the same layers need only redoing
+                old = _finished_labels(layout.frame_labels(e.frame), key, field="layers_key")
+                if old is not None:
+                    relabel[e.frame] = old
+                    continue
+            elif not os.path.isfile(layout.labelled_preview(e.frame)):
+                relabel[e.frame] = lab
+                continue
         if lab is None:
             todo.add(e.frame)
         else:
             warned += _warn(lab)  # a finished frame's flags are reported again: every run says what is weak
     scene = boxes_ = hashes = None
+    relabelled = 0
     for n, entry in enumerate(job.frames):
         if stop:
             break
         f = entry.frame
         exr_path, png_path = frame_paths(job_path, job, f)
-        if f not in todo:
+        if f in relabel:  # a label-only edit (a box, a class, the frame rate): the layers are kept
+            if scene is None:
+                scene = fr.load_scene(job, job_path, device, points=bool(todo))
+                boxes_ = asset_boxes(job, scene, log)
+                hashes = [file_hash(job_mod.resolve(job_path, a.ply)) for a in job.assets]
+            warned += _relabel(job, n, layout, relabel[f], boxes_, hashes, key, lkey)
+            relabelled += 1
+            skipped += 1
+        elif f not in todo:
             skipped += 1
         else:
-            if scene is None:  # loaded only when there is something to render
+            if scene is None or (scene.xyz is None and job.scene is not None):  # only when there is work
                 scene = fr.load_scene(job, job_path, device)
                 log(f"render {job_path}: {len(todo)} of {total} frames {W}x{H} on {device} "
                     f"({'half-float' if half else 'float32'} EXRs); "
@@ -215,7 +236,7 @@ def _render(job_path, job, device, force, point_radius, stop, log, out, allow_ou
             amodal = fr.amodal_pixels(scene, entry, W, H, projection=kept["projection"])
             lab = labels_mod.frame_labels(job, n, instance=layers[channels.INSTANCE], hole=layers[channels.HOLE],
                                           depth=layers[channels.DEPTH], amodal_pixels=amodal, asset_boxes=boxes_,
-                                          asset_hashes=hashes, key=lkey)
+                                          asset_hashes=hashes, key=lkey, layers_key=key)
             rgb = np.stack([layers[c] for c in channels.IMAGE], axis=-1)
             channels.write(exr_path, layers, half=half,
                            camera=channels.camera_attributes(entry.K, entry.world_to_camera, W, H))
@@ -232,7 +253,28 @@ def _render(job_path, job, device, force, point_radius, stop, log, out, allow_ou
             events.artifact(layout.labelled_preview(f), frame=f, kind="labelled")
         events.progress("render", n + 1, total, frame=f, reused=f not in todo)  # reused: found up to date
     return {"frames": total, "rendered": rendered, "skipped": skipped, "output_dir": out, "stopped": bool(stop),
-            "warnings": warned}
+            "relabelled": relabelled, "warnings": warned}
+
+
+def _relabel(job: job_mod.Job, index: int, layout: OutputLayout, old: dict, asset_boxes_, hashes, key: str,
+             lkey: str) -> int:
+    """New labels (and labelled preview) for a frame whose layers are up to date: the instance, hole and depth
+    layers read back from its EXR, each asset's amodal pixel count from its previous labels (made under the same
+    layers, so the same asset renders alone the same). Returns the number of warnings it said."""
+    entry = job.frames[index]
+    layers = channels.read(layout.condition_exr(entry.frame))
+    amodal = np.zeros(len(job.assets), np.int64)
+    for o in old.get("objects", []):
+        if o.get("synthetic") and 1 <= o.get("track_id", 0) <= len(job.assets):
+            amodal[o["track_id"] - 1] = int(o.get("amodal_pixels") or 0)
+    lab = labels_mod.frame_labels(job, index, instance=layers[channels.INSTANCE], hole=layers[channels.HOLE],
+                                  depth=layers[channels.DEPTH], amodal_pixels=amodal, asset_boxes=asset_boxes_,
+                                  asset_hashes=hashes, key=lkey, layers_key=key)
+    labelled.write(layout.labelled_preview(entry.frame), np.stack([layers[c] for c in channels.IMAGE], -1), lab)
+    outputs.write_json(layout.frame_labels(entry.frame), lab)
+    events.artifact(layout.frame_labels(entry.frame), frame=entry.frame, kind="labels")
+    events.artifact(layout.labelled_preview(entry.frame), frame=entry.frame, kind="labelled")
+    return _warn(lab)
 
 
 def _log_cleaning(scene: fr.Scene, log) -> None:

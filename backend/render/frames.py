@@ -71,14 +71,15 @@ class Scene:
     cleaning: dict = field(default_factory=dict)  # what load_scene's point cleaning dropped, and its time
 
 
-def load_scene(job: job_mod.Job, job_path: str, device) -> Scene:
+def load_scene(job: job_mod.Job, job_path: str, device, points: bool = True) -> Scene:
     """The job's points and assets on ``device``, once per job: the points as the import read them, cleaned by
     ``scene.point_cleaning`` (depth edges per source frame, then outliers of the cloud left after the removal
-    boxes; ``Scene.cleaning`` says what each dropped and took), with each source frame's slice and box."""
+    boxes; ``Scene.cleaning`` says what each dropped and took), with each source frame's slice and box.
+    ``points=False``: the assets only (what labels need when the layers are there already)."""
     device = torch.device(device)
     origin = cameras.camera_centers(job.frames[0].world_to_camera)
     scene = Scene(origin=origin, device=device)
-    if job.scene is not None:
+    if job.scene is not None and points:
         sc = job.scene
         # as the import loaded it: the same reading of the poses, the same crop (NaN/inf pixels are dropped)
         pred = vggt_io.load_predictions(job_mod.resolve(job_path, sc.predictions), world_points=False,

@@ -5,6 +5,7 @@ exporters (``backend/export``: KITTI, COCO, OpenLABEL) read them with the EXR's 
 
     {"schema": "scpainter.labels/1",
      "key": "…",                       what the labels were made from (the render's resume key for them)
+     "layers_key": "…",                the condition layers' key they were made from (a label-only edit keeps it)
      "frame": 12, "index": 0,          scene frame number; position in the job's frames
      "timestamp_s": 0.0,               (frame − the job's first frame) / fps
      "fps": 10.0, "fps_source": "job", the job's ``fps``, or "default" (``Job.frame_rate``: the MP4 plays at it)
@@ -162,7 +163,7 @@ def _object(track_id, name, category, synthetic, placed, entry, width, height, *
 
 
 def frame_labels(job: job_mod.Job, index: int, *, instance, hole, depth, amodal_pixels, asset_boxes, asset_hashes,
-                 key: str = "", low_coverage: float = LOW_COVERAGE) -> dict:
+                 key: str = "", layers_key: str = "", low_coverage: float = LOW_COVERAGE) -> dict:
     """The labels of output frame ``job.frames[index]`` (the module's schema).
 
     ``instance``, ``hole``, ``depth``: the frame's layers (H, W) (``backend.render.channels``); ``amodal_pixels``
@@ -227,7 +228,7 @@ def frame_labels(job: job_mod.Job, index: int, *, instance, hole, depth, amodal_
         flags.append(OUTSIDE_FLAG)
     if any(o["camera_inside"] and not o["removed"] for o in objects):
         flags.append(CAMERA_INSIDE_FLAG)
-    return {"schema": SCHEMA, "key": key, "frame": int(entry.frame), "index": int(index),
+    return {"schema": SCHEMA, "key": key, "layers_key": layers_key, "frame": int(entry.frame), "index": int(index),
             "timestamp_s": float((entry.frame - frames[0]) / fps), "fps": fps, "fps_source": fps_source,
             "image_size": [W, H],
             "camera": {"K": np.asarray(entry.K, np.float64).tolist(), "world_to_camera": w2c.tolist(),

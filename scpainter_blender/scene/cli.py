@@ -169,6 +169,8 @@ def _progress(ev) -> None:
     if protocol.kind_of(ev) == protocol.PROGRESS:
         job = f" {ev['status']}: {ev['job']}" if "job" in ev and "status" in ev else ""  # batch: a job ended
         print(f"scpainter: {ev['stage']} {ev['done']}/{ev['total']}{job}", file=sys.stderr, flush=True)
+    elif protocol.kind_of(ev) == protocol.WARNING:  # the backend's warning events, passed on as they are
+        print(json.dumps(ev), flush=True)
 
 
 def _open_blend(blend: str, args, output: str | None = None) -> None:
@@ -199,7 +201,7 @@ def _run_blend(args) -> dict:
     except backend_client.BackendError as e:  # the same error, its message saying where the log is
         raise backend_client.BackendError(runs.failure_message(e, out), exit_code=e.exit_code, log=e.log,
                                           file=e.file, field=e.field, log_path=e.log_path) from None
-    return _outputs(done, out)
+    return {**_outputs(done, out), "warnings": len(job.warnings)}
 
 
 def _outputs(done: dict, out: str) -> dict:

@@ -81,12 +81,13 @@ def estimate_box(points, up=(0.0, 0.0, 1.0)):
     """The upright box of an object's points (N, 3) in their own frame: (box_to_frame (4, 4) rigid, size (3,)
     width, length, height in the points' units).
 
-    Upright: the box's z is ``up`` (a direction in the points' frame). Its heading minimises the footprint's area
-    (a search over 0–90° in 1° steps, refined to 0.02°, on at most ``SEARCH_POINTS`` points); along each box axis
-    the extent is ``body_range``'s, so floaters beyond a gap are left out (first along the frame's axes, keeping
-    the points inside all three ranges, up to three times: a floater far out on one axis leaves the others). The length (y) is the longer horizontal
-    extent, its front (+y) the one closer to the frame's +y turned with its up (``_basis``: the axis the procedural
-    cars and TRELLIS/Amodal3R's face); the user may flip it. Rows with NaN/inf are ignored. ValueError when fewer than 4 finite points."""
+    Upright: the box's z is ``up`` (a direction in the points' frame). Its heading minimises the footprint's area (a
+    search over 0–90° in 1° steps, refined to 0.02°, on at most ``SEARCH_POINTS`` points); along each box axis the
+    extent is ``body_range``'s, so floaters beyond a gap are left out (first along the frame's axes, keeping the points
+    inside all three ranges, up to three times: a floater far out on one axis leaves the others). The length (y) is the
+    longer horizontal extent, its front (+y) the one closer to the frame's +y turned with its up (``_basis``: the axis
+    the procedural cars and TRELLIS/Amodal3R's face); the user may flip it. Rows with NaN/inf are ignored. ValueError
+    when fewer than 4 finite points."""
     P = np.asarray(points, np.float64).reshape(-1, 3)
     P = P[np.isfinite(P).all(1)]
     if len(P) < 4:
@@ -175,7 +176,8 @@ def object_pose(box_to_x, size) -> dict:
     T = np.asarray(box_to_x, np.float64)
     R = T[:3, :3] @ OBJECT_TO_BOX
     w, l, h = np.asarray(size, np.float64)
-    return {"center": T[:3, 3].copy(), "size": np.array([l, w, h]), "rotation": R, "quaternion": cameras.rotation_to_quaternion(R).reshape(4),
+    return {"center": T[:3, 3].copy(), "size": np.array([l, w, h]), "rotation": R,
+            "quaternion": cameras.rotation_to_quaternion(R).reshape(4),
             "yaw": float(np.arctan2(R[1, 0], R[0, 0]))}
 
 

@@ -10,7 +10,7 @@ import pytest
 import export_fixtures as F
 from backend.export import command
 from backend.render import channels
-from scpainter_blender.core import backend_protocol, errors, outputs
+from scpainter_blender.core import backend_protocol, errors, labels, outputs
 from scpainter_blender.core.output_layout import OutputLayout
 from tests_support import run_backend
 
@@ -181,3 +181,36 @@ def test_export_command_end_to_end(tmp_path):
     assert np.array_equal(api.annToMask(ann).astype(bool), np.rint(inst) == 1)
     code, ev, _ = run_backend("export", job, "--format", "coco", "--device", "cpu")   # again: nothing rendered
     assert code == 0 and ev[-1]["rendered"] == 0 and os.path.isdir(out)
+
+
+def test_an_export_of_another_format_is_never_written_over(tmp_path):
+    out_dir = tmp_path / "out"
+    out_dir.mkdir()
+    prev = tmp_path / "prev"
+    prev.mkdir()
+    (prev / OutputLayout.EXPORT_RECORD).write_text('{"format": "coco"}')
+    command.check_destination(str(prev), str(out_dir), given=True, fmt="coco")
+    with pytest.raises(errors.ArgumentError, match="holds a coco export, not kitti"):
+        command.check_destination(str(prev), str(out_dir), given=True, fmt="kitti")
+
+
+def test_every_format_carries_each_frames_coverage_and_flags(tmp_path):
+    """A pipeline reading only the export can drop weak frames: KITTI's frames.json, COCO's images and OpenLABEL's
+    frame_properties hold the labels' coverage and flags."""
+    from backend.export import coco, kitti, openlabel
+
+    frames = F.export_frames(tmp_path)
+    frames[1].labels["flags"] = [labels.CAMERA_INSIDE_FLAG]
+    got = {}
+    for name, module in (("kitti", kitti), ("coco", coco), ("openlabel", openlabel)):
+        out = tmp_path / name
+        out.mkdir()
+        module.write(str(out), frames)
+        got[name] = out
+    index = json.loads((got["kitti"] / "frames.json").read_text())["frames"]
+    images = json.loads((got["coco"] / "annotations.json").read_text())["images"]
+    props = [f["frame_properties"] for f in json.loads((got["openlabel"] / "openlabel.json").read_text())[
+        "openlabel"]["frames"].values()]
+    for rows in (index, images, props):
+        assert [r["flags"] for r in rows] == [fr.labels["flags"] for fr in frames]
+        assert [r["coverage"] for r in rows] == [fr.labels["coverage"] for fr in frames]

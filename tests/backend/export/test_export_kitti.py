@@ -106,11 +106,21 @@ def test_calib_keys_and_shapes(exported):
     assert text.startswith("P2: 6.000000000000e+01 ")   # the devkit's %e layout
 
 
-def test_removed_and_unseen_objects_are_left_out(tmp_path):
+def test_removed_and_out_of_view_objects_are_left_out_hidden_ones_kept(tmp_path):
+    """KITTI lists occluded objects (3D detectors expect them, marked occluded 2 or 3): an object wholly hidden but
+    in view stays; a removed one, one out of view, one without a box go."""
     frames = F.export_frames(tmp_path)
-    frames[0].labels["objects"][0]["removed"] = True
-    frames[0].labels["objects"][1]["visible_pixels"] = 0
+    objs = frames[0].labels["objects"]
+    objs[0]["removed"] = True
+    objs[1]["visible_pixels"], objs[1]["occlusion"] = 0, 2
     out = tmp_path / "d"
     out.mkdir()
     kitti.write(str(out), frames[:1])
-    assert [line.split()[0] for line in (out / "label_2" / "000000.txt").read_text().splitlines()] == ["Van"]
+    lines = (out / "label_2" / "000000.txt").read_text().splitlines()
+    assert [line.split()[0] for line in lines] == [objs[1]["class"].capitalize(), "Van"]
+    assert lines[0].split()[2] == "2"
+    objs[1]["in_view"], objs[2]["box_world"] = False, None
+    again = tmp_path / "e"
+    again.mkdir()
+    kitti.write(str(again), frames[:1])
+    assert (again / "label_2" / "000000.txt").read_text() == ""

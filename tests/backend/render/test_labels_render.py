@@ -126,10 +126,18 @@ def test_files_events_and_resume(rendered):
     job.assets[1].category = "van"
     J.save(tmp / "job.json", job)
     record = files.read_json(layout.record)
+    exr_times = [os.stat(layout.condition_exr(f)).st_mtime_ns for f in (1, 2)]
     code, ev2, err = backend("render", tmp / "job.json", "--device", "cpu")
     assert code == 0, err
+    done = [e for e in ev2 if e.get("event") == "done"][0]
+    assert done["rendered"] == 0 and done["relabelled"] == 2           # the layers kept, the labels made again
+    assert [os.stat(layout.condition_exr(f)).st_mtime_ns for f in (1, 2)] == exr_times
     assert files.read_json(layout.record)["key"] == record["key"]
-    assert _by_name(files.read_json(layout.frame_labels(1)))["behind"]["class"] == "van"
+    new = files.read_json(layout.frame_labels(1))
+    assert _by_name(new)["behind"]["class"] == "van"
+    for name in CARS:                                                  # pixel counts as the render made them
+        for k in ("visible_pixels", "amodal_pixels", "visible_fraction", "bbox_visible"):
+            assert _by_name(new)[name][k] == _by_name(labs[0])[name][k]
     # nothing changed: every frame reused, the warnings said again
     code, ev3, err = backend("render", tmp / "job.json", "--device", "cpu")
     done = [e for e in ev3 if e.get("event") == "done"][0]

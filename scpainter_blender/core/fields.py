@@ -48,7 +48,9 @@ def rigid(value, path, field, error=InputError) -> np.ndarray:
 def affine(value, path, field, error=InputError) -> np.ndarray:
     """An invertible 4x4 affine transform (|det| of the 3x3 part ≥ 1e-12, last row [0, 0, 0, 1])."""
     m = matrix(value, path, field, (4, 4), error)
-    if np.any(m[3] != [0, 0, 0, 1]) or abs(np.linalg.det(m[:3, :3])) < 1e-12:
+    with np.errstate(over="ignore"):  # a huge scale's determinant overflows to inf: invertible all the same
+        singular = abs(np.linalg.det(m[:3, :3])) < 1e-12
+    if np.any(m[3] != [0, 0, 0, 1]) or singular:
         raise error(path, field, "is not an invertible affine transform (last row [0, 0, 0, 1])")
     return m
 

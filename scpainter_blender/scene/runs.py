@@ -117,7 +117,7 @@ def with_warnings(message: str, warnings: list) -> tuple[str, str]:
     if not warnings:
         return "INFO", message
     first = warnings[0].get("message", "")
-    more = f" (and {len(warnings) - 1} more, in backend.log)" if len(warnings) > 1 else ""
+    more = f" (and {len(warnings) - 1} more: see the output folder's log)" if len(warnings) > 1 else ""
     return "WARNING", f"{message}; {len(warnings)} warning{'s' * (len(warnings) > 1)}: {first}{more}"
 
 

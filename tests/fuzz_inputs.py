@@ -83,7 +83,7 @@ for _p in (ROOT, HERE):
 import numpy as np  # noqa: E402
 
 KINDS = ("job", "npz", "ply", "checkpoint")
-CASES = {"job": 440, "npz": 270, "ply": 270, "checkpoint": 130}
+CASES = {"job": 480, "npz": 270, "ply": 270, "checkpoint": 130}
 SEED = 14
 TIMEOUT_S = 5.0
 FALLBACK_TIMEOUT_S = 60.0        # checkpoint cases when generate runs for real (no --check): model load + 1 step
@@ -411,6 +411,24 @@ def _boxes(size, box_to_world=None, count=1):
     return _set(("scene", "removal_boxes"), [box] * count)
 
 
+def _asset_box(size=(1.9, 4.5, 1.6), box_to_file=None, **extra):
+    box = {"box_to_file": (np.eye(4) if box_to_file is None else np.asarray(box_to_file)).tolist(),
+           "size": list(size), **extra}
+    return _set(("assets", 0, "box"), box)
+
+
+def _recorded(boxes=None, size=(1.8, 4.4, 1.5), count=1, **extra):
+    """``count`` recorded objects with ``boxes`` {frame key: matrix} (default: every frame, 10 m from the origin)."""
+    def apply(c):
+        frames = [str(f["frame"]) for f in c.job["frames"]]
+        default = np.eye(4)
+        default[:3, 3] = [0.0, 10.0, 0.8]
+        b = boxes if boxes is not None else {f: default.tolist() for f in frames}
+        c.job["scene"]["recorded_objects"] = [{"id": f"car{i}", "size": list(size), "boxes": copy.deepcopy(b),
+                                               **extra} for i in range(count)]
+    return apply
+
+
 def _many_assets(n):
     def apply(c):
         c.job["assets"] = [dict(copy.deepcopy(c.job["assets"][0]), name=f"car{i}") for i in range(n)]
@@ -576,6 +594,35 @@ JOB_SEMANTIC = [
         ("1000 removal boxes", _boxes([0.1, 0.1, 0.1], count=1000)),
         ("no scene", lambda c: c.job.pop("scene")),
     ]),
+    ("labels", [
+        ('class "a car" (a space)', _set(("assets", 0, "class"), "a car")),
+        ('class ""', _set(("assets", 0, "class"), "")), ("class 123", _set(("assets", 0, "class"), 123)),
+        ("class 100 characters", _set(("assets", 0, "class"), "c" * 100)),
+        ('class "truck"', _set(("assets", 0, "class"), "truck")),
+        ("box null", _set(("assets", 0, "box"), None)), ("box {}", _set(("assets", 0, "box"), {})),
+        ("box size NaN", _asset_box(size=[Raw("NaN")] * 3)), ("box size 0", _asset_box(size=[0, 0, 0])),
+        ("box size 1e300", _asset_box(size=[1e300] * 3)), ("box size [1, 2]", _asset_box(size=[1, 2])),
+        ("box scaled matrix", _asset_box(box_to_file=np.diag([2.0, 2, 2, 1]))),
+        ("box translation 1e300", _asset_box(box_to_file=np.array([[1, 0, 0, 1e300], [0, 1, 0, 0], [0, 0, 1, 0],
+                                                                   [0, 0, 0, 1.0]]))),
+        ("box an unknown field", _asset_box(front="+y")),
+        ("fps 0", _set(("fps",), 0)), ("fps NaN", _set(("fps",), Raw("NaN"))), ("fps 1e300", _set(("fps",), 1e300)),
+        ("fps 29.97", _set(("fps",), 29.97)), ('fps "24"', _set(("fps",), "24")),
+        ("recorded_frames [5, 1]", _set(("scene", "recorded_frames"), [5, 1])),
+        ("recorded_frames [0, 10**9]", _set(("scene", "recorded_frames"), [0, 10 ** 9])),
+        ('recorded_frames "all"', _set(("scene", "recorded_frames"), "all")),
+        ("recorded_frames [5, 9] (every frame outside)", _set(("scene", "recorded_frames"), [5, 9])),
+        ("a recorded object", _recorded()), ("a recorded object without boxes", _recorded(boxes={})),
+        ("a recorded object with frame key 'x'", _recorded(boxes={"x": np.eye(4).tolist()})),
+        ("a recorded object of size -1", _recorded(size=(-1, 4, 1.5))),
+        ("a recorded object with a NaN box", _recorded(boxes={"1": [[Raw("NaN")] * 4] * 4})),
+        ("a recorded object 1e300 m away", _recorded(boxes={"1": [[1, 0, 0, 1e300], [0, 1, 0, 0], [0, 0, 1, 0],
+                                                                  [0, 0, 0, 1]]})),
+        ("a recorded object around the camera", _recorded(boxes={"1": np.eye(4).tolist()}, size=(1e6, 1e6, 1e6))),
+        ("1000 recorded objects", _recorded(count=1000)),
+        ("recorded objects with one id twice", _recorded(count=2, id="same")),
+        ('a recorded object of class ""', _recorded(**{"class": ""})),
+    ]),
     ("assets", [
         ("empty list", _set(("assets",), [])), ("no assets key", lambda c: c.job.pop("assets")),
         ("duplicate name", lambda c: c.job["assets"].append(copy.deepcopy(c.job["assets"][0]))),
@@ -717,7 +764,7 @@ def _whole_job_file():
 #: (plan, weight): a family with weight w gets w slots in every round of the schedule (see make_case)
 JOB_FAMILIES = ([(_job_structural("delete"), 2), (_job_structural("leaf"), 2), (_job_structural("field"), 2),
                  (_job_wrong_length, 1)]
-                + [(_choice_plan(name, opts), 1) for name, opts in JOB_SEMANTIC]
+                + [(_choice_plan(name, opts), 2 if name == "labels" else 1) for name, opts in JOB_SEMANTIC]
                 + [(_job_paths_plan(), 4), (_whole_job_file(), 2)])
 
 

@@ -79,11 +79,14 @@ def draw(rgb, labels: dict) -> np.ndarray:
 
 
 def _text(img, text: str, corner, colour, scale: float) -> None:
-    """``text`` on a dark box whose lower-left corner is ``corner`` (kept inside the image)."""
+    """``text`` on a dark box whose lower-left corner is ``corner`` (kept inside the image, the text no wider)."""
     import cv2
 
-    (w, h), base = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)
     H, W = img.shape[:2]
+    (w, h), base = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)
+    if w > W - 4:  # a small image: the text shrinks to its width rather than losing its end (the flags)
+        scale *= (W - 4) / w
+        (w, h), base = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)
     x = int(min(max(corner[0], 0), max(W - w - 4, 0)))
     y = int(min(max(corner[1], h + base + 4), H))
     cv2.rectangle(img, (x, y - h - base - 4), (x + w + 4, y), (0, 0, 0), -1)

@@ -1,6 +1,6 @@
 """Hostile input files (issue 14): every fuzz case of ``tests/fuzz_inputs.py`` is accepted or refused cleanly.
 
-1,110 seeded cases (job.json, predictions.npz, car.ply and the checkpoint's files) run through
+1,150 seeded cases (job.json, predictions.npz, car.ply and the checkpoint's files) run through
 ``python -m backend render`` and ``generate --check`` in-process, in two worker processes. Each must end
 ``accepted`` (exit 0) or ``clean`` (exit 2, an error event naming the file); never ``unclear`` (exit 2 naming no
 file), ``traceback``, ``hang`` (5 s), ``escape`` (a file outside the job folder created, changed or deleted) or

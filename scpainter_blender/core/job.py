@@ -148,10 +148,7 @@ class RemovalBox:
 
     @classmethod
     def from_dict(cls, d, path, where) -> "RemovalBox":
-        _object(d, path, where)
-        _known(d, path, where, ("box_to_world", "size"))
-        return cls(_rigid(d.get("box_to_world"), path, f"{where}.box_to_world"),
-                   _box_size(d.get("size"), path, f"{where}.size", "[x, y, z] in metres"))
+        return cls(*_box_fields(d, path, where, "box_to_world", "[x, y, z] in metres"))
 
     def to_dict(self) -> dict:
         return {"box_to_world": _matrix_list(self.box_to_world), "size": [float(v) for v in self.size]}
@@ -326,6 +323,13 @@ def _box_size(size, path, where, what="[width, length, height]") -> np.ndarray:
     return np.array([_number(v, path, f"{where}[{j}]", lo=0.0, hi=1e7) for j, v in enumerate(size)])
 
 
+def _box_fields(d, path, where, matrix: str, what: str) -> tuple:
+    """(rigid matrix, size) of a box object {``matrix``: 4x4, "size": [3 numbers ≥ 0]} (removal and asset boxes)."""
+    _object(d, path, where)
+    _known(d, path, where, (matrix, "size"))
+    return _rigid(d.get(matrix), path, f"{where}.{matrix}"), _box_size(d.get("size"), path, f"{where}.size", what)
+
+
 @dataclass(eq=False)
 class AssetBox:
     """An asset's 3D box in its own file coordinates: ``box_to_file`` (4, 4) rigid from the box frame (centre at
@@ -337,10 +341,7 @@ class AssetBox:
 
     @classmethod
     def from_dict(cls, d, path, where) -> "AssetBox":
-        _object(d, path, where)
-        _known(d, path, where, ("box_to_file", "size"))
-        return cls(_rigid(d.get("box_to_file"), path, f"{where}.box_to_file"),
-                   _box_size(d.get("size"), path, f"{where}.size"))
+        return cls(*_box_fields(d, path, where, "box_to_file", "[width, length, height]"))
 
     def to_dict(self) -> dict:
         return {"box_to_file": _matrix_list(self.box_to_file), "size": [float(v) for v in self.size]}

@@ -113,8 +113,7 @@ def test_a_worker_killed_mid_job_reruns_it_without_losing_or_repeating_a_frame(r
     deadline = time.monotonic() + 300
     while killed is None and time.monotonic() < deadline and driver.is_alive():
         owner = locking.OutputLock(str(out), "test")._owner()
-        frames = [p for p in glob.glob(str(out / "conditions" / "frame_*.exr"))  # a frame is its EXR and preview
-                  if os.path.exists(p.replace("frame_", "preview_").replace(".exr", ".png"))]
+        frames = finished_frames(job)
         if isinstance(owner, dict) and owner.get("command") == "render" and 5 <= len(frames) < 50:
             os.kill(owner["pid"], signal.SIGKILL)           # the worker dies mid-job, its lock left behind
             killed = (owner["pid"], len(frames))
@@ -147,10 +146,11 @@ def test_the_command_line_driver_prints_one_stream_and_exits_1_when_a_job_failed
 
 
 def finished_frames(job_path):
-    """The frames of a job whose EXR and preview both exist (the render writes the EXR first, then the preview)."""
+    """The EXRs of a job's finished frames: those whose labels exist (the render writes a frame's EXR, preview and
+    labelled preview, then its labels, which mark it finished: render's resume rule)."""
     folder = os.path.join(os.path.dirname(job_path), "out", "conditions")
     return {p for p in glob.glob(os.path.join(folder, "frame_*.exr"))
-            if os.path.exists(p.replace("frame_", "preview_").replace(".exr", ".png"))}
+            if os.path.exists(p.replace("frame_", "labels_").replace(".exr", ".json"))}
 
 
 def test_sigterm_on_the_driver_stops_running_jobs_cancels_queued_ones_and_a_rerun_renders_only_the_rest(

@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import os
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -62,15 +63,13 @@ def labels_key(layers_key: str, job: job_mod.Job) -> str:
     return hashlib.sha256(blob.encode()).hexdigest()[:32]
 
 
-def _finished_labels(path: str, key: str, field: str = "key") -> dict | None:
-    """The frame's labels when they exist and their ``field`` (``key``: the labels', ``layers_key``: the layers'
-    they were made from) is ``key``; else None."""
+def _labels_file(path: str) -> dict:
+    """A frame's labels as render wrote them ({} when missing, unreadable or of another schema: not finished)."""
     try:
         lab = files.read_json(path)
     except errors.InputError:
-        return None
-    ok = isinstance(lab, dict) and lab.get(field) == key and lab.get("schema") == labels_mod.SCHEMA
-    return lab if ok else None
+        return {}
+    return lab if isinstance(lab, dict) and lab.get("schema") == labels_mod.SCHEMA else {}
 
 
 def asset_boxes(job: job_mod.Job, scene: fr.Scene, log) -> list:
@@ -102,11 +101,8 @@ def file_hash(path: str) -> str:
     """SHA-256 (hex) of a file's content."""
     import hashlib
 
-    h = hashlib.sha256()
     with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
+        return hashlib.file_digest(f, "sha256").hexdigest()
 
 
 def _warn(lab: dict) -> int:
@@ -186,95 +182,100 @@ def _render(job_path, job, device, force, point_radius, stop, log, out, allow_ou
     lkey = labels_key(key, job)
     todo, relabel, warned = set(), {}, 0
     for e in job.frames:
-        lab = None
+        lab = {}
         if not force and all(os.path.isfile(p) for p in frame_paths(job_path, job, e.frame)):
-            lab = _finished_labels(layout.frame_labels(e.frame), lkey)
-            if lab is None:  # the layers are there: labels made from them under the same layers need only redoing
-                old = _finished_labels(layout.frame_labels(e.frame), key, field="layers_key")
-                if old is not None:
-                    relabel[e.frame] = old
-                    continue
-            elif not os.path.isfile(layout.labelled_preview(e.frame)):
-                relabel[e.frame] = lab
-                continue
-        if lab is None:
-            todo.add(e.frame)
-        else:
+            lab = _labels_file(layout.frame_labels(e.frame))
+        if lab.get("key") == lkey and os.path.isfile(layout.labelled_preview(e.frame)):
             warned += _warn(lab)  # a finished frame's flags are reported again: every run says what is weak
-    scene = boxes_ = hashes = None
+        elif lab.get("layers_key") == key:  # the layers are up to date: only the labels are made again
+            relabel[e.frame] = lab
+        else:
+            todo.add(e.frame)
+    scene = labelling = None
     relabelled = 0
     for n, entry in enumerate(job.frames):
         if stop:
             break
         f = entry.frame
         exr_path, png_path = frame_paths(job_path, job, f)
-        if f in relabel:  # a label-only edit (a box, a class, the frame rate): the layers are kept
-            if scene is None:
-                scene = fr.load_scene(job, job_path, device, points=bool(todo))
-                boxes_ = asset_boxes(job, scene, log)
-                hashes = [file_hash(job_mod.resolve(job_path, a.ply)) for a in job.assets]
-            warned += _relabel(job, n, layout, relabel[f], boxes_, hashes, key, lkey)
-            relabelled += 1
-            skipped += 1
-        elif f not in todo:
-            skipped += 1
-        else:
-            if scene is None or (scene.xyz is None and job.scene is not None):  # only when there is work
-                scene = fr.load_scene(job, job_path, device)
+        if scene is None and (f in todo or f in relabel):  # loaded once, only when there is work
+            # the points only when a frame is rendered: relabelling needs the assets alone
+            scene = fr.load_scene(job, job_path, device, points=bool(todo))
+            if todo:
                 log(f"render {job_path}: {len(todo)} of {total} frames {W}x{H} on {device} "
                     f"({'half-float' if half else 'float32'} EXRs); "
                     f"{0 if scene.xyz is None else len(scene.xyz):,} points ({scene.removed_points:,} removed by "
                     f"boxes), {len(scene.assets)} assets")
                 _log_cleaning(scene, log)
-                boxes_ = asset_boxes(job, scene, log)
-                hashes = [file_hash(job_mod.resolve(job_path, a.ply)) for a in job.assets]
-                if stop:  # asked to stop while the scene loaded (outlier removal can take a while)
-                    break
+            labelling = _Labelling(job, layout, asset_boxes(job, scene, log),
+                                   [file_hash(job_mod.resolve(job_path, a.ply)) for a in job.assets], key, lkey)
+            if stop:  # asked to stop while the scene loaded (outlier removal can take a while)
+                break
+        if f in relabel:  # a label-only edit (a box, a class, the frame rate): the layers are kept
+            warned += _relabel(labelling, n, relabel[f])
+            relabelled += 1
+            skipped += 1
+        elif f not in todo:
+            skipped += 1
+        else:
             t = time.perf_counter()
             kept = {}
             layers = fr.render_frame(scene, entry, W, H, point_radius, keep=kept)
             amodal = fr.amodal_pixels(scene, entry, W, H, projection=kept["projection"])
-            lab = labels_mod.frame_labels(job, n, instance=layers[channels.INSTANCE], hole=layers[channels.HOLE],
-                                          depth=layers[channels.DEPTH], amodal_pixels=amodal, asset_boxes=boxes_,
-                                          asset_hashes=hashes, key=lkey, layers_key=key)
             rgb = np.stack([layers[c] for c in channels.IMAGE], axis=-1)
             channels.write(exr_path, layers, half=half,
                            camera=channels.camera_attributes(entry.K, entry.world_to_camera, W, H))
             png.write_png(png_path, rgb)
-            labelled.write(layout.labelled_preview(f), rgb, lab)
-            outputs.write_json(layout.frame_labels(f), lab)  # last: its key marks the frame finished
+            events.artifact(exr_path, frame=f, kind="conditions")
+            events.artifact(png_path, frame=f, kind="preview")
+            lab = labelling.write(n, layers, amodal)  # last: its labels mark the frame finished
             rendered += 1
             warned += _warn(lab)
             log(f"frame {f}: {time.perf_counter() - t:.3f} s, hole {layers[channels.HOLE].mean():.3f}, "
                 f"{sum(o['visible_pixels'] > 0 for o in lab['objects'])} objects visible")
-            events.artifact(exr_path, frame=f, kind="conditions")
-            events.artifact(png_path, frame=f, kind="preview")
-            events.artifact(layout.frame_labels(f), frame=f, kind="labels")
-            events.artifact(layout.labelled_preview(f), frame=f, kind="labelled")
         events.progress("render", n + 1, total, frame=f, reused=f not in todo)  # reused: found up to date
     return {"frames": total, "rendered": rendered, "skipped": skipped, "output_dir": out, "stopped": bool(stop),
             "relabelled": relabelled, "warnings": warned}
 
 
-def _relabel(job: job_mod.Job, index: int, layout: OutputLayout, old: dict, asset_boxes_, hashes, key: str,
-             lkey: str) -> int:
+@dataclass
+class _Labelling:
+    """What a run's labels are made from, once per run: the job, its output folder, each asset's box
+    (``asset_boxes``) and file hash, the layers' key and the labels' key."""
+    job: job_mod.Job
+    layout: OutputLayout
+    boxes: list
+    hashes: list
+    layers_key: str
+    key: str
+
+    def write(self, index: int, layers: dict, amodal) -> dict:
+        """The labels of ``job.frames[index]`` from its layers (``channels`` keys) and its assets' amodal pixel
+        counts: the labelled preview, then the labels file (last: its key marks the frame finished); returns
+        the labels."""
+        f = self.job.frames[index].frame
+        lab = labels_mod.frame_labels(self.job, index, instance=layers[channels.INSTANCE],
+                                      hole=layers[channels.HOLE], depth=layers[channels.DEPTH], amodal_pixels=amodal,
+                                      asset_boxes=self.boxes, asset_hashes=self.hashes, key=self.key,
+                                      layers_key=self.layers_key)
+        labelled.write(self.layout.labelled_preview(f), np.stack([layers[c] for c in channels.IMAGE], -1), lab)
+        outputs.write_json(self.layout.frame_labels(f), lab)
+        events.artifact(self.layout.labelled_preview(f), frame=f, kind="labelled")
+        events.artifact(self.layout.frame_labels(f), frame=f, kind="labels")
+        return lab
+
+
+def _relabel(labelling: _Labelling, index: int, old: dict) -> int:
     """New labels (and labelled preview) for a frame whose layers are up to date: the instance, hole and depth
     layers read back from its EXR, each asset's amodal pixel count from its previous labels (made under the same
     layers, so the same asset renders alone the same). Returns the number of warnings it said."""
-    entry = job.frames[index]
-    layers = channels.read(layout.condition_exr(entry.frame))
-    amodal = np.zeros(len(job.assets), np.int64)
+    n_assets = len(labelling.job.assets)
+    layers = channels.read(labelling.layout.condition_exr(labelling.job.frames[index].frame))
+    amodal = np.zeros(n_assets, np.int64)
     for o in old.get("objects", []):
-        if o.get("synthetic") and 1 <= o.get("track_id", 0) <= len(job.assets):
+        if o.get("synthetic") and 1 <= o.get("track_id", 0) <= n_assets:
             amodal[o["track_id"] - 1] = int(o.get("amodal_pixels") or 0)
-    lab = labels_mod.frame_labels(job, index, instance=layers[channels.INSTANCE], hole=layers[channels.HOLE],
-                                  depth=layers[channels.DEPTH], amodal_pixels=amodal, asset_boxes=asset_boxes_,
-                                  asset_hashes=hashes, key=lkey, layers_key=key)
-    labelled.write(layout.labelled_preview(entry.frame), np.stack([layers[c] for c in channels.IMAGE], -1), lab)
-    outputs.write_json(layout.frame_labels(entry.frame), lab)
-    events.artifact(layout.frame_labels(entry.frame), frame=entry.frame, kind="labels")
-    events.artifact(layout.labelled_preview(entry.frame), frame=entry.frame, kind="labelled")
-    return _warn(lab)
+    return _warn(labelling.write(index, layers, amodal))
 
 
 def _log_cleaning(scene: fr.Scene, log) -> None:

@@ -187,7 +187,8 @@ def frame_labels(job: job_mod.Job, index: int, *, instance, hole, depth, amodal_
     visible_counts = np.bincount(ids.ravel(), minlength=len(job.assets) + 1)
     for a_i, (asset, (box_to_file, size, source)) in enumerate(zip(job.assets, asset_boxes)):
         track = a_i + 1
-        placed = {f: asset_box_to_world(asset, (box_to_file, size), f) for f in frames}
+        # this frame and its neighbours (the velocity's): not every frame, once per frame of a long job
+        placed = {f: asset_box_to_world(asset, (box_to_file, size), f) for f in frames[max(index - 1, 0):index + 2]}
         centres = {f: p[0][:3, 3] for f, p in placed.items() if p is not None}
         obj, _ = _object(track, asset.name, asset.category, True, placed[entry.frame], entry, W, H, frames=frames,
                          index=index, fps=fps, centres=centres)

@@ -169,3 +169,58 @@ class OutputLayout:
 
     def generated_frame(self, frame: int) -> str:
         return self._at(self.GENERATED, GENERATED_FRAME.name(frame))
+
+
+class VariationLayout:
+    """The folder a variation run writes (``vary``, docs/design.md §16)::
+
+        <root>/
+            variation.json      the manifest: the settings, the base, every variant (what it holds and why,
+                                or why it could not be placed), the summary's counts
+            variants.txt        the ``batch`` list: ``data-root:`` lines, then one job per placed variant
+            library/            mesh cars converted once, recoloured copies (shared by every variant)
+            base/job.json       the job the variants start from (when the run exported it from a scene)
+            v0000/job.json      a variant's job; the folder is its output folder (``OutputLayout``)
+            contact_sheet.png   the first frame of every variant (``contact-sheet``)
+    """
+
+    MANIFEST = "variation.json"
+    LIST = "variants.txt"
+    LIBRARY = "library"
+    BASE = "base"
+    SHEET = "contact_sheet.png"
+    VARIANT_DIGITS = 4
+
+    def __init__(self, root):
+        self.root = os.fspath(root)
+
+    def _at(self, *parts: str) -> str:
+        return os.path.join(self.root, *parts)
+
+    @property
+    def manifest(self) -> str:
+        return self._at(self.MANIFEST)
+
+    @property
+    def list(self) -> str:
+        return self._at(self.LIST)
+
+    @property
+    def library(self) -> str:
+        return self._at(self.LIBRARY)
+
+    @property
+    def base_job(self) -> str:
+        return self._at(self.BASE, OutputLayout.JOB)
+
+    @property
+    def sheet(self) -> str:
+        return self._at(self.SHEET)
+
+    @classmethod
+    def variant_name(cls, index: int) -> str:
+        return f"v{int(index):0{cls.VARIANT_DIGITS}d}"
+
+    def variant(self, index: int) -> OutputLayout:
+        """Variant ``index``'s output folder."""
+        return OutputLayout(self._at(self.variant_name(index)))

@@ -20,7 +20,6 @@ icosphere instanced per Gaussian, scaled to size·σ along its axes), both colou
 
 from __future__ import annotations
 
-import hashlib
 import os
 import time
 from dataclasses import dataclass, field
@@ -31,14 +30,13 @@ import numpy as np
 from .. import backend_client
 from ..core.geometry import cameras
 from ..core import job as job_mod, outputs
-from ..core.splats import gaussians as splats, reader as splats_io, trellis
+from ..core.splats import asset_frame, gaussians as splats, reader as splats_io, trellis
 from . import asset_box, kinds, materials, node_groups, props
 from .points import linear_rgba
 
 NODE_GROUP = "SCPainter Gaussians"
 NODE_GROUP_VERSION = 1
 MATERIALS = {"GEOMETRY": "SCPainter Gaussian sprites", "INSTANCER": "SCPainter Gaussian ellipsoids"}
-TRELLIS_DEFAULT_LENGTH = 4.5  # metres: a unit-cube asset is scaled to a mid-size car until the artist fits it
 
 
 def _material(attribute_type: str) -> bpy.types.Material:
@@ -111,7 +109,7 @@ class GaussianImport:
 
 #: Car meshes are converted to Gaussians by the backend (trimesh); a .ply is a mesh when it has faces and no
 #: Gaussian properties (decided by its header).
-ASSET_EXTENSIONS = (".ply", ".splat") + splats_io.MESH_EXTENSIONS
+ASSET_EXTENSIONS = splats_io.ASSET_EXTENSIONS
 DEFAULT_MESH_COUNT = 200_000
 #: Lengths (metres) outside which an imported asset is most likely in other units: the import says so.
 MIN_CAR_LENGTH, MAX_CAR_LENGTH = 0.5, 30.0
@@ -120,20 +118,6 @@ MIN_CAR_LENGTH, MAX_CAR_LENGTH = 0.5, 30.0
 def is_mesh_file(filepath: str) -> bool:
     ext = os.path.splitext(filepath)[1].lower()
     return ext in splats_io.MESH_EXTENSIONS or (ext == ".ply" and splats_io.is_mesh_ply(filepath))
-
-
-def _data_frame(xyz_file, axes: str):
-    """(file_to_data 4x4, F 3x3, data-frame bounds lo, hi) for file means (N, 3) read with ``axes``.
-
-    The data frame is Z up with its origin at the bottom centre of the means (module docstring).
-    """
-    F = trellis.ZUP_TO_TRELLIS_FILE.T if axes == "TRELLIS" else np.eye(3)
-    xyz = np.asarray(xyz_file, np.float64) @ F.T
-    lo, hi = xyz.min(axis=0), xyz.max(axis=0)
-    bottom = np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2]])
-    D = np.eye(4)
-    D[:3, :3], D[:3, 3] = F, -bottom
-    return D, F, lo - bottom, hi - bottom
 
 
 def _display_rotations(rot_raw, F):
@@ -174,7 +158,7 @@ def import_gaussians(context, filepath: str, axes: str = "AUTO", target_length: 
         axes, reason = "NONE", f"a mesh read {mesh['up'].upper()} up and turned Z up"
     else:
         axes, reason = trellis.detect_axes(ply, keep)
-    file_to_data, F, lo, hi = _data_frame(ply.xyz[keep], axes)
+    file_to_data, F, lo, hi = asset_frame.data_frame(ply.xyz[keep], axes)
     pos = (ply.xyz[keep].astype(np.float64) @ file_to_data[:3, :3].T + file_to_data[:3, 3]).astype(np.float32)
     rot_raw = ply.rot[keep]
     # the display attributes are splats.decode's activations of the raw values kept beside them
@@ -213,9 +197,7 @@ def import_gaussians(context, filepath: str, axes: str = "AUTO", target_length: 
     obj.location = context.scene.cursor.location
     extent = max(hi[0] - lo[0], hi[1] - lo[1])
     if target_length is None:  # TRELLIS/Amodal3R make unit-cube objects, as Gaussians and as GLBs
-        in_cube = np.abs(ply.xyz[keep]).max() <= trellis.TRELLIS_MEAN_BOUND
-        unit_cube = axes == "TRELLIS" or (mesh is not None and in_cube)
-        target_length = TRELLIS_DEFAULT_LENGTH if unit_cube else extent
+        target_length = asset_frame.default_length(ply, keep, axes, mesh is not None, extent)
     if extent > 0:
         obj.scale = (target_length / extent,) * 3
     node_groups.add_modifier(obj, "SCPainter Gaussians", ensure_node_group(), {"Ellipsoids": bool(ellipsoids)})
@@ -252,9 +234,7 @@ def mesh_gaussians_path(scene, mesh_path: str, count: int) -> str:
     The name keeps the source's full file name and adds a hash of its absolute path, size and modification time,
     so two meshes (``car.stl``, ``car.ply``, or one edited since) never share a file: ``car.stl.200000.<hash>.ply``.
     """
-    st = os.stat(mesh_path)
-    key = hashlib.sha256(f"{os.path.abspath(mesh_path)}|{st.st_size}|{st.st_mtime_ns}".encode()).hexdigest()[:10]
-    name = f"{os.path.basename(mesh_path)}.{int(count)}.{key}.gaussians.ply"
+    name = asset_frame.mesh_gaussians_name(mesh_path, count)
     try:
         folder = os.path.join(props.output_dir(scene), "assets")
     except props.SceneError:  # unsaved .blend: its output folder is relative to it
@@ -275,7 +255,7 @@ def set_axes(obj, axes: str) -> None:
     me.attributes["position"].data.foreach_get("vector", pos)
     old = props.matrix_property(obj, "scpainter_file_to_data")
     xyz_file = (pos.reshape(-1, 3).astype(np.float64) - old[:3, 3]) @ np.linalg.inv(old[:3, :3]).T
-    D, F, lo, hi = _data_frame(xyz_file, axes)
+    D, F, lo, hi = asset_frame.data_frame(xyz_file, axes)
     xyz_data = (xyz_file @ D[:3, :3].T + D[:3, 3]).astype(np.float32)
     me.attributes["position"].data.foreach_set("vector", xyz_data.ravel())
     rot = np.empty(n * 4, np.float32)

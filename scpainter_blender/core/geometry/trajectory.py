@@ -63,7 +63,8 @@ def shift_trajectory(world_to_camera, left_m: float = 0.0, up_m: float = 0.0, fo
                      window_m: float = 1.0, up=(0.0, 0.0, 1.0)) -> np.ndarray:
     """Move each camera of a path by metres relative to the direction of travel; orientation is kept.
 
-    ``left_m`` > 0 moves left, < 0 right; ``forward_m`` along the heading; ``up_m`` along ``up``. Returns the new
+    ``left_m`` > 0 moves left, < 0 right; ``forward_m`` along the heading; ``up_m`` along ``up``; each a number or
+    one per frame (N,) (a lane change: a shift that grows over frames). Returns the new
     world_to_camera (N, 4, 4). Parked frames keep the heading they had (see heading_directions); a path that never
     moves uses the cameras' forward axes.
     """
@@ -72,7 +73,8 @@ def shift_trajectory(world_to_camera, left_m: float = 0.0, up_m: float = 0.0, fo
     forward_axes = T[:, 2, :3]  # camera +z in world = third row of R
     h = heading_directions(c, window_m=window_m, up=up, fallback=forward_axes)
     upv = _unit(np.asarray(up, dtype=np.float64))
-    offset = left_m * left_directions(h, upv) + forward_m * h + up_m * upv
+    per_frame = lambda v: np.asarray(v, np.float64)[..., None]  # noqa: E731  (N, 1) or (1,): broadcast over axes
+    offset = per_frame(left_m) * left_directions(h, upv) + per_frame(forward_m) * h + per_frame(up_m) * upv
     new_c = c + offset
     out = T.copy()
     out[:, :3, 3] = -np.einsum("nij,nj->ni", T[:, :3, :3], new_c)

@@ -21,6 +21,9 @@ from .gaussians import ACCEPTED, GaussianPly, Gaussians, SplatsError, decode, op
 #: Mesh files: not splats, but what the car-asset import converts to Gaussians (backend ``mesh-asset``, trimesh);
 #: a ``.ply`` is a mesh when ``is_mesh_ply`` says so.
 MESH_EXTENSIONS = (".glb", ".gltf", ".obj", ".stl", ".off")
+#: Every file a car asset may be: Gaussian files and meshes (what the import's file browser and a variation
+#: library take).
+ASSET_EXTENSIONS = (".ply", ".splat") + MESH_EXTENSIONS
 
 
 def read(path) -> GaussianPly:

@@ -1,0 +1,118 @@
+"""The cars a variation draws from: every file of a library folder the Blender import reads, stood in the world
+as the import stands it (``core.splats.asset_frame``), each with its label box; mesh files converted to Gaussians
+once (cached by file identity), recoloured copies written once per hue.
+
+Units: ``box_to_file`` and ``size`` in the file's units (the job's ``AssetBox``); ``scale`` metres per file unit
+(the import's default length: 4.5 m for a TRELLIS/Amodal3R unit cube, the file's units otherwise).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from .. import colors, files
+from ..geometry import boxes
+from ..job import DEFAULT_CLASS
+from ..splats import asset_frame, inria, reader
+from ..splats.gaussians import valid_rows
+from .spec import VariationError
+
+#: Library files larger than this are refused before reading (a 1 M-Gaussian PLY is ~250 MB).
+MAX_ASSET_BYTES = 4 << 30
+#: At most this many files in a library.
+MAX_ASSETS = 10_000
+
+
+@dataclass
+class LibraryAsset:
+    """One car of the library: ``name`` (its file name), ``source`` (the library file), ``ply`` (the Gaussian file
+    jobs name: the source, or the mesh's conversion), ``box_to_file`` (4, 4) rigid and ``size`` (3,) (width,
+    length, height) in file units, ``scale`` metres per file unit, ``category`` the label class."""
+    name: str
+    source: str
+    ply: str
+    box_to_file: np.ndarray
+    size: np.ndarray
+    scale: float
+    category: str = DEFAULT_CLASS
+
+    @property
+    def size_m(self) -> np.ndarray:
+        return self.size * self.scale
+
+    def recoloured(self, degrees: int, folder: str) -> str:
+        """The Gaussian file with its colours' hue turned by ``degrees`` (whole degrees; 0: ``ply`` itself),
+        written once into ``folder`` as ``<name>.<file key>.hue±DDD.ply`` (INRIA layout, every SH coefficient
+        turned by ``colors.hue_rotation``)."""
+        if degrees == 0:
+            return self.ply
+        out = os.path.join(folder, f"{self.name}.{asset_frame.file_key(self.ply)}.hue{int(degrees):+04d}.ply")
+        if not os.path.isfile(out):
+            ply = reader.read(self.ply)
+            M = colors.hue_rotation(degrees).astype(np.float32)
+            ply.f_dc = np.ascontiguousarray(ply.f_dc @ M.T)
+            ply.f_rest = np.ascontiguousarray(np.einsum("ij,njk->nik", M, ply.f_rest))
+            ply.format = "inria"
+            os.makedirs(folder, exist_ok=True)
+            inria.write_ply(out, ply, comment=f"{self.name}: hue turned {int(degrees):+d} degrees by SCPainter")
+        return out
+
+
+def library_files(folder) -> list:
+    """The asset files of a library folder (not recursive), sorted by name. ``VariationError`` when the folder is
+    missing, holds none, or too many."""
+    folder = os.fspath(folder)
+    if not os.path.isdir(folder):
+        raise VariationError(folder, "cars.library", "is not a folder",
+                             hint="give a folder of car files (.ply, .splat, .glb, .gltf, .obj, .stl, .off)")
+    names = sorted(n for n in os.listdir(folder) if os.path.splitext(n)[1].lower() in reader.ASSET_EXTENSIONS
+                   and not n.startswith("."))
+    if not names:
+        raise VariationError(folder, "cars.library", "holds no car files",
+                             hint=f"put files of these kinds there: {', '.join(reader.ASSET_EXTENSIONS)}")
+    if len(names) > MAX_ASSETS:
+        raise VariationError(folder, "cars.library", f"holds {len(names)} car files, more than {MAX_ASSETS}")
+    return [os.path.join(folder, n) for n in names]
+
+
+def load_asset(path, cache: str, convert_mesh=None, mesh_count: int = 200_000) -> LibraryAsset:
+    """One library file as a ``LibraryAsset``. A mesh (``reader.MESH_EXTENSIONS``, or a mesh PLY) is converted by
+    ``convert_mesh(mesh, out_ply, count)`` into ``cache`` (once: the name carries the file's identity), which
+    ``None`` refuses. Errors: the reader's ``SplatsError`` naming the file, ``VariationError`` for a file with no
+    valid Gaussians or too large."""
+    path = os.path.abspath(path)
+    with files.open_regular(path, VariationError) as f:
+        size = os.fstat(f.fileno()).st_size
+    if size > MAX_ASSET_BYTES:
+        raise VariationError(path, "(file)", f"is {size / 2**30:.1f} GiB, more than a car asset may be")
+    ext = os.path.splitext(path)[1].lower()
+    is_mesh = ext in reader.MESH_EXTENSIONS or (ext == ".ply" and reader.is_mesh_ply(path))
+    ply_path = path
+    if is_mesh:
+        if convert_mesh is None:
+            raise VariationError(path, "(file)", "is a mesh, and this run cannot convert meshes to Gaussians",
+                                 hint="run the variation through `blender -c scpainter vary` or convert it first "
+                                      "with `python -m backend mesh-asset`")
+        ply_path = os.path.join(cache, asset_frame.mesh_gaussians_name(path, mesh_count))
+        if not os.path.isfile(ply_path):
+            os.makedirs(cache, exist_ok=True)
+            convert_mesh(path, ply_path, mesh_count)
+    ply = reader.read(ply_path)
+    keep, dropped = valid_rows(ply)
+    if keep.sum() < 4:
+        raise VariationError(ply_path, "(file)", f"has {int(keep.sum())} valid Gaussians of {len(ply)} "
+                                                 f"(dropped: {dropped})", hint="take it out of the library")
+    frame = asset_frame.asset_frame(ply, keep, is_mesh)
+    means_data = ply.xyz[keep].astype(np.float64) @ frame.file_to_data[:3, :3].T + frame.file_to_data[:3, 3]
+    box_to_data, box_size = boxes.estimate_box(means_data, up=(0.0, 0.0, 1.0))
+    box_to_file = np.linalg.inv(frame.file_to_data) @ box_to_data
+    return LibraryAsset(os.path.basename(path), path, ply_path, box_to_file, np.asarray(box_size, np.float64),
+                        float(frame.scale))
+
+
+def load_library(folder, cache: str, convert_mesh=None, mesh_count: int = 200_000) -> list:
+    """Every car of a library folder (``library_files``), loaded with ``load_asset``."""
+    return [load_asset(p, cache, convert_mesh, mesh_count) for p in library_files(folder)]

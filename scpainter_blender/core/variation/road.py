@@ -1,0 +1,190 @@
+"""The reconstructed road, found headless: where a car may stand, at what height, and what is already there.
+
+Frame: world metres, Z up (Blender's, docs/design.md §3). Everything is computed relative to ``origin`` (the
+reference path's first camera), so 1e5 m scenes stay exact.
+
+How (each step is the rule a placement is checked against, ``Road.check_footprint``):
+
+1. **Tiles.** The points are binned into ``tile_m`` squares; each tile with at least ``MIN_TILE_POINTS`` points
+   gets the project's one RANSAC ground plane (``core.geometry.fits.fit_plane_ransac``, as *Snap to Ground*
+   fits one under an asset: inliers closer than ``threshold_m``, level within ``max_tilt_deg``), seeded per tile.
+   A tile whose points hold no level plane (a facade) has none.
+2. **Road tiles.** Starting from the tiles under the reference path's cameras, a tile joins the road when a
+   neighbour on the road meets it: their planes' heights at the middle of the shared edge differ by less than
+   ``step_m`` and their normals by less than ``bend_deg``. A kerb (15 cm) or a wall ends the road, and so does
+   a tile whose plane leans across a kerb (4° over 2 m); a slope or a camber, bending by a fraction of a degree
+   per tile, does not.
+3. **Cells** (``cell_m`` squares). A cell is *raised* when the median height of its points above their tile's
+   plane lies between ``step_m`` and ``min_object_m`` (a sidewalk, a kerb top), and *occupied* when at least
+   ``MIN_OCCUPIED_POINTS`` points stand ``min_object_m``–``max_object_m`` above the plane (a parked car, a pole,
+   a building). A cell without points (road hidden behind a car) is neither.
+
+A footprint is **off the road** when a sample under it falls on a tile that is not road or when more than
+``MAX_RAISED_FRACTION`` of its observed samples are raised, and **on a recorded object** when a sample falls in
+an occupied cell.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+
+from ..geometry import fits
+
+MIN_TILE_POINTS = 30
+MAX_TILE_SAMPLE = 3000          # points a tile's RANSAC sees at most (a fixed, seeded subsample)
+MIN_OCCUPIED_POINTS = 3
+MAX_RAISED_FRACTION = 0.05
+SAMPLE_SPACING_M = 0.25         # the lattice a footprint is tested on
+
+
+class Road:
+    """The road of a reconstruction (module docstring). ``points`` (N, 3) world metres, ``path_centres`` (F, 3)
+    the reference path's camera centres (the drive), ``seed`` for the RANSAC fits.
+
+    ValueError when no tile under the path holds a level plane (no road under the drive)."""
+
+    def __init__(self, points, path_centres, *, tile_m: float = 1.0, cell_m: float = 0.25, threshold_m: float = 0.05,
+                 max_tilt_deg: float = 15.0, step_m: float = 0.08, bend_deg: float = 2.0, min_object_m: float = 0.3,
+                 max_object_m: float = 2.5, reach_m: float = 60.0, seed: int = 0):
+        C = np.asarray(path_centres, np.float64)
+        self.origin = C[0].copy()
+        self.tile_m, self.cell_m, self.step_m = float(tile_m), float(cell_m), float(step_m)
+        self.cos_bend = float(np.cos(np.radians(bend_deg)))
+        P = np.asarray(points, np.float64) - self.origin
+        P = P[np.isfinite(P).all(1)]
+        c = C - self.origin
+        lo, hi = c[:, :2].min(0) - reach_m, c[:, :2].max(0) + reach_m
+        P = P[np.all((P[:, :2] >= lo) & (P[:, :2] <= hi), axis=1)]
+        self.lo = lo
+        self.shape = tuple(np.ceil((hi - lo) / tile_m).astype(int) + 1)   # tiles along x, y
+        self.planes = np.full(self.shape + (4,), np.nan)                 # (a, b, c, d), relative to origin
+        self._fit_tiles(P, threshold_m, max_tilt_deg, seed)
+        self.road = self._grow_road(c)
+        self._cells(P, min_object_m, max_object_m)
+
+    # -- building ----------------------------------------------------------------------------------------------
+
+    def _tile_index(self, xy) -> tuple:
+        ij = np.floor((np.asarray(xy, np.float64) - self.lo) / self.tile_m).astype(np.int64)
+        inside = np.all((ij >= 0) & (ij < np.array(self.shape)), axis=-1)
+        return ij, inside
+
+    def _fit_tiles(self, P, threshold_m, max_tilt_deg, seed) -> None:
+        ij, inside = self._tile_index(P[:, :2])
+        key = ij[:, 0] * self.shape[1] + ij[:, 1]
+        key = np.where(inside, key, -1)
+        order = np.argsort(key, kind="stable")
+        keys, starts, counts = np.unique(key[order], return_index=True, return_counts=True)
+        for k, a, n in zip(keys.tolist(), starts.tolist(), counts.tolist()):
+            if k < 0 or n < MIN_TILE_POINTS:
+                continue
+            idx = order[a:a + n]
+            rng = np.random.default_rng([seed, k])
+            if n > MAX_TILE_SAMPLE:
+                idx = np.sort(rng.choice(idx, MAX_TILE_SAMPLE, replace=False))
+            try:
+                plane, _, _ = fits.fit_plane_ransac(P[idx], threshold=threshold_m, iterations=128,
+                                                    seed=int(rng.integers(2 ** 31)), max_tilt_deg=max_tilt_deg)
+            except fits.PlaneFitError:
+                continue                                   # a facade, a pole: no level ground here
+            self.planes[k // self.shape[1], k % self.shape[1]] = plane
+
+    def _plane_height(self, i, j, xy) -> np.ndarray:
+        a, b, c, d = self.planes[i, j].T
+        return -(a * xy[..., 0] + b * xy[..., 1] + d) / c
+
+    def _grow_road(self, c) -> np.ndarray:
+        road = np.zeros(self.shape, bool)
+        ij, inside = self._tile_index(c[:, :2])
+        queue = deque()
+        for (i, j), ok in zip(ij.tolist(), inside.tolist()):
+            if ok and not road[i, j] and np.isfinite(self.planes[i, j, 0]):
+                road[i, j] = True
+                queue.append((i, j))
+        if not queue:
+            raise ValueError("no level ground under the drive's cameras: the reconstruction holds no road there")
+        while queue:
+            i, j = queue.popleft()
+            for di, dj in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+                a, b = i + di, j + dj
+                if not (0 <= a < self.shape[0] and 0 <= b < self.shape[1]) or road[a, b] \
+                        or not np.isfinite(self.planes[a, b, 0]):
+                    continue
+                # the middle of the shared edge, in coordinates relative to the origin
+                mid = self.lo + self.tile_m * (np.array([max(i, a), max(j, b)], np.float64)
+                                               + np.array([0.5 * (di == 0), 0.5 * (dj == 0)]))
+                if abs(self._plane_height(i, j, mid) - self._plane_height(a, b, mid)) < self.step_m \
+                        and self.planes[i, j, :3] @ self.planes[a, b, :3] > self.cos_bend:
+                    road[a, b] = True
+                    queue.append((a, b))
+        return road
+
+    def _cells(self, P, min_object_m, max_object_m) -> None:
+        ij, inside = self._tile_index(P[:, :2])
+        has_plane = np.zeros(len(P), bool)
+        has_plane[inside] = np.isfinite(self.planes[ij[inside, 0], ij[inside, 1], 0])
+        Q, tij = P[has_plane], ij[has_plane]
+        h = Q[:, 2] - self._plane_height(tij[:, 0], tij[:, 1], Q[:, :2])
+        per_tile = int(round(self.tile_m / self.cell_m))
+        self.cell_shape = (self.shape[0] * per_tile, self.shape[1] * per_tile)
+        cij = np.floor((Q[:, :2] - self.lo) / self.cell_m).astype(np.int64)
+        cij = np.minimum(cij, np.array(self.cell_shape) - 1)
+        flat = cij[:, 0] * self.cell_shape[1] + cij[:, 1]
+        size = self.cell_shape[0] * self.cell_shape[1]
+        objects = (h >= min_object_m) & (h <= max_object_m)
+        self.occupied = (np.bincount(flat[objects], minlength=size) >= MIN_OCCUPIED_POINTS).reshape(self.cell_shape)
+        # raised: the median height above the plane of the cell's points below object height, in (step, object)
+        low = h < min_object_m
+        self.observed = np.bincount(flat[low], minlength=size).reshape(self.cell_shape) > 0
+        raised_pts = low & (h > self.step_m)
+        n_raised = np.bincount(flat[raised_pts], minlength=size)
+        n_low = np.bincount(flat[low], minlength=size)
+        self.raised = (n_raised * 2 > n_low).reshape(self.cell_shape)
+
+    # -- queries -----------------------------------------------------------------------------------------------
+
+    def ground(self, xy) -> tuple:
+        """(z (...,), unit normal (..., 3)) of the ground plane under world points ``xy`` (..., 2); NaN where no
+        tile plane is known."""
+        rel = np.asarray(xy, np.float64) - self.origin[:2]
+        ij, inside = self._tile_index(rel)
+        ij = np.where(inside[..., None], ij, 0)
+        plane = np.where(inside[..., None], self.planes[ij[..., 0], ij[..., 1]], np.nan)
+        a, b, c, d = np.moveaxis(plane, -1, 0)
+        z = -(a * rel[..., 0] + b * rel[..., 1] + d) / c + self.origin[2]
+        return z, plane[..., :3]
+
+    def is_road(self, xy) -> np.ndarray:
+        """Whether world points ``xy`` (..., 2) lie on road tiles."""
+        ij, inside = self._tile_index(np.asarray(xy, np.float64) - self.origin[:2])
+        ij = np.where(inside[..., None], ij, 0)
+        return inside & self.road[ij[..., 0], ij[..., 1]]
+
+    def check_footprint(self, corners_xy) -> str | None:
+        """None when the footprint (4, 2) world corners (a rectangle, in order) may stand here, else the rule it
+        breaks: ``"off_road"`` or ``"recorded_object"`` (module docstring)."""
+        S = footprint_samples(corners_xy)
+        if not np.all(self.is_road(S)):
+            return "off_road"
+        cij = np.floor((S - self.origin[:2] - self.lo) / self.cell_m).astype(np.int64)
+        cij = np.clip(cij, 0, np.array(self.cell_shape) - 1)
+        raised = self.raised[cij[:, 0], cij[:, 1]]
+        seen = self.observed[cij[:, 0], cij[:, 1]]
+        if seen.any() and raised[seen].mean() > MAX_RAISED_FRACTION:
+            return "off_road"
+        if np.any(self.occupied[cij[:, 0], cij[:, 1]]):
+            return "recorded_object"
+        return None
+
+
+def footprint_samples(corners_xy, spacing: float = SAMPLE_SPACING_M) -> np.ndarray:
+    """(M, 2) points covering a rectangle given by its 4 corners in order: a lattice of at most ``spacing``
+    inside it, edges and corners included."""
+    C = np.asarray(corners_xy, np.float64)
+    u, v = C[1] - C[0], C[3] - C[0]
+    nu = max(2, int(np.ceil(np.linalg.norm(u) / spacing)) + 1)
+    nv = max(2, int(np.ceil(np.linalg.norm(v) / spacing)) + 1)
+    a, b = np.meshgrid(np.linspace(0.0, 1.0, nu), np.linspace(0.0, 1.0, nv), indexing="ij")
+    return C[0] + a.reshape(-1, 1) * u + b.reshape(-1, 1) * v

@@ -1,0 +1,323 @@
+"""Variants of one base job, written as job folders with a ``batch`` list and a manifest (docs/design.md §16).
+
+Reads top to bottom: ``make_variants`` loads the base (its points, the road, the library), then for variant i,
+with ``numpy.random.default_rng([seed, i])`` alone (so variant i is the same whatever the count):
+
+1. the camera: the base path shifted left by a drawn shift, plus a lane change (a smoothstep shift) when drawn;
+2. the cars: a count, then per car an asset, a scale and a hue, parked or moving, and up to ``tries`` placements,
+   each checked against the rules of ``placement`` (the first that passes is kept);
+3. the job: the base job with the new frames and the cars added (labelled: class and box), or, when a car found
+   no place, no job and the reasons in the manifest.
+
+Nothing is dropped silently: every variant is in the manifest with its outcome; the list names the placed ones.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import replace
+
+import numpy as np
+
+from .. import job as job_mod, outputs
+from ..geometry import boxes, cameras, fits, point_cloud, trajectory
+from ..output_layout import VariationLayout
+from ..vggt import npz as vggt_npz
+from . import library as library_mod, placement
+from .road import Road
+from .spec import VariationError, VariationSpec
+
+#: Where along the reference path (arc length, metres) cars are drawn: from this far behind its start ...
+BEHIND_M = 5.0
+#: ... to this far beyond its end (cars ahead of the last frame are in view).
+AHEAD_M = 30.0
+#: The ``data-root:`` directive of a batch list (core/batch_items.py reads it).
+DATA_ROOT = "data-root:"
+
+
+def scene_points(job: job_mod.Job, job_path) -> np.ndarray:
+    """World points (N, 3) of a job's reconstruction as the renderer loads them (same reading of the file,
+    confidence, depth edges, ``vggt_to_world``), minus the points inside its removal boxes."""
+    sc = job.scene
+    pred = vggt_npz.load_predictions(job_mod.resolve(job_path, sc.predictions), world_points=False,
+                                     extrinsic_convention=sc.extrinsic_convention, crop=list(sc.crop))
+    ratio = sc.point_cleaning.depth_edge_ratio if sc.point_cleaning is not None else None
+    P = point_cloud.point_cloud(pred, sc.confidence_percentile, vggt_to_world=sc.vggt_to_world,
+                                depth_edge_ratio=ratio).positions
+    for box in sc.removal_boxes:
+        P = P[~fits.points_in_box(P, box.box_to_world, box.size)]
+    return P
+
+
+def reference_path(job: job_mod.Job) -> placement.Path:
+    """The base job's camera path on the ground: centres and directions of travel (``trajectory``)."""
+    T = np.stack([f.world_to_camera for f in job.frames])
+    centres = cameras.camera_centers(T)
+    headings = trajectory.heading_directions(centres, fallback=T[:, 2, :3])
+    return placement.Path.of(centres, headings)
+
+
+def smoothstep(x) -> np.ndarray:
+    x = np.clip(x, 0.0, 1.0)
+    return x * x * (3.0 - 2.0 * x)
+
+
+class Variation:
+    """One run: the base job and what every variant shares (its road, its library, the obstacles of the base)."""
+
+    def __init__(self, base_path, spec: VariationSpec, out, convert_mesh=None, mesh_count: int = 200_000):
+        self.base_path = os.path.abspath(base_path)
+        self.base = job_mod.load(self.base_path)
+        self.spec, self.layout = spec, VariationLayout(os.path.abspath(out))
+        if self.base.scene is None:
+            raise VariationError(self.base_path, "scene", "the base job has no reconstruction: variations place "
+                                 "cars on its road", hint="export the job from a scene with imported points")
+        t0 = time.perf_counter()
+        self.path = reference_path(self.base)
+        try:
+            self.road = Road(scene_points(self.base, self.base_path), self.path.centres, seed=spec.seed)
+        except ValueError as e:
+            raise VariationError(self.base_path, "scene.predictions", str(e),
+                                 hint="check the reconstruction (its scale and the recorded camera)") from None
+        t1 = time.perf_counter()
+        self.library = []
+        if spec.car_count[1] > 0:
+            if not spec.library:
+                raise VariationError("(variation spec)", "cars.library", "cars are asked for but no library is given",
+                                     hint="set cars.library in the spec or pass --library DIR")
+            self.library = library_mod.load_library(spec.library, self.layout.library, convert_mesh, mesh_count)
+        self.fixed = self._base_obstacles(convert_mesh, mesh_count)
+        self.timings = {"road_s": t1 - t0, "library_s": time.perf_counter() - t1}
+
+    def _base_obstacles(self, convert_mesh, mesh_count) -> dict:
+        """{frame: [footprint (4, 2)]}: the base job's removal boxes, recorded objects and cars, per frame."""
+        frames = [f.frame for f in self.base.frames]
+        sc = self.base.scene
+        fixed = {f: [placement.box_footprint(b.box_to_world, b.size) for b in sc.removal_boxes] for f in frames}
+        for obj in sc.recorded_objects:
+            for f in frames:
+                if f in obj.boxes:
+                    fixed[f].append(placement.box_footprint(obj.boxes[f], obj.size))
+        for a in self.base.assets:
+            box = a.box
+            if box is None:  # estimated as labels estimate it
+                lib = library_mod.load_asset(job_mod.resolve(self.base_path, a.ply), self.layout.library,
+                                             convert_mesh, mesh_count)
+                box = job_mod.AssetBox(lib.box_to_file, lib.size)
+            for f in frames:
+                T, size = boxes.place_box(box.box_to_file, box.size, a.object_to_world[f])
+                fixed[f].append(placement.box_footprint(T, size))
+        return fixed
+
+    # -- one variant -------------------------------------------------------------------------------------------
+
+    def camera(self, rng) -> tuple:
+        """(world_to_camera (F, 4, 4), details): the base path shifted, with a lane change when drawn."""
+        s = self.spec
+        shift = float(rng.uniform(*s.shift_range_m)) if s.shift_range_m else float(rng.choice(s.shifts_m))
+        F = len(self.base.frames)
+        left = np.full(F, shift)
+        details = {"shift_m": round(shift, 6), "lane_change": None}
+        if rng.random() < s.lane_change_probability:
+            by = float(rng.choice(s.lane_change_m))
+            start = int(rng.integers(0, max(1, F - s.lane_change_frames) + 1))
+            left += by * smoothstep((np.arange(F) - start) / s.lane_change_frames)
+            details["lane_change"] = {"shift_m": by, "start_frame": self.base.frames[start].frame if start < F
+                                      else self.base.frames[-1].frame, "frames": s.lane_change_frames}
+        T = np.stack([f.world_to_camera for f in self.base.frames])
+        return trajectory.shift_trajectory(T, left_m=left), details
+
+    def ego_rects(self, world_to_camera) -> dict:
+        """{frame: (4, 2)}: the ego vehicle's footprint around each camera of the new path, grown by the margin."""
+        centres = cameras.camera_centers(world_to_camera)
+        heads = trajectory.heading_directions(centres, fallback=world_to_camera[:, 2, :3])
+        w, length = self.spec.ego_size_m
+        m = self.spec.ego_margin_m
+        return {f.frame: placement.rectangle(centres[i, :2], heads[i, :2], length + 2 * m, w + 2 * m)
+                for i, f in enumerate(self.base.frames)}
+
+    def draw_car(self, rng, asset, rules: placement.Rules) -> tuple:
+        """(placed ``placement.Car`` or None, details with the tries and the rejections by rule)."""
+        s = self.spec
+        scale = asset.scale * float(rng.uniform(1.0 - s.size_jitter, 1.0 + s.size_jitter))
+        hue = int(round(float(rng.uniform(-s.hue_jitter_deg, s.hue_jitter_deg)))) if s.hue_jitter_deg else 0
+        moving = bool(rng.random() < s.moving_probability)
+        size = asset.size * scale
+        fps = self.base.frame_rate()[0]
+        frames = [f.frame for f in self.base.frames]
+        t = (np.array(frames, np.float64) - frames[0]) / fps
+        details = {"asset": asset.name, "mode": "moving" if moving else "parked", "scale": scale,
+                   "size_m": [float(v) for v in size], "hue_deg": hue}
+        rejections = dict.fromkeys(placement.RULES, 0)
+        lo, hi = -BEHIND_M, self.path.length + AHEAD_M
+        for attempt in range(1, s.tries + 1):
+            if moving:
+                lane = float(rng.choice(s.lane_offsets_m))
+                speed = float(rng.uniform(*s.speed_mps))
+                arc = float(rng.uniform(lo, hi)) + speed * t
+                drawn = {"lane_offset_m": lane, "speed_mps": speed}
+                offset = np.full(len(frames), lane)
+            else:
+                side = 1.0 if rng.random() < 0.5 else -1.0
+                off = float(rng.uniform(*s.parked_offset_m))
+                arc = np.full(len(frames), float(rng.uniform(lo, hi)))
+                drawn = {"offset_m": side * off}
+                offset = np.full(len(frames), side * off)
+            xy, head = self.path.at(arc)
+            xy = xy + offset[:, None] * np.stack([-head[:, 1], head[:, 0]], axis=1)
+            car = self._car(xy, head, size, frames, moving)
+            reason = "off_road" if car is None else rules.check(car)
+            if reason is None:
+                T0 = car.box_to_world[frames[0]]
+                yaw = np.degrees(np.arctan2(-T0[0, 1], T0[1, 1]))
+                details.update(drawn, tries=attempt, rejections=rejections,
+                               position_m=[float(v) for v in T0[:3, 3]], heading_deg=float(yaw))
+                car.details = dict(details, scale=scale, hue_deg=hue)
+                return car, details
+            rejections[reason] += 1
+        details.update(tries=s.tries, rejections=rejections)
+        return None, details
+
+    def _car(self, xy, head, size, frames, moving) -> placement.Car | None:
+        if not moving:  # one pose for every frame
+            T = placement.box_on_ground(self.road, xy[0], head[0], size)
+            if T is None:
+                return None
+            foot = placement.box_footprint(T, size)
+            return placement.Car(size, dict.fromkeys(frames, T), dict.fromkeys(frames, foot), False)
+        Ts, feet = {}, {}
+        for i, f in enumerate(frames):
+            T = placement.box_on_ground(self.road, xy[i], head[i], size)
+            if T is None:
+                return None
+            Ts[f], feet[f] = T, placement.box_footprint(T, size)
+        return placement.Car(size, Ts, feet, True)
+
+    def variant(self, index: int) -> tuple:
+        """(job or None, manifest entry) of variant ``index``."""
+        s = self.spec
+        rng = np.random.default_rng([s.seed, index])
+        w2c, cam = self.camera(rng)
+        rules = placement.Rules(self.road, [f.frame for f in self.base.frames], self.ego_rects(w2c), self.fixed,
+                                s.gap_m)
+        count = int(rng.integers(s.car_count[0], s.car_count[1] + 1))
+        entry = {"id": VariationLayout.variant_name(index), "seed": [s.seed, index], "camera": cam, "cars": []}
+        placed = []
+        for j in range(count):
+            asset = self.library[int(rng.integers(len(self.library)))]
+            car, details = self.draw_car(rng, asset, rules)
+            if car is None:
+                entry.update(outcome="unplaced", job=None, unplaced=dict(details, car=j))
+                return None, entry
+            details["name"] = car.details["name"] = f"car_{j + 1:02d}"
+            rules.placed.append(car)
+            placed.append((asset, car))
+            entry["cars"].append(details)
+        entry["outcome"] = "placed"
+        return self._job(index, w2c, placed), entry
+
+    def _job(self, index, world_to_camera, placed) -> job_mod.Job:
+        base, s = self.base, self.spec
+        folder = self.layout.variant(index).root
+        frames = []
+        scale = np.ones(3)
+        if s.resolution is not None:
+            scale = np.array([s.resolution[0] / base.width, s.resolution[1] / base.height, 1.0])
+        for f, T in zip(base.frames, world_to_camera):
+            frames.append(job_mod.Frame(f.frame, scale[:, None] * f.K, T, list(f.source_frames)))
+        path = lambda p: self._path(folder, job_mod.resolve(self.base_path, p))  # noqa: E731
+        assets = [replace(a, ply=path(a.ply)) for a in base.assets]
+        for asset, car in placed:
+            ply = asset.recoloured(car.details["hue_deg"], self.layout.library)
+            S = np.diag([car.details["scale"]] * 3 + [1.0])
+            to_box = np.linalg.inv(asset.box_to_file)
+            o2w = {f: T @ S @ to_box for f, T in car.box_to_world.items()}
+            assets.append(job_mod.Asset(car.details["name"], self._path(folder, ply), o2w, asset.category,
+                                        job_mod.AssetBox(asset.box_to_file, asset.size)))
+        scene = replace(base.scene, predictions=path(base.scene.predictions))
+        generate = base.generate
+        if generate is not None and generate.checkpoint:
+            generate = replace(generate, checkpoint=path(generate.checkpoint))
+        return replace(base, resolution=tuple(s.resolution or base.resolution), frames=frames, output_dir=".",
+                       scene=scene, assets=assets, generate=generate)
+
+    def _path(self, folder, absolute) -> str:
+        """A path as a variant's job names it: relative inside the run's folder (it moves as one), else absolute."""
+        absolute = os.path.abspath(absolute)
+        if outputs.inside(absolute, self.layout.root):
+            return os.path.relpath(absolute, folder)
+        return absolute
+
+    def data_roots(self) -> list:
+        """The folders the variants' jobs lead into: the run's own folder, the reconstruction's, the library's
+        and the base cars' (each once, outermost first)."""
+        dirs = [self.layout.root, os.path.dirname(job_mod.resolve(self.base_path, self.base.scene.predictions))]
+        dirs += [os.path.dirname(a.ply) for a in self.library]
+        dirs += [os.path.dirname(job_mod.resolve(self.base_path, a.ply)) for a in self.base.assets]
+        roots = []
+        for d in sorted({os.path.realpath(d) for d in dirs}, key=len):
+            if not any(outputs.inside(d, r) for r in roots):
+                roots.append(d)
+        return roots
+
+
+def make_variants(base_path, spec: VariationSpec, out, convert_mesh=None, progress=None,
+                  mesh_count: int = 200_000) -> dict:
+    """Write ``spec.variants`` variants of the job at ``base_path`` into ``out`` (``VariationLayout``): a job folder
+    per placed variant, the ``batch`` list and the manifest, which it returns. ``convert_mesh(mesh, out_ply,
+    count)`` turns a library mesh into Gaussians (None: meshes refused). ``progress(done, total)`` after each.
+    Errors: ``VariationError`` / the readers' ``InputError`` naming the file and field."""
+    v = Variation(base_path, spec, out, convert_mesh, mesh_count)
+    layout = v.layout
+    entries, listed = [], []
+    t0 = time.perf_counter()
+    for i in range(spec.variants):
+        job, entry = v.variant(i)
+        job_path = layout.variant(i).job
+        if job is not None:
+            os.makedirs(os.path.dirname(job_path), exist_ok=True)
+            job_mod.save(job_path, job)
+            entry["job"] = os.path.relpath(job_path, layout.root)
+            listed.append(entry["job"])
+        elif os.path.isfile(job_path):  # a job an earlier run placed there: not this run's
+            os.remove(job_path)
+        entries.append(entry)
+        if progress:
+            progress(i + 1, spec.variants)
+    seconds = time.perf_counter() - t0
+    with outputs.atomic_write(layout.list, "w") as f:
+        f.write("# SCPainter variants: python -m backend batch --list variants.txt\n")
+        for root in v.data_roots():
+            f.write(f"{DATA_ROOT} {root}\n")
+        f.writelines(f"{p}\n" for p in listed)
+    manifest = {"schema": "scpainter.variation-manifest/1", "base": v.base_path, "spec": spec.to_dict(),
+                "library": [{"name": a.name, "source": a.source, "ply": a.ply, "size_m": a.size_m.tolist(),
+                             "category": a.category} for a in v.library],
+                "summary": summarize(entries), "variants": entries,
+                "timings": dict(v.timings, placement_s=seconds,
+                                variants_per_s=spec.variants / seconds if seconds > 0 else None)}
+    outputs.write_json(layout.manifest, manifest)
+    return manifest
+
+
+def summarize(entries: list) -> dict:
+    """Counts over the variants: placed / unplaced, cars per asset and mode, variants per shift and lane change,
+    rejections per rule (over placed and failed cars alike)."""
+    def count(d, key):
+        d[key] = d.get(key, 0) + 1
+
+    out = {"variants": len(entries), "placed": 0, "unplaced": 0, "cars": 0, "per_asset": {}, "per_mode": {},
+           "per_shift": {}, "lane_changes": 0, "rejections": dict.fromkeys(placement.RULES, 0)}
+    for e in entries:
+        count(out, e["outcome"])
+        count(out["per_shift"], f"{e['camera']['shift_m']:g}")
+        out["lane_changes"] += e["camera"]["lane_change"] is not None
+        for car in e["cars"] + ([e["unplaced"]] if e["outcome"] == "unplaced" else []):
+            for rule, n in car["rejections"].items():
+                out["rejections"][rule] += n
+        for car in e["cars"]:
+            out["cars"] += 1
+            count(out["per_asset"], car["asset"])
+            count(out["per_mode"], car["mode"])
+    return out

@@ -14,14 +14,16 @@ How (each step is the rule a placement is checked against, ``Road.check_footprin
    ``step_m`` and their normals by less than ``bend_deg``. A kerb (15 cm) or a wall ends the road, and so does
    a tile whose plane leans across a kerb (4° over 2 m); a slope or a camber, bending by a fraction of a degree
    per tile, does not.
-3. **Cells** (``cell_m`` squares). A cell is *raised* when the median height of its points above their tile's
-   plane lies between ``step_m`` and ``min_object_m`` (a sidewalk, a kerb top), and *occupied* when at least
-   ``MIN_OCCUPIED_POINTS`` points stand ``min_object_m``–``max_object_m`` above the plane (a parked car, a pole,
-   a building). A cell without points (road hidden behind a car) is neither.
+3. **Cells** (``cell_m`` squares), heights measured above the *road*: a road tile's own plane, or for any other
+   tile the plane of the nearest road tile (a tile under a parked car holds its roof, not the road). A cell is
+   *occupied* when at least ``MIN_OCCUPIED_POINTS`` points stand ``min_object_m``–``max_object_m`` above the road
+   (a parked car, a pole, a building), and *raised* when most of its lower points lie between ``step_m`` and
+   ``min_object_m`` above it (a sidewalk, a kerb top). A cell without points (road hidden behind a car) is
+   neither.
 
-A footprint is **off the road** when a sample under it falls on a tile that is not road or when more than
-``MAX_RAISED_FRACTION`` of its observed samples are raised, and **on a recorded object** when a sample falls in
-an occupied cell.
+A footprint is **on a recorded object** when a sample under it falls in an occupied cell, and **off the road**
+when a sample falls on a tile that is not road or more than ``MAX_RAISED_FRACTION`` of its observed samples are
+raised.
 """
 
 from __future__ import annotations
@@ -62,6 +64,7 @@ class Road:
         self.planes = np.full(self.shape + (4,), np.nan)                 # (a, b, c, d), relative to origin
         self._fit_tiles(P, threshold_m, max_tilt_deg, seed)
         self.road = self._grow_road(c)
+        self.reference = self._nearest_road()
         self._cells(P, min_object_m, max_object_m)
 
     # -- building ----------------------------------------------------------------------------------------------
@@ -121,12 +124,28 @@ class Road:
                     queue.append((a, b))
         return road
 
+    def _nearest_road(self) -> np.ndarray:
+        """(tiles x, tiles y, 2) index of the road tile nearest each tile (4-neighbour steps, a breadth-first
+        search from every road tile at once; itself for a road tile), −1 where no road is reachable."""
+        ref = np.full(self.shape + (2,), -1, np.int64)
+        queue = deque()
+        for i, j in zip(*np.nonzero(self.road)):
+            ref[i, j] = (i, j)
+            queue.append((i, j))
+        while queue:
+            i, j = queue.popleft()
+            for a, b in ((i + 1, j), (i - 1, j), (i, j + 1), (i, j - 1)):
+                if 0 <= a < self.shape[0] and 0 <= b < self.shape[1] and ref[a, b, 0] < 0:
+                    ref[a, b] = ref[i, j]
+                    queue.append((a, b))
+        return ref
+
     def _cells(self, P, min_object_m, max_object_m) -> None:
         ij, inside = self._tile_index(P[:, :2])
-        has_plane = np.zeros(len(P), bool)
-        has_plane[inside] = np.isfinite(self.planes[ij[inside, 0], ij[inside, 1], 0])
-        Q, tij = P[has_plane], ij[has_plane]
-        h = Q[:, 2] - self._plane_height(tij[:, 0], tij[:, 1], Q[:, :2])
+        keep = np.zeros(len(P), bool)
+        keep[inside] = self.reference[ij[inside, 0], ij[inside, 1], 0] >= 0
+        Q, rij = P[keep], self.reference[ij[keep, 0], ij[keep, 1]]
+        h = Q[:, 2] - self._plane_height(rij[:, 0], rij[:, 1], Q[:, :2])   # height above the road
         per_tile = int(round(self.tile_m / self.cell_m))
         self.cell_shape = (self.shape[0] * per_tile, self.shape[1] * per_tile)
         cij = np.floor((Q[:, :2] - self.lo) / self.cell_m).astype(np.int64)
@@ -162,20 +181,41 @@ class Road:
         ij = np.where(inside[..., None], ij, 0)
         return inside & self.road[ij[..., 0], ij[..., 1]]
 
+    def edge_distance(self, xy, direction, max_m: float, step: float = SAMPLE_SPACING_M) -> float:
+        """How far (metres, ≤ ``max_m``) the road reaches from world point ``xy`` (2,) along the unit horizontal
+        ``direction`` (2,) before its first tile that is not road (the kerb, the road's end); 0 when ``xy`` itself
+        is not on the road."""
+        d = np.arange(0.0, max_m + 0.5 * step, step)
+        on = self.is_road(np.asarray(xy, np.float64) + d[:, None] * np.asarray(direction, np.float64))
+        off = np.flatnonzero(~on)
+        return float(max_m if not len(off) else 0.0 if off[0] == 0 else d[off[0] - 1])
+
+    def road_arc(self, path, step: float = 0.5, beyond_m: float = 200.0) -> tuple:
+        """(low, high) arc lengths along ``path`` (``placement.Path``, continued straight beyond its ends up to
+        ``beyond_m``) over which the path's own line runs on the road: where cars can be drawn. None when it
+        never does."""
+        s = np.arange(-beyond_m, path.length + beyond_m + step / 2, step)
+        on = self.is_road(path.at(s)[0])
+        if not on.any():
+            return None
+        idx = np.flatnonzero(on)
+        return float(s[idx[0]]), float(s[idx[-1]])
+
     def check_footprint(self, corners_xy) -> str | None:
         """None when the footprint (4, 2) world corners (a rectangle, in order) may stand here, else the rule it
         breaks: ``"off_road"`` or ``"recorded_object"`` (module docstring)."""
         S = footprint_samples(corners_xy)
-        if not np.all(self.is_road(S)):
-            return "off_road"
         cij = np.floor((S - self.origin[:2] - self.lo) / self.cell_m).astype(np.int64)
-        cij = np.clip(cij, 0, np.array(self.cell_shape) - 1)
+        inside = np.all((cij >= 0) & (cij < np.array(self.cell_shape)), axis=1)
+        cij = cij[inside]
+        if np.any(self.occupied[cij[:, 0], cij[:, 1]]):
+            return "recorded_object"
+        if not inside.all() or not np.all(self.is_road(S)):
+            return "off_road"
         raised = self.raised[cij[:, 0], cij[:, 1]]
         seen = self.observed[cij[:, 0], cij[:, 1]]
         if seen.any() and raised[seen].mean() > MAX_RAISED_FRACTION:
             return "off_road"
-        if np.any(self.occupied[cij[:, 0], cij[:, 1]]):
-            return "recorded_object"
         return None
 
 

@@ -8,7 +8,7 @@ once (``VariationSpec``'s signature) and checked field by field.
                 "lane_change": {"probability": 0.25, "shift_m": [-3.5, 3.5], "frames": 8}},
      "cars": {"library": "cars/", "count": [1, 3], "moving_probability": 0.5,
               "size_jitter": 0.05, "hue_jitter_deg": 30,
-              "parked_offset_m": [3.0, 9.0], "lane_offsets_m": [-3.5, 0.0, 3.5], "speed_mps": [3.0, 10.0]},
+              "parked_offset_m": [2.0, 12.0], "kerb_gap_m": [0.1, 0.5], "lane_offsets_m": [-3.5, 0.0, 3.5], "speed_mps": [3.0, 10.0]},
      "placement": {"tries": 50, "gap_m": 0.5, "ego_size_m": [2.0, 4.8], "ego_margin_m": 0.5}}
 
 Every field is optional. Lengths in metres, speeds in metres per second, angles in degrees; a "shift" is to the
@@ -46,7 +46,9 @@ class VariationSpec:
     - ``library``: a folder of car files (every format the import reads); ``car_count`` (low, high).
     - ``moving_probability``: a car drives (else it is parked); ``size_jitter``: uniform scale in 1 ± it;
       ``hue_jitter_deg``: the DC colour's hue turned by a whole number of degrees within ± it.
-    - ``parked_offset_m``: a parked car's distance left or right of the reference path (low, high);
+    - ``parked_offset_m``: (low, high) metres left or right of the reference path between which a parked car
+      stands: at the road's edge found there (``kerb_gap_m`` drawn from it), refused when that edge is nearer
+      than low;
       ``lane_offsets_m``: a moving car's lane (left of the path); ``speed_mps`` (low, high).
     - ``tries``: placements drawn per car before the variant is reported unplaced; ``gap_m``: the least gap
       between cars (and to recorded cars); ``ego_size_m`` (width, length) of the ego vehicle around each camera of
@@ -65,7 +67,8 @@ class VariationSpec:
     moving_probability: float = 0.5
     size_jitter: float = 0.05
     hue_jitter_deg: float = 30.0
-    parked_offset_m: tuple = (3.0, 9.0)
+    parked_offset_m: tuple = (2.0, 12.0)
+    kerb_gap_m: tuple = (0.1, 0.5)
     lane_offsets_m: tuple = (-3.5, 0.0, 3.5)
     speed_mps: tuple = (3.0, 10.0)
     tries: int = 50
@@ -167,7 +170,7 @@ def from_dict(d, path) -> VariationSpec:
         if "frames" in lc:
             kw["lane_change_frames"] = _int(lc["frames"], "camera.lane_change.frames", 1, 100_000, path)
     cars = _section(d, "cars", ("library", "count", "moving_probability", "size_jitter", "hue_jitter_deg",
-                                "parked_offset_m", "lane_offsets_m", "speed_mps"), path)
+                                "parked_offset_m", "kerb_gap_m", "lane_offsets_m", "speed_mps"), path)
     if "library" in cars:
         lib = fields.string(cars["library"], path, "cars.library", error=VariationError)
         kw["library"] = lib if os.path.isabs(lib) else os.path.join(os.path.dirname(os.path.abspath(path)), lib)
@@ -181,6 +184,8 @@ def from_dict(d, path) -> VariationSpec:
         kw["hue_jitter_deg"] = _num(cars["hue_jitter_deg"], "cars.hue_jitter_deg", 0.0, 180.0, path)
     if "parked_offset_m" in cars:
         kw["parked_offset_m"] = _range(cars["parked_offset_m"], "cars.parked_offset_m", 0.0, 50.0, path)
+    if "kerb_gap_m" in cars:
+        kw["kerb_gap_m"] = _range(cars["kerb_gap_m"], "cars.kerb_gap_m", 0.0, 5.0, path)
     if "lane_offsets_m" in cars:
         kw["lane_offsets_m"] = _choices(cars["lane_offsets_m"], "cars.lane_offsets_m", -50.0, 50.0, path)
     if "speed_mps" in cars:

@@ -28,10 +28,6 @@ from . import library as library_mod, placement
 from .road import Road
 from .spec import VariationError, VariationSpec
 
-#: Where along the reference path (arc length, metres) cars are drawn: from this far behind its start ...
-BEHIND_M = 5.0
-#: ... to this far beyond its end (cars ahead of the last frame are in view).
-AHEAD_M = 30.0
 #: The ``data-root:`` directive of a batch list (core/batch_items.py reads it).
 DATA_ROOT = "data-root:"
 
@@ -80,6 +76,8 @@ class Variation:
         except ValueError as e:
             raise VariationError(self.base_path, "scene.predictions", str(e),
                                  hint="check the reconstruction (its scale and the recorded camera)") from None
+        # cars are drawn where the drive's line (continued) runs on the road: the reconstruction's reach
+        self.arc = self.road.road_arc(self.path)
         t1 = time.perf_counter()
         self.library = []
         if spec.car_count[1] > 0:
@@ -150,7 +148,7 @@ class Variation:
         details = {"asset": asset.name, "mode": "moving" if moving else "parked", "scale": scale,
                    "size_m": [float(v) for v in size], "hue_deg": hue}
         rejections = dict.fromkeys(placement.RULES, 0)
-        lo, hi = -BEHIND_M, self.path.length + AHEAD_M
+        lo, hi = self.arc
         for attempt in range(1, s.tries + 1):
             if moving:
                 lane = float(rng.choice(s.lane_offsets_m))
@@ -158,15 +156,20 @@ class Variation:
                 arc = float(rng.uniform(lo, hi)) + speed * t
                 drawn = {"lane_offset_m": lane, "speed_mps": speed}
                 offset = np.full(len(frames), lane)
-            else:
+            else:  # at the road's edge on a drawn side, a drawn gap from it
                 side = 1.0 if rng.random() < 0.5 else -1.0
-                off = float(rng.uniform(*s.parked_offset_m))
+                gap = float(rng.uniform(*s.kerb_gap_m))
                 arc = np.full(len(frames), float(rng.uniform(lo, hi)))
-                drawn = {"offset_m": side * off}
+                xy0, head0 = self.path.at(arc[:1])
+                edge = self.road.edge_distance(xy0[0], side * np.array([-head0[0, 1], head0[0, 0]]),
+                                               s.parked_offset_m[1])
+                off = edge - 0.5 * size[0] - gap
+                drawn = {"offset_m": side * off, "kerb_gap_m": gap}
                 offset = np.full(len(frames), side * off)
             xy, head = self.path.at(arc)
             xy = xy + offset[:, None] * np.stack([-head[:, 1], head[:, 0]], axis=1)
-            car = self._car(xy, head, size, frames, moving)
+            no_room = not moving and off < s.parked_offset_m[0]
+            car = None if no_room else self._car(xy, head, size, frames, moving)
             reason = "off_road" if car is None else rules.check(car)
             if reason is None:
                 T0 = car.box_to_world[frames[0]]

@@ -290,6 +290,22 @@ def _cmd_mesh_asset(args) -> int:
     return events.EXIT_OK
 
 
+def _cmd_vary(args) -> int:
+    from .vary import command
+
+    events.done(command="vary", **command.vary(args))
+    return events.EXIT_OK
+
+
+def _cmd_contact_sheet(args) -> int:
+    from .vary import sheet
+
+    result = sheet.contact_sheet(args.folder, args.out)
+    events.artifact(result["path"], kind="contact_sheet")
+    events.done(command="contact-sheet", **result)
+    return events.EXIT_OK
+
+
 ALLOW_OUTSIDE_HELP = ("let the job's paths (output_dir, predictions, assets, checkpoint) lead outside the job file's "
                       "folder; without it they must stay inside (a job from someone else then cannot read or write "
                       "elsewhere)")
@@ -478,7 +494,25 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--up", choices=["auto", "y", "z"], default="auto", help="the file's up axis (default: by format)")
     m.add_argument("--seed", type=int, default=0)
     m.set_defaults(func=_cmd_mesh_asset)
+    v = sub.add_parser("vary", help="variants of a job (camera shifts, lane changes, cars from a library placed on "
+                                    "the road), written as job folders with a batch list and a manifest")
+    v.add_argument("job", help="the base job (job.json), e.g. as Blender exports it")
+    vary_options(v)
+    v.set_defaults(func=_cmd_vary)
+    s = sub.add_parser("contact-sheet", help="the first frame of every variant of a vary folder in one picture")
+    s.add_argument("folder", help="the folder vary wrote")
+    s.add_argument("--out", help="PNG to write (default: <folder>/contact_sheet.png)")
+    s.set_defaults(func=_cmd_contact_sheet)
     return p
+
+
+def vary_options(p) -> None:
+    """The options of ``vary``, here and in ``blender -c scpainter vary``."""
+    p.add_argument("--out", required=True, help="the folder to write the variants into")
+    p.add_argument("--spec", help="a variation spec (scpainter.variation/1 JSON; default: every default)")
+    p.add_argument("--variants", type=int, help="how many variants (default: the spec's)")
+    p.add_argument("--seed", type=int, help="the run's seed: variant i is the same for one seed (default: the spec's)")
+    p.add_argument("--library", help="folder of car files to draw from (default: the spec's cars.library)")
 
 
 def main(argv=None) -> int:

@@ -153,7 +153,8 @@ class Variation:
             if moving:
                 lane = float(rng.choice(s.lane_offsets_m))
                 speed = float(rng.uniform(*s.speed_mps))
-                arc = float(rng.uniform(lo, hi)) + speed * t
+                # its whole drive within the road's reach (where there is room for it)
+                arc = float(rng.uniform(lo, max(lo, hi - speed * t[-1]))) + speed * t
                 drawn = {"lane_offset_m": lane, "speed_mps": speed}
                 offset = np.full(len(frames), lane)
             else:  # at the road's edge on a drawn side, a drawn gap from it

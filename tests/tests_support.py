@@ -184,3 +184,34 @@ def tracked_sources(exclude=(), shipped_only=False) -> dict:
             out[path] = f.read()
     assert "backend/__main__.py" in out or "backend/__main__.py" in exclude, "the checkout was not listed"
     return out
+
+
+def street_base_job(street, path, recorded_cars: bool = False, fps: float = 10.0, resolution=None):
+    """A job of the street's recorded drive written to ``path`` without Blender (from ``metric.npz``: the true
+    metric cameras and ``vggt_to_world``); ``recorded_cars``: the parked cars of ``street.json`` as the scene's
+    recorded objects (their true boxes, at every frame). Returns the job."""
+    import json
+
+    from scpainter_blender.core import job as J
+
+    m = np.load(os.path.join(street.root, "metric.npz"))
+    frames = [J.Frame(i + 1, m["K"][i], m["world_to_camera"][i], [i]) for i in range(len(m["K"]))]
+    scene = J.Scene(street.predictions_path, m["vggt_to_world"])
+    if recorded_cars:
+        with open(os.path.join(street.root, "street.json")) as f:
+            cars = json.load(f)["cars"]
+        scene.recorded_objects = [J.RecordedObject(c["name"], np.array(c["size"]),
+                                                   {fr.frame: np.array(c["box_to_world"]) for fr in frames})
+                                  for c in cars]
+    W, H = street.params.width, street.params.height
+    job = J.Job((W, H), frames, ".", scene, fps=fps)
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    return J.save(path, job)
+
+
+def street_parked_cars(street) -> list:
+    """(box_to_world (4, 4), size (3,)) of the street's parked cars: the ground truth."""
+    import json
+
+    with open(os.path.join(street.root, "street.json")) as f:
+        return [(np.array(c["box_to_world"]), np.array(c["size"])) for c in json.load(f)["cars"]]

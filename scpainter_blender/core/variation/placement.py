@@ -11,8 +11,10 @@ The rules a car must pass, each named in the manifest when it rejects a try (``R
 - ``recorded_box``: overlaps a removal box, a recorded object's box at that frame, or a car the base job already
   holds, grown by the gap;
 - ``car_overlap``: overlaps a car placed before it in the variant, at any frame, grown by the gap;
-- ``ego_path``: touches the swept footprint of the variant's camera path (the ego vehicle's rectangle around
-  each camera, grown by its margin), at any frame.
+- ``ego_path``: a parked car touches the swept footprint of the variant's camera path (the ego vehicle's
+  rectangle around each camera, grown by its margin, over every frame); a moving car touches, at some frame, the
+  ego's rectangles of that frame and of the frames of the next ``headway`` (the road the ego covers in that
+  time: a car driving ahead in its lane keeps a gap; one it never meets may cross where it drove).
 
 A moving car is checked at every frame; a parked one once (and against every frame of the others).
 """
@@ -149,9 +151,10 @@ class Rules:
     """The obstacles of one variant: the ego path's swept rectangles, the base job's boxes per frame, and the
     cars placed so far. ``frames`` are the variant's output frames."""
 
-    def __init__(self, road, frames, ego_rects: dict, fixed_boxes: dict, gap_m: float):
+    def __init__(self, road, frames, ego_rects: dict, fixed_boxes: dict, gap_m: float, headway_frames: int = 0):
         self.road, self.frames, self.gap = road, list(frames), float(gap_m)
         self.ego = np.stack([ego_rects[f] for f in self.frames])                       # (F, 4, 2)
+        self.headway = int(headway_frames)
         self.fixed = {f: np.stack(b) if b else np.zeros((0, 4, 2)) for f, b in fixed_boxes.items()}
         self.placed: list = []
 
@@ -173,8 +176,11 @@ class Rules:
         if static:
             if rectangles_overlap(feet[self.frames[0]], self.ego).any():
                 return "ego_path"
-        elif rectangles_overlap(np.stack([feet[f] for f in self.frames])[:, None], self.ego[None]).any():
-            return "ego_path"
+            return None
+        F = len(self.frames)
+        for i, f in enumerate(self.frames):  # the ego now and over the headway ahead
+            if rectangles_overlap(feet[f], self.ego[i:min(F, i + self.headway + 1)]).any():
+                return "ego_path"
         return None
 
 

@@ -9,7 +9,7 @@ once (``VariationSpec``'s signature) and checked field by field.
      "cars": {"library": "cars/", "count": [1, 3], "moving_probability": 0.5,
               "size_jitter": 0.05, "hue_jitter_deg": 30,
               "parked_offset_m": [2.0, 12.0], "kerb_gap_m": [0.1, 0.5], "lane_offsets_m": [-3.5, 0.0, 3.5], "speed_mps": [3.0, 10.0]},
-     "placement": {"tries": 50, "gap_m": 0.5, "ego_size_m": [2.0, 4.8], "ego_margin_m": 0.5}}
+     "placement": {"tries": 50, "gap_m": 0.5, "ego_size_m": [2.0, 4.8], "ego_margin_m": 0.5, "headway_s": 1.0}}
 
 Every field is optional. Lengths in metres, speeds in metres per second, angles in degrees; a "shift" is to the
 left of the direction of travel (``core.geometry.trajectory``). Paths are relative to the spec file.
@@ -52,7 +52,8 @@ class VariationSpec:
       ``lane_offsets_m``: a moving car's lane (left of the path); ``speed_mps`` (low, high).
     - ``tries``: placements drawn per car before the variant is reported unplaced; ``gap_m``: the least gap
       between cars (and to recorded cars); ``ego_size_m`` (width, length) of the ego vehicle around each camera of
-      the new path, grown by ``ego_margin_m`` on every side: its swept footprint no car may touch.
+      the new path, grown by ``ego_margin_m`` on every side: its swept footprint no parked car may touch, and a
+      moving car may not touch it at a frame nor within ``headway_s`` after (``core.variation.placement``).
     """
     variants: int = 16
     seed: int = 0
@@ -75,6 +76,7 @@ class VariationSpec:
     gap_m: float = 0.5
     ego_size_m: tuple = (2.0, 4.8)
     ego_margin_m: float = 0.5
+    headway_s: float = 1.0
 
     def with_overrides(self, **overrides) -> "VariationSpec":
         """A copy with the command line's values (None: not given), checked as the file's are."""
@@ -190,7 +192,7 @@ def from_dict(d, path) -> VariationSpec:
         kw["lane_offsets_m"] = _choices(cars["lane_offsets_m"], "cars.lane_offsets_m", -50.0, 50.0, path)
     if "speed_mps" in cars:
         kw["speed_mps"] = _range(cars["speed_mps"], "cars.speed_mps", 0.0, 70.0, path)
-    pl = _section(d, "placement", ("tries", "gap_m", "ego_size_m", "ego_margin_m"), path)
+    pl = _section(d, "placement", ("tries", "gap_m", "ego_size_m", "ego_margin_m", "headway_s"), path)
     if "tries" in pl:
         kw["tries"] = _int(pl["tries"], "placement.tries", 1, MAX_TRIES, path)
     if "gap_m" in pl:
@@ -200,6 +202,8 @@ def from_dict(d, path) -> VariationSpec:
                                  for i, x in enumerate(_pair(pl["ego_size_m"], "placement.ego_size_m", path)))
     if "ego_margin_m" in pl:
         kw["ego_margin_m"] = _num(pl["ego_margin_m"], "placement.ego_margin_m", 0.0, 10.0, path)
+    if "headway_s" in pl:
+        kw["headway_s"] = _num(pl["headway_s"], "placement.headway_s", 0.0, 60.0, path)
     return VariationSpec(**kw)
 
 

@@ -204,7 +204,7 @@ class Variation:
         rng = np.random.default_rng([s.seed, index])
         w2c, cam = self.camera(rng)
         rules = placement.Rules(self.road, [f.frame for f in self.base.frames], self.ego_rects(w2c), self.fixed,
-                                s.gap_m)
+                                s.gap_m, headway_frames=round(s.headway_s * self.base.frame_rate()[0]))
         count = int(rng.integers(s.car_count[0], s.car_count[1] + 1))
         entry = {"id": VariationLayout.variant_name(index), "seed": [s.seed, index], "camera": cam, "cars": []}
         placed = []

@@ -1,0 +1,209 @@
+"""Variants of the street's drive (core/variation/variants.py), checked against the street's ground truth: the
+parked cars' true boxes, the kerbs at |x| = 7.25 m, the true road plane z = 0."""
+
+import json
+import os
+
+import numpy as np
+import pytest
+
+from scpainter_blender.core import job as J, shapes
+from scpainter_blender.core.geometry import boxes, cameras
+from scpainter_blender.core.output_layout import VariationLayout
+from scpainter_blender.core.variation import placement, spec as spec_mod, variants
+from tests.tests_support import street_base_job, street_parked_cars
+
+ROAD_HALF_WIDTH = 7.25  # street/build.py PARKING_HALF: the kerbs' inner faces
+
+
+@pytest.fixture(scope="module")
+def library(tmp_path_factory):
+    d = tmp_path_factory.mktemp("library")
+    shapes.save_as_amodal3r(str(d / "blue.ply"), shapes.procedural_car_gaussians(count=8000, seed=7,
+                                                                                paint=(0.1, 0.3, 0.8)))
+    shapes.save_as_amodal3r(str(d / "red.ply"), shapes.procedural_car_gaussians(count=8000, seed=8,
+                                                                               paint=(0.8, 0.1, 0.1)))
+    return str(d)
+
+
+@pytest.fixture(scope="module")
+def bases(street, tmp_path_factory):
+    d = tmp_path_factory.mktemp("bases")
+    return (street_base_job(street, str(d / "plain" / "job.json")) and str(d / "plain" / "job.json"),
+            street_base_job(street, str(d / "recorded" / "job.json"), recorded_cars=True)
+            and str(d / "recorded" / "job.json"))
+
+
+def spec(library, **kw):
+    base = dict(variants=12, seed=5, library=library, shifts_m=(-2.0, 0.0, 2.0), resolution=(128, 72),
+                lane_change_probability=0.3, car_count=(1, 3))
+    base.update(kw)
+    return spec_mod.VariationSpec(**base)
+
+
+@pytest.fixture(scope="module")
+def run(bases, library, tmp_path_factory):
+    out = str(tmp_path_factory.mktemp("vary") / "out")
+    return out, variants.make_variants(bases[0], spec(library), out)
+
+
+def _jobs(out, manifest):
+    return {e["id"]: J.load(os.path.join(out, e["job"])) for e in manifest["variants"] if e["job"]}
+
+
+def test_same_seed_same_jobs_and_variant_i_independent_of_the_count(run, bases, library, tmp_path):
+    out, manifest = run
+    again = variants.make_variants(bases[0], spec(library), str(tmp_path / "again"))
+    fewer = variants.make_variants(bases[0], spec(library, variants=5), str(tmp_path / "fewer"))
+    assert again["variants"] == manifest["variants"]
+    assert fewer["variants"] == manifest["variants"][:5]
+    for e in manifest["variants"]:
+        if e["job"]:
+            with open(os.path.join(out, e["job"]), "rb") as a, open(tmp_path / "again" / e["job"], "rb") as b:
+                assert a.read() == b.read()
+    other = variants.make_variants(bases[0], spec(library, seed=6), str(tmp_path / "other"))
+    assert other["variants"] != manifest["variants"]
+
+
+def test_manifest_list_and_jobs_agree(run, bases):
+    out, manifest = run
+    base = J.load(bases[0])
+    layout = VariationLayout(out)
+    s = manifest["summary"]
+    assert s["variants"] == 12 and s["placed"] + s["unplaced"] == 12 and s["placed"] >= 9
+    with open(layout.list) as f:
+        lines = [line.strip() for line in f if line.strip() and not line.startswith("#")]
+    roots = [line.split(":", 1)[1].strip() for line in lines if line.startswith(variants.DATA_ROOT)]
+    listed = [line for line in lines if not line.startswith(variants.DATA_ROOT)]
+    assert listed == [e["job"] for e in manifest["variants"] if e["outcome"] == "placed"]
+    assert os.path.realpath(out) in roots
+    jobs = _jobs(out, manifest)
+    assert sum(len(j.assets) for j in jobs.values()) == s["cars"] == sum(s["per_asset"].values())
+    for e in manifest["variants"]:
+        if e["outcome"] != "placed":
+            continue
+        job = jobs[e["id"]]
+        assert job.resolution == (128, 72) and job.output_dir == "."
+        assert [a.name for a in job.assets] == [c["name"] for c in e["cars"]]
+        assert all(a.box is not None and a.category == "car" for a in job.assets)   # labelled
+        # frame 1 (before any lane change) is the drive moved by the shift to the left (the street runs along +y,
+        # left is -x), at the same height
+        moved = cameras.camera_centers(job.frames[0].world_to_camera) - \
+            cameras.camera_centers(base.frames[0].world_to_camera)
+        assert -moved[0] == pytest.approx(e["camera"]["shift_m"], abs=0.02) and abs(moved[2]) < 1e-9
+
+
+def test_no_placed_car_breaks_a_rule(run, street):
+    """Against the street's truth: every car on the road surface (inside the kerbs, on z = 0), clear of the
+    parked cars (found from the points alone: no boxes in this base), of the other cars and of the ego path (its
+    2.0 x 4.8 m rectangle around each camera)."""
+    out, manifest = run
+    parked = street_parked_cars(street)
+    for e in manifest["variants"]:
+        if e["outcome"] != "placed":
+            continue
+        job = J.load(os.path.join(out, e["job"]))
+        ego = np.stack([placement.rectangle(cameras.camera_centers(f.world_to_camera)[:2], np.array([0.0, 1.0]),
+                                            4.8, 2.0) for f in job.frames])
+        feet, mode = {}, {c["name"]: c["mode"] for c in e["cars"]}
+        for a in job.assets:
+            for f in job.frames:
+                T, size = boxes.place_box(a.box.box_to_file, a.box.size, a.object_to_world[f.frame])
+                c = boxes.corners(T, size)
+                assert np.abs(c[:, 0]).max() < ROAD_HALF_WIDTH + 0.05, (e["id"], a.name)
+                assert c[:, 2].min() == pytest.approx(0.0, abs=0.05)          # on the road plane
+                feet[(a.name, f.frame)] = placement.box_footprint(T, size)
+        for (name, frame), foot in feet.items():
+            for T, size in parked:
+                assert not placement.rectangles_overlap(foot, placement.box_footprint(T, size)), (e["id"], name)
+            # parked: clear of the whole swept ego path; moving: of the ego at that frame and a second after
+            near = ego if mode[name] == "parked" else ego[frame - 1:frame + int(job.fps)]
+            assert not placement.rectangles_overlap(foot, near).any(), (e["id"], name)
+            for (other, f2), foot2 in feet.items():
+                if f2 == frame and other != name:
+                    assert not placement.rectangles_overlap(foot, foot2), (e["id"], name, other)
+
+
+def test_moving_cars_stay_on_the_road_every_frame(run):
+    out, manifest = run
+    moving = 0
+    for e in manifest["variants"]:
+        if e["outcome"] != "placed":
+            continue
+        job = J.load(os.path.join(out, e["job"]))
+        for a, car in zip(job.assets, e["cars"]):
+            if car["mode"] != "moving":
+                continue
+            moving += 1
+            centres = []
+            for f in job.frames:
+                T, size = boxes.place_box(a.box.box_to_file, a.box.size, a.object_to_world[f.frame])
+                bottom = T[:3, 3] - T[:3, 2] * size[2] / 2
+                assert bottom[2] == pytest.approx(0.0, abs=0.03)
+                assert abs(bottom[0]) + size[0] / 2 < ROAD_HALF_WIDTH + 0.05
+                centres.append(T[:3, 3])
+            step = np.linalg.norm(np.diff(np.array(centres)[:, :2], axis=0), axis=1)
+            assert step.mean() * job.fps == pytest.approx(car["speed_mps"], rel=0.05)  # at its drawn speed
+    assert moving >= 3
+
+
+def test_recorded_boxes_are_avoided_and_counted(bases, library, street, tmp_path):
+    m = variants.make_variants(bases[1], spec(library, variants=8, car_count=(2, 3)), str(tmp_path / "r"))
+    assert m["summary"]["rejections"]["recorded_box"] > 0
+    parked = street_parked_cars(street)
+    for e in m["variants"]:
+        if e["job"]:
+            job = J.load(os.path.join(str(tmp_path / "r"), e["job"]))
+            for a in job.assets:
+                T, size = boxes.place_box(a.box.box_to_file, a.box.size, a.object_to_world[1])
+                grown = placement.box_footprint(T, size, grow=0.45)
+                assert not any(placement.rectangles_overlap(grown, placement.box_footprint(P, s)) for P, s in parked)
+
+
+def test_a_variant_that_cannot_be_placed_is_reported(bases, library, tmp_path):
+    """Eight cars with one try each do not fit: each such variant is in the manifest with its reasons, not in
+    the list, and no job of an earlier run stays in its folder."""
+    out = str(tmp_path / "u")
+    first = variants.make_variants(bases[0], spec(library, variants=3, car_count=(1, 1)), out)
+    assert all(e["job"] for e in first["variants"])
+    m = variants.make_variants(bases[0], spec(library, variants=3, car_count=(8, 8), tries=1), out)
+    bad = [e for e in m["variants"] if e["outcome"] == "unplaced"]
+    assert bad and m["summary"]["unplaced"] == len(bad)
+    for e in bad:
+        assert e["job"] is None and sum(e["unplaced"]["rejections"].values()) == 1 and e["unplaced"]["tries"] == 1
+        assert not os.path.exists(VariationLayout(out).variant(int(e["id"][1:])).job)
+    with open(VariationLayout(out).list) as f:
+        assert not any(e["id"] in line for e in bad for line in f)
+
+
+def test_spec_file_errors_name_the_field(tmp_path):
+    def bad(content, field):
+        p = tmp_path / "spec.json"
+        p.write_text(json.dumps(content))
+        with pytest.raises(spec_mod.VariationError) as e:
+            spec_mod.load(p)
+        assert e.value.field == field and e.value.path == str(p)
+
+    bad({"variants": 0}, "variants")
+    bad({"camera": {"shifts_m": []}}, "camera.shifts_m")
+    bad({"cars": {"count": [3, 1]}}, "cars.count")
+    bad({"cars": {"speed_mps": [1, "fast"]}}, "cars.speed_mps[1]")
+    bad({"cars": {"colour": 1}}, "cars.colour")
+    bad({"placement": {"tries": 0}}, "placement.tries")
+    bad({"schema": "scpainter.job/2"}, "schema")
+    (tmp_path / "ok.json").write_text(json.dumps({"cars": {"library": "lib"}, "camera": {"shifts_m": {"min": -3,
+                                                                                                     "max": 3}}}))
+    s = spec_mod.load(tmp_path / "ok.json")
+    assert s.library == str(tmp_path / "lib") and s.shift_range_m == (-3.0, 3.0)
+
+
+def test_a_base_without_points_or_library_is_refused(bases, library, tmp_path):
+    job = J.load(bases[0])
+    job.scene = None
+    J.save(tmp_path / "none" / "job.json", job)
+    with pytest.raises(spec_mod.VariationError) as e:
+        variants.make_variants(str(tmp_path / "none" / "job.json"), spec(library), str(tmp_path / "o"))
+    assert e.value.field == "scene"
+    with pytest.raises(spec_mod.VariationError) as e:
+        variants.make_variants(bases[0], spec(None), str(tmp_path / "o"))
+    assert e.value.field == "cars.library"

@@ -497,22 +497,15 @@ def build_parser() -> argparse.ArgumentParser:
     v = sub.add_parser("vary", help="variants of a job (camera shifts, lane changes, cars from a library placed on "
                                     "the road), written as job folders with a batch list and a manifest")
     v.add_argument("job", help="the base job (job.json), e.g. as Blender exports it")
-    vary_options(v)
+    from scpainter_blender.core.variation import spec as variation_spec  # (numpy only: the parser stays light)
+
+    variation_spec.add_arguments(v)
     v.set_defaults(func=_cmd_vary)
     s = sub.add_parser("contact-sheet", help="the first frame of every variant of a vary folder in one picture")
     s.add_argument("folder", help="the folder vary wrote")
     s.add_argument("--out", help="PNG to write (default: <folder>/contact_sheet.png)")
     s.set_defaults(func=_cmd_contact_sheet)
     return p
-
-
-def vary_options(p) -> None:
-    """The options of ``vary``, here and in ``blender -c scpainter vary``."""
-    p.add_argument("--out", required=True, help="the folder to write the variants into")
-    p.add_argument("--spec", help="a variation spec (scpainter.variation/1 JSON; default: every default)")
-    p.add_argument("--variants", type=int, help="how many variants (default: the spec's)")
-    p.add_argument("--seed", type=int, help="the run's seed: variant i is the same for one seed (default: the spec's)")
-    p.add_argument("--library", help="folder of car files to draw from (default: the spec's cars.library)")
 
 
 def main(argv=None) -> int:

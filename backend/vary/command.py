@@ -17,17 +17,9 @@ def convert_mesh(mesh: str, out: str, count: int) -> None:
     mesh_asset.convert(mesh, out, count=count)
 
 
-def spec_of(args) -> spec_mod.VariationSpec:
-    """The spec file's settings (or the defaults) with the command line's ``--variants``, ``--seed``,
-    ``--library``."""
-    spec = spec_mod.load(args.spec) if args.spec else spec_mod.VariationSpec()
-    library = os.path.abspath(args.library) if args.library else None
-    return spec.with_overrides(variants=args.variants, seed=args.seed, library=library)
-
-
 def vary(args) -> dict:
     """Run the variation; progress events per variant; returns the done event's fields."""
-    spec = spec_of(args)
+    spec = spec_mod.from_arguments(args)
     manifest = variants.make_variants(args.job, spec, args.out, convert_mesh=convert_mesh,
                                       progress=lambda d, n: events.progress("vary", d, n))
     return done_fields(args.out, manifest)
@@ -40,9 +32,6 @@ def done_fields(out: str, manifest: dict) -> dict:
     layout = VariationLayout(os.path.abspath(out))
     for e in manifest["variants"]:
         if e["outcome"] != "placed":
-            events.warning(f"{e['id']} could not be placed: car {e['unplaced']['car'] + 1} "
-                           f"({e['unplaced']['asset']}, {e['unplaced']['mode']}) found no place in "
-                           f"{e['unplaced']['tries']} tries", "variant_unplaced",
-                           rejections=e["unplaced"]["rejections"])
+            events.warning(variants.unplaced_text(e), variants.UNPLACED, rejections=e["unplaced"]["rejections"])
     return {"output_dir": layout.root, "list": layout.list, "manifest": layout.manifest,
             "summary": manifest["summary"], "timings": manifest["timings"]}

@@ -50,8 +50,9 @@ from ..core import backend_protocol as protocol
 from ..core import batch_items as batch_mod
 from ..core import errors, files, import_options
 from ..core import job as job_mod
-from ..core.output_layout import OutputLayout
-from . import importer, props, runs
+from ..core.output_layout import OutputLayout, VariationLayout
+from ..core.variation import spec as variation_spec, variants as vary_mod
+from . import importer, props, runs, variations
 
 
 class _Parser(argparse.ArgumentParser):
@@ -100,6 +101,13 @@ def _parser():
                            help="the baseline's OpenCV method, used without a checkpoint (default: the scene's "
                                 "Baseline Inpainting, else the job's, else "
                                 f"{job_mod.BASELINE_DEFAULTS['inpaint']})")
+    v = sub.add_parser("vary", help="variants of a scene (camera shifts, lane changes, cars from a library placed on "
+                                    "the road) as job folders with a batch list and a manifest")
+    v.add_argument("source", help="the scene (.blend), or VGGT predictions (.npz) imported with the import options")
+    variation_spec.add_arguments(v)
+    v.add_argument("--camera", help="the camera the variants start from (default: the scene camera)")
+    import_options.add_arguments(v)
+    v.add_argument("--backend-python", help="interpreter for mesh conversions (default: the add-on preference)")
     x = sub.add_parser("export", help="a .blend's labels as a dataset (KITTI, COCO or OpenLABEL), rendering missing "
                                       "frames first")
     x.add_argument("blend", help="the scene (.blend)")
@@ -139,6 +147,31 @@ def _import(args) -> dict:
             shutil.rmtree(tmp, ignore_errors=True)
         out["blend"] = path
     return out
+
+
+def _vary(args) -> dict:
+    """``vary``: the .blend opened (or the predictions imported into an empty scene), its job seen from
+    ``--camera`` the base, the variants written (``scene/variations.py``)."""
+    spec = variation_spec.from_arguments(args)  # checked before a scene is opened
+    if args.source.lower().endswith(".npz"):
+        bpy.ops.wm.read_homefile(use_empty=True)
+        importer.import_vggt(bpy.context, args.source, import_options.from_arguments(args))
+    else:
+        _open_blend(args.source, args)
+    camera = variations.camera_object(bpy.context.scene, args.camera)
+    python = args.backend_python or runs.invocation(bpy.context, "doctor").python
+
+    def progress(done, total):
+        print(f"scpainter: vary {done}/{total}", file=sys.stderr, flush=True)
+
+    manifest = variations.make_variations(bpy.context, spec, args.out, camera, python, progress)
+    layout = VariationLayout(os.path.abspath(args.out))
+    for e in manifest["variants"]:
+        if e["outcome"] != "placed":
+            print(json.dumps(protocol.event(protocol.WARNING, code=vary_mod.UNPLACED, message=vary_mod.unplaced_text(e),
+                                            rejections=e["unplaced"]["rejections"])), flush=True)
+    return {"output_dir": layout.root, "list": layout.list, "manifest": layout.manifest,
+            "base": layout.base_job, "summary": manifest["summary"], "timings": manifest["timings"]}
 
 
 def _check_paths(args) -> None:
@@ -339,6 +372,8 @@ def execute(argv) -> int:
         code = 0
         if args.command == "import":
             summary = _import(args)
+        elif args.command == "vary":
+            summary = _vary(args)
         else:
             _check_paths(args)
             if args.command == "batch":

@@ -81,10 +81,11 @@ class VariationSpec:
     def with_overrides(self, **overrides) -> "VariationSpec":
         """A copy with the command line's values (None: not given), checked as the file's are."""
         given = {k: v for k, v in overrides.items() if v is not None}
-        if "variants" in given:
-            _int(given["variants"], "--variants", 1, MAX_VARIANTS, errors.COMMAND_LINE)
-        if "seed" in given:
-            _int(given["seed"], "--seed", 0, 2 ** 63 - 1, errors.COMMAND_LINE)
+        bounds = {"variants": (1, MAX_VARIANTS), "seed": (0, 2 ** 63 - 1)}
+        for name, (lo, hi) in bounds.items():
+            if name in given:
+                fields.integer(given[name], errors.COMMAND_LINE, f"--{name}", lo, hi,
+                               error=lambda p, f, m: errors.ArgumentError(f, m))
         return replace(self, **given)
 
     def to_dict(self) -> dict:
@@ -217,3 +218,21 @@ def load(path) -> VariationSpec:
     """Read and check a spec file (bounded JSON, ``core.files.read_json``)."""
     path = os.fspath(path)
     return from_dict(files.read_json(path, error=VariationError), path)
+
+
+def add_arguments(parser) -> None:
+    """The options of ``vary``, in both CLIs (``python -m backend vary``, ``blender -c scpainter vary``)."""
+    parser.add_argument("--out", required=True, help="the folder to write the variants into")
+    parser.add_argument("--spec", help=f"a variation spec ({SCHEMA} JSON; default: every default)")
+    parser.add_argument("--variants", type=int, help="how many variants (default: the spec's)")
+    parser.add_argument("--seed", type=int, help="the run's seed: variant i is the same for one seed (default: the "
+                                                 "spec's)")
+    parser.add_argument("--library", help="folder of car files to draw from (default: the spec's cars.library)")
+
+
+def from_arguments(args) -> VariationSpec:
+    """The spec file's settings (or the defaults) with the command line's ``--variants``, ``--seed`` and
+    ``--library``, checked (``ArgumentError`` naming the option)."""
+    spec = load(args.spec) if args.spec else VariationSpec()
+    library = os.path.abspath(args.library) if args.library else None
+    return spec.with_overrides(variants=args.variants, seed=args.seed, library=library)

@@ -325,3 +325,16 @@ def summarize(entries: list) -> dict:
             count(out["per_asset"], car["asset"])
             count(out["per_mode"], car["mode"])
     return out
+
+
+#: The warning event's ``code`` for a variant that could not be placed (both CLIs).
+UNPLACED = "variant_unplaced"
+
+
+def unplaced_text(entry: dict) -> str:
+    """One sentence for a manifest entry whose outcome is ``unplaced``: which car found no place, in how many
+    tries, and the rules that refused it most."""
+    u = entry["unplaced"]
+    worst = ", ".join(f"{rule} {n}" for rule, n in sorted(u["rejections"].items(), key=lambda kv: -kv[1]) if n)
+    return (f"{entry['id']} could not be placed: car {u['car'] + 1} ({u['asset']}, {u['mode']}) found no place in "
+            f"{u['tries']} tries ({worst})")

@@ -1,0 +1,45 @@
+"""Variations from a Blender scene: the scene's job is the base (its points, recorded camera or camera path, cars,
+boxes), ``core.variation`` makes the variants, library meshes go through the backend's ``mesh-asset``
+(trimesh lives in the backend's Python). Shared by ``blender -c scpainter vary`` and *Make Variations*."""
+
+from __future__ import annotations
+
+import os
+
+from .. import backend_client
+from ..core.output_layout import VariationLayout
+from ..core.variation import variants
+from . import job_export, props
+
+
+def mesh_converter(python: str = ""):
+    """``convert_mesh(mesh, out_ply, count)`` running ``python -m backend mesh-asset`` with ``python``."""
+    def convert(mesh: str, out: str, count: int) -> None:
+        backend_client.run(["mesh-asset", mesh, "--out", out, "--count", int(count)], python=python)
+    return convert
+
+
+def camera_object(scene, name: str | None):
+    """The camera the base job is seen from: the object named ``name`` (``SceneError`` naming it and the
+    scene's cameras when it is missing or not a camera), else the scene camera."""
+    if not name:
+        return scene.camera
+    import bpy
+
+    obj = bpy.data.objects.get(name)
+    if obj is None or obj.type != "CAMERA":
+        cams = sorted(o.name for o in scene.objects if o.type == "CAMERA")
+        raise props.SceneError(f"objects[{name!r}]", "is not a camera of the scene" if obj is not None else
+                               "no such object", hint=f"cameras in the scene: {', '.join(cams) or 'none'}")
+    return obj
+
+
+def make_variations(context, spec, out: str, camera=None, python: str = "", progress=None) -> dict:
+    """Export the scene's job seen from ``camera`` (None: the scene camera) as the base
+    (``VariationLayout.base_job``) and write ``spec``'s variants into ``out``; returns the manifest. Errors:
+    ``SceneError`` (no camera, no points), ``VariationError`` and the readers' ``InputError``s, a mesh's
+    ``BackendError``."""
+    out = os.path.abspath(out)
+    layout = VariationLayout(out)
+    job_export.export_job(context, layout.base_job, output_dir=os.path.dirname(layout.base_job), camera=camera)
+    return variants.make_variants(layout.base_job, spec, out, convert_mesh=mesh_converter(python), progress=progress)

@@ -64,6 +64,7 @@ class SCPAINTER_PT_main(bpy.types.Panel):
             col.prop(context.scene, "scpainter_baseline_inpaint", text="Inpainting")
         box.operator_menu_enum("scpainter.export_labels", "format", text="Export Labels", icon="EXPORT")
         box.operator("scpainter.open_output", icon="FILE_FOLDER")
+        box.operator("scpainter.make_variations", icon="MOD_ARRAY")
 
     @staticmethod
     def draw_assets(context, box):

@@ -11,7 +11,7 @@ from scpainter_blender.core import job as J, shapes
 from scpainter_blender.core.geometry import boxes, cameras
 from scpainter_blender.core.output_layout import VariationLayout
 from scpainter_blender.core.variation import placement, spec as spec_mod, variants
-from tests.tests_support import street_base_job, street_parked_cars
+from tests_support import street_base_job, street_parked_cars
 
 ROAD_HALF_WIDTH = 7.25  # street/build.py PARKING_HALF: the kerbs' inner faces
 

@@ -1,0 +1,59 @@
+"""*Make Variations*: the scene as the base of many variants (docs/design.md §16), written for ``batch``."""
+
+from __future__ import annotations
+
+import os
+
+import bpy
+
+from ..scpainter_blender.core.output_layout import VariationLayout
+from ..scpainter_blender.core.variation import spec as spec_mod, variants
+from ..scpainter_blender.scene import props, runs, variations
+from . import reports
+
+
+class SCPAINTER_OT_make_variations(bpy.types.Operator):
+    """Write variants of this scene (camera shifts, lane changes, cars from a library placed on the road) as job
+    folders, with a batch list, a manifest and a summary"""
+
+    bl_idname = "scpainter.make_variations"
+    bl_label = "Make Variations"
+    bl_options = {"REGISTER"}
+
+    spec: bpy.props.StringProperty(name="Spec", subtype="FILE_PATH",
+                                   description="A variation spec (scpainter.variation/1 JSON); empty: the defaults")
+    library: bpy.props.StringProperty(name="Car Library", subtype="DIR_PATH",
+                                      description="Folder of car files to draw from (empty: the spec's)")
+    folder: bpy.props.StringProperty(name="Folder", subtype="DIR_PATH",
+                                     description="Where to write the variants (empty: <output folder>/variations)")
+    variants: bpy.props.IntProperty(name="Variants", default=16, min=1, max=spec_mod.MAX_VARIANTS)
+    seed: bpy.props.IntProperty(name="Seed", default=0, min=0)
+
+    def invoke(self, context, event):
+        return context.window_manager.invoke_props_dialog(self)
+
+    @reports.reported
+    def execute(self, context):
+        spec = spec_mod.load(bpy.path.abspath(self.spec)) if self.spec else spec_mod.VariationSpec()
+        library = os.path.abspath(bpy.path.abspath(self.library)) if self.library else None
+        spec = spec.with_overrides(variants=self.variants, seed=self.seed, library=library)
+        out = bpy.path.abspath(self.folder) if self.folder else os.path.join(props.output_dir(context.scene),
+                                                                             "variations")
+        wm = context.window_manager
+        wm.progress_begin(0, spec.variants)
+        try:
+            manifest = variations.make_variations(context, spec, out, python=runs.invocation(context, "doctor").python,
+                                                  progress=lambda done, total: wm.progress_update(done))
+        finally:
+            wm.progress_end()
+        s = manifest["summary"]
+        for e in manifest["variants"]:
+            if e["outcome"] != "placed":
+                self.report({"WARNING"}, variants.unplaced_text(e))
+        self.report({"INFO"}, f"{s['placed']} of {s['variants']} variants placed ({s['cars']} cars) in {out}; "
+                              f"render them with: python -m backend batch --list "
+                              f"{VariationLayout(out).list}")
+        return {"FINISHED"}
+
+
+classes = (SCPAINTER_OT_make_variations,)

@@ -501,9 +501,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     variation_spec.add_arguments(v)
     v.set_defaults(func=_cmd_vary)
+    from scpainter_blender.core.output_layout import VariationLayout
+
     s = sub.add_parser("contact-sheet", help="the first frame of every variant of a vary folder in one picture")
     s.add_argument("folder", help="the folder vary wrote")
-    s.add_argument("--out", help="PNG to write (default: <folder>/contact_sheet.png)")
+    s.add_argument("--out", help=f"PNG to write (default: {VariationLayout.SHEET} in the folder)")
     s.set_defaults(func=_cmd_contact_sheet)
     return p
 

@@ -37,9 +37,9 @@ def _first_frame(folder: str):
     """The variant's first labelled preview (or plain preview) as RGB uint8, or None when not rendered."""
     import cv2
 
-    from scpainter_blender.core.output_layout import CONDITION_PREVIEW, LABELLED_PREVIEW
+    from scpainter_blender.core.output_layout import CONDITION_PREVIEW, LABELLED_PREVIEW, OutputLayout
 
-    cond = os.path.join(folder, "conditions")
+    cond = OutputLayout(folder).conditions
     for kind in (LABELLED_PREVIEW, CONDITION_PREVIEW):
         found = kind.in_folder(cond)
         if found:

@@ -76,7 +76,8 @@ def test_the_other_core_modules_use_it(tmp_path):
 
 #: Output file names: no string in the shipped code may contain one, outside ``HOME``.
 NAMES = ("generated.mp4", "manifest.json", "backend.log", "generate_state.safetensors", "record.json",
-         ".scpainter.lock", "job_key.txt", "preview_", "baseline.mp4", "contact_sheet.png")
+         ".scpainter.lock", "job_key.txt", "preview_", "baseline.mp4", "contact_sheet.png", "variation.json",
+         "variants.txt")
 #: Folder names: none may be a path component outside ``HOME`` (a dictionary key or an event's ``kind`` may).
 FOLDERS = tuple(OutputLayout.FOLDERS)
 #: A folder name beside a slash, as a whole component ("scpainter.conditions/1", a schema, is not one).

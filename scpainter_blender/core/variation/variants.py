@@ -291,7 +291,7 @@ def make_variants(base_path, spec: VariationSpec, out, convert_mesh=None, progre
             progress(i + 1, spec.variants)
     seconds = time.perf_counter() - t0
     with outputs.atomic_write(layout.list, "w") as f:
-        f.write("# SCPainter variants: python -m backend batch --list variants.txt\n")
+        f.write(f"# SCPainter variants: python -m backend batch --list {VariationLayout.LIST}\n")
         for root in v.data_roots():
             f.write(f"{DATA_ROOT} {root}\n")
         f.writelines(f"{p}\n" for p in listed)

@@ -32,6 +32,7 @@ from .. import backend_client
 from ..core.geometry import cameras
 from ..core import job as job_mod, outputs
 from ..core.splats import gaussians as splats, reader as splats_io, trellis
+from ..core.output_layout import SceneFolder
 from . import asset_box, kinds, materials, node_groups, props
 from .points import linear_rgba
 
@@ -256,7 +257,7 @@ def mesh_gaussians_path(scene, mesh_path: str, count: int) -> str:
     key = hashlib.sha256(f"{os.path.abspath(mesh_path)}|{st.st_size}|{st.st_mtime_ns}".encode()).hexdigest()[:10]
     name = f"{os.path.basename(mesh_path)}.{int(count)}.{key}.gaussians.ply"
     try:
-        folder = os.path.join(props.output_dir(scene), "assets")
+        folder = SceneFolder(props.output_dir(scene)).assets
     except props.SceneError:  # unsaved .blend: its output folder is relative to it
         folder = outputs.user_cache_dir("assets")
     return os.path.join(folder, name)

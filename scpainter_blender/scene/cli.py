@@ -199,28 +199,11 @@ def _open_blend(blend: str, args, output: str | None = None) -> None:
                                                             if v == args.inpaint)
 
 
-def _camera(name: str | None, blend: str):
-    """The open scene's camera object ``--camera`` names (None: the scene camera). ArgumentError naming it and
-    listing the scene's cameras when it is not one of them."""
-    scene = bpy.context.scene
-    if name is None:
-        return scene.camera
-    obj = scene.objects.get(name)
-    if obj is not None and obj.type == "CAMERA":
-        return obj
-    cameras = sorted(o.name for o in scene.objects if o.type == "CAMERA")
-    what = f"is a {obj.type.lower()}, not a camera" if obj is not None else "is no object of the scene"
-    raise errors.ArgumentError("--camera", f"{name!r} {what} in {blend}; its cameras: "
-                               f"{', '.join(map(repr, cameras)) or 'none'}",
-                               hint="give one of the scene's camera names (e.g. a camera path's), or leave "
-                                    "--camera out for the scene camera")
-
-
 def _run_blend(args) -> dict:
     """``render`` / ``generate`` / ``export``: the scene's job seen by ``--camera`` (else the scene camera),
     exported into that camera's output folder (naming ``--checkpoint``, else the preference's) and run."""
     _open_blend(args.blend, args, args.output)
-    camera = _camera(args.camera, args.blend)
+    camera = props.named_camera(bpy.context.scene, args.camera, args.blend)
     options = {}
     if args.command == "export":
         options = {"export_format": args.format, "out": os.path.abspath(args.out) if args.out else None}

@@ -72,6 +72,22 @@ def camera_output_dir(scene, camera=None) -> str:
     return SceneFolder(root).camera(name)
 
 
+def named_camera(scene, name: str | None, blend: str, option: str = "--camera"):
+    """The camera object of ``scene`` a command line names (``option`` = ``name``; None: the scene camera).
+    ``ArgumentError`` naming the option, the .blend and the scene's cameras when it is not one of them."""
+    if name is None:
+        return scene.camera
+    obj = scene.objects.get(name)
+    if obj is not None and obj.type == "CAMERA":
+        return obj
+    cameras = sorted(o.name for o in scene.objects if o.type == "CAMERA")
+    what = f"is a {obj.type.lower()}, not a camera" if obj is not None else "is no object of the scene"
+    raise errors.ArgumentError(option, f"{name!r} {what} in {blend}; its cameras: "
+                                       f"{', '.join(map(repr, cameras)) or 'none'}",
+                               hint=f"give one of the scene's camera names (e.g. a camera path's), or leave {option} "
+                                    "out for the scene camera")
+
+
 #: Object properties renamed to the ``a_to_b`` rule (issue 15): the name a .blend saved before holds.
 RENAMED_PROPERTIES = {"scpainter_vggt_to_world": "scpainter_world_from_vggt",
                       "scpainter_file_to_data": "scpainter_data_from_file"}

@@ -1,5 +1,10 @@
 """Render Conditions / Generate / Export Labels: write the job, run the backend in a subprocess, follow it, load the
-results (an export's are files: its report says where).
+results (an export's are files: its report says where). Render / Generate All Camera Paths: the same for every
+camera path of the scene, one after another (``runs.AllCameras``).
+
+A run is the scene camera's (each camera path its own): its job is seen by that camera and written into that
+camera's output folder (``<scene output folder>/<camera>/``); its results are loaded under the camera's name and
+shown behind it. The All Camera Paths operators pass each camera to the job export, so the scene camera stays.
 
 From the UI the operators are modal: a timer polls the backend's event stream, progress shows in the panel and
 the status bar, Esc stops the backend (SIGTERM: the frame or sampler step in progress finishes, everything done
@@ -18,9 +23,9 @@ import bpy
 from ..scpainter_blender.backend_client import BackendError, Invocation
 from ..scpainter_blender.core import backend_protocol as protocol
 from ..scpainter_blender.core import outputs
-from ..scpainter_blender.scene import preferences, props
-from ..scpainter_blender.scene.runs import (ACTIVE, DOCTOR, Follower, failure_message, finish, invocation,
-                                            planned_model, progress_text, start, with_warnings)
+from ..scpainter_blender.scene import kinds, preferences, props
+from ..scpainter_blender.scene.runs import (ACTIVE, DOCTOR, AllCameras, Follower, failure_message, finish,
+                                            invocation, planned_model, progress_text, start, with_warnings)
 from . import reports
 
 
@@ -35,8 +40,17 @@ class _BackendRun:
         """This run's backend options beyond the preferences' (``Invocation``'s fields)."""
         return {}
 
-    def _start(self, context):
-        return start(context, invocation(context, self.command, **self.backend_options()))
+    def _run(self, context):
+        """This run's backend command line: the preferences' and ``backend_options``."""
+        return invocation(context, self.command, **self.backend_options())
+
+    def _follower(self, context):
+        """The scene camera's run, started and followed (the camera named, so a change of the scene camera during
+        the run does not change whose results these are)."""
+        cam = context.scene.camera
+        job, out = start(context, self._run(context), camera=cam)
+        return Follower(self.command, job, out, self.timeout, model=planned_model(context, self.command),
+                        camera=cam.name)
 
     @classmethod
     def poll(cls, context):
@@ -51,7 +65,8 @@ class _BackendRun:
     @reports.reported
     def execute(self, context):
         """Blocking: background mode and scripts."""
-        job, out = self._start(context)
+        cam = context.scene.camera
+        job, out = start(context, self._run(context), camera=cam)
         model = planned_model(context, self.command)
 
         def show(ev):
@@ -64,7 +79,7 @@ class _BackendRun:
         except BackendError as e:
             self.report({"ERROR"}, failure_message(e, out))
             return {"CANCELLED"}
-        level, message = with_warnings(finish(context, self.command, out, done), job.warnings)
+        level, message = with_warnings(finish(context, self.command, out, done, cam.name), job.warnings)
         self.report({level}, message)
         return {"FINISHED"}
 
@@ -72,8 +87,7 @@ class _BackendRun:
     def invoke(self, context, event):
         if bpy.app.background:
             return self.execute(context)
-        job, out = self._start(context)
-        self._follow = Follower(self.command, job, out, self.timeout, model=planned_model(context, self.command))
+        self._follow = self._follower(context)
         wm = context.window_manager
         self._timer = wm.event_timer_add(0.25, window=context.window)
         wm.progress_begin(0, 1000)
@@ -100,7 +114,13 @@ class _BackendRun:
             return self._end(context, "cancelled")
         if event.type != "TIMER":
             return {"PASS_THROUGH"}
-        status = self._follow.tick()
+        try:
+            status = self._follow.tick(context)
+        except Exception as e:  # noqa: BLE001  a bug (starting the next camera): stop the backend, end, report it
+            self._follow.stop()
+            self._end(context, "cancelled")
+            self.report({"ERROR"}, reports.message(e))
+            return {"CANCELLED"}
         if status != "running":
             return self._end(context, status)
         context.window_manager.progress_update(int(1000 * self._follow.fraction))
@@ -166,15 +186,86 @@ class SCPAINTER_OT_export_labels(_BackendRun, bpy.types.Operator):
         return {"export_format": self.format}
 
 
+class _AllCameraPaths(_BackendRun):
+    """Every camera path of the scene (``kinds.camera_paths``: name order), one after another, each into its own
+    output folder; modal from the UI (Esc stops the camera running and runs no more), blocking in background mode.
+    Refused (SceneError) when the scene has no camera path."""
+
+    @classmethod
+    def poll(cls, context):
+        if ACTIVE:
+            cls.poll_message_set(f"The backend is busy ({ACTIVE['command']}): wait or press Esc")
+            return False
+        if not kinds.camera_paths(context.scene):
+            cls.poll_message_set("The scene has no camera paths: add one with New Camera Path")
+            return False
+        return True
+
+    def _follower(self, context):
+        return AllCameras(context, self.command, self._run(context), kinds.camera_paths(context.scene),
+                          self.timeout, model=planned_model(context, self.command))
+
+    @reports.reported
+    def execute(self, context):
+        """Blocking: the same state machine as the modal run, polled in a loop; progress and each camera's report
+        on stdout as they come."""
+        import time
+
+        runs = self._follower(context)
+        shown, told = "", 0
+        try:
+            while (status := runs.tick(context)) == "running":
+                text = progress_text() if ACTIVE else ""
+                if text and text != shown:
+                    print(f"scpainter {text}", flush=True)
+                    shown = text
+                for name, _, level, message in runs.outcomes[told:]:
+                    print(f"scpainter {self.command} {name!r}: {level}: {message}", flush=True)
+                told = len(runs.outcomes)
+                time.sleep(0.1)
+        except BaseException:  # Ctrl-C or a bug: the backend does not outlive the operator
+            runs.stop()
+            raise
+        level, message = runs.report(context, status)
+        self.report({level}, message)
+        return {"CANCELLED"} if level == "ERROR" else {"FINISHED"}
+
+
+class SCPAINTER_OT_render_all_camera_paths(_AllCameraPaths, bpy.types.Operator):
+    """Render the condition layers of every camera path, one after another, each into its own output folder"""
+
+    bl_idname = "scpainter.render_all_camera_paths"
+    bl_label = "Render All Camera Paths"
+    command = "render"
+
+
+class SCPAINTER_OT_generate_all_camera_paths(_AllCameraPaths, bpy.types.Operator):
+    """Generate the video of every camera path, one after another, each into its own output folder (renders
+    missing conditions first); without a checkpoint folder in the preferences, the baseline (no model)"""
+
+    bl_idname = "scpainter.generate_all_camera_paths"
+    bl_label = "Generate All Camera Paths"
+    command = "generate"
+
+    steps: bpy.props.IntProperty(name="Steps", default=0, min=0, soft_max=50,
+                                 description="The model's sampler steps (0: the job's, 25); the baseline has none")
+
+    def backend_options(self) -> dict:
+        return {"steps": self.steps or None}
+
+
 class SCPAINTER_OT_open_output(bpy.types.Operator):
-    """Open the scene's SCPainter output folder in the file browser of the system"""
+    """Open the scene camera's SCPainter output folder (without a camera, the scene's) in the file browser of the
+    system"""
 
     bl_idname = "scpainter.open_output"
     bl_label = "Open Output Folder"
 
     @reports.reported
     def execute(self, context):
-        out = outputs.make_folder(props.output_dir(context.scene), "scene.scpainter_output_dir")
+        scene = context.scene
+        folder = props.camera_output_dir(scene) if scene.camera is not None else props.output_dir(scene)
+        out = outputs.make_folder(folder, "scene.scpainter_output_dir")
         bpy.ops.wm.path_open(filepath=out)
         return {"FINISHED"}
 
@@ -211,4 +302,5 @@ class SCPAINTER_OT_check_backend(bpy.types.Operator):
 
 
 classes = (SCPAINTER_OT_render_conditions, SCPAINTER_OT_generate, SCPAINTER_OT_export_labels,
-           SCPAINTER_OT_open_output, SCPAINTER_OT_check_backend)
+           SCPAINTER_OT_render_all_camera_paths, SCPAINTER_OT_generate_all_camera_paths, SCPAINTER_OT_open_output,
+           SCPAINTER_OT_check_backend)

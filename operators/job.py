@@ -10,19 +10,19 @@ from . import reports
 
 
 class SCPAINTER_OT_export_job(bpy.types.Operator):
-    """Write job.json for the frame range and the active camera into the scene's output folder"""
+    """Write job.json for the frame range and the active camera into that camera's output folder"""
 
     bl_idname = "scpainter.export_job"
     bl_label = "Export Job"
     bl_options = {"REGISTER"}
 
     filepath: bpy.props.StringProperty(name="Job File", subtype="FILE_PATH", default="",
-                                       description="Where to write job.json (empty: the scene's output folder)")
+                                       description="Where to write job.json (empty: the scene camera's output folder)")
 
     @reports.reported
     def execute(self, context):
         path = bpy.path.abspath(self.filepath) if self.filepath else \
-            OutputLayout(props.output_dir(context.scene)).job
+            OutputLayout(props.camera_output_dir(context.scene)).job
         prefs = preferences.get(context)
         job = job_export.export_job(context, path, checkpoint=bpy.path.abspath(prefs.checkpoint_dir)
                                     if prefs and prefs.checkpoint_dir else "")

@@ -6,7 +6,7 @@ import os
 
 import bpy
 
-from ..scpainter_blender.core.output_layout import VariationLayout
+from ..scpainter_blender.core.output_layout import SceneFolder, VariationLayout
 from ..scpainter_blender.core.variation import spec as spec_mod, variants
 from ..scpainter_blender.scene import props, runs, variations
 from . import reports
@@ -37,8 +37,7 @@ class SCPAINTER_OT_make_variations(bpy.types.Operator):
         spec = spec_mod.load(bpy.path.abspath(self.spec)) if self.spec else spec_mod.VariationSpec()
         library = os.path.abspath(bpy.path.abspath(self.library)) if self.library else None
         spec = spec.with_overrides(variants=self.variants, seed=self.seed, library=library)
-        out = bpy.path.abspath(self.folder) if self.folder else os.path.join(props.output_dir(context.scene),
-                                                                             "variations")
+        out = bpy.path.abspath(self.folder) if self.folder else SceneFolder(props.output_dir(context.scene)).variations
         wm = context.window_manager
         wm.progress_begin(0, spec.variants)
         try:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import bpy
 
-from ..scpainter_blender.scene import asset_box, kinds, node_groups, points
+from ..scpainter_blender.scene import asset_box, kinds, node_groups, points, props
 
 
 class SCPAINTER_PT_main(bpy.types.Panel):
@@ -30,6 +30,9 @@ class SCPAINTER_PT_main(bpy.types.Panel):
         box = layout.box()
         box.label(text="Job", icon="FILE")
         box.prop(context.scene, "scpainter_output_dir", text="")
+        if context.scene.camera is not None:  # runs write into the camera's own folder inside it
+            box.label(text=f"Camera folder: {props.camera_folder_name(context.scene.camera)}/",
+                      icon="OUTLINER_OB_CAMERA")
         box.operator("scpainter.export_job", icon="EXPORT")
         self.draw_backend(context, box)
         obj = context.active_object
@@ -50,13 +53,17 @@ class SCPAINTER_PT_main(bpy.types.Panel):
         from ..scpainter_blender.scene import runs
 
         if runs.ACTIVE:
-            frac = runs.ACTIVE["done"] / max(runs.ACTIVE["total"], 1)
-            box.progress(factor=frac, type="BAR", text=f"{runs.progress_text()} (Esc stops)")
+            box.progress(factor=runs.progress_fraction(), type="BAR", text=f"{runs.progress_text()} (Esc stops)")
         # without a checkpoint Generate makes the inpainting baseline: the button and a note say so
         text, note = runs.generate_ui(context)
         row = box.row(align=True)
         row.operator("scpainter.render_conditions", icon="RENDER_STILL")
         row.operator("scpainter.generate", text=text, icon="RENDER_ANIMATION")
+        # every camera path, each into its own folder (the buttons grey out, saying why, without one)
+        row = box.row(align=True)
+        row.operator("scpainter.render_all_camera_paths", text="Render All Paths", icon="RENDER_STILL")
+        row.operator("scpainter.generate_all_camera_paths", text=text.replace("Generate", "Generate All Paths"),
+                     icon="RENDER_ANIMATION")
         if note:
             col = box.column(align=True)
             for i, line in enumerate(note):

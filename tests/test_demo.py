@@ -31,8 +31,10 @@ def test_demo_writes_blend_and_preview(street, tmp_path):
     gap = (by_kind["camera_path"].matrix_world.translation - by_kind["recorded_camera"].matrix_world.translation)
     assert scene.camera.name == summary["camera_path"] and abs(gap.length - 2.0) < 1e-3  # the 2 m shifted path
     bg = scene.camera.data.background_images   # the condition previews (Render Conditions), then the video
-    assert "SCPainter Conditions" in bpy.data.images   # kept in the .blend although the video replaced it
-    assert scene.camera.data.show_background_images and bg[0].image.name == "SCPainter Baseline"
+    path = summary["camera_path"]                     # results are named after the camera that saw them
+    assert f"SCPainter Conditions · {path}" in bpy.data.images   # kept in the .blend although the video replaced it
+    assert scene.camera.data.show_background_images and bg[0].image.name == f"SCPainter Baseline · {path}"
+    assert os.path.dirname(summary["job"]) == os.path.join(str(out), "Camera_path_2_m_left")   # its own folder
     assert kinds == ["asset_box", "asset_front", "camera_path", "gaussian_asset", "points", "recorded_camera"]
     assert abs(summary["asset_location"][2]) < 0.05  # stood on the road (z = 0)
     from scpainter_blender.core import job
@@ -71,13 +73,13 @@ def test_demo_writes_blend_and_preview(street, tmp_path):
 
     assert read_mp4(gen["video"]).shape[0] == 16 and "no model" in mp4_metadata(gen["video"])["comment"]
     assert len([f for f in os.listdir(gen["frames_dir"]) if f.endswith(".png")]) == 16
-    assert "SCPainter Video (Baseline)" in bpy.data.movieclips  # the .blend was saved after the run
+    assert f"SCPainter Video (Baseline) · {path}" in bpy.data.movieclips  # the .blend was saved after the run
     # labels for every frame, the parked car among them, drawn on the previews and exported in three formats
     labs = summary["labels"]
     assert len(labs["frames"]) == 16 and len(labs["labelled_previews"]) == 16
     seen = [o for f in labs["frames"] for o in f["objects"] if o["synthetic"]]
     assert seen and all(o["track_id"] == 1 and o["class"] == "car" for o in seen)
-    assert "SCPainter Labels" in bpy.data.images
+    assert f"SCPainter Labels · {path}" in bpy.data.images
     ex = summary["exports"]
     assert sorted(os.listdir(os.path.join(ex["kitti"], "label_2")))[0] == "000000.txt"
     assert os.path.isfile(os.path.join(ex["coco"], "annotations.json"))

@@ -104,7 +104,10 @@ def main(argv=None):
     if args.checkpoint:
         bpy.context.preferences.addons[pkg].preferences.checkpoint_dir = os.path.abspath(args.checkpoint)
     scene.scpainter_output_dir = out  # jobs, conditions and the video go here (saved with the .blend)
-    job_path = OutputLayout(out).job
+    from scpainter_blender.scene import props
+
+    cam_out = props.camera_output_dir(scene, path_cam)  # the camera path's own folder: <out>/<its name>/
+    job_path = OutputLayout(cam_out).job
     bpy.ops.scpainter.export_job(filepath=job_path)
     truth = float(street.metric()["metres_per_unit"])
     scale = float(np.cbrt(np.linalg.det(np.array(pts["scpainter_vggt_to_world"]).reshape(4, 4)[:3, :3])))
@@ -121,14 +124,14 @@ def main(argv=None):
     if bpy.ops.scpainter.render_conditions() != {"FINISHED"}:
         raise SystemExit("rendering the conditions failed: see the message above")
     t_cond = time.perf_counter() - t_cond
-    cond = conditions_summary(out)
+    cond = conditions_summary(cam_out)
 
     t_gen = time.perf_counter()
     log(f"backend: generating the video with {args.checkpoint} ..." if args.checkpoint else
         "backend: generating the baseline video (no checkpoint: OpenCV inpainting of the holes, no model) ...")
     if bpy.ops.scpainter.generate(steps=args.steps or 0) != {"FINISHED"}:
         raise SystemExit("generation failed: see the message above")
-    generation = generation_summary(out)
+    generation = generation_summary(cam_out)
     t_gen = time.perf_counter() - t_gen
 
     # the labels as datasets: every frame's boxes, masks and camera (rendered with the conditions) in each format
@@ -138,9 +141,9 @@ def main(argv=None):
         log(f"backend: exporting the labels as {fmt} ...")
         if bpy.ops.scpainter.export_labels(format=fmt) != {"FINISHED"}:
             raise SystemExit(f"the {fmt} export failed: see the message above")
-        exports[fmt] = OutputLayout(out).export(fmt)
+        exports[fmt] = OutputLayout(cam_out).export(fmt)
     t_export = time.perf_counter() - t_export
-    labels = labels_summary(out)
+    labels = labels_summary(cam_out)
     bpy.ops.wm.save_mainfile()  # again, now with the results loaded behind the camera path
 
     # a viewport-free preview: Cycles on the CPU from the recorded camera, points in their own colours

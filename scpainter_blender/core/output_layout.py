@@ -20,6 +20,13 @@
         export/<format>/export.json     in every export (any ``--out``): what made it; an existing folder is
                                         replaced by a new export only when it has one (or is empty)
 
+In Blender a scene's output folder (``Scene.scpainter_output_dir``, default ``//scpainter/<scene name>/``) holds one
+such output folder per camera and the converted mesh assets its cameras share (``SceneFolder``)::
+
+    <scene output folder>/
+        <camera>/                       a camera's output folder (the layout above), named by its cleaned name
+        assets/                         mesh cars converted to Gaussians (``scene/gaussians.py``), for every camera
+
 Frames are numbered by scene frame (``frame_000012.exr`` is frame 12) in ``FRAME_DIGITS`` digits (``FrameFiles``:
 the one place that formats a frame's file name). Paths come from ``OutputLayout(output_dir)``; bare names (what
 ``outputs.remove_listed`` / ``remove_temporaries`` take) from the class constants and ``FrameFiles.name``.
@@ -169,6 +176,35 @@ class OutputLayout:
 
     def generated_frame(self, frame: int) -> str:
         return self._at(self.GENERATED, GENERATED_FRAME.name(frame))
+
+
+class SceneFolder:
+    """The paths of a Blender scene's output folder (``root``, absolute; nothing is created or checked here): one
+    job output folder per camera (``camera``), and ``assets``."""
+
+    ASSETS = "assets"
+    VARIATIONS = "variations"      # Make Variations' default folder (``VariationLayout``)
+    #: Names a camera's folder may not take: the scene folder's own, and the folders of an output folder, which a
+    #: .blend rendered before the per-camera folders holds directly in its scene folder (its results stay there).
+    RESERVED = (ASSETS, VARIATIONS, OutputLayout.CONDITIONS, OutputLayout.GENERATED, OutputLayout.EXPORT)
+
+    def __init__(self, root):
+        self.root = os.fspath(root)
+
+    def __repr__(self) -> str:
+        return f"SceneFolder({self.root!r})"
+
+    def camera(self, folder_name: str) -> str:
+        """The output folder of the camera whose folder name (a file-system-safe name) is ``folder_name``."""
+        return os.path.join(self.root, folder_name)
+
+    @property
+    def assets(self) -> str:
+        return os.path.join(self.root, self.ASSETS)
+
+    @property
+    def variations(self) -> str:
+        return os.path.join(self.root, self.VARIATIONS)
 
 
 class VariationLayout:

@@ -3,23 +3,26 @@
     blender -c scpainter import predictions.npz --camera-height 1.6 --save scene.blend
     blender -c scpainter import predictions.npz --extrinsic-convention camera_to_world --crop "0 77 0 77"
     blender -c scpainter import predictions.npz --depth-edge-ratio off
-    blender -c scpainter render scene.blend [--output DIR] [--device cpu|cuda|auto]
+    blender -c scpainter render scene.blend [--camera NAME] [--output DIR] [--device cpu|cuda|auto]
     blender -c scpainter generate scene.blend --checkpoint /models/scpainter
     blender -c scpainter generate scene.blend [--inpaint telea|navier-stokes]    # no checkpoint: the baseline
     blender -c scpainter export scene.blend --format kitti|coco|openlabel [--out DIR]
     blender -c scpainter batch a.blend b.blend jobs/c.json [--list scenes.txt] --command generate [--shard 0/4]
     blender -c scpainter batch a.blend b.blend jobs/c.json --command generate --ray [HEAD:6379] [--retries 2]
 
-``render``/``generate`` open the .blend, write its job into the scene's output folder and run the backend there
-(blocking); the .blend itself is never written. Without a checkpoint (``--checkpoint`` or the preference)
+``render``/``generate`` open the .blend, write its job seen by the scene camera (``--camera NAME``: that camera
+object) into the camera's output folder, ``<scene output folder>/<camera>/`` (``props.camera_output_dir``; the scene
+output folder is ``--output`` or the scene's), and run the backend there (blocking); the .blend itself is never
+written. Without a checkpoint (``--checkpoint`` or the preference)
 ``generate`` makes the baseline, OpenCV inpainting of the condition holes (no model); each output says which
 (``model``: "scpainter" or "baseline", and ``description``). ``batch`` takes its share of the items (``--shard
 K/N``, or torchrun's RANK/WORLD_SIZE: every N-th item from K), exports every .blend's job, then runs all the jobs
 (job files as given) as the backend's one ``python -m backend batch``, here or with ``--ray`` on a Ray cluster
-(backend/batch/ray_pool.py; each item then has its ``worker`` and ``attempts``): it goes on past failures, prints
+(backend/batch/ray_pool.py; each item then has its ``worker`` and ``attempts``; a .blend item runs its scene
+camera, into that camera's folder): it goes on past failures, prints
 one summary with each item's status, time and outputs, and exits 1 if any failed. ``export`` writes the .blend's job
-as ``render`` does and runs ``python -m backend export`` on it (missing frames rendered first; the dataset in
-``--out``, default ``<output folder>/export/<format>``; docs/design.md §15).
+as ``render`` does (``--camera`` too) and runs ``python -m backend export`` on it (missing frames rendered first; the
+dataset in ``--out``, default ``<camera's output folder>/export/<format>``; docs/design.md §15).
 
 The backend's command line is built by ``backend_client.Invocation`` from these arguments, the add-on preferences
 filling in what they do not give (the preferences are never changed).
@@ -93,7 +96,7 @@ def _parser():
                                 f"{batch_mod.DEFAULT_CPUS_PER_JOB:g})")
         else:
             c.add_argument("blend", help="the scene (.blend)")
-            c.add_argument("--output", help="output folder (default: the scene's SCPainter output folder)")
+            _scene_options(c)
         _common_options(c)
         c.add_argument("--checkpoint", help="SCPainter checkpoint folder (default: the add-on preference)")
         if name != "render":
@@ -114,9 +117,17 @@ def _parser():
     x.add_argument("--format", required=True, choices=protocol.EXPORT_FORMAT_NAMES)
     x.add_argument("--out", help="destination folder, written whole (default: <output folder>/export/<format>); an "
                                  "existing one must be empty or a previous export")
-    x.add_argument("--output", help="output folder (default: the scene's SCPainter output folder)")
+    _scene_options(x)
     _common_options(x)
     return p
+
+
+def _scene_options(c) -> None:
+    """The options of a command that runs one .blend: its camera and its output folder."""
+    c.add_argument("--camera", metavar="NAME",
+                   help="the camera object whose job runs (default: the scene camera), e.g. a camera path")
+    c.add_argument("--output", help="the scene's output folder (default: its SCPainter output folder); the run "
+                                    "writes into its camera's folder inside it")
 
 
 def _common_options(c) -> None:
@@ -158,7 +169,7 @@ def _vary(args) -> dict:
         importer.import_vggt(bpy.context, args.source, import_options.from_arguments(args))
     else:
         _open_blend(args.source, args)
-    camera = variations.camera_object(bpy.context.scene, args.camera)
+    camera = props.named_camera(bpy.context.scene, args.camera, args.source)
     python = args.backend_python or runs.invocation(bpy.context, "doctor").python
 
     def progress(done, total):
@@ -222,19 +233,21 @@ def _open_blend(blend: str, args, output: str | None = None) -> None:
 
 
 def _run_blend(args) -> dict:
-    """``render`` / ``generate`` / ``export``: the scene's job exported (naming ``--checkpoint``, else the
-    preference's) and run."""
+    """``render`` / ``generate`` / ``export``: the scene's job seen by ``--camera`` (else the scene camera),
+    exported into that camera's output folder (naming ``--checkpoint``, else the preference's) and run."""
     _open_blend(args.blend, args, args.output)
+    camera = props.named_camera(bpy.context.scene, args.camera, args.blend)
     options = {}
     if args.command == "export":
         options = {"export_format": args.format, "out": os.path.abspath(args.out) if args.out else None}
-    job, out = runs.start(bpy.context, _invocation(args, args.command, **options), _checkpoint(args))
+    job, out = runs.start(bpy.context, _invocation(args, args.command, **options), _checkpoint(args), camera)
     try:
         done = job.wait(timeout=args.timeout or None, on_event=_progress)
     except backend_client.BackendError as e:  # the same error, its message saying where the log is
         raise backend_client.BackendError(runs.failure_message(e, out), exit_code=e.exit_code, log=e.log,
                                           file=e.file, field=e.field, log_path=e.log_path) from None
-    return {**_outputs(done, out), "warnings": len(job.warnings)}
+    return {**_outputs(done, out), "camera": (camera or bpy.context.scene.camera).name,
+            "warnings": len(job.warnings)}
 
 
 def _outputs(done: dict, out: str) -> dict:
@@ -284,7 +297,7 @@ def _batch(args) -> tuple[dict, int]:
             else:
                 print(f"scpainter batch: exporting {path}", file=sys.stderr, flush=True)
                 _open_blend(path, args)
-                job_path, exported = OutputLayout(props.output_dir(bpy.context.scene)).job, True
+                job_path, exported = OutputLayout(props.camera_output_dir(bpy.context.scene)).job, True
                 if job_path in seen:  # checked before exporting: the other item's job stays as it is
                     raise errors.InputError(path, "scene.scpainter_output_dir",
                                             f"{os.path.dirname(job_path)} is also the output folder of "

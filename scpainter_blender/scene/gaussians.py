@@ -31,6 +31,7 @@ from .. import backend_client
 from ..core.geometry import cameras
 from ..core import job as job_mod, outputs
 from ..core.splats import asset_frame, gaussians as splats, reader as splats_io, trellis
+from ..core.output_layout import SceneFolder
 from . import asset_box, kinds, materials, node_groups, props
 from .points import linear_rgba
 
@@ -236,7 +237,7 @@ def mesh_gaussians_path(scene, mesh_path: str, count: int) -> str:
     """
     name = asset_frame.mesh_gaussians_name(mesh_path, count)
     try:
-        folder = os.path.join(props.output_dir(scene), "assets")
+        folder = SceneFolder(props.output_dir(scene)).assets
     except props.SceneError:  # unsaved .blend: its output folder is relative to it
         folder = outputs.user_cache_dir("assets")
     return os.path.join(folder, name)

@@ -64,9 +64,11 @@ def build_job(context, job_path: str, output_dir: str | None = None, checkpoint:
     """The job for the scene's frame range, seen by ``camera`` (default: the scene camera)."""
     scene = context.scene
     cam = camera or scene.camera
-    if cam is None or cam.type != "CAMERA":
+    if cam is None:
         raise props.SceneError("scene.camera", "the scene has no active camera",
                                hint="add one (or a camera path) before exporting a job")
+    if cam.type != "CAMERA":
+        raise props.SceneError(f"objects[{cam.name!r}]", "is not a camera", hint="give a camera object")
     job_dir = os.path.dirname(os.path.abspath(job_path))
     frames = list(range(scene.frame_start, scene.frame_end + 1))
     pts = kinds.point_cloud(scene)

@@ -67,6 +67,12 @@ def recorded_camera(scene, prefer=()):
     return found if found is not None else first_of_kind(scene, RECORDED_CAMERA)
 
 
+def camera_paths(scene) -> list:
+    """The scene's camera paths (``scpainter.new_camera_path``'s cameras), in name order: what *Render/Generate
+    All Camera Paths* runs, one after another."""
+    return sorted((o for o in objects_of_kind(scene, CAMERA_PATH) if o.type == "CAMERA"), key=lambda o: o.name)
+
+
 def gaussian_assets(scene) -> list:
     """The scene's Gaussian car assets (accepted, rejected or unchecked)."""
     return objects_of_kind(scene, GAUSSIAN_ASSET)

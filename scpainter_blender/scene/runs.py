@@ -1,5 +1,9 @@
 """Backend runs from Blender: write the job, start the backend, load what it made. Shared by the operators (modal
-or blocking) and the headless commands; plus the runtime state the panel and preferences show (never saved)."""
+or blocking) and the headless commands; plus the runtime state the panel and preferences show (never saved).
+
+A run is a camera's: its job is seen by that camera (default: the scene camera), written into that camera's output
+folder (``props.camera_output_dir``), and its results are loaded under that camera's name and shown behind it
+(``results``). ``AllCameras`` runs every camera path of the scene so, one after another."""
 
 from __future__ import annotations
 
@@ -11,6 +15,7 @@ from ..backend_client import BackendError, BackendJob, Invocation
 from ..core import backend_protocol as protocol
 from ..core import job as job_mod
 from ..core import outputs
+from ..core.errors import InputError
 from ..core.output_layout import OutputLayout
 from . import job_export, preferences, props, results
 
@@ -53,17 +58,20 @@ def generate_ui(context) -> tuple[str, tuple[str, ...]]:
     return "Generate", ()
 
 
-def export(context, checkpoint: str | None = None) -> tuple[str, str]:
-    """Export the scene's job into its output folder: (job.json path, output folder). The job names
+def export(context, checkpoint: str | None = None, camera=None) -> tuple[str, str]:
+    """Export the scene's job seen by ``camera`` (default: the scene camera) into that camera's output folder:
+    (job.json path, output folder). Nothing in the scene is changed to choose the camera. The job names
     ``checkpoint`` (None: the preferences' checkpoint folder) when one is set; without one ``generate`` makes the
     OpenCV inpainting baseline (the backend's ``generate.model`` auto). InputError (SceneError) before anything is
     written when the scene cannot make a job. Its output folder is the one the user set and its inputs the files
     they imported: whoever runs it says so with ``--allow-outside`` (or lists it in ``batch --trusted-list``), which
     a job from someone else, run by hand, does not get."""
-    out = props.output_dir(context.scene)
+    camera = camera or context.scene.camera
+    out = props.camera_output_dir(context.scene, camera)
     outputs.make_folder(out, "scene.scpainter_output_dir")
     job_path = OutputLayout(out).job
-    job_export.export_job(context, job_path, checkpoint=checkpoint_dir(context) if checkpoint is None else checkpoint)
+    job_export.export_job(context, job_path, checkpoint=checkpoint_dir(context) if checkpoint is None else checkpoint,
+                          camera=camera)
     return job_path, out
 
 
@@ -76,18 +84,24 @@ def invocation(context, command: str, **options) -> Invocation:
                                   "allow_outside": True, **options})
 
 
-def start(context, run: Invocation | str, checkpoint: str | None = None) -> tuple[BackendJob, str]:
-    """Export the scene's job (``export``, naming ``checkpoint``) and start ``run`` on it: an ``Invocation`` (the
-    operators': ``invocation``; the command line's: ``blender -c scpainter``), or a command run as the preferences
-    say. BackendError when the backend cannot be started."""
+def start(context, run: Invocation | str, checkpoint: str | None = None, camera=None) -> tuple[BackendJob, str]:
+    """Export the scene's job seen by ``camera`` (``export``, naming ``checkpoint``) and start ``run`` on it: an
+    ``Invocation`` (the operators': ``invocation``; the command line's: ``blender -c scpainter``), or a command run
+    as the preferences say; (the backend job, the camera's output folder). BackendError when the backend cannot be
+    started."""
     run = invocation(context, run) if isinstance(run, str) else run
-    job_path, out = export(context, checkpoint)
+    job_path, out = export(context, checkpoint, camera)
     return run.replace(jobs=(job_path,)).start(), out
 
 
-def finish(context, command: str, out: str, done: dict) -> str:
-    """Load what the run made and show it behind the camera; returns a one-line report, which for the baseline
-    says that it is the baseline (the ``done`` event's ``model``) and how to get the model's video."""
+def finish(context, command: str, out: str, done: dict, camera: str | None = None) -> str:
+    """Load what the run made as the results of the camera named ``camera`` (the run's; default: the scene
+    camera) and show them behind it; returns a one-line report, which for the baseline says that it is the baseline
+    (the ``done`` event's ``model``) and how to get the model's video. A camera deleted during the run gets its
+    results loaded, shown behind nothing."""
+    if camera is None and context.scene.camera is not None:
+        camera = context.scene.camera.name
+    cam = context.scene.objects.get(camera) if camera else None
     layout = OutputLayout(done.get("output_dir") or out)  # for the paths the done event does not carry
     if command == "export":  # nothing to load: the dataset is files for a training pipeline
         name = protocol.EXPORT_FORMATS.get(done.get("format"), (done.get("format"),))[0]
@@ -96,14 +110,14 @@ def finish(context, command: str, out: str, done: dict) -> str:
                 f"{images}, in {done.get('out')}")
     if command == "render":
         folder = layout.conditions
-        img = results.load_conditions(folder)
-        results.load_labels(folder)  # beside the conditions, for an image editor: the camera shows the conditions
-        results.show_behind_camera(context.scene, img)
+        img = results.load_conditions(folder, camera)
+        results.load_labels(folder, camera)  # beside the conditions, for an image editor: the camera shows those
+        results.show_behind_camera(context.scene, img, camera=cam)
         return f"Condition layers of {done.get('frames', '?')} frames in {folder}"
     model = done.get("model", "scpainter")  # a backend from before the baseline: always the model
     img, _clip = results.load_generated(done.get("frames_dir") or layout.generated, done.get("video") or layout.video,
-                                        model, done.get("description", ""))
-    results.show_behind_camera(context.scene, img)
+                                        model, done.get("description", ""), camera)
+    results.show_behind_camera(context.scene, img, camera=cam)
     if model == "baseline":
         method = job_mod.INPAINT_NAMES.get(done.get("inpaint"), "")
         return (f"Baseline video (OpenCV {method + ' ' if method else ''}inpainting, no model): {done.get('video')}"
@@ -122,11 +136,23 @@ def with_warnings(message: str, warnings: list) -> tuple[str, str]:
 
 
 def progress_text(active: dict | None = None) -> str:
-    """The run in progress in a few words (panel and status bar): "generate (Baseline): render 2/4"."""
+    """The run in progress in a few words (panel and status bar): "generate (Baseline): render 2/4"; one of
+    several cameras (``AllCameras``) says which: "render, camera 2/3: render 4/16"."""
     a = ACTIVE if active is None else active
     model = MODEL_NAMES.get(a.get("model") or "")
     what = f"{a['command']} ({model})" if model else a["command"]
+    if a.get("position"):
+        what += ", camera {}/{}".format(*a["position"])
     return f"{what}: {a['stage']} {a['done']}/{a['total']}"
+
+
+def progress_fraction(active: dict | None = None) -> float:
+    """How far the run in progress is, 0..1; over all its cameras when it is one of several."""
+    a = ACTIVE if active is None else active
+    if not a:
+        return 1.0
+    i, n = a.get("position") or (1, 1)
+    return (i - 1 + a["done"] / max(a["total"], 1)) / n
 
 
 def failure_message(e: BackendError, out: str) -> str:
@@ -146,26 +172,31 @@ class Follower:
     (progress for the panel), and says whether the run is still going; ``stop()`` is Esc. The modal operator only
     adds the window-manager calls around it, so this logic is tested without a display."""
 
-    def __init__(self, command: str, job: BackendJob, out: str, timeout: float = 0.0, model: str | None = None):
+    def __init__(self, command: str, job: BackendJob, out: str, timeout: float = 0.0, model: str | None = None,
+                 camera: str | None = None, position: tuple[int, int] | None = None):
         """``model``: the generator the run is expected to use (``planned_model``), shown from the start; the
-        backend's progress events correct it."""
+        backend's progress events correct it. ``camera``: the name of the camera whose run it is (its results are
+        loaded as that camera's; default: the scene camera when it ends). ``position``: (i, n), this run is the
+        i-th camera's of n (``AllCameras``)."""
         import time
 
-        self.command, self.job, self.out, self.timeout = command, job, out, timeout
+        self.command, self.job, self.out, self.timeout, self.camera = command, job, out, timeout, camera
         self.t0 = time.monotonic()
         ACTIVE.clear()
-        ACTIVE.update(command=command, model=model, stage="starting", done=0, total=1, out=out)
+        ACTIVE.update(command=command, model=model, stage="starting", done=0, total=1, out=out, camera=camera,
+                      position=position)
 
     @property
     def fraction(self) -> float:
-        return ACTIVE["done"] / max(ACTIVE["total"], 1) if ACTIVE else 1.0
+        return progress_fraction()
 
     @property
     def status_text(self) -> str:
         return f"SCPainter {progress_text()}  (Esc to stop)"
 
-    def tick(self) -> str:
-        """'running', 'finished', 'failed' or 'timeout' (the last three end the run and clear ``ACTIVE``)."""
+    def tick(self, context=None) -> str:
+        """'running', 'finished', 'failed' or 'timeout' (the last three end the run and clear ``ACTIVE``).
+        ``context`` is not needed (``AllCameras.tick`` needs it: the operator calls both alike)."""
         import time
 
         for ev in self.job.poll():
@@ -195,4 +226,101 @@ class Follower:
             done = self.job.result()
         except BackendError as e:
             return "ERROR", failure_message(e, self.out)
-        return with_warnings(finish(context, self.command, self.out, done), self.job.warnings)
+        return with_warnings(finish(context, self.command, self.out, done, self.camera), self.job.warnings)
+
+
+#: Report levels, mildest first: a report of several cameras has its worst camera's level.
+LEVELS = ("INFO", "WARNING", "ERROR")
+
+
+def error_text(e: InputError | BackendError) -> str:
+    """One line for a camera whose run failed on bad input or in the backend (its hint added)."""
+    hint = getattr(e, "hint", None)
+    return str(e) + (f" ({hint})" if hint and hint not in str(e) else "")
+
+
+class AllCameras:
+    """``command`` run for each of ``cameras`` (``kinds.camera_paths``) one after another, each as ``start`` runs
+    one camera (its job, its output folder, its results behind it), the scene camera left as it is. Followed like a
+    ``Follower`` (``tick(context)``, ``stop``, ``report``): from the UI timer, or in a loop by the blocking
+    operator. A camera that cannot run (bad input such as a clashing folder name, a backend failure, a timeout) is
+    reported and the next one runs; ``stop`` (Esc) stops the one running and starts no more. ``ACTIVE`` carries
+    ``position`` (i, n), so the progress reads "render, camera 2/3: render 4/16"."""
+
+    def __init__(self, context, command: str, run: Invocation, cameras: list, timeout: float = 0.0,
+                 model: str | None = None):
+        """SceneError when ``cameras`` is empty; otherwise the first camera's run is started."""
+        if not cameras:
+            raise props.SceneError("scene.objects", "the scene has no camera paths",
+                                   hint="add one with New Camera Path in the SCPainter panel")
+        self.command, self.run, self.timeout, self.model = command, run, timeout, model
+        self.names = [c.name for c in cameras]  # names, not objects: a camera may be deleted during the runs
+        self.outcomes: list[tuple[str, str, str, str]] = []   # (camera, status, level, message), in order
+        self.follower: Follower | None = None
+        self._next(context)
+
+    @property
+    def fraction(self) -> float:
+        return progress_fraction() if ACTIVE else len(self.outcomes) / len(self.names)
+
+    @property
+    def status_text(self) -> str:
+        return self.follower.status_text if self.follower is not None and ACTIVE else "SCPainter"
+
+    def _next(self, context) -> bool:
+        """Start the next camera's run; one that cannot start is recorded and skipped. False when none is left."""
+        while len(self.outcomes) < len(self.names):
+            i, name = len(self.outcomes), self.names[len(self.outcomes)]
+            try:
+                cam = context.scene.objects.get(name)
+                if cam is None:
+                    raise props.SceneError(f"objects[{name!r}]", "is no longer in the scene (deleted or renamed "
+                                                                 "while the camera paths before it ran)")
+                job, out = start(context, self.run, camera=cam)
+            except (InputError, BackendError) as e:
+                self.outcomes.append((name, "failed", "ERROR", error_text(e)))
+                continue
+            self.follower = Follower(self.command, job, out, self.timeout, self.model, camera=name,
+                                     position=(i + 1, len(self.names)))
+            return True
+        self.follower = None
+        return False
+
+    def tick(self, context=None) -> str:
+        """'running' while a camera's run goes on or the next one started; 'finished' when every camera had its
+        run (each one's outcome in ``outcomes``)."""
+        if self.follower is None:
+            return "finished"
+        status = self.follower.tick()
+        if status == "running":
+            return status
+        self._record(context, status)
+        return "running" if self._next(context) else "finished"
+
+    def _record(self, context, status: str) -> None:
+        """The ended run's outcome (its results loaded when it finished)."""
+        try:
+            level, message = self.follower.report(context, status)
+        except InputError as e:  # its results could not be loaded (a bug propagates)
+            level, message = "ERROR", error_text(e)
+        self.outcomes.append((self.follower.camera, status, level, message))
+        self.follower = None
+
+    def stop(self) -> None:
+        """Esc: the running camera's backend is stopped (its finished frames kept); no other camera starts."""
+        if self.follower is not None:
+            self.follower.stop()
+
+    def report(self, context, status: str) -> tuple[str, str]:
+        """(level, message) for the end: how many cameras finished, and each camera's own report; the worst
+        camera's level (a cancelled run: at least WARNING)."""
+        if status != "finished" and self.follower is not None:
+            self._record(context, "cancelled" if status == "cancelled" else status)
+        not_run = self.names[len(self.outcomes):]
+        ok = sum(st == "finished" and level != "ERROR" for _, st, level, _ in self.outcomes)
+        levels = [level for _, _, level, _ in self.outcomes] + ["WARNING"] * bool(not_run)
+        head = f"{self.command} of {len(self.names)} camera path{'s' * (len(self.names) > 1)}: {ok} finished"
+        if not_run:
+            head += f", not run: {', '.join(map(repr, not_run))}"
+        parts = [f"{name!r}: {message}" for name, _, _, message in self.outcomes]
+        return max(levels, key=LEVELS.index, default="INFO"), "; ".join([head, *parts])

@@ -9,7 +9,7 @@ import os
 from .. import backend_client
 from ..core.output_layout import VariationLayout
 from ..core.variation import variants
-from . import job_export, props
+from . import job_export
 
 
 def mesh_converter(python: str = ""):
@@ -17,21 +17,6 @@ def mesh_converter(python: str = ""):
     def convert(mesh: str, out: str, count: int) -> None:
         backend_client.run(["mesh-asset", mesh, "--out", out, "--count", int(count)], python=python)
     return convert
-
-
-def camera_object(scene, name: str | None):
-    """The camera the base job is seen from: the object named ``name`` (``SceneError`` naming it and the
-    scene's cameras when it is missing or not a camera), else the scene camera."""
-    if not name:
-        return scene.camera
-    import bpy
-
-    obj = bpy.data.objects.get(name)
-    if obj is None or obj.type != "CAMERA":
-        cams = sorted(o.name for o in scene.objects if o.type == "CAMERA")
-        raise props.SceneError(f"objects[{name!r}]", "is not a camera of the scene" if obj is not None else
-                               "no such object", hint=f"cameras in the scene: {', '.join(cams) or 'none'}")
-    return obj
 
 
 def make_variations(context, spec, out: str, camera=None, python: str = "", progress=None) -> dict:

@@ -25,6 +25,16 @@ def street_scene(addon, street, tmp_path, tiny_checkpoint):
     bpy.ops.wm.read_homefile(use_empty=True)
 
 
+#: The camera path street_with_car makes (the scene camera), and its output folder inside the scene's.
+CAM = "Camera path 2 m left"
+CAM_DIR = "Camera_path_2_m_left"
+
+
+def _name(kind):
+    """The datablock name of result ``kind`` of the scene camera (results.result_name)."""
+    return f"{kind} · {CAM}"
+
+
 def _state():
     """What a run must not touch unless it finished: datablocks and the camera's backgrounds."""
     cam = bpy.context.scene.camera
@@ -34,9 +44,9 @@ def _state():
 
 def test_render_then_generate_load_results_behind_the_camera(street_scene, tmp_path, addon, capsys, tiny_checkpoint):
     assert bpy.ops.scpainter.render_conditions() == {"FINISHED"}
-    out = tmp_path / "out"
+    out = tmp_path / "out" / CAM_DIR                                 # the scene camera's folder in the scene's
     assert len(list((out / "conditions").glob("frame_*.exr"))) == 4
-    img = bpy.data.images["SCPainter Conditions"]
+    img = bpy.data.images[_name("SCPainter Conditions")]
     assert img.source == "SEQUENCE" and img["scpainter_frames"] == 4
     cam = street_scene.camera.data
     assert cam.show_background_images and cam.background_images[0].image == img
@@ -50,25 +60,116 @@ def test_render_then_generate_load_results_behind_the_camera(street_scene, tmp_p
     manifest = json.loads((out / "generated" / "manifest.json").read_text())
     assert manifest["model"] == "baseline" and manifest["checkpoint"] is None
     assert "generate" not in json.loads((out / "job.json").read_text())   # no checkpoint, no setting: nothing
-    baseline = bpy.data.images["SCPainter Baseline"]
+    baseline = bpy.data.images[_name("SCPainter Baseline")]
     assert baseline.source == "SEQUENCE" and baseline["scpainter_frames"] == 4
     assert baseline["scpainter_model"] == "baseline" and "OpenCV Telea" in baseline["scpainter_description"]
-    assert bpy.data.movieclips["SCPainter Video (Baseline)"].frame_duration == 4
-    assert "SCPainter Generated" not in bpy.data.images and "SCPainter Video" not in bpy.data.movieclips
+    assert bpy.data.movieclips[_name("SCPainter Video (Baseline)")].frame_duration == 4
+    assert _name("SCPainter Generated") not in bpy.data.images and _name("SCPainter Video") not in bpy.data.movieclips
     assert cam.background_images[0].image == baseline and len(cam.background_images) == 1
     # with the checkpoint: the model's video replaces the baseline's datablocks (the same files on disk)
     prefs.checkpoint_dir = tiny_checkpoint
     assert bpy.ops.scpainter.generate() == {"FINISHED"}
     assert json.loads((out / "generated" / "manifest.json").read_text())["model"] == "scpainter"
     assert (out / "generated.mp4").is_file() and len(list((out / "generated").glob("frame_*.png"))) == 4
-    assert bpy.data.images["SCPainter Generated"].source == "SEQUENCE"
-    assert bpy.data.images["SCPainter Generated"]["scpainter_model"] == "scpainter"
-    assert bpy.data.movieclips["SCPainter Video"].frame_duration == 4
-    assert "SCPainter Baseline" not in bpy.data.images and "SCPainter Video (Baseline)" not in bpy.data.movieclips
-    assert cam.background_images[0].image.name == "SCPainter Generated" and len(cam.background_images) == 1
+    assert bpy.data.images[_name("SCPainter Generated")].source == "SEQUENCE"
+    assert bpy.data.images[_name("SCPainter Generated")]["scpainter_model"] == "scpainter"
+    assert bpy.data.movieclips[_name("SCPainter Video")].frame_duration == 4
+    assert _name("SCPainter Baseline") not in bpy.data.images
+    assert _name("SCPainter Video (Baseline)") not in bpy.data.movieclips
+    assert cam.background_images[0].image.name == _name("SCPainter Generated") and len(cam.background_images) == 1
     # conditions, their labelled previews, generated
     assert sorted(i.name for i in bpy.data.images if i.name.startswith("SCPainter")) == [
-        "SCPainter Conditions", "SCPainter Generated", "SCPainter Labels"]
+        _name("SCPainter Conditions"), _name("SCPainter Generated"), _name("SCPainter Labels")]
+
+
+def _files(folder):
+    """{path: (mtime_ns, bytes)} of the condition frames in an output folder (record.json aside: a resumed render
+    may write it again)."""
+    return {p: (p.stat().st_mtime_ns, p.read_bytes()) for p in (folder / "conditions").iterdir()
+            if p.name != "record.json"}
+
+
+def test_each_camera_path_renders_into_its_own_folder(street_scene, tmp_path, addon, capsys):
+    """Two camera paths: each run writes into its camera's folder (<scene output folder>/<camera>/) and loads its
+    results under its camera's name behind that camera; the second never touches the first's files or
+    datablocks. Render / Generate All Camera Paths run every path (blocking in background mode) and leave the scene
+    camera as it was."""
+    street_scene.frame_end = 2
+    a = street_scene.camera
+    assert bpy.ops.scpainter.render_conditions() == {"FINISHED"}
+    out = tmp_path / "out"
+    a_dir, b_dir = out / CAM_DIR, out / "Camera_path_2_m_right"
+    first = _files(a_dir)
+    assert len([p for p in first if p.suffix == ".exr"]) == 2
+    assert bpy.ops.scpainter.new_camera_path(shift=-2.0) == {"FINISHED"}
+    b = street_scene.camera
+    street_scene.camera = a
+    capsys.readouterr()
+    assert bpy.ops.scpainter.render_all_camera_paths() == {"FINISHED"}
+    printed = capsys.readouterr().out
+    assert "scpainter render, camera 1/2: " in printed and "scpainter render, camera 2/2: render 2/2" in printed
+    assert street_scene.camera == a                                    # each path passed to its job, nothing set
+    assert _files(a_dir) == first                                       # A's frames reused, never rewritten
+    assert len(list((b_dir / "conditions").glob("frame_*.exr"))) == 2
+    assert (b_dir / "conditions" / "frame_000001.exr").read_bytes() != (a_dir / "conditions" /
+                                                                         "frame_000001.exr").read_bytes()
+    jobs = [json.loads((d / "job.json").read_text()) for d in (a_dir, b_dir)]
+    assert jobs[0]["frames"][0]["world_to_camera"] != jobs[1]["frames"][0]["world_to_camera"]
+    cond = {c: bpy.data.images[f"SCPainter Conditions · {c.name}"] for c in (a, b)}
+    assert bpy.path.abspath(cond[a].filepath).startswith(str(a_dir))
+    assert bpy.path.abspath(cond[b].filepath).startswith(str(b_dir))
+    assert a.data.background_images[0].image == cond[a] and b.data.background_images[0].image == cond[b]
+    # every path's baseline video, each into its folder and behind its camera
+    bpy.context.preferences.addons[addon].preferences.checkpoint_dir = ""
+    assert bpy.ops.scpainter.generate_all_camera_paths() == {"FINISHED"}
+    for cam, folder in ((a, a_dir), (b, b_dir)):
+        assert (folder / "generated.mp4").is_file()
+        img = bpy.data.images[f"SCPainter Baseline · {cam.name}"]
+        assert bpy.path.abspath(img.filepath).startswith(str(folder)) and img["scpainter_frames"] == 2
+        assert cam.data.background_images[0].image == img and len(cam.data.background_images) == 1
+        assert f"SCPainter Video (Baseline) · {cam.name}" in bpy.data.movieclips
+    assert _files(a_dir) == first and street_scene.camera == a
+
+
+def test_all_camera_paths_followed_stopped_and_past_a_failure(street_scene, tmp_path, addon):
+    """runs.AllCameras as the UI timer drives it: a path whose folder cannot be had is reported and the next runs;
+    the progress names the camera ("camera 2/3"); Esc stops the running path and starts no more."""
+    import time
+
+    runs = sys.modules[f"{addon}.scpainter_blender.scene.runs"]
+    kinds = sys.modules[f"{addon}.scpainter_blender.scene.kinds"]
+    street_scene.frame_end = 2
+    a = street_scene.camera
+    refused = a.copy()                                          # its folder would be the scene folder's assets/
+    refused.name = "Assets"
+    street_scene.collection.objects.link(refused)
+    kinds.mark(refused, kinds.CAMERA_PATH)
+    assert bpy.ops.scpainter.new_camera_path(shift=-2.0) == {"FINISHED"}
+    paths = kinds.camera_paths(street_scene)
+    assert [c.name for c in paths] == ["Assets", "Camera path 2 m left", "Camera path 2 m right"]
+    props = sys.modules[f"{addon}.scpainter_blender.scene.props"]
+    with pytest.raises(props.SceneError, match="scene.objects: the scene has no camera paths"):
+        runs.AllCameras(bpy.context, "render", runs.invocation(bpy.context, "render"), [])
+    follow = runs.AllCameras(bpy.context, "render", runs.invocation(bpy.context, "render"), paths)
+    texts = []
+    while (status := follow.tick(bpy.context)) == "running":
+        texts.append(follow.status_text)
+        if runs.ACTIVE.get("position") == (3, 3) and runs.ACTIVE["done"] >= 1:
+            follow.stop()                                              # Esc during the last path
+            status = "cancelled"
+            break
+        time.sleep(0.05)
+    assert status == "cancelled" and not runs.ACTIVE
+    assert not any("camera 1/3" in t for t in texts)                   # never started: its folder was refused
+    assert any(t.startswith("SCPainter render, camera 2/3: render ") for t in texts)
+    level, message = follow.report(bpy.context, status)
+    assert level == "ERROR" and message.startswith("render of 3 camera paths: 1 finished; 'Assets': ")
+    assert "objects['Assets']: its output folder would be 'Assets'" in message
+    assert "'Camera path 2 m right': render cancelled: finished outputs are kept" in message
+    assert [(o[0], o[1]) for o in follow.outcomes] == [("Assets", "failed"), ("Camera path 2 m left", "finished"),
+                                                       ("Camera path 2 m right", "cancelled")]
+    assert not (tmp_path / "out" / "Assets").exists()
+    assert len(list((tmp_path / "out" / CAM_DIR / "conditions").glob("frame_*.exr"))) == 2
 
 
 def _fake_python(tmp_path, body):
@@ -95,7 +196,7 @@ def test_crash_hang_and_missing_pieces_leave_the_scene_alone(street_scene, tmp_p
     prefs.backend_python, prefs.checkpoint_dir = sys.executable, str(tmp_path / "no-such-checkpoint")
     with pytest.raises(RuntimeError, match="no-such-checkpoint"):
         bpy.ops.scpainter.generate()
-    assert _state() == before and not (tmp_path / "out" / "generated").exists()
+    assert _state() == before and not (tmp_path / "out" / CAM_DIR / "generated").exists()
 
 
 def test_followed_runs_cancel_finish_and_time_out(street_scene, tmp_path, addon):
@@ -116,9 +217,9 @@ def test_followed_runs_cancel_finish_and_time_out(street_scene, tmp_path, addon)
     follow.stop()                                                   # Esc
     level, message = follow.report(bpy.context, "cancelled")
     assert level == "WARNING" and "kept" in message and not runs.ACTIVE
-    frames = sorted((tmp_path / "out" / "conditions").glob("frame_*.exr"))
+    frames = sorted((tmp_path / "out" / CAM_DIR / "conditions").glob("frame_*.exr"))
     assert 1 <= len(frames) <= 4 and all(channels.read(f)["R"].shape == (147, 259) for f in frames)
-    assert not list((tmp_path / "out" / "conditions").glob("*.tmp"))
+    assert not list((tmp_path / "out" / CAM_DIR / "conditions").glob("*.tmp"))
     assert _state() == before
     # followed to the end: resumes, finishes, loads the previews behind the camera
     follow = runs.Follower("render", *runs.start(bpy.context, "render"))
@@ -126,7 +227,7 @@ def test_followed_runs_cancel_finish_and_time_out(street_scene, tmp_path, addon)
         time.sleep(0.05)
     assert status == "finished"
     level, message = follow.report(bpy.context, status)
-    assert level == "INFO" and bpy.data.images["SCPainter Conditions"]["scpainter_frames"] == 4
+    assert level == "INFO" and bpy.data.images[_name("SCPainter Conditions")]["scpainter_frames"] == 4
     # Generate followed without a checkpoint: the baseline, said from the first tick to the report
     prefs = bpy.context.preferences.addons[addon].preferences
     prefs.checkpoint_dir = ""
@@ -140,7 +241,7 @@ def test_followed_runs_cancel_finish_and_time_out(street_scene, tmp_path, addon)
     assert len(texts) > 1 and all(t.startswith("SCPainter generate (Baseline): ") for t in texts if t), texts
     level, message = follow.report(bpy.context, status)
     assert level == "INFO" and message.startswith("Baseline video (OpenCV Telea inpainting, no model): ")
-    assert "Checkpoint Folder" in message and bpy.data.images["SCPainter Baseline"]["scpainter_frames"] == 4
+    assert "Checkpoint Folder" in message and bpy.data.images[_name("SCPainter Baseline")]["scpainter_frames"] == 4
     # a backend that never answers
     prefs.backend_python = _fake_python(tmp_path, "exec sleep 60")
     follow = runs.Follower("render", *runs.start(bpy.context, "render"), timeout=1.0)

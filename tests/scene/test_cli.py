@@ -93,13 +93,22 @@ def test_input_error_by_name_is_exit_2_anything_else_exit_1(addon, empty_scene, 
     assert ev["file"] == str(tmp_path / "p.npz") and ev["field"] == "depth" and ev["hint"] == "save it again"
 
 
-def _street_blend(street, folder):
-    """A saved scene: the street, a car, a 2 m path, half resolution, frames 1-3."""
+#: The scene camera of ``_street_blend``'s scene (street_with_car's camera path) and its output folder's name.
+CAM, CAM_DIR = "Camera path 2 m left", "Camera_path_2_m_left"
+
+
+def _street_blend(street, folder, second_path=False):
+    """A saved scene: the street, a car, a 2 m path (the scene camera), half resolution, frames 1-3; with
+    ``second_path`` also a path 2 m to the right."""
     from tests_support import street_with_car
 
     street_with_car(street, folder, count=2000, seed=3)
     bpy.context.scene.render.resolution_percentage = 50
     bpy.context.scene.frame_end = 3
+    if second_path:
+        left = bpy.context.scene.camera
+        assert bpy.ops.scpainter.new_camera_path(shift=-2.0) == {"FINISHED"}
+        bpy.context.scene.camera = left
     path = str(folder / "street.blend")
     bpy.ops.wm.save_as_mainfile(filepath=path)
     bpy.ops.wm.read_homefile(use_empty=True)
@@ -116,7 +125,7 @@ def test_render_generate_and_batch_headless(addon, street, tmp_path, capsys, tin
     code = cli.execute(["render", blend, *common])
     ev = _last_event(capsys)
     assert code == 0, ev
-    out = tmp_path / "scpainter" / "Scene"                       # the default: //scpainter/<scene name>/
+    out = tmp_path / "scpainter" / "Scene" / CAM_DIR  # the default: //scpainter/<scene name>/<scene camera>/
     assert ev["output_dir"] == str(out) and ev["frames"] == 3 and len(list((out / "conditions").glob("*.exr"))) == 3
     # no checkpoint (none given, none in the preferences): the OpenCV inpainting baseline, said in the output
     code = cli.execute(["generate", blend, *common, "--inpaint", "navier-stokes", "--output", str(tmp_path / "gen")])
@@ -124,7 +133,7 @@ def test_render_generate_and_batch_headless(addon, street, tmp_path, capsys, tin
     assert code == 0, ev
     assert ev["model"] == "baseline" and "OpenCV Navier-Stokes inpainting" in ev["description"], ev
     assert os.path.isfile(ev["video"]) and ev["video"].startswith(str(tmp_path / "gen"))
-    job = json.load(open(tmp_path / "gen" / "job.json"))
+    job = json.load(open(tmp_path / "gen" / CAM_DIR / "job.json"))       # --output: the scene's output folder
     assert job["generate"] == {"inpaint": "navier-stokes"}                 # the scene's setting, for this run
     code = cli.execute(["generate", blend, *common, "--checkpoint", tiny_checkpoint, "--output",
                         str(tmp_path / "gen")])
@@ -133,7 +142,7 @@ def test_render_generate_and_batch_headless(addon, street, tmp_path, capsys, tin
     assert ev["model"] == "scpainter" and ev["description"].startswith("SCPainter model")
     assert os.path.isfile(ev["video"]) and ev["video"].startswith(str(tmp_path / "gen"))
     # a batch over a scene, a missing scene and the job file the first run wrote: one summary, exit 1
-    (tmp_path / "list.txt").write_text("scpainter/Scene/job.json\n")
+    (tmp_path / "list.txt").write_text(f"scpainter/Scene/{CAM_DIR}/job.json\n")
     # the job file reads the street's predictions from the cache, outside its folder: refused unless allowed
     code = cli.execute(["batch", "--list", str(tmp_path / "list.txt"), "--command", "render", *common])
     ev = _last_event(capsys)
@@ -162,6 +171,37 @@ def test_render_generate_and_batch_headless(addon, street, tmp_path, capsys, tin
     bpy.ops.wm.read_homefile(use_empty=True)
 
 
+def test_camera_option_runs_that_camera_into_its_folder(addon, street, tmp_path, capsys):
+    """--camera NAME: that camera object's job, in its own folder inside the scene's; a name that is no camera of
+    the scene is bad input naming the option and listing the cameras; without it, the scene camera."""
+    cli = _cli(addon)
+    blend = _street_blend(street, tmp_path, second_path=True)
+    common = ["--device", "cpu", "--backend-python", sys.executable]
+    scene_dir = tmp_path / "scpainter" / "Scene"
+    code = cli.execute(["render", blend, "--camera", "Camera path 2 m right", *common])
+    ev = _last_event(capsys)
+    assert code == 0, ev
+    right = scene_dir / "Camera_path_2_m_right"
+    assert ev["camera"] == "Camera path 2 m right" and ev["output_dir"] == str(right) and ev["frames"] == 3
+    assert len(list((right / "conditions").glob("frame_*.exr"))) == 3 and not (scene_dir / CAM_DIR).exists()
+    code = cli.execute(["render", blend, *common])                     # the scene camera, into its own folder
+    ev = _last_event(capsys)
+    assert code == 0 and ev["camera"] == CAM and ev["output_dir"] == str(scene_dir / CAM_DIR), ev
+    jobs = [json.loads((d / "job.json").read_text()) for d in (right, scene_dir / CAM_DIR)]
+    assert jobs[0]["frames"][0]["world_to_camera"] != jobs[1]["frames"][0]["world_to_camera"]
+    for command, name, what in (("render", "Nope", "is no object of the scene"),
+                                ("generate", "car", "is a mesh, not a camera"),
+                                ("export", "Nope", "is no object of the scene")):
+        extra = ["--format", "kitti"] if command == "export" else []
+        assert cli.execute([command, blend, "--camera", name, *extra, *common]) == 2, command
+        ev = _last_event(capsys)
+        assert ev["file"] == "(command line)" and ev["field"] == "--camera", ev
+        assert (f"--camera: {name!r} {what} in {blend}; its cameras: 'Camera path 2 m left', 'Camera path 2 m "
+                "right', ") in ev["message"], ev
+        assert "recorded camera" in ev["message"]
+    bpy.ops.wm.read_homefile(use_empty=True)
+
+
 def test_export_arguments_are_bad_input(addon, empty_scene, tmp_path, capsys):
     cli = _cli(addon)
     errors = sys.modules[addon + ".scpainter_blender.core.errors"]
@@ -181,7 +221,7 @@ def test_export_headless(addon, street, tmp_path, capsys):
     code = cli.execute(["export", blend, "--format", "kitti", "--device", "cpu", "--backend-python", sys.executable])
     ev = _last_event(capsys)
     assert code == 0, ev
-    out = tmp_path / "scpainter" / "Scene"
+    out = tmp_path / "scpainter" / "Scene" / CAM_DIR
     assert ev["command"] == "export" and ev["output_dir"] == str(out) and ev["format"] == "kitti"
     assert ev["out"] == str(out / "export" / "kitti") and ev["frames"] == 3 and ev["images"] == "conditions"
     assert sorted(os.listdir(out / "export" / "kitti" / "label_2")) == [f"00000{i}.txt" for i in range(3)]
@@ -289,9 +329,9 @@ def test_batch_on_ray_exports_the_scenes_and_runs_every_job_as_one_ray_batch(add
     assert [r["item"] for r in ev["items"]] == items
     assert [r["status"] for r in ev["items"]] == ["ok", "failed", "ok", "ok"]
     assert "missing.blend" in ev["items"][1]["error"] and "worker" not in ev["items"][1]   # never sent to Ray
-    for r, out, frames in ((ev["items"][0], tmp_path / "a" / "scpainter" / "Scene", 3),
+    for r, out, frames in ((ev["items"][0], tmp_path / "a" / "scpainter" / "Scene" / CAM_DIR, 3),
                            (ev["items"][2], tmp_path / "job" / "out", 2),
-                           (ev["items"][3], tmp_path / "b" / "scpainter" / "Scene", 3)):
+                           (ev["items"][3], tmp_path / "b" / "scpainter" / "Scene" / CAM_DIR, 3)):
         assert r["output_dir"] == str(out) and r["frames"] == frames and r["skipped"] == 0, r
         assert len(list((out / "conditions").glob("*.exr"))) == frames
         assert r["attempts"] == 1 and int(r["worker"].rsplit(":", 1)[1]) != os.getpid()   # in a Ray worker

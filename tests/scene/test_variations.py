@@ -73,7 +73,7 @@ def test_vary_headless_from_predictions_and_from_a_blend(addon, empty_scene, str
 
     assert cli.execute(args + ["--camera", "No Such Camera"]) == 2
     err = _events(capsys)[-1]
-    assert err["field"] == "objects['No Such Camera']" and path_cam in err["hint"]
+    assert err["field"] == "--camera" and path_cam in err["message"]
     assert cli.execute(args + ["--variants", "0"]) == 2
     assert _events(capsys)[-1]["field"] == "--variants"
 

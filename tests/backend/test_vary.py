@@ -1,0 +1,55 @@
+"""``python -m backend vary``, then the variants through ``batch`` (no --allow-outside: the list's data roots),
+labelled, and ``contact-sheet``."""
+
+import json
+import os
+
+import cv2
+
+from scpainter_blender.core import shapes
+from scpainter_blender.core.output_layout import VariationLayout
+from tests_support import run_backend, street_base_job
+
+
+def test_vary_batch_and_contact_sheet(street, tmp_path):
+    lib = tmp_path / "cars"
+    lib.mkdir()
+    shapes.save_as_amodal3r(str(lib / "blue.ply"), shapes.procedural_car_gaussians(count=4000, seed=7,
+                                                                                  paint=(0.1, 0.3, 0.8)))
+    base = tmp_path / "base" / "job.json"
+    street_base_job(street, str(base))
+    spec = tmp_path / "spec.json"
+    spec.write_text(json.dumps({"variants": 5, "seed": 4, "resolution": [64, 36], "camera": {"shifts_m": [-2, 2]},
+                                "cars": {"count": [1, 2]}}))
+    out = tmp_path / "variants"
+    code, events, err = run_backend("vary", str(base), "--out", str(out), "--spec", str(spec), "--library", str(lib))
+    assert code == 0, err
+    assert [e["done"] for e in events if e["event"] == "progress" and e["stage"] == "vary"] == [1, 2, 3, 4, 5]
+    done = events[-1]
+    assert done["event"] == "done" and done["summary"]["variants"] == 5 and done["list"] == str(out / "variants.txt")
+    manifest = json.loads((out / "variation.json").read_text())
+    placed = [e for e in manifest["variants"] if e["outcome"] == "placed"]
+    assert len(placed) >= 4
+
+    # the variants lead into the street's cache and the run's folder: the list's data roots allow exactly that
+    code, events, err = run_backend("batch", "--list", str(out / "variants.txt"), "--command", "render",
+                                    "--device", "cpu")
+    assert code == 0, err
+    assert events[-1]["counts"] == {"ok": len(placed)}
+    seen = 0
+    for e in placed:
+        layout = VariationLayout(str(out)).variant(int(e["id"][1:]))
+        with open(layout.frame_labels(1)) as f:
+            labels = json.load(f)
+        names = {o["name"] for o in labels["objects"] if o["synthetic"]}
+        assert names <= {c["name"] for c in e["cars"]}     # labelled: the variant's cars, by name
+        seen += len(names)
+        assert os.path.isfile(layout.labelled_preview(1))
+    assert seen >= 1
+
+    code, events, err = run_backend("contact-sheet", str(out))
+    assert code == 0, err
+    done = events[-1]
+    assert done["rendered"] == len(placed) and done["rendered"] + done["unplaced"] == 5
+    sheet = cv2.imread(done["path"])
+    assert sheet is not None and sheet.shape[1] == 5 * (320 + 2)

@@ -25,7 +25,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..geometry import boxes as boxes_mod
 
 RULES = ("off_road", "recorded_object", "recorded_box", "car_overlap", "ego_path")
 UP = np.array([0.0, 0.0, 1.0])

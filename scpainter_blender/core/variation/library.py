@@ -62,14 +62,14 @@ class LibraryAsset:
 
 
 def library_files(folder) -> list:
-    """The asset files of a library folder (not recursive), sorted by name. ``VariationError`` when the folder is
+    """The asset files of a library folder (not recursive; hidden files and sub-folders left out), sorted by name. ``VariationError`` when the folder is
     missing, holds none, or too many."""
     folder = os.fspath(folder)
     if not os.path.isdir(folder):
         raise VariationError(folder, "cars.library", "is not a folder",
                              hint="give a folder of car files (.ply, .splat, .glb, .gltf, .obj, .stl, .off)")
     names = sorted(n for n in os.listdir(folder) if os.path.splitext(n)[1].lower() in reader.ASSET_EXTENSIONS
-                   and not n.startswith("."))
+                   and not n.startswith(".") and os.path.isfile(os.path.join(folder, n)))  # files, not folders
     if not names:
         raise VariationError(folder, "cars.library", "holds no car files",
                              hint=f"put files of these kinds there: {', '.join(reader.ASSET_EXTENSIONS)}")

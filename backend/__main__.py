@@ -87,9 +87,10 @@ def _cmd_render(args) -> int:
 
     from .render import command
 
+    roots = outputs.data_roots_option(args.data_root)
     job = job_mod.load(args.job)
     if args.check:  # (render_job checks the same before it writes anything)
-        paths = job_inputs.check_inputs(args.job, job, args.allow_outside)
+        paths = job_inputs.check_inputs(args.job, job, args.allow_outside, roots)
         outputs.check_output(paths["output_dir"], args.allow_outside)
         events.done(command="render", check=True, frames=len(job.frames), output_dir=paths["output_dir"],
                     locked_by=locking.lock_owner(paths["output_dir"]))
@@ -98,7 +99,8 @@ def _cmd_render(args) -> int:
     t0 = time.perf_counter()
     with events.stop_on_sigterm() as stop:
         result = command.render_job(args.job, job, device, force=args.force, point_radius=args.point_radius,
-                                    stop=stop, allow_outside=args.allow_outside, half=args.half_float)
+                                    stop=stop, allow_outside=args.allow_outside, half=args.half_float,
+                                    data_roots=roots)
     if result["stopped"]:
         events.error(f"stopped by SIGTERM after {result['rendered'] + result['skipped']} of {result['frames']} "
                      "frames", hint="finished frames are kept: run the same command again to resume")
@@ -112,9 +114,11 @@ def _cmd_export(args) -> int:
     import time
 
     from scpainter_blender.core import job as job_mod
+    from scpainter_blender.core import outputs
 
     from .export import command
 
+    roots = outputs.data_roots_option(args.data_root)
     if args.out is not None and not args.out.strip():
         from scpainter_blender.core.errors import ArgumentError
 
@@ -123,7 +127,7 @@ def _cmd_export(args) -> int:
     device = _device(args.device)
     t0 = time.perf_counter()
     with events.stop_on_sigterm() as stop:
-        result = command.export_job(args.job, job, args.format, args.out, device, args.allow_outside, stop)
+        result = command.export_job(args.job, job, args.format, args.out, device, args.allow_outside, stop, roots)
     if result.pop("stopped"):
         events.error("stopped by SIGTERM while rendering the missing frames: nothing exported",
                      hint="finished frames are kept: run the same command again to resume")
@@ -135,17 +139,18 @@ def _cmd_export(args) -> int:
 def _cmd_generate(args) -> int:
     import time
 
-    from scpainter_blender.core import locking
+    from scpainter_blender.core import locking, outputs
     from scpainter_blender.core import job as job_mod
 
     from .generate import command as generate
 
+    roots = outputs.data_roots_option(args.data_root)
     job = job_mod.load(args.job)
     overrides = {"steps": args.steps, "seed": args.seed, "model": args.model, "inpaint": args.inpaint,
                  "inpaint_radius": args.inpaint_radius}
     # everything is checked before anything is rendered or loaded: the job, the overrides, the checkpoint (its
     # config and that it holds only safetensors), the settings they make together, and the input files
-    plan = generate.prepare(args.job, job, args.checkpoint, overrides, args.allow_outside)
+    plan = generate.prepare(args.job, job, args.checkpoint, overrides, args.allow_outside, roots)
     # the model's settings mean nothing to the baseline: said, rather than silently dropped
     ignored = [o for o, v in (("--checkpoint", args.checkpoint), ("--steps", args.steps), ("--seed", args.seed),
                               ("--precision", args.precision != "auto" or None)) if v is not None]
@@ -162,7 +167,7 @@ def _cmd_generate(args) -> int:
     t0 = time.perf_counter()
     with events.stop_on_sigterm() as stop:
         result = generate.generate_job(args.job, job, device, args.checkpoint, args.precision, args.force, stop,
-                                       overrides, allow_outside=args.allow_outside)
+                                       overrides, allow_outside=args.allow_outside, data_roots=roots)
     if result.pop("stopped"):
         if plan.model == "baseline" and result["stage"] == "generate":  # seconds of work: it keeps none of it
             events.error(f"stopped by SIGTERM during the baseline ({result['steps_done']} frames inpainted, not "
@@ -186,6 +191,7 @@ def _cmd_init_checkpoint(args) -> int:
 
 def _cmd_batch(args) -> int:
     from scpainter_blender.core import batch_items as batch_mod
+    from scpainter_blender.core import outputs
     from scpainter_blender.core.errors import ArgumentError
 
     from .batch import command as batch
@@ -196,10 +202,14 @@ def _cmd_batch(args) -> int:
         from .model import checkpoint as ckpt_mod
 
         ckpt_mod.resolve(args.checkpoint)
-    trusted = [p for f in args.trusted_list or [] for p in batch_mod.read_list(f)]
-    items = list(args.jobs) + [p for f in args.list or [] for p in batch_mod.read_list(f)] + trusted
+    roots = outputs.data_roots_option(args.data_root)
+    listed = [batch_mod.read_job_list(f) for f in args.list or []]
+    trusted = [p for f in args.trusted_list or [] for p in batch_mod.read_job_list(f).paths]
+    items = list(args.jobs) + [p for jobs in listed for p in jobs.paths] + trusted
     # --allow-outside: every job; --trusted-list: its own jobs (a tool's exports), as they are written in the list
     allow_outside = True if args.allow_outside else frozenset(trusted)
+    # --data-root: every job; a list's data-root: lines, that list's jobs
+    data_roots = batch.job_data_roots(args.jobs, listed, roots)
     overrides = {"inpaint": args.inpaint} if args.inpaint else None
     if overrides and args.command_name != "generate":
         raise ArgumentError("--inpaint", "applies to --command generate only")
@@ -222,12 +232,13 @@ def _cmd_batch(args) -> int:
             results = batch_ray.run_ray_batch(items, args.command_name, args.device, checkpoint,
                                               allow_outside=allow_outside, half=args.half_float,
                                               address=args.ray, retries=args.retries,
-                                              cpus_per_job=args.cpus_per_job, stop=stop, overrides=overrides)
+                                              cpus_per_job=args.cpus_per_job, stop=stop, overrides=overrides,
+                                              data_roots=data_roots)
         reports = True
     else:
         results, reports = batch.run_batch(items, args.command_name, _device(args.device), args.checkpoint,
                                            allow_outside=allow_outside, half=args.half_float, overrides=overrides,
-                                           shard_of=shard)
+                                           shard_of=shard, data_roots=data_roots)
     failed = [r for r in results if r["status"] != "ok"]
     if reports:  # failed: every job not ok; counts: how many ended each way (ok, failed, stopped, not run)
         events.done(command="batch", jobs=len(results), failed=len(failed), counts=batch_mod.status_counts(results),
@@ -306,9 +317,13 @@ def _cmd_contact_sheet(args) -> int:
     return events.EXIT_OK
 
 
-ALLOW_OUTSIDE_HELP = ("let the job's paths (output_dir, predictions, assets, checkpoint) lead outside the job file's "
-                      "folder; without it they must stay inside (a job from someone else then cannot read or write "
-                      "elsewhere)")
+ALLOW_OUTSIDE_HELP = ("let the job's paths (output_dir, predictions, assets, checkpoint) lead anywhere; without it "
+                      "they must stay inside the job file's folder or a --data-root (a job from someone else then "
+                      "cannot read or write elsewhere)")
+DATA_ROOT_HELP = ("a trusted folder (repeatable) the job's paths (output_dir, predictions, assets, checkpoint) may "
+                  "lead into besides the job file's folder, e.g. the recording and asset library many variant "
+                  "jobs share; symbolic links and .. are followed, so nothing outside it or the job's folder is "
+                  "reached")
 HALF_FLOAT_HELP = ("store the image I and the masks M, M_a of the condition EXRs as half floats (Z stays float32): "
                    "files ~40%% smaller than the lossless float32 default, error <= 2.4e-4; a change re-renders "
                    "finished frames")
@@ -326,8 +341,17 @@ def _bounded_int(lo: int, hi: int):
     return parse
 
 
+def _confinement_options(p) -> None:
+    """``--allow-outside`` and ``--data-root`` (render, generate, export, batch): where a job's paths may lead
+    (``job_inputs.job_paths``)."""
+    from scpainter_blender.core import outputs
+
+    p.add_argument(outputs.ALLOW_OUTSIDE_OPTION, action="store_true", help=ALLOW_OUTSIDE_HELP)
+    p.add_argument(outputs.DATA_ROOT_OPTION, action="append", metavar="DIR", help=DATA_ROOT_HELP)
+
+
 def _input_options(p) -> None:
-    p.add_argument("--allow-outside", action="store_true", help=ALLOW_OUTSIDE_HELP)
+    _confinement_options(p)
     p.add_argument("--check", action="store_true",
                    help="validate and stop, rendering and loading nothing: the job, its paths, its input files "
                         "from their headers (data corruption shows only when read), the output folder"
@@ -428,18 +452,20 @@ def build_parser() -> argparse.ArgumentParser:
                                  "existing one must be empty or a previous export")
     x.add_argument("--device", choices=DEVICE_NAMES, default=DEFAULT_DEVICE,
                    help="for rendering missing frames; auto: CUDA when torch sees a GPU, else the CPU")
-    x.add_argument("--allow-outside", action="store_true", help=ALLOW_OUTSIDE_HELP)
+    _confinement_options(x)
     x.set_defaults(func=_cmd_export)
     b = sub.add_parser("batch", help="run render or generate over many jobs; sharded under torchrun/accelerate")
     b.add_argument("jobs", nargs="*", help="job.json files")
     b.add_argument("--list", action="append", help="a text file of job paths, one per line, relative ones taken "
-                                                   "from the list file's folder (repeatable)")
+                                                   "from the list file's folder (repeatable); before the first "
+                                                   "path it may declare 'data-root: DIR' lines, a --data-root for "
+                                                   "its own jobs")
     b.add_argument("--command", dest="command_name", choices=["render", "generate"], default="render",
                    help="what each job runs (default render)")
     b.add_argument("--device", choices=DEVICE_NAMES, default=DEFAULT_DEVICE,
                    help="each job's device (default auto: CUDA when there is one); with --ray, the workers'")
     b.add_argument("--checkpoint", help="checkpoint for generate (default: each job's generate.checkpoint)")
-    b.add_argument("--allow-outside", action="store_true", help=ALLOW_OUTSIDE_HELP)
+    _confinement_options(b)
     b.add_argument("--trusted-list", action="append", metavar="FILE",
                    help="like --list, and these jobs may lead outside their folder (--allow-outside for them only): "
                         "jobs a tool wrote itself, such as blender -c scpainter batch's exports of .blend files")

@@ -216,8 +216,8 @@ def run(args, python: str = "", on_event=None, cwd=None, timeout=None) -> dict:
 _FLAGS = (("batch_command", "--command"), ("lists", "--list"), ("trusted_lists", "--trusted-list"),
           ("device", "--device"), ("checkpoint", "--checkpoint"), ("model", "--model"), ("steps", "--steps"),
           ("seed", "--seed"), ("inpaint", "--inpaint"), ("point_radius", "--point-radius"), ("force", "--force"),
-          ("allow_outside", "--allow-outside"), ("shard", "--shard"), ("ray", "--ray"), ("retries", "--retries"),
-          ("cpus_per_job", "--cpus-per-job"), ("export_format", "--format"), ("out", "--out"))
+          ("allow_outside", "--allow-outside"), ("data_roots", "--data-root"), ("shard", "--shard"), ("ray", "--ray"),
+          ("retries", "--retries"), ("cpus_per_job", "--cpus-per-job"), ("export_format", "--format"), ("out", "--out"))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -228,9 +228,10 @@ class Invocation:
     is the backend's parser's to say (``backend/__main__.py``); a test parses ``argv()`` with it.
 
     ``device``: one of ``core.backend_protocol.DEVICE_NAMES``. ``checkpoint``: overrides the job's (generate,
-    batch) or the folder to check (doctor). ``ray``: None without Ray, "" for the default cluster, else its
-    address. ``shard``: "K/N" (batch). ``export_format``: one of ``core.backend_protocol.EXPORT_FORMAT_NAMES``
-    and ``out`` the destination folder (export)."""
+    batch) or the folder to check (doctor). ``allow_outside``: the job's paths may lead anywhere; ``data_roots``:
+    folders they may lead into besides the job's (render, generate, export, batch). ``ray``: None without Ray, ""
+    for the default cluster, else its address. ``shard``: "K/N" (batch). ``export_format``: one of
+    ``core.backend_protocol.EXPORT_FORMAT_NAMES`` and ``out`` the destination folder (export)."""
 
     command: str
     jobs: tuple = ()
@@ -246,6 +247,7 @@ class Invocation:
     point_radius: int | None = None
     force: bool = False
     allow_outside: bool = False
+    data_roots: tuple = ()
     shard: str | None = None
     ray: str | None = None
     retries: int | None = None

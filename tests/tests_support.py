@@ -116,6 +116,29 @@ def small_job(folder, frames=(1, 2), resolution=(16, 12), asset=True, **extra):
     return path
 
 
+def variant_jobs(folder, names=("v1", "v2")):
+    """The usual layout of many variants of one recording: ``folder/shared`` holds the recording's
+    ``predictions.npz`` and the asset ``car.ply`` (``small_job``'s), and each ``folder/<name>/job.json`` reads them
+    through ``../shared/`` and writes its own ``out``. Returns (the shared folder, the job paths)."""
+    import os
+
+    from scpainter_blender.core import job as J
+
+    shared = os.path.join(str(folder), "shared")
+    os.remove(small_job(shared))
+    jobs = []
+    for name in names:
+        path = small_job(os.path.join(str(folder), name))
+        for own in ("predictions.npz", "car.ply"):
+            os.remove(os.path.join(os.path.dirname(path), own))
+        job = J.load(path).to_dict()
+        job["scene"]["predictions"] = "../shared/predictions.npz"
+        job["assets"][0]["ply"] = "../shared/car.ply"
+        J.save(path, job)
+        jobs.append(path)
+    return shared, jobs
+
+
 def copy_clip(clip_json_path, tmp_path, edit, name="clip"):
     """A copy of a clip folder (the one holding ``clip_json_path``) at ``tmp_path / name``, its clip.json passed
     through ``edit(data, folder)`` (which changes ``data`` in place and may write files into the copy)."""

@@ -23,22 +23,24 @@ from .. import events
 
 
 def run_one(job_path: str, command: str, device: str, checkpoint: str | None, stop, allow_outside: bool = False,
-            half: bool = False, precision: str = "auto", overrides: dict | None = None) -> dict:
+            half: bool = False, precision: str = "auto", overrides: dict | None = None, data_roots=()) -> dict:
     """One job: ``render`` (``half``: half-float EXRs, ``render_cmd.render_job``) or ``generate`` (``precision``
-    and ``overrides`` as ``generate_job``'s: the settings a job's ``generate`` block sets, e.g. ``inpaint``)."""
+    and ``overrides`` as ``generate_job``'s: the settings a job's ``generate`` block sets, e.g. ``inpaint``). Its
+    paths stay in its folder and ``data_roots`` unless ``allow_outside`` (``job_inputs.job_paths``)."""
     from scpainter_blender.core import job as job_mod
 
     job = job_mod.load(job_path)
     if command == "render":
         from ..render import command as render_cmd
 
-        r = render_cmd.render_job(job_path, job, device, stop=stop, allow_outside=allow_outside, half=half)
+        r = render_cmd.render_job(job_path, job, device, stop=stop, allow_outside=allow_outside, half=half,
+                                  data_roots=data_roots)
         return {"output_dir": r["output_dir"], "frames": r["frames"], "rendered": r["rendered"],
                 "skipped": not r["stopped"] and r["rendered"] == 0, "stopped": r["stopped"]}
     from ..generate.command import generate_job
 
     r = generate_job(job_path, job, device, checkpoint, precision, stop=stop, overrides=overrides,
-                     allow_outside=allow_outside)
+                     allow_outside=allow_outside, data_roots=data_roots)
     return {"output_dir": r.get("output_dir"), "video": r.get("video"), "frames": r.get("frames"),
             "skipped": bool(r.get("skipped")), "stopped": r["stopped"], "model": r.get("model"),
             "description": r.get("description")}
@@ -48,6 +50,18 @@ def allows_outside(allow_outside, path: str) -> bool:
     """Whether the job at ``path`` may lead outside its folder: ``allow_outside`` True (every job, the user said
     ``--allow-outside``) or a collection of paths (those jobs: ``--trusted-list``, the jobs a tool wrote itself)."""
     return allow_outside is True or (not isinstance(allow_outside, bool) and path in allow_outside)
+
+
+def job_data_roots(jobs: list, lists: list, data_roots: tuple = ()) -> dict:
+    """``{job path: its data roots}`` for a batch: ``data_roots`` (``--data-root``) for every job, given as
+    ``jobs`` (the command line's) or in ``lists`` (``batch_items.JobList``), plus the ``data-root:`` folders of the
+    lists naming it (a job named in several lists: all of theirs), never another list's. Keyed by the path as
+    listed, as ``run_batch`` and ``run_ray_batch`` look it up."""
+    out = {p: tuple(data_roots) for p in jobs}
+    for listed in lists:
+        for p in listed.paths:
+            out[p] = tuple(dict.fromkeys(out.get(p, tuple(data_roots)) + listed.data_roots))
+    return out
 
 
 def failure(e: Exception, path: str) -> dict:
@@ -84,11 +98,12 @@ def gather(results: list, world: int) -> list:
 
 def run_batch(items: list[str], command: str, device: str, checkpoint: str | None = None,
               allow_outside=False, half: bool = False, overrides: dict | None = None,
-              shard_of: tuple[int, int] | None = None) -> tuple[list, bool]:
+              shard_of: tuple[int, int] | None = None, data_roots: dict | None = None) -> tuple[list, bool]:
     """Run this process's share; returns (the results, whether this process reports them). ``allow_outside``:
-    ``allows_outside``'s; ``half``: render half-float EXRs; ``overrides``: generate settings for every job
-    (``run_one``). ``shard_of``: (K, N) of ``--shard``: this process runs its share alone and reports it; None:
-    the share of torchrun's RANK / WORLD_SIZE, every rank's results gathered and rank 0 reporting them."""
+    ``allows_outside``'s; ``data_roots``: ``{job path: its data roots}`` (``job_data_roots``); ``half``: render
+    half-float EXRs; ``overrides``: generate settings for every job (``run_one``). ``shard_of``: (K, N) of
+    ``--shard``: this process runs its share alone and reports it; None: the share of torchrun's RANK /
+    WORLD_SIZE, every rank's results gathered and rank 0 reporting them."""
     if shard_of is not None:
         (rank, world), local = shard_of, 0
     else:
@@ -117,7 +132,7 @@ def run_batch(items: list[str], command: str, device: str, checkpoint: str | Non
             try:
                 with events.log_scope():  # a bug's traceback goes to this job's backend.log
                     out = run_one(path, command, device, checkpoint, stop, allows_outside(allow_outside, path),
-                                  half, overrides=overrides)
+                                  half, overrides=overrides, data_roots=(data_roots or {}).get(path, ()))
                 status = "stopped" if out.pop("stopped") else "ok"
                 results.append({"job": path, "rank": rank, "status": status, **out})
             except Exception as e:  # one bad scene must not stop the batch: record it and go on

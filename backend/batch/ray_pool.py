@@ -159,10 +159,11 @@ def _check_reachable(address: str | None) -> None:
 
 def _run_job(path: str, command: str, device: str, options: dict, task: str, board, job_fn=None) -> dict:
     """One job in a Ray worker: ``job_fn`` (default ``batch.run_one``) with ``options`` (its keyword arguments:
-    checkpoint, allow_outside, half, precision, overrides; plain values). Bad input and explained failures come back
-    as a ``failed`` result; any other exception propagates, so Ray retries it. ``task`` marks the output lock so a
-    retry may take over the lock its dead attempt left, on any host. The driver's ``ray.cancel`` (its SIGTERM) sets
-    the job's ``stop`` flag: the job ends after its current frame or sampler step and returns ``stopped``."""
+    checkpoint, allow_outside, data_roots, half, precision, overrides; plain values). Bad input and explained
+    failures come back as a ``failed`` result; any other exception propagates, so Ray retries it. ``task`` marks
+    the output lock so a retry may take over the lock its dead attempt left, on any host. The driver's
+    ``ray.cancel`` (its SIGTERM) sets the job's ``stop`` flag: the job ends after its current frame or sampler step
+    and returns ``stopped``."""
     import signal
 
     from scpainter_blender.core import locking
@@ -247,12 +248,13 @@ class _Board:
 def run_ray_batch(items: list[str], command: str, device: str = "auto", checkpoint: str | None = None,
                   allow_outside=False, half: bool = False, address: str | None = None,
                   retries: int = DEFAULT_RETRIES, cpus_per_job: float = batch_items.DEFAULT_CPUS_PER_JOB, stop=(),
-                  job_fn=None,
-                  precision: str = "auto", overrides: dict | None = None, stage: str = "batch") -> list[dict]:
+                  job_fn=None, precision: str = "auto", overrides: dict | None = None, stage: str = "batch",
+                  data_roots: dict | None = None) -> list[dict]:
     """Run every job of ``items`` as a Ray task (see the module docstring); returns one result per item, in order:
     ``job``, ``status`` (``ok``, ``stopped``, ``failed``, ``not run (SIGTERM)``), the job's outputs, ``worker``,
     ``attempts``, ``seconds``. ``allow_outside``: True, or the paths of the jobs that may lead outside their folder
-    (``batch.allows_outside``); ``precision`` and ``overrides``: ``batch.run_one``'s, for every job; ``stage``: the
+    (``batch.allows_outside``); ``data_roots``: ``{job path: its data roots}`` (``batch.job_data_roots``), sent to
+    each task as plain strings; ``precision`` and ``overrides``: ``batch.run_one``'s, for every job; ``stage``: the
     progress events' (``evaluate`` runs its tasks here too). ``stop`` (truthy once SIGTERM came): every job not
     finished is cancelled; queued ones come back ``not run (SIGTERM)`` (``attempts`` 0), running ones stop after
     their current frame or step and come back ``stopped`` with their counts, finished frames kept, nothing
@@ -292,7 +294,8 @@ def run_ray_batch(items: list[str], command: str, device: str = "auto", checkpoi
         if j != i:
             copies.setdefault(j, []).append(i)
     refs = {task.remote(os.path.abspath(p), command, "cuda" if use_gpu else "cpu",
-                        {**options, "allow_outside": batch.allows_outside(allow_outside, p)}, f"{run_id}:{i}", board,
+                        {**options, "allow_outside": batch.allows_outside(allow_outside, p),
+                         "data_roots": (data_roots or {}).get(p, ())}, f"{run_id}:{i}", board,
                         job_fn): i for i, p in enumerate(items) if first[os.path.realpath(p)] == i}
     events.log(f"batch --ray: {len(refs)} jobs on {ray.cluster_resources().get('CPU', 0):g} CPUs and {gpus:g} GPUs "
                f"({'1 GPU' if use_gpu else f'{cpus_per_job:g} CPUs'} per job, {retries} retries)"

@@ -111,12 +111,13 @@ def _frame(layout: OutputLayout, frame: int, images: str, instance: bool) -> com
 
 
 def export_job(job_path: str, job: job_mod.Job, fmt: str, out: str | None = None, device: str = "cpu",
-               allow_outside: bool = False, stop=()) -> dict:
+               allow_outside: bool = False, stop=(), data_roots=()) -> dict:
     """Export a job's labels as ``fmt`` into ``out`` (None: ``OutputLayout(output_dir).export(fmt)``), rendering
     what is missing first; emits progress and warning events. Returns the counts, ``out``, ``images``,
-    ``stopped`` (SIGTERM during the render: nothing exported)."""
+    ``stopped`` (SIGTERM during the render: nothing exported). The job's paths are confined to its folder and
+    ``data_roots`` unless ``allow_outside`` (``job_inputs.check_inputs``)."""
     check_format(fmt)
-    paths = job_inputs.check_inputs(job_path, job, allow_outside)
+    paths = job_inputs.check_inputs(job_path, job, allow_outside, data_roots)
     outputs.check_output(paths["output_dir"], allow_outside)
     output_dir = outputs.make_folder(paths["output_dir"], "output_dir")
     layout = OutputLayout(output_dir)

@@ -63,10 +63,11 @@ USE_CHECKPOINT_HINT = ("this is the inpainting baseline, not the model: for SCPa
 
 
 def prepare(job_path: str, job: job_mod.Job, checkpoint: str | None, overrides: dict | None = None,
-            allow_outside: bool = False) -> Plan:
+            allow_outside: bool = False, data_roots=()) -> Plan:
     """Validate a generation before any work: the command-line overrides, the checkpoint (``checkpoint.check``:
     config field by field, safetensors only), the settings the job, overrides and checkpoint make together, and
-    the job's input files (``job_inputs.check_inputs``). Raises an InputError naming the file (or "(command line)") and
+    the job's input files (``job_inputs.check_inputs``; its paths confined to the job's folder and ``data_roots``
+    unless ``allow_outside``). Raises an InputError naming the file (or "(command line)") and
     the field.
 
     The generator: ``overrides["model"]``, else the job's ``generate.model``, else ``auto`` — the model when a
@@ -80,7 +81,7 @@ def prepare(job_path: str, job: job_mod.Job, checkpoint: str | None, overrides: 
     if model == "auto":
         model = "scpainter" if checkpoint or gen.checkpoint else "baseline"
     if model == "baseline":
-        paths = job_inputs.check_inputs(job_path, job, allow_outside)
+        paths = job_inputs.check_inputs(job_path, job, allow_outside, data_roots)
         outputs.check_output(paths["output_dir"], allow_outside)
         paths["allow_outside"] = allow_outside
         return Plan(None, gen.resolve_baseline(overrides), paths["output_dir"], paths, "baseline")
@@ -90,16 +91,17 @@ def prepare(job_path: str, job: job_mod.Job, checkpoint: str | None, overrides: 
         ckpt = ckpt_mod.resolve(None, job_path, "generate.checkpoint")  # refused, naming the job file and field
     else:  # the job's own checkpoint path is relative to the job and confined like its other paths
         try:
-            named = job_inputs.job_paths(job_path, job, allow_outside, checkpoint=True)["generate.checkpoint"]
+            named = job_inputs.job_paths(job_path, job, allow_outside, checkpoint=True,
+                                         data_roots=data_roots)["generate.checkpoint"]
         except job_mod.JobError as e:
             if e.field != "generate.checkpoint":
                 raise
-            raise job_mod.JobError(job_path, e.field, f"{e.message}; or name the checkpoint on the command line "
-                                                      "with --checkpoint PATH") from None
+            raise job_mod.JobError(job_path, e.field, e.message, f"{e.hint}; or name the checkpoint on the command "
+                                                                 "line with --checkpoint PATH") from None
         ckpt = ckpt_mod.resolve(named)
     config = ckpt_mod.check(ckpt)
     s = (job.generate or job_mod.GenerateSettings()).resolve(config, overrides, job_path)
-    paths = job_inputs.check_inputs(job_path, job, allow_outside)
+    paths = job_inputs.check_inputs(job_path, job, allow_outside, data_roots)
     outputs.check_output(paths["output_dir"], allow_outside)
     paths["allow_outside"] = allow_outside
     return Plan(ckpt, s, paths["output_dir"], paths)
@@ -183,11 +185,12 @@ def resolve_precision(precision: str, device: str) -> str:
 
 
 def generate_job(job_path: str, job: job_mod.Job, device: str, checkpoint: str | None, precision: str = "auto",
-                 force: bool = False, stop=(), overrides: dict | None = None, allow_outside: bool = False) -> dict:
+                 force: bool = False, stop=(), overrides: dict | None = None, allow_outside: bool = False,
+                 data_roots=()) -> dict:
     """Render the missing condition layers and generate the video (see the module docstring); validated first
-    (``prepare``), one run per output folder (``locking.OutputLock``). A model producing NaN/inf raises
-    ``errors.NonFiniteError`` and writes no frame, video or manifest."""
-    plan = prepare(job_path, job, checkpoint, overrides, allow_outside)
+    (``prepare``, with ``allow_outside`` and ``data_roots``), one run per output folder (``locking.OutputLock``). A
+    model producing NaN/inf raises ``errors.NonFiniteError`` and writes no frame, video or manifest."""
+    plan = prepare(job_path, job, checkpoint, overrides, allow_outside, data_roots)
     outputs.make_folder(plan.output_dir, "output_dir")
     with locking.OutputLock(plan.output_dir, "generate", busy=FolderBusyError) as lock, events.log_scope():
         return _generate(job_path, job, device, plan, precision, force, stop, lock)

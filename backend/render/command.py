@@ -129,15 +129,15 @@ def _previous_record(layout: OutputLayout) -> dict | None:
 
 def render_job(job_path: str, job: job_mod.Job, device: str, force: bool = False, point_radius: int = 0,
                stop=(), log=None, allow_outside: bool = False, lock: bool = True, checked: dict | None = None,
-               half: bool | None = None) -> dict:
+               half: bool | None = None, data_roots=()) -> dict:
     """Render the frames not finished yet (all with ``force``, or when the job changed since they were made);
     emits progress and artifact events.
 
     First the job's paths and input files are checked (``job_inputs.check_inputs``: confined to the job's folder
-    unless ``allow_outside``); with ``lock`` the output folder is locked for the run (``locking.OutputLock``; a
-    second run raises ``errors.FolderBusyError``). ``checked``: the paths ``job_inputs.check_inputs`` returned to
-    a caller that already checked the inputs and the output folder (``generate.prepare``), so they are not read
-    twice.
+    and ``data_roots`` unless ``allow_outside``); with ``lock`` the output folder is locked for the run
+    (``locking.OutputLock``; a second run raises ``errors.FolderBusyError``). ``checked``: the paths
+    ``job_inputs.check_inputs`` returned to a caller that already checked the inputs and the output folder
+    (``generate.prepare``), so they are not read twice.
     ``stop``: a list that becomes non-empty when the caller wants to stop (checked between frames). ``half``: the
     EXRs store I, M and M_a as half floats, Z as float32 (``channels.write``), or all float32 (False); None (for
     callers that only need the conditions to exist: ``generate``, ``evaluate``) keeps the precision the folder's
@@ -146,7 +146,7 @@ def render_job(job_path: str, job: job_mod.Job, device: str, force: bool = False
     """
     paths = checked
     if paths is None:
-        paths = job_inputs.check_inputs(job_path, job, allow_outside)
+        paths = job_inputs.check_inputs(job_path, job, allow_outside, data_roots)
         outputs.check_output(paths["output_dir"], allow_outside)
     out = outputs.make_folder(paths["output_dir"], "output_dir")
     with (locking.OutputLock(out, "render", busy=FolderBusyError) if lock else contextlib.nullcontext()) as held, \

@@ -1,13 +1,15 @@
 """What the batch commands share (``python -m backend batch`` and ``blender -c scpainter batch``): the ``--list``
-file of job or scene paths, which items one rank of a multi-process run takes (``--shard`` or the environment), the
-``--ray`` options and the summary's counts. No bpy, no torch."""
+file of job or scene paths (its format, and the ``data-root:`` line of the backend's lists: ``read_job_list``),
+which items one rank of a multi-process run takes (``--shard`` or the environment), the ``--ray`` options and the
+summary's counts. No bpy, no torch."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 
-from . import errors, files
+from . import errors, files, outputs
 
 #: ``--ray``: a job is run again at most this many times after its worker died or it failed unexpectedly (default,
 #: and the most ``--retries`` accepts).
@@ -45,11 +47,25 @@ def ray_options(ray, retries=None, cpus_per_job=None) -> tuple[int, float]:
     return retries, cpus_per_job
 
 
-def read_list(path) -> list:
-    """Paths from a text file, one per line (blank lines and ``#`` comments skipped), relative ones taken from the
-    file's folder. InputError names the file when it is not a regular UTF-8 text file of at most
-    ``files.MAX_JSON_BYTES``."""
-    path = os.fspath(path)
+#: A list file's directive: ``data-root: DIR`` (before its first path, repeatable), a folder its jobs' paths may
+#: lead into (``outputs.confined``), relative to the list file's folder.
+DATA_ROOT_DIRECTIVE = "data-root:"
+
+
+@dataclasses.dataclass(frozen=True)
+class JobList:
+    """A list file as ``read_job_list`` reads it: ``path`` (the file), ``paths`` (its items, absolute where the
+    file's were relative) and ``data_roots`` (its ``data-root:`` lines' folders, absolute and checked)."""
+
+    path: str
+    paths: list
+    data_roots: tuple = ()
+
+
+def _parse(path) -> tuple[list, list]:
+    """A list file's paths (absolute where the file's were relative) and its ``data-root:`` lines, ``(field, DIR
+    as written)`` with field ``line N``; blank and ``#`` lines skipped. InputError names the file when it is not a
+    regular UTF-8 text file of at most ``files.MAX_JSON_BYTES``, and the line of a ``data-root:`` after a path."""
     base = os.path.dirname(os.path.abspath(path))
     with files.open_regular(path) as f:
         data = f.read(files.MAX_JSON_BYTES + 1)
@@ -59,7 +75,54 @@ def read_list(path) -> list:
         lines = [line.strip() for line in data.decode("utf-8-sig").splitlines()]
     except UnicodeDecodeError as e:
         raise errors.InputError(path, "(file)", f"is not UTF-8 text (byte {e.start})") from None
-    return [p if os.path.isabs(p) else os.path.join(base, p) for p in lines if p and not p.startswith("#")]
+    paths, directives = [], []
+    for n, text in enumerate(lines, 1):
+        if not text or text.startswith("#"):
+            continue
+        if not text.startswith(DATA_ROOT_DIRECTIVE):
+            paths.append(text if os.path.isabs(text) else os.path.join(base, text))
+        elif paths:
+            raise errors.InputError(path, f"line {n}", f"{DATA_ROOT_DIRECTIVE} after the first path (it applies "
+                                                       "to every job of the file)", hint="move it above the paths")
+        else:
+            directives.append((f"line {n}", text[len(DATA_ROOT_DIRECTIVE):].strip()))
+    return paths, directives
+
+
+def read_job_list(path) -> JobList:
+    """A ``--list`` file of ``python -m backend batch``. The format: one path a line, relative ones taken from the
+    file's folder; blank lines and lines starting with ``#`` are skipped; before the first path, any number of
+    ``data-root: DIR`` lines (``DATA_ROOT_DIRECTIVE``; DIR relative to the file's folder): folders the paths of
+    the jobs this file lists may lead into besides their own folders (the recording and asset library many
+    variant jobs share), as ``--data-root`` allows for every job of a run. InputError naming the file and the
+    line: a ``data-root:`` line after a path, without a folder, or naming something that is not a folder."""
+    path = os.fspath(path)
+    base = os.path.dirname(os.path.abspath(path))
+    paths, directives = _parse(path)
+    roots = []
+    for field, value in directives:
+        def error(message, field=field):
+            return errors.InputError(path, field, f"{DATA_ROOT_DIRECTIVE} {message}",
+                                     hint=f"{DATA_ROOT_DIRECTIVE} DIR names an existing folder, relative to the "
+                                          "list file's folder")
+        if not value:
+            raise error("names no folder")
+        roots.append(outputs.data_root(os.path.join(base, value), error))
+    return JobList(path, paths, tuple(dict.fromkeys(roots)))
+
+
+def read_list(path) -> list:
+    """The paths of a list file that declares nothing (``read_job_list``'s format without ``data-root:`` lines):
+    the clip lists of training, the items of ``blender -c scpainter batch``. A ``data-root:`` line there is an
+    InputError naming the file and the line: it would trust nothing, silently."""
+    path = os.fspath(path)
+    paths, directives = _parse(path)
+    if directives:
+        raise errors.InputError(path, directives[0][0], f"{DATA_ROOT_DIRECTIVE} applies to the lists of python -m "
+                                                        "backend batch only",
+                                hint=f"give the folder on the command line ({outputs.DATA_ROOT_OPTION} DIR) and "
+                                     "leave the line out")
+    return paths
 
 
 def bad_input_fields(e: errors.InputError) -> dict:

@@ -1,6 +1,6 @@
 """What a job points at, checked before any work: every path it names resolved and confined to the job's folder
-(``job_paths``), and the input files checked from their headers (``check_inputs``). The document itself (structure,
-bounds) is ``core.job``'s. No bpy, no torch.
+and the data roots the user trusts (``job_paths``), and the input files checked from their headers
+(``check_inputs``). The document itself (structure, bounds) is ``core.job``'s. No bpy, no torch.
 """
 
 from __future__ import annotations
@@ -11,19 +11,22 @@ from . import files, outputs
 from .job import Job, JobError
 
 
-def job_paths(job_path, job: Job, allow_outside: bool = False, checkpoint: bool = False) -> dict:
+def job_paths(job_path, job: Job, allow_outside: bool = False, checkpoint: bool = False, data_roots=()) -> dict:
     """``{field: absolute path}`` of every path the job names (``output_dir``, ``scene.predictions``,
     ``assets[i].ply``, and ``generate.checkpoint`` with ``checkpoint``), relative ones taken from the job's folder.
 
-    Unless ``allow_outside``, each must resolve inside the job's folder (no ``..``, no absolute path elsewhere, no
-    symbolic link out): a job received from someone else reads and writes only its own folder. The user allows
-    more with ``--allow-outside``; the add-on does, for the output folder the user chose. JobError names the
-    field otherwise."""
+    Unless ``allow_outside``, each must resolve inside the job's folder or inside one of ``data_roots`` (absolute
+    folders the user trusts: ``--data-root``, a batch list's ``data-root:``), with no ``..``, absolute path or
+    symbolic link leading elsewhere (``outputs.confined``): a job received from someone else reads and writes only
+    its own folder and the shared recordings and assets the user named. The user allows everything with
+    ``--allow-outside``; the add-on does, for the output folder the user chose. JobError names the field
+    otherwise, with both folders and a hint."""
     job_path = os.fspath(job_path)
     base = os.path.dirname(os.path.abspath(job_path))
 
     def confine(field, value):
-        return outputs.confined(base, value, lambda f, m: JobError(job_path, f, m), field, allow_outside)
+        return outputs.confined(base, value, lambda f, m, h: JobError(job_path, f, m, h), field, allow_outside,
+                                data_roots)
 
     out = {"output_dir": confine("output_dir", job.output_dir)}
     if job.scene is not None:
@@ -35,15 +38,16 @@ def job_paths(job_path, job: Job, allow_outside: bool = False, checkpoint: bool 
     return out
 
 
-def check_inputs(job_path, job: Job, allow_outside: bool = False) -> dict:
+def check_inputs(job_path, job: Job, allow_outside: bool = False, data_roots=()) -> dict:
     """Everything about a validated job that can be checked before any work, from file headers: the paths
     (``job_paths``), that the predictions file is a readable ``.npz`` whose frames include every
     ``source_frames`` entry, and that each asset is a readable Gaussian file. Returns the paths plus
-    ``num_source_frames``; raises an InputError (JobError, PredictionsError, SplatsError) naming file and field."""
+    ``num_source_frames``; raises an InputError (JobError, PredictionsError, SplatsError) naming file and field.
+    ``allow_outside``, ``data_roots``: ``job_paths``'s."""
     from .splats import reader as splats_io
     from .vggt import predictions as vggt
 
-    paths = job_paths(job_path, job, allow_outside)
+    paths = job_paths(job_path, job, allow_outside, data_roots=data_roots)
     if job.scene is not None:
         pred = paths["scene.predictions"]
         shapes = files.npz_shapes(pred, ["extrinsic"], error=lambda p, k, m: vggt.PredictionsError(p, k, m))

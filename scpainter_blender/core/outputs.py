@@ -5,8 +5,9 @@
   same for a folder built whole (a checkpoint, a clip, a cached street). ``write_json`` is the one JSON writer
   (strict: NaN/inf refused). ``remove_temporaries`` removes the temporary files a killed run left.
 - Log files: ``append_text`` never appends through a symbolic link; ``check_log`` refuses one beforehand.
-- Confinement: ``confined``, a job's paths may not leave the job's folder (``..`` or a symlink) unless the user
-  allows it; ``inside`` is the test.
+- Confinement: ``confined``, a job's paths may not leave the job's folder (``..`` or a symlink) except into a data
+  root the user trusts (``--data-root``: ``data_root``, ``data_roots_option``), unless the user allows everything
+  (``--allow-outside``); ``inside`` is the test.
 - Output folders: ``make_folder``, ``output_folder`` (``conditions/``, ``generated/`` may not lead elsewhere),
   ``check_output`` (what a run would refuse, checked without creating anything), ``remove_listed`` (the files a
   record of this program's outputs lists, and nothing else).
@@ -26,7 +27,7 @@ import shutil
 import stat
 import tempfile
 
-from .errors import InputError
+from .errors import ArgumentError, InputError
 from .files import NONBLOCK
 from .output_layout import OutputLayout
 
@@ -206,24 +207,60 @@ def check_log(path) -> None:
 
 # ----------------------------------------------------------------------------------------------- confinement
 
+#: The option naming a data root (``python -m backend render|generate|export|batch``, ``blender -c scpainter
+#: batch``), repeatable; in a batch list file the same is a ``data-root: DIR`` line (``core.batch_items``).
+DATA_ROOT_OPTION = "--data-root"
+#: The option that lifts confinement for every path of a job.
+ALLOW_OUTSIDE_OPTION = "--allow-outside"
+#: What to do about a job path that leads outside its job's folder and every data root.
+CONFINED_HINT = (f"move it into the job's folder; or name the folder that holds it with {DATA_ROOT_OPTION} DIR (a "
+                 "trusted root of shared recordings and assets; a batch list file may declare it with a "
+                 f"'data-root: DIR' line); or run with {ALLOW_OUTSIDE_OPTION} if you trust this job")
+
+
 def inside(path, folder) -> bool:
     """Whether ``path`` lies in ``folder`` (or is it) after resolving symbolic links and ``..``."""
     p, f = os.path.realpath(path), os.path.realpath(folder)
     return p == f or p.startswith(f.rstrip(os.sep) + os.sep)
 
 
-def confined(base, value, error, field: str, allow_outside: bool = False) -> str:
-    """The absolute path of a job's ``value`` (relative to ``base``, the job's folder). Unless ``allow_outside``,
-    ``error(field, message)`` when it resolves outside ``base`` (``..``, an absolute path elsewhere, or a symbolic
-    link pointing out): a job from someone else must not read or write beyond its own folder."""
+def data_root(path, error) -> str:
+    """The absolute path of a data root the user named (``--data-root DIR``; a list file's ``data-root:`` line,
+    given already joined to the list's folder), checked: ``error(message)`` (the InputError to raise, naming
+    where it was given) unless it is an existing folder. A root that is itself a symbolic link is followed: the
+    user named it."""
+    p = os.path.abspath(os.fspath(path))
+    if not os.path.isdir(p):
+        raise error(f"{p} {'is not a folder' if os.path.exists(p) else 'does not exist'}")
+    return p
+
+
+def data_roots_option(values) -> tuple:
+    """The ``--data-root`` values of a command line (None: not given), each checked by ``data_root``: an
+    ``ArgumentError`` naming the option otherwise. Returns a tuple of absolute folders."""
+    def error(message):
+        return ArgumentError(DATA_ROOT_OPTION, message, hint="name an existing folder (a trusted root of shared "
+                                                             "recordings and assets)")
+
+    return tuple(data_root(v, error) for v in values or ())
+
+
+def confined(base, value, error, field: str, allow_outside: bool = False, data_roots=()) -> str:
+    """The absolute path of a job's ``value`` (relative to ``base``, the job's folder). It must resolve (symbolic
+    links and ``..`` followed) inside ``base`` or inside one of ``data_roots`` (folders the user trusts, absolute:
+    ``data_root``), unless ``allow_outside``; otherwise ``error(field, message, hint)`` (``..``, an absolute path
+    elsewhere, or a symbolic link pointing out, also one inside a data root): a job from someone else must not
+    read or write beyond its own folder and the roots the user named. The output folder follows the same rule:
+    it may lie in a data root too (variant jobs writing into a shared tree of renders)."""
     path = os.path.normpath(os.path.join(os.path.abspath(base), os.fspath(value)))
-    if not allow_outside and not inside(path, base):
-        real = os.path.realpath(path)
-        how = "through a symbolic link " if os.path.realpath(os.path.dirname(path)) != os.path.dirname(path) or \
-            real != path else ""
-        raise error(field, f"{value!r} leads {how}outside the job's folder ({real}); move it into the folder, or "
-                           "run with --allow-outside if you trust this job")
-    return path
+    if allow_outside or inside(path, base) or any(inside(path, root) for root in data_roots):
+        return path
+    real = os.path.realpath(path)
+    how = "through a symbolic link " if real != path else ""
+    where = f"the job's folder ({os.path.abspath(base)})"
+    if data_roots:
+        where += f" and the data root{'s' if len(data_roots) > 1 else ''} ({', '.join(data_roots)})"
+    raise error(field, f"{value!r} leads {how}outside {where}: it resolves to {real}", CONFINED_HINT)
 
 
 # -------------------------------------------------------------------------------------------- output folders
@@ -255,7 +292,7 @@ def output_folder(parent, name: str, allow_outside: bool = False) -> str:
 
 def _leads_outside(path) -> InputError:
     return InputError(path, "(folder)", f"leads outside the output folder ({os.path.realpath(path)})",
-                      hint="remove the link, or run with --allow-outside if you made it")
+                      hint=f"remove the link, or run with {ALLOW_OUTSIDE_OPTION} if you made it")
 
 
 def check_output(out, allow_outside: bool = False) -> None:

@@ -51,7 +51,7 @@ import bpy
 from .. import backend_client
 from ..core import backend_protocol as protocol
 from ..core import batch_items as batch_mod
-from ..core import errors, files, import_options
+from ..core import errors, files, import_options, outputs
 from ..core import job as job_mod
 from ..core.output_layout import OutputLayout, VariationLayout
 from ..core.variation import spec as variation_spec, variants as vary_mod
@@ -83,6 +83,9 @@ def _parser():
             c.add_argument("--allow-outside", action="store_true",
                            help="let job.json items' paths lead outside their folder (.blend items always may: "
                                 "their output folder is the one the scene names)")
+            c.add_argument(outputs.DATA_ROOT_OPTION, action="append", metavar="DIR",
+                           help="a trusted folder (repeatable) job.json items' paths may lead into besides their "
+                                "own folder, e.g. a recording and asset library shared by many jobs")
             c.add_argument("--ray", nargs="?", const="", metavar="ADDRESS",
                            help="export every .blend's job, then run all jobs as one Ray batch (python -m backend "
                                 "batch --ray: one task per job, retried when a worker dies): the cluster at ADDRESS, "
@@ -282,6 +285,7 @@ def _batch(args) -> tuple[dict, int]:
     # checked before any scene is exported; given without --ray they are refused, not ignored
     args.retries, args.cpus_per_job = batch_mod.ray_options(args.ray, args.retries, args.cpus_per_job)
     shard = batch_mod.shard_option(args.shard, args.ray)
+    args.data_root = outputs.data_roots_option(args.data_root)  # checked, absolute; the backend applies them
     items = list(args.items) + [p for f in args.list or [] for p in batch_mod.read_list(f)]
     if not items:
         raise errors.ArgumentError("items", "no .blend or job files given", hint="give paths, or --list FILE")
@@ -342,6 +346,7 @@ def _run_jobs(args, jobs: list) -> list:
                 f.writelines(p + "\n" for (_, p, _), t in zip(jobs, trusted) if t == which)
         run = _invocation(args, "batch", batch_command=args.what, lists=(os.path.join(lists, "jobs.txt"),),
                           trusted_lists=(os.path.join(lists, "trusted.txt"),), allow_outside=args.allow_outside,
+                          data_roots=args.data_root,
                           checkpoint=_checkpoint(args) if generate else None,
                           inpaint=args.inpaint if generate else None, shard=None if ray else "0/1",
                           ray=args.ray, retries=args.retries if ray else None,

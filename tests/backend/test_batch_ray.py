@@ -14,7 +14,7 @@ import pytest
 from backend.batch import command as batch, ray_pool as batch_ray
 from backend.render import channels
 from scpainter_blender.core import locking
-from tests_support import run_backend, small_job
+from tests_support import run_backend, small_job, variant_jobs
 
 ray = pytest.importorskip("ray")
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -88,6 +88,21 @@ def test_a_job_that_fails_once_succeeds_on_retry_and_one_that_always_fails_is_re
     # bad input is a result, not retried: running it again could not change it
     assert by["bad_input"]["status"] == "failed" and by["bad_input"]["attempts"] == 1
     assert by["bad_input"]["file"].endswith("predictions.npz") and "not found" in by["bad_input"]["error"]
+
+
+def test_a_lists_data_root_travels_to_the_workers(ray_cluster, tmp_path):
+    """The data roots of a list's jobs reach the Ray tasks (batch.run_one in a worker): the variant reading the
+    shared recording runs; the same job outside that list is refused there, naming its file and field."""
+    from scpainter_blender.core import batch_items
+
+    shared, (v1, v2) = variant_jobs(tmp_path)
+    listed = tmp_path / "variants.txt"
+    listed.write_text("data-root: shared\nv1/job.json\n")
+    jobs = batch_items.read_job_list(listed)
+    results = batch_ray.run_ray_batch(jobs.paths + [v2], "render", "cpu",
+                                      data_roots=batch.job_data_roots([v2], [jobs]))
+    assert [r["status"] for r in results] == ["ok", "failed"] and results[0]["rendered"] == 2
+    assert results[1]["file"] == v2 and results[1]["field"] == "scene.predictions" and results[1]["attempts"] == 1
 
 
 def test_a_job_whose_worker_died_and_has_no_retry_left_names_its_log(ray_cluster, tmp_path):

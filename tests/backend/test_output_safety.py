@@ -5,6 +5,7 @@ import contextlib
 import io
 import json
 import os
+import shutil
 import subprocess
 import sys
 
@@ -13,7 +14,7 @@ import pytest
 from backend.__main__ import main
 from scpainter_blender.core import files, locking
 from scpainter_blender.core import job as J
-from tests_support import small_job
+from tests_support import small_job, variant_jobs
 
 
 def run(*args):
@@ -57,7 +58,7 @@ def test_output_dir_may_not_leave_the_job_folder(case, output_dir):
     edit(job_path, output_dir=output_dir)
     before = snapshot(os.path.dirname(outside))
     code, ev = run("render", job_path, "--device", "cpu")
-    assert code == 2 and ev[-1]["field"] == "output_dir" and "--allow-outside" in ev[-1]["message"]
+    assert code == 2 and ev[-1]["field"] == "output_dir" and "--allow-outside" in ev[-1]["hint"]
     assert ev[-1]["file"] == job_path
     assert snapshot(os.path.dirname(outside)) == before            # nothing written anywhere
     assert not os.path.exists("/tmp/scpainter-escape")
@@ -84,6 +85,71 @@ def test_allow_outside_writes_where_the_user_said(case, tmp_path):
     edit(job_path, output_dir=str(tmp_path / "elsewhere"))
     code, ev = run("render", job_path, "--device", "cpu", "--allow-outside")
     assert code == 0 and os.path.isfile(tmp_path / "elsewhere" / "conditions" / "frame_000002.exr")
+
+
+def test_a_data_root_lets_variant_jobs_share_one_recording_and_nothing_else(tmp_path):
+    """Variants in their own folders read one recording and asset through ../shared: refused without a data root,
+    accepted with --data-root (check and run); a path outside both the job's folder and the root still refused."""
+    shared, (v1, v2) = variant_jobs(tmp_path)
+    code, ev = run("render", v1, "--check")
+    assert code == 2 and ev[-1]["file"] == v1 and ev[-1]["field"] == "scene.predictions"
+    assert "--data-root" in ev[-1]["hint"]
+    code, ev = run("render", v1, "--check", "--data-root", shared)
+    assert code == 0 and ev[-1]["check"] is True and ev[-1]["output_dir"] == os.path.join(os.path.dirname(v1), "out")
+    code, ev = run("render", v1, "--device", "cpu", "--data-root", shared)
+    assert code == 0 and ev[-1]["rendered"] == 2
+    assert os.path.isfile(os.path.join(os.path.dirname(v1), "out", "conditions", "frame_000002.exr"))
+    for command in (("generate", "--check"), ("export", "--format", "kitti")):   # the other job commands alike
+        code, ev = run(*command, v1, "--data-root", shared)
+        assert code == 0, (command, ev[-1])
+        code, ev = run(*command, v1)
+        assert code == 2 and ev[-1]["field"] == "scene.predictions", (command, ev[-1])
+    # an asset outside the job's folder and the root: refused, naming the field and both folders
+    (tmp_path / "elsewhere").mkdir()
+    os.replace(os.path.join(shared, "car.ply"), tmp_path / "elsewhere" / "car.ply")
+    os.symlink(tmp_path / "elsewhere" / "car.ply", os.path.join(shared, "car.ply"))   # in the root by name only
+    before = snapshot(tmp_path)
+    code, ev = run("render", v2, "--device", "cpu", "--data-root", shared)
+    assert code == 2 and ev[-1]["file"] == v2 and ev[-1]["field"] == "assets[0].ply"
+    assert "symbolic link" in ev[-1]["message"] and shared in ev[-1]["message"]
+    assert os.path.dirname(v2) in ev[-1]["message"]
+    assert snapshot(tmp_path) == before                                 # nothing written
+    code, ev = run("render", v2, "--check", "--data-root", shared, "--allow-outside")   # which overrides it
+    assert code == 0
+    for root in (tmp_path / "missing", tmp_path / "elsewhere" / "car.ply"):  # a data root must be a folder
+        code, ev = run("render", v1, "--check", "--data-root", root)
+        assert code == 2 and ev[-1]["file"] == "(command line)" and ev[-1]["field"] == "--data-root"
+
+
+def test_a_batch_list_declares_its_data_root_for_its_own_jobs(tmp_path):
+    """batch --list: a list's data-root: line trusts the shared folder for that list's jobs only; a job of the
+    same list naming a file outside it fails with its file and field, the others run."""
+    shared, (v1, v2, v3) = variant_jobs(tmp_path, ("v1", "v2", "v3"))
+    job = J.load(v2).to_dict()
+    job["assets"][0]["ply"] = "../elsewhere/car.ply"
+    J.save(v2, job)
+    (tmp_path / "elsewhere").mkdir()
+    shutil.copy(os.path.join(shared, "car.ply"), tmp_path / "elsewhere" / "car.ply")
+    listed = tmp_path / "variants.txt"
+    listed.write_text("# the variants of one drive\ndata-root: shared\n\nv1/job.json\nv2/job.json\n")
+    # v3 is given on the command line: the list's root is not its
+    code, ev = run("batch", v3, "--list", listed, "--device", "cpu")
+    assert code == 1
+    items = {os.path.basename(os.path.dirname(r["job"])): r for r in ev[-1]["items"]}
+    assert items["v1"]["status"] == "ok" and items["v1"]["rendered"] == 2
+    assert items["v2"]["status"] == "failed" and items["v2"]["file"] == v2 and items["v2"]["field"] == "assets[0].ply"
+    assert shared in items["v2"]["error"] and "--data-root" in items["v2"]["hint"]
+    assert items["v3"]["status"] == "failed" and items["v3"]["file"] == v3
+    assert items["v3"]["field"] == "scene.predictions" and "data root" not in items["v3"]["error"]
+    assert not os.path.exists(os.path.join(os.path.dirname(v2), "out", "conditions"))
+    # --data-root trusts it for every job; v2's asset stays outside both
+    code, ev = run("batch", v3, "--list", listed, "--device", "cpu", "--data-root", shared)
+    assert code == 1 and [r["status"] for r in ev[-1]["items"]] == ["ok", "ok", "failed"]
+    assert ev[-1]["items"][0]["rendered"] == 2 and ev[-1]["items"][2]["field"] == "assets[0].ply"
+    # a bad data-root: line is bad input of the list file, before any job
+    listed.write_text("v1/job.json\ndata-root: shared\n")
+    code, ev = run("batch", "--list", listed, "--device", "cpu")
+    assert code == 2 and ev[-1]["file"] == str(listed) and ev[-1]["field"] == "line 2"
 
 
 def test_links_planted_in_the_output_folder_are_not_followed(case):
@@ -198,4 +264,4 @@ def test_generate_names_a_missing_checkpoint(case, tmp_path):
     assert code == 2 and "does not exist" in ev[-1]["message"] and ev[-1]["file"] == str(tmp_path / "nonexistent")
     edit(job_path, generate={"checkpoint": str(tmp_path / "models" / "ckpt")})
     code, ev = run("generate", job_path, "--check")
-    assert code == 2 and ev[-1]["field"] == "generate.checkpoint" and "--checkpoint PATH" in ev[-1]["message"]
+    assert code == 2 and ev[-1]["field"] == "generate.checkpoint" and "--checkpoint PATH" in ev[-1]["hint"]

@@ -42,16 +42,19 @@ def test_device_names_match_the_preferences_enum_order():
 
 @pytest.mark.parametrize("run", [
     Invocation("render", jobs=("/x/job.json",), device="cpu", allow_outside=True, force=True, point_radius=2),
+    Invocation("render", jobs=("/x/job.json",), data_roots=("/data",)),
+    Invocation("generate", jobs=("/x/job.json",), data_roots=("/data", "/assets")),
     Invocation("generate", jobs=("job.json",), device="cuda", checkpoint="/ck", model="baseline", steps=3, seed=7,
                inpaint="telea"),
     Invocation("batch", batch_command="generate", lists=("a.txt", "b.txt"), trusted_lists=("t.txt",), device="auto",
                checkpoint="/ck", inpaint="navier-stokes", allow_outside=True, shard="0/1"),
-    Invocation("batch", jobs=("a.json",), batch_command="render", ray="", retries=3, cpus_per_job=2.5),
+    Invocation("batch", jobs=("a.json",), batch_command="render", ray="", retries=3, cpus_per_job=2.5,
+               data_roots=("/data",)),
     Invocation("batch", jobs=("a.json",), ray="head:6379"),
     Invocation("doctor", checkpoint="/ck"),
     Invocation("export", jobs=("/x/job.json",), export_format="openlabel", out="/x/dataset", device="cpu",
                allow_outside=True),
-    Invocation("export", jobs=("job.json",), export_format="kitti"),
+    Invocation("export", jobs=("job.json",), export_format="kitti", data_roots=("/data",)),
 ])
 def test_invocation_argv_round_trips_through_the_backend_parser(run):
     from backend.__main__ import build_parser
@@ -59,7 +62,8 @@ def test_invocation_argv_round_trips_through_the_backend_parser(run):
     args = vars(build_parser().parse_args(run.argv()))
     expected = {"command": run.command, "device": run.device, "checkpoint": run.checkpoint, "model": run.model,
                 "steps": run.steps, "seed": run.seed, "inpaint": run.inpaint, "point_radius": run.point_radius,
-                "force": run.force, "allow_outside": run.allow_outside, "shard": run.shard, "ray": run.ray,
+                "force": run.force, "allow_outside": run.allow_outside, "data_root": list(run.data_roots) or None,
+                "shard": run.shard, "ray": run.ray,
                 "retries": run.retries, "cpus_per_job": run.cpus_per_job, "command_name": run.batch_command,
                 "list": list(run.lists) or None, "trusted_list": list(run.trusted_lists) or None,
                 "format": run.export_format, "out": run.out}

@@ -41,6 +41,32 @@ def test_list_file(tmp_path):
         batch.read_list(p)
 
 
+def test_a_job_list_may_declare_its_data_roots(tmp_path):
+    """read_job_list: data-root: lines before the first path (relative to the list's folder) are folders the
+    list's jobs may lead into; read_list (a list that declares nothing) refuses them, naming the line."""
+    (tmp_path / "shared").mkdir()
+    (tmp_path / "more").mkdir()
+    p = tmp_path / "jobs.txt"
+    p.write_text("# variants of one recording\ndata-root: shared\n\ndata-root:  " + str(tmp_path / "more")
+                 + "\nv1/job.json\n/abs/job.json\n")
+    listed = batch.read_job_list(p)
+    assert listed.paths == [str(tmp_path / "v1" / "job.json"), "/abs/job.json"]
+    assert listed.data_roots == (str(tmp_path / "shared"), str(tmp_path / "more"))
+    assert batch.read_job_list(tmp_path / "jobs.txt").path == str(p)
+    with pytest.raises(errors.InputError) as e:
+        batch.read_list(p)
+    assert e.value.path == str(p) and e.value.field == "line 2" and "--data-root" in e.value.hint
+    (tmp_path / "afile").write_text("")
+    for text, field, what in (("v1/job.json\ndata-root: shared\n", "line 2", "after the first path"),
+                              ("data-root: missing\nv1/job.json\n", "line 1", "does not exist"),
+                              ("# c\ndata-root: afile\n", "line 2", "is not a folder"),
+                              ("data-root:\n", "line 1", "names no folder")):
+        p.write_text(text)
+        with pytest.raises(errors.InputError) as e:
+            batch.read_job_list(p)
+        assert e.value.path == str(p) and e.value.field == field and what in e.value.message, e.value
+
+
 def test_ray_options_are_checked_before_any_work():
     batch.check_ray_options(0, 0.5)
     batch.check_ray_options(batch.MAX_RETRIES, 64)

@@ -149,12 +149,68 @@ def test_paths_stay_in_the_job_folder(tmp_path):
         bad = {**job, **change}
         with pytest.raises(J.JobError) as e:
             job_inputs.job_paths(path, J.validate(bad))
-        assert e.value.field == field and "--allow-outside" in str(e.value)
+        assert e.value.field == field and "outside the job's folder" in str(e.value)
+        assert "--allow-outside" in e.value.hint and "--data-root" in e.value.hint
         assert job_inputs.job_paths(path, J.validate(bad), allow_outside=True)[field].startswith("/")
     os.symlink(tmp_path.parent, tmp_path / "up")          # inside by name, outside in fact
     with pytest.raises(J.JobError, match="symbolic link"):
         job_inputs.job_paths(path, J.validate({**job, "output_dir": "up/out"}))
     assert job_inputs.job_paths(path, J.validate({**job, "output_dir": "sub/../out/."}))["output_dir"] == str(tmp_path / "out")
+
+
+def test_paths_may_also_lead_into_a_data_root(tmp_path):
+    """A data root the user trusts (--data-root, a list's data-root:): a path may resolve inside the job's folder
+    or inside the root, links and .. followed; anything else is refused naming the field and both folders."""
+    import os
+
+    from scpainter_blender.core import errors, outputs
+
+    data = tmp_path / "data"                                # the shared recording and asset library
+    (data / "recon").mkdir(parents=True)
+    (data / "assets").mkdir()
+    variant = tmp_path / "variants" / "v1"
+    variant.mkdir(parents=True)
+    path = variant / "job.json"
+    roots = outputs.data_roots_option([str(data)])
+    assert roots == (str(data),)
+    job = minimal()
+    job["scene"]["predictions"] = "../../data/recon/predictions.npz"
+    job["assets"][0]["ply"] = str(data / "assets" / "car_01.ply")   # absolute, inside the root
+    job["output_dir"] = "out"                                       # the job's own folder
+    paths = job_inputs.job_paths(path, J.validate(job), data_roots=roots)
+    assert paths["scene.predictions"] == str(data / "recon" / "predictions.npz")
+    assert paths["assets[0].ply"] == str(data / "assets" / "car_01.ply")
+    assert paths["output_dir"] == str(variant / "out")
+    job["output_dir"] = "../../data/renders/v1"                     # the output folder may lie in the root too
+    assert job_inputs.job_paths(path, J.validate(job), data_roots=roots)["output_dir"] == str(data / "renders" / "v1")
+
+    def refused(change, field):
+        bad = copy.deepcopy(job)
+        change(bad)
+        with pytest.raises(J.JobError) as e:
+            job_inputs.job_paths(path, J.validate(bad), data_roots=roots)
+        assert e.value.path == str(path) and e.value.field == field
+        assert str(variant) in e.value.message and str(data) in e.value.message, e.value.message   # both folders
+        assert "--data-root" in e.value.hint and "--allow-outside" in e.value.hint
+        assert job_inputs.job_paths(path, J.validate(bad), allow_outside=True, data_roots=roots)[field]  # overrides
+        return e.value
+
+    (tmp_path / "elsewhere").mkdir()
+    refused(lambda j: j["assets"][0].update(ply="../../elsewhere/car.ply"), "assets[0].ply")   # outside both
+    refused(lambda j: j["assets"][0].update(ply="../../data/../elsewhere/car.ply"), "assets[0].ply")  # .. out of it
+    refused(lambda j: j["scene"].update(predictions=str(data / ".." / "elsewhere" / "p.npz")), "scene.predictions")
+    os.symlink(tmp_path / "elsewhere", data / "recon" / "linked")   # inside the root by name, outside in fact
+    e = refused(lambda j: j["scene"].update(predictions="../../data/recon/linked/predictions.npz"),
+                "scene.predictions")
+    assert "symbolic link" in e.message
+    refused(lambda j: j.update(output_dir="../../data/recon/linked/out"), "output_dir")
+    # the root itself must be a folder: a file or a missing path is an ArgumentError naming the option
+    (tmp_path / "file").write_text("not a folder")
+    for root, what in ((tmp_path / "file", "is not a folder"), (tmp_path / "missing", "does not exist")):
+        with pytest.raises(errors.ArgumentError) as e:
+            outputs.data_roots_option([str(data), str(root)])
+        assert e.value.field == "--data-root" and what in e.value.message and str(root) in e.value.message
+    assert outputs.data_roots_option(None) == ()
 
 
 def test_job_file_limits(tmp_path):

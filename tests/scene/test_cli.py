@@ -55,6 +55,14 @@ def test_bad_input_exit_code_2(addon, empty_scene, tmp_path, capsys):
     assert cli.execute(["render", str(not_blend)]) == 2
     ev = _last_event(capsys)
     assert ev["file"] == str(not_blend) and "cannot open it as a scene" in ev["message"]
+    # batch: a data root that is no folder, and a list's data-root: line (the backend's lists only), before any work
+    assert cli.execute(["batch", "a.blend", "--data-root", str(not_blend)]) == 2
+    ev = _last_event(capsys)
+    assert ev["file"] == "(command line)" and ev["field"] == "--data-root" and "is not a folder" in ev["message"]
+    (tmp_path / "list.txt").write_text("data-root: .\na.blend\n")
+    assert cli.execute(["batch", "--list", str(tmp_path / "list.txt")]) == 2
+    ev = _last_event(capsys)
+    assert ev["file"] == str(tmp_path / "list.txt") and ev["field"] == "line 1" and "--data-root" in ev["hint"]
 
 
 def test_input_error_by_name_is_exit_2_anything_else_exit_1(addon, empty_scene, tmp_path, capsys, monkeypatch):
@@ -146,7 +154,15 @@ def test_render_generate_and_batch_headless(addon, street, tmp_path, capsys, tin
     # the job file reads the street's predictions from the cache, outside its folder: refused unless allowed
     code = cli.execute(["batch", "--list", str(tmp_path / "list.txt"), "--command", "render", *common])
     ev = _last_event(capsys)
-    assert code == 1 and "scene.predictions" in ev["items"][0]["error"] and "--allow-outside" in ev["items"][0]["error"]
+    assert code == 1 and "scene.predictions" in ev["items"][0]["error"] and "--allow-outside" in ev["items"][0]["hint"]
+    # ... or with the folders it reads named as data roots (passed on to the backend's batch)
+    exported = json.load(open(out / "job.json"))
+    roots = {os.path.dirname(os.path.join(out, p))
+             for p in [exported["scene"]["predictions"], *(a["ply"] for a in exported["assets"])]}
+    code = cli.execute(["batch", "--list", str(tmp_path / "list.txt"), "--command", "render", *common,
+                        *[a for r in sorted(roots) for a in ("--data-root", r)]])
+    ev = _last_event(capsys)
+    assert code == 0 and ev["items"][0]["status"] == "ok", ev
     code = cli.execute(["batch", blend, str(tmp_path / "missing.blend"), "--list", str(tmp_path / "list.txt"),
                         "--command", "render", "--allow-outside", *common])
     ev = _last_event(capsys)

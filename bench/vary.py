@@ -24,6 +24,7 @@ sys.path.insert(0, ROOT)
 sys.path.insert(0, os.path.join(ROOT, "tests"))
 
 from scpainter_blender.core import outputs, shapes  # noqa: E402
+from scpainter_blender.core.batch_items import DATA_ROOT_DIRECTIVE  # noqa: E402
 from scpainter_blender.core.output_layout import VariationLayout  # noqa: E402
 from scpainter_blender.core.variation import spec as spec_mod, variants  # noqa: E402
 from scpainter_blender.street.dataset import ensure_street  # noqa: E402
@@ -59,14 +60,14 @@ def main(argv=None) -> int:
     with open(layout.list) as f:
         lines = f.read().splitlines()
     if args.render_variants is not None:  # the data roots, then the first N jobs
-        head = [x for x in lines if not x.strip() or x.startswith("#") or x.startswith(variants.DATA_ROOT)]
+        head = [x for x in lines if not x.strip() or x.startswith("#") or x.startswith(DATA_ROOT_DIRECTIVE)]
         jobs = [x for x in lines if x not in head][:args.render_variants]
         lines = head + jobs
     lst = os.path.join(out, "render_list.txt")
     with open(lst, "w") as f:
-        f.write("\n".join(l if not l or l.startswith(("#", variants.DATA_ROOT)) or os.path.isabs(l)
+        f.write("\n".join(l if not l or l.startswith(("#", DATA_ROOT_DIRECTIVE)) or os.path.isabs(l)
                           else os.path.join(layout.root, l) for l in lines) + "\n")
-    n_jobs = sum(1 for x in lines if x.strip() and not x.startswith(("#", variants.DATA_ROOT)))
+    n_jobs = sum(1 for x in lines if x.strip() and not x.startswith(("#", DATA_ROOT_DIRECTIVE)))
 
     env = dict(os.environ, OMP_NUM_THREADS="1", NUMBA_NUM_THREADS="1")
     t0 = time.perf_counter()

@@ -113,13 +113,13 @@ def read_job_list(path) -> JobList:
 
 def read_list(path) -> list:
     """The paths of a list file that declares nothing (``read_job_list``'s format without ``data-root:`` lines):
-    the clip lists of training, the items of ``blender -c scpainter batch``. A ``data-root:`` line there is an
-    InputError naming the file and the line: it would trust nothing, silently."""
+    the clip lists of training. A ``data-root:`` line there is an InputError naming the file and the line: it
+    would trust nothing, silently."""
     path = os.fspath(path)
     paths, directives = _parse(path)
     if directives:
-        raise errors.InputError(path, directives[0][0], f"{DATA_ROOT_DIRECTIVE} applies to the lists of python -m "
-                                                        "backend batch only",
+        raise errors.InputError(path, directives[0][0], f"{DATA_ROOT_DIRECTIVE} applies to the lists of batch jobs "
+                                                        "only",
                                 hint=f"give the folder on the command line ({outputs.DATA_ROOT_OPTION} DIR) and "
                                      "leave the line out")
     return paths

@@ -286,7 +286,13 @@ def _batch(args) -> tuple[dict, int]:
     args.retries, args.cpus_per_job = batch_mod.ray_options(args.ray, args.retries, args.cpus_per_job)
     shard = batch_mod.shard_option(args.shard, args.ray)
     args.data_root = outputs.data_roots_option(args.data_root)  # checked, absolute; the backend applies them
-    items = list(args.items) + [p for f in args.list or [] for p in batch_mod.read_list(f)]
+    listed = [batch_mod.read_job_list(f) for f in args.list or []]
+    items = list(args.items) + [p for jl in listed for p in jl.paths]
+    # a list's data-root: lines trust those folders for the job files it names (as the backend's batch does)
+    roots_of = {}
+    for jl in listed:
+        for p in jl.paths:
+            roots_of[os.path.abspath(p)] = tuple(dict.fromkeys(roots_of.get(os.path.abspath(p), ()) + jl.data_roots))
     if not items:
         raise errors.ArgumentError("items", "no .blend or job files given", hint="give paths, or --list FILE")
     k, n = (0, 1) if args.ray is not None else shard or batch_mod.ranks_from_env()[:2]
@@ -312,7 +318,7 @@ def _batch(args) -> tuple[dict, int]:
         except Exception as e:  # noqa: BLE001  bad input or a bug: recorded; go on with the rest
             results[i] = {"item": path, "status": "failed", **_failure(e), "seconds": time.perf_counter() - t}
     if jobs:
-        for i, r in zip([i for i, _, _ in jobs], _run_jobs(args, jobs)):
+        for i, r in zip([i for i, _, _ in jobs], _run_jobs(args, jobs, roots_of)):
             results[i] = {"item": items[i], **r}
     ordered = [results[i] for i in range(len(items))]
     failed = sum(r["status"] != "ok" for r in ordered)
@@ -324,7 +330,7 @@ def _batch(args) -> tuple[dict, int]:
             "seconds": time.perf_counter() - t0}, (protocol.EXIT_FAILED if failed else protocol.EXIT_OK)
 
 
-def _run_jobs(args, jobs: list) -> list:
+def _run_jobs(args, jobs: list, roots_of: dict | None = None) -> list:
     """One backend ``batch`` over ``jobs`` ((index, job path, exported here) in order): with ``--ray`` on the
     cluster (backend/batch/ray_pool.py), else here, all of them (``--shard 0/1``: this process's share is already
     taken). Its result per job (status, outputs, ``seconds``; a failure's ``error``, ``hint``, ``file``, ``field``,
@@ -339,12 +345,24 @@ def _run_jobs(args, jobs: list) -> list:
     # that same file); the other job.json items as given. Each list in the items' order: the backend runs them so
     exported = {p for _, p, e in jobs if e}
     trusted = [p in exported for _, p, _ in jobs]
+    # the other job.json items in one list per set of data roots their --list files declared (each list's
+    # data-root: lines apply to its own jobs), in the order first met
+    roots_of = roots_of or {}
+    groups = {}
+    for k, ((_, p, _), t) in enumerate(zip(jobs, trusted)):
+        if not t:
+            groups.setdefault(roots_of.get(p, ()), []).append(k)
     lists = tempfile.mkdtemp(prefix="scpainter-batch-")
     try:
-        for name, which in (("jobs.txt", False), ("trusted.txt", True)):
-            with open(os.path.join(lists, name), "w", encoding="utf-8") as f:
-                f.writelines(p + "\n" for (_, p, _), t in zip(jobs, trusted) if t == which)
-        run = _invocation(args, "batch", batch_command=args.what, lists=(os.path.join(lists, "jobs.txt"),),
+        job_lists = []
+        for g, (roots, members) in enumerate(groups.items()):
+            job_lists.append(os.path.join(lists, f"jobs{g}.txt"))
+            with open(job_lists[-1], "w", encoding="utf-8") as f:
+                f.writelines(f"{batch_mod.DATA_ROOT_DIRECTIVE} {r}\n" for r in roots)
+                f.writelines(jobs[k][1] + "\n" for k in members)
+        with open(os.path.join(lists, "trusted.txt"), "w", encoding="utf-8") as f:
+            f.writelines(p + "\n" for (_, p, _), t in zip(jobs, trusted) if t)
+        run = _invocation(args, "batch", batch_command=args.what, lists=tuple(job_lists),
                           trusted_lists=(os.path.join(lists, "trusted.txt"),), allow_outside=args.allow_outside,
                           data_roots=args.data_root,
                           checkpoint=_checkpoint(args) if generate else None,
@@ -364,8 +382,8 @@ def _run_jobs(args, jobs: list) -> list:
             signal.signal(signal.SIGTERM, previous)
     finally:
         shutil.rmtree(lists, ignore_errors=True)
-    # the backend's order: --list, then --trusted-list
-    order = [k for k, t in enumerate(trusted) if not t] + [k for k, t in enumerate(trusted) if t]
+    # the backend's order: the --list files in turn, then --trusted-list
+    order = [k for members in groups.values() for k in members] + [k for k, t in enumerate(trusted) if t]
     returned = [None] * len(jobs)
     for k, r in zip(order, done["items"], strict=True):
         returned[k] = r

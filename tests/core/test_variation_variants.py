@@ -9,6 +9,7 @@ import pytest
 
 from scpainter_blender.core import job as J, shapes
 from scpainter_blender.core.geometry import boxes, cameras
+from scpainter_blender.core.batch_items import DATA_ROOT_DIRECTIVE
 from scpainter_blender.core.output_layout import VariationLayout
 from scpainter_blender.core.variation import placement, spec as spec_mod, variants
 from tests_support import street_base_job, street_parked_cars
@@ -73,8 +74,8 @@ def test_manifest_list_and_jobs_agree(run, bases):
     assert s["variants"] == 12 and s["placed"] + s["unplaced"] == 12 and s["placed"] >= 9
     with open(layout.list) as f:
         lines = [line.strip() for line in f if line.strip() and not line.startswith("#")]
-    roots = [line.split(":", 1)[1].strip() for line in lines if line.startswith(variants.DATA_ROOT)]
-    listed = [line for line in lines if not line.startswith(variants.DATA_ROOT)]
+    roots = [line.split(":", 1)[1].strip() for line in lines if line.startswith(DATA_ROOT_DIRECTIVE)]
+    listed = [line for line in lines if not line.startswith(DATA_ROOT_DIRECTIVE)]
     assert listed == [e["job"] for e in manifest["variants"] if e["outcome"] == "placed"]
     assert os.path.realpath(out) in roots
     jobs = _jobs(out, manifest)

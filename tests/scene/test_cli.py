@@ -55,14 +55,14 @@ def test_bad_input_exit_code_2(addon, empty_scene, tmp_path, capsys):
     assert cli.execute(["render", str(not_blend)]) == 2
     ev = _last_event(capsys)
     assert ev["file"] == str(not_blend) and "cannot open it as a scene" in ev["message"]
-    # batch: a data root that is no folder, and a list's data-root: line (the backend's lists only), before any work
+    # batch: a data root that is no folder, and a list's misplaced data-root: line, before any work
     assert cli.execute(["batch", "a.blend", "--data-root", str(not_blend)]) == 2
     ev = _last_event(capsys)
     assert ev["file"] == "(command line)" and ev["field"] == "--data-root" and "is not a folder" in ev["message"]
-    (tmp_path / "list.txt").write_text("data-root: .\na.blend\n")
+    (tmp_path / "list.txt").write_text("a.blend\ndata-root: .\n")   # a data-root: line after a path
     assert cli.execute(["batch", "--list", str(tmp_path / "list.txt")]) == 2
     ev = _last_event(capsys)
-    assert ev["file"] == str(tmp_path / "list.txt") and ev["field"] == "line 1" and "--data-root" in ev["hint"]
+    assert ev["file"] == str(tmp_path / "list.txt") and ev["field"] == "line 2"
 
 
 def test_input_error_by_name_is_exit_2_anything_else_exit_1(addon, empty_scene, tmp_path, capsys, monkeypatch):
@@ -163,6 +163,12 @@ def test_render_generate_and_batch_headless(addon, street, tmp_path, capsys, tin
                         *[a for r in sorted(roots) for a in ("--data-root", r)]])
     ev = _last_event(capsys)
     assert code == 0 and ev["items"][0]["status"] == "ok", ev
+    # ... or by the list itself (its data-root: lines, as vary writes them), beside a scene
+    (tmp_path / "rooted.txt").write_text("".join(f"data-root: {r}\n" for r in sorted(roots))
+                                         + f"scpainter/Scene/{CAM_DIR}/job.json\n")
+    code = cli.execute(["batch", blend, "--list", str(tmp_path / "rooted.txt"), "--command", "render", *common])
+    ev = _last_event(capsys)
+    assert code == 0 and [r["status"] for r in ev["items"]] == ["ok", "ok"], ev
     code = cli.execute(["batch", blend, str(tmp_path / "missing.blend"), "--list", str(tmp_path / "list.txt"),
                         "--command", "render", "--allow-outside", *common])
     ev = _last_event(capsys)

@@ -20,7 +20,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from .. import job as job_mod, outputs
+from .. import batch_items, job as job_mod, outputs
 from ..geometry import boxes, cameras, fits, point_cloud, trajectory
 from ..output_layout import VariationLayout
 from ..vggt import npz as vggt_npz
@@ -28,8 +28,6 @@ from . import library as library_mod, placement
 from .road import Road
 from .spec import VariationError, VariationSpec
 
-#: The ``data-root:`` directive of a batch list (core/batch_items.py reads it).
-DATA_ROOT = "data-root:"
 
 
 def scene_points(job: job_mod.Job, job_path) -> np.ndarray:
@@ -293,7 +291,7 @@ def make_variants(base_path, spec: VariationSpec, out, convert_mesh=None, progre
     with outputs.atomic_write(layout.list, "w") as f:
         f.write(f"# SCPainter variants: python -m backend batch --list {VariationLayout.LIST}\n")
         for root in v.data_roots():
-            f.write(f"{DATA_ROOT} {root}\n")
+            f.write(f"{batch_items.DATA_ROOT_DIRECTIVE} {root}\n")
         f.writelines(f"{p}\n" for p in listed)
     manifest = {"schema": "scpainter.variation-manifest/1", "base": v.base_path, "spec": spec.to_dict(),
                 "library": [{"name": a.name, "source": a.source, "ply": a.ply, "size_m": a.size_m.tolist(),

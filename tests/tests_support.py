@@ -218,7 +218,8 @@ def street_base_job(street, path, recorded_cars: bool = False, fps: float = 10.0
     from scpainter_blender.core import job as J
 
     m = np.load(os.path.join(street.root, "metric.npz"))
-    frames = [J.Frame(i + 1, m["K"][i], m["world_to_camera"][i], [i]) for i in range(len(m["K"]))]
+    # every recorded frame's points in every output frame, as Blender exports a points object showing all frames
+    frames = [J.Frame(i + 1, m["K"][i], m["world_to_camera"][i], list(range(len(m["K"])))) for i in range(len(m["K"]))]
     scene = J.Scene(street.predictions_path, m["vggt_to_world"])
     if recorded_cars:
         with open(os.path.join(street.root, "street.json")) as f:

@@ -208,3 +208,10 @@ def test_a_base_without_points_or_library_is_refused(bases, library, tmp_path):
     with pytest.raises(spec_mod.VariationError) as e:
         variants.make_variants(bases[0], spec(None), str(tmp_path / "o"))
     assert e.value.field == "cars.library"
+
+
+def test_every_setting_has_its_file_field():
+    import dataclasses
+
+    attrs = {f.name for f in dataclasses.fields(spec_mod.VariationSpec)}
+    assert {attr for _, attr, *_ in spec_mod.FIELDS} | {"shift_range_m"} == attrs   # (the range: shifts_m's form)

@@ -93,125 +93,96 @@ class VariationSpec:
         return {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items()}
 
 
+#: Every field of the file: (its name, the ``VariationSpec`` field, how it is read, low, high bound). Kinds:
+#: ``int``, ``number``, ``range`` / ``int_range`` ([low, high] within the bounds), ``choices`` (a non-empty list
+#: of numbers), ``pair`` (two numbers), ``shifts`` (choices, or {"min", "max"} for a range), ``folder`` (a path,
+#: relative to the spec file).
+FIELDS = (
+    ("variants", "variants", "int", 1, MAX_VARIANTS),
+    ("seed", "seed", "int", 0, 2 ** 63 - 1),
+    ("resolution", "resolution", "int_pair", 8, 16384),
+    ("camera.shifts_m", "shifts_m", "shifts", -50.0, 50.0),
+    ("camera.lane_change.probability", "lane_change_probability", "number", 0.0, 1.0),
+    ("camera.lane_change.shift_m", "lane_change_m", "choices", -20.0, 20.0),
+    ("camera.lane_change.frames", "lane_change_frames", "int", 1, 100_000),
+    ("cars.library", "library", "folder", None, None),
+    ("cars.count", "car_count", "int_range", 0, MAX_CARS),
+    ("cars.moving_probability", "moving_probability", "number", 0.0, 1.0),
+    ("cars.size_jitter", "size_jitter", "number", 0.0, 0.5),
+    ("cars.hue_jitter_deg", "hue_jitter_deg", "number", 0.0, 180.0),
+    ("cars.parked_offset_m", "parked_offset_m", "range", 0.0, 50.0),
+    ("cars.kerb_gap_m", "kerb_gap_m", "range", 0.0, 5.0),
+    ("cars.lane_offsets_m", "lane_offsets_m", "choices", -50.0, 50.0),
+    ("cars.speed_mps", "speed_mps", "range", 0.0, 70.0),
+    ("placement.tries", "tries", "int", 1, MAX_TRIES),
+    ("placement.gap_m", "gap_m", "number", 0.0, 10.0),
+    ("placement.ego_size_m", "ego_size_m", "pair", 0.1, 30.0),
+    ("placement.ego_margin_m", "ego_margin_m", "number", 0.0, 10.0),
+    ("placement.headway_s", "headway_s", "number", 0.0, 60.0),
+)
+
+
 def _error(path, field, message, hint=""):
     return VariationError(path, field, message, hint=hint)
 
 
-def _int(v, field, lo, hi, path):
-    return fields.integer(v, path, field, lo, hi, error=VariationError)
-
-
-def _num(v, field, lo, hi, path):
-    return fields.number(v, path, field, lo, hi, error=VariationError)
-
-
-def _range(v, field, lo, hi, path, integer=False) -> tuple:
-    """[low, high] with lo <= low <= high <= hi."""
-    if not isinstance(v, list) or len(v) != 2:
-        raise _error(path, field, f"expected [low, high], got {fields.short(v)}")
-    check = _int if integer else _num
-    a, b = (check(x, f"{field}[{i}]", lo, hi, path) for i, x in enumerate(v))
-    if a > b:
-        raise _error(path, field, f"low {a} is above high {b}")
-    return (a, b)
-
-
-def _choices(v, field, lo, hi, path) -> tuple:
-    if not isinstance(v, list) or not v or len(v) > 1000:
-        raise _error(path, field, f"expected a non-empty list of numbers (at most 1000), got {fields.short(v)}")
-    return tuple(_num(x, f"{field}[{i}]", lo, hi, path) for i, x in enumerate(v))
-
-
-def _section(d, key, known, path) -> dict:
-    s = d.get(key, {})
-    if not isinstance(s, dict):
-        raise _error(path, key, "expected an object")
-    for k in s:
-        if k not in known:
-            raise _error(path, f"{key}.{k}", f"is not a field of {key} (fields: {', '.join(known)})")
-    return s
+def _read(kind, v, field, lo, hi, path):
+    """One field's value as ``VariationSpec`` holds it (``FIELDS``' kinds)."""
+    num = lambda x, f: fields.number(x, path, f, lo, hi, error=VariationError)  # noqa: E731
+    whole = lambda x, f: fields.integer(x, path, f, lo, hi, error=VariationError)  # noqa: E731
+    if kind in ("int", "number"):
+        return (whole if kind == "int" else num)(v, field)
+    if kind in ("pair", "int_pair", "range", "int_range"):
+        if not isinstance(v, list) or len(v) != 2:
+            raise _error(path, field, f"expected [{'low, high' if 'range' in kind else 'a, b'}], got "
+                                      f"{fields.short(v)}")
+        a, b = ((whole if kind.startswith("int") else num)(x, f"{field}[{i}]") for i, x in enumerate(v))
+        if "range" in kind and a > b:
+            raise _error(path, field, f"low {a} is above high {b}")
+        return (a, b)
+    if kind == "choices" or (kind == "shifts" and not isinstance(v, dict)):
+        if not isinstance(v, list) or not v or len(v) > 1000:
+            raise _error(path, field, f"expected a non-empty list of numbers (at most 1000), got {fields.short(v)}")
+        return tuple(num(x, f"{field}[{i}]") for i, x in enumerate(v))
+    if kind == "shifts":  # {"min": m, "max": m}: drawn uniformly
+        if set(v) != {"min", "max"}:
+            raise _error(path, field, 'expected a list of shifts or {"min": m, "max": m}')
+        return _read("range", [v["min"], v["max"]], field, lo, hi, path)
+    if kind == "folder":
+        folder = fields.string(v, path, field, error=VariationError)
+        return folder if os.path.isabs(folder) else os.path.join(os.path.dirname(os.path.abspath(path)), folder)
+    raise ValueError(f"unknown field kind {kind!r}")
 
 
 def from_dict(d, path) -> VariationSpec:
-    """A ``VariationSpec`` from a spec file's content; ``VariationError`` naming the field."""
+    """A ``VariationSpec`` from a spec file's content (``FIELDS``); ``VariationError`` naming the field: an unknown
+    one (a typo would otherwise fall back to a default unseen), a value of the wrong kind or out of bounds."""
     if not isinstance(d, dict):
         raise _error(path, "(file)", "expected a JSON object")
-    top = ("schema", "variants", "seed", "resolution", "camera", "cars", "placement")
-    for k in d:
-        if k not in top:
-            raise _error(path, k, f"is not a field of a variation spec (fields: {', '.join(top)})")
     if d.get("schema", SCHEMA) != SCHEMA:
         raise _error(path, "schema", f"expected {SCHEMA!r}, got {fields.short(d.get('schema'))}")
-    kw = {}
-    if "variants" in d:
-        kw["variants"] = _int(d["variants"], "variants", 1, MAX_VARIANTS, path)
-    if "seed" in d:
-        kw["seed"] = _int(d["seed"], "seed", 0, 2 ** 63 - 1, path)
-    if d.get("resolution") is not None:
-        kw["resolution"] = tuple(_int(x, f"resolution[{i}]", 8, 16384, path)
-                                 for i, x in enumerate(_pair(d["resolution"], "resolution", path)))
-    cam = _section(d, "camera", ("shifts_m", "lane_change"), path)
-    if "shifts_m" in cam:
-        s = cam["shifts_m"]
-        if isinstance(s, dict):
-            if set(s) != {"min", "max"}:
-                raise _error(path, "camera.shifts_m", "expected a list of shifts or {\"min\": m, \"max\": m}")
-            kw["shift_range_m"] = _range([s["min"], s["max"]], "camera.shifts_m", -50.0, 50.0, path)
-        else:
-            kw["shifts_m"] = _choices(s, "camera.shifts_m", -50.0, 50.0, path)
-    lc = cam.get("lane_change")
-    if lc is not None:
-        if not isinstance(lc, dict):
-            raise _error(path, "camera.lane_change", "expected an object")
-        for k in lc:
-            if k not in ("probability", "shift_m", "frames"):
-                raise _error(path, f"camera.lane_change.{k}", "is not a field (probability, shift_m, frames)")
-        if "probability" in lc:
-            kw["lane_change_probability"] = _num(lc["probability"], "camera.lane_change.probability", 0.0, 1.0, path)
-        if "shift_m" in lc:
-            kw["lane_change_m"] = _choices(lc["shift_m"], "camera.lane_change.shift_m", -20.0, 20.0, path)
-        if "frames" in lc:
-            kw["lane_change_frames"] = _int(lc["frames"], "camera.lane_change.frames", 1, 100_000, path)
-    cars = _section(d, "cars", ("library", "count", "moving_probability", "size_jitter", "hue_jitter_deg",
-                                "parked_offset_m", "kerb_gap_m", "lane_offsets_m", "speed_mps"), path)
-    if "library" in cars:
-        lib = fields.string(cars["library"], path, "cars.library", error=VariationError)
-        kw["library"] = lib if os.path.isabs(lib) else os.path.join(os.path.dirname(os.path.abspath(path)), lib)
-    if "count" in cars:
-        kw["car_count"] = _range(cars["count"], "cars.count", 0, MAX_CARS, path, integer=True)
-    if "moving_probability" in cars:
-        kw["moving_probability"] = _num(cars["moving_probability"], "cars.moving_probability", 0.0, 1.0, path)
-    if "size_jitter" in cars:
-        kw["size_jitter"] = _num(cars["size_jitter"], "cars.size_jitter", 0.0, 0.5, path)
-    if "hue_jitter_deg" in cars:
-        kw["hue_jitter_deg"] = _num(cars["hue_jitter_deg"], "cars.hue_jitter_deg", 0.0, 180.0, path)
-    if "parked_offset_m" in cars:
-        kw["parked_offset_m"] = _range(cars["parked_offset_m"], "cars.parked_offset_m", 0.0, 50.0, path)
-    if "kerb_gap_m" in cars:
-        kw["kerb_gap_m"] = _range(cars["kerb_gap_m"], "cars.kerb_gap_m", 0.0, 5.0, path)
-    if "lane_offsets_m" in cars:
-        kw["lane_offsets_m"] = _choices(cars["lane_offsets_m"], "cars.lane_offsets_m", -50.0, 50.0, path)
-    if "speed_mps" in cars:
-        kw["speed_mps"] = _range(cars["speed_mps"], "cars.speed_mps", 0.0, 70.0, path)
-    pl = _section(d, "placement", ("tries", "gap_m", "ego_size_m", "ego_margin_m", "headway_s"), path)
-    if "tries" in pl:
-        kw["tries"] = _int(pl["tries"], "placement.tries", 1, MAX_TRIES, path)
-    if "gap_m" in pl:
-        kw["gap_m"] = _num(pl["gap_m"], "placement.gap_m", 0.0, 10.0, path)
-    if "ego_size_m" in pl:
-        kw["ego_size_m"] = tuple(_num(x, f"placement.ego_size_m[{i}]", 0.1, 30.0, path)
-                                 for i, x in enumerate(_pair(pl["ego_size_m"], "placement.ego_size_m", path)))
-    if "ego_margin_m" in pl:
-        kw["ego_margin_m"] = _num(pl["ego_margin_m"], "placement.ego_margin_m", 0.0, 10.0, path)
-    if "headway_s" in pl:
-        kw["headway_s"] = _num(pl["headway_s"], "placement.headway_s", 0.0, 60.0, path)
+    values = {}
+
+    def walk(obj, prefix):
+        known = {name[len(prefix):].split(".")[0] for name, *_ in FIELDS if name.startswith(prefix)}
+        for key, value in obj.items():
+            name = prefix + key
+            if key not in known and name != "schema":
+                raise _error(path, name, f"is not a field{' of ' + prefix[:-1] if prefix else ''} (fields: "
+                                         f"{', '.join(sorted(known))})")
+            if any(f[0] == name for f in FIELDS):
+                values[name] = value
+            elif name != "schema":
+                if not isinstance(value, dict):
+                    raise _error(path, name, "expected an object")
+                walk(value, name + ".")
+
+    walk(d, "")
+    kw = {attr: _read(kind, values[name], name, lo, hi, path)
+          for name, attr, kind, lo, hi in FIELDS if name in values and values[name] is not None}
+    if "shifts_m" in kw and isinstance(values["camera.shifts_m"], dict):
+        kw["shift_range_m"] = kw.pop("shifts_m")
     return VariationSpec(**kw)
-
-
-def _pair(v, field, path) -> list:
-    if not isinstance(v, list) or len(v) != 2:
-        raise _error(path, field, f"expected two numbers, got {fields.short(v)}")
-    return v
 
 
 def load(path) -> VariationSpec:

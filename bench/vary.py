@@ -72,14 +72,17 @@ def main(argv=None) -> int:
     env = dict(os.environ, OMP_NUM_THREADS="1", NUMBA_NUM_THREADS="1")
     t0 = time.perf_counter()
     procs = [subprocess.Popen([sys.executable, "-m", "backend", "batch", "--list", lst, "--command", "render",
-                               "--device", "cpu", "--force", "--shard", f"{k}/{args.workers}"],
-                              cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+                               "--device", "cpu", "--shard", f"{k}/{args.workers}"],
+                              cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
              for k in range(args.workers)]
     workers = []
     for k, proc in enumerate(procs):
-        stdout, _ = proc.communicate()
+        stdout, stderr = proc.communicate()
         ended = time.perf_counter() - t0
-        done = [json.loads(x) for x in stdout.splitlines() if x.startswith("{") and '"done"' in x][-1]
+        done = [json.loads(x) for x in stdout.splitlines() if x.startswith("{") and '"done"' in x]
+        if not done:
+            raise SystemExit(f"worker {k} ended without a summary:\n{stdout[-2000:]}\n{stderr[-2000:]}")
+        done = done[-1]
         busy = sum(item["seconds"] for item in done["items"])
         workers.append({"worker": k, "jobs": len(done["items"]), "failed": done.get("failed", 0),
                         "busy_s": busy, "ended_s": ended})

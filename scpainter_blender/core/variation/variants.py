@@ -32,7 +32,9 @@ from .spec import VariationError, VariationSpec
 
 def scene_points(job: job_mod.Job, job_path) -> np.ndarray:
     """World points (N, 3) of a job's reconstruction as the renderer loads them (same reading of the file,
-    confidence, depth edges, ``vggt_to_world``), minus the points inside its removal boxes."""
+    confidence, depth edges, ``vggt_to_world``), minus the points inside its removal boxes. The job's optional
+    outlier removal (open3d, backend only) is not applied: the road's RANSAC planes and its per-cell point counts
+    are robust to floaters."""
     sc = job.scene
     pred = vggt_npz.load_predictions(job_mod.resolve(job_path, sc.predictions), world_points=False,
                                      extrinsic_convention=sc.extrinsic_convention, crop=list(sc.crop))

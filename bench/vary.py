@@ -15,6 +15,7 @@ import argparse
 import json
 import os
 import platform
+import shutil
 import subprocess
 import sys
 import time
@@ -42,6 +43,7 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     W, H = (int(v) for v in args.resolution.split("x"))
     out = os.path.abspath(args.out)
+    shutil.rmtree(os.path.join(out, "variants"), ignore_errors=True)  # this bench's own folder: nothing reused
     street = ensure_street()
     lib = os.path.join(out, "cars")
     os.makedirs(lib, exist_ok=True)
@@ -70,15 +72,29 @@ def main(argv=None) -> int:
     n_jobs = sum(1 for x in lines if x.strip() and not x.startswith(("#", DATA_ROOT_DIRECTIVE)))
 
     env = dict(os.environ, OMP_NUM_THREADS="1", NUMBA_NUM_THREADS="1")
+    # each worker's streams into files: a pipe read only after another worker ends would fill and stall it
+    logs = [(open(os.path.join(out, f"worker{k}.out"), "w+"), open(os.path.join(out, f"worker{k}.err"), "w+"))
+            for k in range(args.workers)]
     t0 = time.perf_counter()
     procs = [subprocess.Popen([sys.executable, "-m", "backend", "batch", "--list", lst, "--command", "render",
                                "--device", "cpu", "--shard", f"{k}/{args.workers}"],
-                              cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                              cwd=ROOT, env=env, stdout=logs[k][0], stderr=logs[k][1], text=True)
              for k in range(args.workers)]
+    ends = {}
+    while len(ends) < len(procs):  # when each worker ends, polled (a bounded wait per worker)
+        for k, proc in enumerate(procs):
+            if k not in ends:
+                try:
+                    proc.wait(timeout=0.2)
+                    ends[k] = time.perf_counter() - t0
+                except subprocess.TimeoutExpired:
+                    pass
     workers = []
     for k, proc in enumerate(procs):
-        stdout, stderr = proc.communicate()
-        ended = time.perf_counter() - t0
+        ended = ends[k]
+        for f in logs[k]:
+            f.seek(0)
+        stdout, stderr = (f.read() for f in logs[k])
         done = [json.loads(x) for x in stdout.splitlines() if x.startswith("{") and '"done"' in x]
         if not done:
             raise SystemExit(f"worker {k} ended without a summary:\n{stdout[-2000:]}\n{stderr[-2000:]}")

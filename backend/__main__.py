@@ -214,7 +214,10 @@ def _cmd_batch(args) -> int:
     if overrides and args.command_name != "generate":
         raise ArgumentError("--inpaint", "applies to --command generate only")
     if not items:
-        raise ArgumentError("jobs", "no jobs given", hint="give job.json paths, or --list FILE")
+        given = list(args.list or []) + list(args.trusted_list or [])
+        raise ArgumentError("jobs", "no jobs given" + (f": {', '.join(given)} list no jobs" if given else ""),
+                            hint="a vary run lists only its placed variants (its variation.json says why none was)"
+                                 if given else "give job.json paths, or --list FILE")
     if args.half_float and args.command_name != "render":
         raise ArgumentError("--half-float", "applies to --command render only",
                             hint="render the conditions with batch --command render --half-float first; generate "
@@ -304,8 +307,9 @@ def _cmd_mesh_asset(args) -> int:
 def _cmd_vary(args) -> int:
     from .vary import command
 
-    events.done(command="vary", **command.vary(args))
-    return events.EXIT_OK
+    fields, code = command.vary(args)
+    events.done(command="vary", **fields)
+    return code
 
 
 def _cmd_contact_sheet(args) -> int:

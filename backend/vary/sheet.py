@@ -34,12 +34,20 @@ def _caption(entry: dict) -> str:
 
 
 def _first_frame(folder: str):
-    """The variant's first labelled preview (or plain preview) as RGB uint8, or None when not rendered."""
+    """The variant's first labelled preview (or plain preview) as RGB uint8, or None when not rendered from the
+    job now there: its render record (written when a render starts) must be no older than the job (``vary``
+    rewrites a job only when it changes), so a picture of an earlier run's job is never shown under this one."""
     import cv2
 
     from scpainter_blender.core.output_layout import CONDITION_PREVIEW, LABELLED_PREVIEW, OutputLayout
 
-    cond = OutputLayout(folder).conditions
+    layout = OutputLayout(folder)
+    try:
+        if os.stat(layout.record).st_mtime_ns < os.stat(layout.job).st_mtime_ns:
+            return None
+    except OSError:  # no record: never rendered
+        return None
+    cond = layout.conditions
     for kind in (LABELLED_PREVIEW, CONDITION_PREVIEW):
         found = kind.in_folder(cond)
         if found:
@@ -75,7 +83,7 @@ def contact_sheet(root: str, out: str | None = None) -> dict:
             counts[key] += 1
             rej = (e.get("unplaced") or {}).get("rejections", {})
             worst = ", ".join(f"{k} {v}" for k, v in sorted(rej.items(), key=lambda kv: -kv[1]) if v)[:40]
-            note = "not placed: " + worst if key == "unplaced" else "not rendered yet"
+            note = "not placed: " + worst if key == "unplaced" else "not rendered (since its job was written)"
         tiles.append((img, _caption(e), note))
     th = th or round(TILE_WIDTH * 9 / 16)
     cols = min(MAX_COLUMNS, len(tiles))

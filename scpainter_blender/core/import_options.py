@@ -230,6 +230,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
             parser.add_argument(o.flag, default=o.default, help=help_, **kw)
 
 
+def given(args) -> list:
+    """The flags of ``add_arguments``' options that ``args`` sets to something else than their default (a scale
+    value: at all), in ``OPTIONS`` order: for a command that takes them only with some inputs."""
+    out = []
+    for o in _OPTIONS:
+        if o.flag is None:
+            continue
+        value = getattr(args, o.name, None)
+        if (value not in (None, "")) if o.scale_mode else value != o.default:
+            out.append(o.flag)
+    return out
+
+
 def from_arguments(args) -> ImportOptions:
     """``ImportOptions`` from ``add_arguments``' parsed ``args``, checked: ``ArgumentError`` names the flag."""
     opts = ImportOptions(**{o.name: getattr(args, o.name) for o in _OPTIONS if o.flag and not o.scale_mode})

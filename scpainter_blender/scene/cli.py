@@ -53,7 +53,7 @@ from ..core import backend_protocol as protocol
 from ..core import batch_items as batch_mod
 from ..core import errors, files, import_options, outputs
 from ..core import job as job_mod
-from ..core.output_layout import OutputLayout, VariationLayout
+from ..core.output_layout import OutputLayout
 from ..core.variation import spec as variation_spec, variants as vary_mod
 from . import importer, props, runs, variations
 
@@ -163,14 +163,20 @@ def _import(args) -> dict:
     return out
 
 
-def _vary(args) -> dict:
-    """``vary``: the .blend opened (or the predictions imported into an empty scene), its job seen from
-    ``--camera`` the base, the variants written (``scene/variations.py``)."""
+def _vary(args) -> tuple[dict, int]:
+    """``vary``: the .blend opened (or the predictions imported into an empty scene with the import options), its
+    job seen from ``--camera`` the base, the variants written (``scene/variations.py``); exit 1 when none could
+    be placed (the summary says why)."""
     spec = variation_spec.from_arguments(args)  # checked before a scene is opened
     if args.source.lower().endswith(".npz"):
         bpy.ops.wm.read_homefile(use_empty=True)
         importer.import_vggt(bpy.context, args.source, import_options.from_arguments(args))
     else:
+        given = import_options.given(args)
+        if given:  # a .blend's points were imported already: the options would change nothing
+            raise errors.ArgumentError(given[0], "is an import option: it applies to a predictions (.npz) source, "
+                                                 f"not to the scene {args.source}",
+                                       hint="leave it out, or give the predictions file instead of the .blend")
         _open_blend(args.source, args)
     camera = props.named_camera(bpy.context.scene, args.camera, args.source)
     python = args.backend_python or runs.invocation(bpy.context, "doctor").python
@@ -179,13 +185,10 @@ def _vary(args) -> dict:
         print(f"scpainter: vary {done}/{total}", file=sys.stderr, flush=True)
 
     manifest = variations.make_variations(bpy.context, spec, args.out, camera, python, progress)
-    layout = VariationLayout(os.path.abspath(args.out))
-    for e in manifest["variants"]:
-        if e["outcome"] != "placed":
-            print(json.dumps(protocol.event(protocol.WARNING, code=vary_mod.UNPLACED, message=vary_mod.unplaced_text(e),
-                                            rejections=e["unplaced"]["rejections"])), flush=True)
-    return {"output_dir": layout.root, "list": layout.list, "manifest": layout.manifest,
-            "base": layout.base_job, "summary": manifest["summary"], "timings": manifest["timings"]}
+    for w in vary_mod.warnings(manifest):
+        print(json.dumps(protocol.event(protocol.WARNING, **w)), flush=True)
+    code = protocol.EXIT_OK if manifest["summary"]["placed"] else protocol.EXIT_FAILED
+    return vary_mod.done_fields(manifest, args.out), code
 
 
 def _check_paths(args) -> None:
@@ -409,7 +412,7 @@ def execute(argv) -> int:
         if args.command == "import":
             summary = _import(args)
         elif args.command == "vary":
-            summary = _vary(args)
+            summary, code = _vary(args)
         else:
             _check_paths(args)
             if args.command == "batch":

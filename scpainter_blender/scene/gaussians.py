@@ -113,7 +113,7 @@ class GaussianImport:
 ASSET_EXTENSIONS = splats_io.ASSET_EXTENSIONS
 DEFAULT_MESH_COUNT = 200_000
 #: Lengths (metres) outside which an imported asset is most likely in other units: the import says so.
-MIN_CAR_LENGTH, MAX_CAR_LENGTH = 0.5, 30.0
+MIN_CAR_LENGTH, MAX_CAR_LENGTH = asset_frame.CAR_LENGTH_M
 
 
 def is_mesh_file(filepath: str) -> bool:

@@ -3,6 +3,7 @@ labelled, and ``contact-sheet``."""
 
 import json
 import os
+import shutil
 
 import cv2
 
@@ -31,7 +32,15 @@ def test_vary_batch_and_contact_sheet(street, tmp_path):
     placed = [e for e in manifest["variants"] if e["outcome"] == "placed"]
     assert len(placed) >= 4
 
-    # the variants lead into the street's cache and the run's folder: the list's data roots allow exactly that
+    assert done["base"] == str(base)
+    code, events, err = run_backend("contact-sheet", str(out))   # nothing rendered yet: said so, tile by tile
+    assert code == 0 and events[-1]["rendered"] == 0 and events[-1]["not_rendered"] == len(placed)
+
+    # the variants lead into the street's cache and the run's folder: the list's data roots allow exactly that,
+    # wherever the run's folder is moved to
+    moved = tmp_path / "moved"
+    shutil.move(str(out), str(moved))
+    out = moved
     code, events, err = run_backend("batch", "--list", str(out / "variants.txt"), "--command", "render",
                                     "--device", "cpu")
     assert code == 0, err
@@ -53,3 +62,22 @@ def test_vary_batch_and_contact_sheet(street, tmp_path):
     assert done["rendered"] == len(placed) and done["rendered"] + done["unplaced"] == 5
     sheet = cv2.imread(done["path"])
     assert sheet is not None and sheet.shape[1] == 5 * (320 + 2)
+
+
+def test_a_run_that_places_nothing_fails_and_says_why(street, tmp_path):
+    lib = tmp_path / "cars"
+    lib.mkdir()
+    shapes.save_as_amodal3r(str(lib / "blue.ply"), shapes.procedural_car_gaussians(count=2000, seed=7))
+    base = tmp_path / "base" / "job.json"
+    street_base_job(street, str(base))
+    spec = tmp_path / "spec.json"
+    spec.write_text(json.dumps({"variants": 2, "cars": {"count": [12, 12]}, "placement": {"tries": 1}}))
+    code, events, err = run_backend("vary", str(base), "--out", str(tmp_path / "v"), "--spec", str(spec),
+                                    "--library", str(lib))
+    assert code == 1, err
+    warned = [e for e in events if e["event"] == "warning"]
+    assert [w["code"] for w in warned] == ["variant_unplaced", "variant_unplaced", "variation"]
+    assert "could not be placed: car" in warned[0]["message"] and "no variant" in warned[-1]["message"]
+    assert events[-1]["event"] == "done" and events[-1]["summary"]["placed"] == 0
+    code, events, err = run_backend("batch", "--list", str(tmp_path / "v" / "variants.txt"))
+    assert code == 2 and "list no jobs" in events[-1]["message"] and "variation.json" in events[-1]["hint"]

@@ -77,7 +77,7 @@ def test_manifest_list_and_jobs_agree(run, bases):
     roots = [line.split(":", 1)[1].strip() for line in lines if line.startswith(DATA_ROOT_DIRECTIVE)]
     listed = [line for line in lines if not line.startswith(DATA_ROOT_DIRECTIVE)]
     assert listed == [e["job"] for e in manifest["variants"] if e["outcome"] == "placed"]
-    assert os.path.realpath(out) in roots
+    assert "." in roots                         # the run's own folder, relative: the folder moves as a whole
     jobs = _jobs(out, manifest)
     assert sum(len(j.assets) for j in jobs.values()) == s["cars"] == sum(s["per_asset"].values())
     for e in manifest["variants"]:
@@ -106,6 +106,10 @@ def test_no_placed_car_breaks_a_rule(run, street):
         job = J.load(os.path.join(out, e["job"]))
         ego = np.stack([placement.rectangle(cameras.camera_centers(f.world_to_camera)[:2], np.array([0.0, 1.0]),
                                             4.8, 2.0) for f in job.frames])
+        # the camera path itself: inside the kerbs, clear of the parked cars, lane change included
+        assert np.abs(ego[..., 0]).max() < ROAD_HALF_WIDTH + 0.05, e["id"]
+        for T, size in parked:
+            assert not placement.rectangles_overlap(ego, placement.box_footprint(T, size)).any(), e["id"]
         feet, mode = {}, {c["name"]: c["mode"] for c in e["cars"]}
         for a in job.assets:
             for f in job.frames:
@@ -123,6 +127,20 @@ def test_no_placed_car_breaks_a_rule(run, street):
             for (other, f2), foot2 in feet.items():
                 if f2 == frame and other != name:
                     assert not placement.rectangles_overlap(foot, foot2), (e["id"], name, other)
+
+
+def test_camera_paths_that_leave_the_road_are_drawn_again(bases, library, tmp_path):
+    """Shifts of ±6 m put the ego on the kerb or into the parked cars: each such path is drawn again and counted;
+    a variant whose every draw fails is reported as the camera's."""
+    m = variants.make_variants(bases[0], spec(library, variants=6, shifts_m=(-6.0, -6.5, 0.0)), str(tmp_path / "c"))
+    rej = m["summary"]["rejections"]
+    assert rej["camera_off_road"] + rej["camera_blocked"] > 0
+    assert all(e["camera"]["shift_m"] == 0.0 for e in m["variants"] if e["outcome"] == "placed")
+    m = variants.make_variants(bases[0], spec(library, variants=2, shifts_m=(-6.5,), tries=3), str(tmp_path / "d"))
+    assert [e["outcome"] for e in m["variants"]] == ["unplaced", "unplaced"]
+    assert m["variants"][0]["unplaced"]["what"] == "camera" and "the camera path" in \
+        variants.unplaced_text(m["variants"][0])
+    assert m["warnings"] == ["no variant could be placed (2 tried)"]
 
 
 def test_moving_cars_stay_on_the_road_every_frame(run):
@@ -165,16 +183,26 @@ def test_a_variant_that_cannot_be_placed_is_reported(bases, library, tmp_path):
     """Eight cars with one try each do not fit: each such variant is in the manifest with its reasons, not in
     the list, and no job of an earlier run stays in its folder."""
     out = str(tmp_path / "u")
-    first = variants.make_variants(bases[0], spec(library, variants=3, car_count=(1, 1)), out)
+    first = variants.make_variants(bases[0], spec(library, variants=4, car_count=(1, 1)), out)
     assert all(e["job"] for e in first["variants"])
+    job0 = VariationLayout(out).variant(0).job
+    mtime = os.stat(job0).st_mtime_ns
+    again = variants.make_variants(bases[0], spec(library, variants=4, car_count=(1, 1)), out)
+    assert again["variants"] == first["variants"] and os.stat(job0).st_mtime_ns == mtime   # unchanged: not rewritten
     m = variants.make_variants(bases[0], spec(library, variants=3, car_count=(8, 8), tries=1), out)
     bad = [e for e in m["variants"] if e["outcome"] == "unplaced"]
     assert bad and m["summary"]["unplaced"] == len(bad)
     for e in bad:
-        assert e["job"] is None and sum(e["unplaced"]["rejections"].values()) == 1 and e["unplaced"]["tries"] == 1
-        assert not os.path.exists(VariationLayout(out).variant(int(e["id"][1:])).job)
+        assert e["job"] is None and e["unplaced"]["tries"] == 1 and e["unplaced"]["what"] == "car"
+        assert sum(e["unplaced"]["rejections"].values()) == 1
+        assert not os.path.exists(VariationLayout(out).variant(int(e["id"][1:])).root)   # the earlier run's folder
+    assert "v0003" in m["removed"] and not os.path.exists(VariationLayout(out).variant(3).root)  # beyond the count
     with open(VariationLayout(out).list) as f:
         assert not any(e["id"] in line for e in bad for line in f)
+    # the summary counts what the jobs hold
+    placed = [e for e in m["variants"] if e["outcome"] == "placed"]
+    assert m["summary"]["cars"] == sum(len(e["cars"]) for e in placed)
+    assert sum(m["summary"]["per_shift"].values()) == len(placed)
 
 
 def test_spec_file_errors_name_the_field(tmp_path):
@@ -215,3 +243,31 @@ def test_every_setting_has_its_file_field():
 
     attrs = {f.name for f in dataclasses.fields(spec_mod.VariationSpec)}
     assert {attr for _, attr, *_ in spec_mod.FIELDS} | {"shift_range_m"} == attrs   # (the range: shifts_m's form)
+
+
+def test_the_manifest_spec_is_a_spec_file(run, library, tmp_path):
+    """The manifest records the run's settings as a spec file (the file's names, every field): fed back, the same
+    settings."""
+    out, manifest = run
+    (tmp_path / "again.json").write_text(json.dumps(manifest["spec"]))
+    assert spec_mod.load(tmp_path / "again.json") == spec(library)
+    ranged = spec_mod.VariationSpec(shift_range_m=(-3.0, 3.0), library=str(tmp_path))
+    assert spec_mod.from_dict(spec_mod.to_file(ranged), str(tmp_path / "s.json")) == ranged
+
+
+def test_a_library_object_that_is_no_car_is_refused(tmp_path):
+    """A car stood on its end (taller than long), and one in millimetres."""
+    from scpainter_blender.core.splats import inria, gaussians as splats
+    from scpainter_blender.core.variation import library as library_mod
+
+    g = shapes.procedural_car_gaussians(count=3000, seed=1)
+    R = np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])     # its length (y) turned up (z)
+    tall = shapes.transform_gaussians(g, np.block([[R, np.zeros((3, 1))], [np.zeros((1, 3)), np.ones((1, 1))]]))
+    inria.write_ply(tmp_path / "tall.ply", splats.encode(tall))
+    with pytest.raises(spec_mod.VariationError, match="not shaped like a road vehicle") as e:
+        library_mod.load_asset(tmp_path / "tall.ply", str(tmp_path / "cache"))
+    assert e.value.path == str(tmp_path / "tall.ply")
+    mm = shapes.transform_gaussians(g, np.diag([1000.0, 1000.0, 1000.0, 1.0]))
+    inria.write_ply(tmp_path / "mm.ply", splats.encode(mm))
+    with pytest.raises(spec_mod.VariationError, match="millimetres"):
+        library_mod.load_asset(tmp_path / "mm.ply", str(tmp_path / "cache"))

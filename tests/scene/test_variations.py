@@ -76,6 +76,8 @@ def test_vary_headless_from_predictions_and_from_a_blend(addon, empty_scene, str
     assert err["field"] == "--camera" and path_cam in err["message"]
     assert cli.execute(args + ["--variants", "0"]) == 2
     assert _events(capsys)[-1]["field"] == "--variants"
+    assert cli.execute(args + ["--camera-height", "1.6"]) == 2    # an import option, for a .blend: refused
+    assert _events(capsys)[-1]["field"] == "--camera-height"
 
 
 def test_make_variations_operator(addon, empty_scene, street, library, tmp_path):

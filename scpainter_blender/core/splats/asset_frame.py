@@ -22,6 +22,9 @@ from .gaussians import GaussianPly
 
 #: metres: a unit-cube asset is scaled to a mid-size car until the artist fits it
 TRELLIS_DEFAULT_LENGTH = 4.5
+#: (min, max) metres a car asset's length may have: outside, its file is most likely in other units (millimetres,
+#: centimetres); the import says so, a variation library refuses it.
+CAR_LENGTH_M = (0.5, 30.0)
 
 
 def data_frame(xyz_file, axes: str) -> tuple:

@@ -109,6 +109,16 @@ def load_asset(path, cache: str, convert_mesh=None, mesh_count: int = 200_000) -
     means_data = ply.xyz[keep].astype(np.float64) @ frame.file_to_data[:3, :3].T + frame.file_to_data[:3, 3]
     box_to_data, box_size = boxes.estimate_box(means_data, up=(0.0, 0.0, 1.0))
     box_to_file = np.linalg.inv(frame.file_to_data) @ box_to_data
+    width, length, height = np.asarray(box_size, np.float64) * frame.scale
+    lo, hi = asset_frame.CAR_LENGTH_M
+    if not lo <= length <= hi:
+        raise VariationError(path, "(file)", f"would be {length:.3g} m long in its file's units, not a car's "
+                                             f"{lo:g}–{hi:g} m (millimetres or centimetres?)",
+                             hint="scale it to metres, or take it out of the library")
+    if height > length:  # what stands taller than it is long drives on no road: a stool, a tree, a car on its end
+        raise VariationError(path, "(file)", f"is not shaped like a road vehicle: {height:.2f} m high for "
+                                             f"{length:.2f} m long (as the import stands it, Z up)",
+                             hint="take it out of the car library (or fix its up axis)")
     return LibraryAsset(os.path.basename(path), path, ply_path, box_to_file, np.asarray(box_size, np.float64),
                         float(frame.scale))
 

@@ -16,7 +16,9 @@ The rules a car must pass, each named in the manifest when it rejects a try (``R
   ego's rectangles of that frame and of the frames of the next ``headway`` (the road the ego covers in that
   time: a car driving ahead in its lane keeps a gap; one it never meets may cross where it drove).
 
-A moving car is checked at every frame; a parked one once (and against every frame of the others).
+A moving car is checked at every frame; a parked one once (and against every frame of the others). Before any car,
+the variant's camera path itself must stay on the road and clear of what the base holds (``CAMERA_RULES``): a
+shift plus a lane change can otherwise drive the camera into a parked car or onto the sidewalk.
 """
 
 from __future__ import annotations
@@ -27,6 +29,8 @@ import numpy as np
 
 
 RULES = ("off_road", "recorded_object", "recorded_box", "car_overlap", "ego_path")
+#: The rules a variant's camera path must pass first (``variants.Variation.check_camera``).
+CAMERA_RULES = ("camera_off_road", "camera_blocked")
 UP = np.array([0.0, 0.0, 1.0])
 
 

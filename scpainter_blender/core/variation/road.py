@@ -181,6 +181,11 @@ class Road:
         ij = np.where(inside[..., None], ij, 0)
         return inside & self.road[ij[..., 0], ij[..., 1]]
 
+    @property
+    def area_m2(self) -> float:
+        """The road's area: its tiles' (m²)."""
+        return float(self.road.sum()) * self.tile_m ** 2
+
     def edge_distance(self, xy, direction, max_m: float, step: float = SAMPLE_SPACING_M) -> float:
         """How far (metres, ≤ ``max_m``) the road reaches from world point ``xy`` (2,) along the unit horizontal
         ``direction`` (2,) before its first tile that is not road (the kerb, the road's end); 0 when ``xy`` itself
@@ -201,10 +206,20 @@ class Road:
         idx = np.flatnonzero(on)
         return float(s[idx[0]]), float(s[idx[-1]])
 
-    def check_footprint(self, corners_xy) -> str | None:
+    def known(self, xy) -> np.ndarray:
+        """Whether world points ``xy`` (..., 2) lie on tiles whose ground was seen (a plane was fitted)."""
+        ij, inside = self._tile_index(np.asarray(xy, np.float64) - self.origin[:2])
+        ij = np.where(inside[..., None], ij, 0)
+        return inside & np.isfinite(self.planes[ij[..., 0], ij[..., 1], 0])
+
+    def check_footprint(self, corners_xy, unseen_ok: bool = False) -> str | None:
         """None when the footprint (4, 2) world corners (a rectangle, in order) may stand here, else the rule it
-        breaks: ``"off_road"`` or ``"recorded_object"`` (module docstring)."""
+        breaks: ``"off_road"`` or ``"recorded_object"`` (module docstring). ``unseen_ok``: ground never seen (behind
+        the first camera, under the recording car) is taken as road, for the camera path, which drives where the
+        recording drove; a car must stand on road that was seen."""
         S = footprint_samples(corners_xy)
+        if unseen_ok:
+            S = S[self.known(S)]
         cij = np.floor((S - self.origin[:2] - self.lo) / self.cell_m).astype(np.int64)
         inside = np.all((cij >= 0) & (cij < np.array(self.cell_shape)), axis=1)
         cij = cij[inside]

@@ -1,18 +1,23 @@
 """What a variation run varies: the ``scpainter.variation/1`` file (``vary --spec FILE``), its defaults written
-once (``VariationSpec``'s signature) and checked field by field.
+once (``VariationSpec``'s signature) and checked field by field (``FIELDS``: each file field, the setting it
+gives, how it is read, its bounds).
 
-::
+An example (not the defaults: an absent field takes ``VariationSpec``'s default; the manifest's ``spec`` is the
+whole file a run used, every field written)::
 
     {"schema": "scpainter.variation/1", "variants": 16, "seed": 0, "resolution": [256, 144],
-     "camera": {"shifts_m": [-2, 0, 2],                      # or {"min": -3, "max": 3}
-                "lane_change": {"probability": 0.25, "shift_m": [-3.5, 3.5], "frames": 8}},
-     "cars": {"library": "cars/", "count": [1, 3], "moving_probability": 0.5,
-              "size_jitter": 0.05, "hue_jitter_deg": 30,
-              "parked_offset_m": [2.0, 12.0], "kerb_gap_m": [0.1, 0.5], "lane_offsets_m": [-3.5, 0.0, 3.5], "speed_mps": [3.0, 10.0]},
+     "camera": {"shifts_m": [-2, 0, 2],                      # choices; or a range: {"min": -3, "max": 3}
+                "lane_change": {"probability": 0.25, "shift_m": [-3.5, 3.5], "frames": 8}},   # shift_m: choices
+     "cars": {"library": "cars/", "count": [1, 3],           # count: [low, high]
+              "moving_probability": 0.5, "size_jitter": 0.05, "hue_jitter_deg": 30,
+              "parked_offset_m": [2.0, 12.0], "kerb_gap_m": [0.1, 0.5],           # [low, high]
+              "lane_offsets_m": [-3.5, 0.0, 3.5],                                 # choices
+              "speed_mps": [3.0, 10.0]},                                          # [low, high]
      "placement": {"tries": 50, "gap_m": 0.5, "ego_size_m": [2.0, 4.8], "ego_margin_m": 0.5, "headway_s": 1.0}}
 
 Every field is optional. Lengths in metres, speeds in metres per second, angles in degrees; a "shift" is to the
-left of the direction of travel (``core.geometry.trajectory``). Paths are relative to the spec file.
+left of the direction of travel (``core.geometry.trajectory``). Paths are relative to the spec file. Lists of
+choices are drawn from uniformly; [low, high] ranges uniformly within.
 """
 
 from __future__ import annotations
@@ -88,9 +93,6 @@ class VariationSpec:
                                error=lambda p, f, m: errors.ArgumentError(f, m))
         return replace(self, **given)
 
-    def to_dict(self) -> dict:
-        """The resolved settings, as the manifest records them."""
-        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items()}
 
 
 #: Every field of the file: (its name, the ``VariationSpec`` field, how it is read, low, high bound). Kinds:
@@ -142,7 +144,9 @@ def _read(kind, v, field, lo, hi, path):
         return (a, b)
     if kind == "choices" or (kind == "shifts" and not isinstance(v, dict)):
         if not isinstance(v, list) or not v or len(v) > 1000:
-            raise _error(path, field, f"expected a non-empty list of numbers (at most 1000), got {fields.short(v)}")
+            also = ' or {"min": m, "max": m} (a range)' if kind == "shifts" else " to choose from"
+            raise _error(path, field, f"expected a non-empty list of numbers (at most 1000){also}, got "
+                                      f"{fields.short(v)}")
         return tuple(num(x, f"{field}[{i}]") for i, x in enumerate(v))
     if kind == "shifts":  # {"min": m, "max": m}: drawn uniformly
         if set(v) != {"min", "max"}:
@@ -165,9 +169,10 @@ def from_dict(d, path) -> VariationSpec:
 
     def walk(obj, prefix):
         known = {name[len(prefix):].split(".")[0] for name, *_ in FIELDS if name.startswith(prefix)}
+        known |= {"schema"} if not prefix else set()
         for key, value in obj.items():
             name = prefix + key
-            if key not in known and name != "schema":
+            if key not in known:
                 raise _error(path, name, f"is not a field{' of ' + prefix[:-1] if prefix else ''} (fields: "
                                          f"{', '.join(sorted(known))})")
             if any(f[0] == name for f in FIELDS):
@@ -183,6 +188,24 @@ def from_dict(d, path) -> VariationSpec:
     if "shifts_m" in kw and isinstance(values["camera.shifts_m"], dict):
         kw["shift_range_m"] = kw.pop("shifts_m")
     return VariationSpec(**kw)
+
+
+def to_file(spec: VariationSpec) -> dict:
+    """The spec file that gives ``spec`` (every field written, in the file's names: ``FIELDS``), as the manifest
+    records it; ``from_dict`` reads it back to an equal spec."""
+    out = {"schema": SCHEMA}
+    for name, attr, kind, _, _ in FIELDS:
+        value = getattr(spec, attr)
+        if attr == "shifts_m" and spec.shift_range_m is not None:
+            value = {"min": spec.shift_range_m[0], "max": spec.shift_range_m[1]}
+        if value is None:
+            continue
+        *parents, leaf = name.split(".")
+        node = out
+        for p in parents:
+            node = node.setdefault(p, {})
+        node[leaf] = list(value) if isinstance(value, tuple) else value
+    return out
 
 
 def load(path) -> VariationSpec:

@@ -14,20 +14,28 @@ Nothing is dropped silently: every variant is in the manifest with its outcome; 
 
 from __future__ import annotations
 
+import json
 import os
+import re
+import shutil
 import time
 from dataclasses import replace
 
 import numpy as np
 
-from .. import batch_items, job as job_mod, outputs
+from .. import batch_items, errors, files, job as job_mod, outputs
 from ..geometry import boxes, cameras, fits, point_cloud, trajectory
 from ..output_layout import VariationLayout
 from ..vggt import npz as vggt_npz
 from . import library as library_mod, placement
 from .road import Road
+from . import spec as spec_mod
 from .spec import VariationError, VariationSpec
 
+
+
+#: A road smaller than this (m²) is most likely a reconstruction not in metres: the run warns.
+MIN_ROAD_M2 = 100.0
 
 
 def scene_points(job: job_mod.Job, job_path) -> np.ndarray:
@@ -78,6 +86,11 @@ class Variation:
                                  hint="check the reconstruction (its scale and the recorded camera)") from None
         # cars are drawn where the drive's line (continued) runs on the road: the reconstruction's reach
         self.arc = self.road.road_arc(self.path)
+        self.warnings = []
+        if self.road.area_m2 < MIN_ROAD_M2:
+            self.warnings.append(f"the road found is only {self.road.area_m2:.0f} m² (a street is hundreds): is the "
+                                 "reconstruction in metres? (import it with a camera height, a metric trajectory "
+                                 "or a scale factor)")
         t1 = time.perf_counter()
         self.library = []
         if spec.car_count[1] > 0:
@@ -125,6 +138,25 @@ class Variation:
                                       else self.base.frames[-1].frame, "frames": s.lane_change_frames}
         T = np.stack([f.world_to_camera for f in self.base.frames])
         return trajectory.shift_trajectory(T, left_m=left), details
+
+    def check_camera(self, world_to_camera) -> str | None:
+        """None when the new path may be driven, else the rule it breaks (``placement.CAMERA_RULES``): the ego's
+        footprint (``ego_size_m``, no margin) at some frame off the road where the ground was seen
+        (``camera_off_road``: a kerb, a sidewalk, a shift past the road's edge; ground never seen, behind the first
+        camera, counts as road) or on something standing there or a box of the base (``camera_blocked``: a
+        recorded car, a removal box, a car of the base job)."""
+        w, length = self.spec.ego_size_m
+        centres = cameras.camera_centers(world_to_camera)
+        heads = trajectory.heading_directions(centres, fallback=world_to_camera[:, 2, :3])
+        for i, f in enumerate(self.base.frames):
+            ego = placement.rectangle(centres[i, :2], heads[i, :2], length, w)
+            reason = self.road.check_footprint(ego, unseen_ok=True)
+            if reason == "recorded_object" or (reason is None and len(self.fixed[f.frame])
+                                               and placement.rectangles_overlap(ego, np.stack(self.fixed[f.frame])).any()):
+                return "camera_blocked"
+            if reason == "off_road":
+                return "camera_off_road"
+        return None
 
     def ego_rects(self, world_to_camera) -> dict:
         """{frame: (4, 2)}: the ego vehicle's footprint around each camera of the new path, grown by the margin."""
@@ -202,17 +234,28 @@ class Variation:
         """(job or None, manifest entry) of variant ``index``."""
         s = self.spec
         rng = np.random.default_rng([s.seed, index])
-        w2c, cam = self.camera(rng)
+        entry = {"id": VariationLayout.variant_name(index), "seed": [s.seed, index], "cars": []}
+        rejections = dict.fromkeys(placement.CAMERA_RULES, 0)
+        for attempt in range(1, s.tries + 1):  # a camera path on the road, clear of what the base holds
+            w2c, cam = self.camera(rng)
+            reason = self.check_camera(w2c)
+            if reason is None:
+                break
+            rejections[reason] += 1
+        entry["camera"] = dict(cam, tries=attempt, rejections=rejections)
+        if reason is not None:
+            entry.update(outcome="unplaced", job=None,
+                         unplaced={"car": None, "what": "camera", "tries": s.tries, "rejections": rejections})
+            return None, entry
         rules = placement.Rules(self.road, [f.frame for f in self.base.frames], self.ego_rects(w2c), self.fixed,
                                 s.gap_m, headway_frames=round(s.headway_s * self.base.frame_rate()[0]))
         count = int(rng.integers(s.car_count[0], s.car_count[1] + 1))
-        entry = {"id": VariationLayout.variant_name(index), "seed": [s.seed, index], "camera": cam, "cars": []}
         placed = []
         for j in range(count):
             asset = self.library[int(rng.integers(len(self.library)))]
             car, details = self.draw_car(rng, asset, rules)
             if car is None:
-                entry.update(outcome="unplaced", job=None, unplaced=dict(details, car=j))
+                entry.update(outcome="unplaced", job=None, unplaced=dict(details, car=j + 1, what="car"))
                 return None, entry
             details["name"] = car.details["name"] = f"car_{j + 1:02d}"
             rules.placed.append(car)
@@ -274,52 +317,92 @@ def make_variants(base_path, spec: VariationSpec, out, convert_mesh=None, progre
     Errors: ``VariationError`` / the readers' ``InputError`` naming the file and field."""
     v = Variation(base_path, spec, out, convert_mesh, mesh_count)
     layout = v.layout
+    outputs.make_folder(layout.root, "--out")
+    earlier = _earlier_variants(layout)
     entries, listed = [], []
     t0 = time.perf_counter()
     for i in range(spec.variants):
         job, entry = v.variant(i)
         job_path = layout.variant(i).job
         if job is not None:
-            os.makedirs(os.path.dirname(job_path), exist_ok=True)
-            job_mod.save(job_path, job)
+            _save_if_changed(job_path, job)
             entry["job"] = os.path.relpath(job_path, layout.root)
             listed.append(entry["job"])
-        elif os.path.isfile(job_path):  # a job an earlier run placed there: not this run's
-            os.remove(job_path)
         entries.append(entry)
         if progress:
             progress(i + 1, spec.variants)
     seconds = time.perf_counter() - t0
+    # an earlier run's variants this run does not place (fewer variants, or unplaced now): their folders go, so
+    # no one collects one run's labels beside another's
+    removed = sorted(name for name in earlier - {VariationLayout.variant_name(i) for i, e in enumerate(entries)
+                                                 if e["outcome"] == "placed"})
+    for name in removed:
+        shutil.rmtree(os.path.join(layout.root, name), ignore_errors=True)
     with outputs.atomic_write(layout.list, "w") as f:
         f.write(f"# SCPainter variants: python -m backend batch --list {VariationLayout.LIST}\n")
-        for root in v.data_roots():
-            f.write(f"{batch_items.DATA_ROOT_DIRECTIVE} {root}\n")
+        for root in v.data_roots():  # the run's own folder as ".": the folder can move as a whole
+            rel = os.path.relpath(root, layout.root) if outputs.inside(root, layout.root) else root
+            f.write(f"{batch_items.DATA_ROOT_DIRECTIVE} {rel}\n")
         f.writelines(f"{p}\n" for p in listed)
-    manifest = {"schema": "scpainter.variation-manifest/1", "base": v.base_path, "spec": spec.to_dict(),
+    summary = summarize(entries)
+    warnings = v.warnings + ([f"no variant could be placed ({summary['variants']} tried)"]
+                             if not summary["placed"] else [])
+    manifest = {"schema": "scpainter.variation-manifest/1", "base": v.base_path, "spec": spec_mod.to_file(spec),
                 "library": [{"name": a.name, "source": a.source, "ply": a.ply, "size_m": a.size_m.tolist(),
                              "category": a.category} for a in v.library],
-                "summary": summarize(entries), "variants": entries,
+                "road_area_m2": v.road.area_m2, "warnings": warnings, "removed": removed,
+                "summary": summary, "variants": entries,
                 "timings": dict(v.timings, placement_s=seconds,
                                 variants_per_s=spec.variants / seconds if seconds > 0 else None)}
     outputs.write_json(layout.manifest, manifest)
     return manifest
 
 
+def _earlier_variants(layout: VariationLayout) -> set:
+    """The variant folders an earlier run wrote here (its manifest's placed variants); none when there is no
+    manifest or it cannot be read (a folder this module did not write is never removed)."""
+    try:
+        earlier = files.read_json(layout.manifest)
+        names = {e["id"] for e in earlier["variants"] if e.get("outcome") == "placed"}
+    except (errors.InputError, KeyError, TypeError):
+        return set()
+    return {n for n in names if isinstance(n, str) and re.fullmatch(r"v\d+", n)}
+
+
+def _save_if_changed(path, job) -> None:
+    """Write ``job`` unless the file already holds exactly it (its time is then kept: a render made from it
+    stays newer than it, which ``contact-sheet`` checks)."""
+    content = job_mod.validate(job.to_dict(), path).to_dict()   # what save would write
+    try:
+        with open(path, encoding="utf-8") as f:
+            if json.loads(f.read()) == content:
+                return
+    except (OSError, ValueError):
+        pass
+    job_mod.save(path, job)
+
+
 def summarize(entries: list) -> dict:
-    """Counts over the variants: placed / unplaced, cars per asset and mode, variants per shift and lane change,
-    rejections per rule (over placed and failed cars alike)."""
+    """Counts over the variants: placed / unplaced; over the placed ones (what the jobs hold) cars per asset and
+    mode, variants per shift, lane changes; and rejections per rule over every try, placed or not (what the
+    placement spent its tries on)."""
     def count(d, key):
         d[key] = d.get(key, 0) + 1
 
     out = {"variants": len(entries), "placed": 0, "unplaced": 0, "cars": 0, "per_asset": {}, "per_mode": {},
-           "per_shift": {}, "lane_changes": 0, "rejections": dict.fromkeys(placement.RULES, 0)}
+           "per_shift": {}, "lane_changes": 0,
+           "rejections": dict.fromkeys(placement.CAMERA_RULES + placement.RULES, 0)}
     for e in entries:
         count(out, e["outcome"])
-        count(out["per_shift"], f"{e['camera']['shift_m']:g}")
-        out["lane_changes"] += e["camera"]["lane_change"] is not None
-        for car in e["cars"] + ([e["unplaced"]] if e["outcome"] == "unplaced" else []):
+        for rule, n in e["camera"]["rejections"].items():
+            out["rejections"][rule] += n
+        for car in e["cars"] + ([e["unplaced"]] if e["outcome"] == "unplaced" and e["unplaced"]["car"] else []):
             for rule, n in car["rejections"].items():
                 out["rejections"][rule] += n
+        if e["outcome"] != "placed":
+            continue
+        count(out["per_shift"], f"{e['camera']['shift_m']:g}")
+        out["lane_changes"] += e["camera"]["lane_change"] is not None
         for car in e["cars"]:
             out["cars"] += 1
             count(out["per_asset"], car["asset"])
@@ -327,14 +410,31 @@ def summarize(entries: list) -> dict:
     return out
 
 
-#: The warning event's ``code`` for a variant that could not be placed (both CLIs).
+#: The warning events' ``code``s (both CLIs): a variant that could not be placed, a run's own warning.
 UNPLACED = "variant_unplaced"
+VARIATION_WARNING = "variation"
+
+
+def warnings(manifest: dict) -> list:
+    """The warning events' fields of a finished run (``code``, ``message``, more): one per unplaced variant (its
+    rejections per rule), one per warning of the run (a small road, nothing placed)."""
+    out = [{"code": UNPLACED, "message": unplaced_text(e), "rejections": e["unplaced"]["rejections"]}
+           for e in manifest["variants"] if e["outcome"] != "placed"]
+    return out + [{"code": VARIATION_WARNING, "message": w} for w in manifest["warnings"]]
+
+
+def done_fields(manifest: dict, out) -> dict:
+    """What ``vary``'s done event carries (both CLIs): the folder, the base, the list, the manifest, the summary,
+    what an earlier run left that was removed, the timings."""
+    layout = VariationLayout(os.path.abspath(out))
+    return {"output_dir": layout.root, "base": manifest["base"], "list": layout.list, "manifest": layout.manifest,
+            "summary": manifest["summary"], "removed": manifest["removed"], "timings": manifest["timings"]}
 
 
 def unplaced_text(entry: dict) -> str:
-    """One sentence for a manifest entry whose outcome is ``unplaced``: which car found no place, in how many
-    tries, and the rules that refused it most."""
+    """One sentence for a manifest entry whose outcome is ``unplaced``: what found no place (the camera path, or
+    car N: its asset and mode), in how many tries, and the rules that refused it most."""
     u = entry["unplaced"]
     worst = ", ".join(f"{rule} {n}" for rule, n in sorted(u["rejections"].items(), key=lambda kv: -kv[1]) if n)
-    return (f"{entry['id']} could not be placed: car {u['car'] + 1} ({u['asset']}, {u['mode']}) found no place in "
-            f"{u['tries']} tries ({worst})")
+    what = "the camera path" if u["what"] == "camera" else f"car {u['car']} ({u['asset']}, {u['mode']})"
+    return f"{entry['id']} could not be placed: {what} found no place in {u['tries']} tries ({worst})"

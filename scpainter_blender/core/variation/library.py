@@ -78,11 +78,12 @@ def library_files(folder) -> list:
     return [os.path.join(folder, n) for n in names]
 
 
-def load_asset(path, cache: str, convert_mesh=None, mesh_count: int = 200_000) -> LibraryAsset:
+def load_asset(path, cache: str, convert_mesh=None, mesh_count: int = 200_000, car: bool = True) -> LibraryAsset:
     """One library file as a ``LibraryAsset``. A mesh (``reader.MESH_EXTENSIONS``, or a mesh PLY) is converted by
     ``convert_mesh(mesh, out_ply, count)`` into ``cache`` (once: the name carries the file's identity), which
-    ``None`` refuses. Errors: the reader's ``SplatsError`` naming the file, ``VariationError`` for a file with no
-    valid Gaussians or too large."""
+    ``None`` refuses. ``car``: refuse a file whose default size is no road vehicle's (a library car; not a car the
+    base job already holds, which the user placed). Errors: the reader's ``SplatsError`` naming the file,
+    ``VariationError`` for a file with no valid Gaussians, too large, or (``car``) not shaped like a car."""
     path = os.path.abspath(path)
     with files.open_regular(path, VariationError) as f:
         size = os.fstat(f.fileno()).st_size
@@ -111,11 +112,11 @@ def load_asset(path, cache: str, convert_mesh=None, mesh_count: int = 200_000) -
     box_to_file = np.linalg.inv(frame.file_to_data) @ box_to_data
     width, length, height = np.asarray(box_size, np.float64) * frame.scale
     lo, hi = asset_frame.CAR_LENGTH_M
-    if not lo <= length <= hi:
+    if car and not lo <= length <= hi:
         raise VariationError(path, "(file)", f"would be {length:.3g} m long in its file's units, not a car's "
                                              f"{lo:g}–{hi:g} m (millimetres or centimetres?)",
                              hint="scale it to metres, or take it out of the library")
-    if height > length:  # what stands taller than it is long drives on no road: a stool, a tree, a car on its end
+    if car and height > length:  # what stands taller than it is long drives on no road: a stool, a tree, a car on its end
         raise VariationError(path, "(file)", f"is not shaped like a road vehicle: {height:.2f} m high for "
                                              f"{length:.2f} m long (as the import stands it, Z up)",
                              hint="take it out of the car library (or fix its up axis)")

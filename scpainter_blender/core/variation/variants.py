@@ -114,7 +114,7 @@ class Variation:
             box = a.box
             if box is None:  # estimated as labels estimate it
                 lib = library_mod.load_asset(job_mod.resolve(self.base_path, a.ply), self.layout.library,
-                                             convert_mesh, mesh_count)
+                                             convert_mesh, mesh_count, car=False)
                 box = job_mod.AssetBox(lib.box_to_file, lib.size)
             for f in frames:
                 T, size = boxes.place_box(box.box_to_file, box.size, a.object_to_world[f])

@@ -271,3 +271,31 @@ def test_a_library_object_that_is_no_car_is_refused(tmp_path):
     inria.write_ply(tmp_path / "mm.ply", splats.encode(mm))
     with pytest.raises(spec_mod.VariationError, match="millimetres"):
         library_mod.load_asset(tmp_path / "mm.ply", str(tmp_path / "cache"))
+
+
+def test_the_base_jobs_own_cars_are_obstacles(bases, library, tmp_path):
+    """A car the base already holds, without a box (estimated, whatever its shape: the user placed it), is never
+    overlapped; here it stands across the right lane, in every parked car's and moving car's way."""
+    from scpainter_blender.core.splats import gaussians as splats, inria
+
+    job = J.load(bases[0])
+    g = shapes.procedural_car_gaussians(count=3000, seed=2)
+    inria.write_ply(tmp_path / "base_car.ply", splats.encode(g))
+    at = np.eye(4)
+    at[:3, :3] = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])   # turned across the road
+    at[:3, 3] = [3.5, 18.0, 0.0]
+    job.assets = [J.Asset("parked_base", str(tmp_path / "base_car.ply"), {f.frame: at for f in job.frames})]
+    J.save(tmp_path / "b" / "job.json", job)
+    m = variants.make_variants(str(tmp_path / "b" / "job.json"), spec(library, variants=6), str(tmp_path / "o"))
+    assert m["summary"]["rejections"]["recorded_box"] > 0          # it was in the way, and kept out of it
+    foot = placement.box_footprint(*boxes.rigid_box(at @ np.diag([1.8, 4.4, 1.6, 1.0]) @
+                                                   np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0.5],
+                                                             [0, 0, 0, 1.0]])))
+    for e in m["variants"]:
+        if e["job"]:
+            v = J.load(tmp_path / "o" / e["job"])
+            assert v.assets[0].name == "parked_base"
+            for a in v.assets[1:]:
+                for f in v.frames:
+                    T, size = boxes.place_box(a.box.box_to_file, a.box.size, a.object_to_world[f.frame])
+                    assert not placement.rectangles_overlap(placement.box_footprint(T, size), foot), e["id"]

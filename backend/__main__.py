@@ -215,9 +215,11 @@ def _cmd_batch(args) -> int:
         raise ArgumentError("--inpaint", "applies to --command generate only")
     if not items:
         given = list(args.list or []) + list(args.trusted_list or [])
+        from scpainter_blender.core.output_layout import VariationLayout
+
         raise ArgumentError("jobs", "no jobs given" + (f": {', '.join(given)} list no jobs" if given else ""),
-                            hint="a vary run lists only its placed variants (its variation.json says why none was)"
-                                 if given else "give job.json paths, or --list FILE")
+                            hint=f"a vary run lists only its placed variants (its {VariationLayout.MANIFEST} says "
+                                 "why none was)" if given else "give job.json paths, or --list FILE")
     if args.half_float and args.command_name != "render":
         raise ArgumentError("--half-float", "applies to --command render only",
                             hint="render the conditions with batch --command render --half-float first; generate "

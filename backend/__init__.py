@@ -21,6 +21,6 @@ import os
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 if "NUMBA_CACHE_DIR" not in os.environ:
-    from scpainter_blender.core import outputs as _outputs
+    from scpainter_blender.core.user_cache import user_cache_dir as _user_cache_dir  # stdlib only: doctor runs anywhere
 
-    os.environ["NUMBA_CACHE_DIR"] = _outputs.user_cache_dir("numba")
+    os.environ["NUMBA_CACHE_DIR"] = _user_cache_dir("numba")

@@ -49,7 +49,13 @@ def _cmd_doctor(args) -> int:
         report["ray"] = "installed, version unknown"
     needed = ("numpy", "torch", "numba", "OpenEXR", "diffusers", "transformers", "safetensors", "av", "trimesh")
     report["missing"] = [m for m in needed if not report.get(m) or str(report[m]).startswith("broken")]
-    if args.checkpoint:
+    if report["missing"]:
+        from scpainter_blender.core.backend_protocol import install_hint
+
+        report["install"] = install_hint(sys.executable)
+    if args.checkpoint and "numpy" in report["missing"]:
+        report["checkpoint"] = "not checked: this Python lacks numpy"
+    elif args.checkpoint:
         from scpainter_blender.core import errors
 
         from .model import checkpoint, checkpoint_config
@@ -398,6 +404,20 @@ class _Parser(argparse.ArgumentParser):
 CONSOLE_COMMAND = "scpainter-backend"
 
 
+def _doctor_command(sub) -> None:
+    """``doctor``'s sub-command: stdlib only, so it parses in an interpreter that lacks numpy (``main``)."""
+    d = sub.add_parser("doctor", help="report the Python, packages and devices the backend would use")
+    d.add_argument("--checkpoint", help="also check this SCPainter checkpoint folder")
+    d.set_defaults(func=_cmd_doctor)
+
+
+def _doctor_parser() -> argparse.ArgumentParser:
+    """A parser of ``doctor`` alone, built from the standard library: what ``main`` uses for it."""
+    p = _Parser(prog="python -m backend")
+    _doctor_command(p.add_subparsers(dest="command", required=True))
+    return p
+
+
 def build_parser() -> argparse.ArgumentParser:
     # numpy only: no torch or CUDA at start-up
     from scpainter_blender.core.backend_protocol import DEFAULT_DEVICE, DEVICE_NAMES, EXPORT_FORMAT_NAMES
@@ -411,9 +431,7 @@ def build_parser() -> argparse.ArgumentParser:
         f"JSON event per line; exit codes: {events.EXIT_OK} done, {events.EXIT_FAILED} failed, "
         f"{events.EXIT_BAD_INPUT} bad input, {events.EXIT_INTERRUPTED} interrupted."))
     sub = p.add_subparsers(dest="command", required=True)
-    d = sub.add_parser("doctor", help="report the Python, packages and devices the backend would use")
-    d.add_argument("--checkpoint", help="also check this SCPainter checkpoint folder")
-    d.set_defaults(func=_cmd_doctor)
+    _doctor_command(sub)
     r = sub.add_parser("render", help="render a job's condition layers (EXR + PNG previews) frame by frame")
     r.add_argument("job", help="job.json (the job contract: docs/design.md)")
     r.add_argument("--device", choices=DEVICE_NAMES, default=DEFAULT_DEVICE,
@@ -543,8 +561,18 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)  # argparse errors: usage on standard error, an error event, exit 2
-    from scpainter_blender.core.errors import InputError  # (numpy: not imported before doctor can report it)
+    argv = sys.argv[1:] if argv is None else list(argv)
+    # doctor first imports nothing but the standard library: it reports what this Python lacks instead of failing
+    # on it; every other command needs numpy to parse its arguments, and says what to install when it is missing
+    try:  # argparse errors: usage on standard error, an error event, exit 2
+        args = (_doctor_parser() if argv[:1] == ["doctor"] else build_parser()).parse_args(argv)
+    except ModuleNotFoundError as e:
+        from scpainter_blender.core.backend_protocol import install_hint
+
+        events.error(f"this Python ({sys.executable}) lacks the package {e.name!r} the backend needs",
+                     hint=install_hint(sys.executable), file="(environment)", field=e.name)
+        return events.EXIT_BAD_INPUT
+    from scpainter_blender.core.errors import InputError  # (stdlib only, as is CleanFailure's module)
 
     from .errors import CleanFailure
 

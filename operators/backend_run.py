@@ -288,7 +288,11 @@ class SCPAINTER_OT_check_backend(bpy.types.Operator):
             DOCTOR.update(ok=False, text=str(e))
             self.report({"ERROR"}, str(e))
             return {"CANCELLED"}
-        problems = [f"missing {', '.join(report['missing'])}"] if report.get("missing") else []
+        # what is missing, and the README's fix for the interpreter the preferences name (a wrapper script may
+        # start another one: the doctor knows only that one)
+        python = bpy.path.abspath(prefs.backend_python) if prefs and prefs.backend_python else report["executable"]
+        problems = [f"missing {', '.join(report['missing'])}: {protocol.install_hint(python)}"] \
+            if report.get("missing") else []
         if report.get("checkpoint") not in (None, "ok"):
             problems.append(report["checkpoint"])
         gpu = ", ".join(report.get("devices") or []) or "no CUDA GPU"

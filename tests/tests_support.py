@@ -31,8 +31,9 @@ def synthetic_predictions(S=3, H=14, W=21, seed=0):
     }
 
 
-def run_backend(*args, timeout=900):
-    """``python -m backend *args`` from the repo: (exit code, the events, standard error)."""
+def run_backend(*args, timeout=900, env=None):
+    """``python -m backend *args`` from the repo: (exit code, the events, standard error); ``env``: variables set
+    on top of this process's."""
     import json
     import os
     import subprocess
@@ -40,7 +41,7 @@ def run_backend(*args, timeout=900):
 
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     p = subprocess.run([sys.executable, "-m", "backend", *map(str, args)], cwd=root, capture_output=True, text=True,
-                       timeout=timeout)
+                       timeout=timeout, env=None if env is None else {**os.environ, **env})
     return p.returncode, [json.loads(line) for line in p.stdout.splitlines() if line.strip()], p.stderr
 
 

@@ -58,3 +58,15 @@ def error_event(message: str, /, hint: str | None = None, **fields) -> dict:
 def kind_of(ev: dict) -> str | None:
     """The kind of a parsed event (None for a line that is not one)."""
     return ev.get(KIND) if isinstance(ev, dict) else None
+
+
+#: What to do when the backend's Python lacks a package it needs (``doctor``'s report, *Check Backend*, the error
+#: of any other command): the README's fix, for the interpreter named.
+INSTALL_HINT = ("install the backend's packages into that Python: `{python} -m pip install -r requirements.txt` in "
+                "the SCPainter folder, or run `bash tools/setup.sh` there, which makes .venv with all of them "
+                "(README, 'The two commands'), and choose its Python as Backend Python")
+
+
+def install_hint(python: str) -> str:
+    """``INSTALL_HINT`` for the interpreter ``python``."""
+    return INSTALL_HINT.format(python=python)

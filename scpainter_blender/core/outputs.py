@@ -28,6 +28,7 @@ import stat
 import tempfile
 
 from .errors import ArgumentError, InputError
+from .user_cache import user_cache_dir  # noqa: F401  (outputs.user_cache_dir: its callers' name for it)
 from .files import NONBLOCK
 from .output_layout import OutputLayout
 
@@ -333,8 +334,3 @@ def remove_listed(folder, names) -> int:
     return removed
 
 
-def user_cache_dir(*parts: str) -> str:
-    """``$XDG_CACHE_HOME/scpainter/<parts>`` (``~/.cache/scpainter/...`` without it): the user's cache, for what
-    must never be written into the add-on's own folder (an installed extension may be read-only or shared)."""
-    cache = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return os.path.join(cache, "scpainter", *parts)

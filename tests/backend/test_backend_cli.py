@@ -8,15 +8,9 @@ import sys
 import pytest
 
 from scpainter_blender import backend_client
+from tests_support import run_backend  # every line of standard output is JSON
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-
-
-def run_backend(*args):
-    proc = subprocess.run([sys.executable, "-m", "backend", *map(str, args)], cwd=ROOT, capture_output=True,
-                          text=True, timeout=600)
-    events = [json.loads(line) for line in proc.stdout.splitlines() if line.strip()]  # every line is JSON
-    return proc.returncode, events, proc.stderr
 
 
 def ray_version():
@@ -111,3 +105,26 @@ def test_client_shows_file_and_field_of_bad_input_and_the_log_of_a_bug(tmp_path)
     assert e.value.exit_code == 1 and not e.value.bad_input and e.value.file is None and e.value.log_path == log
     assert str(e.value).startswith("ValueError: shape bug") and log in str(e.value)
     assert "Traceback" in e.value.log and "Traceback" in open(log, encoding="utf-8").read()
+
+
+def _without_numpy(tmp_path) -> dict:
+    """An environment whose Python cannot import numpy (a package of that name that fails as a missing one would),
+    as a Blender interpreter without the backend's packages is."""
+    fake = tmp_path / "no_numpy" / "numpy"
+    fake.mkdir(parents=True)
+    (fake / "__init__.py").write_text("raise ModuleNotFoundError(\"No module named 'numpy'\", name='numpy')\n")
+    return {"PYTHONPATH": os.pathsep.join([str(tmp_path / "no_numpy"), ROOT])}
+
+
+def test_doctor_without_numpy_says_what_to_install(tmp_path):
+    """doctor imports nothing but the standard library before it reports: the missing packages and the README's fix;
+    any other command says the same in its error, never a traceback."""
+    env = _without_numpy(tmp_path)
+    code, events, err = run_backend("doctor", "--checkpoint", str(tmp_path), env=env)
+    assert code == 0, err
+    report = events[-1]["report"]
+    assert "numpy" in report["missing"] and "pip install -r requirements.txt" in report["install"]
+    assert report["checkpoint"].startswith("not checked")
+    code, events, err = run_backend("render", "job.json", env=env)
+    assert code == 2 and "Traceback" not in err
+    assert events[-1]["field"] == "numpy" and "tools/setup.sh" in events[-1]["hint"]

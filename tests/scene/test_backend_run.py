@@ -260,6 +260,17 @@ def test_check_backend_reports_what_is_missing(addon, tiny_checkpoint, tmp_path)
         prefs.checkpoint_dir = str(tmp_path)                         # a folder that is not a checkpoint
         assert bpy.ops.scpainter.check_backend() == {"FINISHED"}
         assert not runs.DOCTOR["ok"] and "scpainter.json" in runs.DOCTOR["text"]
+        # an interpreter without numpy (Blender's own, say): the missing packages and the README's fix, no traceback
+        fake = tmp_path / "no_numpy" / "numpy"
+        fake.mkdir(parents=True)
+        (fake / "__init__.py").write_text("raise ModuleNotFoundError(\"No module named 'numpy'\", name='numpy')\n")
+        wrapper = tmp_path / "python-without-numpy"
+        wrapper.write_text(f"#!/bin/sh\nPYTHONPATH={tmp_path / 'no_numpy'}:$PYTHONPATH exec {sys.executable} \"$@\"\n")
+        wrapper.chmod(0o755)
+        prefs.backend_python, prefs.checkpoint_dir = str(wrapper), ""
+        assert bpy.ops.scpainter.check_backend() == {"FINISHED"}
+        assert not runs.DOCTOR["ok"] and "missing numpy" in runs.DOCTOR["text"]
+        assert f"{wrapper} -m pip install -r requirements.txt" in runs.DOCTOR["text"]
         prefs.backend_python = str(tmp_path / "no-python")
         with pytest.raises(RuntimeError, match="Backend Python not found"):
             bpy.ops.scpainter.check_backend()

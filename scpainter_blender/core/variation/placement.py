@@ -65,6 +65,11 @@ def rectangles_overlap(a, b) -> np.ndarray:
     return overlap
 
 
+def overlaps_any(rect, rects) -> bool:
+    """Whether the quadrilateral ``rect`` (4, 2) overlaps any of ``rects`` (K, 4, 2), K ≥ 0."""
+    return len(rects) > 0 and bool(rectangles_overlap(rect, rects).any())
+
+
 def rectangles_overlap_reference(a, b) -> bool:
     """The plain version of ``rectangles_overlap`` for one pair: some corner of one inside the other, or two edges
     crossing (tests compare the two)."""
@@ -158,7 +163,7 @@ class Rules:
         self.road, self.frames, self.gap = road, list(frames), float(gap_m)
         self.ego = np.stack([ego_rects[f] for f in self.frames])                       # (F, 4, 2)
         self.headway = int(headway_frames)
-        self.fixed = {f: np.stack(b) if b else np.zeros((0, 4, 2)) for f, b in fixed_boxes.items()}
+        self.fixed = {f: np.asarray(b, np.float64).reshape(-1, 4, 2) for f, b in fixed_boxes.items()}  # (K, 4, 2)
         self.placed: list = []
 
     def check(self, car: Car) -> str | None:
@@ -171,7 +176,7 @@ class Rules:
                 return reason
         grown = {f: _grow(feet[f], self.gap) for f in self.frames}
         for f in self.frames:
-            if len(self.fixed.get(f, ())) and rectangles_overlap(grown[f], self.fixed[f]).any():
+            if overlaps_any(grown[f], self.fixed.get(f, ())):
                 return "recorded_box"
         for other in self.placed:
             if any(rectangles_overlap(grown[f], other.footprints[f]) for f in self.frames):

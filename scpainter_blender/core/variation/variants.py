@@ -54,12 +54,16 @@ def scene_points(job: job_mod.Job, job_path) -> np.ndarray:
     return P
 
 
+def ground_track(world_to_camera) -> tuple:
+    """(centres (F, 3), unit horizontal directions of travel (F, 3)) of a camera path, world_to_camera (F, 4, 4):
+    ``trajectory.heading_directions``, the cameras' forward axes where the path does not move."""
+    centres = cameras.camera_centers(world_to_camera)
+    return centres, trajectory.heading_directions(centres, fallback=world_to_camera[:, 2, :3])
+
+
 def reference_path(job: job_mod.Job) -> placement.Path:
-    """The base job's camera path on the ground: centres and directions of travel (``trajectory``)."""
-    T = np.stack([f.world_to_camera for f in job.frames])
-    centres = cameras.camera_centers(T)
-    headings = trajectory.heading_directions(centres, fallback=T[:, 2, :3])
-    return placement.Path.of(centres, headings)
+    """The base job's camera path on the ground: centres and directions of travel."""
+    return placement.Path.of(*ground_track(np.stack([f.world_to_camera for f in job.frames])))
 
 
 def smoothstep(x) -> np.ndarray:
@@ -102,7 +106,8 @@ class Variation:
         self.timings = {"road_s": t1 - t0, "library_s": time.perf_counter() - t1}
 
     def _base_obstacles(self, convert_mesh, mesh_count) -> dict:
-        """{frame: [footprint (4, 2)]}: the base job's removal boxes, recorded objects and cars, per frame."""
+        """{frame: footprints (K, 4, 2)}: the base job's removal boxes, recorded objects and cars, per frame (stacked
+        once: every variant checks against them)."""
         frames = [f.frame for f in self.base.frames]
         sc = self.base.scene
         fixed = {f: [placement.box_footprint(b.box_to_world, b.size) for b in sc.removal_boxes] for f in frames}
@@ -119,7 +124,7 @@ class Variation:
             for f in frames:
                 T, size = boxes.place_box(box.box_to_file, box.size, a.object_to_world[f])
                 fixed[f].append(placement.box_footprint(T, size))
-        return fixed
+        return {f: np.array(rects, np.float64).reshape(-1, 4, 2) for f, rects in fixed.items()}
 
     # -- one variant -------------------------------------------------------------------------------------------
 
@@ -145,26 +150,21 @@ class Variation:
         (``camera_off_road``: a kerb, a sidewalk, a shift past the road's edge; ground never seen, behind the first
         camera, counts as road) or on something standing there or a box of the base (``camera_blocked``: a
         recorded car, a removal box, a car of the base job)."""
-        w, length = self.spec.ego_size_m
-        centres = cameras.camera_centers(world_to_camera)
-        heads = trajectory.heading_directions(centres, fallback=world_to_camera[:, 2, :3])
-        for i, f in enumerate(self.base.frames):
-            ego = placement.rectangle(centres[i, :2], heads[i, :2], length, w)
+        fixed = self.fixed
+        for f, ego in self.ego_rects(world_to_camera, grow=0.0).items():
             reason = self.road.check_footprint(ego, unseen_ok=True)
-            if reason == "recorded_object" or (reason is None and len(self.fixed[f.frame])
-                                               and placement.rectangles_overlap(ego, np.stack(self.fixed[f.frame])).any()):
+            if reason == "recorded_object" or (reason is None and placement.overlaps_any(ego, fixed[f])):
                 return "camera_blocked"
             if reason == "off_road":
                 return "camera_off_road"
         return None
 
-    def ego_rects(self, world_to_camera) -> dict:
-        """{frame: (4, 2)}: the ego vehicle's footprint around each camera of the new path, grown by the margin."""
-        centres = cameras.camera_centers(world_to_camera)
-        heads = trajectory.heading_directions(centres, fallback=world_to_camera[:, 2, :3])
+    def ego_rects(self, world_to_camera, grow: float) -> dict:
+        """{frame: (4, 2)}: the ego vehicle's footprint (``ego_size_m``) around each camera of a new path, grown by
+        ``grow`` on every side."""
+        centres, heads = ground_track(world_to_camera)
         w, length = self.spec.ego_size_m
-        m = self.spec.ego_margin_m
-        return {f.frame: placement.rectangle(centres[i, :2], heads[i, :2], length + 2 * m, w + 2 * m)
+        return {f.frame: placement.rectangle(centres[i, :2], heads[i, :2], length + 2 * grow, w + 2 * grow)
                 for i, f in enumerate(self.base.frames)}
 
     def draw_car(self, rng, asset, rules: placement.Rules) -> tuple:
@@ -247,7 +247,8 @@ class Variation:
             entry.update(outcome="unplaced", job=None,
                          unplaced={"car": None, "what": "camera", "tries": s.tries, "rejections": rejections})
             return None, entry
-        rules = placement.Rules(self.road, [f.frame for f in self.base.frames], self.ego_rects(w2c), self.fixed,
+        rules = placement.Rules(self.road, [f.frame for f in self.base.frames],
+                                self.ego_rects(w2c, grow=s.ego_margin_m), self.fixed,
                                 s.gap_m, headway_frames=round(s.headway_s * self.base.frame_rate()[0]))
         count = int(rng.integers(s.car_count[0], s.car_count[1] + 1))
         placed = []

@@ -26,14 +26,14 @@ import time
 
 import numpy as np
 
-from scpainter_blender.core.geometry import fits as geometry, point_cloud
+from scpainter_blender.core.geometry import point_cloud
 from scpainter_blender.core import job as job_mod
 
 
 def clean_cloud(pred, confidence_percentile: float, vggt_to_world, point_cleaning, removal_boxes=()):
-    """A scene's points, cleaned: ``point_cloud.point_cloud`` (confidence filter and, with
-    ``point_cleaning.depth_edge_ratio``, the depth-edge test per source frame), then the ``removal_boxes``
-    (``job.RemovalBox``), then ``outlier_keep`` among the points still kept. ``point_cleaning``: a
+    """A scene's points, cleaned: ``point_cloud.scene_cloud`` (confidence filter and, with
+    ``point_cleaning.depth_edge_ratio``, the depth-edge test per source frame; then the ``removal_boxes``,
+    ``job.RemovalBox``), then ``outlier_keep`` among the points still kept. ``point_cleaning``: a
     ``job.PointCleaning``, None: no cleaning.
 
     Returns (cloud ``point_cloud.FramePoints``, keep (N,) bool over its points, stats {``removed_points``,
@@ -41,12 +41,9 @@ def clean_cloud(pred, confidence_percentile: float, vggt_to_world, point_cleanin
     model is trained on and those it is given at inference are cleaned alike."""
     clean = point_cleaning or job_mod.PointCleaning(None, None)
     t0 = time.perf_counter()
-    cloud = point_cloud.point_cloud(pred, confidence_percentile, vggt_to_world=vggt_to_world,
-                                    depth_edge_ratio=clean.depth_edge_ratio)
+    cloud, keep = point_cloud.scene_cloud(pred, confidence_percentile, vggt_to_world, clean.depth_edge_ratio,
+                                          removal_boxes)
     t_cloud = time.perf_counter() - t0
-    keep = np.ones(len(cloud), bool)
-    for box in removal_boxes:
-        keep &= ~geometry.points_in_box(cloud.positions, box.box_to_world, box.size)
     removed = int((~keep).sum())
     t0 = time.perf_counter()
     inliers = np.ones(len(cloud), bool)

@@ -31,7 +31,7 @@ import torch
 
 from scpainter_blender.core.geometry import cameras
 from scpainter_blender.core.splats import gaussians as splats, reader as splats_io
-from scpainter_blender.core.vggt import npz as vggt_io
+from scpainter_blender.core import job_inputs
 from scpainter_blender.core import job as job_mod
 
 from . import channels as ch
@@ -82,8 +82,7 @@ def load_scene(job: job_mod.Job, job_path: str, device, points: bool = True) -> 
     if job.scene is not None and points:
         sc = job.scene
         # as the import loaded it: the same reading of the poses, the same crop (NaN/inf pixels are dropped)
-        pred = vggt_io.load_predictions(job_mod.resolve(job_path, sc.predictions), world_points=False,
-                                        extrinsic_convention=sc.extrinsic_convention, crop=list(sc.crop))
+        pred = job_inputs.scene_predictions(job_path, sc)
         cloud, keep, stats = cleaning.clean_cloud(pred, sc.confidence_percentile, sc.vggt_to_world,
                                                   sc.point_cleaning, sc.removal_boxes)
         scene.removed_points = stats.pop("removed_points")

@@ -8,7 +8,7 @@ from __future__ import annotations
 import os
 
 from . import files, outputs
-from .job import Job, JobError
+from .job import Job, JobError, Scene, resolve
 
 
 def job_paths(job_path, job: Job, allow_outside: bool = False, checkpoint: bool = False, data_roots=()) -> dict:
@@ -66,3 +66,13 @@ def check_inputs(job_path, job: Job, allow_outside: bool = False, data_roots=())
     for i in range(len(job.assets)):
         splats_io.read(paths[f"assets[{i}].ply"])
     return paths
+
+
+def scene_predictions(job_path, scene: Scene):
+    """The predictions of a job's ``scene``, read as the import read them (same reading of the poses, same crop;
+    NaN/inf pixels dropped): ``vggt.VGGTPredictions``, without ``world_points``. What the renderer and a variation
+    run load; ``PredictionsError`` names the file and key."""
+    from .vggt import npz as vggt_npz
+
+    return vggt_npz.load_predictions(resolve(job_path, scene.predictions), world_points=False,
+                                     extrinsic_convention=scene.extrinsic_convention, crop=list(scene.crop))

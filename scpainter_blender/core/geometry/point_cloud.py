@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import similarity, unproject
+from . import fits, similarity, unproject
 from ..vggt import predictions as vggt
 
 #: The confidence percentile when none is given, the one place it is written: VGGT's demo drops the less
@@ -118,6 +118,19 @@ def point_cloud(pred: vggt.VGGTPredictions, confidence_percentile: float = CONFI
             col[sl, c] = img[..., c].reshape(-1).take(flat)
         fid[sl] = i
     return FramePoints(pos, col, fid, offsets, thr, edge_points)
+
+
+def scene_cloud(pred: vggt.VGGTPredictions, confidence_percentile: float, vggt_to_world, depth_edge_ratio=None,
+                removal_boxes=()) -> tuple:
+    """A job's scene points before outlier removal: (``point_cloud`` of every frame with the depth-edge test,
+    keep (N,) bool: False for the points inside a removal box, any object with ``box_to_world`` and ``size``). The
+    renderer (``backend.render.cleaning.clean_cloud``, which then removes outliers) and a variation run's road
+    both take their points from here."""
+    cloud = point_cloud(pred, confidence_percentile, vggt_to_world=vggt_to_world, depth_edge_ratio=depth_edge_ratio)
+    keep = np.ones(len(cloud), bool)
+    for box in removal_boxes:
+        keep &= ~fits.points_in_box(cloud.positions, box.box_to_world, box.size)
+    return cloud, keep
 
 
 #: The 8 neighbours (row, column offsets) the depth-edge test compares a pixel with.

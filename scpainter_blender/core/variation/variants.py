@@ -23,10 +23,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from .. import batch_items, errors, files, job as job_mod, outputs
-from ..geometry import boxes, cameras, fits, point_cloud, trajectory
+from .. import batch_items, errors, files, job as job_mod, job_inputs, outputs
+from ..geometry import boxes, cameras, point_cloud, trajectory
 from ..output_layout import VariationLayout
-from ..vggt import npz as vggt_npz
 from . import library as library_mod, placement
 from .road import Road
 from . import spec as spec_mod
@@ -44,14 +43,10 @@ def scene_points(job: job_mod.Job, job_path) -> np.ndarray:
     outlier removal (open3d, backend only) is not applied: the road's RANSAC planes and its per-cell point counts
     are robust to floaters."""
     sc = job.scene
-    pred = vggt_npz.load_predictions(job_mod.resolve(job_path, sc.predictions), world_points=False,
-                                     extrinsic_convention=sc.extrinsic_convention, crop=list(sc.crop))
     ratio = sc.point_cleaning.depth_edge_ratio if sc.point_cleaning is not None else None
-    P = point_cloud.point_cloud(pred, sc.confidence_percentile, vggt_to_world=sc.vggt_to_world,
-                                depth_edge_ratio=ratio).positions
-    for box in sc.removal_boxes:
-        P = P[~fits.points_in_box(P, box.box_to_world, box.size)]
-    return P
+    cloud, keep = point_cloud.scene_cloud(job_inputs.scene_predictions(job_path, sc), sc.confidence_percentile,
+                                          sc.vggt_to_world, ratio, sc.removal_boxes)
+    return cloud.positions[keep]
 
 
 def ground_track(world_to_camera) -> tuple:

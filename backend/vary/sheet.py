@@ -1,9 +1,9 @@
 """The contact sheet of a variation: the first frame of every variant in a grid, each captioned with what it
-holds, so a person sees in one picture what a run made (docs/design.md §16).
+holds, so a person sees in one picture what a run made (docs/design.md §16). Drawn with OpenCV, written by the
+backend's PNG writer.
 
 A placed and rendered variant shows its labelled preview (boxes drawn; else the plain preview); a placed variant
-not rendered yet, or one that could not be placed, shows a grey tile saying so. Written atomically, PNG through
-OpenCV.
+not rendered yet, or one that could not be placed, shows a grey tile saying so.
 """
 
 from __future__ import annotations
@@ -13,9 +13,11 @@ import os
 
 import numpy as np
 
-from scpainter_blender.core import files, outputs
+from scpainter_blender.core import files
 from scpainter_blender.core.output_layout import VariationLayout
 from scpainter_blender.core.variation.spec import VariationError
+
+from ..png import write_png
 
 CAPTION_PX = 16
 #: The grid is at most this many tiles wide.
@@ -99,10 +101,6 @@ def contact_sheet(root: str, out: str | None = None) -> dict:
         else:
             tile[:] = 200
             cv2.putText(tile, note, (6, th // 2), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (60, 60, 60), 1, cv2.LINE_AA)
-    ok, png = cv2.imencode(".png", cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR))
-    if not ok:  # OpenCV failing on a plain uint8 image would be a bug, not input
-        raise RuntimeError("OpenCV could not encode the contact sheet")
     path = os.path.abspath(out or layout.sheet)
-    with outputs.atomic_write(path) as f:
-        f.write(png.tobytes())
+    write_png(path, sheet)  # the backend's one PNG writer (atomic)
     return dict(path=path, variants=len(entries), **counts)

@@ -95,8 +95,15 @@ class Road:
             self.planes[k // self.shape[1], k % self.shape[1]] = plane
 
     def _plane_height(self, i, j, xy) -> np.ndarray:
-        a, b, c, d = self.planes[i, j].T
+        """Height of tile (i, j)'s plane (indices of any one shape) over points ``xy`` (..., 2) relative to the
+        origin."""
+        a, b, c, d = np.moveaxis(self.planes[i, j], -1, 0)
         return -(a * xy[..., 0] + b * xy[..., 1] + d) / c
+
+    def _world_tiles(self, xy) -> tuple:
+        """(tile index (..., 2), clamped into the grid; inside (...,)) of world points ``xy`` (..., 2)."""
+        ij, inside = self._tile_index(np.asarray(xy, np.float64) - self.origin[:2])
+        return np.where(inside[..., None], ij, 0), inside
 
     def _grow_road(self, c) -> np.ndarray:
         road = np.zeros(self.shape, bool)
@@ -167,18 +174,14 @@ class Road:
     def ground(self, xy) -> tuple:
         """(z (...,), unit normal (..., 3)) of the ground plane under world points ``xy`` (..., 2); NaN where no
         tile plane is known."""
-        rel = np.asarray(xy, np.float64) - self.origin[:2]
-        ij, inside = self._tile_index(rel)
-        ij = np.where(inside[..., None], ij, 0)
-        plane = np.where(inside[..., None], self.planes[ij[..., 0], ij[..., 1]], np.nan)
-        a, b, c, d = np.moveaxis(plane, -1, 0)
-        z = -(a * rel[..., 0] + b * rel[..., 1] + d) / c + self.origin[2]
-        return z, plane[..., :3]
+        ij, inside = self._world_tiles(xy)
+        z = self._plane_height(ij[..., 0], ij[..., 1], np.asarray(xy, np.float64) - self.origin[:2])
+        normal = self.planes[ij[..., 0], ij[..., 1], :3]
+        return np.where(inside, z + self.origin[2], np.nan), np.where(inside[..., None], normal, np.nan)
 
     def is_road(self, xy) -> np.ndarray:
         """Whether world points ``xy`` (..., 2) lie on road tiles."""
-        ij, inside = self._tile_index(np.asarray(xy, np.float64) - self.origin[:2])
-        ij = np.where(inside[..., None], ij, 0)
+        ij, inside = self._world_tiles(xy)
         return inside & self.road[ij[..., 0], ij[..., 1]]
 
     @property
@@ -208,8 +211,7 @@ class Road:
 
     def known(self, xy) -> np.ndarray:
         """Whether world points ``xy`` (..., 2) lie on tiles whose ground was seen (a plane was fitted)."""
-        ij, inside = self._tile_index(np.asarray(xy, np.float64) - self.origin[:2])
-        ij = np.where(inside[..., None], ij, 0)
+        ij, inside = self._world_tiles(xy)
         return inside & np.isfinite(self.planes[ij[..., 0], ij[..., 1], 0])
 
     def check_footprint(self, corners_xy, unseen_ok: bool = False) -> str | None:

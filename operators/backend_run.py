@@ -280,7 +280,7 @@ class SCPAINTER_OT_check_backend(bpy.types.Operator):
     def execute(self, context):
         prefs = preferences.get(context)
         checkpoint = bpy.path.abspath(prefs.checkpoint_dir) if prefs and prefs.checkpoint_dir else None
-        doctor = Invocation("doctor", checkpoint=checkpoint, python=prefs.backend_python if prefs else "")
+        doctor = Invocation("doctor", checkpoint=checkpoint, python=preferences.python(prefs))
         DOCTOR.clear()
         try:
             report = doctor.start().wait(timeout=120)["report"]

@@ -42,7 +42,7 @@ class SCPAINTER_OT_import_gaussians(bpy.types.Operator, ImportHelper):
         prefs = preferences.get(context)
         r = gaussians.import_gaussians(context, self.filepath, self.axes, self.target_length or None,
                                        self.ellipsoids, mesh_count=self.mesh_count,
-                                       backend_python=prefs.backend_python if prefs else "")
+                                       backend_python=preferences.python(prefs))
         selection.select_only(context, r.object)
         self.report({"INFO"}, r.report())
         for w in r.warnings:

@@ -8,7 +8,7 @@ import bpy
 
 from ..scpainter_blender.core.output_layout import SceneFolder, VariationLayout
 from ..scpainter_blender.core.variation import spec as spec_mod, variants
-from ..scpainter_blender.scene import props, runs, variations
+from ..scpainter_blender.scene import preferences, props, variations
 from . import reports
 
 
@@ -41,14 +41,13 @@ class SCPAINTER_OT_make_variations(bpy.types.Operator):
         wm = context.window_manager
         wm.progress_begin(0, spec.variants)
         try:
-            manifest = variations.make_variations(context, spec, out, python=runs.invocation(context, "doctor").python,
+            manifest = variations.make_variations(context, spec, out, python=preferences.python(preferences.get(context)),
                                                   progress=lambda done, total: wm.progress_update(done))
         finally:
             wm.progress_end()
         s = manifest["summary"]
-        for e in manifest["variants"]:
-            if e["outcome"] != "placed":
-                self.report({"WARNING"}, variants.unplaced_text(e))
+        for w in variants.warnings(manifest):  # what the CLIs send as warning events: unplaced variants, the run's
+            self.report({"WARNING"}, w["message"])
         self.report({"INFO"}, f"{s['placed']} of {s['variants']} variants placed ({s['cars']} cars) in {out}; "
                               f"render them with: python -m backend batch --list "
                               f"{VariationLayout(out).list}")

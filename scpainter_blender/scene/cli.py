@@ -55,7 +55,7 @@ from ..core import errors, files, import_options, outputs
 from ..core import job as job_mod
 from ..core.output_layout import OutputLayout
 from ..core.variation import spec as variation_spec, variants as vary_mod
-from . import importer, props, runs, variations
+from . import importer, preferences, props, runs, variations
 
 
 class _Parser(argparse.ArgumentParser):
@@ -179,7 +179,7 @@ def _vary(args) -> tuple[dict, int]:
                                        hint="leave it out, or give the predictions file instead of the .blend")
         _open_blend(args.source, args)
     camera = props.named_camera(bpy.context.scene, args.camera, args.source)
-    python = args.backend_python or runs.invocation(bpy.context, "doctor").python
+    python = args.backend_python or preferences.python(preferences.get(bpy.context))
 
     def progress(done, total):
         print(f"scpainter: vary {done}/{total}", file=sys.stderr, flush=True)

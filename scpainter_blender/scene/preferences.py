@@ -46,6 +46,12 @@ def device(prefs: SCPAINTER_AP_preferences | None) -> str:
     return prefs.device.lower() if prefs else backend_protocol.DEFAULT_DEVICE
 
 
+def python(prefs: SCPAINTER_AP_preferences | None) -> str:
+    """The Backend Python the preferences name, "" without one (``backend_client.backend_python`` then takes the
+    running interpreter when it can import torch)."""
+    return prefs.backend_python if prefs else ""
+
+
 def get(context=None) -> SCPAINTER_AP_preferences | None:
     context = context or bpy.context
     addon = context.preferences.addons.get(ADDON_PACKAGE)

@@ -80,7 +80,7 @@ def invocation(context, command: str, **options) -> Invocation:
     ``options`` (``Invocation``'s fields, e.g. ``steps``); the job is ``start``'s to add. ``allow_outside``: the job
     ``start`` exports is the user's own (``export``)."""
     prefs = preferences.get(context)
-    return Invocation(command, **{"device": preferences.device(prefs), "python": prefs.backend_python if prefs else "",
+    return Invocation(command, **{"device": preferences.device(prefs), "python": preferences.python(prefs),
                                   "allow_outside": True, **options})
 
 

@@ -10,12 +10,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from scpainter_blender.core import errors, files, locking, outputs
+from scpainter_blender.core import frame_keys, locking, outputs
 from scpainter_blender.core import job as job_mod
 from scpainter_blender.core import job_inputs
 from scpainter_blender.core import labels as labels_mod
 from scpainter_blender.core.geometry import boxes
-from scpainter_blender.core.output_layout import OutputLayout
+from scpainter_blender.core.output_layout import FRAME_LABELS, OutputLayout
 
 from .. import events, png
 from ..errors import FolderBusyError
@@ -31,45 +31,10 @@ def frame_paths(job_path: str, job: job_mod.Job, frame: int) -> tuple[str, str]:
 
 
 def job_key(job_path: str, job: job_mod.Job, point_radius: int, half: bool = False) -> str:
-    """A hash of everything the condition layers depend on: the job without its generation settings, output
-    folder and label-only fields (``Job.layers_dict``), the point radius, the EXR precision (``half``), and the
-    size and time of each input file. Finished frames are reused only under the same key, so moving a car or a
-    camera, or asking for another precision, and rendering again cannot keep stale frames. (``half`` enters the
-    hash only when set, so the keys of folders rendered before the option existed, all float32, are unchanged.)"""
-    import hashlib
-    import json
-
-    content = job.layers_dict()
-    files = [job.scene.predictions] if job.scene is not None else []
-    files += [a.ply for a in job.assets]
-    stamps = []
-    for f in files:
-        st = os.stat(job_mod.resolve(job_path, f))
-        stamps.append([f, st.st_size, st.st_mtime_ns])
-    blob = {"job": content, "radius": point_radius, "files": stamps}
-    if half:
-        blob["exr"] = "half"
-    return hashlib.sha256(json.dumps(blob, sort_keys=True).encode()).hexdigest()[:32]
-
-
-def labels_key(layers_key: str, job: job_mod.Job) -> str:
-    """What a frame's labels depend on beyond its layers: the layers' key and the whole job but its generation
-    settings and output folder (so editing a box, a class or the frame rate makes new labels)."""
-    import hashlib
-    import json
-
-    content = {k: v for k, v in job.to_dict().items() if k not in ("generate", "output_dir")}
-    blob = json.dumps({"layers": layers_key, "job": content, "schema": labels_mod.SCHEMA}, sort_keys=True)
-    return hashlib.sha256(blob.encode()).hexdigest()[:32]
-
-
-def _labels_file(path: str) -> dict:
-    """A frame's labels as render wrote them ({} when missing, unreadable or of another schema: not finished)."""
-    try:
-        lab = files.read_json(path)
-    except errors.InputError:
-        return {}
-    return lab if isinstance(lab, dict) and lab.get("schema") == labels_mod.SCHEMA else {}
+    """The scene key of a job's condition layers (``core.frame_keys.scene_key``: everything every frame depends on;
+    each frame's own key adds its camera and the assets it can see): what ``conditions/record.json`` records as
+    ``key``. A changed point cleaning, precision or predictions file changes it."""
+    return frame_keys.scene_key(job, frame_keys.Inputs.of(job_path, job), point_radius, half)
 
 
 def asset_boxes(job: job_mod.Job, scene: fr.Scene, log) -> list:
@@ -117,16 +82,6 @@ def _frame_files(job: job_mod.Job) -> list:
     return OutputLayout.condition_names(e.frame for e in job.frames)
 
 
-def _previous_record(layout: OutputLayout) -> dict | None:
-    """The conditions folder's record ({"key", "files"}), None when there is none or it is unreadable."""
-    try:
-        record = files.read_json(layout.record)
-    except errors.InputError:
-        return None
-    ok = isinstance(record, dict) and isinstance(record.get("key"), str) and isinstance(record.get("files"), list)
-    return record if ok else None
-
-
 def render_job(job_path: str, job: job_mod.Job, device: str, force: bool = False, point_radius: int = 0,
                stop=(), log=None, allow_outside: bool = False, lock: bool = True, checked: dict | None = None,
                half: bool | None = None, data_roots=()) -> dict:
@@ -162,62 +117,69 @@ def _render(job_path, job, device, force, point_radius, stop, log, out, allow_ou
     cond = outputs.output_folder(out, OutputLayout.CONDITIONS, allow_outside)
     W, H = job.resolution
     total, rendered, skipped = len(job.frames), 0, 0
-    previous = _previous_record(layout)
+    previous = frame_keys.read_record(layout)
     if half is None:
         half = previous is not None and previous.get("exr") == "half"
-    key = job_key(job_path, job, point_radius, half)
-    if not force and previous is not None and previous["key"] != key:
-        log("render: the job changed since the finished frames were made: rendering every frame again")
-        force = True
-    if force or previous is None:
-        # stale frames go first, so a stop half-way cannot mix old and new; only files this project wrote for the
-        # job (its previous record's, and this job's own frame names), never anything else in the folder
-        outputs.remove_listed(cond, (previous or {}).get("files", []) + _frame_files(job))
-        force = True
-    outputs.remove_temporaries(cond, _frame_files(job) + [OutputLayout.RECORD])  # left by a run killed mid-write
-    outputs.write_json(layout.record, {"schema": "scpainter.conditions/1", "key": key,
-                                       "files": _frame_files(job), "exr": "half" if half else "float32"})
+    # per-frame keys (core.frame_keys): the assets' extents from the record when their files did not change, else
+    # from their Gaussians (loaded here, kept for the frames)
+    inputs = frame_keys.Inputs.of(job_path, job)
+    extents = frame_keys.recorded_extents(previous, job, inputs)
+    scene = None
+    if extents is None:
+        scene = fr.load_scene(job, job_path, device, points=False)
+        extents = [(a.bounds, a.max_sigma) for a in scene.assets]  # visibility.asset_bounds, as Blender reads them
+    key = frame_keys.scene_key(job, inputs, point_radius, half)
+    keys = frame_keys.frame_keys(job, key, inputs, extents)
+    plan = frame_keys.plan(layout, job, keys, force)
+    names = _frame_files(job)
+    if force:
+        # only files this project wrote for the job (its previous record's, and this job's own frame names), never
+        # anything else in the folder
+        outputs.remove_listed(cond, (previous or {}).get("files", []) + names)
+    else:  # frames the job no longer has (a shorter range): never shown beside this job's
+        outputs.remove_listed(cond, [n for n in (previous or {}).get("files", []) if n not in set(names)])
+    outputs.remove_temporaries(cond, names + [OutputLayout.RECORD])  # left by a run killed mid-write
+    outputs.write_json(layout.record, frame_keys.record(key, names, half, job, inputs, extents))
     with contextlib.suppress(FileNotFoundError):  # the record's former name (one line: the key)
         os.remove(layout.former_record)
-    lkey = labels_key(key, job)
-    todo, relabel, warned = set(), {}, 0
-    for e in job.frames:
-        lab = {}
-        if not force and all(os.path.isfile(p) for p in frame_paths(job_path, job, e.frame)):
-            lab = _labels_file(layout.frame_labels(e.frame))
-        if lab.get("key") == lkey and os.path.isfile(layout.labelled_preview(e.frame)):
-            warned += _warn(lab)  # a finished frame's flags are reported again: every run says what is weak
-        elif lab.get("layers_key") == key:  # the layers are up to date: only the labels are made again
-            relabel[e.frame] = lab
-        else:
-            todo.add(e.frame)
-    scene = labelling = None
+    if plan.render and len(plan.render) < total:
+        log(f"render: {len(plan.render)} of {total} frames changed since they were rendered (their cameras, or "
+            f"the assets they can see); the other {total - len(plan.render)} are kept")
+    warned = sum(_warn(plan.done[e.frame]) for e in job.frames if e.frame in plan.done)  # said again every run
+    labelling = None
     relabelled = 0
     for n, entry in enumerate(job.frames):
         if stop:
             break
         f = entry.frame
         exr_path, png_path = frame_paths(job_path, job, f)
-        if scene is None and (f in todo or f in relabel):  # loaded once, only when there is work
+        if labelling is None and (f in plan.render or f in plan.relabel):  # loaded once, only when there is work
             # the points only when a frame is rendered: relabelling needs the assets alone
-            scene = fr.load_scene(job, job_path, device, points=bool(todo))
-            if todo:
-                log(f"render {job_path}: {len(todo)} of {total} frames {W}x{H} on {device} "
+            if scene is None:
+                scene = fr.load_scene(job, job_path, device, points=bool(plan.render))
+            elif plan.render:
+                fr.load_points(scene, job, job_path)
+            if plan.render:
+                log(f"render {job_path}: {len(plan.render)} of {total} frames {W}x{H} on {device} "
                     f"({'half-float' if half else 'float32'} EXRs); "
                     f"{0 if scene.xyz is None else len(scene.xyz):,} points ({scene.removed_points:,} removed by "
                     f"boxes), {len(scene.assets)} assets")
                 _log_cleaning(scene, log)
             labelling = _Labelling(job, layout, asset_boxes(job, scene, log),
-                                   [file_hash(job_mod.resolve(job_path, a.ply)) for a in job.assets], key, lkey)
+                                   [file_hash(job_mod.resolve(job_path, a.ply)) for a in job.assets], plan.keys,
+                                   plan.labels_keys)
             if stop:  # asked to stop while the scene loaded (outlier removal can take a while)
                 break
-        if f in relabel:  # a label-only edit (a box, a class, the frame rate): the layers are kept
-            warned += _relabel(labelling, n, relabel[f])
+        if f in plan.relabel:  # a label-only edit (a box, a class, the frame rate): the layers are kept
+            warned += _relabel(labelling, n, plan.relabel[f])
             relabelled += 1
             skipped += 1
-        elif f not in todo:
+        elif f not in plan.render:
             skipped += 1
         else:
+            # its labels go first: a kill before its new labels are written leaves the frame unfinished, never
+            # the new EXR under the old frame's key
+            outputs.remove_listed(cond, [FRAME_LABELS.name(f)])
             t = time.perf_counter()
             kept = {}
             layers = fr.render_frame(scene, entry, W, H, point_radius, keep=kept)
@@ -233,7 +195,7 @@ def _render(job_path, job, device, force, point_radius, stop, log, out, allow_ou
             warned += _warn(lab)
             log(f"frame {f}: {time.perf_counter() - t:.3f} s, hole {layers[channels.HOLE].mean():.3f}, "
                 f"{sum(o['visible_pixels'] > 0 for o in lab['objects'])} objects visible")
-        events.progress("render", n + 1, total, frame=f, reused=f not in todo)  # reused: found up to date
+        events.progress("render", n + 1, total, frame=f, reused=f not in plan.render)  # reused: found up to date
     return {"frames": total, "rendered": rendered, "skipped": skipped, "output_dir": out, "stopped": bool(stop),
             "relabelled": relabelled, "warnings": warned}
 
@@ -241,13 +203,13 @@ def _render(job_path, job, device, force, point_radius, stop, log, out, allow_ou
 @dataclass
 class _Labelling:
     """What a run's labels are made from, once per run: the job, its output folder, each asset's box
-    (``asset_boxes``) and file hash, the layers' key and the labels' key."""
+    (``asset_boxes``) and file hash, and each frame's layers key and labels key."""
     job: job_mod.Job
     layout: OutputLayout
     boxes: list
     hashes: list
-    layers_key: str
-    key: str
+    layers_keys: dict   # {frame: layers key} (core.frame_keys.Plan.keys)
+    keys: dict          # {frame: labels key}
 
     def write(self, index: int, layers: dict, amodal) -> dict:
         """The labels of ``job.frames[index]`` from its layers (``channels`` keys) and its assets' amodal pixel
@@ -256,8 +218,8 @@ class _Labelling:
         f = self.job.frames[index].frame
         lab = labels_mod.frame_labels(self.job, index, instance=layers[channels.INSTANCE],
                                       hole=layers[channels.HOLE], depth=layers[channels.DEPTH], amodal_pixels=amodal,
-                                      asset_boxes=self.boxes, asset_hashes=self.hashes, key=self.key,
-                                      layers_key=self.layers_key)
+                                      asset_boxes=self.boxes, asset_hashes=self.hashes, key=self.keys[f],
+                                      layers_key=self.layers_keys[f])
         labelled.write(self.layout.labelled_preview(f), np.stack([layers[c] for c in channels.IMAGE], -1), lab)
         outputs.write_json(self.layout.frame_labels(f), lab)
         events.artifact(self.layout.labelled_preview(f), frame=f, kind="labelled")

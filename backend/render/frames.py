@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from scpainter_blender.core.geometry import cameras
+from scpainter_blender.core.geometry import cameras, visibility
 from scpainter_blender.core.splats import gaussians as splats, reader as splats_io
 from scpainter_blender.core import job_inputs
 from scpainter_blender.core import job as job_mod
@@ -75,28 +75,35 @@ def load_scene(job: job_mod.Job, job_path: str, device, points: bool = True) -> 
     """The job's points and assets on ``device``, once per job: the points as the import read them, cleaned by
     ``scene.point_cleaning`` (depth edges per source frame, then outliers of the cloud left after the removal
     boxes; ``Scene.cleaning`` says what each dropped and took), with each source frame's slice and box.
-    ``points=False``: the assets only (what labels need when the layers are there already)."""
-    device = torch.device(device)
-    origin = cameras.camera_centers(job.frames[0].world_to_camera)
-    scene = Scene(origin=origin, device=device)
-    if job.scene is not None and points:
-        sc = job.scene
-        # as the import loaded it: the same reading of the poses, the same crop (NaN/inf pixels are dropped)
-        pred = job_inputs.scene_predictions(job_path, sc)
-        cloud, keep, stats = cleaning.clean_cloud(pred, sc.confidence_percentile, sc.vggt_to_world,
-                                                  sc.point_cleaning, sc.removal_boxes)
-        scene.removed_points = stats.pop("removed_points")
-        scene.cleaning = stats
-        xyz = cloud.positions[keep] - origin
-        frame = cloud.frame[keep]
-        scene.xyz = torch.as_tensor(xyz.astype(np.float32), device=device)
-        scene.rgb = torch.as_tensor(cloud.colors[keep], device=device)
-        scene.frame = torch.as_tensor(frame.astype(np.int64), device=device)
-        scene.frames_present = frozenset(np.unique(frame).tolist())
-        scene.frame_slices, scene.frame_boxes = frame_index(frame, scene.xyz.cpu().numpy())
+    ``points=False``: the assets only (what labels and the per-frame keys need; ``load_points`` adds the points
+    later when a frame has to be rendered)."""
+    scene = Scene(origin=cameras.camera_centers(job.frames[0].world_to_camera), device=torch.device(device))
+    if points:
+        load_points(scene, job, job_path)
     for a in job.assets:
         scene.assets.append(make_asset(a.name, splats_io.load(job_mod.resolve(job_path, a.ply)), a.object_to_world,
-                                       device))
+                                       scene.device))
+    return scene
+
+
+def load_points(scene: Scene, job: job_mod.Job, job_path: str) -> Scene:
+    """Load the job's cleaned points into ``scene`` (``load_scene``'s first half; nothing without a job scene)."""
+    if job.scene is None:
+        return scene
+    sc, device, origin = job.scene, scene.device, scene.origin
+    # as the import loaded it: the same reading of the poses, the same crop (NaN/inf pixels are dropped)
+    pred = job_inputs.scene_predictions(job_path, sc)
+    cloud, keep, stats = cleaning.clean_cloud(pred, sc.confidence_percentile, sc.vggt_to_world,
+                                              sc.point_cleaning, sc.removal_boxes)
+    scene.removed_points = stats.pop("removed_points")
+    scene.cleaning = stats
+    xyz = cloud.positions[keep] - origin
+    frame = cloud.frame[keep]
+    scene.xyz = torch.as_tensor(xyz.astype(np.float32), device=device)
+    scene.rgb = torch.as_tensor(cloud.colors[keep], device=device)
+    scene.frame = torch.as_tensor(frame.astype(np.int64), device=device)
+    scene.frames_present = frozenset(np.unique(frame).tolist())
+    scene.frame_slices, scene.frame_boxes = frame_index(frame, scene.xyz.cpu().numpy())
     return scene
 
 
@@ -122,138 +129,28 @@ def make_asset(name: str, g: splats.Gaussians, object_to_world: dict, device) ->
     t = lambda x: torch.as_tensor(np.asarray(x, np.float64), device=device)  # noqa: E731
     factors, ok = gs.covariance_factors(t(g.quats), t(g.scales))
     means, factors = t(g.means)[ok], factors[ok]
-    # in numpy, on the file's arrays (tiny torch reductions cost milliseconds of thread start-up each)
-    okn = ok.cpu().numpy()
-    m, sc = np.asarray(g.means, np.float64)[okn], np.abs(np.asarray(g.scales, np.float64)[okn])
-    finite = np.isfinite(m).all(1) & np.isfinite(sc).all(1)
-    bounds, max_sigma = None, float("inf")
-    if finite.any():  # rows with non-finite values are culled by the projection; they bound nothing
-        bounds = np.stack([m[finite].min(0), m[finite].max(0)])
-        # the factor R S has singular values |scales| (R orthonormal); 1e-6 for the rotation's rounding
-        max_sigma = float(sc[finite].max()) * (1.0 + 1e-6)
+    # in numpy, on the file's arrays (tiny torch reductions cost milliseconds of thread start-up each); the same
+    # function gives Blender the bounds of the per-frame keys (core.frame_keys)
+    bounds, max_sigma = visibility.asset_bounds(g.means, g.quats, g.scales)
     return Asset(name, means, factors, t(g.opacities)[ok], t(g.sh)[ok], object_to_world, bounds, max_sigma)
 
 
-# -- what a frame cannot see --------------------------------------------------------------------------------------
+# -- what a frame cannot see (the tests: core.geometry.visibility, which the per-frame keys share) ---------------
 
-#: The Gaussian pass's near plane (metres, camera z; ``gaussians.project_factors`` culls means at or before it).
-GAUSSIAN_NEAR = 0.05
-#: The largest screen extent of a Gaussian in σ of its 2D covariance (gsplat's opacity-aware extend is at most
-#: ``gaussians.EXTEND_MAX``); the skip test must use at least the renderer's.
-EXTENT_SIGMA = gs.EXTEND_MAX
-#: The points' near plane (``points.render_points``' default, which render_frame uses).
-POINTS_NEAR = 0.05
-
-
-_BITS = (np.arange(8)[:, None] >> np.arange(3)) & 1                    # corner i takes hi on axis k when bit k is set
-_EDGES = np.array([(i, i | 1 << k) for i in range(8) for k in range(3) if not i >> k & 1])  # (12, 2) corner pairs
-
-
-def _box_corners(lo, hi) -> np.ndarray:
-    """(..., 8, 3) float64 corners of boxes with low, high corners ``lo``, ``hi`` (..., 3)."""
-    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
-    return np.where(_BITS == 1, hi[..., None, :], lo[..., None, :])
-
-
-def _clip_near(corners: np.ndarray, near: float):
-    """The vertices of each convex hull of 8 camera-space corners (B, 8, 3) (a box or its affine image: corner i's
-    neighbours differ in one bit) cut by z >= near: (B, 20, 3) candidates and (B, 20) which are vertices — the
-    corners in front and the points where the 12 edges cross the plane. A linear-fractional function of x/z, y/z
-    takes its extremes over the cut solid at these vertices."""
-    z = corners[..., 2]
-    a, b = corners[:, _EDGES[:, 0]], corners[:, _EDGES[:, 1]]
-    za, zb = a[..., 2], b[..., 2]
-    cross = (za < near) != (zb < near)
-    t = np.where(cross, (near - za) / np.where(cross, zb - za, 1.0), 0.0)
-    return np.concatenate([corners, a + t[..., None] * (b - a)], 1), np.concatenate([z >= near, cross], 1)
-
-
-def _off_image(V, ok, K, reach, width, height) -> np.ndarray:
-    """(B,) bool: for each solid (vertices V (B, n, 3) where ``ok``, z > 0), every pixel u ± reach, v ± reach of
-    its points misses [0, width) x [0, height) on one side, with a margin for rounding. u, v with our K (skew
-    included); a solid with no vertex (wholly behind the near plane) is off the image too."""
-    K = np.asarray(K, np.float64)
-    z = np.where(ok, V[..., 2], 1.0)
-    u = (K[0, 0] * V[..., 0] + K[0, 1] * V[..., 1]) / z + K[0, 2]
-    v = K[1, 1] * V[..., 1] / z + K[1, 2]
-    out = ~ok.any(1)
-    for w, limit in ((u, width), (v, height)):
-        lo, hi = np.where(ok, w, np.inf).min(1), np.where(ok, w, -np.inf).max(1)
-        margin = 0.5 + 1e-4 * np.maximum(np.abs(lo), np.abs(hi))  # float32 rounding of large coordinates
-        out |= (lo - reach >= limit + margin) | (hi + reach <= -margin)
-    return out
-
-
-def points_unseen(boxes, K, world_to_camera, width: int, height: int, radius_px: int = 0,
-                  near: float = POINTS_NEAR) -> np.ndarray:
-    """(B,) bool, for boxes (B, 2, 3) (low, high corner, scene-origin-relative metres): True when no point inside
-    the box can land in the image of the camera (K; ``world_to_camera`` 4x4 relative to the same origin): every
-    point of the box is at or behind ``near`` or projects (± ``radius_px`` splat) outside the image.
-    ``render_points`` culls exactly these (in float32), so leaving them out changes nothing; the test keeps a
-    margin for that rounding. One vectorised pass for all boxes (a frame tests every source frame)."""
-    boxes = np.asarray(boxes, np.float64).reshape(-1, 2, 3)
-    w2c = np.asarray(world_to_camera, np.float64)
-    with np.errstate(all="ignore"):  # huge poses overflow to inf: such a box is never left out (below)
-        corners = _box_corners(boxes[:, 0], boxes[:, 1]) @ w2c[:3, :3].T + w2c[:3, 3]
-        scale = 1.0 + np.abs(corners).max()
-        V, ok = _clip_near(corners, near - 1e-5 * scale)
-        unseen = _off_image(V, ok, K, float(radius_px), width, height)
-    return unseen & np.isfinite(corners).all((1, 2))  # when unsure, project: the z-buffer culls what is not there
+GAUSSIAN_NEAR = visibility.GAUSSIAN_NEAR
+POINTS_NEAR = visibility.POINTS_NEAR
+points_unseen = visibility.points_unseen
 
 
 def asset_unseen(asset: Asset, frame: int, origin, K, world_to_camera, width: int, height: int,
                  near: float = GAUSSIAN_NEAR) -> bool:
     """True when none of the asset's Gaussians can reach a pixel of the camera at output frame ``frame``
-    (``world_to_camera`` relative to ``origin``), so the projection would cull every one of them.
-
-    Why not the 3D box ± 3.33 σ against the frustum: the renderer's footprint is the linearised (EWA) one,
-    J Σ Jᵀ + 0.3 px² at the mean, which reaches further towards the image centre than the true projection of
-    the ellipsoid for a Gaussian elongated in depth, and the 0.3 px² blur reaches beyond it. So the test bounds
-    what the projection computes. With A = object_to_world, the means lie in the hull of the 8 corners of
-    A·``bounds``, cut at z ≥ near (V, in camera axes); every σ is at most s = ‖A‖₂·``max_sigma``. For a mean at
-    (x, y, z) the projection keeps it only if its screen box (mean ± r) meets the image, where
-
-        r ≤ ⌈E·√(λ_max(J Σ Jᵀ) + 0.3)⌉ ≤ E·√(s²·‖J‖_F² + 0.3) + 1,
-        ‖J‖_F² = (fx² (1 + t_x²) + fy² (1 + t_y²)) / z²  (+ a skew term),
-
-    E = ``EXTENT_SIGMA`` and t the clamped x/z, y/z, |t| ≤ max over V of |x/z| (clamping towards 0) — or the
-    clamp's own limit when the principal point lies outside the image. z ≥ min over V of z. The mean's pixel
-    lies within the range of u, v over V (linear-fractional: extremes at vertices). If that range ± the bound
-    on r misses the image, every Gaussian is culled."""
+    (``world_to_camera`` relative to ``origin``): ``visibility.asset_unseen`` (its docstring has the bound) with the
+    asset's own bounds and largest σ. An asset built without bounds (None) is never skipped unless empty."""
     if asset.bounds is None:
         return not bool(len(asset.means))  # nothing finite to draw; unknown bounds: never skip
-    with np.errstate(all="ignore"):  # huge transforms overflow to inf: then the pass runs (never skipped unsure)
-        return _asset_unseen(asset, frame, origin, K, world_to_camera, width, height, near)
-
-
-def _asset_unseen(asset, frame, origin, K, world_to_camera, width, height, near) -> bool:
-    A = np.array(asset.object_to_world[frame], np.float64)
-    A[:3, 3] -= np.asarray(origin, np.float64)
-    w2c = np.asarray(world_to_camera, np.float64)
-    corners = _box_corners(asset.bounds[0], asset.bounds[1]) @ A[:3, :3].T + A[:3, 3]
-    corners = (corners @ w2c[:3, :3].T + w2c[:3, 3])[None]
-    if not np.isfinite(corners).all():
-        return False
-    V, ok = _clip_near(corners, near - 1e-9 * (1.0 + np.abs(corners).max()))
-    if not ok.any():
-        return True  # every mean is at or behind the near plane
-    V = V[0][ok[0]]
-    K = np.asarray(K, np.float64)
-    fx, skew, cx, fy, cy = K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2]
-    # numpy scalars, not Python floats: an overflow gives inf (and no skip), not an OverflowError
-    z_min = V[:, 2].min()
-    tx = np.abs(V[:, 0] / V[:, 2]).max()
-    ty = np.abs(V[:, 1] / V[:, 2]).max()
-    if not 0.0 <= cx <= width:  # a clamp interval that may not contain 0: bound |t| by its limits too
-        tx = max(tx, 1.3 * (abs(cx) + width) / fx)
-    if not 0.0 <= cy <= height:
-        ty = max(ty, 1.3 * (abs(cy) + height) / fy)
-    s = np.linalg.norm(A[:3, :3], 2) * np.float64(asset.max_sigma)
-    J2 = ((fx + abs(skew)) ** 2 * (1.0 + (tx + ty) ** 2) + fy ** 2 * (1.0 + ty ** 2)) / z_min ** 2
-    reach = EXTENT_SIGMA * np.sqrt(s * s * J2 + gs.BLUR) + 1.0
-    if not np.isfinite(reach):
-        return False
-    return bool(_off_image(V[None], np.ones((1, len(V)), bool), K, reach, width, height)[0])
+    return visibility.asset_unseen(asset.bounds, asset.max_sigma, asset.object_to_world[frame], origin, K,
+                                   world_to_camera, width, height, near)
 
 
 def visible_frames(scene: Scene, source_frames, K, w2c, width: int, height: int, radius_px: int) -> list:

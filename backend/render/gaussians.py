@@ -44,13 +44,12 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from scpainter_blender.core.geometry.visibility import BLUR, EXTEND_MAX  # the skip test's constants too
 from scpainter_blender.core.splats import sh as core_sh
 
 ALPHA_MIN = 1.0 / 255.0
 ALPHA_MAX = 0.99
 TRANSMITTANCE_MIN = 1e-4
-BLUR = 0.3
-EXTEND_MAX = 3.33  # gsplat's cap on the extent in σ (just above sqrt(2 ln 255) = 3.329)
 
 
 def sh_colors(sh: torch.Tensor, dirs: torch.Tensor) -> torch.Tensor:

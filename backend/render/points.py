@@ -20,12 +20,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-
-def relative_camera(world_to_camera, origin) -> np.ndarray:
-    """world_to_camera (4x4, float64) for positions expressed relative to ``origin`` (world metres)."""
-    w2c = np.array(world_to_camera, dtype=np.float64, copy=True)
-    w2c[:3, 3] = w2c[:3, 3] + w2c[:3, :3] @ np.asarray(origin, np.float64)
-    return w2c
+from scpainter_blender.core.geometry.visibility import relative_camera  # noqa: F401 (the renderer's name for it)
 
 
 def _depth_keys(z: torch.Tensor, index: torch.Tensor) -> torch.Tensor:

@@ -13,6 +13,7 @@ from backend.render import frames as fr
 from backend.render import gaussians as gs
 from backend.render import points as pts
 from scpainter_blender.core import job as job_mod
+from scpainter_blender.core.geometry import visibility
 from scpainter_blender.core.splats import gaussians as splats
 
 W, H = 32, 24
@@ -138,7 +139,7 @@ def test_an_unseen_source_frame_is_one_whose_points_all_cull():
         z = rng.uniform(-3, 12)
         c = np.array([z * rng.uniform(-1.2, 1.2), z * rng.uniform(-1.0, 1.0), z])
         xyz = c + rng.uniform(-1, 1, (200, 3)) * rng.uniform(0.01, 2.0, 3)
-        clouds.append(np.concatenate([xyz, fr._box_corners(xyz.min(0), xyz.max(0))]).astype(np.float32))
+        clouds.append(np.concatenate([xyz, visibility.box_corners(xyz.min(0), xyz.max(0))]).astype(np.float32))
     boxes = np.stack([np.stack([x.min(0), x.max(0)]) for x in clouds]).astype(np.float64)
     for r in (0, 2):
         unseen = fr.points_unseen(boxes, K, np.eye(4), W, H, radius_px=r)

@@ -78,12 +78,13 @@ def test_recorded_drive_reproduces_the_frames(street_jobs, street):
     assert code == 0 and ev[-1]["rendered"] == 0 and ev[-1]["skipped"] == 16
     assert all(e["reused"] for e in ev if e["event"] == "progress")     # said: nothing was rendered
     assert os.path.getsize(os.path.join(os.path.dirname(job_path), "backend.log")) > 0
-    # a changed job (a camera moved) is never served stale frames
+    # a changed job (one camera moved) is never served a stale frame: that frame, and only it, renders again
     job = J.load(job_path).to_dict()
     job["frames"][3]["world_to_camera"][0][3] += 0.5
     J.save(job_path, job)
     code, ev, _ = backend("render", job_path, "--device", "cpu", "--allow-outside")
-    assert code == 0 and ev[-1]["rendered"] == 16
+    assert code == 0 and ev[-1]["rendered"] == 1
+    assert [e["frame"] for e in ev if e["event"] == "progress" and not e["reused"]] == [job["frames"][3]["frame"]]
 
 
 def test_shifted_drive_with_a_car(street_jobs):

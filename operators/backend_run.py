@@ -23,7 +23,7 @@ import bpy
 from ..scpainter_blender.backend_client import BackendError, Invocation
 from ..scpainter_blender.core import backend_protocol as protocol
 from ..scpainter_blender.core import outputs
-from ..scpainter_blender.scene import kinds, preferences, props
+from ..scpainter_blender.scene import kinds, preferences, props, render_plan
 from ..scpainter_blender.scene.runs import (ACTIVE, DOCTOR, AllCameras, Follower, failure_message, finish,
                                             invocation, planned_model, progress_text, start, with_warnings)
 from . import reports
@@ -62,9 +62,24 @@ class _BackendRun:
             return False
         return True
 
+    def _finished_already(self, context):
+        """A render with nothing to render (``render_plan.finished_render``): its results loaded and reported
+        without starting the backend; None when the backend has work."""
+        cam = context.scene.camera
+        found = render_plan.finished_render(context, self._run(context), cam)
+        if found is None:
+            return None
+        out, done, warnings = found
+        level, message = with_warnings(finish(context, self.command, out, done, cam.name), warnings)
+        self.report({level}, message)
+        return {"FINISHED"}
+
     @reports.reported
     def execute(self, context):
         """Blocking: background mode and scripts."""
+        already = self._finished_already(context)
+        if already is not None:
+            return already
         cam = context.scene.camera
         job, out = start(context, self._run(context), camera=cam)
         model = planned_model(context, self.command)
@@ -87,6 +102,9 @@ class _BackendRun:
     def invoke(self, context, event):
         if bpy.app.background:
             return self.execute(context)
+        already = self._finished_already(context)
+        if already is not None:
+            return already
         self._follow = self._follower(context)
         wm = context.window_manager
         self._timer = wm.event_timer_add(0.25, window=context.window)

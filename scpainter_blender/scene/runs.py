@@ -113,7 +113,8 @@ def finish(context, command: str, out: str, done: dict, camera: str | None = Non
         img = results.load_conditions(folder, camera)
         results.load_labels(folder, camera)  # beside the conditions, for an image editor: the camera shows those
         results.show_behind_camera(context.scene, img, camera=cam)
-        return f"Condition layers of {done.get('frames', '?')} frames in {folder}"
+        fresh = " (up to date: nothing changed since they were rendered)" if done.get("up_to_date") else ""
+        return f"Condition layers of {done.get('frames', '?')} frames in {folder}{fresh}"
     model = done.get("model", "scpainter")  # a backend from before the baseline: always the model
     img, _clip = results.load_generated(done.get("frames_dir") or layout.generated, done.get("video") or layout.video,
                                         model, done.get("description", ""), camera)

@@ -1,0 +1,42 @@
+"""Render Conditions with nothing to render: known in Blender, without starting the backend (docs/design.md §12).
+
+The job a click would render is exported as ``runs.start`` exports it, and planned with the backend's own rules
+(``core.frame_keys``: each frame's layers key from its camera and the assets it can see, the precision and the
+assets' extents from the conditions folder's record). When every frame is finished under its keys, the run is
+over before it starts: its results are loaded as a finished render's, and the frames' warnings are said again
+as the backend says them on every run. Anything the record cannot answer (no record, an asset file changed, a
+forced run) goes to the backend.
+"""
+
+from __future__ import annotations
+
+from ..backend_client import Invocation
+from ..core import backend_protocol as protocol
+from ..core import frame_keys
+from ..core import job as job_mod
+from ..core import labels as labels_mod
+from . import runs
+
+
+def finished_render(context, run: Invocation, camera) -> tuple[str, dict, list] | None:
+    """(output folder, ``done`` event, ``warning`` events) of ``run`` (a ``render`` ``Invocation``) when every
+    frame of ``camera``'s job is finished in its output folder; None when the backend has work (or only it can
+    tell). The job is exported as ``runs.start`` would (InputError/SceneError when the scene cannot make one)."""
+    if run.command != "render" or run.force:
+        return None
+    job_path, out = runs.export(context, camera=camera)
+    job = job_mod.load(job_path)
+    try:
+        plan = frame_keys.plan_from_record(out, job_path, job, run.point_radius or 0)
+    except OSError:  # an input file is gone: the backend names it
+        return None
+    if plan is None or not plan.up_to_date:
+        return None
+    warnings = [protocol.event(protocol.WARNING, message=message, code=code, frame=lab["frame"],
+                               **({"object": obj} if obj else {}))
+                for e in job.frames for lab in [plan.done[e.frame]]
+                for code, message, obj in labels_mod.warnings(lab)]
+    n = len(job.frames)
+    done = protocol.event(protocol.DONE, frames=n, rendered=0, skipped=n, relabelled=0, output_dir=out,
+                          stopped=False, warnings=len(warnings), up_to_date=True)
+    return out, done, warnings

@@ -188,10 +188,20 @@ def test_stale_frames_clean_up_deletes_only_this_jobs_files(case):
         with open(os.path.join(cond, name), "w") as f:
             f.write("keep me\n")
     job = J.load(job_path).to_dict()
-    job["frames"][1]["world_to_camera"][0][3] += 0.25                   # the job changed: frames are stale
+    job["scene"]["confidence_percentile"] = 10.0                         # the scene changed: every frame is stale
     J.save(job_path, job)
     code, ev = run("render", job_path, "--device", "cpu")
     assert code == 0 and ev[-1]["rendered"] == 2
+    job["frames"] = job["frames"][:1]                                    # a shorter range: frame 2's files go
+    for a in job.get("assets", []):
+        a["object_to_world"] = {k: v for k, v in a["object_to_world"].items() if k == str(job["frames"][0]["frame"])}
+    J.save(job_path, job)
+    code, ev = run("render", job_path, "--device", "cpu")
+    assert code == 0 and ev[-1]["rendered"] == 0
+    assert sorted(n for n in os.listdir(cond) if n.endswith("000002.exr") or n.endswith("000002.png")
+                  or n.endswith("000002.json")) == []
+    code, ev = run("render", job_path, "--device", "cpu", "--force")
+    assert code == 0 and ev[-1]["rendered"] == 1
     for name in ("frame_000777.exr", "frame_notes.txt", "preview_mine.png"):
         assert open(os.path.join(cond, name)).read() == "keep me\n"
 

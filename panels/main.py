@@ -82,6 +82,7 @@ class SCPAINTER_PT_main(bpy.types.Panel):
         col.operator("scpainter.add_removal_box")
         col.operator("scpainter.replace_car")
         col.operator("scpainter.check_assets")
+        col.operator("scpainter.drive_along_lane", icon="AUTO")
         active = context.active_object
         if kinds.is_kind(active, kinds.GAUSSIAN_ASSET):
             row = box.row(align=True)  # how the file's axes were read, and the way to correct it

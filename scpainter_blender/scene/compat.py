@@ -37,6 +37,24 @@ def new_action_fcurves(id_data, action_name: str):
     return action.fcurves
 
 
+def object_fcurves(id_data, action_name: str):
+    """The collection of F-curves ``id_data``'s animation is keyed in: its action's (from 4.4 the channelbag of its
+    assigned slot, made when missing), or a fresh action's (``new_action_fcurves``) when it has none. Unlike
+    ``new_action_fcurves`` the curves it already has are kept."""
+    ad = id_data.animation_data
+    if ad is None or ad.action is None:
+        return new_action_fcurves(id_data, action_name)
+    if not HAS_ACTION_SLOTS:
+        return ad.action.fcurves
+    from bpy_extras import anim_utils
+
+    slot = ad.action_slot
+    if slot is None:
+        slot = ad.action.slots.new(id_type=id_data.id_type, name=id_data.name)
+        ad.action_slot = slot
+    return anim_utils.action_ensure_channelbag_for_slot(ad.action, slot).fcurves
+
+
 def key_fcurve(fcurves, data_path: str, index: int, frames, values, interpolation: str = "LINEAR"):
     """One F-curve with a key at each frame, written in bulk with foreach_set (no per-key Python)."""
     import numpy as np

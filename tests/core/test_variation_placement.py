@@ -80,3 +80,38 @@ def test_path_is_continued_beyond_its_ends():
     path = placement.Path.of(c, h)
     xy, head = path.at(np.array([-2.0, 1.5, 7.0]))
     assert np.allclose(xy, [[0, -2], [0, 1.5], [0, 7]]) and np.allclose(head, [[0, 1]] * 3)
+
+
+def test_project_is_the_inverse_of_at_with_an_offset():
+    """A point ``off`` m left of the path at arc ``s`` projects back to (s, off): on a bend, and beyond both ends
+    (the path continued straight)."""
+    a = np.radians(np.arange(0.0, 90.5, 1.0))    # a quarter circle of radius 20 m, turning left, 1° steps
+    c = np.column_stack([-20.0 * (1 - np.cos(a)), 20.0 * np.sin(a), np.zeros_like(a)])
+    h = np.column_stack([-np.sin(a), np.cos(a), np.zeros_like(a)])
+    path = placement.Path.of(c, h)
+    for s, off in ((5.0, 1.5), (17.0, -2.0), (-4.0, 3.5), (path.length + 6.0, -1.0)):
+        xy, head = path.at(np.array([s]))
+        p = xy[0] + off * np.array([-head[0, 1], head[0, 0]])
+        s2, off2 = path.project(p)
+        assert s2 == pytest.approx(s, abs=0.05) and off2 == pytest.approx(off, abs=0.02)
+
+
+def test_drive_is_box_on_ground_along_the_lane():
+    """``drive``: start + speed · t along the path, the lane to its left, each pose ``box_on_ground``; oncoming
+    (negative speed) faces the other way; ``reach`` holds it at the end; no ground: None."""
+    P, cams, _ = synthetic_street()
+    road = road_mod.Road(P, cams)
+    path = placement.Path.of(cams, np.tile([0.0, 1.0, 0.0], (len(cams), 1)))
+    size = np.array([1.9, 4.5, 1.5])
+    t = np.arange(6) / 10.0
+    arc, poses = placement.drive(road, path, size, 2.5, 8.0, 3.0, t)
+    assert np.allclose(arc, 3.0 + 8.0 * t)
+    for s, T in zip(arc, poses):   # the path runs along +y at x = 0: left is −x
+        assert np.array_equal(T, placement.box_on_ground(road, np.array([-2.5, s]), np.array([0.0, 1.0]), size))
+    assert T[2, 3] == pytest.approx(0.75, abs=0.02) and np.allclose(T[:3, 1], [0, 1, 0], atol=0.01)
+    _, back = placement.drive(road, path, size, -2.5, -5.0, 20.0, t)
+    assert np.allclose(back[-1][:3, 1], [0, -1, 0], atol=0.01) and back[-1][1, 3] == pytest.approx(17.5, abs=0.01)
+    arc, held = placement.drive(road, path, size, 0.0, 8.0, 3.0, t, reach=(0.0, 5.0))
+    assert arc.max() == 5.0 and np.array_equal(held[-1], held[-2])
+    _, lost = placement.drive(road, path, size, 200.0, 8.0, 3.0, t)   # far beyond the reconstruction
+    assert all(T is None for T in lost)

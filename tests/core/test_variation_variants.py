@@ -166,6 +166,30 @@ def test_moving_cars_stay_on_the_road_every_frame(run):
     assert moving >= 3
 
 
+def test_every_car_is_placement_drive(run, bases, library, tmp_path):
+    """The variants' cars are ``placement.drive``'s poses (the one function *Drive Along Lane* keys too): from
+    each car's drawn lane and speed and where it stands at the first frame, on the run's road and path."""
+    out, manifest = run
+    v = variants.Variation(bases[0], spec(library), str(tmp_path / "v"))
+    checked = 0
+    for e in manifest["variants"]:
+        if e["outcome"] != "placed":
+            continue
+        job = J.load(os.path.join(out, e["job"]))
+        t = (np.array([f.frame for f in job.frames], np.float64) - job.frames[0].frame) / job.fps
+        for a, car in zip(job.assets, e["cars"]):
+            moving = car["mode"] == "moving"
+            lane, speed = (car["lane_offset_m"], car["speed_mps"]) if moving else (car["offset_m"], 0.0)
+            start = v.path.project(car["position_m"][:2])[0]
+            size = np.array(car["size_m"])
+            _, poses = placement.drive(v.road, v.path, size, lane, speed, start, t if moving else t[:1])
+            for f, T in zip(job.frames, poses if moving else poses * len(job.frames)):
+                got, _ = boxes.place_box(a.box.box_to_file, a.box.size, a.object_to_world[f.frame])
+                assert np.abs(got - T).max() < 0.01   # the start projected back: mm on the path's bends
+            checked += 1
+    assert checked >= 6
+
+
 def test_recorded_boxes_are_avoided_and_counted(bases, library, street, tmp_path):
     m = variants.make_variants(bases[1], spec(library, variants=8, car_count=(2, 3)), str(tmp_path / "r"))
     assert m["summary"]["rejections"]["recorded_box"] > 0

@@ -16,9 +16,11 @@ The rules a car must pass, each named in the manifest when it rejects a try (``R
   ego's rectangles of that frame and of the frames of the next ``headway`` (the road the ego covers in that
   time: a car driving ahead in its lane keeps a gap; one it never meets may cross where it drove).
 
-A moving car is checked at every frame; a parked one once (and against every frame of the others). Before any car,
-the variant's camera path itself must stay on the road and clear of what the base holds (``CAMERA_RULES``): a
-shift plus a lane change can otherwise drive the camera into a parked car or onto the sidewalk.
+A car's pose along the drive is ``drive``'s (the scenario command's moving and parked cars, and *Drive Along
+Lane* in Blender). A moving car is checked at every frame; a parked one once (and against every frame of the
+others). Before any car, the variant's camera path itself must stay on the road and clear of what the base holds
+(``CAMERA_RULES``): a shift plus a lane change can otherwise drive the camera into a parked car or onto the
+sidewalk.
 """
 
 from __future__ import annotations
@@ -124,6 +126,21 @@ class Path:
         head /= np.maximum(np.linalg.norm(head, axis=-1, keepdims=True), 1e-12)
         return xy, head
 
+    def project(self, xy) -> tuple:
+        """(arc length, offset left of the path), metres, of the world point ``xy`` (2,): the point of the path
+        nearest it (the path continued straight beyond its ends, as ``at``) and how far to its left it lies."""
+        p = np.asarray(xy, np.float64)[:2]
+        c, arc = self.centres[:, :2], self.arc
+        d = np.diff(c, axis=0)
+        L2 = (d * d).sum(1)
+        u = np.clip(((p - c[:-1]) * d).sum(1) / np.maximum(L2, 1e-24), 0.0, 1.0)
+        # candidates: the nearest point of each segment, and of the straight continuations before and after
+        s = np.concatenate([[min(0.0, float((p - c[0]) @ self.headings[0]))], arc[:-1] + u * np.sqrt(L2),
+                            [arc[-1] + max(0.0, float((p - c[-1]) @ self.headings[-1]))]])
+        at, head = self.at(s)
+        k = int(np.argmin(np.linalg.norm(at - p, axis=1)))
+        return float(s[k]), float((p - at[k]) @ np.array([-head[k, 1], head[k, 0]]))
+
 
 @dataclass
 class Car:
@@ -153,6 +170,27 @@ def box_on_ground(road, xy, heading, size) -> np.ndarray | None:
     T[:3, :3] = R
     T[:3, 3] = np.array([xy[0], xy[1], z]) + n * (0.5 * float(size[2]))
     return T
+
+
+def drive(road, path: Path, size, lane_m: float, speed_mps: float, start_m: float, t_s, reach=None) -> tuple:
+    """A car driving along ``path`` (the drive's ground track, ``variants.reference_path``): (arc lengths (F,),
+    per time its rigid box_to_world (4, 4), or None where the road knows no ground there).
+
+    At time ``t_s`` (F,) seconds it is ``start_m + speed_mps · t`` metres along the path (``Path.at``: continued
+    straight beyond its ends), held within ``reach`` (low, high) metres when given (the road's reach,
+    ``Road.road_arc``: it stops at the end), ``lane_m`` metres left of it (``trajectory.shift_trajectory``'s
+    sign); its box of ``size`` (width, length, height) stands on the road's local plane (``box_on_ground``), its
+    front along the path's direction, or against it for a negative speed (oncoming). A parked car is a drive at
+    speed 0 over one time. The one computation of a car's per-frame pose along the drive: the scenario command's
+    moving and parked cars (``variants``) and *Drive Along Lane* (scene/drive_lane.py)."""
+    arc = start_m + speed_mps * np.asarray(t_s, np.float64)
+    if reach is not None:
+        arc = np.clip(arc, *reach)
+    xy, head = path.at(arc)
+    xy = xy + lane_m * np.stack([-head[:, 1], head[:, 0]], axis=1)
+    if speed_mps < 0:
+        head = -head
+    return arc, [box_on_ground(road, xy[i], head[i], size) for i in range(len(arc))]
 
 
 class Rules:

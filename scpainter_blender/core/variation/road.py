@@ -198,12 +198,15 @@ class Road:
         off = np.flatnonzero(~on)
         return float(max_m if not len(off) else 0.0 if off[0] == 0 else d[off[0] - 1])
 
-    def road_arc(self, path, step: float = 0.5, beyond_m: float = 200.0) -> tuple:
+    def road_arc(self, path, step: float = 0.5, beyond_m: float = 200.0, lane_m: float = 0.0) -> tuple:
         """(low, high) arc lengths along ``path`` (``placement.Path``, continued straight beyond its ends up to
-        ``beyond_m``) over which the path's own line runs on the road: where cars can be drawn. None when it
-        never does."""
+        ``beyond_m``) over which the path's own line (or the line ``lane_m`` metres left of it) runs on the road:
+        where cars can be drawn, where a car driving in that lane must stop. None when it never does."""
         s = np.arange(-beyond_m, path.length + beyond_m + step / 2, step)
-        on = self.is_road(path.at(s)[0])
+        xy, head = path.at(s)
+        if lane_m:
+            xy = xy + lane_m * np.stack([-head[:, 1], head[:, 0]], axis=1)
+        on = self.is_road(xy)
         if not on.any():
             return None
         idx = np.flatnonzero(on)

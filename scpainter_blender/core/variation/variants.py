@@ -61,6 +61,19 @@ def reference_path(job: job_mod.Job) -> placement.Path:
     return placement.Path.of(*ground_track(np.stack([f.world_to_camera for f in job.frames])))
 
 
+def _car(box_to_world: list, size, frames, moving: bool) -> placement.Car | None:
+    """The ``placement.Car`` of a drive's poses (``placement.drive``: one for a parked car, kept at every frame;
+    one per frame for a moving one); None where a pose found no ground."""
+    if any(T is None for T in box_to_world):
+        return None
+    if not moving:
+        T = box_to_world[0]
+        return placement.Car(size, dict.fromkeys(frames, T), dict.fromkeys(frames, placement.box_footprint(T, size)),
+                             False)
+    return placement.Car(size, dict(zip(frames, box_to_world)),
+                         {f: placement.box_footprint(T, size) for f, T in zip(frames, box_to_world)}, True)
+
+
 def smoothstep(x) -> np.ndarray:
     x = np.clip(x, 0.0, 1.0)
     return x * x * (3.0 - 2.0 * x)
@@ -181,23 +194,23 @@ class Variation:
                 lane = float(rng.choice(s.lane_offsets_m))
                 speed = float(rng.uniform(*s.speed_mps))
                 # its whole drive within the road's reach (where there is room for it)
-                arc = float(rng.uniform(lo, max(lo, hi - speed * t[-1]))) + speed * t
+                start = float(rng.uniform(lo, max(lo, hi - speed * t[-1])))
                 drawn = {"lane_offset_m": lane, "speed_mps": speed}
-                offset = np.full(len(frames), lane)
-            else:  # at the road's edge on a drawn side, a drawn gap from it
+            else:  # at the road's edge on a drawn side, a drawn gap from it: a drive at speed 0, at one time
                 side = 1.0 if rng.random() < 0.5 else -1.0
                 gap = float(rng.uniform(*s.kerb_gap_m))
-                arc = np.full(len(frames), float(rng.uniform(lo, hi)))
-                xy0, head0 = self.path.at(arc[:1])
+                start = float(rng.uniform(lo, hi))
+                xy0, head0 = self.path.at(np.array([start]))
                 edge = self.road.edge_distance(xy0[0], side * np.array([-head0[0, 1], head0[0, 0]]),
                                                s.parked_offset_m[1])
                 off = edge - 0.5 * size[0] - gap
                 drawn = {"offset_m": side * off, "kerb_gap_m": gap}
-                offset = np.full(len(frames), side * off)
-            xy, head = self.path.at(arc)
-            xy = xy + offset[:, None] * np.stack([-head[:, 1], head[:, 0]], axis=1)
+                lane, speed = side * off, 0.0
             no_room = not moving and off < s.parked_offset_m[0]
-            car = None if no_room else self._car(xy, head, size, frames, moving)
+            car = None
+            if not no_room:  # its pose at every frame (moving), or once (parked)
+                _, poses = placement.drive(self.road, self.path, size, lane, speed, start, t if moving else t[:1])
+                car = _car(poses, size, frames, moving)
             reason = "off_road" if car is None else rules.check(car)
             if reason is None:
                 T0 = car.box_to_world[frames[0]]
@@ -209,21 +222,6 @@ class Variation:
             rejections[reason] += 1
         details.update(tries=s.tries, rejections=rejections)
         return None, details
-
-    def _car(self, xy, head, size, frames, moving) -> placement.Car | None:
-        if not moving:  # one pose for every frame
-            T = placement.box_on_ground(self.road, xy[0], head[0], size)
-            if T is None:
-                return None
-            foot = placement.box_footprint(T, size)
-            return placement.Car(size, dict.fromkeys(frames, T), dict.fromkeys(frames, foot), False)
-        Ts, feet = {}, {}
-        for i, f in enumerate(frames):
-            T = placement.box_on_ground(self.road, xy[i], head[i], size)
-            if T is None:
-                return None
-            Ts[f], feet[f] = T, placement.box_footprint(T, size)
-        return placement.Car(size, Ts, feet, True)
 
     def variant(self, index: int) -> tuple:
         """(job or None, manifest entry) of variant ``index``."""

@@ -23,7 +23,7 @@ import bpy
 from ..scpainter_blender.backend_client import BackendError, Invocation
 from ..scpainter_blender.core import backend_protocol as protocol
 from ..scpainter_blender.core import outputs
-from ..scpainter_blender.scene import kinds, preferences, props, render_plan
+from ..scpainter_blender.scene import job_export, kinds, preferences, props, render_plan
 from ..scpainter_blender.scene.runs import (ACTIVE, DOCTOR, AllCameras, Follower, failure_message, finish,
                                             invocation, planned_model, progress_text, start, with_warnings)
 from . import reports
@@ -44,11 +44,19 @@ class _BackendRun:
         """This run's backend command line: the preferences' and ``backend_options``."""
         return invocation(context, self.command, **self.backend_options())
 
+    def _report_warnings(self, warnings):
+        """Report what the job will render wrong without failing (``job_export.warnings``, read before the run
+        starts: the same for every camera), as the run starts."""
+        for w in warnings:
+            self.report({"WARNING"}, w["message"])
+
     def _follower(self, context):
         """The scene camera's run, started and followed (the camera named, so a change of the scene camera during
         the run does not change whose results these are)."""
         cam = context.scene.camera
+        warnings = job_export.warnings(context)
         job, out = start(context, self._run(context), camera=cam)
+        self._report_warnings(warnings)
         return Follower(self.command, job, out, self.timeout, model=planned_model(context, self.command),
                         camera=cam.name)
 
@@ -70,6 +78,7 @@ class _BackendRun:
         if found is None:
             return None
         out, done, warnings = found
+        self._report_warnings(job_export.warnings(context))
         level, message = with_warnings(finish(context, self.command, out, done, cam.name), warnings)
         self.report({level}, message)
         return {"FINISHED"}
@@ -81,7 +90,9 @@ class _BackendRun:
         if already is not None:
             return already
         cam = context.scene.camera
+        warnings = job_export.warnings(context)
         job, out = start(context, self._run(context), camera=cam)
+        self._report_warnings(warnings)
         model = planned_model(context, self.command)
 
         def show(ev):
@@ -220,8 +231,11 @@ class _AllCameraPaths(_BackendRun):
         return True
 
     def _follower(self, context):
-        return AllCameras(context, self.command, self._run(context), kinds.camera_paths(context.scene),
+        warnings = job_export.warnings(context)
+        runs = AllCameras(context, self.command, self._run(context), kinds.camera_paths(context.scene),
                           self.timeout, model=planned_model(context, self.command))
+        self._report_warnings(warnings)
+        return runs
 
     @reports.reported
     def execute(self, context):

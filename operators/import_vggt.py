@@ -1,4 +1,6 @@
-"""File > Import > SCPainter VGGT (.npz): the reconstruction as coloured points plus the recorded camera."""
+"""File > Import > SCPainter VGGT (.npz): the reconstruction as coloured points plus the recorded camera; Replace
+Reconstruction: a new file in place of the scene's (scene/replace.py). Both take the import options as properties
+made from ``core.import_options``."""
 
 from __future__ import annotations
 
@@ -6,7 +8,7 @@ import bpy
 from bpy_extras.io_utils import ImportHelper
 
 from ..scpainter_blender.core import import_options
-from ..scpainter_blender.scene import importer
+from ..scpainter_blender.scene import importer, kinds, replace
 from . import reports, selection
 
 
@@ -32,32 +34,82 @@ class SCPAINTER_OT_import_vggt(bpy.types.Operator, ImportHelper):
     filter_glob: bpy.props.StringProperty(default="*.npz", options={"HIDDEN"})
 
     def draw(self, context):
-        col = self.layout.column()
-        col.use_property_split = True
-        for name, option in import_options.OPTIONS.items():  # a scale value only with its scale mode
-            if option.scale_mode in (None, self.scale_mode):
-                col.prop(self, name)
+        _draw_options(self)
 
     @reports.reported
     def execute(self, context):
-        values = {name: getattr(self, name) for name in import_options.OPTIONS}
-        # the property is float32 (0.05 reads 0.0500000007): back to the decimal typed (6 digits survive float32)
-        values["depth_edge_ratio"] = float(f"{self.depth_edge_ratio:.6g}")
-        opts = import_options.ImportOptions(**values, frame_start=context.scene.frame_start)
-        result = importer.import_vggt(context, self.filepath, opts)  # InputError: reported by @reports.reported
-        for w in result.warnings:
-            self.report({"WARNING"}, w)
-        for line in result.load_report.info:
-            self.report({"INFO"}, line)
-        selection.select_only(context, result.points)
-        _show_attribute_colours(context)
-        fit = result.fit
-        edges = "depth-edge test off" if result.depth_edge_ratio is None else \
-            f"{result.depth_edge_points:,} on depth edges left out (ratio {result.depth_edge_ratio:g})"
-        self.report({"INFO"}, f"Imported {result.num_points:,} points ({edges}) and {result.camera.name!r} in "
-                              f"{result.timings['total']:.2f} s; scale {fit.scale:.4g} m/unit ({fit.method}, "
-                              f"residual {fit.residual_m:.3g} m)")
+        result = importer.import_vggt(context, self.filepath, _options(self, context))  # InputError: reported
+        _report_import(self, context, result)
+        if result.kept_camera is not None:
+            self.report({"INFO"}, f"{result.camera.name!r} was added; the camera path {result.kept_camera.name!r} "
+                                  "stays the scene camera (make the recorded camera active to look through it)")
         return {"FINISHED"}
+
+
+@_import_option_properties
+class SCPAINTER_OT_replace_reconstruction(bpy.types.Operator, ImportHelper):
+    """Import a new VGGT predictions.npz in place of the reconstruction (its points and recorded camera), keeping the
+    camera paths, car assets, removal boxes and frame range"""
+
+    bl_idname = "scpainter.replace_reconstruction"
+    bl_label = "Replace Reconstruction"
+    bl_options = {"REGISTER", "UNDO", "PRESET"}
+
+    filename_ext = ".npz"
+    filter_glob: bpy.props.StringProperty(default="*.npz", options={"HIDDEN"})
+
+    @classmethod
+    def poll(cls, context):
+        if kinds.point_cloud(context.scene) is None:
+            cls.poll_message_set("There is no reconstruction to replace: use Import VGGT Reconstruction")
+            return False
+        return True
+
+    def draw(self, context):
+        _draw_options(self)
+
+    @reports.reported
+    def execute(self, context):
+        done = replace.replace_reconstruction(context, self.filepath, _options(self, context),
+                                              chosen=context.active_object)
+        result = done.imported
+        _report_import(self, context, result, warnings=done.warnings)
+        boxes = f"removal boxes carried over: {', '.join(map(repr, done.boxes))}" if done.boxes else "no removal boxes"
+        self.report({"INFO"}, f"{done.replaced!r} replaced (recorded camera: {done.camera or 'none before'!r}); "
+                              f"{boxes}; camera paths, assets and the frame range kept")
+        return {"FINISHED"}
+
+
+def _draw_options(op):
+    col = op.layout.column()
+    col.use_property_split = True
+    for name, option in import_options.OPTIONS.items():  # a scale value only with its scale mode
+        if option.scale_mode in (None, op.scale_mode):
+            col.prop(op, name)
+
+
+def _options(op, context) -> import_options.ImportOptions:
+    """The operator's import options (its properties, made from ``import_options.OPTIONS``)."""
+    values = {name: getattr(op, name) for name in import_options.OPTIONS}
+    # the property is float32 (0.05 reads 0.0500000007): back to the decimal typed (6 digits survive float32)
+    values["depth_edge_ratio"] = float(f"{op.depth_edge_ratio:.6g}")
+    return import_options.ImportOptions(**values, frame_start=context.scene.frame_start)
+
+
+def _report_import(op, context, result, warnings=None):
+    """The import's warnings, what the file's reading found, and a summary line; the points selected."""
+    for w in result.warnings if warnings is None else warnings:
+        op.report({"WARNING"}, w)
+    for line in result.load_report.info:
+        op.report({"INFO"}, line)
+    selection.select_only(context, result.points)
+    _show_attribute_colours(context)
+    fit = result.fit
+    edges = "depth-edge test off" if result.depth_edge_ratio is None else \
+        f"{result.depth_edge_points:,} on depth edges left out (ratio {result.depth_edge_ratio:g})"
+    op.report({"INFO"}, f"Imported {result.num_points:,} points ({edges}) and {result.camera.name!r} in "
+                        f"{result.timings['total']:.2f} s; scale {fit.scale:.4g} m/unit ({fit.method}, "
+                        f"residual {fit.residual_m:.3g} m)")
 
 
 def _show_attribute_colours(context):
@@ -87,4 +139,4 @@ def menu_import(self, context):
     self.layout.operator(SCPAINTER_OT_import_vggt.bl_idname, text="SCPainter VGGT Reconstruction (.npz)")
 
 
-classes = (SCPAINTER_OT_import_vggt, SCPAINTER_FH_vggt)
+classes = (SCPAINTER_OT_import_vggt, SCPAINTER_OT_replace_reconstruction, SCPAINTER_FH_vggt)

@@ -26,6 +26,8 @@ class SCPAINTER_OT_export_job(bpy.types.Operator):
         prefs = preferences.get(context)
         job = job_export.export_job(context, path, checkpoint=bpy.path.abspath(prefs.checkpoint_dir)
                                     if prefs and prefs.checkpoint_dir else "")
+        for w in job_export.warnings(context):  # written all the same: the artist may mean it
+            self.report({"WARNING"}, w["message"])
         self.report({"INFO"}, f"Wrote {path}: {len(job.frames)} frames, {len(job.assets)} assets")
         return {"FINISHED"}
 

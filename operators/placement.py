@@ -5,7 +5,7 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
-from ..scpainter_blender.scene import kinds, placement
+from ..scpainter_blender.scene import kinds, placement, visibility
 from . import reports, selection
 
 
@@ -15,7 +15,13 @@ def _asset(context):
 
 
 def _points(context):
+    """Any reconstruction (for ``poll``: cheap, never raises)."""
     return kinds.point_cloud(context.scene)
+
+
+def _rendered_points(context):
+    """The reconstruction the job renders (SceneError when two render), else the scene's first."""
+    return visibility.points_object(context.scene, context.view_layer) or _points(context)
 
 
 class _AssetOperator:
@@ -58,15 +64,28 @@ class SCPAINTER_OT_snap_to_ground(_AssetOperator, bpy.types.Operator):
     align: bpy.props.BoolProperty(name="Align to Slope", default=True)
     margin: bpy.props.FloatProperty(name="Margin", default=1.0, min=0.0, unit="LENGTH",
                                     description="How far around the footprint to look for road points")
+    all_keys: bpy.props.BoolProperty(name="All Keyframes", default=False,
+                                     description="On a car with location or rotation keys: snap it at every one of "
+                                                 "those keyframes (each where its animation puts it) and key the "
+                                                 "result; off: only the current frame, keyed so it lasts")
 
     @reports.reported
     def execute(self, context):
-        pts = _points(context)
+        pts = _rendered_points(context)
         if pts is None:
             self.report({"ERROR"}, "no reconstruction in the scene: import a VGGT reconstruction first")
             return {"CANCELLED"}
-        plane, n = placement.snap_to_ground(context, _asset(context), pts, self.margin, self.align)
-        self.report({"INFO"}, f"Ground fitted to {n:,} points (normal {np.round(plane[:3], 3).tolist()})")
+        asset = _asset(context)
+        snapped = placement.snap_keyed(context, asset, pts, self.margin, self.align, self.all_keys)
+        _, plane, n = snapped[-1]
+        keyed = placement.snap_key_frames(asset)
+        if not keyed:
+            where = "not animated: nothing keyed"
+        elif self.all_keys:
+            where = f"keyed at its {len(snapped)} keyframes ({', '.join(f'{f:g}' for f, _, _ in snapped)})"
+        else:
+            where = f"keyed at frame {snapped[0][0]:g} (All Keyframes snaps every key)"
+        self.report({"INFO"}, f"Ground fitted to {n:,} points (normal {np.round(plane[:3], 3).tolist()}); {where}")
         return {"FINISHED"}
 
 
@@ -90,7 +109,8 @@ class SCPAINTER_OT_add_removal_box(bpy.types.Operator):
 
     @reports.reported
     def execute(self, context):
-        box = placement.add_removal_box(context, _points(context), size=(self.length, self.width, self.height))
+        box = placement.add_removal_box(context, _rendered_points(context),
+                                        size=(self.length, self.width, self.height))
         selection.select_only(context, box)
         return {"FINISHED"}
 

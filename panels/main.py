@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import textwrap
+
 import bpy
 
-from ..scpainter_blender.scene import asset_box, kinds, node_groups, points, props
+from ..scpainter_blender.scene import asset_box, job_export, kinds, node_groups, points, props
 
 
 class SCPAINTER_PT_main(bpy.types.Panel):
@@ -18,6 +20,7 @@ class SCPAINTER_PT_main(bpy.types.Panel):
         layout = self.layout
         col = layout.column(align=True)
         col.operator("scpainter.import_vggt", icon="IMPORT")
+        col.operator("scpainter.replace_reconstruction", icon="FILE_REFRESH")
         col.operator("scpainter.import_gaussians", icon="IMPORT")
         box = layout.box()
         box.label(text="New Camera Path", icon="CAMERA_DATA")
@@ -33,6 +36,7 @@ class SCPAINTER_PT_main(bpy.types.Panel):
         if context.scene.camera is not None:  # runs write into the camera's own folder inside it
             box.label(text=f"Camera folder: {props.camera_folder_name(context.scene.camera)}/",
                       icon="OUTLINER_OB_CAMERA")
+        self.draw_job_warnings(context, box)
         box.operator("scpainter.export_job", icon="EXPORT")
         self.draw_backend(context, box)
         obj = context.active_object
@@ -47,6 +51,16 @@ class SCPAINTER_PT_main(bpy.types.Panel):
             for name in ("Point Radius", "Current Frame Only", "Frame Window"):
                 box.prop(mod, f'["{node_groups.socket_identifier(mod.node_group, name)}"]', text=name)
 
+
+    @staticmethod
+    def draw_job_warnings(context, box):
+        """What a job of the scene would get wrong (frames outside the recording) or refuse (two reconstructions
+        render), said before anything runs: ``job_export.job_notes``."""
+        col = None
+        for level, text in job_export.job_notes(context):
+            col = col or box.column(align=True)
+            for i, line in enumerate(textwrap.wrap(text, 44)):
+                col.label(text=line, icon=("CANCEL" if level == "ERROR" else "ERROR") if i == 0 else "BLANK1")
 
     @staticmethod
     def draw_backend(context, box):

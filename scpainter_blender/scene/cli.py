@@ -27,6 +27,9 @@ dataset in ``--out``, default ``<camera's output folder>/export/<format>``; docs
 The backend's command line is built by ``backend_client.Invocation`` from these arguments, the add-on preferences
 filling in what they do not give (the preferences are never changed).
 
+Before a scene's job runs, what it would render wrong without failing (``job_export.warnings``: frames outside the
+recording) is sent as ``warning`` events (``batch``: each message starting with its .blend item).
+
 ``-c`` implies background mode; the import goes into the scene that is open (``blender -b scene.blend -c ...``
 imports into scene.blend). With the ``bpy`` module (no ``-c``), call ``execute(argv)`` directly. Output: a JSON
 summary on standard output; exit code 0 done, 2 bad input, 1 anything else (the backend's convention:
@@ -55,7 +58,7 @@ from ..core import errors, files, import_options, outputs
 from ..core import job as job_mod
 from ..core.output_layout import OutputLayout
 from ..core.variation import spec as variation_spec, variants as vary_mod
-from . import importer, preferences, props, runs, variations
+from . import importer, job_export, preferences, props, runs, variations
 
 
 class _Parser(argparse.ArgumentParser):
@@ -147,7 +150,9 @@ def _import(args) -> dict:
     out = {"points": result.num_points, "points_object": result.points.name, "camera": result.camera.name,
            "depth_edge_ratio": result.depth_edge_ratio, "depth_edge_points": result.depth_edge_points,
            "scale": result.fit.scale, "scale_method": result.fit.method, "residual_m": result.fit.residual_m,
-           "warnings": result.warnings, "predictions": result.load_report.to_json(), "timings_s": result.timings}
+           "warnings": result.warnings, "predictions": result.load_report.to_json(), "timings_s": result.timings,
+           # a camera path stays the scene camera when the scene had one (importer.import_vggt)
+           "scene_camera": bpy.context.scene.camera.name if bpy.context.scene.camera else None}
     if args.save:
         path = os.path.abspath(args.save)
         os.makedirs(os.path.dirname(path), exist_ok=True)
@@ -246,6 +251,7 @@ def _run_blend(args) -> dict:
     options = {}
     if args.command == "export":
         options = {"export_format": args.format, "out": os.path.abspath(args.out) if args.out else None}
+    warned = _export_warnings(bpy.context)
     job, out = runs.start(bpy.context, _invocation(args, args.command, **options), _checkpoint(args), camera)
     try:
         done = job.wait(timeout=args.timeout or None, on_event=_progress)
@@ -253,7 +259,17 @@ def _run_blend(args) -> dict:
         raise backend_client.BackendError(runs.failure_message(e, out), exit_code=e.exit_code, log=e.log,
                                           file=e.file, field=e.field, log_path=e.log_path) from None
     return {**_outputs(done, out), "camera": (camera or bpy.context.scene.camera).name,
-            "warnings": len(job.warnings)}
+            "warnings": warned + len(job.warnings)}
+
+
+def _export_warnings(context, item: str | None = None) -> int:
+    """Print a ``warning`` event for each thing the scene's job will render wrong without failing
+    (``job_export.warnings``: frames outside the recording), its message naming ``item`` (batch); their number."""
+    found = job_export.warnings(context)
+    for w in found:
+        message = f"{item}: {w['message']}" if item else w["message"]
+        print(json.dumps(protocol.event(protocol.WARNING, **{**w, "message": message})), flush=True)
+    return len(found)
 
 
 def _outputs(done: dict, out: str) -> dict:
@@ -316,6 +332,7 @@ def _batch(args) -> tuple[dict, int]:
                                             f"{os.path.dirname(job_path)} is also the output folder of "
                                             f"{seen[job_path]}", hint="give each scene its own SCPainter output folder")
                 runs.export(bpy.context, _checkpoint(args))  # (writes job_path)
+                _export_warnings(bpy.context, path)
             seen.setdefault(job_path, path)
             jobs.append((i, job_path, exported))
         except Exception as e:  # noqa: BLE001  bad input or a bug: recorded; go on with the rest

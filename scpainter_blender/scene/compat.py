@@ -1,6 +1,7 @@
 """The few Blender APIs that moved between 4.2 and 5.0, each behind one helper (docs/design.md §6).
 
-* Keyframes: from 4.4 they live in action slots and channelbags, and ``Action.fcurves`` is gone in 5.0.
+* Keyframes: from 4.4 they live in action slots and channelbags, and ``Action.fcurves`` is gone in 5.0 (``fcurves``
+  reads them, ``new_action_fcurves`` makes them; ``Object.keyframe_insert`` is the same in every version).
 * Node trees: before 5.0 a new material or world has none until ``use_nodes`` is set (deprecated in 5.0).
 """
 
@@ -53,6 +54,23 @@ def object_fcurves(id_data, action_name: str):
         slot = ad.action.slots.new(id_type=id_data.id_type, name=id_data.name)
         ad.action_slot = slot
     return anim_utils.action_ensure_channelbag_for_slot(ad.action, slot).fcurves
+
+
+def fcurves(id_data) -> list:
+    """The F-curves of the action animating ``id_data`` (from 4.4 those of its action slot's channelbag); [] when it
+    has no action (or no slot, or nothing keyed in it)."""
+    ad = id_data.animation_data
+    action = ad.action if ad is not None else None
+    if action is None:
+        return []
+    if HAS_ACTION_SLOTS:
+        from bpy_extras import anim_utils
+
+        if ad.action_slot is None:
+            return []
+        bag = anim_utils.action_get_channelbag_for_slot(action, ad.action_slot)
+        return list(bag.fcurves) if bag is not None else []
+    return list(action.fcurves)
 
 
 def key_fcurve(fcurves, data_path: str, index: int, frames, values, interpolation: str = "LINEAR"):

@@ -35,6 +35,8 @@ class ImportResult:
     load_report: vggt.LoadReport | None = None   # convention (checked?), crop, NaN/inf pixels dropped
     depth_edge_ratio: float | None = None        # the depth-edge test's ratio used (None: off)
     depth_edge_points: int = 0                   # confident pixels it left out
+    # the camera path that stays the scene camera (the import adds the recorded camera without taking its place)
+    kept_camera: bpy.types.Object | None = None
 
 
 def metric_fit(pred: vggt.VGGTPredictions, opts: ImportOptions) -> metric_scale.MetricFit:
@@ -67,8 +69,11 @@ def _tag(obj, kind, filepath, fit, opts, rep: vggt.LoadReport):
     obj["scpainter_depth_edge_ratio"] = opts.edge_ratio or 0.0
 
 
-def import_vggt(context, filepath: str, opts: ImportOptions | None = None) -> ImportResult:
-    """Import ``filepath`` into ``context.scene``; returns the new objects, the metric fit and timings."""
+def import_vggt(context, filepath: str, opts: ImportOptions | None = None, collection=None) -> ImportResult:
+    """Import ``filepath`` into ``context.scene``; returns the new objects, the metric fit and timings. The objects
+    go into ``collection`` (default: a new "SCPainter <folder>" collection). With ``opts.set_scene_camera`` the
+    recorded camera becomes the scene camera, unless the scene camera is a camera path: an artist re-importing
+    keeps looking through (and rendering) their path (``ImportResult.kept_camera``)."""
     opts = (opts or ImportOptions()).check()
     t0 = time.perf_counter()
     filepath = os.path.abspath(bpy.path.abspath(filepath))
@@ -86,8 +91,10 @@ def import_vggt(context, filepath: str, opts: ImportOptions | None = None) -> Im
     scene = context.scene
     stem = os.path.splitext(os.path.basename(filepath))[0]
     parent_name = os.path.basename(os.path.dirname(filepath)) or stem
-    coll = bpy.data.collections.new(f"SCPainter {parent_name}")
-    scene.collection.children.link(coll)
+    coll = collection
+    if coll is None:
+        coll = bpy.data.collections.new(f"SCPainter {parent_name}")
+        scene.collection.children.link(coll)
     obj = points_mod.create_point_cloud(f"{parent_name} points", pts.positions, pts.colors, pts.frame, coll,
                                         radius=opts.point_radius, frame_offset=opts.frame_start)
     mod = points_mod.points_modifier(obj)
@@ -101,7 +108,8 @@ def import_vggt(context, filepath: str, opts: ImportOptions | None = None) -> Im
     camera_mod.apply_render_settings(scene, p0)
     scene.frame_start = opts.frame_start
     scene.frame_end = opts.frame_start + pred.num_frames - 1
-    if opts.set_scene_camera:
+    kept = scene.camera if kinds.is_kind(scene.camera, kinds.CAMERA_PATH) else None
+    if opts.set_scene_camera and kept is None:
         scene.camera = cam
     for o, kind in ((obj, kinds.POINTS), (cam, kinds.RECORDED_CAMERA)):
         _tag(o, kind, filepath, fit, opts, pred.report)
@@ -117,4 +125,4 @@ def import_vggt(context, filepath: str, opts: ImportOptions | None = None) -> Im
             f"the depth-edge test left out {pts.depth_edge_points:,} of {pts.depth_edge_points + len(pts):,} points: "
             f"the ratio {opts.edge_ratio} is small for this clip (the default is {DEPTH_EDGE_RATIO}; 0 turns it off)"]
     return ImportResult(obj, cam, fit, len(pts), timings, list(pred.report.warnings) + list(warnings), pred.report,
-                        opts.edge_ratio, pts.depth_edge_points)
+                        opts.edge_ratio, pts.depth_edge_points, kept if opts.set_scene_camera else None)

@@ -1,5 +1,9 @@
 """Write the scene as a ``job.json`` (``core.job.Job``): active camera per frame, points, removal boxes, assets.
 
+What the job renders is what Blender's render would (``rendered_objects``): the one points object and the
+assets the view layer renders (scene/visibility.py), the removal boxes the points object's modifiers apply; a
+scene with nothing to render, or two reconstructions, is refused. ``warnings`` says what would come out wrong
+without failing (frames outside the recording).
 Per output frame the scene is evaluated, so keyframes, drivers, constraints and parents are all honoured:
 K, world_to_camera and the resolution are scene/camera.py's (``K_of_camera_object``, ``world_to_camera``,
 ``render_size``), the removal boxes scene/placement.py's (``box_matrix``), the objects found by kind
@@ -22,8 +26,9 @@ import numpy as np
 
 from ..core.geometry import point_cloud
 from ..core import job as job_mod
+from ..core import labels
 from . import camera as camera_mod
-from . import asset_box, kinds, node_groups, placement, props
+from . import asset_box, kinds, node_groups, placement, props, visibility
 from . import points as points_mod
 
 
@@ -70,10 +75,9 @@ def build_job(context, job_path: str, output_dir: str | None = None, checkpoint:
     if cam.type != "CAMERA":
         raise props.SceneError(f"objects[{cam.name!r}]", "is not a camera", hint="give a camera object")
     job_dir = os.path.dirname(os.path.abspath(job_path))
-    frames = list(range(scene.frame_start, scene.frame_end + 1))
-    pts = kinds.point_cloud(scene)
-    boxes = kinds.removal_boxes(scene)
-    assets = [o for o in kinds.gaussian_assets(scene) if o.get("scpainter_review") != "rejected" and not o.hide_render]
+    frames = output_frames(scene)
+    pts, assets = rendered_objects(context)
+    boxes = placement.applied_removal_boxes(pts) if pts is not None else []
     out_frames = []
     asset_m = {a.name: {} for a in assets}
     asset_boxes = {}
@@ -110,6 +114,69 @@ def build_job(context, job_path: str, output_dir: str | None = None, checkpoint:
                        fps=frame_rate(scene))
 
 
+def output_frames(scene) -> list:
+    """The job's frames: the scene's frame range, first to last."""
+    return list(range(scene.frame_start, scene.frame_end + 1))
+
+
+def rendered_objects(context) -> tuple:
+    """(points object or None, [assets]) a job of ``context``'s scene renders: what Blender's render of the view
+    layer includes (scene/visibility.py), the assets not rejected at stage 2. SceneError when two reconstructions
+    render (``visibility.points_object``) or nothing does: a job of holes only would "succeed" with nothing in it."""
+    scene, view_layer = context.scene, context.view_layer
+    pts = visibility.points_object(scene, view_layer)
+    candidates = [o for o in kinds.gaussian_assets(scene) if o.get("scpainter_review") != "rejected"]
+    assets = visibility.rendered(candidates, view_layer)
+    if pts is None and not assets:
+        left_out = [o.name for o in kinds.point_clouds(scene)] + [o.name for o in candidates]
+        why = (f"; not rendered (hidden from renders, or in a collection excluded from the view layer): "
+               f"{', '.join(map(repr, left_out))}") if left_out else ""
+        raise props.SceneError("scene.objects", f"nothing to render: no reconstruction and no car asset{why}",
+                               hint="import one (Import VGGT Reconstruction, or Import Gaussian Asset for a car) or "
+                                    "show the hidden one in renders; a job of the camera alone would be all holes")
+    return pts, assets
+
+
+def warnings(context) -> list:
+    """What a job of the scene would render wrong without failing, as ``warning`` events' fields (``message``,
+    ``code``): output frames outside the recording (``labels.OUTSIDE_FLAG``), where the recorded camera and the
+    camera paths made from it stand still and the points are only what the recording saw. [] when the scene does not
+    say which frames it recorded. SceneError as ``rendered_objects`` (two reconstructions render)."""
+    pts = visibility.points_object(context.scene, context.view_layer)
+    recorded = recorded_frames(context.scene, pts) if pts is not None else None
+    if recorded is None:
+        return []
+    frames = output_frames(context.scene)
+    outside = [f for f in frames if not recorded[0] <= f <= recorded[1]]
+    if not outside:
+        return []
+    return [{"code": labels.OUTSIDE_FLAG,
+             "message": f"{len(outside)} of the {len(frames)} output frames ({_spans(outside)}) lie outside the "
+                        f"recording (frames {recorded[0]}–{recorded[1]}): there the camera stands still and the "
+                        f"condition images are mostly holes; set the frame range to {recorded[0]}–{recorded[1]} "
+                        "(Output Properties > Frame Range) unless that is what you want"}]
+
+
+def job_notes(context) -> list:
+    """For the panel, before anything runs: ("WARNING", message) per ``warnings``, or ("ERROR", why and what to
+    do) when a job of the scene would be refused for its reconstructions (two render)."""
+    try:
+        return [("WARNING", w["message"]) for w in warnings(context)]
+    except props.SceneError as e:
+        return [("ERROR", f"{e.message} ({e.hint})" if e.hint else e.message)]
+
+
+def _spans(frames) -> str:
+    """Sorted frame numbers as spans: "1–3, 17–24"."""
+    spans = []
+    for f in frames:
+        if spans and f == spans[-1][1] + 1:
+            spans[-1][1] = f
+        else:
+            spans.append([f, f])
+    return ", ".join(str(a) if a == b else f"{a}–{b}" for a, b in spans)
+
+
 def frame_rate(scene) -> float | None:
     """The job's ``fps``: the scene's frames per second, ``render.fps / render.fps_base``; None (not written) when
     outside the job's bounds (``GENERATE_NUMBER_BOUNDS["fps"]``), which only label timestamps would use."""
@@ -120,9 +187,10 @@ def frame_rate(scene) -> float | None:
 
 def recorded_frames(scene, pts) -> list | None:
     """``scene.recorded_frames``: [first, last] scene frames the recording covers, [frame_start, frame_start +
-    num_frames − 1] from the recorded camera's ``scpainter_frame_start`` and the points' ``scpainter_num_frames``;
-    None when either is missing (a .blend imported before them, or a recorded camera deleted)."""
-    cam = kinds.recorded_camera(scene)
+    num_frames − 1] from the recorded camera imported with ``pts`` (``kinds.recorded_camera_of``) and the points'
+    ``scpainter_num_frames``; None when either is missing (a .blend imported before them, or a recorded camera
+    deleted)."""
+    cam = kinds.recorded_camera_of(scene, pts)
     if cam is None or "scpainter_frame_start" not in cam or "scpainter_num_frames" not in pts:
         return None
     start, n = int(cam["scpainter_frame_start"]), int(pts["scpainter_num_frames"])

@@ -56,8 +56,14 @@ def first_of_kind(scene, kind: str):
 
 
 def point_cloud(scene):
-    """The scene's (first) points object, or None."""
+    """The scene's (first) points object, or None: for tools that need any reconstruction. The one a job renders
+    is ``visibility.points_object``'s (a re-imported scene may hold an old, hidden one first)."""
     return first_of_kind(scene, POINTS)
+
+
+def point_clouds(scene) -> list:
+    """The scene's points objects (rendered or not), in ``scene.objects`` order."""
+    return objects_of_kind(scene, POINTS)
 
 
 def recorded_camera(scene, prefer=()):
@@ -65,6 +71,17 @@ def recorded_camera(scene, prefer=()):
     else the first in the scene; None without one."""
     found = next((o for o in prefer if is_kind(o, RECORDED_CAMERA)), None)
     return found if found is not None else first_of_kind(scene, RECORDED_CAMERA)
+
+
+def recorded_camera_of(scene, points):
+    """The recorded camera imported with ``points`` (the import links both into one collection): the scene's
+    recorded camera sharing a collection with it, else the scene's only recorded camera; None otherwise (or for
+    ``points`` None)."""
+    cams = objects_of_kind(scene, RECORDED_CAMERA)
+    if points is None:
+        return None
+    own = set(points.users_collection)
+    return next((c for c in cams if own.intersection(c.users_collection)), cams[0] if len(cams) == 1 else None)
 
 
 def camera_paths(scene) -> list:

@@ -132,12 +132,16 @@ def add_modifier(obj, name: str, group, inputs: dict | None = None):
     return mod
 
 
+def find_modifiers(obj, group_name: str) -> list:
+    """The Geometry Nodes modifiers of ``obj`` running the group ``group_name`` (or a copy of it), in stack order."""
+    return [m for m in obj.modifiers
+            if m.type == "NODES" and m.node_group is not None and m.node_group.name.startswith(group_name)]
+
+
 def find_modifier(obj, group_name: str):
     """The first Geometry Nodes modifier of ``obj`` running the group ``group_name`` (or a copy of it), or None."""
-    for m in obj.modifiers:
-        if m.type == "NODES" and m.node_group is not None and m.node_group.name.startswith(group_name):
-            return m
-    return None
+    found = find_modifiers(obj, group_name)
+    return found[0] if found else None
 
 
 def socket_identifier(group, name: str) -> str:

@@ -1,9 +1,11 @@
-"""Placing Gaussian car assets: fit to a car size, snap to the ground, replace a recorded car, review.
+"""Placing Gaussian car assets: fit to a car size, snap to the ground (keyed on an animated car), replace a
+recorded car, review.
 
 Asset convention (scene/gaussians.py): data frame Z up, origin at the bottom centre; the *length* is the longer of
 the two horizontal extents. Removal boxes are cube empties (display size 1, so the box spans ±scale along each
 local axis, length along local Y); their points are removed from the reconstruction by a Geometry Nodes modifier
-on the points object, placed before the points preview, and exported to the job (``scene.removal_boxes``).
+on the points object, placed before the points preview, and exported to the job (``scene.removal_boxes``: the
+boxes the exported points object's modifiers apply, ``applied_removal_boxes``).
 Every cube empty (removal boxes, asset boxes of scene/asset_box.py) becomes a box through ``cube_matrix``.
 """
 
@@ -14,7 +16,7 @@ import numpy as np
 from mathutils import Matrix, Quaternion, Vector
 
 from ..core.geometry import boxes, fits as geometry
-from . import kinds, node_groups
+from . import compat, kinds, node_groups
 from . import points as points_mod
 from .props import SceneError
 
@@ -127,10 +129,73 @@ def snap_to_ground(context, obj, points_obj, margin: float = 1.0, align: bool = 
         heading = yaw @ Vector((0.0, 1.0, 0.0))
         flat = Quaternion((0.0, 0.0, 1.0), np.arctan2(-heading.x, heading.y))
         tilt = Vector((0.0, 0.0, 1.0)).rotation_difference(Vector(plane[:3].tolist()))
-        obj.rotation_mode = "QUATERNION"
-        obj.rotation_quaternion = tilt @ flat
+        _set_rotation(obj, tilt @ flat)
     obj.location = (x, y, z)
     return plane, int(inliers.sum())
+
+
+#: An object's rotation property in each ``rotation_mode`` (any other mode is an Euler order).
+_ROTATION_PATHS = {"QUATERNION": "rotation_quaternion", "AXIS_ANGLE": "rotation_axis_angle"}
+#: The transform channels a snap changes: the asset's animation of any of them is what ``snap_keyed`` keys.
+SNAP_PATHS = ("location", "rotation_euler", *_ROTATION_PATHS.values())
+
+
+def rotation_path(obj) -> str:
+    """The property holding ``obj``'s rotation in its rotation mode (the one to key)."""
+    return _ROTATION_PATHS.get(obj.rotation_mode, "rotation_euler")
+
+
+def _set_rotation(obj, q: Quaternion) -> None:
+    """Set ``obj``'s rotation to ``q`` in its own rotation mode: its rotation keys (Euler ones included) stay the
+    ones Blender plays, and an Euler is chosen next to the current one (no 360° flip between keys)."""
+    if obj.rotation_mode == "QUATERNION":
+        obj.rotation_quaternion = q
+    elif obj.rotation_mode == "AXIS_ANGLE":
+        axis, angle = q.to_axis_angle()
+        obj.rotation_axis_angle = (angle, *axis)
+    else:
+        obj.rotation_euler = q.to_euler(obj.rotation_mode, obj.rotation_euler)
+
+
+def snap_key_frames(obj) -> list:
+    """The frames of ``obj``'s keys on the channels a snap changes (``SNAP_PATHS``), sorted; [] when none is
+    animated."""
+    return sorted({k.co.x for fc in compat.fcurves(obj) if fc.data_path in SNAP_PATHS for k in fc.keyframe_points})
+
+
+def snap_keyed(context, obj, points_obj, margin: float = 1.0, align: bool = True, all_keys: bool = False,
+               threshold: float = 0.05) -> list:
+    """``snap_to_ground`` that lasts on an animated asset: [(frame, plane, points fitted)] per frame snapped.
+
+    Not animated (no key on ``SNAP_PATHS``): snapped as it stands, nothing keyed (the values stay). Animated: the
+    next frame change would put back the keyed values, so the snapped ones are keyed at the current frame
+    (location, and the rotation when ``align``); with ``all_keys`` every frame with a key on those channels is
+    evaluated in turn (scene.frame_set: the asset where its animation puts it), snapped there and keyed, and the
+    scene goes back to its frame. SceneError (``snap_to_ground``'s) at any frame stops with the frames before it
+    keyed: the operator's undo step takes them back."""
+    scene = context.scene
+    frames = snap_key_frames(obj)
+    if not frames:
+        return [(scene.frame_current, *snap_to_ground(context, obj, points_obj, margin, align, threshold))]
+
+    def snap_and_key(frame):
+        plane, n = snap_to_ground(context, obj, points_obj, margin, align, threshold)
+        obj.keyframe_insert("location", frame=frame)
+        if align:
+            obj.keyframe_insert(rotation_path(obj), frame=frame)
+        return frame, plane, n
+
+    if not all_keys:  # as it stands now (an edit not keyed yet included)
+        return [snap_and_key(scene.frame_current + scene.frame_subframe)]
+    current = (scene.frame_current, scene.frame_subframe)
+    try:
+        out = []
+        for f in frames:
+            scene.frame_set(int(np.floor(f)), subframe=float(f - np.floor(f)))
+            out.append(snap_and_key(f))
+        return out
+    finally:
+        scene.frame_set(current[0], subframe=current[1])
 
 
 def _removal_group() -> bpy.types.NodeTree:
@@ -178,12 +243,37 @@ def add_removal_box(context, points_obj, box_to_world=None, size=DEFAULT_CAR, na
     kinds.mark(box, kinds.REMOVAL_BOX)
     for coll in points_obj.users_collection:
         coll.objects.link(box)
-    node_groups.add_modifier(points_obj, f"SCPainter Remove {box.name}", _removal_group(), {"Box": box})
+    attach_removal_box(points_obj, box)
+    return box
+
+
+def attach_removal_box(points_obj, box):
+    """Make ``box`` remove its inside points from ``points_obj``: a "SCPainter Removal Box" modifier placed before
+    the points preview (remove first, then draw what is left). Returns the modifier."""
+    mod = node_groups.add_modifier(points_obj, f"SCPainter Remove {box.name}", _removal_group(), {"Box": box})
     preview = points_mod.points_modifier(points_obj)
-    if preview is not None:  # remove first, then draw what is left
+    if preview is not None:
         points_obj.modifiers.move(len(points_obj.modifiers) - 1, list(points_obj.modifiers).index(preview))
     box["scpainter_points_object"] = points_obj.name
-    return box
+    return mod
+
+
+def removal_modifiers(points_obj) -> list:
+    """``points_obj``'s removal-box modifiers, in stack order (enabled or not)."""
+    return node_groups.find_modifiers(points_obj, REMOVAL_GROUP)
+
+
+def applied_removal_boxes(points_obj) -> list:
+    """The removal boxes whose points Blender's render removes from ``points_obj``: those its removal modifiers
+    enabled in renders (``show_render``) name, in stack order. The box's own visibility does not matter: Blender
+    applies the modifier even when the box is hidden or its collection excluded (scene/visibility.py); a box
+    whose modifier was deleted or disabled removes nothing, and neither does a deleted box."""
+    out = []
+    for mod in removal_modifiers(points_obj):
+        box = node_groups.get_input(mod, "Box") if mod.show_render else None
+        if kinds.is_kind(box, kinds.REMOVAL_BOX) and box not in out:
+            out.append(box)
+    return out
 
 
 def align_to_box(obj, box, uniform: bool = False):

@@ -47,11 +47,11 @@ def test_progress_text_names_the_generator(addon):
 def test_job_export_writes_the_inpainting_method_only_when_chosen(empty_scene, addon, prefs, tmp_path):
     """``generate`` holds the checkpoint of the preferences and the scene's Baseline Inpainting, each only when
     set: a default scene leaves the backend's defaults (and its auto generator) in charge."""
+    from vggt_cases import drive, write
+
     job_export = _module(addon, "scpainter_blender.scene.job_export")
-    cam = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
-    empty_scene.collection.objects.link(cam)
-    empty_scene.camera = cam
-    empty_scene.frame_start, empty_scene.frame_end = 1, 2
+    arrays, _, _ = drive(S=2, H=12, W=16)  # something to render: a job of a camera alone is refused
+    assert bpy.ops.scpainter.import_vggt(filepath=write(tmp_path, arrays)) == {"FINISHED"}
     path = str(tmp_path / "job.json")
 
     def exported(**kw):

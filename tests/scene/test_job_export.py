@@ -176,3 +176,33 @@ def test_labels_fields_fps_and_recorded_frames(empty_scene, tmp_path):
     scene.render.fps, scene.render.fps_base = 1000, 1.0  # beyond what a job holds: not written, not refused
     assert bpy.ops.scpainter.export_job(filepath=job_path) == {"FINISHED"}
     assert J.load(job_path).fps is None
+
+
+def test_frames_outside_the_recording_are_warned(empty_scene, addon, tmp_path, capfd):
+    """A frame range reaching past the recording (the camera stands still there, the frames are mostly holes) is
+    exported as asked, with a warning from the operator, and the same words under the panel's Job box
+    (``job_notes``); two reconstructions that render are said there as the refusal the export will be."""
+    import sys
+
+    from vggt_cases import drive, write
+
+    job_export = sys.modules[addon + ".scpainter_blender.scene.job_export"]
+    arrays, _, _ = drive(S=3, H=12, W=16)
+    path = write(tmp_path, arrays)
+    scene = empty_scene
+    assert bpy.ops.scpainter.import_vggt(filepath=path, depth_edge_ratio=0.0) == {"FINISHED"}
+    assert job_export.warnings(bpy.context) == [] and job_export.job_notes(bpy.context) == []
+    scene.frame_start, scene.frame_end = 0, 5  # one frame before the recording (1-3), two after
+    capfd.readouterr()
+    job_path = str(tmp_path / "job.json")
+    assert bpy.ops.scpainter.export_job(filepath=job_path) == {"FINISHED"}
+    said = "3 of the 6 output frames (0, 4–5) lie outside the recording (frames 1–3)"
+    assert f"Warning: {said}" in capfd.readouterr().out
+    assert [f.frame for f in J.load(job_path).frames] == [0, 1, 2, 3, 4, 5]  # written all the same
+    (w,) = job_export.warnings(bpy.context)
+    assert w["code"] == "outside_recording" and w["message"].startswith(said)
+    assert "set the frame range to 1–3" in w["message"]
+    assert job_export.job_notes(bpy.context) == [("WARNING", w["message"])]
+    assert bpy.ops.scpainter.import_vggt(filepath=path, depth_edge_ratio=0.0) == {"FINISHED"}  # a second cloud
+    ((level, text),) = job_export.job_notes(bpy.context)
+    assert level == "ERROR" and text.startswith("2 reconstructions render") and "Replace Reconstruction" in text

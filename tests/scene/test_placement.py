@@ -57,6 +57,44 @@ def test_snap_to_ground(street_scene):
     assert up[2] > np.cos(np.radians(1.0))           # upright on the flat road
     fwd = M[:3, 1] / np.linalg.norm(M[:3, 1])
     assert np.degrees(np.arctan2(-fwd[0], fwd[1])) == pytest.approx(np.degrees(0.4), abs=1.0)
+    assert car.animation_data is None  # not animated: nothing keyed
+
+
+def test_snap_keys_an_animated_car(street_scene, capfd):
+    """A car driving along the road (location and Euler rotation keys, floating 2 m up): Snap to Ground keys what
+    it sets at the current frame, so the next frame change does not put the old height back; All Keyframes snaps
+    it at every key, where its animation puts it. The car keeps its rotation mode (its Euler keys keep playing)."""
+    _, car = street_scene
+    scene = bpy.context.scene
+    car.rotation_mode = "XYZ"
+    for frame, y, yaw in ((1, 9.0, 0.4), (16, 20.0, 0.6)):
+        car.location = (-1.75, y, 2.0)
+        car.rotation_euler = (0.2, 0.0, yaw)
+        car.keyframe_insert("location", frame=frame)
+        car.keyframe_insert("rotation_euler", frame=frame)
+
+    def pose(frame):
+        scene.frame_set(frame)
+        M = np.array(car.matrix_world)
+        fwd = M[:3, 1] / np.linalg.norm(M[:3, 1])
+        return M[2, 3], (M[:3, 2] / np.linalg.norm(M[:3, 2]))[2], np.arctan2(-fwd[0], fwd[1])
+
+    scene.frame_set(1)
+    capfd.readouterr()
+    assert bpy.ops.scpainter.snap_to_ground() == {"FINISHED"}
+    assert "keyed at frame 1 (All Keyframes snaps every key)" in capfd.readouterr().out
+    pose(8)
+    z, up, heading = pose(1)  # after a frame change: the snap lasted
+    assert abs(z) < 0.02 and up > np.cos(np.radians(1.0)) and heading == pytest.approx(0.4, abs=0.02)
+    assert car.rotation_mode == "XYZ" and pose(16)[0] == pytest.approx(2.0)  # only the current frame was keyed
+    assert bpy.ops.scpainter.snap_to_ground(all_keys=True) == {"FINISHED"}
+    assert "keyed at its 2 keyframes (1, 16)" in capfd.readouterr().out
+    assert scene.frame_current == 16  # where the artist was
+    for frame, yaw in ((1, 0.4), (8, None), (16, 0.6)):
+        z, up, heading = pose(frame)
+        assert abs(z) < 0.02 and up > np.cos(np.radians(1.0)), frame
+        if yaw is not None:
+            assert heading == pytest.approx(yaw, abs=0.02), frame
 
 
 def test_snap_away_from_the_road_is_a_scene_error(street_scene):

@@ -302,6 +302,12 @@ def _cmd_evaluate(args) -> int:
     return events.EXIT_OK
 
 
+def _cmd_serve(args) -> int:
+    from . import serve
+
+    return serve.serve(args.idle_timeout, _device(args.device))
+
+
 def _cmd_mesh_asset(args) -> int:
     from .mesh import asset as mesh_asset
 
@@ -351,6 +357,18 @@ def _bounded_int(lo: int, hi: int):
             raise argparse.ArgumentTypeError(f"expected an integer in [{lo}, {hi}], got {value}")
         return value
     return parse
+
+
+def _non_negative(text):
+    import math
+
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of seconds, got {text!r}") from None
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {text!r}")
+    return value
 
 
 def _confinement_options(p) -> None:
@@ -420,7 +438,7 @@ def _doctor_parser() -> argparse.ArgumentParser:
 
 def build_parser() -> argparse.ArgumentParser:
     # numpy only: no torch or CUDA at start-up
-    from scpainter_blender.core.backend_protocol import DEFAULT_DEVICE, DEVICE_NAMES, EXPORT_FORMAT_NAMES
+    from scpainter_blender.core.backend_protocol import DEFAULT_DEVICE, DEVICE_NAMES, EXPORT_FORMAT_NAMES, SERVE
     from scpainter_blender.core.job import BASELINE_DEFAULTS, GENERATE_DEFAULTS, GENERATE_MODELS, INPAINT_METHODS
 
     # the console command (pyproject.toml) names itself in usage and hints; `python -m backend` otherwise
@@ -544,6 +562,16 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--up", choices=["auto", "y", "z"], default="auto", help="the file's up axis (default: by format)")
     m.add_argument("--seed", type=int, default=0)
     m.set_defaults(func=_cmd_mesh_asset)
+    w = sub.add_parser(SERVE, help="a warm backend: run render/generate/export requests read from standard input "
+                                   "(one JSON object per line) one after another in this process, keeping the "
+                                   "renderer's kernels, points and assets loaded (what the add-on starts once per "
+                                   "Blender session; docs/design.md §12)")
+    w.add_argument("--idle-timeout", type=_non_negative, default=600.0, metavar="S",
+                   help="end after S seconds without a request (0: never; default 600); it also ends when standard "
+                        "input ends, on a quit request and on SIGTERM")
+    w.add_argument("--device", choices=DEVICE_NAMES, default=DEFAULT_DEVICE,
+                   help="whose kernels to load (or compile) at the start; each request names its own")
+    w.set_defaults(func=_cmd_serve)
     v = sub.add_parser("vary", help="variants of a job (camera shifts, lane changes, cars from a library placed on "
                                     "the road), written as job folders with a batch list and a manifest")
     v.add_argument("job", help="the base job (job.json), e.g. as Blender exports it")

@@ -161,11 +161,41 @@ def report_bug(e: BaseException, what: str = "") -> str | None:
     return log_.path
 
 
+def log_here(message: str) -> None:
+    """A line for the log of the command running: its innermost open ``FileLog`` (``<output_dir>/backend.log``),
+    else standard error only. For code below the command that has no log handed to it (the warm backend's caches)."""
+    if _open_logs:
+        _open_logs[-1](message)
+    else:
+        log(message)
+
+
+#: The stop list of the request a warm backend (``backend/serve.py``) is running, None outside one.
+_request_stop: list | None = None
+
+
+@contextlib.contextmanager
+def serving(stop: list):
+    """The block runs one request of a warm backend: ``stop_on_sigterm`` yields ``stop`` (which the server's cancel
+    request and its own SIGTERM handler append to) and leaves the signal handlers alone (the server's stay)."""
+    global _request_stop
+    _request_stop = stop
+    try:
+        yield stop
+    finally:
+        _request_stop = None
+
+
 @contextlib.contextmanager
 def stop_on_sigterm(sigint: bool = False):
     """Within the block SIGTERM does not kill the process: it appends to the yielded list, which long loops check
     between units of work (a frame, a sampler step) to stop cleanly with finished outputs kept. ``sigint``: the
-    first Ctrl-C (SIGINT) does the same, a second one raises KeyboardInterrupt (the impatient user's way out)."""
+    first Ctrl-C (SIGINT) does the same, a second one raises KeyboardInterrupt (the impatient user's way out).
+    Inside a warm backend's request (``serving``) the request's stop list, which a cancel request or SIGTERM to the
+    server fills; the server's handlers stay in place."""
+    if _request_stop is not None:
+        yield _request_stop
+        return
     stop: list = []
 
     def on_sigint(*_):

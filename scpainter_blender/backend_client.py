@@ -3,7 +3,8 @@
 
 ``Invocation`` is the one place the add-on spells the backend's command line: the operators build it from the
 preferences, ``blender -c scpainter`` from its arguments; ``argv()`` turns it into arguments, ``start()`` into a
-``BackendJob``. Device names, exit codes and event kinds: ``core.backend_protocol``.
+``BackendJob``. ``BackendRun`` is what a follower sees of a run, one-shot (``BackendJob``) or sent to a warm
+backend (``backend_warm``). Device names, exit codes and event kinds: ``core.backend_protocol``.
 
 No bpy, no torch: the add-on calls this from Blender's Python, where neither torch nor open3d exist; the
 backend runs under the interpreter chosen in the add-on preferences.
@@ -60,58 +61,49 @@ def backend_python(preference: str = "") -> str:
     return sys.executable
 
 
-class BackendJob:
-    """``python -m backend *args`` in a subprocess (arguments as a list, no shell), its event stream read by a
-    thread so that ``poll()`` never blocks: what Blender's modal operators need. ``wait()`` blocks instead.
+def backend_env() -> dict:
+    """The environment a backend process runs in: this process's, with the extension root first on ``PYTHONPATH``
+    (so ``python -m backend`` finds ``backend`` and ``scpainter_blender``) and unbuffered output."""
+    env = dict(os.environ)
+    env["PYTHONPATH"] = EXTENSION_ROOT + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    env.setdefault("PYTHONUNBUFFERED", "1")
+    return env
 
-    ``cancel()`` sends SIGTERM (the backend finishes its unit of work and keeps what is done), then kills after
-    ``grace`` seconds. Standard error is kept (its tail for messages) and appended to ``log_path`` if given.
-    """
 
-    def __init__(self, args, python: str = "", cwd=None, log_path: str | None = None):
-        import collections
+class BackendRun:
+    """One backend command followed from the add-on, however it runs: ``BackendJob`` (its own process) or
+    ``backend_warm.WarmRun`` (a request to a warm backend). Its events arrive on a queue filled by a reader thread,
+    so ``poll()`` never blocks (what Blender's modal operators need); ``wait()`` blocks instead. ``done``,
+    ``error``, ``progress`` (the last one) and ``warnings`` (all, in order) hold what ``poll`` has seen;
+    ``returncode`` is the command's exit code once it ended (None before); ``finished`` says it ended and every
+    event arrived; ``cancel(grace)`` stops it as SIGTERM stops a command (its unit of work finishes, finished
+    outputs are kept), by force after ``grace`` seconds."""
+
+    def _init_events(self):
         import queue
-        import threading
 
-        exe = backend_python(python)
-        env = dict(os.environ)
-        env["PYTHONPATH"] = EXTENSION_ROOT + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
-        env.setdefault("PYTHONUNBUFFERED", "1")
-        self.args = [str(a) for a in args]
-        self.log_path = log_path
-        self.proc = subprocess.Popen([exe, "-m", "backend", *self.args], cwd=cwd or EXTENSION_ROOT, env=env,
-                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         self._events = queue.Queue()
-        self._stderr = collections.deque(maxlen=200)
         self.done = self.error = None
         self.progress = None          # the last progress event
         self.warnings = []            # every warning event, in order (core.backend_protocol.WARNING)
         self.cancelled = False
-        self._threads = [threading.Thread(target=self._read_stdout, daemon=True),
-                         threading.Thread(target=self._read_stderr, daemon=True)]
-        for t in self._threads:
-            t.start()
 
-    def _read_stdout(self):
-        for line in self.proc.stdout:
-            line = line.strip()
-            if line:
-                try:
-                    self._events.put(json.loads(line))
-                except json.JSONDecodeError:
-                    pass  # not an event (a library printing to stdout): ignore rather than fail the job
+    returncode: int | None
+    finished: bool
+    stderr_tail: str
+    log_path: str | None = None
 
-    def _read_stderr(self):
-        log = open(self.log_path, "a", encoding="utf-8") if self.log_path else None
-        try:
-            for line in self.proc.stderr:
-                self._stderr.append(line.rstrip("\n"))
-                if log:
-                    log.write(line)
-                    log.flush()
-        finally:
-            if log:
-                log.close()
+    def cancel(self, grace: float = 10.0) -> None:
+        raise NotImplementedError
+
+    def _abandon(self) -> None:
+        """The caller gives up on the run (an exception while waiting): nothing of it may outlive the caller."""
+        raise NotImplementedError
+
+    def _ended_text(self, code) -> str:
+        """Why a run ended without a ``done`` event or an ``error`` event (the process died)."""
+        tail = self.stderr_tail.strip().splitlines()[-1:] or ["no output"]
+        return f"backend exited with code {code}: {tail[0]}"
 
     def poll(self) -> list:
         """The events that arrived since the last call (never blocks)."""
@@ -135,30 +127,10 @@ class BackendJob:
             out.append(ev)
         return out
 
-    @property
-    def finished(self) -> bool:
-        """The process has exited and both streams are read to the end."""
-        return self.proc.poll() is not None and not any(t.is_alive() for t in self._threads)
-
-    @property
-    def stderr_tail(self) -> str:
-        return "\n".join(self._stderr)
-
-    def cancel(self, grace: float = 10.0) -> None:
-        """SIGTERM, then SIGKILL if the backend has not stopped after ``grace`` seconds."""
-        self.cancelled = True
-        if self.proc.poll() is None:
-            self.proc.terminate()
-            try:
-                self.proc.wait(timeout=grace)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-
     def result(self) -> dict:
-        """The ``done`` event of a finished job, or BackendError with the backend's message and log tail."""
+        """The ``done`` event of a finished run, or BackendError with the backend's message and log tail."""
         self.poll()
-        code = self.proc.returncode
+        code = self.returncode
         if self.error is not None:
             e = self.error
             raise BackendError(e.get("message", "backend error"), e.get("hint"), code, self.stderr_tail,
@@ -166,13 +138,12 @@ class BackendJob:
         if self.cancelled:
             raise BackendError("cancelled", "finished outputs are kept", code, self.stderr_tail)
         if code != protocol.EXIT_OK or self.done is None:
-            tail = self.stderr_tail.strip().splitlines()[-1:] or ["no output"]
-            raise BackendError(f"backend exited with code {code}: {tail[0]}", exit_code=code, log=self.stderr_tail)
+            raise BackendError(self._ended_text(code), exit_code=code, log=self.stderr_tail)
         return self.done
 
     def wait(self, timeout: float | None = None, on_event=None, idle_timeout: float | None = None) -> dict:
-        """Block until the job ends; ``on_event`` sees each event. Past ``timeout`` seconds in all, or
-        ``idle_timeout`` seconds without an event, the job is cancelled and BackendError says it hung."""
+        """Block until the run ends; ``on_event`` sees each event. Past ``timeout`` seconds in all, or
+        ``idle_timeout`` seconds without an event, the run is cancelled and BackendError says it hung."""
         import time
 
         start = last = time.monotonic()
@@ -196,11 +167,94 @@ class BackendJob:
                 if on_event is not None:
                     on_event(ev)
         except BaseException:
-            if self.proc.poll() is None:
-                self.proc.kill()
-                self.proc.wait()
+            if not self.finished:
+                self._abandon()
             raise
         return self.result()
+
+
+class BackendJob(BackendRun):
+    """``python -m backend *args`` in a subprocess of its own (arguments as a list, no shell), its event stream read
+    by a thread (``BackendRun``). ``cancel()`` sends SIGTERM (the backend finishes its unit of work and keeps what is
+    done), then kills after ``grace`` seconds. Standard error is kept (its tail for messages) and appended to
+    ``log_path`` if given.
+    """
+
+    def __init__(self, args, python: str = "", cwd=None, log_path: str | None = None):
+        import collections
+        import threading
+
+        exe = backend_python(python)
+        self.args = [str(a) for a in args]
+        self.log_path = log_path
+        self.proc = subprocess.Popen([exe, "-m", "backend", *self.args], cwd=cwd or EXTENSION_ROOT, env=backend_env(),
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        self._init_events()
+        self._stderr = collections.deque(maxlen=200)
+        self._threads = [threading.Thread(target=self._read_stdout, daemon=True),
+                         threading.Thread(target=self._read_stderr, daemon=True)]
+        for t in self._threads:
+            t.start()
+
+    def _read_stdout(self):
+        for line in self.proc.stdout:
+            ev = parse_event(line)
+            if ev is not None:
+                self._events.put(ev)
+
+    def _read_stderr(self):
+        log = open(self.log_path, "a", encoding="utf-8") if self.log_path else None
+        try:
+            for line in self.proc.stderr:
+                self._stderr.append(line.rstrip("\n"))
+                if log:
+                    log.write(line)
+                    log.flush()
+        finally:
+            if log:
+                log.close()
+
+    @property
+    def returncode(self) -> int | None:
+        """The process's exit code once it exited (None while it runs)."""
+        return self.proc.poll()
+
+    @property
+    def finished(self) -> bool:
+        """The process has exited and both streams are read to the end."""
+        return self.proc.poll() is not None and not any(t.is_alive() for t in self._threads)
+
+    @property
+    def stderr_tail(self) -> str:
+        return "\n".join(self._stderr)
+
+    def cancel(self, grace: float = 10.0) -> None:
+        """SIGTERM, then SIGKILL if the backend has not stopped after ``grace`` seconds."""
+        self.cancelled = True
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(timeout=grace)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+
+    def _abandon(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait()
+
+
+def parse_event(line: str) -> dict | None:
+    """A line of the backend's standard output as an event; None for a blank line or one that is not JSON (a
+    library printing to stdout: ignored rather than failing the run)."""
+    line = line.strip()
+    if not line:
+        return None
+    try:
+        return json.loads(line)
+    except json.JSONDecodeError:
+        return None
 
 
 def run(args, python: str = "", on_event=None, cwd=None, timeout=None) -> dict:

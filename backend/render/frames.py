@@ -23,6 +23,7 @@ each source frame (``core.geometry.point_cloud.depth_edges``), then outliers of 
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from dataclasses import dataclass, field
 
@@ -38,7 +39,9 @@ from . import channels as ch
 from . import cleaning
 from . import gaussians as gs
 from . import points as pts
+from . import scene_cache
 from . import tiles
+from . import warmup
 
 
 @dataclass
@@ -81,9 +84,15 @@ def load_scene(job: job_mod.Job, job_path: str, device, points: bool = True) -> 
     if points:
         load_points(scene, job, job_path)
     for a in job.assets:
-        scene.assets.append(make_asset(a.name, splats_io.load(job_mod.resolve(job_path, a.ply)), a.object_to_world,
-                                       scene.device))
+        scene.assets.append(load_asset(job_mod.resolve(job_path, a.ply), a.name, a.object_to_world, scene.device))
     return scene
+
+
+def load_asset(path: str, name: str, object_to_world: dict, device) -> Asset:
+    """``make_asset`` of the Gaussian file at ``path``, named ``name`` and placed by ``object_to_world``; a warm
+    backend serves the file's Gaussians from memory when it loaded them before (``scene_cache``)."""
+    made = scene_cache.asset(path, device, lambda: make_asset(name, splats_io.load(path), {}, device))
+    return dataclasses.replace(made, name=name, object_to_world=object_to_world)
 
 
 def load_points(scene: Scene, job: job_mod.Job, job_path: str) -> Scene:
@@ -92,9 +101,15 @@ def load_points(scene: Scene, job: job_mod.Job, job_path: str) -> Scene:
         return scene
     sc, device, origin = job.scene, scene.device, scene.origin
     # as the import loaded it: the same reading of the poses, the same crop (NaN/inf pixels are dropped)
-    pred = job_inputs.scene_predictions(job_path, sc)
-    cloud, keep, stats = cleaning.clean_cloud(pred, sc.confidence_percentile, sc.vggt_to_world,
-                                              sc.point_cleaning, sc.removal_boxes)
+    def clean():
+        pred = job_inputs.scene_predictions(job_path, sc)
+        return cleaning.clean_cloud(pred, sc.confidence_percentile, sc.vggt_to_world, sc.point_cleaning,
+                                    sc.removal_boxes)
+
+    # a warm backend keeps the cleaned cloud (scene_cache): everything below copies out of it, never into it
+    cloud, keep, stats = scene_cache.points(job_mod.resolve(job_path, sc.predictions), job.layers_dict()["scene"],
+                                            clean)
+    stats = dict(stats)
     scene.removed_points = stats.pop("removed_points")
     scene.cleaning = stats
     xyz = cloud.positions[keep] - origin
@@ -203,6 +218,7 @@ def render_frame(scene: Scene, entry: job_mod.Frame, width: int, height: int, po
     receives the Gaussians' projection as ``keep["projection"]`` (None when the pass was skipped), for
     ``amodal_pixels``."""
     dev = scene.device
+    warmup.ensure(dev.type)  # the kernels compiled before the first frame, saying so (not cached yet) or loaded
     K = np.asarray(entry.K, np.float64)
     w2c = pts.relative_camera(np.asarray(entry.world_to_camera, np.float64), scene.origin)
     image = torch.zeros((height, width, 3), device=dev)

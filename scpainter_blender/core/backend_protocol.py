@@ -33,6 +33,7 @@ KIND = "event"
 #: ``error`` (``ERROR_FIELDS``: why the run ended), ``warning`` (``WARNING_FIELDS``: the run goes on, but what it
 #: makes is weak or suspect — a frame mostly holes, a camera inside a car; clients show it and keep reading).
 PROGRESS, ARTIFACT, DONE, ERROR, WARNING = "progress", "artifact", "done", "error", "warning"
+#: (A warm backend adds ``served``: ``SERVED`` below.)
 #: A warning event's fields: ``message``, ``code`` (a stable name: ``core.labels.FLAGS``), and where it applies
 #: (``frame``, ``object``) when it does.
 WARNING_FIELDS = ("message", "code", "frame", "object")
@@ -42,6 +43,47 @@ WARNING_FIELDS = ("message", "code", "frame", "object")
 ERROR_FIELDS = ("message", "hint", "file", "field", "log")
 #: A progress event's fields: the stage, how many of its units are done, of how many.
 PROGRESS_FIELDS = ("stage", "done", "total")
+
+
+#: A progress event's ``stage`` while the renderer's numba kernels are compiled (the first run after an install,
+#: ~15 s) or loaded from their cache: ``serve`` at its start, a one-shot ``render`` before its first frame when they
+#: are not cached yet (``backend/render/warmup.py``). Its ``cached`` field says which.
+COMPILE_STAGE = "compile"
+
+#: ``python -m backend serve``: a warm backend (docs/design.md §12) that runs one request after another in one
+#: process. It reads one JSON object per line on standard input: a request ``{"id": N, "argv": [...]}`` (what
+#: follows ``python -m backend``; one of ``SERVED_COMMANDS``), ``{"cancel": N}`` (stop request N as SIGTERM stops a
+#: one-shot command: its unit of work finishes, finished outputs are kept) or ``{"quit": true}`` (end after the
+#: request in progress). A request's events are the command's own, followed by one ``served`` event.
+SERVE = "serve"
+SERVED_COMMANDS = ("render", "generate", "export")
+REQUEST_ID, REQUEST_ARGV, REQUEST_CANCEL, REQUEST_QUIT = "id", "argv", "cancel", "quit"
+#: The event that ends a request's events: ``id`` (the request's) and ``exit_code`` (what ``python -m backend
+#: <argv>`` would have exited with).
+SERVED = "served"
+SERVED_FIELDS = ("id", "exit_code")
+
+
+def request(request_id: int, argv) -> dict:
+    """A warm backend's request line: run ``python -m backend <argv>`` as request ``request_id``."""
+    return {REQUEST_ID: int(request_id), REQUEST_ARGV: [str(a) for a in argv]}
+
+
+def cancel_request(request_id: int) -> dict:
+    """A warm backend's request line: stop request ``request_id`` (running or waiting)."""
+    return {REQUEST_CANCEL: int(request_id)}
+
+
+def quit_request() -> dict:
+    """A warm backend's request line: end the server once the request in progress (if any) has ended."""
+    return {REQUEST_QUIT: True}
+
+
+def served_marker(request_id: int) -> str:
+    """The line a warm backend writes to standard error when request ``request_id`` has ended, before its
+    ``served`` event: the client knows every stderr line of the request has arrived (two pipes keep no order
+    between them)."""
+    return f"scpainter-serve: request {int(request_id)} served"
 
 
 def event(kind: str, /, **fields) -> dict:

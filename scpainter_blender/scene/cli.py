@@ -58,7 +58,7 @@ from ..core import errors, files, import_options, outputs
 from ..core import job as job_mod
 from ..core.output_layout import OutputLayout
 from ..core.variation import spec as variation_spec, variants as vary_mod
-from . import importer, job_export, preferences, props, runs, variations
+from . import importer, job_export, preferences, props, runs, variations, warm_backend
 
 
 class _Parser(argparse.ArgumentParser):
@@ -252,7 +252,8 @@ def _run_blend(args) -> dict:
     if args.command == "export":
         options = {"export_format": args.format, "out": os.path.abspath(args.out) if args.out else None}
     warned = _export_warnings(bpy.context)
-    job, out = runs.start(bpy.context, _invocation(args, args.command, **options), _checkpoint(args), camera)
+    with warm_backend.one_shot():  # one command and the process ends: nothing to keep warm
+        job, out = runs.start(bpy.context, _invocation(args, args.command, **options), _checkpoint(args), camera)
     try:
         done = job.wait(timeout=args.timeout or None, on_event=_progress)
     except backend_client.BackendError as e:  # the same error, its message saying where the log is

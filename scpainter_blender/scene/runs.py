@@ -11,13 +11,13 @@ import os
 
 import bpy
 
-from ..backend_client import BackendError, BackendJob, Invocation
+from ..backend_client import BackendError, BackendRun, Invocation
 from ..core import backend_protocol as protocol
 from ..core import job as job_mod
 from ..core import outputs
 from ..core.errors import InputError
 from ..core.output_layout import OutputLayout
-from . import job_export, preferences, props, results
+from . import job_export, preferences, props, results, warm_backend
 
 #: The run in progress (one at a time): command, model (the generator, None for render), stage, done, total, out.
 ACTIVE: dict = {}
@@ -84,14 +84,15 @@ def invocation(context, command: str, **options) -> Invocation:
                                   "allow_outside": True, **options})
 
 
-def start(context, run: Invocation | str, checkpoint: str | None = None, camera=None) -> tuple[BackendJob, str]:
+def start(context, run: Invocation | str, checkpoint: str | None = None, camera=None) -> tuple[BackendRun, str]:
     """Export the scene's job seen by ``camera`` (``export``, naming ``checkpoint``) and start ``run`` on it: an
     ``Invocation`` (the operators': ``invocation``; the command line's: ``blender -c scpainter``), or a command run
-    as the preferences say; (the backend job, the camera's output folder). BackendError when the backend cannot be
-    started."""
+    as the preferences say; (the run, the camera's output folder). The run is a request to the session's warm
+    backend when the preferences keep one, else a process of its own (``warm_backend.launch``). BackendError when
+    the backend cannot be started."""
     run = invocation(context, run) if isinstance(run, str) else run
     job_path, out = export(context, checkpoint, camera)
-    return run.replace(jobs=(job_path,)).start(), out
+    return warm_backend.launch(context, run.replace(jobs=(job_path,))), out
 
 
 def finish(context, command: str, out: str, done: dict, camera: str | None = None) -> str:
@@ -173,7 +174,7 @@ class Follower:
     (progress for the panel), and says whether the run is still going; ``stop()`` is Esc. The modal operator only
     adds the window-manager calls around it, so this logic is tested without a display."""
 
-    def __init__(self, command: str, job: BackendJob, out: str, timeout: float = 0.0, model: str | None = None,
+    def __init__(self, command: str, job: BackendRun, out: str, timeout: float = 0.0, model: str | None = None,
                  camera: str | None = None, position: tuple[int, int] | None = None):
         """``model``: the generator the run is expected to use (``planned_model``), shown from the start; the
         backend's progress events correct it. ``camera``: the name of the camera whose run it is (its results are
@@ -211,7 +212,7 @@ class Follower:
         if not self.job.finished:
             return "running"
         ACTIVE.clear()
-        return "finished" if self.job.proc.returncode == 0 and self.job.error is None else "failed"
+        return "finished" if self.job.returncode == 0 and self.job.error is None else "failed"
 
     def stop(self) -> None:
         self.job.cancel()

@@ -1,0 +1,80 @@
+"""The warm backend's memory of loaded inputs (docs/design.md §12): a scene's cleaned point cloud and an asset's
+Gaussians on the device, kept between the requests of one ``python -m backend serve`` process, so that a second
+render of the same scene does not read, clean and upload them again. Off unless ``enable`` ran (a one-shot process
+loads everything once anyway); ``frames.load_points`` and ``frames.load_asset`` ask it.
+
+Keys (what the cached value depends on, and nothing a request can change without changing the key):
+
+- points: the predictions file (real path, size, mtime in ns: ``core.frame_keys.stamp``, what the frame keys take
+  of it) and the job's scene settings the cloud is made from (``Job.layers_dict()["scene"]`` without the path as
+  the job wrote it: ``vggt_to_world``, confidence, extrinsic convention, crop, removal boxes, point cleaning). The
+  value is ``cleaning.clean_cloud``'s result; each job then takes its own copy relative to its own scene origin on
+  its device (``frames.load_points``), so a moved camera path or another device still finds the cloud.
+- assets: the file (real path, size, mtime) and the device; the value is ``frames.make_asset``'s, whose tensors
+  are only ever read (each job's ``Asset`` gets its own name and transforms).
+
+Bounded: the last ``POINTS_KEPT`` clouds and ``ASSETS_KEPT`` assets used. A hit is logged to the log of the
+command running (``events.log_here``: the output folder's ``backend.log``).
+"""
+
+from __future__ import annotations
+
+import collections
+import json
+import os
+
+from scpainter_blender.core import frame_keys
+
+from .. import events
+
+#: How many point clouds and assets a warm backend keeps (the last used): a scene or two and their cars.
+POINTS_KEPT, ASSETS_KEPT = 2, 8
+
+#: {"points": OrderedDict, "assets": OrderedDict} while enabled; None: nothing is kept.
+_kept: dict | None = None
+
+
+def enable() -> None:
+    """Keep what is loaded from now on (the warm backend, at its start)."""
+    global _kept
+    if _kept is None:
+        _kept = {"points": collections.OrderedDict(), "assets": collections.OrderedDict()}
+
+
+def disable() -> None:
+    """Forget everything and keep nothing from now on."""
+    global _kept
+    _kept = None
+
+
+def _get(kind: str, key: str, make, limit: int, what: str):
+    """The value under ``key`` (moved to the newest place) or ``make()``'s, kept; the oldest beyond ``limit``
+    dropped."""
+    if _kept is None:
+        return make()
+    kept = _kept[kind]
+    if key in kept:
+        kept.move_to_end(key)
+        events.log_here(f"warm backend: {what} served from memory (loaded by an earlier request)")
+        return kept[key]
+    value = make()
+    kept[key] = value
+    while len(kept) > limit:
+        kept.popitem(last=False)
+    return value
+
+
+def points(path: str, scene_settings: dict, make):
+    """The cleaned cloud of the predictions at ``path`` under ``scene_settings`` (the job's ``layers_dict``
+    scene): ``make()``'s result, or the one kept for the same file and settings."""
+    real = os.path.realpath(path)
+    settings = {k: v for k, v in scene_settings.items() if k != "predictions"}  # the file is named by ``real``
+    key = json.dumps([real, frame_keys.stamp(real), settings], sort_keys=True)
+    return _get("points", key, make, POINTS_KEPT, f"the points of {path}")
+
+
+def asset(path: str, device, make):
+    """The asset made from the Gaussian file at ``path`` on ``device``: ``make()``'s result, or the one kept."""
+    real = os.path.realpath(path)
+    key = json.dumps([real, frame_keys.stamp(real), str(device)])
+    return _get("assets", key, make, ASSETS_KEPT, f"the Gaussians of {path}")

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import time
 from dataclasses import dataclass
@@ -21,7 +22,7 @@ from .. import events, png
 from ..errors import FolderBusyError
 from . import channels
 from . import frames as fr
-from . import labelled
+from . import labelled, writer
 
 
 def frame_paths(job_path: str, job: job_mod.Job, frame: int) -> tuple[str, str]:
@@ -193,6 +194,7 @@ def _render(job_path, job, device, force, point_radius, stop, log, out, allow_ou
             todo.add(e.frame)
     scene = labelling = None
     relabelled = 0
+    frames_out = writer.FrameWriter()  # the frames' files are written while the next frame renders
     for n, entry in enumerate(job.frames):
         if stop:
             break
@@ -222,18 +224,24 @@ def _render(job_path, job, device, force, point_radius, stop, log, out, allow_ou
             kept = {}
             layers = fr.render_frame(scene, entry, W, H, point_radius, keep=kept)
             amodal = fr.amodal_pixels(scene, entry, W, H, projection=kept["projection"])
-            rgb = np.stack([layers[c] for c in channels.IMAGE], axis=-1)
-            channels.write(exr_path, layers, half=half,
-                           camera=channels.camera_attributes(entry.K, entry.world_to_camera, W, H))
-            png.write_png(png_path, rgb)
-            events.artifact(exr_path, frame=f, kind="conditions")
-            events.artifact(png_path, frame=f, kind="preview")
-            lab = labelling.write(n, layers, amodal)  # last: its labels mark the frame finished
-            rendered += 1
-            warned += _warn(lab)
-            log(f"frame {f}: {time.perf_counter() - t:.3f} s, hole {layers[channels.HOLE].mean():.3f}, "
-                f"{sum(o['visible_pixels'] > 0 for o in lab['objects'])} objects visible")
-        events.progress("render", n + 1, total, frame=f, reused=f not in todo)  # reused: found up to date
+            render_s = time.perf_counter() - t
+
+            def finish(written, f=f, exr_path=exr_path, png_path=png_path, hole=layers[channels.HOLE].mean(),
+                       render_s=render_s):  # this thread, in frame order, once the frame's files are on disk
+                nonlocal rendered, warned
+                lab, write_s = written
+                events.artifact(exr_path, frame=f, kind="conditions")
+                events.artifact(png_path, frame=f, kind="preview")
+                labelling.report(f)
+                rendered += 1
+                warned += _warn(lab)
+                log(f"frame {f}: {render_s:.3f} s rendering, {write_s:.3f} s writing (beside the next frame), "
+                    f"hole {hole:.3f}, {sum(o['visible_pixels'] > 0 for o in lab['objects'])} objects visible")
+            frames_out.submit(functools.partial(_write_frame, labelling, n, layers, amodal, half, exr_path, png_path),
+                              finish)
+        # reused: found up to date; said after the frames before it are finished
+        frames_out.after(functools.partial(events.progress, "render", n + 1, total, frame=f, reused=f not in todo))
+    frames_out.close()  # every frame started is whole and reported, also after a stop
     return {"frames": total, "rendered": rendered, "skipped": skipped, "output_dir": out, "stopped": bool(stop),
             "relabelled": relabelled, "warnings": warned}
 
@@ -251,8 +259,19 @@ class _Labelling:
 
     def write(self, index: int, layers: dict, amodal) -> dict:
         """The labels of ``job.frames[index]`` from its layers (``channels`` keys) and its assets' amodal pixel
-        counts: the labelled preview, then the labels file (last: its key marks the frame finished); returns
-        the labels."""
+        counts: the labelled preview, then the labels file (last: its key marks the frame finished), and their
+        artifact events; returns the labels."""
+        lab = self.write_files(index, layers, amodal)
+        self.report(lab["frame"])
+        return lab
+
+    def report(self, f: int) -> None:
+        """The artifact events of frame ``f``'s labelled preview and labels file (once both are on disk)."""
+        events.artifact(self.layout.labelled_preview(f), frame=f, kind="labelled")
+        events.artifact(self.layout.frame_labels(f), frame=f, kind="labels")
+
+    def write_files(self, index: int, layers: dict, amodal) -> dict:
+        """``write`` without its events (for a writer thread: ``report`` says them on the events' thread)."""
         f = self.job.frames[index].frame
         lab = labels_mod.frame_labels(self.job, index, instance=layers[channels.INSTANCE],
                                       hole=layers[channels.HOLE], depth=layers[channels.DEPTH], amodal_pixels=amodal,
@@ -260,9 +279,20 @@ class _Labelling:
                                       layers_key=self.layers_key)
         labelled.write(self.layout.labelled_preview(f), np.stack([layers[c] for c in channels.IMAGE], -1), lab)
         outputs.write_json(self.layout.frame_labels(f), lab)
-        events.artifact(self.layout.labelled_preview(f), frame=f, kind="labelled")
-        events.artifact(self.layout.frame_labels(f), frame=f, kind="labels")
         return lab
+
+
+def _write_frame(labelling: _Labelling, index: int, layers: dict, amodal, half: bool, exr_path: str,
+                 png_path: str) -> tuple:
+    """A rendered frame's files (on a ``writer.FrameWriter`` thread): the condition EXR (``half``: its precision)
+    and its preview, then its labels (``_Labelling.write_files``: last, they mark the frame finished). Returns
+    (labels, seconds taken)."""
+    t = time.perf_counter()
+    entry = labelling.job.frames[index]
+    W, H = labelling.job.resolution
+    channels.write(exr_path, layers, half=half, camera=channels.camera_attributes(entry.K, entry.world_to_camera, W, H))
+    png.write_png(png_path, np.stack([layers[c] for c in channels.IMAGE], axis=-1))
+    return labelling.write_files(index, layers, amodal), time.perf_counter() - t
 
 
 def _relabel(labelling: _Labelling, index: int, old: dict) -> int:

@@ -10,9 +10,9 @@ import numpy as np
 
 from scpainter_blender.core import outputs
 
-#: zlib's level for the pixel data. 1, not zlib's default 6: ~4x faster (at 576 x 1024, ~19 ms against ~75 ms,
-#: the difference being a large part of a rendered frame's cost) for files a few per cent larger, and the same
-#: pixels (bench/render_writes.py). zlib releases the GIL while it compresses, so a writer thread overlaps it.
+#: zlib's level for the pixel data. 1, not zlib's default 6: 2-4x faster (a 576 x 1024 preview ~13-27 ms against
+#: ~40-75 ms, a large part of a rendered frame's cost) for files within 5 % of the size, and the same pixels
+#: (bench/render_writes.py). zlib releases the GIL while it compresses, so a writer thread overlaps it.
 LEVEL = 1
 
 

@@ -1,10 +1,10 @@
 """Writing rendered frames in the background: a frame's files are encoded and written on worker threads while the
 next frame renders (docs/design.md §10, "A frame's whole cost").
 
-``render`` spends about as long writing a frame as rendering it (at 576 × 1024 on the CPU: the ZIP EXR ~105 ms,
-the preview and the labelled preview tens of ms, the frame ~110 ms), and the encoders run outside the GIL (OpenEXR's
-write and zlib release it for their work: measured by how long a Python thread is kept waiting while they run,
-``bench/render_writes.py``), so the writes overlap the next frame's rendering.
+``render`` spends about as long writing a frame as rendering it (at 576 × 1024 on the CPU: the ZIP EXR ~70 ms, the
+preview ~14 ms, the labels and labelled preview ~17 ms; a frame ~110 ms on average), and the encoders run outside
+the GIL (OpenEXR's write and zlib release it for their work: measured by how long a Python thread is kept waiting
+while they run, ``bench/render_writes.py``), so the writes overlap the next frame's rendering where a core is free.
 
 Per frame the caller gives two callables (``FrameWriter.submit``):
 

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import time
 from dataclasses import dataclass
@@ -21,7 +22,7 @@ from .. import events, png
 from ..errors import FolderBusyError
 from . import channels
 from . import frames as fr
-from . import labelled
+from . import labelled, writer
 
 
 def frame_paths(job_path: str, job: job_mod.Job, frame: int) -> tuple[str, str]:
@@ -148,54 +149,63 @@ def _render(job_path, job, device, force, point_radius, stop, log, out, allow_ou
     warned = sum(_warn(plan.done[e.frame]) for e in job.frames if e.frame in plan.done)  # said again every run
     labelling = None
     relabelled = 0
-    for n, entry in enumerate(job.frames):
-        if stop:
-            break
-        f = entry.frame
-        exr_path, png_path = frame_paths(job_path, job, f)
-        if labelling is None and (f in plan.render or f in plan.relabel):  # loaded once, only when there is work
-            # the points only when a frame is rendered: relabelling needs the assets alone
-            if scene is None:
-                scene = fr.load_scene(job, job_path, device, points=bool(plan.render))
-            elif plan.render:
-                fr.load_points(scene, job, job_path)
-            if plan.render:
-                log(f"render {job_path}: {len(plan.render)} of {total} frames {W}x{H} on {device} "
-                    f"({'half-float' if half else 'float32'} EXRs); "
-                    f"{0 if scene.xyz is None else len(scene.xyz):,} points ({scene.removed_points:,} removed by "
-                    f"boxes), {len(scene.assets)} assets")
-                _log_cleaning(scene, log)
-            labelling = _Labelling(job, layout, asset_boxes(job, scene, log),
-                                   [file_hash(job_mod.resolve(job_path, a.ply)) for a in job.assets], plan.keys,
-                                   plan.labels_keys)
-            if stop:  # asked to stop while the scene loaded (outlier removal can take a while)
+    # the frames' files are written while the next frame renders; on leaving, every frame started is whole and
+    # reported (also after a stop); the caller's own error only lets the frames being written finish
+    with writer.FrameWriter() as frames_out:
+        for n, entry in enumerate(job.frames):
+            if stop:
                 break
-        if f in plan.relabel:  # a label-only edit (a box, a class, the frame rate): the layers are kept
-            warned += _relabel(labelling, n, plan.relabel[f])
-            relabelled += 1
-            skipped += 1
-        elif f not in plan.render:
-            skipped += 1
-        else:
-            # its labels go first: a kill before its new labels are written leaves the frame unfinished, never
-            # the new EXR under the old frame's key
-            outputs.remove_listed(cond, [FRAME_LABELS.name(f)])
-            t = time.perf_counter()
-            kept = {}
-            layers = fr.render_frame(scene, entry, W, H, point_radius, keep=kept)
-            amodal = fr.amodal_pixels(scene, entry, W, H, projection=kept["projection"])
-            rgb = np.stack([layers[c] for c in channels.IMAGE], axis=-1)
-            channels.write(exr_path, layers, half=half,
-                           camera=channels.camera_attributes(entry.K, entry.world_to_camera, W, H))
-            png.write_png(png_path, rgb)
-            events.artifact(exr_path, frame=f, kind="conditions")
-            events.artifact(png_path, frame=f, kind="preview")
-            lab = labelling.write(n, layers, amodal)  # last: its labels mark the frame finished
-            rendered += 1
-            warned += _warn(lab)
-            log(f"frame {f}: {time.perf_counter() - t:.3f} s, hole {layers[channels.HOLE].mean():.3f}, "
-                f"{sum(o['visible_pixels'] > 0 for o in lab['objects'])} objects visible")
-        events.progress("render", n + 1, total, frame=f, reused=f not in plan.render)  # reused: found up to date
+            f = entry.frame
+            exr_path, png_path = frame_paths(job_path, job, f)
+            if labelling is None and (f in plan.render or f in plan.relabel):  # loaded once, only when there is work
+                # the points only when a frame is rendered: relabelling needs the assets alone
+                if scene is None:
+                    scene = fr.load_scene(job, job_path, device, points=bool(plan.render))
+                elif plan.render:
+                    fr.load_points(scene, job, job_path)
+                if plan.render:
+                    log(f"render {job_path}: {len(plan.render)} of {total} frames {W}x{H} on {device} "
+                        f"({'half-float' if half else 'float32'} EXRs); "
+                        f"{0 if scene.xyz is None else len(scene.xyz):,} points ({scene.removed_points:,} removed by "
+                        f"boxes), {len(scene.assets)} assets")
+                    _log_cleaning(scene, log)
+                labelling = _Labelling(job, layout, asset_boxes(job, scene, log),
+                                       [file_hash(job_mod.resolve(job_path, a.ply)) for a in job.assets], plan.keys,
+                                       plan.labels_keys)
+                if stop:  # asked to stop while the scene loaded (outlier removal can take a while)
+                    break
+            if f in plan.relabel:  # a label-only edit (a box, a class, the frame rate): the layers are kept
+                warned += _relabel(labelling, n, plan.relabel[f])
+                relabelled += 1
+                skipped += 1
+            elif f not in plan.render:
+                skipped += 1
+            else:
+                # its labels go first: a kill before its new labels are written leaves the frame unfinished, never
+                # the new EXR under the old frame's key
+                outputs.remove_listed(cond, [FRAME_LABELS.name(f)])
+                t = time.perf_counter()
+                kept = {}
+                layers = fr.render_frame(scene, entry, W, H, point_radius, keep=kept)
+                amodal = fr.amodal_pixels(scene, entry, W, H, projection=kept["projection"])
+                render_s = time.perf_counter() - t
+
+                def finish(written, f=f, exr_path=exr_path, png_path=png_path, hole=layers[channels.HOLE].mean(),
+                           render_s=render_s):  # this thread, in frame order, once the frame's files are on disk
+                    nonlocal rendered, warned
+                    lab, write_s = written
+                    events.artifact(exr_path, frame=f, kind="conditions")
+                    events.artifact(png_path, frame=f, kind="preview")
+                    labelling.report(f)
+                    rendered += 1
+                    warned += _warn(lab)
+                    log(f"frame {f}: {render_s:.3f} s rendering, {write_s:.3f} s writing (beside the next frame), "
+                        f"hole {hole:.3f}, {sum(o['visible_pixels'] > 0 for o in lab['objects'])} objects visible")
+                frames_out.submit(functools.partial(_write_frame, labelling, n, layers, amodal, half, exr_path,
+                                                    png_path), finish)
+            # reused: found up to date; said after the frames before it are finished
+            frames_out.after(functools.partial(events.progress, "render", n + 1, total, frame=f,
+                                               reused=f not in plan.render))
     return {"frames": total, "rendered": rendered, "skipped": skipped, "output_dir": out, "stopped": bool(stop),
             "relabelled": relabelled, "warnings": warned}
 
@@ -213,8 +223,19 @@ class _Labelling:
 
     def write(self, index: int, layers: dict, amodal) -> dict:
         """The labels of ``job.frames[index]`` from its layers (``channels`` keys) and its assets' amodal pixel
-        counts: the labelled preview, then the labels file (last: its key marks the frame finished); returns
-        the labels."""
+        counts: the labelled preview, then the labels file (last: its key marks the frame finished), and their
+        artifact events; returns the labels."""
+        lab = self.write_files(index, layers, amodal)
+        self.report(lab["frame"])
+        return lab
+
+    def report(self, f: int) -> None:
+        """The artifact events of frame ``f``'s labelled preview and labels file (once both are on disk)."""
+        events.artifact(self.layout.labelled_preview(f), frame=f, kind="labelled")
+        events.artifact(self.layout.frame_labels(f), frame=f, kind="labels")
+
+    def write_files(self, index: int, layers: dict, amodal) -> dict:
+        """``write`` without its events (for a writer thread: ``report`` says them on the events' thread)."""
         f = self.job.frames[index].frame
         lab = labels_mod.frame_labels(self.job, index, instance=layers[channels.INSTANCE],
                                       hole=layers[channels.HOLE], depth=layers[channels.DEPTH], amodal_pixels=amodal,
@@ -222,9 +243,20 @@ class _Labelling:
                                       layers_key=self.layers_keys[f])
         labelled.write(self.layout.labelled_preview(f), np.stack([layers[c] for c in channels.IMAGE], -1), lab)
         outputs.write_json(self.layout.frame_labels(f), lab)
-        events.artifact(self.layout.labelled_preview(f), frame=f, kind="labelled")
-        events.artifact(self.layout.frame_labels(f), frame=f, kind="labels")
         return lab
+
+
+def _write_frame(labelling: _Labelling, index: int, layers: dict, amodal, half: bool, exr_path: str,
+                 png_path: str) -> tuple:
+    """A rendered frame's files (on a ``writer.FrameWriter`` thread): the condition EXR (``half``: its precision)
+    and its preview, then its labels (``_Labelling.write_files``: last, they mark the frame finished). Returns
+    (labels, seconds taken)."""
+    t = time.perf_counter()
+    entry = labelling.job.frames[index]
+    W, H = labelling.job.resolution
+    channels.write(exr_path, layers, half=half, camera=channels.camera_attributes(entry.K, entry.world_to_camera, W, H))
+    png.write_png(png_path, np.stack([layers[c] for c in channels.IMAGE], axis=-1))
+    return labelling.write_files(index, layers, amodal), time.perf_counter() - t
 
 
 def _relabel(labelling: _Labelling, index: int, old: dict) -> int:

@@ -70,7 +70,11 @@ def from_vertex(data, names, path) -> GaussianPly:
             return data[k].view(data.dtype[k].str[0] + "f2")
         return data[k]
 
+    table = _float32_table(data)
+
     def cols(keys):  # doubles beyond float32's range become inf here, and are dropped on decoding
+        if table is not None:
+            return _columns(table, [names.index(k) for k in keys])
         out = np.empty((len(data), len(keys)), np.float32)
         with np.errstate(invalid="ignore", over="ignore"):
             for i, k in enumerate(keys):
@@ -85,6 +89,25 @@ def from_vertex(data, names, path) -> GaussianPly:
         scale=cols(["scale_0", "scale_1", "scale_2"]), rot=cols(["rot_0", "rot_1", "rot_2", "rot_3"]),
         extra={n: data[n].astype(data.dtype[n].newbyteorder("=")) for n in names if n not in used_set},
         format=storage, properties=tuple(names))
+
+
+def _float32_table(data):
+    """The vertex rows as an (N, P) float32 view (file byte order) when every property is a float32 (the usual
+    INRIA file), else None. Columns then copy as blocks of rows instead of one strided property at a time: a
+    1 M-Gaussian degree-3 file reads ~5x faster (bench/ply_load.py); the values are the same bits either way."""
+    types = {data.dtype[k].str for k in data.dtype.names}
+    if len(types) != 1 or next(iter(types))[1:] != "f4" or data.dtype.itemsize != 4 * len(data.dtype.names) \
+            or not data.flags.c_contiguous:
+        return None
+    return data.view(next(iter(types))).reshape(len(data), len(data.dtype.names))
+
+
+def _columns(table, index) -> np.ndarray:
+    """Native float32 (N, len(index)) copy of ``table``'s columns ``index`` (a slice when they are consecutive)."""
+    first = index[0] if index else 0
+    if index == list(range(first, first + len(index))):
+        return np.array(table[:, first:first + len(index)], dtype=np.float32)
+    return np.array(table[:, index], dtype=np.float32)
 
 
 def write_names(ply: GaussianPly) -> list:

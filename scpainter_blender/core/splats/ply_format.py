@@ -161,13 +161,27 @@ def read_elements(f, path, size: int, order: str, elements, start: int, wanted) 
                 raise SplatsError(path, f"truncated: the header promises {count} {noun.get(name, name + ' rows')} "
                                         f"({need} bytes from byte {offset}) but the file has {size} bytes", name)
             f.seek(offset)
-            buf = f.read(need)
+            buf = _read_exactly(f, need)
             if len(buf) != need:  # the file shrank while being read
                 raise SplatsError(path, f"truncated: {len(buf)} of the {need} bytes of the {name!r} element could be "
                                         "read", name)
             out[name] = np.frombuffer(buf, dtype=dtype, count=count)
         offset += need
     return out
+
+
+def _read_exactly(f, n: int) -> np.ndarray:
+    """Up to ``n`` bytes of ``f`` from where it stands, as a writable uint8 array (shorter only at the end of the
+    file). Read into one array rather than ``f.read(n)``: a 250 MB element reads ~6x faster this way (no bytes
+    object grown and copied; bench/ply_load.py)."""
+    buf = np.empty(n, np.uint8)
+    got = 0
+    while got < n:
+        k = f.readinto(memoryview(buf)[got:])
+        if not k:
+            break
+        got += k
+    return buf[:got]
 
 
 def type_name(dt: np.dtype) -> str:

@@ -13,8 +13,10 @@ warm backend when it has one):
     unchanged   nothing changed: the click until "up to date" (or until the backend found nothing to do)
     moved       the parked car moved 0.3 m: the frames re-rendered (EXR times), the click's cost beyond their
                 render time (the backend log's per-frame seconds)
-    moved back  again, the car moved back: the time from the click to the start of the first frame rendered (its
-                labels file's time, the frame's last write, minus its logged seconds)
+    moved back  again, the car moved back
+
+and for each click the time from the click to the start of the first frame rendered (its labels file's time, the
+frame's last write, minus its logged render and write seconds).
 
 Prints a table and saves JSON. Not a test. Targets (issue 29): unchanged <= 0.5 s; moved: only the frames it
 touches, overhead <= 1.5 s; moved back: first frame <= 1 s after the click.
@@ -53,11 +55,17 @@ def tree_of(rev: str) -> tuple[str, str]:
 
 
 def _frame_seconds(log_path: str, offset: int) -> dict:
-    """{frame: seconds} of the frames the backend log records after byte ``offset`` ("frame N: X s")."""
+    """{frame: (render seconds, seconds until its last file)} of the frames the backend log records after byte
+    ``offset``: "frame N: X s, ..." (X: the whole frame) or "frame N: X s rendering, Y s writing" (written beside
+    the next frame's render: X, X + Y)."""
     with open(log_path, encoding="utf-8", errors="replace") as f:
         f.seek(offset)
         text = f.read()
-    return {int(m.group(1)): float(m.group(2)) for m in re.finditer(r"\bframe (\d+): ([0-9.]+) s", text)}
+    out = {}
+    for m in re.finditer(r"\bframe (\d+): ([0-9.]+) s(?: rendering, ([0-9.]+) s writing)?", text):
+        x = float(m.group(2))
+        out[int(m.group(1))] = (x, x + float(m.group(3) or 0.0))
+    return out
 
 
 def worker(tree: str, work: str, out_json: str) -> None:
@@ -100,11 +108,11 @@ def worker(tree: str, work: str, out_json: str) -> None:
         seconds = time.time() - t0
         redone = sorted(f for f in exr if os.stat(layout.condition_exr(f)).st_mtime_ns != exr[f])
         per_frame = _frame_seconds(layout.log, log_at) if os.path.isfile(layout.log) else {}
-        render_s = sum(per_frame.get(f, 0.0) for f in redone)
+        render_s = sum(per_frame.get(f, (0.0, 0.0))[0] for f in redone)
         first = None
         if redone:
             f = min(redone, key=lambda f: os.stat(layout.frame_labels(f)).st_mtime_ns)
-            first = os.stat(layout.frame_labels(f)).st_mtime_ns / 1e9 - per_frame.get(f, 0.0) - t0
+            first = os.stat(layout.frame_labels(f)).st_mtime_ns / 1e9 - per_frame.get(f, (0.0, 0.0))[1] - t0
         return {"seconds": seconds, "frames_rendered": len(redone), "render_s": render_s,
                 "overhead_s": seconds - render_s, "first_frame_start_s": first}
 

@@ -4,6 +4,7 @@ alone, before (every file written inline, the preview at zlib level 6) and after
 
     SCPAINTER_CACHE_DIR=... .venv/bin/python bench/render_writes.py [--baseline ebbfdbb] [--rounds 3]
                                                                    [--frames 16] [--car 100000]
+                                                                   [--render-threads N] [--out JSON]
 
 The jobs: the ground-truth street's recorded drive (its cache, or bpy to make it: ``tests_support.street_base_job``)
 with a procedural car of ``--car`` Gaussians parked beside the road, at 518 × 294 (the street's own size) and at
@@ -158,7 +159,8 @@ def write_components(job, job_path, scene, layers) -> dict:
     raw = np.concatenate([np.zeros((H, 1), np.uint8), a8.reshape(H, W * 3)], axis=1).tobytes()
     layout = OutputLayout(os.path.join(os.path.dirname(job_path), "out"))
     labelling = command._Labelling(job, layout, command.asset_boxes(job, scene, lambda _: None),
-                                   ["0" * 64] * len(job.assets), "k", "l")
+                                   ["0" * 64] * len(job.assets), {e.frame: "k" for e in job.frames},
+                                   {e.frame: "l" for e in job.frames})
     amodal = np.zeros(len(job.assets), np.int64)
     calls = {
         "exr": lambda: channels.write(os.path.join(tmp, "f.exr"), layers,
@@ -216,6 +218,9 @@ def main(argv=None):
     p.add_argument("--frames", type=int, default=16)
     p.add_argument("--car", type=int, default=100_000, help="Gaussians of the parked car")
     p.add_argument("--worker", nargs=3, metavar=("TREE", "JOB", "COMPONENTS"), help=argparse.SUPPRESS)
+    p.add_argument("--render-threads", type=int, default=0,
+                   help="threads the renderer may use (numba, torch, OpenMP; 0: all the CPUs): with fewer than the "
+                        "CPUs, the writers have a core of their own, as on a machine with cores to spare")
     p.add_argument("--out", default=os.path.join(ROOT, "bench", "results", "render_writes.json"))
     args = p.parse_args(argv)
     if args.worker:
@@ -223,6 +228,9 @@ def main(argv=None):
         print(json.dumps(worker(tree, job_path, components == "1")))
         return
 
+    env = dict(os.environ)
+    if args.render_threads:
+        env.update({k: str(args.render_threads) for k in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")})
     with tempfile.TemporaryDirectory() as tmp:
         jobs = make_jobs(tmp, args.frames, args.car)
         before_tree, sha = baseline_tree(args.baseline, os.path.join(tmp, "baseline"))
@@ -233,7 +241,7 @@ def main(argv=None):
                 for arm in (("before", "after") if r % 2 == 0 else ("after", "before")):
                     components = "1" if arm == "after" else "0"
                     got = subprocess.run([sys.executable, os.path.abspath(__file__), "--worker", trees[arm], job_path,
-                                          components], capture_output=True, text=True, cwd=trees[arm])
+                                          components], capture_output=True, text=True, cwd=trees[arm], env=env)
                     if got.returncode:
                         sys.exit(f"{arm} worker failed:\n{got.stderr[-3000:]}")
                     runs[res, arm].append(json.loads(got.stdout.strip().splitlines()[-1]))
@@ -259,7 +267,8 @@ def main(argv=None):
                          "render_over_alone": statistics.median(ratios), "ratio_min": min(ratios),
                          "ratio_max": max(ratios), "min_over_min": min(whole) / min(alone)})
     print(f"\nper frame, {len(ratios)} samples per row ({args.rounds} rounds x 2; {args.frames} frames, car "
-          f"{args.car:,} Gaussians, {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}); "
+          f"{args.car:,} Gaussians, {os.cpu_count()} CPUs, render threads {args.render_threads or 'all'}, load "
+          f"average {os.getloadavg()[0]:.1f}); "
           f"before = {sha[:10]}")
     print(f"{'resolution':10s} {'arm':7s} {'alone ms':>9s} {'(min)':>6s} {'render ms':>10s} {'(min)':>6s} "
           f"{'CPU ms':>7s} {'render/alone':>13s} {'(range)':>10s} {'min/min':>8s}")
@@ -283,6 +292,7 @@ def main(argv=None):
     from scpainter_blender.core import outputs
 
     outputs.write_json(args.out, {"baseline": sha, "rounds": args.rounds, "frames": args.frames, "car": args.car,
+                                  "render_threads": args.render_threads or os.cpu_count(),
                                   "cpus": os.cpu_count(), "load_average": os.getloadavg()[0], "rows": rows,
                                   "components": comps,
                                   "runs": {f"{res} {arm}": v for (res, arm), v in runs.items()}})

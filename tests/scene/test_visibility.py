@@ -108,16 +108,22 @@ def _export(tmp_path, name="job.json"):
     return J.load(path).to_dict()
 
 
+def _move_to_new_collection(scene, obj, name):
+    """``obj`` linked into a new collection ``name`` (a child of the scene's) and nowhere else."""
+    coll = bpy.data.collections.new(name)
+    scene.collection.children.link(coll)
+    coll.objects.link(obj)
+    for c in list(obj.users_collection):
+        if c != coll:
+            c.objects.unlink(obj)
+    return coll
+
+
 def test_a_car_in_an_excluded_collection_is_not_rendered(empty_scene, street, tmp_path):
     """A car moved into a collection excluded from the view layer (or disabled in renders) is left out of the job,
     as Blender's render leaves it out; included again, it is back."""
     scene, _, car = _street(empty_scene, street, tmp_path)
-    cars = bpy.data.collections.new("Cars")
-    scene.collection.children.link(cars)
-    cars.objects.link(car)
-    for c in list(car.users_collection):
-        if c != cars:
-            c.objects.unlink(car)
+    cars = _move_to_new_collection(scene, car, "Cars")
     assert [a["name"] for a in _export(tmp_path)["assets"]] == [car.name]
     layer = bpy.context.view_layer.layer_collection.children["Cars"]
     layer.exclude = True
@@ -141,12 +147,7 @@ def test_removal_boxes_follow_the_points_modifiers(empty_scene, street, tmp_path
     assert bpy.ops.scpainter.add_removal_box() == {"FINISHED"}
     box = bpy.context.active_object
     box.location = car.location
-    boxes = bpy.data.collections.new("Boxes")
-    scene.collection.children.link(boxes)
-    boxes.objects.link(box)
-    for c in list(box.users_collection):
-        if c != boxes:
-            c.objects.unlink(box)
+    _move_to_new_collection(scene, box, "Boxes")
     bpy.context.view_layer.layer_collection.children["Boxes"].exclude = True
 
     from scpainter_blender.scene import points

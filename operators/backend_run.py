@@ -55,7 +55,7 @@ class _BackendRun:
         the run does not change whose results these are)."""
         cam = context.scene.camera
         warnings = job_export.warnings(context)
-        job, out = start(context, self._run(context), camera=cam)
+        job, out = start(context, self._run(context), camera=cam, exported=getattr(self, "_exported", None))
         self._report_warnings(warnings)
         return Follower(self.command, job, out, self.timeout, model=planned_model(context, self.command),
                         camera=cam.name)
@@ -71,15 +71,16 @@ class _BackendRun:
         return True
 
     def _finished_already(self, context):
-        """A render with nothing to render (``render_plan.finished_render``): its results loaded and reported
-        without starting the backend; None when the backend has work."""
+        """A render with nothing to render (``render_plan.check``): its results loaded and reported without
+        starting the backend; None when the backend has work (the job it exported kept for ``start``)."""
         cam = context.scene.camera
-        found = render_plan.finished_render(context, self._run(context), cam)
-        if found is None:
+        found = render_plan.check(context, self._run(context), cam)
+        self._exported = None if found is None else (found.job_path, found.out)
+        if found is None or found.done is None:
             return None
-        out, done, warnings = found
         self._report_warnings(job_export.warnings(context))
-        level, message = with_warnings(finish(context, self.command, out, done, cam.name), warnings)
+        level, message = with_warnings(finish(context, self.command, found.out, found.done, cam.name),
+                                       found.warnings)
         self.report({level}, message)
         return {"FINISHED"}
 
@@ -91,7 +92,7 @@ class _BackendRun:
             return already
         cam = context.scene.camera
         warnings = job_export.warnings(context)
-        job, out = start(context, self._run(context), camera=cam)
+        job, out = start(context, self._run(context), camera=cam, exported=getattr(self, "_exported", None))
         self._report_warnings(warnings)
         model = planned_model(context, self.command)
 

@@ -10,6 +10,8 @@ forced run) goes to the backend.
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
 from ..backend_client import Invocation
 from ..core import backend_protocol as protocol
 from ..core import frame_keys
@@ -18,10 +20,20 @@ from ..core import labels as labels_mod
 from . import runs
 
 
-def finished_render(context, run: Invocation, camera) -> tuple[str, dict, list] | None:
-    """(output folder, ``done`` event, ``warning`` events) of ``run`` (a ``render`` ``Invocation``) when every
-    frame of ``camera``'s job is finished in its output folder; None when the backend has work (or only it can
-    tell). The job is exported as ``runs.start`` would (InputError/SceneError when the scene cannot make one)."""
+@dataclass
+class Check:
+    """What ``check`` found: the job it exported (``job_path``, ``out``: hand them to ``runs.start(exported=...)``)
+    and, when every frame is finished, the run's ``done`` event and the frames' ``warning`` events (else None)."""
+    job_path: str
+    out: str
+    done: dict | None = None
+    warnings: list = field(default_factory=list)
+
+
+def check(context, run: Invocation, camera) -> Check | None:
+    """Export ``camera``'s job as ``runs.start`` would (InputError/SceneError when the scene cannot make one) and
+    plan ``run`` (a ``render`` ``Invocation``) from its output folder's record: ``Check.done`` is set when every
+    frame is finished. None for any other run or ``--force``: nothing exported."""
     if run.command != "render" or run.force:
         return None
     job_path, out = runs.export(context, camera=camera)
@@ -29,9 +41,9 @@ def finished_render(context, run: Invocation, camera) -> tuple[str, dict, list] 
     try:
         plan = frame_keys.plan_from_record(out, job_path, job, run.point_radius or 0)
     except OSError:  # an input file is gone: the backend names it
-        return None
+        plan = None
     if plan is None or not plan.up_to_date:
-        return None
+        return Check(job_path, out)
     warnings = [protocol.event(protocol.WARNING, message=message, code=code, frame=lab["frame"],
                                **({"object": obj} if obj else {}))
                 for e in job.frames for lab in [plan.done[e.frame]]
@@ -39,4 +51,4 @@ def finished_render(context, run: Invocation, camera) -> tuple[str, dict, list] 
     n = len(job.frames)
     done = protocol.event(protocol.DONE, frames=n, rendered=0, skipped=n, relabelled=0, output_dir=out,
                           stopped=False, warnings=len(warnings), up_to_date=True)
-    return out, done, warnings
+    return Check(job_path, out, done, warnings)

@@ -84,14 +84,16 @@ def invocation(context, command: str, **options) -> Invocation:
                                   "allow_outside": True, **options})
 
 
-def start(context, run: Invocation | str, checkpoint: str | None = None, camera=None) -> tuple[BackendRun, str]:
+def start(context, run: Invocation | str, checkpoint: str | None = None, camera=None,
+          exported: tuple[str, str] | None = None) -> tuple[BackendRun, str]:
     """Export the scene's job seen by ``camera`` (``export``, naming ``checkpoint``) and start ``run`` on it: an
     ``Invocation`` (the operators': ``invocation``; the command line's: ``blender -c scpainter``), or a command run
     as the preferences say; (the run, the camera's output folder). The run is a request to the session's warm
     backend when the preferences keep one, else a process of its own (``warm_backend.launch``). BackendError when
-    the backend cannot be started."""
+    the backend cannot be started. ``exported``: (job path, output folder) ``export`` wrote for this very run a
+    moment ago (``render_plan``), so it is not exported twice."""
     run = invocation(context, run) if isinstance(run, str) else run
-    job_path, out = export(context, checkpoint, camera)
+    job_path, out = exported or export(context, checkpoint, camera)
     return warm_backend.launch(context, run.replace(jobs=(job_path,))), out
 
 

@@ -15,6 +15,8 @@ set here, at the top of ``python -m backend``, not later.
 Likewise ``NUMBA_CACHE_DIR`` (unless set): the renderer's numba kernels (``cache=True``) compile once, ~15 s, and
 are kept in the user's cache (``$XDG_CACHE_HOME/scpainter/numba``), never beside the source, which for an installed
 extension is the add-on's own folder (docs/design.md §6).
+
+(``core.backend_protocol.BACKEND_SETS_ENV`` names both for clients.)
 """
 
 import os

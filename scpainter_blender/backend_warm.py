@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import collections
 import json
+import signal
 import subprocess
 import threading
 
@@ -60,6 +61,13 @@ class WarmRun(BackendRun):
     def _ended_text(self, code) -> str:
         if self._died is None:
             return super()._ended_text(code)
+        if isinstance(code, int) and code < 0:  # killed: its last log line (a frame's, say) is not the cause
+            try:
+                how = f"killed by {signal.Signals(-code).name}"
+            except ValueError:
+                how = f"killed by signal {-code}"
+            return (f"the warm backend (pid {self.backend.pid}) was {how} during this run (the next run starts a "
+                    "new one)")
         tail = self.stderr_tail.strip().splitlines()[-1:] or ["no output"]
         return (f"the warm backend (pid {self.backend.pid}) ended during this run, exit code {code}: {tail[0]} "
                 "(the next run starts a new one)")

@@ -86,6 +86,12 @@ def served_marker(request_id: int) -> str:
     return f"scpainter-serve: request {int(request_id)} served"
 
 
+#: The environment variables ``python -m backend`` sets for itself when they are missing (``backend/__init__.py``:
+#: the OpenMP wait policy, numba's cache folder): a client that imported ``backend`` has them too, which says
+#: nothing about the environment a backend it starts gets (``scene/warm_backend.py`` leaves them out of its key).
+BACKEND_SETS_ENV = ("OMP_WAIT_POLICY", "NUMBA_CACHE_DIR")
+
+
 def event(kind: str, /, **fields) -> dict:
     """An event of ``kind`` (one of the kinds above) as the dict written on one line."""
     return {KIND: kind, **fields}

@@ -225,8 +225,8 @@ def summary(asset, drive: Drive, lane_m: float, speed_mps: float) -> tuple:
             f"{' (oncoming)' if speed_mps < 0 else ''}, {lane_m:g} m left of the drive")
     warn = []
     if drive.stopped_at is not None:
-        warn.append(f"stopped at the end of the road found along the drive from frame {drive.stopped_at}")
-    names = {"off_road": "off the road", "recorded_object": "into something recorded"}
+        warn.append(f"held from frame {drive.stopped_at} where its lane leaves the road found along the drive")
+    names = {"off_road": "its footprint leaves the road", "recorded_object": "it runs into something recorded"}
     for rule, frames in drive.off_road.items():
-        warn.append(f"{names.get(rule, rule)} at frames {frame_ranges(frames)}")
+        warn.append(f"{names.get(rule, rule)} at frame{'s' * (len(frames) > 1)} {frame_ranges(frames)}")
     return ("WARNING" if warn else "INFO"), "; ".join([text, *warn])

@@ -115,8 +115,9 @@ def build_job(context, job_path: str, output_dir: str | None = None, checkpoint:
 
 
 def output_frames(scene) -> list:
-    """The job's frames: the scene's frame range, first to last."""
-    return list(range(scene.frame_start, scene.frame_end + 1))
+    """The job's frames: the scene's frame range, first to last, every ``frame_step``-th frame as Blender's own
+    render takes them."""
+    return list(range(scene.frame_start, scene.frame_end + 1, max(1, scene.frame_step)))
 
 
 def rendered_objects(context) -> tuple:

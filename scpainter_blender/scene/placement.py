@@ -171,7 +171,8 @@ def snap_keyed(context, obj, points_obj, margin: float = 1.0, align: bool = True
     next frame change would put back the keyed values, so the snapped ones are keyed at the current frame
     (location, and the rotation when ``align``); with ``all_keys`` every frame with a key on those channels is
     evaluated in turn (scene.frame_set: the asset where its animation puts it), snapped there and keyed, and the
-    scene goes back to its frame. SceneError (``snap_to_ground``'s) at any frame stops with the frames before it
+    scene goes back to its frame — the current frame first, as it stands, when it is a key frame or the asset was
+    moved there without a key (that edit is kept, keyed). SceneError (``snap_to_ground``'s) at any frame stops with the frames before it
     keyed: the operator's undo step takes them back."""
     scene = context.scene
     frames = snap_key_frames(obj)
@@ -185,17 +186,32 @@ def snap_keyed(context, obj, points_obj, margin: float = 1.0, align: bool = True
             obj.keyframe_insert(rotation_path(obj), frame=frame)
         return frame, plane, n
 
+    here = scene.frame_current + scene.frame_subframe
     if not all_keys:  # as it stands now (an edit not keyed yet included)
-        return [snap_and_key(scene.frame_current + scene.frame_subframe)]
+        return [snap_and_key(here)]
+    # the current frame first when it is a key frame or the asset was moved there without a key: snapped as it
+    # stands and keyed, so the frame changes below do not throw that edit away
+    out = [snap_and_key(here)] if here in frames or _unkeyed_edit(obj, here) else []
     current = (scene.frame_current, scene.frame_subframe)
     try:
-        out = []
         for f in frames:
-            scene.frame_set(int(np.floor(f)), subframe=float(f - np.floor(f)))
-            out.append(snap_and_key(f))
-        return out
+            if f != here:
+                scene.frame_set(int(np.floor(f)), subframe=float(f - np.floor(f)))
+                out.append(snap_and_key(f))
+        return sorted(out, key=lambda r: r[0])
     finally:
         scene.frame_set(current[0], subframe=current[1])
+
+
+def _unkeyed_edit(obj, frame: float) -> bool:
+    """Whether ``obj``'s location or rotation differs from what its animation gives at ``frame`` (moved by hand
+    and not keyed yet)."""
+    for fc in compat.fcurves(obj):
+        if fc.data_path in SNAP_PATHS:
+            value = getattr(obj, fc.data_path)[fc.array_index]
+            if abs(fc.evaluate(frame) - value) > 1e-6 * max(1.0, abs(value)):
+                return True
+    return False
 
 
 def _removal_group() -> bpy.types.NodeTree:

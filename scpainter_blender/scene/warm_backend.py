@@ -36,8 +36,12 @@ _AT_EXIT = [False]
 
 def _key(python: str, device: str | None, idle_timeout: float) -> tuple:
     """What a warm backend depends on: the interpreter it runs, the device whose kernels it made ready, its idle
-    time, and the environment it got (a hash: any variable changed since, e.g. ``CUDA_VISIBLE_DEVICES``)."""
-    env = hashlib.sha256(repr(sorted(backend_env().items())).encode()).hexdigest()
+    time, and the environment it got (a hash: any variable changed since, e.g. ``CUDA_VISIBLE_DEVICES``, but those
+    the backend sets itself, ``protocol.BACKEND_SETS_ENV``)."""
+    # the variables python -m backend sets for itself when missing are left out: this Blender has them too once
+    # anything in it imported ``backend`` (reading an EXR with backend.render.channels), which changes nothing
+    kept = {k: v for k, v in backend_env().items() if k not in protocol.BACKEND_SETS_ENV}
+    env = hashlib.sha256(repr(sorted(kept.items())).encode()).hexdigest()
     return (os.path.realpath(backend_python(python)), device, float(idle_timeout), env)
 
 

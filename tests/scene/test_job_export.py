@@ -169,6 +169,10 @@ def test_labels_fields_fps_and_recorded_frames(empty_scene, tmp_path):
     assert job.fps == scene.render.fps / scene.render.fps_base == pytest.approx(30 / 1.001, rel=1e-7)
     assert job.scene.recorded_frames == [5, 7]
     assert [f.frame for f in job.frames] == [5, 6, 7, 8, 9]
+    scene.frame_step = 2  # every other frame, as Blender's own render takes them
+    assert bpy.ops.scpainter.export_job(filepath=job_path) == {"FINISHED"}
+    assert [f.frame for f in J.load(job_path).frames] == [5, 7, 9]
+    scene.frame_step = 1
     pts = next(o for o in scene.objects if o.get("scpainter_kind") == "points")
     del pts["scpainter_num_frames"]  # an old .blend (or a recorded camera without its first frame)
     assert bpy.ops.scpainter.export_job(filepath=job_path) == {"FINISHED"}

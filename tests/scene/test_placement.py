@@ -87,9 +87,11 @@ def test_snap_keys_an_animated_car(street_scene, capfd):
     z, up, heading = pose(1)  # after a frame change: the snap lasted
     assert abs(z) < 0.02 and up > np.cos(np.radians(1.0)) and heading == pytest.approx(0.4, abs=0.02)
     assert car.rotation_mode == "XYZ" and pose(16)[0] == pytest.approx(2.0)  # only the current frame was keyed
+    car.location.x += 0.5                           # moved by hand at frame 16, not keyed: All Keyframes keeps it
     assert bpy.ops.scpainter.snap_to_ground(all_keys=True) == {"FINISHED"}
     assert "keyed at its 2 keyframes (1, 16)" in capfd.readouterr().out
     assert scene.frame_current == 16  # where the artist was
+    assert car.location.x == pytest.approx(-1.25, abs=0.05)  # the hand edit, keyed (snapping moves it along z)
     for frame, yaw in ((1, 0.4), (8, None), (16, 0.6)):
         z, up, heading = pose(frame)
         assert abs(z) < 0.02 and up > np.cos(np.radians(1.0)), frame

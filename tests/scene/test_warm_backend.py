@@ -98,7 +98,7 @@ def test_preference_change_or_a_killed_server_gives_a_new_one(scene, addon, tmp_
         job.poll()
         time.sleep(0.02)
     os.kill(second.pid, signal.SIGKILL)
-    with pytest.raises(RuntimeError, match=r"warm backend \(pid \d+\) ended during this run, exit code -9"):
+    with pytest.raises(RuntimeError, match=r"warm backend \(pid \d+\) was killed by SIGKILL during this run"):
         job.wait(timeout=120)
     _touch_frame(tmp_path, 3)
     run, _, _ = _timed_render(addon)
@@ -124,3 +124,16 @@ def test_end_leaves_no_process(scene, addon):
     server = warm_backend.current()
     warm_backend.end()                                         # unregister() and atexit call this
     assert server.proc.poll() is not None and warm_backend.current() is None
+
+
+def test_the_key_ignores_what_the_backend_sets_for_itself(addon, monkeypatch):
+    """Importing ``backend`` in Blender (to read an EXR) sets the variables ``python -m backend`` sets for itself:
+    that is no reason to start another warm backend; any other variable changed is (the server would see it)."""
+    warm = _module(addon, "warm_backend")
+    protocol = sys.modules[f"{addon}.scpainter_blender.core.backend_protocol"]
+    before = warm._key(sys.executable, "cpu", 600.0)
+    for name in protocol.BACKEND_SETS_ENV:
+        monkeypatch.setenv(name, "set by an import of backend in this process")
+    assert warm._key(sys.executable, "cpu", 600.0) == before
+    monkeypatch.setenv("CUDA_VISIBLE_DEVICES", "7")
+    assert warm._key(sys.executable, "cpu", 600.0) != before

@@ -165,8 +165,8 @@ def write_components(job, job_path, scene, layers) -> dict:
     calls = {
         "exr": lambda: channels.write(os.path.join(tmp, "f.exr"), layers,
                                       camera=channels.camera_attributes(entry.K, entry.world_to_camera, W, H)),
-        "preview_level6": lambda: zlib.compress(raw, 6),
-        "preview": lambda: png.write_png(os.path.join(tmp, "p.png"), rgb),
+        "png_level6": lambda: zlib.compress(raw, 6),
+        "png": lambda: png.write_png(os.path.join(tmp, "p.png"), rgb),
         "labels": lambda: labelling.write_files(len(job.frames) - 1, layers, amodal),
     }
     out = {}
@@ -178,8 +178,8 @@ def write_components(job, job_path, scene, layers) -> dict:
             fn()
             ts.append(time.perf_counter() - t)
         out[f"{name}_s"] = statistics.median(ts)
-    sizes = {"preview_level6_bytes": len(zlib.compress(raw, 6)), "preview_bytes": len(zlib.compress(raw, png.LEVEL))}
-    for name in ("exr", "preview", "labels"):
+    sizes = {"png_level6_bytes": len(zlib.compress(raw, 6)), "png_bytes": len(zlib.compress(raw, png.LEVEL))}
+    for name in ("exr", "png", "labels"):
         out[f"{name}_gil_wait_s"] = gil_wait(calls[name])
     out["gil_wait_control_s"] = gil_wait(lambda: sum(range(3_000_000)))  # pure Python: holds the GIL
     out.update(sizes)
@@ -284,10 +284,10 @@ def main(argv=None):
     for res in jobs:
         c = {k: med(res, "after", k) for k in runs[res, "after"][0] if k.endswith(("_s", "_bytes"))}
         comps[res] = c
-        print(f"{res:10s} {c['exr_s'] * 1e3:6.0f} {c['preview_level6_s'] * 1e3:9.0f} {c['preview_s'] * 1e3:8.0f} "
-              f"{c['labels_s'] * 1e3:7.0f} {c['exr_gil_wait_s'] * 1e3:10.0f}/{c['preview_gil_wait_s'] * 1e3:.0f}/"
+        print(f"{res:10s} {c['exr_s'] * 1e3:6.0f} {c['png_level6_s'] * 1e3:9.0f} {c['png_s'] * 1e3:8.0f} "
+              f"{c['labels_s'] * 1e3:7.0f} {c['exr_gil_wait_s'] * 1e3:10.0f}/{c['png_gil_wait_s'] * 1e3:.0f}/"
               f"{c['labels_gil_wait_s'] * 1e3:.0f} {c['gil_wait_control_s'] * 1e3:14.0f} "
-              f"{c['preview_level6_bytes'] / 1e3:6.0f}/{c['preview_bytes'] / 1e3:.0f}")
+              f"{c['png_level6_bytes'] / 1e3:6.0f}/{c['png_bytes'] / 1e3:.0f}")
     sys.path.insert(0, ROOT)
     from scpainter_blender.core import outputs
 

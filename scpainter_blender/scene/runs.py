@@ -245,7 +245,8 @@ def error_text(e: InputError | BackendError) -> str:
 
 class AllCameras:
     """``command`` run for each of ``cameras`` (``kinds.camera_paths``) one after another, each as ``start`` runs
-    one camera (its job, its output folder, its results behind it), the scene camera left as it is. Followed like a
+    one camera (its job, its output folder, its results behind it), the scene camera left as it is; a camera whose
+    render is up to date (``render_plan.check``) has its results loaded without a backend. Followed like a
     ``Follower`` (``tick(context)``, ``stop``, ``report``): from the UI timer, or in a loop by the blocking
     operator. A camera that cannot run (bad input such as a clashing folder name, a backend failure, a timeout) is
     reported and the next one runs; ``stop`` (Esc) stops the one running and starts no more. ``ACTIVE`` carries
@@ -280,7 +281,16 @@ class AllCameras:
                 if cam is None:
                     raise props.SceneError(f"objects[{name!r}]", "is no longer in the scene (deleted or renamed "
                                                                  "while the camera paths before it ran)")
-                job, out = start(context, self.run, camera=cam)
+                from . import render_plan  # (it imports this module)
+
+                found = render_plan.check(context, self.run, cam)
+                if found is not None and found.done is not None:  # up to date: no backend for this camera
+                    level, message = with_warnings(finish(context, self.command, found.out, found.done, name),
+                                                   found.warnings)
+                    self.outcomes.append((name, "finished", level, message))
+                    continue
+                job, out = start(context, self.run, camera=cam,
+                                 exported=None if found is None else (found.job_path, found.out))
             except (InputError, BackendError) as e:
                 self.outcomes.append((name, "failed", "ERROR", error_text(e)))
                 continue

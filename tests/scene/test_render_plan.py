@@ -61,3 +61,15 @@ def test_an_unchanged_scene_is_up_to_date_without_a_backend(scene, tmp_path, cap
     assert bpy.ops.scpainter.render_conditions() == {"FINISHED"}
     prefs.backend_python = str(tmp_path / "no-such-python")
     assert bpy.ops.scpainter.render_conditions() == {"FINISHED"}    # and then up to date again
+
+
+def test_render_all_paths_skips_the_paths_that_are_up_to_date(scene, tmp_path, capsys):
+    """Render All Paths renders the paths with work and answers the others without a backend."""
+    sc, prefs = scene
+    bpy.ops.scpainter.new_camera_path(shift=-2.0)                  # a second path: the scene camera now
+    assert bpy.ops.scpainter.render_all_camera_paths() == {"FINISHED"}
+    prefs.backend_python = str(tmp_path / "no-such-python")       # any backend start would fail now
+    capsys.readouterr()
+    assert bpy.ops.scpainter.render_all_camera_paths() == {"FINISHED"}
+    out = capsys.readouterr().out
+    assert "2 camera paths: 2 finished" in out and out.count("up to date") == 2

@@ -107,8 +107,10 @@ def test_each_camera_path_renders_into_its_own_folder(street_scene, tmp_path, ad
     capsys.readouterr()
     assert bpy.ops.scpainter.render_all_camera_paths() == {"FINISHED"}
     printed = capsys.readouterr().out
-    # (the progress is sampled every 0.1 s: a warm backend renders the two frames between two samples)
-    assert "scpainter render, camera 1/2: " in printed and "scpainter render, camera 2/2: " in printed
+    # A is up to date: answered without a backend (no progress); B renders (its progress sampled every 0.1 s: a warm
+    # backend renders the two frames between two samples)
+    assert "'Camera path 2 m left': INFO: Condition layers of 2 frames" in printed and "up to date" in printed
+    assert "scpainter render, camera 1/2: " not in printed and "scpainter render, camera 2/2: " in printed
     assert street_scene.camera == a                                    # each path passed to its job, nothing set
     assert _files(a_dir) == first                                       # A's frames reused, never rewritten
     assert len(list((b_dir / "conditions").glob("frame_*.exr"))) == 2

@@ -49,8 +49,11 @@ def test_ctrl_c_is_exit_130_with_an_error_event_and_nothing_half_written(tmp_pat
 
     job = small_job(tmp_path / "job", frames=tuple(range(1, 41)), resolution=(320, 240))
     root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    # Ctrl-C's disposition set explicitly: a shell starts a background job (``bash .ci/run &``) with SIGINT
+    # ignored, and a child inherits that (Python then installs no KeyboardInterrupt handler)
     p = subprocess.Popen([sys.executable, "-m", "backend", "render", job, "--device", "cpu"], cwd=root,
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         for line in p.stdout:   # the first finished frame
             if json.loads(line)["event"] == "progress":

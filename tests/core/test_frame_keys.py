@@ -42,7 +42,8 @@ def test_label_fields_do_not_enter_the_layers_keys_but_the_scene_and_precision_d
     job.assets[0].category = "van"
     job.fps = 25.0
     assert _keys(path, job) == keys
-    assert frame_keys.labels_key(keys[1], job) != frame_keys.labels_key(keys[1], J.load(path))
+    assert frame_keys.labels_key(keys[1], frame_keys.job_digest(job)) != \
+        frame_keys.labels_key(keys[1], frame_keys.job_digest(J.load(path)))
     assert set(_keys(path, job, half=True).values()).isdisjoint(keys.values())
     assert set(_keys(path, job, radius=1).values()).isdisjoint(keys.values())
     job.scene.confidence_percentile = 10.0

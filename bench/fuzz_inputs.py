@@ -1,6 +1,6 @@
-"""The fuzz cases of issue 14 on this checkout: per input kind, how many are accepted, refused cleanly, or end badly.
+"""The fuzz cases of issues 14 and 30 on this checkout: per input kind, how many are accepted, refused cleanly, or end badly.
 
-    .venv/bin/python bench/fuzz_inputs.py [--label before|after] [--kinds job npz ply checkpoint] [--seed 14]
+    .venv/bin/python bench/fuzz_inputs.py [--label before|after] [--kinds job npz ply checkpoint mesh splat exr clip kill] [--seed 14]
                                           [--timeout 5] [--out bench/results/fuzz_inputs.json]
 
 Runs the cases of ``tests/fuzz_inputs.py`` (the same ones ``tests/backend/test_fuzz_inputs.py`` asserts on) and
@@ -27,6 +27,7 @@ sys.path.insert(0, ROOT)
 sys.path.insert(0, os.path.join(ROOT, "tests"))
 
 import fuzz_inputs as F  # noqa: E402
+import fuzz_surfaces  # noqa: E402
 from scpainter_blender.core import outputs  # noqa: E402
 
 
@@ -41,7 +42,8 @@ def compact(r: dict) -> dict:
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--label", default="after", help="before | after (recorded in the JSON)")
-    p.add_argument("--kinds", nargs="+", choices=F.KINDS, default=list(F.KINDS))
+    p.add_argument("--kinds", nargs="+", choices=F.KINDS, default=list(F.INPUT_KINDS + fuzz_surfaces.CI_KINDS),
+                   help="default: the kinds the test runs (kill only when named)")
     p.add_argument("--seed", type=int, default=F.SEED)
     p.add_argument("--timeout", type=float, default=F.TIMEOUT_S, help="seconds per case before it is a hang")
     p.add_argument("--out", default=os.path.join(ROOT, "bench", "results", "fuzz_inputs.json"))

@@ -82,8 +82,14 @@ for _p in (ROOT, HERE):
 
 import numpy as np  # noqa: E402
 
-KINDS = ("job", "npz", "ply", "checkpoint")
-CASES = {"job": 480, "npz": 270, "ply": 270, "checkpoint": 130}
+if __name__ == "__main__":   # a worker (python tests/fuzz_inputs.py --worker): fuzz_surfaces imports us by name
+    sys.modules.setdefault("fuzz_inputs", sys.modules[__name__])
+import fuzz_surfaces  # noqa: E402
+
+#: The input kinds of issue 14 (this module's mutations); issue 30's surfaces follow (``fuzz_surfaces.KINDS``).
+INPUT_KINDS = ("job", "npz", "ply", "checkpoint")
+KINDS = INPUT_KINDS + fuzz_surfaces.KINDS
+CASES = {"job": 480, "npz": 270, "ply": 270, "checkpoint": 130, **fuzz_surfaces.CASES}
 SEED = 14
 TIMEOUT_S = 5.0
 FALLBACK_TIMEOUT_S = 60.0        # checkpoint cases when generate runs for real (no --check): model load + 1 step
@@ -1811,6 +1817,8 @@ def make_case(kind: str, index: int, seed: int, base: Base) -> Case:
     """Case ``index`` of ``kind``. The families' slots (weight each) repeat in rounds: ``index`` picks the slot,
     the family's ``turn`` is how many of its cases came before, and every other choice comes from a Random seeded
     by (seed, kind, index), so a case is the same on every run and machine."""
+    if kind in fuzz_surfaces.KINDS:
+        return fuzz_surfaces.make_case(kind, index, seed)
     families = FAMILIES[kind]
     slots = _schedule(families)
     slot = index % len(slots)
@@ -1956,18 +1964,11 @@ def _gaussians_equal(a, b) -> bool:
                                                                              equal_nan=True) for k in keys)
 
 
-def run_case(case: Case, base: Base, workdir: str, timeout: float = TIMEOUT_S, check: bool = True,
-             keep: bool = False) -> dict:
-    """Build, run and classify one case in this process; returns a JSON-able result."""
+def invoke(argv, timeout: float) -> dict:
+    """Run ``backend.__main__.main(argv)`` in this process with standard output and error captured and a SIGALRM
+    timeout: {rc, exc (a traceback or a SystemExit line, None), hang, stdout, stderr, seconds}."""
     from backend.__main__ import main
 
-    root = os.path.join(workdir, f"{case.kind}-{case.index:04d}")
-    c = prepare(case, base, root)
-    argv = command(case, c, check)
-    names = _case_names(c, case)
-    if case.kind == "checkpoint" and not check:
-        timeout = max(timeout, FALLBACK_TIMEOUT_S)
-    before, top_before = snapshot(root, c.job_dir), set(os.listdir(workdir))
     out, err = io.StringIO(), io.StringIO()
     rc, exc, hang = None, None, False
     t0 = time.perf_counter()
@@ -1981,61 +1982,87 @@ def run_case(case: Case, base: Base, workdir: str, timeout: float = TIMEOUT_S, c
         exc = f"SystemExit({e.code}) escaped main(): {_first_line(last[0])}"
     except BaseException:  # noqa: BLE001 - an exception escaping main() is what we count
         exc = traceback.format_exc()
-    seconds = time.perf_counter() - t0
-    escapes = _changed(before, snapshot(root, c.job_dir))
-    escapes += [f"created ../{n}" for n in sorted(set(os.listdir(workdir)) - top_before)]
-    stdout, stderr = out.getvalue(), err.getvalue()
+    return {"rc": rc, "exc": exc, "hang": hang, "stdout": out.getvalue(), "stderr": err.getvalue(),
+            "seconds": time.perf_counter() - t0}
+
+
+def parse_events(stdout: str) -> list:
+    """The JSON event lines of a run's standard output (a line that is not JSON as a "(not JSON)" event)."""
     events = []
     for line in stdout.splitlines():
         try:
             events.append(json.loads(line))
         except ValueError:
             events.append({"event": "(not JSON)", "message": line[:200]})
-    errors = [e for e in events if isinstance(e, dict) and e.get("event") == "error"]
-    result = {"kind": case.kind, "index": case.index, "seed": case.seed, "description": case.description,
-              "family": case.family, "rc": rc, "seconds": round(seconds, 4), "message": "", "file": None,
-              "field": None}
+    return [e if isinstance(e, dict) else {"event": "(not JSON)", "message": str(e)[:200]} for e in events]
+
+
+def classify(result: dict, ran: dict, escapes: list, names, timeout: float) -> str:
+    """The outcome class of a run (``invoke``'s dict) by the rules of the module docstring, before any misread
+    check; fills ``result``'s message, file, field (and traceback, escaped)."""
+    rc, exc, stderr = ran["rc"], ran["exc"], ran["stderr"]
+    errors = [e for e in parse_events(ran["stdout"]) if e.get("event") == "error"]
     if errors:
         result["message"] = _first_line(str(errors[-1].get("message", "")))
         result["file"], result["field"] = errors[-1].get("file"), errors[-1].get("field")
     if escapes:
-        outcome = "escape"
         result["escaped"] = escapes[:6]
         result["message"] = "; ".join(escapes[:3]) + (f" (rc {rc}: {result['message']})" if result["message"] else
                                                       f" (rc {rc})")
-    elif hang:
-        outcome = "hang"
+        return "escape"
+    if ran["hang"]:
         result["message"] = f"no answer within {timeout:g} s" + (f" (last log: {_first_line(stderr.splitlines()[-1])})"
                                                                  if stderr.strip() else "")
-    elif exc is not None or rc not in (0, 2) or "Traceback" in stderr:
-        outcome = "traceback"
+        return "hang"
+    if exc is not None or rc not in (0, 2) or "Traceback" in stderr:
         tb = exc if exc is not None else stderr
         if exc is not None or not result["message"]:   # else the error event's "SomeError: message" says it
             result["message"] = (_last_exception(tb) if "Traceback" in (tb or "") else _first_line(tb)) or \
                 f"exit code {rc}"
         result["traceback"] = (tb or "")[-3000:]
-    elif rc == 0:
-        outcome = "accepted"
-        if case.kind == "ply" and case.same_gaussians:
-            from scpainter_blender.core.splats import reader as splats_io
-            try:
-                with alarm(timeout):
-                    same = _gaussians_equal(splats_io.read(c.ply), base.gaussians)
-                why = "" if same else "core.splats.reader.read gives other values than the original file"
-            except BaseException as e:  # noqa: BLE001
-                same, why = False, f"accepted, but core.splats.reader.read fails: {type(e).__name__}: {e}"
-            if not same:
-                outcome = "misread"
-                result["message"] = _first_line(why)
-    else:  # rc == 2
-        named = [e for e in errors if names_a_file(str(e.get("message", "")), names)]
-        outcome = "clean" if named else "unclear"
-        if not errors:
-            result["message"] = _first_line(stderr) or "exit 2 without an error event"
+        return "traceback"
+    if rc == 0:
+        return "accepted"
+    named = [e for e in errors if names_a_file(str(e.get("message", "")), names)]
+    if not errors:
+        result["message"] = _first_line(stderr) or "exit 2 without an error event"
+    return "clean" if named else "unclear"
+
+
+def run_case(case: Case, base: Base, workdir: str, timeout: float = TIMEOUT_S, check: bool = True,
+             keep: bool = False) -> dict:
+    """Build, run and classify one case in this process; returns a JSON-able result."""
+    if case.kind in fuzz_surfaces.KINDS:
+        return fuzz_surfaces.run_case(case, base, workdir, timeout, keep)
+    root = os.path.join(workdir, f"{case.kind}-{case.index:04d}")
+    c = prepare(case, base, root)
+    argv = command(case, c, check)
+    names = _case_names(c, case)
+    if case.kind == "checkpoint" and not check:
+        timeout = max(timeout, FALLBACK_TIMEOUT_S)
+    before, top_before = snapshot(root, c.job_dir), set(os.listdir(workdir))
+    ran = invoke(argv, timeout)
+    escapes = _changed(before, snapshot(root, c.job_dir))
+    escapes += [f"created ../{n}" for n in sorted(set(os.listdir(workdir)) - top_before)]
+    result = {"kind": case.kind, "index": case.index, "seed": case.seed, "description": case.description,
+              "family": case.family, "rc": ran["rc"], "seconds": round(ran["seconds"], 4), "message": "",
+              "file": None, "field": None}
+    outcome = classify(result, ran, escapes, names, timeout)
+    if outcome == "accepted" and case.kind == "ply" and case.same_gaussians:
+        from scpainter_blender.core.splats import reader as splats_io
+        try:
+            with alarm(timeout):
+                same = _gaussians_equal(splats_io.read(c.ply), base.gaussians)
+            why = "" if same else "core.splats.reader.read gives other values than the original file"
+        except BaseException as e:  # noqa: BLE001
+            same, why = False, f"accepted, but core.splats.reader.read fails: {type(e).__name__}: {e}"
+        if not same:
+            outcome = "misread"
+            result["message"] = _first_line(why)
     result["outcome"] = outcome
     if keep:
         result["folder"] = root
-        result["stdout"], result["stderr"] = stdout[-4000:], stderr[-4000:]
+        result["stdout"], result["stderr"] = ran["stdout"][-4000:], ran["stderr"][-4000:]
     else:
         shutil.rmtree(root, ignore_errors=True)
     return result
@@ -2064,7 +2091,7 @@ def _limit_resources() -> None:
         pass
 
 
-def worker(fd: int, slot: int, seed: int, timeout: float, workdir: str, checkpoint: bool) -> None:
+def worker(fd: int, slot: int, seed: int, timeout: float, workdir: str, checkpoint: bool, surfaces=()) -> None:
     """Run the cases the parent sends on standard input ("kind index" lines) in this process, reporting JSON lines
     on ``fd``: ready (with the valid inputs' outcomes), then start and result per case."""
     out = os.fdopen(fd, "w", buffering=1)
@@ -2078,6 +2105,9 @@ def worker(fd: int, slot: int, seed: int, timeout: float, workdir: str, checkpoi
     warm = {}
     for kind in ("job", "checkpoint") if checkpoint else ("job",):   # warm-up outside the timeouts
         r = run_case(base_case(kind, seed), base, os.path.join(workdir, f"w{slot}"), timeout=600, check=check)
+        warm[kind] = {"outcome": r["outcome"], "seconds": r["seconds"], "message": r["message"]}
+    for kind in surfaces:     # issue 30's kinds: their valid inputs, and the references misreads are judged by
+        r = fuzz_surfaces.warm_up(kind, base, os.path.join(workdir, f"w{slot}"), seed)
         warm[kind] = {"outcome": r["outcome"], "seconds": r["seconds"], "message": r["message"]}
     _limit_resources()
     import backend
@@ -2101,7 +2131,7 @@ def worker(fd: int, slot: int, seed: int, timeout: float, workdir: str, checkpoi
 class _Worker:
     """A worker process (``worker``): cases go in on its standard input, messages come back on a pipe."""
 
-    def __init__(self, slot, seed, timeout, workdir, checkpoint, n):
+    def __init__(self, slot, seed, timeout, workdir, checkpoint, n, surfaces=()):
         r, w = os.pipe()
         os.makedirs(os.path.join(workdir, f"w{slot}"), exist_ok=True)
         self.slot, self.ready, self.current, self.deadline = slot, False, None, None
@@ -2111,7 +2141,7 @@ class _Worker:
         self.proc = subprocess.Popen(
             [sys.executable, os.path.abspath(__file__), "--worker", "--fd", str(w), "--slot", str(slot), "--seed",
              str(seed), "--timeout", str(timeout), "--workdir", workdir]
-            + (["--with-checkpoint"] if checkpoint else []),
+            + (["--with-checkpoint"] if checkpoint else []) + (["--surfaces", *surfaces] if surfaces else []),
             cwd=ROOT, env=env, stdin=subprocess.PIPE, stdout=self.log, stderr=subprocess.STDOUT, pass_fds=(w,))
         os.close(w)
         self.fd, self.buf, self.eof = r, b"", False
@@ -2174,12 +2204,16 @@ class _Pool:
         self.other = collections.deque(x for x in todo if x[0] != "checkpoint")
         self.results, self.live, self.started = {}, {}, 0
         self.meta = {"base": {}, "check": None, "backend": None}
-        self.case_wait = 2 * timeout + 15
+        # a kill case runs several backend processes in turn, each under its own (longer) timeout
+        self.case_wait = 2 * timeout + 15 + (fuzz_surfaces.KILL_TIMEOUT_S * 4 if any(x[0] == "kill" for x in todo)
+                                             else 0)
         self.slots = [0] + ([1] if workers > 1 and self.other else [])
+        self.surfaces = tuple(k for k in fuzz_surfaces.KINDS if any(x[0] == k for x in todo))
 
     def start(self, slot) -> None:
         self.started += 1
-        w = _Worker(slot, self.seed, self.timeout, self.workdir, slot == 0 and bool(self.ckpt), self.started)
+        w = _Worker(slot, self.seed, self.timeout, self.workdir, slot == 0 and bool(self.ckpt), self.started,
+                    self.surfaces)
         w.started_by = time.monotonic() + self.startup_timeout
         self.live[slot] = w
 
@@ -2370,9 +2404,10 @@ def _cli(argv=None) -> int:
     p.add_argument("--slot", type=int, default=0, help=argparse.SUPPRESS)
     p.add_argument("--with-checkpoint", action="store_true", help=argparse.SUPPRESS)
     p.add_argument("--workdir", help=argparse.SUPPRESS)
+    p.add_argument("--surfaces", nargs="*", default=(), help=argparse.SUPPRESS)
     a = p.parse_args(argv)
     if a.worker:
-        worker(a.fd, a.slot, a.seed, a.timeout, a.workdir, a.with_checkpoint)
+        worker(a.fd, a.slot, a.seed, a.timeout, a.workdir, a.with_checkpoint, tuple(a.surfaces))
         return 0
     workdir = tempfile.mkdtemp(prefix="scpainter-fuzz-case-")
     base = Base(os.path.join(workdir, "base"))
@@ -2387,6 +2422,9 @@ def _cli(argv=None) -> int:
     check = has_check_option()
     warm = run_case(base_case(a.kind if a.kind == "checkpoint" else "job", a.seed), base, workdir, 600, check)
     print(f"warm-up (the valid input): {warm['outcome']} in {warm['seconds']:.2f} s {warm['message']}")
+    if a.kind in fuzz_surfaces.KINDS:
+        warm = fuzz_surfaces.warm_up(a.kind, base, workdir, a.seed)
+        print(f"warm-up ({a.kind}): {warm['outcome']} in {warm['seconds']:.2f} s {warm['message']}")
     case = make_case(a.kind, a.index, a.seed, base)
     r = run_case(case, base, workdir, a.timeout, check, keep=a.keep)
     for key in ("stdout", "stderr", "traceback"):

@@ -1,4 +1,5 @@
-"""Hostile input files (issue 14): every fuzz case of ``tests/fuzz_inputs.py`` is accepted or refused cleanly.
+"""Hostile input files (issues 14 and 30): every fuzz case of ``tests/fuzz_inputs.py`` and of
+``tests/fuzz_surfaces.py`` (its ``CI_KINDS``: mesh, splat, exr, clip; 470 cases) is accepted or refused cleanly.
 
 1,150 seeded cases (job.json, predictions.npz, car.ply and the checkpoint's files) run through
 ``python -m backend render`` and ``generate --check`` in-process, in two worker processes. Each must end
@@ -10,20 +11,39 @@ table and one line per failing case; reproduce one with
 """
 
 import fuzz_inputs as F
+import fuzz_surfaces
 import pytest
 
+#: The kinds run here: issue 14's inputs and issue 30's surfaces (``fuzz_surfaces.CI_KINDS``: not ``kill`` yet).
+CI_KINDS = F.INPUT_KINDS + fuzz_surfaces.CI_KINDS
 
-def test_every_hostile_input_is_accepted_or_refused_cleanly():
+
+@pytest.fixture(scope="module")
+def fuzz_run():
     # without --check the checkpoint cases would generate for real (minutes): fail at once instead
     assert F.has_check_option(), "python -m backend generate has no --check option"
-    run = F.run(F.KINDS, seed=F.SEED, timeout=F.TIMEOUT_S)
-    results = run["results"]
+    return F.run(CI_KINDS, seed=F.SEED, timeout=F.TIMEOUT_S)
+
+
+def test_every_hostile_input_is_accepted_or_refused_cleanly(fuzz_run):
+    """Issue 14's kinds (job, npz, ply, checkpoint)."""
+    _assert_clean(fuzz_run, F.INPUT_KINDS, 1000)
+
+
+def test_every_hostile_surface_file_is_accepted_or_refused_cleanly(fuzz_run):
+    """Issue 30's kinds (mesh files with the files they name, splat formats, condition EXRs as generate reads them,
+    training clips); misreads as ``tests/fuzz_surfaces.py`` defines them."""
+    _assert_clean(fuzz_run, fuzz_surfaces.CI_KINDS, 400)
+
+
+def _assert_clean(run, kinds, least):
+    results = [r for r in run["results"] if r["kind"] in kinds]
     summary = F.summarize(results)
     report = (f"{F.format_table(summary)}\n(generate --check: {run['check']}, {run['workers']} worker process(es), "
               f"{run['seconds']} s)\n{F.format_failures(results)}")
     assert all(b["outcome"] == "accepted" for b in run["base"].values()), f"the valid inputs fail: {run['base']}"
-    assert summary["total"]["cases"] == len(results) >= 1000
-    assert {r["kind"] for r in results} == set(F.KINDS)
+    assert summary["total"]["cases"] == len(results) >= least
+    assert {r["kind"] for r in results} == set(kinds)
     # a clean refusal names the field too (an InputError's error event carries file and field)
     failing = [r for r in results if r["outcome"] not in ("accepted", "clean") or
                (r["outcome"] == "clean" and not r.get("field"))]

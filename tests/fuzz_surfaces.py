@@ -150,7 +150,8 @@ class Surfaces:
                                **{k: v for k, v in files.items()}}
         obj, extra = trimesh.exchange.obj.export_obj(tex, include_texture=True, return_texture=True)
         self.meshes["obj"] = {"car.obj": obj.encode(), **extra}
-        self.meshes["off"] = {"car.off": trimesh.exchange.off.export_off(trimesh.Trimesh(V, Fc)).encode()}
+        off = trimesh.exchange.off.export_off(trimesh.Trimesh(V, Fc, process=False))  # unmerged: V rows as counted
+        self.meshes["off"] = {"car.off": off.encode()}
         cols = np.tile(np.array([[180, 40, 40, 255]], np.uint8), (len(V), 1))
         self.meshes["ply"] = {"car.ply": trimesh.exchange.ply.export_ply(
             trimesh.Trimesh(V, Fc, vertex_colors=cols, process=False), encoding="binary")}
@@ -1042,7 +1043,9 @@ def _exr_rewrite(rng):
                     "ZIPS": OpenEXR.ZIPS_COMPRESSION, "PIZ": OpenEXR.PIZ_COMPRESSION}.get(how, OpenEXR.ZIP_COMPRESSION)
             header = {"compression": comp}
             if how == "tiled 8x8":
-                header = {"type": OpenEXR.tiledimage, "tiles": OpenEXR.TileDescription(8, 8)}
+                tiles = OpenEXR.TileDescription()
+                tiles.xSize, tiles.ySize = 8, 8
+                header = {"type": OpenEXR.tiledimage, "tiles": tiles}
             if how == "channels as flat names":
                 ch = {"R": layers["R"], "G": layers["G"], "B": layers["B"], "hole": layers["hole"],
                       "asset_mask": layers["asset_mask"], "Z": layers["Z"], "instance": layers["instance"]}

@@ -38,6 +38,7 @@ No bpy, no torch.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 from dataclasses import dataclass, field
@@ -53,11 +54,18 @@ from .box import oriented_box_3d, upright_box
 from .colors import part_colours
 from .load import MeshAsset, MeshAssetError, as_parts, face_areas, load_mesh
 
+try:
+    import fcntl
+except ImportError:  # no flock (Windows): killed runs' temporaries are then left in place
+    fcntl = None
+
 SIGMA_FACTOR = 0.6       # c in σ = c sqrt(A / N); see "Choice of c" above
 NORMAL_RATIO = 1e-3      # σ along the normal / σ in the plane
 OPACITY = 0.99
 DEFAULT_COUNT = 200_000
 MAX_COUNT = 10_000_000
+#: ``warning`` code: samples left out for a non-finite position, rotation or colour (the rest is written).
+DROPPED_SAMPLES = "mesh_samples_dropped"
 
 
 @dataclass
@@ -146,13 +154,48 @@ def mesh_to_gaussians(mesh, count: int, seed: int = 0, sigma_factor: float = SIG
 # The command
 # --------------------------------------------------------------------------------------------------------------
 
+@contextlib.contextmanager
+def _writing(out):
+    """Held while ``out`` is written: a shared ``flock`` on its folder. A killed run leaves its temporary
+    (``core.outputs``: ``.<name>.<random>.tmp``); the next run for the same output removes it, but only when no
+    other ``mesh-asset`` is writing in that folder (an exclusive, non-blocking ``flock`` succeeds): a live run's
+    temporary is never taken from it. Where the folder cannot be locked, nothing is removed."""
+    folder = os.path.dirname(os.path.abspath(out))
+    fd = None
+    if fcntl is not None:
+        with contextlib.suppress(OSError):
+            fd = os.open(folder, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0) | getattr(os, "O_CLOEXEC", 0))
+    try:
+        if fd is not None:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                outputs.remove_temporaries(folder, [os.path.basename(out)])
+            except OSError:  # another mesh-asset is writing here (or no flock on this file system)
+                pass
+            with contextlib.suppress(OSError):
+                fcntl.flock(fd, fcntl.LOCK_SH)  # from exclusive, or after another run's clean-up
+        yield
+    finally:
+        if fd is not None:
+            os.close(fd)  # the lock goes with it (and with the process, if it is killed)
+
+
+def _emit_warning(message: str, code: str) -> None:
+    from backend import events
+
+    events.warning(message, code)
+
+
 def convert(path, out, count: int = DEFAULT_COUNT, up: str = "auto", seed: int = 0,
-            sigma_factor: float = SIGMA_FACTOR, progress=None) -> dict:
+            sigma_factor: float = SIGMA_FACTOR, progress=None, warn=None) -> dict:
     """``python -m backend mesh-asset``: mesh file -> INRIA-layout Gaussian PLY (Z up, the mesh's units, SH 0, no
-    normals), written atomically. ``progress(stage, done, total)`` is called between steps. Returns the ``done``
-    event's result (see the backend docs). Raises MeshAssetError (the mesh, ``--out``) or ``errors.ArgumentError``
-    (``--count``) on bad input."""
+    normals), written atomically (a killed run's temporary is removed by the next run: ``_writing``).
+    ``progress(stage, done, total)`` is called between steps; ``warn(message, code)`` once per warning (default: a
+    ``warning`` event), before the PLY is written. Returns the ``done`` event's result (see the backend docs), its
+    ``warnings`` the same (dicts: message, code). Raises MeshAssetError (the mesh, ``--out``; also when no sample
+    is left to write) or ``errors.ArgumentError`` (``--count``) on bad input."""
     progress = progress or (lambda *a: None)
+    warn = warn or _emit_warning
     path, out = os.fspath(path), os.fspath(out)
     if not 1 <= int(count) <= MAX_COUNT:
         raise errors.ArgumentError("--count", f"must be between 1 and {MAX_COUNT:,}, got {count}")
@@ -166,6 +209,17 @@ def convert(path, out, count: int = DEFAULT_COUNT, up: str = "auto", seed: int =
     asset = load_mesh(path, up)
     progress("sample", 1, 3)
     res = sample_gaussians(asset, count, seed, sigma_factor)
+    if not len(res.gaussians):  # never an empty car with exit 0
+        raise MeshAssetError(path, f"none of the {count:,} samples has a finite position, rotation and colour: "
+                                   "nothing to write", hint="check the mesh opens in Blender with its textures, "
+                                                            "or export it again as GLB")
+    found = list(asset.warnings)
+    if res.dropped:
+        found.append({"message": f"{os.path.basename(path)}: {res.dropped:,} of {count:,} samples had a non-finite "
+                                 f"position, rotation or colour and were left out ({len(res.gaussians):,} written)",
+                      "code": DROPPED_SAMPLES})
+    for w in found:
+        warn(w["message"], w["code"])
     V = asset.vertices
     used = V[np.unique(asset.faces)]
     used = used[np.isfinite(used).all(axis=1)]
@@ -174,8 +228,9 @@ def convert(path, out, count: int = DEFAULT_COUNT, up: str = "auto", seed: int =
     outputs.make_folder(os.path.dirname(os.path.abspath(out)), "--out")
     name = "".join(ch if " " <= ch <= "~" else "?" for ch in os.path.basename(path))  # the header is ASCII
     try:
-        splats_inria.write_ply(out, splats.encode(res.gaussians),
-                               comment=f"scpainter mesh-asset {name} up={asset.up}")
+        with _writing(out):
+            splats_inria.write_ply(out, splats.encode(res.gaussians),
+                                   comment=f"scpainter mesh-asset {name} up={asset.up}")
     except PermissionError as e:
         raise MeshAssetError(out, f"--out cannot be written: {e.strerror}", "--out") from None
     progress("write", 3, 3)
@@ -184,4 +239,4 @@ def convert(path, out, count: int = DEFAULT_COUNT, up: str = "auto", seed: int =
             "parts": len(asset.parts), "faces": int(len(asset.faces)),
             "obb": {"size": box["size"], "yaw_deg": box["yaw_deg"], "center": box["center"]},
             "obb_3d": oriented_box_3d(used),
-            "bounds": [used.min(axis=0).tolist(), used.max(axis=0).tolist()]}
+            "bounds": [used.min(axis=0).tolist(), used.max(axis=0).tolist()], "warnings": found}

@@ -22,21 +22,31 @@ from scpainter_blender.core.colors import linear_to_srgb, srgb_to_linear
 NEUTRAL_GREY = 0.5       # sRGB value for meshes without any colour (f_dc = 0)
 
 
+def _texels(image) -> np.ndarray:
+    """(H, W, 3) texels of a PIL image or an (H, W[, C]) array, in their own integer type (8 or 16 bit) or float:
+    no float copy of the whole image (a 64 Mpx texture is 192 MB as 8-bit RGB, 1.5 GB as float64)."""
+    if hasattr(image, "convert"):
+        if image.mode in ("I;16", "I;16B", "I;16L", "I"):
+            img = np.asarray(image)
+            img = img.astype(np.uint16) if img.dtype != np.uint16 else img
+        else:
+            img = np.asarray(image.convert("RGB") if image.mode != "RGB" else image)
+    else:
+        img = np.asarray(image)
+    if img.ndim == 2:
+        img = img[..., None]
+    return img if img.shape[2] == 3 else img[..., :1] if img.shape[2] < 3 else img[..., :3]
+
+
 def sample_texture(image, uv) -> np.ndarray:
     """Bilinear RGB in [0, 1] (n, 3) of an image (PIL image or (H, W[, C]) array, 8 or 16 bit) at trimesh UVs (n, 2).
 
     glTF sampling: texel (i, j) has its centre at u = (i + 0.5) / W, and trimesh stores v flipped (v = 1 at the
-    top row: row = (1 - v) H - 0.5); coordinates wrap (REPEAT). Non-finite UVs give NaN.
+    top row: row = (1 - v) H - 0.5); coordinates wrap (REPEAT). Non-finite UVs give NaN. Only the four texels of
+    each sample are converted to float (memory O(n), not O(H W)).
     """
-    if hasattr(image, "convert"):
-        img = np.asarray(image.convert("RGB"), np.float64) / 255.0
-    else:
-        img = np.asarray(image)
-        scale = 65535.0 if img.dtype == np.uint16 else 255.0 if np.issubdtype(img.dtype, np.integer) else 1.0
-        img = img.astype(np.float64) / scale
-        if img.ndim == 2:
-            img = img[..., None]
-        img = np.repeat(img[..., :1], 3, axis=2) if img.shape[2] < 3 else img[..., :3]
+    img = _texels(image)
+    scale = 65535.0 if img.dtype == np.uint16 else 255.0 if np.issubdtype(img.dtype, np.integer) else 1.0
     H, W = img.shape[:2]
     uv = np.asarray(uv, np.float64)
     ok = np.isfinite(uv).all(axis=1)
@@ -46,8 +56,13 @@ def sample_texture(image, uv) -> np.ndarray:
     fx, fy = (x - x0)[:, None], (y - y0)[:, None]
     x0, y0 = x0.astype(np.int64) % W, y0.astype(np.int64) % H
     x1, y1 = (x0 + 1) % W, (y0 + 1) % H
-    out = ((1 - fx) * (1 - fy) * img[y0, x0] + fx * (1 - fy) * img[y0, x1]
-           + (1 - fx) * fy * img[y1, x0] + fx * fy * img[y1, x1])
+
+    def at(r, c):  # (n, 3) float64 of the texels at rows r, columns c
+        t = img[r, c].astype(np.float64) / scale
+        return np.repeat(t, 3, axis=1) if t.shape[1] == 1 else t
+
+    out = ((1 - fx) * (1 - fy) * at(y0, x0) + fx * (1 - fy) * at(y0, x1)
+           + (1 - fx) * fy * at(y1, x0) + fx * fy * at(y1, x1))
     out[~ok] = np.nan
     return out
 
@@ -57,6 +72,11 @@ def _factor(value, default=(255, 255, 255, 255)) -> np.ndarray:
     c = np.asarray(default if value is None else value)
     c = c.astype(np.float64) / 255.0 if np.issubdtype(c.dtype, np.integer) or c.max() > 1.0 else c.astype(np.float64)
     return np.clip(c.reshape(-1)[:3], 0.0, 1.0)
+
+
+def material_image(material):
+    """The base-colour texture (PIL image) of a trimesh material, or None."""
+    return _material_colour(material)[0]
 
 
 def _material_colour(material):

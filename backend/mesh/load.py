@@ -21,22 +21,32 @@ Frames and units
   which the Gaussian import undoes with ``F = ZUP_TO_TRELLIS_FILE.T``. The two files of one TRELLIS asset
   therefore land in the same pose (``tests/backend/test_mesh_asset.py`` builds both and checks it).
 
-Only regular files are opened, the mesh and every file it names (glTF buffers and images, OBJ materials and
-textures): a FIFO would block trimesh's read forever. A PLY's header is checked before trimesh reads it
-(``core.splats.ply_format``): a Gaussian-splat PLY, or counts the file cannot hold, are refused at once.
+Hostile files (issue 30; the bounds and the checks before trimesh are ``backend.mesh.checks``): only regular files
+are opened, the mesh and every file it names (glTF buffers and images, OBJ materials and textures, a PLY's
+``TextureFile``), each exactly as named, inside the mesh's folder (``_exact_resolver``: trimesh's own resolver
+would take another file of the same base name); a missing, outside or unreadable one is refused naming it, though
+trimesh would go on without it. A PLY's header (``core.splats.ply_format``), a glTF/GLB's buffers, views and
+accessors and an OFF's counts are checked against the bytes before trimesh allocates what they claim; textures
+against ``checks.MAX_TEXTURE_PIXELS`` from their headers. After reading: face indices against the vertex count,
+the texture coordinates textured faces use (finite). trimesh's log records are kept, not printed
+(``_trimesh_records``): a texture it could not read is an error, anything else it went on past a ``warning``
+(``MeshAsset.warnings``, ``READER_WARNING``), as are faces with a non-finite corner (``NONFINITE_FACES``).
 
 No bpy, no torch.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from scpainter_blender.core import errors, files
 from scpainter_blender.core.splats import ply_format, gaussians as splats
+
+from . import checks
 
 #: p_zup = Y_UP_TO_Z_UP @ p for Y-up files: (x, y, z) -> (x, -z, y), Blender's glTF import.
 Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
@@ -64,13 +74,15 @@ class MeshAsset:
 
     ``parts``: ``trimesh.Trimesh`` objects in the Z-up output frame, node transforms applied, each with its own
     visual (texture / colours); ``up``: the axis read as up in the file ("y" or "z"); ``gltf``: colours follow
-    glTF's rules (linear factors and vertex colours).
+    glTF's rules (linear factors and vertex colours);
+    ``warnings``: ``warning`` events (dicts: message, code) for what the file had that was left out or went past.
     """
 
     path: str
     parts: list
     up: str
     gltf: bool = False
+    warnings: list = field(default_factory=list)
 
     @property
     def vertices(self) -> np.ndarray:
@@ -109,48 +121,152 @@ def _check_ply(path, size: int) -> None:
                                        f"but the file has {size - start:,} bytes after it: truncated or corrupt", name)
 
 
-def _regular_resolver(path):
-    """trimesh's resolver for the files a mesh names (glTF buffers and images, OBJ materials and textures), opening
-    only regular files: a FIFO named as a texture would block the read forever. trimesh swallows some of its
-    resolver's errors (a texture it cannot read is dropped), so each refusal is also kept in ``.refused`` for the
-    caller to raise."""
+#: The field naming a mesh's faces / texture coordinates in each format's own terms (errors name them).
+FACE_FIELD = {".glb": "indices", ".gltf": "indices", ".obj": "f", ".ply": "face", ".stl": "facet", ".off": "faces"}
+UV_FIELD = {".glb": "TEXCOORD_0", ".gltf": "TEXCOORD_0", ".obj": "vt", ".ply": "texture coordinates"}
+#: ``warning`` event codes of ``mesh-asset`` (an honest acceptance: the PLY is written, the event says what was off)
+READER_WARNING = "mesh_reader_warning"      # trimesh went on past something in the file it could not read
+NONFINITE_FACES = "mesh_nonfinite_faces"    # faces with a NaN/infinite corner: never sampled
+
+
+def _error_for(path):
+    """``error(field, message, hint)`` -> MeshAssetError about ``path`` (what ``checks`` takes)."""
+    return lambda field, message, hint=None: MeshAssetError(path, message, field, hint)
+
+
+def _exact_resolver(path, gltf: bool):
+    """trimesh's resolver for the files a mesh names (glTF buffers and images, OBJ materials and textures, a PLY's
+    texture), opening exactly the name given (``checks.named_file``: inside the mesh's folder, no other file of the
+    same base name, as trimesh's own resolver would try), only as a regular file (a FIFO named as a texture would
+    block the read forever), images checked from their header (``checks.check_image``). trimesh swallows its
+    resolver's errors for textures and materials (it goes on without them), so each refusal is also kept in
+    ``.refused`` for the caller to raise."""
     from trimesh import resolvers
 
     refused = []
+    error = _error_for(path)
 
-    class RegularFiles(resolvers.FilePathResolver):
+    class ExactFiles(resolvers.FilePathResolver):
         def get(self, name):
-            for candidate in (name.strip(), name.strip().lstrip("/"), os.path.split(name)[-1]):
-                try:
-                    where = self.absolute(candidate)  # trimesh keeps names inside the mesh's folder
-                except ValueError:
-                    continue
-                if os.path.lexists(where):
-                    def error(p, f, m):
-                        refused.append(MeshAssetError(path, f"{name!r} (named by the mesh) {m}", name,
-                                                      hint="replace it with the file itself"))
-                        return refused[-1]
-
-                    with files.open_regular(where, error) as f:
-                        return f.read()
-            return super().get(name)
+            try:
+                where = checks.named_file(path, name, error, gltf)
+                with files.open_regular(where, lambda p, f, m: error(
+                        name, f"{name!r} (named by the mesh) {'not found' if m == 'not found' else m}",
+                        "replace it with the file itself")) as f:
+                    if os.path.splitext(name)[1].lower() in checks.IMAGE_EXTENSIONS:
+                        checks.check_image(f, error, name)
+                        f.seek(0)
+                    return f.read()
+            except MeshAssetError as e:
+                refused.append(e)
+                raise
 
         def namespaced(self, namespace):
-            child = RegularFiles(os.path.join(self.parent, namespace), allow_anywhere=self.allow_anywhere)
-            child.refused = refused
-            return child
+            return self  # names stay relative to the mesh's folder
 
-    resolver = RegularFiles(path)
+    resolver = ExactFiles(path)
     resolver.refused = refused
     return resolver
+
+
+@contextlib.contextmanager
+def _trimesh_records():
+    """The log records trimesh makes in the block, kept instead of printed: trimesh logs the exceptions it goes on
+    after (with their tracebacks, which Python's last-resort handler would print on a run that exits 0)."""
+    import logging
+
+    records = []
+
+    class Keep(logging.Handler):
+        def emit(self, record):
+            records.append(record)
+
+    logger = logging.getLogger("trimesh")
+    handler, saved = Keep(logging.DEBUG), (logger.level, logger.propagate)
+    logger.addHandler(handler)
+    logger.setLevel(logging.DEBUG)
+    logger.propagate = False
+    try:
+        yield records
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(saved[0])
+        logger.propagate = saved[1]
+
+
+def _reader_outcome(path, records, refused) -> list:
+    """What trimesh's log records mean: a refusal the resolver made (raised), a texture beyond PIL's (our) pixel
+    bound (raised), or a ``warning`` (dict: message, code) for each other thing it went on past (records with an
+    exception, or at WARNING and above). Debug chatter without an exception is dropped."""
+    import logging
+
+    from PIL import Image
+
+    if refused:
+        raise refused[0]
+    out = []
+    for r in records:
+        exc = r.exc_info[1] if r.exc_info else None
+        if isinstance(exc, (Image.DecompressionBombError, Image.DecompressionBombWarning)):
+            raise MeshAssetError(path, f"a texture it holds is larger than {checks.MAX_TEXTURE_PIXELS:,} pixels "
+                                       f"({exc})", "(texture)", hint="scale the texture down (8192 × 8192 at most)")
+        if exc is None and r.levelno < logging.WARNING:
+            continue
+        text = r.getMessage() + (f" ({type(exc).__name__}: {exc})" if exc is not None else "")
+        if exc is not None and "image" in r.getMessage().lower():  # trimesh's "unable to load image!" & co
+            raise MeshAssetError(path, f"a texture it names cannot be read as an image: {text}", "(texture)",
+                                 hint="fix or replace the texture file (PNG or JPEG), or fix the name the mesh "
+                                      "gives it")
+        out.append({"message": f"{os.path.basename(path)}: trimesh went on past a problem: {text}",
+                    "code": READER_WARNING})
+    return out
+
+
+def _check_parts(path, ext, meshes, warnings_out) -> None:
+    """Faces against their part's vertex count (a negative index would wrap around, a large one fail later), the
+    texture coordinates a textured part's faces use (NaN UVs gave samples without a colour), and a warning for
+    faces with a non-finite corner (left out of the sampling)."""
+    from trimesh.visual import TextureVisuals
+
+    from .colors import material_image
+
+    bad_corner = 0
+    for k, m in enumerate(meshes):
+        F, nv = np.asarray(m.faces), len(m.vertices)
+        name = f"part {k} of {len(meshes)}" if len(meshes) > 1 else "the mesh"
+        if len(F) and (F.min() < 0 or F.max() >= nv):
+            raise MeshAssetError(path, f"{name}: its faces name vertices {int(F.min())} to {int(F.max())}, but it has "
+                                       f"{nv} (0 to {nv - 1}): corrupt face indices", FACE_FIELD.get(ext, "faces"),
+                                 hint="export the mesh again")
+        vis = m.visual
+        if isinstance(vis, TextureVisuals) and vis.uv is not None and material_image(vis.material) is not None \
+                and len(vis.uv) == nv and len(F):
+            used = np.asarray(vis.uv, np.float64)[np.unique(F)]
+            bad = int((~np.isfinite(used).all(axis=1)).sum())
+            if bad:
+                raise MeshAssetError(path, f"{name}: {bad:,} of the {len(used):,} texture coordinates its faces use "
+                                           "are not finite numbers (NaN or infinite): no colour can be read there",
+                                     UV_FIELD.get(ext, "texture coordinates"),
+                                     hint="fix the mesh's UVs (unwrap it again) and export it again")
+        V = np.asarray(m.vertices, np.float64)
+        if len(F):
+            bad_corner += int((~np.isfinite(V[F]).all(axis=(1, 2))).sum())
+    if bad_corner:
+        total = sum(len(m.faces) for m in meshes)
+        warnings_out.append({"message": f"{os.path.basename(path)}: {bad_corner:,} of {total:,} faces have a corner "
+                                        "that is not a finite number; they are left out of the car",
+                             "code": NONFINITE_FACES})
 
 
 def load_mesh(path, up: str = "auto") -> MeshAsset:
     """Read a mesh file (GLB, glTF, OBJ, PLY, STL, OFF) into Z-up parts (see the module docstring).
 
     ``up``: "auto" (by extension: glTF/GLB/OBJ Y up, the rest Z up), "y" or "z". Raises ``MeshAssetError``
-    (an InputError naming the file) for a missing or unreadable file, an unsupported format, a Gaussian-splat PLY,
-    a point cloud, or a file without triangles.
+    (an InputError naming the file and field) for a missing or unreadable file, an unsupported format, a
+    Gaussian-splat PLY, counts the file cannot hold (``checks``), a file it names that is missing, outside its
+    folder or unreadable, a texture beyond ``checks.MAX_TEXTURE_PIXELS``, face indices outside the vertices,
+    non-finite texture coordinates, a point cloud, or a file without triangles. What trimesh went on past is in
+    ``MeshAsset.warnings``.
     """
     import trimesh
 
@@ -164,33 +280,48 @@ def load_mesh(path, up: str = "auto") -> MeshAsset:
                                    "GLB, glTF, OBJ, PLY, STL or OFF")
     if size == 0:
         raise MeshAssetError(path, "the file is empty (0 bytes)")
+    gltf = ext in (".glb", ".gltf")
+    resolver = _exact_resolver(path, gltf)
+    error = _error_for(path)
     if ext == ".ply":
         _check_ply(path, size)
-    resolver = _regular_resolver(path)
-    try:
-        scene = trimesh.load(path, force="scene", process=False, resolver=resolver)
-        parts = scene.dump()
-    except MeshAssetError:
-        raise
-    except Exception as e:  # trimesh raises anything from struct.error to KeyError on a broken file
-        if resolver.refused:
-            raise resolver.refused[0] from None
-        raise MeshAssetError(path, f"trimesh cannot read it as a mesh ({type(e).__name__}: {e}); check the file "
-                                   "opens in Blender, or export it again as GLB") from None
-    if resolver.refused:  # trimesh went on without it (a texture): still the user's file to fix
-        raise resolver.refused[0]
+    elif gltf:
+        def open_named(name):
+            return files.open_regular(checks.named_file(path, name, error, True), lambda p, f, m: error(
+                name, f"{name!r} (named by the mesh) {m}", "replace it with the file itself"))
+
+        checks.check_gltf(path, size, error, open_named)
+    elif ext == ".off":
+        checks.check_off(path, error)
+    with _trimesh_records() as records:
+        try:
+            with checks.pixel_limit(checks.MAX_TEXTURE_PIXELS):  # a texture nothing above checked (none known)
+                scene = trimesh.load(path, force="scene", process=False, resolver=resolver)
+                parts = scene.dump()
+        except MeshAssetError:
+            raise
+        except Exception as e:  # trimesh raises anything from struct.error to KeyError on a broken file
+            if resolver.refused:
+                raise resolver.refused[0] from None
+            if isinstance(e, IndexError):
+                raise MeshAssetError(path, f"a face names a vertex that does not exist ({e})",
+                                     FACE_FIELD.get(ext, "faces"), hint="export the mesh again") from None
+            raise MeshAssetError(path, f"trimesh cannot read it as a mesh ({type(e).__name__}: {e}); check the file "
+                                       "opens in Blender, or export it again as GLB") from None
+    warned = _reader_outcome(path, records, resolver.refused)
     meshes = [p for p in parts if isinstance(p, trimesh.Trimesh) and len(p.faces)]
     if not meshes:
         points = sum(len(getattr(p, "vertices", ())) for p in parts)
         what = (f"{points} points but no faces (a point cloud)" if points else "no geometry")
         raise MeshAssetError(path, f"it has {what}: a car asset needs a triangle mesh (or a Gaussian-splat PLY)")
+    _check_parts(path, ext, meshes, warned)
     axis = UP_BY_EXTENSION[ext] if up == "auto" else up
     if axis == "y":
         y_up_to_z_up = np.eye(4)
         y_up_to_z_up[:3, :3] = Y_UP_TO_Z_UP
         for m in meshes:
             m.apply_transform(y_up_to_z_up)
-    asset = MeshAsset(path, meshes, axis, gltf=ext in (".glb", ".gltf"))
+    asset = MeshAsset(path, meshes, axis, gltf=gltf, warnings=warned)
     if not np.any(face_areas(asset.vertices, asset.faces) > 0):
         raise MeshAssetError(path, f"its {len(asset.faces)} faces all have zero (or non-finite) area: nothing "
                                    "to sample")

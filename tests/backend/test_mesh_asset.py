@@ -3,6 +3,8 @@
 and the silhouette have their own test files (test_mesh_load, test_mesh_colors, test_mesh_box,
 test_mesh_silhouette)."""
 
+import os
+
 import numpy as np
 import pytest
 import trimesh
@@ -273,3 +275,105 @@ def test_real_mesh_ply_without_colours(tmp_path):
     assert np.isfinite(g.means).all() and len(g) == 20_000
     # an upright box: height 1 (the z range), length and width from the footprint
     assert r["obb"]["size"][2] == pytest.approx(1.0, abs=0.01) and r["obb"]["size"][0] >= r["obb"]["size"][1]
+
+
+# -- hostile files through the command (issue 30; the readers' side: test_mesh_checks.py) --------------------------
+
+def test_command_refuses_hostile_files_with_exit_2_and_no_traceback(tmp_path):
+    from PIL import Image
+
+    Image.new("RGB", (8, 8), (200, 0, 0)).save(tmp_path / "tex.png")
+    nan_uv = MF.triangle_gltf(tmp_path, image_uri="tex.png", uv=[[np.nan, 0], [0, 0], [0, 1]])
+    code, events, err = run_backend("mesh-asset", nan_uv, "--out", tmp_path / "o.ply", "--count", 100)
+    assert code == 2 and events[-1]["event"] == "error", err   # was: a 0-Gaussian PLY and exit 0
+    assert events[-1]["file"] == nan_uv and events[-1]["field"] == "TEXCOORD_0" and events[-1]["hint"]
+    (tmp_path / "t.ply").write_text(
+        "ply\nformat ascii 1.0\ncomment TextureFile lost.png\nelement vertex 3\nproperty float x\nproperty float y\n"
+        "property float z\nproperty float texture_u\nproperty float texture_v\nelement face 1\n"
+        "property list uchar int vertex_indices\nend_header\n0 0 0 0 0\n1 0 0 1 0\n0 1 0 0 1\n3 0 1 2\n")
+    code, events, err = run_backend("mesh-asset", tmp_path / "t.ply", "--out", tmp_path / "o.ply", "--count", 100)
+    assert code == 2 and events[-1]["field"] == "lost.png" and "Traceback" not in err, err
+    assert not (tmp_path / "o.ply").exists()
+
+
+def test_command_warns_for_what_trimesh_went_past(tmp_path):
+    import json
+
+    path = MF.triangle_gltf(tmp_path)
+    tree = json.load(open(path))
+    tree["materials"] = [{"extensions": {"KHR_materials_pbrSpecularGlossiness": {"diffuseFactor": "red"}}}]
+    tree["meshes"][0]["primitives"][0]["material"] = 0
+    json.dump(tree, open(path, "w"))
+    code, events, err = run_backend("mesh-asset", path, "--out", tmp_path / "o.ply", "--count", 100)
+    assert code == 0, err
+    warned = [e for e in events if e["event"] == "warning"]
+    assert [w["code"] for w in warned] == [mesh_load.READER_WARNING] and "specular-glossiness" in warned[0]["message"]
+    assert events[-1]["result"]["warnings"] == [{k: warned[0][k] for k in ("message", "code")}]
+    assert "Traceback" not in err and err.strip() == f"warning: {warned[0]['message']}"
+
+
+_HOLD_BEFORE_RENAME = r"""
+import os, runpy, sys
+# python -m backend mesh-asset, stopped between writing its temporary and renaming it over --out: it reports the
+# temporary on the descriptor named by SCPAINTER_TEST_FD and waits for a byte on standard input (or a SIGKILL)
+out, report = os.path.abspath(sys.argv[1]), int(os.environ["SCPAINTER_TEST_FD"])
+real = os.replace
+def held(src, dst, *args, **kwargs):
+    if os.path.abspath(dst) == out:
+        os.write(report, (src + "\n").encode())
+        os.read(0, 1)
+    return real(src, dst, *args, **kwargs)
+os.replace = held
+sys.argv = ["backend", "mesh-asset", *sys.argv[2:]]
+runpy.run_module("backend", run_name="__main__")
+"""
+
+
+def _held_run(mesh, out):
+    """A ``mesh-asset`` subprocess held just before its rename; returns (process, its temporary's path)."""
+    import select
+    import subprocess
+    import sys
+
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    r, w = os.pipe()
+    proc = subprocess.Popen([sys.executable, "-c", _HOLD_BEFORE_RENAME, str(out), str(mesh), "--out", str(out),
+                             "--count", "2000"], cwd=root, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, pass_fds=(w,), env={**os.environ, "SCPAINTER_TEST_FD": str(w)})
+    os.close(w)
+    try:
+        ready, _, _ = select.select([r], [], [], 300)   # a bounded wait for the event, not a sleep
+        line = os.read(r, 4096).decode() if ready else ""
+    finally:
+        os.close(r)
+    if not line.endswith("\n"):
+        proc.kill()
+        proc.wait(60)
+        pytest.fail(f"mesh-asset never reached its rename (exit {proc.returncode})")
+    return proc, line.strip()
+
+
+def test_a_killed_run_leaves_a_temporary_the_next_run_removes(tmp_path):
+    import signal
+
+    mesh = MF.export(MF.car_like_zup(), tmp_path / "car.stl")
+    out = tmp_path / "assets" / "car.ply"
+
+    def temporaries():
+        return sorted(n for n in os.listdir(out.parent) if n.startswith(".car.ply.") and n.endswith(".tmp"))
+
+    # a live run's temporary is never taken from it: another run for the same output finishes beside it
+    live, tmp = _held_run(mesh, out)
+    assert os.path.isfile(tmp) and temporaries() == [os.path.basename(tmp)]
+    code, _, err = run_backend("mesh-asset", mesh, "--out", out, "--count", 100)
+    assert code == 0 and os.path.isfile(tmp), err
+    live.stdin.write(b"\n")
+    live.stdin.close()
+    assert live.wait(300) == 0 and temporaries() == [] and len(splats_io.load(out)) == 2000
+    # SIGKILLed mid-write: its temporary stays until the next run for that output
+    killed, tmp = _held_run(mesh, out)
+    killed.send_signal(signal.SIGKILL)
+    assert killed.wait(60) == -signal.SIGKILL and temporaries() == [os.path.basename(tmp)]
+    code, _, err = run_backend("mesh-asset", mesh, "--out", out, "--count", 100)
+    assert code == 0, err
+    assert temporaries() == [] and len(splats_io.load(out)) == 100

@@ -1,0 +1,335 @@
+"""Mesh files checked before trimesh reads them (issue 30): every count a file declares is bounded by the bytes
+the file (and the files it names) hold, every texture's pixel count by its image header, and every file a mesh names
+is opened exactly as named, inside the mesh's folder, as a regular file. trimesh allocates what a header claims and
+decodes every texture it finds (``scene.dump`` copies them), so these run first; what trimesh still dislikes it
+raises, and ``load.load_mesh`` turns that into a ``MeshAssetError``.
+
+The bounds, in one place:
+
+* ``MAX_TEXTURE_PIXELS`` (8192², 64 Mpx): a texture's width × height from its header; a larger one is refused
+  before anything decodes it (decoded as 8-bit RGB it is 192 MB; the sampler never copies it to float).
+* ``ZERO_ACCESSOR_ELEMENTS_PER_BYTE`` (1): a glTF accessor without a ``bufferView`` (zeros, sparse values or an
+  extension's output such as Draco) may declare at most one element per byte of the mesh file and its buffers; one
+  with a ``bufferView`` must fit in it (offset, stride and count), as every ``bufferView`` in its buffer and every
+  buffer's ``byteLength`` in the bytes it has.
+* OFF: the header's vertex and face counts must have as many lines after it. PLY: ``load._check_ply``.
+
+glTF / GLB (the glTF 2.0 specification): a GLB is a 12-byte header (``glTF``, version, length), a JSON chunk and an
+optional BIN chunk (buffer 0 without a ``uri``). URIs are percent-decoded (RFC 3986, as the specification says),
+``data:`` URIs base64-decoded; any other URI names a file relative to the mesh's folder. ``image/ktx2`` textures are
+refused (trimesh skips them: the car would lose its colours without a word).
+
+No bpy, no torch.
+"""
+
+from __future__ import annotations
+
+import base64
+import contextlib
+import io
+import json
+import os
+import struct
+import warnings
+from urllib.parse import unquote
+
+from scpainter_blender.core import files
+
+MAX_TEXTURE_PIXELS = 8192 * 8192
+ZERO_ACCESSOR_ELEMENTS_PER_BYTE = 1
+
+#: glTF componentType -> bytes (5124, int32, is not glTF 2.0 but trimesh reads it)
+COMPONENT_BYTES = {5120: 1, 5121: 1, 5122: 2, 5123: 2, 5124: 4, 5125: 4, 5126: 4}
+#: glTF accessor type -> components
+TYPE_COMPONENTS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
+GLB_MAGIC, GLB_JSON, GLB_BIN = b"glTF", 0x4E4F534A, 0x004E4942
+#: File extensions read as images when a mesh names them (OBJ ``map_Kd``, a PLY's ``TextureFile``).
+IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tga", ".tif", ".tiff", ".webp", ".gif", ".ppm", ".pgm")
+
+
+def _megapixels(n: int) -> str:
+    return f"{n / 1e6:.0f} Mpx" if n >= 1e6 else f"{n:,} pixels"
+
+
+@contextlib.contextmanager
+def pixel_limit(limit):
+    """PIL's own decompression-bomb limit set to ``limit`` pixels (None: off) for the block, its warning an error:
+    ``Image.open`` then refuses more than ``limit`` pixels before decoding (the check reads the header only)."""
+    from PIL import Image
+
+    old = Image.MAX_IMAGE_PIXELS
+    Image.MAX_IMAGE_PIXELS = limit
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", Image.DecompressionBombWarning)
+            yield
+    finally:
+        Image.MAX_IMAGE_PIXELS = old
+
+
+def check_image(stream, error, name) -> tuple:
+    """(width, height) of the image in ``stream`` (a binary file object), read from its header only; ``error(field,
+    message, hint)`` (the caller's MeshAssetError) when it is not an image PIL reads or has more than
+    ``MAX_TEXTURE_PIXELS``. ``name``: the texture as the mesh names it (the error's field)."""
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with pixel_limit(None):
+            with Image.open(stream) as img:
+                w, h = img.size
+    except (UnidentifiedImageError, OSError, ValueError, SyntaxError, struct.error) as e:
+        why = "not an image format PIL reads" if isinstance(e, UnidentifiedImageError) else f"{type(e).__name__}: {e}"
+        raise error(name, f"texture {name!r} cannot be read as an image ({why})",
+                    "fix or replace the texture file (PNG or JPEG), or fix the name the mesh gives it") from None
+    if w * h > MAX_TEXTURE_PIXELS:
+        raise error(name, f"texture {name!r} is {w} × {h} = {_megapixels(w * h)}, more than the "
+                          f"{_megapixels(MAX_TEXTURE_PIXELS)} read here", "scale the texture down (8192 × 8192 at most)")
+    return w, h
+
+
+def named_file(mesh_path, name: str, error, gltf: bool) -> str:
+    """The absolute path of the file ``name`` (as the mesh names it: a glTF URI percent-decoded) relative to the
+    mesh's folder, exactly: no other file of the same base name, nothing outside the folder (symbolic links
+    resolved). ``error(field, message, hint)`` when it leads outside or does not exist; the caller opens it with
+    ``files.open_regular`` (a FIFO or folder is refused there)."""
+    from pathlib import Path
+
+    target = unquote(name) if gltf else name
+    folder = Path(os.path.dirname(os.path.abspath(mesh_path))).resolve()
+    if not target.strip():
+        raise error(name, "names a file with an empty name", "fix the file name in the mesh")
+    try:
+        where = (folder / target.strip()).resolve()
+    except (OSError, RuntimeError, ValueError) as e:  # a link loop, a NUL in the name
+        raise error(name, f"{name!r} (named by the mesh) cannot be resolved: {e}", "fix the file name in the mesh") \
+            from None
+    if not where.is_relative_to(folder):
+        raise error(name, f"{name!r} (named by the mesh) lies outside the mesh's folder {str(folder)!r}",
+                    "copy the file next to the mesh (or into a folder below it) and name it relative to the mesh")
+    if not os.path.lexists(where):
+        raise error(name, f"{name!r} (named by the mesh) not found in {str(folder)!r}",
+                    "put the file there, or fix the name the mesh gives it")
+    return str(where)
+
+
+# ------------------------------------------------------------------------------------------------------- glTF
+
+def _glb(path, data: bytes, error):
+    """(JSON dict, BIN chunk length or None) of a GLB container, its lengths checked against the file's bytes."""
+    if len(data) < 20 or data[:4] != GLB_MAGIC:
+        raise error("(file)", "is not a GLB file (no 'glTF' header)", "export the car again as GLB")
+    version, length = struct.unpack_from("<II", data, 4)
+    if version != 2:
+        raise error("(file)", f"is GLB version {version}; only glTF 2.0 is read", "export the car again as glTF 2.0")
+    if length > len(data):
+        raise error("(file)", f"the GLB header promises {length:,} bytes but the file has {len(data):,}: truncated",
+                    "copy or export the file again")
+    json_len, json_type = struct.unpack_from("<II", data, 12)
+    if json_type != GLB_JSON or 20 + json_len > length:
+        raise error("(file)", f"the GLB's first chunk is not a JSON chunk of {json_len:,} bytes within the file",
+                    "export the car again as GLB")
+    try:
+        tree = json.loads(data[20:20 + json_len].decode("utf-8"))
+    except (ValueError, RecursionError) as e:
+        raise error("(file)", f"the GLB's JSON chunk is not JSON ({type(e).__name__}: {e})",
+                    "export the car again as GLB") from None
+    at, bin_len = 20 + json_len, None
+    if at + 8 <= length:
+        chunk_len, chunk_type = struct.unpack_from("<II", data, at)
+        if chunk_type == GLB_BIN:
+            if at + 8 + chunk_len > length:
+                raise error("(file)", f"the GLB's BIN chunk promises {chunk_len:,} bytes but only "
+                                      f"{length - at - 8:,} follow: truncated", "copy or export the file again")
+            bin_len = chunk_len
+    return tree, bin_len, (at + 8 if bin_len is not None else None)
+
+
+def _index(node, key, field, error, count=None, required=True, minimum=0):
+    """An integer member of a glTF object (bools and floats refused), at least ``minimum`` and below ``count``."""
+    if key not in node:
+        if required:
+            raise error(field, f"{field} is missing", "export the car again (the glTF is incomplete)")
+        return None
+    v = node[key]
+    if isinstance(v, bool) or not isinstance(v, int) or v < minimum or (count is not None and v >= count):
+        bound = f" and below {count}" if count is not None else ""
+        raise error(f"{field}", f"{field} = {v!r} is not an integer of at least {minimum}{bound}",
+                    "export the car again (the glTF is corrupt)")
+    return v
+
+
+def _list(tree, key, error):
+    v = tree.get(key, [])
+    if not isinstance(v, list) or not all(isinstance(x, dict) for x in v):
+        raise error(key, f"{key} is not a list of objects", "export the car again (the glTF is corrupt)")
+    return v
+
+
+def check_gltf(path, size: int, error, open_named) -> None:
+    """Check a .gltf/.glb before trimesh reads it (see the module docstring): buffers, buffer views, accessors,
+    images. ``error(field, message, hint)`` makes the caller's error; ``open_named(name)`` opens a file the mesh
+    names (``named_file`` + ``files.open_regular``, the caller's errors)."""
+    glb = path.lower().endswith(".glb")
+    if glb:
+        with files.open_regular(path, lambda p, f, m: error("(file)", m, None)) as f:
+            data = f.read()
+        tree, bin_len, bin_at = _glb(path, data, error)
+    else:
+        tree = files.read_json(path, lambda p, f, m: error(f, m, "export the car again (the glTF is not valid JSON)"))
+        data, bin_len, bin_at = None, None, None
+    if not isinstance(tree, dict):
+        raise error("(file)", "the glTF JSON is not an object", "export the car again")
+    buffers, views = _list(tree, "buffers", error), _list(tree, "bufferViews", error)
+    accessors, images = _list(tree, "accessors", error), _list(tree, "images", error)
+
+    # buffers: what each really holds, and its declared byteLength within that
+    held, total = [], size
+    for i, b in enumerate(buffers):
+        field = f"buffers[{i}]"
+        declared = _index(b, "byteLength", f"{field}.byteLength", error)
+        uri = b.get("uri")
+        if uri is None:
+            if not glb or i != 0 or bin_len is None:
+                raise error(field, f"{field} has no uri and there is no GLB BIN chunk for it",
+                            "export the car again (the glTF is incomplete)")
+            have = bin_len
+        elif not isinstance(uri, str):
+            raise error(f"{field}.uri", f"{field}.uri is not a string", "export the car again")
+        elif uri.startswith("data:"):
+            comma = uri.find(",")
+            have = (len(uri) - comma - 1) * 3 // 4 if comma >= 0 else 0
+        else:
+            with open_named(uri) as f:
+                have = os.fstat(f.fileno()).st_size
+            total += have
+        if declared > have:
+            raise error(field, f"{field} declares {declared:,} bytes but {uri or 'the BIN chunk'!r} holds "
+                               f"{have:,}: truncated or the wrong file", "copy or export the car again, with its "
+                                                                         "buffer files")
+        held.append(declared)
+
+    # buffer views inside their buffers
+    view_len = []
+    for i, v in enumerate(views):
+        field = f"bufferViews[{i}]"
+        b = _index(v, "buffer", f"{field}.buffer", error, len(buffers))
+        off = _index(v, "byteOffset", f"{field}.byteOffset", error, required=False) or 0
+        n = _index(v, "byteLength", f"{field}.byteLength", error)
+        _index(v, "byteStride", f"{field}.byteStride", error, required=False, minimum=1)
+        if off + n > held[b]:
+            raise error(field, f"{field} spans bytes {off:,}–{off + n:,} of buffers[{b}], which has "
+                               f"{held[b]:,}", "export the car again (the glTF is corrupt)")
+        view_len.append(n)
+
+    # accessors: every count bounded by the bytes behind it
+    def fits(field, view, offset, count, elem):
+        if count == 0:
+            return
+        stride = views[view].get("byteStride") or elem
+        need = offset + (count - 1) * stride + elem
+        if need > view_len[view]:
+            raise error(field, f"{field} declares {count:,} elements ({need:,} bytes) but bufferViews[{view}] has "
+                               f"{view_len[view]:,} bytes", "export the car again (the glTF is corrupt)")
+
+    for i, a in enumerate(accessors):
+        field = f"accessors[{i}]"
+        count = _index(a, "count", f"{field}.count", error)
+        ctype, kind = a.get("componentType"), a.get("type")
+        if ctype not in COMPONENT_BYTES or isinstance(ctype, bool):
+            raise error(f"{field}.componentType", f"{field}.componentType {ctype!r} is not a glTF component type",
+                        "export the car again (the glTF is corrupt)")
+        if kind not in TYPE_COMPONENTS:
+            raise error(f"{field}.type", f"{field}.type {kind!r} is not a glTF accessor type",
+                        "export the car again (the glTF is corrupt)")
+        elem = COMPONENT_BYTES[ctype] * TYPE_COMPONENTS[kind]
+        view = _index(a, "bufferView", f"{field}.bufferView", error, len(views), required=False)
+        if view is not None:
+            fits(field, view, _index(a, "byteOffset", f"{field}.byteOffset", error, required=False) or 0, count,
+                 elem)
+        elif count > ZERO_ACCESSOR_ELEMENTS_PER_BYTE * total:
+            raise error(f"{field}.count", f"{field} has no bufferView and declares {count:,} elements, more than "
+                                          f"the {total:,} bytes of the file and its buffers could fill",
+                        "export the car again (the glTF is corrupt)")
+        sparse = a.get("sparse")
+        if sparse is not None:
+            if not isinstance(sparse, dict) or not isinstance(sparse.get("indices"), dict) \
+                    or not isinstance(sparse.get("values"), dict):
+                raise error(f"{field}.sparse", f"{field}.sparse is not a sparse accessor", "export the car again")
+            n = _index(sparse, "count", f"{field}.sparse.count", error, count + 1, minimum=1)
+            ind, val = sparse["indices"], sparse["values"]
+            ityp = ind.get("componentType")
+            if ityp not in (5121, 5123, 5125):
+                raise error(f"{field}.sparse.indices", f"{field}.sparse.indices.componentType {ityp!r} is not an "
+                                                       "unsigned integer type", "export the car again")
+            for what, node, e in (("indices", ind, COMPONENT_BYTES[ityp]), ("values", val, elem)):
+                vw = _index(node, "bufferView", f"{field}.sparse.{what}.bufferView", error, len(views))
+                fits(f"{field}.sparse.{what}", vw,
+                     _index(node, "byteOffset", f"{field}.sparse.{what}.byteOffset", error, required=False) or 0, n, e)
+
+    # images: readable, within the pixel bound, named exactly
+    for i, img in enumerate(images):
+        field = f"images[{i}]"
+        if img.get("mimeType") == "image/ktx2":
+            raise error(field, f"{field} is a KTX2 texture, which is not read here (the car would lose its colours)",
+                        "export the car with PNG or JPEG textures")
+        if "bufferView" in img:
+            vw = _index(img, "bufferView", f"{field}.bufferView", error, len(views))
+            blob = _view_bytes(path, data, bin_at, buffers, views[vw], open_named)
+            check_image(io.BytesIO(blob), error, f"{field} (bufferViews[{vw}])")
+        elif isinstance(img.get("uri"), str):
+            uri = img["uri"]
+            if uri.startswith("data:"):
+                comma = uri.find(",")
+                try:
+                    blob = base64.b64decode(uri[comma + 1:], validate=False) if comma >= 0 else b""
+                except ValueError as e:
+                    raise error(field, f"{field}'s data URI is not base64 ({e})", "export the car again") from None
+                check_image(io.BytesIO(blob), error, f"{field} (data URI)")
+            else:
+                with open_named(uri) as f:
+                    check_image(f, error, uri)
+        else:
+            raise error(field, f"{field} has neither a uri nor a bufferView", "export the car again (the glTF is "
+                                                                            "incomplete)")
+
+
+def _view_bytes(path, data, bin_at, buffers, view, open_named) -> bytes:
+    """The bytes of a (checked) buffer view: from the GLB's BIN chunk, a data URI or the buffer's file."""
+    b = buffers[view["buffer"]]
+    off, n = view.get("byteOffset", 0), view["byteLength"]
+    uri = b.get("uri")
+    if uri is None:
+        return data[bin_at + off:bin_at + off + n]
+    if uri.startswith("data:"):
+        return base64.b64decode(uri[uri.find(",") + 1:])[off:off + n]
+    with open_named(uri) as f:
+        f.seek(off)
+        return f.read(n)
+
+
+# -------------------------------------------------------------------------------------------------------- OFF
+
+def check_off(path, error) -> None:
+    """An OFF file's header counts against its lines (trimesh reads the vertices it promises, but takes fewer
+    faces than promised without a word). Comments (``#``) and blank lines do not count."""
+    with files.open_regular(path, lambda p, f, m: error("(file)", m, None)) as f:
+        text = f.read().decode("utf-8", errors="replace")
+    lines = [ln.split("#", 1)[0].strip() for ln in text.splitlines()]
+    lines = [ln for ln in lines if ln]
+    if not lines:
+        return
+    words = lines[0].split()
+    if not words[0].upper().endswith("OFF"):
+        return  # trimesh says what it thinks of it
+    counts = words[1:] or (lines[1].split() if len(lines) > 1 else [])
+    body = lines[1:] if len(words) > 1 else lines[2:]
+    try:
+        nv, nf = int(counts[0]), int(counts[1])
+    except (IndexError, ValueError):
+        raise error("(header)", "the OFF header has no vertex and face counts", "export the mesh again") from None
+    if nv < 0 or nf < 0:
+        raise error("(header)", f"the OFF header's counts ({nv} vertices, {nf} faces) are negative",
+                    "export the mesh again")
+    if nv + nf > len(body):
+        raise error("(header)", f"the OFF header promises {nv:,} vertices and {nf:,} faces ({nv + nf:,} lines) "
+                                f"but {len(body):,} lines follow: truncated", "copy or export the mesh again")

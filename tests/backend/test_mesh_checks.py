@@ -1,0 +1,223 @@
+"""Hostile mesh files (issue 30), each a clean refusal naming the file and field (``MeshAssetError``, an InputError:
+exit 2) or an honest acceptance with a warning: face indices outside the vertices, glTF counts beyond the file's
+bytes, a truncated OFF, NaN texture coordinates, textures too large to decode, textures missing / outside the
+mesh's folder / unreadable, a missing buffer never replaced by another file of its base name, and what trimesh logs
+while it reads (never printed as a traceback). The command-level halves (exit codes, events, a killed run's
+temporary) are in test_mesh_asset.py."""
+
+import json
+import logging
+import os
+import tracemalloc
+
+import numpy as np
+import pytest
+import trimesh
+from PIL import Image
+
+import mesh_fixtures as MF
+from backend.mesh import asset as ma
+from backend.mesh import checks, colors as mesh_colors, load as mesh_load
+
+
+def refused(path, match, field=None):
+    """The MeshAssetError ``load_mesh(path)`` raises (its text matching ``match``, its field ``field``)."""
+    with pytest.raises(mesh_load.MeshAssetError, match=match) as e:
+        mesh_load.load_mesh(path)
+    assert os.path.basename(os.fspath(path)) in str(e.value)
+    if field is not None:
+        assert e.value.field == field, e.value.field
+    return e.value
+
+
+# -- 1. face indices -----------------------------------------------------------------------------------------------
+
+def test_face_indices_outside_the_vertices_are_refused(tmp_path):
+    refused(MF.triangle_gltf(tmp_path / "g", indices=(0, 1, 7)), r"faces name vertices 0 to 7, but it has 3",
+            "indices")
+    refused(MF.triangle_gltf(tmp_path / "b", name="tri.glb", buffer_uri=None, indices=(0, 1, 2 ** 32 - 1)),
+            "corrupt face indices", "indices")
+    head = ("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+            "element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n")
+    (tmp_path / "neg.ply").write_text(head + "3 0 1 -1\n")   # trimesh keeps -1: it would wrap to the last vertex
+    refused(tmp_path / "neg.ply", r"faces name vertices -1 to 1, but it has 3", "face")
+    (tmp_path / "big.ply").write_text(head + "3 0 1 5\n")
+    refused(tmp_path / "big.ply", "corrupt face indices", "face")
+    (tmp_path / "far.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 -7\n")   # OBJ's relative index, too far
+    refused(tmp_path / "far.obj", "a face names a vertex that does not exist", "f")
+    (tmp_path / "rel.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf -3 -2 -1\n")  # relative indices are fine
+    np.testing.assert_array_equal(mesh_load.load_mesh(tmp_path / "rel.obj").faces, [[0, 1, 2]])
+
+
+# -- 2. glTF counts ------------------------------------------------------------------------------------------------
+
+def test_gltf_counts_are_bounded_by_the_bytes_behind_them(tmp_path):
+    huge = {"componentType": 5126, "count": 10 ** 9, "type": "VEC3"}   # no bufferView: trimesh made 12 GB of zeros
+    for name, uri in (("tri.gltf", "tri.bin"), ("tri.glb", None)):
+        e = refused(MF.triangle_gltf(tmp_path / name, name=name, buffer_uri=uri, accessors=[huge]),
+                    r"accessors\[3\] has no bufferView and declares 1,000,000,000 elements", "accessors[3].count")
+        assert "could fill" in e.message
+    # a bufferView-less accessor the file could hold (an extension's placeholder) is read
+    small = {"componentType": 5126, "count": 3, "type": "VEC3"}
+    assert len(mesh_load.load_mesh(MF.triangle_gltf(tmp_path / "ok", accessors=[small])).faces) == 1
+    # an accessor larger than its bufferView
+    refused(MF.triangle_gltf(tmp_path / "v", accessors=[{"bufferView": 0, "componentType": 5126, "count": 4,
+                                                        "type": "VEC3"}]),
+            r"accessors\[3\] declares 4 elements \(48 bytes\) but bufferViews\[0\] has 36", "accessors[3]")
+    # a buffer file shorter than its byteLength, a GLB cut short
+    path = MF.triangle_gltf(tmp_path / "short")
+    with open(os.path.join(os.path.dirname(path), "tri.bin"), "r+b") as f:
+        f.truncate(40)
+    refused(path, r"buffers\[0\] declares 72 bytes but 'tri.bin' holds 40", "buffers[0]")
+    glb = MF.triangle_gltf(tmp_path / "cut", name="tri.glb", buffer_uri=None)
+    data = open(glb, "rb").read()
+    open(glb, "wb").write(data[:-20])
+    refused(glb, "truncated", "(file)")
+    # a count that is not a non-negative integer
+    refused(MF.triangle_gltf(tmp_path / "n", accessors=[{"componentType": 5126, "count": -1, "type": "VEC3"}]),
+            r"accessors\[3\]\.count = -1 is not an integer", "accessors[3].count")
+
+
+# -- 3. OFF --------------------------------------------------------------------------------------------------------
+
+def test_truncated_off_is_refused(tmp_path):
+    (tmp_path / "t.off").write_text("OFF\n4 4 0\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 1 2\n")  # 4 faces promised, 1 there
+    refused(tmp_path / "t.off", r"promises 4 vertices and 4 faces \(8 lines\) but 5 lines follow: truncated",
+            "(header)")
+    (tmp_path / "ok.off").write_text("OFF\n# a comment\n4 2 0\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 1 2\n3 0 1 3\n")
+    assert len(mesh_load.load_mesh(tmp_path / "ok.off").faces) == 2
+    (tmp_path / "big.off").write_text("OFF\n1000000000 1 0\n0 0 0\n")
+    refused(tmp_path / "big.off", "truncated", "(header)")
+
+
+# -- 4. NaN texture coordinates ------------------------------------------------------------------------------------
+
+def test_nan_texture_coordinates_are_refused_naming_the_field(tmp_path):
+    Image.new("RGB", (8, 8), (200, 0, 0)).save(tmp_path / "tex.png")
+    nan = [[np.nan, 0], [0.5, np.nan], [0, 1]]
+    e = refused(MF.triangle_gltf(tmp_path, image_uri="tex.png", uv=nan),
+                "2 of the 3 texture coordinates its faces use are not finite", "TEXCOORD_0")
+    assert "UVs" in e.hint
+    # without a texture the UVs are not used: no reason to refuse
+    assert len(mesh_load.load_mesh(MF.triangle_gltf(tmp_path / "plain", uv=nan)).faces) == 1
+
+
+# -- 5. textures too large to decode -------------------------------------------------------------------------------
+
+def _bomb(path):
+    """A real, decodable PNG of 8200 × 8200 (67 Mpx, just over the bound) of a few kB: 1-bit, one colour."""
+    Image.new("1", (8200, 8200)).save(path)
+    assert os.path.getsize(path) < 100_000
+    return path
+
+
+def test_textures_beyond_the_pixel_bound_are_refused_from_their_header(tmp_path):
+    assert checks.MAX_TEXTURE_PIXELS == 8192 * 8192 < 8200 * 8200
+    os.makedirs(tmp_path / "uri")
+    png = _bomb(tmp_path / "uri" / "big.png").read_bytes()
+    e = refused(MF.triangle_gltf(tmp_path / "uri", image_uri="big.png"), r"'big.png' is 8200 × 8200 = 67 Mpx",
+                "big.png")
+    assert "8192" in e.hint
+    # embedded in a GLB's BIN chunk (images[0].bufferView)
+    refused(MF.triangle_gltf(tmp_path / "glb", name="tri.glb", buffer_uri=None, image_bytes=png), "8200 × 8200",
+            "images[0] (bufferViews[3])")
+    # an OBJ's map_Kd, and a texture with no image extension that trimesh opens itself (PIL's bound, set to ours)
+    for tex in ("big.png", "big_texture"):
+        folder = tmp_path / f"obj_{tex}"
+        folder.mkdir()
+        (folder / tex).write_bytes(png)
+        (folder / "car.mtl").write_text(f"newmtl m\nKd 1 1 1\nmap_Kd {tex}\n")
+        (folder / "car.obj").write_text("mtllib car.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\n"
+                                        "usemtl m\nf 1/1 2/2 3/3\n")
+        refused(folder / "car.obj", "8200 × 8200" if tex.endswith(".png") else "larger than 67,108,864 pixels")
+
+
+def test_texture_sampling_makes_no_float_copy_of_the_image():
+    img = Image.new("RGB", (2048, 2048), (10, 20, 30))        # 12 MB as uint8; 100 MB as float64
+    uv = np.random.default_rng(0).random((1000, 2))
+    tracemalloc.start()
+    rgb = mesh_colors.sample_texture(img, uv)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    np.testing.assert_allclose(rgb, np.tile([10 / 255, 20 / 255, 30 / 255], (1000, 1)), atol=1e-12)
+    assert peak < 3 * 2048 * 2048 * 3, peak   # PIL's bytes and the uint8 array; a float64 copy is 8 times that
+
+
+# -- 6. textures missing, outside the folder, unreadable -----------------------------------------------------------
+
+def test_textures_that_cannot_be_read_are_refused_naming_them(tmp_path):
+    Image.new("RGB", (4, 4), (1, 2, 3)).save(tmp_path / "outside.png")
+    e = refused(MF.triangle_gltf(tmp_path / "a", image_uri="missing.png"), r"'missing.png' \(named by the mesh\) not "
+                                                                          "found", "missing.png")
+    assert "fix the name" in e.hint
+    e = refused(MF.triangle_gltf(tmp_path / "b", image_uri="../outside.png"), "lies outside the mesh's folder",
+                "../outside.png")
+    assert "copy the file next to the mesh" in e.hint
+    (tmp_path / "c").mkdir()
+    (tmp_path / "c" / "bad.png").write_bytes(b"not a png at all")
+    refused(MF.triangle_gltf(tmp_path / "c", image_uri="bad.png"), "'bad.png' cannot be read as an image", "bad.png")
+    # OBJ: its MTL missing, its map_Kd missing; a PLY's TextureFile missing or not an image
+    (tmp_path / "o").mkdir()
+    (tmp_path / "o" / "car.obj").write_text("mtllib car.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    refused(tmp_path / "o" / "car.obj", r"'car.mtl' \(named by the mesh\) not found", "car.mtl")
+    (tmp_path / "o" / "car.mtl").write_text("newmtl m\nmap_Kd gone.jpg\n")
+    refused(tmp_path / "o" / "car.obj", r"'gone.jpg' \(named by the mesh\) not found", "gone.jpg")
+    head = ("ply\nformat ascii 1.0\ncomment TextureFile {}\nelement vertex 3\nproperty float x\nproperty float y\n"
+            "property float z\nproperty float texture_u\nproperty float texture_v\nelement face 1\n"
+            "property list uchar int vertex_indices\nend_header\n0 0 0 0 0\n1 0 0 1 0\n0 1 0 0 1\n3 0 1 2\n")
+    (tmp_path / "p").mkdir()
+    (tmp_path / "p" / "a.ply").write_text(head.format("lost.png"))     # trimesh printed a traceback, then exit 0
+    refused(tmp_path / "p" / "a.ply", r"'lost.png' \(named by the mesh\) not found", "lost.png")
+    (tmp_path / "p" / "tex.dat").write_bytes(b"garbage")
+    (tmp_path / "p" / "b.ply").write_text(head.format("tex.dat"))
+    refused(tmp_path / "p" / "b.ply", "a texture it names cannot be read as an image", "(texture)")
+    # a KTX2 texture (trimesh skips it without a word)
+    refused(MF.triangle_gltf(tmp_path / "k", images=[{"uri": "t.ktx2", "mimeType": "image/ktx2"}]), "KTX2",
+            "images[0]")
+
+
+# -- 7. exactly the file named -------------------------------------------------------------------------------------
+
+def test_a_missing_buffer_is_never_replaced_by_another_file_of_its_name(tmp_path):
+    folder = tmp_path / "car"
+    path = MF.triangle_gltf(folder, buffer_uri="sub/box.bin", write_buffer=False)
+    # a 40 m triangle under the same base name, beside the mesh: trimesh's resolver took it
+    blob = (np.array([[0, 0, 0], [40, 0, 0], [0, 40, 0]], np.float32).tobytes() + np.zeros(6, np.float32).tobytes()
+            + np.array([0, 1, 2], np.uint32).tobytes())
+    (folder / "box.bin").write_bytes(blob)
+    refused(path, r"'sub/box.bin' \(named by the mesh\) not found", "sub/box.bin")
+    os.makedirs(folder / "sub")
+    os.replace(folder / "box.bin", folder / "sub" / "box.bin")
+    assert mesh_load.load_mesh(path).vertices.max() == 40.0   # the file named, once it is there
+    # a percent-encoded URI names the decoded file (glTF: URIs are RFC 3986)
+    spaced = MF.triangle_gltf(tmp_path / "sp", buffer_uri="my box.bin")
+    text = open(spaced).read().replace("my box.bin", "my%20box.bin")
+    open(spaced, "w").write(text)
+    assert len(mesh_load.load_mesh(spaced).faces) == 1
+
+
+# -- 8. trimesh's log ----------------------------------------------------------------------------------------------
+
+def test_what_trimesh_goes_on_past_is_a_warning_not_a_printed_traceback(tmp_path, capfd):
+    path = MF.triangle_gltf(tmp_path)
+    tree = json.load(open(path))
+    tree["materials"] = [{"extensions": {"KHR_materials_pbrSpecularGlossiness": {"diffuseFactor": "red"}}}]
+    tree["meshes"][0]["primitives"][0]["material"] = 0
+    json.dump(tree, open(path, "w"))
+    asset = mesh_load.load_mesh(path)
+    assert [w["code"] for w in asset.warnings] == [mesh_load.READER_WARNING]
+    assert "specular-glossiness" in asset.warnings[0]["message"] and "'red'" in asset.warnings[0]["message"]
+    out, err = capfd.readouterr()
+    assert out == "" and err == ""
+    # nothing is left attached to trimesh's logger
+    assert not any(type(h).__name__ == "Keep" for h in logging.getLogger("trimesh").handlers)
+    assert logging.getLogger("trimesh").propagate
+
+
+def test_faces_with_non_finite_corners_are_a_warning(tmp_path):
+    V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [np.nan, 0, 0]], float)
+    mesh = trimesh.Trimesh(V, [[0, 1, 2], [0, 1, 3]], process=False, validate=False)
+    asset = mesh_load.load_mesh(MF.export(mesh, tmp_path / "nan.ply"))
+    assert [w["code"] for w in asset.warnings] == [mesh_load.NONFINITE_FACES]
+    assert "1 of 2 faces" in asset.warnings[0]["message"]
+    assert len(ma.sample_gaussians(asset, 100).gaussians) == 100

@@ -2098,9 +2098,11 @@ def worker(fd: int, slot: int, seed: int, timeout: float, workdir: str, checkpoi
     import numba
     import torch
 
+    base = Base(os.path.join(workdir, f"base-{slot}"))
+    if "kill" in surfaces:   # forked before numba's threading layer is launched here (fuzz_surfaces.ForkServer)
+        fuzz_surfaces.start_fork_server(base, os.path.join(workdir, f"w{slot}"))
     torch.set_num_threads(1)       # tiny cases: threads only cost time, more so on a shared 2-core machine
     numba.set_num_threads(1)
-    base = Base(os.path.join(workdir, f"base-{slot}"))
     check = has_check_option()
     warm = {}
     for kind in ("job", "checkpoint") if checkpoint else ("job",):   # warm-up outside the timeouts
@@ -2419,6 +2421,8 @@ def _cli(argv=None) -> int:
         return 0
     if a.kind is None or a.index is None:
         p.error("give --kind and --index (or --list)")
+    if a.kind == "kill":   # before the warm-up below launches numba's threading layer in this process
+        fuzz_surfaces.start_fork_server(base, workdir)
     check = has_check_option()
     warm = run_case(base_case(a.kind if a.kind == "checkpoint" else "job", a.seed), base, workdir, 600, check)
     print(f"warm-up (the valid input): {warm['outcome']} in {warm['seconds']:.2f} s {warm['message']}")

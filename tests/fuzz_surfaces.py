@@ -1251,13 +1251,20 @@ CLIP_FAMILIES = [(_poses_case, 3), (_frames_case, 3), (_video_case, 2), (_clip_j
 
 # ---------------------------------------------------------------------------------------------- kill cases
 
+#: The kill scenarios and how many atomic renames the killed run makes (``_gate_renames``; measured on this job:
+#: a generate after a finished render renames the render record, 10 frames, the video and the manifest; a render
+#: of the moved car 4 files a frame and its record; mesh-asset its PLY): the kill lands before one of them.
+KILL_SCENARIOS = {"generate other settings killed, first again": 13, "generate killed, same again": 13,
+                  "render of a moved car killed, first again": 41, "mesh-asset killed, again": 1,
+                  "two generates at once": 0, "render and generate at once": 0}
+
+
 def _kill_case(rng):
-    scenario = rng.cycle(["generate other settings killed, first again", "generate killed, same again",
-                          "render of a moved car killed, first again", "mesh-asset killed, again",
-                          "two generates at once", "render and generate at once"])
-    sig = rng.choice(["SIGKILL", "SIGTERM"]) if "at once" not in scenario else ""
-    point = rng.randrange(1, KILL_FRAMES)
-    return (f"{scenario.split(',')[0].split(' killed')[0]}: {scenario}" + (f", {sig} after event {point}" if sig
+    scenario = rng.cycle(list(KILL_SCENARIOS))
+    renames = KILL_SCENARIOS[scenario]
+    sig = ("SIGKILL", "SIGTERM")[rng.turn // len(KILL_SCENARIOS) % 2] if renames else ""
+    point = rng.randrange(1, renames + 1) if renames else 0
+    return (f"{scenario.split(',')[0].split(' killed')[0]}: {scenario}" + (f", {sig} before rename {point}" if sig
                                                                             else ""),
             {"scenario": scenario, "signal": sig, "point": point}, None, "")
 
@@ -1438,6 +1445,8 @@ def run_case(case: Case, base, workdir: str, timeout: float, keep: bool = False)
     result = {"kind": case.kind, "index": case.index, "seed": case.seed, "description": case.description,
               "family": case.family, "rc": None, "seconds": 0.0, "message": "", "file": None, "field": None}
     if case.kind == "kill":
+        if _SERVER:   # (the server and its runners hold none: it was forked before it was recorded)
+            return _run_kill_served(case, workdir, keep, result)
         return _run_kill(F, case, base, root, workdir, result, keep)
     c = _dir(F, case, base, root)
     case.apply(c)
@@ -1487,8 +1496,9 @@ def warm_up(kind: str, base, workdir: str, seed: int) -> dict:
         case = Case(kind, -1, seed, "base: the valid input, unchanged", lambda c: None, None, fmt)
         root = os.path.join(workdir, f"{kind}-base-{fmt}")
         if kind == "kill":
-            _kill_references(F, base, root)
-            outcomes.append("accepted")
+            got = start_fork_server(base, workdir).warm()
+            outcomes.append(got["outcome"])
+            message = message or got["message"]
             continue
         c = _dir(F, case, base, root)
         _finish(c, case)
@@ -1557,30 +1567,68 @@ def _kill_references(F, base, root):
     refs = {}
     for method in ("telea", "navier-stokes"):
         c = _kill_folder(F, base, root + "-" + method)
-        r = F.invoke(_kill_argv(c, method), 600)
-        if r["rc"] != 0:
-            raise RuntimeError(f"kill reference {method}: {r['stdout'][-400:]} {r['stderr'][-400:]}")
+        for what in (method, "mesh") if method == "telea" else (method,):
+            ch = _Child(_kill_argv(c, what), os.path.join(os.path.dirname(root), f"kill-ref-{what}.log"))
+            if not ch.wait(time.monotonic() + 600) or ch.rc != 0:
+                raise RuntimeError(f"kill reference {what}: exit {ch.rc}: {' '.join(ch.lines[-3:])[-400:]} "
+                                   f"{ch.stderr()[-400:]}")
+            os.unlink(ch.log)
         out = os.path.join(c.job_dir, "out")
         refs[method] = _generated(out, range(1, KILL_FRAMES + 1))
         refs["exr"] = {f: channels.read(os.path.join(out, "conditions", f"frame_{f:06d}.exr"))
                        for f in range(1, KILL_FRAMES + 1)}
         if method == "telea":
-            r = F.invoke(_kill_argv(c, "mesh"), 600)
             refs["mesh"] = splats_io.read(os.path.join(out, "asset.ply"))
         shutil.rmtree(c.root, ignore_errors=True)
+    if any(np.array_equal(a, b) for a, b in zip(refs["telea"], refs["navier-stokes"])):
+        raise RuntimeError("kill references: the two inpainting methods give the same frame somewhere, so mixed "
+                           "frames could not be told apart: the kill job needs more hole")
     s.refs["kill"] = refs
 
 
-class _Child:
-    """A forked child running ``backend.__main__.main(argv)``: events on a pipe, standard error in a file."""
+#: The line a gated child writes to its standard output before each atomic rename of a temporary into place.
+GATE = "#gate "
 
-    def __init__(self, argv, log):
+
+def _gate_renames(ack_fd):
+    """In a gated child: before each ``os.replace`` / ``os.rename`` of a temporary (``.<name>.<random>.tmp``, as
+    ``core.outputs`` writes every output) the child says ``#gate <target>`` on standard output and waits for one
+    byte on ``ack_fd``; the end of that pipe opens every later gate. The parent signals the child at a chosen gate,
+    so a kill lands at the same point of the run however busy the machine is: the temporary whole, the target not
+    yet replaced (the moment a kill during writing leaves behind)."""
+    import threading
+
+    lock, opened = threading.Lock(), []
+
+    def gated(real):
+        def call(src, dst, *args, **kwargs):
+            name = os.path.basename(os.fspath(src))
+            if name.startswith(".") and name.endswith(".tmp"):
+                with lock:
+                    os.write(1, f"{GATE}{os.fspath(dst)}\n".encode())
+                    if not opened and not os.read(ack_fd, 1):
+                        opened.append(True)
+            return real(src, dst, *args, **kwargs)
+        return call
+
+    os.replace, os.rename = gated(os.replace), gated(os.rename)
+
+
+class _Child:
+    """A forked child running ``backend.__main__.main(argv)``: events on a pipe, standard error in a file.
+    ``gated``: it stops before each atomic rename until ``step`` (or ``open``) lets it on (``_gate_renames``)."""
+
+    def __init__(self, argv, log, gated=False):
         r, w = os.pipe()
+        ack_r, ack_w = os.pipe() if gated else (None, None)
         pid = os.fork()
         if pid == 0:   # the child: never returns into the worker
             rc = 99
             try:
                 os.close(r)
+                if gated:
+                    os.close(ack_w)
+                    _gate_renames(ack_r)
                 os.dup2(w, 1)
                 fd = os.open(log, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
                 os.dup2(fd, 2)
@@ -1603,8 +1651,20 @@ class _Child:
                 finally:
                     os._exit(rc if isinstance(rc, int) else 98)
         os.close(w)
+        if gated:
+            os.close(ack_r)
         self.pid, self.fd, self.log, self.buf, self.lines, self.status = pid, r, log, b"", [], None
-        self.signalled = ""
+        self.signalled, self.ack = "", ack_w
+
+    def step(self):
+        """Let the child past the gate it waits at."""
+        os.write(self.ack, b"1")
+
+    def open(self):
+        """Let the child past every gate from now on."""
+        if self.ack is not None:
+            os.close(self.ack)
+            self.ack = None
 
     def read(self, timeout):
         """Read what arrived within ``timeout`` s; returns the new complete lines ([] at the end: ``eof``)."""
@@ -1630,6 +1690,7 @@ class _Child:
 
     def wait(self, deadline):
         """Read to the end and reap; False if it did not end by ``deadline`` (it is then killed)."""
+        self.open()
         while True:
             left = deadline - time.monotonic()
             if left <= 0:
@@ -1658,7 +1719,7 @@ def _judge(F, child, label) -> tuple:
     """(outcome or "", message) of one child that was not killed on purpose: exit 0, or exit 1 naming a busy
     folder (the lock respected) are fine; a traceback, another exit, or exit 2 are not."""
     err = child.stderr()
-    events = F.parse_events("\n".join(child.lines))
+    events = F.parse_events("\n".join(ln for ln in child.lines if not ln.startswith(GATE)))
     errors = [e for e in events if e.get("event") == "error"]
     msg = F._first_line(str(errors[-1].get("message", ""))) if errors else ""
     if "Traceback" in err:
@@ -1683,9 +1744,14 @@ def _leftovers(folder) -> list:
 
 
 def _run_kill(F, case, base, root, workdir, result, keep) -> dict:
+    from numba.np.ufunc import parallel
+
     from backend.render import channels
     from scpainter_blender.core.splats import reader as splats_io
 
+    if parallel._is_initialized:   # its forked backend children would stop themselves (see ForkServer)
+        raise RuntimeError("kill cases run in a process that launched numba's threading layer: start "
+                           "fuzz_surfaces.start_fork_server() first")
     s = surfaces(base)
     _kill_references(F, base, os.path.join(workdir, "kill-refs"))
     refs = s.refs["kill"]
@@ -1695,22 +1761,30 @@ def _run_kill(F, case, base, root, workdir, result, keep) -> dict:
     logs = iter(range(100))
     before, top_before = F.snapshot(root, c.job_dir), set(os.listdir(workdir))
     t0 = time.perf_counter()
-    problems, hang = [], []
+    problems, hang, gates = [], [], []
 
     def run(what, kill_at=None, sig=""):
-        """Run ``what`` to its end (or signal it at its kill_at-th event line); returns the child."""
-        ch = _Child(_kill_argv(c, what), os.path.join(workdir, f"kill-{case.index}-{next(logs)}.log"))
+        """Run ``what`` to its end, or signal it at its kill_at-th atomic rename (``_gate_renames``: the
+        temporary written, not yet in place); returns the child."""
+        ch = _Child(_kill_argv(c, what), os.path.join(workdir, f"kill-{case.index}-{next(logs)}.log"),
+                    gated=kill_at is not None)
         deadline = time.monotonic() + KILL_TIMEOUT_S
         if kill_at is not None:
             seen = 0
-            while time.monotonic() < deadline:
+            while time.monotonic() < deadline and ch.ack is not None:
                 got = ch.read(max(0.0, deadline - time.monotonic()))
                 if not got:
                     break
-                seen += sum(1 for ln in got if '"progress"' in ln or '"artifact"' in ln)
-                if seen >= kill_at:
-                    ch.signal(sig)
-                    break
+                for ln in got:
+                    if not ln.startswith(GATE):
+                        continue
+                    seen += 1
+                    gates.append(os.path.relpath(ln[len(GATE):], c.job_dir))
+                    if seen == kill_at:
+                        ch.signal(sig)   # then the gates open: a SIGTERM is handled by the run itself
+                        ch.open()
+                        break
+                    ch.step()
         if not ch.wait(deadline):
             hang.append(f"{what} did not end within {KILL_TIMEOUT_S:g} s")
         else:
@@ -1750,7 +1824,7 @@ def _run_kill(F, case, base, root, workdir, result, keep) -> dict:
                 run("render")
                 final = "render"
             elif sc.startswith("mesh-asset"):
-                run("mesh", 2 + point % 2, sig)
+                run("mesh", point, sig)
                 run("mesh")
                 final = "mesh"
             elif sc == "two generates at once":
@@ -1763,6 +1837,8 @@ def _run_kill(F, case, base, root, workdir, result, keep) -> dict:
     except F.Hang:
         hang.append("the case did not end")
     result["seconds"] = round(time.perf_counter() - t0, 3)
+    if sig:   # where the kill landed: the rename it stopped before (none: the run ended first)
+        result["killed_before"] = gates[point - 1] if len(gates) >= point else f"(the run ended: {len(gates)} renames)"
     escapes = F._changed(before, F.snapshot(root, c.job_dir))
     escapes += [f"created ../{n}" for n in sorted(set(os.listdir(workdir)) - top_before)
                 if not n.startswith(f"kill-{case.index}-")]
@@ -1807,3 +1883,166 @@ def _run_kill(F, case, base, root, workdir, result, keep) -> dict:
     else:
         shutil.rmtree(root, ignore_errors=True)
     return result
+
+
+# ---------------------------------------------------------------------------------------------- fork server
+
+class ForkServer:
+    """The process the kill cases run in: forked by the worker before anything in it launches numba's threading
+    layer. The backend's CPU kernels are ``@njit(parallel=True)`` on numba's GNU OpenMP layer, which refuses to run in
+    a process forked after its parent launched it ("Terminating: fork() called from a process already using GNU
+    OpenMP", then ``raise(SIGTERM)``: the backend's own SIGTERM handler then stops the run after its first frame).
+    A worker renders in-process, so the backend processes of a kill case are forked from here instead (imports
+    done, no kernel ever run here): each one launches its own threading layer, as ``python -m backend`` does.
+
+    Requests, one JSON line each on a socket: ``{"op": "warm"}`` builds the kill references (in forked children);
+    ``{"op": "case", "index", "seed", "workdir", "keep", "out"}`` forks a case runner (its own process group, so
+    a hang is ended with its backend children) that runs ``_run_kill`` and writes the result to ``out``; the
+    server answers ``{"started": pid}``, then ``{"status": waitstatus}`` when the runner is reaped."""
+
+    def __init__(self, base, workdir):
+        import socket
+
+        ours, theirs = socket.socketpair()
+        pid = os.fork()
+        if pid == 0:   # the server: never returns into the worker
+            code = 1
+            try:
+                ours.close()
+                _serve(theirs, base, workdir)
+                code = 0
+            except BaseException:  # noqa: BLE001
+                import traceback as tb_mod
+                tb_mod.print_exc()
+            finally:
+                os._exit(code)
+        theirs.close()
+        self.pid, self.sock, self.buf = pid, ours, b""
+
+    def _send(self, request):
+        self.sock.sendall((json.dumps(request) + "\n").encode())
+
+    def _reply(self, timeout):
+        """The next answer line, or None if none came within ``timeout`` s."""
+        import select
+        deadline = time.monotonic() + timeout
+        while b"\n" not in self.buf:
+            left = deadline - time.monotonic()
+            if left <= 0 or not select.select([self.sock], [], [], left)[0]:
+                return None
+            chunk = self.sock.recv(1 << 16)
+            if not chunk:
+                raise RuntimeError("the kill cases' fork server died (its traceback is in the worker's log)")
+            self.buf += chunk
+        line, self.buf = self.buf.split(b"\n", 1)
+        return json.loads(line)
+
+    def warm(self) -> dict:
+        self._send({"op": "warm"})
+        return self._reply(1200) or {"outcome": "hang", "message": "the kill references took over 20 minutes"}
+
+    def case(self, index, seed, workdir, keep) -> dict | None:
+        """Run kill case ``index`` in a forked runner; its result dict, or None if it did not end in time (the
+        runner's process group is then killed)."""
+        out = os.path.join(workdir, f"kill-{index}-result.json")
+        self._send({"op": "case", "index": index, "seed": seed, "workdir": workdir, "keep": keep, "out": out})
+        started = self._reply(60)
+        if started is None:
+            raise RuntimeError("the kill cases' fork server does not answer")
+        reply = self._reply(KILL_TIMEOUT_S * 4 + 20)
+        if reply is None:
+            try:
+                os.killpg(started["started"], signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+            self._reply(60)
+            return None
+        try:
+            with open(out) as f:
+                result = json.load(f)
+        except (OSError, ValueError):
+            status = reply["status"]
+            raise RuntimeError(f"the kill case runner ended ({_status_words(status)}) without a result")
+        os.unlink(out)
+        return result
+
+    def close(self):
+        self.sock.close()
+        os.waitpid(self.pid, 0)
+
+
+def _status_words(status) -> str:
+    code = os.waitstatus_to_exitcode(status)
+    return f"killed by {signal.Signals(-code).name}" if code < 0 else f"exit {code}"
+
+
+def _serve(sock, base, workdir):
+    import fuzz_inputs as F
+    # what every backend child needs, imported once here (no kernel runs on import)
+    import backend.__main__  # noqa: F401
+    import backend.generate.command  # noqa: F401
+    import backend.mesh.asset  # noqa: F401
+    import backend.render.command  # noqa: F401
+    import torch
+
+    torch.set_num_threads(1)   # as the worker's own cases (a 2-core machine shared with the other worker)
+    surfaces(base)
+    f = sock.makefile("rb")
+    for line in f:
+        req = json.loads(line)
+        if req["op"] == "warm":
+            t0 = time.perf_counter()
+            try:
+                _kill_references(F, base, os.path.join(workdir, "kill-refs"))
+                answer = {"outcome": "accepted", "message": ""}
+            except Exception as e:  # noqa: BLE001
+                answer = {"outcome": "traceback", "message": f"{type(e).__name__}: {e}"[:400]}
+            answer["seconds"] = round(time.perf_counter() - t0, 3)
+            sock.sendall((json.dumps(answer) + "\n").encode())
+            continue
+        pid = os.fork()
+        if pid == 0:   # the case runner
+            code = 1
+            try:
+                os.setpgid(0, 0)
+                sock.close()
+                case = make_case("kill", req["index"], req["seed"])
+                result = run_case(case, base, req["workdir"], KILL_TIMEOUT_S, req["keep"])
+                with open(req["out"] + ".part", "w") as out:
+                    json.dump(result, out)
+                os.replace(req["out"] + ".part", req["out"])
+                code = 0
+            except BaseException:  # noqa: BLE001
+                import traceback as tb_mod
+                tb_mod.print_exc()
+            finally:
+                os._exit(code)
+        sock.sendall((json.dumps({"started": pid}) + "\n").encode())
+        _, status = os.waitpid(pid, 0)
+        sock.sendall((json.dumps({"status": status}) + "\n").encode())
+
+
+_SERVER: list = []
+
+
+def start_fork_server(base, workdir) -> ForkServer:
+    """Start (once per process) the fork server the kill cases need; call it before this process runs any
+    backend kernel (``numba.set_num_threads`` launches the threading layer too)."""
+    from numba.np.ufunc import parallel
+
+    if not _SERVER:
+        if parallel._is_initialized:
+            raise RuntimeError("the kill cases' fork server must start before numba's threading layer is launched")
+        _SERVER.append(ForkServer(base, workdir))
+    return _SERVER[0]
+
+
+def _run_kill_served(case, workdir, keep, result) -> dict:
+    """A kill case in this (worker) process: through the fork server."""
+    if not _SERVER:
+        raise RuntimeError("kill cases need fuzz_surfaces.start_fork_server() before the first kernel runs")
+    got = _SERVER[0].case(case.index, case.seed, workdir, keep)
+    if got is None:
+        result.update(outcome="hang", message=f"the case did not end within {KILL_TIMEOUT_S * 4 + 20:g} s")
+        return result
+    return got

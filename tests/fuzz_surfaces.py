@@ -777,6 +777,7 @@ def _splat_values(rng, fmt):
 
 
 def _compressed_parts(data):
+    """(the header's lines, end_header the last, the body)"""
     end = data.index(b"end_header\n") + 11
     return data[:end].decode().split("\n")[:-1], data[end:]
 
@@ -789,6 +790,7 @@ def _compressed_header(rng, fmt):
 
     def apply(c):
         lines, body = _compressed_parts(c.read(_asset_rel(fmt)))
+        lines = lines[:-1]   # the header without its end_header line (written again below, once)
         nchunk = int(next(x for x in lines if x.startswith("element chunk")).split()[2])
         nvert = int(next(x for x in lines if x.startswith("element vertex")).split()[2])
         text = "\n".join(lines)

@@ -123,6 +123,26 @@ def test_compressed_errors_name_the_file_and_problem(tmp_path):
             splats_io.read(tmp_path / name)
 
 
+
+def test_compressed_words_declared_int_read_as_their_bits(tmp_path):
+    """``packed_*`` declared ``int`` instead of ``uint`` (an encoder's slip): the same 32 bits, read bit-equal,
+    including words with the top bit set (a negative int32: rotation words whose largest component is w or z)."""
+    src = F.random_gaussians(300, 1, seed=7)
+    p = tmp_path / "uint.ply"
+    F.write_compressed(p, src)
+    data = p.read_bytes()
+    end = data.index(b"end_header\n") + 11
+    header = data[:end].decode().splitlines()
+    table = int(next(x for x in header if x.startswith("element chunk")).split()[2]) * 4 * sum(
+        x.startswith("property float") for x in header)
+    words = np.frombuffer(data, "<u4", 300 * 4, end + table)
+    assert (words >= 1 << 31).any()   # the case that matters is present
+    (tmp_path / "int.ply").write_bytes(data[:end].replace(b"property uint packed_", b"property int packed_")
+                                       + data[end:])
+    a, b = splats_io.read(p), splats_io.read(tmp_path / "int.ply")
+    for k in ("xyz", "f_dc", "f_rest", "opacity", "scale", "rot"):
+        assert np.array_equal(getattr(a, k), getattr(b, k)), k
+
 def _chunk_table(path):
     """The chunk element of a compressed PLY, parsed here independently of core.splats.gaussians."""
     raw = open(path, "rb").read(1 << 16)

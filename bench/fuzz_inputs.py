@@ -9,8 +9,8 @@ escapes, misreads), then the failing cases grouped by family with one example ea
 ``tests/fuzz_inputs.py``: ``clean`` = exit 2 with an error naming the file; ``unclear`` = exit 2 naming none;
 ``traceback`` = exit 1 or a traceback; ``hang`` = no answer within the timeout; ``escape`` = a file outside the
 job folder created, changed or deleted; ``misread`` = a PLY rewritten without changing its Gaussians, accepted with
-other values. Run from any checkout's root (an older one gives the "before" column: copy this file and
-tests/fuzz_inputs.py into it). Saves the table and the failing cases to the JSON. Not a test.
+other values (issue 30's kinds: as tests/fuzz_surfaces.py defines it). Run from any checkout's root (an older one
+gives the "before" column: copy this file, tests/fuzz_inputs.py and tests/fuzz_surfaces.py into it). Saves the table and the failing cases to the JSON. Not a test.
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ def main() -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--label", default="after", help="before | after (recorded in the JSON)")
     p.add_argument("--kinds", nargs="+", choices=F.KINDS, default=list(F.INPUT_KINDS + fuzz_surfaces.CI_KINDS),
-                   help="default: the kinds the test runs (kill only when named)")
+                   help="default: the kinds the test runs (all)")
     p.add_argument("--seed", type=int, default=F.SEED)
     p.add_argument("--timeout", type=float, default=F.TIMEOUT_S, help="seconds per case before it is a hang")
     p.add_argument("--out", default=os.path.join(ROOT, "bench", "results", "fuzz_inputs.json"))

@@ -15,9 +15,11 @@ Kinds (``CASES`` says how many of each; a case is reproducible from (kind, index
   a link, garbage, non-finite values.
 * ``clip``: a training clip (``backend.train.clip.load`` then ``Clip.load_frames``, in-process; an InputError
   counts as exit 2, any other exception as a traceback): poses.npz, frames (PNG), the video, clip.json.
-* ``kill``: SIGKILL / SIGTERM at seeded points of ``generate``, ``render`` and ``mesh-asset`` (forked children of
-  the worker, each running ``backend.__main__.main``), and two runs at once on one output folder; then the next
-  run, and the folder checked.
+* ``kill``: SIGKILL / SIGTERM of ``generate`` (the baseline), ``render`` and ``mesh-asset`` before a seeded one of
+  their atomic renames (``_gate_renames``: the child waits at each until let on, so the kill lands at the same point
+  however busy the machine is), and two runs at once on one output folder; then the next run, and the folder
+  checked. The backend processes are forked from ``ForkServer`` (imports done, no kernel run: numba's OpenMP layer
+  stops a process forked after it ran), each running ``backend.__main__.main``.
 
 Outcome classes are those of ``fuzz_inputs`` (accepted, clean, unclear, traceback, hang, escape, misread); what
 ``misread`` means here, per kind:
@@ -67,10 +69,8 @@ for _p in (os.path.dirname(HERE), HERE, os.path.join(HERE, "backend"), os.path.j
         sys.path.insert(0, _p)
 
 KINDS = ("mesh", "splat", "exr", "clip", "kill")
-#: The kinds tests/backend/test_fuzz_inputs.py runs. ``kill`` is left out for now: its forked children are stopped
-#: by a SIGTERM after their first frame (not yet understood), and its 10-frame job renders all hole, so the two
-#: inpainting methods give the same frames and mixed frames cannot be told apart; run it with bench/fuzz_inputs.py.
-CI_KINDS = ("mesh", "splat", "exr", "clip")
+#: The kinds tests/backend/test_fuzz_inputs.py runs: all of them.
+CI_KINDS = KINDS
 CASES = {"mesh": 180, "splat": 110, "exr": 90, "clip": 90, "kill": 36}
 #: Each backend process of a kill case must end within this (a busy 2-core machine; they take ~0.1-1 s).
 KILL_TIMEOUT_S = 30.0

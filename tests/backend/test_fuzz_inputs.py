@@ -1,5 +1,6 @@
 """Hostile input files (issues 14 and 30): every fuzz case of ``tests/fuzz_inputs.py`` and of
-``tests/fuzz_surfaces.py`` (its ``CI_KINDS``: mesh, splat, exr, clip; 470 cases) is accepted or refused cleanly.
+``tests/fuzz_surfaces.py`` (its ``CI_KINDS``: mesh, splat, exr, clip; 470 cases) is accepted or refused cleanly;
+kills and concurrent runs on one output folder (``kill``, 36 cases) leave no mixed frames, lock or temporary behind.
 
 1,150 seeded cases (job.json, predictions.npz, car.ply and the checkpoint's files) run through
 ``python -m backend render`` and ``generate --check`` in-process, in two worker processes. Each must end
@@ -14,8 +15,9 @@ import fuzz_inputs as F
 import fuzz_surfaces
 import pytest
 
-#: The kinds run here: issue 14's inputs and issue 30's surfaces (``fuzz_surfaces.CI_KINDS``: not ``kill`` yet).
+#: The kinds run here: issue 14's inputs and issue 30's surfaces, kills included (``fuzz_surfaces.CI_KINDS``).
 CI_KINDS = F.INPUT_KINDS + fuzz_surfaces.CI_KINDS
+SURFACE_FILES = tuple(k for k in fuzz_surfaces.CI_KINDS if k != "kill")
 
 
 @pytest.fixture(scope="module")
@@ -33,7 +35,15 @@ def test_every_hostile_input_is_accepted_or_refused_cleanly(fuzz_run):
 def test_every_hostile_surface_file_is_accepted_or_refused_cleanly(fuzz_run):
     """Issue 30's kinds (mesh files with the files they name, splat formats, condition EXRs as generate reads them,
     training clips); misreads as ``tests/fuzz_surfaces.py`` defines them."""
-    _assert_clean(fuzz_run, fuzz_surfaces.CI_KINDS, 400)
+    _assert_clean(fuzz_run, SURFACE_FILES, 400)
+
+
+def test_kills_and_concurrent_runs_leave_only_the_finished_runs_outputs(fuzz_run):
+    """Issue 30's ``kill`` kind: generate (the baseline), render and mesh-asset killed (SIGKILL or SIGTERM) before
+    one of their atomic renames, or two runs at once on one output folder; then the next run: every frame in
+    ``generated/`` and ``conditions/`` (the asset PLY) is that finished run's, no temporary is left, and a run
+    refused by the other's lock says so (exit 1) without a traceback."""
+    _assert_clean(fuzz_run, ("kill",), 30)
 
 
 def _assert_clean(run, kinds, least):

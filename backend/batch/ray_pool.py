@@ -30,8 +30,9 @@ dead worker run again elsewhere.
   events and log go to its ``backend.log`` and Ray's worker logs, never to the driver's standard output.
 * **SIGTERM** on the driver (``stop`` for a caller; the first Ctrl-C too, in ``batch`` and ``evaluate``) cancels every job not finished (``ray.cancel``, asked again
   every ``CANCEL_AGAIN_S`` while any is pending: Ray's cancel is best effort). A queued job never starts: its result
-  is ``not run (SIGTERM)`` with ``attempts`` 0, counted in the summary's ``not_run``, never ``failed``. A running job gets the cancel as its ``stop`` flag (``_run_job``
-  turns Ray's interrupt into it), so it ends as ``render`` and ``generate`` end on SIGTERM: after its current frame
+  is ``not run (SIGTERM)`` with ``attempts`` 0, counted in the summary's ``not_run``, never
+  ``failed``. A running job gets a SIGINT on its worker (``_interrupt``, a task on its node) as its ``stop`` flag
+  (``_on_sigint``; not ``ray.cancel``, after which Ray drops what a generator task yields), so it ends as ``render`` and ``generate`` end on SIGTERM: after its current frame
   or sampler step, every file it wrote whole, its output lock released; its result is ``stopped`` with its counts
   (``rendered``: the frames it finished). A job Ray interrupted outside that flag is ``stopped`` too, with an
   ``error`` saying its counts are unknown. A job whose worker died and whose retry had not started yet is ``stopped`` too. The driver then prints its

@@ -393,11 +393,14 @@ def test_more_cpus_per_job_than_any_node_has_and_a_job_listed_twice(ray_cluster,
     again = os.path.join(str(tmp_path), ".", "job", "job.json")   # the same file, spelled another way
     os.symlink(tmp_path / "job", tmp_path / "link")
     linked = str(tmp_path / "link" / "job.json")                    # and through a link to its folder
-    results = batch_ray.run_ray_batch([job, again, linked], "render", "cpu")
+    hard = str(tmp_path / "job" / "same.json")                      # and through a hard link beside it
+    os.link(job, hard)
+    results = batch_ray.run_ray_batch([job, again, linked, hard], "render", "cpu")
     # run once (together they would meet at the output lock); each copy gets the job's result, so nothing "fails"
-    assert [r["status"] for r in results] == ["ok"] * 3 and results[0]["rendered"] == 2
-    assert [r.get("duplicate_of") for r in results] == [None, 0, 0] and [r["attempts"] for r in results] == [1, 0, 0]
-    assert [r["job"] for r in results] == [job, again, linked] and results[2]["rendered"] == 2
+    assert [r["status"] for r in results] == ["ok"] * 4 and results[0]["rendered"] == 2
+    assert [r.get("duplicate_of") for r in results] == [None, 0, 0, 0]
+    assert [r["attempts"] for r in results] == [1, 0, 0, 0]
+    assert [r["job"] for r in results] == [job, again, linked, hard] and results[3]["rendered"] == 2
 
 
 def test_ctrl_c_on_a_driver_is_a_stop_and_a_second_one_aborts():

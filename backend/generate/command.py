@@ -329,8 +329,8 @@ def _result(job: job_mod.Job, plan: Plan, mp4: str, gen_dir: str, frames: int, s
 def _write_outputs(job, plan: Plan, rgb: np.ndarray, mp4: str, manifest: dict) -> None:
     """``generated/frame_NNNNNN.png`` per output frame, ``generated.mp4`` and ``generated/manifest.json`` (written
     last: it marks the run finished; a previous run's is removed before the first frame is written, so a folder
-    holding frames of two runs is never up to date). rgb: (F, H, W, 3) uint8. The manifest and the MP4's metadata say which
-    generator made them (``model``, ``description``), so a baseline video is not taken for the model's."""
+    holding frames of two runs is never up to date). rgb: (F, H, W, 3) uint8. The manifest and the MP4's metadata
+    say which generator made them (``model``, ``description``), so a baseline video is not taken for the model's."""
     from .video import write_mp4
 
     gen_dir = outputs.output_folder(plan.output_dir, OutputLayout.GENERATED, plan.paths.get("allow_outside", False))

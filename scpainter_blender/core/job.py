@@ -117,7 +117,7 @@ def intrinsics_problem(K, size=None) -> str | None:
     ``MAX_FOCAL_RATIO`` W, fy at most that many H, and (cx, cy) at most ``PRINCIPAL_POINT_MARGIN`` image sizes
     outside the image. A job's ``frames[i].K`` and a training clip's ``poses.npz`` K are checked by it."""
     K = np.asarray(K, np.float64)
-    shape = "expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0 (pixels, at most 1e8)"
+    shape = f"expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0 (pixels, at most {MAX_K:g})"
     if K.shape != (3, 3) or not np.all(np.isfinite(K)) or not (K[0, 0] > 0 and K[1, 1] > 0) or \
             np.any(K[2] != [0, 0, 1]) or K[1, 0] != 0 or np.abs(K).max() > MAX_K:
         return shape

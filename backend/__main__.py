@@ -98,6 +98,7 @@ def _cmd_render(args) -> int:
     if args.check:  # (render_job checks the same before it writes anything)
         paths = job_inputs.check_inputs(args.job, job, args.allow_outside, roots)
         outputs.check_output(paths["output_dir"], args.allow_outside)
+        command.warn_inputs(job, paths)
         events.done(command="render", check=True, frames=len(job.frames), output_dir=paths["output_dir"],
                     locked_by=locking.lock_owner(paths["output_dir"]))
         return events.EXIT_OK
@@ -165,6 +166,9 @@ def _cmd_generate(args) -> int:
         events.log(f"generate: the baseline ignores {', '.join(ignored)} (model settings; the baseline is OpenCV "
                    "inpainting)")
     if args.check:
+        from .render import command as render_command
+
+        render_command.warn_inputs(job, plan.paths)
         events.done(command="generate", check=True, frames=len(job.frames), model=plan.model, ignored=ignored,
                     description=plan.description(), checkpoint=plan.checkpoint, settings=plan.settings,
                     output_dir=plan.output_dir, locked_by=locking.lock_owner(plan.output_dir))

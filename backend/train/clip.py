@@ -203,7 +203,11 @@ def _pattern(value, clip_path: str, where: str, S: int) -> list:
             raise ClipError(clip_path, where, f"expected a pattern like 'frames/frame_{{:06d}}.png': only the frame "
                                               f"index may be formatted, got {{{name}{'!' + conv if conv else ''}"
                                               f"{':' + spec if spec else ''}}}")
-    return [job_mod.resolve(clip_path, pattern.format(i)) for i in range(S)]
+    try:  # "{}{}" asks for two indices, "{}{0}" mixes automatic and manual numbering: str.format refuses both
+        return [job_mod.resolve(clip_path, pattern.format(i)) for i in range(S)]
+    except (IndexError, ValueError) as e:
+        raise ClipError(clip_path, where, f"expected a pattern like 'frames/frame_{{:06d}}.png' with one frame index "
+                                          f"field, got {pattern!r} ({e})") from None
 
 
 def _float_array(a, path: str, key: str, shape) -> np.ndarray:

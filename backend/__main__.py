@@ -98,6 +98,7 @@ def _cmd_render(args) -> int:
     if args.check:  # (render_job checks the same before it writes anything)
         paths = job_inputs.check_inputs(args.job, job, args.allow_outside, roots)
         outputs.check_output(paths["output_dir"], args.allow_outside)
+        command.warn_inputs(job, paths)
         events.done(command="render", check=True, frames=len(job.frames), output_dir=paths["output_dir"],
                     locked_by=locking.lock_owner(paths["output_dir"]))
         return events.EXIT_OK
@@ -165,6 +166,9 @@ def _cmd_generate(args) -> int:
         events.log(f"generate: the baseline ignores {', '.join(ignored)} (model settings; the baseline is OpenCV "
                    "inpainting)")
     if args.check:
+        from .render import command as render_command
+
+        render_command.warn_inputs(job, plan.paths)
         events.done(command="generate", check=True, frames=len(job.frames), model=plan.model, ignored=ignored,
                     description=plan.description(), checkpoint=plan.checkpoint, settings=plan.settings,
                     output_dir=plan.output_dir, locked_by=locking.lock_owner(plan.output_dir))
@@ -250,11 +254,10 @@ def _cmd_batch(args) -> int:
         results, reports = batch.run_batch(items, args.command_name, _device(args.device), args.checkpoint,
                                            allow_outside=allow_outside, half=args.half_float, overrides=overrides,
                                            shard_of=shard, data_roots=data_roots)
-    failed = [r for r in results if r["status"] != "ok"]
-    if reports:  # failed: every job not ok; counts: how many ended each way (ok, failed, stopped, not run)
-        events.done(command="batch", jobs=len(results), failed=len(failed), counts=batch_mod.status_counts(results),
-                    items=results)
-    return events.EXIT_FAILED if failed else events.EXIT_OK
+    summary = batch_mod.summary(results)
+    if reports:  # in every ending (SIGTERM, Ctrl-C too): ok, failed, stopped and not_run apart (BATCH_SUMMARY_FIELDS)
+        events.done(command="batch", **summary, items=results)
+    return events.EXIT_OK if summary["ok"] == summary["jobs"] else events.EXIT_FAILED
 
 
 def _cmd_train(args) -> int:
@@ -613,7 +616,7 @@ def main(argv=None) -> int:
     except CleanFailure as e:  # explained by the command itself: no traceback
         events.error(str(e), hint=e.hint, **e.fields)
         return events.EXIT_FAILED
-    except KeyboardInterrupt:  # Ctrl-C (for batch --ray and evaluate --ray the second one: the first stops)
+    except KeyboardInterrupt:  # Ctrl-C (for batch and evaluate --ray the second one: the first stops)
         events.error("interrupted (Ctrl-C)", hint="finished frames and checkpoints are kept (each written whole); run "
                                                   "the same command again to resume")
         return events.EXIT_INTERRUPTED

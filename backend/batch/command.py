@@ -5,7 +5,10 @@
 
 Each process takes every WORLD_SIZE-th job starting at its RANK (the variables torchrun and accelerate set; one
 process without them), on GPU LOCAL_RANK when CUDA is there. A job that fails is recorded and the batch goes on
-(``failure``: bad input with its ``file`` and ``field``, a bug with the ``log`` holding its traceback).
+(``failure``: bad input with its ``file`` and ``field``, a bug with the ``log`` holding its traceback). SIGTERM or
+a first Ctrl-C stops the running job after its current frame or sampler step (``stopped``, finished outputs kept);
+the jobs after it are ``not run (SIGTERM)``, and the summary is printed as in any other ending (a second Ctrl-C
+aborts).
 At the end the ranks exchange their results (torch.distributed, gloo: no GPU needed for this) and rank 0 emits one
 ``done`` event listing every job with its rank, status, time and outputs. Every rank exits 1 if any job failed.
 ``--shard K/N`` instead: this process runs its share alone (no gathering) and reports it (``blender -c scpainter
@@ -17,6 +20,8 @@ from __future__ import annotations
 import os
 import time
 
+from scpainter_blender.core.backend_protocol import ITEM_FAILED as FAILED, ITEM_NOT_RUN as NOT_RUN, \
+    ITEM_OK as OK, ITEM_STOPPED as STOPPED
 from scpainter_blender.core.batch_items import ranks_from_env, shard
 
 from .. import events
@@ -123,20 +128,22 @@ def run_batch(items: list[str], command: str, device: str, checkpoint: str | Non
     mine = shard(items, rank, world)
     events.log(f"batch rank {rank}/{world}: {len(mine)} of {len(items)} jobs on {device}")
     results = []
-    with events.stop_on_sigterm() as stop:
+    # Ctrl-C too (a second one aborts): the running job stops after its current frame or step, the rest are not
+    # run, and the summary still says what ran
+    with events.stop_on_sigterm(sigint=True) as stop:
         for n, path in enumerate(mine):
             if stop:
-                results.append({"job": path, "rank": rank, "status": "not run (SIGTERM)"})
+                results.append({"job": path, "rank": rank, "status": NOT_RUN})
                 continue
             t = time.perf_counter()
             try:
                 with events.log_scope():  # a bug's traceback goes to this job's backend.log
                     out = run_one(path, command, device, checkpoint, stop, allows_outside(allow_outside, path),
                                   half, overrides=overrides, data_roots=(data_roots or {}).get(path, ()))
-                status = "stopped" if out.pop("stopped") else "ok"
+                status = STOPPED if out.pop("stopped") else OK
                 results.append({"job": path, "rank": rank, "status": status, **out})
             except Exception as e:  # one bad scene must not stop the batch: record it and go on
-                results.append({"job": path, "rank": rank, "status": "failed", **failure(e, path)})
+                results.append({"job": path, "rank": rank, "status": FAILED, **failure(e, path)})
             results[-1]["seconds"] = time.perf_counter() - t
             events.progress("batch", n + 1, len(mine), rank=rank, job=path, status=results[-1]["status"])
     if shard_of is not None:

@@ -10,31 +10,39 @@ dead worker run again elsewhere.
 
 * **Resources.** A task asks for one GPU when the cluster has GPUs (device ``cuda``; Ray sets
   ``CUDA_VISIBLE_DEVICES`` per task), else ``cpus_per_job`` CPUs (device ``cpu``).
-* **Retries** (``retries``, Ray's ``max_retries`` and ``retry_exceptions``). A worker that dies (killed, out of
-  memory, its node lost) or a job that raises an unexpected exception (a bug, or a transient failure such as a GPU
-  error) is run again, up to ``retries`` times. Bad input (``InputError``) and failures a job explains
+* **Bookkeeping on the driver.** Each attempt is a generator task (``_run_job``): its first item says it started
+  and on which worker, its second is the job's result. The driver alone counts attempts, running and ended jobs and
+  decides retries: no actor or other process holds the batch's state, so a worker's death (killed, Ray's memory
+  monitor, the kernel's OOM killer, a lost node) costs only the attempt it ran, and a job whose result reached the
+  driver is never run again.
+* **Retries** (``retries``, sent again by the driver; Ray's own retries are off). A worker that dies or a job that
+  raises an unexpected exception (a bug, or a transient failure such as a GPU error) is run again, up to
+  ``retries`` times. Bad input (``InputError``) and failures a job explains
   (``CleanFailure``: NaN output, a folder another live run holds) are results, never retried: running them again
   cannot change them. A retry resumes like any second run: finished frames are kept (written atomically) and the
   dead attempt's output lock is taken over, on any host (``locking.TASK_ENV``).
 * **Finished jobs** are skipped by the jobs themselves, with the keys a second ``render`` or ``generate`` uses
   (``skipped``: true in the job's result).
 * **Events.** The driver prints one stream: a ``progress`` event (stage ``batch``) each time a job ends, with
-  ``done``, ``total``, ``failed`` and ``running``, then the same ``done`` event as ``batch`` (``items``: one result
-  per job, in the order given, with ``worker`` "host:pid", ``attempts`` and its own ``seconds``). Each job's own
+  ``done``, ``total``, ``failed`` (items ``failed`` so far) and ``running``, then the same ``done`` event as
+  ``batch`` (``backend_protocol.BATCH_SUMMARY_FIELDS``; ``items``: one result per job, in the order given, with
+  ``worker`` "host:pid", ``attempts`` (those that started) and its own ``seconds``). Each job's own
   events and log go to its ``backend.log`` and Ray's worker logs, never to the driver's standard output.
-* **SIGTERM** on the driver (``stop`` for a caller) cancels every job not finished (``ray.cancel``, asked again
+* **SIGTERM** on the driver (``stop`` for a caller; the first Ctrl-C too, in ``batch`` and ``evaluate``) cancels every job not finished (``ray.cancel``, asked again
   every ``CANCEL_AGAIN_S`` while any is pending: Ray's cancel is best effort). A queued job never starts: its result
-  is ``not run (SIGTERM)`` with ``attempts`` 0. A running job gets the cancel as its ``stop`` flag (``_run_job``
-  turns Ray's interrupt into it), so it ends as ``render`` and ``generate`` end on SIGTERM: after its current frame
+  is ``not run (SIGTERM)`` with ``attempts`` 0, counted in the summary's ``not_run``, never
+  ``failed``. A running job gets a SIGINT on its worker (``_interrupt``, a task on its node) as its ``stop`` flag
+  (``_on_sigint``; not ``ray.cancel``, after which Ray drops what a generator task yields), so it ends as ``render`` and ``generate`` end on SIGTERM: after its current frame
   or sampler step, every file it wrote whole, its output lock released; its result is ``stopped`` with its counts
   (``rendered``: the frames it finished). A job Ray interrupted outside that flag is ``stopped`` too, with an
-  ``error`` saying its counts are unknown. The driver then prints its ``done`` event and ``batch`` exits 1; the
+  ``error`` saying its counts are unknown. A job whose worker died and whose retry had not started yet is ``stopped`` too. The driver then prints its
+  ``done`` event and ``batch`` exits 1; the
   same command again renders only the missing frames, on workers that are free at once.
 * **Refused at once, where Ray would wait for ever:** an address (HOST:PORT) where no head answers within
   ``CONNECT_TIMEOUT_S`` (or that answers, but not as a Ray head), and ``cpus_per_job`` above the largest node's CPUs
-  (``ArgumentError``). A job listed twice (or through a link to its file) runs once; the copy's item repeats its
-  result with ``duplicate_of`` (the item that ran it) and ``attempts`` 0, so the exit code is the same as without
-  Ray.
+  (``ArgumentError``). A job listed twice (the same file in the same folder, by ``st_dev``/``st_ino``: a hard or symbolic
+  link, another spelling; ``batch_items.job_identity``) runs once; the copy's item repeats its result with
+  ``duplicate_of`` (the item that ran it) and ``attempts`` 0, so the exit code is the same as without Ray.
 * **Files.** Jobs, their inputs and outputs, and this code must be on a file system every node mounts at the same
   path (the tasks get the job's path, a string, and open the files themselves; each worker imports this code from
   the driver's ``PYTHONPATH``). Nothing from a user's file is pickled: tasks take strings and numbers and return
@@ -48,6 +56,8 @@ import socket
 import time
 
 from scpainter_blender.core import batch_items
+from scpainter_blender.core.backend_protocol import ITEM_FAILED as FAILED, ITEM_NOT_RUN as NOT_RUN, \
+    ITEM_OK as OK, ITEM_STOPPED as STOPPED
 
 from .. import events
 
@@ -58,6 +68,10 @@ DEFAULT_RETRIES = batch_items.DEFAULT_RETRIES
 CONNECT_TIMEOUT_S = 10.0
 #: After SIGTERM the driver cancels the jobs still pending again this often (s): Ray's ``ray.cancel`` is best effort.
 CANCEL_AGAIN_S = 2.0
+#: How long the driver waits, at its end, for the SIGINTs it sent to running jobs to be delivered (s).
+INTERRUPT_WAIT_S = 30.0
+#: The key of the first item a job's task yields (``_run_job``): the worker ("host:pid") the attempt started on.
+STARTED = "started_on"
 
 
 def connect(address: str | None = None, stop: list | None = None):
@@ -157,13 +171,16 @@ def _check_reachable(address: str | None) -> None:
         channel.close()
 
 
-def _run_job(path: str, command: str, device: str, options: dict, task: str, board, job_fn=None) -> dict:
-    """One job in a Ray worker: ``job_fn`` (default ``batch.run_one``) with ``options`` (its keyword arguments:
-    checkpoint, allow_outside, data_roots, half, precision, overrides; plain values). Bad input and explained
-    failures come back as a ``failed`` result; any other exception propagates, so Ray retries it. ``task`` marks
-    the output lock so a retry may take over the lock its dead attempt left, on any host. The driver's
-    ``ray.cancel`` (its SIGTERM) sets the job's ``stop`` flag: the job ends after its current frame or sampler step
-    and returns ``stopped``."""
+def _run_job(path: str, command: str, device: str, options: dict, task: str, job_fn=None):
+    """One attempt of a job in a Ray worker, a generator task: it yields ``{"worker": "host:pid"}`` as it starts
+    (the driver's bookkeeping: attempts, ``running``, where a dead attempt ran), then the job's result. The job:
+    ``job_fn`` (default ``batch.run_one``) with ``options`` (its keyword arguments: checkpoint, allow_outside,
+    data_roots, half, precision, overrides; plain values). Bad input and explained failures come back as a
+    ``failed`` result; any other exception propagates, so the driver runs the job again. ``task`` marks the output
+    lock so a retry may take over the lock its dead attempt left, on any host. The driver's ``ray.cancel`` (its
+    SIGTERM) sets the job's ``stop`` flag: the job ends after its current frame or sampler step and returns
+    ``stopped``. Nothing here waits on another Ray process: once the result is yielded the attempt has no more to
+    tell, so no failure elsewhere can make a finished job run again."""
     import signal
 
     from scpainter_blender.core import locking
@@ -172,41 +189,62 @@ def _run_job(path: str, command: str, device: str, options: dict, task: str, boa
     from . import command as batch
     from ..errors import CleanFailure
 
-    import ray
-
+    global _job_stop
     stop: list = []
-    # ray.cancel reaches a running task as SIGINT would (_thread.interrupt_main): by default a KeyboardInterrupt
-    # raised wherever the job is (mid-write, inside the output lock's release, in a finalizer that swallows it), and
-    # Ray then reports the task as cancelled, hiding the frames it finished. As the job's stop flag it ends the job
-    # as SIGTERM ends `render`: after the current frame, outputs whole, lock released, counts reported.
+    # the driver's stop (its SIGTERM, a first Ctrl-C) reaches a running job as SIGINT (_interrupt): as the job's stop
+    # flag it ends the job as SIGTERM ends `render`, after the current frame, outputs whole, lock released, counts
+    # reported. (Not ray.cancel: Ray drops what a cancelled generator task yields after it, the job's result.)
     try:
-        previous = signal.signal(signal.SIGINT, lambda *_: stop.append(True))
-    except ValueError:  # not the main thread (a threaded actor): Ray's KeyboardInterrupt stands
-        previous = None
+        signal.signal(signal.SIGINT, _on_sigint)
+        # Ray starts its processes with SIGINT blocked (so a terminal's Ctrl-C leaves the cluster alone): this thread
+        # takes it again, the only one that does, so the signal comes here (Ray's threads keep it blocked)
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    except ValueError:  # not the main thread (a threaded actor): SIGINT would not reach the job
+        pass
+    _job_stop = stop
     try:
         worker = f"{socket.gethostname()}:{os.getpid()}"
-        # not waited for here: a task blocked in ray.get gives its CPUs back, and Ray would start another job on them
-        noted = board.started.remote(task, worker)
+        import ray
+
+        yield {STARTED: worker, "node": ray.get_runtime_context().get_node_id(), "pid": os.getpid()}
         os.environ[locking.TASK_ENV] = task
         t0, started = time.perf_counter(), time.time()
         try:
             with events.log_scope():  # a bug's traceback goes to this job's backend.log
                 out = (job_fn or batch.run_one)(path, command, device, stop=stop, **options)
-            result = {"status": "stopped" if out.pop("stopped") else "ok", **out}
+            result = {"status": STOPPED if out.pop("stopped") else OK, **out}
         except (InputError, CleanFailure) as e:
-            result = {"status": "failed", **batch.failure(e, path)}
-        except Exception as e:  # a bug or a transient failure: its traceback to the job's log, then Ray retries it
+            result = {"status": FAILED, **batch.failure(e, path)}
+        except Exception as e:  # a bug or a transient failure: its traceback to the job's log, then a retry
             e.scpainter_log = events.report_bug(e, f"batch: {path} failed on {worker}")
             raise
         finally:
             os.environ.pop(locking.TASK_ENV, None)
-        result = {**result, "worker": worker, "seconds": time.perf_counter() - t0, "started": started,
-                  "finished": time.time()}
-        ray.get([noted, board.ended.remote(task)])  # recorded before the driver sees the result
-        return result
+        yield {**result, "worker": worker, "seconds": time.perf_counter() - t0, "started": started,
+               "finished": time.time()}
     finally:
-        if previous is not None:  # the worker runs other tasks next
-            signal.signal(signal.SIGINT, previous)
+        _job_stop = None  # (the handler stays: a SIGINT sent as the job ended is then ignored, not a crash)
+
+
+#: The stop flag of the job this worker runs (``_run_job``), None between jobs.
+_job_stop: list | None = None
+
+
+def _on_sigint(*_) -> None:
+    """A worker's SIGINT handler while it runs the batch's jobs: the running job's stop flag; ignored between jobs."""
+    if _job_stop is not None:
+        _job_stop.append(True)
+
+
+def _interrupt(pid: int) -> None:
+    """A task on the node of a worker running a job: SIGINT to that worker (``pid``), the job's stop flag
+    (``_on_sigint``); nothing when it has already ended."""
+    import signal
+
+    try:
+        os.kill(pid, signal.SIGINT)
+    except ProcessLookupError:
+        pass
 
 
 def job_device(device: str = "auto", address: str | None = None) -> str:
@@ -221,28 +259,6 @@ def job_device(device: str = "auto", address: str | None = None) -> str:
         raise ArgumentError("--device", "cuda, but the Ray cluster has no GPU",
                             hint="start the workers on GPU machines, or use --device cpu")
     return "cuda" if gpus > 0 and device != "cpu" else "cpu"
-
-
-class _Board:
-    """Which tasks (``run_id:index``) have started, where and how often, and which are running now: a Ray actor the
-    tasks tell. The driver asks it for ``active_tasks`` after each batch of ended jobs (``running``: a small set, at
-    most one per worker plus attempts whose worker died) and for ``snapshot`` once at the end (``attempts``)."""
-
-    def __init__(self):
-        self.starts, self.active = {}, set()
-
-    def started(self, task: str, worker: str) -> None:
-        self.starts.setdefault(task, []).append(worker)
-        self.active.add(task)
-
-    def ended(self, task: str) -> None:
-        self.active.discard(task)
-
-    def active_tasks(self) -> set:
-        return self.active
-
-    def snapshot(self) -> dict:
-        return self.starts
 
 
 def run_ray_batch(items: list[str], command: str, device: str = "auto", checkpoint: str | None = None,
@@ -270,8 +286,10 @@ def run_ray_batch(items: list[str], command: str, device: str = "auto", checkpoi
     batch_items.check_ray_options(retries, cpus_per_job)
     if stop:  # SIGTERM before any job was sent (while the cluster was joined: connect's stop): none runs
         events.log(f"batch --ray: stopped (SIGTERM or Ctrl-C) before any job was sent: {len(items)} jobs not run")
-        return [{"job": p, "status": "not run (SIGTERM)", "attempts": 0} for p in items]
+        return [{"job": p, "status": NOT_RUN, "attempts": 0} for p in items]
     ray = connect(address)
+    from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
+
     gpus = ray.cluster_resources().get("GPU", 0)
     use_gpu = job_device(device, address) == "cuda"
     resources = {"num_gpus": 1, "num_cpus": 1} if use_gpu else {"num_cpus": cpus_per_job}
@@ -280,80 +298,111 @@ def run_ray_batch(items: list[str], command: str, device: str = "auto", checkpoi
         raise ArgumentError("--cpus-per-job", f"{resources['num_cpus']:g} CPUs per job, but the largest node of the "
                                               f"Ray cluster has {largest:g}: no job could ever start",
                             hint=f"ask for at most {largest:g}, or add bigger nodes (ray start --num-cpus N)")
-    task = ray.remote(_run_job).options(max_retries=retries, retry_exceptions=True, **resources)
-    board = ray.remote(_Board).options(num_cpus=0).remote()
-    ray.get(board.active_tasks.remote())  # up before any task calls it: a call queued for it dies with its caller
+    # each attempt a generator task: its first item says it started (and where), its second is the job's result. The
+    # driver keeps every count itself, with no actor whose death could lose the batch, and runs a failed attempt
+    # again itself (Ray's own retries would hide a retry's start)
+    task = ray.remote(_run_job).options(num_returns="streaming", max_retries=0, retry_exceptions=False,
+                                        **resources)
+    interrupt = ray.remote(_interrupt)
     run_id = uuid.uuid4().hex[:12]
     options = {"checkpoint": checkpoint, "half": half, "precision": precision, "overrides": overrides}
-    results: list = [None] * len(items)
-    # a job listed twice (or through a link) runs once: run at once, the two would meet at their output lock
-    first: dict = {}    # the job file's real path -> its first item
-    copies: dict = {}   # a first item -> the later items of the same job, which get its result
-    for i, p in enumerate(items):
-        j = first.setdefault(os.path.realpath(p), i)
-        if j != i:
-            copies.setdefault(j, []).append(i)
-    refs = {task.remote(os.path.abspath(p), command, "cuda" if use_gpu else "cpu",
-                        {**options, "allow_outside": batch.allows_outside(allow_outside, p),
-                         "data_roots": (data_roots or {}).get(p, ())}, f"{run_id}:{i}", board,
-                        job_fn): i for i, p in enumerate(items) if first[os.path.realpath(p)] == i}
-    events.log(f"batch --ray: {len(refs)} jobs on {ray.cluster_resources().get('CPU', 0):g} CPUs and {gpus:g} GPUs "
+    # a job listed twice (a hard or symbolic link, another spelling) runs once: run at once, the two would meet at
+    # their output lock; the copy's item gets the first's result
+    first = batch_items.first_items(items)
+    copies: dict = {}
+    for k, i in enumerate(first):
+        if k != i:
+            copies.setdefault(i, []).append(k)
+    todo = [i for i, j in enumerate(first) if i == j]
+
+    streams: dict = {}              # an attempt's generator -> [item index, whether it has said it started]
+    submitted = [0] * len(items)    # attempts sent, per item
+    starts: dict = {}               # item index -> the workers its attempts started on, in order
+
+    def submit(i):
+        p = items[i]
+        gen = task.remote(os.path.abspath(p), command, "cuda" if use_gpu else "cpu",
+                          {**options, "allow_outside": batch.allows_outside(allow_outside, p),
+                           "data_roots": (data_roots or {}).get(p, ())}, f"{run_id}:{i}", job_fn)
+        streams[gen] = [i, False]
+        submitted[i] += 1
+
+    for i in todo:
+        submit(i)
+    events.log(f"batch --ray: {len(todo)} jobs on {ray.cluster_resources().get('CPU', 0):g} CPUs and {gpus:g} GPUs "
                f"({'1 GPU' if use_gpu else f'{cpus_per_job:g} CPUs'} per job, {retries} retries)"
-               + (f"; {len(items) - len(refs)} listed again, run once" if len(refs) < len(items) else ""))
-    done, failed = 0, 0
-    pending, ended_ids, cancelled_at = dict(refs), set(), None
-    while pending:
+               + (f"; {len(items) - len(todo)} listed again, run once" if len(todo) < len(items) else ""))
+    results: list = [None] * len(items)
+    done, failed, cancelled_at = 0, 0, None
+    interrupts: list = []   # the _interrupt tasks sent: waited for before returning, so none outlives the batch
+    where: dict = {}        # a started attempt's generator -> (node id, worker pid)
+    while streams:
         if stop and (cancelled_at is None or time.monotonic() - cancelled_at > CANCEL_AGAIN_S):
-            # Ray's cancel is best effort (its docs), so what is still pending is asked again now and then; a running
-            # job already stopping only sees its stop flag set again (_run_job). Not recursive: a job's own calls to
-            # the board must complete, or its last ray.get would fail the stopped job.
-            for ref in pending:
-                ray.cancel(ref, recursive=False)
+            # asked again now and then: Ray's cancel is best effort (its docs); a running job already stopping only
+            # sees its stop flag set again
+            for gen, (i, said_started) in streams.items():
+                if said_started:  # SIGINT to its worker: the job's stop flag, its result still comes
+                    node, pid = where[gen]
+                    interrupts.append(interrupt.options(num_cpus=0, max_retries=0, scheduling_strategy=(
+                        NodeAffinitySchedulingStrategy(node, soft=False))).remote(pid))
+                else:  # queued: it never starts
+                    ray.cancel(gen, recursive=False)
             cancelled_at = time.monotonic()
-        # every job that ended within the half second: one pass over the pending list per wait, not per job
-        ready, _ = ray.wait(list(pending), num_returns=len(pending), timeout=0.5)
-        ended, interrupted = [], []
-        for ref in ready:
-            i = pending.pop(ref)
+        # every stream with a new item within the half second: one pass over the attempts per wait, not per job
+        ready, _ = ray.wait(list(streams), num_returns=len(streams), timeout=0.5)
+        ended = []
+        while ready:  # every item already there, a stream's start and result alike, before counting what runs
+            gen = ready.pop(0)
+            i, said_started = streams[gen]
             try:
-                r = ray.get(ref)
-            except ray.exceptions.TaskCancelledError:  # never started, or interrupted outside its job (below)
-                r = {"status": "not run (SIGTERM)"}
-                interrupted.append(i)
-            except ray.exceptions.RayError as e:  # retries used up: the worker died, or a bug raised each time
-                # a bug's traceback went to its job's log; a dead worker's job wrote there until it died
-                r = {"status": "failed", "error": _ray_error(e),
-                     "log": getattr(getattr(e, "cause", None), "scpainter_log", None) or _job_log(items[i])}
-            results[i] = {"job": items[i], **r}
+                item = ray.get(next(gen))
+            except (StopIteration, ray.exceptions.RayError) as e:
+                if stop and not said_started:  # cancelled before it started: not an attempt
+                    submitted[i] -= 1
+                if stop and starts.get(i):
+                    # it did run (this attempt, stopped outside the job's stop flag or cancelled as it started, or an
+                    # earlier one whose worker died): its finished frames are kept, its counts unknown; "not run"
+                    # would be a lie
+                    item = {"status": STOPPED, "worker": starts[i][-1],
+                            "error": "cancelled by SIGTERM while it ran: its finished outputs are kept, how many is "
+                                     "not known"}
+                elif stop:
+                    item = {"status": NOT_RUN}
+                elif isinstance(e, StopIteration):  # (an attempt yields its result or raises: never seen)
+                    item = {"status": FAILED, "error": "its Ray task ended without a result"}
+                elif submitted[i] <= retries:  # its worker died, or a bug (a transient failure?) raised: again
+                    del streams[gen]
+                    events.log(f"batch --ray: {items[i]}: attempt {submitted[i]} failed ({_ray_error(e)}); "
+                               "running it again")
+                    submit(i)
+                    continue
+                else:  # a bug's traceback went to its job's log; a dead worker's job wrote there until it died
+                    item = {"status": FAILED, "error": _ray_error(e),
+                            "log": getattr(getattr(e, "cause", None), "scpainter_log", None) or _job_log(items[i])}
+                    if starts.get(i):
+                        item["worker"] = starts[i][-1]   # its last worker died with it: where it ran
+            else:
+                if STARTED in item:
+                    starts.setdefault(i, []).append(item[STARTED])
+                    streams[gen][1] = True
+                    where[gen] = (item["node"], item["pid"])
+                    ready += ray.wait([gen], timeout=0)[0]  # its result too, if it came with it
+                    continue
+            del streams[gen]
+            results[i] = {"job": items[i], **item}
             ended.append(i)
-            ended_ids.add(f"{run_id}:{i}")  # also those whose last attempt died before telling the board
-        if not ended:
-            continue
-        if interrupted:
-            # a task Ray reports cancelled although it started (Ray's KeyboardInterrupt reached it outside the job's
-            # stop flag: a thread that is not the main one, or a retry waiting after its worker died) did run: its
-            # finished frames are kept, its counts unknown; "not run" would be a lie
-            starts = ray.get(board.snapshot.remote())
-            for i in interrupted:
-                if starts.get(f"{run_id}:{i}"):
-                    results[i] = {"job": items[i], "status": "stopped", "worker": starts[f"{run_id}:{i}"][-1],
-                                  "error": "cancelled by SIGTERM while it ran: its finished outputs are kept, how "
-                                           "many is not known"}
-        running = len(ray.get(board.active_tasks.remote()) - ended_ids)  # after the whole batch ended
+        running = sum(s for _, s in streams.values())  # attempts that started and have not ended
         for i in ended:
+            results[i]["attempts"] = submitted[i]
             for k in (i, *copies.get(i, ())):
-                if k != i:  # the copy's item: the job's result, saying which item ran it
-                    results[k] = {**results[i], "job": items[k], "duplicate_of": i}
+                if k != i:  # the copy's item: the job's result, saying which item ran it (0 attempts of its own)
+                    results[k] = {**results[i], "job": items[k], "duplicate_of": i, "attempts": 0}
                 done += 1
-                failed += results[k]["status"] != "ok"
+                failed += results[k]["status"] == FAILED
                 events.progress(stage, done, len(items), failed=failed, running=running, job=items[k],
                                 status=results[k]["status"])
-    starts = ray.get(board.snapshot.remote())
-    for i, r in enumerate(results):
-        r["attempts"] = len(starts.get(f"{run_id}:{i}", []))   # 0 for a copy: its first item ran the job
-        if r["attempts"] and "worker" not in r:  # its last worker died with it: where it ran, from the board
-            r["worker"] = starts[f"{run_id}:{i}"][-1]
-    ray.kill(board)
+    if interrupts:  # each a moment's work (its worker may have gone with its node: not waited for long)
+        ray.wait(interrupts, num_returns=len(interrupts), timeout=INTERRUPT_WAIT_S)
     return results
 
 

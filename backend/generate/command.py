@@ -11,7 +11,9 @@ windows; decode in chunks; crop; write ``generated/frame_NNNNNN.png`` and ``gene
 Resume: after every sampler step the latents are saved (atomically) to ``generate_state.safetensors`` with a key
 hashing everything that determines the result (checkpoint, settings, conditions); a run with the same key
 continues from the saved step and gives exactly the frames of an uninterrupted run (the sampler draws no noise
-after the start). A finished run writes ``generated/manifest.json``; running again with the same key skips.
+after the start). A finished run writes ``generated/manifest.json`` last; running again with the same key skips.
+A run removes the previous manifest before it replaces the first frame (``_write_outputs``), so a run killed or
+failing while it writes frames leaves a folder that is never called up to date (the model's and the baseline's).
 """
 
 from __future__ import annotations
@@ -110,11 +112,20 @@ def prepare(job_path: str, job: job_mod.Job, checkpoint: str | None, overrides: 
 def load_conditions(job_path: str, job: job_mod.Job):
     """(image, asset_mask, valid): I (F, 3, H, W), M_a (F, 1, H, W) and validity 1 − hole (F, 1, H, W) float32
     tensors from the condition EXRs (``channels.read``: EXRs with the former channel name load too; one without
-    these channels raises ``channels.ConditionsError``)."""
+    these channels raises ``channels.ConditionsError``; a folder or FIFO in a frame's place, ``channels.ExrError``).
+    Every frame must be the job's resolution (W x H): one of another size (re-saved by another tool) raises
+    ``channels.ExrError`` naming it, its size and the job's, field ``dataWindow``, before anything is stacked."""
     image, asset_mask, valid = [], [], []
     need = (*channels.IMAGE, channels.HOLE, channels.ASSET_MASK)
+    W, H = job.resolution
     for entry in job.frames:
-        layers = channels.read(render_cmd.frame_paths(job_path, job, entry.frame)[0], required=need)
+        path = render_cmd.frame_paths(job_path, job, entry.frame)[0]
+        layers = channels.read(path, required=need)
+        h, w = layers[channels.HOLE].shape  # channels.read: every layer of a file has one size
+        if (w, h) != (W, H):
+            raise channels.ExrError(path, "dataWindow", f"is {w}x{h} pixels, the job's resolution is {W}x{H}",
+                                    hint=f"render the condition layers again at the job's resolution: python -m "
+                                         f"backend render {job_path} --force")
         image.append(np.stack([layers[c] for c in channels.IMAGE]))
         asset_mask.append(layers[channels.ASSET_MASK][None])
         valid.append(1.0 - layers[channels.HOLE][None])
@@ -317,11 +328,15 @@ def _result(job: job_mod.Job, plan: Plan, mp4: str, gen_dir: str, frames: int, s
 
 def _write_outputs(job, plan: Plan, rgb: np.ndarray, mp4: str, manifest: dict) -> None:
     """``generated/frame_NNNNNN.png`` per output frame, ``generated.mp4`` and ``generated/manifest.json`` (written
-    last: it marks the run finished). rgb: (F, H, W, 3) uint8. The manifest and the MP4's metadata say which
-    generator made them (``model``, ``description``), so a baseline video is not taken for the model's."""
+    last: it marks the run finished; a previous run's is removed before the first frame is written, so a folder
+    holding frames of two runs is never up to date). rgb: (F, H, W, 3) uint8. The manifest and the MP4's metadata
+    say which generator made them (``model``, ``description``), so a baseline video is not taken for the model's."""
     from .video import write_mp4
 
     gen_dir = outputs.output_folder(plan.output_dir, OutputLayout.GENERATED, plan.paths.get("allow_outside", False))
+    # a finished run's manifest goes before its first frame is replaced: a run killed (or failing) from here on
+    # leaves a folder that no run calls up to date, however its frames are mixed (the next run writes them all)
+    outputs.remove_listed(gen_dir, [OutputLayout.MANIFEST])
     for entry, frame in zip(job.frames, rgb):
         path = os.path.join(gen_dir, GENERATED_FRAME.name(entry.frame))
         png.write_png(path, frame)

@@ -17,6 +17,7 @@ from scpainter_blender.core import job_inputs
 from scpainter_blender.core import labels as labels_mod
 from scpainter_blender.core.geometry import boxes
 from scpainter_blender.core.output_layout import FRAME_LABELS, OutputLayout
+from scpainter_blender.core.splats import gaussians as splats
 
 from .. import events, png
 from ..errors import FolderBusyError
@@ -83,6 +84,15 @@ def _frame_files(job: job_mod.Job) -> list:
     return OutputLayout.condition_names(e.frame for e in job.frames)
 
 
+def warn_inputs(job: job_mod.Job, paths: dict) -> int:
+    """A ``warning`` event (code ``splats.INVALID_GAUSSIANS``, ``object``: the asset's name) for each asset that
+    ``job_inputs.check_inputs`` found mostly invalid (``paths["asset_warnings"]``), every run and every ``--check``;
+    their number."""
+    for i, message in paths.get("asset_warnings", ()):
+        events.warning(message, splats.INVALID_GAUSSIANS, object=job.assets[i].name)
+    return len(paths.get("asset_warnings", ()))
+
+
 def render_job(job_path: str, job: job_mod.Job, device: str, force: bool = False, point_radius: int = 0,
                stop=(), log=None, allow_outside: bool = False, lock: bool = True, checked: dict | None = None,
                half: bool | None = None, data_roots=()) -> dict:
@@ -104,13 +114,15 @@ def render_job(job_path: str, job: job_mod.Job, device: str, force: bool = False
     if paths is None:
         paths = job_inputs.check_inputs(job_path, job, allow_outside, data_roots)
         outputs.check_output(paths["output_dir"], allow_outside)
+    warned = warn_inputs(job, paths)
     out = outputs.make_folder(paths["output_dir"], "output_dir")
     with (locking.OutputLock(out, "render", busy=FolderBusyError) if lock else contextlib.nullcontext()) as held, \
             events.log_scope():  # an exception from here on is marked with backend.log (events.report_bug)
         log = log or events.FileLog(OutputLayout(out).log)
         if held is not None and held.stale:
             log(f"render: {held.took_over()}")
-        return _render(job_path, job, device, force, point_radius, stop, log, out, allow_outside, half)
+        result = _render(job_path, job, device, force, point_radius, stop, log, out, allow_outside, half)
+        return {**result, "warnings": result["warnings"] + warned}
 
 
 def _render(job_path, job, device, force, point_radius, stop, log, out, allow_outside, half) -> dict:

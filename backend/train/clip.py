@@ -203,7 +203,11 @@ def _pattern(value, clip_path: str, where: str, S: int) -> list:
             raise ClipError(clip_path, where, f"expected a pattern like 'frames/frame_{{:06d}}.png': only the frame "
                                               f"index may be formatted, got {{{name}{'!' + conv if conv else ''}"
                                               f"{':' + spec if spec else ''}}}")
-    return [job_mod.resolve(clip_path, pattern.format(i)) for i in range(S)]
+    try:  # "{}{}" asks for two indices, "{}{0}" mixes automatic and manual numbering: str.format refuses both
+        return [job_mod.resolve(clip_path, pattern.format(i)) for i in range(S)]
+    except (IndexError, ValueError) as e:
+        raise ClipError(clip_path, where, f"expected a pattern like 'frames/frame_{{:06d}}.png' with one frame index "
+                                          f"field, got {pattern!r} ({e})") from None
 
 
 def _float_array(a, path: str, key: str, shape) -> np.ndarray:
@@ -218,9 +222,10 @@ def _float_array(a, path: str, key: str, shape) -> np.ndarray:
     return a
 
 
-def _read_poses(poses_path: str, clip_path: str, S: int):
-    """world_to_camera (S, 4, 4) rigid, K (S, 3, 3) with positive focal lengths, vggt_to_world (4, 4) a
-    similarity, from ``poses.npz``; ClipError naming the file and key for anything else."""
+def _read_poses(poses_path: str, clip_path: str, S: int, size):
+    """world_to_camera (S, 4, 4) rigid, K (S, 3, 3) our intrinsics within a job's bounds for frames of ``size``
+    (W, H) (``core.job.intrinsics_problem``), vggt_to_world (4, 4) a similarity, from ``poses.npz``; ClipError
+    naming the file and key (``K[t]`` for one frame's K) for anything else."""
     def error(p, key, message):
         if key is None and message == "not found":
             return ClipError(clip_path, "poses", f"file not found: {poses_path}")
@@ -237,8 +242,11 @@ def _read_poses(poses_path: str, clip_path: str, S: int):
     if problem is not None:  # an inverse of it is taken for every rendered frame
         raise ClipError(poses_path, "world_to_camera", problem[1])
     K = _float_array(arrays["K"], poses_path, "K", (S, 3, 3))
-    if np.any(K[:, 0, 0] <= 0) or np.any(K[:, 1, 1] <= 0) or np.any(K[:, 2] != [0, 0, 1]):
-        raise ClipError(poses_path, "K", "expected intrinsics [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0")
+    for t in range(S):  # a job's bounds (and the frames' size): every job made from the clip passes them
+        problem = job_mod.intrinsics_problem(K[t], size)
+        if problem is not None:
+            raise ClipError(poses_path, f"K[{t}]", problem, f"give each frame's calibrated intrinsics for the frame "
+                                                            f"images' {size[0]} x {size[1]} px")
     M = _float_array(arrays["vggt_to_world"], poses_path, "vggt_to_world", (4, 4))
     s = np.cbrt(np.linalg.det(M[:3, :3]))
     if not s > 0 or np.abs(M[:3, :3].T @ M[:3, :3] / (s * s) - np.eye(3)).max() > 1e-3 or \
@@ -297,7 +305,7 @@ def load(path) -> Clip:
     metric = "poses" in data
     if metric:
         poses_path = job_mod.resolve(path, fields_mod.string(data["poses"], path, "poses", error=ClipError))
-        w2c, K, vggt_to_world = _read_poses(poses_path, path, S)
+        w2c, K, vggt_to_world = _read_poses(poses_path, path, S, size)
     else:
         w2c = cameras.orthonormalize(pred.world_to_camera)
         K = np.diag([size[0] / pred.width, size[1] / pred.height, 1.0]) @ pred.K

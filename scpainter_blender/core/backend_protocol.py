@@ -44,6 +44,18 @@ ERROR_FIELDS = ("message", "hint", "file", "field", "log")
 #: A progress event's fields: the stage, how many of its units are done, of how many.
 PROGRESS_FIELDS = ("stage", "done", "total")
 
+#: How a batch item ended (its ``status``: ``python -m backend batch`` with or without ``--ray``, ``blender -c
+#: scpainter batch``): done (or found up to date); failed (bad input, an explained failure, a bug, a worker that
+#: died with no retry left); stopped by SIGTERM or Ctrl-C while it ran (its finished outputs kept); never started,
+#: stopped (SIGTERM or Ctrl-C) before it began.
+ITEM_OK, ITEM_FAILED, ITEM_STOPPED, ITEM_NOT_RUN = "ok", "failed", "stopped", "not run (SIGTERM)"
+#: A batch's summary, its ``done`` event, printed in every ending (all done, some failed, SIGTERM, Ctrl-C):
+#: ``command``, ``jobs`` (items), ``ok``, ``failed``, ``stopped``, ``not_run`` (items of each status above: a job
+#: that never started is ``not_run``, never ``failed``), ``counts`` (``{status: items}``, in the order first met)
+#: and ``items`` (one result per item, in order). ``core.batch_items.summary`` makes all but ``command`` and
+#: ``items``.
+BATCH_SUMMARY_FIELDS = ("command", "jobs", "ok", "failed", "stopped", "not_run", "counts", "items")
+
 
 #: A progress event's ``stage`` while the renderer's numba kernels are compiled (the first run after an install,
 #: ~15 s) or loaded from their cache: ``serve`` at its start, a one-shot ``render`` before its first frame when they

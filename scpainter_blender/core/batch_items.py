@@ -1,7 +1,7 @@
 """What the batch commands share (``python -m backend batch`` and ``blender -c scpainter batch``): the ``--list``
 file of job or scene paths (its format, and the ``data-root:`` line of the backend's lists: ``read_job_list``),
-which items one rank of a multi-process run takes (``--shard`` or the environment), the ``--ray`` options and the
-summary's counts. No bpy, no torch."""
+which items one rank of a multi-process run takes (``--shard`` or the environment), the ``--ray`` options, which
+items name one job (``first_items``) and the summary's counts. No bpy, no torch."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import dataclasses
 import math
 import os
 
-from . import errors, files, outputs
+from . import backend_protocol, errors, files, outputs
 
 #: ``--ray``: a job is run again at most this many times after its worker died or it failed unexpectedly (default,
 #: and the most ``--retries`` accepts).
@@ -132,12 +132,44 @@ def bad_input_fields(e: errors.InputError) -> dict:
 
 
 def status_counts(results: list) -> dict:
-    """How many batch items ended each way (``ok``, ``failed``, ``stopped``, ``not run (SIGTERM)``), in the order
-    first met: the ``counts`` of every batch's ``done`` event (the backend's and the add-on's)."""
+    """How many batch items ended each way (``ok``, ``failed``, ``stopped``, ``not run (SIGTERM)``:
+    ``backend_protocol.ITEM_*``), in the order first met: the ``counts`` of every batch's ``done`` event (the
+    backend's and the add-on's)."""
     counts: dict = {}
     for r in results:
         counts[r["status"]] = counts.get(r["status"], 0) + 1
     return counts
+
+
+def summary(results: list) -> dict:
+    """The counts of a batch's summary (``backend_protocol.BATCH_SUMMARY_FIELDS``, all but ``command`` and
+    ``items``): ``jobs``, then the items that ended ``ok``, ``failed``, ``stopped`` and ``not_run`` (never started:
+    SIGTERM or Ctrl-C came first), and ``counts`` (``status_counts``). A run is good only when ``ok`` == ``jobs``."""
+    counts = status_counts(results)
+    p = backend_protocol
+    return {"jobs": len(results), "ok": counts.get(p.ITEM_OK, 0), "failed": counts.get(p.ITEM_FAILED, 0),
+            "stopped": counts.get(p.ITEM_STOPPED, 0), "not_run": counts.get(p.ITEM_NOT_RUN, 0), "counts": counts}
+
+
+def job_identity(path) -> tuple:
+    """What makes two spellings of a job path the same job: the job file's identity (``st_dev``, ``st_ino``: a hard
+    link, a symbolic link, ``a/./job.json``) and its folder's, where the listed path puts it (the job's relative
+    paths, its output folder among them, are taken from the folder of the path as given, not of the file it links
+    to: a link in another folder is another job). A path that cannot be looked at (missing, unreadable) is its own
+    identity, its absolute spelling: the job reports the error itself."""
+    path = os.path.abspath(os.fspath(path))
+    try:
+        st, folder = os.stat(path), os.stat(os.path.dirname(path))
+    except OSError:
+        return ("path", os.path.normpath(path))
+    return ("file", st.st_dev, st.st_ino, folder.st_dev, folder.st_ino)
+
+
+def first_items(items: list) -> list:
+    """For each item, the index of the first item naming the same job (``job_identity``): its own index for the
+    first, an earlier one for a copy (listed again, through a link, or spelled another way)."""
+    first: dict = {}
+    return [first.setdefault(job_identity(p), i) for i, p in enumerate(items)]
 
 
 def parse_shard(text: str) -> tuple[int, int]:

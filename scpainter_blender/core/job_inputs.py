@@ -41,10 +41,13 @@ def job_paths(job_path, job: Job, allow_outside: bool = False, checkpoint: bool 
 def check_inputs(job_path, job: Job, allow_outside: bool = False, data_roots=()) -> dict:
     """Everything about a validated job that can be checked before any work, from file headers: the paths
     (``job_paths``), that the predictions file is a readable ``.npz`` whose frames include every
-    ``source_frames`` entry, and that each asset is a readable Gaussian file. Returns the paths plus
-    ``num_source_frames``; raises an InputError (JobError, PredictionsError, SplatsError) naming file and field.
-    ``allow_outside``, ``data_roots``: ``job_paths``'s."""
-    from .splats import reader as splats_io
+    ``source_frames`` entry, and that each asset is a readable Gaussian file with valid Gaussians (read whole:
+    none valid, or an empty file, is a JobError naming ``assets[i].ply`` and the file; more than
+    ``splats.MOSTLY_INVALID_SHARE`` invalid is listed in ``asset_warnings`` as (i, message), for the caller's
+    ``warning`` event). Returns the paths plus ``num_source_frames`` and ``asset_warnings``; raises an InputError
+    (JobError, PredictionsError, SplatsError) naming file and field. ``allow_outside``, ``data_roots``:
+    ``job_paths``'s."""
+    from .splats import gaussians as splats, reader as splats_io
     from .vggt import predictions as vggt
 
     paths = job_paths(job_path, job, allow_outside, data_roots=data_roots)
@@ -63,8 +66,15 @@ def check_inputs(job_path, job: Job, allow_outside: bool = False, data_roots=())
             if bad:
                 raise JobError(job_path, f"frames[{i}].source_frames", f"frame(s) {bad[:5]} do not exist: "
                                                                        f"{os.path.basename(pred)} has {S} frames")
+    paths["asset_warnings"] = []
     for i in range(len(job.assets)):
-        splats_io.read(paths[f"assets[{i}].ply"])
+        ply_path = paths[f"assets[{i}].ply"]
+        ply = splats_io.read(ply_path)
+        found = splats.invalid_rows(len(ply), splats.valid_rows(ply)[1])  # the rows decode() drops
+        if found is not None and found[0]:
+            raise JobError(job_path, f"assets[{i}].ply", f"{ply_path}: {found[1]}", splats.INVALID_HINT)
+        if found is not None:
+            paths["asset_warnings"].append((i, f"asset {job.assets[i].name!r} ({ply_path}): {found[1]}"))
     return paths
 
 

@@ -63,7 +63,8 @@ def _temporary_prefix(name: str) -> str:
 def atomic_path(path):
     """Yields a fresh temporary path in ``path``'s folder (created by ``mkstemp``: a unique name, exclusive, so a
     planted file or link is never written through); on success it is renamed over ``path`` (a link at ``path``
-    is replaced, not followed), on any error removed. For writers that open by name (PyAV, safetensors)."""
+    is replaced, not followed), on any error removed; a folder at ``path`` is an InputError naming it. For writers
+    that open by name (PyAV, safetensors)."""
     path = os.fspath(path)
     folder = os.path.dirname(os.path.abspath(path))
     fd, tmp = tempfile.mkstemp(prefix=_temporary_prefix(os.path.basename(path)), suffix=_TEMPORARY_SUFFIX,
@@ -72,7 +73,11 @@ def atomic_path(path):
     try:
         yield tmp
         os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; outputs get the user's usual permissions
-        os.replace(tmp, path)
+        try:
+            os.replace(tmp, path)
+        except IsADirectoryError:  # a file is never renamed over a folder
+            raise InputError(path, "(file)", "is a folder where this output file goes",
+                             hint="move or remove the folder, then run again") from None
     except BaseException:
         with contextlib.suppress(OSError):
             os.remove(tmp)

@@ -337,18 +337,18 @@ def _batch(args) -> tuple[dict, int]:
             seen.setdefault(job_path, path)
             jobs.append((i, job_path, exported))
         except Exception as e:  # noqa: BLE001  bad input or a bug: recorded; go on with the rest
-            results[i] = {"item": path, "status": "failed", **_failure(e), "seconds": time.perf_counter() - t}
+            results[i] = {"item": path, "status": protocol.ITEM_FAILED, **_failure(e), "seconds": time.perf_counter() - t}
     if jobs:
         for i, r in zip([i for i, _, _ in jobs], _run_jobs(args, jobs, roots_of)):
             results[i] = {"item": items[i], **r}
     ordered = [results[i] for i in range(len(items))]
-    failed = sum(r["status"] != "ok" for r in ordered)
+    counts = batch_mod.summary(ordered)   # ok, failed, stopped and not_run apart, as the backend's summary
     # the cluster asked for: the address given, else RAY_ADDRESS, else "auto" (`ray start`'s here, or a new one)
     where = ({"ray": args.ray or os.environ.get("RAY_ADDRESS") or "auto"} if args.ray is not None
              else {"shard": f"{k}/{n}"})
-    return {"what": args.what, **where, "jobs": len(ordered), "failed": failed,
-            "counts": batch_mod.status_counts(ordered), "items": ordered,
-            "seconds": time.perf_counter() - t0}, (protocol.EXIT_FAILED if failed else protocol.EXIT_OK)
+    good = counts["ok"] == counts["jobs"]
+    return {"what": args.what, **where, **counts, "items": ordered,
+            "seconds": time.perf_counter() - t0}, (protocol.EXIT_OK if good else protocol.EXIT_FAILED)
 
 
 def _run_jobs(args, jobs: list, roots_of: dict | None = None) -> list:

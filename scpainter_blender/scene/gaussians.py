@@ -218,7 +218,8 @@ def import_gaussians(context, filepath: str, axes: str = "AUTO", target_length: 
         obj["scpainter_mesh_source"] = mesh["source"]
         # trimesh's upright oriented box (length, width, height) of the mesh, for stage 1 (placement.asset_size)
         obj["scpainter_obb_size"] = [float(v) for v in mesh["obb"]["size"]]
-    warnings = []
+    # what the backend read past in the mesh (an unsupported material, faces with non-finite corners, ...)
+    warnings = [w["message"] for w in mesh.get("warnings", [])] if mesh else []
     if extent > 0 and not MIN_CAR_LENGTH <= target_length <= MAX_CAR_LENGTH:
         warnings.append(f"{obj.name} is {target_length:.3g} m long in its file's units (millimetres or centimetres?): "
                         "set Length on import, or use Fit to Car Size")

@@ -93,3 +93,39 @@ def test_a_checkpoint_that_is_not_one_is_refused_before_any_job(tmp_path):
     last = json.loads(proc.stdout.strip().splitlines()[-1])
     assert proc.returncode == 2 and last["event"] == "error" and last["file"] == str(tmp_path / "nope"), last
     assert not os.path.exists(tmp_path / "a" / "out_a")
+
+
+def test_ctrl_c_on_a_batch_stops_the_running_job_and_still_prints_the_summary(tmp_path):
+    """Without Ray too: the first Ctrl-C stops the running job after its frame; the jobs after it are not_run,
+    apart from the failed one, in the summary. SIGINT's disposition is set in the child (a background pytest's
+    children inherit SIGINT ignored)."""
+    import glob
+    import signal
+    import time
+
+    from tests_support import small_job
+
+    bad = small_job(tmp_path / "bad")
+    os.remove(tmp_path / "bad" / "car.ply")
+    long, after = (small_job(tmp_path / n, frames=tuple(range(1, 41)), resolution=(320, 240)) for n in ("l", "m"))
+    run = ("import runpy, signal; signal.signal(signal.SIGINT, signal.default_int_handler); "
+           "runpy.run_module('backend', run_name='__main__', alter_sys=True)")
+    proc = subprocess.Popen([sys.executable, "-c", run, "batch", bad, long, after, "--command", "render", "--device",
+                             "cpu"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    try:
+        first = json.loads(proc.stdout.readline())          # the bad job's progress event: the long one starts next
+        assert first["event"] == "progress" and first["status"] == "failed", first
+        labels = str(tmp_path / "l" / "out" / "conditions" / "labels_*.json")
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and not glob.glob(labels):   # a frame of the long job finished
+            time.sleep(0.01)
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    done = json.loads(out.strip().splitlines()[-1])
+    assert proc.returncode == 1 and done["event"] == "done", out
+    assert (done["failed"], done["stopped"], done["not_run"], done["ok"]) == (1, 1, 1, 0), done["items"]
+    assert [i["status"] for i in done["items"]] == ["failed", "stopped", "not run (SIGTERM)"]
+    assert 1 <= done["items"][1]["rendered"] < 40 and not os.path.exists(tmp_path / "m" / "out")

@@ -4,6 +4,7 @@ import glob
 import json
 import os
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -201,7 +202,7 @@ def test_sigterm_on_the_driver_stops_running_jobs_cancels_queued_ones_and_a_reru
     assert ev[-1]["event"] == "done" and all(e["event"] == "progress" for e in ev[:-1]), out
     done = ev[-1]
     items = done["items"]
-    assert [i["job"] for i in items] == jobs and done["failed"] == 4
+    assert [i["job"] for i in items] == jobs and (done["failed"], done["stopped"], done["not_run"]) == (0, 2, 2)
     # the running jobs stop after their current frame, keeping and counting what they finished
     ran = [i for i in items if i["status"] == "stopped"]
     queued = [i for i in items if i["status"] == "not run (SIGTERM)"]
@@ -392,11 +393,14 @@ def test_more_cpus_per_job_than_any_node_has_and_a_job_listed_twice(ray_cluster,
     again = os.path.join(str(tmp_path), ".", "job", "job.json")   # the same file, spelled another way
     os.symlink(tmp_path / "job", tmp_path / "link")
     linked = str(tmp_path / "link" / "job.json")                    # and through a link to its folder
-    results = batch_ray.run_ray_batch([job, again, linked], "render", "cpu")
+    hard = str(tmp_path / "job" / "same.json")                      # and through a hard link beside it
+    os.link(job, hard)
+    results = batch_ray.run_ray_batch([job, again, linked, hard], "render", "cpu")
     # run once (together they would meet at the output lock); each copy gets the job's result, so nothing "fails"
-    assert [r["status"] for r in results] == ["ok"] * 3 and results[0]["rendered"] == 2
-    assert [r.get("duplicate_of") for r in results] == [None, 0, 0] and [r["attempts"] for r in results] == [1, 0, 0]
-    assert [r["job"] for r in results] == [job, again, linked] and results[2]["rendered"] == 2
+    assert [r["status"] for r in results] == ["ok"] * 4 and results[0]["rendered"] == 2
+    assert [r.get("duplicate_of") for r in results] == [None, 0, 0, 0]
+    assert [r["attempts"] for r in results] == [1, 0, 0, 0]
+    assert [r["job"] for r in results] == [job, again, linked, hard] and results[3]["rendered"] == 2
 
 
 def test_ctrl_c_on_a_driver_is_a_stop_and_a_second_one_aborts():
@@ -413,3 +417,139 @@ def test_ctrl_c_on_a_driver_is_a_stop_and_a_second_one_aborts():
             os.kill(os.getpid(), signal.SIGINT)
             time.sleep(1)
     assert signal.getsignal(signal.SIGINT) is before
+
+
+class Driver:
+    """``python -m backend batch … --ray ADDRESS`` as a subprocess whose events are read as they come (a thread
+    puts each standard-output line on a queue): the tests wait on the event stream, each wait bounded. SIGINT's
+    disposition is set explicitly in the child (``default_int_handler``, as an interactive Python has it), so the
+    test means the same when pytest runs as a background job, where SIGINT is ignored and a child inherits that."""
+
+    def __init__(self, argv, tmp_path):
+        import queue
+
+        run = ("import runpy, signal; signal.signal(signal.SIGINT, signal.default_int_handler); "
+               "runpy.run_module('backend', run_name='__main__', alter_sys=True)")
+        self.stderr = open(tmp_path / "driver_stderr.txt", "w+")
+        self.proc = subprocess.Popen([sys.executable, "-c", run, *map(str, argv)], cwd=ROOT, stdout=subprocess.PIPE,
+                                     stderr=self.stderr, text=True)
+        self.lines, self.events = queue.Queue(), []
+        threading.Thread(target=self._read, daemon=True).start()
+
+    def _read(self):
+        for line in self.proc.stdout:
+            self.lines.put(line)
+        self.lines.put(None)
+
+    def next_event(self, timeout=180):
+        line = self.lines.get(timeout=timeout)   # queue.Empty: no event within the bound
+        if line is None:
+            return None
+        self.events.append(json.loads(line))     # standard output: JSON events only
+        return self.events[-1]
+
+    def wait_for(self, accept, timeout=180):
+        """The first event ``accept`` takes, reading on; fails at the end of the stream or after ``timeout`` s."""
+        deadline = time.monotonic() + timeout
+        while True:
+            ev = self.next_event(max(deadline - time.monotonic(), 0.01))
+            assert ev is not None, f"the stream ended first: {self.events} {self.err()[-3000:]}"
+            if accept(ev):
+                return ev
+
+    def finish(self, timeout=120):
+        """(exit code, the summary: the last event) once the driver has ended."""
+        while self.next_event(timeout) is not None:
+            pass
+        return self.proc.wait(timeout=timeout), self.events[-1]
+
+    def err(self):
+        """The driver's standard error so far (all of it once closed)."""
+        if self.stderr.closed:
+            return self.stderr_text
+        self.stderr.seek(0)
+        return self.stderr.read()
+
+    def close(self):
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait()
+        self.stderr_text = self.err()
+        self.stderr.close()
+
+
+def job_lock(job_path):
+    return os.path.join(os.path.dirname(job_path), "out", locking.LOCK_NAME)
+
+
+def test_a_worker_killed_mid_batch_costs_only_its_attempt_and_no_finished_job_runs_again(ray_cluster, tmp_path):
+    """The driver keeps the batch's books (no actor holds them): a worker SIGKILLed mid-batch (Ray's memory monitor,
+    the kernel's OOM killer, a lost node do the same) loses only the attempt it ran. That job runs again, resuming;
+    the jobs that had finished are not run again (their frames untouched), and the summary comes as always."""
+    n = 40
+    short = [small_job(tmp_path / f"short{i}") for i in range(2)]
+    long = small_job(tmp_path / "long", frames=tuple(range(1, n + 1)), resolution=(320, 240))
+    jobs = [short[0], long, short[1]]
+    driver = Driver(["batch", *jobs, "--ray", ray_cluster, "--device", "cpu", "--command", "render"], tmp_path)
+    try:
+        # each short job ends long before the long one: its frames as it left them
+        finished = {}
+        while len(finished) < 2:
+            ev = driver.wait_for(lambda e: e["event"] == "progress")
+            assert ev["job"] in short and ev["status"] == "ok", ev
+            finished[ev["job"]] = exr_mtimes(ev["job"])
+        # then the long job's worker dies mid-job, its lock left behind
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and len(finished_frames(long)) < 3:
+            time.sleep(0.01)
+        owner = locking.OutputLock(os.path.dirname(job_lock(long)), "test")._owner()
+        kept = len(finished_frames(long))
+        assert isinstance(owner, dict) and 3 <= kept < n, (owner, kept)
+        os.kill(owner["pid"], signal.SIGKILL)
+        code, done = driver.finish()
+    finally:
+        driver.close()
+    assert code == 0, driver.err()[-3000:]
+    assert done["event"] == "done" and (done["jobs"], done["ok"], done["failed"], done["not_run"]) == (3, 3, 0, 0)
+    by = {i["job"]: i for i in done["items"]}
+    assert [by[j]["attempts"] for j in jobs] == [1, 2, 1]          # the finished jobs ran once
+    assert by[long]["worker"] != f"{socket.gethostname()}:{owner['pid']}" and by[long]["rendered"] <= n - kept
+    assert {j: exr_mtimes(j) for j in short} == finished            # and wrote nothing after they finished
+    assert len(finished_frames(long)) == n and not os.path.exists(job_lock(long))
+    assert [e["done"] for e in driver.events[:-1]] == [1, 2, 3]     # one progress event per job, none twice
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "Ctrl-C"])
+def test_sigterm_or_ctrl_c_on_the_driver_prints_the_summary_with_not_run_apart_from_failed(ray_cluster, tmp_path,
+                                                                                           sig):
+    n = 40   # frames of a long job: seconds on a CPU worker, so the signal comes while one runs
+    bad = small_job(tmp_path / "bad")
+    os.remove(tmp_path / "bad" / "car.ply")
+    jobs = [bad] + [small_job(tmp_path / f"long{i}", frames=tuple(range(1, n + 1)), resolution=(320, 240))
+                    for i in range(3)]
+    # 2 CPUs per job on the 2-CPU cluster: one job at a time, the others queued
+    driver = Driver(["batch", *jobs, "--ray", ray_cluster, "--device", "cpu", "--command", "render",
+                     "--cpus-per-job", "2"], tmp_path)
+    try:
+        driver.wait_for(lambda e: e["event"] == "progress" and e["status"] == "failed")   # the bad job ended
+        deadline = time.monotonic() + 120   # a long job under way: its output folder locked, a frame finished
+        while time.monotonic() < deadline and not any(finished_frames(j) for j in jobs[1:]):
+            time.sleep(0.01)
+        driver.proc.send_signal(sig)
+        code, done = driver.finish()
+    finally:
+        driver.close()
+    assert code == 1, driver.err()[-3000:]
+    assert done["event"] == "done" and [e["event"] for e in driver.events[:-1]] == ["progress"] * 4
+    items = {i["job"]: i for i in done["items"]}
+    assert items[bad]["status"] == "failed" and items[bad]["file"].endswith("car.ply")
+    # the job under way stopped after its frame; the queued ones never started: not_run, not failed
+    assert (done["failed"], done["stopped"], done["ok"]) == (1, 1, 0), done["items"]
+    assert done["not_run"] == 2 and done["counts"]["not run (SIGTERM)"] == 2
+    for i in done["items"]:
+        assert (i["attempts"] == 0) == (i["status"] == "not run (SIGTERM)")
+        if i["status"] == "not run (SIGTERM)":
+            assert not os.path.exists(os.path.join(os.path.dirname(i["job"]), "out"))
+        if i["status"] == "stopped":
+            assert 1 <= i["rendered"] == len(finished_frames(i["job"])) < n and not os.path.exists(job_lock(i["job"]))
+    assert "Traceback" not in driver.err()

@@ -106,3 +106,34 @@ def test_shard_option_is_one_rule_for_both_batch_commands():
         with pytest.raises(errors.ArgumentError) as e:
             batch.shard_option(text, ray)
         assert e.value.field == "--shard", (text, ray)
+
+
+def test_items_naming_one_job_by_file_identity(tmp_path):
+    """first_items: a hard link beside the job, a symbolic link to its folder, another spelling: the same job; a
+    hard link in another folder is another job (its relative paths, its output folder, are taken from there)."""
+    import os
+
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    job = tmp_path / "a" / "job.json"
+    job.write_text("{}")
+    os.link(job, tmp_path / "a" / "copy.json")
+    os.link(job, tmp_path / "b" / "job.json")
+    os.symlink(tmp_path / "a", tmp_path / "link")
+    items = [str(job), str(tmp_path / "a" / "copy.json"), str(tmp_path / "link" / "job.json"),
+             os.path.join(str(tmp_path), "a", ".", "job.json"), str(tmp_path / "b" / "job.json"),
+             str(tmp_path / "missing.json"), str(tmp_path / "." / "missing.json")]
+    assert batch.first_items(items) == [0, 0, 0, 0, 4, 5, 5]
+    assert batch.first_items([]) == []
+
+
+def test_the_summary_keeps_not_run_apart_from_failed():
+    from scpainter_blender.core import backend_protocol as p
+
+    results = [{"status": p.ITEM_OK}, {"status": p.ITEM_FAILED}, {"status": p.ITEM_STOPPED},
+               {"status": p.ITEM_NOT_RUN}, {"status": p.ITEM_NOT_RUN}]
+    s = batch.summary(results)
+    assert (s["jobs"], s["ok"], s["failed"], s["stopped"], s["not_run"]) == (5, 1, 1, 1, 2)
+    assert s["counts"] == batch.status_counts(results)
+    assert set(s) | {"command", "items"} == set(p.BATCH_SUMMARY_FIELDS)
+    assert batch.summary([]) == {"jobs": 0, "ok": 0, "failed": 0, "stopped": 0, "not_run": 0, "counts": {}}

@@ -28,6 +28,15 @@ def test_atomic_write_leaves_nothing_on_error(tmp_path):
     assert files.read_json(tmp_path / ("x" * 250 + ".json")) == [1]
 
 
+def test_a_folder_where_an_output_file_goes_is_an_input_error_naming_it(tmp_path):
+    """Issue 30: a folder in a frame's place once escaped as IsADirectoryError from the rename."""
+    (tmp_path / "frame.exr").mkdir()
+    with pytest.raises(errors.InputError) as e:
+        outputs.write_json(tmp_path / "frame.exr", [1])
+    assert e.value.path == str(tmp_path / "frame.exr") and "folder" in e.value.message and "remove" in e.value.hint
+    assert sorted(os.listdir(tmp_path)) == ["frame.exr"]  # the temporary file is gone
+
+
 def test_atomic_write_replaces_a_planted_link(tmp_path):
     victim = tmp_path / "victim.txt"
     victim.write_text("precious")

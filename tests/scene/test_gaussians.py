@@ -294,3 +294,25 @@ def test_meshes_of_one_name_never_share_their_gaussians(tmp_path, empty_scene, m
 
     r = gaussians.import_gaussians(bpy.context, str(tmp_path / "car_mm.stl"), mesh_count=500)
     assert r.object.scale[0] == pytest.approx(1.0) and "4.5e+03 m long" in r.warnings[0]
+
+
+def test_what_the_backend_read_past_in_a_mesh_is_in_the_import_report(tmp_path, empty_scene, monkeypatch):
+    """Issue 30: mesh-asset's warnings (here trimesh going past a specular-glossiness material it cannot read)
+    reach the import's warnings, which the operator reports, instead of only the backend's log."""
+    import json
+
+    trimesh = pytest.importorskip("trimesh")
+    from scpainter_blender.scene import gaussians
+
+    box = trimesh.creation.box(extents=(1.9, 4.5, 1.5))
+    files = box.export(file_type="gltf")
+    for name, data in files.items():
+        (tmp_path / name).write_bytes(data)
+    tree = json.loads(files["model.gltf"])
+    tree["materials"] = [{"extensions": {"KHR_materials_pbrSpecularGlossiness": {"diffuseFactor": "red"}}}]
+    tree["meshes"][0]["primitives"][0]["material"] = 0
+    (tmp_path / "model.gltf").write_text(json.dumps(tree))
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    r = gaussians.import_gaussians(bpy.context, str(tmp_path / "model.gltf"), mesh_count=500)
+    assert len(r.object.data.vertices) == 500
+    assert r.warnings == [w["message"] for w in r.mesh["warnings"]] and "specular-glossiness" in r.warnings[0]

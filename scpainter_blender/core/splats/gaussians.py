@@ -180,6 +180,37 @@ def valid_rows(ply: GaussianPly):
     return keep, dropped
 
 
+#: An asset of which more than this share of Gaussians is dropped on decoding (``decode``'s reasons) is used with a
+#: ``warning`` event (code ``INVALID_GAUSSIANS``): what is left is likely a broken car (a converter's bad output);
+#: none left is refused (``invalid_rows``).
+MOSTLY_INVALID_SHARE = 0.5
+#: The ``warning`` event's code for an asset mostly made of invalid Gaussians.
+INVALID_GAUSSIANS = "invalid_gaussians"
+#: How the reasons ``decode`` counts read in a message.
+_DROPPED_REASONS = {"non_finite": "with NaN or infinite values", "zero_quaternion": "with a zero quaternion",
+                    "scale_overflow": "with a scale beyond float32"}
+#: What to do about a file of invalid Gaussians.
+INVALID_HINT = ("export or convert the asset again (its Gaussians must have finite values, non-zero quaternions and "
+                "scales within float32), or point the job at another file")
+
+
+def invalid_rows(total: int, dropped: dict):
+    """What an asset's invalid Gaussians mean for a render, from ``total`` rows and ``valid_rows``' (or
+    ``Gaussians.dropped``'s) counts by reason: None when at most ``MOSTLY_INVALID_SHARE`` of them is dropped; else
+    ``(refused, text)``: refused when none is valid (an empty file too), and ``text`` saying how many and why
+    ("none of its 300 Gaussians is valid (300 with a zero quaternion)")."""
+    bad = sum(dropped.values())
+    if total == 0:
+        return True, "holds no Gaussians"
+    if bad <= MOSTLY_INVALID_SHARE * total:
+        return None
+    why = ", ".join(f"{n:,} {_DROPPED_REASONS.get(k, k)}" for k, n in dropped.items())
+    if bad == total:
+        return True, f"none of its {total:,} Gaussians is valid ({why})"
+    return False, (f"{bad:,} of its {total:,} Gaussians are invalid ({why}) and left out: more than "
+                   f"{MOSTLY_INVALID_SHARE:.0%}; the car is drawn from the {total - bad:,} left")
+
+
 def _finite_rows(a) -> np.ndarray | None:
     """Rows of ``a`` (N, ...) without NaN/inf; None when every row is finite.
 

@@ -46,6 +46,8 @@ _copy = copy_clip  # tests_support: a copy of the street clip with clip.json edi
     (lambda d, f: d["cars"][0].update(boxes=[np.eye(4).tolist()]), "cars[0].boxes"),
     (lambda d, f: d.update(frames="frames/frame_{0.__class__}.png"), "frames"),
     (lambda d, f: d.update(frames="frames/frame_{:999999999}.png"), "frames"),
+    (lambda d, f: d.update(frames="frames/frame_{}{}.png"), "frames"),     # two indices (issue 30's fuzzer)
+    (lambda d, f: d.update(frames="frames/frame_{}_{0}.png"), "frames"),   # automatic and manual numbering
     (lambda d, f: d.update(frames={"0": "frames/frame_000000.png"}), "frames"),
     (lambda d, f: d.update(views={"nan": "views/left_2m/frame_{:06d}.png"}), "views.nan"),
     (lambda d, f: d.update(views=["views"]), "views"),
@@ -71,6 +73,47 @@ def _edit_poses(folder, **change):
     for k, fn in change.items():
         arrays[k] = fn(arrays[k])
     np.savez(folder / "poses.npz", **arrays)
+
+
+def _set_K(t, row, col, value):
+    def change(a):
+        a = np.array(a, np.float64)
+        a[t, row, col] = value
+        return a
+    return change
+
+
+@pytest.mark.parametrize("row, col, value", [
+    (0, 0, 1e12),        # a focal length beyond any camera (and beyond a job's bound once resized)
+    (1, 1, -5.0),
+    (0, 0, 1e6),         # within a job's 1e8, but 1,000 image widths: resized for training it would pass it
+    (0, 2, 1e7),         # a principal point far outside the image
+    (1, 2, -1e4),
+    (1, 0, 3.0),         # not our intrinsics' shape: a job refuses it, so a clip does
+    (2, 0, 1.0),
+])
+def test_a_poses_K_out_of_bounds_is_refused_naming_poses_npz_and_the_frame(street_clip_path, tmp_path, row, col,
+                                                                            value):
+    """Issue 30: a poses.npz K was unbounded, and the job made from the clip then named the job. Now the clip is
+    refused at load, naming poses.npz and K[t], with the job's own bounds (``core.job.intrinsics_problem``)."""
+    folder = _copy(street_clip_path, tmp_path, lambda d, f: _edit_poses(f, K=_set_K(3, row, col, value)))
+    with pytest.raises(clip_mod.ClipError) as e:
+        clip_mod.load(folder)
+    assert e.value.path == str(folder / "poses.npz") and e.value.field == "K[3]", str(e.value)
+    assert "fx" in e.value.message and e.value.hint
+
+
+def test_a_clips_K_passes_the_jobs_bound_at_any_training_size(street_clip_path, tmp_path):
+    """The largest K a clip accepts stays within a job's bound (``MAX_K``) resized to the largest training size."""
+    from scpainter_blender.core import job as J
+
+    c = clip_mod.load(os.path.dirname(street_clip_path))
+    W, H = c.image_size
+    ratio = np.nextafter(J.MAX_FOCAL_RATIO, 0)
+    folder = _copy(street_clip_path, tmp_path, lambda d, f: _edit_poses(
+        f, K=_set_K(0, 0, 0, ratio * W)))
+    big = clip_mod.load(folder)
+    assert J.intrinsics_problem(big.K_for(16384, 16384)[0]) is None
 
 
 @pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this system")

@@ -473,7 +473,7 @@ def _mesh_named(rng, fmt):
             c.write(os.path.join("outside", rel), c.read(p))
             c.replace_with(p, "link", os.path.join(c.outside, rel))
         elif how == "garbage":
-            c.write(p, bytes(random.Random(7).getrandbits(8) for _ in range(200)))
+            c.write(p, random.Random(7).randbytes(200))
         elif how == "empty":
             c.write(p, b"")
         else:
@@ -610,7 +610,7 @@ def _mesh_whole(rng, fmt):
         if what == "empty":
             c.write(p, b"")
         elif what == "garbage":
-            c.write(p, bytes(random.Random(3).getrandbits(8) for _ in range(600)))
+            c.write(p, random.Random(3).randbytes(600))
         elif what == "a folder":
             c.replace_with(p, "dir")
         elif what == "a FIFO":
@@ -1010,7 +1010,7 @@ def _exr_file(rng):
             cut = int(len(data) * frac) if frac else data.index(b"\0\0", 300) if b"\0\0" in data[300:] else 320
             c.write(rel, data[:cut])
         elif what == "garbage":
-            c.write(rel, bytes(random.Random(5).getrandbits(8) for _ in range(len(data))))
+            c.write(rel, random.Random(5).randbytes(len(data)))
         elif what == "empty":
             c.write(rel, b"")
         elif what == "a folder":
@@ -1121,7 +1121,7 @@ def _frames_case(rng):
         elif "truncated" in what:
             c.write(rel, c.read(rel)[:len(c.read(rel)) // 2])
         elif "garbage" in what:
-            c.write(rel, bytes(random.Random(2).getrandbits(8) for _ in range(500)))
+            c.write(rel, random.Random(2).randbytes(500))
         elif "folder" in what:
             c.replace_with(rel, "dir")
         elif "FIFO" in what:
@@ -1158,7 +1158,7 @@ def _video_case(rng):
         elif what == "cut in half":
             c.write("job/drive.mp4", c.s.clip_video[:len(c.s.clip_video) // 2])
         elif what == "garbage":
-            c.write("job/drive.mp4", bytes(random.Random(4).getrandbits(8) for _ in range(3000)))
+            c.write("job/drive.mp4", random.Random(4).randbytes(3000))
         elif what == "empty":
             c.write("job/drive.mp4", b"")
         elif what == "a folder":

@@ -44,6 +44,11 @@ def test_kills_and_concurrent_runs_leave_only_the_finished_runs_outputs(fuzz_run
     ``generated/`` and ``conditions/`` (the asset PLY) is that finished run's, no temporary is left, and a run
     refused by the other's lock says so (exit 1) without a traceback."""
     _assert_clean(fuzz_run, ("kill",), 30)
+    # every kill landed (fuzz_surfaces.KILL_SCENARIOS counts the renames a run makes: a product change to them must
+    # change it too, or the kills would silently come after the run's end)
+    missed = [f"{r['index']} {r['description']}: {r['killed_before']}" for r in fuzz_run["results"]
+              if r["kind"] == "kill" and r.get("killed_before", "").startswith("(the run ended")]
+    assert not missed, "kills that came after the run ended:\n" + "\n".join(missed)
 
 
 def _assert_clean(run, kinds, least):

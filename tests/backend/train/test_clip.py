@@ -86,6 +86,8 @@ def _set_K(t, row, col, value):
 @pytest.mark.parametrize("row, col, value", [
     (0, 0, 1e12),        # a focal length beyond any camera (and beyond a job's bound once resized)
     (1, 1, -5.0),
+    (0, 0, 1e-30),       # positive, but a field of view of 180° (found by issue 30's fuzzer)
+    (1, 1, 1e-3),
     (0, 0, 1e6),         # within a job's 1e8, but 1,000 image widths: resized for training it would pass it
     (0, 2, 1e7),         # a principal point far outside the image
     (1, 2, -1e4),

@@ -110,8 +110,18 @@ def ray_cluster():
     """A new local Ray cluster of 2 CPUs (2 workers at a time; never a `ray start` left running), shared by every
     test that asks for it; yields its address (``HOST:PORT`` of its head), which a subprocess such as
     ``python -m backend batch --ray ADDRESS`` connects to. Skipped without ``ray``."""
+    import signal
+
     ray = pytest.importorskip("ray")
-    ray.init(address="local", num_cpus=2, log_to_driver=False, include_dashboard=False, configure_logging=False,
-             runtime_env={"env_vars": {"PYTHONPATH": ROOT}})
+    # The cluster's processes inherit this one's SIGINT disposition. A shell starts a background job (`bash .ci/run
+    # &`) with SIGINT ignored; a worker started so installs no KeyboardInterrupt handler, and Ray's cancel of a
+    # running task (raised in the worker through SIGINT: _thread.interrupt_main) does nothing there. Started with
+    # Python's handler here, as from a terminal, the workers get the default disposition however the tests started.
+    found = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        ray.init(address="local", num_cpus=2, log_to_driver=False, include_dashboard=False, configure_logging=False,
+                 runtime_env={"env_vars": {"PYTHONPATH": ROOT}})
+    finally:
+        signal.signal(signal.SIGINT, found)
     yield ray.get_runtime_context().gcs_address
     ray.shutdown()

@@ -247,7 +247,9 @@ class _AllCameraPaths(_BackendRun):
         runs = self._follower(context)
         shown, told = "", 0
         try:
-            while (status := runs.tick(context)) == "running":
+            while True:
+                # shown before each tick: a camera's run started (by the constructor or the last tick) is printed
+                # at least once, at "starting", even when it ends before the next tick (a warm backend, a busy CPU)
                 text = progress_text() if ACTIVE else ""
                 if text and text != shown:
                     print(f"scpainter {text}", flush=True)
@@ -255,6 +257,8 @@ class _AllCameraPaths(_BackendRun):
                 for name, _, level, message in runs.outcomes[told:]:
                     print(f"scpainter {self.command} {name!r}: {level}: {message}", flush=True)
                 told = len(runs.outcomes)
+                if (status := runs.tick(context)) != "running":
+                    break
                 time.sleep(0.1)
         except BaseException:  # Ctrl-C or a bug: the backend does not outlive the operator
             runs.stop()

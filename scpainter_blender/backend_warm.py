@@ -141,8 +141,10 @@ class WarmBackend:
         self._stderr = collections.deque(maxlen=200)   # everything it wrote, for a server that fails to start
         self._threads = [threading.Thread(target=self._read_stdout, daemon=True),
                          threading.Thread(target=self._read_stderr, daemon=True)]
-        for t in self._threads:
+        self._started = threading.Event()  # both readers started: a server that exits at once has its stdout
+        for t in self._threads:            # reader reaping it before the stderr reader was started
             t.start()
+        self._started.set()
 
     @property
     def pid(self) -> int:
@@ -215,8 +217,9 @@ class WarmBackend:
         except subprocess.TimeoutExpired:  # its stdout closed but it lives on: it is no use any more
             self.proc.kill()
             code = self.proc.wait()
+        self._started.wait(timeout=5)
         for t in self._threads:
-            if t is not threading.current_thread():
+            if t is not threading.current_thread() and t.ident is not None:
                 t.join(timeout=5)  # its last stderr lines, for the run's message
         if self._run is not None:
             self._run._server_died(code)

@@ -13,6 +13,16 @@ import pytest
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
+# Before anything loads torch (libgomp reads both once, when it loads), for this process and every process the tests
+# start (backend subprocesses, Ray workers, torchrun): ``import backend`` sets OMP_WAIT_POLICY=PASSIVE as
+# ``python -m backend`` does, and torch gets one intra-op thread. The tests' models are tiny: a second thread gains
+# little on an idle 2-core machine, but beside one busy process every parallel region waits for a descheduled
+# thread: a training step of the tiny model took 14.8 s with 2 threads, 0.58 s with 1 (load 9 on 2 cores), which is
+# how test_tiny_model_overfits_one_batch once took 464 s. numba (the renderer) keeps its own thread count: its omp
+# layer sets it per region, so the renderer's parallel paths are still tested. A value the caller set is kept.
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+import backend  # noqa: E402,F401  (OMP_WAIT_POLICY, NUMBA_CACHE_DIR: backend/__init__.py says why)
+
 from tools import blender_env  # noqa: E402
 
 _USER = blender_env.use_private_user_resources(tempfile.mkdtemp(prefix="scpainter-test-user-"))
@@ -100,8 +110,18 @@ def ray_cluster():
     """A new local Ray cluster of 2 CPUs (2 workers at a time; never a `ray start` left running), shared by every
     test that asks for it; yields its address (``HOST:PORT`` of its head), which a subprocess such as
     ``python -m backend batch --ray ADDRESS`` connects to. Skipped without ``ray``."""
+    import signal
+
     ray = pytest.importorskip("ray")
-    ray.init(address="local", num_cpus=2, log_to_driver=False, include_dashboard=False, configure_logging=False,
-             runtime_env={"env_vars": {"PYTHONPATH": ROOT}})
+    # The cluster's processes inherit this one's SIGINT disposition. A shell starts a background job (`bash .ci/run
+    # &`) with SIGINT ignored; a worker started so installs no KeyboardInterrupt handler, and Ray's cancel of a
+    # running task (raised in the worker through SIGINT: _thread.interrupt_main) does nothing there. Started with
+    # Python's handler here, as from a terminal, the workers get the default disposition however the tests started.
+    found = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        ray.init(address="local", num_cpus=2, log_to_driver=False, include_dashboard=False, configure_logging=False,
+                 runtime_env={"env_vars": {"PYTHONPATH": ROOT}})
+    finally:
+        signal.signal(signal.SIGINT, found)
     yield ray.get_runtime_context().gcs_address
     ray.shutdown()

@@ -67,8 +67,9 @@ def test_second_render_reuses_the_process_and_its_points(scene, addon, tmp_path)
     again, first, done = _timed_render(addon)                  # one frame to render, the points in memory
     assert again.server_pid == pid and again.done["rendered"] == 1
     log = (tmp_path / "out" / CAM_DIR / "backend.log").read_text()
+    # no start, no import (the same process), no loading (its log): proven by these, not by a wall-clock comparison
+    # of the two first frames, which a loaded machine can reverse (the times are printed below)
     assert "warm backend: the points of" in log and "served from memory" in log
-    assert first < cold_first                                  # no start, no import, no loading
     idle, _, idle_done = _timed_render(addon)                  # nothing to do
     assert idle.server_pid == pid and idle.done["rendered"] == 0
     assert bpy.ops.scpainter.render_conditions() == {"FINISHED"}   # the operator: the same process
@@ -89,15 +90,17 @@ def test_preference_change_or_a_killed_server_gives_a_new_one(scene, addon, tmp_
     run, _, _ = _timed_render(addon)
     second = warm_backend.current()
     assert second.pid != first.pid and run.done["rendered"] == 1
-    # killed during a run: that run fails saying so, the next one starts a new server and succeeds
+    # killed during a run: that run fails saying so, the next one starts a new server and succeeds. The server is
+    # stopped (SIGSTOP) before the request goes out and killed while it holds it: waiting for a progress event
+    # instead raced the one frame's render, which can end before a loaded test process sends the kill
     _touch_frame(tmp_path)
     runs = _module(addon, "runs")
-    job, _ = runs.start(bpy.context, runs.invocation(bpy.context, "render"))
-    deadline = time.monotonic() + 120
-    while job.progress is None and not job.finished and time.monotonic() < deadline:
-        job.poll()
-        time.sleep(0.02)
-    os.kill(second.pid, signal.SIGKILL)
+    os.kill(second.pid, signal.SIGSTOP)
+    try:
+        job, _ = runs.start(bpy.context, runs.invocation(bpy.context, "render"))
+        assert type(job).__name__ == "WarmRun" and job.server_pid == second.pid and not job.finished
+    finally:
+        os.kill(second.pid, signal.SIGKILL)
     with pytest.raises(RuntimeError, match=r"warm backend \(pid \d+\) was killed by SIGKILL during this run"):
         job.wait(timeout=120)
     _touch_frame(tmp_path, 3)

@@ -117,7 +117,8 @@ def test_gradient_checkpointing_gives_the_same_gradients(models):
 
 
 def test_tiny_model_overfits_one_batch(tiny_checkpoint):
-    """One fixed batch, fixed noise: 300 AdamW steps cut the loss by more than half."""
+    """One fixed batch, fixed noise: 20 AdamW steps cut the loss twentyfold. (On this batch the loss falls from
+    0.48 to 0.004 in 20 steps, ~100x, on every step; 300 steps and "halved" proved the same at 15x the cost.)"""
     c = checkpoint.load(tiny_checkpoint)
     c["clip_mean"] = torch.tensor(c["clip_mean"]).view(1, 3, 1, 1)
     c["clip_std"] = torch.tensor(c["clip_std"]).view(1, 3, 1, 1)
@@ -129,11 +130,12 @@ def test_tiny_model_overfits_one_batch(tiny_checkpoint):
     opt = torch.optim.AdamW(params, lr=1e-3)
     batch, cfg = _batch(B=1, F=2, H=64, W=64), _cfg(drop_clip=0.0, drop_condition=0.0, p_mean=0.0, p_std=0.5)
     losses = []
-    for _ in range(300):
+    for _ in range(20):
         loss, _ = objective.loss(c, batch, cfg, objective.generators(0, [0]), "cpu")
         opt.zero_grad()
         loss.backward()
         opt.step()
         losses.append(float(loss.detach()))
-    first, last = sum(losses[:10]) / 10, sum(losses[-10:]) / 10
-    assert last < 0.5 * first, (first, last)
+    first, last = losses[0], sum(losses[-3:]) / 3
+    assert last < 0.05 * first, losses
+    assert sum(b < a for a, b in zip(losses, losses[1:])) >= 15, losses  # a descent, not one lucky step

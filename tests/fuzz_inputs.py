@@ -25,7 +25,9 @@ Kinds (``CASES`` says how many of each; a case is reproducible from (kind, index
   layers cannot take one frame), with a 60 s timeout.
 
 Each case runs in-process through ``backend.__main__.main(argv)`` with standard output and error captured and a
-SIGALRM timeout (its handler raises, which also interrupts a blocking ``open`` of a FIFO). Outcome classes:
+timeout of ``TIMEOUT_S`` CPU seconds (SIGPROF), or ``WALL_FACTOR`` times that of wall-clock time (SIGALRM) for a case
+blocked without using CPU; either handler raises, which also interrupts a blocking ``open`` of a FIFO. CPU time, so
+that a busy machine does not turn a slow case into a hang. Outcome classes:
 
 * ``accepted``  exit 0.
 * ``clean``     exit 2 and an ``error`` event whose message names one of the case's files or folders as a word
@@ -91,7 +93,8 @@ INPUT_KINDS = ("job", "npz", "ply", "checkpoint")
 KINDS = INPUT_KINDS + fuzz_surfaces.KINDS
 CASES = {"job": 480, "npz": 270, "ply": 270, "checkpoint": 130, **fuzz_surfaces.CASES}
 SEED = 14
-TIMEOUT_S = 5.0
+TIMEOUT_S = 5.0                  # CPU seconds a case may use in its worker (a loaded machine does not make a hang)
+WALL_FACTOR = 12.0               # ... and wall seconds, as many times that: a case blocked without using CPU
 FALLBACK_TIMEOUT_S = 60.0        # checkpoint cases when generate runs for real (no --check): model load + 1 step
 CLASSES = ("accepted", "clean", "unclear", "traceback", "hang", "escape", "misread")
 FAILURES = ("unclear", "traceback", "hang", "escape", "misread")
@@ -1834,20 +1837,32 @@ def make_case(kind: str, index: int, seed: int, base: Base) -> Case:
 # ---------------------------------------------------------------------------------------------- running a case
 
 class Hang(BaseException):
-    """Raised by the SIGALRM handler; a BaseException so no ``except Exception`` in the backend swallows it."""
+    """Raised by the SIGALRM / SIGPROF handler; a BaseException so no ``except Exception`` in the backend swallows
+    it."""
 
 
 @contextlib.contextmanager
-def alarm(seconds: float):
+def alarm(seconds: float, cpu: bool = False):
+    """Raise ``Hang`` in this thread after ``seconds`` of wall-clock time; with ``cpu``, after ``seconds`` of this
+    process's CPU time (ITIMER_PROF: user + system, all threads) or ``WALL_FACTOR`` times that of wall-clock time,
+    whichever comes first. A case is timed by the CPU it uses, so one other busy process on the machine (which
+    stretches wall-clock time, not CPU time) does not turn a slow case into a "hang"; the wall-clock bound still
+    ends a case blocked without using CPU (a FIFO opened for reading, a lock waited on)."""
     def handler(signum, frame):
         raise Hang()
     old = signal.signal(signal.SIGALRM, handler)
-    signal.setitimer(signal.ITIMER_REAL, seconds)
+    old_prof = signal.signal(signal.SIGPROF, handler) if cpu else None
+    signal.setitimer(signal.ITIMER_REAL, seconds * (WALL_FACTOR if cpu else 1.0))
+    if cpu:
+        signal.setitimer(signal.ITIMER_PROF, seconds)
     try:
         yield
     finally:
         signal.setitimer(signal.ITIMER_REAL, 0)
         signal.signal(signal.SIGALRM, old)
+        if cpu:
+            signal.setitimer(signal.ITIMER_PROF, 0)
+            signal.signal(signal.SIGPROF, old_prof)
 
 
 def snapshot(root: str, skip: str) -> dict:
@@ -1965,15 +1980,16 @@ def _gaussians_equal(a, b) -> bool:
 
 
 def invoke(argv, timeout: float) -> dict:
-    """Run ``backend.__main__.main(argv)`` in this process with standard output and error captured and a SIGALRM
-    timeout: {rc, exc (a traceback or a SystemExit line, None), hang, stdout, stderr, seconds}."""
+    """Run ``backend.__main__.main(argv)`` in this process with standard output and error captured and a timeout
+    (``alarm``: ``timeout`` CPU seconds, ``WALL_FACTOR`` times that of wall-clock time): {rc, exc (a traceback or a
+    SystemExit line, None), hang, stdout, stderr, seconds}."""
     from backend.__main__ import main
 
     out, err = io.StringIO(), io.StringIO()
     rc, exc, hang = None, None, False
     t0 = time.perf_counter()
     try:
-        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err), alarm(timeout):
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err), alarm(timeout, cpu=True):
             rc = main(argv)
     except Hang:
         hang = True
@@ -2011,7 +2027,7 @@ def classify(result: dict, ran: dict, escapes: list, names, timeout: float) -> s
                                                       f" (rc {rc})")
         return "escape"
     if ran["hang"]:
-        result["message"] = f"no answer within {timeout:g} s" + (f" (last log: {_first_line(stderr.splitlines()[-1])})"
+        result["message"] = f"no answer within {timeout:g} CPU s or {timeout * WALL_FACTOR:g} s" + (f" (last log: {_first_line(stderr.splitlines()[-1])})"
                                                                  if stderr.strip() else "")
         return "hang"
     if exc is not None or rc not in (0, 2) or "Traceback" in stderr:
@@ -2051,7 +2067,7 @@ def run_case(case: Case, base: Base, workdir: str, timeout: float = TIMEOUT_S, c
     if outcome == "accepted" and case.kind == "ply" and case.same_gaussians:
         from scpainter_blender.core.splats import reader as splats_io
         try:
-            with alarm(timeout):
+            with alarm(timeout, cpu=True):
                 same = _gaussians_equal(splats_io.read(c.ply), base.gaussians)
             why = "" if same else "core.splats.reader.read gives other values than the original file"
         except BaseException as e:  # noqa: BLE001
@@ -2207,7 +2223,7 @@ class _Pool:
         self.results, self.live, self.started = {}, {}, 0
         self.meta = {"base": {}, "check": None, "backend": None}
         # a kill case runs several backend processes in turn, each under its own (longer) timeout
-        self.case_wait = 2 * timeout + 15 + (fuzz_surfaces.KILL_TIMEOUT_S * 4 if any(x[0] == "kill" for x in todo)
+        self.case_wait = WALL_FACTOR * timeout + 15 + (fuzz_surfaces.KILL_TIMEOUT_S * 4 if any(x[0] == "kill" for x in todo)
                                              else 0)
         self.slots = [0] + ([1] if workers > 1 and self.other else [])
         self.surfaces = tuple(k for k in fuzz_surfaces.KINDS if any(x[0] == k for x in todo))
@@ -2251,7 +2267,7 @@ class _Pool:
             self.meta.update(check=ready["check"], backend=ready["backend"])
             self.meta["base"].update(ready["base"])
             if not ready["check"] and any(k == "checkpoint" for k, _ in self.todo):
-                self.case_wait = 2 * max(self.timeout, FALLBACK_TIMEOUT_S) + 15
+                self.case_wait = WALL_FACTOR * max(self.timeout, FALLBACK_TIMEOUT_S) + 15
             self.assign(w)
         elif "result" in msg:
             self.record(msg["result"])

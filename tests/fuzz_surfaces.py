@@ -1350,7 +1350,7 @@ def _run_clip(F, c, timeout):
     out = {"rc": None, "exc": None, "hang": False, "stdout": "", "stderr": "", "seconds": 0.0, "value": None}
     t0 = time.perf_counter()
     try:
-        with F.alarm(timeout):
+        with F.alarm(timeout, cpu=True):
             from backend.train import clip as clip_mod
             clip = clip_mod.load(c.path("job/clip.json"))
             frames = clip.load_frames(16, 12)
@@ -1465,7 +1465,7 @@ def run_case(case: Case, base, workdir: str, timeout: float, keep: bool = False)
     outcome = F.classify(result, ran, escapes, names, timeout)
     if outcome == "accepted":
         try:
-            with F.alarm(max(timeout, 10.0)):
+            with F.alarm(max(timeout, 10.0), cpu=True):
                 why = _misread(case, c, ran, base)
         except BaseException as e:  # noqa: BLE001
             why = f"the misread check failed: {type(e).__name__}: {e}"

@@ -67,10 +67,13 @@ def check_inputs(job_path, job: Job, allow_outside: bool = False, data_roots=())
                 raise JobError(job_path, f"frames[{i}].source_frames", f"frame(s) {bad[:5]} do not exist: "
                                                                        f"{os.path.basename(pred)} has {S} frames")
     paths["asset_warnings"] = []
+    checked = {}  # a file many assets share (a scenario's library car) is read once
     for i in range(len(job.assets)):
         ply_path = paths[f"assets[{i}].ply"]
-        ply = splats_io.read(ply_path)
-        found = splats.invalid_rows(len(ply), splats.valid_rows(ply)[1])  # the rows decode() drops
+        if ply_path not in checked:
+            ply = splats_io.read(ply_path)
+            checked[ply_path] = splats.invalid_rows(len(ply), splats.valid_rows(ply)[1])  # the rows decode() drops
+        found = checked[ply_path]
         if found is not None and found[0]:
             raise JobError(job_path, f"assets[{i}].ply", f"{ply_path}: {found[1]}", splats.INVALID_HINT)
         if found is not None:

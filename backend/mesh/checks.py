@@ -10,9 +10,13 @@ The bounds, in one place:
   before anything decodes it (decoded as 8-bit RGB it is 192 MB; the sampler never copies it to float).
 * ``ZERO_ACCESSOR_ELEMENTS_PER_BYTE`` (1): a glTF accessor without a ``bufferView`` (zeros, sparse values or an
   extension's output such as Draco) may declare at most one element per byte of the mesh file and its buffers; one
-  with a ``bufferView`` must fit in it (offset, stride and count), as every ``bufferView`` in its buffer and every
-  buffer's ``byteLength`` in the bytes it has.
+  with a ``bufferView`` must fit in it (its last element ends within the view: offset + stride × (count − 1) +
+  element size ≤ byteLength), as every ``bufferView`` in its buffer and every buffer's ``byteLength`` in the bytes
+  it has; every attribute of a primitive has as many elements as its POSITION.
 * OFF: the header's vertex and face counts must have as many lines after it. PLY: ``load._check_ply``.
+* OBJ: no face index of 0 (indices count from 1; negative ones are relative); its MTL (``mtllib``) defines a
+  material and every ``map_Kd`` names a file (trimesh drops an MTL it reads nothing from, and a ``map_Kd`` without
+  a value, without a word).
 
 glTF / GLB (the glTF 2.0 specification): a GLB is a 12-byte header (``glTF``, version, length), a JSON chunk and an
 optional BIN chunk (buffer 0 without a ``uri``). URIs are percent-decoded (RFC 3986, as the specification says),
@@ -29,6 +33,7 @@ import contextlib
 import io
 import json
 import os
+import re
 import struct
 import warnings
 from urllib.parse import unquote
@@ -266,6 +271,8 @@ def check_gltf(path, size: int, error, open_named) -> None:
                 fits(f"{field}.sparse.{what}", vw,
                      _index(node, "byteOffset", f"{field}.sparse.{what}.byteOffset", error, required=False) or 0, n, e)
 
+    _check_attribute_counts(tree, accessors, error)
+
     # images: readable, within the pixel bound, named exactly
     for i, img in enumerate(images):
         field = f"images[{i}]"
@@ -291,6 +298,31 @@ def check_gltf(path, size: int, error, open_named) -> None:
         else:
             raise error(field, f"{field} has neither a uri nor a bufferView", "export the car again (the glTF is "
                                                                             "incomplete)")
+
+
+def _check_attribute_counts(tree, accessors, error) -> None:
+    """Every attribute of a primitive has as many elements as its POSITION (glTF 2.0, 3.7.2.1: "All attribute
+    accessors for a given primitive MUST have the same count"). An accessor without a bufferView is zeros of any
+    count the file's bytes allow: one that does not match its vertices gave a car whose texture coordinates were all
+    0, without a word. Structure this does not understand is left to trimesh (which raises, or goes on: a warning)."""
+    meshes = tree.get("meshes")
+    for m, mesh in enumerate(meshes if isinstance(meshes, list) else []):
+        prims = mesh.get("primitives") if isinstance(mesh, dict) else None
+        for p, prim in enumerate(prims if isinstance(prims, list) else []):
+            attrs = prim.get("attributes") if isinstance(prim, dict) else None
+            if not isinstance(attrs, dict):
+                continue
+            counts = {name: (i, accessors[i]["count"]) for name, i in attrs.items()
+                      if isinstance(i, int) and not isinstance(i, bool) and 0 <= i < len(accessors)}
+            if "POSITION" not in counts:
+                continue
+            pi, n = counts["POSITION"]
+            for name, (i, c) in sorted(counts.items()):
+                if c != n:
+                    field = f"meshes[{m}].primitives[{p}].attributes.{name}"
+                    raise error(field, f"{field}: {name} (accessors[{i}]) has {c:,} elements but POSITION "
+                                       f"(accessors[{pi}]) has {n:,}: every attribute of a primitive has one "
+                                       "element per vertex", "export the car again (the glTF is corrupt)")
 
 
 def _view_bytes(path, data, bin_at, buffers, view, open_named) -> bytes:
@@ -333,3 +365,78 @@ def check_off(path, error) -> None:
     if nv + nf > len(body):
         raise error("(header)", f"the OFF header promises {nv:,} vertices and {nf:,} faces ({nv + nf:,} lines) "
                                 f"but {len(body):,} lines follow: truncated", "copy or export the mesh again")
+
+
+# -------------------------------------------------------------------------------------------------------- OBJ
+
+#: a face line holding an index of 0 somewhere (a candidate: ``_zero_index_line`` reads the line itself)
+_ZERO_INDEX = re.compile(rb"(?m)^[ \t]*f(?=[ \t])[^\n]*?[ \t/][-+]?0+(?![^ \t/\r\n#])")
+
+
+def _zero_index_line(text: bytes):
+    """The 1-based line number of the first face (``f``) line with a vertex, texture-coordinate or normal index of
+    0, or None. OBJ indices count from 1 (negative ones count back from the last element read): 0 names nothing,
+    and trimesh read it as the first vertex."""
+    for match in _ZERO_INDEX.finditer(text):
+        start = text.rfind(b"\n", 0, match.start()) + 1
+        end = text.find(b"\n", match.start())
+        line = text[start:end if end >= 0 else len(text)].split(b"#", 1)[0]
+        for word in line.split()[1:]:
+            for part in word.split(b"/"):
+                try:
+                    if part and int(part) == 0:
+                        return text.count(b"\n", 0, start) + 1
+                except ValueError:
+                    pass  # not an index: trimesh says what it thinks of it
+    return None
+
+
+def _mtl_name(text: str):
+    """The MTL file trimesh reads for an OBJ, found as trimesh finds it (``trimesh.exchange.obj.load_obj``: the rest
+    of the line after the first ``mtllib`` in the text), or None when there is none."""
+    at = text.find("mtllib")
+    if at < 0:
+        return None
+    end = text.find("\n", at)
+    return text[at + 6:end if end >= 0 else len(text)].strip()
+
+
+def check_mtl(name: str, data: bytes, error) -> None:
+    """An OBJ's MTL file (as ``trimesh.exchange.obj.parse_mtl`` reads it: a line is its words, the first a key,
+    any case): it must define a material (a ``newmtl`` with a name; random bytes, an empty file or a file of
+    comments define none, and trimesh then drops every material and texture without a word), and every ``map_Kd``
+    must name a file (trimesh skips one without a value: the car would lose its texture)."""
+    text = data.decode("utf-8", errors="replace")
+    defined = False
+    for number, line in enumerate(text.splitlines(), 1):
+        words = line.split()
+        key = words[0].lower() if words else ""
+        if key == "newmtl" and len(words) > 1:
+            defined = True
+        elif key == "map_kd" and len(words) == 1:
+            raise error("map_Kd", f"{name!r} (named by the mesh) line {number}: map_Kd names no file, so the "
+                                  "material's texture would be dropped", f"name the texture file in {name!r} "
+                                                                         "(or remove the map_Kd line)")
+    if not defined:
+        raise error(name, f"{name!r} (named by the mesh) defines no material (no 'newmtl' line): it is not an MTL "
+                          "file or it is empty, and the car would lose its materials and textures",
+                    "export the car again with its MTL file (or remove the mtllib line for an untextured car)")
+
+
+def check_obj(path, error, open_named) -> None:
+    """An OBJ before trimesh reads it: no face index of 0 (``_zero_index_line``; the field is ``f``), and its MTL
+    file (``_mtl_name``, opened with ``open_named``, the caller's named-file rules) checked by ``check_mtl``.
+    Indices beyond the vertices raise in trimesh (``load.load_mesh`` refuses them)."""
+    with files.open_regular(path, lambda p, f, m: error("(file)", m, None)) as f:
+        data = f.read()
+    data = data.replace(b"\r\n", b"\n")  # as trimesh reads it
+    line = _zero_index_line(data)
+    if line is None and b"\\\n" in data:  # trimesh joins continued lines (the number is then of the joined text)
+        line = _zero_index_line(data.replace(b"\\\n", b""))
+    if line is not None:
+        raise error("f", f"line {line}: face index 0: OBJ indices count from 1 (negative ones back from the last "
+                         "vertex), so 0 names no vertex", "export the mesh again")
+    name = _mtl_name(data.decode("utf-8", errors="replace"))
+    if name:
+        with open_named(name) as f:
+            check_mtl(name, f.read(), error)

@@ -26,8 +26,9 @@ are opened, the mesh and every file it names (glTF buffers and images, OBJ mater
 ``TextureFile``), each exactly as named, inside the mesh's folder (``_exact_resolver``: trimesh's own resolver
 would take another file of the same base name); a missing, outside or unreadable one is refused naming it, though
 trimesh would go on without it. A PLY's header (``core.splats.ply_format``), a glTF/GLB's buffers, views and
-accessors and an OFF's counts are checked against the bytes before trimesh allocates what they claim; textures
-against ``checks.MAX_TEXTURE_PIXELS`` from their headers. After reading: face indices against the vertex count,
+accessors and an OFF's counts are checked against the bytes before trimesh allocates what they claim, an OBJ's
+face indices (never 0) and its MTL (``checks.check_obj``); textures against ``checks.MAX_TEXTURE_PIXELS`` from
+their headers. After reading: face indices against the vertex count,
 the texture coordinates textured faces use (finite). trimesh's log records are kept, not printed
 (``_trimesh_records``): a texture it could not read is an error, anything else it went on past a ``warning``
 (``MeshAsset.warnings``, ``READER_WARNING``), as are faces with a non-finite corner (``NONFINITE_FACES``).
@@ -263,10 +264,11 @@ def load_mesh(path, up: str = "auto") -> MeshAsset:
 
     ``up``: "auto" (by extension: glTF/GLB/OBJ Y up, the rest Z up), "y" or "z". Raises ``MeshAssetError``
     (an InputError naming the file and field) for a missing or unreadable file, an unsupported format, a
-    Gaussian-splat PLY, counts the file cannot hold (``checks``), a file it names that is missing, outside its
-    folder or unreadable, a texture beyond ``checks.MAX_TEXTURE_PIXELS``, face indices outside the vertices,
-    non-finite texture coordinates, a point cloud, or a file without triangles. What trimesh went on past is in
-    ``MeshAsset.warnings``.
+    Gaussian-splat PLY, counts the file cannot hold or indices it cannot mean (``checks``: glTF attributes of
+    unequal length, an OBJ face index of 0, an MTL without a material or with an empty ``map_Kd``), a file it names
+    that is missing, outside its folder or unreadable, a texture beyond ``checks.MAX_TEXTURE_PIXELS``, face indices
+    outside the vertices, non-finite texture coordinates, a point cloud, or a file without triangles. What trimesh
+    went on past is in ``MeshAsset.warnings``.
     """
     import trimesh
 
@@ -283,16 +285,19 @@ def load_mesh(path, up: str = "auto") -> MeshAsset:
     gltf = ext in (".glb", ".gltf")
     resolver = _exact_resolver(path, gltf)
     error = _error_for(path)
+
+    def open_named(name):
+        return files.open_regular(checks.named_file(path, name, error, gltf), lambda p, f, m: error(
+            name, f"{name!r} (named by the mesh) {m}", "replace it with the file itself"))
+
     if ext == ".ply":
         _check_ply(path, size)
     elif gltf:
-        def open_named(name):
-            return files.open_regular(checks.named_file(path, name, error, True), lambda p, f, m: error(
-                name, f"{name!r} (named by the mesh) {m}", "replace it with the file itself"))
-
         checks.check_gltf(path, size, error, open_named)
     elif ext == ".off":
         checks.check_off(path, error)
+    elif ext == ".obj":
+        checks.check_obj(path, error, open_named)
     with _trimesh_records() as records:
         try:
             with checks.pixel_limit(checks.MAX_TEXTURE_PIXELS):  # a texture nothing above checked (none known)

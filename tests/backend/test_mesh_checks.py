@@ -1,7 +1,8 @@
 """Hostile mesh files (issue 30), each a clean refusal naming the file and field (``MeshAssetError``, an InputError:
 exit 2) or an honest acceptance with a warning: face indices outside the vertices, glTF counts beyond the file's
 bytes, a truncated OFF, NaN texture coordinates, textures too large to decode, textures missing / outside the
-mesh's folder / unreadable, a missing buffer never replaced by another file of its base name, and what trimesh logs
+mesh's folder / unreadable, glTF attributes of unequal length, an OBJ face index of 0, an MTL that defines nothing
+or a ``map_Kd`` without a file, a missing buffer never replaced by another file of its base name, and what trimesh logs
 while it reads (never printed as a traceback). The command-level halves (exit codes, events, a killed run's
 temporary) are in test_mesh_asset.py."""
 
@@ -221,3 +222,74 @@ def test_faces_with_non_finite_corners_are_a_warning(tmp_path):
     assert [w["code"] for w in asset.warnings] == [mesh_load.NONFINITE_FACES]
     assert "1 of 2 faces" in asset.warnings[0]["message"]
     assert len(ma.sample_gaussians(asset, 100).gaussians) == 100
+
+
+# -- 9. what the fuzzer found after the first round (issue 30) ------------------------------------------------------
+
+def test_an_attribute_whose_count_differs_from_position_is_refused(tmp_path):
+    # a TEXCOORD_0 without a bufferView (zeros) one longer than POSITION: trimesh read a car with every UV at 0
+    path = MF.triangle_gltf(tmp_path / "z", accessors=[{"componentType": 5126, "count": 4, "type": "VEC2"}])
+    tree = json.load(open(path))
+    tree["meshes"][0]["primitives"][0]["attributes"]["TEXCOORD_0"] = 3
+    json.dump(tree, open(path, "w"))
+    refused(path, r"TEXCOORD_0 \(accessors\[3\]\) has 4 elements but POSITION \(accessors\[0\]\) has 3",
+            "meshes[0].primitives[0].attributes.TEXCOORD_0")
+    # one shorter, with a bufferView
+    path = MF.triangle_gltf(tmp_path / "s")
+    tree = json.load(open(path))
+    tree["accessors"][1]["count"] = 2
+    json.dump(tree, open(path, "w"))
+    refused(path, r"TEXCOORD_0 \(accessors\[1\]\) has 2 elements but POSITION \(accessors\[0\]\) has 3",
+            "meshes[0].primitives[0].attributes.TEXCOORD_0")
+
+
+def test_an_accessor_must_end_within_its_view_counting_the_stride(tmp_path):
+    # VEC2 float (8 bytes) every 16 bytes: 3 elements need 2 × 16 + 8 = 40 bytes of the view, not 3 × 16 = 48
+    def strided(folder, length):
+        path = MF.triangle_gltf(folder, accessors=[{"bufferView": 3, "componentType": 5126, "count": 3,
+                                                    "type": "VEC2"}])
+        tree = json.load(open(path))
+        tree["bufferViews"].append({"buffer": 0, "byteOffset": 0, "byteLength": length, "byteStride": 16})
+        json.dump(tree, open(path, "w"))
+        return path
+
+    assert len(mesh_load.load_mesh(strided(tmp_path / "fits", 40)).faces) == 1
+    refused(strided(tmp_path / "short", 39), r"accessors\[3\] declares 3 elements \(40 bytes\) but bufferViews\[3\] "
+                                             "has 39", "accessors[3]")
+
+
+def test_an_obj_face_index_of_zero_is_refused(tmp_path):
+    body = "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\n"
+    (tmp_path / "z.obj").write_text(body + "f 0 2 3\n")   # OBJ counts from 1: trimesh read 0 as the first vertex
+    refused(tmp_path / "z.obj", r"line 7: face index 0", "f")
+    (tmp_path / "t.obj").write_text(body + "f 1/1 2/0 3/3\n")   # a texture-coordinate index of 0
+    refused(tmp_path / "t.obj", r"line 7: face index 0", "f")
+    (tmp_path / "c.obj").write_text(body + "# f 0 1 2\nf 1/1 2/2 3/3\nf -3 -2 -1\n")  # a comment, relative: fine
+    assert len(mesh_load.load_mesh(tmp_path / "c.obj").faces) == 2
+
+
+def _textured_obj(folder, mtl: bytes):
+    folder.mkdir()
+    Image.new("RGB", (4, 4), (200, 0, 0)).save(folder / "tex.png")
+    (folder / "car.mtl").write_bytes(mtl)
+    (folder / "car.obj").write_text("mtllib car.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\n"
+                                    "usemtl m\nf 1/1 2/2 3/3\n")
+    return folder / "car.obj"
+
+
+def test_an_mtl_that_defines_no_material_is_refused_naming_it(tmp_path):
+    import random
+
+    for name, data in (("garbage", random.Random(7).randbytes(200)), ("empty", b""),
+                       ("comments", b"# exported by hand\n\n")):
+        e = refused(_textured_obj(tmp_path / name, data), r"'car.mtl' \(named by the mesh\) defines no material",
+                    "car.mtl")
+        assert "newmtl" in e.message and "export" in e.hint
+    assert len(mesh_load.load_mesh(_textured_obj(tmp_path / "ok", b"newmtl m\nKd 1 1 1\nmap_Kd tex.png\n")).faces) == 1
+
+
+def test_an_mtl_map_kd_without_a_file_name_is_refused(tmp_path):
+    e = refused(_textured_obj(tmp_path / "e", b"newmtl m\nKd 1 1 1\nmap_Kd \n"),
+                r"'car.mtl' \(named by the mesh\) line 3: map_Kd names no file", "map_Kd")
+    assert "texture" in e.message
+    refused(_textured_obj(tmp_path / "u", b"newmtl m\r\nMAP_KD\r\n"), "line 2: map_Kd names no file", "map_Kd")

@@ -245,11 +245,12 @@ class _AllCameraPaths(_BackendRun):
         import time
 
         runs = self._follower(context)
-        shown, told = "", 0
+        shown, told, status = "", 0, "running"
         try:
             while True:
-                # shown before each tick: a camera's run started (by the constructor or the last tick) is printed
-                # at least once, at "starting", even when it ends before the next tick (a warm backend, a busy CPU)
+                # shown before each tick and after the last: a camera's run started (by the constructor or the last
+                # tick) is printed at least once, at "starting", even when it ends before the next tick (a warm
+                # backend, a busy CPU), and each camera's outcome once, the last camera's included
                 text = progress_text() if ACTIVE else ""
                 if text and text != shown:
                     print(f"scpainter {text}", flush=True)
@@ -257,9 +258,10 @@ class _AllCameraPaths(_BackendRun):
                 for name, _, level, message in runs.outcomes[told:]:
                     print(f"scpainter {self.command} {name!r}: {level}: {message}", flush=True)
                 told = len(runs.outcomes)
-                if (status := runs.tick(context)) != "running":
+                if status != "running":
                     break
-                time.sleep(0.1)
+                if (status := runs.tick(context)) == "running":
+                    time.sleep(0.1)
         except BaseException:  # Ctrl-C or a bug: the backend does not outlive the operator
             runs.stop()
             raise

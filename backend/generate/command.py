@@ -207,6 +207,19 @@ def generate_job(job_path: str, job: job_mod.Job, device: str, checkpoint: str |
         return _generate(job_path, job, device, plan, precision, force, stop, lock)
 
 
+def torch_threads() -> int:
+    """torch's CPU threads for the model: ``OMP_NUM_THREADS`` when it is a positive integer, else the CPUs this
+    process may run on. Set explicitly before the model runs because numba's OpenMP layer (the CPU renderer) sets
+    the OpenMP thread count of the thread it runs on, which torch's CPU kernels share: a ``generate`` that rendered
+    its conditions first would otherwise sample with another thread count than one that found them rendered (or a
+    warm server's next request), and a resumed run would differ from an uninterrupted one (by one level in 8-bit
+    frames, measured with ``OMP_NUM_THREADS=1``)."""
+    value = os.environ.get("OMP_NUM_THREADS", "")
+    if value.isdigit() and int(value) > 0:
+        return int(value)
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
 def _generate(job_path, job, device, plan: Plan, precision, force, stop, lock) -> dict:
     ckpt, s, out = plan.checkpoint, plan.settings, plan.output_dir
     precision = resolve_precision(precision, device)
@@ -239,6 +252,7 @@ def _generate(job_path, job, device, plan: Plan, precision, force, stop, lock) -
 
     from ..model.pipeline import SCPainterPipeline, pad_to_multiple
 
+    torch.set_num_threads(torch_threads())
     log(f"generate {job_path}: {frames_n} frames {W}x{H}, {s['steps']} steps, window {s['window']} overlap "
         f"{s['overlap']}, {precision} on {device}, checkpoint {ckpt}")
     pipe = SCPainterPipeline.from_checkpoint(ckpt, device, dtype)

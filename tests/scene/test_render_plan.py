@@ -72,4 +72,5 @@ def test_render_all_paths_skips_the_paths_that_are_up_to_date(scene, tmp_path, c
     capsys.readouterr()
     assert bpy.ops.scpainter.render_all_camera_paths() == {"FINISHED"}
     out = capsys.readouterr().out
-    assert "2 camera paths: 2 finished" in out and out.count("up to date") == 2
+    told = [line for line in out.splitlines() if line.startswith("scpainter render '")]   # each camera's outcome
+    assert "2 camera paths: 2 finished" in out and len(told) == 2 and all("up to date" in t for t in told), out

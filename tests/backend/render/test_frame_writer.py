@@ -202,13 +202,16 @@ def read_png(path):
 
 
 def test_a_write_error_propagates_from_render_as_inline(tmp_path):
-    """Frame 2's EXR cannot be written (a folder stands at its name): render raises the OSError it raised on the
-    writer thread; frame 1 is whole and frame 2 has no labels."""
+    """Frame 2's EXR cannot be written (a folder stands at its name): render raises the error the writer thread
+    raised (``outputs.atomic_path``'s InputError naming the frame); frame 1 is whole and frame 2 has no labels."""
+    from scpainter_blender.core.errors import InputError
+
     path = small_job(tmp_path, frames=(1, 2, 3))
     layout = OutputLayout(str(tmp_path / "out"))
     os.makedirs(layout.condition_exr(2))
-    with pytest.raises(OSError):
+    with pytest.raises(InputError) as e:
         render_cmd.render_job(path, J.load(path), "cpu")
+    assert e.value.path == layout.condition_exr(2) and "is a folder" in e.value.message
     channels.read(layout.condition_exr(1))
     assert os.path.isfile(layout.frame_labels(1))
     assert not os.path.exists(layout.frame_labels(2))

@@ -4,7 +4,11 @@
     accelerate launch --num_processes 4 -m backend batch --list jobs.txt --command render
 
 Each process takes every WORLD_SIZE-th job starting at its RANK (the variables torchrun and accelerate set; one
-process without them), on GPU LOCAL_RANK when CUDA is there. A job that fails is recorded and the batch goes on
+process without them), on GPU LOCAL_RANK when CUDA is there. Every process first looks at all the items: a job
+listed again (a hard or symbolic link, another spelling: ``batch_items.first_items``) goes with its first item and
+runs once, its copies repeating its result with ``duplicate_of``; a job naming the output folder of an earlier,
+other job is refused before anything runs (``batch_items.shared_output_items``: ``failed``, bad input naming
+``output_dir``). A job that fails is recorded and the batch goes on
 (``failure``: bad input with its ``file`` and ``field``, a bug with the ``log`` holding its traceback). SIGTERM or
 a first Ctrl-C stops the running job after its current frame or sampler step (``stopped``, finished outputs kept);
 the jobs after it are ``not run (SIGTERM)``, and the summary is printed as in any other ending (a second Ctrl-C
@@ -22,7 +26,7 @@ import time
 
 from scpainter_blender.core.backend_protocol import ITEM_FAILED as FAILED, ITEM_NOT_RUN as NOT_RUN, \
     ITEM_OK as OK, ITEM_STOPPED as STOPPED
-from scpainter_blender.core.batch_items import ranks_from_env, shard
+from scpainter_blender.core.batch_items import first_items, job_shard, ranks_from_env, shared_output_items
 
 from .. import events
 
@@ -80,7 +84,7 @@ def failure(e: Exception, path: str) -> dict:
 
     if isinstance(e, InputError):
         events.log(f"batch: {path}: bad input: {e}")
-        return bad_input_fields(e)
+        return bad_input_fields(e, path)
     if isinstance(e, CleanFailure):
         events.log(f"batch: {path} failed: {e}")
         return {"error": str(e), "hint": e.hint, **e.fields}
@@ -125,26 +129,37 @@ def run_batch(items: list[str], command: str, device: str, checkpoint: str | Non
         import torch
 
         torch.cuda.set_device(local % torch.cuda.device_count())
-    mine = shard(items, rank, world)
+    # every rank looks at every item (the same answers everywhere): a job listed again goes with its first item
+    # and runs once; a job writing another job's output folder is refused before anything runs
+    first = first_items(items)
+    refused = shared_output_items(items, first)
+    mine = job_shard(first, rank, world)
     events.log(f"batch rank {rank}/{world}: {len(mine)} of {len(items)} jobs on {device}")
-    results = []
+    results, result_of = [], {}   # item index -> its result, for the copies that follow it
     # Ctrl-C too (a second one aborts): the running job stops after its current frame or step, the rest are not
     # run, and the summary still says what ran
     with events.stop_on_sigterm(sigint=True) as stop:
-        for n, path in enumerate(mine):
-            if stop:
+        for n, k in enumerate(mine):
+            path = items[k]
+            if first[k] != k:  # the same job as an earlier item of this rank: its result, saying which item ran it
+                results.append({**result_of[first[k]], "job": path, "duplicate_of": first[k]})
+            elif k in refused:
+                events.log(f"batch: {path}: bad input: {refused[k]['error']}")
+                results.append({"job": path, "rank": rank, "status": FAILED, **refused[k], "seconds": 0.0})
+            elif stop:
                 results.append({"job": path, "rank": rank, "status": NOT_RUN})
-                continue
-            t = time.perf_counter()
-            try:
-                with events.log_scope():  # a bug's traceback goes to this job's backend.log
-                    out = run_one(path, command, device, checkpoint, stop, allows_outside(allow_outside, path),
-                                  half, overrides=overrides, data_roots=(data_roots or {}).get(path, ()))
-                status = STOPPED if out.pop("stopped") else OK
-                results.append({"job": path, "rank": rank, "status": status, **out})
-            except Exception as e:  # one bad scene must not stop the batch: record it and go on
-                results.append({"job": path, "rank": rank, "status": FAILED, **failure(e, path)})
-            results[-1]["seconds"] = time.perf_counter() - t
+            else:
+                t = time.perf_counter()
+                try:
+                    with events.log_scope():  # a bug's traceback goes to this job's backend.log
+                        out = run_one(path, command, device, checkpoint, stop, allows_outside(allow_outside, path),
+                                      half, overrides=overrides, data_roots=(data_roots or {}).get(path, ()))
+                    status = STOPPED if out.pop("stopped") else OK
+                    results.append({"job": path, "rank": rank, "status": status, **out})
+                except Exception as e:  # one bad scene must not stop the batch: record it and go on
+                    results.append({"job": path, "rank": rank, "status": FAILED, **failure(e, path)})
+                results[-1]["seconds"] = time.perf_counter() - t
+            result_of[k] = results[-1]
             events.progress("batch", n + 1, len(mine), rank=rank, job=path, status=results[-1]["status"])
     if shard_of is not None:
         return results, True

@@ -42,7 +42,9 @@ dead worker run again elsewhere.
   ``CONNECT_TIMEOUT_S`` (or that answers, but not as a Ray head), and ``cpus_per_job`` above the largest node's CPUs
   (``ArgumentError``). A job listed twice (the same file in the same folder, by ``st_dev``/``st_ino``: a hard or symbolic
   link, another spelling; ``batch_items.job_identity``) runs once; the copy's item repeats its result with
-  ``duplicate_of`` (the item that ran it) and ``attempts`` 0, so the exit code is the same as without Ray.
+  ``duplicate_of`` (the item that ran it) and ``attempts`` 0, so the exit code is the same as without Ray. A job
+  naming the output folder of an earlier, other job (``batch_items.shared_output_items``) is never sent: ``failed``
+  as bad input with ``attempts`` 0, as in the sequential ``batch``.
 * **Files.** Jobs, their inputs and outputs, and this code must be on a file system every node mounts at the same
   path (the tasks get the job's path, a string, and open the files themselves; each worker imports this code from
   the driver's ``PYTHONPATH``). Nothing from a user's file is pickled: tasks take strings and numbers and return
@@ -313,7 +315,10 @@ def run_ray_batch(items: list[str], command: str, device: str = "auto", checkpoi
     for k, i in enumerate(first):
         if k != i:
             copies.setdefault(i, []).append(k)
-    todo = [i for i, j in enumerate(first) if i == j]
+    # a job writing the output folder of an earlier, other job is refused before anything runs (run after it, it
+    # would replace or remove that job's outputs): failed as bad input, never sent
+    refused = batch_items.shared_output_items(items, first)
+    todo = [i for i, j in enumerate(first) if i == j and i not in refused]
 
     streams: dict = {}              # an attempt's generator -> [item index, whether it has said it started]
     submitted = [0] * len(items)    # attempts sent, per item
@@ -329,13 +334,31 @@ def run_ray_batch(items: list[str], command: str, device: str = "auto", checkpoi
 
     for i in todo:
         submit(i)
+    again = sum(k != i for k, i in enumerate(first))
     events.log(f"batch --ray: {len(todo)} jobs on {ray.cluster_resources().get('CPU', 0):g} CPUs and {gpus:g} GPUs "
                f"({'1 GPU' if use_gpu else f'{cpus_per_job:g} CPUs'} per job, {retries} retries)"
-               + (f"; {len(items) - len(todo)} listed again, run once" if len(todo) < len(items) else ""))
+               + (f"; {again} listed again, run once" if again else "")
+               + (f"; {len(refused)} refused (another job's output folder)" if refused else ""))
     results: list = [None] * len(items)
     done, failed, cancelled_at = 0, 0, None
     interrupts: list = []   # the _interrupt tasks sent: waited for before returning, so none outlives the batch
     where: dict = {}        # a started attempt's generator -> (node id, worker pid)
+
+    def ended(i, running):
+        """Item ``i``'s result is in: its copies get it, and each gets its progress event."""
+        nonlocal done, failed
+        for k in (i, *copies.get(i, ())):
+            if k != i:  # the copy's item: the job's result, saying which item ran it (0 attempts of its own)
+                results[k] = {**results[i], "job": items[k], "duplicate_of": i, "attempts": 0}
+            done += 1
+            failed += results[k]["status"] == FAILED
+            events.progress(stage, done, len(items), failed=failed, running=running, job=items[k],
+                            status=results[k]["status"])
+
+    for i, fields in refused.items():
+        events.log(f"batch --ray: {items[i]}: bad input: {fields['error']}")
+        results[i] = {"job": items[i], "status": FAILED, **fields, "attempts": 0, "seconds": 0.0}
+        ended(i, 0)   # (nothing has started yet)
     while streams:
         if stop and (cancelled_at is None or time.monotonic() - cancelled_at > CANCEL_AGAIN_S):
             # asked again now and then: Ray's cancel is best effort (its docs); a running job already stopping only
@@ -350,7 +373,7 @@ def run_ray_batch(items: list[str], command: str, device: str = "auto", checkpoi
             cancelled_at = time.monotonic()
         # every stream with a new item within the half second: one pass over the attempts per wait, not per job
         ready, _ = ray.wait(list(streams), num_returns=len(streams), timeout=0.5)
-        ended = []
+        finished = []
         while ready:  # every item already there, a stream's start and result alike, before counting what runs
             gen = ready.pop(0)
             i, said_started = streams[gen]
@@ -390,17 +413,11 @@ def run_ray_batch(items: list[str], command: str, device: str = "auto", checkpoi
                     continue
             del streams[gen]
             results[i] = {"job": items[i], **item}
-            ended.append(i)
+            finished.append(i)
         running = sum(s for _, s in streams.values())  # attempts that started and have not ended
-        for i in ended:
+        for i in finished:
             results[i]["attempts"] = submitted[i]
-            for k in (i, *copies.get(i, ())):
-                if k != i:  # the copy's item: the job's result, saying which item ran it (0 attempts of its own)
-                    results[k] = {**results[i], "job": items[k], "duplicate_of": i, "attempts": 0}
-                done += 1
-                failed += results[k]["status"] == FAILED
-                events.progress(stage, done, len(items), failed=failed, running=running, job=items[k],
-                                status=results[k]["status"])
+            ended(i, running)
     if interrupts:  # each a moment's work (its worker may have gone with its node: not waited for long)
         ray.wait(interrupts, num_returns=len(interrupts), timeout=INTERRUPT_WAIT_S)
     return results

@@ -1,7 +1,8 @@
 """What the batch commands share (``python -m backend batch`` and ``blender -c scpainter batch``): the ``--list``
 file of job or scene paths (its format, and the ``data-root:`` line of the backend's lists: ``read_job_list``),
 which items one rank of a multi-process run takes (``--shard`` or the environment), the ``--ray`` options, which
-items name one job (``first_items``) and the summary's counts. No bpy, no torch."""
+items name one job (``first_items``), which would write another job's output folder (``shared_output_items``) and
+the summary's counts. No bpy, no torch."""
 
 from __future__ import annotations
 
@@ -125,10 +126,19 @@ def read_list(path) -> list:
     return paths
 
 
-def bad_input_fields(e: errors.InputError) -> dict:
+def bad_input_fields(e: errors.InputError, item=None) -> dict:
     """A batch item failed by bad input: its ``error`` (the message), ``hint``, ``file`` and ``field`` (either
-    batch command's items; the error event's names, ``core.backend_protocol.ERROR_FIELDS``)."""
-    return {"error": str(e), "hint": e.hint, "file": e.path, "field": e.field}
+    batch command's items; the error event's names, ``core.backend_protocol.ERROR_FIELDS``). ``hint`` is the
+    error's own, else one saying what to do: for the item's own path (``item``) that names no job file (missing,
+    a folder, unreadable), to list job files; for another file, to check that file."""
+    hint = e.hint
+    if not hint and e.field == "(file)" and item is not None \
+            and os.path.abspath(os.fspath(e.path)) == os.path.abspath(os.fspath(item)):
+        hint = ("each batch item names a job file (job.json), readable by this user; relative paths in a --list "
+                "file are taken from the list file's folder")
+    elif not hint:
+        hint = f"check {e.path} ({e.field}), then run the batch again: the jobs already finished are skipped"
+    return {"error": str(e), "hint": hint, "file": e.path, "field": e.field}
 
 
 def status_counts(results: list) -> dict:
@@ -170,6 +180,79 @@ def first_items(items: list) -> list:
     first, an earlier one for a copy (listed again, through a link, or spelled another way)."""
     first: dict = {}
     return [first.setdefault(job_identity(p), i) for i, p in enumerate(items)]
+
+
+def job_shard(first: list, rank: int, world: int) -> list:
+    """The indices of the items one rank of a batch takes (``shard`` of the items by their job): item k goes to the
+    rank of its job's first item (``first_items``: ``first[k] % world``), so a job listed twice is run once, by
+    one rank, which gives each copy its result. Without copies, ``shard``'s items exactly."""
+    if not 0 <= rank < world:
+        raise ValueError(f"rank {rank} is not in [0, {world})")
+    return [k for k, i in enumerate(first) if i % world == rank]
+
+
+def folder_identity(path) -> tuple:
+    """What makes two spellings of a folder, existing or not, the same folder: ``path`` with its symbolic links
+    and ``..`` followed (``os.path.realpath``), known by the ``st_dev``/``st_ino`` of its nearest existing folder
+    plus the names below it that do not exist yet (a folder the first job will make is already the second's). A
+    path that cannot be looked at (no permission) is its resolved spelling."""
+    head, rest = os.path.realpath(os.fspath(path)), []
+    while True:
+        try:
+            st = os.stat(head)
+        except (FileNotFoundError, NotADirectoryError):
+            head, name = os.path.split(head)
+            if not name:
+                break
+            rest.append(name)
+            continue
+        except OSError:
+            break
+        return ("folder", st.st_dev, st.st_ino, tuple(reversed(rest)))
+    return ("path", os.path.realpath(os.fspath(path)))
+
+
+def job_output_dir(path) -> str | None:
+    """The output folder the job file at ``path`` names, absolute: its ``output_dir`` taken from the folder of the
+    path as given, as the job takes it (``job.resolve``), read from the file's JSON alone. None when the file cannot
+    be read or names none: the job then reports its own error when it runs."""
+    from . import job as job_mod
+
+    try:
+        content = files.read_json(path)
+    except (errors.InputError, OSError, ValueError):
+        return None
+    value = content.get("output_dir") if isinstance(content, dict) else None
+    return job_mod.resolve(path, value) if isinstance(value, str) and value.strip() else None
+
+
+#: What to do when two jobs of a batch write one output folder.
+SHARED_OUTPUT_HINT = ("give each job its own output_dir (e.g. a copy with a shorter frame range: out_short), then run "
+                      "the batch again")
+
+
+def shared_output_items(items: list, first: list | None = None) -> dict:
+    """``{item index: its failed result's fields}`` for the items a batch refuses before running anything: a job
+    that is not an earlier item's job (``first_items``; ``first`` when already known) but names the same output
+    folder (``folder_identity`` of ``job_output_dir``, existing or not). Run after the other, it would replace its
+    outputs or remove them (a shorter frame range removes the recorded frames the job no longer has), so the later
+    item fails as bad input (``bad_input_fields``: the job file, ``output_dir``, the other job,
+    ``SHARED_OUTPUT_HINT``). Every process of a sharded batch computes the same from the whole list."""
+    first = first_items(items) if first is None else first
+    owner: dict = {}
+    refused: dict = {}
+    for k, i in enumerate(first):
+        out = job_output_dir(items[k]) if k == i else None   # a copy shares its job's outcome
+        if out is None:
+            continue
+        j, theirs = owner.setdefault(folder_identity(out), (k, out))
+        if j != k:
+            same = "" if theirs == out else f" (as {theirs})"
+            refused[k] = bad_input_fields(errors.InputError(
+                items[k], "output_dir", f"{out} is also the output folder of {items[j]}{same}, another job earlier "
+                                        "in this batch: run after it, this job would replace its outputs or remove "
+                                        "the frames it does not have", hint=SHARED_OUTPUT_HINT), items[k])
+    return refused
 
 
 def parse_shard(text: str) -> tuple[int, int]:

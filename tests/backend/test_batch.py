@@ -1,5 +1,6 @@
 """``python -m backend batch``: sharding, failures recorded and passed over, two processes under torchrun."""
 
+import glob
 import json
 import os
 import subprocess
@@ -16,12 +17,19 @@ ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)
 
 
 def test_shard_covers_every_item_once():
+    from scpainter_blender.core.batch_items import job_shard, shard
+
     items = [f"j{i}" for i in range(11)]
-    parts = [batch.shard(items, r, 4) for r in range(4)]
+    parts = [shard(items, r, 4) for r in range(4)]
     assert sorted(sum(parts, [])) == sorted(items) and parts[1] == ["j1", "j5", "j9"]
-    assert batch.shard(items, 0, 1) == items
+    assert shard(items, 0, 1) == items
     with pytest.raises(ValueError):
-        batch.shard(items, 4, 4)
+        shard(items, 4, 4)
+    # by job: without copies the same shares; a copy (item 5 of item 2's job) goes with its job
+    assert [job_shard(list(range(11)), r, 4) for r in range(4)] == [list(range(r, 11, 4)) for r in range(4)]
+    assert job_shard([0, 1, 2, 3, 4, 2], 2, 4) == [2, 5] and job_shard([0, 1, 2, 3, 4, 2], 1, 4) == [1]
+    with pytest.raises(ValueError):
+        job_shard([0], 4, 4)
 
 
 def _car_job(folder, name, ply_ok=True):
@@ -129,3 +137,63 @@ def test_ctrl_c_on_a_batch_stops_the_running_job_and_still_prints_the_summary(tm
     assert (done["failed"], done["stopped"], done["not_run"], done["ok"]) == (1, 1, 1, 0), done["items"]
     assert [i["status"] for i in done["items"]] == ["failed", "stopped", "not run (SIGTERM)"]
     assert 1 <= done["items"][1]["rendered"] < 40 and not os.path.exists(tmp_path / "m" / "out")
+
+
+def _short_copy(job_path, name, frames):
+    """A copy of the job beside it (``name``), its frame range cut to ``frames``: the same output folder."""
+    job = J.load(job_path).to_dict()
+    job["frames"] = [f for f in job["frames"] if f["frame"] in frames]
+    path = os.path.join(os.path.dirname(job_path), name)
+    J.save(path, job)
+    return path
+
+
+def test_two_jobs_sharing_an_output_folder_refuse_the_later_one_before_anything_runs(tmp_path):
+    """A job copied beside itself with a shorter frame range writes to the same output folder: run after the first,
+    it would remove the first job's other frames. The later item fails (bad input naming it, output_dir, the other
+    job, a hint); the first one's frames are all kept; the exit code says an item failed."""
+    from tests_support import small_job
+
+    job = small_job(tmp_path / "j", frames=(1, 2, 3, 4))
+    short = _short_copy(job, "job_short.json", (1, 2))
+    (tmp_path / "list.txt").write_text("j/job.json\nj/job_short.json\n")
+    proc = subprocess.run([sys.executable, "-m", "backend", "batch", "--list", str(tmp_path / "list.txt"),
+                           "--command", "render", "--device", "cpu"], cwd=ROOT, capture_output=True, text=True,
+                          timeout=300, env={**os.environ, "PYTHONPATH": ROOT})
+    done = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert proc.returncode == 1 and done["event"] == "done", proc.stdout + proc.stderr[-3000:]
+    first, later = done["items"]
+    assert first["status"] == "ok" and first["rendered"] == 4, first
+    assert later["status"] == "failed" and later["file"] == short and later["field"] == "output_dir", later
+    assert job in later["error"] and "own output_dir" in later["hint"], later
+    exrs = glob.glob(str(tmp_path / "j" / "out" / "conditions" / "frame_*.exr"))
+    assert len(exrs) == 4, exrs          # frames 3 and 4 of the first job are still there
+
+
+def test_a_job_listed_again_runs_once_and_each_rank_refuses_the_same_items(tmp_path):
+    """Without Ray as with it (batch_items.first_items): the same job through a hard link, a symbolic link to its
+    folder or a ``..`` spelling runs once, the copies repeating its result with ``duplicate_of``; a copy is run by
+    the rank of its job's first item. Every rank sees every item, so a rank refuses a job sharing the output folder
+    of a job another rank runs, though it never runs that one. A job path naming nothing fails with a hint."""
+    from tests_support import small_job
+
+    job = small_job(tmp_path / "j")
+    os.link(job, tmp_path / "j" / "hard.json")
+    os.symlink(tmp_path / "j", tmp_path / "link")
+    items = [job, str(tmp_path / "j" / "hard.json"), str(tmp_path / "link" / "job.json"),
+             os.path.join(str(tmp_path), "link", "..", "j", "job.json"), str(tmp_path / "missing.json")]
+    results, reports = batch.run_batch(items, "render", "cpu", shard_of=(0, 1))
+    assert reports and [r["status"] for r in results] == ["ok"] * 4 + ["failed"], results
+    assert [r.get("duplicate_of") for r in results] == [None, 0, 0, 0, None]
+    assert [r["job"] for r in results] == items and all(r["rendered"] == 2 for r in results[:4])
+    assert results[4]["hint"] and results[4]["file"] == items[4], results[4]
+
+    other = small_job(tmp_path / "k", frames=(1, 2, 3))
+    items = [other, _short_copy(other, "short.json", (1,)), job, str(tmp_path / "k" / "." / "job.json")]
+    rank1, _ = batch.run_batch(items, "render", "cpu", shard_of=(1, 2))   # item 1 alone: item 3 goes with item 0
+    assert [r["job"] for r in rank1] == [items[1]] and rank1[0]["status"] == "failed", rank1
+    assert rank1[0]["field"] == "output_dir" and other in rank1[0]["error"], rank1
+    assert not os.path.exists(tmp_path / "k" / "out")                     # refused before anything ran
+    rank0, _ = batch.run_batch(items, "render", "cpu", shard_of=(0, 2))   # items 0 and 2, and 3 (a copy of 0)
+    assert [r["job"] for r in rank0] == [items[0], items[2], items[3]], rank0
+    assert [r["status"] for r in rank0] == ["ok"] * 3 and rank0[2]["duplicate_of"] == 0 and rank0[0]["rendered"] == 3

@@ -553,3 +553,23 @@ def test_sigterm_or_ctrl_c_on_the_driver_prints_the_summary_with_not_run_apart_f
         if i["status"] == "stopped":
             assert 1 <= i["rendered"] == len(finished_frames(i["job"])) < n and not os.path.exists(job_lock(i["job"]))
     assert "Traceback" not in driver.err()
+
+
+def test_a_job_writing_another_jobs_output_folder_is_refused_before_any_job_is_sent(ray_cluster, tmp_path):
+    """Two different jobs, one output folder (a copy with a shorter frame range): the later item fails as bad input
+    (output_dir, the other job named, a hint), never sent (0 attempts, no folder-busy race at the output lock);
+    the same job listed again is still a copy, not a conflict; the first job's frames are all kept."""
+    from scpainter_blender.core import job as J
+
+    job = small_job(tmp_path / "j", frames=(1, 2, 3))
+    content = J.load(job).to_dict()
+    content["frames"] = content["frames"][:1]
+    short = str(tmp_path / "j" / "job_short.json")
+    J.save(short, content)
+    again = os.path.join(str(tmp_path), "j", ".", "job.json")
+    results = batch_ray.run_ray_batch([job, short, again], "render", "cpu")
+    assert [r["status"] for r in results] == ["ok", "failed", "ok"], results
+    assert results[1]["field"] == "output_dir" and results[1]["file"] == short and job in results[1]["error"]
+    assert "own output_dir" in results[1]["hint"] and results[1]["attempts"] == 0
+    assert results[2]["duplicate_of"] == 0
+    assert len(glob.glob(str(tmp_path / "j" / "out" / "conditions" / "frame_*.exr"))) == 3

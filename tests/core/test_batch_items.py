@@ -137,3 +137,65 @@ def test_the_summary_keeps_not_run_apart_from_failed():
     assert s["counts"] == batch.status_counts(results)
     assert set(s) | {"command", "items"} == set(p.BATCH_SUMMARY_FIELDS)
     assert batch.summary([]) == {"jobs": 0, "ok": 0, "failed": 0, "stopped": 0, "not_run": 0, "counts": {}}
+
+
+def test_a_folder_is_known_by_its_identity_whether_it_exists_or_not(tmp_path):
+    """folder_identity: the nearest existing folder by st_dev/st_ino once links are followed, plus the names below
+    it that do not exist yet: a symbolic link to the parent, ``..`` through it, and the folder made later agree."""
+    import os
+
+    (tmp_path / "a").mkdir()
+    os.symlink(tmp_path / "a", tmp_path / "link")
+    out, via_link = str(tmp_path / "a" / "out" / "x"), str(tmp_path / "link" / "out" / "x")
+    assert batch.folder_identity(out) == batch.folder_identity(via_link)
+    assert batch.folder_identity(out) != batch.folder_identity(str(tmp_path / "a" / "out" / "y"))
+    before = batch.folder_identity(out)
+    os.makedirs(out)
+    assert batch.folder_identity(out) == batch.folder_identity(via_link) != before   # now the folder itself
+    (tmp_path / "b").mkdir()
+    os.symlink(tmp_path / "a" / "out", tmp_path / "b" / "deep")
+    # "..", followed where the link leads (as the file system does), not where the spelling suggests
+    assert batch.folder_identity(str(tmp_path / "b" / "deep" / ".." / "out" / "x")) == batch.folder_identity(out)
+
+
+def test_different_jobs_naming_one_output_folder_refuse_the_later_ones(tmp_path):
+    """shared_output_items: a copy of a job with a shorter frame range, in the same folder, writing to the same
+    output folder (which would delete the first job's other frames), and a job elsewhere reaching it through a
+    symbolic link, are refused, naming the job file, ``output_dir``, the other job and what to do; the same job
+    listed again (a hard link) is a copy (first_items), not a conflict, and a job that cannot be read is left to
+    report its own error."""
+    import json
+    import os
+
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    job, short = tmp_path / "a" / "job.json", tmp_path / "a" / "job_short.json"
+    job.write_text(json.dumps({"output_dir": "out"}))
+    short.write_text(json.dumps({"output_dir": "./out"}))
+    os.link(job, tmp_path / "a" / "again.json")
+    os.symlink(tmp_path / "a", tmp_path / "b" / "up")
+    (tmp_path / "b" / "elsewhere.json").write_text(json.dumps({"output_dir": "up/out"}))
+    (tmp_path / "b" / "own.json").write_text(json.dumps({"output_dir": "out"}))
+    (tmp_path / "b" / "broken.json").write_text("{not json")
+    items = [str(job), str(tmp_path / "a" / "again.json"), str(short), str(tmp_path / "b" / "elsewhere.json"),
+             str(tmp_path / "b" / "own.json"), str(tmp_path / "b" / "broken.json"), str(tmp_path / "missing.json")]
+    refused = batch.shared_output_items(items)
+    assert sorted(refused) == [2, 3]
+    for i in (2, 3):
+        r = refused[i]
+        assert r["file"] == items[i] and r["field"] == "output_dir", r
+        assert items[0] in r["error"] and str(tmp_path / "a" / "out") in r["error"], r
+        assert "output_dir" in r["hint"] and "own" in r["hint"], r
+    assert batch.shared_output_items([]) == {}
+
+
+def test_a_failed_item_without_a_hint_of_its_own_gets_one():
+    """bad_input_fields: an error that carries a hint keeps it; a job path that names a folder or nothing gets one
+    saying what the batch needs there."""
+    item = "/data/jobs/missing.json"
+    fields = batch.bad_input_fields(errors.InputError(item, "(file)", "not found"), item)
+    assert fields["file"] == item and fields["hint"] and "job" in fields["hint"], fields
+    fields = batch.bad_input_fields(errors.InputError("/data/car.ply", "(file)", "not found"), item)
+    assert fields["hint"] and "/data/car.ply" in fields["hint"], fields
+    kept = batch.bad_input_fields(errors.InputError(item, "frames", "bad", hint="fix it"), item)
+    assert kept["hint"] == "fix it"

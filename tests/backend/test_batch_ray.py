@@ -522,7 +522,9 @@ def test_a_worker_killed_mid_batch_costs_only_its_attempt_and_no_finished_job_ru
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "Ctrl-C"])
 def test_sigterm_or_ctrl_c_on_the_driver_prints_the_summary_with_not_run_apart_from_failed(ray_cluster, tmp_path,
                                                                                            sig):
-    n = 40   # frames of a long job: seconds on a CPU worker, so the signal comes while one runs
+    # frames of a long job: the signal comes while one runs, and its stop (a SIGINT sent by a task Ray schedules on
+    # the worker's node) lands long before the job could end, however busy the machine (40 frames once ended first)
+    n = 400
     bad = small_job(tmp_path / "bad")
     os.remove(tmp_path / "bad" / "car.ply")
     jobs = [bad] + [small_job(tmp_path / f"long{i}", frames=tuple(range(1, n + 1)), resolution=(320, 240))

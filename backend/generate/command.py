@@ -109,12 +109,44 @@ def prepare(job_path: str, job: job_mod.Job, checkpoint: str | None, overrides: 
     return Plan(ckpt, s, paths["output_dir"], paths)
 
 
+#: How far outside [0, 1] a value of I, M or M_a may lie and still be read (as the nearest of 0 and 1). The renderer
+#: writes all three in [0, 1] (I clamped, M 0 or 1, M_a a coverage), and half floats keep them there (0 and 1 are
+#: exact, rounding is monotonic); a compositor's lossy re-save does not: DWAA/DWAB ring up to 0.021 past an edge
+#: (measured on a 50 % random mask). 1/16 takes that with margin and still refuses what is no condition layer (a
+#: scene-linear image, a mask of 7 or -3).
+VALUE_TOLERANCE = 1.0 / 16.0
+
+
+def check_layer(path: str, layer: str, values: np.ndarray, job_path: str = "JOB") -> np.ndarray:
+    """``values`` (H, W) float32 of the condition layer ``layer`` (a ``channels.CHANNELS`` key among I, M and M_a)
+    of the EXR ``path``, clamped to [0, 1]; ExrError naming the file and the channel (``channels.FILE_NAMES``,
+    e.g. ``image.R``), how many pixels, the first one (x, y) and what to do, for NaN/inf or a value outside
+    [-``VALUE_TOLERANCE``, 1 + ``VALUE_TOLERANCE``]: the renderer never writes one, so the file was damaged or
+    made by another tool, and the model would take it as a condition (NaN read as 0, a mask of 7 as a hole).
+    ``job_path``: the job, for the hint."""
+    hint = f"render the condition layers again: python -m backend render {job_path} --force"
+    finite = np.isfinite(values)
+    bad, what, why = ~finite, "NaN or infinite", ""
+    if finite.all():
+        bad = (values < -VALUE_TOLERANCE) | (values > 1.0 + VALUE_TOLERANCE)
+        what = "outside [0, 1]"
+        why = (f" (values from {float(values.min()):g} to {float(values.max()):g}; the renderer writes this layer in "
+               f"[0, 1], {VALUE_TOLERANCE:g} beyond is allowed for a lossy re-save)")
+    if bad.any():
+        y, x = (int(v[0]) for v in np.nonzero(bad))
+        raise channels.ExrError(path, channels.FILE_NAMES[layer], f"{int(bad.sum())} of its {bad.size} pixels are "
+                                                                  f"{what}, the first at x={x}, y={y}{why}", hint=hint)
+    return np.clip(values, 0.0, 1.0)
+
+
 def load_conditions(job_path: str, job: job_mod.Job):
     """(image, asset_mask, valid): I (F, 3, H, W), M_a (F, 1, H, W) and validity 1 − hole (F, 1, H, W) float32
     tensors from the condition EXRs (``channels.read``: EXRs with the former channel name load too; one without
     these channels raises ``channels.ConditionsError``; a folder or FIFO in a frame's place, ``channels.ExrError``).
     Every frame must be the job's resolution (W x H): one of another size (re-saved by another tool) raises
-    ``channels.ExrError`` naming it, its size and the job's, field ``dataWindow``, before anything is stacked."""
+    ``channels.ExrError`` naming it, its size and the job's, field ``dataWindow``, before anything is stacked.
+    Every value of I, M and M_a must be finite and in [0, 1] up to ``VALUE_TOLERANCE`` (``check_layer``: an
+    ExrError naming the file and the channel, e.g. ``image.R``); values within the tolerance are clamped."""
     image, asset_mask, valid = [], [], []
     need = (*channels.IMAGE, channels.HOLE, channels.ASSET_MASK)
     W, H = job.resolution
@@ -126,6 +158,7 @@ def load_conditions(job_path: str, job: job_mod.Job):
             raise channels.ExrError(path, "dataWindow", f"is {w}x{h} pixels, the job's resolution is {W}x{H}",
                                     hint=f"render the condition layers again at the job's resolution: python -m "
                                          f"backend render {job_path} --force")
+        layers = {c: check_layer(path, c, layers[c], job_path) for c in need}
         image.append(np.stack([layers[c] for c in channels.IMAGE]))
         asset_mask.append(layers[channels.ASSET_MASK][None])
         valid.append(1.0 - layers[channels.HOLE][None])

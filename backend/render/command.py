@@ -17,7 +17,6 @@ from scpainter_blender.core import job_inputs
 from scpainter_blender.core import labels as labels_mod
 from scpainter_blender.core.geometry import boxes
 from scpainter_blender.core.output_layout import FRAME_LABELS, OutputLayout
-from scpainter_blender.core.splats import gaussians as splats
 
 from .. import events, png
 from ..errors import FolderBusyError
@@ -85,11 +84,11 @@ def _frame_files(job: job_mod.Job) -> list:
 
 
 def warn_inputs(job: job_mod.Job, paths: dict) -> int:
-    """A ``warning`` event (code ``splats.INVALID_GAUSSIANS``, ``object``: the asset's name) for each asset that
-    ``job_inputs.check_inputs`` found mostly invalid (``paths["asset_warnings"]``), every run and every ``--check``;
-    their number."""
-    for i, message in paths.get("asset_warnings", ()):
-        events.warning(message, splats.INVALID_GAUSSIANS, object=job.assets[i].name)
+    """A ``warning`` event (code ``splats.INVALID_GAUSSIANS`` or ``splats.TRANSPARENT_ASSET``, ``object``: the
+    asset's name) for each asset that ``job_inputs.check_inputs`` found mostly invalid or mostly never drawn
+    (``paths["asset_warnings"]``), every run and every ``--check``; their number."""
+    for i, message, code in paths.get("asset_warnings", ()):
+        events.warning(message, code, object=job.assets[i].name)
     return len(paths.get("asset_warnings", ()))
 
 

@@ -46,8 +46,8 @@ import torch
 
 from scpainter_blender.core.geometry.visibility import BLUR, EXTEND_MAX  # the skip test's constants too
 from scpainter_blender.core.splats import sh as core_sh
+from scpainter_blender.core.splats.gaussians import ALPHA_MIN  # the input check's cut too
 
-ALPHA_MIN = 1.0 / 255.0
 ALPHA_MAX = 0.99
 TRANSMITTANCE_MIN = 1e-4
 

@@ -41,10 +41,11 @@ def job_paths(job_path, job: Job, allow_outside: bool = False, checkpoint: bool 
 def check_inputs(job_path, job: Job, allow_outside: bool = False, data_roots=()) -> dict:
     """Everything about a validated job that can be checked before any work, from file headers: the paths
     (``job_paths``), that the predictions file is a readable ``.npz`` whose frames include every
-    ``source_frames`` entry, and that each asset is a readable Gaussian file with valid Gaussians (read whole:
-    none valid, or an empty file, is a JobError naming ``assets[i].ply`` and the file; more than
-    ``splats.MOSTLY_INVALID_SHARE`` invalid is listed in ``asset_warnings`` as (i, message), for the caller's
-    ``warning`` event). Returns the paths plus ``num_source_frames`` and ``asset_warnings``; raises an InputError
+    ``source_frames`` entry, and that each asset is a readable Gaussian file with Gaussians the renderer
+    draws (read whole, ``splats.asset_verdict``: none valid, none above the renderer's ``splats.ALPHA_MIN``
+    opacity, or an empty file, is a JobError naming ``assets[i].ply`` and the file; more than
+    ``splats.MOSTLY_INVALID_SHARE`` invalid, or that share never drawn, is listed in ``asset_warnings`` as
+    (i, message, code), for the caller's ``warning`` event). Returns the paths plus ``num_source_frames`` and ``asset_warnings``; raises an InputError
     (JobError, PredictionsError, SplatsError) naming file and field. ``allow_outside``, ``data_roots``:
     ``job_paths``'s."""
     from .splats import gaussians as splats, reader as splats_io
@@ -72,12 +73,14 @@ def check_inputs(job_path, job: Job, allow_outside: bool = False, data_roots=())
         ply_path = paths[f"assets[{i}].ply"]
         if ply_path not in checked:
             ply = splats_io.read(ply_path)
-            checked[ply_path] = splats.invalid_rows(len(ply), splats.valid_rows(ply)[1])  # the rows decode() drops
+            keep, dropped = splats.valid_rows(ply)  # the rows decode() drops
+            checked[ply_path] = splats.asset_verdict(len(ply), dropped, splats.transparent_rows(ply, keep))
         found = checked[ply_path]
-        if found is not None and found[0]:
-            raise JobError(job_path, f"assets[{i}].ply", f"{ply_path}: {found[1]}", splats.INVALID_HINT)
+        if found is not None and found.refused:
+            raise JobError(job_path, f"assets[{i}].ply", f"{ply_path}: {found.text}", found.hint)
         if found is not None:
-            paths["asset_warnings"].append((i, f"asset {job.assets[i].name!r} ({ply_path}): {found[1]}"))
+            paths["asset_warnings"].append((i, f"asset {job.assets[i].name!r} ({ply_path}): {found.text}",
+                                            found.code))
     return paths
 
 

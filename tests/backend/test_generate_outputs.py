@@ -127,6 +127,86 @@ def test_a_folder_where_a_condition_frame_goes_is_refused_naming_it(tmp_path):
         assert ev[-1]["file"] == str(exr) and "folder" in ev[-1]["message"] and "remove" in ev[-1]["hint"]
 
 
+def _replace_layer(exr, layer, values):
+    """Rewrite the condition EXR ``exr`` with ``layer`` (a ``channels.CHANNELS`` key) set to ``values``."""
+    layers = channels.read(str(exr))
+    layers[layer] = np.broadcast_to(np.asarray(values, np.float32), layers[layer].shape).copy()
+    channels.write(str(exr), layers)
+
+
+def test_a_condition_layer_with_nan_is_refused_naming_the_file_and_channel(tmp_path):
+    """``image.R`` all NaN (right size, otherwise valid) once gave exit 0, no word, and a generated frame whose red
+    is 0 everywhere: now exit 2 naming the file and the channel, with the hint to render again."""
+    job, cond = _rendered(tmp_path)
+    exr = cond / "frame_000002.exr"
+    _replace_layer(exr, "R", np.nan)
+    code, ev, err = run_backend("generate", job, "--device", "cpu")
+    assert code == 2 and ev[-1]["event"] == "error" and "Traceback" not in err, err[-2000:]
+    assert ev[-1]["file"] == str(exr) and ev[-1]["field"] == "image.R"
+    assert "NaN" in ev[-1]["message"] and "768 of its 768 pixels" in ev[-1]["message"]
+    assert "render" in ev[-1]["hint"] and "--force" in ev[-1]["hint"]
+    assert not (tmp_path / "out" / "generated").exists()
+    assert run_backend("render", job, "--device", "cpu", "--force")[0] == 0   # what the hint says works
+    code, ev, err = run_backend("generate", job, "--device", "cpu")
+    assert code == 0 and ev[-1]["frames"] == 3, err[-2000:]
+
+
+def test_every_layer_generate_reads_is_checked_for_non_finite_and_out_of_range_values(tmp_path):
+    """I (R, G, B), M and M_a: NaN, ±inf and values outside [0, 1] beyond ``VALUE_TOLERANCE`` (the renderer never
+    writes them: its image is clamped to [0, 1], its masks are a coverage and a 0/1 hole) are each an ExrError
+    naming the file and the channel; values within the tolerance (a lossy re-save's ringing) load clamped to
+    [0, 1]; depth and instance, which generate does not read, are not checked here."""
+    from backend.generate import command as gen
+    from scpainter_blender.core import job as J
+
+    job, cond = _rendered(tmp_path, frames=(1,))
+    exr = cond / "frame_000001.exr"
+    good = channels.read(str(exr))
+    tol = gen.VALUE_TOLERANCE
+    assert 2.0 ** -12 <= tol < 0.1   # beyond half's rounding (2^-12) and DWA's ringing (measured: 0.021)
+    for layer in (*channels.IMAGE, channels.HOLE, channels.ASSET_MASK):
+        name = channels.FILE_NAMES[layer]
+        for value, said in ((np.nan, "NaN or infinite"), (np.inf, "NaN or infinite"), (-np.inf, "NaN or infinite"),
+                            (7.0, "outside [0, 1]"), (-3.0, "outside [0, 1]"), (1 + 2 * tol, "outside [0, 1]")):
+            bad = good[layer].copy()
+            bad[3, 5] = value
+            _replace_layer(exr, layer, bad)
+            with pytest.raises(channels.ExrError) as e:
+                gen.load_conditions(job, J.load(job))
+            assert e.value.path == str(exr) and e.value.field == name, (name, value)
+            assert said in e.value.message and "x=5, y=3" in e.value.message, e.value.message
+            assert "--force" in e.value.hint
+        for value, clamped in ((1 + tol / 2, 1.0), (-tol / 2, 0.0)):   # a lossy re-save: accepted, clamped
+            bad = good[layer].copy()
+            bad[3, 5] = value
+            _replace_layer(exr, layer, bad)
+            image, asset_mask, valid = gen.load_conditions(job, J.load(job))
+            got = {"R": image[0, 0], "G": image[0, 1], "B": image[0, 2], "hole": 1 - valid[0, 0],
+                   "asset_mask": asset_mask[0, 0]}[layer]
+            assert float(got[3, 5]) == clamped, (name, value)
+        _replace_layer(exr, layer, good[layer])
+    for layer in (channels.DEPTH, channels.INSTANCE):   # not generate's: its +inf depth is the renderer's "empty"
+        _replace_layer(exr, layer, np.inf)
+        gen.load_conditions(job, J.load(job))
+
+
+def test_masks_outside_zero_to_one_are_refused_naming_the_file_and_channel(tmp_path):
+    """``hole.Y = 7`` and ``asset_mask.Y = -3`` were accepted and the frame passed through unchanged: exit 2, the
+    first one found named (hole before asset_mask), with its range."""
+    job, cond = _rendered(tmp_path)
+    exr = cond / "frame_000003.exr"
+    _replace_layer(exr, "hole", 7.0)
+    _replace_layer(exr, "asset_mask", -3.0)
+    code, ev, err = run_backend("generate", job, "--device", "cpu")
+    assert code == 2 and ev[-1]["event"] == "error" and "Traceback" not in err, err[-2000:]
+    assert ev[-1]["file"] == str(exr) and ev[-1]["field"] == "hole.Y"
+    assert "outside [0, 1]" in ev[-1]["message"] and "7" in ev[-1]["message"] and "--force" in ev[-1]["hint"]
+    _replace_layer(exr, "hole", 0.0)
+    code, ev, err = run_backend("generate", job, "--device", "cpu")
+    assert code == 2 and ev[-1]["field"] == "asset_mask.Y" and "-3" in ev[-1]["message"], err[-2000:]
+    assert not (tmp_path / "out" / "generated").exists()
+
+
 def test_a_generate_that_fails_while_writing_frames_leaves_no_folder_called_up_to_date(tmp_path):
     """The same promise as after a kill, for a run that fails while writing: a folder in place of its third
     frame. It says so (exit 2, naming it); the first command then generates again, never answering up to date."""

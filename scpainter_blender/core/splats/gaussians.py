@@ -180,35 +180,77 @@ def valid_rows(ply: GaussianPly):
     return keep, dropped
 
 
-#: An asset of which more than this share of Gaussians is dropped on decoding (``decode``'s reasons) is used with a
-#: ``warning`` event (code ``INVALID_GAUSSIANS``): what is left is likely a broken car (a converter's bad output);
-#: none left is refused (``invalid_rows``).
+#: The opacity below which the renderer skips a Gaussian (gsplat's 1/255: a Gaussian culled before projection, and
+#: a pixel's alpha below it not composited; ``backend.render.gaussians`` imports it): here so that the input check
+#: counts the Gaussians that would never be drawn with the renderer's own cut.
+ALPHA_MIN = 1.0 / 255.0
+
+#: An asset of which more than this share of Gaussians is dropped on decoding (``decode``'s reasons), or more than
+#: this share is never drawn (opacity below ``ALPHA_MIN``), is used with a ``warning`` event (code
+#: ``INVALID_GAUSSIANS``, ``TRANSPARENT_ASSET``): what is left is likely a broken car (a converter's bad output);
+#: none left to draw is refused (``asset_verdict``).
 MOSTLY_INVALID_SHARE = 0.5
 #: The ``warning`` event's code for an asset mostly made of invalid Gaussians.
 INVALID_GAUSSIANS = "invalid_gaussians"
+#: The ``warning`` event's code for an asset mostly made of Gaussians below ``ALPHA_MIN`` (never drawn).
+TRANSPARENT_ASSET = "transparent_asset"
 #: How the reasons ``decode`` counts read in a message.
 _DROPPED_REASONS = {"non_finite": "with NaN or infinite values", "zero_quaternion": "with a zero quaternion",
                     "scale_overflow": "with a scale beyond float32"}
 #: What to do about a file of invalid Gaussians.
 INVALID_HINT = ("export or convert the asset again (its Gaussians must have finite values, non-zero quaternions and "
                 "scales within float32), or point the job at another file")
+#: What to do about a file whose Gaussians are (nearly) all too transparent to be drawn.
+TRANSPARENT_HINT = ("export or convert the asset again with its opacities (a file holds them as logits: the opacity "
+                    "drawn is sigmoid(opacity), and one below 1/255 is never drawn), or point the job at another file")
 
 
-def invalid_rows(total: int, dropped: dict):
-    """What an asset's invalid Gaussians mean for a render, from ``total`` rows and ``valid_rows``' (or
-    ``Gaussians.dropped``'s) counts by reason: None when at most ``MOSTLY_INVALID_SHARE`` of them is dropped; else
-    ``(refused, text)``: refused when none is valid (an empty file too), and ``text`` saying how many and why
-    ("none of its 300 Gaussians is valid (300 with a zero quaternion)")."""
+def transparent_rows(ply: GaussianPly, keep: np.ndarray) -> int:
+    """How many of the rows ``keep`` (``valid_rows``' mask) have an opacity the renderer never draws: sigmoid of the
+    logit, in float32 as ``decode`` gives it, below ``ALPHA_MIN``."""
+    with np.errstate(over="ignore"):  # exp(-logit) of a very negative logit overflows to inf: opacity 0, as decoded
+        opacity = opacities_from_logits(np.asarray(ply.opacity)[keep]).astype(np.float32)
+    return int(np.count_nonzero(opacity < ALPHA_MIN))
+
+
+@dataclass
+class AssetVerdict:
+    """What an asset's Gaussians mean for a render (``asset_verdict``): ``refused`` (nothing would be drawn) or a
+    warning; ``text`` says how many and why, ``code`` the warning event's code, ``hint`` what to do."""
+    refused: bool
+    text: str
+    code: str
+    hint: str
+
+
+def asset_verdict(total: int, dropped: dict, transparent: int = 0) -> AssetVerdict | None:
+    """What an asset's Gaussians mean for a render, from ``total`` rows, ``valid_rows``' (or ``Gaussians.dropped``'s)
+    counts by reason and ``transparent``: how many valid rows are below ``ALPHA_MIN`` (``transparent_rows``).
+    None when at most ``MOSTLY_INVALID_SHARE`` is dropped and at most that share is transparent. Refused when
+    nothing would be drawn: an empty file, none valid ("none of its 300 Gaussians is valid (300 with a zero
+    quaternion)"), or every valid one transparent ("none of its 300 Gaussians would be drawn (300 with an opacity
+    below 1/255)"); a warning (``INVALID_GAUSSIANS`` before ``TRANSPARENT_ASSET``) when more than the share is."""
     bad = sum(dropped.values())
     if total == 0:
-        return True, "holds no Gaussians"
-    if bad <= MOSTLY_INVALID_SHARE * total:
-        return None
+        return AssetVerdict(True, "holds no Gaussians", INVALID_GAUSSIANS, INVALID_HINT)
     why = ", ".join(f"{n:,} {_DROPPED_REASONS.get(k, k)}" for k, n in dropped.items())
     if bad == total:
-        return True, f"none of its {total:,} Gaussians is valid ({why})"
-    return False, (f"{bad:,} of its {total:,} Gaussians are invalid ({why}) and left out: more than "
-                   f"{MOSTLY_INVALID_SHARE:.0%}; the car is drawn from the {total - bad:,} left")
+        return AssetVerdict(True, f"none of its {total:,} Gaussians is valid ({why})", INVALID_GAUSSIANS,
+                            INVALID_HINT)
+    below = f"{transparent:,} with an opacity below 1/255, which the renderer never draws"
+    if bad + transparent == total:
+        return AssetVerdict(True, f"none of its {total:,} Gaussians would be drawn ({below}"
+                                  f"{', ' + why if why else ''}): the car would be invisible",
+                            TRANSPARENT_ASSET, TRANSPARENT_HINT)
+    left = f"the car is drawn from the {total - bad - transparent:,} left"
+    if bad > MOSTLY_INVALID_SHARE * total:
+        return AssetVerdict(False, f"{bad:,} of its {total:,} Gaussians are invalid ({why}) and left out: more than "
+                                   f"{MOSTLY_INVALID_SHARE:.0%}; {left}", INVALID_GAUSSIANS, INVALID_HINT)
+    if transparent > MOSTLY_INVALID_SHARE * total:
+        return AssetVerdict(False, f"{transparent:,} of its {total:,} Gaussians have an opacity below 1/255 and are "
+                                   f"never drawn: more than {MOSTLY_INVALID_SHARE:.0%}; {left}",
+                            TRANSPARENT_ASSET, TRANSPARENT_HINT)
+    return None
 
 
 def _finite_rows(a) -> np.ndarray | None:

@@ -101,3 +101,62 @@ def test_an_asset_mostly_invalid_renders_with_a_warning(tmp_path):
     code, ev, err = run_backend("render", job, "--device", "cpu")
     assert code == 0 and not [e for e in ev if e["event"] == "warning" and e["code"] == splats.INVALID_GAUSSIANS]
     assert 0 < splats.MOSTLY_INVALID_SHARE < 1
+
+
+def test_an_asset_whose_gaussians_are_all_below_the_drawn_opacity_is_refused_naming_it(tmp_path):
+    """300 Gaussians of opacity logit -60 (valid numbers) once rendered with no car, exit 0, an asset mask of 0 in
+    every frame and nothing said. The renderer skips every Gaussian below ``splats.ALPHA_MIN`` (1/255): refused
+    like an asset without a valid Gaussian, with its own message, where every command checks its inputs."""
+    job = small_job(tmp_path, frames=(1, 2))
+    ply, path = _car(job)
+    _write_inria(path, ply, slice(None), opacity=-60.0)
+    assert len(reader.load(path)) == 300                                        # every Gaussian valid
+    with pytest.raises(J.JobError) as e:
+        job_inputs.check_inputs(job, J.load(job))
+    assert e.value.path == job and e.value.field == "assets[0].ply" and "opacity" in e.value.hint
+    assert path in e.value.message and "none of its 300 Gaussians would be drawn" in e.value.message
+    assert "300 with an opacity below 1/255" in e.value.message
+    for args in (("render", "--check"), ("render",), ("generate", "--check")):
+        code, ev, err = run_backend(*args[:1], job, "--device", "cpu", *args[1:])
+        assert code == 2 and ev[-1]["event"] == "error" and "Traceback" not in err, (args, err[-2000:])
+        assert ev[-1]["field"] == "assets[0].ply" and "would be drawn" in ev[-1]["message"], args
+    assert not os.path.exists(tmp_path / "out" / "conditions" / "frame_000001.exr")
+
+    # invalid and transparent together, none drawn: refused, saying both
+    _write_inria(path, reader.read(path), slice(0, 100), rot=0.0)     # the transparent car, 100 zero quaternions
+    with pytest.raises(J.JobError) as e:
+        job_inputs.check_inputs(job, J.load(job))
+    assert "200 with an opacity below 1/255" in e.value.message and "100 with a zero quaternion" in e.value.message
+
+
+def test_the_opacity_cut_is_the_renderers_own(tmp_path):
+    """Just above ``ALPHA_MIN`` is drawn (accepted, the car visible), just below is not (refused): the check and the
+    renderer share the constant and compare in the renderer's float32."""
+    from backend.render import gaussians as render_gaussians
+
+    assert render_gaussians.ALPHA_MIN is splats.ALPHA_MIN
+    logit = float(np.log(splats.ALPHA_MIN / (1 - splats.ALPHA_MIN)))
+    job = small_job(tmp_path, frames=(1,))
+    ply, path = _car(job)
+    _write_inria(path, ply, slice(None), opacity=logit - 1e-3)
+    with pytest.raises(J.JobError):
+        job_inputs.check_inputs(job, J.load(job))
+    _write_inria(path, ply, slice(None), opacity=logit + 1e-3)
+    assert not job_inputs.check_inputs(job, J.load(job))["asset_warnings"]
+
+
+def test_an_asset_mostly_below_the_drawn_opacity_renders_with_a_warning(tmp_path):
+    """More than ``MOSTLY_INVALID_SHARE`` of the Gaussians never drawn: rendered from the rest, with a ``warning``
+    (code ``splats.TRANSPARENT_ASSET``, the asset's name) every run and ``--check``; at most that share: none."""
+    job = small_job(tmp_path, frames=(1,))
+    ply, path = _car(job)
+    _write_inria(path, ply, slice(0, 200), opacity=-60.0)
+    for args in (("render", "--check"), ("render",)):
+        code, ev, err = run_backend(*args[:1], job, "--device", "cpu", *args[1:])
+        assert code == 0, err[-2000:]
+        warnings = [e for e in ev if e["event"] == "warning" and e["code"] == splats.TRANSPARENT_ASSET]
+        assert len(warnings) == 1 and warnings[0]["object"] == "car", (args, warnings)
+        assert "200 of its 300 Gaussians" in warnings[0]["message"] and path in warnings[0]["message"]
+        assert not [e for e in ev if e["event"] == "warning" and e["code"] == splats.INVALID_GAUSSIANS]
+    _write_inria(path, ply, slice(0, 150), opacity=-60.0)
+    assert not job_inputs.check_inputs(job, J.load(job))["asset_warnings"]

@@ -994,7 +994,8 @@ def _exr_values(rng):
         else:
             layers["asset_mask"][:] = 7
         _write_exr(c.path(_exr_rel(1)), _file_channels(layers))
-    return f"values: frame 1 {what}", apply, None
+    # values the renderer never writes (non-finite, outside [0, 1]) must be refused; a soft hole is valid data
+    return f"values: frame 1 {what}", apply, (None if what == "hole 0.5 everywhere" else "refuse")
 
 
 def _exr_file(rng):
@@ -1415,7 +1416,8 @@ def _misread(case, c, ran, base) -> str:
                 return "core.splats.reader.read gives other values than the original file"
     elif case.kind == "exr":
         if case.expect == "refuse":
-            return "generate accepted a condition EXR of another size than the job's"
+            return ("generate accepted a condition EXR with values the renderer never writes" if "values:" in
+                    case.description else "generate accepted a condition EXR of another size than the job's")
         if case.expect == "same":
             try:
                 got = _generated(os.path.join(c.job_dir, "out"))

@@ -31,7 +31,8 @@ def upright_box(vertices) -> dict:
         raise ValueError("upright_box: no finite points")
     xy = v[:, :2]
     try:
-        T2, rect = trimesh.bounds.oriented_bounds_2D(xy)
+        with np.errstate(all="ignore"):  # numpy's warnings inside trimesh (flat or tiny footprints) are not ours
+            T2, rect = trimesh.bounds.oriented_bounds_2D(xy)
         d = T2[0, :2]                      # the box's long (x after trimesh's flip) axis, in world xy
         centre = -T2[:2, :2].T @ T2[:2, 2]
         length, width = float(rect[0]), float(rect[1])
@@ -61,7 +62,8 @@ def oriented_box_3d(vertices) -> list:
     v = np.asarray(vertices, np.float64)
     v = v[np.isfinite(v).all(axis=1)]
     try:
-        _, ext = trimesh.bounds.oriented_bounds(v)
+        with np.errstate(all="ignore"):  # a flat mesh: trimesh's hull divides by its zero volume
+            _, ext = trimesh.bounds.oriented_bounds(v)
     except Exception:  # degenerate (fewer than 4 points, all on a line): the axis-aligned extents
         ext = v.max(axis=0) - v.min(axis=0)
     return sorted((float(e) for e in ext), reverse=True)

@@ -8,6 +8,11 @@ The bounds, in one place:
 
 * ``MAX_TEXTURE_PIXELS`` (8192², 64 Mpx): a texture's width × height from its header; a larger one is refused
   before anything decodes it (decoded as 8-bit RGB it is 192 MB; the sampler never copies it to float).
+* ``MAX_TOTAL_TEXTURE_PIXELS`` (2 × 8192²): the pixels of all the textures a mesh names together (glTF: every image;
+  OBJ: every ``map_Kd``), from their headers, before anything decodes them (each is held decoded while sampling).
+* ``MIN_EXTENT``, ``MAX_EXTENT`` (1e-6, 1e6 in the mesh's units): the largest side of the box around the car's
+  vertices (node transforms applied) and every coordinate's magnitude (``check_extent``). Beyond them the car does
+  not survive float32 (1e39 is inf) or is no car in any unit (mm to km): a glTF node's scale is the usual cause.
 * ``ZERO_ACCESSOR_ELEMENTS_PER_BYTE`` (1): a glTF accessor without a ``bufferView`` (zeros, sparse values or an
   extension's output such as Draco) may declare at most one element per byte of the mesh file and its buffers; one
   with a ``bufferView`` must fit in it (its last element ends within the view: offset + stride × (count − 1) +
@@ -16,7 +21,11 @@ The bounds, in one place:
 * OFF: the header's vertex and face counts must have as many lines after it. PLY: ``load._check_ply``.
 * OBJ: no face index of 0 (indices count from 1; negative ones are relative); its MTL (``mtllib``) defines a
   material and every ``map_Kd`` names a file (trimesh drops an MTL it reads nothing from, and a ``map_Kd`` without
-  a value, without a word).
+  a value, without a word). A ``map_Kd`` value is options, then the file name (the MTL specification's options:
+  ``MTL_TEXTURE_OPTIONS``; ``mtl_texture`` parses them and ``load``'s resolver opens the name it finds, as trimesh
+  5.2 passes the whole value). Options that change the colours read (``-o``, ``-s``, ``-t``, ``-mm``, ``-clamp on``,
+  ``-cc on``) are not applied: a ``warning``.
+* A backslash in a name a mesh gives is a path separator (Windows-made files: ``textures\\tex.png``).
 
 glTF / GLB (the glTF 2.0 specification): a GLB is a 12-byte header (``glTF``, version, length), a JSON chunk and an
 optional BIN chunk (buffer 0 without a ``uri``). URIs are percent-decoded (RFC 3986, as the specification says),
@@ -41,6 +50,8 @@ from urllib.parse import unquote
 from scpainter_blender.core import files
 
 MAX_TEXTURE_PIXELS = 8192 * 8192
+MAX_TOTAL_TEXTURE_PIXELS = 2 * MAX_TEXTURE_PIXELS
+MIN_EXTENT, MAX_EXTENT = 1e-6, 1e6
 ZERO_ACCESSOR_ELEMENTS_PER_BYTE = 1
 
 #: glTF componentType -> bytes (5124, int32, is not glTF 2.0 but trimesh reads it)
@@ -52,8 +63,8 @@ GLB_MAGIC, GLB_JSON, GLB_BIN = b"glTF", 0x4E4F534A, 0x004E4942
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tga", ".tif", ".tiff", ".webp", ".gif", ".ppm", ".pgm")
 
 
-def _megapixels(n: int) -> str:
-    return f"{n / 1e6:.0f} Mpx" if n >= 1e6 else f"{n:,} pixels"
+def _pixels(n: int) -> str:
+    return f"{n:,} pixels"
 
 
 @contextlib.contextmanager
@@ -87,8 +98,9 @@ def check_image(stream, error, name) -> tuple:
         raise error(name, f"texture {name!r} cannot be read as an image ({why})",
                     "fix or replace the texture file (PNG or JPEG), or fix the name the mesh gives it") from None
     if w * h > MAX_TEXTURE_PIXELS:
-        raise error(name, f"texture {name!r} is {w} × {h} = {_megapixels(w * h)}, more than the "
-                          f"{_megapixels(MAX_TEXTURE_PIXELS)} read here", "scale the texture down (8192 × 8192 at most)")
+        raise error(name, f"texture {name!r} is {w} × {h} = {_pixels(w * h)}, more than the "
+                          f"{_pixels(MAX_TEXTURE_PIXELS)} (8192 × 8192) read here",
+                    "scale the texture down (8192 × 8192 at most)")
     return w, h
 
 
@@ -99,7 +111,7 @@ def named_file(mesh_path, name: str, error, gltf: bool) -> str:
     ``files.open_regular`` (a FIFO or folder is refused there)."""
     from pathlib import Path
 
-    target = unquote(name) if gltf else name
+    target = (unquote(name) if gltf else name).replace("\\", "/")   # Windows-made: textures\\tex.png
     folder = Path(os.path.dirname(os.path.abspath(mesh_path))).resolve()
     if not target.strip():
         raise error(name, "names a file with an empty name", "fix the file name in the mesh")
@@ -170,10 +182,11 @@ def _list(tree, key, error):
     return v
 
 
-def check_gltf(path, size: int, error, open_named) -> None:
+def check_gltf(path, size: int, error, open_named) -> dict:
     """Check a .gltf/.glb before trimesh reads it (see the module docstring): buffers, buffer views, accessors,
-    images. ``error(field, message, hint)`` makes the caller's error; ``open_named(name)`` opens a file the mesh
-    names (``named_file`` + ``files.open_regular``, the caller's errors)."""
+    images (each, and their total: ``check_total_pixels``). ``error(field, message, hint)`` makes the caller's error;
+    ``open_named(name)`` opens a file the mesh names (``named_file`` + ``files.open_regular``, the caller's errors).
+    Returns the glTF JSON (``check_extent`` reads its nodes)."""
     glb = path.lower().endswith(".glb")
     if glb:
         with files.open_regular(path, lambda p, f, m: error("(file)", m, None)) as f:
@@ -274,6 +287,7 @@ def check_gltf(path, size: int, error, open_named) -> None:
     _check_attribute_counts(tree, accessors, error)
 
     # images: readable, within the pixel bound, named exactly
+    sizes = []
     for i, img in enumerate(images):
         field = f"images[{i}]"
         if img.get("mimeType") == "image/ktx2":
@@ -282,7 +296,8 @@ def check_gltf(path, size: int, error, open_named) -> None:
         if "bufferView" in img:
             vw = _index(img, "bufferView", f"{field}.bufferView", error, len(views))
             blob = _view_bytes(path, data, bin_at, buffers, views[vw], open_named)
-            check_image(io.BytesIO(blob), error, f"{field} (bufferViews[{vw}])")
+            sizes.append((f"{field} (bufferViews[{vw}])",
+                          check_image(io.BytesIO(blob), error, f"{field} (bufferViews[{vw}])")))
         elif isinstance(img.get("uri"), str):
             uri = img["uri"]
             if uri.startswith("data:"):
@@ -291,13 +306,75 @@ def check_gltf(path, size: int, error, open_named) -> None:
                     blob = base64.b64decode(uri[comma + 1:], validate=False) if comma >= 0 else b""
                 except ValueError as e:
                     raise error(field, f"{field}'s data URI is not base64 ({e})", "export the car again") from None
-                check_image(io.BytesIO(blob), error, f"{field} (data URI)")
+                sizes.append((f"{field} (data URI)", check_image(io.BytesIO(blob), error, f"{field} (data URI)")))
             else:
                 with open_named(uri) as f:
-                    check_image(f, error, uri)
+                    sizes.append((uri, check_image(f, error, uri)))
         else:
             raise error(field, f"{field} has neither a uri nor a bufferView", "export the car again (the glTF is "
                                                                             "incomplete)")
+    check_total_pixels(sizes, error)
+    return tree
+
+
+def check_total_pixels(sizes, error) -> None:
+    """``sizes``: [(texture name, (width, height))] of one mesh; ``error("(textures)", ...)`` when their pixels
+    together exceed ``MAX_TOTAL_TEXTURE_PIXELS`` (every one is held decoded while the mesh is sampled)."""
+    total = sum(w * h for _, (w, h) in sizes)
+    if total > MAX_TOTAL_TEXTURE_PIXELS:
+        listed = ", ".join(f"{name!r} {w} × {h}" for name, (w, h) in sizes)
+        raise error("(textures)", f"its {len(sizes)} textures hold {_pixels(total)} together ({listed}), more than "
+                                  f"the {_pixels(MAX_TOTAL_TEXTURE_PIXELS)} (2 × 8192 × 8192) read for one mesh",
+                    "scale the textures down, or bake them into fewer")
+
+
+def _scale_of(node) -> float:
+    """The largest factor by which a glTF node's own transform (``scale`` or ``matrix``) scales lengths, or None."""
+    import numpy as np
+
+    try:
+        if isinstance(node.get("matrix"), list) and len(node["matrix"]) == 16:
+            m = np.array(node["matrix"], np.float64).reshape(4, 4)[:3, :3]
+            return float(np.linalg.norm(m, axis=0).max())
+        if isinstance(node.get("scale"), list) and node["scale"]:
+            return float(np.abs(np.array(node["scale"], np.float64)).max())
+    except (TypeError, ValueError):
+        return None
+    return None
+
+
+def check_extent(vertices, error, tree=None) -> None:
+    """The car's size: the largest side of the box around ``vertices`` ((N, 3), finite ones; node transforms
+    applied) within [``MIN_EXTENT``, ``MAX_EXTENT``] and every coordinate within ±``MAX_EXTENT`` (float32 keeps
+    them, with detail). ``error(field, message, hint)``: the field is the glTF node whose scale is furthest from 1
+    in the offending direction (``nodes[i].scale`` / ``.matrix``, from ``tree``, the glTF JSON), else "(extent)"."""
+    import numpy as np
+
+    v = np.asarray(vertices, np.float64)
+    v = v[np.isfinite(v).all(axis=1)]
+    if not len(v):
+        return
+    with np.errstate(over="ignore", invalid="ignore"):
+        extent = float((v.max(axis=0) - v.min(axis=0)).max())
+    reach = float(np.abs(v).max())
+    if MIN_EXTENT <= extent <= MAX_EXTENT and reach <= MAX_EXTENT:
+        return
+    large = not extent < MIN_EXTENT
+    field = "(extent)"
+    nodes = tree.get("nodes") if isinstance(tree, dict) else None
+    if isinstance(nodes, list):
+        scales = [(s, i) for i, n in enumerate(nodes) if isinstance(n, dict)
+                  for s in [_scale_of(n)] if s is not None and s > 0 and s != 1.0]
+        if scales:
+            s, i = max(scales) if large else min(scales)
+            if (s > 1) == large:
+                field = f"nodes[{i}].{'matrix' if 'matrix' in nodes[i] else 'scale'}"
+    what = (f"the car is {extent:.3g} units across and reaches {reach:.3g} from the origin: more than the "
+            f"{MAX_EXTENT:g} read here (float32 positions)" if large else
+            f"the car is {extent:.3g} units across: less than the {MIN_EXTENT:g} read here (no car in any unit)")
+    raise error(field, f"{what} (extent of its vertices, node transforms applied)",
+                f"check the {'scale of ' + field if field != '(extent)' else 'units and scale of the mesh'} and "
+                "export the car again in metres, near the origin")
 
 
 def _check_attribute_counts(tree, accessors, error) -> None:
@@ -401,32 +478,98 @@ def _mtl_name(text: str):
     return text[at + 6:end if end >= 0 else len(text)].strip()
 
 
-def check_mtl(name: str, data: bytes, error) -> None:
+#: The MTL specification's texture-map options -> (fewest, most) values each takes (``-o``/``-s``/``-t``: u [v [w]]).
+MTL_TEXTURE_OPTIONS = {"-blendu": (1, 1), "-blendv": (1, 1), "-bm": (1, 1), "-boost": (1, 1), "-cc": (1, 1),
+                       "-clamp": (1, 1), "-imfchan": (1, 1), "-mm": (2, 2), "-o": (1, 3), "-s": (1, 3), "-t": (1, 3),
+                       "-texres": (1, 1)}
+#: options that change the colours read from a diffuse map, with the values that change nothing
+_MTL_NEUTRAL = {"-o": 0.0, "-s": 1.0, "-t": 0.0, "-mm": (0.0, 1.0), "-clamp": "off", "-cc": "off"}
+
+
+def _number(word):
+    try:
+        float(word)
+        return True
+    except ValueError:
+        return False
+
+
+def mtl_texture(value: str):
+    """(file name, [(option, [values])]) of an MTL ``map_*`` value: options first (``MTL_TEXTURE_OPTIONS``; a
+    variable-length one takes the numbers that follow, up to its most), then the file name, the rest of the value
+    (spaces kept). A name that does not start with a known option is all file name. The file name is "" when the
+    options leave nothing."""
+    import re
+
+    words = [(m.group(), m.start()) for m in re.finditer(r"\S+", value)]
+    options, k = [], 0
+    while k < len(words) and words[k][0].lower() in MTL_TEXTURE_OPTIONS:
+        opt = words[k][0].lower()
+        least, most = MTL_TEXTURE_OPTIONS[opt]
+        args = [w for w, _ in words[k + 1:k + 1 + most]]
+        if most > least:   # u [v [w]]: the numbers that follow
+            n = next((j for j, w in enumerate(args) if not _number(w)), len(args))
+            args = args[:max(n, least)]
+        if len(args) < least:
+            return "", options + [(opt, args)]
+        options.append((opt, args))
+        k += 1 + len(args)
+    return (value[words[k][1]:].strip() if k < len(words) else ""), options
+
+
+def ignored_options(options) -> list:
+    """The options of ``mtl_texture`` that would change a diffuse map's colours (not applied here), as written."""
+    out = []
+    for opt, args in options:
+        if opt not in _MTL_NEUTRAL:
+            continue
+        neutral = _MTL_NEUTRAL[opt]
+        if isinstance(neutral, str):
+            changes = [a.lower() for a in args] != [neutral]
+        else:
+            try:
+                vals = [float(a) for a in args]
+            except ValueError:
+                changes = True
+            else:
+                changes = (vals != list(neutral)) if isinstance(neutral, tuple) else any(x != neutral for x in vals)
+        if changes:
+            out.append(" ".join([opt, *args]))
+    return out
+
+
+def check_mtl(name: str, data: bytes, error) -> list:
     """An OBJ's MTL file (as ``trimesh.exchange.obj.parse_mtl`` reads it: a line is its words, the first a key,
     any case): it must define a material (a ``newmtl`` with a name; random bytes, an empty file or a file of
     comments define none, and trimesh then drops every material and texture without a word), and every ``map_Kd``
-    must name a file (trimesh skips one without a value: the car would lose its texture)."""
+    must name a file after its options (``mtl_texture``; trimesh skips one without a value: the car would lose its
+    texture). Returns [(texture file name, [options that are not applied])] for every ``map_Kd``."""
     text = data.decode("utf-8", errors="replace")
-    defined = False
+    defined, maps = False, []
     for number, line in enumerate(text.splitlines(), 1):
         words = line.split()
         key = words[0].lower() if words else ""
         if key == "newmtl" and len(words) > 1:
             defined = True
-        elif key == "map_kd" and len(words) == 1:
-            raise error("map_Kd", f"{name!r} (named by the mesh) line {number}: map_Kd names no file, so the "
-                                  "material's texture would be dropped", f"name the texture file in {name!r} "
-                                                                         "(or remove the map_Kd line)")
+        elif key == "map_kd":
+            file_name, options = mtl_texture(line[line.lower().index("map_kd") + 6:])  # as trimesh takes the value
+            if not file_name:
+                raise error("map_Kd", f"{name!r} (named by the mesh) line {number}: map_Kd names no file, so the "
+                                      "material's texture would be dropped", f"name the texture file in {name!r} "
+                                                                             "(or remove the map_Kd line)")
+            maps.append((file_name, ignored_options(options)))
     if not defined:
         raise error(name, f"{name!r} (named by the mesh) defines no material (no 'newmtl' line): it is not an MTL "
                           "file or it is empty, and the car would lose its materials and textures",
                     "export the car again with its MTL file (or remove the mtllib line for an untextured car)")
+    return maps
 
 
-def check_obj(path, error, open_named) -> None:
+def check_obj(path, error, open_named) -> list:
     """An OBJ before trimesh reads it: no face index of 0 (``_zero_index_line``; the field is ``f``), and its MTL
-    file (``_mtl_name``, opened with ``open_named``, the caller's named-file rules) checked by ``check_mtl``.
-    Indices beyond the vertices raise in trimesh (``load.load_mesh`` refuses them)."""
+    file (``_mtl_name``, opened with ``open_named``, the caller's named-file rules) checked by ``check_mtl``, its
+    textures from their headers (``check_image``, ``check_total_pixels``). Indices beyond the vertices raise in
+    trimesh (``load.load_mesh`` refuses them). Returns [(texture name, options not applied)] (``check_mtl``)."""
     with files.open_regular(path, lambda p, f, m: error("(file)", m, None)) as f:
         data = f.read()
     data = data.replace(b"\r\n", b"\n")  # as trimesh reads it
@@ -437,6 +580,14 @@ def check_obj(path, error, open_named) -> None:
         raise error("f", f"line {line}: face index 0: OBJ indices count from 1 (negative ones back from the last "
                          "vertex), so 0 names no vertex", "export the mesh again")
     name = _mtl_name(data.decode("utf-8", errors="replace"))
-    if name:
-        with open_named(name) as f:
-            check_mtl(name, f.read(), error)
+    if not name:
+        return []
+    with open_named(name) as f:
+        maps = check_mtl(name, f.read(), error)
+    sizes = []
+    for tex, _ in maps:
+        if os.path.splitext(tex)[1].lower() in IMAGE_EXTENSIONS:  # others: trimesh opens them, PIL's bound holds
+            with open_named(tex) as f:
+                sizes.append((tex, check_image(f, error, tex)))
+    check_total_pixels(sizes, error)
+    return maps

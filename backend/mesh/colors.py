@@ -22,6 +22,19 @@ from scpainter_blender.core.colors import linear_to_srgb, srgb_to_linear
 NEUTRAL_GREY = 0.5       # sRGB value for meshes without any colour (f_dc = 0)
 
 
+def _bands(image, channels: int) -> np.ndarray:
+    """(H, W, channels) uint8 of an 8-bit PIL image's first ``channels`` bands, filled a band of rows at a time:
+    ``np.asarray(image)`` of the whole image goes through ``tobytes``, which holds its chunks and their join (twice
+    the array), and RGBA would keep its alpha."""
+    W, H = image.size
+    out = np.empty((H, W, channels), np.uint8)
+    rows = max(1, (1 << 18) // max(1, W))
+    for y in range(0, H, rows):
+        band = np.asarray(image.crop((0, y, W, min(H, y + rows))))
+        out[y:y + rows] = band[..., None] if band.ndim == 2 else band[..., :channels]
+    return out
+
+
 def _texels(image) -> np.ndarray:
     """(H, W, 3) texels of a PIL image or an (H, W[, C]) array, in their own integer type (8 or 16 bit) or float:
     no float copy of the whole image (a 64 Mpx texture is 192 MB as 8-bit RGB, 1.5 GB as float64)."""
@@ -29,13 +42,15 @@ def _texels(image) -> np.ndarray:
         if image.mode in ("I;16", "I;16B", "I;16L", "I"):
             img = np.asarray(image)
             img = img.astype(np.uint16) if img.dtype != np.uint16 else img
+        elif image.mode in ("RGB", "RGBA", "RGBX", "L", "LA"):
+            img = _bands(image, 3 if image.mode.startswith("RGB") else 1)
         else:
-            img = np.asarray(image.convert("RGB") if image.mode != "RGB" else image)
+            img = np.asarray(image.convert("RGB"))
     else:
         img = np.asarray(image)
     if img.ndim == 2:
         img = img[..., None]
-    return img if img.shape[2] == 3 else img[..., :1] if img.shape[2] < 3 else img[..., :3]
+    return img if img.shape[2] == 3 else img[..., :1] if img.shape[2] < 3 else img[..., :3]  # views, no copies
 
 
 def sample_texture(image, uv) -> np.ndarray:

@@ -27,9 +27,13 @@ are opened, the mesh and every file it names (glTF buffers and images, OBJ mater
 would take another file of the same base name); a missing, outside or unreadable one is refused naming it, though
 trimesh would go on without it. A PLY's header (``core.splats.ply_format``), a glTF/GLB's buffers, views and
 accessors and an OFF's counts are checked against the bytes before trimesh allocates what they claim, an OBJ's
-face indices (never 0) and its MTL (``checks.check_obj``); textures against ``checks.MAX_TEXTURE_PIXELS`` from
-their headers. After reading: face indices against the vertex count,
-the texture coordinates textured faces use (finite). trimesh's log records are kept, not printed
+face indices (never 0) and its MTL (``checks.check_obj``: ``map_Kd`` options parsed, the options not applied a
+``TEXTURE_OPTIONS_IGNORED`` warning); textures against ``checks.MAX_TEXTURE_PIXELS`` each and
+``checks.MAX_TOTAL_TEXTURE_PIXELS`` together, from their headers. The scene is flattened without copying materials
+(``_instances``: ``Scene.dump`` deep-copies, i.e. decodes, every texture), each texture decoded once
+(``_decode_textures``: a failure names it). After reading: face indices against the vertex count,
+the texture coordinates textured faces use (finite), the car's extent (``checks.check_extent``). numpy's warnings
+inside trimesh are silenced (``np.errstate``). trimesh's log records are kept, not printed
 (``_trimesh_records``): a texture it could not read is an error, anything else it went on past a ``warning``
 (``MeshAsset.warnings``, ``READER_WARNING``), as are faces with a non-finite corner (``NONFINITE_FACES``).
 
@@ -128,6 +132,7 @@ UV_FIELD = {".glb": "TEXCOORD_0", ".gltf": "TEXCOORD_0", ".obj": "vt", ".ply": "
 #: ``warning`` event codes of ``mesh-asset`` (an honest acceptance: the PLY is written, the event says what was off)
 READER_WARNING = "mesh_reader_warning"      # trimesh went on past something in the file it could not read
 NONFINITE_FACES = "mesh_nonfinite_faces"    # faces with a NaN/infinite corner: never sampled
+TEXTURE_OPTIONS_IGNORED = "mesh_texture_options_ignored"  # an MTL map_Kd's -o/-s/-t/-mm/-clamp/-cc, not applied
 
 
 def _error_for(path):
@@ -149,6 +154,8 @@ def _exact_resolver(path, gltf: bool):
 
     class ExactFiles(resolvers.FilePathResolver):
         def get(self, name):
+            if not gltf and name.strip().startswith("-"):  # an MTL map_Kd value with options: trimesh 5.2 passes
+                name = checks.mtl_texture(name)[0] or name  # it whole; the file is what follows the options
             try:
                 where = checks.named_file(path, name, error, gltf)
                 with files.open_regular(where, lambda p, f, m: error(
@@ -223,6 +230,52 @@ def _reader_outcome(path, records, refused) -> list:
     return out
 
 
+def _instances(scene) -> list:
+    """Every geometry of ``scene`` moved to its instance position, as ``trimesh.Scene.dump`` makes them, but
+    sharing each textured part's material instead of deep-copying it (a copy decodes the texture, and holds it
+    twice: 700 MB for one 8192² texture). Other geometry (points, paths) is returned as stored: only counted."""
+    import trimesh
+    from trimesh.visual import TextureVisuals
+
+    out = []
+    for node in scene.graph.nodes_geometry:
+        transform, name = scene.graph[node]
+        g = scene.geometry[name]
+        if not isinstance(g, trimesh.Trimesh):
+            out.append(g)
+            continue
+        vis = g.visual
+        visual = (TextureVisuals(uv=vis.uv, material=vis.material, face_materials=vis.face_materials)
+                  if isinstance(vis, TextureVisuals) else vis.copy())
+        m = trimesh.Trimesh(vertices=np.array(g.vertices), faces=np.array(g.faces), visual=visual, process=False,
+                            validate=False)
+        m.apply_transform(transform)
+        out.append(m)
+    return out
+
+
+def _decode_textures(path, meshes, texture_names) -> None:
+    """Decode each part's base-colour texture once, here (PIL decodes lazily: a texture whose data does not match
+    its header would otherwise fail while sampling). A failure is a ``MeshAssetError`` naming the texture (OBJ:
+    the name trimesh records; glTF: the one image, when the file has one), field "(texture)" otherwise."""
+    from .colors import material_image
+
+    seen = set()
+    for m in meshes:
+        image = material_image(getattr(m.visual, "material", None)) if hasattr(m.visual, "material") else None
+        if image is None or id(image) in seen:
+            continue
+        seen.add(id(image))
+        try:
+            image.load()
+        except Exception as e:  # PIL: OSError, SyntaxError, ValueError, zlib errors ...
+            name = image.info.get("file_path") or (texture_names[0] if len(texture_names) == 1 else None)
+            what = f"texture {name!r}" if name else "a texture it names"
+            raise MeshAssetError(path, f"{what} cannot be decoded ({type(e).__name__}: {e}): its data does not "
+                                       "match its header, or it is cut short", name or "(texture)",
+                                 hint="fix or replace the texture file (PNG or JPEG)") from None
+
+
 def _check_parts(path, ext, meshes, warnings_out) -> None:
     """Faces against their part's vertex count (a negative index would wrap around, a large one fail later), the
     texture coordinates a textured part's faces use (NaN UVs gave samples without a colour), and a warning for
@@ -266,8 +319,10 @@ def load_mesh(path, up: str = "auto") -> MeshAsset:
     (an InputError naming the file and field) for a missing or unreadable file, an unsupported format, a
     Gaussian-splat PLY, counts the file cannot hold or indices it cannot mean (``checks``: glTF attributes of
     unequal length, an OBJ face index of 0, an MTL without a material or with an empty ``map_Kd``), a file it names
-    that is missing, outside its folder or unreadable, a texture beyond ``checks.MAX_TEXTURE_PIXELS``, face indices
-    outside the vertices, non-finite texture coordinates, a point cloud, or a file without triangles. What trimesh
+    that is missing, outside its folder or unreadable, a texture beyond ``checks.MAX_TEXTURE_PIXELS`` (or textures
+    beyond ``checks.MAX_TOTAL_TEXTURE_PIXELS`` together) or that does not decode, face indices outside the vertices,
+    non-finite texture coordinates, a point cloud, a file without triangles, or a car whose extent is outside
+    [``checks.MIN_EXTENT``, ``checks.MAX_EXTENT``]. What trimesh
     went on past is in ``MeshAsset.warnings``.
     """
     import trimesh
@@ -290,19 +345,21 @@ def load_mesh(path, up: str = "auto") -> MeshAsset:
         return files.open_regular(checks.named_file(path, name, error, gltf), lambda p, f, m: error(
             name, f"{name!r} (named by the mesh) {m}", "replace it with the file itself"))
 
+    tree, maps, warned = None, [], []
     if ext == ".ply":
         _check_ply(path, size)
     elif gltf:
-        checks.check_gltf(path, size, error, open_named)
+        tree = checks.check_gltf(path, size, error, open_named)
     elif ext == ".off":
         checks.check_off(path, error)
     elif ext == ".obj":
-        checks.check_obj(path, error, open_named)
-    with _trimesh_records() as records:
+        maps = checks.check_obj(path, error, open_named)
+    # numpy's warnings (trimesh divides by a flat mesh's zero volume, casts NaN) are not ours to print
+    with _trimesh_records() as records, np.errstate(all="ignore"):
         try:
             with checks.pixel_limit(checks.MAX_TEXTURE_PIXELS):  # a texture nothing above checked (none known)
                 scene = trimesh.load(path, force="scene", process=False, resolver=resolver)
-                parts = scene.dump()
+                parts = _instances(scene)
         except MeshAssetError:
             raise
         except Exception as e:  # trimesh raises anything from struct.error to KeyError on a broken file
@@ -314,12 +371,17 @@ def load_mesh(path, up: str = "auto") -> MeshAsset:
             raise MeshAssetError(path, f"trimesh cannot read it as a mesh ({type(e).__name__}: {e}); check the file "
                                        "opens in Blender, or export it again as GLB") from None
     warned = _reader_outcome(path, records, resolver.refused)
+    warned += [{"message": f"{os.path.basename(path)}: texture {tex!r}: MTL options not applied here: "
+                           f"{', '.join(opts)} (the texture is read as if they were absent)",
+                "code": TEXTURE_OPTIONS_IGNORED} for tex, opts in maps if opts]
     meshes = [p for p in parts if isinstance(p, trimesh.Trimesh) and len(p.faces)]
     if not meshes:
         points = sum(len(getattr(p, "vertices", ())) for p in parts)
         what = (f"{points} points but no faces (a point cloud)" if points else "no geometry")
         raise MeshAssetError(path, f"it has {what}: a car asset needs a triangle mesh (or a Gaussian-splat PLY)")
     _check_parts(path, ext, meshes, warned)
+    _decode_textures(path, meshes, [img.get("uri") for img in (tree or {}).get("images", [])
+                                    if isinstance(img.get("uri"), str) and not img["uri"].startswith("data:")])
     axis = UP_BY_EXTENSION[ext] if up == "auto" else up
     if axis == "y":
         y_up_to_z_up = np.eye(4)
@@ -327,6 +389,8 @@ def load_mesh(path, up: str = "auto") -> MeshAsset:
         for m in meshes:
             m.apply_transform(y_up_to_z_up)
     asset = MeshAsset(path, meshes, axis, gltf=gltf, warnings=warned)
+    used = np.unique(asset.faces)
+    checks.check_extent(asset.vertices[used], error, tree)
     if not np.any(face_areas(asset.vertices, asset.faces) > 0):
         raise MeshAssetError(path, f"its {len(asset.faces)} faces all have zero (or non-finite) area: nothing "
                                    "to sample")

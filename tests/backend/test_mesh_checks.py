@@ -3,7 +3,9 @@ exit 2) or an honest acceptance with a warning: face indices outside the vertice
 bytes, a truncated OFF, NaN texture coordinates, textures too large to decode, textures missing / outside the
 mesh's folder / unreadable, glTF attributes of unequal length, an OBJ face index of 0, an MTL that defines nothing
 or a ``map_Kd`` without a file, a missing buffer never replaced by another file of its base name, and what trimesh logs
-while it reads (never printed as a traceback). The command-level halves (exit codes, events, a killed run's
+while it reads (never printed as a traceback); then (second round) a car too large for float32 or too small for
+any unit, the textures' total pixels, one decode per texture, backslashes and MTL options in texture names, a
+texture that fails to decode, exact pixel counts, numpy's warnings from trimesh. The command-level halves (exit codes, events, a killed run's
 temporary) are in test_mesh_asset.py."""
 
 import json
@@ -116,7 +118,7 @@ def test_textures_beyond_the_pixel_bound_are_refused_from_their_header(tmp_path)
     assert checks.MAX_TEXTURE_PIXELS == 8192 * 8192 < 8200 * 8200
     os.makedirs(tmp_path / "uri")
     png = _bomb(tmp_path / "uri" / "big.png").read_bytes()
-    e = refused(MF.triangle_gltf(tmp_path / "uri", image_uri="big.png"), r"'big.png' is 8200 × 8200 = 67 Mpx",
+    e = refused(MF.triangle_gltf(tmp_path / "uri", image_uri="big.png"), r"'big.png' is 8200 × 8200 = 67,240,000 pixels",
                 "big.png")
     assert "8192" in e.hint
     # embedded in a GLB's BIN chunk (images[0].bufferView)
@@ -268,9 +270,9 @@ def test_an_obj_face_index_of_zero_is_refused(tmp_path):
     assert len(mesh_load.load_mesh(tmp_path / "c.obj").faces) == 2
 
 
-def _textured_obj(folder, mtl: bytes):
-    folder.mkdir()
-    Image.new("RGB", (4, 4), (200, 0, 0)).save(folder / "tex.png")
+def _textured_obj(folder, mtl: bytes, texture="tex.png"):
+    os.makedirs(folder / os.path.dirname(texture))
+    Image.new("RGB", (4, 4), (200, 0, 0)).save(folder / texture)
     (folder / "car.mtl").write_bytes(mtl)
     (folder / "car.obj").write_text("mtllib car.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\n"
                                     "usemtl m\nf 1/1 2/2 3/3\n")
@@ -293,3 +295,166 @@ def test_an_mtl_map_kd_without_a_file_name_is_refused(tmp_path):
                 r"'car.mtl' \(named by the mesh\) line 3: map_Kd names no file", "map_Kd")
     assert "texture" in e.message
     refused(_textured_obj(tmp_path / "u", b"newmtl m\r\nMAP_KD\r\n"), "line 2: map_Kd names no file", "map_Kd")
+
+
+# -- 10. what a fresh tester found (issue 30, second round) --------------------------------------------------------
+
+def _scaled_gltf(folder, scale):
+    path = MF.triangle_gltf(folder)
+    tree = json.load(open(path))
+    tree["nodes"] = [{"children": [1]}, {"mesh": 0, "scale": [scale] * 3}]
+    json.dump(tree, open(path, "w"))
+    return path
+
+
+def _flat_ply(path, size):
+    """A flat rectangle ``size`` × ``size`` / 2 (two triangles) written by trimesh (format by extension)."""
+    V = np.array([[0, 0, 0], [size, 0, 0], [size, size / 2, 0], [0, size / 2, 0]], float)
+    return MF.export(trimesh.Trimesh(V, [[0, 1, 2], [0, 2, 3]], process=False), path)
+
+
+def test_a_car_absurdly_large_or_small_is_refused_naming_the_scale(tmp_path):
+    # a node scale of 1e39: beyond float32 (the PLY held inf positions, exit 0)
+    e = refused(_scaled_gltf(tmp_path / "huge", 1e39), "extent", "nodes[1].scale")
+    assert f"{checks.MAX_EXTENT:g}" in e.message and "scale" in e.hint
+    e = refused(_scaled_gltf(tmp_path / "tiny", 1e-30), "extent", "nodes[1].scale")
+    assert f"{checks.MIN_EXTENT:g}" in e.message
+    # without a node to blame: the extent itself
+    refused(_flat_ply(tmp_path / "far.ply", 10 * checks.MAX_EXTENT), "extent", "(extent)")
+    refused(_flat_ply(tmp_path / "dust.ply", checks.MIN_EXTENT / 10), "extent", "(extent)")
+    # a car in millimetres, and a scale within the bounds, are read
+    assert mesh_load.load_mesh(_flat_ply(tmp_path / "mm.ply", 4500.0)).vertices.max() == 4500.0
+    assert mesh_load.load_mesh(_scaled_gltf(tmp_path / "ok", 4.0)).vertices.max() == pytest.approx(4.0)
+
+
+def _obj_with_textures(folder, sizes, mode="1"):
+    """An OBJ of one triangle per texture, each its own material (``map_Kd t<k>.png``), the textures cheap 1-bit
+    PNGs of the given (w, h)."""
+    folder.mkdir()
+    mtl, obj = "", "mtllib car.mtl\nvt 0 0\nvt 1 0\nvt 0 1\n"
+    for k, size in enumerate(sizes):
+        Image.new(mode, size).save(folder / f"t{k}.png")
+        mtl += f"newmtl m{k}\nKd 1 1 1\nmap_Kd t{k}.png\n"
+        obj += f"v {k} 0 0\nv {k + 1} 0 0\nv {k} 1 0\nusemtl m{k}\nf {3 * k + 1}/1 {3 * k + 2}/2 {3 * k + 3}/3\n"
+    (folder / "car.mtl").write_text(mtl)
+    (folder / "car.obj").write_text(obj)
+    return folder / "car.obj"
+
+
+def test_the_total_texture_pixels_of_a_mesh_are_bounded_from_the_headers(tmp_path):
+    assert checks.MAX_TOTAL_TEXTURE_PIXELS == 2 * checks.MAX_TEXTURE_PIXELS
+    side = 8192
+    e = refused(_obj_with_textures(tmp_path / "obj", [(side, side)] * 3), "3 textures", "(textures)")
+    assert "t0.png" in e.message and "t2.png" in e.message and f"{3 * side * side:,}" in e.message
+    # glTF: every image counts
+    os.makedirs(tmp_path / "g")
+    for k in range(3):
+        Image.new("1", (side, side)).save(tmp_path / "g" / f"i{k}.png")
+    refused(MF.triangle_gltf(tmp_path / "g", images=[{"uri": f"i{k}.png"} for k in range(3)]), "3 textures",
+            "(textures)")
+    # two at the bound are read
+    assert len(mesh_load.load_mesh(_obj_with_textures(tmp_path / "two", [(64, 64)] * 2)).faces) == 2
+
+
+# the peak resident memory of this process image (VmHWM: getrusage's ru_maxrss also counts the parent before exec)
+_PEAK_SCRIPT = """
+import sys
+from backend.mesh import asset
+import trimesh
+
+def peak():
+    return int(next(l for l in open("/proc/self/status") if l.startswith("VmHWM:")).split()[1]) * 1024
+
+base = peak()
+asset.convert(sys.argv[1], sys.argv[2], count=2000, warn=lambda *a: None)
+print(peak() - base)
+"""
+
+
+def test_a_texture_is_decoded_once_without_copies(tmp_path):
+    import subprocess
+    import sys
+
+    side = 4096
+    path = _obj_with_textures(tmp_path / "o", [(side, side)], mode="RGB")
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    out = subprocess.run([sys.executable, "-c", _PEAK_SCRIPT, str(path), str(tmp_path / "o.ply")], cwd=root,
+                         capture_output=True, text=True, check=True)
+    grown = int(out.stdout.split()[-1])
+    # PIL's decoded image (4 bytes a pixel) and one uint8 RGB array of it; trimesh's copies made it 4-5 times RGB
+    assert grown < 3 * side * side * 3, grown / (side * side * 3)
+
+
+def test_backslashes_in_texture_names_are_path_separators(tmp_path):
+    # Windows-made files: textures\tex.png
+    path = _textured_obj(tmp_path / "o", b"newmtl m\nKd 1 1 1\nmap_Kd textures\\tex.png\n", "textures/tex.png")
+    r = ma.sample_gaussians(mesh_load.load_mesh(path), 50)
+    assert r.colour_source == "texture" and MF.rgb_of(r.gaussians)[:, 0].min() > 0.7
+    os.makedirs(tmp_path / "g" / "textures")
+    Image.new("RGB", (4, 4), (200, 0, 0)).save(tmp_path / "g" / "textures" / "tex.png")
+    r = ma.sample_gaussians(mesh_load.load_mesh(MF.triangle_gltf(tmp_path / "g", image_uri="textures\\tex.png")), 50)
+    assert r.colour_source == "texture"
+    # still confined to the mesh's folder
+    Image.new("RGB", (4, 4)).save(tmp_path / "out.png")
+    (tmp_path / "x").mkdir()
+    refused(MF.triangle_gltf(tmp_path / "x", image_uri="..\\out.png"), "lies outside the mesh's folder", "..\\out.png")
+
+
+def test_mtl_texture_options_are_read_as_options(tmp_path):
+    ok = _textured_obj(tmp_path / "o", b"newmtl m\nKd 1 1 1\nmap_Kd -s 1 1 1 -o 0 0 0 -blendu on tex.png\n")
+    asset = mesh_load.load_mesh(ok)
+    assert asset.warnings == []                                  # options that change nothing: no word
+    assert ma.sample_gaussians(asset, 50).colour_source == "texture"
+    # options trimesh does not apply (an offset, a scale, clamping): read, with a warning naming them
+    asset = mesh_load.load_mesh(_textured_obj(tmp_path / "w", b"newmtl m\nmap_Kd -o 0.5 0 -clamp on tex.png\n"))
+    assert [w["code"] for w in asset.warnings] == [mesh_load.TEXTURE_OPTIONS_IGNORED]
+    assert "-o 0.5 0" in asset.warnings[0]["message"] and "-clamp on" in asset.warnings[0]["message"]
+    # options without a file name; an option missing its value
+    refused(_textured_obj(tmp_path / "n", b"newmtl m\nmap_Kd -s 1 1 1\n"), "map_Kd names no file", "map_Kd")
+    refused(_textured_obj(tmp_path / "v", b"newmtl m\nmap_Kd -mm 0.1\n"), "map_Kd names no file", "map_Kd")
+    # a file name with spaces after the options
+    f = tmp_path / "sp"
+    f.mkdir()
+    Image.new("RGB", (4, 4), (200, 0, 0)).save(f / "my tex.png")
+    (f / "car.mtl").write_text("newmtl m\nmap_Kd -bm 1 my tex.png\n")
+    (f / "car.obj").write_text("mtllib car.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nusemtl m\n"
+                               "f 1/1 2/2 3/3\n")
+    assert ma.sample_gaussians(mesh_load.load_mesh(f / "car.obj"), 50).colour_source == "texture"
+
+
+def test_a_texture_that_fails_to_decode_is_named(tmp_path):
+    # a PNG whose header says 4 × 4 but holds 8 × 8 rows: only decoding finds it
+    import struct
+    import zlib
+
+    def chunk(t, d):
+        return struct.pack(">I", len(d)) + t + d + struct.pack(">I", zlib.crc32(t + d) & 0xffffffff)
+
+    raw = b"".join(b"\0" + b"\xc8\x00\x00" * 8 for _ in range(8))
+    lying = (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", 4, 4, 8, 2, 0, 0, 0))
+             + chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b""))
+    path = _textured_obj(tmp_path / "o", b"newmtl m\nKd 1 1 1\nmap_Kd tex.png\n")
+    (tmp_path / "o" / "tex.png").write_bytes(lying)
+    e = refused(path, "'tex.png' cannot be decoded", "tex.png")
+    assert "trimesh cannot read it as a mesh" not in e.message
+
+
+def test_pixel_counts_in_messages_are_exact(tmp_path):
+    folder = tmp_path / "o"
+    folder.mkdir()
+    Image.new("1", (8193, 8192)).save(folder / "tex.png")
+    (folder / "car.mtl").write_text("newmtl m\nmap_Kd tex.png\n")
+    (folder / "car.obj").write_text("mtllib car.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    refused(folder / "car.obj", r"8193 × 8192 = 67,117,056 pixels, more than the 67,108,864", "tex.png")
+
+
+def test_numpy_warnings_from_trimesh_are_not_printed(tmp_path):
+    import warnings
+
+    for ext in ("ply", "off"):   # flat: trimesh's mass properties divide by a zero volume
+        events = []
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            ma.convert(_flat_ply(tmp_path / f"flat.{ext}", 4.0), tmp_path / f"o_{ext}.ply", count=100,
+                       warn=lambda *a: events.append(a))
+        assert events == [] and [str(w.message) for w in caught] == []

@@ -2075,6 +2075,12 @@ def run_case(case: Case, base: Base, workdir: str, timeout: float = TIMEOUT_S, c
         if not same:
             outcome = "misread"
             result["message"] = _first_line(why)
+    return finish(result, outcome, ran, root, keep)
+
+
+def finish(result: dict, outcome: str, ran: dict, root: str, keep: bool) -> dict:
+    """``result`` with its ``outcome``; with ``keep`` also the case folder and the run's output tails, else the
+    case folder removed."""
     result["outcome"] = outcome
     if keep:
         result["folder"] = root

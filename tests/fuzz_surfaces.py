@@ -58,7 +58,6 @@ import signal
 import struct
 import sys
 import time
-import zlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -715,7 +714,8 @@ def _mesh_rewrite(rng, fmt):
     return f"rewrite: {fmt} {how}", apply, "same"
 
 
-def _mesh_family(make, formats):
+def _format_family(make, formats):
+    """A family whose cases cycle through ``formats`` (mesh or splat file formats): ``make(rng, fmt)``."""
     def fam(rng):
         fmt = rng.cycle(formats) if len(formats) > 1 else formats[0]
         rng.turn //= max(1, len(formats))
@@ -724,11 +724,12 @@ def _mesh_family(make, formats):
     return fam
 
 
-MESH_FAMILIES = [(_mesh_family(_mesh_indices, FORMATS), 3), (_mesh_family(_mesh_counts, FORMATS), 3),
-                 (_mesh_family(_mesh_truncated, FORMATS), 2), (_mesh_family(_mesh_nan, FORMATS), 3),
-                 (_mesh_family(_mesh_named, ("gltf", "obj")), 3), (_mesh_family(_mesh_uri, ("gltf", "obj")), 3),
-                 (_mesh_family(_mesh_bomb, ("gltf", "obj")), 1), (_mesh_family(_gltf_structure, ("glb", "gltf")), 3),
-                 (_mesh_family(_mesh_whole, FORMATS), 2), (_mesh_family(_mesh_rewrite, FORMATS), 4)]
+
+MESH_FAMILIES = [(_format_family(_mesh_indices, FORMATS), 3), (_format_family(_mesh_counts, FORMATS), 3),
+                 (_format_family(_mesh_truncated, FORMATS), 2), (_format_family(_mesh_nan, FORMATS), 3),
+                 (_format_family(_mesh_named, ("gltf", "obj")), 3), (_format_family(_mesh_uri, ("gltf", "obj")), 3),
+                 (_format_family(_mesh_bomb, ("gltf", "obj")), 1), (_format_family(_gltf_structure, ("glb", "gltf")), 3),
+                 (_format_family(_mesh_whole, FORMATS), 2), (_format_family(_mesh_rewrite, FORMATS), 4)]
 
 
 # ---------------------------------------------------------------------------------------------- splat mutations
@@ -891,19 +892,10 @@ def _splat_rewrite(rng, fmt):
     return f"rewrite: {fmt} {how}", apply, "same"
 
 
-def _splat_family(make, formats):
-    def fam(rng):
-        fmt = rng.cycle(formats) if len(formats) > 1 else formats[0]
-        rng.turn //= max(1, len(formats))
-        d, apply, expect = make(rng, fmt)
-        return d, apply, expect, fmt
-    return fam
-
-
-SPLAT_FAMILIES = [(_splat_family(_splat_size, ("splat", "compressed")), 2),
-                  (_splat_family(_splat_values, ("splat",)), 2), (_splat_family(_compressed_header, ("compressed",)), 3),
-                  (_splat_family(_compressed_values, ("compressed",)), 2),
-                  (_splat_family(_splat_rewrite, ("compressed", "splat")), 2)]
+SPLAT_FAMILIES = [(_format_family(_splat_size, ("splat", "compressed")), 2),
+                  (_format_family(_splat_values, ("splat",)), 2), (_format_family(_compressed_header, ("compressed",)), 3),
+                  (_format_family(_compressed_values, ("compressed",)), 2),
+                  (_format_family(_splat_rewrite, ("compressed", "splat")), 2)]
 
 
 # ---------------------------------------------------------------------------------------------- exr mutations
@@ -1478,13 +1470,7 @@ def run_case(case: Case, base, workdir: str, timeout: float, keep: bool = False)
         if not any(F.names_a_file(str(e.get("message", "")), {case.must_name}) for e in errors):
             outcome = "unclear"
             result["message"] = f"(names not {case.must_name}) " + result["message"]
-    result["outcome"] = outcome
-    if keep:
-        result["folder"] = root
-        result["stdout"], result["stderr"] = ran["stdout"][-4000:], ran["stderr"][-4000:]
-    else:
-        shutil.rmtree(root, ignore_errors=True)
-    return result
+    return F.finish(result, outcome, ran, root, keep)
 
 
 def warm_up(kind: str, base, workdir: str, seed: int) -> dict:

@@ -32,7 +32,8 @@ optional BIN chunk (buffer 0 without a ``uri``). URIs are percent-decoded (RFC 3
 ``data:`` URIs base64-decoded; any other URI names a file relative to the mesh's folder. ``image/ktx2`` textures are
 refused (trimesh skips them: the car would lose its colours without a word).
 
-No bpy, no torch.
+No bpy, no torch. Longer than most modules because every format's pre-read checks and their bounds belong
+together: one place says what a mesh file may claim before any reader allocates for it.
 """
 
 from __future__ import annotations

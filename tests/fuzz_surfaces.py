@@ -1775,25 +1775,24 @@ def _run_kill(F, case, base, root, workdir, result, keep) -> dict:
                         ch.open()
                         break
                     ch.step()
+        ended(ch, what, deadline)
+        return ch
+
+    def ended(ch, what, deadline, how=""):
+        """Wait for ``ch`` until ``deadline``: a hang if it runs on, else what ``_judge`` finds in its output."""
         if not ch.wait(deadline):
-            hang.append(f"{what} did not end within {KILL_TIMEOUT_S:g} s")
+            hang.append(f"{what}{how} did not end within {KILL_TIMEOUT_S:g} s")
         else:
             o, m = _judge(F, ch, what)
             if o:
                 problems.append((o, m))
-        return ch
 
     def together(a, b):
         ca = _Child(_kill_argv(c, a), os.path.join(workdir, f"kill-{case.index}-{next(logs)}.log"))
         cb = _Child(_kill_argv(c, b), os.path.join(workdir, f"kill-{case.index}-{next(logs)}.log"))
         deadline = time.monotonic() + KILL_TIMEOUT_S
         for ch, what in ((ca, a), (cb, b)):
-            if not ch.wait(deadline):
-                hang.append(f"{what} (run at once) did not end within {KILL_TIMEOUT_S:g} s")
-            else:
-                o, m = _judge(F, ch, what)
-                if o:
-                    problems.append((o, m))
+            ended(ch, what, deadline, " (run at once)")
 
     sc, sig, point = spec["scenario"], spec["signal"], spec["point"]
     final = "telea"

@@ -40,3 +40,16 @@ if [ ! -f "$stamp" ] || [ ! -x .venv/bin/scpainter-backend ]; then
   rm -f .venv/.requirements-*
   touch "$stamp"
 fi
+
+# Test-only: PlayCanvas' splat-transform (the real SPZ / SOG / glTF splat writer the tests read back), from the npm
+# registry with the machine's Node; never used by the product. Without Node the tests that need it skip, saying so.
+if command -v npm >/dev/null 2>&1; then
+  st_stamp="tools/splat_transform/node_modules/.lock-$(sha256sum tools/splat_transform/package-lock.json | cut -c1-16)"
+  if [ ! -f "$st_stamp" ]; then
+    (cd tools/splat_transform && npm ci --ignore-scripts --no-audit --no-fund --loglevel=error >/dev/null) \
+      && touch "$st_stamp" \
+      || echo "setup: npm ci in tools/splat_transform failed; the splat-transform tests will skip" >&2
+  fi
+else
+  echo "setup: no npm; the tests that read splat-transform's files will skip" >&2
+fi

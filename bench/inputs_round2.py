@@ -23,8 +23,8 @@ Every input is generated here, in a temporary folder, from ground truth the gene
 
 Outcomes: ``correct`` (accepted, values within the stated bound), ``refused`` (a clean error: exit 2, the module's
 InputError, or a CleanFailure; the detail says whether the message names the input), ``unsupported`` (a clean
-refusal saying the format is not read: the format is unread), ``warned`` (accepted with a ``warning`` event that says why the values
-are not the file's), ``silent_wrong`` (accepted, values wrong: how wrong in the detail), ``traceback`` (an
+refusal saying the format is not read), ``warned`` (accepted with a ``warning`` event that says why the values are
+not the file's), ``silent_wrong`` (accepted, values wrong: how wrong in the detail), ``traceback`` (an
 uncaught exception), ``timeout``. ``expected`` is the outcome the issue asks for; ``ok`` whether it was met.
 Controls (``control:`` cases) are inputs today's code already reads: they check the harness itself.
 

@@ -6,7 +6,8 @@ Layout (paths in ``clip.json`` are relative to it; docs/training.md has the full
                        "predictions": "predictions.npz",           VGGT demo layout, S frames (required)
                        "frames": "frames/frame_{:06d}.png",        the real frames: a pattern, a list of S paths,
                                                                    or a video file ("drive.mp4": no {} field)
-                       "distortion": [k1, k2, p1, p2, k3],         optional OpenCV lens distortion (needs poses)
+                       "distortion": [k1, k2, p1, p2, k3],         optional lens distortion (needs poses)
+                       "distortion_model": "opencv",               its model: "opencv" | "fisheye" (k1..k4)
                        "poses": "poses.npz",                       optional metric poses (below)
                        "cars": [{"id": "car 3", "size": [w, l, h],  optional tracked cars: box size in metres,
                                  "boxes": {"0": 4x4, ...},          per-frame box_to_world (frames the car is in),
@@ -25,11 +26,14 @@ normalised), with VGGT's cameras, and box sizes/asset alignment then in VGGT uni
 convention: ``box_to_world`` maps the box frame (centre at the origin, axes along the box's width x, length y,
 height z, Z up) to the world; ``size`` is the box's full extent along those axes.
 
-Camera frames (``Clip.load_frames``): with ``distortion`` (OpenCV's coefficients, 4 to 14), every frame and
+Camera frames (``Clip.load_frames``): with ``distortion`` (OpenCV's coefficients, 4 to 14, or with
+``distortion_model`` "fisheye" Kannala–Brandt k1..k4; four numbers need the model stated), every frame and
 ground-truth view is undistorted at its own size to ``Clip.K`` — the pinhole K that ``undistorted_K`` chooses
-(cv2.getOptimalNewCameraMatrix, alpha 0: no black borders; the frame's pixel aspect kept) — and then resized with
-Lanczos; ``Clip.K_recorded`` keeps the calibrated K. ``K``, ``K_for``, training pairs and evaluation jobs all
-project with the undistorted K. Without distortion the frames are only resized, as always.
+(alpha 0: no black borders; the frame's pixel aspect kept) — and then resized with Lanczos; ``Clip.K_recorded``
+keeps the calibrated K. ``K``, ``K_for``, training pairs and evaluation jobs all project with the undistorted K.
+Without distortion the frames are only resized, as always. A video's frames are taken as players show them (its
+display rotation applied), and frames whose aspect differs from the predictions' beyond a resize's rounding are
+refused (``camera_frames.aspect_problem``).
 
 No torch here: numpy, Pillow, OpenCV and PyAV (``camera_frames``). Every error names the file and the field.
 (Just over 400 lines: ``load`` checks every field of clip.json in one pass, in the file's order, so its errors read
@@ -94,7 +98,8 @@ class Clip:
     metric: bool = False
     views: dict = field(default_factory=dict)   # lateral shift (m, + left) -> S ground-truth frame paths
     video: str | None = None       # the video file holding the S frames (frame_paths is None then)
-    distortion: np.ndarray | None = None   # OpenCV coefficients of the recorded frames and views; None: pinhole
+    distortion: np.ndarray | None = None   # lens coefficients of the recorded frames and views; None: pinhole
+    distortion_model: str = camera_frames.OPENCV   # the model of ``distortion``: "opencv" | "fisheye"
     K_recorded: np.ndarray | None = None   # (S, 3, 3) ours, for image_size: the recorded frames' calibrated K
     _undistort: camera_frames.Undistorter = field(default_factory=camera_frames.Undistorter, repr=False,
                                                   compare=False)
@@ -157,7 +162,8 @@ class Clip:
         size = (rgb.shape[1], rgb.shape[0])  # a view may have another size than the frames: K scales with it
         K = camera_frames.scale_K(self.K_recorded[t], self.image_size, size)
         K_new = camera_frames.scale_K(self.K[t], self.image_size, size)
-        undistorted = self._undistort(rgb, K, self.distortion, K_new, out_size=(width, height))
+        undistorted = self._undistort(rgb, K, self.distortion, K_new, out_size=(width, height),
+                                      model=self.distortion_model)
         return camera_frames.resized(undistorted, width, height)
 
 
@@ -301,6 +307,10 @@ def load(path) -> Clip:
         for i in (S // 2, S - 1):  # the ends and the middle: a wrong count or size fails here, not mid-training
             if _image_size(frame_paths[i], f"frames[{i}]", path) != size:
                 raise ClipError(path, f"frames[{i}]", f"size differs from frames[0] {size}")
+    problem = camera_frames.aspect_problem(size, (pred.width, pred.height))
+    if problem is not None:  # without poses K would be stretched; with them, the points would not be the frames'
+        raise ClipError(path, "frames", f"{problem} ({video or frame_paths[0]} against {pred_path})",
+                        "give the frames VGGT was run on, as shown (upright), resized without cropping or padding")
 
     metric = "poses" in data
     if metric:
@@ -310,7 +320,10 @@ def load(path) -> Clip:
         w2c = cameras.orthonormalize(pred.world_to_camera)
         K = np.diag([size[0] / pred.width, size[1] / pred.height, 1.0]) @ pred.K
         vggt_to_world = np.eye(4)
-    distortion = camera_frames.distortion_coefficients(data.get("distortion"), path, "distortion", error=ClipError)
+    model = camera_frames.distortion_model(data.get("distortion_model"), path, "distortion_model", error=ClipError)
+    distortion = camera_frames.distortion_coefficients(data.get("distortion"), path, "distortion", error=ClipError,
+                                                       model=model)
+    model = model or camera_frames.OPENCV
     K_recorded = K
     if distortion is not None:
         if not metric:
@@ -319,8 +332,8 @@ def load(path) -> Clip:
         if np.any(K[:, 0, 1] != 0):
             raise ClipError(poses_path, "K", "has skew (K[0, 1] != 0): undistortion needs K without skew")
         K = camera_frames.undistorted_Ks(K_recorded, distortion, size, lambda m: ClipError(
-            path, "distortion", m, "give the frames' calibration: OpenCV's coefficients k1, k2, p1, p2[, k3, ...] "
-                                   "that go with the K of poses.npz"))
+            path, "distortion", m, f"give the frames' calibration: {camera_frames.DISTORTION_ORDER[model]} "
+                                   f"coefficients that go with the K of poses.npz"), model)
 
     cars = []
     if not isinstance(data.get("cars", []), list):
@@ -374,7 +387,7 @@ def load(path) -> Clip:
         for frame in views[shift]:
             _check_file(frame, path, f"views.{k}", "frame file")
     return Clip(path, pred, frame_paths, size, w2c, K, vggt_to_world, cars, fps, metric, views, video, distortion,
-                K_recorded)
+                model, K_recorded)
 
 
 def _short(v) -> str:

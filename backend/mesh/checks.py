@@ -198,6 +198,9 @@ def check_gltf(path, size: int, error, open_named) -> dict:
         data, bin_len, bin_at = None, None, None
     if not isinstance(tree, dict):
         raise error("(file)", "the glTF JSON is not an object", "export the car again")
+    from .gltf import check_required
+
+    check_required(tree, error)  # first: a meshopt file's fallback buffer has no bytes, and is no error of its own
     buffers, views = _list(tree, "buffers", error), _list(tree, "bufferViews", error)
     accessors, images = _list(tree, "accessors", error), _list(tree, "images", error)
 

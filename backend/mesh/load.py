@@ -51,7 +51,7 @@ import numpy as np
 from scpainter_blender.core import errors, files
 from scpainter_blender.core.splats import ply_format, gaussians as splats
 
-from . import checks
+from . import checks, gltf as gltf_plain
 
 #: p_zup = Y_UP_TO_Z_UP @ p for Y-up files: (x, y, z) -> (x, -z, y), Blender's glTF import.
 Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
@@ -345,11 +345,12 @@ def load_mesh(path, up: str = "auto") -> MeshAsset:
         return files.open_regular(checks.named_file(path, name, error, gltf), lambda p, f, m: error(
             name, f"{name!r} (named by the mesh) {m}", "replace it with the file itself"))
 
-    tree, maps, warned = None, [], []
+    tree, maps, warned, plain = None, [], [], None
     if ext == ".ply":
         _check_ply(path, size)
     elif gltf:
         tree = checks.check_gltf(path, size, error, open_named)
+        plain = gltf_plain.plain_glb(path, tree, error, open_named)  # what trimesh would misread, made plain
     elif ext == ".off":
         checks.check_off(path, error)
     elif ext == ".obj":
@@ -358,7 +359,13 @@ def load_mesh(path, up: str = "auto") -> MeshAsset:
     with _trimesh_records() as records, np.errstate(all="ignore"):
         try:
             with checks.pixel_limit(checks.MAX_TEXTURE_PIXELS):  # a texture nothing above checked (none known)
-                scene = trimesh.load(path, force="scene", process=False, resolver=resolver)
+                if plain is not None:
+                    import io
+
+                    scene = trimesh.load(io.BytesIO(plain), file_type="glb", force="scene", process=False,
+                                         resolver=resolver)
+                else:
+                    scene = trimesh.load(path, force="scene", process=False, resolver=resolver)
                 parts = _instances(scene)
         except MeshAssetError:
             raise

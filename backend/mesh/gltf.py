@@ -296,6 +296,11 @@ def plain_glb(path, tree, error, open_named):
             dec = src.draco(where, prim) if DRACO in (prim.get("extensions") or {}) else {}
 
             def values(name, i):
+                if name in dec and len(dec[name]) != acc[i]["count"]:
+                    raise error(f"{where}.attributes.{name}", f"{where}: its Draco data holds {len(dec[name]):,} "
+                                                              f"{name} values but accessors[{i}] declares "
+                                                              f"{acc[i]['count']:,}", "export the car again "
+                                                                                      "(the glTF is corrupt)")
                 return dequantize(src.accessor(i, dec.get(name)), acc[i].get("normalized", False))
 
             out = new["meshes"][m]["primitives"][p]

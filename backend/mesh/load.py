@@ -37,6 +37,11 @@ inside trimesh are silenced (``np.errstate``). trimesh's log records are kept, n
 (``_trimesh_records``): a texture it could not read is an error, anything else it went on past a ``warning``
 (``MeshAsset.warnings``, ``READER_WARNING``), as are faces with a non-finite corner (``NONFINITE_FACES``).
 
+glTF that trimesh 5.2.0 would misread (issue 31: ``KHR_texture_transform`` / ``texCoord`` on the base-colour
+texture, normalized or quantized accessors, sparse accessors, Draco) is rewritten plain first and trimesh reads
+that (``backend.mesh.gltf.plain_glb``); ``extensionsRequired`` not read here is refused by name
+(``gltf.check_required``, from ``checks.check_gltf``).
+
 No bpy, no torch.
 """
 
@@ -318,7 +323,8 @@ def load_mesh(path, up: str = "auto") -> MeshAsset:
     ``up``: "auto" (by extension: glTF/GLB/OBJ Y up, the rest Z up), "y" or "z". Raises ``MeshAssetError``
     (an InputError naming the file and field) for a missing or unreadable file, an unsupported format, a
     Gaussian-splat PLY, counts the file cannot hold or indices it cannot mean (``checks``: glTF attributes of
-    unequal length, an OBJ face index of 0, an MTL without a material or with an empty ``map_Kd``), a file it names
+    unequal length, required glTF extensions not read here, a base-colour UV set the primitive lacks, Draco data
+    that does not decode, an OBJ face index of 0, an MTL without a material or with an empty ``map_Kd``), a file it names
     that is missing, outside its folder or unreadable, a texture beyond ``checks.MAX_TEXTURE_PIXELS`` (or textures
     beyond ``checks.MAX_TOTAL_TEXTURE_PIXELS`` together) or that does not decode, face indices outside the vertices,
     non-finite texture coordinates, a point cloud, a file without triangles, or a car whose extent is outside

@@ -338,6 +338,29 @@ def test_draco_with_a_texture_transform(tmp_path):
     assert_texture_read_as_viewers_do(*convert(path, tmp_path), **t)
 
 
+def test_draco_data_that_does_not_match_its_accessors_is_refused(tmp_path):
+    path = quad_gltf(tmp_path, "quad.gltf", draco=True)
+    with open(path) as f:
+        tree = json.load(f)
+    for a in tree["accessors"][:2]:                     # POSITION and TEXCOORD_0 claim 5 vertices; Draco holds 4
+        a["count"] = 5
+    with open(path, "w") as f:
+        json.dump(tree, f)
+    with pytest.raises(mesh_load.MeshAssetError, match="Draco data holds 4 POSITION values but accessors.0. "
+                                                       "declares 5"):
+        mesh_load.load_mesh(path)
+    view = tree["bufferViews"][tree["meshes"][0]["primitives"][0]["extensions"][mesh_gltf.DRACO]["bufferView"]]
+    data = bytearray((tmp_path / "quad.bin").read_bytes())
+    data[view["byteOffset"]:view["byteOffset"] + view["byteLength"]] = bytes(view["byteLength"])  # not Draco
+    (tmp_path / "quad.bin").write_bytes(bytes(data))
+    for a in tree["accessors"][:2]:
+        a["count"] = 4
+    with open(path, "w") as f:
+        json.dump(tree, f)
+    with pytest.raises(mesh_load.MeshAssetError, match="Draco-compressed data cannot be decoded"):
+        mesh_load.load_mesh(path)
+
+
 def test_draco_without_dracopy_is_refused_naming_the_fix(tmp_path, monkeypatch):
     path = quad_gltf(tmp_path, draco=True)
     monkeypatch.setitem(sys.modules, "DracoPy", None)   # an environment without DracoPy: import fails

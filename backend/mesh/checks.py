@@ -29,7 +29,8 @@ The bounds, in one place:
 
 glTF / GLB (the glTF 2.0 specification): a GLB is a 12-byte header (``glTF``, version, length), a JSON chunk and an
 optional BIN chunk (buffer 0 without a ``uri``). URIs are percent-decoded (RFC 3986, as the specification says),
-``data:`` URIs base64-decoded; any other URI names a file relative to the mesh's folder. ``image/ktx2`` textures are
+``data:`` URIs base64-decoded; any other URI names a file relative to the mesh's folder. ``extensionsRequired`` is
+checked first (``gltf.check_required``: a meshopt file's fallback buffer has no bytes of its own). ``image/ktx2`` textures are
 refused (trimesh skips them: the car would lose its colours without a word).
 
 No bpy, no torch. Longer than most modules because every format's pre-read checks and their bounds belong
@@ -198,6 +199,9 @@ def check_gltf(path, size: int, error, open_named) -> dict:
         data, bin_len, bin_at = None, None, None
     if not isinstance(tree, dict):
         raise error("(file)", "the glTF JSON is not an object", "export the car again")
+    from .gltf import check_required
+
+    check_required(tree, error)  # first: a meshopt file's fallback buffer has no bytes, and is no error of its own
     buffers, views = _list(tree, "buffers", error), _list(tree, "bufferViews", error)
     accessors, images = _list(tree, "accessors", error), _list(tree, "images", error)
 

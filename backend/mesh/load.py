@@ -37,6 +37,11 @@ inside trimesh are silenced (``np.errstate``). trimesh's log records are kept, n
 (``_trimesh_records``): a texture it could not read is an error, anything else it went on past a ``warning``
 (``MeshAsset.warnings``, ``READER_WARNING``), as are faces with a non-finite corner (``NONFINITE_FACES``).
 
+glTF that trimesh 5.2.0 would misread (issue 31: ``KHR_texture_transform`` / ``texCoord`` on the base-colour
+texture, normalized or quantized accessors, sparse accessors, Draco) is rewritten plain first and trimesh reads
+that (``backend.mesh.gltf.plain_glb``); ``extensionsRequired`` not read here is refused by name
+(``gltf.check_required``, from ``checks.check_gltf``).
+
 No bpy, no torch.
 """
 
@@ -51,7 +56,7 @@ import numpy as np
 from scpainter_blender.core import errors, files
 from scpainter_blender.core.splats import ply_format, gaussians as splats
 
-from . import checks
+from . import checks, gltf as gltf_plain
 
 #: p_zup = Y_UP_TO_Z_UP @ p for Y-up files: (x, y, z) -> (x, -z, y), Blender's glTF import.
 Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
@@ -318,7 +323,8 @@ def load_mesh(path, up: str = "auto") -> MeshAsset:
     ``up``: "auto" (by extension: glTF/GLB/OBJ Y up, the rest Z up), "y" or "z". Raises ``MeshAssetError``
     (an InputError naming the file and field) for a missing or unreadable file, an unsupported format, a
     Gaussian-splat PLY, counts the file cannot hold or indices it cannot mean (``checks``: glTF attributes of
-    unequal length, an OBJ face index of 0, an MTL without a material or with an empty ``map_Kd``), a file it names
+    unequal length, required glTF extensions not read here, a base-colour UV set the primitive lacks, Draco data
+    that does not decode, an OBJ face index of 0, an MTL without a material or with an empty ``map_Kd``), a file it names
     that is missing, outside its folder or unreadable, a texture beyond ``checks.MAX_TEXTURE_PIXELS`` (or textures
     beyond ``checks.MAX_TOTAL_TEXTURE_PIXELS`` together) or that does not decode, face indices outside the vertices,
     non-finite texture coordinates, a point cloud, a file without triangles, or a car whose extent is outside
@@ -345,11 +351,12 @@ def load_mesh(path, up: str = "auto") -> MeshAsset:
         return files.open_regular(checks.named_file(path, name, error, gltf), lambda p, f, m: error(
             name, f"{name!r} (named by the mesh) {m}", "replace it with the file itself"))
 
-    tree, maps, warned = None, [], []
+    tree, maps, warned, plain = None, [], [], None
     if ext == ".ply":
         _check_ply(path, size)
     elif gltf:
         tree = checks.check_gltf(path, size, error, open_named)
+        plain = gltf_plain.plain_glb(path, tree, error, open_named)  # what trimesh would misread, made plain
     elif ext == ".off":
         checks.check_off(path, error)
     elif ext == ".obj":
@@ -358,7 +365,13 @@ def load_mesh(path, up: str = "auto") -> MeshAsset:
     with _trimesh_records() as records, np.errstate(all="ignore"):
         try:
             with checks.pixel_limit(checks.MAX_TEXTURE_PIXELS):  # a texture nothing above checked (none known)
-                scene = trimesh.load(path, force="scene", process=False, resolver=resolver)
+                if plain is not None:
+                    import io
+
+                    scene = trimesh.load(io.BytesIO(plain), file_type="glb", force="scene", process=False,
+                                         resolver=resolver)
+                else:
+                    scene = trimesh.load(path, force="scene", process=False, resolver=resolver)
                 parts = _instances(scene)
         except MeshAssetError:
             raise

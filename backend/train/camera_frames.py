@@ -324,16 +324,34 @@ class Undistorter:
         return {"kept": self.kept, "_maps": OrderedDict()}
 
 
+#: EXIF ``Orientation`` (tag 0x0112) values whose display turns the picture a quarter: width and height swap
+_EXIF_ORIENTATION = 0x0112
+_EXIF_QUARTER_TURNS = (5, 6, 7, 8)
+
+
+def displayed_size(im) -> tuple:
+    """(width, height) of an open PIL image as viewers show it: its EXIF ``Orientation`` (a phone photo taken
+    upright is stored sideways with orientation 6 or 8) applied, as ``read_image`` applies it, without decoding."""
+    width, height = im.size
+    try:
+        orientation = im.getexif().get(_EXIF_ORIENTATION, 1)
+    except Exception:  # noqa: BLE001  a broken EXIF block: PIL's exif_transpose ignores it the same way
+        orientation = 1
+    return (height, width) if orientation in _EXIF_QUARTER_TURNS else (width, height)
+
+
 def read_image(path: str, error):
-    """A PIL image of the file, as RGB (opened as a regular file: a FIFO is refused, not waited on).
+    """A PIL image of the file, as RGB, turned as viewers show it (EXIF ``Orientation``, like a video's display
+    matrix in ``display_orientation``), opened as a regular file: a FIFO is refused, not waited on.
     ``error(message)`` -> the exception to raise for a file that is missing or cannot be read."""
-    from PIL import Image
+    from PIL import Image, ImageOps
 
     try:
         with files.open_regular(path, lambda p, f, m: error(f"{path} {m}" if m != "not found" else
                                                             f"frame file not found: {path}")) as fh:
             with Image.open(fh) as im:
-                return im.convert("RGB")  # convert loads the pixels: the file can be closed
+                # exif_transpose loads the pixels (convert too): the file can be closed
+                return ImageOps.exif_transpose(im).convert("RGB")
     except (OSError, Image.DecompressionBombError, SyntaxError) as e:
         raise error(f"cannot read the image {path} ({type(e).__name__}: {str(e)[:200]})") from None
 

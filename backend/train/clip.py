@@ -178,7 +178,7 @@ def _image_size(path: str, where: str, clip_path: str) -> tuple:
     with files.open_regular(path, error) as fh:  # PIL opens by name too: a FIFO would block it
         try:
             with Image.open(fh) as im:
-                return im.size
+                return camera_frames.displayed_size(im)
         except Exception as e:  # noqa: BLE001  PIL raises OSError, SyntaxError, DecompressionBombError, ...
             raise ClipError(clip_path, where, f"cannot read the image {path} ({type(e).__name__}: "
                                               f"{str(e)[:200]})") from None

@@ -135,6 +135,26 @@ def test_a_video_coded_sideways_without_a_matrix_is_refused(street_clip_path, tm
     assert "drive.mp4" in e.message and "predictions.npz" in e.message and "upright" in e.hint, str(e)
 
 
+def test_phone_photos_are_turned_by_their_exif_orientation(street_clip_path, tmp_path, street_frames):
+    """Image frames stored sideways with EXIF Orientation 6 (a phone photo taken upright): read upright, as viewers
+    show them, with the images' size and K (the same rule as a video's display matrix)."""
+    images = clip_mod.load(copy_clip(street_clip_path, tmp_path, lambda d, f: _no_poses(d), "images"))
+
+    def edit(d, folder):
+        for t, p in enumerate(sorted((folder / "frames").iterdir())):
+            coded = Image.fromarray(np.ascontiguousarray(np.rot90(street_frames[t], 1)))  # stored turned a quarter
+            exif = Image.Exif()
+            exif[0x0112] = 6  # "rotate 90 CW to display": undoes the counter-clockwise quarter above
+            p.unlink()  # the copy's own file, never one it might share with the cached street
+            coded.save(p, exif=exif)
+        _no_poses(d)
+
+    c = clip_mod.load(copy_clip(street_clip_path, tmp_path, edit, "exif"))
+    assert c.image_size == images.image_size == (518, 294)
+    np.testing.assert_array_equal(c.K, images.K)
+    assert np.array_equal(c.load_frames(518, 294), street_frames)
+
+
 def _resized_frames(size):
     def edit(d, folder):
         for p in sorted((folder / "frames").iterdir()):

@@ -29,7 +29,8 @@ def test_read_dispatches_by_content(tmp_path):
     assert splats_io.read(tmp_path / "c.ply").format == "supersplat_compressed"
     splats_compressed.write_splat(tmp_path / "s.splat", splats.decode(F.random_gaussians(30, 0, seed=1)))
     assert splats_io.read(tmp_path / "s.splat").format == "splat"
-    assert set(splats.FORMAT_NAMES) == {"inria", "inria_half", "supersplat_compressed", "splat"}
+    assert set(splats.FORMAT_NAMES) == {"inria", "inria_half", "supersplat_compressed", "splat", "spz", "ksplat",
+                                        "gltf_splats"}
     with pytest.raises(splats.SplatsError, match="not found"):
         splats_io.read(tmp_path / "nope.splat")
 
@@ -77,7 +78,7 @@ def test_other_files_name_the_accepted_formats(tmp_path):
     with pytest.raises(splats.SplatsError, match=r"car\.fbx: \.fbx files are not read: export the car as GLB"):
         splats_io.read(tmp_path / "car.fbx")
     (tmp_path / "scene.spz").write_bytes(bytes(100))
-    with pytest.raises(splats.SplatsError, match=r"\.spz Gaussian files are not supported.*splat-transform"):
+    with pytest.raises(splats.SplatsError, match=r"scene\.spz: named \.spz but its content is not that format"):
         splats_io.read(tmp_path / "scene.spz")
     (tmp_path / "noise.bin").write_bytes(bytes(range(256)))
     with pytest.raises(splats.SplatsError, match=r"noise\.bin: not a PLY file.*accepted are .*SuperSplat compressed"):

@@ -72,7 +72,8 @@ def record_dtype(level: int, degree: int) -> np.dtype:
 
 
 def _sections(head: bytes, count: int) -> np.ndarray:
-    return np.frombuffer(head, _SECTION, count, MAIN_HEADER) if count else np.zeros(0, _SECTION)
+    """The ``count`` section headers (one ``_SECTION`` at the start of each 1024-byte slot)."""
+    return np.ndarray((count,), _SECTION, head, MAIN_HEADER, (SECTION_HEADER,)) if count else np.zeros(0, _SECTION)
 
 
 def _layout(main, sections) -> list:

@@ -179,29 +179,38 @@ def _zstd_blocks(path, data: bytes):
     return version, n, degree, fb, blocks
 
 
+def _byte_table(f) -> np.ndarray:
+    """float32 values of the 256 bytes under ``f`` (float64 math, as the formulas state): decoding a byte array is
+    then one lookup per byte."""
+    return np.asarray(f(np.arange(256, dtype=np.float64)), np.float32)
+
+
+_ALPHA_LOGIT = _byte_table(lambda b: np.log(np.clip(b / 255.0, _ALPHA_EPS, 1 - _ALPHA_EPS))
+                           - np.log(1 - np.clip(b / 255.0, _ALPHA_EPS, 1 - _ALPHA_EPS)))
+_COLOR = _byte_table(lambda b: (b / 255.0 - 0.5) / COLOR_SCALE)
+_LOG_SCALE = _byte_table(lambda b: b / 16.0 - 10.0)
+_SH = _byte_table(lambda b: (b - 128.0) / 128.0)
+
+
 def _decode(blocks, version: int, n: int, degree: int, fb: int) -> GaussianPly:
     pos, alpha, color, scale, rot = blocks[:5]
     p = pos.reshape(n, 3, 3).astype(np.int32)
     fixed = p[..., 0] | (p[..., 1] << 8) | (p[..., 2] << 16)
-    fixed = np.where(fixed & 0x800000, fixed - (1 << 24), fixed)  # sign-extend 24 bits
-    xyz = fixed.astype(np.float64) / float(1 << fb)
-    a = np.clip(alpha.astype(np.float64) / 255.0, _ALPHA_EPS, 1.0 - _ALPHA_EPS)
-    f_dc = (color.reshape(n, 3).astype(np.float64) / 255.0 - 0.5) / COLOR_SCALE
-    log_scale = scale.reshape(n, 3).astype(np.float64) / 16.0 - 10.0
+    fixed -= (fixed & 0x800000) << 1  # sign-extend 24 bits
+    xyz = (fixed.astype(np.float64) / float(1 << fb)).astype(np.float32)
     if version == 2:
         xyz_q = rot.reshape(n, 3).astype(np.float64) / 127.5 - 1.0
         w = np.sqrt(np.maximum(0.0, 1.0 - (xyz_q * xyz_q).sum(1)))
-        q = np.concatenate([w[:, None], xyz_q], axis=1)
+        q = np.concatenate([w[:, None], xyz_q], axis=1).astype(np.float32)
     else:
         q = _smallest_three(rot.view("<u4"))
-    K1 = _SH_BYTES[degree] // 3
     f_rest = np.zeros((n, 3, 0), np.float32)
     if degree:
-        sh = (blocks[5].reshape(n, K1, 3).astype(np.float32) - 128.0) / 128.0
-        f_rest = np.ascontiguousarray(sh.transpose(0, 2, 1))
-    return GaussianPly(xyz=xyz.astype(np.float32), f_dc=f_dc.astype(np.float32), f_rest=f_rest,
-                       opacity=np.log(a / (1.0 - a)).astype(np.float32), scale=log_scale.astype(np.float32),
-                       rot=q.astype(np.float32), format="spz")
+        # coefficient-major bytes -> channel-major: transposed as bytes (a quarter of the float copy), then looked up
+        sh = np.ascontiguousarray(blocks[5].reshape(n, _SH_BYTES[degree] // 3, 3).transpose(0, 2, 1))
+        f_rest = _SH[sh]
+    return GaussianPly(xyz=xyz, f_dc=_COLOR[color.reshape(n, 3)], f_rest=f_rest, opacity=_ALPHA_LOGIT[alpha],
+                       scale=_LOG_SCALE[scale.reshape(n, 3)], rot=q, format="spz")
 
 
 #: For the index of the largest component (x, y, z, w order), the other three from the lowest bits up.
@@ -209,17 +218,18 @@ _OTHERS = np.array([[3, 2, 1], [3, 2, 0], [3, 1, 0], [2, 1, 0]])
 
 
 def _smallest_three(packed: np.ndarray) -> np.ndarray:
-    """(N, 4) quaternions (w, x, y, z) of SPZ v3/v4 rotation words (module docstring)."""
+    """(N, 4) float32 quaternions (w, x, y, z) of SPZ v3/v4 rotation words (module docstring)."""
     packed = packed.astype(np.uint32)
     largest = (packed >> np.uint32(30)).astype(np.intp)
-    xyzw = np.empty((len(packed), 4), np.float64)
+    xyzw = np.empty((len(packed), 4), np.float32)
     rows = np.arange(len(packed))
-    total = np.zeros(len(packed))
+    total = np.zeros(len(packed), np.float32)
+    step = np.float32(np.sqrt(0.5) / 511.0)
     for slot in range(3):
         bits = packed >> np.uint32(10 * slot)
-        v = (bits & np.uint32(511)).astype(np.float64) * (np.sqrt(0.5) / 511.0)
-        v = np.where(bits & np.uint32(512), -v, v)
+        v = (bits & np.uint32(511)).astype(np.float32) * step
+        v[(bits & np.uint32(512)) != 0] *= -1
         xyzw[rows, _OTHERS[largest, slot]] = v
         total += v * v
-    xyzw[rows, largest] = np.sqrt(np.maximum(0.0, 1.0 - total))
+    xyzw[rows, largest] = np.sqrt(np.maximum(np.float32(0), 1 - total))
     return xyzw[:, [3, 0, 1, 2]]

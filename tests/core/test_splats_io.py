@@ -189,3 +189,25 @@ def test_fuzz_corruptions_end_in_error_or_valid_asset(tmp_path):
     assert slowest < 1.0, slowest
     print(f"fuzz: {outcomes}, slowest case {slowest * 1e3:.1f} ms")
     os.remove(target)
+
+
+def test_formats_are_detected_by_content_whatever_the_name(tmp_path):
+    """reader.detect: a SOG bundle (zip with meta.json) or its meta.json is "sog" under any name; a zip without
+    meta.json and a JSON that is neither glTF nor SOG are refused by name."""
+    import json
+    import zipfile
+    meta = {"version": 2, "count": 1, "means": {"mins": [0, 0, 0], "maxs": [1, 1, 1], "files": ["means_l.webp"]},
+            "scales": {"files": ["scales.webp"]}, "quats": {"files": ["quats.webp"]}}
+    with zipfile.ZipFile(tmp_path / "scene.splat", "w") as z:
+        z.writestr("meta.json", json.dumps(meta))
+    assert splats_io.detect(tmp_path / "scene.splat") == "sog"
+    (tmp_path / "meta.json").write_text(json.dumps(meta))
+    assert splats_io.detect(tmp_path / "meta.json") == "sog"
+    with zipfile.ZipFile(tmp_path / "other.sog", "w") as z:
+        z.writestr("readme.txt", "x")
+    with pytest.raises(splats.SplatsError, match=r"other\.sog: a zip without meta\.json"):
+        splats_io.read(tmp_path / "other.sog")
+    (tmp_path / "x.json").write_text('{"a": 1}')
+    with pytest.raises(splats.SplatsError, match=r"x\.json: a JSON file that is neither a glTF nor a SOG meta\.json"):
+        splats_io.read(tmp_path / "x.json")
+    assert {".spz", ".ksplat", ".sog", ".glb", ".gltf"} <= set(splats_io.ASSET_EXTENSIONS)

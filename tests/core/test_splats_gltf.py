@@ -80,7 +80,9 @@ def _gltf(path, ply, node_tree, buffer_name="car splats.bin", required=(), inter
         views.append({"buffer": 0, "byteOffset": len(blob), "byteLength": len(p)})
         blob += p + bytes(-len(p) % 4)
     views[0]["byteStride"] = 28
-    A = lambda v, t, c=5126, off=0, **kw: dict(bufferView=v, componentType=c, count=n, type=t, byteOffset=off, **kw)  # noqa: E731
+    def A(v, t, c=5126, off=0, **kw):  # an accessor of view v, type t, componentType c (float by default)
+        return dict(bufferView=v, componentType=c, count=n, type=t, byteOffset=off, **kw)
+
     accessors = [A(0, "VEC3"), A(0, "VEC4", off=12), A(1, "VEC3"), A(2, "SCALAR", 5121, normalized=True), A(3, "VEC3")]
     accessors += [A(4 + k, "VEC3") for k in range(K1)]
     pfx = "KHR_gaussian_splatting:"

@@ -40,8 +40,7 @@ def write_ksplat(path, ply, level, sections=(0.6, 0.4), capacity=64, partial=(7,
     sh_n = (0, 9, 24)[degree]
     rec = ksplat.record_dtype(level, degree)
     main = np.zeros(ksplat.MAIN_HEADER, np.uint8)
-    head = main.view(np.uint8)
-    head[0], head[1] = 0, 1
+    main[0], main[1] = 0, 1  # version 0.1
     u32 = main[:24].view("<u4")
     u32[1], u32[2], u32[3], u32[4] = len(counts), len(counts), n + spare * len(counts), n
     main[20:22].view("<u2")[0] = level
@@ -62,8 +61,7 @@ def write_ksplat(path, ply, level, sections=(0.6, 0.4), capacity=64, partial=(7,
             n_full = (m - sum(partial)) // capacity
             sizes = [capacity] * n_full + [m - n_full * capacity - sum(partial)] * (m - n_full * capacity > sum(
                 partial)) + list(partial)
-            full = n_full
-            parts = sizes[full:]
+            parts = sizes[n_full:]
             bounds = np.cumsum([0] + sizes)
             idx = np.repeat(np.arange(len(sizes)), sizes)
             centres = np.array([(xyz[a:b].min(0) + xyz[a:b].max(0)) / 2 for a, b in zip(bounds[:-1], bounds[1:])],
@@ -73,7 +71,7 @@ def write_ksplat(path, ply, level, sections=(0.6, 0.4), capacity=64, partial=(7,
             h32[2], h32[3] = capacity, len(sizes)
             hf[4] = block
             hdr[20:22].view("<u2")[0] = 12  # bytes per bucket: its centre, 3 float32
-            h32[6], h32[8], h32[9] = q_range, full, len(parts)
+            h32[6], h32[8], h32[9] = q_range, n_full, len(parts)
             bucket_bytes = np.array(parts, "<u4").tobytes() + centres.tobytes()
         else:
             r["xyz"][:m] = xyz

@@ -117,8 +117,9 @@ MIN_CAR_LENGTH, MAX_CAR_LENGTH = asset_frame.CAR_LENGTH_M
 
 
 def is_mesh_file(filepath: str) -> bool:
-    ext = os.path.splitext(filepath)[1].lower()
-    return ext in splats_io.MESH_EXTENSIONS or (ext == ".ply" and splats_io.is_mesh_ply(filepath))
+    """A car file to convert as a mesh, by content (``core.splats.reader.is_mesh``: a glTF with
+    KHR_gaussian_splatting is Gaussians)."""
+    return splats_io.is_mesh(filepath)
 
 
 def _display_rotations(rot_raw, F):
@@ -131,7 +132,8 @@ def import_gaussians(context, filepath: str, axes: str = "AUTO", target_length: 
     """Import a car asset as an object at the 3D cursor; ``target_length`` metres along its longest horizontal
     axis (None: 4.5 m for a TRELLIS/Amodal3R file or a mesh inside their unit cube; file units otherwise).
 
-    Gaussian files (INRIA / TRELLIS PLY, SuperSplat compressed PLY, .splat) are read here; meshes (GLB, glTF, OBJ,
+    Gaussian files (INRIA / TRELLIS PLY, SuperSplat compressed PLY, .splat, .spz, .ksplat, glTF/GLB with
+    KHR_gaussian_splatting: ``core.splats.reader``) are read here; meshes (GLB, glTF, OBJ,
     STL, OFF, mesh PLY) are first turned into surface Gaussians by ``python -m backend mesh-asset`` (trimesh, in
     the backend's Python) with ``mesh_count`` Gaussians, written to ``gaussians_path`` (default
     ``mesh_gaussians_path``) and imported from there. Raises SplatsError (an InputError) / BackendError (exit code

@@ -29,7 +29,8 @@ def test_read_dispatches_by_content(tmp_path):
     assert splats_io.read(tmp_path / "c.ply").format == "supersplat_compressed"
     splats_compressed.write_splat(tmp_path / "s.splat", splats.decode(F.random_gaussians(30, 0, seed=1)))
     assert splats_io.read(tmp_path / "s.splat").format == "splat"
-    assert set(splats.FORMAT_NAMES) == {"inria", "inria_half", "supersplat_compressed", "splat"}
+    assert set(splats.FORMAT_NAMES) == {"inria", "inria_half", "supersplat_compressed", "splat", "spz", "ksplat",
+                                        "gltf_splats"}
     with pytest.raises(splats.SplatsError, match="not found"):
         splats_io.read(tmp_path / "nope.splat")
 
@@ -77,7 +78,7 @@ def test_other_files_name_the_accepted_formats(tmp_path):
     with pytest.raises(splats.SplatsError, match=r"car\.fbx: \.fbx files are not read: export the car as GLB"):
         splats_io.read(tmp_path / "car.fbx")
     (tmp_path / "scene.spz").write_bytes(bytes(100))
-    with pytest.raises(splats.SplatsError, match=r"\.spz Gaussian files are not supported.*splat-transform"):
+    with pytest.raises(splats.SplatsError, match=r"scene\.spz: named \.spz but its content is not that format"):
         splats_io.read(tmp_path / "scene.spz")
     (tmp_path / "noise.bin").write_bytes(bytes(range(256)))
     with pytest.raises(splats.SplatsError, match=r"noise\.bin: not a PLY file.*accepted are .*SuperSplat compressed"):
@@ -188,3 +189,25 @@ def test_fuzz_corruptions_end_in_error_or_valid_asset(tmp_path):
     assert slowest < 1.0, slowest
     print(f"fuzz: {outcomes}, slowest case {slowest * 1e3:.1f} ms")
     os.remove(target)
+
+
+def test_formats_are_detected_by_content_whatever_the_name(tmp_path):
+    """reader.detect: a SOG bundle (zip with meta.json) or its meta.json is "sog" under any name; a zip without
+    meta.json and a JSON that is neither glTF nor SOG are refused by name."""
+    import json
+    import zipfile
+    meta = {"version": 2, "count": 1, "means": {"mins": [0, 0, 0], "maxs": [1, 1, 1], "files": ["means_l.webp"]},
+            "scales": {"files": ["scales.webp"]}, "quats": {"files": ["quats.webp"]}}
+    with zipfile.ZipFile(tmp_path / "scene.splat", "w") as z:
+        z.writestr("meta.json", json.dumps(meta))
+    assert splats_io.detect(tmp_path / "scene.splat") == "sog"
+    (tmp_path / "meta.json").write_text(json.dumps(meta))
+    assert splats_io.detect(tmp_path / "meta.json") == "sog"
+    with zipfile.ZipFile(tmp_path / "other.sog", "w") as z:
+        z.writestr("readme.txt", "x")
+    with pytest.raises(splats.SplatsError, match=r"other\.sog: a zip without meta\.json"):
+        splats_io.read(tmp_path / "other.sog")
+    (tmp_path / "x.json").write_text('{"a": 1}')
+    with pytest.raises(splats.SplatsError, match=r"x\.json: a JSON file that is neither a glTF nor a SOG meta\.json"):
+        splats_io.read(tmp_path / "x.json")
+    assert {".spz", ".ksplat", ".sog", ".glb", ".gltf"} <= set(splats_io.ASSET_EXTENSIONS)

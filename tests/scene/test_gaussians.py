@@ -229,6 +229,21 @@ def test_splat_file_imports_like_its_ply(empty_scene, tmp_path):
     assert np.abs(_attr(obj, "position", 3) - from_ply).max() < 1e-5  # positions are float32 in both
 
 
+def test_splat_glb_and_spz_import_as_gaussians_not_meshes(empty_scene, tmp_path):
+    """A .glb with KHR_gaussian_splatting is Gaussians (decided by content; a .glb mesh goes to the backend), and
+    an .spz imports too: both from splat-transform, the real writer."""
+    import splat_transform
+    from scpainter_blender.scene import gaussians
+    g = shapes.procedural_car_gaussians(count=500, seed=3, paint=(0.6, 0.2, 0.2))
+    splats_inria.write_ply(tmp_path / "car.ply", splats.encode(g))
+    for name, fmt in (("car.glb", "gltf_splats"), ("car.spz", "spz")):
+        splat_transform.convert(tmp_path / "car.ply", tmp_path / name)
+        assert not gaussians.is_mesh_file(str(tmp_path / name))
+        assert bpy.ops.scpainter.import_gaussians(filepath=str(tmp_path / name)) == {"FINISHED"}
+        obj = bpy.context.active_object
+        assert obj["scpainter_format"] == fmt and len(obj.data.vertices) == 500 and "scpainter_mesh_source" not in obj
+
+
 def test_mesh_car_imports_through_the_backend_and_stage1_uses_its_oriented_box(empty_scene, tmp_path, monkeypatch):
     """A CAD-style car box, turned 30° about the up axis in its own file, written as a glTF (Y up): it becomes a
     Gaussian asset standing upright, and stage 1 measures it with trimesh's oriented box, not its axis-aligned

@@ -43,7 +43,7 @@ import numpy as np
 from .. import outputs
 from . import ply_format
 from .sh import SH_C0
-from .gaussians import GaussianPly, SplatsError, decode, open_file
+from .gaussians import MOSTLY_INVALID_SHARE, GaussianPly, SplatsError, decode, open_file, valid_rows
 
 #: SuperSplat compressed PLY: splats per chunk, and the chunk/vertex properties (module docstring; the readers
 #: choose this layout by the ``chunk`` element or ``packed_*`` vertex properties).
@@ -58,6 +58,9 @@ _COMPRESSED_LOGIT_LIMIT = 40.0
 #: antimatter15 .splat: one 32-byte little-endian record per Gaussian.
 SPLAT_RECORD = np.dtype([("xyz", "<f4", (3,)), ("scale", "<f4", (3,)), ("rgba", "u1", (4,)), ("rot", "u1", (4,))])
 _SPLAT_ALPHA_EPS = 1e-6
+#: A .splat record whose position or σ exceeds this (metres) is no Gaussian of a scene but bytes of something else
+#: read as floats (a header, compressed data): counted with ``valid_rows``' invalid rows for the refusal below.
+SPLAT_ABSURD = 1e6
 
 
 # -- SuperSplat compressed PLY -------------------------------------------------------------------------------------
@@ -189,10 +192,37 @@ def read_splat(path) -> GaussianPly:
     alpha = np.clip(rgba[:, 3], _SPLAT_ALPHA_EPS, 1.0 - _SPLAT_ALPHA_EPS)
     with np.errstate(divide="ignore", invalid="ignore"):  # σ <= 0 gives -inf/NaN: dropped on decoding
         log_scale = np.log(data["scale"].astype(np.float64))
-    return GaussianPly(xyz=data["xyz"].astype(np.float32), f_dc=((rgba[:, :3] - 0.5) / SH_C0).astype(np.float32),
-                       f_rest=np.zeros((len(data), 3, 0), np.float32),
-                       opacity=np.log(alpha / (1.0 - alpha)).astype(np.float32), scale=log_scale.astype(np.float32),
-                       rot=((data["rot"].astype(np.float64) - 128.0) / 128.0).astype(np.float32), format="splat")
+    ply = GaussianPly(xyz=data["xyz"].astype(np.float32), f_dc=((rgba[:, :3] - 0.5) / SH_C0).astype(np.float32),
+                      f_rest=np.zeros((len(data), 3, 0), np.float32),
+                      opacity=np.log(alpha / (1.0 - alpha)).astype(np.float32), scale=log_scale.astype(np.float32),
+                      rot=((data["rot"].astype(np.float64) - 128.0) / 128.0).astype(np.float32), format="splat")
+    _refuse_mostly_invalid(path, ply, data, buf[:16])
+    return ply
+
+
+def _refuse_mostly_invalid(path, ply: GaussianPly, data, head: bytes) -> None:
+    """Refuse a ``.splat`` of which more than ``MOSTLY_INVALID_SHARE`` of the records are invalid (``valid_rows``)
+    or absurd (``SPLAT_ABSURD``): such a file is another format under this name, not Gaussians to draw."""
+    keep, dropped = valid_rows(ply)
+    with np.errstate(invalid="ignore", over="ignore"):
+        absurd = keep & ~((np.abs(data["xyz"]) <= SPLAT_ABSURD).all(1) & (data["scale"] <= SPLAT_ABSURD).all(1))
+    bad = int((~keep).sum() + absurd.sum())
+    if bad <= MOSTLY_INVALID_SHARE * len(ply):
+        return
+    if head.startswith(b"\x1f\x8b"):
+        guess = "it starts like gzip data (an SPZ file?)"
+    elif head.startswith(b"PK"):
+        guess = "it starts like a zip (a SOG bundle?)"
+    elif head[:1] == b"\x00" and head[1:2] != b"\x00":
+        guess = "it starts like a GaussianSplats3D .ksplat header, but not a consistent one (damaged?)"
+    else:
+        guess = "another format saved under this name, or damaged data"
+    why = ", ".join(f"{n:,} {k.replace('_', ' ')}" for k, n in dropped.items())
+    raise SplatsError(path, f"{bad:,} of its {len(ply):,} 32-byte records are no valid Gaussians ({why}"
+                            f"{', ' if why and absurd.any() else ''}"
+                            f"{f'{int(absurd.sum()):,} beyond {SPLAT_ABSURD:g} m' if absurd.any() else ''}): more than "
+                            f"{MOSTLY_INVALID_SHARE:.0%}, so this is no antimatter15 .splat: {guess}. Convert the "
+                            "original to .ply (e.g. with playcanvas/splat-transform) or export it again", "(file)")
 
 
 def write_splat(path, g) -> None:

@@ -16,10 +16,12 @@ quaternions or scales that overflow are dropped on decoding and counted, never p
 The files (``GaussianPly.format`` says which layout a file had, ``FORMAT_NAMES`` its human name):
 
 * ``core.splats.reader``: ``read(path)`` for any accepted file (by content, or ``.splat`` by extension),
-  ``load(path) = decode(read(path))``, ``read_ply``, and telling mesh files from Gaussian ones (``is_mesh_ply``);
+  ``load(path) = decode(read(path))``, ``read_ply``, and telling mesh files from Gaussian ones (``is_mesh``);
 * ``core.splats.ply_format``: the PLY container (header, elements, property types) every PLY reader here uses;
 * ``core.splats.inria``: the INRIA layout (float, double or half floats; TRELLIS/Amodal3R too) and ``write_ply``;
 * ``core.splats.compressed``: SuperSplat compressed PLY and antimatter15 ``.splat`` (``write_splat``);
+* ``core.splats.spz``, ``core.splats.ksplat``, ``core.splats.gltf_splats``: Niantic SPZ, GaussianSplats3D
+  ``.ksplat``, glTF ``KHR_gaussian_splatting``;
 * ``core.splats.trellis``: TRELLIS/Amodal3R files: their axes (``ZUP_TO_TRELLIS_FILE``) and ``detect_axes``.
 
 No bpy, no torch: numpy only.
@@ -37,10 +39,13 @@ from . import sh as _sh
 
 #: Human names of ``GaussianPly.format`` values, for import reports.
 FORMAT_NAMES = {"inria": "INRIA 3DGS PLY", "inria_half": "INRIA 3DGS PLY, half floats",
-                "supersplat_compressed": "SuperSplat compressed PLY", "splat": "antimatter15 .splat"}
+                "supersplat_compressed": "SuperSplat compressed PLY", "splat": "antimatter15 .splat",
+                "spz": "Niantic SPZ", "ksplat": "GaussianSplats3D .ksplat",
+                "gltf_splats": "glTF KHR_gaussian_splatting"}
 #: What the readers accept, for messages.
 ACCEPTED = ("binary INRIA 3DGS PLY (float, double or half floats in ushort slots; TRELLIS/Amodal3R included), "
-            "SuperSplat compressed PLY (.compressed.ply) and antimatter15 .splat")
+            "SuperSplat compressed PLY (.compressed.ply), antimatter15 .splat, Niantic .spz, GaussianSplats3D .ksplat "
+            "and glTF/GLB with KHR_gaussian_splatting")
 
 
 class SplatsError(errors.InputError):

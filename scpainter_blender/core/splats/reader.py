@@ -1,45 +1,61 @@
-"""Gaussian files, one entry point: ``read(path)`` picks the reader by content (PLY magic, then the header's
-elements) or, for headerless ``.splat``, by extension; ``load(path) = decode(read(path))``; mesh files are told
-apart from Gaussian ones (``is_mesh_ply``, ``MESH_EXTENSIONS``) and refused with a message that says where they go.
+"""Gaussian files, one entry point: ``read(path)`` picks the reader by content (``detect``), the extension
+deciding only for headerless ``.splat``; ``load(path) = decode(read(path))``; mesh files are told apart from
+Gaussian ones (``is_mesh``: ``MESH_EXTENSIONS``, a mesh PLY, a glTF without ``KHR_gaussian_splatting``) and refused
+with a message that says where they go.
+
+``detect`` looks at the bytes first, so a file named for another format is read as what it is (a ``.ksplat`` or
+an SPZ saved as ``.splat`` included): ``ply`` (starts with "ply"), ``spz`` (gzip whose stream starts with SPZ's
+"NGSP", or a plain "NGSP" version-4 header), ``gltf_splats`` (a GLB, or a ``.gltf``'s JSON, with
+``KHR_gaussian_splatting``), ``sog`` (a zip holding ``meta.json``, or a SOG ``meta.json`` itself), ``ksplat`` (a
+consistent GaussianSplats3D header: ``ksplat.looks_like_ksplat``) and, by extension only, ``splat``. ``READERS``
+maps each name to its reader.
 
 The readers (every one returns a ``core.splats.gaussians.GaussianPly`` of raw INRIA values): ``core.splats.inria``
 (INRIA, TRELLIS/Amodal3R and half-float PLY), ``core.splats.compressed`` (SuperSplat compressed PLY, antimatter15
-``.splat``), on top of ``core.splats.ply_format`` (the PLY header and elements). Only regular files are opened (a
-FIFO or a directory is refused at once, not waited on). Unusable files raise ``core.splats.gaussians.SplatsError``
-naming the file and what is wrong.
+``.splat``), ``core.splats.spz`` (Niantic SPZ 2-4), ``core.splats.ksplat`` (GaussianSplats3D), and
+``core.splats.gltf_splats`` (glTF ``KHR_gaussian_splatting``), the PLY ones on top of ``core.splats.ply_format``
+(the PLY header and elements). Only regular files are opened (a FIFO or a directory is refused at once, not waited
+on). Unusable files raise ``core.splats.gaussians.SplatsError`` naming the file and what is wrong.
 
 No bpy, no torch: numpy only.
 """
 
 from __future__ import annotations
 
+import json
 import os
+import zipfile
 
-from . import compressed, inria, ply_format
+from . import compressed, gltf_splats, inria, ksplat, ply_format, spz
 from .gaussians import ACCEPTED, GaussianPly, Gaussians, SplatsError, decode, open_file
 
 #: Mesh files: not splats, but what the car-asset import converts to Gaussians (backend ``mesh-asset``, trimesh);
-#: a ``.ply`` is a mesh when ``is_mesh_ply`` says so.
+#: a ``.ply`` is a mesh when ``is_mesh_ply`` says so, a ``.glb``/``.gltf`` when it has no
+#: ``KHR_gaussian_splatting`` primitive (``is_mesh`` decides both by content).
 MESH_EXTENSIONS = (".glb", ".gltf", ".obj", ".stl", ".off")
+#: Gaussian-only file extensions (``.ply``, ``.glb`` and ``.gltf`` may be either, by content).
+SPLAT_EXTENSIONS = (".ply", ".splat", ".ksplat", ".spz", ".sog")
 #: Every file a car asset may be: Gaussian files and meshes (what the import's file browser and a variation
 #: library take).
-ASSET_EXTENSIONS = (".ply", ".splat") + MESH_EXTENSIONS
+ASSET_EXTENSIONS = SPLAT_EXTENSIONS + MESH_EXTENSIONS
+#: Bytes ``detect`` reads first: enough for every magic and for the start of a gzip stream.
+_HEAD = ksplat.MAIN_HEADER
+ZIP_MAGIC = b"PK\x03\x04"
+
+
+def _read_sog(path) -> GaussianPly:
+    raise SplatsError(path, "a SOG file (PlayCanvas SuperSplat's bundle of WebP images and meta.json) is not read "
+                            "yet: convert it to .ply (e.g. with playcanvas/splat-transform)", "(file)")
 
 
 def read(path) -> GaussianPly:
     """Read any accepted Gaussian file (module docstring) into raw float32 arrays; SplatsError if unusable.
 
-    PLY files (INRIA, half-float, SuperSplat compressed) are recognised by content; headerless ``.splat`` files by
-    their extension. Only regular files are opened (a FIFO or a directory is refused at once, not waited on).
+    The format is decided by content (``detect``); headerless ``.splat`` files by their extension. Only regular
+    files are opened (a FIFO or a directory is refused at once, not waited on).
     """
     path = os.fspath(path)
-    head = _head(path, 4)
-    if head.startswith(b"ply"):
-        return read_ply(path)
-    ext = os.path.splitext(path)[1].lower()
-    if ext == ".splat":
-        return compressed.read_splat(path)
-    raise SplatsError(path, _not_accepted(head, ext))
+    return READERS[detect(path)](path)
 
 
 def load(path) -> Gaussians:
@@ -47,27 +63,113 @@ def load(path) -> Gaussians:
     return decode(read(path))
 
 
-def _head(path, n: int) -> bytes:
-    """The first ``n`` bytes of a regular file; SplatsError naming the file otherwise."""
+def detect(path) -> str:
+    """The Gaussian format of a file by its content (a key of ``READERS``); SplatsError naming the file when it is
+    none (a mesh, another format, damaged): see the module docstring for the order of the checks."""
+    path = os.fspath(path)
+    ext = os.path.splitext(path)[1].lower()
     try:
         with open_file(path) as f:
-            return f.read(n)
+            size = os.fstat(f.fileno()).st_size
+            head = f.read(_HEAD)
+            if head.startswith(b"ply"):
+                return "ply"
+            if spz.is_spz(head):
+                return "spz"
+            if head.startswith(gltf_splats.GLB_MAGIC) or (head.lstrip()[:1] == b"{"):
+                return _json_kind(path, head, ext)
+            if head.startswith(ZIP_MAGIC):
+                return _zip_kind(path, f, ext)
+            if len(head) == ksplat.MAIN_HEADER and head[0] == 0 and head[1] >= 1:  # GaussianSplats3D 0.1+
+                more = ksplat.MAIN_HEADER + ksplat.SECTION_HEADER * min(int.from_bytes(head[4:8], "little"),
+                                                                         ksplat.MAX_SECTIONS)
+                full = head + f.read(max(0, min(more, size) - len(head)))
+                problem = ksplat.header_problem(full, size)
+                if problem is None:
+                    return "ksplat"
+                if ext == ".ksplat":
+                    raise SplatsError(path, f"not a GaussianSplats3D .ksplat file: {problem}", "header")
     except OSError as e:
         raise SplatsError(path, f"cannot be read: {e}") from None
+    if ext == ".splat":
+        return "splat"
+    raise SplatsError(path, _not_accepted(head, ext))
+
+
+def _json_kind(path, head: bytes, ext: str) -> str:
+    """A GLB or JSON file: ``gltf_splats``, ``sog`` (a SOG meta.json); a mesh glTF or other JSON is refused."""
+    try:
+        tree = gltf_splats.peek_tree(path)
+    except SplatsError as e:
+        if not head.startswith(gltf_splats.GLB_MAGIC):
+            try:
+                with open_file(path) as f:
+                    meta = json.loads(f.read().decode("utf-8-sig"))
+            except (UnicodeDecodeError, ValueError, RecursionError):
+                meta = None
+            if is_sog_meta(meta):
+                return "sog"
+        if head.startswith(gltf_splats.GLB_MAGIC) or ext in (".gltf", ".glb"):
+            raise SplatsError(path, f"{_not_accepted(head, ext)} (its glTF could not be read: "
+                                    f"{e.args[0].split(': ', 1)[-1]})") from None
+        raise SplatsError(path, f"a JSON file that is neither a glTF nor a SOG meta.json ({e.args[0]}): accepted "
+                                f"are {ACCEPTED}") from None
+    if gltf_splats.has_gaussian_splatting(tree):
+        return "gltf_splats"
+    raise SplatsError(path, _not_accepted(head, ext or ".gltf"))
+
+
+def is_sog_meta(meta) -> bool:
+    """True for a parsed SOG ``meta.json`` (PlayCanvas: an object with ``means`` and ``quats``/``scales``)."""
+    return isinstance(meta, dict) and "means" in meta and ("quats" in meta or "scales" in meta)
+
+
+def _zip_kind(path, f, ext: str) -> str:
+    """A zip: ``sog`` when it holds ``meta.json``; other zips are refused."""
+    try:
+        f.seek(0)
+        names = zipfile.ZipFile(f).namelist()
+    except (zipfile.BadZipFile, OSError, ValueError) as e:
+        raise SplatsError(path, f"a damaged zip file ({e}): if it is a SOG bundle, export it again") from None
+    if "meta.json" in names:
+        return "sog"
+    raise SplatsError(path, f"a zip without meta.json (it holds {names[:5]}): not a SOG bundle; accepted are "
+                            f"{ACCEPTED}")
+
+
+def is_mesh(path) -> bool:
+    """True for a car file the import converts as a mesh: ``.obj``/``.stl``/``.off``, a mesh PLY (``is_mesh_ply``),
+    or a ``.glb``/``.gltf`` without ``KHR_gaussian_splatting`` (an unreadable one too: the mesh converter then says
+    what is wrong). Never raises."""
+    path = os.fspath(path)
+    ext = os.path.splitext(path)[1].lower()
+    if ext == ".ply":
+        return is_mesh_ply(path)
+    if ext not in MESH_EXTENSIONS:
+        return False
+    if ext not in (".glb", ".gltf"):
+        return True
+    try:
+        tree = gltf_splats.peek_tree(path)
+    except (SplatsError, OSError):
+        return True
+    return not gltf_splats.has_gaussian_splatting(tree)
 
 
 def _not_accepted(head: bytes, ext: str) -> str:
-    """Why a file that is neither PLY nor ``.splat`` is refused, and what to do, from its first bytes and extension."""
+    """Why a file of no accepted format is refused, and what to do, from its first bytes and extension."""
     if head.startswith(b"glTF") or ext in MESH_EXTENSIONS:
-        return (f"a mesh ({ext or 'glTF'}), not Gaussian splats: the car-asset import and `python -m backend "
-                f"mesh-asset` turn meshes into Gaussians; Gaussian files accepted are {ACCEPTED}")
+        return (f"a mesh ({ext or 'glTF'}), not Gaussian splats (no {gltf_splats.EXTENSION}): the car-asset import "
+                f"and `python -m backend mesh-asset` turn meshes into Gaussians; Gaussian files accepted are "
+                f"{ACCEPTED}")
     if ext in (".fbx", ".blend", ".usd", ".usdz", ".usdc", ".dae", ".3ds"):
         return (f"{ext} files are not read: export the car as GLB, glTF, OBJ, STL or PLY (mesh), or as Gaussian "
                 f"splats ({ACCEPTED})")
     if ext in (".ksplat", ".spz", ".sog", ".sogs", ".lcc"):
-        return (f"{ext} Gaussian files are not supported: convert it to .ply (e.g. with playcanvas/splat-transform); "
-                f"accepted are {ACCEPTED}")
-    return f"not a PLY file (it does not start with 'ply') and not named .splat: accepted are {ACCEPTED}"
+        return (f"named {ext} but its content is not that format (it starts with {head[:8]!r}): damaged, or "
+                f"another file renamed; accepted are {ACCEPTED}")
+    return (f"not a PLY file (it does not start with 'ply'), nor another Gaussian format by its content, and not "
+            f"named .splat: accepted are {ACCEPTED}")
 
 
 #: Vertex properties only Gaussian PLYs have: a PLY with none of them is a mesh or a point cloud.
@@ -128,3 +230,8 @@ def read_ply(path) -> GaussianPly:
     except OSError as e:
         raise SplatsError(path, f"cannot be read: {e}") from None
     return inria.from_vertex(data, vnames, path)
+
+
+#: The reader of each format ``detect`` names.
+READERS = {"ply": read_ply, "spz": spz.read, "ksplat": ksplat.read, "gltf_splats": gltf_splats.read,
+           "sog": _read_sog, "splat": compressed.read_splat}

@@ -89,8 +89,7 @@ def load_asset(path, cache: str, convert_mesh=None, mesh_count: int = 200_000, c
         size = os.fstat(f.fileno()).st_size
     if size > MAX_ASSET_BYTES:
         raise VariationError(path, "(file)", f"is {size / 2**30:.1f} GiB, more than a car asset may be")
-    ext = os.path.splitext(path)[1].lower()
-    is_mesh = ext in reader.MESH_EXTENSIONS or (ext == ".ply" and reader.is_mesh_ply(path))
+    is_mesh = reader.is_mesh(path)
     ply_path = path
     if is_mesh:
         if convert_mesh is None:

@@ -1,0 +1,235 @@
+"""Niantic's SPZ (``.spz``) Gaussian files, versions 2, 3 and 4, read as the raw INRIA values of
+``core.splats.gaussians.GaussianPly`` (``format`` = "spz").
+
+The layout, as nianticlabs/spz (``src/cc/load-spz.cc``) and playcanvas/splat-transform (``src/lib/readers/
+read-spz.ts``; its writer runs Niantic's own packer, ``@adobe/spz``) read and write it, all little-endian:
+
+* Header, 16 bytes: magic ``NGSP`` (uint32 0x5053474e), version uint32, N uint32, SH degree uint8 (0-3; 4 is
+  refused like splat-transform does), fractional bits uint8, flags uint8 (bit 0: trained with antialiasing),
+  reserved uint8. Versions 2 and 3: the whole file (header and attributes) is one gzip stream. Version 4 (what
+  splat-transform 3.7 writes by default): a plain 32-byte header (byte 15: the number of streams, uint32 at 16: the
+  offset of a table of contents), then per stream (uint64 compressed size, uint64 uncompressed size), then each
+  attribute as its own Zstandard frame (read with the ``zstandard`` module, which Blender bundles; without it the
+  file is refused saying how to write version 3 instead).
+* The attributes, one block each, in this order: positions (N × 3 signed 24-bit fixed point: value = k / 2^fb),
+  alphas (N bytes: sigmoid(opacity) · 255), colours (N × 3 bytes: f_dc · 0.15 + 0.5 as byte / 255, SPZ's own colour
+  scale, not SH_C0), scales (N × 3 bytes: (log σ + 10) · 16), rotations, SH (N × 3 ((d + 1)² - 1) bytes).
+* Rotations: version 2 stores x y z as bytes (byte / 127.5 - 1) with w = √(1 - x² - y² - z²) ≥ 0; versions 3 and
+  4 a uint32 "smallest three": bits 30-31 the index of the largest component in (x, y, z, w) order, then from bit 0
+  up the other three in decreasing index order, 10 bits each: a 9-bit magnitude m (value m / 511 · √½) and a sign
+  bit above it; the largest is √(1 - Σ others²) ≥ 0.
+* SH bytes are coefficient-major with the colour channel innermost ((coeff 1 r g b), (coeff 2 r g b), ...), value
+  (byte - 128) / 128; INRIA's ``f_rest`` is channel-major, so they are transposed.
+* Opacity is read back as the logit of byte / 255 clamped to [1e-6, 1 - 1e-6] (splat-transform's reader).
+
+Axes: the format carries no axis metadata. Niantic's converters turn a PLY's frame (RDF: x right, y down, z
+forward) into SPZ's stated RUB by negating y and z; splat-transform, which reads and writes the values unchanged
+("CoordinateSystem UNSPECIFIED"), does not. The values are read unchanged, as splat-transform does, so a PLY
+converted by splat-transform reads back in its own frame (tested); a file from Niantic's own converter comes in
+turned 180° about x (upside down), which the import's placement can turn back.
+
+No bpy, no torch: numpy (and zlib; ``zstandard`` for version 4 only).
+"""
+
+from __future__ import annotations
+
+import os
+import zlib
+
+import numpy as np
+
+from .gaussians import GaussianPly, SplatsError, open_file
+
+#: 'NGSP' as the little-endian uint32 every SPZ header starts with.
+MAGIC = b"NGSP"
+#: The versions read (splat-transform reads 2-4 and writes 3 or 4).
+VERSIONS = (2, 3, 4)
+#: Gzip's first two bytes (versions 2 and 3 are one gzip stream).
+GZIP_MAGIC = b"\x1f\x8b"
+#: SPZ's DC colour scale: byte / 255 = f_dc · COLOR_SCALE + 0.5 (Niantic's ``colorScale``, not SH_C0).
+COLOR_SCALE = 0.15
+_HEADER = np.dtype([("magic", "<u4"), ("version", "<u4"), ("count", "<u4"), ("sh_degree", "u1"),
+                    ("fractional_bits", "u1"), ("flags", "u1"), ("reserved", "u1")])
+_V4_HEADER_SIZE = 32
+_ALPHA_EPS = 1e-6
+#: SH bytes per Gaussian by SH degree (3 channels × ((d + 1)² - 1) coefficients).
+_SH_BYTES = (0, 9, 24, 45)
+#: Bytes inflated per read of a Zstandard stream: memory grows with the data there is, never with what a
+#: (possibly damaged) table of contents claims.
+_ZSTD_PIECE = 1 << 24
+
+
+def is_spz(head: bytes) -> bool:
+    """True for the first bytes of an SPZ file: a version-4 header, or a gzip stream whose first bytes inflate to
+    an SPZ header (``head`` should hold a few hundred bytes for that)."""
+    if head.startswith(MAGIC):
+        return True
+    if not head.startswith(GZIP_MAGIC):
+        return False
+    try:
+        return zlib.decompressobj(31).decompress(head, 4).startswith(MAGIC)
+    except zlib.error:
+        return False
+
+
+def _sizes(n: int, version: int, degree: int) -> list:
+    """Byte sizes of the attribute blocks (positions, alphas, colours, scales, rotations[, SH])."""
+    sizes = [9 * n, n, 3 * n, 3 * n, (3 if version == 2 else 4) * n]
+    return sizes + ([_SH_BYTES[degree] * n] if degree else [])
+
+
+def _header(path, raw: bytes):
+    if len(raw) < _HEADER.itemsize or not raw.startswith(MAGIC):
+        raise SplatsError(path, "not an SPZ file: its (decompressed) header does not start with 'NGSP'", "header")
+    h = np.frombuffer(raw[:_HEADER.itemsize], _HEADER)[0]
+    version, n, degree = int(h["version"]), int(h["count"]), int(h["sh_degree"])
+    if version not in VERSIONS:
+        raise SplatsError(path, f"SPZ version {version} is not read (versions {VERSIONS[0]}-{VERSIONS[-1]} are): "
+                                "write it again with a current SPZ writer (e.g. splat-transform)", "version")
+    if degree >= len(_SH_BYTES):
+        raise SplatsError(path, f"SPZ SH degree {degree} is not read (0-3 are)", "sh_degree")
+    if int(h["fractional_bits"]) > 23:
+        raise SplatsError(path, f"SPZ fractional bits {int(h['fractional_bits'])} leave no integer part (0-23)",
+                          "fractional_bits")
+    return version, n, degree, int(h["fractional_bits"])
+
+
+def read(path) -> GaussianPly:
+    """Read an SPZ file (module docstring) as raw INRIA values; SplatsError naming the file if unusable."""
+    path = os.fspath(path)
+    try:
+        with open_file(path) as f:
+            data = f.read()
+    except OSError as e:
+        raise SplatsError(path, f"cannot be read: {e}") from None
+    if data.startswith(GZIP_MAGIC):
+        version, n, degree, fb, blocks = _gzip_blocks(path, data)
+    else:
+        version, n, degree, fb, blocks = _zstd_blocks(path, data)
+    return _decode(blocks, version, n, degree, fb)
+
+
+def _gzip_blocks(path, data: bytes):
+    """Versions 2 and 3: inflate the header, then exactly the bytes the header says follow (never more)."""
+    d = zlib.decompressobj(31)
+    try:
+        head = d.decompress(data, _HEADER.itemsize)
+        version, n, degree, fb = _header(path, head)
+        if version == 4:
+            raise SplatsError(path, "SPZ version 4 inside gzip: not a layout any writer makes", "version")
+        sizes = _sizes(n, version, degree)
+        body = d.decompress(d.unconsumed_tail, sum(sizes)) if sum(sizes) else b""
+    except zlib.error as e:
+        raise SplatsError(path, f"its gzip stream is corrupt ({e}): truncated or damaged SPZ file") from None
+    if len(body) < sum(sizes):
+        raise SplatsError(path, f"SPZ file truncated: {n:,} Gaussians of SH degree {degree} need {sum(sizes):,} "
+                                f"bytes after the header, the gzip stream holds {len(body):,}", "count")
+    return version, n, degree, fb, _split(body, sizes)
+
+
+def _split(body: bytes, sizes) -> list:
+    out, at = [], 0
+    for s in sizes:
+        out.append(np.frombuffer(body, np.uint8, s, at))
+        at += s
+    return out
+
+
+def _zstd_blocks(path, data: bytes):
+    """Version 4: the 32-byte header, the table of contents, one Zstandard frame per attribute."""
+    version, n, degree, fb = _header(path, data)
+    if version != 4 or len(data) < _V4_HEADER_SIZE:
+        raise SplatsError(path, f"SPZ version {version} without gzip: only version 4 is stored so", "version")
+    sizes = _sizes(n, version, degree)
+    streams = data[15]
+    toc = int(np.frombuffer(data, "<u4", 1, 16)[0])
+    if streams != len(sizes) or toc < _V4_HEADER_SIZE or toc + 16 * streams > len(data):
+        raise SplatsError(path, f"SPZ version 4 header is inconsistent: {streams} streams at byte {toc} "
+                                f"({len(sizes)} expected for SH degree {degree}, in a file of {len(data):,} bytes)",
+                          "header")
+    entries = np.frombuffer(data, "<u8", 2 * streams, toc).reshape(streams, 2)
+    try:
+        import zstandard  # bundled with Blender (its .blend compression) and pinned in requirements.txt
+    except ImportError:
+        raise SplatsError(path, "SPZ version 4 is Zstandard-compressed and this Python has no 'zstandard' module: "
+                                "install it, or write the file as version 3 (splat-transform --spz-version 3)",
+                          "version") from None
+    at, blocks = toc + 16 * streams, []
+    for i, ((packed, unpacked), want) in enumerate(zip(entries.tolist(), sizes)):
+        if unpacked != want or at + packed > len(data):
+            raise SplatsError(path, f"SPZ stream {i} claims {unpacked:,} bytes from {packed:,} at byte {at:,}; "
+                                    f"{n:,} Gaussians need {want:,} (file of {len(data):,} bytes): damaged file",
+                              "streams")
+        pieces, got = [], 0
+        try:
+            with zstandard.ZstdDecompressor().stream_reader(memoryview(data)[at:at + packed]) as r:
+                while got < want:
+                    piece = r.read(min(_ZSTD_PIECE, want - got))
+                    if not piece:
+                        break
+                    pieces.append(piece)
+                    got += len(piece)
+        except zstandard.ZstdError as e:
+            raise SplatsError(path, f"SPZ stream {i} is not valid Zstandard data ({e})", "streams") from None
+        raw = pieces[0] if len(pieces) == 1 else b"".join(pieces)
+        if len(raw) != want:
+            raise SplatsError(path, f"SPZ stream {i} holds {len(raw):,} bytes, its entry says {want:,}", "streams")
+        blocks.append(np.frombuffer(raw, np.uint8))
+        at += packed
+    return version, n, degree, fb, blocks
+
+
+def _byte_table(f) -> np.ndarray:
+    """float32 values of the 256 bytes under ``f`` (float64 math, as the formulas state): decoding a byte array is
+    then one lookup per byte."""
+    return np.asarray(f(np.arange(256, dtype=np.float64)), np.float32)
+
+
+_ALPHA_LOGIT = _byte_table(lambda b: np.log(np.clip(b / 255.0, _ALPHA_EPS, 1 - _ALPHA_EPS))
+                           - np.log(1 - np.clip(b / 255.0, _ALPHA_EPS, 1 - _ALPHA_EPS)))
+_COLOR = _byte_table(lambda b: (b / 255.0 - 0.5) / COLOR_SCALE)
+_LOG_SCALE = _byte_table(lambda b: b / 16.0 - 10.0)
+_SH = _byte_table(lambda b: (b - 128.0) / 128.0)
+
+
+def _decode(blocks, version: int, n: int, degree: int, fb: int) -> GaussianPly:
+    pos, alpha, color, scale, rot = blocks[:5]
+    p = pos.reshape(n, 3, 3).astype(np.int32)
+    fixed = p[..., 0] | (p[..., 1] << 8) | (p[..., 2] << 16)
+    fixed -= (fixed & 0x800000) << 1  # sign-extend 24 bits
+    xyz = (fixed.astype(np.float64) / float(1 << fb)).astype(np.float32)
+    if version == 2:
+        xyz_q = rot.reshape(n, 3).astype(np.float64) / 127.5 - 1.0
+        w = np.sqrt(np.maximum(0.0, 1.0 - (xyz_q * xyz_q).sum(1)))
+        q = np.concatenate([w[:, None], xyz_q], axis=1).astype(np.float32)
+    else:
+        q = _smallest_three(rot.view("<u4"))
+    f_rest = np.zeros((n, 3, 0), np.float32)
+    if degree:
+        # coefficient-major bytes -> channel-major: transposed as bytes (a quarter of the float copy), then looked up
+        sh = np.ascontiguousarray(blocks[5].reshape(n, _SH_BYTES[degree] // 3, 3).transpose(0, 2, 1))
+        f_rest = _SH[sh]
+    return GaussianPly(xyz=xyz, f_dc=_COLOR[color.reshape(n, 3)], f_rest=f_rest, opacity=_ALPHA_LOGIT[alpha],
+                       scale=_LOG_SCALE[scale.reshape(n, 3)], rot=q, format="spz")
+
+
+#: For the index of the largest component (x, y, z, w order), the other three from the lowest bits up.
+_OTHERS = np.array([[3, 2, 1], [3, 2, 0], [3, 1, 0], [2, 1, 0]])
+
+
+def _smallest_three(packed: np.ndarray) -> np.ndarray:
+    """(N, 4) float32 quaternions (w, x, y, z) of SPZ v3/v4 rotation words (module docstring)."""
+    packed = packed.astype(np.uint32)
+    largest = (packed >> np.uint32(30)).astype(np.intp)
+    xyzw = np.empty((len(packed), 4), np.float32)
+    rows = np.arange(len(packed))
+    total = np.zeros(len(packed), np.float32)
+    step = np.float32(np.sqrt(0.5) / 511.0)
+    for slot in range(3):
+        bits = packed >> np.uint32(10 * slot)
+        v = (bits & np.uint32(511)).astype(np.float32) * step
+        v[(bits & np.uint32(512)) != 0] *= -1
+        xyzw[rows, _OTHERS[largest, slot]] = v
+        total += v * v
+    xyzw[rows, largest] = np.sqrt(np.maximum(np.float32(0), 1 - total))
+    return xyzw[:, [3, 0, 1, 2]]

@@ -37,7 +37,8 @@ from . import sh as _sh
 
 #: Human names of ``GaussianPly.format`` values, for import reports.
 FORMAT_NAMES = {"inria": "INRIA 3DGS PLY", "inria_half": "INRIA 3DGS PLY, half floats",
-                "supersplat_compressed": "SuperSplat compressed PLY", "splat": "antimatter15 .splat"}
+                "supersplat_compressed": "SuperSplat compressed PLY", "splat": "antimatter15 .splat",
+                "sog": "PlayCanvas SOG"}
 #: What the readers accept, for messages.
 ACCEPTED = ("binary INRIA 3DGS PLY (float, double or half floats in ushort slots; TRELLIS/Amodal3R included), "
             "SuperSplat compressed PLY (.compressed.ply) and antimatter15 .splat")

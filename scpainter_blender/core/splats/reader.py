@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import os
 
-from . import compressed, inria, ply_format
+from . import compressed, inria, ply_format, sog
 from .gaussians import ACCEPTED, GaussianPly, Gaussians, SplatsError, decode, open_file
 
 #: Mesh files: not splats, but what the car-asset import converts to Gaussians (backend ``mesh-asset``, trimesh);
@@ -23,7 +23,7 @@ from .gaussians import ACCEPTED, GaussianPly, Gaussians, SplatsError, decode, op
 MESH_EXTENSIONS = (".glb", ".gltf", ".obj", ".stl", ".off")
 #: Every file a car asset may be: Gaussian files and meshes (what the import's file browser and a variation
 #: library take).
-ASSET_EXTENSIONS = (".ply", ".splat") + MESH_EXTENSIONS
+ASSET_EXTENSIONS = (".ply", ".splat", sog.EXTENSION) + MESH_EXTENSIONS
 
 
 def read(path) -> GaussianPly:
@@ -36,6 +36,8 @@ def read(path) -> GaussianPly:
     head = _head(path, 4)
     if head.startswith(b"ply"):
         return read_ply(path)
+    if sog.is_sog(path, head):  # a zip bundle (whatever its name), *.sog, meta.json: decoded by core.splats.sog
+        return sog.read(path)
     ext = os.path.splitext(path)[1].lower()
     if ext == ".splat":
         return compressed.read_splat(path)

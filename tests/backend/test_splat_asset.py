@@ -3,7 +3,6 @@ the values core reads, bad input exit 2 naming the entry, and a job whose asset 
 with splat-transform's own decode of it."""
 
 import glob
-import json
 import os
 import subprocess
 
@@ -73,7 +72,7 @@ def test_a_job_whose_asset_is_a_sog_renders_as_its_decode(tmp_path):
         os.remove(os.path.join(folder, "car.ply"))
         J.save(job, d)
         jobs[name] = job
-    # both bundles come from the same car.ply, but k-means is not needed here: the car has SH 0 (no palette)
+    # two conversions of the same car.ply (small_job's, SH 0: no k-means palette, so the writer is deterministic)
     code, events, err = run_backend("render", jobs["sog"], "--check", "--device", "cpu")
     assert code == 0 and events[-1]["check"] is True, err
     for job in jobs.values():

@@ -159,7 +159,6 @@ def test_missing_entries_and_bad_images_are_named(tmp_path):
            "shN_labels.webp: 1 labels are past the palette of shN.count = 70")
     import cv2
 
-    lossy = dict(images)
     with zipfile.ZipFile(tmp_path / "lossy.sog", "w") as z:
         for name, im in images.items():
             data = S.encode_webp(im) if name != "sh0.webp" else cv2.imencode(
@@ -167,7 +166,6 @@ def test_missing_entries_and_bad_images_are_named(tmp_path):
             z.writestr(name, data)
         z.writestr("meta.json", json.dumps(meta))
     assert _error(str(tmp_path / "lossy.sog"), "sh0.webp is a lossy WebP").field == "sh0.webp"
-    del lossy
     with zipfile.ZipFile(tmp_path / "junk.sog", "w") as z:
         for name, im in images.items():
             z.writestr(name, b"RIFF" if name == "means_u.webp" else S.encode_webp(im))

@@ -17,6 +17,9 @@ are kept in the user's cache (``$XDG_CACHE_HOME/scpainter/numba``), never beside
 extension is the add-on's own folder (docs/design.md §6).
 
 (``core.backend_protocol.BACKEND_SETS_ENV`` names both for clients.)
+
+And it makes OpenCV's WebP decoder (``backend/webp.py``, loaded when first used) the one ``core.splats.sog`` reads SOG
+images with, so every command that reads an asset reads SOG.
 """
 
 import os
@@ -26,3 +29,7 @@ if "NUMBA_CACHE_DIR" not in os.environ:
     from scpainter_blender.core.user_cache import user_cache_dir as _user_cache_dir  # stdlib only: doctor runs anywhere
 
     os.environ["NUMBA_CACHE_DIR"] = _user_cache_dir("numba")
+
+from . import webp as _webp  # noqa: E402  (imports neither numpy nor OpenCV until a SOG is read)
+
+_webp.register()

@@ -321,6 +321,15 @@ def _cmd_mesh_asset(args) -> int:
     return events.EXIT_OK
 
 
+def _cmd_splat_asset(args) -> int:
+    from . import splat_asset
+
+    result = splat_asset.convert(args.splats, args.out)
+    events.artifact(result["ply"], kind="gaussians")
+    events.done(command="splat-asset", result=result)
+    return events.EXIT_OK
+
+
 def _cmd_vary(args) -> int:
     from .vary import command
 
@@ -565,6 +574,12 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--up", choices=["auto", "y", "z"], default="auto", help="the file's up axis (default: by format)")
     m.add_argument("--seed", type=int, default=0)
     m.set_defaults(func=_cmd_mesh_asset)
+    a = sub.add_parser("splat-asset", help="any Gaussian file the import reads (INRIA/TRELLIS PLY, SuperSplat "
+                                           "compressed PLY, .splat, SOG) as an INRIA-layout PLY, values as read "
+                                           "(what the import runs for formats Blender's Python cannot decode)")
+    a.add_argument("splats", help="Gaussian file: a .sog bundle, a SOG's meta.json, or any other accepted file")
+    a.add_argument("--out", required=True, help="Gaussian PLY to write (atomically)")
+    a.set_defaults(func=_cmd_splat_asset)
     w = sub.add_parser(SERVE, help="a warm backend: run render/generate/export requests read from standard input "
                                    "(one JSON object per line) one after another in this process, keeping the "
                                    "renderer's kernels, points and assets loaded (what the add-on starts once per "

@@ -14,15 +14,14 @@ AXES_ITEMS = [("TRELLIS", "TRELLIS / Amodal3R", "Undo their (x, -z, y) file axes
 
 class SCPAINTER_OT_import_gaussians(bpy.types.Operator, ImportHelper):
     """Import a car asset at the 3D cursor: Gaussian splats (INRIA / TRELLIS / Amodal3R PLY, SuperSplat compressed
-    PLY, .splat) or a mesh (GLB, glTF, OBJ, STL, mesh PLY; turned into surface Gaussians by the backend)"""
+    PLY, .splat, SOG: .sog or meta.json, converted by the backend) or a mesh (GLB, glTF, OBJ, STL, mesh PLY; turned into surface Gaussians by the backend)"""
 
     bl_idname = "scpainter.import_gaussians"
     bl_label = "Import Car Asset"
     bl_options = {"REGISTER", "UNDO", "PRESET"}
 
     filename_ext = ".ply"
-    filter_glob: bpy.props.StringProperty(default=";".join(f"*{e}" for e in gaussians.ASSET_EXTENSIONS),
-                                          options={"HIDDEN"})
+    filter_glob: bpy.props.StringProperty(default=gaussians.FILE_FILTER, options={"HIDDEN"})
     axes: bpy.props.EnumProperty(
         name="Axes", default="AUTO",
         items=[("AUTO", "Auto", "TRELLIS/Amodal3R axes for files in their layout and unit cube, else as stored")]
@@ -83,7 +82,7 @@ class SCPAINTER_FH_gaussians(bpy.types.FileHandler):
 
 
 def menu_import(self, context):
-    self.layout.operator(SCPAINTER_OT_import_gaussians.bl_idname, text="SCPainter Car Asset (.ply, .splat, mesh)")
+    self.layout.operator(SCPAINTER_OT_import_gaussians.bl_idname, text="SCPainter Car Asset (.ply, .splat, .sog, mesh)")
 
 
 classes = (SCPAINTER_OT_import_gaussians, SCPAINTER_OT_set_asset_axes, SCPAINTER_FH_gaussians)

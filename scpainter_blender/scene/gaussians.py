@@ -30,7 +30,7 @@ import numpy as np
 from .. import backend_client
 from ..core.geometry import cameras
 from ..core import job as job_mod, outputs
-from ..core.splats import asset_frame, gaussians as splats, reader as splats_io, trellis
+from ..core.splats import asset_frame, gaussians as splats, reader as splats_io, sog, trellis
 from ..core.output_layout import SceneFolder
 from . import asset_box, kinds, materials, node_groups, props
 from .points import linear_rgba
@@ -94,6 +94,7 @@ class GaussianImport:
     axes_reason: str = ""
     format: str = "inria"
     mesh: dict | None = None          # the backend's mesh-asset result when the source was a mesh
+    converted: dict | None = None     # the backend's splat-asset result when the source was a SOG
     timings: dict = field(default_factory=dict)
     warnings: list = field(default_factory=list)
 
@@ -109,8 +110,10 @@ class GaussianImport:
 
 
 #: Car meshes are converted to Gaussians by the backend (trimesh); a .ply is a mesh when it has faces and no
-#: Gaussian properties (decided by its header).
+#: Gaussian properties (decided by its header). SOG also goes through the backend (its WebP images).
 ASSET_EXTENSIONS = splats_io.ASSET_EXTENSIONS
+#: The file browser's filter: the extensions, and an unbundled SOG's ``meta.json``.
+FILE_FILTER = ";".join([f"*{e}" for e in ASSET_EXTENSIONS] + [sog.META_NAME])
 DEFAULT_MESH_COUNT = 200_000
 #: Lengths (metres) outside which an imported asset is most likely in other units: the import says so.
 MIN_CAR_LENGTH, MAX_CAR_LENGTH = asset_frame.CAR_LENGTH_M
@@ -120,6 +123,16 @@ def is_mesh_file(filepath: str) -> bool:
     """A car file to convert as a mesh, by content (``core.splats.reader.is_mesh``: a glTF with
     KHR_gaussian_splatting is Gaussians)."""
     return splats_io.is_mesh(filepath)
+
+
+def is_backend_splat_file(filepath: str) -> bool:
+    """A Gaussian file whose decoding needs the backend's Python: SOG (a zip bundle, ``*.sog``, ``meta.json``), whose
+    images are WebP, which Blender's Python cannot decode (``core.splats.sog``). Decided by content
+    (``reader.detect``); a file it cannot tell is not one (the import's own read then says why)."""
+    try:
+        return splats_io.detect(filepath) == "sog"
+    except splats.SplatsError:
+        return False
 
 
 def _display_rotations(rot_raw, F):
@@ -136,8 +149,10 @@ def import_gaussians(context, filepath: str, axes: str = "AUTO", target_length: 
     KHR_gaussian_splatting: ``core.splats.reader``) are read here; meshes (GLB, glTF, OBJ,
     STL, OFF, mesh PLY) are first turned into surface Gaussians by ``python -m backend mesh-asset`` (trimesh, in
     the backend's Python) with ``mesh_count`` Gaussians, written to ``gaussians_path`` (default
-    ``mesh_gaussians_path``) and imported from there. Raises SplatsError (an InputError) / BackendError (exit code
-    2: the mesh is bad input); nothing is created unless the import succeeds.
+    ``mesh_gaussians_path``) and imported from there; SOG (``.sog`` or its ``meta.json``) is rewritten as an INRIA
+    PLY by ``python -m backend splat-asset`` (its WebP images need the backend's decoder), to ``gaussians_path``
+    (default ``splat_gaussians_path``). Raises SplatsError (an InputError) / BackendError (exit code 2: the file is
+    bad input); nothing is created unless the import succeeds.
     """
     t0 = time.perf_counter()
     filepath = os.path.abspath(bpy.path.abspath(filepath))
@@ -151,7 +166,14 @@ def import_gaussians(context, filepath: str, axes: str = "AUTO", target_length: 
                                   python=backend_python)["result"]
         mesh["source"] = filepath
         filepath = out
+    converted = None
+    if mesh is None and is_backend_splat_file(filepath):
+        out = gaussians_path or splat_gaussians_path(context.scene, filepath)
+        outputs.make_folder(os.path.dirname(out), "assets folder")
+        converted = backend_client.run(["splat-asset", filepath, "--out", out], python=backend_python)["result"]
+        filepath = out
     ply = splats_io.read(filepath)
+    fmt = converted["format"] if converted else ply.format
     keep, dropped = splats.valid_rows(ply)
     if not keep.any():
         raise splats.SplatsError(filepath, f"no valid Gaussians ({len(ply)} rows, dropped {dropped})")
@@ -171,7 +193,7 @@ def import_gaussians(context, filepath: str, axes: str = "AUTO", target_length: 
     t_read = time.perf_counter()
 
     N = len(pos)
-    stem = name or os.path.splitext(os.path.basename(mesh["source"] if mesh else filepath))[0]
+    stem = name or _stem(mesh["source"] if mesh else converted["source"] if converted else filepath)
     mesh_data = bpy.data.meshes.new(stem)
     mesh_data.vertices.add(N)
     mesh_data.attributes["position"].data.foreach_set("vector", pos.ravel())
@@ -206,7 +228,7 @@ def import_gaussians(context, filepath: str, axes: str = "AUTO", target_length: 
     node_groups.add_modifier(obj, "SCPainter Gaussians", ensure_node_group(), {"Ellipsoids": bool(ellipsoids)})
     kinds.mark(obj, kinds.GAUSSIAN_ASSET)
     obj["scpainter_source"] = filepath
-    obj["scpainter_format"] = ply.format
+    obj["scpainter_format"] = fmt
     obj["scpainter_file_to_data"] = file_to_data.ravel().tolist()
     obj["scpainter_axes"] = axes
     obj["scpainter_axes_reason"] = reason
@@ -220,14 +242,24 @@ def import_gaussians(context, filepath: str, axes: str = "AUTO", target_length: 
         obj["scpainter_mesh_source"] = mesh["source"]
         # trimesh's upright oriented box (length, width, height) of the mesh, for stage 1 (placement.asset_size)
         obj["scpainter_obb_size"] = [float(v) for v in mesh["obb"]["size"]]
+    if converted:
+        obj["scpainter_splat_source"] = converted["source"]
     # what the backend read past in the mesh (an unsupported material, faces with non-finite corners, ...)
     warnings = [w["message"] for w in mesh.get("warnings", [])] if mesh else []
     if extent > 0 and not MIN_CAR_LENGTH <= target_length <= MAX_CAR_LENGTH:
         warnings.append(f"{obj.name} is {target_length:.3g} m long in its file's units (millimetres or centimetres?): "
                         "set Length on import, or use Fit to Car Size")
     t_end = time.perf_counter()
-    return GaussianImport(obj, N, dropped, axes, reason, ply.format, mesh,
+    return GaussianImport(obj, N, dropped, axes, reason, fmt, mesh, converted,
                           {"read_decode": t_read - t0, "object": t_end - t_read, "total": t_end - t0}, warnings)
+
+
+def _stem(path: str) -> str:
+    """The object name a source file gives: its name without extension; an unbundled SOG's folder name."""
+    base = os.path.basename(path)
+    if base.lower() == sog.META_NAME:
+        return os.path.basename(os.path.dirname(path)) or os.path.splitext(base)[0]
+    return os.path.splitext(base)[0]
 
 
 def mesh_gaussians_path(scene, mesh_path: str, count: int) -> str:
@@ -238,12 +270,25 @@ def mesh_gaussians_path(scene, mesh_path: str, count: int) -> str:
     The name keeps the source's full file name and adds a hash of its absolute path, size and modification time,
     so two meshes (``car.stl``, ``car.ply``, or one edited since) never share a file: ``car.stl.200000.<hash>.ply``.
     """
-    name = asset_frame.mesh_gaussians_name(mesh_path, count)
+    return os.path.join(_assets_folder(scene), asset_frame.mesh_gaussians_name(mesh_path, count))
+
+
+def splat_gaussians_path(scene, splat_path: str) -> str:
+    """Where a SOG's INRIA PLY is written (``splat-asset``): the assets folder of ``mesh_gaussians_path``, named
+    ``<name>.<hash>.gaussians.ply`` with the hash of ``asset_frame.file_key``; an unbundled SOG is named by its
+    folder (``scene-meta.json.<hash>.gaussians.ply``)."""
+    base = os.path.basename(splat_path)
+    if base.lower() == sog.META_NAME:
+        base = f"{os.path.basename(os.path.dirname(os.path.abspath(splat_path)))}-{base}"
+    return os.path.join(_assets_folder(scene), f"{base}.{asset_frame.file_key(splat_path)}.gaussians.ply")
+
+
+def _assets_folder(scene) -> str:
+    """The scene's ``<output folder>/assets/``, or the user's cache folder while the .blend is unsaved."""
     try:
-        folder = SceneFolder(props.output_dir(scene)).assets
+        return SceneFolder(props.output_dir(scene)).assets
     except props.SceneError:  # unsaved .blend: its output folder is relative to it
-        folder = outputs.user_cache_dir("assets")
-    return os.path.join(folder, name)
+        return outputs.user_cache_dir("assets")
 
 
 def set_axes(obj, axes: str) -> None:

@@ -41,11 +41,11 @@ from . import sh as _sh
 FORMAT_NAMES = {"inria": "INRIA 3DGS PLY", "inria_half": "INRIA 3DGS PLY, half floats",
                 "supersplat_compressed": "SuperSplat compressed PLY", "splat": "antimatter15 .splat",
                 "spz": "Niantic SPZ", "ksplat": "GaussianSplats3D .ksplat",
-                "gltf_splats": "glTF KHR_gaussian_splatting"}
+                "gltf_splats": "glTF KHR_gaussian_splatting", "sog": "PlayCanvas SOG"}
 #: What the readers accept, for messages.
 ACCEPTED = ("binary INRIA 3DGS PLY (float, double or half floats in ushort slots; TRELLIS/Amodal3R included), "
-            "SuperSplat compressed PLY (.compressed.ply), antimatter15 .splat, Niantic .spz, GaussianSplats3D .ksplat "
-            "and glTF/GLB with KHR_gaussian_splatting")
+            "SuperSplat compressed PLY (.compressed.ply), antimatter15 .splat, Niantic .spz, GaussianSplats3D .ksplat, "
+            "PlayCanvas SOG (.sog or meta.json) and glTF/GLB with KHR_gaussian_splatting")
 
 
 class SplatsError(errors.InputError):

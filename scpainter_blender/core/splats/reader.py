@@ -26,7 +26,7 @@ import json
 import os
 import zipfile
 
-from . import compressed, gltf_splats, inria, ksplat, ply_format, spz
+from . import compressed, gltf_splats, inria, ksplat, ply_format, sog, spz
 from .gaussians import ACCEPTED, GaussianPly, Gaussians, SplatsError, decode, open_file
 
 #: Mesh files: not splats, but what the car-asset import converts to Gaussians (backend ``mesh-asset``, trimesh);
@@ -41,11 +41,6 @@ ASSET_EXTENSIONS = SPLAT_EXTENSIONS + MESH_EXTENSIONS
 #: Bytes ``detect`` reads first: enough for every magic and for the start of a gzip stream.
 _HEAD = ksplat.MAIN_HEADER
 ZIP_MAGIC = b"PK\x03\x04"
-
-
-def _read_sog(path) -> GaussianPly:
-    raise SplatsError(path, "a SOG file (PlayCanvas SuperSplat's bundle of WebP images and meta.json) is not read "
-                            "yet: convert it to .ply (e.g. with playcanvas/splat-transform)", "(file)")
 
 
 def read(path) -> GaussianPly:
@@ -234,4 +229,4 @@ def read_ply(path) -> GaussianPly:
 
 #: The reader of each format ``detect`` names.
 READERS = {"ply": read_ply, "spz": spz.read, "ksplat": ksplat.read, "gltf_splats": gltf_splats.read,
-           "sog": _read_sog, "splat": compressed.read_splat}
+           "sog": sog.read, "splat": compressed.read_splat}

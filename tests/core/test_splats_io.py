@@ -30,7 +30,7 @@ def test_read_dispatches_by_content(tmp_path):
     splats_compressed.write_splat(tmp_path / "s.splat", splats.decode(F.random_gaussians(30, 0, seed=1)))
     assert splats_io.read(tmp_path / "s.splat").format == "splat"
     assert set(splats.FORMAT_NAMES) == {"inria", "inria_half", "supersplat_compressed", "splat", "spz", "ksplat",
-                                        "gltf_splats"}
+                                        "gltf_splats", "sog"}
     with pytest.raises(splats.SplatsError, match="not found"):
         splats_io.read(tmp_path / "nope.splat")
 

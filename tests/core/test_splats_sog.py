@@ -178,7 +178,7 @@ def test_not_a_bundle_and_no_decoder(tmp_path):
     _error(str(tmp_path / "other.zip"), r"a zip archive without meta.json at its root: not a SOG bundle \(entries: "
                                         r"readme.txt\)")
     (tmp_path / "fake.sog").write_bytes(b"\x00" * 64)
-    with pytest.raises(SplatsError, match="named .sog but is not a zip archive"):
+    with pytest.raises(SplatsError, match="named .sog but its content is not that format"):
         splats_io.read(tmp_path / "fake.sog")
     (tmp_path / "cut.sog").write_bytes(b"PK\x03\x04" + b"\x00" * 40)
     _error(str(tmp_path / "cut.sog"), "not a readable SOG bundle")

@@ -92,18 +92,19 @@ def detect(path) -> str:
 
 
 def _json_kind(path, head: bytes, ext: str) -> str:
-    """A GLB or JSON file: ``gltf_splats``, ``sog`` (a SOG meta.json); a mesh glTF or other JSON is refused."""
+    """A GLB or JSON file: ``sog`` (a SOG meta.json), ``gltf_splats``; a mesh glTF or other JSON is refused. A SOG
+    meta.json is tried first: it is a JSON object too, which a glTF reader would take for a glTF without meshes."""
+    if not head.startswith(gltf_splats.GLB_MAGIC):
+        try:
+            with open_file(path) as f:
+                meta = json.loads(f.read().decode("utf-8-sig"))
+        except (UnicodeDecodeError, ValueError, RecursionError):
+            meta = None
+        if is_sog_meta(meta):
+            return "sog"
     try:
         tree = gltf_splats.peek_tree(path)
     except SplatsError as e:
-        if not head.startswith(gltf_splats.GLB_MAGIC):
-            try:
-                with open_file(path) as f:
-                    meta = json.loads(f.read().decode("utf-8-sig"))
-            except (UnicodeDecodeError, ValueError, RecursionError):
-                meta = None
-            if is_sog_meta(meta):
-                return "sog"
         if head.startswith(gltf_splats.GLB_MAGIC) or ext in (".gltf", ".glb"):
             raise SplatsError(path, f"{_not_accepted(head, ext)} (its glTF could not be read: "
                                     f"{e.args[0].split(': ', 1)[-1]})") from None

@@ -54,12 +54,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from scpainter_blender.core import errors, files
+from scpainter_blender.core.geometry import cameras
 from scpainter_blender.core.splats import ply_format, gaussians as splats
 
 from . import checks, gltf as gltf_plain
 
-#: p_zup = Y_UP_TO_Z_UP @ p for Y-up files: (x, y, z) -> (x, -z, y), Blender's glTF import.
-Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+#: p_zup = Y_UP_TO_Z_UP @ p for Y-up files (``core.geometry.cameras``, where the axis conventions live)
+Y_UP_TO_Z_UP = cameras.Y_UP_TO_Z_UP
 #: File extension -> the up axis ``up="auto"`` assumes.
 UP_BY_EXTENSION = {".glb": "y", ".gltf": "y", ".obj": "y", ".ply": "z", ".stl": "z", ".off": "z"}
 

@@ -27,6 +27,9 @@ import numpy as np
 
 #: Maps OpenCV camera axes to Blender camera axes (and back: it is its own inverse).
 OPENCV_TO_BLENDER_CAMERA = np.diag([1.0, -1.0, -1.0, 1.0])
+#: p_zup = Y_UP_TO_Z_UP @ p for Y-up files (glTF, OBJ): (x, y, z) -> (x, -z, y), a +90° turn about x, what Blender's
+#: glTF importer does; the mesh-car import and the glTF splat reader both stand files up with it.
+Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 
 SENSOR_FITS = ("AUTO", "HORIZONTAL", "VERTICAL")
 

@@ -42,8 +42,8 @@ from .gaussians import GaussianPly, SplatsError, open_file, sh_basis
 from .sh import SH_C0
 
 EXTENSION = "KHR_gaussian_splatting"
-#: p_zup = Y_UP_TO_Z_UP @ p_gltf: (x, y, z) -> (x, -z, y), a +90° turn about x (Blender's glTF import).
-Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+#: p_zup = Y_UP_TO_Z_UP @ p_gltf (``core.geometry.cameras``, where the axis conventions live)
+Y_UP_TO_Z_UP = cameras.Y_UP_TO_Z_UP
 #: Required extensions a splat glTF may list and still be read here.
 READ_EXTENSIONS = (EXTENSION, "KHR_mesh_quantization")
 GLB_MAGIC = b"glTF"

@@ -9,12 +9,14 @@ Every input is generated here, in a temporary folder, from ground truth the gene
   KHR_mesh_quantization, KHR_draco_mesh_compression via DracoPy, percent-encoded URI), onto one quadrant of a
   four-colour texture; the truth is that quadrant's colour (read from the output PLY's f_dc with the project's
   reader: rgb = 0.5 + C0 f_dc) and the box's size.
-* Gaussian splat files, through ``scpainter_blender.core.splats.reader.load`` (a subprocess): the real PLY
+* Gaussian splat files, through ``scpainter_blender.core.splats.reader.load`` in a backend process (a subprocess
+  that imports ``backend`` first, as ``python -m backend render`` loads a job's assets): the real PLY
   ``3dgs/loadersgl_train-1000.ply`` converted by PlayCanvas' splat-transform (tools/splat_transform) to .spz, .sog,
   unbundled SOG (meta.json) and .glb (KHR_gaussian_splatting); a GaussianSplats3D .ksplat (compression mode 1,
   8 spatial buckets, written here from the format as splat-transform's reader decodes it, checked by converting it
   back with splat-transform) saved as ``.splat``; an antimatter15 .splat with 80 % invalid records. The truth is
-  the source PLY: count, positions and opacities matched by nearest neighbour.
+  the source PLY: count, positions and opacities matched by nearest neighbour (for the .glb, the source in the
+  glTF's frame stood Z up: ``gltf_truth``).
 * Training clips, through ``backend.train.clip.load`` then ``Clip.load_frames`` / ``Clip.K_for`` (a subprocess):
   a phone video with a display rotation (PyAV's display matrix, -90°: "rotate 90" as phones write it); frames whose
   aspect ratio differs from the predictions'; fisheye (Kannala–Brandt) frames with and without
@@ -67,6 +69,7 @@ def error_fields(e):
             "file": str(getattr(e, "path", "") or "")}
 try:
     if kind == "splat":
+        import backend  # a backend process, as `python -m backend render` loads a job's assets (SOG's WebP decoder)
         from scpainter_blender.core.splats import reader
         g = reader.load(src)
         np.savez(out + ".npz", means=g.means, opacities=g.opacities, colours=g.base_colors(), scales=g.scales)
@@ -563,6 +566,20 @@ def splat_cases(d, realdata):
     return (cases, truth), ""
 
 
+#: splat-transform writes the PLY's (x, y, z) as glTF (-x, -y, z) (read off its .glb: the POSITION accessor of the
+#: source's rows), and a glTF is Y up: the product stands it up as Blender's glTF importer does, (x, y, z) ->
+#: (x, -z, y). The truth of the .glb case is the source turned by both.
+PLY_TO_GLTF = np.diag([-1.0, -1.0, 1.0])
+Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+
+
+def gltf_truth(truth):
+    """The source Gaussians where a reader that stands glTF files up must put them (positions only are compared)."""
+    import dataclasses
+
+    return dataclasses.replace(truth, means=(truth.means @ (Y_UP_TO_Z_UP @ PLY_TO_GLTF).T).astype(np.float32))
+
+
 def run_splat(case, path, expected, note, truth, work):
     if path is None:
         return row("splats", case, expected, "skipped", note)
@@ -864,7 +881,8 @@ def main(argv=None):
     else:
         cases, truth = made
         for case, path, expected, note in cases:
-            rows.append(guarded("splats", case, expected, run_splat, case, path, expected, note, truth, work))
+            case_truth = gltf_truth(truth) if path is not None and path.endswith(".glb") else truth
+            rows.append(guarded("splats", case, expected, run_splat, case, path, expected, note, case_truth, work))
     d = os.path.join(work, "clips")
     os.makedirs(d, exist_ok=True)
     for case, path, expected, judge, size, note in clip_cases(d):

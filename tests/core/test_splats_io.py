@@ -211,3 +211,38 @@ def test_formats_are_detected_by_content_whatever_the_name(tmp_path):
     with pytest.raises(splats.SplatsError, match=r"x\.json: a JSON file that is neither a glTF nor a SOG meta\.json"):
         splats_io.read(tmp_path / "x.json")
     assert {".spz", ".ksplat", ".sog", ".glb", ".gltf"} <= set(splats_io.ASSET_EXTENSIONS)
+
+
+def _splat_records(tmp_path, n=1000):
+    """A valid antimatter15 .splat of n Gaussians, as its 32-byte records (``compressed.SPLAT_RECORD``)."""
+    path = tmp_path / "car.splat"
+    splats_compressed.write_splat(path, splats.decode(F.random_gaussians(n, 0, seed=3)))
+    return np.fromfile(path, splats_compressed.SPLAT_RECORD)
+
+
+def test_a_splat_with_some_absurd_records_drops_them_and_says_why(tmp_path):
+    """A minority of garbage records (NaN, positions of 1e30 m, σ of 1e38 m: what a damaged file or a converter's
+    bad output holds) is dropped and counted on load, by reason; before, the 1e30 and 1e38 rows were kept (an import
+    of dimensions (inf, inf, inf), Gaussians covering every frame)."""
+    rec = _splat_records(tmp_path)
+    rec["xyz"][:100] = np.nan
+    rec["xyz"][100:200, 1] = 1e30
+    rec["scale"][200:300, 2] = 1e38
+    rec.tofile(tmp_path / "some_bad.splat")
+    g = splats_io.load(tmp_path / "some_bad.splat")
+    assert len(g) == 700 and g.dropped == {"non_finite": 100, "absurd": 200}
+    assert np.abs(g.means).max() < 10 and g.scales.max() < 10
+    verdict = splats.asset_verdict(1000, g.dropped)
+    assert verdict is None  # 30 %: a warning only past MOSTLY_INVALID_SHARE
+    assert "200 with a position or σ beyond 1e+06 m" in splats.asset_verdict(300, g.dropped).text
+
+
+def test_a_splat_mostly_of_garbage_is_refused_naming_the_counts(tmp_path):
+    rec = _splat_records(tmp_path)
+    rec["xyz"][:600] = np.nan
+    rec["scale"][600:800] = 1e38
+    rec.tofile(tmp_path / "mostly_bad.splat")
+    with pytest.raises(splats.SplatsError, match=r"mostly_bad\.splat: 800 of its 1,000 32-byte records are no valid "
+                                                 r"Gaussians \(600 with NaN or infinite values, 200 with a position "
+                                                 r"or σ beyond 1e\+06 m\): more than 50%"):
+        splats_io.read(tmp_path / "mostly_bad.splat")

@@ -43,7 +43,8 @@ import numpy as np
 from .. import outputs
 from . import ply_format
 from .sh import SH_C0
-from .gaussians import MOSTLY_INVALID_SHARE, GaussianPly, SplatsError, decode, open_file, valid_rows
+from .gaussians import (DROPPED_REASONS, MOSTLY_INVALID_SHARE, GaussianPly, SplatsError, decode, open_file,
+                        valid_rows)
 
 #: SuperSplat compressed PLY: splats per chunk, and the chunk/vertex properties (module docstring; the readers
 #: choose this layout by the ``chunk`` element or ``packed_*`` vertex properties).
@@ -58,9 +59,6 @@ _COMPRESSED_LOGIT_LIMIT = 40.0
 #: antimatter15 .splat: one 32-byte little-endian record per Gaussian.
 SPLAT_RECORD = np.dtype([("xyz", "<f4", (3,)), ("scale", "<f4", (3,)), ("rgba", "u1", (4,)), ("rot", "u1", (4,))])
 _SPLAT_ALPHA_EPS = 1e-6
-#: A .splat record whose position or σ exceeds this (metres) is no Gaussian of a scene but bytes of something else
-#: read as floats (a header, compressed data): counted with ``valid_rows``' invalid rows for the refusal below.
-SPLAT_ABSURD = 1e6
 
 
 # -- SuperSplat compressed PLY -------------------------------------------------------------------------------------
@@ -201,12 +199,11 @@ def read_splat(path) -> GaussianPly:
 
 
 def _refuse_mostly_invalid(path, ply: GaussianPly, data, head: bytes) -> None:
-    """Refuse a ``.splat`` of which more than ``MOSTLY_INVALID_SHARE`` of the records are invalid (``valid_rows``)
-    or absurd (``SPLAT_ABSURD``): such a file is another format under this name, not Gaussians to draw."""
+    """Refuse a ``.splat`` of which more than ``MOSTLY_INVALID_SHARE`` of the records are invalid (``valid_rows``:
+    NaN, zero quaternions, beyond ``ABSURD_M``): such a file is another format under this name, not Gaussians to
+    draw. A minority of such records is dropped on decoding, counted by reason, as in any file."""
     keep, dropped = valid_rows(ply)
-    with np.errstate(invalid="ignore", over="ignore"):
-        absurd = keep & ~((np.abs(data["xyz"]) <= SPLAT_ABSURD).all(1) & (data["scale"] <= SPLAT_ABSURD).all(1))
-    bad = int((~keep).sum() + absurd.sum())
+    bad = int((~keep).sum())
     if bad <= MOSTLY_INVALID_SHARE * len(ply):
         return
     if head.startswith(b"\x1f\x8b"):
@@ -217,10 +214,8 @@ def _refuse_mostly_invalid(path, ply: GaussianPly, data, head: bytes) -> None:
         guess = "it starts like a GaussianSplats3D .ksplat header, but not a consistent one (damaged?)"
     else:
         guess = "another format saved under this name, or damaged data"
-    why = ", ".join(f"{n:,} {k.replace('_', ' ')}" for k, n in dropped.items())
-    raise SplatsError(path, f"{bad:,} of its {len(ply):,} 32-byte records are no valid Gaussians ({why}"
-                            f"{', ' if why and absurd.any() else ''}"
-                            f"{f'{int(absurd.sum()):,} beyond {SPLAT_ABSURD:g} m' if absurd.any() else ''}): more than "
+    why = ", ".join(f"{n:,} {DROPPED_REASONS.get(k, k)}" for k, n in dropped.items())
+    raise SplatsError(path, f"{bad:,} of its {len(ply):,} 32-byte records are no valid Gaussians ({why}): more than "
                             f"{MOSTLY_INVALID_SHARE:.0%}, so this is no antimatter15 .splat: {guess}. Convert the "
                             "original to .ply (e.g. with playcanvas/splat-transform) or export it again", "(file)")
 

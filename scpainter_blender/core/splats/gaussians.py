@@ -173,7 +173,8 @@ def decode(ply: GaussianPly) -> Gaussians:
     """Activate raw values: exp scales, sigmoid opacity, normalised quaternions; drop and count bad rows.
 
     A row is dropped for any NaN/inf among its used values ("non_finite"), a quaternion shorter than 1e-12
-    ("zero_quaternion"), or a scale whose exp overflows float32 ("scale_overflow").
+    ("zero_quaternion"), a scale whose exp overflows float32 ("scale_overflow"), or a position or σ beyond
+    ``ABSURD_M`` ("absurd": bytes of something else read as floats, 1e30 m, not a car).
     """
     with np.errstate(invalid="ignore", over="ignore"):  # bad rows are expected here: they are counted below
         return _decode(ply)
@@ -184,6 +185,12 @@ def valid_rows(ply: GaussianPly):
     keep, dropped, _, _ = _checked(ply)
     return keep, dropped
 
+
+#: metres: a Gaussian whose |position| (any axis) or σ exceeds this is no part of a car or a street but bytes of
+#: something else read as floats (a header, compressed data, a converter's garbage): ``decode`` drops it
+#: ("absurd"), as it drops NaN rows, rather than drawing a Gaussian that covers every frame. Far beyond any scene
+#: the project takes (coordinates to 1e5 m are tested).
+ABSURD_M = 1e6
 
 #: The opacity below which the renderer skips a Gaussian (gsplat's 1/255: a Gaussian culled before projection, and
 #: a pixel's alpha below it not composited; ``backend.render.gaussians`` imports it): here so that the input check
@@ -200,8 +207,9 @@ INVALID_GAUSSIANS = "invalid_gaussians"
 #: The ``warning`` event's code for an asset mostly made of Gaussians below ``ALPHA_MIN`` (never drawn).
 TRANSPARENT_ASSET = "transparent_asset"
 #: How the reasons ``decode`` counts read in a message.
-_DROPPED_REASONS = {"non_finite": "with NaN or infinite values", "zero_quaternion": "with a zero quaternion",
-                    "scale_overflow": "with a scale beyond float32"}
+DROPPED_REASONS = {"non_finite": "with NaN or infinite values", "zero_quaternion": "with a zero quaternion",
+                    "scale_overflow": "with a scale beyond float32",
+                    "absurd": f"with a position or σ beyond {ABSURD_M:g} m"}
 #: What to do about a file of invalid Gaussians.
 INVALID_HINT = ("export or convert the asset again (its Gaussians must have finite values, non-zero quaternions and "
                 "scales within float32), or point the job at another file")
@@ -238,7 +246,7 @@ def asset_verdict(total: int, dropped: dict, transparent: int = 0) -> AssetVerdi
     bad = sum(dropped.values())
     if total == 0:
         return AssetVerdict(True, "holds no Gaussians", INVALID_GAUSSIANS, INVALID_HINT)
-    why = ", ".join(f"{n:,} {_DROPPED_REASONS.get(k, k)}" for k, n in dropped.items())
+    why = ", ".join(f"{n:,} {DROPPED_REASONS.get(k, k)}" for k, n in dropped.items())
     if bad == total:
         return AssetVerdict(True, f"none of its {total:,} Gaussians is valid ({why})", INVALID_GAUSSIANS,
                             INVALID_HINT)
@@ -283,9 +291,19 @@ def _checked(ply: GaussianPly):
         zero_q = finite & (norm[:, 0] < 1e-12)
         exp_scale = np.exp(np.asarray(ply.scale).astype(np.float64))
         overflow = finite & ~zero_q & ~(exp_scale <= np.finfo(np.float32).max).all(1)
+        absurd = finite & ~zero_q & ~overflow & ~_within(np.asarray(ply.xyz), exp_scale)
     dropped = {"non_finite": int(len(ply) - finite.sum()), "zero_quaternion": int(zero_q.sum()),
-               "scale_overflow": int(overflow.sum())}
-    return finite & ~zero_q & ~overflow, {k: v for k, v in dropped.items() if v}, norm, exp_scale
+               "scale_overflow": int(overflow.sum()), "absurd": int(absurd.sum())}
+    return finite & ~zero_q & ~overflow & ~absurd, {k: v for k, v in dropped.items() if v}, norm, exp_scale
+
+
+def _within(xyz, exp_scale) -> np.ndarray:
+    """Rows (N,) whose |position| and σ are all within ``ABSURD_M`` (NaN rows count as within: ``_checked`` drops
+    them as non-finite). One max per array first: nearly every file is within, and then no per-row test is run (a
+    NaN makes the max NaN, which is not within: the per-row test then decides)."""
+    if len(xyz) == 0 or (np.abs(xyz).max() <= ABSURD_M and exp_scale.max() <= ABSURD_M):
+        return np.ones(len(xyz), bool)
+    return ~((np.abs(xyz) > ABSURD_M).any(1) | (exp_scale > ABSURD_M).any(1))
 
 
 def _decode(ply: GaussianPly) -> Gaussians:

@@ -6,10 +6,12 @@ Kinds (``CASES`` says how many of each; a case is reproducible from (kind, index
 * ``mesh``: ``python -mbackend mesh-asset <mesh> --out job/out/asset.ply --count 300`` on a textured car-like mesh
   as GLB, glTF (+ .bin buffers + a PNG texture), OBJ (+ MTL + PNG), OFF and binary PLY, each changed one way:
   face indices out of range, counts (accessor, OFF, PLY) beyond the data, truncation, NaN positions and texture
-  coordinates, the files a mesh names (missing, a folder, a FIFO, a link outside, garbage, a decompression bomb,
+  coordinates, issue 31's glTF paths (KHR_texture_transform, texCoord, normalized accessors, Draco), the files a mesh names (missing, a folder, a FIFO, a link outside, garbage, a decompression bomb,
   another file of the same base name), JSON damage, content-preserving rewrites.
 * ``splat``: the job's asset as a SuperSplat compressed PLY or an antimatter15 ``.splat`` (``render``): sizes,
   chunk tables, packed words, header damage, non-finite values, all Gaussians invalid, content-preserving rewrites.
+* ``splat2``: issue 31's formats (SPZ 2/3, .ksplat 0-2, SOG, KHR_gaussian_splatting GLB), ``render``: the
+  mutations and expectations are in ``tests/fuzz_splat_formats.py``.
 * ``exr``: ``generate job.json`` (the baseline, no checkpoint) after a finished ``render``, with a condition EXR
   replaced: another size, missing or renamed channels, other compressions, tiles, truncation, a folder, a FIFO,
   a link, garbage, non-finite values.

@@ -6,10 +6,12 @@ Kinds (``CASES`` says how many of each; a case is reproducible from (kind, index
 * ``mesh``: ``python -mbackend mesh-asset <mesh> --out job/out/asset.ply --count 300`` on a textured car-like mesh
   as GLB, glTF (+ .bin buffers + a PNG texture), OBJ (+ MTL + PNG), OFF and binary PLY, each changed one way:
   face indices out of range, counts (accessor, OFF, PLY) beyond the data, truncation, NaN positions and texture
-  coordinates, the files a mesh names (missing, a folder, a FIFO, a link outside, garbage, a decompression bomb,
+  coordinates, issue 31's glTF paths (KHR_texture_transform, texCoord, normalized accessors, Draco), the files a mesh names (missing, a folder, a FIFO, a link outside, garbage, a decompression bomb,
   another file of the same base name), JSON damage, content-preserving rewrites.
 * ``splat``: the job's asset as a SuperSplat compressed PLY or an antimatter15 ``.splat`` (``render``): sizes,
   chunk tables, packed words, header damage, non-finite values, all Gaussians invalid, content-preserving rewrites.
+* ``splat2``: issue 31's formats (SPZ 2/3, .ksplat 0-2, SOG, KHR_gaussian_splatting GLB), ``render``: the
+  mutations and expectations are in ``tests/fuzz_splat_formats.py``.
 * ``exr``: ``generate job.json`` (the baseline, no checkpoint) after a finished ``render``, with a condition EXR
   replaced: another size, missing or renamed channels, other compressions, tiles, truncation, a folder, a FIFO,
   a link, garbage, non-finite values.
@@ -67,10 +69,10 @@ for _p in (os.path.dirname(HERE), HERE, os.path.join(HERE, "backend"), os.path.j
     if _p not in sys.path:
         sys.path.insert(0, _p)
 
-KINDS = ("mesh", "splat", "exr", "clip", "kill")
+KINDS = ("mesh", "splat", "splat2", "exr", "clip", "kill")
 #: The kinds tests/backend/test_fuzz_inputs.py runs: all of them.
 CI_KINDS = KINDS
-CASES = {"mesh": 180, "splat": 110, "exr": 90, "clip": 90, "kill": 36}
+CASES = {"mesh": 220, "splat": 110, "splat2": 300, "exr": 90, "clip": 90, "kill": 36}
 #: Each backend process of a kill case must end within this (a busy 2-core machine; they take ~0.1-1 s).
 KILL_TIMEOUT_S = 30.0
 MESH_COUNT = 300
@@ -192,6 +194,15 @@ class Surfaces:
         self.clip_json = {"schema": "scpainter.clip/1", "predictions": "predictions.npz",
                           "frames": "frames/frame_{:06d}.png", "poses": "poses.npz", "fps": 10}
         self.refs = {}     # what warm_up measured on the valid inputs
+        self._splat2 = None
+
+    @property
+    def splat2(self):
+        """The issue-31 formats' valid files and raw values (``fuzz_splat_formats.Bases``), built on first use."""
+        if self._splat2 is None:
+            import fuzz_splat_formats
+            self._splat2 = fuzz_splat_formats.Bases(self.base, os.path.join(self.folder, "splat2"))
+        return self._splat2
 
 
 _SURFACES = {}
@@ -600,6 +611,62 @@ def _gltf_structure(rng, fmt):
     return f"structure: {fmt} {what}", apply, None
 
 
+def _gltf_new_paths(rng, fmt):
+    """Issue 31's glTF paths: KHR_texture_transform, texCoord, normalized accessors, Draco."""
+    what = rng.cycle(["texture transform offset NaN", "texture transform scale 1e308", "texture transform rotation "
+                      "1e300", "texture transform scale [0, 0]", "texture transform offset strings",
+                      "texture transform texCoord 3", "texCoord 1 (no second set)", "texCoord -1", "texCoord \"0\"",
+                      "TEXCOORD_0 normalized float", "POSITION normalized as bytes", "TEXCOORD_0 as signed ints 5130",
+                      "Draco over garbage bytes", "Draco bufferView missing", "Draco attribute ids absent",
+                      "Draco mesh with another vertex count", "Draco extension not an object"])
+
+    def apply(c):
+        js, binary = _gltf_doc(c)
+        prim = js["meshes"][0]["primitives"][0]
+        attrs = prim["attributes"]
+        tex = js["materials"][0].setdefault("pbrMetallicRoughness", {}).setdefault("baseColorTexture", {"index": 0})
+        if what.startswith("texture transform"):
+            tt = {"offset NaN": {"offset": [float("nan"), 0]}, "scale 1e308": {"scale": [1e308, 1e308]},
+                  "rotation 1e300": {"rotation": 1e300}, "scale [0, 0]": {"scale": [0, 0]},
+                  "offset strings": {"offset": ["a", "b"]}, "texCoord 3": {"texCoord": 3}}[what[18:]]
+            tex.setdefault("extensions", {})["KHR_texture_transform"] = tt
+            js.setdefault("extensionsUsed", []).append("KHR_texture_transform")
+        elif what.startswith("texCoord"):
+            tex["texCoord"] = {"texCoord 1 (no second set)": 1, "texCoord -1": -1}.get(what, "0")
+        elif what == "TEXCOORD_0 normalized float":
+            js["accessors"][attrs["TEXCOORD_0"]]["normalized"] = True
+        elif what == "POSITION normalized as bytes":
+            js["accessors"][attrs["POSITION"]].update(componentType=5121, normalized=True)
+        elif what == "TEXCOORD_0 as signed ints 5130":
+            js["accessors"][attrs["TEXCOORD_0"]].update(componentType=5130, normalized=True)
+        else:
+            view = js["accessors"][attrs["POSITION"]]["bufferView"]
+            ids = {"POSITION": 0, "TEXCOORD_0": 1}
+            if what == "Draco mesh with another vertex count":
+                import DracoPy
+                blob = DracoPy.encode(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32),
+                                      np.array([[0, 1, 2]], np.uint32))
+                if binary is None:
+                    js["buffers"].append({"uri": "draco.bin", "byteLength": len(blob)})
+                    c.write("job/draco.bin", blob)
+                    js["bufferViews"].append({"buffer": len(js["buffers"]) - 1, "byteLength": len(blob)})
+                else:
+                    binary += b"\0" * (-len(binary) % 4)
+                    js["bufferViews"].append({"buffer": 0, "byteOffset": len(binary), "byteLength": len(blob)})
+                    binary += blob
+                    js["buffers"][0]["byteLength"] = len(binary)
+                view = len(js["bufferViews"]) - 1
+                ids = {"POSITION": 0}
+            ext = {"bufferView": 99 if what == "Draco bufferView missing" else view,
+                   "attributes": {"POSITION": 7, "TEXCOORD_0": 8} if what == "Draco attribute ids absent" else ids}
+            prim.setdefault("extensions", {})["KHR_draco_mesh_compression"] = (
+                "draco" if what == "Draco extension not an object" else ext)
+            for key in ("extensionsUsed", "extensionsRequired"):
+                js.setdefault(key, []).append("KHR_draco_mesh_compression")
+        _gltf_save(c, js, binary)
+    return f"gltf paths: {fmt} {what}", apply, None
+
+
 def _mesh_whole(rng, fmt):
     what = rng.cycle(["empty", "garbage", "a folder", "a FIFO", "another format's bytes", "only a header",
                       "a link outside", "zero bytes but the magic"])
@@ -729,6 +796,7 @@ MESH_FAMILIES = [(_format_family(_mesh_indices, FORMATS), 3), (_format_family(_m
                  (_format_family(_mesh_truncated, FORMATS), 2), (_format_family(_mesh_nan, FORMATS), 3),
                  (_format_family(_mesh_named, ("gltf", "obj")), 3), (_format_family(_mesh_uri, ("gltf", "obj")), 3),
                  (_format_family(_mesh_bomb, ("gltf", "obj")), 1), (_format_family(_gltf_structure, ("glb", "gltf")), 3),
+                 (_format_family(_gltf_new_paths, ("glb", "gltf")), 2),
                  (_format_family(_mesh_whole, FORMATS), 2), (_format_family(_mesh_rewrite, FORMATS), 4)]
 
 
@@ -1266,7 +1334,10 @@ def _kill_case(rng):
 
 KILL_FAMILIES = [(_kill_case, 1)]
 
-FAMILIES = {"mesh": MESH_FAMILIES, "splat": SPLAT_FAMILIES, "exr": EXR_FAMILIES, "clip": CLIP_FAMILIES,
+import fuzz_splat_formats  # noqa: E402  (the splat2 kind's mutations; it imports nothing of this module)
+
+SPLAT2_FAMILIES = fuzz_splat_formats.families(_format_family)
+FAMILIES = {"mesh": MESH_FAMILIES, "splat": SPLAT_FAMILIES, "splat2": SPLAT2_FAMILIES, "exr": EXR_FAMILIES, "clip": CLIP_FAMILIES,
             "kill": KILL_FAMILIES}
 
 
@@ -1280,7 +1351,7 @@ def make_case(kind: str, index: int, seed: int) -> Case:
     rng.turn = (index // len(slots)) * families[j][1] + slots[:slot].count(j)
     got = tuple(families[j][0](rng)) + (None, "")
     description, apply, expect, extra = got[:4]
-    fmt, must = (extra, "") if kind in ("mesh", "splat") else ("", extra)
+    fmt, must = (extra, "") if kind in ("mesh", "splat", "splat2") else ("", extra)
     return Case(kind, index, seed, description, apply, expect, fmt, must)
 
 
@@ -1304,6 +1375,11 @@ def _dir(F, case, base, root):
             os.unlink(c.ply)
             c.write("job/car.splat", s.splat)
             c.job["assets"][0]["ply"] = "car.splat"
+    elif case.kind == "splat2":
+        import fuzz_splat_formats
+        os.unlink(c.ply)
+        c.write(fuzz_splat_formats.asset_rel(case.fmt), s.splat2.files[case.fmt])
+        c.job["assets"][0]["ply"] = os.path.basename(fuzz_splat_formats.asset_rel(case.fmt))
     elif case.kind == "exr":
         r = F.invoke(["render", c.job_json, "--device", "cpu"], 600)
         if r["rc"] != 0:
@@ -1406,6 +1482,17 @@ def _misread(case, c, ran, base) -> str:
                 return f"accepted, but core.splats.reader.read fails: {type(e).__name__}: {e}"
             if not F_equal(got, s.compressed_raw if case.fmt == "compressed" else s.splat_raw):
                 return "core.splats.reader.read gives other values than the original file"
+    elif case.kind == "splat2":
+        if case.expect == "refuse" and not warned:
+            return "accepted without a warning (every Gaussian invalid, or data misaligned with its header)"
+        if case.expect == "same":
+            asset = c.job["assets"][0]["ply"]
+            try:
+                got = splats_io.read(os.path.join(c.job_dir, asset))
+            except Exception as e:  # noqa: BLE001
+                return f"accepted, but core.splats.reader.read fails: {type(e).__name__}: {e}"
+            if not F_equal(got, s.splat2.refs[case.fmt]):
+                return "core.splats.reader.read gives other values than the original file"
     elif case.kind == "exr":
         if case.expect == "refuse":
             return ("generate accepted a condition EXR with values the renderer never writes" if "values:" in
@@ -1481,7 +1568,8 @@ def warm_up(kind: str, base, workdir: str, seed: int) -> dict:
     s = surfaces(base)
     t0 = time.perf_counter()
     outcomes, message = [], ""
-    variants = {"mesh": FORMATS, "splat": ("compressed", "splat"), "exr": ("",), "clip": ("",), "kill": ("",)}[kind]
+    variants = {"mesh": FORMATS, "splat": ("compressed", "splat"),
+                "splat2": __import__("fuzz_splat_formats").FORMATS, "exr": ("",), "clip": ("",), "kill": ("",)}[kind]
     for fmt in variants:
         case = Case(kind, -1, seed, "base: the valid input, unchanged", lambda c: None, None, fmt)
         root = os.path.join(workdir, f"{kind}-base-{fmt}")

@@ -127,13 +127,24 @@ def texture_transform(uv, ext) -> np.ndarray:
     on screen; the README's example, offset (0, 1), rotation π/2, scale 0.5, reads the lower-left quadrant):
 
         u' = ox + cos(r) sx u + sin(r) sy v,   v' = oy - sin(r) sx u + cos(r) sy v
+
+    ValueError naming the property when ``offset`` / ``scale`` are not two finite numbers or ``rotation`` not one.
     """
-    off = ext.get("offset", [0.0, 0.0])
-    scale = ext.get("scale", [1.0, 1.0])
-    r = float(ext.get("rotation", 0.0))
+    def numbers(key, default, n):
+        value = ext.get(key, default)
+        one = [value] if n == 1 else value
+        if not (isinstance(one, list) and len(one) == n and all(
+                isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in one)):
+            want = "a finite number" if n == 1 else f"{n} finite numbers"
+            raise ValueError(f"{key} is {str(value)[:40]}, not {want}")
+        return [float(x) for x in one]
+
+    if not isinstance(ext, dict):
+        raise ValueError(f"is {str(ext)[:40]}, not an object")
+    off, scale, (r,) = numbers("offset", [0.0, 0.0], 2), numbers("scale", [1.0, 1.0], 2), numbers("rotation", 0.0, 1)
     c, s = math.cos(r), math.sin(r)
-    u, v = uv[:, 0] * float(scale[0]), uv[:, 1] * float(scale[1])
-    return np.stack([float(off[0]) + c * u + s * v, float(off[1]) - s * u + c * v], axis=1)
+    u, v = uv[:, 0] * scale[0], uv[:, 1] * scale[1]
+    return np.stack([off[0] + c * u + s * v, off[1] - s * u + c * v], axis=1)
 
 
 def _base_colour_info(tree, prim):
@@ -310,7 +321,14 @@ def plain_glb(path, tree, error, open_named):
             if f"TEXCOORD_{k}" in attrs:
                 uv = values(f"TEXCOORD_{k}", attrs[f"TEXCOORD_{k}"])[:, :2]
                 ext = ((info or {}).get("extensions") or {}).get(TRANSFORM)
-                plain["TEXCOORD_0"] = add(texture_transform(uv, ext) if ext else uv, 5126, "VEC2")
+                try:
+                    moved = texture_transform(uv, ext) if ext else uv
+                except ValueError as e:
+                    field = (f"materials[{prim.get('material')}].pbrMetallicRoughness.baseColorTexture.extensions."
+                             f"{TRANSFORM}")
+                    raise error(field, f"{where}: its base-colour texture's {TRANSFORM}: {e}",
+                                "export the car again (the glTF is corrupt)") from None
+                plain["TEXCOORD_0"] = add(moved, 5126, "VEC2")
             elif info is not None and k != 0:
                 raise error(f"{where}.attributes", f"{where}: its base-colour texture reads TEXCOORD_{k} "
                                                    f"(texCoord {k}), which the primitive does not have",

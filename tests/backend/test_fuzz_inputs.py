@@ -1,5 +1,6 @@
 """Hostile input files (issues 14 and 30): every fuzz case of ``tests/fuzz_inputs.py`` and of
-``tests/fuzz_surfaces.py`` (its ``CI_KINDS``: mesh, splat, exr, clip; 470 cases) is accepted or refused cleanly;
+``tests/fuzz_surfaces.py`` (its ``CI_KINDS``: mesh, splat, splat2 (issue 31's formats: SPZ, .ksplat, SOG,
+glTF splats; ``tests/fuzz_splat_formats.py``), exr, clip; 810 cases) is accepted or refused cleanly;
 kills and concurrent runs on one output folder (``kill``, 36 cases) leave no mixed frames, lock or temporary behind.
 
 1,150 seeded cases (job.json, predictions.npz, car.ply and the checkpoint's files) run through

@@ -418,3 +418,16 @@ def test_real_trellis_glb_still_converts(tmp_path):
     path = realdata("trellis/uanu2002_trellis_sample.glb")
     res, out = convert(path, tmp_path, count=2000)
     assert res["colour_source"] == "texture" and res["count"] == 2000
+
+
+@pytest.mark.parametrize("t, said", [({"offset": ["a", "b"]}, r"offset is \['a', 'b'\], not 2 finite numbers"),
+                                     ({"scale": [1e400, 1]}, r"scale is \[inf, 1\], not 2 finite numbers"),
+                                     ({"rotation": "1"}, "rotation is 1, not a finite number")])
+def test_malformed_texture_transform_is_refused_by_field(tmp_path, t, said):
+    """Fuzz finding (tests/fuzz_surfaces.py ``gltf paths``, issue 31): strings in KHR_texture_transform were a
+    ValueError traceback; non-finite values now name the extension, not the UVs they would give."""
+    path = quad_gltf(tmp_path, tex_info={"extensions": {"KHR_texture_transform": t}})
+    with pytest.raises(mesh_load.MeshAssetError, match=r"meshes\[0\]\.primitives\[0\]: its base-colour texture's "
+                                                       r"KHR_texture_transform: " + said) as e:
+        mesh_load.load_mesh(path)
+    assert "quad.glb" in str(e.value) and e.value.field.endswith("baseColorTexture.extensions.KHR_texture_transform")

@@ -213,3 +213,176 @@ def same_rotation_error(a, b):
     a = a / np.linalg.norm(a, axis=1, keepdims=True)
     b = b / np.linalg.norm(b, axis=1, keepdims=True)
     return np.minimum(np.abs(a - b).max(1), np.abs(a + b).max(1)).max()
+
+
+# -- writers of the formats issue 31 added (shared by their tests and tests/fuzz_splat_formats.py) ------------------
+
+def spz_body(ply, version=2, fractional_bits=12, count=None, degree=None) -> bytes:
+    """The uncompressed bytes of an SPZ file (header and attributes; version 2 or 3) of raw INRIA values ``ply``, from
+    the format's description (nianticlabs/spz, src/cc/load-spz.cc: packGaussians). Version 2: rotations as 3 bytes
+    x y z of the unit quaternion with w >= 0, byte = round((v + 1) · 127.5); version 3: "smallest three" in a uint32
+    (bits 30-31 the index of the largest |component| in x y z w order, made positive; the other three from bit 0 up
+    in decreasing index order, 9 bits of |v| / √½ · 511 and a sign bit). ``count`` / ``degree``: header values other
+    than the data's (for damaged files)."""
+    from scpainter_blender.core.splats import spz
+
+    n, deg = len(ply), ply.sh_degree
+    header = np.array([(0x5053474E, version, n if count is None else count, deg if degree is None else degree,
+                        fractional_bits, 0, 0)],
+                      [("m", "<u4"), ("v", "<u4"), ("n", "<u4"), ("d", "u1"), ("fb", "u1"), ("f", "u1"), ("r", "u1")])
+    fixed = np.rint(ply.xyz.astype(np.float64) * (1 << fractional_bits)).astype(np.int64) & 0xFFFFFF
+    pos = np.stack([(fixed >> s) & 0xFF for s in (0, 8, 16)], axis=-1).astype(np.uint8)
+    byte = lambda v: np.clip(np.rint(v), 0, 255).astype(np.uint8)  # noqa: E731
+    alpha = byte(splats.opacities_from_logits(ply.opacity) * 255)
+    color = byte((ply.f_dc.astype(np.float64) * spz.COLOR_SCALE + 0.5) * 255)
+    scale = byte((ply.scale.astype(np.float64) + 10) * 16)
+    q = splats.unit_quaternions(ply.rot)
+    if version == 2:
+        q *= np.where(q[:, :1] < 0, -1.0, 1.0)
+        rot = byte((q[:, 1:] + 1) * 127.5)
+    else:
+        xyzw = q[:, [1, 2, 3, 0]].astype(np.float64)
+        largest = np.argmax(np.abs(xyzw), axis=1)
+        xyzw *= np.where(xyzw[np.arange(n), largest] < 0, -1.0, 1.0)[:, None]
+        word = largest.astype(np.uint32) << np.uint32(30)
+        for slot in range(3):
+            # the other components in decreasing index order, from the lowest bits up
+            comp = np.array([[i for i in (3, 2, 1, 0) if i != k][slot] for k in largest], np.intp)
+            v = xyzw[np.arange(n), comp]
+            m = np.minimum(np.rint(np.abs(v) / np.sqrt(0.5) * 511), 511).astype(np.uint32)
+            word |= (m | np.where(v < 0, np.uint32(512), np.uint32(0))) << np.uint32(10 * slot)
+        rot = word.astype("<u4")
+    sh = byte(np.swapaxes(ply.f_rest, 1, 2).astype(np.float64) * 128 + 128)  # coefficient-major, channel inner
+    return b"".join(a.tobytes() for a in (header, pos, alpha, color, scale, rot, sh))
+
+
+def write_spz(path, ply, version=2, fractional_bits=12):
+    """An SPZ file (gzip, version 2 or 3) of raw INRIA values ``ply`` (``spz_body``)."""
+    import gzip
+
+    with open(path, "wb") as f:
+        f.write(gzip.compress(spz_body(ply, version, fractional_bits)))
+
+
+def write_ksplat(path, ply, level, sections=(0.6, 0.4), capacity=64, partial=(7, 5), spare=3, sh_range=(0, 0)):
+    """A .ksplat of raw INRIA values ``ply`` (SH degree 0-2) from the format's description: the Gaussians split
+    into sections by the shares ``sections``, each with ``spare`` unused slots; at levels 1-2 each section's first
+    Gaussians fill full buckets of ``capacity`` in order and the last ones partial buckets of the sizes
+    ``partial``; a bucket's centre is the middle of its Gaussians' box, the block size twice the largest offset."""
+    n, degree = len(ply), ply.sh_degree
+    counts = [int(round(s * n)) for s in sections[:-1]]
+    counts.append(n - sum(counts))
+    sh_n = (0, 9, 24)[degree]
+    from scpainter_blender.core.splats import ksplat
+
+    rec = ksplat.record_dtype(level, degree)
+    main = np.zeros(ksplat.MAIN_HEADER, np.uint8)
+    main[0], main[1] = 0, 1  # version 0.1
+    u32 = main[:24].view("<u4")
+    u32[1], u32[2], u32[3], u32[4] = len(counts), len(counts), n + spare * len(counts), n
+    main[20:22].view("<u2")[0] = level
+    main[36:44].view("<f4")[:] = sh_range
+    headers, blobs, at = [], [], 0
+    lo, hi = (sh_range[0] or -1.5), (sh_range[1] or 1.5)
+    q_range = 32767
+    for m in counts:
+        sel = slice(at, at + m)
+        at += m
+        hdr = np.zeros(ksplat.SECTION_HEADER, np.uint8)
+        h32, hf = hdr.view("<u4"), hdr.view("<f4")
+        r = np.zeros(m + spare, rec)
+        xyz = ply.xyz[sel].astype(np.float64)
+        bucket_bytes = b""
+        h32[0], h32[1] = m, m + spare
+        if level:
+            n_full = (m - sum(partial)) // capacity
+            sizes = [capacity] * n_full + [m - n_full * capacity - sum(partial)] * (m - n_full * capacity > sum(
+                partial)) + list(partial)
+            parts = sizes[n_full:]
+            bounds = np.cumsum([0] + sizes)
+            idx = np.repeat(np.arange(len(sizes)), sizes)
+            centres = np.array([(xyz[a:b].min(0) + xyz[a:b].max(0)) / 2 for a, b in zip(bounds[:-1], bounds[1:])],
+                               np.float32)
+            block = float(np.abs(xyz - centres[idx]).max()) * 2 * 1.001
+            r["xyz"][:m] = np.clip(np.rint((xyz - centres[idx]) * (q_range / (block / 2))) + q_range, 0, 65535)
+            h32[2], h32[3] = capacity, len(sizes)
+            hf[4] = block
+            hdr[20:22].view("<u2")[0] = 12  # bytes per bucket: its centre, 3 float32
+            h32[6], h32[8], h32[9] = q_range, n_full, len(parts)
+            bucket_bytes = np.array(parts, "<u4").tobytes() + centres.tobytes()
+        else:
+            r["xyz"][:m] = xyz
+        hdr[40:42].view("<u2")[0] = degree
+        headers.append(hdr.tobytes())
+        r["scale"][:m] = np.exp(ply.scale[sel].astype(np.float64))
+        r["rot"][:m] = splats.unit_quaternions(ply.rot[sel])
+        rgba = np.concatenate([0.5 + SH_C0 * ply.f_dc[sel].astype(np.float64),
+                               splats.opacities_from_logits(ply.opacity[sel])[:, None]], 1)
+        r["rgba"][:m] = np.clip(np.rint(rgba * 255), 0, 255)
+        if degree:
+            # band by band, each band channel-major (r1 r2 r3 g1 g2 g3 b1 b2 b3, then five per channel)
+            fr = ply.f_rest[sel].astype(np.float64)
+            stored = np.concatenate([fr[:, :, a:b].reshape(m, -1) for a, b in ((0, 3), (3, 8))[:degree]], 1)
+            if level == 2:
+                stored = np.clip(np.rint((stored - lo) / (hi - lo) * 255), 0, 255)
+            r["sh"][:m] = stored[:, :sh_n]
+        blobs.append(bucket_bytes + r.tobytes())
+    with open(path, "wb") as f:
+        f.write(main.tobytes() + b"".join(headers) + b"".join(blobs))
+
+
+
+
+def gltf_splats(ply, node_tree, buffer_uri=None, required=()):
+    """(glTF JSON dict, buffer bytes) of one KHR_gaussian_splatting primitive of ``ply`` (raw INRIA values):
+    POSITION and ROTATION interleaved in one view (stride 28), OPACITY as normalised unsigned bytes, SH degree
+    coefficients as VEC3 floats; ``node_tree`` the glTF nodes (the mesh on the last); the buffer at ``buffer_uri``
+    (None: a GLB's BIN chunk, ``glb``)."""
+    n, K1 = len(ply), ply.f_rest.shape[2]
+    q = splats.unit_quaternions(ply.rot)
+    inter = np.zeros((n, 7), np.float32)
+    inter[:, :3], inter[:, 3:] = ply.xyz, q[:, [1, 2, 3, 0]]
+    parts = [inter.tobytes(), np.exp(ply.scale.astype(np.float64)).astype(np.float32).tobytes(),
+             np.rint(splats.opacities_from_logits(ply.opacity) * 255).astype(np.uint8).tobytes(),
+             ply.f_dc.astype(np.float32).tobytes()]
+    sh = np.swapaxes(ply.f_rest, 1, 2)  # (n, K-1, 3)
+    parts += [np.ascontiguousarray(sh[:, k]).astype(np.float32).tobytes() for k in range(K1)]
+    views, blob = [], b""
+    for p in parts:
+        views.append({"buffer": 0, "byteOffset": len(blob), "byteLength": len(p)})
+        blob += p + bytes(-len(p) % 4)
+    views[0]["byteStride"] = 28
+
+    def A(v, t, c=5126, off=0, **kw):  # an accessor of view v, type t, componentType c (float by default)
+        return dict(bufferView=v, componentType=c, count=n, type=t, byteOffset=off, **kw)
+
+    accessors = [A(0, "VEC3"), A(0, "VEC4", off=12), A(1, "VEC3"), A(2, "SCALAR", 5121, normalized=True), A(3, "VEC3")]
+    accessors += [A(4 + k, "VEC3") for k in range(K1)]
+    pfx = "KHR_gaussian_splatting:"
+    attrs = {"POSITION": 0, pfx + "ROTATION": 1, pfx + "SCALE": 2, pfx + "OPACITY": 3, pfx + "SH_DEGREE_0_COEF_0": 4}
+    k = 0
+    for d in range(1, ply.sh_degree + 1):
+        for c in range(2 * d + 1):
+            attrs[f"{pfx}SH_DEGREE_{d}_COEF_{c}"] = 5 + k
+            k += 1
+    buffer = {"byteLength": len(blob)}
+    if buffer_uri is not None:
+        buffer["uri"] = buffer_uri
+    tree = {"asset": {"version": "2.0"}, "extensionsUsed": ["KHR_gaussian_splatting"],
+            "extensionsRequired": list(required), "scene": 0, "scenes": [{"nodes": [0]}], "nodes": node_tree,
+            "meshes": [{"primitives": [{"attributes": attrs, "mode": 0,
+                                         "extensions": {"KHR_gaussian_splatting": {"kernel": "ellipse"}}}]}],
+            "buffers": [buffer], "bufferViews": views, "accessors": accessors}
+    return tree, blob
+
+
+def glb(tree: dict, binary: bytes) -> bytes:
+    """A GLB of a glTF JSON dict and its BIN chunk (each chunk padded to 4 bytes: JSON with spaces, BIN with zeros)."""
+    import json
+    import struct
+
+    j = json.dumps(tree).encode()
+    j += b" " * (-len(j) % 4)
+    binary += b"\0" * (-len(binary) % 4)
+    body = struct.pack("<II", len(j), 0x4E4F534A) + j + struct.pack("<II", len(binary), 0x004E4942) + binary
+    return struct.pack("<III", 0x46546C67, 2, 12 + len(body)) + body

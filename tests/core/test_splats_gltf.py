@@ -63,42 +63,10 @@ def test_splat_transform_glb_reads_back(tmp_path, rel):
 
 
 def _gltf(path, ply, node_tree, buffer_name="car splats.bin", required=(), interleave=True):
-    """A .gltf with one KHR_gaussian_splatting primitive of ``ply`` (raw INRIA values) in an external buffer:
-    POSITION and ROTATION interleaved in one view (stride 28), OPACITY as normalised unsigned bytes, SH degree
-    coefficients as VEC3 floats; ``node_tree`` the glTF nodes (the mesh on the last)."""
-    n, K1 = len(ply), ply.f_rest.shape[2]
-    q = splats.unit_quaternions(ply.rot)
-    inter = np.zeros((n, 7), np.float32)
-    inter[:, :3], inter[:, 3:] = ply.xyz, q[:, [1, 2, 3, 0]]
-    parts = [inter.tobytes(), np.exp(ply.scale.astype(np.float64)).astype(np.float32).tobytes(),
-             np.rint(splats.opacities_from_logits(ply.opacity) * 255).astype(np.uint8).tobytes(),
-             ply.f_dc.astype(np.float32).tobytes()]
-    sh = np.swapaxes(ply.f_rest, 1, 2)  # (n, K-1, 3)
-    parts += [np.ascontiguousarray(sh[:, k]).astype(np.float32).tobytes() for k in range(K1)]
-    views, accessors, blob = [], [], b""
-    for p in parts:
-        views.append({"buffer": 0, "byteOffset": len(blob), "byteLength": len(p)})
-        blob += p + bytes(-len(p) % 4)
-    views[0]["byteStride"] = 28
-    def A(v, t, c=5126, off=0, **kw):  # an accessor of view v, type t, componentType c (float by default)
-        return dict(bufferView=v, componentType=c, count=n, type=t, byteOffset=off, **kw)
-
-    accessors = [A(0, "VEC3"), A(0, "VEC4", off=12), A(1, "VEC3"), A(2, "SCALAR", 5121, normalized=True), A(3, "VEC3")]
-    accessors += [A(4 + k, "VEC3") for k in range(K1)]
-    pfx = "KHR_gaussian_splatting:"
-    attrs = {"POSITION": 0, pfx + "ROTATION": 1, pfx + "SCALE": 2, pfx + "OPACITY": 3, pfx + "SH_DEGREE_0_COEF_0": 4}
-    k = 0
-    for d in range(1, ply.sh_degree + 1):
-        for c in range(2 * d + 1):
-            attrs[f"{pfx}SH_DEGREE_{d}_COEF_{c}"] = 5 + k
-            k += 1
+    """A .gltf of ``splat_fixtures.gltf_splats`` with its buffer in an external file ``buffer_name`` (its URI
+    percent-encoded); returns the JSON."""
+    tree, blob = F.gltf_splats(ply, node_tree, buffer_uri=buffer_name.replace(" ", "%20"), required=required)
     (path.parent / buffer_name).write_bytes(blob)
-    tree = {"asset": {"version": "2.0"}, "extensionsUsed": ["KHR_gaussian_splatting"],
-            "extensionsRequired": list(required), "scene": 0, "scenes": [{"nodes": [0]}], "nodes": node_tree,
-            "meshes": [{"primitives": [{"attributes": attrs, "mode": 0,
-                                         "extensions": {"KHR_gaussian_splatting": {"kernel": "ellipse"}}}]}],
-            "buffers": [{"uri": buffer_name.replace(" ", "%20"), "byteLength": len(blob)}],
-            "bufferViews": views, "accessors": accessors}
     path.write_text(json.dumps(tree))
     return tree
 
@@ -163,3 +131,29 @@ def test_mesh_gltf_stays_a_mesh_and_refusals_name_the_field(tmp_path):
     data += struct.pack("<II", len(blob), 0x004E4942) + blob
     (tmp_path / "g.splat").write_bytes(data)
     assert splats_io.read(tmp_path / "g.splat").format == "gltf_splats"
+
+
+@pytest.mark.parametrize("where, value, field", [
+    (("meshes", 0, "primitives"), 5, "meshes[0].primitives"),
+    (("meshes", 0, "primitives", 0, "attributes"), ["POSITION"], "meshes[0].primitives[0].attributes"),
+    (("meshes", 0, "primitives", 0, "attributes"), "POSITION", "meshes[0].primitives[0].attributes"),
+    (("extensionsRequired",), 5, "extensionsRequired"),
+    (("extensionsRequired",), gltf_splats.EXTENSION, "extensionsRequired"),
+    (("nodes", 0, "children"), 5, "nodes[0].children"),
+    (("scenes", 0, "nodes"), 5, "scenes[0].nodes"),
+    (("nodes", 0, "translation"), 10 ** 400, "nodes[0]"),
+])
+def test_malformed_gltf_structure_is_refused_by_field(tmp_path, where, value, field):
+    """Fuzz findings (tests/fuzz_splat_formats.py, issue 31): JSON of the wrong type where the glTF has a list or
+    an object, and a number beyond float, were tracebacks (TypeError, OverflowError)."""
+    src = F.random_ply(N=10, degree=1, seed=2)
+    tree, blob = F.gltf_splats(src, [{"mesh": 0}])
+    node = tree
+    for k in where[:-1]:
+        node = node[k]
+    node[where[-1]] = [value, 0, 0] if where[-1] == "translation" else value
+    path = tmp_path / "bad.glb"
+    path.write_bytes(F.glb(tree, blob))
+    with pytest.raises(splats.SplatsError, match=r"bad\.glb: ") as e:
+        splats_io.read(path)
+    assert e.value.field == field, str(e.value)

@@ -29,71 +29,6 @@ SH_BYTE_BOUND = 3.0 / 255 / 2 + 1e-6
 SAME_READ_BOUND = 1e-5
 
 
-def write_ksplat(path, ply, level, sections=(0.6, 0.4), capacity=64, partial=(7, 5), spare=3, sh_range=(0, 0)):
-    """A .ksplat of raw INRIA values ``ply`` (SH degree 0-2) from the format's description: the Gaussians split
-    into sections by the shares ``sections``, each with ``spare`` unused slots; at levels 1-2 each section's first
-    Gaussians fill full buckets of ``capacity`` in order and the last ones partial buckets of the sizes
-    ``partial``; a bucket's centre is the middle of its Gaussians' box, the block size twice the largest offset."""
-    n, degree = len(ply), ply.sh_degree
-    counts = [int(round(s * n)) for s in sections[:-1]]
-    counts.append(n - sum(counts))
-    sh_n = (0, 9, 24)[degree]
-    rec = ksplat.record_dtype(level, degree)
-    main = np.zeros(ksplat.MAIN_HEADER, np.uint8)
-    main[0], main[1] = 0, 1  # version 0.1
-    u32 = main[:24].view("<u4")
-    u32[1], u32[2], u32[3], u32[4] = len(counts), len(counts), n + spare * len(counts), n
-    main[20:22].view("<u2")[0] = level
-    main[36:44].view("<f4")[:] = sh_range
-    headers, blobs, at = [], [], 0
-    lo, hi = (sh_range[0] or -1.5), (sh_range[1] or 1.5)
-    q_range = 32767
-    for m in counts:
-        sel = slice(at, at + m)
-        at += m
-        hdr = np.zeros(ksplat.SECTION_HEADER, np.uint8)
-        h32, hf = hdr.view("<u4"), hdr.view("<f4")
-        r = np.zeros(m + spare, rec)
-        xyz = ply.xyz[sel].astype(np.float64)
-        bucket_bytes = b""
-        h32[0], h32[1] = m, m + spare
-        if level:
-            n_full = (m - sum(partial)) // capacity
-            sizes = [capacity] * n_full + [m - n_full * capacity - sum(partial)] * (m - n_full * capacity > sum(
-                partial)) + list(partial)
-            parts = sizes[n_full:]
-            bounds = np.cumsum([0] + sizes)
-            idx = np.repeat(np.arange(len(sizes)), sizes)
-            centres = np.array([(xyz[a:b].min(0) + xyz[a:b].max(0)) / 2 for a, b in zip(bounds[:-1], bounds[1:])],
-                               np.float32)
-            block = float(np.abs(xyz - centres[idx]).max()) * 2 * 1.001
-            r["xyz"][:m] = np.clip(np.rint((xyz - centres[idx]) * (q_range / (block / 2))) + q_range, 0, 65535)
-            h32[2], h32[3] = capacity, len(sizes)
-            hf[4] = block
-            hdr[20:22].view("<u2")[0] = 12  # bytes per bucket: its centre, 3 float32
-            h32[6], h32[8], h32[9] = q_range, n_full, len(parts)
-            bucket_bytes = np.array(parts, "<u4").tobytes() + centres.tobytes()
-        else:
-            r["xyz"][:m] = xyz
-        hdr[40:42].view("<u2")[0] = degree
-        headers.append(hdr.tobytes())
-        r["scale"][:m] = np.exp(ply.scale[sel].astype(np.float64))
-        r["rot"][:m] = splats.unit_quaternions(ply.rot[sel])
-        rgba = np.concatenate([0.5 + SH_C0 * ply.f_dc[sel].astype(np.float64),
-                               splats.opacities_from_logits(ply.opacity[sel])[:, None]], 1)
-        r["rgba"][:m] = np.clip(np.rint(rgba * 255), 0, 255)
-        if degree:
-            # band by band, each band channel-major (r1 r2 r3 g1 g2 g3 b1 b2 b3, then five per channel)
-            fr = ply.f_rest[sel].astype(np.float64)
-            stored = np.concatenate([fr[:, :, a:b].reshape(m, -1) for a, b in ((0, 3), (3, 8))[:degree]], 1)
-            if level == 2:
-                stored = np.clip(np.rint((stored - lo) / (hi - lo) * 255), 0, 255)
-            r["sh"][:m] = stored[:, :sh_n]
-        blobs.append(bucket_bytes + r.tobytes())
-    with open(path, "wb") as f:
-        f.write(main.tobytes() + b"".join(headers) + b"".join(blobs))
-
-
 def source(degree, n=1000, seed=0):
     src = F.random_ply(N=n, degree=degree, seed=seed)
     src.scale = np.clip(src.scale, -7, 1)    # within half floats' normal range (σ > 6e-5)
@@ -125,7 +60,7 @@ def assert_close(got, src, level):
 @pytest.mark.parametrize("degree", [0, 1, 2])
 def test_written_ksplat_reads_back_within_quantisation(tmp_path, level, degree):
     src = source(degree, seed=level * 3 + degree)
-    write_ksplat(tmp_path / "car.ksplat", src, level)
+    F.write_ksplat(tmp_path / "car.ksplat", src, level)
     got = splats_io.read(tmp_path / "car.ksplat")
     assert_close(got, src, level)
     if level:  # positions: half a step of the block, block / 2 / 32767 / 2, plus the float32 centre
@@ -138,7 +73,7 @@ def test_written_ksplat_reads_back_within_quantisation(tmp_path, level, degree):
 @pytest.mark.parametrize("level", [0, 1, 2])
 def test_splat_transform_reads_our_ksplat_to_the_same_values(tmp_path, level):
     src = source(2, n=600, seed=40 + level)
-    write_ksplat(tmp_path / "car.ksplat", src, level)
+    F.write_ksplat(tmp_path / "car.ksplat", src, level)
     ours = splats_io.read(tmp_path / "car.ksplat")
     theirs = splats_io.read(splat_transform.convert(tmp_path / "car.ksplat", tmp_path / "car.ply"))
     assert len(theirs) == len(ours) and theirs.sh_degree == 2
@@ -149,7 +84,7 @@ def test_splat_transform_reads_our_ksplat_to_the_same_values(tmp_path, level):
 def test_ksplat_saved_as_splat_is_read_as_ksplat(tmp_path):
     """GaussianSplats3D's files were once named .splat: read as .splat they were a few garbage Gaussians."""
     src = source(1, n=300, seed=7)
-    write_ksplat(tmp_path / "old.splat", src, 1)
+    F.write_ksplat(tmp_path / "old.splat", src, 1)
     assert splats_io.detect(tmp_path / "old.splat") == "ksplat"
     assert_close(splats_io.read(tmp_path / "old.splat"), src, 1)
     # its header damaged (the Gaussian count no longer matches the sections): no .ksplat, and as 32-byte .splat
@@ -164,3 +99,21 @@ def test_ksplat_saved_as_splat_is_read_as_ksplat(tmp_path):
     with pytest.raises(splats.SplatsError, match=r"broken\.ksplat: not a GaussianSplats3D \.ksplat file: the "
                                                  r"sections hold 300 Gaussians, the main header says 1,000,000"):
         splats_io.read(tmp_path / "broken.ksplat")
+
+
+def test_ksplat_with_impossible_buckets_or_cut_short_is_refused(tmp_path):
+    """Fuzz findings (tests/fuzz_splat_formats.py, issue 31): full buckets of a capacity beyond the section's
+    Gaussians put every Gaussian in the first bucket (accepted, positions wrong); a file cut inside its main header
+    was called "not that format"."""
+    src = source(1, n=40)
+    F.write_ksplat(tmp_path / "car.ksplat", src, 1, capacity=4, partial=(4, 3))
+    data = bytearray((tmp_path / "car.ksplat").read_bytes())
+    data[ksplat.MAIN_HEADER + 8:ksplat.MAIN_HEADER + 12] = (10 ** 9).to_bytes(4, "little")  # bucket capacity
+    (tmp_path / "cap.ksplat").write_bytes(bytes(data))
+    with pytest.raises(splats.SplatsError, match=r"cap\.ksplat: a section's buckets are inconsistent") as e:
+        splats_io.read(tmp_path / "cap.ksplat")
+    assert e.value.field == "section"
+    (tmp_path / "cut.ksplat").write_bytes(bytes(data[:1000]))
+    with pytest.raises(splats.SplatsError, match=r"cut\.ksplat: not a GaussianSplats3D \.ksplat file: shorter than "
+                                                 r"the 4096-byte main header: truncated"):
+        splats_io.read(tmp_path / "cut.ksplat")

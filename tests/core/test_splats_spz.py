@@ -73,32 +73,11 @@ def test_spz_under_another_name_is_read_as_spz(tmp_path):
     np.testing.assert_array_equal(splats_io.read(renamed).xyz, splats_io.read(out).xyz)
 
 
-def write_spz_v2(path, ply, fractional_bits=12):
-    """SPZ version 2 from raw INRIA values, from the format's description (nianticlabs/spz, src/cc/load-spz.cc:
-    packGaussians): rotations as 3 bytes x y z of the unit quaternion with w >= 0, byte = round((v + 1) · 127.5)."""
-    n, degree = len(ply), ply.sh_degree
-    header = np.array([(0x5053474E, 2, n, degree, fractional_bits, 0, 0)],
-                      [("m", "<u4"), ("v", "<u4"), ("n", "<u4"), ("d", "u1"), ("fb", "u1"), ("f", "u1"), ("r", "u1")])
-    fixed = np.rint(ply.xyz.astype(np.float64) * (1 << fractional_bits)).astype(np.int64) & 0xFFFFFF
-    pos = np.stack([(fixed >> s) & 0xFF for s in (0, 8, 16)], axis=-1).astype(np.uint8)
-    byte = lambda v: np.clip(np.rint(v), 0, 255).astype(np.uint8)  # noqa: E731
-    alpha = byte(splats.opacities_from_logits(ply.opacity) * 255)
-    color = byte((ply.f_dc.astype(np.float64) * spz.COLOR_SCALE + 0.5) * 255)
-    scale = byte((ply.scale.astype(np.float64) + 10) * 16)
-    q = splats.unit_quaternions(ply.rot)
-    q *= np.where(q[:, :1] < 0, -1.0, 1.0)
-    rot = byte((q[:, 1:] + 1) * 127.5)
-    sh = byte(np.swapaxes(ply.f_rest, 1, 2).astype(np.float64) * 128 + 128)  # coefficient-major, channel inner
-    body = b"".join(a.tobytes() for a in (header, pos, alpha, color, scale, rot, sh))
-    with open(path, "wb") as f:
-        f.write(gzip.compress(body))
-
-
 @pytest.mark.parametrize("degree", [0, 1, 3])
 def test_version_2_written_from_the_description(tmp_path, degree):
     src = F.random_ply(N=500, degree=degree, seed=degree)
     src.xyz = np.clip(src.xyz, -100, 100)
-    write_spz_v2(tmp_path / "v2.spz", src)
+    F.write_spz(tmp_path / "v2.spz", src)
     got = splats_io.read(tmp_path / "v2.spz")
     # v2's SH bytes are not bucketed: half a step of 1/128
     src.f_rest = np.clip(src.f_rest, -1.0, 127 / 128)
@@ -112,9 +91,20 @@ def test_version_2_written_from_the_description(tmp_path, degree):
         assert np.abs(got.f_rest - src.f_rest).max() <= 0.5 / 128 + 1e-6
 
 
+def test_version_3_written_from_the_description(tmp_path):
+    """splat_fixtures.write_spz's version 3 (smallest-three rotations, what the fuzzer's SPZ cases start from)."""
+    src = F.random_ply(N=400, degree=1, seed=7)
+    src.xyz = np.clip(src.xyz, -100, 100)
+    F.write_spz(tmp_path / "v3.spz", src, version=3)
+    src.f_rest = np.clip(src.f_rest, -1.0, 127 / 128)
+    got = splats_io.read(tmp_path / "v3.spz")
+    assert_close_to_source(got, src)
+    assert np.abs(got.f_rest - src.f_rest).max() <= 0.5 / 128 + 1e-6
+
+
 def test_damaged_spz_files_are_refused_by_name(tmp_path):
     src = F.random_ply(N=50, degree=1, seed=4)
-    write_spz_v2(tmp_path / "ok.spz", src)
+    F.write_spz(tmp_path / "ok.spz", src)
     data = gzip.decompress((tmp_path / "ok.spz").read_bytes())
     (tmp_path / "cut.spz").write_bytes(gzip.compress(data[:-100]))
     with pytest.raises(splats.SplatsError, match=r"cut\.spz: SPZ file truncated: 50 Gaussians of SH degree 1"):
@@ -125,3 +115,43 @@ def test_damaged_spz_files_are_refused_by_name(tmp_path):
     (tmp_path / "bad.spz").write_bytes((tmp_path / "ok.spz").read_bytes()[:40])
     with pytest.raises(splats.SplatsError, match=r"bad\.spz: "):
         splats_io.read(tmp_path / "bad.spz")
+
+
+def test_spz_whose_stream_holds_more_than_its_header_says_is_refused(tmp_path):
+    """Fuzz finding (tests/fuzz_splat_formats.py, issue 31): a count one short, an SH degree 0 over degree-1 data or
+    bytes after the attributes were read misaligned and accepted; a stream cut in its trailer was accepted."""
+    src = F.random_ply(N=30, degree=1, seed=5)
+    body = F.spz_body(src, 3)
+    for name, data in (("short.spz", F.spz_body(src, 3, count=29)), ("deg0.spz", F.spz_body(src, 3, degree=0)),
+                       ("tail.spz", body + b"garbage")):
+        (tmp_path / name).write_bytes(gzip.compress(data))
+        with pytest.raises(splats.SplatsError, match=name.replace(".", r"\.") + ": SPZ header says .* but its gzip "
+                                                     "stream holds more: the count or SH degree is wrong") as e:
+            splats_io.read(tmp_path / name)
+        assert e.value.field == "count"
+    (tmp_path / "cut.spz").write_bytes(gzip.compress(body)[:-4])  # all attributes, the checksum cut
+    with pytest.raises(splats.SplatsError, match=r"cut\.spz: its gzip stream ends before its end marker"):
+        splats_io.read(tmp_path / "cut.spz")
+    (tmp_path / "two.spz").write_bytes(gzip.compress(body) + gzip.compress(b"another member"))
+    assert len(splats_io.read(tmp_path / "two.spz")) == 30  # a second gzip member is not SPZ's stream
+
+
+def test_spz_claiming_a_billion_gaussians_is_refused_before_inflating(tmp_path):
+    """A gzip bomb: 10^9 Gaussians claimed over 64 MiB of zeros in a 64 KiB file is refused without inflating it
+    (deflate expands at most 1032:1); peak Python/numpy allocation measured with tracemalloc."""
+    import tracemalloc
+    import zlib
+
+    z = zlib.compressobj(9, zlib.DEFLATED, 31)
+    out = z.compress(F.spz_body(F.random_ply(N=1, degree=1), 3, count=10 ** 9)[:16])
+    for _ in range(64):
+        out += z.compress(bytes(1 << 20))
+    (tmp_path / "bomb.spz").write_bytes(out + z.flush())
+    tracemalloc.start()
+    try:
+        with pytest.raises(splats.SplatsError, match=r"1,000,000,000 Gaussians .* more than a gzip stream of "):
+            splats_io.read(tmp_path / "bomb.spz")
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 4 << 20, peak  # the file itself (~64 KiB) and the reader's head, not the claimed 29 GB

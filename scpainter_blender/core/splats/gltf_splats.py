@@ -61,13 +61,18 @@ def has_gaussian_splatting(tree) -> bool:
     """True when a parsed glTF lists ``KHR_gaussian_splatting`` or has a primitive carrying it."""
     if not isinstance(tree, dict):
         return False
-    if EXTENSION in (tree.get("extensionsUsed") or ()):
+    if EXTENSION in _as_list(tree.get("extensionsUsed")):
         return True
-    for mesh in tree.get("meshes") or ():
-        for prim in (mesh.get("primitives") or ()) if isinstance(mesh, dict) else ():
-            if isinstance(prim, dict) and EXTENSION in (prim.get("extensions") or {}):
+    for mesh in _as_list(tree.get("meshes")):
+        for prim in _as_list(mesh.get("primitives")) if isinstance(mesh, dict) else ():
+            if isinstance(prim, dict) and isinstance(prim.get("extensions"), dict) and EXTENSION in prim["extensions"]:
                 return True
     return False
+
+
+def _as_list(value) -> list:
+    """``value`` when it is a JSON list, else an empty list (a damaged field is judged where it is read)."""
+    return value if isinstance(value, list) else []
 
 
 def read_tree(path, data: bytes | None = None):
@@ -132,7 +137,11 @@ def read(path) -> GaussianPly:
     naming the file and the glTF field if unusable."""
     path = os.fspath(path)
     tree, bin_chunk = read_tree(path)
-    unread = [e for e in (tree.get("extensionsRequired") or ()) if e not in READ_EXTENSIONS]
+    required = tree.get("extensionsRequired") or []
+    if not isinstance(required, list) or not all(isinstance(e, str) for e in required):
+        raise SplatsError(path, f"extensionsRequired is {json.dumps(required)[:60]}, not a list of extension names",
+                          "extensionsRequired")
+    unread = [e for e in required if e not in READ_EXTENSIONS]
     if unread:
         raise SplatsError(path, f"requires glTF extensions {unread}, which are not read here (only "
                                 f"{list(READ_EXTENSIONS)}): export the splats again without compression "
@@ -141,8 +150,9 @@ def read(path) -> GaussianPly:
     parts = []
     for world, mesh_index, node_field in g.mesh_nodes():
         mesh = g.item("meshes", mesh_index, node_field + ".mesh")
-        for j, prim in enumerate(mesh.get("primitives") or ()):
-            if isinstance(prim, dict) and EXTENSION in (prim.get("extensions") or {}):
+        for j, prim in enumerate(g.list(mesh, "primitives", f"meshes[{mesh_index}].primitives")):
+            if isinstance(prim, dict) and isinstance(prim.get("extensions"), dict) \
+                    and EXTENSION in prim["extensions"]:
                 parts.append(_primitive(g, prim, f"meshes[{mesh_index}].primitives[{j}]", world, node_field))
     if not parts:
         raise SplatsError(path, f"no mesh primitive in its scene carries {EXTENSION}: a mesh, not Gaussian splats",
@@ -166,6 +176,13 @@ class _Gltf:
 
     def fail(self, field, message):
         return SplatsError(self.path, f"{field}: {message}", field)
+
+    def list(self, node: dict, key: str, field: str) -> list:
+        """``node[key]``, a JSON list (absent: empty); SplatsError naming ``field`` when it is something else."""
+        value = node.get(key) or []
+        if not isinstance(value, list):
+            raise self.fail(field, f"is {json.dumps(value)[:60]}, not a list")
+        return value
 
     def item(self, key, index, field):
         items = self.tree.get(key)
@@ -259,11 +276,11 @@ class _Gltf:
     def mesh_nodes(self):
         """(world matrix 4×4, mesh index, node field) for every node with a mesh in the default scene (every
         root node's tree when the file names no scene), parents' transforms applied."""
-        tree, nodes = self.tree, self.tree.get("nodes") or []
+        tree, nodes = self.tree, _as_list(self.tree.get("nodes"))
         scenes = tree.get("scenes")
         if isinstance(scenes, list) and scenes:
             scene = self.item("scenes", tree.get("scene", 0), "scene")
-            roots = scene.get("nodes") or []
+            roots = self.list(scene, "nodes", f"scenes[{tree.get('scene', 0)}].nodes")
         else:  # no scene: every node no other node names as a child
             children = {c for n in nodes if isinstance(n, dict) for c in (n.get("children") or ())
                         if isinstance(c, int)}
@@ -279,7 +296,7 @@ class _Gltf:
             world = parent @ self._local(node, field)
             if "mesh" in node:
                 out.append((world, node["mesh"], field))
-            stack.extend((c, world) for c in reversed(node.get("children") or []))
+            stack.extend((c, world) for c in reversed(self.list(node, "children", field + ".children")))
         return out
 
     def _local(self, node, field) -> np.ndarray:
@@ -297,7 +314,7 @@ class _Gltf:
                 raise ValueError
             m[:3, :3] = cameras.quaternion_to_rotation(q[[3, 0, 1, 2]]) * s
             m[:3, 3] = t
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             raise self.fail(field, "has a matrix / translation / rotation / scale that is not glTF's 16 / 3 / 4 / 3 "
                                    "numbers (or a zero rotation)") from None
         if not np.isfinite(m).all():
@@ -341,6 +358,9 @@ def sh_rotation(R, degree: int) -> np.ndarray:
 def _primitive(g: _Gltf, prim, field, world, node_field) -> GaussianPly:
     attrs = prim.get("attributes") or {}
     path = g.path
+    if not isinstance(attrs, dict):
+        raise SplatsError(path, f"{field}.attributes is {json.dumps(attrs)[:60]}, not an object of accessor indices",
+                          f"{field}.attributes")
 
     def get(name, width, required=True):
         if name not in attrs:

@@ -176,7 +176,7 @@ def _dequantise(path, data, base, s, k, m) -> np.ndarray:
     q = int(s["range"]) or DEFAULT_RANGE
     cap, full, partial = int(s["bucket_capacity"]), int(s["full_buckets"]), int(s["partial_buckets"])
     buckets = int(s["buckets"])
-    if int(s["bucket_bytes"]) < 12 or full + partial > buckets or (full and not cap):
+    if int(s["bucket_bytes"]) < 12 or full + partial > buckets or (full and not cap) or full * cap > m:
         raise SplatsError(path, f"a section's buckets are inconsistent ({full} full of {cap}, {partial} partial, "
                                 f"{buckets} in all, {int(s['bucket_bytes'])} bytes each)", "section")
     sizes = np.frombuffer(data, "<u4", partial, base).astype(np.int64)

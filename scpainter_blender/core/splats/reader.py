@@ -84,8 +84,14 @@ def detect(path) -> str:
                     return "ksplat"
                 if ext == ".ksplat":
                     raise SplatsError(path, f"not a GaussianSplats3D .ksplat file: {problem}", "header")
+            if ext == ".ksplat" and len(head) < ksplat.MAIN_HEADER:   # cut short: say so, not "another format"
+                raise SplatsError(path, f"not a GaussianSplats3D .ksplat file: {ksplat.header_problem(head, size)}: "
+                                        "truncated?", "header")
     except OSError as e:
         raise SplatsError(path, f"cannot be read: {e}") from None
+    if ext == ".spz" and head.startswith(spz.GZIP_MAGIC):
+        raise SplatsError(path, "a gzip stream that does not inflate to an SPZ header ('NGSP'): truncated or "
+                                "damaged SPZ file, or another gzip file renamed", "header")
     if ext == ".splat":
         return "splat"
     raise SplatsError(path, _not_accepted(head, ext))
@@ -106,8 +112,11 @@ def _json_kind(path, head: bytes, ext: str) -> str:
         tree = gltf_splats.peek_tree(path)
     except SplatsError as e:
         if head.startswith(gltf_splats.GLB_MAGIC) or ext in (".gltf", ".glb"):
-            raise SplatsError(path, f"{_not_accepted(head, ext)} (its glTF could not be read: "
-                                    f"{e.args[0].split(': ', 1)[-1]})") from None
+            # a damaged glTF is neither a mesh nor splats yet: its own problem first
+            reason = e.args[0].split(": ", 1)[-1].removesuffix(f" ({e.path})")
+            raise SplatsError(path, f"its glTF cannot be read ({reason}): a damaged or truncated file, export it "
+                                    f"again (a mesh car, or Gaussian splats with {gltf_splats.EXTENSION})",
+                              e.field) from None
         raise SplatsError(path, f"a JSON file that is neither a glTF nor a SOG meta.json ({e.args[0]}): accepted "
                                 f"are {ACCEPTED}") from None
     if gltf_splats.has_gaussian_splatting(tree):

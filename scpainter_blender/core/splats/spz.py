@@ -57,6 +57,9 @@ _SH_BYTES = (0, 9, 24, 45)
 #: Bytes inflated per read of a Zstandard stream: memory grows with the data there is, never with what a
 #: (possibly damaged) table of contents claims.
 _ZSTD_PIECE = 1 << 24
+#: Deflate expands at most 1032:1 (RFC 1951's longest match per code): a gzip stream of ``size`` bytes holds at
+#: most this many times that, so a header claiming more is refused before anything is inflated.
+MAX_DEFLATE_RATIO = 1032
 
 
 def is_spz(head: bytes) -> bool:
@@ -118,12 +121,29 @@ def _gzip_blocks(path, data: bytes):
         if version == 4:
             raise SplatsError(path, "SPZ version 4 inside gzip: not a layout any writer makes", "version")
         sizes = _sizes(n, version, degree)
+        if sum(sizes) > MAX_DEFLATE_RATIO * len(data):   # a forged count: refused without inflating (no bomb)
+            raise SplatsError(path, f"SPZ file truncated: {n:,} Gaussians of SH degree {degree} need {sum(sizes):,} "
+                                    f"bytes after the header, more than a gzip stream of {len(data):,} bytes can hold",
+                              "count")
         body = d.decompress(d.unconsumed_tail, sum(sizes)) if sum(sizes) else b""
+        if len(body) < sum(sizes):
+            raise SplatsError(path, f"SPZ file truncated: {n:,} Gaussians of SH degree {degree} need "
+                                    f"{sum(sizes):,} bytes after the header, the gzip stream holds {len(body):,}",
+                              "count")
+        # the stream must end where the header says: more data means a wrong count or SH degree (the blocks would
+        # be read misaligned), no end a truncated file (its checksum is read too)
+        more = b""
+        while not (more or d.eof) and d.unconsumed_tail:   # (past the end, zlib keeps the rest as unused data)
+            more = d.decompress(d.unconsumed_tail, 64)
+        if more:
+            raise SplatsError(path, f"SPZ header says {n:,} Gaussians of SH degree {degree} ({sum(sizes):,} bytes "
+                                    "after the header), but its gzip stream holds more: the count or SH degree is "
+                                    "wrong (damaged file)", "count")
+        if not d.eof:
+            raise SplatsError(path, "its gzip stream ends before its end marker and checksum: truncated SPZ file",
+                              "header")
     except zlib.error as e:
         raise SplatsError(path, f"its gzip stream is corrupt ({e}): truncated or damaged SPZ file") from None
-    if len(body) < sum(sizes):
-        raise SplatsError(path, f"SPZ file truncated: {n:,} Gaussians of SH degree {degree} need {sum(sizes):,} "
-                                f"bytes after the header, the gzip stream holds {len(body):,}", "count")
     return version, n, degree, fb, _split(body, sizes)
 
 

@@ -290,6 +290,7 @@ def check_gltf(path, size: int, error, open_named) -> dict:
                      _index(node, "byteOffset", f"{field}.sparse.{what}.byteOffset", error, required=False) or 0, n, e)
 
     _check_attribute_counts(tree, accessors, error)
+    _check_texture_indices(tree, images, error)
 
     # images: readable, within the pixel bound, named exactly
     sizes = []
@@ -405,6 +406,44 @@ def _check_attribute_counts(tree, accessors, error) -> None:
                     raise error(field, f"{field}: {name} (accessors[{i}]) has {c:,} elements but POSITION "
                                        f"(accessors[{pi}]) has {n:,}: every attribute of a primitive has one "
                                        "element per vertex", "export the car again (the glTF is corrupt)")
+
+
+def _check_texture_indices(tree, images, error) -> None:
+    """Every material's base-colour texture names a texture (``materials[i].pbrMetallicRoughness.baseColorTexture
+    .index``), every texture an image (``source``, or an extension's ``source``: ``EXT_texture_webp``) and a
+    sampler (``sampler``) the file has, and every sampler's ``wrapS`` / ``wrapT`` is a glTF wrap mode
+    (``colors.WRAP_MODES``). trimesh went on past an index out of range with a log line: a white car."""
+    from .colors import WRAP_MODES
+
+    textures, samplers = _list(tree, "textures", error), _list(tree, "samplers", error)
+    corrupt = "export the car again (the glTF is corrupt)"
+
+    def names(field, v, what, count):
+        if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v < count:
+            have = (f"{count} {what}{'' if count == 1 else 's'} (indices 0 to {count - 1})" if count
+                    else f"no {what}s")
+            raise error(field, f"{field} = {v!r} names no {what}: the file has {have}", corrupt)
+
+    for i, s in enumerate(samplers):
+        for key in ("wrapS", "wrapT"):
+            if key in s and (isinstance(s[key], bool) or s[key] not in WRAP_MODES):
+                field = f"samplers[{i}].{key}"
+                raise error(field, f"{field} = {s[key]!r} is not a glTF wrap mode ("
+                                   + ", ".join(f"{k} {n}" for k, n in WRAP_MODES.items()) + ")", corrupt)
+    for j, t in enumerate(textures):
+        if "source" in t:
+            names(f"textures[{j}].source", t["source"], "image", len(images))
+        for name, ext in (t.get("extensions") or {}).items() if isinstance(t.get("extensions"), dict) else ():
+            if isinstance(ext, dict) and "source" in ext:
+                names(f"textures[{j}].extensions.{name}.source", ext["source"], "image", len(images))
+        if "sampler" in t:
+            names(f"textures[{j}].sampler", t["sampler"], "sampler", len(samplers))
+    for i, m in enumerate(_list(tree, "materials", error)):
+        pbr = m.get("pbrMetallicRoughness")
+        info = pbr.get("baseColorTexture") if isinstance(pbr, dict) else None
+        if isinstance(info, dict):
+            names(f"materials[{i}].pbrMetallicRoughness.baseColorTexture.index", info.get("index"), "texture",
+                  len(textures))
 
 
 def _view_bytes(path, data, bin_at, buffers, view, open_named) -> bytes:

@@ -86,7 +86,9 @@ class MeshAsset:
     ``parts``: ``trimesh.Trimesh`` objects in the Z-up output frame, node transforms applied, each with its own
     visual (texture / colours); ``up``: the axis read as up in the file ("y" or "z"); ``gltf``: colours follow
     glTF's rules (linear factors and vertex colours);
-    ``warnings``: ``warning`` events (dicts: message, code) for what the file had that was left out or went past.
+    ``warnings``: ``warning`` events (dicts: message, code) for what the file had that was left out or went past;
+    ``wraps``: (wrapS, wrapT) of each part's base-colour texture (``colors.WRAP_MODES``: glTF samplers, an MTL
+    ``-clamp on``), one per part, or empty: REPEAT for all.
     """
 
     path: str
@@ -94,6 +96,7 @@ class MeshAsset:
     up: str
     gltf: bool = False
     warnings: list = field(default_factory=list)
+    wraps: list = field(default_factory=list)
 
     @property
     def vertices(self) -> np.ndarray:
@@ -402,7 +405,8 @@ def load_mesh(path, up: str = "auto") -> MeshAsset:
         y_up_to_z_up[:3, :3] = Y_UP_TO_Z_UP
         for m in meshes:
             m.apply_transform(y_up_to_z_up)
-    asset = MeshAsset(path, meshes, axis, gltf=gltf, warnings=warned)
+    wraps = gltf_plain.part_wraps(meshes, tree) if plain is not None else []
+    asset = MeshAsset(path, meshes, axis, gltf=gltf, warnings=warned, wraps=wraps)
     used = np.unique(asset.faces)
     checks.check_extent(asset.vertices[used], error, tree)
     if not np.any(face_areas(asset.vertices, asset.faces) > 0):

@@ -492,6 +492,18 @@ def test_texture_problems_exit_2_naming_the_file(tmp_path, uri, data, what):
     assert not (tmp_path / "o.ply").exists()
 
 
+@pytest.mark.parametrize("uri", ["file:///tmp/paint.png", "FILE:paint.png"])
+def test_file_uri_texture_is_refused_as_a_file_uri(tmp_path, uri):
+    """A ``file://`` URI (an absolute path, which the model's folder rule does not allow) is said to be one, not
+    "not found"."""
+    path = quad_gltf(tmp_path, "quad.gltf", image=uri, image_bytes=b"")
+    code, events, err = run_backend("mesh-asset", path, "--out", tmp_path / "o.ply", "--count", 100)
+    assert code == 2 and "Traceback" not in err
+    message = events[-1]["message"]
+    assert uri in message and "file:// URI" in message and "not found" not in message
+    assert "relative to the mesh" in events[-1]["hint"]
+
+
 # -- a real file -----------------------------------------------------------------------------------------------------
 
 def test_real_trellis_glb_still_converts(tmp_path):

@@ -51,7 +51,7 @@ from scpainter_blender.core.splats import gaussians as splats, inria as splats_i
 from scpainter_blender.core.splats.sh import SH_C0
 
 from .box import oriented_box_3d, upright_box
-from .colors import part_colours
+from .colors import DEFAULT_WRAP, part_colours
 from .load import MeshAsset, MeshAssetError, as_parts, face_areas, load_mesh
 
 try:
@@ -100,6 +100,7 @@ def sample_gaussians(mesh, count: int, seed: int = 0, sigma_factor: float = SIGM
     if count < 1:
         raise ValueError(f"count must be at least 1, got {count}")
     parts, gltf = as_parts(mesh)
+    wraps = (mesh.wraps if isinstance(mesh, MeshAsset) else None) or [DEFAULT_WRAP] * len(parts)
     verts = [np.asarray(p.vertices, np.float64) for p in parts]
     faces = [np.asarray(p.faces, np.int64) for p in parts]
     offsets = np.cumsum([0] + [len(v) for v in verts])
@@ -125,7 +126,7 @@ def sample_gaussians(mesh, count: int, seed: int = 0, sigma_factor: float = SIGM
     for k, part in enumerate(parts):
         sel = np.nonzero(part_of == k)[0]
         if len(sel):
-            rgb[sel], sources[sel] = part_colours(part, fidx[sel] - face_offsets[k], bary[sel], gltf)
+            rgb[sel], sources[sel] = part_colours(part, fidx[sel] - face_offsets[k], bary[sel], gltf, wraps[k])
     rgb = np.clip(rgb, 0.0, 1.0)
     sigma = float(sigma_factor) * math.sqrt(total / count)
     ok = (np.isfinite(means).all(1) & np.isfinite(R).all((1, 2)) & np.isfinite(rgb).all(1) & (area[fidx] > 0))

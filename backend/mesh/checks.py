@@ -23,13 +23,14 @@ The bounds, in one place:
   material and every ``map_Kd`` names a file (trimesh drops an MTL it reads nothing from, and a ``map_Kd`` without
   a value, without a word). A ``map_Kd`` value is options, then the file name (the MTL specification's options:
   ``MTL_TEXTURE_OPTIONS``; ``mtl_texture`` parses them and ``load``'s resolver opens the name it finds, as trimesh
-  5.2 passes the whole value). Options that change the colours read (``-o``, ``-s``, ``-t``, ``-mm``, ``-clamp on``,
-  ``-cc on``) are not applied: a ``warning``.
+  5.2 passes the whole value). ``-clamp on`` is applied (CLAMP_TO_EDGE both ways, ``MtlMap.clamp``); the other
+  options that change the colours read (``-o``, ``-s``, ``-t``, ``-mm``, ``-cc on``) are not: a ``warning``.
 * A backslash in a name a mesh gives is a path separator (Windows-made files: ``textures\\tex.png``).
 
 glTF / GLB (the glTF 2.0 specification): a GLB is a 12-byte header (``glTF``, version, length), a JSON chunk and an
 optional BIN chunk (buffer 0 without a ``uri``). URIs are percent-decoded (RFC 3986, as the specification says),
-``data:`` URIs base64-decoded; any other URI names a file relative to the mesh's folder. ``extensionsRequired`` is
+``data:`` URIs base64-decoded; a ``file:`` URI is refused (an absolute path); any other URI names a file relative
+to the mesh's folder. ``extensionsRequired`` is
 checked first (``gltf.check_required``: a meshopt file's fallback buffer has no bytes of its own). ``image/ktx2`` textures are
 refused (trimesh skips them: the car would lose its colours without a word).
 
@@ -47,6 +48,7 @@ import os
 import re
 import struct
 import warnings
+from typing import NamedTuple
 from urllib.parse import unquote
 
 from scpainter_blender.core import files
@@ -113,6 +115,11 @@ def named_file(mesh_path, name: str, error, gltf: bool) -> str:
     ``files.open_regular`` (a FIFO or folder is refused there)."""
     from pathlib import Path
 
+    if gltf and name.strip().lower().startswith("file:"):  # RFC 8089: an absolute path, maybe on another machine
+        raise error(name, f"{name!r} (named by the mesh) is a file:// URI, which is not read here: only paths "
+                          "relative to the mesh, within its folder", "copy the file next to the mesh (or into a "
+                                                                     "folder below it) and name it relative to the "
+                                                                     "mesh (e.g. 'textures/paint.png')")
     target = (unquote(name) if gltf else name).replace("\\", "/")   # Windows-made: textures\\tex.png
     folder = Path(os.path.dirname(os.path.abspath(mesh_path))).resolve()
     if not target.strip():
@@ -290,6 +297,7 @@ def check_gltf(path, size: int, error, open_named) -> dict:
                      _index(node, "byteOffset", f"{field}.sparse.{what}.byteOffset", error, required=False) or 0, n, e)
 
     _check_attribute_counts(tree, accessors, error)
+    _check_texture_indices(tree, images, error)
 
     # images: readable, within the pixel bound, named exactly
     sizes = []
@@ -407,6 +415,44 @@ def _check_attribute_counts(tree, accessors, error) -> None:
                                        "element per vertex", "export the car again (the glTF is corrupt)")
 
 
+def _check_texture_indices(tree, images, error) -> None:
+    """Every material's base-colour texture names a texture (``materials[i].pbrMetallicRoughness.baseColorTexture
+    .index``), every texture an image (``source``, or an extension's ``source``: ``EXT_texture_webp``) and a
+    sampler (``sampler``) the file has, and every sampler's ``wrapS`` / ``wrapT`` is a glTF wrap mode
+    (``colors.WRAP_MODES``). trimesh went on past an index out of range with a log line: a white car."""
+    from .colors import WRAP_MODES
+
+    textures, samplers = _list(tree, "textures", error), _list(tree, "samplers", error)
+    corrupt = "export the car again (the glTF is corrupt)"
+
+    def names(field, v, what, count):
+        if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v < count:
+            have = (f"{count} {what}{'' if count == 1 else 's'} (indices 0 to {count - 1})" if count
+                    else f"no {what}s")
+            raise error(field, f"{field} = {v!r} names no {what}: the file has {have}", corrupt)
+
+    for i, s in enumerate(samplers):
+        for key in ("wrapS", "wrapT"):
+            if key in s and (isinstance(s[key], bool) or s[key] not in WRAP_MODES):
+                field = f"samplers[{i}].{key}"
+                raise error(field, f"{field} = {s[key]!r} is not a glTF wrap mode ("
+                                   + ", ".join(f"{k} {n}" for k, n in WRAP_MODES.items()) + ")", corrupt)
+    for j, t in enumerate(textures):
+        if "source" in t:
+            names(f"textures[{j}].source", t["source"], "image", len(images))
+        for name, ext in (t.get("extensions") or {}).items() if isinstance(t.get("extensions"), dict) else ():
+            if isinstance(ext, dict) and "source" in ext:
+                names(f"textures[{j}].extensions.{name}.source", ext["source"], "image", len(images))
+        if "sampler" in t:
+            names(f"textures[{j}].sampler", t["sampler"], "sampler", len(samplers))
+    for i, m in enumerate(_list(tree, "materials", error)):
+        pbr = m.get("pbrMetallicRoughness")
+        info = pbr.get("baseColorTexture") if isinstance(pbr, dict) else None
+        if isinstance(info, dict):
+            names(f"materials[{i}].pbrMetallicRoughness.baseColorTexture.index", info.get("index"), "texture",
+                  len(textures))
+
+
 def _view_bytes(path, data, bin_at, buffers, view, open_named) -> bytes:
     """The bytes of a (checked) buffer view: from the GLB's BIN chunk, a data URI or the buffer's file."""
     b = buffers[view["buffer"]]
@@ -487,8 +533,20 @@ def _mtl_name(text: str):
 MTL_TEXTURE_OPTIONS = {"-blendu": (1, 1), "-blendv": (1, 1), "-bm": (1, 1), "-boost": (1, 1), "-cc": (1, 1),
                        "-clamp": (1, 1), "-imfchan": (1, 1), "-mm": (2, 2), "-o": (1, 3), "-s": (1, 3), "-t": (1, 3),
                        "-texres": (1, 1)}
-#: options that change the colours read from a diffuse map, with the values that change nothing
-_MTL_NEUTRAL = {"-o": 0.0, "-s": 1.0, "-t": 0.0, "-mm": (0.0, 1.0), "-clamp": "off", "-cc": "off"}
+#: options that change the colours read from a diffuse map and are not applied, with the values that change nothing
+#: (``-clamp`` is applied: ``MtlMap.clamp``)
+_MTL_NEUTRAL = {"-o": 0.0, "-s": 1.0, "-t": 0.0, "-mm": (0.0, 1.0), "-cc": "off"}
+
+
+class MtlMap(NamedTuple):
+    """A ``map_Kd`` of an MTL: its texture file name, the options not applied (``ignored_options``), the material
+    it belongs to (the ``newmtl`` name, as trimesh names the material) and whether ``-clamp on`` clamps it (texture
+    coordinates beyond [0, 1] read the edge texels: CLAMP_TO_EDGE; off by default, i.e. REPEAT)."""
+
+    file: str
+    ignored: list
+    material: str
+    clamp: bool
 
 
 def _number(word):
@@ -548,21 +606,22 @@ def check_mtl(name: str, data: bytes, error) -> list:
     any case): it must define a material (a ``newmtl`` with a name; random bytes, an empty file or a file of
     comments define none, and trimesh then drops every material and texture without a word), and every ``map_Kd``
     must name a file after its options (``mtl_texture``; trimesh skips one without a value: the car would lose its
-    texture). Returns [(texture file name, [options that are not applied])] for every ``map_Kd``."""
+    texture). Returns an ``MtlMap`` for every ``map_Kd``."""
     text = data.decode("utf-8", errors="replace")
-    defined, maps = False, []
+    defined, maps, material = False, [], ""
     for number, line in enumerate(text.splitlines(), 1):
         words = line.split()
         key = words[0].lower() if words else ""
         if key == "newmtl" and len(words) > 1:
-            defined = True
+            defined, material = True, " ".join(words[1:])   # as trimesh names it
         elif key == "map_kd":
             file_name, options = mtl_texture(line[line.lower().index("map_kd") + 6:])  # as trimesh takes the value
             if not file_name:
                 raise error("map_Kd", f"{name!r} (named by the mesh) line {number}: map_Kd names no file, so the "
                                       "material's texture would be dropped", f"name the texture file in {name!r} "
                                                                              "(or remove the map_Kd line)")
-            maps.append((file_name, ignored_options(options)))
+            clamp = any(opt == "-clamp" and [a.lower() for a in args] == ["on"] for opt, args in options)
+            maps.append(MtlMap(file_name, ignored_options(options), material, clamp))
     if not defined:
         raise error(name, f"{name!r} (named by the mesh) defines no material (no 'newmtl' line): it is not an MTL "
                           "file or it is empty, and the car would lose its materials and textures",
@@ -574,7 +633,7 @@ def check_obj(path, error, open_named) -> list:
     """An OBJ before trimesh reads it: no face index of 0 (``_zero_index_line``; the field is ``f``), and its MTL
     file (``_mtl_name``, opened with ``open_named``, the caller's named-file rules) checked by ``check_mtl``, its
     textures from their headers (``check_image``, ``check_total_pixels``). Indices beyond the vertices raise in
-    trimesh (``load.load_mesh`` refuses them). Returns [(texture name, options not applied)] (``check_mtl``)."""
+    trimesh (``load.load_mesh`` refuses them). Returns its ``MtlMap``s (``check_mtl``)."""
     with files.open_regular(path, lambda p, f, m: error("(file)", m, None)) as f:
         data = f.read()
     data = data.replace(b"\r\n", b"\n")  # as trimesh reads it
@@ -590,7 +649,7 @@ def check_obj(path, error, open_named) -> list:
     with open_named(name) as f:
         maps = check_mtl(name, f.read(), error)
     sizes = []
-    for tex, _ in maps:
+    for tex in (m.file for m in maps):
         if os.path.splitext(tex)[1].lower() in IMAGE_EXTENSIONS:  # others: trimesh opens them, PIL's bound holds
             with open_named(tex) as f:
                 sizes.append((tex, check_image(f, error, tex)))

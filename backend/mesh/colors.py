@@ -2,7 +2,9 @@
 base colours, as sRGB values in [0, 1] (the values 3DGS renders and the condition images hold).
 
 Colours (``colour_source``): "texture" (base-colour texture, bilinear at the sample's UV, glTF conventions: texel
-centres at (i + 0.5) / size, REPEAT wrap, V as trimesh stores it, i.e. v = 1 at the top row), "vertex" (vertex
+centres at (i + 0.5) / size, V as trimesh stores it, i.e. v = 1 at the top row; the wrap modes of the texture's
+sampler (glTF ``samplers[].wrapS`` / ``wrapT``, ``WRAP_MODES``; REPEAT unless the file says otherwise, an MTL
+``-clamp on`` CLAMP_TO_EDGE) applied, as OpenGL does, to the texel indices of each sample's interpolated UV), "vertex" (vertex
 colours interpolated barycentrically), "face" (face colours, or the material's base colour when it has no
 texture), "none" (nothing in the file: ``NEUTRAL_GREY``). glTF's baseColorFactor and COLOR_0 are linear by the
 specification: they are applied in linear light and re-encoded to sRGB; textures and every other format's
@@ -20,6 +22,11 @@ import numpy as np
 from scpainter_blender.core.colors import linear_to_srgb, srgb_to_linear
 
 NEUTRAL_GREY = 0.5       # sRGB value for meshes without any colour (f_dc = 0)
+#: glTF 2.0 sampler wrap modes (the OpenGL enums a glTF file stores); REPEAT is the default
+REPEAT, CLAMP_TO_EDGE, MIRRORED_REPEAT = 10497, 33071, 33648
+WRAP_MODES = {REPEAT: "REPEAT", CLAMP_TO_EDGE: "CLAMP_TO_EDGE", MIRRORED_REPEAT: "MIRRORED_REPEAT"}
+#: (wrapS, wrapT) where nothing says otherwise
+DEFAULT_WRAP = (REPEAT, REPEAT)
 
 
 def _bands(image, channels: int) -> np.ndarray:
@@ -53,11 +60,24 @@ def _texels(image) -> np.ndarray:
     return img if img.shape[2] == 3 else img[..., :1] if img.shape[2] < 3 else img[..., :3]  # views, no copies
 
 
-def sample_texture(image, uv) -> np.ndarray:
+def _wrap(i, size: int, mode: int) -> np.ndarray:
+    """Texel indices ``i`` (int64, any integers) wrapped into [0, size) as OpenGL's wrap ``mode`` does (the glTF
+    2.0 sampler's): REPEAT i mod size; CLAMP_TO_EDGE clamped to the edge texels; MIRRORED_REPEAT i mod 2 size,
+    the second half mirrored (2 size - 1 - i)."""
+    if mode == CLAMP_TO_EDGE:
+        return np.clip(i, 0, size - 1)
+    if mode == MIRRORED_REPEAT:
+        m = i % (2 * size)
+        return np.where(m < size, m, 2 * size - 1 - m)
+    return i % size
+
+
+def sample_texture(image, uv, wrap=DEFAULT_WRAP) -> np.ndarray:
     """Bilinear RGB in [0, 1] (n, 3) of an image (PIL image or (H, W[, C]) array, 8 or 16 bit) at trimesh UVs (n, 2).
 
     glTF sampling: texel (i, j) has its centre at u = (i + 0.5) / W, and trimesh stores v flipped (v = 1 at the
-    top row: row = (1 - v) H - 0.5); coordinates wrap (REPEAT). Non-finite UVs give NaN. Only the four texels of
+    top row: row = (1 - v) H - 0.5); the four texel indices of each sample are wrapped by ``wrap`` = (wrapS for
+    columns, wrapT for rows) (``WRAP_MODES``, default REPEAT). Non-finite UVs give NaN. Only the four texels of
     each sample are converted to float (memory O(n), not O(H W)).
     """
     img = _texels(image)
@@ -69,8 +89,9 @@ def sample_texture(image, uv) -> np.ndarray:
     y = (1.0 - np.where(ok, uv[:, 1], 0.0)) * H - 0.5
     x0, y0 = np.floor(x), np.floor(y)
     fx, fy = (x - x0)[:, None], (y - y0)[:, None]
-    x0, y0 = x0.astype(np.int64) % W, y0.astype(np.int64) % H
-    x1, y1 = (x0 + 1) % W, (y0 + 1) % H
+    x0, y0 = x0.astype(np.int64), y0.astype(np.int64)
+    x0, x1 = _wrap(x0, W, wrap[0]), _wrap(x0 + 1, W, wrap[0])
+    y0, y1 = _wrap(y0, H, wrap[1]), _wrap(y0 + 1, H, wrap[1])
 
     def at(r, c):  # (n, 3) float64 of the texels at rows r, columns c
         t = img[r, c].astype(np.float64) / scale
@@ -110,8 +131,10 @@ def _material_colour(material):
     return image, _factor(main)
 
 
-def part_colours(part, local_faces, bary, gltf: bool):
-    """sRGB RGB (n, 3) in [0, 1] at samples on ``part`` (face indices (n,), barycentric (n, 3)), and the source."""
+def part_colours(part, local_faces, bary, gltf: bool, wrap=DEFAULT_WRAP):
+    """sRGB RGB (n, 3) in [0, 1] at samples on ``part`` (face indices (n,), barycentric (n, 3)), and the source.
+    ``wrap``: (wrapS, wrapT) of the part's base-colour texture (``MeshAsset.wraps``), applied to each sample's
+    interpolated UV."""
     from trimesh.visual import ColorVisuals, TextureVisuals
 
     n = len(local_faces)
@@ -121,7 +144,7 @@ def part_colours(part, local_faces, bary, gltf: bool):
         image, factor = _material_colour(vis.material)
         uv = None if vis.uv is None else np.asarray(vis.uv, np.float64)
         if image is not None and uv is not None and len(uv) == len(part.vertices):
-            tex = sample_texture(image, np.einsum("nk,nkc->nc", bary, uv[faces]))
+            tex = sample_texture(image, np.einsum("nk,nkc->nc", bary, uv[faces]), wrap)
             # glTF: base colour = texture (sRGB-decoded) x factor (linear); OBJ/MTL: the map replaces Kd
             rgb = linear_to_srgb(srgb_to_linear(tex) * factor) if gltf else tex
             return rgb, "texture"

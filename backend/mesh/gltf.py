@@ -15,6 +15,11 @@ What trimesh 5.2.0 (``trimesh/exchange/gltf``) does itself, and what is done her
   fails). Here: decoded with DracoPy (``DRACOPY``, pinned in requirements.txt) into the plain accessors, a failure
   an error naming the primitive; without DracoPy installed the file is refused (``check_required``).
 
+* Samplers: trimesh keeps no sampler, and the colours were read with REPEAT whatever ``wrapS`` / ``wrapT`` said.
+  Here: a material whose base-colour texture wraps otherwise (``base_colour_wrap``) is renamed in the plain GLB
+  (``WRAP_TAG`` + its index), and ``part_wraps`` gives each part read from it its (wrapS, wrapT), restoring the
+  name (``backend.mesh.colors`` applies the wrap to each sample's UV).
+
 ``plain_glb`` writes a primitive's POSITION, indices, the base-colour texture's UVs (as TEXCOORD_0, the transform
 applied) and COLOR_0 as float32 / uint32 accessors in an added buffer (GLB: after the BIN chunk's bytes; glTF: a
 new buffer 0, the others shifted), drops its other attributes and its Draco extension, and strips ``texCoord`` and
@@ -39,9 +44,12 @@ import struct
 import numpy as np
 
 from . import checks
+from .colors import DEFAULT_WRAP
 
 DRACO = "KHR_draco_mesh_compression"
 TRANSFORM = "KHR_texture_transform"
+#: the name prefix that marks a material with a non-default wrap in the plain GLB (``part_wraps`` removes it)
+WRAP_TAG = "scpainter-wrap:"
 DRACOPY = "DracoPy==2.2.0"      # what requirements.txt pins; named in the refusal when it is not installed
 #: Required extensions read here, or read as absent without changing the geometry or the base colour (material
 #: extensions change shading only; unlit keeps the base colour; lights, XMP and variants' default are harmless).
@@ -164,9 +172,45 @@ def _uv_set(info) -> int:
     return k if isinstance(k, int) and not isinstance(k, bool) and k >= 0 else 0
 
 
+def base_colour_wrap(tree, k) -> tuple:
+    """(wrapS, wrapT) of material ``k``'s base-colour texture's sampler (glTF enums; ``checks.check_gltf``
+    checked the indices and values); REPEAT where the texture has no sampler or the sampler no wrap."""
+    info = _base_colour_info(tree, {"material": k})
+    if info is None:
+        return DEFAULT_WRAP
+    tex = tree["textures"][info["index"]]
+    if "sampler" not in tex:
+        return DEFAULT_WRAP
+    sampler = tree["samplers"][tex["sampler"]]
+    return sampler.get("wrapS", DEFAULT_WRAP[0]), sampler.get("wrapT", DEFAULT_WRAP[1])
+
+
+def _wrapped(tree) -> list:
+    """Indices of the materials whose base-colour texture wraps other than REPEAT both ways."""
+    return [k for k in range(len(tree.get("materials") or [])) if base_colour_wrap(tree, k) != DEFAULT_WRAP]
+
+
+def part_wraps(parts, tree) -> list:
+    """(wrapS, wrapT) of each part (trimesh meshes read from ``plain_glb``'s output): its material's, found by the
+    ``WRAP_TAG`` name ``plain_glb`` gave it, whose own name (or none) is restored; REPEAT for every other part."""
+    found = {}
+    for part in parts:
+        material = getattr(part.visual, "material", None)
+        name = getattr(material, "name", None)
+        if isinstance(name, str) and name.startswith(WRAP_TAG):
+            found[id(material)] = (material, int(name[len(WRAP_TAG):]))
+    for material, k in found.values():  # after all are found: parts share their material
+        material.name = tree["materials"][k].get("name")
+    return [base_colour_wrap(tree, found[id(m)][1]) if id(m) in found else DEFAULT_WRAP
+            for m in (getattr(p.visual, "material", None) for p in parts)]
+
+
 def needs_plain(tree) -> bool:
     """Whether trimesh would misread ``tree``: a triangle primitive with Draco, a non-float or sparse POSITION or
-    base-colour UV set, or a base-colour texture whose UVs are not TEXCOORD_0 untransformed."""
+    base-colour UV set, or a base-colour texture whose UVs are not TEXCOORD_0 untransformed; or a base-colour
+    texture that does not wrap with REPEAT (its material is marked for ``part_wraps``)."""
+    if _wrapped(tree):
+        return True
     acc = tree.get("accessors") or []
 
     def odd(i):
@@ -342,6 +386,8 @@ def plain_glb(path, tree, error, open_named):
                 out["indices"] = add(idx.astype(np.int64), 5125, "SCALAR")
             out.pop("targets", None)
             (out.get("extensions") or {}).pop(DRACO, None)
+    for k in _wrapped(tree):
+        new["materials"][k]["name"] = f"{WRAP_TAG}{k}"
     for mat in new.get("materials") or []:
         info = (mat.get("pbrMetallicRoughness") or {}).get("baseColorTexture") if isinstance(mat, dict) else None
         if isinstance(info, dict):

@@ -27,8 +27,8 @@ are opened, the mesh and every file it names (glTF buffers and images, OBJ mater
 would take another file of the same base name); a missing, outside or unreadable one is refused naming it, though
 trimesh would go on without it. A PLY's header (``core.splats.ply_format``), a glTF/GLB's buffers, views and
 accessors and an OFF's counts are checked against the bytes before trimesh allocates what they claim, an OBJ's
-face indices (never 0) and its MTL (``checks.check_obj``: ``map_Kd`` options parsed, the options not applied a
-``TEXTURE_OPTIONS_IGNORED`` warning); textures against ``checks.MAX_TEXTURE_PIXELS`` each and
+face indices (never 0) and its MTL (``checks.check_obj``: ``map_Kd`` options parsed, ``-clamp on`` applied, the
+options not applied a ``TEXTURE_OPTIONS_IGNORED`` warning); textures against ``checks.MAX_TEXTURE_PIXELS`` each and
 ``checks.MAX_TOTAL_TEXTURE_PIXELS`` together, from their headers. The scene is flattened without copying materials
 (``_instances``: ``Scene.dump`` deep-copies, i.e. decodes, every texture), each texture decoded once
 (``_decode_textures``: a failure names it). After reading: face indices against the vertex count,
@@ -86,7 +86,9 @@ class MeshAsset:
     ``parts``: ``trimesh.Trimesh`` objects in the Z-up output frame, node transforms applied, each with its own
     visual (texture / colours); ``up``: the axis read as up in the file ("y" or "z"); ``gltf``: colours follow
     glTF's rules (linear factors and vertex colours);
-    ``warnings``: ``warning`` events (dicts: message, code) for what the file had that was left out or went past.
+    ``warnings``: ``warning`` events (dicts: message, code) for what the file had that was left out or went past;
+    ``wraps``: (wrapS, wrapT) of each part's base-colour texture (``colors.WRAP_MODES``: glTF samplers, an MTL
+    ``-clamp on``), one per part, or empty: REPEAT for all.
     """
 
     path: str
@@ -94,6 +96,7 @@ class MeshAsset:
     up: str
     gltf: bool = False
     warnings: list = field(default_factory=list)
+    wraps: list = field(default_factory=list)
 
     @property
     def vertices(self) -> np.ndarray:
@@ -111,6 +114,30 @@ class MeshAsset:
         return np.concatenate(out) if out else np.zeros((0, 3), np.int64)
 
 
+#: What to do with a Gaussian-splat file given to ``mesh-asset`` (the splats need no conversion).
+SPLATS_HINT = ("use it as it is: `Import Gaussian Asset` in Blender reads it, or `python -m backend splat-asset FILE "
+               "--out PLY` writes it as an INRIA PLY")
+
+
+def _splats_error(path, what) -> MeshAssetError:
+    return MeshAssetError(path, f"it holds Gaussian splats ({what}), not a mesh: there is nothing to convert",
+                          "(file)", hint=SPLATS_HINT)
+
+
+def _check_not_splats(path, ext) -> None:
+    """Refuse a Gaussian-splat file that is no PLY (SPZ, SOG, .splat, .ksplat, a ``KHR_gaussian_splatting`` glTF)
+    by content (``reader.detect``), with what to do (``SPLATS_HINT``); a PLY is ``_check_ply``'s."""
+    from scpainter_blender.core.splats import reader
+
+    if ext == ".ply" or reader.is_mesh(path):
+        return
+    try:
+        kind = reader.detect(path)
+    except splats.SplatsError:
+        return  # no Gaussian file: the mesh checks say what it is
+    raise _splats_error(path, f"{kind} format")
+
+
 def _check_ply(path, size: int) -> None:
     """Refuse, before trimesh reads it, a PLY that holds Gaussians, or whose header promises more than the file
     holds (trimesh would allocate what the counts claim). A header our parser cannot read is left to trimesh,
@@ -122,7 +149,7 @@ def _check_ply(path, size: int) -> None:
     vertex = next((props for name, _, props in elements if name == "vertex"), [])
     names = {p for p, _ in vertex}
     if "f_dc_0" in names or {"scale_0", "rot_0"} <= names or "packed_position" in names:
-        raise MeshAssetError(path, "this is a Gaussian-splat PLY, not a mesh: import it as Gaussians directly")
+        raise _splats_error(path, "a Gaussian-splat PLY")
     binary = fmt in ("binary_little_endian", "binary_big_endian")
     for name, count, props in elements:
         # the fewest bytes a row can take: its fixed properties, each list's count; ASCII: one digit and a space each
@@ -138,7 +165,7 @@ UV_FIELD = {".glb": "TEXCOORD_0", ".gltf": "TEXCOORD_0", ".obj": "vt", ".ply": "
 #: ``warning`` event codes of ``mesh-asset`` (an honest acceptance: the PLY is written, the event says what was off)
 READER_WARNING = "mesh_reader_warning"      # trimesh went on past something in the file it could not read
 NONFINITE_FACES = "mesh_nonfinite_faces"    # faces with a NaN/infinite corner: never sampled
-TEXTURE_OPTIONS_IGNORED = "mesh_texture_options_ignored"  # an MTL map_Kd's -o/-s/-t/-mm/-clamp/-cc, not applied
+TEXTURE_OPTIONS_IGNORED = "mesh_texture_options_ignored"  # an MTL map_Kd's -o/-s/-t/-mm/-cc, not applied
 
 
 def _error_for(path):
@@ -318,6 +345,18 @@ def _check_parts(path, ext, meshes, warnings_out) -> None:
                              "code": NONFINITE_FACES})
 
 
+def _mtl_wraps(meshes, maps) -> list:
+    """(wrapS, wrapT) of each OBJ part: CLAMP_TO_EDGE both ways where its material's ``map_Kd`` has ``-clamp on``
+    (``checks.MtlMap``; trimesh names the material as the ``newmtl`` line does), else REPEAT; [] when none does."""
+    from .colors import CLAMP_TO_EDGE, DEFAULT_WRAP
+
+    clamped = {m.material for m in maps if m.clamp}
+    if not clamped:
+        return []
+    return [(CLAMP_TO_EDGE, CLAMP_TO_EDGE) if getattr(getattr(p.visual, "material", None), "name", None) in clamped
+            else DEFAULT_WRAP for p in meshes]
+
+
 def load_mesh(path, up: str = "auto") -> MeshAsset:
     """Read a mesh file (GLB, glTF, OBJ, PLY, STL, OFF) into Z-up parts (see the module docstring).
 
@@ -339,6 +378,8 @@ def load_mesh(path, up: str = "auto") -> MeshAsset:
     if up not in ("auto", "y", "z"):
         raise ValueError(f"up must be 'auto', 'y' or 'z', got {up!r}")
     size = files.check_regular(path, _file_error)  # trimesh opens by name: a FIFO would block it forever
+    if size:
+        _check_not_splats(path, ext)
     if ext not in UP_BY_EXTENSION:
         raise MeshAssetError(path, f"{ext or 'no extension'} is not a mesh format read here: export the car as "
                                    "GLB, glTF, OBJ, PLY, STL or OFF")
@@ -385,9 +426,9 @@ def load_mesh(path, up: str = "auto") -> MeshAsset:
             raise MeshAssetError(path, f"trimesh cannot read it as a mesh ({type(e).__name__}: {e}); check the file "
                                        "opens in Blender, or export it again as GLB") from None
     warned = _reader_outcome(path, records, resolver.refused)
-    warned += [{"message": f"{os.path.basename(path)}: texture {tex!r}: MTL options not applied here: "
-                           f"{', '.join(opts)} (the texture is read as if they were absent)",
-                "code": TEXTURE_OPTIONS_IGNORED} for tex, opts in maps if opts]
+    warned += [{"message": f"{os.path.basename(path)}: texture {m.file!r}: MTL options not applied here: "
+                           f"{', '.join(m.ignored)} (the texture is read as if they were absent)",
+                "code": TEXTURE_OPTIONS_IGNORED} for m in maps if m.ignored]
     meshes = [p for p in parts if isinstance(p, trimesh.Trimesh) and len(p.faces)]
     if not meshes:
         points = sum(len(getattr(p, "vertices", ())) for p in parts)
@@ -402,7 +443,8 @@ def load_mesh(path, up: str = "auto") -> MeshAsset:
         y_up_to_z_up[:3, :3] = Y_UP_TO_Z_UP
         for m in meshes:
             m.apply_transform(y_up_to_z_up)
-    asset = MeshAsset(path, meshes, axis, gltf=gltf, warnings=warned)
+    wraps = gltf_plain.part_wraps(meshes, tree) if plain is not None else _mtl_wraps(meshes, maps)
+    asset = MeshAsset(path, meshes, axis, gltf=gltf, warnings=warned, wraps=wraps)
     used = np.unique(asset.faces)
     checks.check_extent(asset.vertices[used], error, tree)
     if not np.any(face_areas(asset.vertices, asset.faces) > 0):

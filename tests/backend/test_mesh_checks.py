@@ -279,6 +279,32 @@ def _textured_obj(folder, mtl: bytes, texture="tex.png"):
     return folder / "car.obj"
 
 
+@pytest.mark.parametrize("clamp", [b"on", b"off", None])
+def test_mtl_clamp_on_reads_the_edge_texels_beyond_the_unit_square(tmp_path, clamp):
+    """An MTL ``map_Kd -clamp on``: texture coordinates in [1.01, 1.99] read the texel at u = v = 1 (the top-right
+    of the image, OBJ's v counting up); off (the default): the texture repeats, all four texels are read."""
+    from backend.mesh import colors as mesh_colors
+
+    folder = tmp_path / "c"
+    folder.mkdir()
+    texels = np.array([[(255, 0, 0), (0, 255, 0)], [(0, 0, 255), (255, 255, 0)]], np.uint8)  # rows top to bottom
+    Image.fromarray(texels).save(folder / "tex.png")
+    option = b"" if clamp is None else b"-clamp " + clamp + b" "
+    (folder / "car.mtl").write_bytes(b"newmtl paint\nKd 1 1 1\nmap_Kd " + option + b"tex.png\n")
+    (folder / "car.obj").write_text("mtllib car.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 1.01 1.01\nvt 1.99 1.01\n"
+                                    "vt 1.99 1.99\nvt 1.01 1.99\nusemtl paint\nf 1/1 2/2 3/3\nf 1/1 3/3 4/4\n")
+    asset = mesh_load.load_mesh(folder / "car.obj")
+    assert asset.warnings == []
+    g = ma.sample_gaussians(asset, 400, seed=3)
+    rgb = MF.rgb_of(g.gaussians)
+    if clamp == b"on":
+        assert asset.wraps == [(mesh_colors.CLAMP_TO_EDGE, mesh_colors.CLAMP_TO_EDGE)]
+        np.testing.assert_allclose(rgb, np.tile([0.0, 1.0, 0.0], (len(rgb), 1)), atol=2e-3)
+    else:
+        assert asset.wraps == []
+        assert np.ptp(rgb, axis=0).max() > 0.5     # repeated: the colours vary across the quad
+
+
 def test_an_mtl_that_defines_no_material_is_refused_naming_it(tmp_path):
     import random
 
@@ -405,10 +431,10 @@ def test_mtl_texture_options_are_read_as_options(tmp_path):
     asset = mesh_load.load_mesh(ok)
     assert asset.warnings == []                                  # options that change nothing: no word
     assert ma.sample_gaussians(asset, 50).colour_source == "texture"
-    # options trimesh does not apply (an offset, a scale, clamping): read, with a warning naming them
+    # options not applied (an offset, a scale): read, with a warning naming them; -clamp on is applied, unnamed
     asset = mesh_load.load_mesh(_textured_obj(tmp_path / "w", b"newmtl m\nmap_Kd -o 0.5 0 -clamp on tex.png\n"))
     assert [w["code"] for w in asset.warnings] == [mesh_load.TEXTURE_OPTIONS_IGNORED]
-    assert "-o 0.5 0" in asset.warnings[0]["message"] and "-clamp on" in asset.warnings[0]["message"]
+    assert "-o 0.5 0" in asset.warnings[0]["message"] and "-clamp" not in asset.warnings[0]["message"]
     # options without a file name; an option missing its value
     refused(_textured_obj(tmp_path / "n", b"newmtl m\nmap_Kd -s 1 1 1\n"), "map_Kd names no file", "map_Kd")
     refused(_textured_obj(tmp_path / "v", b"newmtl m\nmap_Kd -mm 0.1\n"), "map_Kd names no file", "map_Kd")

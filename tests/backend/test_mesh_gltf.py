@@ -62,7 +62,7 @@ def _pad(blob):
 
 def quad_gltf(folder, name="quad.glb", *, uv_sets=None, uv_type=5126, tex_info=None, positions="float",
               node=None, normals=False, colours=None, draco=False, meshopt=False, required=(), image="embedded",
-              image_bytes=None):
+              image_bytes=None, sampler=None, material_name=None):
     """A textured unit quad written by hand as glTF 2.0 (``name`` .glb: one BIN chunk; .gltf: ``quad.bin``).
 
     ``uv_sets``: {set index: (4, 2) UVs, glTF convention} (default {0: ``base_uv`` of the corners});
@@ -72,7 +72,8 @@ def quad_gltf(folder, name="quad.glb", *, uv_sets=None, uv_type=5126, tex_info=N
     ``normals``: BYTE normalized normals; ``colours``: (4, 4) RGBA COLOR_0 as UNSIGNED_SHORT normalized (no
     texture then); ``draco``: positions, first UV set and indices in a KHR_draco_mesh_compression buffer (DracoPy);
     ``required``: more ``extensionsRequired``; ``image``: "embedded" (a bufferView), a URI (the file written as
-    the URI names it, percent-decoded, unless ``image_bytes`` is b"" ) or None (no texture)."""
+    the URI names it, percent-decoded, unless ``image_bytes`` is b"" ) or None (no texture); ``sampler``: the
+    texture's sampler (a ``samplers`` entry: wrapS / wrapT); ``material_name``: the material's ``name``."""
     from urllib.parse import unquote
 
     uv_sets = {0: base_uv(QUAD[:, 0], QUAD[:, 1])} if uv_sets is None else uv_sets
@@ -169,6 +170,11 @@ def quad_gltf(folder, name="quad.glb", *, uv_sets=None, uv_type=5126, tex_info=N
             used.add(e)
         gltf["textures"] = [{"source": 0}]
         gltf["materials"] = [{"pbrMetallicRoughness": {"baseColorTexture": info}}]
+        if sampler is not None:
+            gltf["samplers"] = [sampler]
+            gltf["textures"][0]["sampler"] = 0
+        if material_name is not None:
+            gltf["materials"][0]["name"] = material_name
         prim["material"] = 0
     if used:
         gltf["extensionsUsed"] = sorted(used)
@@ -388,6 +394,80 @@ def test_supported_required_extensions_pass(tmp_path):
     assert_texture_read_as_viewers_do(*convert(path, tmp_path))
 
 
+# -- sampler wrap modes ------------------------------------------------------------------------------------------------
+
+REPEAT, CLAMP, MIRROR = 10497, 33071, 33648      # glTF 2.0 sampler.wrapS / wrapT (the OpenGL enums)
+
+
+def wrapped_cell(t, mode):
+    """(cell along one axis, near a cell border?) of texture coordinates ``t`` (N,) wrapped as the glTF
+    specification's sampler says (OpenGL): REPEAT the fraction, CLAMP_TO_EDGE the edge texels beyond [0, 1],
+    MIRRORED_REPEAT every other unit mirrored."""
+    if mode == CLAMP:
+        px = np.clip(t, 0.0, 1.0) * GRID * CELL        # beyond the image: its edge texels alone
+    else:
+        m = t % 2.0 if mode == MIRROR else t % 1.0
+        px = np.where(m > 1.0, 2.0 - m, m) * GRID * CELL
+    near = np.abs(px - CELL * np.round(px / CELL)) < 1.0
+    on_edge = (mode == CLAMP) & ((px <= 0) | (px >= GRID * CELL))
+    return np.floor(px / CELL).astype(int).clip(0, GRID - 1), near & ~on_edge
+
+
+@pytest.mark.parametrize("wrap_s, wrap_t", [(CLAMP, CLAMP), (MIRROR, MIRROR), (REPEAT, REPEAT), (None, None),
+                                            (CLAMP, MIRROR), (MIRROR, REPEAT)])
+def test_sampler_wrap_modes_are_applied_to_each_sample(tmp_path, wrap_s, wrap_t):
+    """UVs in [1.01, 1.99] (the texture's second copy): CLAMP_TO_EDGE reads the edge texels, MIRRORED_REPEAT the
+    mirrored image, REPEAT (or no wrap given) the image as it is; wrapS for u, wrapT for v."""
+    lo, span = 1.01, 0.98
+    uv = np.stack([lo + span * QUAD[:, 0], lo + span * (1 - QUAD[:, 1])], axis=1)
+    sampler = {k: v for k, v in (("wrapS", wrap_s), ("wrapT", wrap_t)) if v is not None}
+    path = quad_gltf(tmp_path, uv_sets={0: uv}, sampler=sampler, material_name="paint")
+    res, out = convert(path, tmp_path, count=3000)
+    g = splats_io.load(out)
+    x, y = g.means[:, 0].astype(np.float64), g.means[:, 2].astype(np.float64)   # glTF x, y
+    (i, edge_i), (j, edge_j) = (wrapped_cell(lo + span * x, wrap_s or REPEAT),
+                                wrapped_cell(lo + span * (1 - y), wrap_t or REPEAT))
+    inner = ~(edge_i | edge_j)
+    assert inner.mean() > 0.5 and res["colour_source"] == "texture"
+    got = MF.rgb_of(g)[inner]
+    want = COLOURS[(i + GRID * j)[inner]].astype(np.float64) / 255
+    bad = np.abs(got - want).max(axis=1) > 2e-3
+    assert not bad.any(), f"{bad.sum()} of {inner.sum()} Gaussians have another texel's colour"
+    if wrap_s == CLAMP and wrap_t == CLAMP:  # all one colour: the corner texel at u = v = 1
+        assert np.abs(MF.rgb_of(g) - COLOURS[GRID * GRID - 1] / 255).max() < 2e-3
+    asset = mesh_load.load_mesh(path)
+    assert asset.parts[0].visual.material.name == "paint"   # the marker plain_glb gives it is taken off again
+    assert asset.wraps in ([], [(wrap_s or REPEAT, wrap_t or REPEAT)])
+
+
+def _edited(tmp_path, edit):
+    """The quad as .gltf with ``edit(gltf JSON)`` applied."""
+    path = quad_gltf(tmp_path, "quad.gltf", sampler={"wrapS": CLAMP})
+    with open(path) as f:
+        tree = json.load(f)
+    edit(tree)
+    with open(path, "w") as f:
+        json.dump(tree, f)
+    return path
+
+
+@pytest.mark.parametrize("field, edit", [
+    ("materials[0].pbrMetallicRoughness.baseColorTexture.index",
+     lambda t: t["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"].update(index=5)),
+    ("textures[0].source", lambda t: t["textures"][0].update(source=1)),
+    ("textures[0].sampler", lambda t: t["textures"][0].update(sampler=3)),
+    ("samplers[0].wrapS", lambda t: t["samplers"][0].update(wrapS=9729)),
+])
+def test_texture_indices_out_of_range_exit_2_naming_the_field(tmp_path, field, edit):
+    """A base-colour texture, image or sampler index the file does not have: trimesh went on with a log line
+    and a white car (exit 0); a missing texture file is an error, so is this."""
+    path = _edited(tmp_path, edit)
+    code, events, err = run_backend("mesh-asset", path, "--out", tmp_path / "o.ply", "--count", 100)
+    assert code == 2 and "Traceback" not in err
+    assert events[-1]["event"] == "error" and events[-1]["field"] == field and field in events[-1]["message"]
+    assert not (tmp_path / "o.ply").exists()
+
+
 # -- external textures -------------------------------------------------------------------------------------------------
 
 def test_percent_encoded_texture_name_is_read(tmp_path):
@@ -410,6 +490,18 @@ def test_texture_problems_exit_2_naming_the_file(tmp_path, uri, data, what):
     assert code == 2 and "Traceback" not in err
     assert events[-1]["event"] == "error" and uri in events[-1]["message"] and what in events[-1]["message"]
     assert not (tmp_path / "o.ply").exists()
+
+
+@pytest.mark.parametrize("uri", ["file:///tmp/paint.png", "FILE:paint.png"])
+def test_file_uri_texture_is_refused_as_a_file_uri(tmp_path, uri):
+    """A ``file://`` URI (an absolute path, which the model's folder rule does not allow) is said to be one, not
+    "not found"."""
+    path = quad_gltf(tmp_path, "quad.gltf", image=uri, image_bytes=b"")
+    code, events, err = run_backend("mesh-asset", path, "--out", tmp_path / "o.ply", "--count", 100)
+    assert code == 2 and "Traceback" not in err
+    message = events[-1]["message"]
+    assert uri in message and "file:// URI" in message and "not found" not in message
+    assert "relative to the mesh" in events[-1]["hint"]
 
 
 # -- a real file -----------------------------------------------------------------------------------------------------

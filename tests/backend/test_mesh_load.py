@@ -138,6 +138,31 @@ def test_fifo_inputs_are_refused_at_once(tmp_path):
         assert str(e).startswith(f"tri.gltf: '{name}' (named by the mesh) is a FIFO") and e.field == name
 
 
+@pytest.mark.parametrize("ext", [".ply", ".splat", ".spz", ".sog", ".glb"])
+def test_gaussian_splat_files_are_refused_pointing_to_the_splat_import(tmp_path, ext):
+    """Gaussian splats given to mesh-asset (a KHR_gaussian_splatting .glb, SPZ, SOG, .splat, a Gaussian PLY; the
+    others written by splat-transform from the PLY) are told as splats, with the commands that read them, not as a
+    point cloud or a format to export again."""
+    from scpainter_blender.core.splats import compressed
+    from tests_support import run_backend
+
+    g = ma.mesh_to_gaussians(trimesh.creation.box(), 64, seed=2)
+    splats_inria.write_ply(tmp_path / "car.ply", splats.encode(g))
+    if ext == ".splat":
+        compressed.write_splat(tmp_path / "car.splat", g)
+    elif ext != ".ply":
+        import splat_transform
+
+        splat_transform.convert(tmp_path / "car.ply", tmp_path / f"car{ext}")
+    path = tmp_path / f"car{ext}"
+    with pytest.raises(mesh_load.MeshAssetError, match="holds Gaussian splats") as e:
+        mesh_load.load_mesh(path)
+    assert "splat-asset" in e.value.hint and "Import Gaussian Asset" in e.value.hint
+    code, events, err = run_backend("mesh-asset", path, "--out", tmp_path / "o.ply", "--count", 100)
+    assert code == 2 and "Traceback" not in err and "Gaussian splats" in events[-1]["message"]
+    assert "point cloud" not in events[-1]["message"] and "export the car" not in events[-1]["message"]
+
+
 def test_gaussian_ply_detected_by_its_properties_not_its_comments(tmp_path):
     g = ma.mesh_to_gaussians(trimesh.creation.box(), 50)
     splats_inria.write_ply(tmp_path / "splat.ply", splats.encode(g), comment="exported by end_header tools")

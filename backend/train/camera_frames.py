@@ -71,7 +71,10 @@ def distortion_coefficients(value, path, field, error=errors.InputError, model: 
     lengths = DISTORTION_LENGTHS[model or OPENCV]
     if not isinstance(value, list) or len(value) not in lengths or not all(
             isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
-        got = f"a list of {len(value)}" if isinstance(value, list) else f"{type(value).__name__}"
+        others = sorted({type(v).__name__ for v in value if not isinstance(v, (int, float)) or isinstance(v, bool)}
+                        ) if isinstance(value, list) else ()
+        got = (f"a list of {len(value)}{' holding ' + ', '.join(others) if others else ''}"
+               if isinstance(value, list) else f"{type(value).__name__}")
         count = ", ".join(map(str, lengths[:-1])) + " or " + str(lengths[-1]) if len(lengths) > 1 else str(lengths[0])
         raise error(path, field, f"expected {DISTORTION_ORDER[model or OPENCV]} distortion coefficients: a list of "
                                  f"{count} numbers, got {got}", "give the coefficients of the frames' calibration, "

@@ -262,6 +262,38 @@ def _read_poses(poses_path: str, clip_path: str, S: int, size):
     return w2c, K, M
 
 
+#: A poses.npz K whose focal lengths differ from VGGT's estimate (scaled to the frames' size) by more than this
+#: factor, or whose principal point lies further than ``POSES_K_CENTRE_AGREEMENT`` of the image size from VGGT's,
+#: is refused: it was made for another image size (a K for VGGT's 518 px frames beside 1920 px frames gives fx 0.27
+#: times VGGT's and a principal point in the top-left quarter; one for half-size frames 0.5 and a quarter image
+#: off), and nothing else would notice. VGGT's focal estimate is within ~20 % on real clips and a calibrated
+#: principal point within a few % of the image centre, which VGGT assumes: the bounds leave room for both.
+POSES_K_FOCAL_AGREEMENT = 1.5
+POSES_K_CENTRE_AGREEMENT = 0.2
+
+
+def _check_poses_K(K: np.ndarray, K_vggt: np.ndarray, size, poses_path: str) -> None:
+    """Refuse poses.npz's K (S, 3, 3), ours for frames of ``size`` (W, H), when a frame's disagrees with VGGT's
+    estimate ``K_vggt`` (S, 3, 3) scaled to that size beyond the bounds above, naming ``K[t]`` and both."""
+    W, H = size
+    ratio = np.stack([K[:, 0, 0] / K_vggt[:, 0, 0], K[:, 1, 1] / K_vggt[:, 1, 1]], axis=1)
+    off = np.stack([np.abs(K[:, 0, 2] - K_vggt[:, 0, 2]) / W, np.abs(K[:, 1, 2] - K_vggt[:, 1, 2]) / H], axis=1)
+    bad = ~((ratio <= POSES_K_FOCAL_AGREEMENT) & (ratio >= 1 / POSES_K_FOCAL_AGREEMENT)).all(1) | \
+        (off > POSES_K_CENTRE_AGREEMENT).any(1)
+    if not bad.any():
+        return
+    t = int(np.argmax(bad))
+    r = float(np.sqrt(ratio[t, 0] * ratio[t, 1]))
+    raise ClipError(poses_path, f"K[{t}]", f"fx {K[t, 0, 0]:.4g}, fy {K[t, 1, 1]:.4g}, principal point "
+                                           f"({K[t, 0, 2]:.4g}, {K[t, 1, 2]:.4g}) for frames of {W} x {H} px, where "
+                                           f"VGGT's estimate at that size is fx {K_vggt[t, 0, 0]:.4g}, fy "
+                                           f"{K_vggt[t, 1, 1]:.4g}, principal point ({K_vggt[t, 0, 2]:.4g}, "
+                                           f"{K_vggt[t, 1, 2]:.4g}): {r:.2g} times its focal length. It looks like a "
+                                           f"K for images of about {W * r:.0f} x {H * r:.0f} px",
+                    f"give each frame's K for the frame images' {W} x {H} px (scale a K calibrated at another size "
+                    f"by the size ratio, pixel centres at +0.5)")
+
+
 def json_path(path) -> str:
     """The clip.json of a clip folder (or the path itself when it names the file)."""
     path = os.fspath(path)
@@ -313,14 +345,21 @@ def load(path) -> Clip:
                         "give the frames VGGT was run on, as shown (upright), resized without cropping or padding")
 
     metric = "poses" in data
+    K_vggt = np.diag([size[0] / pred.width, size[1] / pred.height, 1.0]) @ pred.K  # VGGT's estimate, frames' size
     if metric:
         poses_path = job_mod.resolve(path, fields_mod.string(data["poses"], path, "poses", error=ClipError))
         w2c, K, vggt_to_world = _read_poses(poses_path, path, S, size)
+        _check_poses_K(K, K_vggt, size, poses_path)
     else:
         w2c = cameras.orthonormalize(pred.world_to_camera)
-        K = np.diag([size[0] / pred.width, size[1] / pred.height, 1.0]) @ pred.K
+        K = K_vggt
         vggt_to_world = np.eye(4)
     model = camera_frames.distortion_model(data.get("distortion_model"), path, "distortion_model", error=ClipError)
+    if model is not None and data.get("distortion") is None:
+        raise ClipError(path, "distortion_model", f"{model!r} is stated without distortion coefficients, so it has "
+                                                  "no effect", "add the calibration's distortion (for a fisheye "
+                                                  "k1..k4; [0, 0, 0, 0] is the equidistant lens), or remove "
+                                                  "distortion_model")
     distortion = camera_frames.distortion_coefficients(data.get("distortion"), path, "distortion", error=ClipError,
                                                        model=model)
     model = model or camera_frames.OPENCV

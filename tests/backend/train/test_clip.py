@@ -106,16 +106,53 @@ def test_a_poses_K_out_of_bounds_is_refused_naming_poses_npz_and_the_frame(stree
 
 
 def test_a_clips_K_passes_the_jobs_bound_at_any_training_size(street_clip_path, tmp_path):
-    """The largest K a clip accepts stays within a job's bound (``MAX_K``) resized to the largest training size."""
+    """The largest K a clip accepts stays within a job's bound (``MAX_K``) resized to the largest training size:
+    both the job's own bound (``MAX_FOCAL_RATIO`` image sizes) and, tighter, the agreement with VGGT's estimate."""
     from scpainter_blender.core import job as J
 
     c = clip_mod.load(os.path.dirname(street_clip_path))
     W, H = c.image_size
-    ratio = np.nextafter(J.MAX_FOCAL_RATIO, 0)
-    folder = _copy(street_clip_path, tmp_path, lambda d, f: _edit_poses(
-        f, K=_set_K(0, 0, 0, ratio * W)))
+    fx_vggt = (np.diag([W / c.predictions.width, H / c.predictions.height, 1.0]) @ c.predictions.K)[0, 0, 0]
+    fx = min(np.nextafter(J.MAX_FOCAL_RATIO, 0) * W, np.nextafter(clip_mod.POSES_K_FOCAL_AGREEMENT, 0) * fx_vggt)
+    folder = _copy(street_clip_path, tmp_path, lambda d, f: _edit_poses(f, K=_set_K(0, 0, 0, fx)))
     big = clip_mod.load(folder)
     assert J.intrinsics_problem(big.K_for(16384, 16384)[0]) is None
+
+
+def test_a_poses_K_for_another_image_size_is_refused(street_clip_path, tmp_path):
+    """Frames resized to 1036 x 588 with poses.npz's K left for the 518 x 294 frames (found by a fresh tester: loaded,
+    and training projected with fx half the frames' and the principal point in the top-left quarter)."""
+    from PIL import Image
+
+    def edit(d, folder):
+        for p in sorted((folder / "frames").iterdir()):
+            im = Image.open(p).convert("RGB").resize((1036, 588), Image.LANCZOS)
+            p.unlink()  # the copy's own file, never one it might share with the cached street
+            im.save(p)
+
+    folder = _copy(street_clip_path, tmp_path, edit)
+    with pytest.raises(clip_mod.ClipError) as e:
+        clip_mod.load(folder)
+    assert e.value.path == str(folder / "poses.npz") and e.value.field == "K[0]", str(e.value)
+    assert "for frames of 1036 x 588 px" in e.value.message and "about 518 x 294 px" in e.value.message, str(e.value)
+    # the same K scaled to the frames' size, as the hint says: accepted
+    _edit_poses(folder, K=lambda K: np.diag([2.0, 2.0, 1.0]) @ K)
+    assert clip_mod.load(folder).image_size == (1036, 588)
+
+
+@pytest.mark.parametrize("key, value, field, words", [
+    ("distortion_model", "fisheye", "distortion_model", "stated without distortion coefficients"),
+    ("distortion", ["0.1", "0", "0", "0"], "distortion", "a list of 4 holding str"),
+])
+def test_distortion_fields_that_say_nothing_are_refused(street_clip_path, tmp_path, key, value, field, words):
+    def edit(d, folder):
+        d[key] = value
+        if key == "distortion":
+            d["distortion_model"] = "fisheye"
+    folder = _copy(street_clip_path, tmp_path, edit)
+    with pytest.raises(clip_mod.ClipError) as e:
+        clip_mod.load(folder)
+    assert e.value.field == field and words in e.value.message, str(e.value)
 
 
 @pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs on this system")

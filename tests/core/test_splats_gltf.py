@@ -157,3 +157,26 @@ def test_malformed_gltf_structure_is_refused_by_field(tmp_path, where, value, fi
     with pytest.raises(splats.SplatsError, match=r"bad\.glb: ") as e:
         splats_io.read(path)
     assert e.value.field == field, str(e.value)
+
+
+@pytest.mark.parametrize("key, value", [("kernel", "3dgut"), ("colorSpace", "lin_rec709_display"),
+                                        ("projection", "orthographic"), ("kernel", 7)])
+def test_a_kernel_colour_space_or_projection_the_renderer_does_not_draw_is_refused(tmp_path, key, value):
+    """The fresh tester's finding: a linear colour space was read as sRGB and an unknown kernel accepted, silently.
+    The extension's defaults (an older draft's file without the properties) and splat-transform's values read."""
+    src = F.random_ply(N=10, degree=1, seed=2)
+    tree, blob = F.gltf_splats(src, [{"mesh": 0}])
+    ext = tree["meshes"][0]["primitives"][0]["extensions"][gltf_splats.EXTENSION]
+    path = tmp_path / "plain.glb"
+    path.write_bytes(F.glb(tree, blob))
+    assert len(splats_io.read(path)) == 10
+    ext.update(kernel="ellipse", colorSpace="srgb_rec709_display", projection="perspective",
+               sortingMethod="cameraDistance")
+    path.write_bytes(F.glb(tree, blob))
+    assert len(splats_io.read(path)) == 10
+    ext[key] = value
+    path = tmp_path / "other.glb"
+    path.write_bytes(F.glb(tree, blob))
+    with pytest.raises(splats.SplatsError, match=r"other\.glb: ") as e:
+        splats_io.read(path)
+    assert e.value.field == f"meshes[0].primitives[0].extensions.{gltf_splats.EXTENSION}.{key}", str(e.value)

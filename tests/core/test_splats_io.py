@@ -248,3 +248,10 @@ def test_a_splat_mostly_of_garbage_is_refused_naming_the_counts(tmp_path):
                                                  r"Gaussians \(600 with NaN or infinite values, 200 with a position "
                                                  r"or σ beyond 1e\+06 m\): more than 50%"):
         splats_io.read(tmp_path / "mostly_bad.splat")
+
+
+@pytest.mark.parametrize("name", ["car.spz", "car.ply", "car.splat", "car.glb", "car.sog", "car"])
+def test_an_empty_file_is_called_empty_whatever_its_name(tmp_path, name):
+    (tmp_path / name).write_bytes(b"")
+    with pytest.raises(splats.SplatsError, match=re.escape(name) + r": the file is empty \(0 bytes\)"):
+        splats_io.read(tmp_path / name)

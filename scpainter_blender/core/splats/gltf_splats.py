@@ -355,6 +355,29 @@ def sh_rotation(R, degree: int) -> np.ndarray:
     return np.linalg.lstsq(B_new, B_old, rcond=None)[0][:K, :K]
 
 
+#: The values of the extension's properties the renderer draws as the file means (Khronos README: the ``ellipse``
+#: kernel, 3DGS's; colours in sRGB display space, blended before any transfer function, as 3DGS trains; perspective
+#: projection). An older draft's file without them means the same. ``sortingMethod`` is the renderer's own choice
+#: (it sorts by depth) and is not checked.
+KERNELS, COLOR_SPACES, PROJECTIONS = ("ellipse",), ("srgb_rec709_display",), ("perspective",)
+
+
+def _check_kernel(path, ext, field) -> None:
+    """Refuse a primitive's ``KHR_gaussian_splatting`` object whose kernel, colour space or projection is not what
+    the renderer draws, naming the property (a linear colour space would be read as sRGB: every colour wrong)."""
+    if not isinstance(ext, dict):
+        raise SplatsError(path, f"{field} is {json.dumps(ext)[:60]}, not an object", field)
+    for key, known, why in (("kernel", KERNELS, "the renderer draws 3D Gaussian ellipsoids (3DGS's kernel)"),
+                            ("colorSpace", COLOR_SPACES, "the renderer blends colours in sRGB display space, as 3DGS "
+                                                         "trains; a linear field would need blending before the "
+                                                         "transfer function"),
+                            ("projection", PROJECTIONS, "the renderer projects Gaussians with a perspective camera")):
+        value = ext.get(key, known[0])
+        if value not in known:
+            raise SplatsError(path, f"{field}.{key} is {json.dumps(value)[:60]}, not {' or '.join(known)}: {why}",
+                              f"{field}.{key}")
+
+
 def _primitive(g: _Gltf, prim, field, world, node_field) -> GaussianPly:
     attrs = prim.get("attributes") or {}
     path = g.path
@@ -374,6 +397,7 @@ def _primitive(g: _Gltf, prim, field, world, node_field) -> GaussianPly:
                               f"{field}.attributes.{name}")
         return a[:, :width]
 
+    _check_kernel(path, prim["extensions"][EXTENSION], f"{field}.extensions.{EXTENSION}")
     pfx = EXTENSION + ":"
     xyz = get("POSITION", 3)
     n = len(xyz)

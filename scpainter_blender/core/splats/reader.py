@@ -66,6 +66,9 @@ def detect(path) -> str:
     try:
         with open_file(path) as f:
             size = os.fstat(f.fileno()).st_size
+            if size == 0:  # every format has a header or at least one record
+                raise SplatsError(path, "the file is empty (0 bytes): saved or copied incompletely? Export or copy "
+                                        "it again")
             head = f.read(_HEAD)
             if head.startswith(b"ply"):
                 return "ply"

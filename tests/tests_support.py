@@ -31,6 +31,29 @@ def synthetic_predictions(S=3, H=14, W=21, seed=0):
     }
 
 
+def evaluated_counts(obj) -> tuple[int, int]:
+    """What ``obj``'s modifiers make of it, counted in the depsgraph: (points of its point-cloud component,
+    instances of its instances component).
+
+    Read from ``Depsgraph.object_instances`` (every Blender from 4.2), where each component beyond the object's own
+    data comes out as an instance entry whose ``parent`` is ``obj``: a point cloud as one entry with ``PointCloud``
+    data, each instance as an entry of its own. ``Object.evaluated_geometry()`` says the same directly, but it came
+    in 4.3 and the Blender-side tests also run on 4.2 LTS (docs/design.md §6).
+    """
+    import bpy
+
+    points = instances = 0
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    for inst in depsgraph.object_instances:
+        if not inst.is_instance or inst.parent is None or inst.parent.original != obj.original:
+            continue
+        if isinstance(inst.object.data, bpy.types.PointCloud):
+            points += len(inst.object.data.attributes["position"].data)
+        else:
+            instances += 1
+    return points, instances
+
+
 def run_backend(*args, timeout=900, env=None):
     """``python -m backend *args`` from the repo: (exit code, the events, standard error); ``env``: variables set
     on top of this process's."""

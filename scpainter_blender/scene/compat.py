@@ -1,7 +1,10 @@
 """The few Blender APIs that moved between 4.2 and 5.0, each behind one helper (docs/design.md §6).
 
 * Keyframes: from 4.4 they live in action slots and channelbags, and ``Action.fcurves`` is gone in 5.0 (``fcurves``
-  reads them, ``new_action_fcurves`` makes them; ``Object.keyframe_insert`` is the same in every version).
+  reads them, ``new_action_fcurves`` makes them; ``Object.keyframe_insert`` is the same in every version). The
+  channelbag is reached through the RNA calls of 4.4+ (``Action.layers``, ``ActionLayer.strips``,
+  ``ActionKeyframeStrip.channelbag``), not ``bpy_extras.anim_utils.action_ensure_channelbag_for_slot``, which 4.5
+  LTS does not have (it came in 5.0).
 * Node trees: before 5.0 a new material or world has none until ``use_nodes`` is set (deprecated in 5.0).
 """
 
@@ -24,17 +27,31 @@ def node_tree(id_data, clear: bool = False):
     return id_data.node_tree
 
 
+def _channelbag(action, slot, ensure: bool):
+    """The channelbag of ``slot`` in ``action`` (4.4+): the first one found in its layers' strips, or, with
+    ``ensure``, made in its first keyframe strip (layer and strip made when missing, as Blender's own key insertion
+    does); None when there is none and ``ensure`` is false."""
+    if not ensure:
+        for layer in action.layers:
+            for strip in layer.strips:
+                bag = strip.channelbag(slot)
+                if bag is not None:
+                    return bag
+        return None
+    layer = action.layers[0] if len(action.layers) else action.layers.new("Layer")
+    strip = layer.strips[0] if len(layer.strips) else layer.strips.new(type="KEYFRAME")
+    return strip.channelbag(slot, ensure=True)
+
+
 def new_action_fcurves(id_data, action_name: str):
     """A fresh action assigned to ``id_data``; returns the collection to create its F-curves in."""
     ad = id_data.animation_data or id_data.animation_data_create()
     action = bpy.data.actions.new(action_name)
     ad.action = action
     if HAS_ACTION_SLOTS:
-        from bpy_extras import anim_utils
-
         slot = action.slots.new(id_type=id_data.id_type, name=id_data.name)
         ad.action_slot = slot
-        return anim_utils.action_ensure_channelbag_for_slot(action, slot).fcurves
+        return _channelbag(action, slot, ensure=True).fcurves
     return action.fcurves
 
 
@@ -47,13 +64,11 @@ def object_fcurves(id_data, action_name: str):
         return new_action_fcurves(id_data, action_name)
     if not HAS_ACTION_SLOTS:
         return ad.action.fcurves
-    from bpy_extras import anim_utils
-
     slot = ad.action_slot
     if slot is None:
         slot = ad.action.slots.new(id_type=id_data.id_type, name=id_data.name)
         ad.action_slot = slot
-    return anim_utils.action_ensure_channelbag_for_slot(ad.action, slot).fcurves
+    return _channelbag(ad.action, slot, ensure=True).fcurves
 
 
 def fcurves(id_data) -> list:
@@ -64,11 +79,9 @@ def fcurves(id_data) -> list:
     if action is None:
         return []
     if HAS_ACTION_SLOTS:
-        from bpy_extras import anim_utils
-
         if ad.action_slot is None:
             return []
-        bag = anim_utils.action_get_channelbag_for_slot(action, ad.action_slot)
+        bag = _channelbag(action, ad.action_slot, ensure=False)
         return list(bag.fcurves) if bag is not None else []
     return list(action.fcurves)
 

@@ -15,7 +15,7 @@ from scpainter_blender.core.splats import (
     reader as splats_io,
 )
 from scpainter_blender.core.splats.sh import SH_C0
-from tests_support import realdata
+from tests_support import evaluated_counts, realdata
 
 
 @pytest.fixture(scope="module")
@@ -35,10 +35,7 @@ def _attr(obj, name, width):
 
 
 def _evaluated(obj):
-    geometry = obj.evaluated_get(bpy.context.evaluated_depsgraph_get()).evaluated_geometry()
-    cloud, inst = geometry.pointcloud, geometry.instances_pointcloud()
-    return (len(cloud.attributes["position"].data) if cloud else 0,
-            len(inst.attributes["position"].data) if inst else 0)
+    return evaluated_counts(obj)
 
 
 def test_import_amodal3r_car(empty_scene, car_file):

@@ -12,6 +12,7 @@ from scpainter_blender.core import job as J
 from scpainter_blender.core.geometry import metric_scale, point_cloud, similarity, unproject
 from scpainter_blender.core.vggt import npz as vggt_io
 from scpainter_blender.core.vggt import predictions as V
+from tests_support import evaluated_counts
 
 
 #: The depth-edge ratio an import uses when none is given: the job's default.
@@ -113,9 +114,7 @@ def test_current_frame_only_shows_that_frame(empty_scene, street):
 
 def _evaluated_points(obj):
     """Points in the evaluated geometry (Mesh to Points gives a point-cloud component)."""
-    geometry = obj.evaluated_get(bpy.context.evaluated_depsgraph_get()).evaluated_geometry()
-    cloud = geometry.pointcloud  # keep `geometry` alive while reading: the cloud belongs to it
-    return len(cloud.attributes["position"].data) if cloud else 0
+    return evaluated_counts(obj)[0]
 
 
 def test_import_renders_in_colour(empty_scene, street, tmp_path):

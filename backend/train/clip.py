@@ -272,14 +272,18 @@ POSES_K_FOCAL_AGREEMENT = 1.5
 POSES_K_CENTRE_AGREEMENT = 0.2
 
 
-def _check_poses_K(K: np.ndarray, K_vggt: np.ndarray, size, poses_path: str) -> None:
+def _check_poses_K(K: np.ndarray, K_vggt: np.ndarray, size, poses_path: str, focal: bool = True) -> None:
     """Refuse poses.npz's K (S, 3, 3), ours for frames of ``size`` (W, H), when a frame's disagrees with VGGT's
-    estimate ``K_vggt`` (S, 3, 3) scaled to that size beyond the bounds above, naming ``K[t]`` and both."""
+    estimate ``K_vggt`` (S, 3, 3) scaled to that size beyond the bounds above, naming ``K[t]`` and both. ``focal``
+    False (a clip with ``distortion``) compares the principal points only: VGGT fits a pinhole to the distorted
+    frames, whose focal length differs from the lens' calibrated one (a fisheye's by up to ~2x), while the
+    principal point stays where it is."""
     W, H = size
     ratio = np.stack([K[:, 0, 0] / K_vggt[:, 0, 0], K[:, 1, 1] / K_vggt[:, 1, 1]], axis=1)
     off = np.stack([np.abs(K[:, 0, 2] - K_vggt[:, 0, 2]) / W, np.abs(K[:, 1, 2] - K_vggt[:, 1, 2]) / H], axis=1)
-    bad = ~((ratio <= POSES_K_FOCAL_AGREEMENT) & (ratio >= 1 / POSES_K_FOCAL_AGREEMENT)).all(1) | \
-        (off > POSES_K_CENTRE_AGREEMENT).any(1)
+    bad = (off > POSES_K_CENTRE_AGREEMENT).any(1)
+    if focal:
+        bad |= ~((ratio <= POSES_K_FOCAL_AGREEMENT) & (ratio >= 1 / POSES_K_FOCAL_AGREEMENT)).all(1)
     if not bad.any():
         return
     t = int(np.argmax(bad))
@@ -349,7 +353,6 @@ def load(path) -> Clip:
     if metric:
         poses_path = job_mod.resolve(path, fields_mod.string(data["poses"], path, "poses", error=ClipError))
         w2c, K, vggt_to_world = _read_poses(poses_path, path, S, size)
-        _check_poses_K(K, K_vggt, size, poses_path)
     else:
         w2c = cameras.orthonormalize(pred.world_to_camera)
         K = K_vggt
@@ -363,6 +366,8 @@ def load(path) -> Clip:
     distortion = camera_frames.distortion_coefficients(data.get("distortion"), path, "distortion", error=ClipError,
                                                        model=model)
     model = model or camera_frames.OPENCV
+    if metric:
+        _check_poses_K(K, K_vggt, size, poses_path, focal=distortion is None)
     K_recorded = K
     if distortion is not None:
         if not metric:

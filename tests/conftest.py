@@ -45,7 +45,11 @@ class _NoBlender(importlib.abc.MetaPathFinder):
 
     def find_spec(self, name, path=None, target=None):
         if name.partition(".")[0] in BLENDER_MODULES:
-            raise pytest.skip.Exception(f"{NO_BPY}: imports {name}", allow_module_level=True)
+            frame = sys._getframe(1)  # the import statement that asked, past importlib's own frames
+            while frame is not None and frame.f_code.co_filename.startswith("<frozen importlib"):
+                frame = frame.f_back
+            where = f" ({os.path.relpath(frame.f_code.co_filename, ROOT)}:{frame.f_lineno})" if frame else ""
+            raise pytest.skip.Exception(f"{NO_BPY}: imports {name}{where}", allow_module_level=True)
         return None
 
 

@@ -24,20 +24,24 @@ from . import events
 
 
 def _cmd_doctor(args) -> int:
+    import contextlib
     import importlib.metadata
     import importlib.util
     import platform
 
     report = {"python": sys.version.split()[0], "platform": platform.platform(), "executable": sys.executable}
-    for mod in ("numpy", "torch", "numba", "OpenEXR", "diffusers", "transformers", "safetensors", "av", "open3d",
+    for mod in ("numpy", "torch", "numba", "OpenEXR", "cv2", "diffusers", "transformers", "safetensors", "av", "open3d",
                 "trimesh"):
         spec = importlib.util.find_spec(mod)
         report[mod] = None
         if spec is not None:
-            try:
-                report[mod] = __import__(mod).__version__
+            try:  # standard output is the event stream: what an import prints (cv2 without numpy) goes to stderr
+                with contextlib.redirect_stdout(sys.stderr):
+                    report[mod] = __import__(mod).__version__
             except Exception as e:  # an installed but broken package is worth reporting, not crashing on
                 report[mod] = f"broken: {e}"
+    if report.get("cv2") and not str(report["cv2"]).startswith("broken"):
+        report["opencv"] = _opencv_report()
     if report.get("torch") and not str(report["torch"]).startswith("broken"):
         import torch
 
@@ -47,7 +51,7 @@ def _cmd_doctor(args) -> int:
         report["ray"] = importlib.metadata.version("ray") if importlib.util.find_spec("ray") else None
     except importlib.metadata.PackageNotFoundError:
         report["ray"] = "installed, version unknown"
-    needed = ("numpy", "torch", "numba", "OpenEXR", "diffusers", "transformers", "safetensors", "av", "trimesh")
+    needed = ("numpy", "torch", "numba", "OpenEXR", "cv2", "diffusers", "transformers", "safetensors", "av", "trimesh")
     report["missing"] = [m for m in needed if not report.get(m) or str(report[m]).startswith("broken")]
     if report["missing"]:
         from scpainter_blender.core.backend_protocol import install_hint
@@ -67,6 +71,38 @@ def _cmd_doctor(args) -> int:
             report["checkpoint"] = str(e)
     events.done(command="doctor", report=report)
     return events.EXIT_OK
+
+
+#: The PyPI distributions that install the module cv2 (more than one installed: they overwrite each other's files).
+OPENCV_DISTRIBUTIONS = ("opencv-contrib-python-headless", "opencv-contrib-python", "opencv-python-headless",
+                        "opencv-python")
+
+
+def _opencv_report() -> dict:
+    """What ``doctor`` says of OpenCV beside cv2's version: ``distributions`` ({name: version} of those installed;
+    requirements.txt pins one, opencv-contrib-python-headless), ``contrib`` (opencv_contrib's modules are there:
+    ``cv2.ximgproc``), ``video_io`` (the "Video I/O" section of ``cv2.getBuildInformation()``: {backend: "YES ..." |
+    "NO"}, e.g. FFMPEG, GStreamer, v4l/v4l2)."""
+    import importlib.metadata
+
+    import cv2
+
+    dists = {}
+    for name in OPENCV_DISTRIBUTIONS:
+        try:
+            dists[name] = importlib.metadata.version(name)
+        except importlib.metadata.PackageNotFoundError:
+            pass
+    video_io, inside = {}, False
+    for line in cv2.getBuildInformation().splitlines():
+        if line.strip() == "Video I/O:":
+            inside = True
+        elif inside and line.startswith("    ") and not line.startswith("      ") and ":" in line:
+            name, value = line.strip().split(":", 1)  # a backend, not one of its libraries (indented deeper)
+            video_io[name.strip()] = value.strip()
+        elif inside and line.strip() and not line.startswith("    "):
+            break  # the next section
+    return {"distributions": dists, "contrib": hasattr(cv2, "ximgproc"), "video_io": video_io}
 
 
 def _device(name: str) -> str:

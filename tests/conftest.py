@@ -2,8 +2,18 @@
 
 ``BLENDER_USER_RESOURCES`` points at a private folder before bpy is imported, so no test touches a real Blender
 configuration. The ground-truth street is generated once and cached (``.cache/`` or ``$SCPAINTER_CACHE_DIR``).
+
+Without bpy (a backend-only environment: requirements-backend.txt, ``make test-backend-only``) the same tests run
+and each one that needs Blender is skipped, saying so (``NO_BPY``): importing ``bpy`` (or ``mathutils``, ``bmesh``)
+anywhere in this process raises pytest's skip, so a test module that imports it at its top (tests/scene, directly
+or through ``scpainter_blender.scene``) is skipped as a whole, a test or fixture that imports it inside (``addon``,
+``extension_zip``, ``empty_scene``) is skipped where it asks, and everything else runs. Whether bpy is there is
+decided by whether it is installed (``find_spec``), never by a failed import: in .venv a broken bpy fails loudly.
+The street is read from the cache; only generating it needs bpy.
 """
 
+import importlib.abc
+import importlib.util
 import os
 import sys
 import tempfile
@@ -25,13 +35,53 @@ import backend  # noqa: E402,F401  (OMP_WAIT_POLICY, NUMBA_CACHE_DIR: backend/__
 
 from tools import blender_env  # noqa: E402
 
-_USER = blender_env.use_private_user_resources(tempfile.mkdtemp(prefix="scpainter-test-user-"))
+NO_BPY = "needs Blender (bpy is not installed: a backend-only environment, requirements-backend.txt)"
+BLENDER_MODULES = ("bpy", "mathutils", "bmesh", "bpy_extras")  # what only Blender's Python (the bpy wheel) has
 
-import bpy  # noqa: E402  (after BLENDER_USER_RESOURCES)
+
+class _NoBlender(importlib.abc.MetaPathFinder):
+    """Where bpy is not installed: an import of a Blender module skips the test (module, fixture or test body) that
+    made it, as ``pytest.importorskip`` would, instead of failing it with ModuleNotFoundError."""
+
+    def find_spec(self, name, path=None, target=None):
+        if name.partition(".")[0] in BLENDER_MODULES:
+            frame = sys._getframe(1)  # the import statement that asked, past importlib's own frames
+            while frame is not None and frame.f_code.co_filename.startswith("<frozen importlib"):
+                frame = frame.f_back
+            where = f" ({os.path.relpath(frame.f_code.co_filename, ROOT)}:{frame.f_lineno})" if frame else ""
+            raise pytest.skip.Exception(f"{NO_BPY}: imports {name}{where}", allow_module_level=True)
+        return None
+
+
+if importlib.util.find_spec("bpy") is not None:
+    _USER = blender_env.use_private_user_resources(tempfile.mkdtemp(prefix="scpainter-test-user-"))
+    import bpy  # noqa: E402  (after BLENDER_USER_RESOURCES)
+else:
+    _USER = None
+    sys.meta_path.insert(0, _NoBlender())
 
 
 def pytest_addoption(parser):
     parser.addoption("--run-slow", action="store_true", help="run tests marked slow")
+
+
+class _RootIsTheAddOn:
+    """The repository root's ``__init__.py`` is the add-on's (Blender imports it as ``bl_ext.<repo>.scpainter``):
+    pytest (8) would collect the root as a test package and import it in every test's setup, bpy and the whole
+    add-on under the clone's folder name. Collected as a plain folder, it is never imported here: the tests reach the
+    add-on as Blender does (``addon``), and without bpy the backend's tests do not depend on it.
+
+    A plugin, not a hook of this file: a conftest's hooks apply below its folder, and the root lies above it."""
+
+    @pytest.hookimpl(tryfirst=True)
+    def pytest_collect_directory(self, path, parent):
+        if os.path.realpath(path) == os.path.realpath(ROOT):
+            return pytest.Dir.from_parent(parent, path=path)
+        return None
+
+
+def pytest_configure(config):
+    config.pluginmanager.register(_RootIsTheAddOn(), "scpainter-root-is-the-add-on")
 
 
 def pytest_collection_modifyitems(config, items):
@@ -53,7 +103,7 @@ def pytest_collection_modifyitems(config, items):
 
 @pytest.fixture(scope="session")
 def extension_zip(tmp_path_factory):
-    """The extension built and validated by Blender's own tool."""
+    """The extension built and validated by Blender's own tool (skipped without bpy)."""
     return blender_env.build_extension(str(tmp_path_factory.mktemp("dist")))
 
 
@@ -67,15 +117,21 @@ def addon(extension_zip):
 @pytest.fixture
 def empty_scene(addon):
     """A fresh empty scene with the add-on still enabled."""
+    import bpy
+
     bpy.ops.wm.read_homefile(use_empty=True)
     return bpy.context.scene
 
 
 @pytest.fixture(scope="session")
 def street():
-    """The default ground-truth street (generated once, then cached between runs)."""
-    from scpainter_blender.street.dataset import ensure_street
+    """The default ground-truth street (generated once, then cached between runs). Generating it renders with
+    Blender: without bpy a street not in the cache skips the tests that need it."""
+    from scpainter_blender.street.dataset import cached_street, ensure_street
 
+    if _USER is None and cached_street() is None:
+        pytest.skip(f"{NO_BPY}: the ground-truth street is not in the cache, and generating it renders with Blender "
+                    "(run `make test` or `make demo` once to cache it)")
     return ensure_street()
 
 

@@ -123,7 +123,8 @@ def kind_of(ev: dict) -> str | None:
 #: What to do when the backend's Python lacks a package it needs (``doctor``'s report, *Check Backend*, the error
 #: of any other command): the README's fix, for the interpreter named.
 INSTALL_HINT = ("install the backend's packages into that Python: `{python} -m pip install -r requirements.txt` in "
-                "the SCPainter folder, or run `bash tools/setup.sh` there, which makes .venv with all of them "
+                "the SCPainter folder (requirements-backend.txt for a Python without Blender, as on a GPU machine), "
+                "or run `bash tools/setup.sh` there, which makes .venv with all of them "
                 "(README, 'The two commands'), and choose its Python as Backend Python")
 
 

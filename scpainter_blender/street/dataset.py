@@ -112,6 +112,17 @@ def load_street(root: str) -> Street:
     return Street(root, StreetParams(**p), info)
 
 
+def street_folder(params: StreetParams | None = None, cache_dir: str | None = None) -> str:
+    """Where the street for ``params`` lies in the cache (whether or not it has been generated)."""
+    return os.path.join(cache_dir or cache_root(), f"street-{cache_key(params or StreetParams())}")
+
+
+def cached_street(params: StreetParams | None = None, cache_dir: str | None = None) -> Street | None:
+    """The street for ``params`` if the cache holds it complete, else None (nothing is generated: no bpy needed)."""
+    root = street_folder(params, cache_dir)
+    return load_street(root) if os.path.isfile(os.path.join(root, "street.json")) else None
+
+
 def ensure_street(params: StreetParams | None = None, cache_dir: str | None = None, log=None,
                   timeout: float = 1800) -> Street:
     """The street for ``params``, from the cache or generated now (in a subprocess that owns its own bpy).
@@ -120,9 +131,10 @@ def ensure_street(params: StreetParams | None = None, cache_dir: str | None = No
     never leaves a half-written street behind.
     """
     params = params or StreetParams()
-    root = os.path.join(cache_dir or cache_root(), f"street-{cache_key(params)}")
-    if os.path.isfile(os.path.join(root, "street.json")):
-        return load_street(root)
+    cached = cached_street(params, cache_dir)
+    if cached is not None:
+        return cached
+    root = street_folder(params, cache_dir)
     os.makedirs(os.path.dirname(root), exist_ok=True)
     env = dict(os.environ)
     env["PYTHONPATH"] = REPO_ROOT + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")

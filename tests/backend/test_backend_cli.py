@@ -31,6 +31,22 @@ def test_doctor():
     assert report["ray"] == ray_version() and "ray" not in report["missing"]   # optional: batch --ray
 
 
+def test_doctor_reports_opencv():
+    """cv2's version, the one OpenCV distribution the pins install (two overwrite each other's cv2), contrib's
+    modules, and the video back-ends of its build (the PyPI wheels are built with FFmpeg)."""
+    import cv2
+
+    code, events, _ = run_backend("doctor")
+    assert code == 0
+    report = events[-1]["report"]
+    assert report["cv2"] == cv2.__version__ and "cv2" not in report["missing"]
+    opencv = report["opencv"]
+    assert list(opencv["distributions"]) == ["opencv-contrib-python-headless"]
+    assert opencv["distributions"]["opencv-contrib-python-headless"].startswith(cv2.__version__ + ".")
+    assert opencv["contrib"] is True
+    assert opencv["video_io"]["FFMPEG"] == "YES" and opencv["video_io"]["GStreamer"] == "NO"
+
+
 def test_bad_input_exit_code_and_error_event(tmp_path):
     bad = tmp_path / "broken.json"
     bad.write_text("{not json")

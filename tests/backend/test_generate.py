@@ -8,7 +8,6 @@ import signal
 import subprocess
 import sys
 
-import bpy
 import numpy as np
 import pytest
 from PIL import Image
@@ -27,6 +26,8 @@ backend = run_backend
 def street_job(street, tmp_path_factory, addon, tiny_checkpoint):
     """The street with a car beside the road, seen from a path 2 m to the left at half resolution; 3 steps. Its
     predictions and checkpoint lie outside its folder: it runs with --allow-outside."""
+    import bpy  # here, not at the top: the tests below that need no Blender run without bpy too
+
     d = tmp_path_factory.mktemp("generate")
     street_with_car(street, d, count=5000)
     bpy.context.scene.render.resolution_percentage = 50  # 259 x 147: the tiny model's CPU time stays small
@@ -205,6 +206,8 @@ def test_a_resume_state_holding_nan_is_never_used(tmp_path):
 def test_checkpoint_window_reaches_a_blender_exported_job(street, addon, tiny_checkpoint, tmp_path):
     """The export writes no generation settings, so a checkpoint trained with window 8 samples in windows of 8
     (the export used to write 14 whatever the checkpoint said)."""
+    import bpy
+
     ckpt = tmp_path / "ckpt-window8"
     shutil.copytree(tiny_checkpoint, ckpt, copy_function=os.link)
     config = json.loads((ckpt / "scpainter.json").read_text())

@@ -19,7 +19,7 @@ def test_zip_contents(extension_zip):
     assert "scpainter_blender/core/vggt/predictions.py" in names and "backend/__main__.py" in names
     assert "operators/import_vggt.py" in names and "panels/main.py" in names
     for excluded in ("tests/", "bench/", "docs/", "tools/", ".ci/", "Makefile", "requirements.txt", ".venv/",
-                     ".venv-bpy42/", ".venv-bpy45/",
+                     ".venv-bpy42/", ".venv-bpy45/", "requirements-backend.txt", ".venv-backend/",
                      "scpainter_blender/street/"):
         assert not [n for n in names if n.startswith(excluded)], excluded
     assert not [n for n in names if "__pycache__" in n]

@@ -230,6 +230,13 @@ def project_box(box_to_world, size, K, world_to_camera, width: int, height: int,
     return out
 
 
+def cross2(a, b):
+    """The z of the cross product of 2-vectors ``a`` (..., 2) and ``b`` (..., 2): > 0 when b turns left of a.
+    (``np.cross`` of 2-vectors is deprecated in numpy 2.)"""
+    a, b = np.asarray(a), np.asarray(b)
+    return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+
+
 def convex_hull(xy) -> np.ndarray:
     """(M, 2) counter-clockwise (in pixel axes: clockwise on screen) hull of 2-D points (Andrew's monotone
     chain)."""
@@ -240,7 +247,7 @@ def convex_hull(xy) -> np.ndarray:
     def half(points):
         h = []
         for p in points:
-            while len(h) >= 2 and np.cross(h[-1] - h[-2], p - h[-2]) <= 0:
+            while len(h) >= 2 and cross2(h[-1] - h[-2], p - h[-2]) <= 0:
                 h.pop()
             h.append(p)
         return h[:-1]
@@ -260,7 +267,7 @@ def polygon_mask(polygon, width: int, height: int) -> np.ndarray:
         return mask
     u, v = np.meshgrid(np.arange(x0, x1) + 0.5, np.arange(y0, y1) + 0.5)
     inside = np.ones(u.shape, bool)
-    orient = np.sign(np.cross(P[1] - P[0], P[2] - P[0])) or 1.0
+    orient = np.sign(cross2(P[1] - P[0], P[2] - P[0])) or 1.0
     for a, b in zip(P, np.roll(P, -1, axis=0)):
         inside &= orient * ((b[0] - a[0]) * (v - a[1]) - (b[1] - a[1]) * (u - a[0])) >= 0
     mask[y0:y1, x0:x1] = inside

@@ -29,6 +29,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..geometry.boxes import cross2
+
 
 RULES = ("off_road", "recorded_object", "recorded_box", "car_overlap", "ego_path")
 #: The rules a variant's camera path must pass first (``variants.Variation.check_camera``).
@@ -78,11 +80,11 @@ def rectangles_overlap_reference(a, b) -> bool:
     a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
 
     def inside(p, poly):
-        s = [np.cross(poly[(i + 1) % 4] - poly[i], p - poly[i]) for i in range(4)]
+        s = [cross2(poly[(i + 1) % 4] - poly[i], p - poly[i]) for i in range(4)]
         return all(v >= 0 for v in s) or all(v <= 0 for v in s)
 
     def cross(p1, p2, q1, q2):
-        d = lambda o, x, y: np.cross(x - o, y - o)  # noqa: E731
+        d = lambda o, x, y: cross2(x - o, y - o)  # noqa: E731
         return d(p1, p2, q1) * d(p1, p2, q2) <= 0 and d(q1, q2, p1) * d(q1, q2, p2) <= 0
 
     if any(inside(p, b) for p in a) or any(inside(p, a) for p in b):

@@ -6,7 +6,6 @@ import signal
 import subprocess
 import sys
 
-import bpy
 import numpy as np
 import pytest
 
@@ -22,6 +21,8 @@ backend = run_backend
 
 
 def _pixels(path):
+    import bpy  # here, not at the top: the tests below that need no Blender run without bpy too
+
     img = bpy.data.images.load(path)
     px = np.empty(img.size[0] * img.size[1] * 4, np.float32)
     img.pixels.foreach_get(px)
@@ -35,6 +36,8 @@ def street_jobs(street, tmp_path_factory, addon):
     """Two jobs from one Blender scene: the recorded drive, and a 2 m shift with a car parked beside the road.
     They read the street's predictions from the cache, outside their folders: run with --allow-outside, as the
     user who exported them would."""
+    import bpy
+
     d = tmp_path_factory.mktemp("render")
     bpy.ops.wm.read_homefile(use_empty=True)
     bpy.ops.scpainter.import_vggt(filepath=street.predictions_path, scale_mode="TRAJECTORY",

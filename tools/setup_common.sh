@@ -1,0 +1,31 @@
+# Steps shared by tools/setup.sh (.venv, the Blender side) and tools/setup_backend.sh (.venv-backend, the backend
+# alone): sourced, from the repository root.
+
+# open3d links libusb-1.0 (Debian package libusb-1.0-0).
+ensure_libusb() {
+  if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
+    if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null 2>&1; then
+      echo "setup: installing libusb-1.0-0 for open3d" >&2
+      (apt-get install -y -q libusb-1.0-0 >/dev/null 2>&1 || { apt-get update -q >/dev/null 2>&1 && apt-get install -y -q libusb-1.0-0 >/dev/null; }) \
+        || echo "setup: could not install libusb-1.0-0; open3d may fail to import" >&2
+    else
+      echo "setup: open3d needs libusb-1.0; run: sudo apt-get install -y libusb-1.0-0" >&2
+    fi
+  fi
+}
+
+# Test-only: PlayCanvas' splat-transform (the real SPZ / SOG / glTF splat writer the tests read back), from the npm
+# registry with the machine's Node; never used by the product. Without Node the tests that need it skip, saying so.
+ensure_splat_transform() {
+  if command -v npm >/dev/null 2>&1; then
+    local st_stamp
+    st_stamp="tools/splat_transform/node_modules/.lock-$(sha256sum tools/splat_transform/package-lock.json | cut -c1-16)"
+    if [ ! -f "$st_stamp" ]; then
+      (cd tools/splat_transform && npm ci --ignore-scripts --no-audit --no-fund --loglevel=error >/dev/null) \
+        && touch "$st_stamp" \
+        || echo "setup: npm ci in tools/splat_transform failed; the splat-transform tests will skip" >&2
+    fi
+  else
+    echo "setup: no npm; the tests that read splat-transform's files will skip" >&2
+  fi
+}

@@ -135,6 +135,16 @@ def open_file(path):
     return files.open_regular(path, _file_error)
 
 
+def read_bytes(path) -> bytes:
+    """The whole of a regular file (``open_file``'s checks); SplatsError naming the file if it cannot be read. For
+    the formats read whole (SPZ's gzip stream, ``.ksplat``, glTF): their headers size everything else."""
+    try:
+        with open_file(path) as f:
+            return f.read()
+    except OSError as e:
+        raise SplatsError(path, f"cannot be read: {e}") from None
+
+
 # --------------------------------------------------------------------------------------------------------------
 # Decoding and encoding
 # --------------------------------------------------------------------------------------------------------------

@@ -38,7 +38,7 @@ import urllib.parse
 import numpy as np
 
 from ..geometry import cameras
-from .gaussians import GaussianPly, SplatsError, open_file, sh_basis
+from .gaussians import GaussianPly, SplatsError, open_file, read_bytes, sh_basis
 from .sh import SH_C0
 
 EXTENSION = "KHR_gaussian_splatting"
@@ -79,11 +79,7 @@ def read_tree(path, data: bytes | None = None):
     """(glTF JSON dict, GLB BIN chunk or None) of a .glb (by its magic) or a .gltf (JSON); SplatsError if neither."""
     path = os.fspath(path)
     if data is None:
-        try:
-            with open_file(path) as f:
-                data = f.read()
-        except OSError as e:
-            raise SplatsError(path, f"cannot be read: {e}") from None
+        data = read_bytes(path)
     bin_chunk = None
     if data.startswith(GLB_MAGIC):
         if len(data) < 20:

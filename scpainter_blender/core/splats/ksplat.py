@@ -35,7 +35,7 @@ import os
 
 import numpy as np
 
-from .gaussians import GaussianPly, SplatsError, open_file
+from .gaussians import GaussianPly, SplatsError, read_bytes
 from .sh import SH_C0
 
 MAIN_HEADER = 4096
@@ -127,11 +127,7 @@ def looks_like_ksplat(head: bytes, size: int) -> bool:
 def read(path) -> GaussianPly:
     """Read a ``.ksplat`` (module docstring) as raw INRIA values; SplatsError naming the file if unusable."""
     path = os.fspath(path)
-    try:
-        with open_file(path) as f:
-            data = f.read()
-    except OSError as e:
-        raise SplatsError(path, f"cannot be read: {e}") from None
+    data = read_bytes(path)
     problem = header_problem(data, len(data))
     if problem:
         raise SplatsError(path, f"not a GaussianSplats3D .ksplat file: {problem}", "header")

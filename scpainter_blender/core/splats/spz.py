@@ -38,7 +38,7 @@ import zlib
 
 import numpy as np
 
-from .gaussians import GaussianPly, SplatsError, open_file
+from .gaussians import GaussianPly, SplatsError, read_bytes
 
 #: 'NGSP' as the little-endian uint32 every SPZ header starts with.
 MAGIC = b"NGSP"
@@ -100,11 +100,7 @@ def _header(path, raw: bytes):
 def read(path) -> GaussianPly:
     """Read an SPZ file (module docstring) as raw INRIA values; SplatsError naming the file if unusable."""
     path = os.fspath(path)
-    try:
-        with open_file(path) as f:
-            data = f.read()
-    except OSError as e:
-        raise SplatsError(path, f"cannot be read: {e}") from None
+    data = read_bytes(path)
     if data.startswith(GZIP_MAGIC):
         version, n, degree, fb, blocks = _gzip_blocks(path, data)
     else:

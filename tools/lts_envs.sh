@@ -14,18 +14,8 @@ cd "$(dirname "$0")/.."
 # The LTS lines and the exact bpy of each (the newest patch on the package index when pinned).
 declare -A BPY=([42]=4.2.23 [45]=4.5.15)
 
-PY="${PYTHON:-}"
-if [ -z "$PY" ]; then
-  for c in python3.11 python3; do
-    if command -v "$c" >/dev/null 2>&1 && "$c" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))'; then
-      PY="$c"; break
-    fi
-  done
-fi
-if [ -z "$PY" ]; then
-  echo "lts_envs: Python 3.11 is required (every bpy wheel is built for it); set PYTHON=/path/to/python3.11" >&2
-  exit 1
-fi
+source tools/setup_common.sh
+PY="$(find_python lts_envs "every bpy wheel is built for it" 3.11)"
 
 dir="${LTS_VENV_DIR:-.}"
 names=("$@")
@@ -37,17 +27,10 @@ for name in "${names[@]}"; do
     exit 2
   fi
   venv="$dir/.venv-bpy$name"
-  pins="$(grep -v '^bpy==' requirements.txt; echo "bpy==$version")"
-  stamp="$venv/.requirements-$( (echo "$pins"; cat pyproject.toml) | sha256sum | cut -c1-16)"
-  if [ ! -x "$venv/bin/python" ]; then
-    "$PY" -m venv "$venv"
-  fi
-  if [ ! -f "$stamp" ]; then
-    # bpy 4.2 and 4.5 were built against numpy 1.x as 5.0.1 was: requirements.txt's numpy 1.26.4 fits all three.
-    "$venv/bin/python" -m pip install -q --disable-pip-version-check -r <(echo "$pins")
-    "$venv/bin/python" -m pip install -q --disable-pip-version-check --no-deps --no-build-isolation -e .
-    rm -f "$venv"/.requirements-*
-    touch "$stamp"
-  fi
+  # bpy 4.2 and 4.5 were built against numpy 1.x as 5.0.1 was: requirements.txt's numpy 1.26.4 fits all three.
+  pins="$(mktemp)"
+  { grep -v '^bpy==' requirements.txt; echo "bpy==$version"; } > "$pins"
+  install_venv "$venv" "$pins"
+  rm -f "$pins"
   echo "bpy$name $venv"
 done

@@ -29,3 +29,38 @@ ensure_splat_transform() {
     echo "setup: no npm; the tests that read splat-transform's files will skip" >&2
   fi
 }
+
+# The interpreter a virtual environment is made with: $PYTHON, else the first of python3.X (for each VERSION given,
+# in order) and python3 whose version is one of them; exits naming WHO and WHY otherwise.
+find_python() {  # find_python WHO WHY VERSION...
+  local who="$1" why="$2" c v w
+  shift 2
+  if [ -n "${PYTHON:-}" ]; then echo "$PYTHON"; return; fi
+  for c in "${@/#/python}" python3; do
+    command -v "$c" >/dev/null 2>&1 || continue
+    v="$("$c" -c 'import sys; print("%d.%d" % sys.version_info[:2])' 2>/dev/null)" || continue  # a pyenv shim
+    for w in "$@"; do
+      if [ "$v" = "$w" ]; then echo "$c"; return; fi
+    done
+  done
+  echo "$who: Python $* is required ($why); set PYTHON=/path/to/python" >&2
+  exit 1
+}
+
+# VENV with the exact pins of PINS (a file) and this project installed editable (the `scpainter-backend` command),
+# made with $PY when missing. Idempotent: a stamp of the pins' and pyproject.toml's hash skips pip when nothing
+# changed.
+install_venv() {  # install_venv VENV PINS
+  local venv="$1" pins="$2" stamp
+  stamp="$venv/.requirements-$(cat "$pins" pyproject.toml | sha256sum | cut -c1-16)"
+  if [ ! -x "$venv/bin/python" ]; then
+    "$PY" -m venv "$venv"
+  fi
+  if [ ! -f "$stamp" ] || [ ! -x "$venv/bin/scpainter-backend" ]; then
+    "$venv/bin/python" -m pip install -q --disable-pip-version-check -r "$pins"
+    # the project itself, without dependencies (they are the pins above)
+    "$venv/bin/python" -m pip install -q --disable-pip-version-check --no-deps --no-build-isolation -e .
+    rm -f "$venv"/.requirements-*
+    touch "$stamp"
+  fi
+}

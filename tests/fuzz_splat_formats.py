@@ -325,25 +325,26 @@ def _sog_meta(rng, fmt):
     return f"meta.json: {'.'.join(path or ('(whole)',))} {label}", apply, None
 
 
-def _central(data: bytes, name: str) -> int:
-    """Offset of the central directory record of entry ``name`` in a zip."""
+def _record(data: bytes, name: str, magic: bytes, name_length_at: int, name_at: int) -> int:
+    """Offset of the zip record of entry ``name`` that starts with ``magic`` (its name's length at
+    ``name_length_at``, the name at ``name_at``, from the record's start)."""
     at = 0
     while True:
-        at = data.index(b"PK\x01\x02", at)
-        n = struct.unpack_from("<H", data, at + 28)[0]
-        if data[at + 46:at + 46 + n] == name.encode():
+        at = data.index(magic, at)
+        n = struct.unpack_from("<H", data, at + name_length_at)[0]
+        if data[at + name_at:at + name_at + n] == name.encode():
             return at
         at += 4
+
+
+def _central(data: bytes, name: str) -> int:
+    """Offset of the central directory record of entry ``name`` in a zip."""
+    return _record(data, name, b"PK\x01\x02", 28, 46)
 
 
 def _local(data: bytes, name: str) -> int:
-    at = 0
-    while True:
-        at = data.index(b"PK\x03\x04", at)
-        n = struct.unpack_from("<H", data, at + 26)[0]
-        if data[at + 30:at + 30 + n] == name.encode():
-            return at
-        at += 4
+    """Offset of the local file header of entry ``name`` in a zip."""
+    return _record(data, name, b"PK\x03\x04", 26, 30)
 
 
 def _sog_zip(rng, fmt):

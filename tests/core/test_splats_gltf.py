@@ -102,9 +102,9 @@ def test_mesh_gltf_stays_a_mesh_and_refusals_name_the_field(tmp_path):
     _gltf(tmp_path / "c.gltf", src, [{"mesh": 0}], required=["EXT_meshopt_compression"])
     with pytest.raises(splats.SplatsError, match=r"c\.gltf: requires glTF extensions \['EXT_meshopt_compression'\]"):
         splats_io.read(tmp_path / "c.gltf")
-    _gltf(tmp_path / "s.gltf", src, [{"scale": [1.0, 2.0, 1.0], "mesh": 0}])
-    with pytest.raises(splats.SplatsError, match=r"s\.gltf: nodes\[0\]: its transform is not a rotation with a "
-                                                 r"uniform scale"):
+    _gltf(tmp_path / "s.gltf", src, [{"scale": [1.0, -2.0, 1.0], "mesh": 0}])
+    with pytest.raises(splats.SplatsError, match=r"s\.gltf: nodes\[0\]: its transform mirrors or flattens the "
+                                                 r"splats \(determinant -2\)"):
         splats_io.read(tmp_path / "s.gltf")
     tree = _gltf(tmp_path / "a.gltf", src, [{"mesh": 0}])
     tree["accessors"][2]["count"] = 21
@@ -180,3 +180,27 @@ def test_a_kernel_colour_space_or_projection_the_renderer_does_not_draw_is_refus
     with pytest.raises(splats.SplatsError, match=r"other\.glb: ") as e:
         splats_io.read(path)
     assert e.value.field == f"meshes[0].primitives[0].extensions.{gltf_splats.EXTENSION}.{key}", str(e.value)
+
+
+@pytest.mark.parametrize("linear", [np.diag([1.0, 3.0, 0.5]),                       # a non-uniform scale
+                                    np.array([[1.0, 0.7, 0.0], [0.0, 1.0, 0.0], [0.2, 0.0, 2.0]])])  # a shear
+def test_any_node_transform_of_positive_determinant_maps_each_covariance(tmp_path, linear):
+    """The fresh tester's finding: non-uniform node scales were refused, though a Gaussian mapped by any linear L
+    is the Gaussian of L Σ Lᵀ (the extension's own formula). The reference is that product, from the file's own
+    values; the read Gaussians' R diag(σ²) Rᵀ must equal it, and their means L x + t."""
+    src = F.random_ply(N=200, degree=1, seed=7)
+    node = np.eye(4)
+    node[:3, :3], node[:3, 3] = linear, (0.3, -1.0, 2.0)
+    _gltf(tmp_path / "car.gltf", src, [{"matrix": node.T.ravel().tolist(), "mesh": 0}])
+    got = splats.decode(splats_io.read(tmp_path / "car.gltf"))
+    ref = splats.decode(src)
+    L = gltf_splats.Y_UP_TO_Z_UP @ linear
+    Rq = cameras.quaternion_to_rotation(ref.quats.astype(np.float64)) * ref.scales.astype(np.float64)[:, None, :]
+    want = L @ Rq @ np.swapaxes(Rq, 1, 2) @ L.T
+    Rg = cameras.quaternion_to_rotation(got.quats.astype(np.float64)) * got.scales.astype(np.float64)[:, None, :]
+    have = Rg @ np.swapaxes(Rg, 1, 2)
+    # per Gaussian, relative to its largest entry: float32 storage of q and log σ (and of the file's values)
+    assert (np.abs(have - want).max(axis=(1, 2)) / np.abs(want).max(axis=(1, 2))).max() < 1e-5
+    xyz = (src.xyz.astype(np.float64) @ linear.T + node[:3, 3]) @ gltf_splats.Y_UP_TO_Z_UP.T
+    np.testing.assert_allclose(got.means, xyz, atol=1e-5)
+    assert len(got) == 200 and not got.dropped

@@ -16,12 +16,14 @@ Accessors may be float or integer (``normalized`` as glTF defines it; ``KHR_mesh
 (``byteStride``), in the GLB's BIN chunk, a ``data:`` URI or a file beside the model (percent-decoded, inside its
 folder). Every offset, stride and count is checked against the bytes before an array is made. Refused by name:
 sparse accessors, any ``extensionsRequired`` not read here (meshopt, Draco, SPZ-compressed splats...), a node
-transform that is not a rotation with a uniform scale (a Gaussian has no shear).
+transform that mirrors or flattens (determinant <= 0: the extension leaves negative scales undefined).
 
 Frames: node transforms (matrix or TRS, parents first) are applied, then glTF's +Y up is turned to +Z up with
 ``Y_UP_TO_Z_UP`` ((x, y, z) -> (x, -z, y), what Blender's glTF importer and the mesh-car import do), so a glTF car
-stands as its mesh export would: means by the whole affine map, quaternions by its rotation, log σ plus the log
-of its scale, SH degree >= 1 coefficients rotated with it (``sh_rotation``). A glTF with no
+stands as its mesh export would: means by the whole affine map L x + t; covariances Σ' = L Σ Lᵀ (Khronos README,
+"Splat Reconstruction"): for a rotation times a uniform scale, quaternions by its rotation and log σ plus the log
+of its scale; for any other L (a non-uniform scale, a shear) each Σ' is decomposed again (``_general_linear``);
+SH degree >= 1 coefficients rotated by L's rotation (its polar factor, ``sh_rotation``), as the README says. A glTF with no
 ``KHR_gaussian_splatting`` primitive is a mesh (``has_gaussian_splatting``), converted like other mesh cars.
 
 No bpy, no torch: numpy only.
@@ -53,7 +55,8 @@ _COMPONENTS = {5120: np.dtype("i1"), 5121: np.dtype("u1"), 5122: np.dtype("<i2")
 _WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
 _OPACITY_EPS = 1e-7
 _MIN_SCALE = 1e-30
-#: How far a node's linear map may be from a rotation times a uniform scale (relative, per entry).
+#: How far a node's linear map's singular values may be from their geometric mean (relative) for it to be taken as a
+#: rotation times a uniform scale (the exact fast path); beyond, each covariance is decomposed again.
 _SIMILARITY_TOLERANCE = 1e-4
 
 
@@ -318,16 +321,39 @@ class _Gltf:
         return m
 
 
-def _similarity(linear, path, field):
-    """(rotation 3×3, uniform scale) of a linear map that is one; SplatsError naming ``field`` otherwise."""
-    det = float(np.linalg.det(linear))
-    s = np.cbrt(det) if det > 0 else 0.0
-    R = linear / s if s > 0 else linear
-    if s <= 0 or not np.allclose(R @ R.T, np.eye(3), atol=_SIMILARITY_TOLERANCE):
-        raise SplatsError(path, f"{field}: its transform is not a rotation with a uniform scale (a mirror, a shear "
-                                "or a non-uniform scale), which Gaussians cannot take: apply it to the splats "
-                                "before export, or export without it", field)
-    return R, s
+def _polar(linear, path, field):
+    """(R rotation 3×3, s uniform scale or None) of a linear map L = R P (polar decomposition, P symmetric positive
+    definite): s when P is s times the identity (within ``_SIMILARITY_TOLERANCE``), None for any other P. SplatsError
+    naming ``field`` for a determinant <= 0 (a mirror or a flattening: the extension leaves them undefined)."""
+    linear = np.asarray(linear, np.float64)
+    with np.errstate(over="ignore", invalid="ignore"):  # a product of huge node scales: not finite, refused
+        det = float(np.linalg.det(linear)) if np.isfinite(linear).all() else float("nan")
+    if not (det > 0 and np.isfinite(det)):
+        why = "mirrors or flattens the splats" if np.isfinite(det) else "overflows float64"
+        raise SplatsError(path, f"{field}: its transform {why} (determinant {det:.3g}), which KHR_gaussian_splatting "
+                                "leaves undefined: apply it to the splats before export, or export without it", field)
+    U, S, Vt = np.linalg.svd(linear)
+    R = U @ Vt  # det(L) > 0: a rotation
+    s = float(np.cbrt(det))
+    return R, (s if np.abs(S / s - 1).max() <= _SIMILARITY_TOLERANCE else None)
+
+
+def _general_linear(linear, q_wxyz, scale):
+    """(quaternions (n, 4) w x y z, σ (n, 3)) of Σ' = L Σ Lᵀ for Gaussians of Σ = R(q) diag(σ²) R(q)ᵀ and any
+    invertible L (3, 3): the eigen-decomposition of each Σ' (float64), eigenvector columns made a right-handed
+    rotation. The reference is the product itself (tested): a Gaussian mapped by L is exactly the Gaussian of Σ'.
+    Rows that decoding drops (a non-finite value, a zero quaternion, a negative σ) come back NaN: dropped still."""
+    q = np.asarray(q_wxyz, np.float64)
+    scale = np.asarray(scale, np.float64)
+    ok = np.isfinite(q).all(1) & (np.linalg.norm(q, axis=1) >= 1e-12) & np.isfinite(scale).all(1) & \
+        (scale >= 0).all(1)
+    q_out, sigma = np.full((len(q), 4), np.nan), np.full((len(q), 3), np.nan)
+    C = np.einsum("ij,njk->nik", np.asarray(linear, np.float64),
+                  cameras.quaternion_to_rotation(q[ok]) * scale[ok][:, None, :])
+    w, V = np.linalg.eigh(C @ np.swapaxes(C, 1, 2))
+    V[np.linalg.det(V) < 0, :, 0] *= -1  # eigenvectors up to sign: keep det +1
+    q_out[ok], sigma[ok] = cameras.rotation_to_quaternion(V), np.sqrt(np.maximum(w, _MIN_SCALE ** 2))
+    return q_out, sigma
 
 
 def _quat_multiply(a, b) -> np.ndarray:
@@ -427,13 +453,17 @@ def _primitive(g: _Gltf, prim, field, world, node_field) -> GaussianPly:
     M = np.eye(4)
     M[:3, :3] = Y_UP_TO_Z_UP
     M = M @ world
-    R, s = _similarity(M[:3, :3], path, node_field)
+    R, s = _polar(M[:3, :3], path, node_field)
     xyz = xyz @ M[:3, :3].T + M[:3, 3]
-    q = _quat_multiply(cameras.rotation_to_quaternion(R), rot_xyzw[:, [3, 0, 1, 2]])
     if degree:
         sh[:, 1:] = np.einsum("kj,njc->nkc", sh_rotation(R, degree)[1:, 1:], sh[:, 1:])
     with np.errstate(divide="ignore", invalid="ignore"):  # negative σ or opacity: NaN, dropped on decoding
-        log_scale = np.log(np.where(scale == 0, _MIN_SCALE, scale)) + np.log(s)
+        if s is not None:
+            q = _quat_multiply(cameras.rotation_to_quaternion(R), rot_xyzw[:, [3, 0, 1, 2]])
+            log_scale = np.log(np.where(scale == 0, _MIN_SCALE, scale)) + np.log(s)
+        else:
+            q, sigma = _general_linear(M[:3, :3], rot_xyzw[:, [3, 0, 1, 2]], scale)
+            log_scale = np.log(sigma)
         o = np.clip(opacity, _OPACITY_EPS, 1 - _OPACITY_EPS)
         logit = np.log(o / (1 - o))
     return GaussianPly(xyz=xyz.astype(np.float32), f_dc=sh[:, 0].astype(np.float32),

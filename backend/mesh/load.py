@@ -43,6 +43,9 @@ that (``backend.mesh.gltf.plain_glb``); ``extensionsRequired`` not read here is 
 (``gltf.check_required``, from ``checks.check_gltf``).
 
 No bpy, no torch.
+
+(Over 400 lines: one loader per mesh family (glTF, OBJ/MTL, PLY/STL/OFF) around trimesh, each with the
+warnings and checks that make trimesh's silent choices visible; split further, each piece would import the others.)
 """
 
 from __future__ import annotations

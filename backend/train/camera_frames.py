@@ -12,6 +12,9 @@ coordinates (x, y) = (X/Z, Y/Z) before K:
   distorted point is (x, y) · θ_d / r with θ_d = θ (1 + k1 θ² + k2 θ⁴ + k3 θ⁶ + k4 θ⁸).
 
 No torch here: numpy, OpenCV (cv2: numpy arrays in and out), Pillow, and PyAV for videos (imported when needed).
+
+(Over 400 lines: two lens models, video decoding with display matrices and image orientation share the
+undistortion maps and their checks: one module is where a frame becomes the pinhole image training sees.)
 """
 
 from __future__ import annotations

@@ -27,6 +27,9 @@ SH degree >= 1 coefficients rotated by L's rotation (its polar factor, ``sh_rota
 ``KHR_gaussian_splatting`` primitive is a mesh (``has_gaussian_splatting``), converted like other mesh cars.
 
 No bpy, no torch: numpy only.
+
+(Over 400 lines: a glTF's accessors, views, buffers and node tree must each be bounds-checked before an
+array is made, and that reader is this format's alone; the splat attributes and their frames follow it.)
 """
 
 from __future__ import annotations

@@ -45,6 +45,9 @@ and archive entries are checked against the archive's size before they are read:
 SOG (``lod-meta.json``) are refused with what to do.
 
 No bpy, no torch: numpy only.
+
+(Over 400 lines, most of it the format: the docstring and the checks of meta.json and each image,
+which a SOG bundle from the wild needs.)
 """
 
 from __future__ import annotations

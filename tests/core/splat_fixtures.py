@@ -386,3 +386,24 @@ def glb(tree: dict, binary: bytes) -> bytes:
     binary += b"\0" * (-len(binary) % 4)
     body = struct.pack("<II", len(j), 0x4E4F534A) + j + struct.pack("<II", len(binary), 0x004E4942) + binary
     return struct.pack("<III", 0x46546C67, 2, 12 + len(body)) + body
+
+
+#: A source for the tests against the real writer (splat-transform) that needs no real file: written by
+#: ``source_ply``, so those tests run wherever Node is, ``../shared/realdata`` or not.
+GENERATED = "generated"
+
+
+def source_ply(rel: str, folder) -> str:
+    """The path of a source PLY for a real-writer test: the real file ``rel`` (``tests_support.realdata``: the test
+    skips when it is absent), or for ``GENERATED`` 500 random Gaussians of SH degree 3 written into ``folder``."""
+    import os
+
+    from tests_support import realdata
+    from scpainter_blender.core.splats import inria
+
+    if rel != GENERATED:
+        return realdata(rel)
+    path = os.path.join(folder, "generated.ply")
+    if not os.path.exists(path):
+        inria.write_ply(path, random_ply(N=500, degree=3, seed=11, extras=False))
+    return path

@@ -54,9 +54,9 @@ def assert_turned(got, src, M, xyz=None, log_scale=0.0, opacity_bound=OPACITY_BO
     assert np.abs(colours(sub(got), d @ M.T) - colours(sub(src), d)).max() <= COLOUR_BOUND
 
 
-@pytest.mark.parametrize("rel", REAL)
+@pytest.mark.parametrize("rel", REAL + (F.GENERATED,))
 def test_splat_transform_glb_reads_back(tmp_path, rel):
-    src_path = realdata(rel)
+    src_path = F.source_ply(rel, tmp_path)
     out = splat_transform.convert(src_path, tmp_path / "car.glb")
     assert splats_io.detect(out) == "gltf_splats" and not splats_io.is_mesh(out)
     assert_turned(splats_io.read(out), splats_io.read(src_path), PLY_TO_OURS)

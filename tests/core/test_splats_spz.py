@@ -54,9 +54,9 @@ def assert_close_to_source(got, src, quat_bound=QUAT_BOUND):
 
 
 @pytest.mark.parametrize("version", [3, 4])
-@pytest.mark.parametrize("rel", REAL)
+@pytest.mark.parametrize("rel", REAL + (F.GENERATED,))
 def test_splat_transform_spz_reads_back_within_quantisation(tmp_path, rel, version):
-    src_path = realdata(rel)
+    src_path = F.source_ply(rel, tmp_path)
     out = splat_transform.convert(src_path, tmp_path / "scene.spz", "--spz-version", version)
     with open(out, "rb") as f:
         assert f.read(2) == (b"\x1f\x8b" if version == 3 else b"NG")  # gzip (v3) or the plain v4 header

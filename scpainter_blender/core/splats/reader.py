@@ -27,7 +27,7 @@ import os
 import zipfile
 
 from . import compressed, gltf_splats, inria, ksplat, ply_format, sog, spz
-from .gaussians import ACCEPTED, GaussianPly, Gaussians, SplatsError, decode, open_file
+from .gaussians import ACCEPTED, GaussianPly, Gaussians, SplatsError, decode, open_file, read_bytes
 
 #: Mesh files: not splats, but what the car-asset import converts to Gaussians (backend ``mesh-asset``, trimesh);
 #: a ``.ply`` is a mesh when ``is_mesh_ply`` says so, a ``.glb``/``.gltf`` when it has no
@@ -103,16 +103,17 @@ def detect(path) -> str:
 def _json_kind(path, head: bytes, ext: str) -> str:
     """A GLB or JSON file: ``sog`` (a SOG meta.json), ``gltf_splats``; a mesh glTF or other JSON is refused. A SOG
     meta.json is tried first: it is a JSON object too, which a glTF reader would take for a glTF without meshes."""
+    data = None  # a GLB: peek_tree reads its JSON chunk alone; a JSON file: read once, for both questions
     if not head.startswith(gltf_splats.GLB_MAGIC):
+        data = read_bytes(path)
         try:
-            with open_file(path) as f:
-                meta = json.loads(f.read().decode("utf-8-sig"))
+            meta = json.loads(data.decode("utf-8-sig"))
         except (UnicodeDecodeError, ValueError, RecursionError):
             meta = None
         if is_sog_meta(meta):
             return "sog"
     try:
-        tree = gltf_splats.peek_tree(path)
+        tree = gltf_splats.peek_tree(path) if data is None else gltf_splats.read_tree(path, data)[0]
     except SplatsError as e:
         if head.startswith(gltf_splats.GLB_MAGIC) or ext in (".gltf", ".glb"):
             # a damaged glTF is neither a mesh nor splats yet: its own problem first

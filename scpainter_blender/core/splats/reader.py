@@ -33,8 +33,13 @@ from .gaussians import ACCEPTED, GaussianPly, Gaussians, SplatsError, decode, op
 #: a ``.ply`` is a mesh when ``is_mesh_ply`` says so, a ``.glb``/``.gltf`` when it has no
 #: ``KHR_gaussian_splatting`` primitive (``is_mesh`` decides both by content).
 MESH_EXTENSIONS = (".glb", ".gltf", ".obj", ".stl", ".off")
+#: The file extensions each Gaussian format (a key of ``READERS``) is saved under: what the file browsers filter on
+#: and what the README's format table names (tests/test_docs.py). ``detect`` decides by content, by these names only
+#: for headerless ``.splat``; a SOG may also be an unbundled ``meta.json`` (``sog.META_NAME``).
+FORMAT_EXTENSIONS = {"ply": (".ply",), "splat": (".splat",), "ksplat": (".ksplat",), "spz": (".spz",),
+                     "sog": (".sog",), "gltf_splats": (".glb", ".gltf")}
 #: Gaussian-only file extensions (``.ply``, ``.glb`` and ``.gltf`` may be either, by content).
-SPLAT_EXTENSIONS = (".ply", ".splat", ".ksplat", ".spz", ".sog")
+SPLAT_EXTENSIONS = tuple(e for exts in FORMAT_EXTENSIONS.values() for e in exts if e not in MESH_EXTENSIONS)
 #: Every file a car asset may be: Gaussian files and meshes (what the import's file browser and a variation
 #: library take).
 ASSET_EXTENSIONS = SPLAT_EXTENSIONS + MESH_EXTENSIONS

@@ -156,13 +156,15 @@ def test_design_module_table_names_every_shipped_module_and_nothing_else():
     required = {p for p, text in sources.items() if not (p.endswith("/__init__.py") and _holds_nothing(text))}
     problems = []
     for path in sorted(required - named):
-        # the row to add it to: the one whose folder holds it most closely
-        owners = [(place, written) for written, place, _, _ in rows if place.endswith("/") and path.startswith(place)]
-        if owners:
-            place, written = max(owners, key=lambda o: len(o[0]))
-            problems.append(f"missing: `{path[len(place):]}` in the row `{written}` ({path})")
-        else:
-            problems.append(f"missing: {path}: no row holds its folder; add a row `{os.path.dirname(path)}/`")
+        folder = os.path.dirname(path) + "/"
+        owners = [written for written, place, _, _ in rows if place == folder]
+        if owners:  # the first row of its folder (`core/` has two)
+            problems.append(f"missing: `{os.path.basename(path)}` in the row `{owners[0]}` ({path})")
+        else:  # as the convention spells a folder: short when nothing at the root has its name
+            short = folder[len("scpainter_blender/"):] if folder.startswith("scpainter_blender/") and \
+                _resolve(folder[len("scpainter_blender/"):], tracked) == folder else folder
+            problems.append(f"missing: {path}: no row for its folder; add a row `{short}` naming "
+                            f"`{os.path.basename(path)}`")
     for written, place, folder, names in rows:
         if place.endswith("/") and not any(t.startswith(place) for t in tracked):
             problems.append(f"stale: the row `{written}`: no folder {place}")
@@ -170,6 +172,18 @@ def test_design_module_table_names_every_shipped_module_and_nothing_else():
             problems.append(f"stale: `{path[len(folder):]}` in the row `{written}` ({path} is not a tracked file)")
     assert not problems, "docs/design.md §2's module table (convention above it):\n  " + "\n  ".join(problems)
     assert {p.split("/")[0] for p in required} <= set(SHIPPED)
+
+
+def test_design_layout_names_every_package():
+    """§2's layout block (the tree above the rules) names every folder of shipped modules (as `name/`)."""
+    section = _section(_read("docs/design.md"), "## 2.", "## 3.")
+    block = _FENCE.search(section).group(0)
+    named = set(re.findall(r"([\w.-]+)/", block))
+    folders = {os.path.dirname(p) for p in tracked_sources(shipped_only=True)} - {""}
+    missing = sorted(f for f in folders if os.path.basename(f) not in named)
+    assert not missing, f"docs/design.md §2's layout block misses the folders {missing} (add each as `name/` with " \
+                        f"what it holds, indented under its parent)"
+    assert {"core", "splats", "render"} <= named
 
 
 def test_module_table_sees_the_rows_it_should():

@@ -1,8 +1,8 @@
 """What the fuzz's many-asset job cases cost against its budget: CPU and wall seconds of "assets: 100 assets on the
 same PLY", "50 assets on the same PLY" and "two assets on one PLY", run the way ``tests/fuzz_inputs.py`` runs them.
 
-    .venv/bin/python bench/fuzz_case_cost.py [--label before|after] [--cases 100 50 2] [--rounds 3] [--seed 14]
-                                             [--out bench/results/fuzz_case_cost.json]
+    .venv/bin/python bench/fuzz_case_cost.py [--label before|after] [--cases 100 50 2] [--job-index N ...]
+                                             [--rounds 3] [--seed 14] [--out bench/results/fuzz_case_cost.json]
 
 Each case is built by ``tests/fuzz_inputs.py``'s own machinery (``Base``, ``make_case`` at the first ``job`` index
 whose description is the case's, ``prepare``, ``command``) and run in this process through ``invoke`` (its
@@ -11,7 +11,7 @@ worker is: one torch, numba and OpenMP thread, the valid job run once first, unt
 done). CPU seconds = ``time.process_time`` around ``invoke`` (user + system of every thread: what the fuzz's SIGPROF
 timer counts); wall seconds = ``time.perf_counter``. The table gives the median and the worst of ``--rounds`` runs
 per case, the fuzz budget (``TIMEOUT_S`` CPU s) and the worst's share of it, and each case's outcome (it must stay
-``accepted``). Saves the table under bench/results/. Not a test (``tests/test_bench_fuzz_case_cost.py`` runs it on
+``accepted``). ``--job-index`` adds any other ``job`` case by its index (the costliest of a fuzz run, say). Saves the table under bench/results/. Not a test (``tests/test_bench_fuzz_case_cost.py`` runs it on
 the 2-asset case so it keeps working).
 """
 
@@ -68,8 +68,9 @@ def run_once(case: F.Case, base: F.Base, workdir: str, check: bool) -> dict:
     return {"cpu_s": cpu, "wall_s": wall, "outcome": outcome, "message": result["message"]}
 
 
-def measure(counts, rounds: int, seed: int = F.SEED) -> list:
-    """[{assets, description, index, cpu_s: [...], wall_s: [...], outcomes}] for each asset count of ``counts``."""
+def measure(counts, rounds: int, seed: int = F.SEED, indices=()) -> list:
+    """[{assets, description, index, cpu_s: [...], wall_s: [...], outcomes, messages}] for each asset count of
+    ``counts`` (``DESCRIPTIONS``), then each ``job`` case index of ``indices`` (``assets``: None)."""
     import numba
     import torch
 
@@ -83,12 +84,11 @@ def measure(counts, rounds: int, seed: int = F.SEED) -> list:
         if warm["outcome"] != "accepted":
             raise RuntimeError(f"the valid job is not accepted: {warm}")
         rows = []
-        for n in counts:
-            description = DESCRIPTIONS[n]
-            index = find_index(description, base, seed)
+        todo = [(n, find_index(DESCRIPTIONS[n], base, seed)) for n in counts] + [(None, i) for i in indices]
+        for n, index in todo:
             case = F.make_case("job", index, seed, base)
             runs = [run_once(case, base, workdir, check) for _ in range(rounds)]
-            rows.append({"assets": n, "description": description, "index": index,
+            rows.append({"assets": n, "description": case.description, "index": index,
                          "cpu_s": [round(r["cpu_s"], 3) for r in runs],
                          "wall_s": [round(r["wall_s"], 3) for r in runs],
                          "outcomes": sorted({r["outcome"] for r in runs}),
@@ -113,14 +113,15 @@ def format_table(rows: list) -> str:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--label", default="after", help="before | after (recorded in the JSON)")
-    p.add_argument("--cases", nargs="+", type=int, choices=sorted(DESCRIPTIONS), default=[100, 50, 2],
+    p.add_argument("--cases", nargs="*", type=int, choices=sorted(DESCRIPTIONS), default=[100, 50, 2],
                    help="the cases, by asset count")
+    p.add_argument("--job-index", nargs="*", type=int, default=[], help="more job cases, by index")
     p.add_argument("--rounds", type=int, default=3)
     p.add_argument("--seed", type=int, default=F.SEED)
     p.add_argument("--out", default=os.path.join(ROOT, "bench", "results", "fuzz_case_cost.json"))
     args = p.parse_args(argv)
 
-    rows = measure(args.cases, args.rounds, args.seed)
+    rows = measure(args.cases, args.rounds, args.seed, args.job_index)
     try:
         commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
                                 text=True).stdout.strip()

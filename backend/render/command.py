@@ -41,19 +41,23 @@ def job_key(job_path: str, job: job_mod.Job, point_radius: int, half: bool = Fal
 def asset_boxes(job: job_mod.Job, scene: fr.Scene, log) -> list:
     """(box_to_file, size, source) per asset: the job's box ("job"), else the upright box of its Gaussians' means
     (``core.geometry.boxes.estimate_box``, up = the file direction its first transform makes vertical) marked
-    "estimated"."""
-    out = []
+    "estimated".
+
+    ``estimate_box`` is a pure function of the means and the up direction, so it runs once per distinct pair
+    (``_estimate_key``: the means' bytes and shape, the up vector's float64 bytes) and the result is reused: 100
+    assets on the same file placed alike cost one estimate, and each gets the same (T, size) it would have got from
+    its own (a copy: no asset shares arrays with another). Each asset still logs its own line."""
+    out, estimated = [], {}
     for a, loaded in zip(job.assets, scene.assets):
         if a.box is not None:
             out.append((a.box.box_to_file, a.box.size, "job"))
             continue
         means = loaded.means.cpu().numpy()
-        try:
-            T, size = boxes.estimate_box(means, labels_mod.asset_up(a))
-        except ValueError:  # fewer than 4 usable Gaussians: a degenerate box at their centre
-            T, size = np.eye(4), np.zeros(3)
-            if len(means):
-                T[:3, 3] = np.nanmean(means, axis=0)
+        up = labels_mod.asset_up(a)
+        key = _estimate_key(means, up)
+        if key not in estimated:
+            estimated[key] = _estimate(means, up)
+        T, size = (x.copy() for x in estimated[key])
         placed = labels_mod.asset_box_to_world(a, (T, size), job.frames[0].frame)
         metres = "" if placed is None else (f" ({placed[1][1]:.2f} x {placed[1][0]:.2f} x {placed[1][2]:.2f} m at "
                                             f"frame {job.frames[0].frame})")
@@ -63,12 +67,51 @@ def asset_boxes(job: job_mod.Job, scene: fr.Scene, log) -> list:
     return out
 
 
+def _estimate(means: np.ndarray, up: np.ndarray) -> tuple:
+    """(box_to_file (4, 4), size (3,)) of ``estimate_box(means, up)``; fewer than 4 usable Gaussians: a degenerate
+    box (size 0) at their centre (identity without any)."""
+    try:
+        return boxes.estimate_box(means, up)
+    except ValueError:  # fewer than 4 usable Gaussians
+        T, size = np.eye(4), np.zeros(3)
+        if len(means):
+            T[:3, 3] = np.nanmean(means, axis=0)
+        return T, size
+
+
+def _estimate_key(means: np.ndarray, up: np.ndarray) -> tuple:
+    """What ``_estimate`` depends on, as a dict key: the SHA-256 of the means' float64 bytes with their shape, and
+    the up vector's float64 bytes (NaN included: the same bytes give the same result)."""
+    import hashlib
+
+    m = np.ascontiguousarray(means, np.float64)
+    return hashlib.sha256(m.tobytes()).hexdigest(), m.shape, np.ascontiguousarray(up, np.float64).tobytes()
+
+
 def file_hash(path: str) -> str:
     """SHA-256 (hex) of a file's content."""
     import hashlib
 
     with open(path, "rb") as f:
         return hashlib.file_digest(f, "sha256").hexdigest()
+
+
+def asset_hashes(job_path: str, job: job_mod.Job) -> list:
+    """``file_hash`` of each asset's file, read once per file: assets whose files have the same real path, size and
+    mtime (``core.frame_keys.stamp``, the identity the frame keys take of a file) share one reading."""
+    out, done = [], {}
+    for a in job.assets:
+        path = job_mod.resolve(job_path, a.ply)
+        try:
+            real = os.path.realpath(path)
+            key = (real, *frame_keys.stamp(real))
+        except OSError:  # gone since the inputs were checked: file_hash says so, as it would have
+            out.append(file_hash(path))
+            continue
+        if key not in done:
+            done[key] = file_hash(path)
+        out.append(done[key])
+    return out
 
 
 def _warn(lab: dict) -> int:
@@ -181,7 +224,7 @@ def _render(job_path, job, device, force, point_radius, stop, log, out, allow_ou
                         f"boxes), {len(scene.assets)} assets")
                     _log_cleaning(scene, log)
                 labelling = _Labelling(job, layout, asset_boxes(job, scene, log),
-                                       [file_hash(job_mod.resolve(job_path, a.ply)) for a in job.assets], plan.keys,
+                                       asset_hashes(job_path, job), plan.keys,
                                        plan.labels_keys)
                 if stop:  # asked to stop while the scene loaded (outlier removal can take a while)
                     break

@@ -287,20 +287,31 @@ def amodal_pixels(scene: Scene, entry: job_mod.Frame, width: int, height: int, p
     """(A,) int64, A = len(scene.assets): for each asset the pixels it would be the instance of if it were
     rendered alone (no points, no other asset: no background depth), i.e. where its own M_a > 0.5 (its Σ α·T
     exceeds the transmittance left). 0 for an asset ``asset_unseen`` rules out (no pass for it). One
-    ``tiles.rasterize`` per asset: a separate cost, not part of ``render_frame``. ``projection``: the frame's
-    projection of every asset from ``render_frame(keep=...)`` (None: its Gaussian pass was skipped, nothing to
-    count), whose rows of one asset are exactly that asset's own projection (each row is projected on its own,
-    the order kept); by default each asset is projected here. An asset nothing hides (no point or other asset in
-    front of it, nor behind it where it would count) has ``visible_pixels`` == ``amodal_pixels``."""
+    ``tiles.rasterize`` per asset the frame shows: a separate cost, not part of ``render_frame``. ``projection``:
+    the frame's projection of every asset from ``render_frame(keep=...)`` (None: its Gaussian pass was skipped,
+    nothing to count), whose rows of one asset are exactly that asset's own projection (each row is projected on
+    its own, the order kept); by default each asset is projected here. An asset nothing hides (no point or other
+    asset in front of it, nor behind it where it would count) has ``visible_pixels`` == ``amodal_pixels``.
+
+    The work follows what the frame shows: with the frame's ``projection``, an asset none of whose Gaussians
+    survived it (behind the camera, outside the image, too faint: the projection drops every Gaussian whose extent
+    holds no pixel centre) is counted 0 after one count of its rows, with no ``asset_unseen`` test and no render:
+    its alone projection is those same zero rows, and a render of no Gaussian covers no pixel, so the count is the
+    0 the render would give. Only an asset with rows is tested (``asset_unseen``, as before) and rendered."""
     K = np.asarray(entry.K, np.float64)
     w2c = pts.relative_camera(np.asarray(entry.world_to_camera, np.float64), scene.origin)
     out = np.zeros(len(scene.assets), np.int64)
     if projection is None:
         return out
+    shown = None
+    if isinstance(projection, dict):  # the rows each asset kept (ids 1..A; bincount's row 0 is no asset)
+        shown = torch.bincount(projection["asset_id"], minlength=len(scene.assets) + 1)[1:].cpu().numpy() > 0
     for i, a in enumerate(scene.assets):
+        if shown is not None and not shown[i]:
+            continue
         if asset_unseen(a, entry.frame, scene.origin, K, w2c, width, height):
             continue
-        if isinstance(projection, dict):
+        if shown is not None:
             sel = projection["asset_id"] == i + 1
             proj = {k: v[sel] for k, v in projection.items()}
         else:

@@ -236,9 +236,9 @@ def test_header_claiming_more_elements_than_stored(tmp_path):
     huge = member.replace(b"(2, 3), }" + b" " * 14, b"(99999999, 99999999), }")
     assert len(huge) == len(member) and huge != member
     p2 = write_zip(tmp_path / "peta.npz", {"depth.npy": huge})
-    t = time.perf_counter()
+    t = time.process_time()   # CPU: an allocation or a read would cost it, a busy machine does not
     refused(F.read_npz, p2, ["depth"], match=r"claims shape \(99999999, 99999999\) \(39,999,999,200,000,004 bytes\)")
-    assert time.perf_counter() - t < 0.5
+    assert time.process_time() - t < 0.5
     assert F.npz_shapes(p2) == {"depth": (99999999, 99999999)}  # headers alone: nothing read, nothing refused
 
 

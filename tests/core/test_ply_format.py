@@ -90,8 +90,8 @@ def test_element_counts_beyond_the_file_are_refused_before_allocation(tmp_path, 
                                         + b"\nproperty double a\nproperty double b\nelement vertex 4")}
     for name, raw in cases.items():
         (tmp_path / name).write_bytes(raw)
-        t = time.perf_counter()
+        t = time.process_time()   # CPU: an allocation would cost it, a busy machine does not
         with pytest.raises(splats.SplatsError, match=r"truncated: the header promises \d+ Gaussians .* but the file "
                                                      r"has \d+ bytes") as e:
             splats_io.read(tmp_path / name)
-        assert time.perf_counter() - t < 0.5 and e.value.field == "vertex"
+        assert time.process_time() - t < 0.5 and e.value.field == "vertex"

@@ -175,7 +175,7 @@ def test_fuzz_corruptions_end_in_error_or_valid_asset(tmp_path):
     target = tmp_path / "fuzz.ply"
     for case in range(1200):
         target.write_bytes(_corrupt(sources[case % len(sources)], rng))
-        t = time.perf_counter()
+        t = time.process_time()   # CPU: another busy process on the machine does not make a case slow
         try:
             g = splats_io.load(target)
         except splats.SplatsError as e:
@@ -186,7 +186,7 @@ def test_fuzz_corruptions_end_in_error_or_valid_asset(tmp_path):
                 assert np.all(np.isfinite(arr)), case
             assert np.allclose(np.linalg.norm(g.quats, axis=1), 1, atol=1e-5) if len(g) else True
             outcomes["valid"] += 1
-        slowest = max(slowest, time.perf_counter() - t)
+        slowest = max(slowest, time.process_time() - t)
     assert outcomes["error"] > 300 and outcomes["valid"] > 100, outcomes
     assert slowest < 1.0, slowest
     print(f"fuzz: {outcomes}, slowest case {slowest * 1e3:.1f} ms")

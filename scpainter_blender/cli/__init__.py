@@ -12,7 +12,7 @@
     blender -c scpainter vary scene.blend --out variants/ [--variants 8]
 
 One module per command in this package (its ``NAME``, ``ORDER`` in ``--help``'s list, ``add_parser`` and ``run``;
-the command's own docstring says what it does), found here (``_commands``): adding a command is adding its module.
+the command's own docstring says what it does), found here (``COMMANDS``): adding a command is adding its module.
 What several commands share (options, opening a .blend, the backend's command line, the scene run of ``render``,
 ``generate`` and ``export``) is in ``common.py``.
 
@@ -44,18 +44,22 @@ from ..scene import props
 from . import common
 
 
-def _commands() -> list[ModuleType]:
+def _commands() -> tuple[ModuleType, ...]:
     """The command modules of this package (each module with a ``NAME``), in ``ORDER``. Imported relative to this
     package: installed as an extension its name is ``bl_ext.<repo>.scpainter.scpainter_blender.cli``."""
     found = (importlib.import_module("." + m.name, __package__) for m in pkgutil.iter_modules(__path__))
-    return sorted((m for m in found if hasattr(m, "NAME")), key=lambda m: m.ORDER)
+    return tuple(sorted((m for m in found if hasattr(m, "NAME")), key=lambda m: m.ORDER))
+
+
+# imported with this package (when the add-on is enabled): a broken command module fails there, not at its first use
+COMMANDS = _commands()
 
 
 def _parser() -> common.Parser:
     """The whole command line: one sub-command per command module, each with its handler as ``func``."""
     p = common.Parser(prog="blender -c scpainter", description=__doc__.split("\n\n")[0])
     sub = p.add_subparsers(dest="command", required=True)
-    for command in _commands():
+    for command in COMMANDS:
         command.add_parser(sub)
     return p
 

@@ -10,7 +10,7 @@ import pytest
 
 
 def _cli(addon):
-    return sys.modules[addon + ".scpainter_blender.scene.cli"]
+    return sys.modules[addon + ".scpainter_blender.cli"]
 
 
 def _last_event(capsys):

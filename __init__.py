@@ -6,7 +6,8 @@ register() and unregister() only (docs/design.md §2); everything else lives in 
 import bpy
 
 from . import operators, panels
-from .scpainter_blender.scene import cli, preferences, props, warm_backend
+from .scpainter_blender import cli
+from .scpainter_blender.scene import preferences, props, warm_backend
 
 _classes = (*preferences.classes, *operators.classes, *panels.classes)
 

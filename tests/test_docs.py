@@ -98,7 +98,7 @@ def backend_parsers():
 def blender_parsers():
     """{command: its argparse parser} of ``blender -c scpainter`` (needs the bpy module: skips without it)."""
     pytest.importorskip("bpy")
-    from scpainter_blender.scene.cli import _parser
+    from scpainter_blender.cli import _parser
 
     return _sub_commands(_parser())
 

@@ -3,8 +3,8 @@ it (``OPTIONS``), the values an import takes (``ImportOptions``) and their valid
 
 Both user interfaces are made from ``OPTIONS``: the File > Import operator's properties (operators/import_vggt.py
 turns ``blender_properties()`` into ``bpy.props``) and the ``blender -c scpainter import`` options
-(scene/cli.py calls ``add_arguments`` and ``from_arguments``). Adding an option is an entry here, a field of
-``ImportOptions`` and its use in the import (scene/importer.py).
+(cli/import_predictions.py calls ``add_arguments`` and ``from_arguments``). Adding an option is an entry here, a
+field of ``ImportOptions`` and its use in the import (scene/importer.py).
 
 A refused option is ``errors.InputError`` with path ``ERROR_PATH`` ("(import options)") and the option's name as
 field; on the command line ``from_arguments`` names the flag instead (``errors.ArgumentError``). No bpy: numpy only.

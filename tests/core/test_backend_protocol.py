@@ -85,5 +85,9 @@ def test_invocation_refuses_a_device_nobody_knows():
 
 
 def test_blender_cli_never_writes_a_command_line_value_into_the_preferences():
-    source = open(os.path.join(ROOT, "scpainter_blender", "scene", "cli.py"), encoding="utf-8").read()
-    assert not re.search(r"prefs\.\w+\s*=(?!=)", source)
+    package = os.path.join(ROOT, "scpainter_blender", "cli")
+    names = sorted(n for n in os.listdir(package) if n.endswith(".py"))
+    assert "__init__.py" in names and "common.py" in names
+    for name in names:
+        source = open(os.path.join(package, name), encoding="utf-8").read()
+        assert not re.search(r"prefs\.\w+\s*=(?!=)", source), name

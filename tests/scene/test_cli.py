@@ -10,7 +10,7 @@ import pytest
 
 
 def _cli(addon):
-    return sys.modules[addon + ".scpainter_blender.scene.cli"]
+    return sys.modules[addon + ".scpainter_blender.cli"]
 
 
 def _last_event(capsys):
@@ -416,7 +416,7 @@ def test_execute_works_with_the_bpy_module_without_the_add_on_enabled(tmp_path):
     blend = tmp_path / "empty.blend"
     script = ("import sys, json, bpy; bpy.ops.wm.read_homefile(use_empty=True); "
               f"bpy.ops.wm.save_as_mainfile(filepath={str(blend)!r}); "
-              "from scpainter_blender.scene import cli; sys.exit(cli.execute(['batch', sys.argv[1]]))")
+              "from scpainter_blender import cli; sys.exit(cli.execute(['batch', sys.argv[1]]))")
     r = subprocess.run([sys.executable, "-c", script, str(blend)], cwd=root, capture_output=True, text=True,
                        timeout=300)
     done = json.loads([line for line in r.stdout.splitlines() if line.startswith("{")][-1])

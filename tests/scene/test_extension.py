@@ -149,3 +149,98 @@ def test_backend_uses_only_the_core_of_the_addon():
         for name, level in _imports(rel):
             if name.startswith("scpainter_blender"):
                 assert name.startswith("scpainter_blender.core"), (rel, name)
+
+
+# -- the command line's package (scpainter_blender/cli/: one module per command) -----------------------------------
+
+CLI = "scpainter_blender/cli"
+# what the command line may use of the add-on: the bpy-free core, the scene layer, the backend's client
+CLI_MAY_IMPORT = ("scpainter_blender.core", "scpainter_blender.scene", "scpainter_blender.backend_client",
+                  "scpainter_blender.cli")
+
+
+def _resolved_imports(rel):
+    """The modules (or names in them) that file ``rel`` imports, relative imports made absolute: (name, relative)."""
+    package = rel[:-len(".py")].split("/")[:-1]
+    out = []
+    for node in ast.walk(ast.parse(open(os.path.join(ROOT, rel)).read(), rel)):
+        if isinstance(node, ast.Import):
+            out += [(a.name, False) for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.level:
+            base = package[:len(package) - node.level + 1] + (node.module.split(".") if node.module else [])
+            out += [(".".join(base + [a.name]), True) for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            out.append((node.module, False))
+    return out
+
+
+def test_cli_imports_only_core_scene_and_the_backend_client():
+    """``scpainter_blender/cli/`` is the top of the Blender side: of the add-on it uses core, scene and the
+    backend's client (relative); otherwise the standard library and bpy."""
+    import sys
+
+    files = list(_py_files(CLI))
+    assert f"{CLI}/__init__.py" in files and f"{CLI}/common.py" in files
+    assert ("scpainter_blender.backend_client", True) in _resolved_imports(f"{CLI}/batch.py")  # relative, resolved
+    for rel in files:
+        for name, relative in _resolved_imports(rel):
+            if relative:
+                assert name.startswith(CLI_MAY_IMPORT), (rel, name)
+            else:
+                assert name.split(".")[0] in sys.stdlib_module_names or name.split(".")[0] == "bpy", (rel, name)
+
+
+def test_only_the_addon_root_imports_the_cli():
+    """Nothing below the command line imports it (scene, core, operators, panels); the root registers it."""
+    for rel in _py_files("operators", "panels", "scpainter_blender"):
+        if rel.startswith(CLI + "/"):
+            continue
+        assert not [n for n, relative in _resolved_imports(rel)
+                    if relative and (n == "scpainter_blender.cli" or n.startswith("scpainter_blender.cli."))], rel
+    assert ("scpainter_blender.cli", True) in _resolved_imports("__init__.py")
+
+
+def _unannotated_functions(tree):
+    """The functions of ``tree`` that leave a parameter or the return without an annotation (their names)."""
+    bare = []
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            a = node.args
+            params = [p for p in a.posonlyargs + a.args + a.kwonlyargs if p.arg not in ("self", "cls")]
+            params += [p for p in (a.vararg, a.kwarg) if p is not None]
+            if node.returns is None or any(p.annotation is None for p in params):
+                bare.append(node.name)
+    return bare
+
+
+def test_cli_command_modules_have_the_command_shape():
+    """Every module of ``scpainter_blender/cli/`` but the package and ``common.py`` is one command: ``NAME``,
+    ``ORDER`` (unique), ``add_parser(sub)`` and ``run(args)``; every function of the package fully annotated."""
+    orders = {}
+    for rel in _py_files(CLI):
+        tree = ast.parse(open(os.path.join(ROOT, rel)).read(), rel)
+        assert _unannotated_functions(tree) == [], rel
+        if os.path.basename(rel) in ("__init__.py", "common.py"):
+            continue
+        top = {t.id: n.value for n in tree.body if isinstance(n, ast.Assign) for t in n.targets
+               if isinstance(t, ast.Name)}
+        functions = {n.name: n for n in tree.body if isinstance(n, ast.FunctionDef)}
+        assert isinstance(top.get("NAME"), ast.Constant) and isinstance(top["NAME"].value, str), rel
+        assert isinstance(top.get("ORDER"), ast.Constant) and isinstance(top["ORDER"].value, int), rel
+        assert [a.arg for a in functions["add_parser"].args.args] == ["sub"], rel
+        assert [a.arg for a in functions["run"].args.args] == ["args"], rel
+        assert top["ORDER"].value not in orders, (rel, orders)
+        orders[top["ORDER"].value] = top["NAME"].value
+    assert len(orders) >= 6 and len(set(orders.values())) == len(orders), orders
+
+
+def test_cli_finds_its_commands_in_the_installed_extension(addon):
+    """Installed, the package is ``bl_ext.<repo>.scpainter.scpainter_blender.cli``: its commands are found there,
+    in ``--help``'s order (the list pins it), each the installed module."""
+    import sys
+
+    cli = sys.modules[addon + ".scpainter_blender.cli"]
+    assert [c.NAME for c in cli.COMMANDS] == ["import", "render", "generate", "batch", "vary", "export"]
+    assert all(c.__name__.startswith(addon + ".scpainter_blender.cli.") for c in cli.COMMANDS)
+    sub = next(a for a in cli._parser()._actions if a.dest == "command")
+    assert list(sub.choices) == [c.NAME for c in cli.COMMANDS]

@@ -220,7 +220,7 @@ def test_camera_height_refusals_name_the_file_and_field(addon, empty_scene, tmp_
         fit.camera_height_fit(pred, -1.0)
     assert e.value.field == "(camera height)"
     # headless: exit 2 and an error event naming file and field
-    cli = _installed(addon, "scene.cli")
+    cli = _installed(addon, "cli")
     capsys.readouterr()
     assert cli.execute(["import", wall, "--camera-height", "1.6", "--confidence-percentile", "0",
                         "--extrinsic-convention", "world_to_camera"]) == 2

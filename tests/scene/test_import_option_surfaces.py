@@ -36,7 +36,7 @@ def test_operator_properties_are_the_options(addon):
 
 def test_command_line_options_are_the_options(addon):
     options = _installed(addon, "core.import_options")
-    cli = _installed(addon, "scene.cli")
+    cli = _installed(addon, "cli")
     parser = cli._parser()
     args = parser.parse_args(["import", "x.npz"])
     assert options.from_arguments(args) == options.ImportOptions()

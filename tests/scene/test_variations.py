@@ -14,7 +14,7 @@ from scpainter_blender.core.output_layout import VariationLayout
 
 
 def _cli(addon):
-    return sys.modules[addon + ".scpainter_blender.scene.cli"]
+    return sys.modules[addon + ".scpainter_blender.cli"]
 
 
 def _events(capsys):

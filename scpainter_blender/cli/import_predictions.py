@@ -1,0 +1,56 @@
+"""``blender -c scpainter import``: VGGT predictions imported as points + the recorded camera into the scene that
+is open (``blender -b scene.blend -c ...`` imports into scene.blend), with the import options as
+``core/import_options.py`` defines them; ``--save`` writes the scene to a .blend (a temporary file, then renamed).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import tempfile
+
+import bpy
+
+from ..core import backend_protocol as protocol
+from ..core import import_options
+from ..scene import importer
+
+NAME = "import"
+ORDER = 10
+
+
+def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """``import PREDICTIONS``, the import options, ``--save``."""
+    i = sub.add_parser(NAME, help="import VGGT predictions as points + recorded camera")
+    i.add_argument("predictions")
+    import_options.add_arguments(i)  # the import options, as core.import_options defines them
+    i.add_argument("--save", help="write the scene to this .blend (written to a temporary file, then renamed)")
+    i.set_defaults(func=run)
+    return i
+
+
+def run(args: argparse.Namespace) -> tuple[dict, int]:
+    """The import (options checked first: ``ArgumentError`` names the option); the summary (points, camera, the
+    scale fit, the load report, timings; ``blend`` when saved) and exit code 0."""
+    opts = import_options.from_arguments(args)  # checked: ArgumentError names the option
+    result = importer.import_vggt(bpy.context, args.predictions, opts)
+    out = {"points": result.num_points, "points_object": result.points.name, "camera": result.camera.name,
+           "depth_edge_ratio": result.depth_edge_ratio, "depth_edge_points": result.depth_edge_points,
+           "scale": result.fit.scale, "scale_method": result.fit.method, "residual_m": result.fit.residual_m,
+           "warnings": result.warnings, "predictions": result.load_report.to_json(), "timings_s": result.timings,
+           # a camera path stays the scene camera when the scene had one (importer.import_vggt)
+           "scene_camera": bpy.context.scene.camera.name if bpy.context.scene.camera else None}
+    if args.save:
+        path = os.path.abspath(args.save)
+        os.makedirs(os.path.dirname(path), exist_ok=True)
+        # into a fresh private folder beside the target (Blender makes its own "@" temporary and ".blend1" backup
+        # of an existing file there), then renamed over the target
+        tmp = tempfile.mkdtemp(prefix=f".{os.path.basename(path)}.", dir=os.path.dirname(path))
+        try:
+            bpy.ops.wm.save_as_mainfile(filepath=os.path.join(tmp, "scene.blend"), copy=True)
+            os.replace(os.path.join(tmp, "scene.blend"), path)
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+        out["blend"] = path
+    return out, protocol.EXIT_OK

@@ -127,7 +127,7 @@ def load_points(scene: Scene, job: job_mod.Job, job_path: str) -> Scene:
     return scene
 
 
-def frame_index(frame: np.ndarray, xyz: np.ndarray) -> tuple[list, np.ndarray] | tuple[None, None]:
+def frame_index(frame: np.ndarray, xyz: np.ndarray) -> tuple[dict, dict] | tuple[None, None]:
     """Each source frame's (start, stop) in the points and its box (2, 3) float64 (low, high corner of ``xyz``, the
     float32 positions the renderer projects), or (None, None) when a frame's points are not contiguous."""
     frame = np.asarray(frame)

@@ -207,7 +207,7 @@ def asset_ids(proj: dict) -> torch.Tensor:
 
 
 def rasterize(proj: dict, width: int, height: int, background_depth: torch.Tensor | None = None,
-              max_pairs: int = 200_000_000) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+              max_pairs: int = 200_000_000) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """Front-to-back compositing of projected Gaussians (see the module rules).
 
     ``background_depth`` (H, W): the nearest point per pixel (+inf where none); Gaussians at or behind it are

@@ -21,8 +21,14 @@ from scpainter_blender.core import backend_protocol as protocol
 # the exit codes, here too: the commands return events.EXIT_* (their values: core/backend_protocol.py)
 from scpainter_blender.core.backend_protocol import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK  # noqa: F401
 
+from typing import TYPE_CHECKING
 
-def json_safe(value):
+if TYPE_CHECKING:
+    from collections.abc import Iterator
+    from typing import TextIO
+
+
+def json_safe(value: object) -> object:
     """JSON has no NaN/inf: ``value`` with them as None (null), so every event line, and every result file written
     with ``core.outputs.write_json`` (which refuses NaN/inf), parses with a strict parser."""
     if isinstance(value, float) and not math.isfinite(value):
@@ -48,34 +54,34 @@ def reserve_stdout() -> None:
         sys.stdout = sys.stderr
 
 
-def write(ev: dict, /, stream=None) -> None:
+def write(ev: dict, /, stream: TextIO | None = None) -> None:
     """One event (``core.backend_protocol``'s dict) as a line of standard output."""
     stream = stream or _EVENT_STREAM or sys.stdout
     stream.write(json.dumps(json_safe(ev), allow_nan=False) + "\n")
     stream.flush()
 
 
-def emit(kind: str, /, stream=None, **fields) -> None:
+def emit(kind: str, /, stream: TextIO | None = None, **fields: object) -> None:
     write(protocol.event(kind, **fields), stream)
 
 
-def progress(stage: str, done: int, total: int, **fields) -> None:
+def progress(stage: str, done: int, total: int, **fields: object) -> None:
     emit(protocol.PROGRESS, stage=stage, done=done, total=total, **fields)
 
 
-def artifact(path: str, **fields) -> None:
+def artifact(path: str, **fields: object) -> None:
     emit(protocol.ARTIFACT, path=path, **fields)
 
 
-def done(**fields) -> None:
+def done(**fields: object) -> None:
     emit(protocol.DONE, **fields)
 
 
-def error(message: str, hint: str | None = None, **fields) -> None:
+def error(message: str, hint: str | None = None, **fields: object) -> None:
     write(protocol.error_event(message, hint, **fields))
 
 
-def warning(message: str, code: str, **fields) -> None:
+def warning(message: str, code: str, **fields: object) -> None:
     """A ``warning`` event (``core.backend_protocol.WARNING_FIELDS``), also written to the human log (stderr)."""
     emit(protocol.WARNING, message=message, code=code, **fields)
     log(f"warning: {message}")
@@ -97,7 +103,7 @@ class FileLog:
     Opening one makes it the log a bug's traceback goes to (``report_bug``) until the enclosing ``log_scope``
     ends."""
 
-    def __init__(self, path: str):
+    def __init__(self, path: str) -> None:
         from scpainter_blender.core import outputs
 
         self.path = path
@@ -119,7 +125,7 @@ class FileLog:
 
 
 @contextlib.contextmanager
-def log_scope():
+def log_scope() -> Iterator[None]:
     """The FileLogs opened inside the block belong to it: an exception leaving the block while one is open is
     marked with the innermost (``log_of``), and they stop being the bug log when the block ends. ``main`` wraps
     each command in one, ``batch`` each job, ``render_job`` / ``generate_job`` their run."""
@@ -135,7 +141,7 @@ def log_scope():
         del _open_logs[mark:]
 
 
-def log_of(e: BaseException):
+def log_of(e: BaseException) -> FileLog | None:
     """The FileLog that was open where ``e`` was raised (see ``log_scope``), or None."""
     log_ = getattr(e, _LOG_ATTR, None)
     return log_ if isinstance(log_, FileLog) else None
@@ -175,7 +181,7 @@ _request_stop: list | None = None
 
 
 @contextlib.contextmanager
-def serving(stop: list):
+def serving(stop: list) -> Iterator[list]:
     """The block runs one request of a warm backend: ``stop_on_sigterm`` yields ``stop`` (which the server's cancel
     request and its own SIGTERM handler append to) and leaves the signal handlers alone (the server's stay)."""
     global _request_stop
@@ -187,7 +193,7 @@ def serving(stop: list):
 
 
 @contextlib.contextmanager
-def stop_on_sigterm(sigint: bool = False):
+def stop_on_sigterm(sigint: bool = False) -> Iterator[list]:
     """Within the block SIGTERM does not kill the process: it appends to the yielded list, which long loops check
     between units of work (a frame, a sampler step) to stop cleanly with finished outputs kept. ``sigint``: the
     first Ctrl-C (SIGINT) does the same, a second one raises KeyboardInterrupt (the impatient user's way out).

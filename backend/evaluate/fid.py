@@ -8,6 +8,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import torch
+
 
 def _as_float64_rows(features, what="features") -> np.ndarray:
     if hasattr(features, "detach"):  # torch tensor, on any device and of any float dtype
@@ -29,7 +34,7 @@ class FeatureStats:
     ``keep_features=True`` also keeps the rows (needed for :func:`kid`); :meth:`features` returns them.
     """
 
-    def __init__(self, keep_features: bool = False):
+    def __init__(self, keep_features: bool = False) -> None:
         self.keep_features = keep_features
         self._n = 0
         self._mean = None    # (D,) float64
@@ -37,7 +42,7 @@ class FeatureStats:
         self._kept = []
 
     @property
-    def dim(self):
+    def dim(self) -> int | None:
         """Feature dimension D, or None before the first update."""
         return None if self._mean is None else self._mean.shape[0]
 
@@ -70,7 +75,7 @@ class FeatureStats:
         self._m2 = self._m2 + m2_b + np.outer(delta, delta) * (self._n * n_b / n)
         self._n = n
 
-    def update(self, features) -> FeatureStats:
+    def update(self, features: np.ndarray | torch.Tensor) -> FeatureStats:
         """Add (N, D) rows (torch tensor or numpy array, any float dtype). Rows with NaN/inf reject the whole batch."""
         x = _as_float64_rows(features)
         if self.dim is not None and x.shape[1] != self.dim:
@@ -134,7 +139,7 @@ def _trace_sqrt_product(cov1: np.ndarray, cov2: np.ndarray) -> float:
     return float(np.linalg.svd(_psd_sqrt(cov1) @ _psd_sqrt(cov2), compute_uv=False).sum())
 
 
-def frechet_distance(mu1, cov1, mu2, cov2) -> float:
+def frechet_distance(mu1: np.ndarray, cov1: np.ndarray, mu2: np.ndarray, cov2: np.ndarray) -> float:
     """Fréchet distance between N(mu1, cov1) and N(mu2, cov2): |mu1 - mu2|² + tr C1 + tr C2 - 2 tr((C1 C2)^{1/2}).
 
     Inputs are (D,) means and (D, D) symmetric PSD covariances (numpy or anything ``np.asarray`` takes), computed in
@@ -172,7 +177,8 @@ def _kid_rows(features, name: str) -> np.ndarray:
     return x
 
 
-def kid(features_a, features_b, subsets: int = 100, subset_size: int = 1000, seed: int = 0) -> tuple[float, float]:
+def kid(features_a: np.ndarray | torch.Tensor | FeatureStats, features_b: np.ndarray | torch.Tensor | FeatureStats,
+        subsets: int = 100, subset_size: int = 1000, seed: int = 0) -> tuple[float, float]:
     """Kernel Inception distance (Bińkowski et al. 2018): unbiased MMD² with k(x, y) = (x·y / D + 1)³.
 
     ``features_a``/``features_b``: (N, D) rows (numpy, torch) or :class:`FeatureStats` made with

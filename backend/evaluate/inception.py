@@ -31,7 +31,8 @@ class EvaluationError(errors.InputError):
     """Evaluation input that cannot be used (the ``--inception`` weights file): ``str()`` is ``"<full path>:
     <what is wrong>"``; ``field`` the part at fault (``"(file)"`` for the file as a whole)."""
 
-    def __init__(self, path, message, field=None, hint=None):
+    def __init__(self, path: str | os.PathLike, message: str, field: str | None = None,
+                 hint: str | None = None) -> None:
         errors.InputError.__init__(self, path, field, message, hint)
         self.args = (f"{self.path}: {message}",)
 
@@ -39,7 +40,8 @@ class EvaluationError(errors.InputError):
 class BasicConv2d(nn.Module):
     """Convolution without bias, batch norm (eps 1e-3, as in the TF graph), ReLU."""
 
-    def __init__(self, cin: int, cout: int, kernel_size, stride=1, padding=0):
+    def __init__(self, cin: int, cout: int, kernel_size: int | tuple[int, int], stride: int = 1,
+                 padding: int | tuple[int, int] = 0) -> None:
         super().__init__()
         self.conv = nn.Conv2d(cin, cout, kernel_size, stride=stride, padding=padding, bias=False)
         self.bn = nn.BatchNorm2d(cout, eps=0.001)
@@ -56,7 +58,7 @@ def _avg_pool_same(x: torch.Tensor) -> torch.Tensor:
 class InceptionA(nn.Module):
     """35x35 block (Mixed_5b..5d): 64 + 64 + 96 + ``pool_features`` channels out."""
 
-    def __init__(self, cin: int, pool_features: int):
+    def __init__(self, cin: int, pool_features: int) -> None:
         super().__init__()
         self.branch1x1 = BasicConv2d(cin, 64, 1)
         self.branch5x5_1 = BasicConv2d(cin, 48, 1)
@@ -77,7 +79,7 @@ class InceptionA(nn.Module):
 class InceptionB(nn.Module):
     """Grid reduction 35 -> 17 (Mixed_6a): 384 + 96 + ``cin`` channels out."""
 
-    def __init__(self, cin: int):
+    def __init__(self, cin: int) -> None:
         super().__init__()
         self.branch3x3 = BasicConv2d(cin, 384, 3, stride=2)
         self.branch3x3dbl_1 = BasicConv2d(cin, 64, 1)
@@ -94,7 +96,7 @@ class InceptionB(nn.Module):
 class InceptionC(nn.Module):
     """17x17 block with factorised 7x7 convolutions (Mixed_6b..6e): 4 x 192 channels out."""
 
-    def __init__(self, cin: int, channels_7x7: int):
+    def __init__(self, cin: int, channels_7x7: int) -> None:
         super().__init__()
         c7 = channels_7x7
         self.branch1x1 = BasicConv2d(cin, 192, 1)
@@ -122,7 +124,7 @@ class InceptionC(nn.Module):
 class InceptionD(nn.Module):
     """Grid reduction 17 -> 8 (Mixed_7a): 320 + 192 + ``cin`` channels out."""
 
-    def __init__(self, cin: int):
+    def __init__(self, cin: int) -> None:
         super().__init__()
         self.branch3x3_1 = BasicConv2d(cin, 192, 1)
         self.branch3x3_2 = BasicConv2d(192, 320, 3, stride=2)
@@ -145,7 +147,7 @@ class InceptionE(nn.Module):
     2015-12-05 TF graph.
     """
 
-    def __init__(self, cin: int, max_pool: bool):
+    def __init__(self, cin: int, max_pool: bool) -> None:
         super().__init__()
         self.max_pool = max_pool
         self.branch1x1 = BasicConv2d(cin, 320, 1)
@@ -184,7 +186,7 @@ class InceptionFeatures(nn.Module):
     file loads with a strict key check.
     """
 
-    def __init__(self):
+    def __init__(self) -> None:
         super().__init__()
         self.Conv2d_1a_3x3 = BasicConv2d(3, 32, 3, stride=2)
         self.Conv2d_2a_3x3 = BasicConv2d(32, 32, 3)
@@ -257,7 +259,7 @@ def _read_state_dict(path: str) -> dict:
     return dict(state)
 
 
-def load_inception(path, device="cpu") -> InceptionFeatures:
+def load_inception(path: str | os.PathLike, device: str | torch.device = "cpu") -> InceptionFeatures:
     """The FID Inception with weights from a local file; nothing is downloaded.
 
     ``path``: pytorch-fid's ``pt_inception-2015-12-05-6726825d.pth`` (read with ``weights_only=True``) or the same

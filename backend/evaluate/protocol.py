@@ -60,6 +60,12 @@ from ..train import clip as clip_mod
 from ..train.pairs import load_clip_frames, load_resized
 from ..train.view_settings import ViewSettings
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import argparse
+    from collections.abc import Callable, Iterable, Sequence
+
 
 @dataclass(frozen=True)
 class EvalSettings(ViewSettings):
@@ -82,7 +88,7 @@ class EvalSettings(ViewSettings):
     inpaint_radius: int = job_mod.BASELINE_DEFAULTS["inpaint_radius"]
 
     @classmethod
-    def from_args(cls, a) -> EvalSettings:
+    def from_args(cls, a: argparse.Namespace) -> EvalSettings:
         """From ``python -m backend evaluate``'s arguments (backend/__main__.py): only the options given (their
         argparse default is None), the rest from this class and ``ViewSettings``, so a default is written once.
         Each value is checked: ``ArgumentError`` names the option. The bounds are the job's (``core.job``) plus
@@ -130,7 +136,7 @@ class RayPool:
         batch_items.check_ray_options(self.retries, self.cpus_per_job)
 
     @classmethod
-    def from_args(cls, a) -> RayPool | None:
+    def from_args(cls, a: argparse.Namespace) -> RayPool | None:
         """From ``python -m backend evaluate``'s arguments: None without ``--ray``."""
         if a.ray is None:
             return None
@@ -235,12 +241,13 @@ class TaskInputError(errors.InputError):
     """Bad input a task's job met on the pool: the job's file and field, and its message as the job wrote it
     (which already names them: ``str()`` does not put them in front again), followed by the task."""
 
-    def __init__(self, path, field, text: str, hint=None):
+    def __init__(self, path: str, field: str, text: str, hint: str | None = None) -> None:
         super().__init__(path, field, text, hint)
         self.args = (text,)
 
 
-def run_jobs_on_pool(work: list[EvalTask], s: EvalSettings, pool: RayPool, stop=(), log=events.log) -> list | None:
+def run_jobs_on_pool(work: list[EvalTask], s: EvalSettings, pool: RayPool, stop: Sequence[object] = (),
+                     log: Callable[[str], None] = events.log) -> list | None:
     """Every task's job on the Ray pool (``batch_ray.run_ray_batch``, progress stage ``evaluate-jobs``):
     ``generate`` with ``s.checkpoint`` (at ``s.precision``, resolved: ``generate.resolve_precision``), else
     ``render``. A job finished before is skipped by its own key, so a second evaluation only checks. Returns per
@@ -292,7 +299,8 @@ def run_jobs_on_pool(work: list[EvalTask], s: EvalSettings, pool: RayPool, stop=
 # Crops
 # ---------------------------------------------------------------------------------------------------------------
 
-def square_box(x0, y0, x1, y1, grow: float, width: int, height: int):
+def square_box(x0: float, y0: float, x1: float, y1: float, grow: float, width: int, height: int) -> tuple[int, int, int,
+               int] | None:
     """A square around the box (x0, y0)-(x1, y1) (pixels), side = grow × the longer side, moved to lie inside
     the image where it fits; None when the box is empty."""
     if x1 <= x0 or y1 <= y0:
@@ -305,7 +313,7 @@ def square_box(x0, y0, x1, y1, grow: float, width: int, height: int):
     return left, top, left + side, top + side
 
 
-def crop(image: torch.Tensor, box, size: int) -> torch.Tensor:
+def crop(image: torch.Tensor, box: tuple[int, int, int, int], size: int) -> torch.Tensor:
     """(3, size, size) from image (3, H, W) float in [0, 1] (bilinear, antialiased)."""
     x0, y0, x1, y1 = box
     c = image[:, y0:y1, x0:x1][None]
@@ -313,7 +321,7 @@ def crop(image: torch.Tensor, box, size: int) -> torch.Tensor:
                                            align_corners=False)[0].clamp(0, 1)
 
 
-def mask_crop_box(mask: np.ndarray, grow: float, min_px: int = 16):
+def mask_crop_box(mask: np.ndarray, grow: float, min_px: int = 16) -> tuple[int, int, int, int] | None:
     """Square crop box around the pixels where the asset mask exceeds 0.5; None if their bounding box is smaller
     than min_px on a side."""
     ys, xs = np.nonzero(mask > 0.5)
@@ -323,7 +331,8 @@ def mask_crop_box(mask: np.ndarray, grow: float, min_px: int = 16):
     return square_box(xs.min(), ys.min(), xs.max() + 1, ys.max() + 1, grow, W, H)
 
 
-def box_crop_box(box_to_world, size, K, world_to_camera, width: int, height: int, grow: float, min_px: int = 16):
+def box_crop_box(box_to_world: np.ndarray, size: np.ndarray, K: np.ndarray, world_to_camera: np.ndarray, width: int,
+                 height: int, grow: float, min_px: int = 16) -> tuple[int, int, int, int] | None:
     """Square crop box around a 3D box's projection (all 8 corners in front of the camera, at least half of its
     2D box inside the image, at least min_px on a side); None otherwise."""
     corners = np.array([[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5)]) * size
@@ -351,7 +360,7 @@ class ImageSets:
 
     sets: dict = field(default_factory=dict)
 
-    def add(self, name: str, images) -> None:
+    def add(self, name: str, images: Iterable[torch.Tensor]) -> None:
         self.sets.setdefault(name, []).extend(list(images))
 
 
@@ -359,7 +368,7 @@ def _read_png(path: str, width: int, height: int) -> torch.Tensor:
     return load_resized(path, width, height).float() / 255.0
 
 
-def run_task(job_path: str, device: str, s: EvalSettings, stop) -> dict:
+def run_task(job_path: str, device: str, s: EvalSettings, stop: Sequence[object]) -> dict:
     """Render (and generate, with a checkpoint) one task; returns its I, M_a, validity and generated frames."""
     from ..generate import command as gen_mod
     from ..render import command as render_cmd
@@ -394,7 +403,7 @@ def baseline_video(task: dict, s: EvalSettings, folder: str, fps: float) -> torc
     return torch.from_numpy(rgb).permute(0, 3, 1, 2).float() / 255.0
 
 
-def temporal_metrics(video) -> dict:
+def temporal_metrics(video: torch.Tensor | Sequence[torch.Tensor]) -> dict:
     """The flow-warping error (``temporal.warping_error``) of a video given as (T, 3, H, W) values in [0, 1] (a
     tensor or a list of (3, H, W) frames): ``warping_error`` and the mean fraction of pixels that ``counted``."""
     from .temporal import warping_error
@@ -413,7 +422,8 @@ def ground_truth_metrics(pred: torch.Tensor, gt: torch.Tensor, valid: torch.Tens
             "ssim_covered": float(ssim(pred, gt, mask=covered).mean())}
 
 
-def feature_metrics(sets: dict, reference: str, net, device: str, log) -> dict:
+def feature_metrics(sets: dict, reference: str, net: Callable[[torch.Tensor], torch.Tensor] | None, device: str,
+                    log: Callable[[str], None]) -> dict:
     """FID and KID of every set against ``reference`` (a key of ``sets``), with the feature extractor ``net``
     ((N, 3, H, W) in [0, 1] -> (N, D)); None: skipped."""
     if net is None:
@@ -440,7 +450,8 @@ def feature_metrics(sets: dict, reference: str, net, device: str, log) -> dict:
     return out
 
 
-def evaluate(s: EvalSettings, device: str, stop=(), extractor=None, pool: RayPool | None = None) -> dict:
+def evaluate(s: EvalSettings, device: str, stop: Sequence[object] = (),
+             extractor: Callable[[torch.Tensor], torch.Tensor] | None = None, pool: RayPool | None = None) -> dict:
     """Run every task of every clip and write ``evaluation.json``; returns its path, ``seconds`` and the ground-truth
     rows, or ``{"stopped": True}`` when ``stop`` (SIGTERM) ended it. ``device``: this process's (the metrics, and
     any job not finished yet). ``pool``: every task's job runs on a Ray pool first (``run_jobs_on_pool``; its

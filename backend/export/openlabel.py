@@ -36,6 +36,11 @@ import numpy as np
 
 from . import common
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Iterable
+
 IMAGES, FILE = "images", "openlabel.json"
 SCHEMA_VERSION = "1.0.0"
 WORLD, CAMERA = "odom", "camera"
@@ -45,7 +50,7 @@ def _matrix(m) -> list:
     return [float(v) for v in np.asarray(m, np.float64).ravel()]
 
 
-def intrinsics(K, width: int, height: int) -> dict:
+def intrinsics(K: np.ndarray, width: int, height: int) -> dict:
     """The camera stream's ``stream_properties`` for our intrinsics ``K``."""
     P = _matrix(np.hstack([common.opencv_K(K), np.zeros((3, 1))]))
     return {"intrinsics_pinhole": {"width_px": int(width), "height_px": int(height), "camera_matrix_3x4": P,
@@ -58,13 +63,13 @@ def cuboid_val(box_world: dict) -> list:
     return [*map(float, box_world["center"]), float(x), float(y), float(z), float(w), *map(float, box_world["size"])]
 
 
-def bbox_val(box) -> list:
+def bbox_val(box: list) -> list:
     """[cx, cy, w, h] in OpenCV pixel coordinates of our [x0, y0, x1, y1]."""
     x0, y0, x1, y1 = box
     return [(x0 + x1) / 2 - common.OPENCV_SHIFT, (y0 + y1) / 2 - common.OPENCV_SHIFT, x1 - x0, y1 - y0]
 
 
-def intervals(indices) -> list:
+def intervals(indices: Iterable[int]) -> list:
     """Closed ``frame_interval``s covering the sorted frame ``indices``."""
     out = []
     for i in indices:
@@ -134,7 +139,7 @@ def document(frames: list, image_names: list, name: str = "scpainter") -> dict:
     return {"openlabel": doc}
 
 
-def write(folder: str, frames: list, progress=None, name: str = "scpainter") -> dict:
+def write(folder: str, frames: list, progress: Callable[[int], None] | None = None, name: str = "scpainter") -> dict:
     """``openlabel.json`` and ``images/`` into ``folder`` (existing, empty). Returns {"frames", "objects"}
     (objects: per-frame object entries)."""
     os.makedirs(os.path.join(folder, IMAGES))

@@ -39,6 +39,11 @@ from ..model import checkpoint as ckpt_mod
 from ..render import command as render_cmd
 from ..render import channels
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
 PRECISIONS = {"fp32": torch.float32, "bf16": torch.bfloat16, "fp16": torch.float16}
 
 
@@ -65,7 +70,7 @@ USE_CHECKPOINT_HINT = ("this is the inpainting baseline, not the model: for SCPa
 
 
 def prepare(job_path: str, job: job_mod.Job, checkpoint: str | None, overrides: dict | None = None,
-            allow_outside: bool = False, data_roots=()) -> Plan:
+            allow_outside: bool = False, data_roots: Sequence[str] = ()) -> Plan:
     """Validate a generation before any work: the command-line overrides, the checkpoint (``checkpoint.check``:
     config field by field, safetensors only), the settings the job, overrides and checkpoint make together, and
     the job's input files (``job_inputs.check_inputs``; its paths confined to the job's folder and ``data_roots``
@@ -139,7 +144,7 @@ def check_layer(path: str, layer: str, values: np.ndarray, job_path: str = "JOB"
     return np.clip(values, 0.0, 1.0)
 
 
-def load_conditions(job_path: str, job: job_mod.Job):
+def load_conditions(job_path: str, job: job_mod.Job) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """(image, asset_mask, valid): I (F, 3, H, W), M_a (F, 1, H, W) and validity 1 − hole (F, 1, H, W) float32
     tensors from the condition EXRs (``channels.read``: EXRs with the former channel name load too; one without
     these channels raises ``channels.ConditionsError``; a folder or FIFO in a frame's place, ``channels.ExrError``).
@@ -179,7 +184,7 @@ def clip_source(job_path: str, job: job_mod.Job, first_condition: torch.Tensor) 
     return first_condition
 
 
-def conditions_key(identity: dict, image, asset_mask, valid) -> str:
+def conditions_key(identity: dict, image: torch.Tensor, asset_mask: torch.Tensor, valid: torch.Tensor) -> str:
     """A key for "the same video": ``identity`` (what made it: checkpoint, settings, ...) and the condition layers."""
     h = hashlib.sha256(json.dumps(identity, sort_keys=True).encode())
     for t in (image, asset_mask, valid):
@@ -187,7 +192,8 @@ def conditions_key(identity: dict, image, asset_mask, valid) -> str:
     return h.hexdigest()[:32]
 
 
-def state_key(ckpt: str, s: dict, precision: str, image, asset_mask, valid) -> str:
+def state_key(ckpt: str, s: dict, precision: str, image: torch.Tensor, asset_mask: torch.Tensor,
+              valid: torch.Tensor) -> str:
     return conditions_key({"checkpoint": os.path.abspath(ckpt), "settings": s, "precision": precision},
                           image, asset_mask, valid)
 
@@ -200,7 +206,7 @@ def save_state(path: str, latents: torch.Tensor, step: int, key: str) -> None:
                   metadata={"key": key, "step": str(step)})
 
 
-def load_state(path: str, key: str):
+def load_state(path: str, key: str) -> tuple[torch.Tensor | None, int]:
     """(latents, step) saved under the same key, else (None, 0)."""
     from safetensors import safe_open
 
@@ -229,8 +235,8 @@ def resolve_precision(precision: str, device: str) -> str:
 
 
 def generate_job(job_path: str, job: job_mod.Job, device: str, checkpoint: str | None, precision: str = "auto",
-                 force: bool = False, stop=(), overrides: dict | None = None, allow_outside: bool = False,
-                 data_roots=()) -> dict:
+                 force: bool = False, stop: Sequence[object] = (), overrides: dict | None = None,
+                 allow_outside: bool = False, data_roots: Sequence[str] = ()) -> dict:
     """Render the missing condition layers and generate the video (see the module docstring); validated first
     (``prepare``, with ``allow_outside`` and ``data_roots``), one run per output folder (``locking.OutputLock``). A
     model producing NaN/inf raises ``errors.NonFiniteError`` and writes no frame, video or manifest."""

@@ -53,6 +53,13 @@ from urllib.parse import unquote
 
 from scpainter_blender.core import files
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Iterable, Iterator, Sequence
+    from typing import BinaryIO
+    import numpy as np
+
 MAX_TEXTURE_PIXELS = 8192 * 8192
 MAX_TOTAL_TEXTURE_PIXELS = 2 * MAX_TEXTURE_PIXELS
 MIN_EXTENT, MAX_EXTENT = 1e-6, 1e6
@@ -72,7 +79,7 @@ def _pixels(n: int) -> str:
 
 
 @contextlib.contextmanager
-def pixel_limit(limit):
+def pixel_limit(limit: int | None) -> Iterator[None]:
     """PIL's own decompression-bomb limit set to ``limit`` pixels (None: off) for the block, its warning an error:
     ``Image.open`` then refuses more than ``limit`` pixels before decoding (the check reads the header only)."""
     from PIL import Image
@@ -87,7 +94,7 @@ def pixel_limit(limit):
         Image.MAX_IMAGE_PIXELS = old
 
 
-def check_image(stream, error, name) -> tuple:
+def check_image(stream: BinaryIO, error: Callable[..., Exception], name: str) -> tuple:
     """(width, height) of the image in ``stream`` (a binary file object), read from its header only; ``error(field,
     message, hint)`` (the caller's MeshAssetError) when it is not an image PIL reads or has more than
     ``MAX_TEXTURE_PIXELS``. ``name``: the texture as the mesh names it (the error's field)."""
@@ -108,7 +115,7 @@ def check_image(stream, error, name) -> tuple:
     return w, h
 
 
-def named_file(mesh_path, name: str, error, gltf: bool) -> str:
+def named_file(mesh_path: str | os.PathLike, name: str, error: Callable[..., Exception], gltf: bool) -> str:
     """The absolute path of the file ``name`` (as the mesh names it: a glTF URI percent-decoded) relative to the
     mesh's folder, exactly: no other file of the same base name, nothing outside the folder (symbolic links
     resolved). ``error(field, message, hint)`` when it leads outside or does not exist; the caller opens it with
@@ -191,7 +198,8 @@ def _list(tree, key, error):
     return v
 
 
-def check_gltf(path, size: int, error, open_named) -> dict:
+def check_gltf(path: str | os.PathLike, size: int, error: Callable[..., Exception],
+               open_named: Callable[[str], BinaryIO]) -> dict:
     """Check a .gltf/.glb before trimesh reads it (see the module docstring): buffers, buffer views, accessors,
     images (each, and their total: ``check_total_pixels``). ``error(field, message, hint)`` makes the caller's error;
     ``open_named(name)`` opens a file the mesh names (``named_file`` + ``files.open_regular``, the caller's errors).
@@ -330,7 +338,7 @@ def check_gltf(path, size: int, error, open_named) -> dict:
     return tree
 
 
-def check_total_pixels(sizes, error) -> None:
+def check_total_pixels(sizes: Sequence[tuple[str, tuple[int, int]]], error: Callable[..., Exception]) -> None:
     """``sizes``: [(texture name, (width, height))] of one mesh; ``error("(textures)", ...)`` when their pixels
     together exceed ``MAX_TOTAL_TEXTURE_PIXELS`` (every one is held decoded while the mesh is sampled)."""
     total = sum(w * h for _, (w, h) in sizes)
@@ -356,7 +364,7 @@ def _scale_of(node) -> float:
     return None
 
 
-def check_extent(vertices, error, tree=None) -> None:
+def check_extent(vertices: np.ndarray, error: Callable[..., Exception], tree: dict | None = None) -> None:
     """The car's size: the largest side of the box around ``vertices`` ((N, 3), finite ones; node transforms
     applied) within [``MIN_EXTENT``, ``MAX_EXTENT``] and every coordinate within ±``MAX_EXTENT`` (float32 keeps
     them, with detail). ``error(field, message, hint)``: the field is the glTF node whose scale is furthest from 1
@@ -469,7 +477,7 @@ def _view_bytes(path, data, bin_at, buffers, view, open_named) -> bytes:
 
 # -------------------------------------------------------------------------------------------------------- OFF
 
-def check_off(path, error) -> None:
+def check_off(path: str | os.PathLike, error: Callable[..., Exception]) -> None:
     """An OFF file's header counts against its lines (trimesh reads the vertices it promises, but takes fewer
     faces than promised without a word). Comments (``#``) and blank lines do not count."""
     with files.open_regular(path, lambda p, f, m: error("(file)", m, None)) as f:
@@ -557,7 +565,7 @@ def _number(word):
         return False
 
 
-def mtl_texture(value: str):
+def mtl_texture(value: str) -> tuple[str, list[tuple[str, list[str]]]]:
     """(file name, [(option, [values])]) of an MTL ``map_*`` value: options first (``MTL_TEXTURE_OPTIONS``; a
     variable-length one takes the numbers that follow, up to its most), then the file name, the rest of the value
     (spaces kept). A name that does not start with a known option is all file name. The file name is "" when the
@@ -580,7 +588,7 @@ def mtl_texture(value: str):
     return (value[words[k][1]:].strip() if k < len(words) else ""), options
 
 
-def ignored_options(options) -> list:
+def ignored_options(options: Iterable[tuple[str, list[str]]]) -> list:
     """The options of ``mtl_texture`` that would change a diffuse map's colours (not applied here), as written."""
     out = []
     for opt, args in options:
@@ -601,7 +609,7 @@ def ignored_options(options) -> list:
     return out
 
 
-def check_mtl(name: str, data: bytes, error) -> list:
+def check_mtl(name: str, data: bytes, error: Callable[..., Exception]) -> list:
     """An OBJ's MTL file (as ``trimesh.exchange.obj.parse_mtl`` reads it: a line is its words, the first a key,
     any case): it must define a material (a ``newmtl`` with a name; random bytes, an empty file or a file of
     comments define none, and trimesh then drops every material and texture without a word), and every ``map_Kd``
@@ -629,7 +637,7 @@ def check_mtl(name: str, data: bytes, error) -> list:
     return maps
 
 
-def check_obj(path, error, open_named) -> list:
+def check_obj(path: str | os.PathLike, error: Callable[..., Exception], open_named: Callable[[str], BinaryIO]) -> list:
     """An OBJ before trimesh reads it: no face index of 0 (``_zero_index_line``; the field is ``f``), and its MTL
     file (``_mtl_name``, opened with ``open_named``, the caller's named-file rules) checked by ``check_mtl``, its
     textures from their headers (``check_image``, ``check_total_pixels``). Indices beyond the vertices raise in

@@ -49,6 +49,13 @@ import numpy as np
 from . import checks
 from .colors import DEFAULT_WRAP
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Sequence
+    from typing import BinaryIO
+    import trimesh
+
 DRACO = "KHR_draco_mesh_compression"
 TRANSFORM = "KHR_texture_transform"
 #: the name prefix that marks a material with a non-default wrap in the plain GLB (``part_wraps`` removes it)
@@ -96,7 +103,7 @@ def _uses_draco(tree) -> bool:
                for p in m.get("primitives") or [])
 
 
-def check_required(tree, error) -> None:
+def check_required(tree: dict, error: Callable[..., Exception]) -> None:
     """Refuse a glTF whose ``extensionsRequired`` names extensions not read here (``READ_EXTENSIONS``), each named
     with what to do (``FIX``), and one compressed with Draco where DracoPy is not installed. ``error(field,
     message, hint)``: the caller's MeshAssetError. trimesh would read such a file as placeholder zeros ("faces all
@@ -121,7 +128,7 @@ def check_required(tree, error) -> None:
                 "; ".join(fixes))
 
 
-def dequantize(values, normalized: bool) -> np.ndarray:
+def dequantize(values: np.ndarray, normalized: bool) -> np.ndarray:
     """float64 values of an accessor's components (glTF 2.0 §3.11): a normalized UNSIGNED_BYTE c / 255,
     UNSIGNED_SHORT c / 65535, BYTE max(c / 127, -1), SHORT max(c / 32767, -1); anything else its value."""
     a = np.asarray(values)
@@ -132,7 +139,7 @@ def dequantize(values, normalized: bool) -> np.ndarray:
     return np.maximum(out, -1.0) if info.min < 0 else out
 
 
-def texture_transform(uv, ext) -> np.ndarray:
+def texture_transform(uv: np.ndarray, ext: dict) -> np.ndarray:
     """UVs (n, 2) (glTF convention: origin top-left, v down) moved by a ``KHR_texture_transform`` object:
     uv' = T R S uv (the extension's README), rotation counter-clockwise in this UV space (an image turned clockwise
     on screen; the README's example, offset (0, 1), rotation π/2, scale 0.5, reads the lower-left quadrant):
@@ -175,7 +182,7 @@ def _uv_set(info) -> int:
     return k if isinstance(k, int) and not isinstance(k, bool) and k >= 0 else 0
 
 
-def base_colour_wrap(tree, k) -> tuple:
+def base_colour_wrap(tree: dict, k: int) -> tuple:
     """(wrapS, wrapT) of material ``k``'s base-colour texture's sampler (glTF enums; ``checks.check_gltf``
     checked the indices and values); REPEAT where the texture has no sampler or the sampler no wrap."""
     info = _base_colour_info(tree, {"material": k})
@@ -193,7 +200,7 @@ def _wrapped(tree) -> list:
     return [k for k in range(len(tree.get("materials") or [])) if base_colour_wrap(tree, k) != DEFAULT_WRAP]
 
 
-def part_wraps(parts, tree) -> list:
+def part_wraps(parts: Sequence[trimesh.Trimesh], tree: dict) -> list:
     """(wrapS, wrapT) of each part (trimesh meshes read from ``plain_glb``'s output): its material's, found by the
     ``WRAP_TAG`` name ``plain_glb`` gave it, whose own name (or none) is restored; REPEAT for every other part."""
     found = {}
@@ -208,7 +215,7 @@ def part_wraps(parts, tree) -> list:
             for m in (getattr(p.visual, "material", None) for p in parts)]
 
 
-def needs_plain(tree) -> bool:
+def needs_plain(tree: dict) -> bool:
     """Whether trimesh would misread ``tree``: a triangle primitive with Draco, a non-float or sparse POSITION or
     base-colour UV set, or a base-colour texture whose UVs are not TEXCOORD_0 untransformed; or a base-colour
     texture that does not wrap with REPEAT (its material is marked for ``part_wraps``)."""
@@ -314,7 +321,8 @@ class _Reader:
         return out
 
 
-def plain_glb(path, tree, error, open_named):
+def plain_glb(path: str | os.PathLike, tree: dict, error: Callable[..., Exception],
+              open_named: Callable[[str], BinaryIO]) -> bytes | None:
     """A GLB (bytes) of ``tree`` made plain as the module docstring says, or None when trimesh reads the file
     right as it is (``needs_plain``). ``error(field, message, hint)``: the caller's MeshAssetError (a base-colour
     texture whose UV set the primitive lacks; Draco data that does not decode); ``open_named(name)`` opens a file

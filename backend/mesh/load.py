@@ -62,6 +62,11 @@ from scpainter_blender.core.splats import ply_format, gaussians as splats
 
 from . import checks, gltf as gltf_plain
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import trimesh
+
 #: p_zup = Y_UP_TO_Z_UP @ p for Y-up files (``core.geometry.cameras``, where the axis conventions live)
 Y_UP_TO_Z_UP = cameras.Y_UP_TO_Z_UP
 #: File extension -> the up axis ``up="auto"`` assumes.
@@ -72,7 +77,8 @@ class MeshAssetError(errors.InputError):
     """A mesh file that cannot be made into Gaussians; the message names the file and what to do. ``field``: the
     part of the file at fault ("(file)" for the file as a whole; an element, or a texture/buffer the file names)."""
 
-    def __init__(self, path, message, field=None, hint=None):
+    def __init__(self, path: str | os.PathLike, message: str, field: str | None = None,
+                 hint: str | None = None) -> None:
         errors.InputError.__init__(self, path, field, message, hint)
         self.args = (f"{os.path.basename(self.path)}: {message} ({self.path})",)  # the text it has always had
 
@@ -360,7 +366,7 @@ def _mtl_wraps(meshes, maps) -> list:
             else DEFAULT_WRAP for p in meshes]
 
 
-def load_mesh(path, up: str = "auto") -> MeshAsset:
+def load_mesh(path: str | os.PathLike, up: str = "auto") -> MeshAsset:
     """Read a mesh file (GLB, glTF, OBJ, PLY, STL, OFF) into Z-up parts (see the module docstring).
 
     ``up``: "auto" (by extension: glTF/GLB/OBJ Y up, the rest Z up), "y" or "z". Raises ``MeshAssetError``
@@ -456,7 +462,7 @@ def load_mesh(path, up: str = "auto") -> MeshAsset:
     return asset
 
 
-def as_parts(mesh):
+def as_parts(mesh: MeshAsset | trimesh.Trimesh | list | tuple) -> tuple[list, bool]:
     """(list of trimesh.Trimesh, gltf colour rules?) from a MeshAsset, a Trimesh or a sequence of them."""
     if isinstance(mesh, MeshAsset):
         return list(mesh.parts), mesh.gltf
@@ -465,7 +471,7 @@ def as_parts(mesh):
     return [mesh], False
 
 
-def face_areas(vertices, faces) -> np.ndarray:
+def face_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(F,) float64 triangle areas of ``faces`` (F, 3) into ``vertices`` (V, 3); 0 where a corner is not finite."""
     if not len(faces):
         return np.zeros(0)

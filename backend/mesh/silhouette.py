@@ -14,8 +14,13 @@ import numpy as np
 
 from scpainter_blender.core.splats import gaussians as splats
 
+from typing import TYPE_CHECKING
 
-def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+
+def look_at(eye: np.ndarray, target: np.ndarray, up: Sequence[float] = (0.0, 0.0, 1.0)) -> np.ndarray:
     """4x4 world_to_camera (OpenCV: x right, y down, z forward) of a camera at ``eye`` looking at ``target``."""
     eye, target, up = (np.asarray(a, np.float64) for a in (eye, target, up))
     z = target - eye
@@ -31,8 +36,9 @@ def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
     return w2c
 
 
-def orbit_cameras(center, radius: float, width: int, height: int, views: int = 6, elevation_deg: float = 15.0,
-                  fov_x_deg: float = 50.0, azimuth0_deg: float = 20.0):
+def orbit_cameras(center: np.ndarray, radius: float, width: int, height: int, views: int = 6,
+                  elevation_deg: float = 15.0, fov_x_deg: float = 50.0,
+                  azimuth0_deg: float = 20.0) -> list[tuple[np.ndarray, np.ndarray]]:
     """``views`` cameras (K, world_to_camera) evenly around ``center`` at ``radius``, ``elevation_deg`` above the
     horizon, looking at it; square pixels, principal point at the image centre."""
     fx = 0.5 * width / math.tan(math.radians(fov_x_deg) / 2)
@@ -47,8 +53,8 @@ def orbit_cameras(center, radius: float, width: int, height: int, views: int = 6
     return out
 
 
-def silhouette(vertices, faces, K, world_to_camera, width: int, height: int, near: float = 1e-3,
-               chunk: int = 4_000_000) -> np.ndarray:
+def silhouette(vertices: np.ndarray, faces: np.ndarray, K: np.ndarray, world_to_camera: np.ndarray, width: int,
+               height: int, near: float = 1e-3, chunk: int = 4_000_000) -> np.ndarray:
     """The mesh's own silhouette: (H, W) bool, pixel centres (u + 0.5, v + 0.5) inside any projected triangle.
 
     Exact point-in-triangle tests on each triangle's pixel bounding box (edge functions; a centre on an edge
@@ -97,7 +103,8 @@ def silhouette(vertices, faces, K, world_to_camera, width: int, height: int, nea
     return mask.reshape(height, width)
 
 
-def render_mask(g: splats.Gaussians, K, world_to_camera, width: int, height: int, reference: bool = False):
+def render_mask(g: splats.Gaussians, K: np.ndarray, world_to_camera: np.ndarray, width: int, height: int,
+                reference: bool = False) -> np.ndarray:
     """The asset mask M_a = 1 - transmittance (H, W) float64 of Gaussians in world coordinates, rendered on the
     CPU by the condition renderer (``backend.render``: tile kernels, or the torch pair rasterizer with
     ``reference``)."""
@@ -114,7 +121,7 @@ def render_mask(g: splats.Gaussians, K, world_to_camera, width: int, height: int
     return asset_mask.numpy()
 
 
-def mask_metrics(asset_mask, sil, threshold: float = 0.5) -> dict:
+def mask_metrics(asset_mask: np.ndarray, sil: np.ndarray, threshold: float = 0.5) -> dict:
     """Compare a rendered asset mask M_a (H, W) in [0, 1] with a binary silhouette (H, W).
 
     * ``iou``: of (M_a >= threshold) and the silhouette;

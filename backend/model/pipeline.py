@@ -24,10 +24,15 @@ from ..errors import NonFiniteError
 from . import edm
 from .condition import encode_conditions
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+
 PRECISION_NAMES = {torch.float32: "fp32", torch.bfloat16: "bf16", torch.float16: "fp16"}
 
 
-def precision_hint(dtype) -> str:
+def precision_hint(dtype: torch.dtype) -> str:
     """What to try after NaN/inf from a network that ran in ``dtype`` (named as ``--precision`` spells it)."""
     name = PRECISION_NAMES.get(dtype, str(dtype))
     if dtype == torch.float16:
@@ -54,7 +59,8 @@ class SCPainterPipeline:
     (3 numbers each) and schedule (``edm.Schedule``), as ``checkpoint.load`` returns them; a ready ``denoiser``
     (``edm.Denoiser``, used as it is, its dtype included) may stand for unet and schedule."""
 
-    def __init__(self, components: dict, device="cpu", dtype=torch.float32):
+    def __init__(self, components: dict, device: str | torch.device = "cpu",
+                 dtype: torch.dtype = torch.float32) -> None:
         self.denoiser = components.get("denoiser") or edm.Denoiser(components["unet"], components["schedule"], dtype)
         self.vae = components["vae"]
         self.image_encoder = components["image_encoder"]
@@ -65,19 +71,20 @@ class SCPainterPipeline:
         self.device, self.dtype = torch.device(device), dtype
 
     @classmethod
-    def from_checkpoint(cls, path: str, device="cpu", dtype=torch.float32):
+    def from_checkpoint(cls, path: str, device: str | torch.device = "cpu",
+                        dtype: torch.dtype = torch.float32) -> SCPainterPipeline:
         """Load an SCPainter checkpoint folder (local files only, see ``checkpoint.load``)."""
         from . import checkpoint
 
         return cls(checkpoint.load(path, device, dtype), device, dtype)
 
     @property
-    def unet(self):
+    def unet(self) -> torch.nn.Module:
         """The denoiser's network (assignable: ``torch.compile`` it in place)."""
         return self.denoiser.net
 
     @unet.setter
-    def unet(self, net):
+    def unet(self, net: torch.nn.Module) -> None:
         self.denoiser.net = net
 
     @property
@@ -95,8 +102,8 @@ class SCPainterPipeline:
         return clip_embeddings(self.image_encoder, image[None].to(self.device), self.clip_mean, self.clip_std)
 
     @torch.no_grad()
-    def condition_latents(self, image, asset_mask, valid, seed: int = GENERATE_DEFAULTS["seed"],
-                          chunk: int = 8) -> torch.Tensor:
+    def condition_latents(self, image: torch.Tensor, asset_mask: torch.Tensor, valid: torch.Tensor,
+                          seed: int = GENERATE_DEFAULTS["seed"], chunk: int = 8) -> torch.Tensor:
         """(F, C, h, w) float32 from I (F, 3, H, W), the asset mask M_a and the validity V (F, 1, H, W) in [0, 1],
         encoded in chunks."""
         gen = torch.Generator().manual_seed(seed + 1)
@@ -108,14 +115,15 @@ class SCPainterPipeline:
                                          self.config.noise_aug_strength, gen))
         return torch.cat(out)
 
-    def initial_latents(self, shape, seed: int) -> torch.Tensor:
+    def initial_latents(self, shape: tuple[int, ...], seed: int) -> torch.Tensor:
         """ε · the schedule's initial noise scale (√(σ_max² + 1) for SVD), drawn on the CPU so a seed gives the
         same video on any device."""
         gen = torch.Generator().manual_seed(seed)
         return (torch.randn(shape, generator=gen) * self.schedule.init_noise_sigma).to(self.device)
 
     @torch.no_grad()
-    def predict_x0(self, x, sigma, cond, clip, guidance) -> torch.Tensor:
+    def predict_x0(self, x: torch.Tensor, sigma: torch.Tensor, cond: torch.Tensor, clip: torch.Tensor,
+                   guidance: torch.Tensor) -> torch.Tensor:
         """x_0 (F, C, h, w) float32 of one window: x (F, C, h, w) float32 at noise level σ, cond (F, C, h, w),
         clip (1, 1, D), guidance (F,) per frame (≤ 1 everywhere: no classifier-free guidance)."""
         ids = edm.time_ids(self.config, 1, self.device, self.dtype)
@@ -127,10 +135,11 @@ class SCPainterPipeline:
         return edm.guide(x0[0], x0[1], guidance.view(-1, 1, 1, 1).to(x0))
 
     @torch.no_grad()
-    def sample(self, cond, clip, steps: int = GENERATE_DEFAULTS["steps"], seed: int = GENERATE_DEFAULTS["seed"],
-               window: int | None = None, overlap: int = GENERATE_DEFAULTS["overlap"],
-               min_guidance: float | None = None, max_guidance: float | None = None, latents=None,
-               start_step: int = 0, on_step=None) -> torch.Tensor:
+    def sample(self, cond: torch.Tensor, clip: torch.Tensor, steps: int = GENERATE_DEFAULTS["steps"],
+               seed: int = GENERATE_DEFAULTS["seed"], window: int | None = None,
+               overlap: int = GENERATE_DEFAULTS["overlap"], min_guidance: float | None = None,
+               max_guidance: float | None = None, latents: torch.Tensor | None = None, start_step: int = 0,
+               on_step: Callable[[int, int, torch.Tensor], bool | None] | None = None) -> torch.Tensor:
         """Denoise the whole clip; returns latents (F, C, h, w) float32 (still scaled by the VAE factor).
 
         ``latents``/``start_step`` resume from a saved state (the sampler is deterministic: no noise is drawn after
@@ -170,7 +179,7 @@ class SCPainterPipeline:
         return x
 
     @torch.no_grad()
-    def decode(self, latents, chunk: int = GENERATE_DEFAULTS["decode_chunk"]) -> torch.Tensor:
+    def decode(self, latents: torch.Tensor, chunk: int = GENERATE_DEFAULTS["decode_chunk"]) -> torch.Tensor:
         """(F, 3, H, W) in [0, 1] from latents, ``chunk`` frames at a time (the temporal decoder sees each chunk).
 
         Raises ``NonFiniteError`` (``stage="decode"``, ``frames`` [first, end) of the chunk, 0-based) when the
@@ -189,7 +198,8 @@ class SCPainterPipeline:
         return torch.cat(out)
 
 
-def clip_embeddings(image_encoder, images: torch.Tensor, mean: torch.Tensor, std: torch.Tensor) -> torch.Tensor:
+def clip_embeddings(image_encoder: torch.nn.Module, images: torch.Tensor, mean: torch.Tensor,
+                    std: torch.Tensor) -> torch.Tensor:
     """(B, 1, D) float32 CLIP image embeddings of images (B, 3, H, W) in [0, 1], preprocessed as SVD's pipeline
     does: antialiased resize to the encoder's size at [−1, 1], back to [0, 1], CLIP mean/std; the encoder runs in
     its own dtype on the images' device."""

@@ -43,6 +43,11 @@ from . import scene_cache
 from . import tiles
 from . import warmup
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from collections.abc import Iterable, Sequence
+
 
 @dataclass
 class Asset:
@@ -74,7 +79,7 @@ class Scene:
     cleaning: dict = field(default_factory=dict)  # what load_scene's point cleaning dropped, and its time
 
 
-def load_scene(job: job_mod.Job, job_path: str, device, points: bool = True) -> Scene:
+def load_scene(job: job_mod.Job, job_path: str, device: str | torch.device, points: bool = True) -> Scene:
     """The job's points and assets on ``device``, once per job: the points as the import read them, cleaned by
     ``scene.point_cleaning`` (depth edges per source frame, then outliers of the cloud left after the removal
     boxes; ``Scene.cleaning`` says what each dropped and took), with each source frame's slice and box.
@@ -88,7 +93,7 @@ def load_scene(job: job_mod.Job, job_path: str, device, points: bool = True) -> 
     return scene
 
 
-def load_asset(path: str, name: str, object_to_world: dict, device) -> Asset:
+def load_asset(path: str, name: str, object_to_world: dict, device: str | torch.device) -> Asset:
     """``make_asset`` of the Gaussian file at ``path``, named ``name`` and placed by ``object_to_world``; a warm
     backend serves the file's Gaussians from memory when it loaded them before (``scene_cache``)."""
     made = scene_cache.asset(path, device, lambda: make_asset(name, splats_io.load(path), {}, device))
@@ -122,7 +127,7 @@ def load_points(scene: Scene, job: job_mod.Job, job_path: str) -> Scene:
     return scene
 
 
-def frame_index(frame: np.ndarray, xyz: np.ndarray):
+def frame_index(frame: np.ndarray, xyz: np.ndarray) -> tuple[dict, dict] | tuple[None, None]:
     """Each source frame's (start, stop) in the points and its box (2, 3) float64 (low, high corner of ``xyz``, the
     float32 positions the renderer projects), or (None, None) when a frame's points are not contiguous."""
     frame = np.asarray(frame)
@@ -137,7 +142,7 @@ def frame_index(frame: np.ndarray, xyz: np.ndarray):
     return slices, boxes
 
 
-def make_asset(name: str, g: splats.Gaussians, object_to_world: dict, device) -> Asset:
+def make_asset(name: str, g: splats.Gaussians, object_to_world: dict, device: str | torch.device) -> Asset:
     """An asset's Gaussians on the device in float64, the projection's precision (so no frame casts them again),
     rows with zero or non-finite quaternions or scales dropped; with the box of its means and its largest σ, for
     ``asset_unseen``."""
@@ -157,8 +162,8 @@ POINTS_NEAR = visibility.POINTS_NEAR
 points_unseen = visibility.points_unseen
 
 
-def asset_unseen(asset: Asset, frame: int, origin, K, world_to_camera, width: int, height: int,
-                 near: float = GAUSSIAN_NEAR) -> bool:
+def asset_unseen(asset: Asset, frame: int, origin: np.ndarray, K: np.ndarray, world_to_camera: np.ndarray, width: int,
+                 height: int, near: float = GAUSSIAN_NEAR) -> bool:
     """True when none of the asset's Gaussians can reach a pixel of the camera at output frame ``frame``
     (``world_to_camera`` relative to ``origin``): ``visibility.asset_unseen`` (its docstring has the bound) with the
     asset's own bounds and largest σ. An asset built without bounds (None) is never skipped unless empty."""
@@ -168,7 +173,8 @@ def asset_unseen(asset: Asset, frame: int, origin, K, world_to_camera, width: in
                                    world_to_camera, width, height, near)
 
 
-def visible_frames(scene: Scene, source_frames, K, w2c, width: int, height: int, radius_px: int) -> list:
+def visible_frames(scene: Scene, source_frames: Iterable[int], K: np.ndarray, w2c: np.ndarray, width: int, height: int,
+                   radius_px: int) -> list:
     """The source frames (sorted, unique) whose points may land in the image; all of them when boxes are unknown."""
     frames = sorted(set(int(f) for f in source_frames))
     if not scene.skip_unseen or scene.frame_boxes is None:
@@ -180,7 +186,7 @@ def visible_frames(scene: Scene, source_frames, K, w2c, width: int, height: int,
     return [f for f, u in zip(frames, unseen) if not u]
 
 
-def select_points(scene: Scene, frames: list):
+def select_points(scene: Scene, frames: list) -> tuple[torch.Tensor, torch.Tensor]:
     """(xyz, rgb) of the points of ``frames``, in the scene's order (the z-buffer's ties go to the lower index,
     so the order is kept): the stored tensors when every frame with points is chosen (no copy), one view when
     the chosen frames' points are contiguous, else their slices concatenated (a copy of those points only);
@@ -250,7 +256,8 @@ def render_frame(scene: Scene, entry: job_mod.Frame, width: int, height: int, po
     return {k: v.cpu().numpy() for k, v in layers.items()} if to_numpy else layers
 
 
-def project_assets(scene: Scene, which, frame: int, K, w2c, width: int, height: int) -> dict:
+def project_assets(scene: Scene, which: Sequence[int], frame: int, K: np.ndarray, w2c: np.ndarray, width: int,
+                   height: int) -> dict:
     """``gaussians.project_factors`` of the assets ``scene.assets[i]`` for i in ``which`` (in that order) at output
     frame ``frame`` (``w2c`` relative to the scene origin), their rows concatenated, with ``asset_id`` (G,) int64:
     i + 1, the 1-based id of the asset each projected Gaussian came from (the projection's ``index`` row tells)."""
@@ -276,14 +283,15 @@ def project_assets(scene: Scene, which, frame: int, K, w2c, width: int, height: 
     return proj
 
 
-def visible_pixels(instance, n_assets: int) -> np.ndarray:
+def visible_pixels(instance: np.ndarray | torch.Tensor, n_assets: int) -> np.ndarray:
     """(n_assets,) int64: the pixels of each asset (ids 1..n_assets) in an ``instance`` layer (render_frame's,
     numpy or tensor, float32 ids); 0 (no asset) is not counted."""
     ids = np.asarray(instance.cpu() if isinstance(instance, torch.Tensor) else instance).astype(np.int64).ravel()
     return np.bincount(ids, minlength=n_assets + 1)[1:n_assets + 1].astype(np.int64)
 
 
-def amodal_pixels(scene: Scene, entry: job_mod.Frame, width: int, height: int, projection="project") -> np.ndarray:
+def amodal_pixels(scene: Scene, entry: job_mod.Frame, width: int, height: int,
+                  projection: str = "project") -> np.ndarray:
     """(A,) int64, A = len(scene.assets): for each asset the pixels it would be the instance of if it were
     rendered alone (no points, no other asset: no background depth), i.e. where its own M_a > 0.5 (its Σ α·T
     exceeds the transmittance left). 0 for an asset ``asset_unseen`` rules out (no pass for it). One

@@ -71,7 +71,7 @@ def quat_to_rotmat(q: torch.Tensor) -> torch.Tensor:
     ], -2)
 
 
-def covariance_factors(quats, scales):
+def covariance_factors(quats: torch.Tensor, scales: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """M = R(q) S with Σ = M Mᵀ, (N, 3, 3), and a mask of usable rows (non-zero, finite quaternion and scales)."""
     qn = torch.linalg.norm(quats, dim=1)
     ok = (qn > 1e-12) & torch.isfinite(quats).all(1) & torch.isfinite(scales).all(1)
@@ -79,7 +79,7 @@ def covariance_factors(quats, scales):
     return quat_to_rotmat(q) * scales.abs()[:, None, :], ok
 
 
-def jacobian_limits(K, width, height):
+def jacobian_limits(K: np.ndarray, width: int, height: int) -> tuple[float, float, float, float]:
     """gsplat's clamp of the Jacobian's x/z and y/z: (x_neg, x_pos, y_neg, y_pos), x/z is clamped to
     [-x_neg, x_pos] and y/z to [-y_neg, y_pos]. The view's tangent range extended by 0.3·tan(half fov) on each side,
     following the principal point: x_pos = (W - cx)/fx + 0.3·tan_x, x_neg = cx/fx + 0.3·tan_x, tan_x = 0.5·W/fx
@@ -96,21 +96,24 @@ def screen_extent(opacities: torch.Tensor) -> torch.Tensor:
     return torch.sqrt(2.0 * torch.log(opacities / ALPHA_MIN).clamp_min(0.0)).clamp_max(EXTEND_MAX)
 
 
-def centre_range(m, r):
+def centre_range(m: torch.Tensor, r: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """The pixels u whose centres u + 0.5 lie in [m - r, m + r], as floats (lo, hi), not clipped; lo > hi when
     none does. Written once for the torch and numba paths (``project_cpu`` repeats the same two operations)."""
     return torch.ceil(m - r - 0.5), torch.floor(m + r - 0.5)
 
 
-def project(means, quats, scales, opacities, sh, K, world_to_camera, width, height, near=0.05, fast=True):
+def project(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opacities: torch.Tensor, sh: torch.Tensor,
+            K: np.ndarray, world_to_camera: np.ndarray, width: int, height: int, near: float = 0.05,
+            fast: bool = True) -> dict:
     """EWA projection of the visible Gaussians given quaternions and scales (see project_factors)."""
     factors, ok = covariance_factors(quats, scales)
     return project_factors(means, factors, opacities, sh, K, world_to_camera, width, height, near, valid=ok,
                            fast=fast)
 
 
-def project_factors(means, factors, opacities, sh, K, world_to_camera, width, height, near=0.05, valid=None,
-                    fast=True):
+def project_factors(means: torch.Tensor, factors: torch.Tensor, opacities: torch.Tensor, sh: torch.Tensor,
+                    K: np.ndarray, world_to_camera: np.ndarray, width: int, height: int, near: float = 0.05,
+                    valid: torch.Tensor | None = None, fast: bool = True) -> dict:
     """EWA projection of Gaussians with covariance Σ = M Mᵀ (``factors`` M, (N, 3, 3), world axes: an asset's
     affine object_to_world A gives M = A R S). Returns a dict of per-Gaussian screen quantities (G rows, in
     ascending original index), each a tensor of ``means``' dtype and device: ``index`` (G,) int64 the original
@@ -128,7 +131,9 @@ def project_factors(means, factors, opacities, sh, K, world_to_camera, width, he
                                  valid=valid)
 
 
-def project_factors_torch(means, factors, opacities, sh, K, world_to_camera, width, height, near=0.05, valid=None):
+def project_factors_torch(means: torch.Tensor, factors: torch.Tensor, opacities: torch.Tensor, sh: torch.Tensor,
+                          K: np.ndarray, world_to_camera: np.ndarray, width: int, height: int, near: float = 0.05,
+                          valid: torch.Tensor | None = None) -> dict:
     """The reference projection in torch (any device): ``project_factors``' arguments and outputs."""
     dev, dt = means.device, means.dtype
     w2c = torch.as_tensor(np.asarray(world_to_camera, np.float64), dtype=dt, device=dev)
@@ -172,7 +177,7 @@ def project_factors_torch(means, factors, opacities, sh, K, world_to_camera, wid
             "opacity": opacities[index], "color": sh_colors(sh[index], dirs)}
 
 
-def pixel_boxes(proj, width, height) -> torch.Tensor:
+def pixel_boxes(proj: dict, width: int, height: int) -> torch.Tensor:
     """(G, 4) int64 x0, x1, y0, y1: the inclusive range of the pixels whose centres lie inside each Gaussian's
     extent (``radius`` along x and y), clipped to the image. Pixel (x, y) gets a pair with Gaussian g exactly when
     x0 <= x <= x1 and y0 <= y <= y1; the projection keeps only Gaussians whose box is not empty."""
@@ -183,7 +188,7 @@ def pixel_boxes(proj, width, height) -> torch.Tensor:
                         torch.clamp(y0, 0, height - 1), torch.clamp(y1, 0, height - 1)], 1).to(torch.int64)
 
 
-def depth_rank(proj) -> torch.Tensor:
+def depth_rank(proj: dict) -> torch.Tensor:
     """(G,) int64: each projected Gaussian's position in front-to-back order, ties by original index."""
     G = len(proj["depth"])
     rank = torch.empty(G, dtype=torch.int64, device=proj["depth"].device)
@@ -193,7 +198,7 @@ def depth_rank(proj) -> torch.Tensor:
     return rank
 
 
-def asset_ids(proj) -> torch.Tensor:
+def asset_ids(proj: dict) -> torch.Tensor:
     """(G,) int64: each projected Gaussian's asset id (``proj["asset_id"]``, 1-based; every Gaussian is asset 1
     when the projection carries none)."""
     if "asset_id" in proj:
@@ -201,7 +206,8 @@ def asset_ids(proj) -> torch.Tensor:
     return torch.ones(len(proj["depth"]), dtype=torch.int64, device=proj["depth"].device)
 
 
-def rasterize(proj, width, height, background_depth=None, max_pairs=200_000_000):
+def rasterize(proj: dict, width: int, height: int, background_depth: torch.Tensor | None = None,
+              max_pairs: int = 200_000_000) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """Front-to-back compositing of projected Gaussians (see the module rules).
 
     ``background_depth`` (H, W): the nearest point per pixel (+inf where none); Gaussians at or behind it are

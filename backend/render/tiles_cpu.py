@@ -40,7 +40,7 @@ CHUNK_TILES = 8  # tiles per work item of the compositing loop, handed out dynam
 _DEPTH, _MX, _MY, _CA, _CB, _CC, _OPACITY, _ASSET = 0, 1, 2, 3, 4, 5, 6, 7
 
 
-def depth_order(proj) -> np.ndarray:
+def depth_order(proj: dict) -> np.ndarray:
     """(G,) int64: proj rows front to back, ties by original index (``gaussians.depth_rank``'s order)."""
     depth = np.ascontiguousarray(proj["depth"].numpy(), dtype=np.float64)
     index = proj["index"].numpy()
@@ -198,7 +198,8 @@ def _pack(order, depth, mean2d, conic, opacity, color, radius, asset, width, hei
         boxes[r, 3] = min(max(y1, 0.0), height - 1)
 
 
-def prepare(proj, width: int, height: int, tile: int):
+def prepare(proj: dict, width: int, height: int, tile: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+            np.ndarray, np.ndarray, int]:
     """The kernels' inputs: (order (G,) proj rows in depth order, params (G, 8) float64 (column 7: the asset id,
     ``gaussians.asset_ids``), colors (G, 3) float64,
     boxes (G, 4) int32, all in depth order; tile_start (tiles + 1,) int64, entries (E,) int32 depth ranks; tiles_x).
@@ -219,7 +220,7 @@ def prepare(proj, width: int, height: int, tile: int):
     return order, params, colors, boxes, tile_start, entries, tiles_x
 
 
-def bin_tiles(proj, width: int, height: int, tile: int) -> dict:
+def bin_tiles(proj: dict, width: int, height: int, tile: int) -> dict:
     """``tiles.bin_tiles``' lists from the counting sort (for tests and the CPU path's callers): ``entries`` as rows
     of ``proj``, ``entry_tile``, ``tile_start``, ``tiles_x``, ``tiles_y``, ``tile``."""
     order, _, _, _, tile_start, entries, tiles_x = prepare(proj, width, height, tile)
@@ -230,7 +231,8 @@ def bin_tiles(proj, width: int, height: int, tile: int) -> dict:
             "tile": tile}
 
 
-def rasterize(proj, width: int, height: int, background_depth, tile: int):
+def rasterize(proj: dict, width: int, height: int, background_depth: torch.Tensor | None,
+              tile: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """``tiles.rasterize`` on CPU tensors: (color (HW, 3), asset_mask (HW) = 1 - transmittance, depth (HW)) float32
     and instance (HW) int32 (``gaussians.rasterize``' rule; T_rest is the running product of (1 - α))."""
     _, params, colors, boxes, tile_start, entries, tiles_x = prepare(proj, width, height, tile)

@@ -26,6 +26,13 @@ import numpy as np
 
 from scpainter_blender.core import errors, files
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Iterator
+    import av
+    from PIL import Image
+
 #: The lens models a clip's ``distortion_model`` names: OpenCV's (pinhole with polynomial distortion) and the fisheye
 #: one (Kannala–Brandt, ``cv2.fisheye``)
 OPENCV, FISHEYE = "opencv", "fisheye"
@@ -48,7 +55,8 @@ ASPECT_ROUNDING_PX = 7.0
 MAPS_KEPT = 4
 
 
-def distortion_model(value, path, field, error=errors.InputError) -> str | None:
+def distortion_model(value: object, path: str, field: str,
+                     error: Callable[..., Exception] = errors.InputError) -> str | None:
     """The clip's ``distortion_model`` field: ``"opencv"`` or ``"fisheye"``; None when absent (not stated).
     ``error(path, field, message, hint)`` otherwise."""
     if value is None:
@@ -60,8 +68,8 @@ def distortion_model(value, path, field, error=errors.InputError) -> str | None:
     return value
 
 
-def distortion_coefficients(value, path, field, error=errors.InputError, model: str | None = None,
-                            model_field: str = "distortion_model") -> np.ndarray | None:
+def distortion_coefficients(value: object, path: str, field: str, error: Callable[..., Exception] = errors.InputError,
+                            model: str | None = None, model_field: str = "distortion_model") -> np.ndarray | None:
     """The clip's ``distortion`` field for ``model`` (``distortion_model``'s value; None: not stated, read as
     OpenCV's): a list of ``DISTORTION_LENGTHS[model]`` finite numbers within ±COEFFICIENT_BOUND, as float64; None
     when absent or, for OpenCV's model, all zero (a pinhole camera: frames are used as they are; the fisheye's
@@ -113,12 +121,12 @@ def from_opencv(K: np.ndarray) -> np.ndarray:
     return K
 
 
-def scale_K(K: np.ndarray, size, to_size) -> np.ndarray:
+def scale_K(K: np.ndarray, size: tuple[int, int], to_size: tuple[int, int]) -> np.ndarray:
     """K (ours) for an image of ``size`` (W, H) resized to ``to_size``: rows 0 and 1 scaled (pixel centres +0.5)."""
     return np.diag([to_size[0] / size[0], to_size[1] / size[1], 1.0]) @ K
 
 
-def distort_reference(x: np.ndarray, y: np.ndarray, dist: np.ndarray):
+def distort_reference(x: np.ndarray, y: np.ndarray, dist: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """OpenCV's distortion model, written plainly: normalised undistorted (x, y) -> normalised distorted (x_d, y_d)
     (arrays of any one shape). The reference for ``cv2.initUndistortRectifyMap`` / ``cv2.projectPoints``."""
     d = np.zeros(14)
@@ -141,7 +149,7 @@ def distort_reference(x: np.ndarray, y: np.ndarray, dist: np.ndarray):
     return (v[0] / v[2]).reshape(xd.shape), (v[1] / v[2]).reshape(xd.shape)
 
 
-def distort_fisheye_reference(x: np.ndarray, y: np.ndarray, dist: np.ndarray):
+def distort_fisheye_reference(x: np.ndarray, y: np.ndarray, dist: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The fisheye (Kannala–Brandt) model, written plainly: normalised undistorted (x, y) -> normalised distorted
     (x_d, y_d), ``dist`` = k1..k4. The reference for ``cv2.fisheye.initUndistortRectifyMap`` / ``projectPoints``."""
     k1, k2, k3, k4 = dist
@@ -154,7 +162,7 @@ def distort_fisheye_reference(x: np.ndarray, y: np.ndarray, dist: np.ndarray):
     return x * scale, y * scale
 
 
-def distort(x: np.ndarray, y: np.ndarray, dist: np.ndarray, model: str = OPENCV):
+def distort(x: np.ndarray, y: np.ndarray, dist: np.ndarray, model: str = OPENCV) -> tuple[np.ndarray, np.ndarray]:
     """``model``'s reference: ``distort_reference`` (opencv) or ``distort_fisheye_reference`` (fisheye)."""
     return (distort_fisheye_reference if model == FISHEYE else distort_reference)(x, y, dist)
 
@@ -187,7 +195,7 @@ def _fisheye_inner_rectangle(K: np.ndarray, dist: np.ndarray, size):
     return left[:, 0].max(), top[:, 1].max(), right[:, 0].min(), bottom[:, 1].min()
 
 
-def undistorted_K(K: np.ndarray, dist: np.ndarray, size, model: str = OPENCV) -> np.ndarray:
+def undistorted_K(K: np.ndarray, dist: np.ndarray, size: tuple[int, int], model: str = OPENCV) -> np.ndarray:
     """The K (ours, (3, 3)) of the undistorted frame of size (W, H), for the recorded frame's K (ours, no skew)
     and ``dist``.
 
@@ -216,7 +224,8 @@ def undistorted_K(K: np.ndarray, dist: np.ndarray, size, model: str = OPENCV) ->
                      [0.0, 0.0, 1.0]])
 
 
-def undistortion_maps_reference(K: np.ndarray, dist: np.ndarray, K_new: np.ndarray, size, model: str = OPENCV):
+def undistortion_maps_reference(K: np.ndarray, dist: np.ndarray, K_new: np.ndarray, size: tuple[int, int],
+                                model: str = OPENCV) -> tuple[np.ndarray, np.ndarray]:
     """(map_x, map_y) float64 (H, W): for each pixel of the undistorted frame (K_new, ours), the OpenCV pixel
     coordinates of the recorded frame (K, ours) it shows. Plain numpy; ``undistortion_maps`` is the fast path."""
     W, H = size
@@ -226,7 +235,8 @@ def undistortion_maps_reference(K: np.ndarray, dist: np.ndarray, K_new: np.ndarr
     return K[0, 0] * xd + K[0, 2] - 0.5, K[1, 1] * yd + K[1, 2] - 0.5
 
 
-def undistortion_maps(K: np.ndarray, dist: np.ndarray, K_new: np.ndarray, size, model: str = OPENCV):
+def undistortion_maps(K: np.ndarray, dist: np.ndarray, K_new: np.ndarray, size: tuple[int, int],
+                      model: str = OPENCV) -> tuple[np.ndarray, np.ndarray]:
     """``undistortion_maps_reference`` by ``cv2.initUndistortRectifyMap`` (``cv2.fisheye``'s for the fisheye
     model): float32 maps (H, W) (not OpenCV's 16-bit fixed point, which rounds to 1/32 px)."""
     import cv2
@@ -237,7 +247,7 @@ def undistortion_maps(K: np.ndarray, dist: np.ndarray, K_new: np.ndarray, size, 
     return cv2.initUndistortRectifyMap(to_opencv(K), dist, None, to_opencv(K_new), tuple(size), cv2.CV_32FC1)
 
 
-def distortion_problem(K: np.ndarray, dist: np.ndarray, K_new: np.ndarray, size,
+def distortion_problem(K: np.ndarray, dist: np.ndarray, K_new: np.ndarray, size: tuple[int, int],
                        model: str = OPENCV) -> str | None:
     """Why the lens model (K, dist) cannot undistort a (W, H) frame to K_new, or None. Refused: a zoom beyond
     MAX_ZOOM; a model that folds over (two undistorted pixels showing one recorded one: coefficients in another
@@ -274,7 +284,8 @@ def distortion_problem(K: np.ndarray, dist: np.ndarray, K_new: np.ndarray, size,
     return None
 
 
-def undistorted_Ks(K_recorded: np.ndarray, dist: np.ndarray, size, error, model: str = OPENCV) -> np.ndarray:
+def undistorted_Ks(K_recorded: np.ndarray, dist: np.ndarray, size: tuple[int, int], error: Callable[[str], Exception],
+                   model: str = OPENCV) -> np.ndarray:
     """(S, 3, 3): the undistorted frames' K (``undistorted_K``) for each frame's calibrated K (S, 3, 3), computed
     once per distinct K. ``error(message)`` -> the exception for a model that cannot undistort the frames
     (``distortion_problem``)."""
@@ -295,11 +306,12 @@ def undistorted_Ks(K_recorded: np.ndarray, dist: np.ndarray, size, error, model:
 class Undistorter:
     """Undistorts frames, keeping the maps of the last ``MAPS_KEPT`` distinct (K, dist, K_new, size, model)."""
 
-    def __init__(self, kept: int = MAPS_KEPT):
+    def __init__(self, kept: int = MAPS_KEPT) -> None:
         self.kept = kept
         self._maps: OrderedDict = OrderedDict()
 
-    def maps(self, K, dist, K_new, size, model: str = OPENCV):
+    def maps(self, K: np.ndarray, dist: np.ndarray, K_new: np.ndarray, size: tuple[int, int],
+             model: str = OPENCV) -> tuple[np.ndarray, np.ndarray]:
         key = (np.asarray(K, np.float64).tobytes(), np.asarray(dist, np.float64).tobytes(),
                np.asarray(K_new, np.float64).tobytes(), tuple(size), model)
         if key not in self._maps:
@@ -335,7 +347,7 @@ _EXIF_ORIENTATION = 0x0112
 _EXIF_QUARTER_TURNS = (5, 6, 7, 8)
 
 
-def displayed_size(im) -> tuple:
+def displayed_size(im: Image.Image) -> tuple:
     """(width, height) of an open PIL image as viewers show it: its EXIF ``Orientation`` (a phone photo taken
     upright is stored sideways with orientation 6 or 8) applied, as ``read_image`` applies it, without decoding."""
     width, height = im.size
@@ -346,7 +358,7 @@ def displayed_size(im) -> tuple:
     return (height, width) if orientation in _EXIF_QUARTER_TURNS else (width, height)
 
 
-def read_image(path: str, error):
+def read_image(path: str, error: Callable[[str], Exception]) -> Image.Image:
     """A PIL image of the file, as RGB, turned as viewers show it (EXIF ``Orientation``, like a video's display
     matrix in ``display_orientation``), opened as a regular file: a FIFO is refused, not waited on.
     ``error(message)`` -> the exception to raise for a file that is missing or cannot be read."""
@@ -362,7 +374,7 @@ def read_image(path: str, error):
         raise error(f"cannot read the image {path} ({type(e).__name__}: {str(e)[:200]})") from None
 
 
-def resized(image, width: int, height: int) -> np.ndarray:
+def resized(image: Image.Image | np.ndarray, width: int, height: int) -> np.ndarray:
     """(height, width, 3) uint8 of a PIL image or an (H, W, 3) uint8 array: Lanczos (antialiased) when the size
     differs, as ``pairs.load_resized`` has always resized the frames."""
     from PIL import Image
@@ -388,7 +400,7 @@ class OrientationError(Exception):
     """A display matrix no player shows the same way (not a ValueError: PyAV's errors are caught as those)."""
 
 
-def display_orientation(frame, path: str) -> tuple:
+def display_orientation(frame: av.VideoFrame, path: str) -> tuple:
     """(transpose, flip_rows, flip_columns): how a decoded PyAV frame is turned to show as players show it, from
     its display matrix (frame side data DISPLAYMATRIX: the MP4/MOV track matrix a phone writes for a video filmed
     upright, FFmpeg attaches it to every frame). FFmpeg's matrix maps a pixel (p, q) (x right, y down) to
@@ -424,7 +436,7 @@ def display_orientation(frame, path: str) -> tuple:
     return True, R[1, 0] < 0, R[0, 1] < 0  # p' = c q, q' = b p: transposed, then rows follow b, columns c
 
 
-def displayed(rgb: np.ndarray, orientation) -> np.ndarray:
+def displayed(rgb: np.ndarray, orientation: tuple[bool, bool, bool]) -> np.ndarray:
     """An (H, W, 3) decoded frame turned as ``display_orientation`` says (contiguous; the array itself when it
     says nothing)."""
     transpose, flip_rows, flip_columns = orientation
@@ -439,7 +451,7 @@ def displayed(rgb: np.ndarray, orientation) -> np.ndarray:
     return np.ascontiguousarray(rgb)
 
 
-def probe_video(path: str, error) -> tuple:
+def probe_video(path: str, error: Callable[[str], Exception]) -> tuple:
     """(frame count, (W, H)) of the first video stream of a video file. The count is the stream's packets (one
     per frame; no header's estimate), read without decoding; the size is the first decoded frame's, as shown
     (``display_orientation``: a phone video filmed upright is W x H as players show it, not as coded).
@@ -471,7 +483,7 @@ def probe_video(path: str, error) -> tuple:
     return count, size
 
 
-def decode_video(path: str, stop: int, error):
+def decode_video(path: str, stop: int, error: Callable[[str], Exception]) -> Iterator[tuple[int, np.ndarray]]:
     """Yields (t, (H, W, 3) uint8 RGB) for frames t = 0 .. stop − 1 of the video, as players show them (each
     frame's display matrix applied: ``display_orientation``), decoding each once and stopping there.
     ``error(message)`` -> the exception for a file that cannot be read or decoded, or that ends before ``stop``."""
@@ -497,7 +509,7 @@ def decode_video(path: str, stop: int, error):
         raise error(f"the video {path} ends after {t} decoded frames, {stop} were needed")
 
 
-def aspect_problem(frames_size, predictions_size) -> str | None:
+def aspect_problem(frames_size: tuple[int, int], predictions_size: tuple[int, int]) -> str | None:
     """Why frames of ``frames_size`` (W, H) cannot be the images VGGT's predictions of ``predictions_size`` (w, h)
     were made from, or None. Without poses the frames' K is VGGT's scaled by W / w and H / h, so frames of another
     aspect (a rotated video, a crop) would get a stretched K. Allowed: the rounding of a resize — VGGT's

@@ -59,6 +59,11 @@ from scpainter_blender.core.job import JobError
 
 from . import camera_frames
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
 SCHEMA = "scpainter.clip/1"
 
 
@@ -67,7 +72,7 @@ class ClipError(JobError, errors.InputError):
     fields are checked by the job's validators, ``core.fields``) and an InputError (bad input: exit code 2,
     ``field`` in the error event)."""
 
-    def __init__(self, path, field, message, hint=None):
+    def __init__(self, path: str | os.PathLike, field: str, message: str, hint: str | None = None) -> None:
         errors.InputError.__init__(self, path, field, message, hint)
 
 
@@ -118,7 +123,8 @@ class Clip:
         sx, sy = width / self.image_size[0], height / self.image_size[1]
         return np.diag([sx, sy, 1.0]) @ self.K
 
-    def load_frames(self, width: int, height: int, indices=None, view: float | None = None) -> np.ndarray:
+    def load_frames(self, width: int, height: int, indices: Sequence[int] | None = None,
+                    view: float | None = None) -> np.ndarray:
         """(N, height, width, 3) uint8 RGB: the recorded frames ``indices`` (default all S, in the order given), or
         those of the ground-truth view ``view`` (a lateral shift, a key of ``views``), as the model sees them —
         with ``distortion``: undistorted at their own size to ``K``, then resized with Lanczos; without:
@@ -298,13 +304,13 @@ def _check_poses_K(K: np.ndarray, K_vggt: np.ndarray, size, poses_path: str, foc
                     f"by the size ratio, pixel centres at +0.5)")
 
 
-def json_path(path) -> str:
+def json_path(path: str) -> str:
     """The clip.json of a clip folder (or the path itself when it names the file)."""
     path = os.fspath(path)
     return os.path.join(path, "clip.json") if os.path.isdir(path) or not path.endswith(".json") else path
 
 
-def load(path) -> Clip:
+def load(path: str) -> Clip:
     """Read and check a clip folder's ``clip.json`` (or the folder itself) and what it names."""
     path = json_path(path)
     # a regular file only (a FIFO is refused, not waited on), within size, depth and number limits
@@ -445,7 +451,7 @@ def _check_file(file_path: str, clip_path: str, where: str, what: str = "file") 
         clip_path, where, f"{what} not found: {file_path}" if m == "not found" else f"{file_path} {m}"))
 
 
-def fit_asset_to_box(means: np.ndarray, box_size) -> np.ndarray:
+def fit_asset_to_box(means: np.ndarray, box_size: np.ndarray) -> np.ndarray:
     """4x4 asset file -> box frame: bounding-box centre to the box centre, largest extent to the box's largest
     (uniform scale, no rotation: the asset is already Z up, front along +Y)."""
     lo, hi = means.min(axis=0).astype(np.float64), means.max(axis=0).astype(np.float64)
@@ -468,13 +474,14 @@ def asset_to_box(car: Car, means: np.ndarray | None = None) -> np.ndarray:
     return fit_asset_to_box(means, car.size)
 
 
-def grown_box(box_to_world, size, grow_m: float, grow_ratio: float):
+def grown_box(box_to_world: np.ndarray, size: np.ndarray, grow_m: float, grow_ratio: float) -> tuple[np.ndarray,
+              np.ndarray]:
     """The removal box of a car: its size scaled by (1 + grow_ratio) plus grow_m on every side (metres or clip
     units), same pose."""
     return np.asarray(box_to_world, np.float64), np.asarray(size, np.float64) * (1 + grow_ratio) + 2 * grow_m
 
 
-def save(path, data: dict) -> None:
+def save(path: str | os.PathLike, data: dict) -> None:
     """Write a clip.json atomically (after checking it parses with ``load`` from the same folder is the caller's
     business: the files it names may not exist yet)."""
     path = os.fspath(path)

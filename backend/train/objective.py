@@ -30,8 +30,14 @@ from ..model import edm
 from ..model.condition import encode_conditions
 from ..model.pipeline import clip_embeddings
 
+from typing import TYPE_CHECKING
 
-def generators(seed: int, indices) -> list:
+if TYPE_CHECKING:
+    from collections.abc import Iterable
+    from .config import TrainConfig
+
+
+def generators(seed: int, indices: Iterable[int]) -> list:
     """One CPU generator per sample, seeded by (run seed, the sample's global index)."""
     import numpy as np
 
@@ -39,7 +45,7 @@ def generators(seed: int, indices) -> list:
             for i in indices]
 
 
-def draw(gens: list, cfg) -> dict:
+def draw(gens: list, cfg: TrainConfig) -> dict:
     """The random choices of each sample (one generator each): σ (B,), keep_clip and keep_cond (B,) float 0/1."""
     n = torch.cat([torch.randn(1, generator=g, dtype=torch.float64) for g in gens])
     u = torch.stack([torch.rand(2, generator=g) for g in gens])
@@ -54,7 +60,7 @@ def randn(gens: list, shape: tuple) -> torch.Tensor:
 
 
 @torch.no_grad()
-def target_latents(vae, target: torch.Tensor, gens: list) -> torch.Tensor:
+def target_latents(vae: torch.nn.Module, target: torch.Tensor, gens: list) -> torch.Tensor:
     """x_0 (B, F, C, h, w) float32: a sample of the VAE posterior of the frames (B, F, 3, H, W) in [0, 1], times
     the scaling factor (each sample's posterior noise from its generator)."""
     B, F = target.shape[:2]
@@ -65,7 +71,8 @@ def target_latents(vae, target: torch.Tensor, gens: list) -> torch.Tensor:
     return z.view(B, F, *z.shape[1:])
 
 
-def loss(models: dict, batch: dict, cfg, gens: list, device, autocast_dtype=None) -> tuple:
+def loss(models: dict, batch: dict, cfg: TrainConfig, gens: list, device: str | torch.device,
+         autocast_dtype: torch.dtype | None = None) -> tuple:
     """(scalar loss, stats) for one micro-batch. ``models``: denoiser (``edm.Denoiser`` over the trained UNet),
     condition_encoder (trained), vae, image_encoder (frozen), clip_mean, clip_std, config (ScpainterConfig).
     ``batch``: target, image (B, F, 3, H, W), asset_mask, valid (B, F, 1, H, W) in [0, 1]. ``gens``: one

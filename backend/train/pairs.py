@@ -38,6 +38,12 @@ from ..render import frames as fr
 from . import clip as clip_mod
 from .view_settings import ViewSettings
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+    from scpainter_blender.core.vggt.predictions import VGGTPredictions
+
 
 @dataclass(frozen=True)
 class PairSettings(ViewSettings):
@@ -65,19 +71,21 @@ def load_resized(path: str, width: int, height: int) -> torch.Tensor:
         raise errors.InputError(path, "(file)", f"cannot read the image ({e})") from None
 
 
-def load_clip_frames(clip: clip_mod.Clip, width: int, height: int, indices=None, view=None) -> torch.Tensor:
+def load_clip_frames(clip: clip_mod.Clip, width: int, height: int, indices: Sequence[int] | None = None,
+                     view: float | None = None) -> torch.Tensor:
     """(N, 3, height, width) uint8: a clip's frames ``indices`` (default all), or those of its ground-truth view
     ``view`` (a lateral shift), as training and evaluation use them: ``Clip.load_frames`` (undistorted to
     ``clip.K`` when the clip gives its lens distortion, a video decoded once, resized with Lanczos)."""
     return torch.from_numpy(clip.load_frames(width, height, indices, view)).permute(0, 3, 1, 2)
 
 
-def load_clip_frame(clip: clip_mod.Clip, t: int, width: int, height: int, view=None) -> torch.Tensor:
+def load_clip_frame(clip: clip_mod.Clip, t: int, width: int, height: int, view: float | None = None) -> torch.Tensor:
     """(3, height, width) uint8: frame t of a clip (or of its view ``view``), as ``load_clip_frames``."""
     return load_clip_frames(clip, width, height, [t], view)[0]
 
 
-def clean_cloud(pred, confidence_percentile: float, vggt_to_world, point_cleaning):
+def clean_cloud(pred: VGGTPredictions, confidence_percentile: float, vggt_to_world: np.ndarray,
+                point_cleaning: job_mod.PointCleaning | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
     """The clip's points as ``frames.load_scene`` makes a scene's, cleaned by ``point_cleaning`` (a
     ``job.PointCleaning``; None: not cleaned): ``point_cloud`` with the depth-edge test per source frame, then
     ``cleaning.outlier_keep`` on the whole cloud. Returns (positions (N, 3) float64 output world, colors (N, 3)
@@ -101,7 +109,7 @@ class PairMaker:
     relative to the first camera, float32, grouped by source frame), its assets, and the targets resized to the
     training resolution. ``cleaning`` says how many points each filter dropped."""
 
-    def __init__(self, clip: clip_mod.Clip, settings: PairSettings, device="cpu"):
+    def __init__(self, clip: clip_mod.Clip, settings: PairSettings, device: str | torch.device = "cpu") -> None:
         s = self.settings = settings
         if clip.num_frames < s.frames:
             raise clip_mod.ClipError(clip.path, "predictions",
@@ -194,7 +202,8 @@ class PairDataset(torch.utils.data.Dataset):
     — the same sample in any worker, on any rank, after any resume. Clips are opened lazily per worker, the most
     recent ``cache`` of them kept (a clip's point cloud is tens of MB)."""
 
-    def __init__(self, clip_paths: list, settings: PairSettings, seed: int = 0, cache: int = 4, length: int = 2**62):
+    def __init__(self, clip_paths: list, settings: PairSettings, seed: int = 0, cache: int = 4,
+                 length: int = 2**62) -> None:
         if not clip_paths:
             raise ValueError("no training clips given")
         self.clip_paths, self.settings, self.seed, self.cache, self.length = list(clip_paths), settings, seed, cache, length

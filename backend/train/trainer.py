@@ -52,6 +52,11 @@ from .config import TrainConfig, TrainConfigError
 from .ema import EMA
 from .pairs import PairDataset
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Sequence
+
 CKPT_PREFIX = "step_"
 
 
@@ -73,7 +78,7 @@ class StepSampler(torch.utils.data.Sampler):
     """Global sample indices of this rank from ``start_step`` on: micro-step m of step s takes samples
     ((s·A + m)·W + rank)·B + j, j < B (A: accumulation, W: processes, B: batch)."""
 
-    def __init__(self, start_step: int, steps: int, batch: int, accumulation: int, world: int, rank: int):
+    def __init__(self, start_step: int, steps: int, batch: int, accumulation: int, world: int, rank: int) -> None:
         self.a = (start_step, steps, batch, accumulation, world, rank)
 
     def __iter__(self):
@@ -97,7 +102,7 @@ def _collate(items: list) -> dict:
     return out
 
 
-def make_optimizer(cfg: TrainConfig, params: list):
+def make_optimizer(cfg: TrainConfig, params: list) -> torch.optim.Optimizer:
     if cfg.optimizer == "adamw8bit":
         try:
             import bitsandbytes as bnb
@@ -122,7 +127,7 @@ def _save_component(model, folder: str, state: dict) -> None:
 
 
 class Trainer:
-    def __init__(self, cfg: TrainConfig, device: str | None = None, log=None):
+    def __init__(self, cfg: TrainConfig, device: str | None = None, log: Callable[[str], None] | None = None) -> None:
         from accelerate import Accelerator
 
         self.cfg = cfg
@@ -316,7 +321,7 @@ class Trainer:
             self.unet.train(), self.cond.train()
         return torch.cat([sample["image"], video, sample["target"]], dim=-1)
 
-    def train(self, stop=(), max_steps: int | None = None) -> dict:
+    def train(self, stop: Sequence[object] = (), max_steps: int | None = None) -> dict:
         cfg, acc = self.cfg, self.accelerator
         end = cfg.steps if max_steps is None else min(cfg.steps, max_steps)
         if self.step >= end:
@@ -391,7 +396,8 @@ class Trainer:
         return {"step": self.step, "stopped": stopped, "checkpoint": final, "losses": losses}
 
 
-def train(cfg: TrainConfig, device: str | None = None, stop=(), max_steps: int | None = None) -> dict:
+def train(cfg: TrainConfig, device: str | None = None, stop: Sequence[object] = (),
+          max_steps: int | None = None) -> dict:
     """Train (or resume) the run of ``cfg`` up to ``cfg.steps`` (or ``max_steps``): ``Trainer.train``'s result.
 
     One run writes a run folder at a time: rank 0 holds the output folder's lock (``core.locking.OutputLock``, as

@@ -20,7 +20,7 @@ MAX_RETRIES = 100
 DEFAULT_CPUS_PER_JOB = 1.0
 
 
-def check_ray_options(retries, cpus_per_job) -> None:
+def check_ray_options(retries: int | None, cpus_per_job: float | None) -> None:
     """The ``--ray`` options both batch commands take, checked before any work: ``--retries`` an integer in
     [0, ``MAX_RETRIES``], ``--cpus-per-job`` a finite number above 0 (whether a node has that many CPUs is the
     cluster's to say: ``backend.batch.ray_pool``). ``ArgumentError`` naming the option."""
@@ -32,7 +32,7 @@ def check_ray_options(retries, cpus_per_job) -> None:
                                   hint="e.g. --cpus-per-job 4 for jobs that use 4 threads each")
 
 
-def ray_options(ray, retries=None, cpus_per_job=None) -> tuple[int, float]:
+def ray_options(ray: str | None, retries: int | None = None, cpus_per_job: float | None = None) -> tuple[int, float]:
     """``(retries, cpus_per_job)`` of a batch from its ``--ray``, ``--retries`` and ``--cpus-per-job`` (None: not
     given, the default), checked with ``check_ray_options``. Without ``--ray`` (``ray`` None) either option would
     be ignored: ``ArgumentError`` naming it."""
@@ -90,7 +90,7 @@ def _parse(path) -> tuple[list, list]:
     return paths, directives
 
 
-def read_job_list(path) -> JobList:
+def read_job_list(path: str | os.PathLike) -> JobList:
     """A ``--list`` file of ``python -m backend batch``. The format: one path a line, relative ones taken from the
     file's folder; blank lines and lines starting with ``#`` are skipped; before the first path, any number of
     ``data-root: DIR`` lines (``DATA_ROOT_DIRECTIVE``; DIR relative to the file's folder): folders the paths of
@@ -112,7 +112,7 @@ def read_job_list(path) -> JobList:
     return JobList(path, paths, tuple(dict.fromkeys(roots)))
 
 
-def read_list(path) -> list:
+def read_list(path: str | os.PathLike) -> list:
     """The paths of a list file that declares nothing (``read_job_list``'s format without ``data-root:`` lines):
     the clip lists of training. A ``data-root:`` line there is an InputError naming the file and the line: it
     would trust nothing, silently."""
@@ -126,7 +126,7 @@ def read_list(path) -> list:
     return paths
 
 
-def bad_input_fields(e: errors.InputError, item=None) -> dict:
+def bad_input_fields(e: errors.InputError, item: str | None = None) -> dict:
     """A batch item failed by bad input: its ``error`` (the message), ``hint``, ``file`` and ``field`` (either
     batch command's items; the error event's names, ``core.backend_protocol.ERROR_FIELDS``). ``hint`` is the
     error's own, else one saying what to do: for the item's own path (``item``) that names no job file (missing,
@@ -161,7 +161,7 @@ def summary(results: list) -> dict:
             "stopped": counts.get(p.ITEM_STOPPED, 0), "not_run": counts.get(p.ITEM_NOT_RUN, 0), "counts": counts}
 
 
-def job_identity(path) -> tuple:
+def job_identity(path: str | os.PathLike) -> tuple:
     """What makes two spellings of a job path the same job: the job file's identity (``st_dev``, ``st_ino``: a hard
     link, a symbolic link, ``a/./job.json``) and its folder's, where the listed path puts it (the job's relative
     paths, its output folder among them, are taken from the folder of the path as given, not of the file it links
@@ -191,7 +191,7 @@ def job_shard(first: list, rank: int, world: int) -> list:
     return [k for k, i in enumerate(first) if i % world == rank]
 
 
-def folder_identity(path) -> tuple:
+def folder_identity(path: str | os.PathLike) -> tuple:
     """What makes two spellings of a folder, existing or not, the same folder: ``path`` with its symbolic links
     and ``..`` followed (``os.path.realpath``), known by the ``st_dev``/``st_ino`` of its nearest existing folder
     plus the names below it that do not exist yet (a folder the first job will make is already the second's). A
@@ -212,7 +212,7 @@ def folder_identity(path) -> tuple:
     return ("path", os.path.realpath(os.fspath(path)))
 
 
-def job_output_dir(path) -> str | None:
+def job_output_dir(path: str | os.PathLike) -> str | None:
     """The output folder the job file at ``path`` names, absolute: its ``output_dir`` taken from the folder of the
     path as given, as the job takes it (``job.resolve``), read from the file's JSON alone. None when the file cannot
     be read or names none: the job then reports its own error when it runs."""
@@ -266,7 +266,7 @@ def parse_shard(text: str) -> tuple[int, int]:
     return k, n
 
 
-def shard_option(text: str | None, ray) -> tuple[int, int] | None:
+def shard_option(text: str | None, ray: str | None) -> tuple[int, int] | None:
     """``--shard`` of a batch with its ``--ray`` (None: not given): (K, N), or None when not given; ArgumentError
     when it is bad (``parse_shard``) or given with ``--ray`` (Ray schedules every item itself)."""
     if not text:

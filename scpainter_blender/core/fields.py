@@ -13,17 +13,24 @@ import numpy as np
 
 from .errors import InputError
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import os
+    from collections.abc import Callable
+
 #: A path or a name longer than this (or holding NUL) is not one
 MAX_STRING = 4096
 
 
-def short(value) -> str:
+def short(value: object) -> str:
     """``repr(value)``, cut to 60 characters: what an error message quotes of a bad value."""
     text = repr(value)
     return text if len(text) <= 60 else text[:57] + "..."
 
 
-def matrix(value, path, field, shape, error=InputError) -> np.ndarray:
+def matrix(value: object, path: str | os.PathLike, field: str, shape: tuple[int, int],
+           error: Callable[..., Exception] = InputError) -> np.ndarray:
     """A finite float64 matrix of exactly ``shape`` (rows, columns) from nested lists."""
     try:
         m = np.array(value, dtype=np.float64)
@@ -36,7 +43,8 @@ def matrix(value, path, field, shape, error=InputError) -> np.ndarray:
     return m
 
 
-def rigid(value, path, field, error=InputError) -> np.ndarray:
+def rigid(value: object, path: str | os.PathLike, field: str,
+          error: Callable[..., Exception] = InputError) -> np.ndarray:
     """A 4x4 rotation + translation (rotation orthonormal to 1e-4, det > 0, last row [0, 0, 0, 1])."""
     m = matrix(value, path, field, (4, 4), error)
     R = m[:3, :3]
@@ -45,7 +53,8 @@ def rigid(value, path, field, error=InputError) -> np.ndarray:
     return m
 
 
-def affine(value, path, field, error=InputError) -> np.ndarray:
+def affine(value: object, path: str | os.PathLike, field: str,
+           error: Callable[..., Exception] = InputError) -> np.ndarray:
     """An invertible 4x4 affine transform (|det| of the 3x3 part ≥ 1e-12, last row [0, 0, 0, 1])."""
     m = matrix(value, path, field, (4, 4), error)
     with np.errstate(over="ignore"):  # a huge scale's determinant overflows to inf: invertible all the same
@@ -55,7 +64,8 @@ def affine(value, path, field, error=InputError) -> np.ndarray:
     return m
 
 
-def integer(value, path, field, lo=None, hi=None, error=InputError) -> int:
+def integer(value: object, path: str | os.PathLike, field: str, lo: int | None = None, hi: int | None = None,
+            error: Callable[..., Exception] = InputError) -> int:
     """A JSON integer (not a boolean, not a float) within [lo, hi] where given."""
     if isinstance(value, bool) or not isinstance(value, int) or (lo is not None and value < lo) or \
             (hi is not None and value > hi):
@@ -64,7 +74,8 @@ def integer(value, path, field, lo=None, hi=None, error=InputError) -> int:
     return value
 
 
-def number(value, path, field, lo=None, hi=None, error=InputError) -> float:
+def number(value: object, path: str | os.PathLike, field: str, lo: float | None = None, hi: float | None = None,
+           error: Callable[..., Exception] = InputError) -> float:
     """A finite JSON number (not a boolean) within [lo, hi] where given, as a float."""
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or \
             (lo is not None and value < lo) or (hi is not None and value > hi):
@@ -72,7 +83,7 @@ def number(value, path, field, lo=None, hi=None, error=InputError) -> float:
     return float(value)
 
 
-def string(value, path, field, error=InputError) -> str:
+def string(value: object, path: str | os.PathLike, field: str, error: Callable[..., Exception] = InputError) -> str:
     """A non-empty string usable as a path or a name (at most ``MAX_STRING`` characters, no NUL)."""
     if not isinstance(value, str) or not value:
         raise error(path, field, f"expected a non-empty string, got {short(value)}")

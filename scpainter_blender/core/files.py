@@ -34,6 +34,12 @@ import numpy as np
 
 from .errors import InputError
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Iterable
+    from typing import BinaryIO
+
 
 # ---------------------------------------------------------------------------------------------- regular files
 
@@ -68,7 +74,7 @@ def _bad_name(path, error):
 NONBLOCK = getattr(os, "O_NONBLOCK", 0)
 
 
-def check_regular(path, error=InputError) -> int:
+def check_regular(path: str | os.PathLike, error: Callable[..., Exception] = InputError) -> int:
     """The size in bytes of ``path`` if it is a regular file (symbolic links followed); ``error(path, "(file)",
     message)`` for a missing file, a directory, FIFO, device or socket. For readers that open the file
     themselves (trimesh); prefer ``open_regular``, which cannot be raced."""
@@ -83,7 +89,7 @@ def check_regular(path, error=InputError) -> int:
     return st.st_size
 
 
-def open_regular(path, error=InputError):
+def open_regular(path: str | os.PathLike, error: Callable[..., Exception] = InputError) -> BinaryIO:
     """``path`` opened for binary reading if it is a regular file, else ``error(path, "(file)", message)``.
 
     Opened non-blocking and checked with ``fstat`` on the open descriptor: opening a FIFO this way returns at
@@ -198,7 +204,8 @@ def _first_problem(value, max_depth: int, check_strings: bool):
     return None
 
 
-def read_json(path, error=InputError, max_bytes: int = MAX_JSON_BYTES, max_depth: int = MAX_JSON_DEPTH):
+def read_json(path: str | os.PathLike, error: Callable[..., Exception] = InputError, max_bytes: int = MAX_JSON_BYTES,
+              max_depth: int = MAX_JSON_DEPTH) -> object:
     """A JSON file's content, read within limits; ``error(path, field, message)`` otherwise: not found / not a
     regular file / larger than ``max_bytes`` / not UTF-8 / not JSON (with line and column) / NaN or Infinity /
     a float beyond float64 / an integer longer than ``MAX_INT_DIGITS`` digits / nested deeper than ``max_depth`` /
@@ -345,7 +352,8 @@ def _open_zip(fh, path, error):
     return zf
 
 
-def read_npz(path, keys, optional=(), error=InputError) -> dict:
+def read_npz(path: str | os.PathLike, keys: Iterable[str], optional: Iterable[str] = (),
+             error: Callable[..., Exception] = InputError) -> dict:
     """The named numeric arrays of an ``.npz`` file: ``{key: ndarray}`` for each of ``keys`` (required) and of
     ``optional`` present in the file. Never unpickles, never allocates what the member cannot hold.
 
@@ -423,7 +431,8 @@ def _read_member(zf, info, path, key, error, archive_size: int) -> np.ndarray:
     return arr.reshape(shape, order="F" if fortran else "C")
 
 
-def npz_shapes(path, keys=None, error=InputError) -> dict:
+def npz_shapes(path: str | os.PathLike, keys: Iterable[str] | None = None,
+               error: Callable[..., Exception] = InputError) -> dict:
     """``{key: shape}`` of an ``.npz``'s members from their headers alone (no data read): for validating a job
     against its inputs before any work. ``keys`` None: every ``.npy`` member. The same ``error`` calls as
     ``read_npz`` for an unreadable file or header; a missing key is simply absent."""

@@ -31,6 +31,11 @@ from . import errors, files, outputs
 from .geometry import point_cloud, similarity
 from .vggt.predictions import EXTRINSIC_CONVENTIONS  # scene.extrinsic_convention: what the predictions' extrinsic holds
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Iterable
+
 SCHEMA = "scpainter.job/2"
 #: Older schemas still read, each with its fields renamed since: {schema: {old field: current field}} (scene level)
 OLD_SCHEMAS = {"scpainter.job/1": {"world_from_vggt": "vggt_to_world"}}
@@ -113,7 +118,7 @@ def _list(value, path, where, what="a list") -> list:
     return value
 
 
-def intrinsics_problem(K, size=None) -> str | None:
+def intrinsics_problem(K: np.ndarray, size: tuple[int, int] | None = None) -> str | None:
     """Why ``K`` (3, 3) is not usable intrinsics — ours: [[fx, s, cx], [0, fy, cy], [0, 0, 1]] in pixels, finite,
     fx, fy > 0, every entry at most ``MAX_K`` in size — or None. With the image's ``size`` (W, H) also fx between
     ``MIN_FOCAL_RATIO`` W and ``MAX_FOCAL_RATIO`` W, fy between as many H, and (cx, cy) at most ``PRINCIPAL_POINT_MARGIN`` image sizes
@@ -154,7 +159,7 @@ class Frame:
     source_frames: list = field(default_factory=list)
 
     @classmethod
-    def from_dict(cls, d, path, where) -> "Frame":
+    def from_dict(cls, d: dict, path: str | os.PathLike, where: str) -> "Frame":
         _object(d, path, where)
         _known(d, path, where, ("frame", "K", "world_to_camera", "source_frames"))
         f = _int(d.get("frame"), path, f"{where}.frame", *FRAME_RANGE)
@@ -182,7 +187,7 @@ class RemovalBox:
     size: np.ndarray
 
     @classmethod
-    def from_dict(cls, d, path, where) -> "RemovalBox":
+    def from_dict(cls, d: dict, path: str | os.PathLike, where: str) -> "RemovalBox":
         return cls(*_box_fields(d, path, where, "box_to_world", "[x, y, z] in metres"))
 
     def to_dict(self) -> dict:
@@ -203,7 +208,7 @@ class OutlierRemoval:
     min_points: int = OUTLIER_FIELDS["radius"]["min_points"]
 
     @classmethod
-    def from_dict(cls, d, path, where) -> "OutlierRemoval":
+    def from_dict(cls, d: dict, path: str | os.PathLike, where: str) -> "OutlierRemoval":
         _object(d, path, where)
         method = d.get("method")
         if method not in OUTLIER_FIELDS:
@@ -239,7 +244,7 @@ class PointCleaning:
     outliers: OutlierRemoval | None = field(default_factory=_default_outliers)
 
     @classmethod
-    def from_dict(cls, d, path, where="scene.point_cleaning") -> "PointCleaning":
+    def from_dict(cls, d: dict | None, path: str | os.PathLike, where: str = "scene.point_cleaning") -> "PointCleaning":
         if d is None:
             return cls(None, None)
         _object(d, path, where)
@@ -278,7 +283,7 @@ class Scene:
     recorded_objects: list = field(default_factory=list)  # RecordedObject: the drive's own tracked objects
 
     @classmethod
-    def from_dict(cls, d, path, where="scene", renamed: dict | None = None) -> "Scene":
+    def from_dict(cls, d: dict, path: str | os.PathLike, where: str = "scene", renamed: dict | None = None) -> "Scene":
         d = dict(_object(d, path, where))
         _known(d, path, where, [f.name for f in fields(cls)] + list(renamed or {}),
                old_names=None if renamed else _OLD_NAMES)
@@ -375,7 +380,7 @@ class AssetBox:
     size: np.ndarray
 
     @classmethod
-    def from_dict(cls, d, path, where) -> "AssetBox":
+    def from_dict(cls, d: dict, path: str | os.PathLike, where: str) -> "AssetBox":
         return cls(*_box_fields(d, path, where, "box_to_file", "[width, length, height]"))
 
     def to_dict(self) -> dict:
@@ -395,7 +400,7 @@ class Asset:
     box: AssetBox | None = None
 
     @classmethod
-    def from_dict(cls, d, path, where, frames) -> "Asset":
+    def from_dict(cls, d: dict, path: str | os.PathLike, where: str, frames: Iterable[int]) -> "Asset":
         _object(d, path, where)
         _known(d, path, where, ("name", "ply", "object_to_world", "class", "box"))
         name = _str(d.get("name"), path, f"{where}.name")
@@ -440,7 +445,7 @@ class RecordedObject:
     category: str = DEFAULT_CLASS
 
     @classmethod
-    def from_dict(cls, d, path, where) -> "RecordedObject":
+    def from_dict(cls, d: dict, path: str | os.PathLike, where: str) -> "RecordedObject":
         _object(d, path, where)
         _known(d, path, where, ("id", "class", "size", "boxes"))
         boxes = d.get("boxes")
@@ -498,7 +503,7 @@ class GenerateSettings:
     inpaint_radius: int | None = None
 
     @classmethod
-    def from_dict(cls, d, path, where="generate") -> "GenerateSettings":
+    def from_dict(cls, d: dict, path: str | os.PathLike, where: str = "generate") -> "GenerateSettings":
         _object(d, path, where)
         _known(d, path, where, [f.name for f in fields(cls)])
         if d.get("checkpoint") is not None:
@@ -576,7 +581,7 @@ class Job:
         return int(self.resolution[1])
 
     @classmethod
-    def from_dict(cls, job, path="job.json") -> "Job":
+    def from_dict(cls, job: dict, path: str | os.PathLike = "job.json") -> "Job":
         """Validate every field of a job's JSON content (current or older schema); JobError names the field."""
         path = os.fspath(path)
         if not isinstance(job, dict):
@@ -656,12 +661,12 @@ class Job:
         return d
 
 
-def validate(job, path="job.json") -> Job:
+def validate(job: dict, path: str | os.PathLike = "job.json") -> Job:
     """``Job.from_dict``: check every field of a job's JSON content; JobError names the field."""
     return Job.from_dict(job, path)
 
 
-def check_generate_settings(gen: dict, path="job.json", where: str = "generate") -> dict:
+def check_generate_settings(gen: dict, path: str | os.PathLike = "job.json", where: str = "generate") -> dict:
     """Bounds of the ``generate`` settings present in ``gen``: job fields (named ``<where>.<key>``) or, with
     ``where="--"``, command-line overrides (named ``--<key>``); ``overlap < window`` and ``min_guidance <=
     max_guidance`` when both are given. Returns ``gen``; JobError names the field."""
@@ -686,19 +691,19 @@ def check_generate_settings(gen: dict, path="job.json", where: str = "generate")
     return gen
 
 
-def read_json(path, error=JobError):
+def read_json(path: str | os.PathLike, error: Callable[..., Exception] = JobError) -> object:
     """A JSON file's content within ``files.read_json``'s limits; a missing, irregular, oversized or malformed
     file raises ``error(path, field, message)``."""
     return files.read_json(path, error)
 
 
-def load(path) -> Job:
+def load(path: str | os.PathLike) -> Job:
     """Read and validate a job file (structure and bounds; ``check_inputs`` checks what it points at)."""
     path = os.fspath(path)
     return Job.from_dict(read_json(path), path)
 
 
-def save(path, job) -> Job:
+def save(path: str | os.PathLike, job: Job | dict) -> Job:
     """Validate, then write a job atomically (a unique temporary file, renamed), in the current schema. ``job``: a
     ``Job``, or a job's JSON content. Returns the validated Job; JobError names the field."""
     path = os.fspath(path)
@@ -709,6 +714,6 @@ def save(path, job) -> Job:
     return job
 
 
-def resolve(job_path, relative: str) -> str:
+def resolve(job_path: str | os.PathLike, relative: str) -> str:
     """A path of the job, absolute (paths in a job are relative to the job file's folder)."""
     return os.path.normpath(os.path.join(os.path.dirname(os.path.abspath(job_path)), relative))

@@ -40,6 +40,11 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from collections.abc import Iterable
+
 #: Digits of the frame number in a per-frame file name (``frame_000012.png``).
 FRAME_DIGITS = 6
 
@@ -55,7 +60,7 @@ class FrameFiles:
         """The bare file name of scene frame ``frame`` (an int >= 0)."""
         return f"{self.prefix}{int(frame):0{FRAME_DIGITS}d}{self.ext}"
 
-    def in_folder(self, folder) -> list[str]:
+    def in_folder(self, folder: str | os.PathLike) -> list[str]:
         """The paths of the files of this kind in ``folder``, sorted by name (= by frame); [] when the folder is
         missing."""
         if not os.path.isdir(folder):
@@ -91,7 +96,7 @@ class OutputLayout:
     EXPORT = "export"                     # export/<format>/: the exporters' default destination
     EXPORT_RECORD = "export.json"         # in an export's folder: marks it as one (replaced whole by the next)
 
-    def __init__(self, output_dir):
+    def __init__(self, output_dir: str | os.PathLike) -> None:
         self.root = os.fspath(output_dir)
 
     def __repr__(self) -> str:
@@ -155,7 +160,7 @@ class OutputLayout:
         return self._at(self.CONDITIONS, LABELLED_PREVIEW.name(frame))
 
     @staticmethod
-    def condition_names(frames) -> list[str]:
+    def condition_names(frames: Iterable[int]) -> list[str]:
         """The bare names a render writes in ``conditions/`` for ``frames`` (ints): EXR, preview, labels, labelled
         preview, per frame."""
         return [n for f in frames for kind in (CONDITION_EXR, CONDITION_PREVIEW, FRAME_LABELS, LABELLED_PREVIEW)
@@ -188,7 +193,7 @@ class SceneFolder:
     #: .blend rendered before the per-camera folders holds directly in its scene folder (its results stay there).
     RESERVED = (ASSETS, VARIATIONS, OutputLayout.CONDITIONS, OutputLayout.GENERATED, OutputLayout.EXPORT)
 
-    def __init__(self, root):
+    def __init__(self, root: str | os.PathLike) -> None:
         self.root = os.fspath(root)
 
     def __repr__(self) -> str:
@@ -227,7 +232,7 @@ class VariationLayout:
     SHEET = "contact_sheet.png"
     VARIANT_DIGITS = 4
 
-    def __init__(self, root):
+    def __init__(self, root: str | os.PathLike) -> None:
         self.root = os.fspath(root)
 
     def _at(self, *parts: str) -> str:

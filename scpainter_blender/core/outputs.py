@@ -32,6 +32,12 @@ from .user_cache import user_cache_dir  # noqa: F401  (outputs.user_cache_dir: i
 from .files import NONBLOCK
 from .output_layout import OutputLayout
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Iterable, Iterator, Sequence
+    from typing import IO
+
 # -------------------------------------------------------------------------------------- writing a file whole
 
 def _umask() -> int:
@@ -60,7 +66,7 @@ def _temporary_prefix(name: str) -> str:
 
 
 @contextlib.contextmanager
-def atomic_path(path):
+def atomic_path(path: str | os.PathLike) -> Iterator[str]:
     """Yields a fresh temporary path in ``path``'s folder (created by ``mkstemp``: a unique name, exclusive, so a
     planted file or link is never written through); on success it is renamed over ``path`` (a link at ``path``
     is replaced, not followed), on any error removed; a folder at ``path`` is an InputError naming it. For writers
@@ -85,7 +91,8 @@ def atomic_path(path):
 
 
 @contextlib.contextmanager
-def atomic_folder(path, keep_existing: bool = False, replace: bool = False, usual_mode: bool = False):
+def atomic_folder(path: str | os.PathLike, keep_existing: bool = False, replace: bool = False,
+                  usual_mode: bool = False) -> Iterator[str]:
     """Yields a fresh empty folder beside ``path`` (``mkdtemp``: ``.<name>.<random>.tmp``, a unique name, mode 0700
     as mkdtemp makes it); when the block ends without an error it is renamed to ``path``, on any error removed with
     everything in it, so ``path`` appears whole or not at all. The parent folder must exist. ``keep_existing``:
@@ -120,7 +127,7 @@ def atomic_folder(path, keep_existing: bool = False, replace: bool = False, usua
 
 
 @contextlib.contextmanager
-def atomic_write(path, mode: str = "wb"):
+def atomic_write(path: str | os.PathLike, mode: str = "wb") -> Iterator[IO]:
     """``with atomic_write(path, "w") as f:`` — ``f`` writes a temporary file that replaces ``path`` only when the
     block ends without an error (see ``atomic_path``)."""
     with atomic_path(path) as tmp:
@@ -130,14 +137,14 @@ def atomic_write(path, mode: str = "wb"):
             yield f
 
 
-def write_json(path, value, indent: int | None = 1) -> None:
+def write_json(path: str | os.PathLike, value: object, indent: int | None = 1) -> None:
     """``value`` as JSON (strict: NaN/inf refused), atomically."""
     text = json.dumps(value, indent=indent, allow_nan=False)
     with atomic_write(path, "w") as f:
         f.write(text + "\n")
 
 
-def remove_temporaries(folder, names) -> int:
+def remove_temporaries(folder: str | os.PathLike, names: Iterable[str]) -> int:
     """Delete what ``atomic_path`` left for the targets ``names`` in ``folder`` when a process was killed
     (``.<name>.<random>.tmp``); only those names' temporaries, for a caller holding the folder's lock."""
     prefixes = tuple(_temporary_prefix(n) for n in names)
@@ -156,7 +163,7 @@ def remove_temporaries(folder, names) -> int:
     return removed
 
 
-def link_or_copy(src, dst) -> None:
+def link_or_copy(src: str | os.PathLike, dst: str | os.PathLike) -> None:
     """``dst`` as a hard link to ``src`` where the file system allows (multi-GB model weights cost nothing), a
     copy with its metadata otherwise (another device, a file system without links)."""
     try:
@@ -165,7 +172,7 @@ def link_or_copy(src, dst) -> None:
         shutil.copy2(src, dst)
 
 
-def link_or_copy_tree(src, dst) -> None:
+def link_or_copy_tree(src: str | os.PathLike, dst: str | os.PathLike) -> None:
     """Every file under the folder ``src`` into ``dst`` (created), by ``link_or_copy``."""
     for root, _, names in os.walk(src):
         rel = os.path.relpath(root, src)
@@ -180,7 +187,7 @@ _LINKED_LOG = "is a symbolic link: the log is not written through links"
 _IRREGULAR_LOG = "is not a regular file: the log cannot be appended to it"
 
 
-def append_text(path, text: str) -> None:
+def append_text(path: str | os.PathLike, text: str) -> None:
     """Append to a log file, never through a symbolic link (``O_NOFOLLOW``): InputError if ``path`` is one."""
     flags = os.O_WRONLY | os.O_APPEND | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
     try:
@@ -198,7 +205,7 @@ def append_text(path, text: str) -> None:
         f.write(text)
 
 
-def check_log(path) -> None:
+def check_log(path: str | os.PathLike) -> None:
     """InputError if the log file ``path`` exists as a symbolic link (never appended through) or as anything but a
     regular file; a missing one is fine (it is created)."""
     try:
@@ -224,13 +231,13 @@ CONFINED_HINT = (f"move it into the job's folder; or name the folder that holds 
                  f"'data-root: DIR' line); or run with {ALLOW_OUTSIDE_OPTION} if you trust this job")
 
 
-def inside(path, folder) -> bool:
+def inside(path: str | os.PathLike, folder: str | os.PathLike) -> bool:
     """Whether ``path`` lies in ``folder`` (or is it) after resolving symbolic links and ``..``."""
     p, f = os.path.realpath(path), os.path.realpath(folder)
     return p == f or p.startswith(f.rstrip(os.sep) + os.sep)
 
 
-def data_root(path, error) -> str:
+def data_root(path: str | os.PathLike, error: Callable[[str], Exception]) -> str:
     """The absolute path of a data root the user named (``--data-root DIR``; a list file's ``data-root:`` line,
     given already joined to the list's folder), checked: ``error(message)`` (the InputError to raise, naming
     where it was given) unless it is an existing folder. A root that is itself a symbolic link is followed: the
@@ -241,7 +248,7 @@ def data_root(path, error) -> str:
     return p
 
 
-def data_roots_option(values) -> tuple:
+def data_roots_option(values: Iterable[str] | None) -> tuple:
     """The ``--data-root`` values of a command line (None: not given), each checked by ``data_root``: an
     ``ArgumentError`` naming the option otherwise. Returns a tuple of absolute folders."""
     def error(message):
@@ -251,7 +258,8 @@ def data_roots_option(values) -> tuple:
     return tuple(data_root(v, error) for v in values or ())
 
 
-def confined(base, value, error, field: str, allow_outside: bool = False, data_roots=()) -> str:
+def confined(base: str | os.PathLike, value: str, error: Callable[..., Exception], field: str,
+             allow_outside: bool = False, data_roots: Sequence[str] = ()) -> str:
     """The absolute path of a job's ``value`` (relative to ``base``, the job's folder). It must resolve (symbolic
     links and ``..`` followed) inside ``base`` or inside one of ``data_roots`` (folders the user trusts, absolute:
     ``data_root``), unless ``allow_outside``; otherwise ``error(field, message, hint)`` (``..``, an absolute path
@@ -271,7 +279,7 @@ def confined(base, value, error, field: str, allow_outside: bool = False, data_r
 
 # -------------------------------------------------------------------------------------------- output folders
 
-def make_folder(path, field: str = "(folder)") -> str:
+def make_folder(path: str | os.PathLike, field: str = "(folder)") -> str:
     """``os.makedirs(path, exist_ok=True)``, with InputError naming the folder when it cannot be made (a file or a
     FIFO in the way, a name too long, no permission)."""
     try:
@@ -286,7 +294,7 @@ def make_folder(path, field: str = "(folder)") -> str:
     return path
 
 
-def output_folder(parent, name: str, allow_outside: bool = False) -> str:
+def output_folder(parent: str | os.PathLike, name: str, allow_outside: bool = False) -> str:
     """``parent/name`` created if missing; InputError if it is a symbolic link (or lies) outside ``parent``
     unless ``allow_outside``: a link planted in an output folder must not carry writes elsewhere."""
     path = os.path.join(parent, name)
@@ -301,7 +309,7 @@ def _leads_outside(path) -> InputError:
                       hint=f"remove the link, or run with {ALLOW_OUTSIDE_OPTION} if you made it")
 
 
-def check_output(out, allow_outside: bool = False) -> None:
+def check_output(out: str | os.PathLike, allow_outside: bool = False) -> None:
     """What a run would refuse in an output folder, checked without creating anything (``--check`` and the start
     of every run): ``out`` not a folder; ``conditions/`` or ``generated/`` not a folder or leading outside ``out``
     (unless ``allow_outside``); ``backend.log`` a symbolic link or not a regular file. InputError names it."""
@@ -322,7 +330,7 @@ def check_output(out, allow_outside: bool = False) -> None:
     check_log(layout.log)
 
 
-def remove_listed(folder, names) -> int:
+def remove_listed(folder: str | os.PathLike, names: Iterable[str]) -> int:
     """Delete the files ``names`` (bare file names, as a record of this program's outputs lists them) from
     ``folder``; names with a path separator or ``..`` are ignored, a link is removed itself, never its target.
     Returns how many were removed."""

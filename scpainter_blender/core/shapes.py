@@ -16,6 +16,11 @@ from .splats import gaussians as splats, inria as splats_inria, trellis
 from .splats.sh import SH_C0
 from .geometry.similarity import decompose_similarity  # a bare name: transform_gaussians has a parameter "similarity"
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
 _BOX_SIGNS = np.array([[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1],
                        [-1, -1, 1], [1, -1, 1], [1, 1, 1], [-1, 1, 1]], float)
 _BOX_FACES = [(0, 3, 2, 1), (4, 5, 6, 7), (0, 1, 5, 4), (2, 3, 7, 6), (3, 0, 4, 7), (1, 2, 6, 5)]
@@ -24,7 +29,7 @@ _BOX_FACES = [(0, 3, 2, 1), (4, 5, 6, 7), (0, 1, 5, 4), (2, 3, 7, 6), (3, 0, 4, 
 class MeshBuilder:
     """Collects boxes and cylinders with per-face material keys."""
 
-    def __init__(self):
+    def __init__(self) -> None:
         self.verts, self.faces, self.mats = [], [], []
         self.materials = []
         self.n = 0
@@ -34,7 +39,7 @@ class MeshBuilder:
             self.materials.append(mat)
         return self.materials.index(mat)
 
-    def box(self, center, size, mat):
+    def box(self, center: Sequence[float], size: Sequence[float], mat: object) -> None:
         self.verts.append(np.asarray(center, float) + _BOX_SIGNS * np.asarray(size, float) / 2)
         slot = self._slot(mat)
         for f in _BOX_FACES:
@@ -42,7 +47,8 @@ class MeshBuilder:
             self.mats.append(slot)
         self.n += 8
 
-    def cylinder(self, center, radius, length, axis, mat, segments=16):
+    def cylinder(self, center: Sequence[float], radius: float, length: float, axis: int, mat: object,
+                 segments: int = 16) -> None:
         """Axis-aligned closed cylinder; ``axis`` 0, 1 or 2."""
         a = np.linspace(0, 2 * np.pi, segments, endpoint=False)
         ring = np.zeros((segments, 3))
@@ -64,16 +70,16 @@ class MeshBuilder:
         self.mats += [slot, slot]
         self.n += 2 * segments
 
-    def arrays(self):
+    def arrays(self) -> tuple[np.ndarray, list, np.ndarray]:
         """(vertices (V, 3) float64, faces (list of index lists), material slot per face (F,) int32)."""
         verts = np.concatenate(self.verts) if self.verts else np.zeros((0, 3))
         return verts, self.faces, np.asarray(self.mats, np.int32)
 
-    def bounds(self):
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         verts = self.arrays()[0]
         return verts.min(axis=0), verts.max(axis=0)
 
-    def triangles(self):
+    def triangles(self) -> tuple[np.ndarray, np.ndarray]:
         """Fan-triangulated faces: (T, 3, 3) corner positions and (T,) material slots."""
         verts, faces, mats = self.arrays()
         tri, slot = [], []
@@ -84,7 +90,8 @@ class MeshBuilder:
         return verts[np.asarray(tri)], np.asarray(slot, np.int32)
 
 
-def add_car(builder: MeshBuilder, rng, paint, glass, tyre, length=4.4, width=1.8):
+def add_car(builder: MeshBuilder, rng: np.random.Generator, paint: object, glass: object, tyre: object,
+            length: float = 4.4, width: float = 1.8) -> None:
     """A car-shaped body: chassis, glass cabin with a roof, four wheels; on z = 0, length along Y."""
     body_z0, body_h = 0.28, 0.72
     builder.box((0, 0, body_z0 + body_h / 2), (width, length, body_h), paint)
@@ -96,7 +103,7 @@ def add_car(builder: MeshBuilder, rng, paint, glass, tyre, length=4.4, width=1.8
             builder.cylinder((sx * (width / 2 - 0.1), sy * (length / 2 - 0.8), 0.32), 0.32, 0.24, 0, tyre)
 
 
-def face_frames(tri) -> np.ndarray:
+def face_frames(tri: np.ndarray) -> np.ndarray:
     """Rotations (F, 3, 3) whose columns are a flat Gaussian's local x, y, z on triangles ``tri`` (F, 3, 3):
     z = n = normalise((v1 - v0) x (v2 - v0)) (the winding's normal), x = t1 = v1 - v0 made orthogonal to n and
     normalised, y = n x t1. Degenerate or non-finite triangles give NaN rows (the caller drops them)."""
@@ -137,7 +144,8 @@ def surface_gaussians(builder: MeshBuilder, colors: dict, count: int, seed: int 
                             opacities=np.full(count, opacity, np.float32), sh=sh.astype(np.float32))
 
 
-def procedural_car_gaussians(count: int = 20000, seed: int = 0, paint=None) -> splats.Gaussians:
+def procedural_car_gaussians(count: int = 20000, seed: int = 0,
+                             paint: Sequence[float] | None = None) -> splats.Gaussians:
     """The test/demo car as Gaussians, metric (4.4 x 1.8 m), on z = 0, front towards +Y."""
     rng = np.random.default_rng(seed)
     paint = tuple(rng.uniform(0.1, 0.8, 3)) if paint is None else tuple(paint)
@@ -147,7 +155,7 @@ def procedural_car_gaussians(count: int = 20000, seed: int = 0, paint=None) -> s
                              count, seed)
 
 
-def transform_gaussians(g: splats.Gaussians, similarity) -> splats.Gaussians:
+def transform_gaussians(g: splats.Gaussians, similarity: np.ndarray) -> splats.Gaussians:
     """Apply x -> s R x + t: means move, scales grow by s, orientations turn by R (DC/SH colours unchanged).
 
     Higher SH degrees would need rotating too; this keeps them as they are, so use it for degree 0 or identity R.
@@ -159,7 +167,7 @@ def transform_gaussians(g: splats.Gaussians, similarity) -> splats.Gaussians:
                             opacities=g.opacities, sh=g.sh, dropped=dict(g.dropped))
 
 
-def save_as_amodal3r(path, g: splats.Gaussians) -> np.ndarray:
+def save_as_amodal3r(path: str | os.PathLike, g: splats.Gaussians) -> np.ndarray:
     """Write Gaussians (Z-up, any size) as TRELLIS/Amodal3R do: centred in the unit cube, their file axes, SH 0.
 
     Returns the 4x4 similarity that took the input to the file's coordinates (so a test knows the truth).

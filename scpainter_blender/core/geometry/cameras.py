@@ -38,7 +38,7 @@ SENSOR_FITS = ("AUTO", "HORIZONTAL", "VERTICAL")
 # Rigid transforms and camera poses
 # --------------------------------------------------------------------------------------------------------------
 
-def as_matrix4(m, name: str = "matrix") -> np.ndarray:
+def as_matrix4(m: np.ndarray, name: str = "matrix") -> np.ndarray:
     """Return ``m`` as float64 (..., 4, 4); a (..., 3, 4) matrix gets the row [0, 0, 0, 1] appended."""
     m = np.asarray(m, dtype=np.float64)
     if m.ndim < 2 or m.shape[-1] != 4 or m.shape[-2] not in (3, 4):
@@ -50,7 +50,7 @@ def as_matrix4(m, name: str = "matrix") -> np.ndarray:
     return m
 
 
-def rigid_inverse(T) -> np.ndarray:
+def rigid_inverse(T: np.ndarray) -> np.ndarray:
     """Inverse of rigid transforms (..., 4, 4) in closed form: [R t]^-1 = [R^T, -R^T t]."""
     T = as_matrix4(T)
     R = T[..., :3, :3]
@@ -63,7 +63,8 @@ def rigid_inverse(T) -> np.ndarray:
     return out
 
 
-def rigid_problem(T, tolerance: float = 1e-3, name: str = "extrinsic", what: str = "frame"):
+def rigid_problem(T: np.ndarray, tolerance: float = 1e-3, name: str = "extrinsic", what: str = "frame") -> tuple[int,
+                  str] | None:
     """(index, sentence) of the first finite matrix of ``T`` (N, 4, 4) that is not a rotation + translation
     (|R^T R - I| > ``tolerance``, a reflection, or a last row other than [0, 0, 0, 1]); None if all are. The
     sentence calls the matrices ``what`` ("frame 3 is not ...") and the array ``name``. Camera placement inverts
@@ -82,7 +83,7 @@ def rigid_problem(T, tolerance: float = 1e-3, name: str = "extrinsic", what: str
     return None
 
 
-def orthonormalize(world_to_camera) -> np.ndarray:
+def orthonormalize(world_to_camera: np.ndarray) -> np.ndarray:
     """Replace each rotation block by the nearest rotation (SVD), keeping the camera *centre* where it was.
 
     Rotations stored in float32 (VGGT's) are orthonormal only to ~1e-7; with translations of 1e5 m that is
@@ -101,18 +102,18 @@ def orthonormalize(world_to_camera) -> np.ndarray:
     return T
 
 
-def camera_centers(world_to_camera) -> np.ndarray:
+def camera_centers(world_to_camera: np.ndarray) -> np.ndarray:
     """Camera centres in world coordinates, (..., 3): c = -R^T t."""
     T = as_matrix4(world_to_camera)
     return -np.einsum("...ji,...j->...i", T[..., :3, :3], T[..., :3, 3])
 
 
-def blender_matrix_world(world_to_camera) -> np.ndarray:
+def blender_matrix_world(world_to_camera: np.ndarray) -> np.ndarray:
     """Blender camera ``matrix_world`` (..., 4, 4) for OpenCV ``world_to_camera`` (..., 4, 4)."""
     return rigid_inverse(world_to_camera) @ OPENCV_TO_BLENDER_CAMERA
 
 
-def world_to_camera_from_blender(matrix_world) -> np.ndarray:
+def world_to_camera_from_blender(matrix_world: np.ndarray) -> np.ndarray:
     """OpenCV ``world_to_camera`` for a Blender camera's ``matrix_world`` (unit scale, no shear)."""
     M = as_matrix4(matrix_world, "matrix_world")
     R = M[..., :3, :3]
@@ -123,7 +124,7 @@ def world_to_camera_from_blender(matrix_world) -> np.ndarray:
     return OPENCV_TO_BLENDER_CAMERA @ rigid_inverse(M)
 
 
-def rotation_to_quaternion(R) -> np.ndarray:
+def rotation_to_quaternion(R: np.ndarray) -> np.ndarray:
     """Unit quaternions (w, x, y, z), (..., 4), of rotation matrices (..., 3, 3); w >= 0.
 
     Shepperd's method: picks the largest of 4w², 4x², 4y², 4z² as the pivot so no branch divides by a small
@@ -161,7 +162,7 @@ def rotation_to_quaternion(R) -> np.ndarray:
     return q.reshape(R.shape[:-2] + (4,))
 
 
-def quaternion_to_rotation(q) -> np.ndarray:
+def quaternion_to_rotation(q: np.ndarray) -> np.ndarray:
     """Rotation matrices (..., 3, 3) of quaternions (w, x, y, z), (..., 4); normalised first."""
     q = np.asarray(q, dtype=np.float64)
     n = np.linalg.norm(q, axis=-1, keepdims=True)
@@ -175,7 +176,7 @@ def quaternion_to_rotation(q) -> np.ndarray:
     ], -2)
 
 
-def continuous_quaternions(q) -> np.ndarray:
+def continuous_quaternions(q: np.ndarray) -> np.ndarray:
     """Flip signs along axis 0 so consecutive quaternions have a non-negative dot product.
 
     q and -q are the same rotation, but interpolating keyframes between them turns the long way round; a camera
@@ -236,7 +237,7 @@ def _check_resolution(width, height):
         raise ValueError(f"resolution must be positive integers, got ({width}, {height})")
 
 
-def blender_camera_from_K(K, width: int, height: int, sensor_width: float = 36.0,
+def blender_camera_from_K(K: np.ndarray, width: int, height: int, sensor_width: float = 36.0,
                           sensor_fit: str = "HORIZONTAL", sensor_height: float | None = None) -> BlenderCamera:
     """Blender camera settings for pinhole ``K`` (pixels, our pixel-centre convention) at ``width`` x ``height``.
 
@@ -278,7 +279,7 @@ def K_from_blender_camera(cam: BlenderCamera) -> np.ndarray:
     return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
 
 
-def project(K, world_to_camera, points):
+def project(K: np.ndarray, world_to_camera: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Project world points (N, 3) to pixel coordinates (N, 2) and camera depth z (N,), all float64.
 
     The world->camera step is done in float64 before anything else (large coordinates stay exact). Points at or

@@ -20,6 +20,11 @@ import numpy as np
 
 from . import cameras
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
 #: Triples drawn (and their planes computed) at once; each is then scored on its own.
 _BATCH = 32
 
@@ -33,7 +38,7 @@ class PlaneFitError(ValueError):
     ``up`` among the points), ``"up"`` (the cameras share no up axis) or ``"weak"`` (the best plane holds too
     small a share of the points to be the ground). Callers that know the file turn it into an ``InputError``."""
 
-    def __init__(self, reason: str, message: str):
+    def __init__(self, reason: str, message: str) -> None:
         super().__init__(message)
         self.reason = reason
 
@@ -69,8 +74,9 @@ def _least_squares_plane(Q: np.ndarray, up: np.ndarray) -> tuple:
     return n, centre
 
 
-def fit_plane_ransac(points, threshold: float = 0.05, iterations: int = 256, seed: int = 0,
-                     up=(0.0, 0.0, 1.0), max_tilt_deg: float = 30.0, confidence: float = RANSAC_CONFIDENCE):
+def fit_plane_ransac(points: np.ndarray, threshold: float = 0.05, iterations: int = 256, seed: int = 0,
+                     up: Sequence[float] = (0.0, 0.0, 1.0), max_tilt_deg: float = 30.0,
+                     confidence: float = RANSAC_CONFIDENCE) -> tuple[np.ndarray, np.ndarray, float]:
     """The plane with most inliers among hypotheses within ``max_tilt_deg`` of ``up``, refined by least squares.
 
     ``points`` (N, 3), any units and frame; rows with NaN/inf are left out. ``threshold``: a point is an inlier
@@ -162,7 +168,7 @@ def fit_plane_ransac(points, threshold: float = 0.05, iterations: int = 256, see
     return np.array([*n, d]), mask, rms
 
 
-def plane_tilt_deg(plane, up=(0.0, 0.0, 1.0)) -> float:
+def plane_tilt_deg(plane: np.ndarray, up: Sequence[float] = (0.0, 0.0, 1.0)) -> float:
     """Angle in degrees between the plane's normal and the ``up`` axis (0 = level; sign of the normal ignored)."""
     n = np.asarray(plane, np.float64)[:3]
     up = np.asarray(up, np.float64)
@@ -201,7 +207,7 @@ MIN_GROUND_POINTS = 100
 MIN_GROUND_INLIER_FRACTION = 0.05
 
 
-def cameras_up(world_to_camera) -> np.ndarray:
+def cameras_up(world_to_camera: np.ndarray) -> np.ndarray:
     """The cameras' mean "up" (the mean of their OpenCV -y axes) in world coordinates, unit (3,).
 
     ``world_to_camera`` (S, 4, 4) or (S, 3, 4), finite. Raises ``PlaneFitError("up")`` when the axes cancel out.
@@ -214,8 +220,9 @@ def cameras_up(world_to_camera) -> np.ndarray:
     return up / norm
 
 
-def fit_ground_plane(points, world_to_camera, *, max_tilt_deg: float = 30.0, threshold_fraction: float = 0.01,
-                     iterations: int = 2000, seed: int = 0, min_points: int = MIN_GROUND_POINTS,
+def fit_ground_plane(points: np.ndarray, world_to_camera: np.ndarray, *, max_tilt_deg: float = 30.0,
+                     threshold_fraction: float = 0.01, iterations: int = 2000, seed: int = 0,
+                     min_points: int = MIN_GROUND_POINTS,
                      min_inlier_fraction: float = MIN_GROUND_INLIER_FRACTION) -> GroundPlane:
     """The road under forward-looking cameras: the largest plane among ``points`` within ``max_tilt_deg`` of up.
 
@@ -261,7 +268,7 @@ def fit_ground_plane(points, world_to_camera, *, max_tilt_deg: float = 30.0, thr
     return GroundPlane(plane, mask, rms, plane_tilt_deg(plane, up), threshold, len(X), int(dropped))
 
 
-def plane_height(plane, x: float, y: float) -> float:
+def plane_height(plane: np.ndarray, x: float, y: float) -> float:
     """z of the plane above (x, y); the plane must not be vertical."""
     a, b, c, d = plane
     if abs(c) < 1e-9:
@@ -269,14 +276,14 @@ def plane_height(plane, x: float, y: float) -> float:
     return -(a * x + b * y + d) / c
 
 
-def points_in_box(points, box_to_world, size) -> np.ndarray:
+def points_in_box(points: np.ndarray, box_to_world: np.ndarray, size: np.ndarray) -> np.ndarray:
     """Mask of points inside an oriented box (rigid box_to_world, full ``size`` along its local axes)."""
     T = np.asarray(box_to_world, np.float64)
     local = (np.asarray(points, np.float64) - T[:3, 3]) @ T[:3, :3]
     return np.all(np.abs(local) <= np.asarray(size, np.float64) / 2, axis=1)
 
 
-def proportion_deviation(asset_size, target_size) -> np.ndarray:
+def proportion_deviation(asset_size: np.ndarray, target_size: np.ndarray) -> np.ndarray:
     """Relative deviation of (length, width, height) once the asset is scaled uniformly to the target's length.
 
     Sizes are (length, width, height); the paper's stage-1 filter rejects assets whose box proportions deviate

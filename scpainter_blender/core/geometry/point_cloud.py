@@ -17,6 +17,11 @@ import numpy as np
 from . import fits, similarity, unproject
 from ..vggt import predictions as vggt
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from collections.abc import Iterable
+
 #: The confidence percentile when none is given, the one place it is written: VGGT's demo drops the less
 #: confident half of the pixels. The import's, the job's and the training and evaluation default.
 CONFIDENCE_PERCENTILE = 50.0
@@ -46,7 +51,8 @@ class FramePoints:
 
 
 def point_cloud(pred: vggt.VGGTPredictions, confidence_percentile: float = CONFIDENCE_PERCENTILE, source: str = "depth",
-                vggt_to_world=None, frames=None, depth_edge_ratio: float | None = None) -> FramePoints:
+                vggt_to_world: np.ndarray | None = None, frames: Iterable[int] | None = None,
+                depth_edge_ratio: float | None = None) -> FramePoints:
     """Coloured points of the clip, filtered by confidence percentile (VGGT demo semantics), per frame.
 
     ``source`` is "depth" (unproject depth with each frame's K and extrinsic; VGGT's recommended branch) or
@@ -120,8 +126,8 @@ def point_cloud(pred: vggt.VGGTPredictions, confidence_percentile: float = CONFI
     return FramePoints(pos, col, fid, offsets, thr, edge_points)
 
 
-def scene_cloud(pred: vggt.VGGTPredictions, confidence_percentile: float, vggt_to_world, depth_edge_ratio=None,
-                removal_boxes=()) -> tuple:
+def scene_cloud(pred: vggt.VGGTPredictions, confidence_percentile: float, vggt_to_world: np.ndarray | None,
+                depth_edge_ratio: float | None = None, removal_boxes: Iterable[object] = ()) -> tuple:
     """A job's scene points before outlier removal: (``point_cloud`` of every frame with the depth-edge test,
     keep (N,) bool: False for the points inside a removal box, any object with ``box_to_world`` and ``size``). The
     renderer (``backend.render.cleaning.clean_cloud``, which then removes outliers) and a variation run's road
@@ -137,7 +143,7 @@ def scene_cloud(pred: vggt.VGGTPredictions, confidence_percentile: float, vggt_t
 NEIGHBOURS_8 = ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1))
 
 
-def depth_edges(depth, ratio: float, valid=None) -> np.ndarray:
+def depth_edges(depth: np.ndarray, ratio: float, valid: np.ndarray | None = None) -> np.ndarray:
     """Pixels on a depth edge (H, W) bool: where a network's depth smears across a discontinuity ("flying pixels").
 
     ``depth`` (H, W) camera z (any unit: the rule is a ratio); ``valid`` (H, W) bool or None. A pixel has depth
@@ -174,7 +180,7 @@ def depth_edges(depth, ratio: float, valid=None) -> np.ndarray:
         return ok & (jump > ratio * np.where(ok, d, 0.0))
 
 
-def depth_edges_reference(depth, ratio: float, valid=None) -> np.ndarray:
+def depth_edges_reference(depth: np.ndarray, ratio: float, valid: np.ndarray | None = None) -> np.ndarray:
     """``depth_edges`` pixel by pixel, as the rule reads (tests compare the two)."""
     d = np.asarray(depth, np.float64)
     H, W = d.shape

@@ -33,11 +33,11 @@ class SimilarityFit:
     def matrix(self) -> np.ndarray:
         return similarity_matrix(self.scale, self.rotation, self.translation)
 
-    def apply(self, points) -> np.ndarray:
+    def apply(self, points: np.ndarray) -> np.ndarray:
         return self.scale * np.asarray(points, np.float64) @ self.rotation.T + self.translation
 
 
-def similarity_matrix(scale: float, rotation, translation) -> np.ndarray:
+def similarity_matrix(scale: float, rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
     """4x4 matrix of x -> scale · R x + t."""
     M = np.eye(4)
     M[:3, :3] = scale * np.asarray(rotation, np.float64)
@@ -45,7 +45,7 @@ def similarity_matrix(scale: float, rotation, translation) -> np.ndarray:
     return M
 
 
-def decompose_similarity(M):
+def decompose_similarity(M: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
     """(scale, R, t) of a 4x4 similarity; raises if it is not one (shear, reflection, non-uniform scale)."""
     M = cameras.as_matrix4(M, "similarity")
     A = M[:3, :3]
@@ -66,7 +66,7 @@ def _rotation_from_covariance(H):
     return U @ D @ Vt
 
 
-def umeyama(src, dst, with_scale: bool = True) -> SimilarityFit:
+def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = True) -> SimilarityFit:
     """Least-squares similarity dst ≈ s R src + t (Umeyama 1991), for point sets (N, 3), N >= 3.
 
     Both sets are centred before the covariance is formed, so points 1e5 m from the origin fit to ~1e-10.
@@ -100,7 +100,7 @@ def _finish_fit(s, R, t, x, y, rotation_rms_deg=None) -> SimilarityFit:
                          max_error=float(err.max()), rotation_rms_deg=rotation_rms_deg)
 
 
-def fit_similarity_to_cameras(src_world_to_camera, dst_world_to_camera) -> SimilarityFit:
+def fit_similarity_to_cameras(src_world_to_camera: np.ndarray, dst_world_to_camera: np.ndarray) -> SimilarityFit:
     """Similarity taking the world of one camera path onto another's, using orientations as well as centres.
 
     Centres alone cannot fix the roll about a straight drive, so the rotation maximises the agreement of the
@@ -137,7 +137,7 @@ def fit_similarity_to_cameras(src_world_to_camera, dst_world_to_camera) -> Simil
     return _finish_fit(s, R, t, x, y, rotation_rms_deg=float(np.sqrt(np.mean(ang ** 2))))
 
 
-def transform_world_to_camera(world_to_camera, old_to_world) -> np.ndarray:
+def transform_world_to_camera(world_to_camera: np.ndarray, old_to_world: np.ndarray) -> np.ndarray:
     """Re-express cameras of an old world in a new one, given ``old_to_world`` (a similarity, 4x4).
 
     With x_new = s R x_old + t, metric camera coordinates are s · (old camera coordinates), so the rigid

@@ -14,7 +14,7 @@ import numpy as np
 from . import cameras
 
 
-def confidence_threshold(conf, percentile: float) -> float:
+def confidence_threshold(conf: np.ndarray, percentile: float) -> float:
     """VGGT demo semantics: the ``percentile``-th percentile of *all* confidences of the clip."""
     if not 0.0 <= percentile <= 100.0:
         raise ValueError(f"confidence percentile must be in [0, 100], got {percentile}")
@@ -23,13 +23,14 @@ def confidence_threshold(conf, percentile: float) -> float:
     return float(np.percentile(conf, percentile))
 
 
-def confidence_mask(conf, percentile: float) -> np.ndarray:
+def confidence_mask(conf: np.ndarray, percentile: float) -> np.ndarray:
     """Keep ``conf >= percentile(conf, p)`` and ``conf > 1e-5``, exactly as VGGT's demo filters."""
     conf = np.asarray(conf)
     return (conf >= confidence_threshold(conf, percentile)) & (conf > 1e-5)
 
 
-def unproject_pixels(depth, K, world_to_camera, rows, cols) -> np.ndarray:
+def unproject_pixels(depth: np.ndarray, K: np.ndarray, world_to_camera: np.ndarray, rows: np.ndarray,
+                     cols: np.ndarray) -> np.ndarray:
     """World points (N, 3) float64 of pixels (rows, cols) of one frame; pixel centres at (col + .5, row + .5).
 
     x_cam = d · K^-1 [u + 0.5, v + 0.5, 1]^T, then x_world = R^T (x_cam - t).
@@ -43,7 +44,7 @@ def unproject_pixels(depth, K, world_to_camera, rows, cols) -> np.ndarray:
     return cam @ T[:3, :3]  # R^T applied to row vectors
 
 
-def unproject_depth(depth, K, world_to_camera) -> np.ndarray:
+def unproject_depth(depth: np.ndarray, K: np.ndarray, world_to_camera: np.ndarray) -> np.ndarray:
     """Dense unprojection of depth maps (S, H, W) with our K (S, 3, 3): world points (S, H, W, 3) float64."""
     depth = np.asarray(depth)
     S, H, W = depth.shape

@@ -31,20 +31,20 @@ _BITS = (np.arange(8)[:, None] >> np.arange(3)) & 1                    # corner 
 _EDGES = np.array([(i, i | 1 << k) for i in range(8) for k in range(3) if not i >> k & 1])  # (12, 2) corner pairs
 
 
-def relative_camera(world_to_camera, origin) -> np.ndarray:
+def relative_camera(world_to_camera: np.ndarray, origin: np.ndarray) -> np.ndarray:
     """world_to_camera (4x4, float64) for positions expressed relative to ``origin`` (world metres)."""
     w2c = np.array(world_to_camera, dtype=np.float64, copy=True)
     w2c[:3, 3] = w2c[:3, 3] + w2c[:3, :3] @ np.asarray(origin, np.float64)
     return w2c
 
 
-def box_corners(lo, hi) -> np.ndarray:
+def box_corners(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """(..., 8, 3) float64 corners of boxes with low, high corners ``lo``, ``hi`` (..., 3)."""
     lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
     return np.where(_BITS == 1, hi[..., None, :], lo[..., None, :])
 
 
-def clip_near(corners: np.ndarray, near: float):
+def clip_near(corners: np.ndarray, near: float) -> tuple[np.ndarray, np.ndarray]:
     """The vertices of each convex hull of 8 camera-space corners (B, 8, 3) (a box or its affine image: corner i's
     neighbours differ in one bit) cut by z >= near: (B, 20, 3) candidates and (B, 20) which are vertices — the
     corners in front and the points where the 12 edges cross the plane. A linear-fractional function of x/z, y/z
@@ -57,7 +57,8 @@ def clip_near(corners: np.ndarray, near: float):
     return np.concatenate([corners, a + t[..., None] * (b - a)], 1), np.concatenate([z >= near, cross], 1)
 
 
-def off_image(V, ok, K, reach, width, height) -> np.ndarray:
+def off_image(V: np.ndarray, ok: np.ndarray, K: np.ndarray, reach: float | np.ndarray, width: int,
+              height: int) -> np.ndarray:
     """(B,) bool: for each solid (vertices V (B, n, 3) where ``ok``, z > 0), every pixel u ± reach, v ± reach of
     its points misses [0, width) x [0, height) on one side, with a margin for rounding. u, v with our K (skew
     included); a solid with no vertex (wholly behind the near plane) is off the image too."""
@@ -73,8 +74,8 @@ def off_image(V, ok, K, reach, width, height) -> np.ndarray:
     return out
 
 
-def points_unseen(boxes, K, world_to_camera, width: int, height: int, radius_px: int = 0,
-                  near: float = POINTS_NEAR) -> np.ndarray:
+def points_unseen(boxes: np.ndarray, K: np.ndarray, world_to_camera: np.ndarray, width: int, height: int,
+                  radius_px: int = 0, near: float = POINTS_NEAR) -> np.ndarray:
     """(B,) bool, for boxes (B, 2, 3) (low, high corner, scene-origin-relative metres): True when no point inside
     the box can land in the image of the camera (K; ``world_to_camera`` 4x4 relative to the same origin): every
     point of the box is at or behind ``near`` or projects (± ``radius_px`` splat) outside the image.
@@ -90,7 +91,7 @@ def points_unseen(boxes, K, world_to_camera, width: int, height: int, radius_px:
     return unseen & np.isfinite(corners).all((1, 2))  # when unsure, project: the z-buffer culls what is not there
 
 
-def asset_bounds(means, quats, scales) -> tuple[np.ndarray | None, float]:
+def asset_bounds(means: np.ndarray, quats: np.ndarray, scales: np.ndarray) -> tuple[np.ndarray | None, float]:
     """(bounds, max_sigma) of an asset's Gaussians as the renderer draws them (file coordinates): bounds (2, 3)
     float64, the low and high corner of the means of the rows it draws (non-zero, finite quaternion, finite
     scales, finite mean), and the largest σ (|scale|, file units, + 1e-6 relative for the rotation's rounding:
@@ -108,7 +109,8 @@ def asset_bounds(means, quats, scales) -> tuple[np.ndarray | None, float]:
     return np.stack([m.min(0), m.max(0)]), float(sc.max()) * (1.0 + 1e-6)
 
 
-def asset_unseen(bounds, max_sigma: float, object_to_world, origin, K, world_to_camera, width: int, height: int,
+def asset_unseen(bounds: np.ndarray | None, max_sigma: float, object_to_world: np.ndarray, origin: np.ndarray,
+                 K: np.ndarray, world_to_camera: np.ndarray, width: int, height: int,
                  near: float = GAUSSIAN_NEAR) -> bool:
     """True when none of an asset's Gaussians can reach a pixel of the camera (``world_to_camera`` relative to
     ``origin``), so the projection would cull every one of them. ``bounds``, ``max_sigma``: ``asset_bounds`` of its

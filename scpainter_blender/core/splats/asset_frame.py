@@ -27,7 +27,7 @@ TRELLIS_DEFAULT_LENGTH = 4.5
 CAR_LENGTH_M = (0.5, 30.0)
 
 
-def data_frame(xyz_file, axes: str) -> tuple:
+def data_frame(xyz_file: np.ndarray, axes: str) -> tuple:
     """(file_to_data (4, 4), F (3, 3) the axis change, data-frame bounds lo (3,), hi (3,)) for file means (N, 3),
     N ≥ 1, read with ``axes`` ("TRELLIS" or "NONE")."""
     F = trellis.ZUP_TO_TRELLIS_FILE.T if axes == "TRELLIS" else np.eye(3)
@@ -39,7 +39,7 @@ def data_frame(xyz_file, axes: str) -> tuple:
     return D, F, lo - bottom, hi - bottom
 
 
-def default_length(ply: GaussianPly, keep, axes: str, is_mesh: bool, extent: float) -> float:
+def default_length(ply: GaussianPly, keep: np.ndarray, axes: str, is_mesh: bool, extent: float) -> float:
     """The length (file units or metres) an asset gets when none is asked for: ``TRELLIS_DEFAULT_LENGTH`` for a
     TRELLIS/Amodal3R file or a mesh conversion inside their unit cube (their GLBs are), else ``extent`` (its
     longer horizontal extent in file units: kept)."""
@@ -60,7 +60,7 @@ class AssetFrame:
     scale: float
 
 
-def asset_frame(ply: GaussianPly, keep, is_mesh: bool = False) -> AssetFrame:
+def asset_frame(ply: GaussianPly, keep: np.ndarray, is_mesh: bool = False) -> AssetFrame:
     """The data frame and default scale of ``ply``'s rows ``keep`` (at least one), its axes detected as the import
     detects them (a mesh conversion is already Z up)."""
     if is_mesh:
@@ -73,7 +73,7 @@ def asset_frame(ply: GaussianPly, keep, is_mesh: bool = False) -> AssetFrame:
     return AssetFrame(axes, reason, file_to_data, lo, hi, length / extent if extent > 0 else 1.0)
 
 
-def file_key(path) -> str:
+def file_key(path: str | os.PathLike) -> str:
     """10 hex digits naming a file's identity and version: its absolute path, size and modification time. Files
     derived from it (a mesh's Gaussians, a recoloured copy) carry it, so ``car.stl`` and ``car.ply``, or a file
     edited since, never share one."""
@@ -81,7 +81,7 @@ def file_key(path) -> str:
     return hashlib.sha256(f"{os.path.abspath(path)}|{st.st_size}|{st.st_mtime_ns}".encode()).hexdigest()[:10]
 
 
-def mesh_gaussians_name(mesh_path, count: int) -> str:
+def mesh_gaussians_name(mesh_path: str | os.PathLike, count: int) -> str:
     """The file name of a mesh's surface Gaussians (``mesh-asset``'s output, cached): ``car.stl.200000.<key>
     .gaussians.ply`` (``file_key``)."""
     return f"{os.path.basename(mesh_path)}.{int(count)}.{file_key(mesh_path)}.gaussians.ply"

@@ -46,6 +46,11 @@ from .sh import SH_C0
 from .gaussians import (DROPPED_REASONS, MOSTLY_INVALID_SHARE, GaussianPly, SplatsError, decode, open_file,
                         valid_rows)
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from .gaussians import Gaussians
+
 #: SuperSplat compressed PLY: splats per chunk, and the chunk/vertex properties (module docstring; the readers
 #: choose this layout by the ``chunk`` element or ``packed_*`` vertex properties).
 CHUNK_SIZE = 256
@@ -74,7 +79,7 @@ def _require_properties(path, what, element, types: dict, needed, allowed, expec
                                 f"{ply_format.type_name(np.dtype(types[bad[0]]))}, expected {expected}", bad[0])
 
 
-def check_header(elements, path) -> None:
+def check_header(elements: list, path: str | os.PathLike) -> None:
     """Refuse a compressed layout that is incomplete or inconsistent, naming what is wrong (before reading data)."""
     what = "a SuperSplat compressed PLY"
     chunk, vertex, sh = (ply_format.element(elements, n) for n in ("chunk", "vertex", "sh"))
@@ -109,7 +114,7 @@ def _unorm(packed: np.ndarray, shift: int, bits: int) -> np.ndarray:
 _SMALLEST_THREE = np.array([[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]])
 
 
-def decode_packed_rotation(packed) -> np.ndarray:
+def decode_packed_rotation(packed: np.ndarray) -> np.ndarray:
     """(N, 4) quaternions (rot_0..rot_3 = w, x, y, z) from SuperSplat's 2-10-10-10 "smallest three" words."""
     packed = np.asarray(packed, np.uint32)
     small = np.stack([(_unorm(packed, s, 10) - 0.5) * np.sqrt(2.0) for s in (20, 10, 0)], axis=1)
@@ -121,7 +126,7 @@ def decode_packed_rotation(packed) -> np.ndarray:
     return q
 
 
-def from_elements(arrays, path) -> GaussianPly:
+def from_elements(arrays: dict, path: str | os.PathLike) -> GaussianPly:
     """The raw values of a compressed PLY's ``chunk``, ``vertex`` and optional ``sh`` elements (structured arrays
     by name, as ``ply_format.read_elements`` gives them; the header checked by ``check_header``)."""
     chunk, vert = arrays["chunk"], arrays["vertex"]
@@ -168,7 +173,7 @@ def from_elements(arrays, path) -> GaussianPly:
 
 # -- antimatter15 .splat -------------------------------------------------------------------------------------------
 
-def read_splat(path) -> GaussianPly:
+def read_splat(path: str | os.PathLike) -> GaussianPly:
     """Read an antimatter15 ``.splat`` file (module docstring) as raw INRIA values; SplatsError if unusable."""
     path = os.fspath(path)
     try:
@@ -220,7 +225,7 @@ def _refuse_mostly_invalid(path, ply: GaussianPly, data, head: bytes) -> None:
                             "original to .ply (e.g. with playcanvas/splat-transform) or export it again", "(file)")
 
 
-def write_splat(path, g) -> None:
+def write_splat(path: str | os.PathLike, g: Gaussians | GaussianPly) -> None:
     """Write decoded ``Gaussians`` (or a raw ``GaussianPly``, decoded first) as an antimatter15 ``.splat``, atomically.
 
     Bytes as antimatter15/splat ``convert.py`` makes them, except that colour, alpha and quaternion bytes are rounded

@@ -37,6 +37,11 @@ import numpy as np
 from .. import errors, files
 from . import sh as _sh
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from typing import BinaryIO
+
 #: Human names of ``GaussianPly.format`` values, for import reports.
 FORMAT_NAMES = {"inria": "INRIA 3DGS PLY", "inria_half": "INRIA 3DGS PLY, half floats",
                 "supersplat_compressed": "SuperSplat compressed PLY", "splat": "antimatter15 .splat",
@@ -52,7 +57,8 @@ class SplatsError(errors.InputError):
     """A Gaussian file that cannot be used; the message names the file and what is wrong. ``field``: the property,
     element or "header line N" at fault ("(file)" for the file as a whole)."""
 
-    def __init__(self, path, message, field=None, hint=None):
+    def __init__(self, path: str | os.PathLike, message: str, field: str | None = None,
+                 hint: str | None = None) -> None:
         errors.InputError.__init__(self, path, field, message, hint)
         self.args = (f"{os.path.basename(self.path)}: {message} ({self.path})",)  # the text it has always had
 
@@ -117,7 +123,7 @@ class Gaussians:
         """View-independent colour (the DC term only), (N, 3) in [0, ...)."""
         return dc_colors(self.sh[:, 0])
 
-    def extents(self):
+    def extents(self) -> tuple[np.ndarray, np.ndarray]:
         """Axis-aligned bounds (min (3,), max (3,)) of the means; zeros for an empty set."""
         if not len(self):
             return np.zeros(3), np.zeros(3)
@@ -129,13 +135,13 @@ def _file_error(path, field, message):
     return SplatsError(path, "file not found" if message == "not found" else message, field)
 
 
-def open_file(path):
+def open_file(path: str | os.PathLike) -> BinaryIO:
     """``path`` opened for binary reading if it is a regular file (a FIFO or a directory is refused at once, not
     waited on); SplatsError naming the file otherwise."""
     return files.open_regular(path, _file_error)
 
 
-def read_bytes(path) -> bytes:
+def read_bytes(path: str | os.PathLike) -> bytes:
     """The whole of a regular file (``open_file``'s checks); SplatsError naming the file if it cannot be read. For
     the formats read whole (SPZ's gzip stream, ``.ksplat``, glTF): their headers size everything else."""
     try:
@@ -152,29 +158,29 @@ def read_bytes(path) -> bytes:
 # The activations, one formula each: decode uses them, and so does the Blender import (scene/gaussians.py), which
 # keeps the raw values beside the decoded ones.
 
-def opacities_from_logits(logit) -> np.ndarray:
+def opacities_from_logits(logit: np.ndarray) -> np.ndarray:
     """Opacities in [0, 1] (float64) of raw logits (N,): the sigmoid."""
     return 1.0 / (1.0 + np.exp(-np.asarray(logit).astype(np.float64)))
 
 
-def scales_from_logs(log_scale) -> np.ndarray:
+def scales_from_logs(log_scale: np.ndarray) -> np.ndarray:
     """Standard deviations (float64) of raw natural-log scales (N, 3): exp."""
     return np.exp(np.asarray(log_scale).astype(np.float64))
 
 
-def unit_quaternions(rot) -> np.ndarray:
+def unit_quaternions(rot: np.ndarray) -> np.ndarray:
     """Unit (w, x, y, z) quaternions (N, 4) float64 of raw ones; a zero quaternion gives NaN (decode drops it)."""
     q = np.asarray(rot).astype(np.float64)
     return q / np.linalg.norm(q, axis=1, keepdims=True)
 
 
-def sh_coefficients(f_dc, f_rest) -> np.ndarray:
+def sh_coefficients(f_dc: np.ndarray, f_rest: np.ndarray) -> np.ndarray:
     """SH coefficients (N, K, 3) coefficient-major (``[:, 0]`` is the DC term) of raw f_dc (N, 3) and channel-major
     f_rest (N, 3, K - 1); the input dtype is kept."""
     return np.concatenate([np.asarray(f_dc)[:, None, :], np.swapaxes(f_rest, 1, 2)], axis=1)
 
 
-def dc_colors(f_dc) -> np.ndarray:
+def dc_colors(f_dc: np.ndarray) -> np.ndarray:
     """View-independent colour (N, 3) float32 in [0, ...) of DC coefficients (N, 3): max(SH_C0 · f_dc + 0.5, 0)."""
     return np.maximum(_sh.SH_C0 * np.asarray(f_dc) + 0.5, 0.0).astype(np.float32)
 
@@ -190,7 +196,7 @@ def decode(ply: GaussianPly) -> Gaussians:
         return _decode(ply)
 
 
-def valid_rows(ply: GaussianPly):
+def valid_rows(ply: GaussianPly) -> tuple[np.ndarray, dict]:
     """(keep mask (N,), dropped counts by reason) — the rows decode() keeps."""
     keep, dropped, _, _ = _checked(ply)
     return keep, dropped
@@ -347,14 +353,14 @@ def encode(g: Gaussians, extra: dict | None = None) -> GaussianPly:
 # Spherical harmonics
 # --------------------------------------------------------------------------------------------------------------
 
-def sh_basis(dirs, degree: int) -> np.ndarray:
+def sh_basis(dirs: np.ndarray, degree: int) -> np.ndarray:
     """Real SH basis values (N, (degree+1)^2) at unit directions (N, 3), in the 3DGS ordering and signs."""
     d = np.asarray(dirs, np.float64)
     terms = _sh.basis(d[:, 0], d[:, 1], d[:, 2], degree)  # core.splats.sh: the one formula (the renderer's too)
     return np.stack([np.broadcast_to(np.asarray(t, np.float64), (len(d),)) for t in terms], axis=1)
 
 
-def sh_to_rgb(sh, dirs, degree: int | None = None) -> np.ndarray:
+def sh_to_rgb(sh: np.ndarray, dirs: np.ndarray, degree: int | None = None) -> np.ndarray:
     """Colour (N, 3) = max(0.5 + Σ_k basis_k(dir) sh_k, 0) for unit view directions (N, 3).
 
     ``dirs`` point from the camera to the Gaussian (normalise(mean - camera centre)), in the Gaussians' frame.

@@ -63,7 +63,7 @@ _MIN_SCALE = 1e-30
 _SIMILARITY_TOLERANCE = 1e-4
 
 
-def has_gaussian_splatting(tree) -> bool:
+def has_gaussian_splatting(tree: dict) -> bool:
     """True when a parsed glTF lists ``KHR_gaussian_splatting`` or has a primitive carrying it."""
     if not isinstance(tree, dict):
         return False
@@ -81,7 +81,7 @@ def _as_list(value) -> list:
     return value if isinstance(value, list) else []
 
 
-def read_tree(path, data: bytes | None = None):
+def read_tree(path: str | os.PathLike, data: bytes | None = None) -> tuple[dict, bytes | None]:
     """(glTF JSON dict, GLB BIN chunk or None) of a .glb (by its magic) or a .gltf (JSON); SplatsError if neither."""
     path = os.fspath(path)
     if data is None:
@@ -116,7 +116,7 @@ def read_tree(path, data: bytes | None = None):
     return tree, bin_chunk
 
 
-def peek_tree(path) -> dict:
+def peek_tree(path: str | os.PathLike) -> dict:
     """A glTF's JSON without reading a GLB's binary chunk (to tell splats from meshes cheaply); SplatsError as
     ``read_tree``."""
     path = os.fspath(path)
@@ -134,7 +134,7 @@ def peek_tree(path) -> dict:
     return read_tree(path, data)[0]
 
 
-def read(path) -> GaussianPly:
+def read(path: str | os.PathLike) -> GaussianPly:
     """Read a ``KHR_gaussian_splatting`` glTF/GLB (module docstring) as raw INRIA values in +Z up; SplatsError
     naming the file and the glTF field if unusable."""
     path = os.fspath(path)
@@ -367,7 +367,7 @@ def _quat_multiply(a, b) -> np.ndarray:
                      aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw], axis=-1)
 
 
-def sh_rotation(R, degree: int) -> np.ndarray:
+def sh_rotation(R: np.ndarray, degree: int) -> np.ndarray:
     """(K, K) matrix M, K = (degree + 1)², with Σ_k (M c)_k Y_k(R d) = Σ_k c_k Y_k(d) for every direction d: SH
     coefficients c (coefficient-major) of a colour in one frame, rotated into the frame p' = R p. Found from the
     basis itself (``gaussians.sh_basis``) at 64 directions by least squares, exact to rounding since each degree's

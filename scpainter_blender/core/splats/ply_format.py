@@ -21,6 +21,12 @@ import numpy as np
 
 from .gaussians import ACCEPTED, SplatsError, open_file
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from collections.abc import Iterable
+    from typing import BinaryIO
+
 MAX_HEADER = 1 << 16        # bytes: a degree-3 INRIA header is ~1.5 KB
 MAX_HEADER_LINES = 4096     # an INRIA header has 62 property lines at most; more is not a splat file
 #: PLY property type -> numpy type code (both spellings PLY allows).
@@ -66,7 +72,7 @@ def _header_lines(raw: bytes, path):
             raise SplatsError(path, f"the header has more than {MAX_HEADER_LINES} lines: not a splat file")
 
 
-def parse_header(raw: bytes, path, binary_only: bool = True):
+def parse_header(raw: bytes, path: str | os.PathLike, binary_only: bool = True) -> tuple[str, list, int]:
     """(format, [[element name, count, [(property, numpy type code or None for a list)]]], data offset) of the
     header at the start of ``raw``; SplatsError naming the header line for anything malformed."""
     lines, start = _header_lines(raw, path)
@@ -112,7 +118,7 @@ def parse_header(raw: bytes, path, binary_only: bool = True):
     return fmt, elements, start
 
 
-def read_ply_header(path):
+def read_ply_header(path: str | os.PathLike) -> tuple[str, list, int]:
     """(format, elements, data offset) of a PLY file's header (see ``parse_header``; ASCII files included), read
     from a regular file only; SplatsError naming the file (and the header line) otherwise. For callers that only
     need to know what a PLY holds (the mesh import)."""
@@ -125,14 +131,14 @@ def read_ply_header(path):
     return parse_header(raw, path, binary_only=False)
 
 
-def check_binary(fmt, path) -> None:
+def check_binary(fmt: str, path: str | os.PathLike) -> None:
     """SplatsError unless ``fmt`` (the header's format) is binary little- or big-endian."""
     if fmt not in ("binary_little_endian", "binary_big_endian"):
         raise SplatsError(path, f"format {fmt!r} is not supported: expected binary_little_endian or "
                                 "binary_big_endian (ASCII splat files are not used in practice)", "format")
 
 
-def element(elements, name):
+def element(elements: list, name: str) -> tuple[int, list] | None:
     """The first element called ``name`` as (count, [(property, type)]), or None."""
     for e in elements:
         if e[0] == name:
@@ -140,7 +146,8 @@ def element(elements, name):
     return None
 
 
-def read_elements(f, path, size: int, order: str, elements, start: int, wanted) -> dict:
+def read_elements(f: BinaryIO, path: str | os.PathLike, size: int, order: str, elements: list, start: int,
+                  wanted: Iterable[str]) -> dict:
     """{name: structured array} of the ``wanted`` elements (first of each name) of the open binary file ``f``
     (``size`` bytes, data from byte ``start``, byte order ``order`` "<" or ">"), skipping the ones before them;
     SplatsError naming the element for list properties on the way or rows the file does not hold."""

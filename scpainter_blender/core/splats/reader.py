@@ -48,7 +48,7 @@ _HEAD = ksplat.MAIN_HEADER
 ZIP_MAGIC = b"PK\x03\x04"
 
 
-def read(path) -> GaussianPly:
+def read(path: str | os.PathLike) -> GaussianPly:
     """Read any accepted Gaussian file (module docstring) into raw float32 arrays; SplatsError if unusable.
 
     The format is decided by content (``detect``); headerless ``.splat`` files by their extension. Only regular
@@ -58,12 +58,12 @@ def read(path) -> GaussianPly:
     return READERS[detect(path)](path)
 
 
-def load(path) -> Gaussians:
+def load(path: str | os.PathLike) -> Gaussians:
     """read + decode: decoded Gaussians of any accepted file."""
     return decode(read(path))
 
 
-def detect(path) -> str:
+def detect(path: str | os.PathLike) -> str:
     """The Gaussian format of a file by its content (a key of ``READERS``); SplatsError naming the file when it is
     none (a mesh, another format, damaged): see the module docstring for the order of the checks."""
     path = os.fspath(path)
@@ -133,7 +133,7 @@ def _json_kind(path, head: bytes, ext: str) -> str:
     raise SplatsError(path, _not_accepted(head, ext or ".gltf"))
 
 
-def is_sog_meta(meta) -> bool:
+def is_sog_meta(meta: object) -> bool:
     """True for a parsed SOG ``meta.json`` (PlayCanvas: an object with ``means`` and ``quats``/``scales``)."""
     return isinstance(meta, dict) and "means" in meta and ("quats" in meta or "scales" in meta)
 
@@ -151,7 +151,7 @@ def _zip_kind(path, f, ext: str) -> str:
                             f"{ACCEPTED}")
 
 
-def is_mesh(path) -> bool:
+def is_mesh(path: str | os.PathLike) -> bool:
     """True for a car file the import converts as a mesh: ``.obj``/``.stl``/``.off``, a mesh PLY (``is_mesh_ply``),
     or a ``.glb``/``.gltf`` without ``KHR_gaussian_splatting`` (an unreadable one too: the mesh converter then says
     what is wrong). Never raises."""
@@ -206,7 +206,7 @@ def _mesh_message(elements):
             "rot_*: import it as a mesh asset (.glb/.obj/.ply mesh)")
 
 
-def is_mesh_ply(path) -> bool:
+def is_mesh_ply(path: str | os.PathLike) -> bool:
     """True for a readable PLY (binary or ASCII) whose header has faces and no Gaussian property (a mesh to
     convert); never raises."""
     try:
@@ -217,7 +217,7 @@ def is_mesh_ply(path) -> bool:
     return face is not None and face[0] > 0 and _mesh_message(elements) is not None
 
 
-def read_ply(path) -> GaussianPly:
+def read_ply(path: str | os.PathLike) -> GaussianPly:
     """Read a Gaussian-splat PLY (INRIA, TRELLIS/Amodal3R, half-float or SuperSplat compressed) into raw float32
     arrays; SplatsError if unusable."""
     path = os.fspath(path)

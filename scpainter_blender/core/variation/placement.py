@@ -31,6 +31,12 @@ import numpy as np
 
 from ..geometry.boxes import cross2
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+    from .road import Road
+
 
 RULES = ("off_road", "recorded_object", "recorded_box", "car_overlap", "ego_path")
 #: The rules a variant's camera path must pass first (``variants.Variation.check_camera``).
@@ -38,7 +44,7 @@ CAMERA_RULES = ("camera_off_road", "camera_blocked")
 UP = np.array([0.0, 0.0, 1.0])
 
 
-def rectangle(centre_xy, heading_xy, length: float, width: float) -> np.ndarray:
+def rectangle(centre_xy: np.ndarray, heading_xy: np.ndarray, length: float, width: float) -> np.ndarray:
     """(4, 2) corners, in order, of a rectangle of ``length`` along the unit ``heading_xy`` and ``width`` across,
     centred at ``centre_xy``."""
     h = np.asarray(heading_xy, np.float64)
@@ -48,14 +54,14 @@ def rectangle(centre_xy, heading_xy, length: float, width: float) -> np.ndarray:
     return np.stack([c - hl - hw, c + hl - hw, c + hl + hw, c - hl + hw])
 
 
-def box_footprint(box_to_world, size, grow: float = 0.0) -> np.ndarray:
+def box_footprint(box_to_world: np.ndarray, size: np.ndarray, grow: float = 0.0) -> np.ndarray:
     """(4, 2) footprint of a box (its x-y rectangle, the box assumed upright), grown by ``grow`` on every side."""
     T = np.asarray(box_to_world, np.float64)
     y = T[:2, 1] / max(np.linalg.norm(T[:2, 1]), 1e-12)
     return rectangle(T[:2, 3], y, float(size[1]) + 2 * grow, float(size[0]) + 2 * grow)
 
 
-def rectangles_overlap(a, b) -> np.ndarray:
+def rectangles_overlap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Whether convex quadrilaterals overlap (touching counts), by the separating axis theorem: ``a`` (..., 4, 2),
     ``b`` (..., 4, 2), broadcast; returns a bool array of the broadcast shape."""
     a, b = np.broadcast_arrays(np.asarray(a, np.float64), np.asarray(b, np.float64))
@@ -69,12 +75,12 @@ def rectangles_overlap(a, b) -> np.ndarray:
     return overlap
 
 
-def overlaps_any(rect, rects) -> bool:
+def overlaps_any(rect: np.ndarray, rects: np.ndarray) -> bool:
     """Whether the quadrilateral ``rect`` (4, 2) overlaps any of ``rects`` (K, 4, 2), K ≥ 0."""
     return len(rects) > 0 and bool(rectangles_overlap(rect, rects).any())
 
 
-def rectangles_overlap_reference(a, b) -> bool:
+def rectangles_overlap_reference(a: np.ndarray, b: np.ndarray) -> bool:
     """The plain version of ``rectangles_overlap`` for one pair: some corner of one inside the other, or two edges
     crossing (tests compare the two)."""
     a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
@@ -100,7 +106,7 @@ class Path:
     arc: np.ndarray
 
     @classmethod
-    def of(cls, centres, headings) -> "Path":
+    def of(cls, centres: np.ndarray, headings: np.ndarray) -> "Path":
         c = np.asarray(centres, np.float64)
         step = np.linalg.norm(np.diff(c[:, :2], axis=0), axis=1)
         return cls(c, np.asarray(headings, np.float64)[:, :2], np.concatenate([[0.0], np.cumsum(step)]))
@@ -109,7 +115,7 @@ class Path:
     def length(self) -> float:
         return float(self.arc[-1])
 
-    def at(self, s) -> tuple:
+    def at(self, s: np.ndarray | float) -> tuple:
         """(xy (..., 2), heading (..., 2)) at arc lengths ``s`` (...): interpolated along the path, continued in a
         straight line beyond its ends."""
         s = np.asarray(s, np.float64)
@@ -128,7 +134,7 @@ class Path:
         head /= np.maximum(np.linalg.norm(head, axis=-1, keepdims=True), 1e-12)
         return xy, head
 
-    def project(self, xy) -> tuple:
+    def project(self, xy: np.ndarray) -> tuple:
         """(arc length, offset left of the path), metres, of the world point ``xy`` (2,): the point of the path
         nearest it (the path continued straight beyond its ends, as ``at``) and how far to its left it lies."""
         p = np.asarray(xy, np.float64)[:2]
@@ -155,7 +161,7 @@ class Car:
     details: dict = field(default_factory=dict)
 
 
-def box_on_ground(road, xy, heading, size) -> np.ndarray | None:
+def box_on_ground(road: Road, xy: np.ndarray, heading: np.ndarray, size: np.ndarray) -> np.ndarray | None:
     """The rigid box_to_world (4, 4) of a box of ``size`` (width, length, height) standing on the road's plane at
     ``xy`` (2,), its +y along ``heading`` (2,) turned with the plane's normal (as *Snap to Ground* aligns an
     asset); None where no plane is known."""
@@ -174,7 +180,8 @@ def box_on_ground(road, xy, heading, size) -> np.ndarray | None:
     return T
 
 
-def drive(road, path: Path, size, lane_m: float, speed_mps: float, start_m: float, t_s, reach=None) -> tuple:
+def drive(road: Road, path: Path, size: np.ndarray, lane_m: float, speed_mps: float, start_m: float, t_s: np.ndarray,
+          reach: tuple[float, float] | None = None) -> tuple:
     """A car driving along ``path`` (the drive's ground track, ``variants.reference_path``): (arc lengths (F,),
     per time its rigid box_to_world (4, 4), or None where the road knows no ground there).
 
@@ -199,7 +206,8 @@ class Rules:
     """The obstacles of one variant: the ego path's swept rectangles, the base job's boxes per frame, and the
     cars placed so far. ``frames`` are the variant's output frames."""
 
-    def __init__(self, road, frames, ego_rects: dict, fixed_boxes: dict, gap_m: float, headway_frames: int = 0):
+    def __init__(self, road: Road, frames: Sequence[int], ego_rects: dict, fixed_boxes: dict, gap_m: float,
+                 headway_frames: int = 0) -> None:
         self.road, self.frames, self.gap = road, list(frames), float(gap_m)
         self.ego = np.stack([ego_rects[f] for f in self.frames])                       # (F, 4, 2)
         self.headway = int(headway_frames)

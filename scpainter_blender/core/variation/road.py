@@ -34,6 +34,11 @@ import numpy as np
 
 from ..geometry import fits
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from .placement import Path
+
 MIN_TILE_POINTS = 30
 MAX_TILE_SAMPLE = 3000          # points a tile's RANSAC sees at most (a fixed, seeded subsample)
 MIN_OCCUPIED_POINTS = 3
@@ -47,9 +52,9 @@ class Road:
 
     ValueError when no tile under the path holds a level plane (no road under the drive)."""
 
-    def __init__(self, points, path_centres, *, tile_m: float = 1.0, cell_m: float = 0.25, threshold_m: float = 0.05,
-                 max_tilt_deg: float = 15.0, step_m: float = 0.08, bend_deg: float = 2.0, min_object_m: float = 0.3,
-                 max_object_m: float = 2.5, reach_m: float = 60.0, seed: int = 0):
+    def __init__(self, points: np.ndarray, path_centres: np.ndarray, *, tile_m: float = 1.0, cell_m: float = 0.25,
+                 threshold_m: float = 0.05, max_tilt_deg: float = 15.0, step_m: float = 0.08, bend_deg: float = 2.0,
+                 min_object_m: float = 0.3, max_object_m: float = 2.5, reach_m: float = 60.0, seed: int = 0) -> None:
         C = np.asarray(path_centres, np.float64)
         self.origin = C[0].copy()
         self.tile_m, self.cell_m, self.step_m = float(tile_m), float(cell_m), float(step_m)
@@ -171,7 +176,7 @@ class Road:
 
     # -- queries -----------------------------------------------------------------------------------------------
 
-    def ground(self, xy) -> tuple:
+    def ground(self, xy: np.ndarray) -> tuple:
         """(z (...,), unit normal (..., 3)) of the ground plane under world points ``xy`` (..., 2); NaN where no
         tile plane is known."""
         ij, inside = self._world_tiles(xy)
@@ -179,7 +184,7 @@ class Road:
         normal = self.planes[ij[..., 0], ij[..., 1], :3]
         return np.where(inside, z + self.origin[2], np.nan), np.where(inside[..., None], normal, np.nan)
 
-    def is_road(self, xy) -> np.ndarray:
+    def is_road(self, xy: np.ndarray) -> np.ndarray:
         """Whether world points ``xy`` (..., 2) lie on road tiles."""
         ij, inside = self._world_tiles(xy)
         return inside & self.road[ij[..., 0], ij[..., 1]]
@@ -189,7 +194,8 @@ class Road:
         """The road's area: its tiles' (m²)."""
         return float(self.road.sum()) * self.tile_m ** 2
 
-    def edge_distance(self, xy, direction, max_m: float, step: float = SAMPLE_SPACING_M) -> float:
+    def edge_distance(self, xy: np.ndarray, direction: np.ndarray, max_m: float,
+                      step: float = SAMPLE_SPACING_M) -> float:
         """How far (metres, ≤ ``max_m``) the road reaches from world point ``xy`` (2,) along the unit horizontal
         ``direction`` (2,) before its first tile that is not road (the kerb, the road's end); 0 when ``xy`` itself
         is not on the road."""
@@ -198,7 +204,7 @@ class Road:
         off = np.flatnonzero(~on)
         return float(max_m if not len(off) else 0.0 if off[0] == 0 else d[off[0] - 1])
 
-    def road_arc(self, path, step: float = 0.5, beyond_m: float = 200.0, lane_m: float = 0.0) -> tuple:
+    def road_arc(self, path: Path, step: float = 0.5, beyond_m: float = 200.0, lane_m: float = 0.0) -> tuple:
         """(low, high) arc lengths along ``path`` (``placement.Path``, continued straight beyond its ends up to
         ``beyond_m``) over which the path's own line (or the line ``lane_m`` metres left of it) runs on the road:
         where cars can be drawn, where a car driving in that lane must stop. None when it never does."""
@@ -212,12 +218,12 @@ class Road:
         idx = np.flatnonzero(on)
         return float(s[idx[0]]), float(s[idx[-1]])
 
-    def known(self, xy) -> np.ndarray:
+    def known(self, xy: np.ndarray) -> np.ndarray:
         """Whether world points ``xy`` (..., 2) lie on tiles whose ground was seen (a plane was fitted)."""
         ij, inside = self._world_tiles(xy)
         return inside & np.isfinite(self.planes[ij[..., 0], ij[..., 1], 0])
 
-    def check_footprint(self, corners_xy, unseen_ok: bool = False) -> str | None:
+    def check_footprint(self, corners_xy: np.ndarray, unseen_ok: bool = False) -> str | None:
         """None when the footprint (4, 2) world corners (a rectangle, in order) may stand here, else the rule it
         breaks: ``"off_road"`` or ``"recorded_object"`` (module docstring). ``unseen_ok``: ground never seen (behind
         the first camera, under the recording car) is taken as road, for the camera path, which drives where the
@@ -239,7 +245,7 @@ class Road:
         return None
 
 
-def footprint_samples(corners_xy, spacing: float = SAMPLE_SPACING_M) -> np.ndarray:
+def footprint_samples(corners_xy: np.ndarray, spacing: float = SAMPLE_SPACING_M) -> np.ndarray:
     """(M, 2) points covering a rectangle given by its 4 corners in order: a lattice of at most ``spacing``
     inside it, edges and corners included."""
     C = np.asarray(corners_xy, np.float64)

@@ -27,6 +27,11 @@ from dataclasses import dataclass, replace
 
 from .. import errors, fields, files
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import argparse
+
 SCHEMA = "scpainter.variation/1"
 #: At most this many variants in one run, cars in one variant, placement tries per car.
 MAX_VARIANTS = 100_000
@@ -83,7 +88,7 @@ class VariationSpec:
     ego_margin_m: float = 0.5
     headway_s: float = 1.0
 
-    def with_overrides(self, **overrides) -> "VariationSpec":
+    def with_overrides(self, **overrides: object) -> "VariationSpec":
         """A copy with the command line's values (None: not given), checked as the file's are."""
         given = {k: v for k, v in overrides.items() if v is not None}
         bounds = {"variants": (1, MAX_VARIANTS), "seed": (0, 2 ** 63 - 1)}
@@ -158,7 +163,7 @@ def _read(kind, v, field, lo, hi, path):
     raise ValueError(f"unknown field kind {kind!r}")
 
 
-def from_dict(d, path) -> VariationSpec:
+def from_dict(d: dict, path: str | os.PathLike) -> VariationSpec:
     """A ``VariationSpec`` from a spec file's content (``FIELDS``); ``VariationError`` naming the field: an unknown
     one (a typo would otherwise fall back to a default unseen), a value of the wrong kind or out of bounds."""
     if not isinstance(d, dict):
@@ -208,13 +213,13 @@ def to_file(spec: VariationSpec) -> dict:
     return out
 
 
-def load(path) -> VariationSpec:
+def load(path: str | os.PathLike) -> VariationSpec:
     """Read and check a spec file (bounded JSON, ``core.files.read_json``)."""
     path = os.fspath(path)
     return from_dict(files.read_json(path, error=VariationError), path)
 
 
-def add_arguments(parser) -> None:
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The options of ``vary``, in both CLIs (``python -m backend vary``, ``blender -c scpainter vary``)."""
     parser.add_argument("--out", required=True, help="the folder to write the variants into")
     parser.add_argument("--spec", help=f"a variation spec ({SCHEMA} JSON; default: every default)")
@@ -224,7 +229,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--library", help="folder of car files to draw from (default: the spec's cars.library)")
 
 
-def from_arguments(args) -> VariationSpec:
+def from_arguments(args: argparse.Namespace) -> VariationSpec:
     """The spec file's settings (or the defaults) with the command line's ``--variants``, ``--seed`` and
     ``--library``, checked (``ArgumentError`` naming the option)."""
     spec = load(args.spec) if args.spec else VariationSpec()

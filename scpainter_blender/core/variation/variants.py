@@ -31,13 +31,19 @@ from .road import Road
 from . import spec as spec_mod
 from .spec import VariationError, VariationSpec
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+    from .library import LibraryAsset
+
 
 
 #: A road smaller than this (m²) is most likely a reconstruction not in metres: the run warns.
 MIN_ROAD_M2 = 100.0
 
 
-def scene_points(job: job_mod.Job, job_path) -> np.ndarray:
+def scene_points(job: job_mod.Job, job_path: str | os.PathLike) -> np.ndarray:
     """World points (N, 3) of a job's reconstruction as the renderer loads them (same reading of the file,
     confidence, depth edges, ``vggt_to_world``), minus the points inside its removal boxes. The job's optional
     outlier removal (open3d, backend only) is not applied: the road's RANSAC planes and its per-cell point counts
@@ -49,7 +55,7 @@ def scene_points(job: job_mod.Job, job_path) -> np.ndarray:
     return cloud.positions[keep]
 
 
-def ground_track(world_to_camera) -> tuple:
+def ground_track(world_to_camera: np.ndarray) -> tuple:
     """(centres (F, 3), unit horizontal directions of travel (F, 3)) of a camera path, world_to_camera (F, 4, 4):
     ``trajectory.heading_directions``, the cameras' forward axes where the path does not move."""
     centres = cameras.camera_centers(world_to_camera)
@@ -74,7 +80,7 @@ def _car(box_to_world: list, size, frames, moving: bool) -> placement.Car | None
                          {f: placement.box_footprint(T, size) for f, T in zip(frames, box_to_world)}, True)
 
 
-def smoothstep(x) -> np.ndarray:
+def smoothstep(x: np.ndarray | float) -> np.ndarray:
     x = np.clip(x, 0.0, 1.0)
     return x * x * (3.0 - 2.0 * x)
 
@@ -82,7 +88,8 @@ def smoothstep(x) -> np.ndarray:
 class Variation:
     """One run: the base job and what every variant shares (its road, its library, the obstacles of the base)."""
 
-    def __init__(self, base_path, spec: VariationSpec, out, convert_mesh=None, mesh_count: int = 200_000):
+    def __init__(self, base_path: str | os.PathLike, spec: VariationSpec, out: str | os.PathLike,
+                 convert_mesh: Callable[[str, str, int], object] | None = None, mesh_count: int = 200_000) -> None:
         self.base_path = os.path.abspath(base_path)
         self.base = job_mod.load(self.base_path)
         self.spec, self.layout = spec, VariationLayout(os.path.abspath(out))
@@ -136,7 +143,7 @@ class Variation:
 
     # -- one variant -------------------------------------------------------------------------------------------
 
-    def camera(self, rng) -> tuple:
+    def camera(self, rng: np.random.Generator) -> tuple:
         """(world_to_camera (F, 4, 4), details): the base path shifted, with a lane change when drawn."""
         s = self.spec
         shift = float(rng.uniform(*s.shift_range_m)) if s.shift_range_m else float(rng.choice(s.shifts_m))
@@ -152,7 +159,7 @@ class Variation:
         T = np.stack([f.world_to_camera for f in self.base.frames])
         return trajectory.shift_trajectory(T, left_m=left), details
 
-    def check_camera(self, world_to_camera) -> str | None:
+    def check_camera(self, world_to_camera: np.ndarray) -> str | None:
         """None when the new path may be driven, else the rule it breaks (``placement.CAMERA_RULES``): the ego's
         footprint (``ego_size_m``, no margin) at some frame off the road where the ground was seen
         (``camera_off_road``: a kerb, a sidewalk, a shift past the road's edge; ground never seen, behind the first
@@ -167,7 +174,7 @@ class Variation:
                 return "camera_off_road"
         return None
 
-    def ego_rects(self, world_to_camera, grow: float) -> dict:
+    def ego_rects(self, world_to_camera: np.ndarray, grow: float) -> dict:
         """{frame: (4, 2)}: the ego vehicle's footprint (``ego_size_m``) around each camera of a new path, grown by
         ``grow`` on every side."""
         centres, heads = ground_track(world_to_camera)
@@ -175,7 +182,7 @@ class Variation:
         return {f.frame: placement.rectangle(centres[i, :2], heads[i, :2], length + 2 * grow, w + 2 * grow)
                 for i, f in enumerate(self.base.frames)}
 
-    def draw_car(self, rng, asset, rules: placement.Rules) -> tuple:
+    def draw_car(self, rng: np.random.Generator, asset: LibraryAsset, rules: placement.Rules) -> tuple:
         """(placed ``placement.Car`` or None, details with the tries and the rejections by rule)."""
         s = self.spec
         scale = asset.scale * float(rng.uniform(1.0 - s.size_jitter, 1.0 + s.size_jitter))
@@ -303,8 +310,9 @@ class Variation:
         return roots
 
 
-def make_variants(base_path, spec: VariationSpec, out, convert_mesh=None, progress=None,
-                  mesh_count: int = 200_000) -> dict:
+def make_variants(base_path: str | os.PathLike, spec: VariationSpec, out: str | os.PathLike,
+                  convert_mesh: Callable[[str, str, int], object] | None = None,
+                  progress: Callable[[int, int], None] | None = None, mesh_count: int = 200_000) -> dict:
     """Write ``spec.variants`` variants of the job at ``base_path`` into ``out`` (``VariationLayout``): a job folder
     per placed variant, the ``batch`` list and the manifest, which it returns. ``convert_mesh(mesh, out_ply,
     count)`` turns a library mesh into Gaussians (None: meshes refused). ``progress(done, total)`` after each.
@@ -417,7 +425,7 @@ def warnings(manifest: dict) -> list:
     return out + [{"code": VARIATION_WARNING, "message": w} for w in manifest["warnings"]]
 
 
-def done_fields(manifest: dict, out) -> dict:
+def done_fields(manifest: dict, out: str | os.PathLike) -> dict:
     """What ``vary``'s done event carries (both CLIs): the folder, the base, the list, the manifest, the summary,
     what an earlier run left that was removed, the timings."""
     layout = VariationLayout(os.path.abspath(out))

@@ -15,17 +15,24 @@ import numpy as np
 
 from . import predictions as vggt
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import os
+    from collections.abc import Sequence
+
 
 class CropError(vggt.PredictionsError):
     """A crop that is not four pixel counts, or leaves nothing of the file's images. ``field`` is "crop" (the
     option, not a key of the file); the text reads "<file name>: crop ...: <what is wrong> (<path>)"."""
 
-    def __init__(self, path, message, hint=None):
+    def __init__(self, path: str | os.PathLike, message: str, hint: str | None = None) -> None:
         vggt.PredictionsError.__init__(self, path, None, message, hint)
         self.field = "crop"
 
 
-def parse_crop(value, path="<crop option>"):
+def parse_crop(value: str | Sequence[int] | None, path: str | os.PathLike = "<crop option>") -> str | tuple[int, int,
+               int, int]:
     """The crop option: ``"auto"``, ``"none"`` (also None, ``""``) or four pixel counts ``left top right
     bottom`` (a sequence, or a string of four integers separated by spaces or commas). Returns "auto", "none" or
     a tuple of 4 ints >= 0; CropError (naming ``path``, the file it is for) saying what is accepted."""
@@ -50,7 +57,7 @@ def parse_crop(value, path="<crop option>"):
     return px
 
 
-def white_borders(images) -> tuple:
+def white_borders(images: np.ndarray) -> tuple:
     """(left, top, right, bottom): how many border columns/rows are exactly white (1.0 in every channel) in every
     pixel of every frame, symmetric or not. ``images`` (S, H, W, 3)."""
     images = np.asarray(images)
@@ -65,7 +72,7 @@ def white_borders(images) -> tuple:
     return lead(cols), lead(rows), lead(cols[::-1]), lead(rows[::-1])
 
 
-def detect_padding(images) -> tuple:
+def detect_padding(images: np.ndarray) -> tuple:
     """(left, top, right, bottom) of the white borders VGGT's "pad" preprocessing adds, or zeros.
 
     ``load_and_preprocess_images(mode="pad")`` pads the shorter side with pure white (1.0) to a square, half on
@@ -87,7 +94,8 @@ def detect_padding(images) -> tuple:
     return (left, top, right, bottom)
 
 
-def apply_crop(crop, per_pixel: dict, intrinsic, report, path) -> dict:
+def apply_crop(crop: str | tuple[int, int, int, int], per_pixel: dict, intrinsic: np.ndarray, report: vggt.LoadReport,
+               path: str | os.PathLike) -> dict:
     """Cut ``crop`` from every per-pixel array and move the principal point with it.
 
     ``crop``: "auto", "none" or (left, top, right, bottom) as parse_crop returns it; ``per_pixel``: key -> array

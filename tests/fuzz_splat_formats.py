@@ -47,7 +47,7 @@ class Bases:
 
     def __init__(self, base, folder):
         import sog_fixtures as SOG
-        import splat_fixtures as SF
+        from tests.core.splats import splat_fixtures as SF
         from scpainter_blender.core.splats import ksplat, reader as splats_io
 
         assert (ksplat.MAIN_HEADER, ksplat.SECTION_HEADER) == (MAIN, SECTION)
@@ -467,7 +467,7 @@ def _glb_structure(rng, fmt):
 
     def apply(c):
         import fuzz_inputs as FI
-        import splat_fixtures as SF
+        from tests.core.splats import splat_fixtures as SF
 
         js, binary = glb_split(c.s.splat2.files[fmt])
         node = js
@@ -527,7 +527,7 @@ def _glb_values(rng, fmt):
                       "all rotations zero", "SH NaN"])
 
     def apply(c):
-        import splat_fixtures as SF
+        from tests.core.splats import splat_fixtures as SF
 
         js, binary = glb_split(c.s.splat2.files[fmt])
         binary = bytearray(binary)

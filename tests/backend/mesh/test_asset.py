@@ -1,7 +1,7 @@
 """Mesh assets (``backend.mesh.asset``, ``python -m backend mesh-asset``): flat Gaussians on the surface (normals,
 σ, seeds, degenerate faces), the TRELLIS GLB/PLY pose, the command, and real TRELLIS files. Loading, colours, the box
-and the silhouette have their own test files (test_mesh_load, test_mesh_colors, test_mesh_box,
-test_mesh_silhouette)."""
+and the silhouette have their own test files (test_load, test_colors, test_box,
+test_silhouette)."""
 
 import os
 
@@ -277,7 +277,7 @@ def test_real_mesh_ply_without_colours(tmp_path):
     assert r["obb"]["size"][2] == pytest.approx(1.0, abs=0.01) and r["obb"]["size"][0] >= r["obb"]["size"][1]
 
 
-# -- hostile files through the command (issue 30; the readers' side: test_mesh_checks.py) --------------------------
+# -- hostile files through the command (issue 30; the readers' side: test_checks.py) --------------------------
 
 def test_command_refuses_hostile_files_with_exit_2_and_no_traceback(tmp_path):
     from PIL import Image

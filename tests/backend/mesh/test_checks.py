@@ -6,7 +6,7 @@ or a ``map_Kd`` without a file, a missing buffer never replaced by another file 
 while it reads (never printed as a traceback); then (second round) a car too large for float32 or too small for
 any unit, the textures' total pixels, one decode per texture, backslashes and MTL options in texture names, a
 texture that fails to decode, exact pixel counts, numpy's warnings from trimesh. The command-level halves (exit codes, events, a killed run's
-temporary) are in test_mesh_asset.py."""
+temporary) are in test_asset.py."""
 
 import json
 import logging

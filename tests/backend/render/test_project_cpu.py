@@ -3,7 +3,7 @@
 The numba projection (``project_cpu``) against ``gaussians.project_factors_torch``: the same rows and radii, the
 same values to float64 rounding. The counting sort (``tiles_cpu``) against ``tiles.bin_tiles``: identical tile
 lists. The compositing kernel fed by either list: identical layers. (The whole path against the dense float64
-render: test_render_reference.py.)
+render: test_gaussians.py.)
 """
 
 import numpy as np

@@ -2,7 +2,7 @@
 depth and the instance (one, three and five assets, with and without points in front) against the torch reference.
 
 Runs wherever Triton is importable (CUDA machines ship it with torch; the CPU venv does not, so CI skips this
-and the gpu-marked tests in test_render_reference run the compiled kernel on a GPU). A subprocess, because the
+and the gpu-marked tests in test_gaussians run the compiled kernel on a GPU). A subprocess, because the
 interpreter is chosen when Triton is first imported.
 """
 

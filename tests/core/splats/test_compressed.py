@@ -1,4 +1,4 @@
-"""core.splats.compressed: SuperSplat compressed PLY against an independent encoder (tests/core/splat_fixtures.py)
+"""core.splats.compressed: SuperSplat compressed PLY against an independent encoder (tests/core/splats/splat_fixtures.py)
 and SuperSplat's own export, and antimatter15 .splat (byte conventions, round trip, sizes)."""
 
 import time

@@ -1,6 +1,6 @@
 """core.splats.gaussians: the values: decoding raw file values (activations, bad rows dropped and counted), encoding them
-back, and the SH colour (basis orthonormal, sh_to_rgb). Files: test_splats_io (read/load, dispatch, fuzz),
-test_ply_format, test_splats_inria, test_splats_compressed, test_trellis."""
+back, and the SH colour (basis orthonormal, sh_to_rgb). Files: test_reader (read/load, dispatch, fuzz),
+test_ply_format, test_inria, test_compressed, test_trellis."""
 
 import numpy as np
 import pytest

@@ -1,6 +1,6 @@
 """core.splats.sh: the one SH basis (core.splats.gaussians and the condition renderer evaluate it), checked against the definition:
 orthonormal real harmonics in the 3DGS order and signs. The renderer's torch evaluation is compared with
-core.splats.gaussians in tests/backend/render/test_render_reference.py."""
+core.splats.gaussians in tests/backend/render/test_gaussians.py."""
 
 import math
 

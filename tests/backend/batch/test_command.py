@@ -13,7 +13,7 @@ from backend.batch import command as batch
 from scpainter_blender.core import job as J
 from scpainter_blender.core import shapes
 
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
 
 
 def test_shard_covers_every_item_once():

@@ -18,7 +18,7 @@ from scpainter_blender.core import locking
 from tests_support import run_backend, small_job, variant_jobs
 
 ray = pytest.importorskip("ray")
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
 
 
 def events_of(text):

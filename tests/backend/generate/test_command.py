@@ -16,7 +16,7 @@ from backend.generate.video import read_mp4
 from scpainter_blender.core import job as J
 from tests_support import run_backend, street_with_car
 
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
 
 
 backend = run_backend

@@ -15,7 +15,7 @@ from backend.render import channels
 from scpainter_blender.core import files
 from tests_support import run_backend, small_job
 
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
 
 
 def _frames(out, frames):

@@ -335,7 +335,7 @@ def _held_run(mesh, out):
     import subprocess
     import sys
 
-    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
     r, w = os.pipe()
     proc = subprocess.Popen([sys.executable, "-c", _HOLD_BEFORE_RENAME, str(out), str(mesh), "--out", str(out),
                              "--count", "2000"], cwd=root, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL,

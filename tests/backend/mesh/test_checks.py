@@ -403,7 +403,7 @@ def test_a_texture_is_decoded_once_without_copies(tmp_path):
 
     side = 4096
     path = _obj_with_textures(tmp_path / "o", [(side, side)], mode="RGB")
-    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
     out = subprocess.run([sys.executable, "-c", _PEAK_SCRIPT, str(path), str(tmp_path / "o.ply")], cwd=root,
                          capture_output=True, text=True, check=True)
     grown = int(out.stdout.split()[-1])

@@ -21,7 +21,7 @@ print("gsplat ok", float(a.max()))
 PY
 echo "gsplat build+first call: $(( $(date +%s) - t )) s" >> "$OUT/gsplat_build.log" ) &
 build=$!
-python3 -m pytest -q --noconftest -p no:cacheprovider tests/backend/render/test_render_reference.py -k cuda 2>&1 \
+python3 -m pytest -q --noconftest -p no:cacheprovider tests/backend/render/test_gaussians.py -k cuda 2>&1 \
   | tail -15 | tee "$OUT/gpu_tests.log"
 wait $build; tail -3 "$OUT/gsplat_build.log"
 python3 bench/render.py --devices cuda --sections speed accuracy 2>&1 | tee "$OUT/bench_cuda.log"

@@ -2,7 +2,7 @@
 ``tests/fuzz_inputs.py``'s harness): the job's asset (the base's 20 Gaussians, SH degree 1) written, without Node,
 as Niantic SPZ version 2 and 3 (gzip), GaussianSplats3D ``.ksplat`` at compression levels 0, 1 and 2, a PlayCanvas
 SOG bundle (lossless WebP from OpenCV; ``tests/sog_fixtures.py``'s hand-made texels, 20 Gaussians) and a glTF
-``KHR_gaussian_splatting`` GLB (writers: ``tests/core/splat_fixtures.py``, ``tests/sog_fixtures.py``), each changed
+``KHR_gaussian_splatting`` GLB (writers: ``tests/core/splats/splat_fixtures.py``, ``tests/sog_fixtures.py``), each changed
 one way and rendered (``render job.json --device cpu``):
 
 * truncation at seeded points (of the file, and inside SPZ's gzip stream);
@@ -47,7 +47,7 @@ class Bases:
 
     def __init__(self, base, folder):
         import sog_fixtures as SOG
-        import splat_fixtures as SF
+        from tests.core.splats import splat_fixtures as SF
         from scpainter_blender.core.splats import ksplat, reader as splats_io
 
         assert (ksplat.MAIN_HEADER, ksplat.SECTION_HEADER) == (MAIN, SECTION)
@@ -467,7 +467,7 @@ def _glb_structure(rng, fmt):
 
     def apply(c):
         import fuzz_inputs as FI
-        import splat_fixtures as SF
+        from tests.core.splats import splat_fixtures as SF
 
         js, binary = glb_split(c.s.splat2.files[fmt])
         node = js
@@ -527,7 +527,7 @@ def _glb_values(rng, fmt):
                       "all rotations zero", "SH NaN"])
 
     def apply(c):
-        import splat_fixtures as SF
+        from tests.core.splats import splat_fixtures as SF
 
         js, binary = glb_split(c.s.splat2.files[fmt])
         binary = bytearray(binary)

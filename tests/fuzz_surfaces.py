@@ -65,7 +65,7 @@ from dataclasses import dataclass
 import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-for _p in (os.path.dirname(HERE), HERE, os.path.join(HERE, "backend"), os.path.join(HERE, "core")):
+for _p in (os.path.dirname(HERE), HERE):  # the fixtures of tests/core, tests/backend: as tests.core.splats...
     if _p not in sys.path:
         sys.path.insert(0, _p)
 
@@ -120,8 +120,8 @@ class Surfaces:
         import trimesh
         from PIL import Image
 
-        import mesh_fixtures as MF
-        import splat_fixtures as SF
+        from tests.backend.mesh import mesh_fixtures as MF
+        from tests.core.splats import splat_fixtures as SF
         from scpainter_blender.core.splats import compressed, reader as splats_io
 
         self.base = base
@@ -252,7 +252,7 @@ def _glb_split(data: bytes):
 
 def _glb_join(js: dict, binary: bytes) -> bytes:
     """A GLB of a glTF JSON dict and its BIN chunk (``splat_fixtures.glb``, the tests' one GLB writer)."""
-    import splat_fixtures as SF
+    from tests.core.splats import splat_fixtures as SF
 
     return SF.glb(js, binary)
 

@@ -19,7 +19,7 @@ Frames and units
   writes its Gaussians as ``xyz @ T.T`` with the same matrix T, i.e. (x, -z, y)
   (``core.splats.trellis.ZUP_TO_TRELLIS_FILE``),
   which the Gaussian import undoes with ``F = ZUP_TO_TRELLIS_FILE.T``. The two files of one TRELLIS asset
-  therefore land in the same pose (``tests/backend/test_mesh_asset.py`` builds both and checks it).
+  therefore land in the same pose (``tests/backend/mesh/test_asset.py`` builds both and checks it).
 
 Hostile files (issue 30; the bounds and the checks before trimesh are ``backend.mesh.checks``): only regular files
 are opened, the mesh and every file it names (glTF buffers and images, OBJ materials and textures, a PLY's

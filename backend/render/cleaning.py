@@ -13,7 +13,7 @@ the measured defaults):
 - ``radius`` (``PointCloud.remove_radius_outlier(nb_points=min_points, radius=radius_m)``): drop i when fewer
   than ``min_points`` other points lie within ``radius_m`` metres (open3d 0.19 does not count i itself).
 
-Both rules as stated are checked against a brute-force numpy version in tests/backend/render/test_point_cleaning.py,
+Both rules as stated are checked against a brute-force numpy version in tests/backend/render/test_cleaning.py,
 so an open3d that changes them fails there.
 
 open3d is imported here only, and only when a rule is on (docs/design.md §2: nothing outside the backend imports

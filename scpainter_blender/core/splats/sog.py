@@ -35,7 +35,7 @@ source file's). Per Gaussian, with bytes r, g, b, a of its texel:
 Codebooks are read as float32 (as the readers do). Lossy quantisation, by what the writer keeps: positions to 16 bits
 of the log-transformed range, scales and colours to 256 shared values, opacity to 8 bits, rotations to 8 bits per
 component, higher SH to a palette of P entries (k-means) of 256 values: the bounds measured against the source PLYs
-are in tests/core/test_splats_sog.py.
+are in tests/core/splats/test_sog.py.
 
 Images are decoded by an injected ``decode_webp(data, name) -> (H, W, 4) uint8 RGBA`` (``core.splats.webp``: the
 backend's, set on import); everything else is here. ``meta.json`` is read within ``MAX_META_BYTES`` and checked

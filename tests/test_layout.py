@@ -138,6 +138,10 @@ CROSS_CUTTING = {
     "tests/test_packaging.py": "the project installs as a package (pyproject.toml, `scpainter-backend`); the zip "
                                "leaves the packaging out",
     "tests/test_layout.py": "this file: the tests mirror the code",
+    "tests/test_docs.py": "the documents' lists (design §2's module table, both programs' commands, the README's "
+                          "format table) against the code",
+    "tests/test_annotations.py": "the share of fully annotated public functions of core/ and backend/",
+    "tests/test_bench_fuzz_case_cost.py": "bench/fuzz_case_cost.py keeps running (a benchmark's smoke test)",
     "tests/street/test_street.py": "the ground-truth street end to end: build, render, predictions, dataset cache",
     "tests/backend/test_fuzz_inputs.py": "hostile input files of every kind through every command "
                                          "(tests/fuzz_inputs.py, tests/fuzz_surfaces.py)",

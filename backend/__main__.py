@@ -17,12 +17,13 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from typing import NoReturn
 
 from . import events
 
 
 class _Parser(argparse.ArgumentParser):
-    def error(self, message):
+    def error(self, message: str) -> NoReturn:
         """argparse's usage and message on standard error, as always, and the error event a pipeline reads on
         standard output (file "(command line)", field the argument: ``ArgumentError.from_argparse``); exit 2."""
         from scpainter_blender.core.errors import ArgumentError
@@ -64,7 +65,8 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def main(argv=None) -> int:
+def main(argv: list[str] | None = None) -> int:
+    """``python -m backend <argv>`` (default: this process's arguments); the exit code (module docstring)."""
     argv = sys.argv[1:] if argv is None else list(argv)
     # doctor first imports nothing but the standard library: it reports what this Python lacks instead of failing
     # on it; every other command needs numpy to parse its arguments, and says what to install when it is missing

@@ -41,16 +41,19 @@ def test_every_module_with_a_name_is_registered_in_order_and_the_help_lists_them
 
 
 def test_the_commands_of_the_old_parser_keep_their_order():
-    """The order --help listed before the commands had modules (docs/design.md §4.4)."""
-    assert list(_sub_parsers(build_parser())) == [
-        "doctor", "render", "generate", "export", "batch", "init-checkpoint", "train", "evaluate", "mesh-asset",
-        "splat-asset", "serve", "vary", "contact-sheet"]
+    """The commands and order --help listed before the commands had modules; a command added later may sit
+    anywhere among them (this list is not a registry to extend)."""
+    old = ["doctor", "render", "generate", "export", "batch", "init-checkpoint", "train", "evaluate", "mesh-asset",
+           "splat-asset", "serve", "vary", "contact-sheet"]
+    assert [name for name in _sub_parsers(build_parser()) if name in old] == old
 
 
 def test_a_module_without_a_name_is_not_a_command_and_a_new_module_is_one(tmp_path, monkeypatch):
     """Adding a command is adding its module: a module with NAME in the package joins the parser at its ORDER; one
     without (``options.py``) does not."""
     assert not hasattr(importlib.import_module("backend.commands.options"), "NAME")
+    before = list(_sub_parsers(build_parser()))
+    assert before[:3] == ["doctor", "render", "generate"]
     (tmp_path / "zz_added.py").write_text(
         "import argparse\nNAME = 'added'\nORDER = 25\n"
         "def add_parser(sub):\n    p = sub.add_parser(NAME, help='a new command')\n"
@@ -63,8 +66,7 @@ def test_a_module_without_a_name_is_not_a_command_and_a_new_module_is_one(tmp_pa
     finally:
         sys.modules.pop("backend.commands.zz_added", None)
         sys.modules.pop("backend.commands.zz_helper", None)
-    assert names[:4] == ["doctor", "render", "added", "generate"] and "zz_helper" not in names
-    assert len(names) == 14
+    assert names == before[:2] + ["added"] + before[2:]  # ORDER 25: after render (20), before generate (30)
 
 
 def test_served_commands_are_commands():

@@ -279,7 +279,8 @@ class Invocation:
     """One ``python -m backend`` command: ``command`` (render, generate, export, batch, doctor), its positional ``jobs``
     (job.json paths) and the options below (None / False: the backend's default), run by ``python`` (the
     ``backend_python`` rule: "" for the running interpreter when it has torch). Which command takes which option
-    is the backend's parser's to say (``backend/__main__.py``); a test parses ``argv()`` with it.
+    is the backend's parser's to say (``backend/commands/``, one module per command; ``build_parser`` in
+    ``backend/__main__.py``); a test parses ``argv()`` with it.
 
     ``device``: one of ``core.backend_protocol.DEVICE_NAMES``. ``checkpoint``: overrides the job's (generate,
     batch) or the folder to check (doctor). ``allow_outside``: the job's paths may lead anywhere; ``data_roots``:

@@ -89,7 +89,7 @@ class EvalSettings(ViewSettings):
 
     @classmethod
     def from_args(cls, a: argparse.Namespace) -> EvalSettings:
-        """From ``python -m backend evaluate``'s arguments (backend/__main__.py): only the options given (their
+        """From ``python -m backend evaluate``'s arguments (backend/commands/evaluate.py): only the options given (their
         argparse default is None), the rest from this class and ``ViewSettings``, so a default is written once.
         Each value is checked: ``ArgumentError`` names the option. The bounds are the job's (``core.job``) plus
         what the metrics need: SSIM's 11 × 11 window fits the frames, and FID/KID get at least 2 frames per set."""

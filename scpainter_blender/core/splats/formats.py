@@ -2,7 +2,9 @@
 reader and needs are written. Everything that lists formats is made from it: ``FORMAT_NAMES`` and ``ACCEPTED``
 (here, re-exported by ``core.splats.gaussians``), ``core.splats.reader``'s ``READERS``, ``FORMAT_EXTENSIONS``,
 ``SPLAT_EXTENSIONS`` / ``ASSET_EXTENSIONS`` and the extensions ``_not_accepted`` names, the import's choice of the
-backend (``scene.gaussians.is_backend_splat_file``: ``needs_backend``) and the lists of formats in help texts.
+backend (``scene.gaussians.is_backend_splat_file``: ``needs_backend``) and the import's tooltip
+(``operators/import_gaussians.py``). Prose elsewhere refers here, or a test checks it against these records
+(tests/core/test_splats_formats.py, tests/test_docs.py).
 
 Adding a format: its reader module, its record here (in the order the file browser lists extensions), its branch
 in ``reader.detect`` (content sniffing stays code) and its tests.
@@ -78,8 +80,3 @@ def _accepted_text() -> str:
 
 #: What the readers accept, for messages.
 ACCEPTED = _accepted_text()
-
-
-def backend_keys() -> tuple:
-    """The keys of the formats the import has the backend rewrite (``needs_backend``)."""
-    return tuple(f.key for f in FORMATS if f.needs_backend)

@@ -1,11 +1,11 @@
-"""``python -m backend splat-asset FILE --out PLY``: any Gaussian file the readers accept (``core.splats.reader``:
-INRIA/TRELLIS PLY, SuperSplat compressed PLY, ``.splat``, SOG, ...) rewritten as an INRIA-layout PLY
+"""``python -m backend splat-asset FILE --out PLY``: any Gaussian file the readers accept (the formats of
+``core.splats.formats``, read by ``core.splats.reader``) rewritten as an INRIA-layout PLY
 (``core.splats.inria.write_ply``, atomically), the values as read, rows unchanged (invalid ones included: the
 import and the renderer count and drop them as for any file).
 
-What Blender's import runs for formats whose decoding needs what Blender's Python lacks (SOG's WebP images: the
-backend's decoder, ``backend/webp.py``), as it runs ``mesh-asset`` for meshes. A mesh is refused with the message
-that points at ``mesh-asset``. No bpy, no torch.
+What Blender's import runs for formats whose decoding needs what Blender's Python lacks (their records'
+``needs_backend``: SOG's WebP images, the backend's decoder ``backend/webp.py``), as it runs ``mesh-asset`` for
+meshes. A mesh is refused with the message that points at ``mesh-asset``. No bpy, no torch.
 """
 
 from __future__ import annotations

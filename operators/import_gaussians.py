@@ -5,6 +5,7 @@ from __future__ import annotations
 import bpy
 from bpy_extras.io_utils import ImportHelper
 
+from ..scpainter_blender.core.splats import formats
 from ..scpainter_blender.scene import gaussians, kinds, preferences
 from . import reports, selection
 
@@ -12,12 +13,18 @@ AXES_ITEMS = [("TRELLIS", "TRELLIS / Amodal3R", "Undo their (x, -z, y) file axes
               ("NONE", "As Stored", "Use the file's axes as Z-up")]
 
 
+#: The import's tooltip: the Gaussian formats named from their records (core/splats/formats.py).
+DESCRIPTION = ("Import a car asset at the 3D cursor: Gaussian splats ("
+               + "; ".join(f.name + (", converted by the backend" if f.needs_backend else "") for f in formats.FORMATS)
+               + ") or a mesh (GLB, glTF, OBJ, STL, mesh PLY; turned into surface Gaussians by the backend)")
+
+
 class SCPAINTER_OT_import_gaussians(bpy.types.Operator, ImportHelper):
-    """Import a car asset at the 3D cursor: Gaussian splats (INRIA / TRELLIS / Amodal3R PLY, SuperSplat compressed
-    PLY, .splat, SOG: .sog or meta.json, converted by the backend) or a mesh (GLB, glTF, OBJ, STL, mesh PLY; turned into surface Gaussians by the backend)"""
+    """Import a car asset at the 3D cursor (the tooltip, ``DESCRIPTION``, names the formats)"""
 
     bl_idname = "scpainter.import_gaussians"
     bl_label = "Import Car Asset"
+    bl_description = DESCRIPTION
     bl_options = {"REGISTER", "UNDO", "PRESET"}
 
     filename_ext = ".ply"

@@ -306,3 +306,16 @@ def test_export_formats_are_the_protocols(doc):
     for listed in lists:
         assert listed == list(EXPORT_FORMAT_NAMES), f"{doc}: export --format lists {listed}, the code " \
                                                     f"{list(EXPORT_FORMAT_NAMES)} (core/backend_protocol.py)"
+
+
+def test_design_names_every_gaussian_layout():
+    """design.md §8's list of ``GaussianPly.format`` values is ``FORMAT_NAMES`` (the layouts of core/splats/formats.py's
+    records), none missing, none stale."""
+    from scpainter_blender.core.splats import formats
+
+    text = _section(_read("docs/design.md"), "## 8. Gaussian assets", "\n## 9.")
+    claim = re.search(r"with `format` = .*?((?:`\w+`\s*/\s*)+`\w+`)\)", text, re.S)
+    assert claim, "docs/design.md §8: the list of `format` values (`with `format` = `a` / `b`)`) was not found"
+    listed = re.findall(r"`(\w+)`", claim.group(1))
+    assert set(listed) == set(formats.FORMAT_NAMES) and len(listed) == len(set(listed)), \
+        f"docs/design.md §8 lists the layouts {listed}; core/splats/formats.py has {sorted(formats.FORMAT_NAMES)}"

@@ -134,8 +134,8 @@ def _splats_error(path, what) -> MeshAssetError:
 
 
 def _check_not_splats(path, ext) -> None:
-    """Refuse a Gaussian-splat file that is no PLY (SPZ, SOG, .splat, .ksplat, a ``KHR_gaussian_splatting`` glTF)
-    by content (``reader.detect``), with what to do (``SPLATS_HINT``); a PLY is ``_check_ply``'s."""
+    """Refuse a Gaussian-splat file that is no PLY (any other format of ``core.splats.formats``) by content
+    (``reader.detect``), with what to do (``SPLATS_HINT``); a PLY is ``_check_ply``'s."""
     from scpainter_blender.core.splats import reader
 
     if ext == ".ply" or reader.is_mesh(path):

@@ -30,7 +30,7 @@ import numpy as np
 from .. import backend_client
 from ..core.geometry import cameras
 from ..core import job as job_mod, outputs
-from ..core.splats import asset_frame, gaussians as splats, reader as splats_io, sog, trellis
+from ..core.splats import asset_frame, formats, gaussians as splats, reader as splats_io, sog, trellis
 from ..core.output_layout import SceneFolder
 from . import asset_box, kinds, materials, node_groups, props
 from .points import linear_rgba
@@ -94,7 +94,7 @@ class GaussianImport:
     axes_reason: str = ""
     format: str = "inria"
     mesh: dict | None = None          # the backend's mesh-asset result when the source was a mesh
-    converted: dict | None = None     # the backend's splat-asset result when the source was a SOG
+    converted: dict | None = None     # the backend's splat-asset result when the source needed the backend (SOG)
     timings: dict = field(default_factory=dict)
     warnings: list = field(default_factory=list)
 
@@ -110,7 +110,8 @@ class GaussianImport:
 
 
 #: Car meshes are converted to Gaussians by the backend (trimesh); a .ply is a mesh when it has faces and no
-#: Gaussian properties (decided by its header). SOG also goes through the backend (its WebP images).
+#: Gaussian properties (decided by its header). Formats that need the backend go through it too
+#: (``is_backend_splat_file``).
 ASSET_EXTENSIONS = splats_io.ASSET_EXTENSIONS
 #: The file browser's filter: the extensions, and an unbundled SOG's ``meta.json``.
 FILE_FILTER = ";".join([f"*{e}" for e in ASSET_EXTENSIONS] + [sog.META_NAME])
@@ -126,11 +127,11 @@ def is_mesh_file(filepath: str) -> bool:
 
 
 def is_backend_splat_file(filepath: str) -> bool:
-    """A Gaussian file whose decoding needs the backend's Python: SOG (a zip bundle, ``*.sog``, ``meta.json``), whose
-    images are WebP, which Blender's Python cannot decode (``core.splats.sog``). Decided by content
+    """A Gaussian file whose decoding needs the backend's Python: its format's record says ``needs_backend``
+    (``core.splats.formats``; SOG, whose images are WebP, which Blender's Python cannot decode). Decided by content
     (``reader.detect``); a file it cannot tell is not one (the import's own read then says why)."""
     try:
-        return splats_io.detect(filepath) == "sog"
+        return formats.BY_KEY[splats_io.detect(filepath)].needs_backend
     except splats.SplatsError:
         return False
 
@@ -145,13 +146,13 @@ def import_gaussians(context, filepath: str, axes: str = "AUTO", target_length: 
     """Import a car asset as an object at the 3D cursor; ``target_length`` metres along its longest horizontal
     axis (None: 4.5 m for a TRELLIS/Amodal3R file or a mesh inside their unit cube; file units otherwise).
 
-    Gaussian files (INRIA / TRELLIS PLY, SuperSplat compressed PLY, .splat, .spz, .ksplat, glTF/GLB with
-    KHR_gaussian_splatting: ``core.splats.reader``) are read here; meshes (GLB, glTF, OBJ,
-    STL, OFF, mesh PLY) are first turned into surface Gaussians by ``python -m backend mesh-asset`` (trimesh, in
-    the backend's Python) with ``mesh_count`` Gaussians, written to ``gaussians_path`` (default
-    ``mesh_gaussians_path``) and imported from there; SOG (``.sog`` or its ``meta.json``) is rewritten as an INRIA
-    PLY by ``python -m backend splat-asset`` (its WebP images need the backend's decoder), to ``gaussians_path``
-    (default ``splat_gaussians_path``). Raises SplatsError (an InputError) / BackendError (exit code 2: the file is
+    Gaussian files (the formats of ``core.splats.formats``, read by ``core.splats.reader``) are read here; meshes
+    (GLB, glTF, OBJ, STL, OFF, mesh PLY) are first turned into surface Gaussians by ``python -m backend mesh-asset``
+    (trimesh, in the backend's Python) with ``mesh_count`` Gaussians, written to ``gaussians_path`` (default
+    ``mesh_gaussians_path``) and imported from there; a format whose record says ``needs_backend``
+    (``is_backend_splat_file``: SOG, ``.sog`` or its ``meta.json``, whose WebP images need the backend's decoder)
+    is rewritten as an INRIA PLY by ``python -m backend splat-asset``, to ``gaussians_path`` (default
+    ``splat_gaussians_path``). Raises SplatsError (an InputError) / BackendError (exit code 2: the file is
     bad input); nothing is created unless the import succeeds.
     """
     t0 = time.perf_counter()
@@ -274,9 +275,9 @@ def mesh_gaussians_path(scene, mesh_path: str, count: int) -> str:
 
 
 def splat_gaussians_path(scene, splat_path: str) -> str:
-    """Where a SOG's INRIA PLY is written (``splat-asset``): the assets folder of ``mesh_gaussians_path``, named
-    ``<name>.<hash>.gaussians.ply`` with the hash of ``asset_frame.file_key``; an unbundled SOG is named by its
-    folder (``scene-meta.json.<hash>.gaussians.ply``)."""
+    """Where the INRIA PLY of a file the backend rewrites (``splat-asset``: a SOG) is written: the assets folder of
+    ``mesh_gaussians_path``, named ``<name>.<hash>.gaussians.ply`` with the hash of ``asset_frame.file_key``; an
+    unbundled SOG is named by its folder (``scene-meta.json.<hash>.gaussians.ply``)."""
     base = os.path.basename(splat_path)
     if base.lower() == sog.META_NAME:
         base = f"{os.path.basename(os.path.dirname(os.path.abspath(splat_path)))}-{base}"

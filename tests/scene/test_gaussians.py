@@ -328,3 +328,13 @@ def test_what_the_backend_read_past_in_a_mesh_is_in_the_import_report(tmp_path, 
     r = gaussians.import_gaussians(bpy.context, str(tmp_path / "model.gltf"), mesh_count=500)
     assert len(r.object.data.vertices) == 500
     assert r.warnings == [w["message"] for w in r.mesh["warnings"]] and "specular-glossiness" in r.warnings[0]
+
+
+def test_the_import_tooltip_names_every_format(empty_scene):
+    """The import's tooltip names the Gaussian formats from their records (core/splats/formats.py), those the
+    backend converts saying so."""
+    from scpainter_blender.core.splats import formats
+
+    tip = bpy.ops.scpainter.import_gaussians.get_rna_type().description
+    for f in formats.FORMATS:
+        assert f.name + (", converted by the backend" if f.needs_backend else "") in tip, (f.key, tip)

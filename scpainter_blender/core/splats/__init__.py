@@ -1,1 +1,1 @@
-"""Gaussian splat files and values: INRIA PLY, SuperSplat compressed PLY, .splat, TRELLIS, SH."""
+"""Gaussian splat files and values: one record per file format (``formats``), their readers, TRELLIS, SH."""

@@ -15,6 +15,8 @@ quaternions or scales that overflow are dropped on decoding and counted, never p
 
 The files (``GaussianPly.format`` says which layout a file had, ``FORMAT_NAMES`` its human name):
 
+* ``core.splats.formats``: one record per file format (key, names, extensions, reader), whence ``FORMAT_NAMES``
+  and ``ACCEPTED``;
 * ``core.splats.reader``: ``read(path)`` for any accepted file (by content, or ``.splat`` by extension),
   ``load(path) = decode(read(path))``, ``read_ply``, and telling mesh files from Gaussian ones (``is_mesh``);
 * ``core.splats.ply_format``: the PLY container (header, elements, property types) every PLY reader here uses;
@@ -35,22 +37,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .. import errors, files
-from . import sh as _sh
+from . import formats as _formats, sh as _sh
 
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from typing import BinaryIO
 
-#: Human names of ``GaussianPly.format`` values, for import reports.
-FORMAT_NAMES = {"inria": "INRIA 3DGS PLY", "inria_half": "INRIA 3DGS PLY, half floats",
-                "supersplat_compressed": "SuperSplat compressed PLY", "splat": "antimatter15 .splat",
-                "spz": "Niantic SPZ", "ksplat": "GaussianSplats3D .ksplat",
-                "gltf_splats": "glTF KHR_gaussian_splatting", "sog": "PlayCanvas SOG"}
-#: What the readers accept, for messages.
-ACCEPTED = ("binary INRIA 3DGS PLY (float, double or half floats in ushort slots; TRELLIS/Amodal3R included), "
-            "SuperSplat compressed PLY (.compressed.ply), antimatter15 .splat, Niantic .spz, GaussianSplats3D .ksplat, "
-            "PlayCanvas SOG (.sog or meta.json) and glTF/GLB with KHR_gaussian_splatting")
+# Human names of ``GaussianPly.format`` values (import reports) and what the readers accept (messages): made from
+# the format records (core.splats.formats), kept importable from here.
+FORMAT_NAMES, ACCEPTED = _formats.FORMAT_NAMES, _formats.ACCEPTED
 
 
 class SplatsError(errors.InputError):

@@ -7,14 +7,12 @@ with a message that says where they go.
 an SPZ saved as ``.splat`` included): ``ply`` (starts with "ply"), ``spz`` (gzip whose stream starts with SPZ's
 "NGSP", or a plain "NGSP" version-4 header), ``gltf_splats`` (a GLB, or a ``.gltf``'s JSON, with
 ``KHR_gaussian_splatting``), ``sog`` (a zip holding ``meta.json``, or a SOG ``meta.json`` itself), ``ksplat`` (a
-consistent GaussianSplats3D header: ``ksplat.looks_like_ksplat``) and, by extension only, ``splat``. ``READERS``
-maps each name to its reader.
+consistent GaussianSplats3D header: ``ksplat.looks_like_ksplat``) and, by extension only, ``splat`` (the records'
+``by_extension``). ``READERS`` maps each name to its reader.
 
-The readers (every one returns a ``core.splats.gaussians.GaussianPly`` of raw INRIA values): ``core.splats.inria``
-(INRIA, TRELLIS/Amodal3R and half-float PLY), ``core.splats.compressed`` (SuperSplat compressed PLY, antimatter15
-``.splat``), ``core.splats.spz`` (Niantic SPZ 2-4), ``core.splats.ksplat`` (GaussianSplats3D), and
-``core.splats.gltf_splats`` (glTF ``KHR_gaussian_splatting``), the PLY ones on top of ``core.splats.ply_format``
-(the PLY header and elements). Only regular files are opened (a FIFO or a directory is refused at once, not waited
+The formats, their extensions and readers are the records of ``core.splats.formats`` (every reader returns a
+``core.splats.gaussians.GaussianPly`` of raw INRIA values; the PLY ones sit on ``core.splats.ply_format``, the PLY
+header and elements). Only regular files are opened (a FIFO or a directory is refused at once, not waited
 on). Unusable files raise ``core.splats.gaussians.SplatsError`` naming the file and what is wrong.
 
 No bpy, no torch: numpy only.
@@ -22,22 +20,23 @@ No bpy, no torch: numpy only.
 
 from __future__ import annotations
 
+import importlib
 import json
 import os
 import zipfile
 
-from . import compressed, gltf_splats, inria, ksplat, ply_format, sog, spz
+from . import compressed, formats, gltf_splats, inria, ksplat, ply_format, spz
 from .gaussians import ACCEPTED, GaussianPly, Gaussians, SplatsError, decode, open_file, read_bytes
 
 #: Mesh files: not splats, but what the car-asset import converts to Gaussians (backend ``mesh-asset``, trimesh);
 #: a ``.ply`` is a mesh when ``is_mesh_ply`` says so, a ``.glb``/``.gltf`` when it has no
 #: ``KHR_gaussian_splatting`` primitive (``is_mesh`` decides both by content).
 MESH_EXTENSIONS = (".glb", ".gltf", ".obj", ".stl", ".off")
-#: The file extensions each Gaussian format (a key of ``READERS``) is saved under: what the file browsers filter on
-#: and what the README's format table names (tests/test_docs.py). ``detect`` decides by content, by these names only
-#: for headerless ``.splat``; a SOG may also be an unbundled ``meta.json`` (``sog.META_NAME``).
-FORMAT_EXTENSIONS = {"ply": (".ply",), "splat": (".splat",), "ksplat": (".ksplat",), "spz": (".spz",),
-                     "sog": (".sog",), "gltf_splats": (".glb", ".gltf")}
+#: The file extensions each Gaussian format (a key of ``READERS``) is saved under (``formats.FORMATS``' records):
+#: what the file browsers filter on and what the README's format table names (tests/test_docs.py). ``detect``
+#: decides by content, by these names only for headerless ``.splat``; a SOG may also be an unbundled ``meta.json``
+#: (``sog.META_NAME``).
+FORMAT_EXTENSIONS = {f.key: f.extensions for f in formats.FORMATS}
 #: Gaussian-only file extensions (``.ply``, ``.glb`` and ``.gltf`` may be either, by content).
 SPLAT_EXTENSIONS = tuple(e for exts in FORMAT_EXTENSIONS.values() for e in exts if e not in MESH_EXTENSIONS)
 #: Every file a car asset may be: Gaussian files and meshes (what the import's file browser and a variation
@@ -100,8 +99,9 @@ def detect(path: str | os.PathLike) -> str:
     if ext == ".spz" and head.startswith(spz.GZIP_MAGIC):
         raise SplatsError(path, "a gzip stream that does not inflate to an SPZ header ('NGSP'): truncated or "
                                 "damaged SPZ file, or another gzip file renamed", "header")
-    if ext == ".splat":
-        return "splat"
+    for fmt in formats.FORMATS:
+        if fmt.by_extension and ext in fmt.extensions:
+            return fmt.key
     raise SplatsError(path, _not_accepted(head, ext))
 
 
@@ -179,11 +179,19 @@ def _not_accepted(head: bytes, ext: str) -> str:
     if ext in (".fbx", ".blend", ".usd", ".usdz", ".usdc", ".dae", ".3ds"):
         return (f"{ext} files are not read: export the car as GLB, glTF, OBJ, STL or PLY (mesh), or as Gaussian "
                 f"splats ({ACCEPTED})")
-    if ext in (".ksplat", ".spz", ".sog", ".sogs", ".lcc"):
+    if ext in _NAMED_BY_CONTENT:
         return (f"named {ext} but its content is not that format (it starts with {head[:8]!r}): damaged, or "
                 f"another file renamed; accepted are {ACCEPTED}")
     return (f"not a PLY file (it does not start with 'ply'), nor another Gaussian format by its content, and not "
             f"named .splat: accepted are {ACCEPTED}")
+
+
+#: Extensions of formats told by content alone (a file so named that is not that format is refused saying so):
+#: those of the records, but PLY's (a ``.ply`` that is not one has ``_not_accepted``'s last message) and the mesh
+#: ones (their own message), and those read by name; with ``.sogs`` (SOG version 1) and ``.lcc`` (XGrids), splat
+#: formats not read.
+_NAMED_BY_CONTENT = tuple(e for f in formats.FORMATS if f.key != "ply" and not f.by_extension
+                          for e in f.extensions if e not in MESH_EXTENSIONS) + (".sogs", ".lcc")
 
 
 #: Vertex properties only Gaussian PLYs have: a PLY with none of them is a mesh or a point cloud.
@@ -246,6 +254,12 @@ def read_ply(path: str | os.PathLike) -> GaussianPly:
     return inria.from_vertex(data, vnames, path)
 
 
-#: The reader of each format ``detect`` names.
-READERS = {"ply": read_ply, "spz": spz.read, "ksplat": ksplat.read, "gltf_splats": gltf_splats.read,
-           "sog": sog.read, "splat": compressed.read_splat}
+def _reader(name: str):
+    """A record's ``read``: ``"module.function"`` in ``core.splats`` (``reader.read_ply``, this module's own, is
+    defined above, so the half-imported module already has it)."""
+    module, function = name.rsplit(".", 1)
+    return getattr(importlib.import_module(f"{__package__}.{module}"), function)
+
+
+#: The reader of each format ``detect`` names (``formats.FORMATS``' ``read``).
+READERS = {f.key: _reader(f.read) for f in formats.FORMATS}

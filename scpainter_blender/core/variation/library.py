@@ -67,7 +67,7 @@ def library_files(folder) -> list:
     folder = os.fspath(folder)
     if not os.path.isdir(folder):
         raise VariationError(folder, "cars.library", "is not a folder",
-                             hint="give a folder of car files (.ply, .splat, .glb, .gltf, .obj, .stl, .off)")
+                             hint=f"give a folder of car files ({', '.join(reader.ASSET_EXTENSIONS)})")
     names = sorted(n for n in os.listdir(folder) if os.path.splitext(n)[1].lower() in reader.ASSET_EXTENSIONS
                    and not n.startswith(".") and os.path.isfile(os.path.join(folder, n)))  # files, not folders
     if not names:

@@ -12,7 +12,7 @@ import pytest
 from scpainter_blender.core.splats import compressed, formats, gaussians, gltf_splats, ksplat, reader, sog, spz
 from scpainter_blender.core.variation import library
 
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
 
 
 def test_the_texts_and_lists_made_from_the_records_are_those_written_before():

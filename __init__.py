@@ -6,7 +6,8 @@ register() and unregister() only (docs/design.md §2); everything else lives in 
 import bpy
 
 from . import operators, panels
-from .scpainter_blender.scene import cli, preferences, props, warm_backend
+from .scpainter_blender.runs import preferences, warm_session
+from .scpainter_blender.scene import cli, props
 
 _classes = (*preferences.classes, *operators.classes, *panels.classes)
 
@@ -21,7 +22,7 @@ def register():
 
 
 def unregister():
-    warm_backend.end()  # the session's backend process goes with the add-on (design §12)
+    warm_session.end()  # the session's backend process goes with the add-on (design §12)
     cli.unregister()
     for draw in operators.menu_import:
         bpy.types.TOPBAR_MT_file_import.remove(draw)

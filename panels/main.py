@@ -6,6 +6,7 @@ import textwrap
 
 import bpy
 
+from ..scpainter_blender.runs import camera_run
 from ..scpainter_blender.scene import asset_box, job_export, kinds, node_groups, points, props
 
 
@@ -64,12 +65,11 @@ class SCPAINTER_PT_main(bpy.types.Panel):
 
     @staticmethod
     def draw_backend(context, box):
-        from ..scpainter_blender.scene import runs
-
-        if runs.ACTIVE:
-            box.progress(factor=runs.progress_fraction(), type="BAR", text=f"{runs.progress_text()} (Esc stops)")
+        if camera_run.ACTIVE:
+            box.progress(factor=camera_run.progress_fraction(), type="BAR",
+                         text=f"{camera_run.progress_text()} (Esc stops)")
         # without a checkpoint Generate makes the inpainting baseline: the button and a note say so
-        text, note = runs.generate_ui(context)
+        text, note = camera_run.generate_ui(context)
         row = box.row(align=True)
         row.operator("scpainter.render_conditions", icon="RENDER_STILL")
         row.operator("scpainter.generate", text=text, icon="RENDER_ANIMATION")

@@ -51,14 +51,14 @@ import traceback
 
 import bpy
 
-from .. import backend_client
 from ..core import backend_protocol as protocol
 from ..core import batch_items as batch_mod
 from ..core import errors, files, import_options, outputs
 from ..core import job as job_mod
 from ..core.output_layout import OutputLayout
 from ..core.variation import spec as variation_spec, variants as vary_mod
-from . import importer, job_export, preferences, props, runs, variations, warm_backend
+from ..runs import camera_run as runs, client as backend_client, preferences, warm_session as warm_backend
+from . import importer, job_export, props, variations
 
 
 class _Parser(argparse.ArgumentParser):

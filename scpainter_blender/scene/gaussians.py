@@ -27,11 +27,11 @@ from dataclasses import dataclass, field
 import bpy
 import numpy as np
 
-from .. import backend_client
 from ..core.geometry import cameras
 from ..core import job as job_mod, outputs
 from ..core.splats import asset_frame, gaussians as splats, reader as splats_io, sog, trellis
 from ..core.output_layout import SceneFolder
+from ..runs.client import Invocation
 from . import asset_box, kinds, materials, node_groups, props
 from .points import linear_rgba
 
@@ -162,15 +162,15 @@ def import_gaussians(context, filepath: str, axes: str = "AUTO", target_length: 
     if is_mesh_file(filepath):
         out = gaussians_path or mesh_gaussians_path(context.scene, filepath, mesh_count)
         outputs.make_folder(os.path.dirname(out), "assets folder")
-        mesh = backend_client.run(["mesh-asset", filepath, "--out", out, "--count", int(mesh_count)],
-                                  python=backend_python)["result"]
+        mesh = Invocation("mesh-asset", asset=filepath, out=out, count=int(mesh_count),
+                          python=backend_python).run()["result"]
         mesh["source"] = filepath
         filepath = out
     converted = None
     if mesh is None and is_backend_splat_file(filepath):
         out = gaussians_path or splat_gaussians_path(context.scene, filepath)
         outputs.make_folder(os.path.dirname(out), "assets folder")
-        converted = backend_client.run(["splat-asset", filepath, "--out", out], python=backend_python)["result"]
+        converted = Invocation("splat-asset", asset=filepath, out=out, python=backend_python).run()["result"]
         filepath = out
     ply = splats_io.read(filepath)
     fmt = converted["format"] if converted else ply.format

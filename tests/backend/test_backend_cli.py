@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from scpainter_blender import backend_client
+from scpainter_blender.runs import client as backend_client
 from tests_support import run_backend  # every line of standard output is JSON
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))

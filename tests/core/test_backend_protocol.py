@@ -1,5 +1,5 @@
 """core/backend_protocol.py is the one home of the device names, the exit codes and the event kinds; and
-backend_client.Invocation.argv() is a command line the backend's own parser reads back."""
+runs.client.Invocation.argv() is a command line the backend's own parser reads back."""
 
 import ast
 import os
@@ -7,7 +7,7 @@ import re
 
 import pytest
 
-from scpainter_blender.backend_client import Invocation
+from scpainter_blender.runs.client import Invocation
 from scpainter_blender.core import backend_protocol as protocol
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))

@@ -145,8 +145,8 @@ def test_all_camera_paths_followed_stopped_and_past_a_failure(street_scene, tmp_
     is read from its recorded last progress event."""
     import time
 
-    camera_run = sys.modules[f"{addon}.scpainter_blender.camera_run.camera_run"]
-    all_cameras = sys.modules[f"{addon}.scpainter_blender.camera_run.all_cameras"]
+    camera_run = sys.modules[f"{addon}.scpainter_blender.runs.camera_run"]
+    all_cameras = sys.modules[f"{addon}.scpainter_blender.runs.all_cameras"]
     kinds = sys.modules[f"{addon}.scpainter_blender.scene.kinds"]
     a = street_scene.camera
     refused = a.copy()                                          # its folder would be the scene folder's assets/
@@ -219,7 +219,7 @@ def test_followed_runs_cancel_finish_and_time_out(street_scene, tmp_path, addon)
 
     from backend.render import channels
 
-    camera_run = sys.modules[f"{addon}.scpainter_blender.camera_run.camera_run"]  # the installed add-on's module
+    camera_run = sys.modules[f"{addon}.scpainter_blender.runs.camera_run"]  # the installed add-on's module
     before = _state()
     # Esc once a sample sees the first frame rendered: twelve frames, so eleven are left to render after it (a
     # warm backend renders a frame in ~0.1 s; the loop samples every 0.05 s), even with the CPU shared
@@ -272,7 +272,7 @@ def test_followed_runs_cancel_finish_and_time_out(street_scene, tmp_path, addon)
 
 
 def test_check_backend_reports_what_is_missing(addon, tiny_checkpoint, tmp_path):
-    preferences = sys.modules[f"{addon}.scpainter_blender.camera_run.preferences"]
+    preferences = sys.modules[f"{addon}.scpainter_blender.runs.preferences"]
     prefs = bpy.context.preferences.addons[addon].preferences
     try:
         prefs.backend_python, prefs.checkpoint_dir = sys.executable, tiny_checkpoint
@@ -305,7 +305,7 @@ def test_export_labels_operator_and_its_report(addon, empty_scene):
     """The operator offers the backend's formats (their one home: core.backend_protocol); the report of a finished
     export says the format, counts and where (nothing is loaded into the scene)."""
     protocol = sys.modules[addon + ".scpainter_blender.core.backend_protocol"]
-    camera_run = sys.modules[addon + ".scpainter_blender.camera_run.camera_run"]
+    camera_run = sys.modules[addon + ".scpainter_blender.runs.camera_run"]
     rna = bpy.ops.scpainter.export_labels.get_rna_type()
     assert [i.identifier for i in rna.properties["format"].enum_items] == list(protocol.EXPORT_FORMAT_NAMES)
     done = {"format": "openlabel", "frames": 3, "objects": 7, "images": "conditions", "out": "/x/export/openlabel"}

@@ -7,7 +7,8 @@ import bpy
 
 from . import operators, panels
 from .scpainter_blender import cli
-from .scpainter_blender.scene import preferences, props, warm_backend
+from .scpainter_blender.runs import preferences, warm_session
+from .scpainter_blender.scene import props
 
 _classes = (*preferences.classes, *operators.classes, *panels.classes)
 
@@ -22,7 +23,7 @@ def register():
 
 
 def unregister():
-    warm_backend.end()  # the session's backend process goes with the add-on (design §12)
+    warm_session.end()  # the session's backend process goes with the add-on (design §12)
     cli.unregister()
     for draw in operators.menu_import:
         bpy.types.TOPBAR_MT_file_import.remove(draw)

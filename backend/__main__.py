@@ -9,7 +9,7 @@ traceback), or a bug (any other exception, a plain ValueError included): its tra
 command's log (``<output_dir>/backend.log``), whose path the error event's ``log`` field gives; 130 interrupted by
 Ctrl-C (an error event). Standard output carries JSON events only. The codes, device names and event kinds:
 ``scpainter_blender.core.backend_protocol``; the add-on writes this command line with
-``scpainter_blender.backend_client.Invocation`` (a test parses its ``argv()`` with ``build_parser``).
+``scpainter_blender.runs.client.Invocation`` (a test parses its ``argv()`` with ``build_parser``).
 """
 
 from __future__ import annotations

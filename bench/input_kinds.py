@@ -19,7 +19,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
 from scpainter_blender.core import outputs  # noqa: E402
-from scpainter_blender.scene import kinds  # noqa: E402
+from scpainter_blender.scene import keys, kinds  # noqa: E402
 from tools import blender_env  # noqa: E402
 
 
@@ -161,8 +161,8 @@ def run(op, path, **kw):
         elif k == kinds.RECORDED_CAMERA:
             facts.append(f"camera {bpy.context.scene.render.resolution_x}x{bpy.context.scene.render.resolution_y}")
         elif k == kinds.GAUSSIAN_ASSET:
-            s = np.array(o["scpainter_size"]) * np.array(o.scale)
-            facts.append(f"{len(o.data.vertices):,} Gaussians, axes {o['scpainter_axes']}, "
+            s = np.array(o[keys.SIZE]) * np.array(o.scale)
+            facts.append(f"{len(o.data.vertices):,} Gaussians, axes {o[keys.AXES]}, "
                          f"size {s[0]:.2f}x{s[1]:.2f}x{s[2]:.2f} (x y z)")
     return ("imported" if r == {"FINISHED"} else str(r)), "; ".join(facts)
 

@@ -1,6 +1,6 @@
 """Render Conditions / Generate / Export Labels: write the job, run the backend in a subprocess, follow it, load the
 results (an export's are files: its report says where). Render / Generate All Camera Paths: the same for every
-camera path of the scene, one after another (``runs.AllCameras``).
+camera path of the scene, one after another (``all_cameras.AllCameras``).
 
 A run is the scene camera's (each camera path its own): its job is seen by that camera and written into that
 camera's output folder (``<scene output folder>/<camera>/``); its results are loaded under the camera's name and
@@ -20,12 +20,15 @@ from __future__ import annotations
 
 import bpy
 
-from ..scpainter_blender.backend_client import BackendError, Invocation
 from ..scpainter_blender.core import backend_protocol as protocol
 from ..scpainter_blender.core import outputs
-from ..scpainter_blender.scene import job_export, kinds, preferences, props, render_plan
-from ..scpainter_blender.scene.runs import (ACTIVE, DOCTOR, AllCameras, Follower, failure_message, finish,
-                                            invocation, planned_model, progress_text, start, with_warnings)
+from ..scpainter_blender.runs import preferences, render_plan
+from ..scpainter_blender.runs.all_cameras import AllCameras
+from ..scpainter_blender.runs.camera_run import (ACTIVE, Follower, failure_message, finish, invocation, planned_model,
+                                                 progress_text, start, with_warnings)
+from ..scpainter_blender.runs.client import BackendError, Invocation
+from ..scpainter_blender.runs.preferences import DOCTOR
+from ..scpainter_blender.scene import job_export, kinds, props
 from . import reports
 
 

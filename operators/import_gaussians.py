@@ -6,7 +6,8 @@ import bpy
 from bpy_extras.io_utils import ImportHelper
 
 from ..scpainter_blender.core.splats import formats
-from ..scpainter_blender.scene import gaussians, kinds, preferences
+from ..scpainter_blender.runs import preferences
+from ..scpainter_blender.scene import gaussians, kinds
 from . import reports, selection
 
 AXES_ITEMS = [("TRELLIS", "TRELLIS / Amodal3R", "Undo their (x, -z, y) file axes"),

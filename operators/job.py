@@ -5,7 +5,8 @@ from __future__ import annotations
 import bpy
 
 from ..scpainter_blender.core.output_layout import OutputLayout
-from ..scpainter_blender.scene import job_export, preferences, props
+from ..scpainter_blender.runs import preferences
+from ..scpainter_blender.scene import job_export, props
 from . import reports
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
-from ..scpainter_blender.scene import kinds, placement, visibility
+from ..scpainter_blender.scene import keys, kinds, placement, visibility
 from . import reports, selection
 
 
@@ -181,7 +181,7 @@ class SCPAINTER_OT_review_asset(bpy.types.Operator):
         if not kinds.is_kind(obj, kinds.GAUSSIAN_ASSET):
             self.report({"ERROR"}, f"no Gaussian asset named {self.name!r}")
             return {"CANCELLED"}
-        obj["scpainter_review"] = self.status
+        obj[keys.REVIEW] = self.status
         return {"FINISHED"}
 
 

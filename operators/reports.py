@@ -10,7 +10,7 @@ import os
 import sys
 import traceback
 
-from ..scpainter_blender.backend_client import BackendError
+from ..scpainter_blender.runs.client import BackendError
 from ..scpainter_blender.core.errors import InputError
 
 

@@ -8,7 +8,8 @@ import bpy
 
 from ..scpainter_blender.core.output_layout import SceneFolder, VariationLayout
 from ..scpainter_blender.core.variation import spec as spec_mod, variants
-from ..scpainter_blender.scene import preferences, props, variations
+from ..scpainter_blender.runs import preferences
+from ..scpainter_blender.scene import props, variations
 from . import reports
 
 

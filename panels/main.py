@@ -6,7 +6,8 @@ import textwrap
 
 import bpy
 
-from ..scpainter_blender.scene import asset_box, job_export, kinds, node_groups, points, props
+from ..scpainter_blender.runs import camera_run
+from ..scpainter_blender.scene import asset_box, job_export, keys, kinds, node_groups, points, props
 
 
 class SCPAINTER_PT_main(bpy.types.Panel):
@@ -44,8 +45,8 @@ class SCPAINTER_PT_main(bpy.types.Panel):
             return
         box = layout.box()
         box.label(text=obj.name, icon="POINTCLOUD_DATA" if kinds.is_kind(obj, kinds.POINTS) else "CAMERA_DATA")
-        box.label(text=f"Scale: {obj.get('scpainter_scale_method', '?')}, "
-                       f"residual {obj.get('scpainter_scale_residual_m', 0.0):.3g} m")
+        box.label(text=f"Scale: {obj.get(keys.SCALE_METHOD, '?')}, "
+                       f"residual {obj.get(keys.SCALE_RESIDUAL_M, 0.0):.3g} m")
         mod = points.points_modifier(obj)
         if mod is not None:
             for name in ("Point Radius", "Current Frame Only", "Frame Window"):
@@ -64,12 +65,11 @@ class SCPAINTER_PT_main(bpy.types.Panel):
 
     @staticmethod
     def draw_backend(context, box):
-        from ..scpainter_blender.scene import runs
-
-        if runs.ACTIVE:
-            box.progress(factor=runs.progress_fraction(), type="BAR", text=f"{runs.progress_text()} (Esc stops)")
+        if camera_run.ACTIVE:
+            box.progress(factor=camera_run.progress_fraction(), type="BAR",
+                         text=f"{camera_run.progress_text()} (Esc stops)")
         # without a checkpoint Generate makes the inpainting baseline: the button and a note say so
-        text, note = runs.generate_ui(context)
+        text, note = camera_run.generate_ui(context)
         row = box.row(align=True)
         row.operator("scpainter.render_conditions", icon="RENDER_STILL")
         row.operator("scpainter.generate", text=text, icon="RENDER_ANIMATION")
@@ -100,12 +100,12 @@ class SCPAINTER_PT_main(bpy.types.Panel):
         active = context.active_object
         if kinds.is_kind(active, kinds.GAUSSIAN_ASSET):
             row = box.row(align=True)  # how the file's axes were read, and the way to correct it
-            row.label(text=f"Axes: {active.get('scpainter_axes', '?')}", icon="ORIENTATION_GLOBAL")
+            row.label(text=f"Axes: {active.get(keys.AXES, '?')}", icon="ORIENTATION_GLOBAL")
             for axes, text in (("TRELLIS", "TRELLIS"), ("NONE", "As Stored")):
                 row.operator("scpainter.set_asset_axes", text=text,
-                             depress=active.get("scpainter_axes") == axes).axes = axes
-            if active.get("scpainter_axes_reason"):
-                box.label(text=active["scpainter_axes_reason"])
+                             depress=active.get(keys.AXES) == axes).axes = axes
+            if active.get(keys.AXES_REASON):
+                box.label(text=active[keys.AXES_REASON])
         owner = kinds.owning_asset(active)  # the asset, or the one whose box (or front arrow) is active
         if owner is not None:  # its label: class and 3D box (the box empty is edited in the viewport)
             if asset_box.CLASS_PROPERTY in owner:
@@ -119,9 +119,9 @@ class SCPAINTER_PT_main(bpy.types.Panel):
         icons = {"accepted": "CHECKMARK", "rejected": "X", "unchecked": "QUESTION"}
         for obj in kinds.gaussian_assets(context.scene):  # stage 2: a person accepts or rejects each asset
             row = box.row(align=True)
-            stage1 = obj.get("scpainter_stage1", "")
+            stage1 = obj.get(keys.STAGE1, "")
             row.label(text=f"{obj.name}{'  (size flagged)' if stage1 == 'flagged' else ''}",
-                      icon=icons.get(obj.get("scpainter_review", "unchecked"), "QUESTION"))
+                      icon=icons.get(obj.get(keys.REVIEW, "unchecked"), "QUESTION"))
             for status, icon in (("accepted", "CHECKMARK"), ("rejected", "X")):
                 op = row.operator("scpainter.review_asset", text="", icon=icon)
                 op.name, op.status = obj.name, status

@@ -3,7 +3,7 @@
 cross-cutting test listed here with what it checks.
 
 The mirror of a module (``mirrored_test``): ``scpainter_blender/`` is dropped (``scpainter_blender/core/vggt/npz.py``
-→ ``tests/core/vggt/test_npz.py``, ``scpainter_blender/backend_client.py`` → ``tests/test_backend_client.py``); the
+→ ``tests/core/vggt/test_npz.py``, ``scpainter_blender/runs/client.py`` → ``tests/runs/test_client.py``); the
 other shipped folders keep their name (``backend/mesh/gltf.py`` → ``tests/backend/mesh/test_gltf.py``,
 ``operators/job.py`` → ``tests/operators/test_job.py``); a package's ``__init__.py`` is ``test_init.py`` in its
 folder's mirror, a ``__main__.py`` is ``test_main.py`` (the root's ``__init__.py``: ``tests/test_init.py``).
@@ -48,8 +48,10 @@ UNMIRRORED = {
                              "tests/scene/test_extension.py)",
     "panels/__init__.py": "no behaviour of its own: the panel classes register() walks (all registered in "
                           "tests/scene/test_extension.py)",
-    "scpainter_blender/backend_client.py": "pending: moved by the merge (tests/backend/test_main.py)",
-    "scpainter_blender/backend_warm.py": "pending: moved by the merge (tests/backend/test_serve.py)",
+    "scpainter_blender/runs/warm_process.py": "tested by tests/backend/test_serve.py: WarmBackend and WarmRun against "
+                                              "a real serve process",
+    "scpainter_blender/runs/all_cameras.py": "tested by tests/runs/test_camera_run.py: AllCameras over every camera "
+                                             "path",
     # -- backend/commands/: thin handlers (check the arguments, call the work's module, emit its events), each run
     # end to end by the tests of the command it hands to; the registry and the shared options in test_init.py
     "backend/commands/batch.py": "exercised by tests/backend/batch/test_command.py: python -m backend batch",
@@ -69,7 +71,8 @@ UNMIRRORED = {
     "backend/commands/vary.py": "exercised by tests/backend/vary/test_command.py: python -m backend vary",
     # -- operators/, panels/: thin (read context, call scpainter_blender, report); run as an artist runs them
     "operators/asset_box.py": "tested by tests/scene/test_asset_box.py: the box operators on a Gaussian car",
-    "operators/backend_run.py": "pending: moved by the merge (tests/scene/test_backend_run.py)",
+    "operators/backend_run.py": "exercised by tests/runs/test_camera_run.py: the render/generate/export operators, "
+                                "followed and cancelled",
     "operators/camera_path.py": "tested by tests/scene/test_camera.py: bpy.ops.scpainter.new_camera_path",
     "operators/drive_lane.py": "tested by tests/scene/test_drive_lane.py: *Drive Along Lane* on the street",
     "operators/import_gaussians.py": "tested by tests/scene/test_gaussians.py: bpy.ops.scpainter.import_gaussians",
@@ -86,7 +89,6 @@ UNMIRRORED = {
     "scpainter_blender/core/errors.py": "tested by tests/core/test_files.py: InputError and ArgumentError",
     "scpainter_blender/core/fields.py": "exercised by tests/core/test_job.py: every job field's validator, each "
                                         "refusal naming the field (test_bad_fields_are_named)",
-    "scpainter_blender/core/geometry/boxes.py": "pending: moved by the merge (tests/core/test_boxes.py)",
     "scpainter_blender/core/geometry/unproject.py": "tested by tests/core/geometry/test_point_cloud.py: VGGT's "
                                                     "unprojection formula, exactly",
     "scpainter_blender/core/geometry/visibility.py": "tested by tests/backend/render/test_frames_culling.py: the "
@@ -106,8 +108,7 @@ UNMIRRORED = {
     "scpainter_blender/scene/materials.py": "exercised by tests/scene/test_gaussians.py: the imported car's "
                                             "emission material",
     "scpainter_blender/scene/points.py": "tested by tests/scene/test_importer.py: the points object of an import",
-    "scpainter_blender/scene/preferences.py": "tested by tests/scene/test_baseline_ui.py: the checkpoint preference",
-    "scpainter_blender/scene/runs.py": "pending: moved by the merge (tests/scene/test_backend_run.py)",
+    "scpainter_blender/runs/preferences.py": "tested by tests/scene/test_baseline_ui.py: the checkpoint preference",
     # -- street (tests and demo only; counted: see the module's docstring)
     "scpainter_blender/street/__main__.py": "exercised by tests/street/test_street.py: ensure_street generates "
                                             "the street through `python -m scpainter_blender.street` "
@@ -173,8 +174,6 @@ CROSS_CUTTING = {
 
 # Test files other branches are moving or rewriting now; the merge places them (then each leaves this list).
 PENDING_TESTS = {
-    "tests/scene/test_backend_run.py": "pending: moved by the merge",
-    "tests/core/test_boxes.py": "pending: moved by the merge",
 }
 
 
@@ -249,7 +248,7 @@ def _is_mirror_or_aspect(test: str, mirrors: set) -> bool:
 
 def test_mirrors_and_aspects():
     assert mirrored_test("scpainter_blender/core/splats/inria.py") == "tests/core/splats/test_inria.py"
-    assert mirrored_test("scpainter_blender/backend_client.py") == "tests/test_backend_client.py"
+    assert mirrored_test("scpainter_blender/runs/client.py") == "tests/runs/test_client.py"
     assert mirrored_test("backend/mesh/gltf.py") == "tests/backend/mesh/test_gltf.py"
     assert mirrored_test("backend/errors.py") == "tests/backend/test_errors.py"
     assert mirrored_test("operators/job.py") == "tests/operators/test_job.py"

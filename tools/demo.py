@@ -104,13 +104,13 @@ def main(argv=None):
     if args.checkpoint:
         bpy.context.preferences.addons[pkg].preferences.checkpoint_dir = os.path.abspath(args.checkpoint)
     scene.scpainter_output_dir = out  # jobs, conditions and the video go here (saved with the .blend)
-    from scpainter_blender.scene import props
+    from scpainter_blender.scene import keys, props
 
     cam_out = props.camera_output_dir(scene, path_cam)  # the camera path's own folder: <out>/<its name>/
     job_path = OutputLayout(cam_out).job
     bpy.ops.scpainter.export_job(filepath=job_path)
     truth = float(street.metric()["metres_per_unit"])
-    scale = float(np.cbrt(np.linalg.det(np.array(pts["scpainter_vggt_to_world"]).reshape(4, 4)[:3, :3])))
+    scale = float(np.cbrt(np.linalg.det(np.array(pts[keys.VGGT_TO_WORLD]).reshape(4, 4)[:3, :3])))
 
     blend = os.path.join(out, "street_demo.blend")
     bpy.ops.wm.save_as_mainfile(filepath=blend)
@@ -166,12 +166,12 @@ def main(argv=None):
     summary = {"blend": blend, "preview": preview, "job": job_path, "asset": car_ply,
                "camera_path": path_cam.name, "shift_m": args.shift, "conditions": cond, "generation": generation,
                "labels": labels, "exports": exports,
-               "asset_location": list(car.location), "asset_stage1": car["scpainter_stage1"],
+               "asset_location": list(car.location), "asset_stage1": car[keys.STAGE1],
                "ground_truth_frame": street.frame_path("recorded", 0),
                "street": street.root, "points": len(pts.data.vertices), "camera": cam.name,
-               "scale_method": pts["scpainter_scale_method"], "scale_m_per_unit": scale,
+               "scale_method": pts[keys.SCALE_METHOD], "scale_m_per_unit": scale,
                "scale_truth_m_per_unit": truth, "scale_error_percent": 100 * (scale / truth - 1),
-               "scale_residual_m": pts["scpainter_scale_residual_m"],
+               "scale_residual_m": pts[keys.SCALE_RESIDUAL_M],
                "seconds": {"street": made or 0.0, "import": t_import, "conditions": t_cond, "generation": t_gen,
                            "exports": t_export, "preview": t_render,
                            "total": time.perf_counter() - t0}}

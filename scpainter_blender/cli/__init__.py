@@ -37,7 +37,7 @@ from types import ModuleType
 
 import bpy
 
-from .. import backend_client
+from ..runs import client
 from ..core import backend_protocol as protocol
 from ..core import errors
 from ..scene import props
@@ -77,7 +77,7 @@ def execute(argv: Sequence[str]) -> int:
     except errors.InputError as e:  # bad input, caught by name (never as a ValueError): exit 2
         print(json.dumps(protocol.error_event(str(e), e.hint, file=e.path, field=e.field)), flush=True)
         return protocol.EXIT_BAD_INPUT
-    except backend_client.BackendError as e:  # the backend refused the scene's job (its exit 2) or failed
+    except client.BackendError as e:  # the backend refused the scene's job (its exit 2) or failed
         fields = {k: v for k, v in common.failure(e).items() if k != "error"}  # file, field (bad input); log
         print(json.dumps(protocol.error_event(str(e), **fields)), flush=True)
         return protocol.EXIT_BAD_INPUT if e.bad_input else protocol.EXIT_FAILED

@@ -17,12 +17,13 @@ import time
 
 import bpy
 
-from .. import backend_client
+from ..runs import client
 from ..core import backend_protocol as protocol
 from ..core import batch_items as batch_mod
 from ..core import errors, outputs
 from ..core.output_layout import OutputLayout
-from ..scene import props, runs
+from ..runs import camera_run
+from ..scene import props
 from . import common
 
 NAME = "batch"
@@ -99,7 +100,7 @@ def run(args: argparse.Namespace) -> tuple[dict, int]:
                     raise errors.InputError(path, "scene.scpainter_output_dir",
                                             f"{os.path.dirname(job_path)} is also the output folder of "
                                             f"{seen[job_path]}", hint="give each scene its own SCPainter output folder")
-                runs.export(bpy.context, common.checkpoint(args))  # (writes job_path)
+                camera_run.export(bpy.context, common.checkpoint(args))  # (writes job_path)
                 common.export_warnings(bpy.context, path)
             seen.setdefault(job_path, path)
             jobs.append((i, job_path, exported))
@@ -162,7 +163,7 @@ def _run_jobs(args: argparse.Namespace, jobs: list[tuple[int, str, bool]],
         previous = signal.signal(signal.SIGTERM, lambda *_: job.proc.terminate())
         try:
             done = job.wait(timeout=args.timeout or None, on_event=common.progress)
-        except backend_client.BackendError:
+        except client.BackendError:
             if job.done is None:  # no summary: the batch itself failed (its error event is raised)
                 raise
             done = job.done       # exit 1: some jobs failed; each says why in the summary

@@ -2,7 +2,7 @@
 the scene commands, opening a .blend for a run, the backend's command line built from the arguments, its progress,
 a run's outputs and failures, and the one scene run of ``render``, ``generate`` and ``export``.
 
-The backend's command line is built by ``backend_client.Invocation`` from these arguments, the add-on preferences
+The backend's command line is built by ``client.Invocation`` from these arguments, the add-on preferences
 filling in what they do not give (the preferences are never changed).
 
 Before a scene's job runs, what it would render wrong without failing (``job_export.warnings``: frames outside the
@@ -19,12 +19,13 @@ import traceback
 
 import bpy
 
-from .. import backend_client
+from ..runs import client
 from ..core import backend_protocol as protocol
 from ..core import batch_items as batch_mod
 from ..core import errors, files
 from ..core import job as job_mod
-from ..scene import job_export, props, runs, warm_backend
+from ..runs import camera_run, warm_session
+from ..scene import job_export, props
 
 
 class Parser(argparse.ArgumentParser):
@@ -84,10 +85,10 @@ def checkpoint(args: argparse.Namespace) -> str | None:
     return os.path.abspath(args.checkpoint) if getattr(args, "checkpoint", None) else None
 
 
-def invocation(args: argparse.Namespace, command: str, **options: object) -> backend_client.Invocation:
+def invocation(args: argparse.Namespace, command: str, **options: object) -> client.Invocation:
     """``python -m backend <command>`` with this command line's device and interpreter, the add-on preferences'
     where it gives none (the preferences themselves are never changed), and ``options``."""
-    run = runs.invocation(bpy.context, command, **options)
+    run = camera_run.invocation(bpy.context, command, **options)
     return run.replace(device=args.device or run.device,
                        python=os.path.abspath(args.backend_python) if args.backend_python else run.python)
 
@@ -143,7 +144,7 @@ def failure(e: Exception) -> dict:
     its traceback on standard error."""
     if isinstance(e, errors.InputError):
         return batch_mod.bad_input_fields(e)
-    if isinstance(e, backend_client.BackendError):
+    if isinstance(e, client.BackendError):
         return {"error": str(e), **({"file": e.file, "field": e.field} if e.bad_input else {}),
                 **({"log": e.log_path} if e.log_path else {})}
     traceback.print_exception(type(e), e, e.__traceback__, file=sys.stderr)
@@ -162,12 +163,12 @@ def run_scene(args: argparse.Namespace, command: str, **options: object) -> tupl
     open_blend(args.blend, args, args.output)
     camera = props.named_camera(bpy.context.scene, args.camera, args.blend)
     warned = export_warnings(bpy.context)
-    with warm_backend.one_shot():  # one command and the process ends: nothing to keep warm
-        job, out = runs.start(bpy.context, invocation(args, command, **options), checkpoint(args), camera)
+    with warm_session.one_shot():  # one command and the process ends: nothing to keep warm
+        job, out = camera_run.start(bpy.context, invocation(args, command, **options), checkpoint(args), camera)
     try:
         done = job.wait(timeout=args.timeout or None, on_event=progress)
-    except backend_client.BackendError as e:  # the same error, its message saying where the log is
-        raise backend_client.BackendError(runs.failure_message(e, out), exit_code=e.exit_code, log=e.log,
+    except client.BackendError as e:  # the same error, its message saying where the log is
+        raise client.BackendError(camera_run.failure_message(e, out), exit_code=e.exit_code, log=e.log,
                                           file=e.file, field=e.field, log_path=e.log_path) from None
     return {**run_outputs(done, out), "camera": (camera or bpy.context.scene.camera).name,
             "warnings": warned + len(job.warnings)}, protocol.EXIT_OK

@@ -14,7 +14,8 @@ import bpy
 from ..core import backend_protocol as protocol
 from ..core import errors, import_options
 from ..core.variation import spec as variation_spec, variants as vary_mod
-from ..scene import importer, preferences, props, variations
+from ..runs import preferences
+from ..scene import importer, props, variations
 from . import common
 
 NAME = "vary"

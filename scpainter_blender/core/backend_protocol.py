@@ -100,7 +100,7 @@ def served_marker(request_id: int) -> str:
 
 #: The environment variables ``python -m backend`` sets for itself when they are missing (``backend/__init__.py``:
 #: the OpenMP wait policy, numba's cache folder): a client that imported ``backend`` has them too, which says
-#: nothing about the environment a backend it starts gets (``scene/warm_backend.py`` leaves them out of its key).
+#: nothing about the environment a backend it starts gets (``runs/warm_session.py`` leaves them out of its key).
 BACKEND_SETS_ENV = ("OMP_WAIT_POLICY", "NUMBA_CACHE_DIR")
 
 

@@ -28,11 +28,11 @@ from mathutils import Matrix
 
 from ..core import job as job_mod
 from ..core.geometry import boxes
-from . import kinds, placement, props
+from . import keys, kinds, placement, props
 
 DISPLAY_SIZE = 0.5        # a cube empty draws [−size, size]³: 0.5 draws the unit cube
 FRONT_LENGTH = 0.25       # the front arrow's length, a fraction of the box's length (it scales with the box)
-CLASS_PROPERTY = "scpainter_class"
+CLASS_PROPERTY = keys.CLASS
 #: The front arrow in the box's unit frame: at the front face's centre (y = +0.5), its z (the arrow) along +y.
 _FRONT_BASIS = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.5], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
 #: 180° about the box's own z: its front becomes its back (exact, unlike a rotation by float π).
@@ -122,7 +122,7 @@ def job_box(asset) -> job_mod.AssetBox | None:
     box = kinds.asset_box(asset)
     if box is None:
         return None
-    file_to_data = props.matrix_property(asset, "scpainter_file_to_data")
+    file_to_data = props.matrix_property(asset, keys.FILE_TO_DATA)
     T, size = boxes.rigid_box(np.linalg.inv(file_to_data) @ box_to_data(asset, box))
     return job_mod.AssetBox(T, size)
 

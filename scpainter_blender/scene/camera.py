@@ -11,7 +11,7 @@ import bpy
 import numpy as np
 
 from ..core.geometry import cameras, trajectory
-from . import compat, kinds
+from . import compat, keys, kinds
 
 
 def create_recorded_camera(name: str, world_to_camera, K, width: int, height: int, frame_start: int,
@@ -127,7 +127,7 @@ def create_camera_path(context, source, shift_m: float, name: str | None = None)
         coll.objects.link(obj)
     key_camera_path(obj, shifted, frames, f"{name} path")
     kinds.mark(obj, kinds.CAMERA_PATH)
-    obj["scpainter_shift_m"] = float(shift_m)
-    obj["scpainter_source_camera"] = source.name
+    obj[keys.SHIFT_M] = float(shift_m)
+    obj[keys.SOURCE_CAMERA] = source.name
     scene.camera = obj
     return obj

@@ -27,12 +27,12 @@ from dataclasses import dataclass, field
 import bpy
 import numpy as np
 
-from .. import backend_client
 from ..core.geometry import cameras
 from ..core import job as job_mod, outputs
 from ..core.splats import asset_frame, formats, gaussians as splats, reader as splats_io, sog, trellis
 from ..core.output_layout import SceneFolder
-from . import asset_box, kinds, materials, node_groups, props
+from ..runs.client import Invocation
+from . import asset_box, keys, kinds, materials, node_groups, props
 from .points import linear_rgba
 
 NODE_GROUP = "SCPainter Gaussians"
@@ -163,15 +163,15 @@ def import_gaussians(context, filepath: str, axes: str = "AUTO", target_length: 
     if is_mesh_file(filepath):
         out = gaussians_path or mesh_gaussians_path(context.scene, filepath, mesh_count)
         outputs.make_folder(os.path.dirname(out), "assets folder")
-        mesh = backend_client.run(["mesh-asset", filepath, "--out", out, "--count", int(mesh_count)],
-                                  python=backend_python)["result"]
+        mesh = Invocation("mesh-asset", asset=filepath, out=out, count=int(mesh_count),
+                          python=backend_python).run()["result"]
         mesh["source"] = filepath
         filepath = out
     converted = None
     if mesh is None and is_backend_splat_file(filepath):
         out = gaussians_path or splat_gaussians_path(context.scene, filepath)
         outputs.make_folder(os.path.dirname(out), "assets folder")
-        converted = backend_client.run(["splat-asset", filepath, "--out", out], python=backend_python)["result"]
+        converted = Invocation("splat-asset", asset=filepath, out=out, python=backend_python).run()["result"]
         filepath = out
     ply = splats_io.read(filepath)
     fmt = converted["format"] if converted else ply.format
@@ -228,23 +228,23 @@ def import_gaussians(context, filepath: str, axes: str = "AUTO", target_length: 
         obj.scale = (target_length / extent,) * 3
     node_groups.add_modifier(obj, "SCPainter Gaussians", ensure_node_group(), {"Ellipsoids": bool(ellipsoids)})
     kinds.mark(obj, kinds.GAUSSIAN_ASSET)
-    obj["scpainter_source"] = filepath
-    obj["scpainter_format"] = fmt
-    obj["scpainter_file_to_data"] = file_to_data.ravel().tolist()
-    obj["scpainter_axes"] = axes
-    obj["scpainter_axes_reason"] = reason
-    obj["scpainter_sh_degree"] = ply.sh_degree
-    obj["scpainter_dropped"] = int(sum(dropped.values()))
-    obj["scpainter_size"] = (hi - lo).tolist()  # data-frame extents (before the object's scale)
-    obj["scpainter_review"] = "unchecked"
+    obj[keys.SOURCE] = filepath
+    obj[keys.FORMAT] = fmt
+    obj[keys.FILE_TO_DATA] = file_to_data.ravel().tolist()
+    obj[keys.AXES] = axes
+    obj[keys.AXES_REASON] = reason
+    obj[keys.SH_DEGREE] = ply.sh_degree
+    obj[keys.DROPPED] = int(sum(dropped.values()))
+    obj[keys.SIZE] = (hi - lo).tolist()  # data-frame extents (before the object's scale)
+    obj[keys.REVIEW] = "unchecked"
     obj[asset_box.CLASS_PROPERTY] = job_mod.DEFAULT_CLASS
     asset_box.estimate(obj, pos)  # its upright box in the data frame, a child cube empty (scene/asset_box.py)
     if mesh:
-        obj["scpainter_mesh_source"] = mesh["source"]
+        obj[keys.MESH_SOURCE] = mesh["source"]
         # trimesh's upright oriented box (length, width, height) of the mesh, for stage 1 (placement.asset_size)
-        obj["scpainter_obb_size"] = [float(v) for v in mesh["obb"]["size"]]
+        obj[keys.OBB_SIZE] = [float(v) for v in mesh["obb"]["size"]]
     if converted:
-        obj["scpainter_splat_source"] = converted["source"]
+        obj[keys.SPLAT_SOURCE] = converted["source"]
     # what the backend read past in the mesh (an unsupported material, faces with non-finite corners, ...)
     warnings = [w["message"] for w in mesh.get("warnings", [])] if mesh else []
     if extent > 0 and not MIN_CAR_LENGTH <= target_length <= MAX_CAR_LENGTH:
@@ -303,7 +303,7 @@ def set_axes(obj, axes: str) -> None:
     n = len(me.vertices)
     pos = np.empty(n * 3, np.float32)
     me.attributes["position"].data.foreach_get("vector", pos)
-    old = props.matrix_property(obj, "scpainter_file_to_data")
+    old = props.matrix_property(obj, keys.FILE_TO_DATA)
     xyz_file = (pos.reshape(-1, 3).astype(np.float64) - old[:3, 3]) @ np.linalg.inv(old[:3, :3]).T
     D, F, lo, hi = asset_frame.data_frame(xyz_file, axes)
     xyz_data = (xyz_file @ D[:3, :3].T + D[:3, 3]).astype(np.float32)
@@ -313,16 +313,16 @@ def set_axes(obj, axes: str) -> None:
     me.attributes["gs_rotation"].data.foreach_set("value", _display_rotations(rot.reshape(-1, 4), F)
                                                   .astype(np.float32).ravel())
     me.update()
-    old_size = np.array(obj["scpainter_size"], np.float64)
+    old_size = np.array(obj[keys.SIZE], np.float64)
     old_len, new_len = max(old_size[:2]), max(hi[0] - lo[0], hi[1] - lo[1])
     if new_len > 0 and old_len > 0:
         obj.scale = np.array(obj.scale) * (old_len / new_len)
-    obj["scpainter_file_to_data"] = D.ravel().tolist()
-    obj["scpainter_size"] = (hi - lo).tolist()
-    obj["scpainter_axes"] = axes
-    obj["scpainter_axes_reason"] = "set by hand"
+    obj[keys.FILE_TO_DATA] = D.ravel().tolist()
+    obj[keys.SIZE] = (hi - lo).tolist()
+    obj[keys.AXES] = axes
+    obj[keys.AXES_REASON] = "set by hand"
     asset_box.estimate(obj, xyz_data)  # the old box stood in the old data frame: estimated again
-    for key in ("scpainter_stage1", "scpainter_stage1_deviation"):  # measured on the old axes: check again
+    for key in (keys.STAGE1, keys.STAGE1_DEVIATION):  # measured on the old axes: check again
         if key in obj:
             del obj[key]
 

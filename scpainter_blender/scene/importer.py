@@ -19,7 +19,7 @@ from ..core import errors
 from ..core.import_options import DEPTH_EDGE_RATIO, ERROR_PATH, SCALE_MODES, ImportOptions
 from ..core.vggt import predictions as vggt, npz as vggt_io
 from . import camera as camera_mod
-from . import kinds
+from . import keys, kinds
 from . import node_groups
 from . import points as points_mod
 
@@ -57,16 +57,16 @@ def metric_fit(pred: vggt.VGGTPredictions, opts: ImportOptions) -> metric_scale.
 
 def _tag(obj, kind, filepath, fit, opts, rep: vggt.LoadReport):
     kinds.mark(obj, kind)
-    obj["scpainter_source"] = filepath
-    obj["scpainter_vggt_to_world"] = np.asarray(fit.vggt_to_world, np.float64).ravel().tolist()
-    obj["scpainter_scale_method"] = fit.method
-    obj["scpainter_scale_residual_m"] = float(fit.residual_m)
-    obj["scpainter_confidence_percentile"] = float(opts.confidence_percentile)
-    obj["scpainter_extrinsic_convention"] = rep.extrinsic_convention
-    obj["scpainter_crop"] = [int(c) for c in rep.crop]
+    obj[keys.SOURCE] = filepath
+    obj[keys.VGGT_TO_WORLD] = np.asarray(fit.vggt_to_world, np.float64).ravel().tolist()
+    obj[keys.SCALE_METHOD] = fit.method
+    obj[keys.SCALE_RESIDUAL_M] = float(fit.residual_m)
+    obj[keys.CONFIDENCE_PERCENTILE] = float(opts.confidence_percentile)
+    obj[keys.EXTRINSIC_CONVENTION] = rep.extrinsic_convention
+    obj[keys.CROP] = [int(c) for c in rep.crop]
     # a custom property cannot hold None: 0.0 is off. A scene imported before this property existed has none: its
     # points were not filtered, and job_export writes null (off) for it
-    obj["scpainter_depth_edge_ratio"] = opts.edge_ratio or 0.0
+    obj[keys.DEPTH_EDGE_RATIO] = opts.edge_ratio or 0.0
 
 
 def import_vggt(context, filepath: str, opts: ImportOptions | None = None, collection=None) -> ImportResult:
@@ -113,10 +113,10 @@ def import_vggt(context, filepath: str, opts: ImportOptions | None = None, colle
         scene.camera = cam
     for o, kind in ((obj, kinds.POINTS), (cam, kinds.RECORDED_CAMERA)):
         _tag(o, kind, filepath, fit, opts, pred.report)
-    obj["scpainter_num_frames"] = pred.num_frames
-    obj["scpainter_matrix_world_at_import"] = np.array(obj.matrix_basis, dtype=np.float64).ravel().tolist()
-    cam["scpainter_intrinsics"] = pred.K.ravel().tolist()
-    cam["scpainter_frame_start"] = int(opts.frame_start)
+    obj[keys.NUM_FRAMES] = pred.num_frames
+    obj[keys.MATRIX_WORLD_AT_IMPORT] = np.array(obj.matrix_basis, dtype=np.float64).ravel().tolist()
+    cam[keys.INTRINSICS] = pred.K.ravel().tolist()
+    cam[keys.FRAME_START] = int(opts.frame_start)
     t_end = time.perf_counter()
     timings = {"load": t_load - t0, "metric_fit": t_fit - t_load, "unproject": t_unproject - t_fit,
                "points_object": t_points - t_unproject, "camera": t_end - t_points, "total": t_end - t0}

@@ -28,7 +28,7 @@ from ..core.geometry import point_cloud
 from ..core import job as job_mod
 from ..core import labels
 from . import camera as camera_mod
-from . import asset_box, kinds, node_groups, placement, props, visibility
+from . import asset_box, keys, kinds, node_groups, placement, props, visibility
 from . import points as points_mod
 
 
@@ -38,15 +38,15 @@ def _m(value):
 
 def effective_vggt_to_world(obj) -> np.ndarray:
     """The points object's vggt_to_world after the artist moved it: matrix_world · (matrix at import)^-1 · W."""
-    W = props.matrix_property(obj, "scpainter_vggt_to_world")
-    at_import = _m(obj.get("scpainter_matrix_world_at_import", np.eye(4).ravel().tolist()))
+    W = props.matrix_property(obj, keys.VGGT_TO_WORLD)
+    at_import = _m(obj.get(keys.MATRIX_WORLD_AT_IMPORT, np.eye(4).ravel().tolist()))
     return np.array(obj.matrix_world, dtype=np.float64) @ np.linalg.inv(at_import) @ W
 
 
 def source_frames(obj, scene_frame: int) -> list:
     """VGGT frames whose points go into an output frame: the points object's frame window when it shows only
     the current frame, every frame otherwise."""
-    n = int(obj.get("scpainter_num_frames", 0))
+    n = int(obj.get(keys.NUM_FRAMES, 0))
     mod = points_mod.points_modifier(obj)
     if mod is not None and node_groups.get_input(mod, "Current Frame Only"):
         k = int(node_groups.get_input(mod, "Frame Window"))
@@ -60,7 +60,7 @@ def point_cleaning(obj) -> job_mod.PointCleaning:
     (``scpainter_depth_edge_ratio``; 0.0 is off), so the backend renders the points the artist saw; a points object
     imported before that property existed was not filtered: null (off). Outlier removal, which the import does not
     run, stays at the job's default."""
-    ratio = float(obj.get("scpainter_depth_edge_ratio", 0.0))
+    ratio = float(obj.get(keys.DEPTH_EDGE_RATIO, 0.0))
     return job_mod.PointCleaning(depth_edge_ratio=ratio if ratio > 0 else None)
 
 
@@ -89,25 +89,25 @@ def build_job(context, job_path: str, output_dir: str | None = None, checkpoint:
             out_frames.append(job_mod.Frame(f, K, w2c, source_frames(pts, f) if pts is not None else []))
             for a in assets:
                 asset_m[a.name][f] = (np.array(a.matrix_world, dtype=np.float64)
-                                      @ props.matrix_property(a, "scpainter_file_to_data"))
+                                      @ props.matrix_property(a, keys.FILE_TO_DATA))
                 if a.name not in asset_boxes:  # the box in the asset's own frame, as it stands at the first frame
                     asset_boxes[a.name] = asset_box.job_box(a)
     finally:
         scene.frame_set(current)
     sc = None
     if pts is not None:
-        sc = job_mod.Scene(os.path.relpath(pts["scpainter_source"], job_dir), effective_vggt_to_world(pts),
-                           confidence_percentile=float(pts.get("scpainter_confidence_percentile",
+        sc = job_mod.Scene(os.path.relpath(pts[keys.SOURCE], job_dir), effective_vggt_to_world(pts),
+                           confidence_percentile=float(pts.get(keys.CONFIDENCE_PERCENTILE,
                                                                     point_cloud.CONFIDENCE_PERCENTILE)),
                            # how the import read the file: the backend loads the same poses and pixels
-                           extrinsic_convention=str(pts.get("scpainter_extrinsic_convention", "world_to_camera")),
-                           crop=[int(v) for v in pts.get("scpainter_crop", [0, 0, 0, 0])],
+                           extrinsic_convention=str(pts.get(keys.EXTRINSIC_CONVENTION, "world_to_camera")),
+                           crop=[int(v) for v in pts.get(keys.CROP, [0, 0, 0, 0])],
                            removal_boxes=[job_mod.RemovalBox(*placement.box_matrix(b)) for b in boxes],
                            point_cleaning=point_cleaning(pts),
                            recorded_frames=recorded_frames(scene, pts))
     return job_mod.Job(camera_mod.render_size(scene), out_frames, os.path.relpath(output_dir or job_dir, job_dir),
                        scene=sc,
-                       assets=[job_mod.Asset(a.name, os.path.relpath(a["scpainter_source"], job_dir), asset_m[a.name],
+                       assets=[job_mod.Asset(a.name, os.path.relpath(a[keys.SOURCE], job_dir), asset_m[a.name],
                                              asset_box.category(a), asset_boxes[a.name])
                                for a in assets],
                        generate=_generate_settings(checkpoint, props.baseline_inpaint(scene)),
@@ -126,7 +126,7 @@ def rendered_objects(context) -> tuple:
     render (``visibility.points_object``) or nothing does: a job of holes only would "succeed" with nothing in it."""
     scene, view_layer = context.scene, context.view_layer
     pts = visibility.points_object(scene, view_layer)
-    candidates = [o for o in kinds.gaussian_assets(scene) if o.get("scpainter_review") != "rejected"]
+    candidates = [o for o in kinds.gaussian_assets(scene) if o.get(keys.REVIEW) != "rejected"]
     assets = visibility.rendered(candidates, view_layer)
     if pts is None and not assets:
         left_out = [o.name for o in kinds.point_clouds(scene)] + [o.name for o in candidates]
@@ -192,9 +192,9 @@ def recorded_frames(scene, pts) -> list | None:
     ``scpainter_num_frames``; None when either is missing (a .blend imported before them, or a recorded camera
     deleted)."""
     cam = kinds.recorded_camera_of(scene, pts)
-    if cam is None or "scpainter_frame_start" not in cam or "scpainter_num_frames" not in pts:
+    if cam is None or keys.FRAME_START not in cam or keys.NUM_FRAMES not in pts:
         return None
-    start, n = int(cam["scpainter_frame_start"]), int(pts["scpainter_num_frames"])
+    start, n = int(cam[keys.FRAME_START]), int(pts[keys.NUM_FRAMES])
     return [start, start + n - 1] if n > 0 else None
 
 

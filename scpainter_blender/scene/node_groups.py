@@ -16,7 +16,9 @@ from dataclasses import dataclass
 
 import bpy
 
-VERSION_KEY = "scpainter_version"
+from . import keys
+
+VERSION_KEY = keys.VERSION
 
 
 @dataclass(frozen=True)

@@ -16,7 +16,7 @@ import numpy as np
 from mathutils import Matrix, Quaternion, Vector
 
 from ..core.geometry import boxes, fits as geometry
-from . import compat, kinds, node_groups
+from . import compat, keys, kinds, node_groups
 from . import points as points_mod
 from .props import SceneError
 
@@ -28,20 +28,20 @@ STAGE1_TOLERANCE = 0.2
 
 def asset_size(obj) -> np.ndarray:
     """(length, width, height) of an asset in its data frame (before the object's scale)."""
-    sx, sy, sz = obj["scpainter_size"]
+    sx, sy, sz = obj[keys.SIZE]
     return np.array([max(sx, sy), min(sx, sy), sz])
 
 
 def proportions(obj) -> np.ndarray:
     """(length, width, height) for the stage-1 check: trimesh's upright oriented box where the import measured it
     (mesh assets: right for cars not aligned with an axis), else the data-frame bounds (asset_size)."""
-    if "scpainter_obb_size" in obj:
-        return np.array(obj["scpainter_obb_size"], np.float64)
+    if keys.OBB_SIZE in obj:
+        return np.array(obj[keys.OBB_SIZE], np.float64)
     return asset_size(obj)
 
 
 def _length_axis(obj) -> int:
-    sx, sy, _ = obj["scpainter_size"]
+    sx, sy, _ = obj[keys.SIZE]
     return 1 if sy >= sx else 0
 
 
@@ -104,7 +104,7 @@ def snap_to_ground(context, obj, points_obj, margin: float = 1.0, align: bool = 
     context.view_layer.update()
     P = scene_points_world(points_obj)
     M = np.array(obj.matrix_world, dtype=np.float64)
-    size = np.array(obj["scpainter_size"], np.float64)
+    size = np.array(obj[keys.SIZE], np.float64)
     corners = np.array([[sx, sy, 0.0] for sx in (-0.5, 0.5) for sy in (-0.5, 0.5)]) * size
     foot = corners @ M[:3, :3].T + M[:3, 3]
     lo, hi = foot[:, :2].min(0) - margin, foot[:, :2].max(0) + margin
@@ -270,7 +270,7 @@ def attach_removal_box(points_obj, box):
     preview = points_mod.points_modifier(points_obj)
     if preview is not None:
         points_obj.modifiers.move(len(points_obj.modifiers) - 1, list(points_obj.modifiers).index(preview))
-    box["scpainter_points_object"] = points_obj.name
+    box[keys.POINTS_OBJECT] = points_obj.name
     return mod
 
 
@@ -304,7 +304,7 @@ def align_to_box(obj, box, uniform: bool = False):
     obj.rotation_mode = "QUATERNION"
     obj.rotation_quaternion = Matrix(R.tolist()).to_quaternion()
     obj.location = (T[:3, 3] - T[:3, 2] * H / 2).tolist()
-    obj["scpainter_target_box"] = box.name
+    obj[keys.TARGET_BOX] = box.name
 
 
 def stage1_check(obj, target=None, tolerance: float = STAGE1_TOLERANCE) -> dict:
@@ -314,7 +314,7 @@ def stage1_check(obj, target=None, tolerance: float = STAGE1_TOLERANCE) -> dict:
     asset; returns both with the target used.
     """
     if target is None:
-        box = bpy.data.objects.get(obj.get("scpainter_target_box", ""))
+        box = bpy.data.objects.get(obj.get(keys.TARGET_BOX, ""))
         if box is not None:
             _, s = box_matrix(box)
             target = (s[1], s[0], s[2])
@@ -322,6 +322,6 @@ def stage1_check(obj, target=None, tolerance: float = STAGE1_TOLERANCE) -> dict:
             target = DEFAULT_CAR
     dev = geometry.proportion_deviation(proportions(obj), target)
     status = "flagged" if np.any(np.abs(dev) > tolerance) else "ok"
-    obj["scpainter_stage1"] = status
-    obj["scpainter_stage1_deviation"] = [float(dev[1]), float(dev[2])]
+    obj[keys.STAGE1] = status
+    obj[keys.STAGE1_DEVIATION] = [float(dev[1]), float(dev[2])]
     return {"status": status, "width": float(dev[1]), "height": float(dev[2]), "target": list(map(float, target))}

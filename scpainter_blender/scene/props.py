@@ -17,6 +17,7 @@ import bpy
 from ..core import errors
 from ..core import job as job_mod
 from ..core.output_layout import SceneFolder
+from . import keys
 
 DEFAULT_OUTPUT = "//scpainter/{scene}/"
 #: The ``path`` of a SceneError in a .blend that was never saved.
@@ -89,8 +90,7 @@ def named_camera(scene, name: str | None, blend: str, option: str = "--camera"):
 
 
 #: Object properties renamed to the ``a_to_b`` rule (issue 15): the name a .blend saved before holds.
-RENAMED_PROPERTIES = {"scpainter_vggt_to_world": "scpainter_world_from_vggt",
-                      "scpainter_file_to_data": "scpainter_data_from_file"}
+RENAMED_PROPERTIES = keys.RENAMED
 
 
 def matrix_property(obj, name: str):

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import bpy
 
 from ..core.import_options import ImportOptions
-from . import importer, kinds, node_groups, placement, visibility
+from . import importer, keys, kinds, node_groups, placement, visibility
 from .props import SceneError
 
 
@@ -57,7 +57,7 @@ def replace_reconstruction(context, filepath: str, opts: ImportOptions | None = 
     scene = context.scene
     old = old_points(context, chosen)
     old_cam = kinds.recorded_camera_of(scene, old)
-    start = int(old_cam["scpainter_frame_start"]) if old_cam is not None and "scpainter_frame_start" in old_cam \
+    start = int(old_cam[keys.FRAME_START]) if old_cam is not None and keys.FRAME_START in old_cam \
         else scene.frame_start
     opts = dataclasses.replace(opts or ImportOptions(), frame_start=start, set_scene_camera=False)
     frame_range = (scene.frame_start, scene.frame_end)
@@ -76,9 +76,9 @@ def replace_reconstruction(context, filepath: str, opts: ImportOptions | None = 
     if follow:
         scene.camera = result.camera
     warnings = list(result.warnings)
-    old_frames = int(old.get("scpainter_num_frames", 0))
-    if old_frames and old_frames != int(result.points["scpainter_num_frames"]):
-        warnings.append(f"the new recording has {result.points['scpainter_num_frames']} frames, the old one "
+    old_frames = int(old.get(keys.NUM_FRAMES, 0))
+    if old_frames and old_frames != int(result.points[keys.NUM_FRAMES]):
+        warnings.append(f"the new recording has {result.points[keys.NUM_FRAMES]} frames, the old one "
                         f"{old_frames}: the frame range stays {frame_range[0]}–{frame_range[1]} (the camera paths are "
                         "keyed over it); make new camera paths to follow the new recording")
     names = (old.name, old_cam.name if old_cam is not None else None)
@@ -89,7 +89,7 @@ def replace_reconstruction(context, filepath: str, opts: ImportOptions | None = 
     if names[1] is not None:
         result.camera.name = names[1]
     for name in boxes:  # attach_removal_box wrote the new object's name before it took the old one's
-        bpy.data.objects[name]["scpainter_points_object"] = result.points.name
+        bpy.data.objects[name][keys.POINTS_OBJECT] = result.points.name
     context.view_layer.update()  # the view layer drops the deleted objects (its selection would still list them)
     return ReplaceResult(result, names[0], names[1], boxes, warnings)
 

@@ -29,6 +29,7 @@ import os
 import bpy
 
 from ..core.output_layout import CONDITION_PREVIEW, GENERATED_FRAME, LABELLED_PREVIEW
+from . import keys
 
 CONDITIONS = "SCPainter Conditions"
 LABELS = "SCPainter Labels"   # the condition previews with the labels drawn (boxes, ids), beside CONDITIONS
@@ -43,7 +44,7 @@ SEQUENCES = (CONDITIONS, LABELS, GENERATED, BASELINE)
 #: Between a result's kind and its camera's name in the datablock's name.
 SEPARATOR = " · "
 #: The custom properties that say what a datablock holds: its kind and its camera's name ("" for none).
-RESULT, CAMERA = "scpainter_result", "scpainter_camera"
+RESULT, CAMERA = keys.RESULT, keys.CAMERA
 
 
 def result_name(kind: str, camera: str | None) -> str:
@@ -91,7 +92,7 @@ def _sequence(kind: str, camera: str | None, files: list, replaces=()) -> bpy.ty
     img.source = "SEQUENCE"
     img.use_fake_user = True  # kept in the saved .blend when the camera background shows another result
     img.reload()
-    img["scpainter_frames"] = len(files)
+    img[keys.FRAMES] = len(files)
     return img
 
 
@@ -127,7 +128,7 @@ def load_generated(frames_dir: str, mp4: str, model: str = "scpainter", descript
         clip.use_fake_user = True  # nothing uses a fresh clip yet: without this, saving the .blend would drop it
     for block in (img, clip):
         if block is not None:
-            block["scpainter_model"], block["scpainter_description"] = model, description
+            block[keys.MODEL], block[keys.DESCRIPTION] = model, description
     return img, clip
 
 
@@ -153,6 +154,6 @@ def show_behind_camera(scene, image: bpy.types.Image, alpha: float = 1.0, camera
     user = bg.image_user
     user.frame_start = 1
     user.frame_offset = 0
-    user.frame_duration = max(scene.frame_end, int(image.get("scpainter_frames", 1)))
+    user.frame_duration = max(scene.frame_end, int(image.get(keys.FRAMES, 1)))
     user.use_auto_refresh = True
     data.show_background_images = True

@@ -6,16 +6,16 @@ from __future__ import annotations
 
 import os
 
-from .. import backend_client
 from ..core.output_layout import VariationLayout
 from ..core.variation import variants
+from ..runs.client import Invocation
 from . import job_export
 
 
 def mesh_converter(python: str = ""):
     """``convert_mesh(mesh, out_ply, count)`` running ``python -m backend mesh-asset`` with ``python``."""
     def convert(mesh: str, out: str, count: int) -> None:
-        backend_client.run(["mesh-asset", mesh, "--out", out, "--count", int(count)], python=python)
+        Invocation("mesh-asset", asset=mesh, out=out, count=int(count), python=python).run()
     return convert
 
 

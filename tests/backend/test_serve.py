@@ -1,4 +1,4 @@
-"""``python -m backend serve`` (a warm backend) through its client ``backend_warm.WarmBackend``: requests run as
+"""``python -m backend serve`` (a warm backend) through its client ``runs.warm_process.WarmBackend``: requests run as
 one-shot commands run, in one process that keeps the points and assets it loaded (bit-identical layers); cancel,
 SIGTERM, SIGKILL, idle time and the end of its input; the renderer's kernels made ready before the first frame."""
 
@@ -9,8 +9,8 @@ import sys
 import numpy as np
 import pytest
 
-from scpainter_blender.backend_client import BackendError
-from scpainter_blender.backend_warm import WarmBackend
+from scpainter_blender.runs.client import BackendError
+from scpainter_blender.runs.warm_process import WarmBackend
 from scpainter_blender.core import backend_protocol as protocol
 from tests_support import run_backend, small_job, variant_jobs
 

@@ -1,5 +1,5 @@
 """core/backend_protocol.py is the one home of the device names, the exit codes and the event kinds; and
-backend_client.Invocation.argv() is a command line the backend's own parser reads back."""
+runs.client.Invocation.argv() is a command line the backend's own parser reads back."""
 
 import ast
 import os
@@ -7,7 +7,7 @@ import re
 
 import pytest
 
-from scpainter_blender.backend_client import Invocation
+from scpainter_blender.runs.client import Invocation
 from scpainter_blender.core import backend_protocol as protocol
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -55,6 +55,10 @@ def test_device_names_match_the_preferences_enum_order():
     Invocation("export", jobs=("/x/job.json",), export_format="openlabel", out="/x/dataset", device="cpu",
                allow_outside=True),
     Invocation("export", jobs=("job.json",), export_format="kitti", data_roots=("/data",)),
+    Invocation("mesh-asset", asset="/x/car.glb", out="/x/car.ply", count=5000),
+    Invocation("splat-asset", asset="/x/car.sog", out="/x/car.ply"),
+    Invocation("serve", idle_timeout=600.0, device="cpu"),
+    Invocation("serve", idle_timeout=0.5),
 ])
 def test_invocation_argv_round_trips_through_the_backend_parser(run):
     from backend.__main__ import build_parser
@@ -66,15 +70,29 @@ def test_invocation_argv_round_trips_through_the_backend_parser(run):
                 "shard": run.shard, "ray": run.ray,
                 "retries": run.retries, "cpus_per_job": run.cpus_per_job, "command_name": run.batch_command,
                 "list": list(run.lists) or None, "trusted_list": list(run.trusted_lists) or None,
-                "format": run.export_format, "out": run.out}
+                "format": run.export_format, "out": run.out, "count": run.count, "idle_timeout": run.idle_timeout}
     if run.command in ("render", "generate", "export"):
         expected["job"] = run.jobs[0]
     elif run.command == "batch":
         expected["jobs"] = list(run.jobs)
+    elif run.command in ("mesh-asset", "splat-asset"):
+        expected["mesh" if run.command == "mesh-asset" else "splats"] = run.asset
     for name, value in expected.items():
         if value is None or value is False:  # not given: the parser's default (the backend's), or no such option
             continue
         assert args[name] == value, (name, args)
+
+
+def test_invocation_spells_the_asset_and_serve_command_lines_as_before():
+    """The command lines the add-on started by hand before ``Invocation`` wrote them (scene/gaussians.py,
+    scene/variations.py, the warm backend's ``serve``), argument for argument."""
+    assert Invocation("mesh-asset", asset="/x/car.glb", out="/x/car.ply", count=5000).argv() == \
+        ["mesh-asset", "/x/car.glb", "--out", "/x/car.ply", "--count", "5000"]
+    assert Invocation("splat-asset", asset="/x/car.sog", out="/x/car.ply").argv() == \
+        ["splat-asset", "/x/car.sog", "--out", "/x/car.ply"]
+    assert Invocation(protocol.SERVE, idle_timeout=600.0, device="cpu").argv() == \
+        ["serve", "--idle-timeout", "600", "--device", "cpu"]
+    assert Invocation(protocol.SERVE, idle_timeout=0).argv() == ["serve", "--idle-timeout", "0"]
 
 
 def test_invocation_refuses_a_device_nobody_knows():

@@ -1,5 +1,5 @@
 """Without a checkpoint, Generate makes the OpenCV inpainting baseline: what the panel, the tooltip, the progress text
-and the exported job say, without running the backend (the runs themselves: test_backend_run.py, test_cli.py)."""
+and the exported job say, without running the backend (the runs themselves: tests/runs/test_camera_run.py, test_cli.py)."""
 
 import json
 import sys
@@ -20,28 +20,29 @@ def prefs(addon):
 
 
 def test_generate_button_and_tooltip_say_baseline_without_a_checkpoint(empty_scene, addon, prefs, tmp_path):
-    runs = _module(addon, "scpainter_blender.scene.runs")
+    camera_run = _module(addon, "scpainter_blender.runs.camera_run")
     generate = _module(addon, "operators.backend_run").SCPAINTER_OT_generate
     prefs.checkpoint_dir = ""
-    text, note = runs.generate_ui(bpy.context)                      # what the panel draws by the button
-    assert text == "Generate (Baseline)" and runs.planned_model(bpy.context) == "baseline"
+    text, note = camera_run.generate_ui(bpy.context)                      # what the panel draws by the button
+    assert text == "Generate (Baseline)" and camera_run.planned_model(bpy.context) == "baseline"
     said = " ".join(note)
     assert "OpenCV inpainting baseline, not the SCPainter model" in said
     assert "Preferences > Add-ons > SCPainter > Checkpoint Folder" in said
     tip = generate.description(bpy.context, None)
     assert "baseline" in tip and "not SCPainter's output" in tip and "Checkpoint Folder" in tip
     prefs.checkpoint_dir = str(tmp_path)
-    assert runs.generate_ui(bpy.context) == ("Generate", ()) and runs.planned_model(bpy.context) == "scpainter"
+    assert camera_run.generate_ui(bpy.context) == ("Generate", ())
+    assert camera_run.planned_model(bpy.context) == "scpainter"
     assert "baseline" not in generate.description(bpy.context, None)
-    assert runs.planned_model(bpy.context, "render") is None
+    assert camera_run.planned_model(bpy.context, "render") is None
 
 
 def test_progress_text_names_the_generator(addon):
-    runs = _module(addon, "scpainter_blender.scene.runs")
+    camera_run = _module(addon, "scpainter_blender.runs.camera_run")
     run = {"command": "generate", "model": "baseline", "stage": "render", "done": 2, "total": 4}
-    assert runs.progress_text(run) == "generate (Baseline): render 2/4"
-    assert runs.progress_text({**run, "model": "scpainter"}) == "generate (SCPainter): render 2/4"
-    assert runs.progress_text({**run, "command": "render", "model": None}) == "render: render 2/4"
+    assert camera_run.progress_text(run) == "generate (Baseline): render 2/4"
+    assert camera_run.progress_text({**run, "model": "scpainter"}) == "generate (SCPainter): render 2/4"
+    assert camera_run.progress_text({**run, "command": "render", "model": None}) == "render: render 2/4"
 
 
 def test_job_export_writes_the_inpainting_method_only_when_chosen(empty_scene, addon, prefs, tmp_path):

@@ -117,7 +117,7 @@ def _imports(rel):
 
 
 def test_core_and_backend_never_import_bpy():
-    for rel in _py_files("scpainter_blender/core", "backend", "scpainter_blender/backend_client.py"):
+    for rel in _py_files("scpainter_blender/core", "backend", "scpainter_blender/runs/client.py"):
         for name, level in _imports(rel):
             assert level or name.split(".")[0] not in ("bpy", "bpy_extras", "mathutils", "addon_utils"), (rel, name)
 
@@ -154,8 +154,8 @@ def test_backend_uses_only_the_core_of_the_addon():
 # -- the command line's package (scpainter_blender/cli/: one module per command) -----------------------------------
 
 CLI = "scpainter_blender/cli"
-# what the command line may use of the add-on: the bpy-free core, the scene layer, the backend's client
-CLI_MAY_IMPORT = ("scpainter_blender.core", "scpainter_blender.scene", "scpainter_blender.backend_client",
+# what the command line may use of the add-on: the bpy-free core, the scene layer, the runs of the backend
+CLI_MAY_IMPORT = ("scpainter_blender.core", "scpainter_blender.scene", "scpainter_blender.runs",
                   "scpainter_blender.cli")
 
 
@@ -174,14 +174,14 @@ def _resolved_imports(rel):
     return out
 
 
-def test_cli_imports_only_core_scene_and_the_backend_client():
-    """``scpainter_blender/cli/`` is the top of the Blender side: of the add-on it uses core, scene and the
-    backend's client (relative); otherwise the standard library and bpy."""
+def test_cli_imports_only_core_scene_and_runs():
+    """``scpainter_blender/cli/`` is the top of the Blender side: of the add-on it uses core, scene and runs
+    (relative); otherwise the standard library and bpy."""
     import sys
 
     files = list(_py_files(CLI))
     assert f"{CLI}/__init__.py" in files and f"{CLI}/common.py" in files
-    assert ("scpainter_blender.backend_client", True) in _resolved_imports(f"{CLI}/batch.py")  # relative, resolved
+    assert ("scpainter_blender.runs.client", True) in _resolved_imports(f"{CLI}/batch.py")  # relative, resolved
     for rel in files:
         for name, relative in _resolved_imports(rel):
             if relative:
@@ -244,3 +244,142 @@ def test_cli_finds_its_commands_in_the_installed_extension(addon):
     assert all(c.__name__.startswith(addon + ".scpainter_blender.cli.") for c in cli.COMMANDS)
     sub = next(a for a in cli._parser()._actions if a.dest == "command")
     assert list(sub.choices) == [c.NAME for c in cli.COMMANDS]
+
+
+# -- the import graph: no cycle; runs/ and scene/ one way (docs/design.md §2) ------------------------------------
+
+def _module_name(rel):
+    """``scpainter_blender/runs/client.py`` -> ``scpainter_blender.runs.client``; a package is its ``__init__``."""
+    parts = rel[:-3].split("/")
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _runtime_imports(source, rel):
+    """The (module or None, level, names) imported when module ``rel`` runs: an ``if TYPE_CHECKING:`` block (an
+    annotation's import, never executed) is left out."""
+    out = []
+
+    def visit(node):
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, ast.If) and ast.unparse(child.test).endswith("TYPE_CHECKING"):
+                for sub in child.orelse:
+                    visit_one(sub)
+                continue
+            visit_one(child)
+
+    def visit_one(child):
+        if isinstance(child, ast.Import):
+            out.extend((a.name, 0, ()) for a in child.names)
+        elif isinstance(child, ast.ImportFrom):
+            out.append((child.module, child.level, tuple(a.name for a in child.names)))
+        visit(child)
+
+    visit(ast.parse(source, rel))
+    return out
+
+
+def _import_graph(sources):
+    """{module: the add-on modules it imports} over ``sources`` ({path: text}); an import of a package's member
+    that is a module counts as that module, of a name in a package's ``__init__`` as the package."""
+    modules = {_module_name(rel): rel for rel in sources}
+    graph = {}
+    for name, rel in modules.items():
+        parts = name.split(".") if name else []   # "" is the extension's own __init__.py
+        package = parts if rel.endswith("__init__.py") else parts[:-1]
+        deps = set()
+        for module, level, names in _runtime_imports(sources[rel], rel):
+            base = package[:len(package) - level + 1] if level else []
+            base = ".".join(base + (module.split(".") if module else []))
+            for member in names or (None,):
+                full = f"{base}.{member}" if member and base else (member or base)
+                target = full if full in modules else base if base in modules else None
+                if target and target != name:
+                    deps.add(target)
+        graph[name] = deps
+    return graph
+
+
+def _cycles(graph):
+    """The strongly connected components of more than one module (Tarjan), each sorted."""
+    index, low, stack, on_stack, found = {}, {}, [], set(), []
+
+    def connect(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in sorted(graph[v]):
+            if w not in index:
+                connect(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while not component or component[-1] != v:
+                component.append(stack.pop())
+                on_stack.discard(component[-1])
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for v in sorted(graph):
+        if v not in index:
+            connect(v)
+    return found
+
+
+def _addon_graph():
+    rels = list(_py_files("__init__.py", "operators", "panels", "scpainter_blender"))
+    return _import_graph({rel.replace(os.sep, "/"): open(os.path.join(ROOT, rel), encoding="utf-8").read()
+                          for rel in rels})
+
+
+def test_the_cycle_check_sees_a_cycle():
+    sources = {"p/__init__.py": "", "p/a.py": "from . import b\n", "p/b.py": "from .c import X\n",
+               "p/c.py": "from .a import Y\nfrom typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from . import d\n",
+               "p/d.py": "from . import c\n"}
+    graph = _import_graph(sources)
+    assert graph["p.a"] == {"p.b"} and graph["p.c"] == {"p.a"} and graph["p.d"] == {"p.c"}
+    assert _cycles(graph) == [["p.a", "p.b", "p.c"]]
+
+
+def test_no_import_cycle_among_the_addon_modules():
+    """Each fact lives in the module that owns it, so no two modules need each other (an import inside a function
+    does not hide one: every import is read)."""
+    graph = _addon_graph()
+    assert "scpainter_blender.runs.camera_run" in graph and "operators.backend_run" in graph
+    assert {"operators", "scpainter_blender.runs.warm_session"} <= graph[""]   # the root __init__.py's, resolved
+    assert _cycles(graph) == []
+
+
+#: What runs/ takes from scene/ (the arrow goes runs -> scene): the job it exports, the output folders and
+#: SceneError, the results it loads into Blender.
+RUNS_USES_OF_SCENE = {"scpainter_blender.scene.job_export", "scpainter_blender.scene.props",
+                      "scpainter_blender.scene.results"}
+#: The bpy-free part of runs/ (the backend's command line and processes, the session's warm backend): stdlib and
+#: core, so scene/ may start a one-shot conversion with ``client.Invocation`` and nothing comes back around.
+RUNS_WITHOUT_BPY = ("scpainter_blender/runs/client.py", "scpainter_blender/runs/warm_process.py",
+                    "scpainter_blender/runs/warm_session.py")
+
+
+def test_runs_and_scene_import_each_other_one_way():
+    """runs/ may import bpy, core and of scene/ only ``RUNS_USES_OF_SCENE``; scene/ never imports runs/ but its
+    bpy-free ``runs.client`` (the command line, ``scpainter_blender/cli/``, is a front end, like operators/: it uses
+    both)."""
+    graph = _addon_graph()
+    wrong = []
+    for name, deps in graph.items():
+        if name.startswith("scpainter_blender.runs"):
+            wrong += [(name, d) for d in deps if d.startswith("scpainter_blender.scene")
+                      and d not in RUNS_USES_OF_SCENE]
+            wrong += [(name, d) for d in deps if d.split(".")[0] in ("operators", "panels")]
+        elif name.startswith("scpainter_blender.scene"):
+            wrong += [(name, d) for d in deps if d.startswith("scpainter_blender.runs")
+                      and d != "scpainter_blender.runs.client"]
+    assert wrong == []
+    for rel in RUNS_WITHOUT_BPY:
+        for name, level in _imports(rel):
+            assert level or name.split(".")[0] not in ("bpy", "bpy_extras", "mathutils", "addon_utils"), (rel, name)
+        assert not [d for d in graph[_module_name(rel)] if not d.startswith(("scpainter_blender.core",
+                                                                              "scpainter_blender.runs"))], rel
+        assert not [d for d in graph[_module_name(rel)]
+                    if d.startswith("scpainter_blender.runs") and d.replace(".", "/") + ".py" not in RUNS_WITHOUT_BPY]

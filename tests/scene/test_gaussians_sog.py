@@ -45,7 +45,7 @@ def test_a_broken_sog_is_refused_naming_the_entry_and_creates_nothing(empty_scen
     meta, images = S.tiny(n=10)
     bundle = S.write_bundle(tmp_path / "car.sog", meta, images, leave_out=["quats.webp"])
     before = len(bpy.data.objects)
-    from scpainter_blender import backend_client
+    from scpainter_blender.runs import client as backend_client
 
     try:
         gaussians.import_gaussians(bpy.context, bundle)

@@ -151,7 +151,7 @@ def test_import_renders_in_colour(empty_scene, street, tmp_path):
 def test_camera_height_scale_in_process(addon, empty_scene, street):
     """The camera-height scale is fitted inside Blender's process (core.geometry.fits's RANSAC): with the backend's
     interpreter pointing nowhere the import still works, recovers the street's true scale, and is repeatable."""
-    prefs = _installed(addon, "scene.preferences").get(bpy.context)
+    prefs = _installed(addon, "runs.preferences").get(bpy.context)
     before = prefs.backend_python
     prefs.backend_python = os.path.join(street.root, "no-such-python")  # a backend run would fail on this
     try:

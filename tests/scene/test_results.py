@@ -8,7 +8,8 @@ import numpy as np
 
 from backend.png import write_png
 from scpainter_blender.core.output_layout import OutputLayout
-from scpainter_blender.scene import results, runs
+from scpainter_blender.runs import camera_run
+from scpainter_blender.scene import results
 
 
 def _write(layout, frames, labelled=True):
@@ -22,7 +23,7 @@ def test_render_loads_conditions_and_labels(empty_scene, tmp_path):
     layout = OutputLayout(str(tmp_path / "out"))
     os.makedirs(layout.conditions)
     _write(layout, (1, 2, 3))
-    report = runs.finish(bpy.context, "render", layout.root, {"output_dir": layout.root, "frames": 3})
+    report = camera_run.finish(bpy.context, "render", layout.root, {"output_dir": layout.root, "frames": 3})
     assert "3 frames" in report
     cond, labels = bpy.data.images[results.CONDITIONS], bpy.data.images[results.LABELS]
     assert labels.name == "SCPainter Labels" and labels.source == "SEQUENCE" and labels.use_fake_user
@@ -44,7 +45,7 @@ def test_no_labelled_previews_no_labels(empty_scene, tmp_path):
     os.makedirs(layout.conditions)
     _write(layout, (1, 2), labelled=False)
     assert results.load_labels(layout.conditions) is None
-    runs.finish(bpy.context, "render", layout.root, {"output_dir": layout.root, "frames": 2})
+    camera_run.finish(bpy.context, "render", layout.root, {"output_dir": layout.root, "frames": 2})
     assert results.CONDITIONS in bpy.data.images and results.LABELS not in bpy.data.images
 
 
@@ -70,8 +71,8 @@ def test_each_camera_has_its_own_results_named_after_it(empty_scene, tmp_path):
         os.makedirs(layout.conditions)
         _write(layout, frames)
         _write_generated(layout, frames)
-    runs.finish(bpy.context, "render", out_a.root, {"frames": 3}, camera="Path A")
-    runs.finish(bpy.context, "render", out_b.root, {"frames": 2}, camera="Path B")
+    camera_run.finish(bpy.context, "render", out_a.root, {"frames": 3}, camera="Path A")
+    camera_run.finish(bpy.context, "render", out_b.root, {"frames": 2}, camera="Path B")
     cond_a = bpy.data.images["SCPainter Conditions · Path A"]
     cond_b = bpy.data.images["SCPainter Conditions · Path B"]
     assert bpy.path.abspath(cond_a.filepath) == out_a.condition_preview(1) and cond_a["scpainter_frames"] == 3
@@ -80,19 +81,19 @@ def test_each_camera_has_its_own_results_named_after_it(empty_scene, tmp_path):
     assert a.data.background_images[0].image == cond_a and b.data.background_images[0].image == cond_b
     assert empty_scene.camera == a                               # B's results went behind B; the scene camera stays
     # B's baseline video, then A's model video: each camera's own datablocks, the other camera's left as they are
-    runs.finish(bpy.context, "generate", out_b.root, {"model": "baseline", "frames_dir": out_b.generated,
+    camera_run.finish(bpy.context, "generate", out_b.root, {"model": "baseline", "frames_dir": out_b.generated,
                                                       "video": out_b.video}, camera="Path B")
     base_b = bpy.data.images["SCPainter Baseline · Path B"]
     assert base_b["scpainter_model"] == "baseline" and b.data.background_images[0].image == base_b
     assert len(b.data.background_images) == 1 and a.data.background_images[0].image == cond_a
-    runs.finish(bpy.context, "generate", out_a.root, {"model": "scpainter", "frames_dir": out_a.generated,
+    camera_run.finish(bpy.context, "generate", out_a.root, {"model": "scpainter", "frames_dir": out_a.generated,
                                                       "video": out_a.video}, camera="Path A")
     gen_a = bpy.data.images["SCPainter Generated · Path A"]
     assert "SCPainter Baseline · Path B" in bpy.data.images and b.data.background_images[0].image == base_b
     assert bpy.path.abspath(gen_a.filepath) == out_a.generated_frame(1)
     assert bpy.path.abspath(base_b.filepath) == out_b.generated_frame(1)
     # B's model video replaces B's baseline (the same files), A's stays
-    runs.finish(bpy.context, "generate", out_b.root, {"model": "scpainter", "frames_dir": out_b.generated,
+    camera_run.finish(bpy.context, "generate", out_b.root, {"model": "scpainter", "frames_dir": out_b.generated,
                                                       "video": out_b.video}, camera="Path B")
     assert base_b.name == "SCPainter Generated · Path B" and b.data.background_images[0].image == base_b
     assert "SCPainter Baseline · Path B" not in bpy.data.images and gen_a.name == "SCPainter Generated · Path A"
@@ -118,7 +119,7 @@ def test_a_results_slot_from_before_cameras_is_reused(empty_scene, tmp_path):
     new_layout = OutputLayout(str(tmp_path / "Path_A"))
     os.makedirs(new_layout.conditions)
     _write(new_layout, (1, 2, 3))
-    runs.finish(bpy.context, "render", new_layout.root, {"frames": 3})   # the scene camera's run
+    camera_run.finish(bpy.context, "render", new_layout.root, {"frames": 3})   # the scene camera's run
     new = bpy.data.images["SCPainter Conditions · Path A"]
     assert old.name == "SCPainter Conditions" and bpy.path.abspath(old.filepath) == old_layout.condition_preview(1)
     assert len(cam.data.background_images) == 1 and cam.data.background_images[0].image == new

@@ -136,8 +136,8 @@ def test_each_camera_path_renders_into_its_own_folder(street_scene, tmp_path, ad
 
 
 def test_all_camera_paths_followed_stopped_and_past_a_failure(street_scene, tmp_path, addon):
-    """runs.AllCameras as the UI timer drives it: a path whose folder cannot be had is reported and the next runs;
-    the progress names the camera ("camera 2/3"); Esc stops the running path and starts no more.
+    """all_cameras.AllCameras as the UI timer drives it: a path whose folder cannot be had is reported and the next
+    runs; the progress names the camera ("camera 2/3"); Esc stops the running path and starts no more.
 
     Nothing here depends on what a 0.05 s sample happens to catch (a warm backend renders the four frames between
     two samples; a busy CPU may finish a path before the first): each path's run is seen at its start (the
@@ -145,7 +145,8 @@ def test_all_camera_paths_followed_stopped_and_past_a_failure(street_scene, tmp_
     is read from its recorded last progress event."""
     import time
 
-    runs = sys.modules[f"{addon}.scpainter_blender.scene.runs"]
+    camera_run = sys.modules[f"{addon}.scpainter_blender.runs.camera_run"]
+    all_cameras = sys.modules[f"{addon}.scpainter_blender.runs.all_cameras"]
     kinds = sys.modules[f"{addon}.scpainter_blender.scene.kinds"]
     a = street_scene.camera
     refused = a.copy()                                          # its folder would be the scene folder's assets/
@@ -157,18 +158,18 @@ def test_all_camera_paths_followed_stopped_and_past_a_failure(street_scene, tmp_
     assert [c.name for c in paths] == ["Assets", "Camera path 2 m left", "Camera path 2 m right"]
     props = sys.modules[f"{addon}.scpainter_blender.scene.props"]
     with pytest.raises(props.SceneError, match="scene.objects: the scene has no camera paths"):
-        runs.AllCameras(bpy.context, "render", runs.invocation(bpy.context, "render"), [])
-    follow = runs.AllCameras(bpy.context, "render", runs.invocation(bpy.context, "render"), paths)
+        all_cameras.AllCameras(bpy.context, "render", camera_run.invocation(bpy.context, "render"), [])
+    follow = all_cameras.AllCameras(bpy.context, "render", camera_run.invocation(bpy.context, "render"), paths)
     second = follow.follower                                           # camera 2/3's run: 1/3 was refused first
     texts = [follow.status_text]
     while (status := follow.tick(bpy.context)) == "running":
         texts.append(follow.status_text)
-        if runs.ACTIVE.get("position") == (3, 3):                      # the last path's run has started
+        if camera_run.ACTIVE.get("position") == (3, 3):                      # the last path's run has started
             follow.stop()                                              # Esc during the last path
             status = "cancelled"
             break
         time.sleep(0.05)
-    assert status == "cancelled" and not runs.ACTIVE
+    assert status == "cancelled" and not camera_run.ACTIVE
     assert not any("camera 1/3" in t for t in texts)                   # never started: its folder was refused
     assert texts[0].startswith("SCPainter render, camera 2/3: ")
     assert texts[-1].startswith("SCPainter render, camera 3/3: ")
@@ -212,34 +213,34 @@ def test_crash_hang_and_missing_pieces_leave_the_scene_alone(street_scene, tmp_p
 
 
 def test_followed_runs_cancel_finish_and_time_out(street_scene, tmp_path, addon):
-    """The modal operator's state machine (runs.Follower), driven as the UI timer drives it: Esc keeps the frames
+    """The modal operator's state machine (camera_run.Follower), driven as the UI timer drives it: Esc keeps the frames
     done and leaves the scene alone; a followed run to the end loads its results; a hung backend times out."""
     import time
 
     from backend.render import channels
 
-    runs = sys.modules[f"{addon}.scpainter_blender.scene.runs"]  # the installed add-on's module
+    camera_run = sys.modules[f"{addon}.scpainter_blender.runs.camera_run"]  # the installed add-on's module
     before = _state()
     # Esc once a sample sees the first frame rendered: twelve frames, so eleven are left to render after it (a
     # warm backend renders a frame in ~0.1 s; the loop samples every 0.05 s), even with the CPU shared
     street_scene.frame_end = 12
-    follow = runs.Follower("render", *runs.start(bpy.context, "render"))
+    follow = camera_run.Follower("render", *camera_run.start(bpy.context, "render"))
     seen = []
     # (a first frame rendered: the kernels' compile progress comes first when they are not cached yet)
-    while follow.tick() == "running" and not (runs.ACTIVE and runs.ACTIVE["stage"] == "render"):
-        seen.append(dict(runs.ACTIVE))
+    while follow.tick() == "running" and not (camera_run.ACTIVE and camera_run.ACTIVE["stage"] == "render"):
+        seen.append(dict(camera_run.ACTIVE))
         time.sleep(0.05)
-    assert runs.ACTIVE["command"] == "render" and "Esc" in follow.status_text and 0 < follow.fraction <= 1
+    assert camera_run.ACTIVE["command"] == "render" and "Esc" in follow.status_text and 0 < follow.fraction <= 1
     follow.stop()                                                   # Esc
     level, message = follow.report(bpy.context, "cancelled")
-    assert level == "WARNING" and "kept" in message and not runs.ACTIVE
+    assert level == "WARNING" and "kept" in message and not camera_run.ACTIVE
     frames = sorted((tmp_path / "out" / CAM_DIR / "conditions").glob("frame_*.exr"))
     assert 1 <= len(frames) < 12 and all(channels.read(f)["R"].shape == (147, 259) for f in frames)
     assert not list((tmp_path / "out" / CAM_DIR / "conditions").glob("*.tmp"))
     assert _state() == before
     street_scene.frame_end = 4
     # followed to the end: resumes, finishes, loads the previews behind the camera
-    follow = runs.Follower("render", *runs.start(bpy.context, "render"))
+    follow = camera_run.Follower("render", *camera_run.start(bpy.context, "render"))
     while (status := follow.tick()) == "running":
         time.sleep(0.05)
     assert status == "finished"
@@ -248,11 +249,11 @@ def test_followed_runs_cancel_finish_and_time_out(street_scene, tmp_path, addon)
     # Generate followed without a checkpoint: the baseline, said from the first tick to the report
     prefs = bpy.context.preferences.addons[addon].preferences
     prefs.checkpoint_dir = ""
-    follow = runs.Follower("generate", *runs.start(bpy.context, "generate"),
-                           model=runs.planned_model(bpy.context, "generate"))
+    follow = camera_run.Follower("generate", *camera_run.start(bpy.context, "generate"),
+                           model=camera_run.planned_model(bpy.context, "generate"))
     texts = [follow.status_text]
     while (status := follow.tick()) == "running":
-        texts.append(follow.status_text if runs.ACTIVE else "")
+        texts.append(follow.status_text if camera_run.ACTIVE else "")
         time.sleep(0.05)
     assert status == "finished" and texts[0].startswith("SCPainter generate (Baseline): starting 0/1")
     assert all(t.startswith("SCPainter generate (Baseline): ") for t in texts if t), texts
@@ -264,22 +265,23 @@ def test_followed_runs_cancel_finish_and_time_out(street_scene, tmp_path, addon)
     assert "Checkpoint Folder" in message and bpy.data.images[_name("SCPainter Baseline")]["scpainter_frames"] == 4
     # a backend that never answers
     prefs.backend_python = _fake_python(tmp_path, "exec sleep 60")
-    follow = runs.Follower("render", *runs.start(bpy.context, "render"), timeout=1.0)
+    follow = camera_run.Follower("render", *camera_run.start(bpy.context, "render"), timeout=1.0)
     while (status := follow.tick()) == "running":
         time.sleep(0.05)
-    assert status == "timeout" and follow.report(bpy.context, status)[0] == "ERROR" and not runs.ACTIVE
+    assert status == "timeout" and follow.report(bpy.context, status)[0] == "ERROR" and not camera_run.ACTIVE
 
 
 def test_check_backend_reports_what_is_missing(addon, tiny_checkpoint, tmp_path):
-    runs = sys.modules[f"{addon}.scpainter_blender.scene.runs"]
+    preferences = sys.modules[f"{addon}.scpainter_blender.runs.preferences"]
     prefs = bpy.context.preferences.addons[addon].preferences
     try:
         prefs.backend_python, prefs.checkpoint_dir = sys.executable, tiny_checkpoint
         assert bpy.ops.scpainter.check_backend() == {"FINISHED"}
-        assert runs.DOCTOR["ok"] and "ready" in runs.DOCTOR["text"] and "torch" in runs.DOCTOR["text"]
+        doctor = preferences.DOCTOR
+        assert doctor["ok"] and "ready" in doctor["text"] and "torch" in doctor["text"]
         prefs.checkpoint_dir = str(tmp_path)                         # a folder that is not a checkpoint
         assert bpy.ops.scpainter.check_backend() == {"FINISHED"}
-        assert not runs.DOCTOR["ok"] and "scpainter.json" in runs.DOCTOR["text"]
+        assert not preferences.DOCTOR["ok"] and "scpainter.json" in preferences.DOCTOR["text"]
         # an interpreter without numpy (Blender's own, say): the missing packages and the README's fix, no traceback
         fake = tmp_path / "no_numpy" / "numpy"
         fake.mkdir(parents=True)
@@ -289,12 +291,12 @@ def test_check_backend_reports_what_is_missing(addon, tiny_checkpoint, tmp_path)
         wrapper.chmod(0o755)
         prefs.backend_python, prefs.checkpoint_dir = str(wrapper), ""
         assert bpy.ops.scpainter.check_backend() == {"FINISHED"}
-        assert not runs.DOCTOR["ok"] and "missing numpy" in runs.DOCTOR["text"]
-        assert f"{wrapper} -m pip install -r requirements.txt" in runs.DOCTOR["text"]
+        assert not preferences.DOCTOR["ok"] and "missing numpy" in preferences.DOCTOR["text"]
+        assert f"{wrapper} -m pip install -r requirements.txt" in preferences.DOCTOR["text"]
         prefs.backend_python = str(tmp_path / "no-python")
         with pytest.raises(RuntimeError, match="Backend Python not found"):
             bpy.ops.scpainter.check_backend()
-        assert not runs.DOCTOR["ok"]
+        assert not preferences.DOCTOR["ok"]
     finally:
         prefs.backend_python, prefs.checkpoint_dir = "", ""
 
@@ -303,11 +305,11 @@ def test_export_labels_operator_and_its_report(addon, empty_scene):
     """The operator offers the backend's formats (their one home: core.backend_protocol); the report of a finished
     export says the format, counts and where (nothing is loaded into the scene)."""
     protocol = sys.modules[addon + ".scpainter_blender.core.backend_protocol"]
-    runs = sys.modules[addon + ".scpainter_blender.scene.runs"]
+    camera_run = sys.modules[addon + ".scpainter_blender.runs.camera_run"]
     rna = bpy.ops.scpainter.export_labels.get_rna_type()
     assert [i.identifier for i in rna.properties["format"].enum_items] == list(protocol.EXPORT_FORMAT_NAMES)
     done = {"format": "openlabel", "frames": 3, "objects": 7, "images": "conditions", "out": "/x/export/openlabel"}
-    text = runs.finish(bpy.context, "export", "/x", done)
+    text = camera_run.finish(bpy.context, "export", "/x", done)
     assert text.startswith("OpenLABEL export: 3 frames, 7 objects") and "/x/export/openlabel" in text
     assert "condition previews" in text and len(bpy.data.images) == 0
 
@@ -315,10 +317,10 @@ def test_export_labels_operator_and_its_report(addon, empty_scene):
 def test_a_run_with_warnings_is_reported_as_a_warning():
     """The backend's warning events (weak frames, a camera inside a car) turn a finished run's report into a
     warning quoting the first and counting the rest."""
-    from scpainter_blender.scene import runs
+    from scpainter_blender.runs import camera_run
 
-    assert runs.with_warnings("Condition layers of 4 frames", []) == ("INFO", "Condition layers of 4 frames")
-    level, text = runs.with_warnings("Condition layers of 4 frames", [
+    assert camera_run.with_warnings("Condition layers of 4 frames", []) == ("INFO", "Condition layers of 4 frames")
+    level, text = camera_run.with_warnings("Condition layers of 4 frames", [
         {"event": "warning", "code": "camera_inside_object", "message": "frame 3: the camera is inside 'car'"},
         {"event": "warning", "code": "low_coverage", "message": "frame 4: only 40% ..."}])
     assert level == "WARNING" and "2 warnings: frame 3: the camera is inside 'car' (and 1 more" in text

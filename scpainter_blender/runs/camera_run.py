@@ -1,9 +1,10 @@
-"""Backend runs from Blender: write the job, start the backend, load what it made. Shared by the operators (modal
-or blocking) and the headless commands; plus the runtime state the panel and preferences show (never saved).
+"""One camera's backend run from Blender: write the job, start the backend, follow it, load what it made. Shared
+by the operators (modal or blocking) and the headless commands; plus the run in progress the panel shows
+(``ACTIVE``, never saved).
 
 A run is a camera's: its job is seen by that camera (default: the scene camera), written into that camera's output
 folder (``props.camera_output_dir``), and its results are loaded under that camera's name and shown behind it
-(``results``). ``AllCameras`` runs every camera path of the scene so, one after another."""
+(``scene.results``). ``all_cameras.AllCameras`` runs every camera path of the scene so, one after another."""
 
 from __future__ import annotations
 
@@ -11,18 +12,16 @@ import os
 
 import bpy
 
-from ..backend_client import BackendError, BackendRun, Invocation
 from ..core import backend_protocol as protocol
 from ..core import job as job_mod
 from ..core import outputs
-from ..core.errors import InputError
 from ..core.output_layout import OutputLayout
-from . import job_export, preferences, props, results, warm_backend
+from ..scene import job_export, props, results
+from . import preferences, warm_session
+from .client import BackendError, BackendRun, Invocation
 
 #: The run in progress (one at a time): command, model (the generator, None for render), stage, done, total, out.
 ACTIVE: dict = {}
-#: The last "Check Backend" report: ok, text, report.
-DOCTOR: dict = {}
 
 
 #: What the UI calls each generator (panel, status bar, reports): the baseline is never to be taken for the model.
@@ -89,12 +88,13 @@ def start(context, run: Invocation | str, checkpoint: str | None = None, camera=
     """Export the scene's job seen by ``camera`` (``export``, naming ``checkpoint``) and start ``run`` on it: an
     ``Invocation`` (the operators': ``invocation``; the command line's: ``blender -c scpainter``), or a command run
     as the preferences say; (the run, the camera's output folder). The run is a request to the session's warm
-    backend when the preferences keep one, else a process of its own (``warm_backend.launch``). BackendError when
+    backend when the preferences keep one, else a process of its own (``warm_session.launch``). BackendError when
     the backend cannot be started. ``exported``: (job path, output folder) ``export`` wrote for this very run a
     moment ago (``render_plan``), so it is not exported twice."""
     run = invocation(context, run) if isinstance(run, str) else run
     job_path, out = exported or export(context, checkpoint, camera)
-    return warm_backend.launch(context, run.replace(jobs=(job_path,))), out
+    keep = preferences.keep_backend(preferences.get(context))
+    return warm_session.launch(run.replace(jobs=(job_path,)), keep), out
 
 
 def finish(context, command: str, out: str, done: dict, camera: str | None = None) -> str:
@@ -141,7 +141,7 @@ def with_warnings(message: str, warnings: list) -> tuple[str, str]:
 
 def progress_text(active: dict | None = None) -> str:
     """The run in progress in a few words (panel and status bar): "generate (Baseline): render 2/4"; one of
-    several cameras (``AllCameras``) says which: "render, camera 2/3: render 4/16"."""
+    several cameras (``all_cameras.AllCameras``) says which: "render, camera 2/3: render 4/16"."""
     a = ACTIVE if active is None else active
     model = MODEL_NAMES.get(a.get("model") or "")
     what = f"{a['command']} ({model})" if model else a["command"]
@@ -181,7 +181,7 @@ class Follower:
         """``model``: the generator the run is expected to use (``planned_model``), shown from the start; the
         backend's progress events correct it. ``camera``: the name of the camera whose run it is (its results are
         loaded as that camera's; default: the scene camera when it ends). ``position``: (i, n), this run is the
-        i-th camera's of n (``AllCameras``)."""
+        i-th camera's of n (``all_cameras.AllCameras``)."""
         import time
 
         self.command, self.job, self.out, self.timeout, self.camera = command, job, out, timeout, camera
@@ -200,7 +200,7 @@ class Follower:
 
     def tick(self, context=None) -> str:
         """'running', 'finished', 'failed' or 'timeout' (the last three end the run and clear ``ACTIVE``).
-        ``context`` is not needed (``AllCameras.tick`` needs it: the operator calls both alike)."""
+        ``context`` is not needed (``all_cameras.AllCameras.tick`` needs it: the operator calls both alike)."""
         import time
 
         for ev in self.job.poll():
@@ -231,110 +231,3 @@ class Follower:
         except BackendError as e:
             return "ERROR", failure_message(e, self.out)
         return with_warnings(finish(context, self.command, self.out, done, self.camera), self.job.warnings)
-
-
-#: Report levels, mildest first: a report of several cameras has its worst camera's level.
-LEVELS = ("INFO", "WARNING", "ERROR")
-
-
-def error_text(e: InputError | BackendError) -> str:
-    """One line for a camera whose run failed on bad input or in the backend (its hint added)."""
-    hint = getattr(e, "hint", None)
-    return str(e) + (f" ({hint})" if hint and hint not in str(e) else "")
-
-
-class AllCameras:
-    """``command`` run for each of ``cameras`` (``kinds.camera_paths``) one after another, each as ``start`` runs
-    one camera (its job, its output folder, its results behind it), the scene camera left as it is; a camera whose
-    render is up to date (``render_plan.check``) has its results loaded without a backend. Followed like a
-    ``Follower`` (``tick(context)``, ``stop``, ``report``): from the UI timer, or in a loop by the blocking
-    operator. A camera that cannot run (bad input such as a clashing folder name, a backend failure, a timeout) is
-    reported and the next one runs; ``stop`` (Esc) stops the one running and starts no more. ``ACTIVE`` carries
-    ``position`` (i, n), so the progress reads "render, camera 2/3: render 4/16"."""
-
-    def __init__(self, context, command: str, run: Invocation, cameras: list, timeout: float = 0.0,
-                 model: str | None = None):
-        """SceneError when ``cameras`` is empty; otherwise the first camera's run is started."""
-        if not cameras:
-            raise props.SceneError("scene.objects", "the scene has no camera paths",
-                                   hint="add one with New Camera Path in the SCPainter panel")
-        self.command, self.run, self.timeout, self.model = command, run, timeout, model
-        self.names = [c.name for c in cameras]  # names, not objects: a camera may be deleted during the runs
-        self.outcomes: list[tuple[str, str, str, str]] = []   # (camera, status, level, message), in order
-        self.follower: Follower | None = None
-        self._next(context)
-
-    @property
-    def fraction(self) -> float:
-        return progress_fraction() if ACTIVE else len(self.outcomes) / len(self.names)
-
-    @property
-    def status_text(self) -> str:
-        return self.follower.status_text if self.follower is not None and ACTIVE else "SCPainter"
-
-    def _next(self, context) -> bool:
-        """Start the next camera's run; one that cannot start is recorded and skipped. False when none is left."""
-        while len(self.outcomes) < len(self.names):
-            i, name = len(self.outcomes), self.names[len(self.outcomes)]
-            try:
-                cam = context.scene.objects.get(name)
-                if cam is None:
-                    raise props.SceneError(f"objects[{name!r}]", "is no longer in the scene (deleted or renamed "
-                                                                 "while the camera paths before it ran)")
-                from . import render_plan  # (it imports this module)
-
-                found = render_plan.check(context, self.run, cam)
-                if found is not None and found.done is not None:  # up to date: no backend for this camera
-                    level, message = with_warnings(finish(context, self.command, found.out, found.done, name),
-                                                   found.warnings)
-                    self.outcomes.append((name, "finished", level, message))
-                    continue
-                job, out = start(context, self.run, camera=cam,
-                                 exported=None if found is None else (found.job_path, found.out))
-            except (InputError, BackendError) as e:
-                self.outcomes.append((name, "failed", "ERROR", error_text(e)))
-                continue
-            self.follower = Follower(self.command, job, out, self.timeout, self.model, camera=name,
-                                     position=(i + 1, len(self.names)))
-            return True
-        self.follower = None
-        return False
-
-    def tick(self, context=None) -> str:
-        """'running' while a camera's run goes on or the next one started; 'finished' when every camera had its
-        run (each one's outcome in ``outcomes``)."""
-        if self.follower is None:
-            return "finished"
-        status = self.follower.tick()
-        if status == "running":
-            return status
-        self._record(context, status)
-        return "running" if self._next(context) else "finished"
-
-    def _record(self, context, status: str) -> None:
-        """The ended run's outcome (its results loaded when it finished)."""
-        try:
-            level, message = self.follower.report(context, status)
-        except InputError as e:  # its results could not be loaded (a bug propagates)
-            level, message = "ERROR", error_text(e)
-        self.outcomes.append((self.follower.camera, status, level, message))
-        self.follower = None
-
-    def stop(self) -> None:
-        """Esc: the running camera's backend is stopped (its finished frames kept); no other camera starts."""
-        if self.follower is not None:
-            self.follower.stop()
-
-    def report(self, context, status: str) -> tuple[str, str]:
-        """(level, message) for the end: how many cameras finished, and each camera's own report; the worst
-        camera's level (a cancelled run: at least WARNING)."""
-        if status != "finished" and self.follower is not None:
-            self._record(context, "cancelled" if status == "cancelled" else status)
-        not_run = self.names[len(self.outcomes):]
-        ok = sum(st == "finished" and level != "ERROR" for _, st, level, _ in self.outcomes)
-        levels = [level for _, _, level, _ in self.outcomes] + ["WARNING"] * bool(not_run)
-        head = f"{self.command} of {len(self.names)} camera path{'s' * (len(self.names) > 1)}: {ok} finished"
-        if not_run:
-            head += f", not run: {', '.join(map(repr, not_run))}"
-        parts = [f"{name!r}: {message}" for name, _, _, message in self.outcomes]
-        return max(levels, key=LEVELS.index, default="INFO"), "; ".join([head, *parts])

@@ -4,7 +4,7 @@
 ``Invocation`` is the one place the add-on spells the backend's command line: the operators build it from the
 preferences, ``blender -c scpainter`` from its arguments; ``argv()`` turns it into arguments, ``start()`` into a
 ``BackendJob``. ``BackendRun`` is what a follower sees of a run, one-shot (``BackendJob``) or sent to a warm
-backend (``backend_warm``). Device names, exit codes and event kinds: ``core.backend_protocol``.
+backend (``warm_process``). Device names, exit codes and event kinds: ``core.backend_protocol``.
 
 No bpy, no torch: the add-on calls this from Blender's Python, where neither torch nor open3d exist; the
 backend runs under the interpreter chosen in the add-on preferences.
@@ -18,10 +18,10 @@ import os
 import subprocess
 import sys
 
-from .core import backend_protocol as protocol
+from ..core import backend_protocol as protocol
 
 #: The folder that holds both ``backend/`` and ``scpainter_blender/`` (the extension root).
-EXTENSION_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+EXTENSION_ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 
 class BackendError(RuntimeError):
@@ -72,7 +72,7 @@ def backend_env() -> dict:
 
 class BackendRun:
     """One backend command followed from the add-on, however it runs: ``BackendJob`` (its own process) or
-    ``backend_warm.WarmRun`` (a request to a warm backend). Its events arrive on a queue filled by a reader thread,
+    ``warm_process.WarmRun`` (a request to a warm backend). Its events arrive on a queue filled by a reader thread,
     so ``poll()`` never blocks (what Blender's modal operators need); ``wait()`` blocks instead. ``done``,
     ``error``, ``progress`` (the last one) and ``warnings`` (all, in order) hold what ``poll`` has seen;
     ``returncode`` is the command's exit code once it ended (None before); ``finished`` says it ended and every
@@ -268,16 +268,21 @@ def run(args, python: str = "", on_event=None, cwd=None, timeout=None) -> dict:
 #: ``Invocation``'s fields that are backend options, each with its flag, in the order ``argv()`` writes them. A
 #: value of None, False or () leaves the flag out; True writes the flag alone; a tuple repeats it per value.
 _FLAGS = (("batch_command", "--command"), ("lists", "--list"), ("trusted_lists", "--trusted-list"),
-          ("device", "--device"), ("checkpoint", "--checkpoint"), ("model", "--model"), ("steps", "--steps"),
+          ("idle_timeout", "--idle-timeout"), ("device", "--device"), ("checkpoint", "--checkpoint"),
+          ("model", "--model"), ("steps", "--steps"),
           ("seed", "--seed"), ("inpaint", "--inpaint"), ("point_radius", "--point-radius"), ("force", "--force"),
           ("allow_outside", "--allow-outside"), ("data_roots", "--data-root"), ("shard", "--shard"), ("ray", "--ray"),
-          ("retries", "--retries"), ("cpus_per_job", "--cpus-per-job"), ("export_format", "--format"), ("out", "--out"))
+          ("retries", "--retries"), ("cpus_per_job", "--cpus-per-job"), ("export_format", "--format"), ("out", "--out"),
+          ("count", "--count"))
+#: How ``argv()`` writes a value other than ``str``: the idle time as ``serve --help`` does ("600", not "600.0").
+_SPELLING = {"idle_timeout": lambda seconds: f"{float(seconds):g}"}
 
 
 @dataclasses.dataclass(frozen=True)
 class Invocation:
-    """One ``python -m backend`` command: ``command`` (render, generate, export, batch, doctor), its positional ``jobs``
-    (job.json paths) and the options below (None / False: the backend's default), run by ``python`` (the
+    """One ``python -m backend`` command: ``command`` (render, generate, export, batch, doctor, mesh-asset,
+    splat-asset, serve), its positional ``jobs`` (job.json paths) or ``asset`` (the file mesh-asset / splat-asset
+    converts) and the options below (None / False: the backend's default), run by ``python`` (the
     ``backend_python`` rule: "" for the running interpreter when it has torch). Which command takes which option
     is the backend's parser's to say (``backend/commands/``, one module per command; ``build_parser`` in
     ``backend/__main__.py``); a test parses ``argv()`` with it.
@@ -286,10 +291,13 @@ class Invocation:
     batch) or the folder to check (doctor). ``allow_outside``: the job's paths may lead anywhere; ``data_roots``:
     folders they may lead into besides the job's (render, generate, export, batch). ``ray``: None without Ray, ""
     for the default cluster, else its address. ``shard``: "K/N" (batch). ``export_format``: one of
-    ``core.backend_protocol.EXPORT_FORMAT_NAMES`` and ``out`` the destination folder (export)."""
+    ``core.backend_protocol.EXPORT_FORMAT_NAMES`` and ``out`` the destination folder (export) or file (mesh-asset,
+    splat-asset: the Gaussian PLY). ``count``: Gaussians of a mesh (mesh-asset). ``idle_timeout``: seconds a
+    ``serve`` process waits for a request (0: never ends by itself)."""
 
     command: str
     jobs: tuple = ()
+    asset: str | None = None
     batch_command: str | None = None
     lists: tuple = ()
     trusted_lists: tuple = ()
@@ -309,6 +317,8 @@ class Invocation:
     cpus_per_job: float | None = None
     export_format: str | None = None
     out: str | None = None
+    count: int | None = None
+    idle_timeout: float | None = None
     python: str = ""
 
     def __post_init__(self):
@@ -318,8 +328,11 @@ class Invocation:
             raise ValueError(f"format {self.export_format!r} is not one of {protocol.EXPORT_FORMAT_NAMES}")
 
     def argv(self) -> list[str]:
-        """The arguments after ``python -m backend``: the command, the jobs, then each option that is set."""
+        """The arguments after ``python -m backend``: the command, the jobs (or the asset), then each option that is
+        set."""
         out = [self.command, *(os.fspath(j) for j in self.jobs)]
+        if self.asset is not None:
+            out.append(os.fspath(self.asset))
         for name, flag in _FLAGS:
             value = getattr(self, name)
             if value is None or value is False or value == ():
@@ -329,7 +342,7 @@ class Invocation:
             elif isinstance(value, tuple):
                 out += [a for v in value for a in (flag, os.fspath(v))]
             else:
-                out += [flag, str(value)]
+                out += [flag, _SPELLING.get(name, str)(value)]
         return out
 
     def replace(self, **changes) -> Invocation:
@@ -338,3 +351,7 @@ class Invocation:
     def start(self, cwd=None, log_path: str | None = None) -> BackendJob:
         """Start it (``BackendJob``); BackendError when the interpreter cannot run the backend."""
         return BackendJob(self.argv(), self.python, cwd, log_path)
+
+    def run(self, on_event=None, cwd=None, timeout=None) -> dict:
+        """Run it to the end (``run``): the ``done`` event; BackendError on failure."""
+        return run(self.argv(), self.python, on_event, cwd, timeout)

@@ -1,4 +1,4 @@
-"""Render Conditions with nothing to render is answered in Blender, without a backend (scene/render_plan.py).
+"""Render Conditions with nothing to render is answered in Blender, without a backend (runs/render_plan.py).
 
 The proof that no backend starts: after a first render the preferences point Backend Python at a file that does
 not exist, so any backend start fails; a second click with nothing changed still finishes, reports "up to date"

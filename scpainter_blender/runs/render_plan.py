@@ -1,7 +1,7 @@
 """Render Conditions with nothing to render: known in Blender, without starting the backend (docs/design.md §12).
 
-The job a click would render is exported as ``runs.start`` exports it, and planned with the backend's own rules
-(``core.frame_keys``: each frame's layers key from its camera and the assets it can see, the precision and the
+The job a click would render is exported as ``camera_run.start`` exports it, and planned with the backend's own
+rules (``core.frame_keys``: each frame's layers key from its camera and the assets it can see, the precision and the
 assets' extents from the conditions folder's record). When every frame is finished under its keys, the run is
 over before it starts: its results are loaded as a finished render's, and the frames' warnings are said again
 as the backend says them on every run. Anything the record cannot answer (no record, an asset file changed, a
@@ -12,18 +12,19 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from ..backend_client import Invocation
 from ..core import backend_protocol as protocol
 from ..core import frame_keys
 from ..core import job as job_mod
 from ..core import labels as labels_mod
-from . import runs
+from . import camera_run
+from .client import Invocation
 
 
 @dataclass
 class Check:
-    """What ``check`` found: the job it exported (``job_path``, ``out``: hand them to ``runs.start(exported=...)``)
-    and, when every frame is finished, the run's ``done`` event and the frames' ``warning`` events (else None)."""
+    """What ``check`` found: the job it exported (``job_path``, ``out``: hand them to
+    ``camera_run.start(exported=...)``) and, when every frame is finished, the run's ``done`` event and the frames'
+    ``warning`` events (else None)."""
     job_path: str
     out: str
     done: dict | None = None
@@ -31,12 +32,12 @@ class Check:
 
 
 def check(context, run: Invocation, camera) -> Check | None:
-    """Export ``camera``'s job as ``runs.start`` would (InputError/SceneError when the scene cannot make one) and
+    """Export ``camera``'s job as ``camera_run.start`` would (InputError/SceneError when the scene cannot make one) and
     plan ``run`` (a ``render`` ``Invocation``) from its output folder's record: ``Check.done`` is set when every
     frame is finished. None for any other run or ``--force``: nothing exported."""
     if run.command != "render" or run.force:
         return None
-    job_path, out = runs.export(context, camera=camera)
+    job_path, out = camera_run.export(context, camera=camera)
     job = job_mod.load(job_path)
     try:
         plan = frame_keys.plan_from_record(out, job_path, job, run.point_radius or 0)

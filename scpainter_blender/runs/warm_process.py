@@ -3,11 +3,11 @@
 interpreter start, torch import, kernel load or point loading.
 
 ``WarmBackend`` owns the process: ``submit(argv)`` sends a request and returns its ``WarmRun``, which a follower
-uses as it uses a ``BackendJob`` (``backend_client.BackendRun``: ``poll``, ``finished``, ``returncode``,
+uses as it uses a ``BackendJob`` (``client.BackendRun``: ``poll``, ``finished``, ``returncode``,
 ``cancel``, ``result``, ``wait``). One request at a time. Reader threads route the server's events to the request
 in flight (the server's own ``compile`` progress at its start included: it delays that request) and its standard
 error to the request's tail and ``log_path``. A server that died is the caller's to replace (``alive``; the
-session's owner, ``scene/warm_backend.py``, starts a new one on its next use); the request in flight then fails
+session's owner, ``warm_session``, starts a new one on its next use); the request in flight then fails
 with a BackendError naming the server, its exit code and the end of its standard error. ``close()`` ends it: a quit
 request, then SIGTERM, then SIGKILL, each after a bounded wait.
 
@@ -22,8 +22,8 @@ import signal
 import subprocess
 import threading
 
-from .backend_client import EXTENSION_ROOT, BackendRun, backend_env, backend_python, parse_event
-from .core import backend_protocol as protocol
+from ..core import backend_protocol as protocol
+from .client import EXTENSION_ROOT, BackendRun, Invocation, backend_env, backend_python, parse_event
 
 
 class WarmRun(BackendRun):
@@ -128,9 +128,7 @@ class WarmBackend:
 
     def __init__(self, python: str = "", device: str | None = None, idle_timeout: float = 600.0):
         exe = backend_python(python)
-        args = [protocol.SERVE, "--idle-timeout", f"{float(idle_timeout):g}"]
-        if device:
-            args += ["--device", device]
+        args = Invocation(protocol.SERVE, idle_timeout=idle_timeout, device=device or None).argv()
         self.python, self.device, self.idle_timeout = python, device, idle_timeout
         self.proc = subprocess.Popen([exe, "-m", "backend", *args], cwd=EXTENSION_ROOT, env=backend_env(),
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,

@@ -1,16 +1,17 @@
-"""The Blender session's warm backend (docs/design.md §12, "A warm backend"): one ``backend_warm.WarmBackend``,
+"""The Blender session's warm backend (docs/design.md §12, "A warm backend"): one ``warm_process.WarmBackend``,
 started by the first run that wants it, reused by the next ones, so a second *Render Conditions* starts its first
 frame within a second of the click.
 
-It is keyed by what it was started with: the Backend Python (resolved: ``backend_client.backend_python``), the
+It is keyed by what it was started with: the Backend Python (resolved: ``client.backend_python``), the
 device, the idle time (the preference *Keep Backend*) and the environment Blender hands it. A run whose key differs
 (a preference changed) ends it and starts another; so does a server that died or ended itself after its idle
 time. The preferences' update callbacks end it at once (``end``), as do ``unregister()`` and the interpreter's exit
 (``atexit``); a Blender that dies closes the server's standard input, which ends it too. Nothing is left behind.
 
-``launch(context, run)`` is how ``runs.start`` starts a run: a request to the warm backend for ``SERVED_COMMANDS``
-when *Keep Backend* is above 0, a one-shot ``BackendJob`` otherwise and inside ``one_shot()`` (what ``blender -c
-scpainter`` uses: a process that runs one command and ends has nothing to keep warm). *Check Backend* (``doctor``)
+``launch(run, keep)`` is how ``camera_run.start`` starts a run: a request to the warm backend for
+``SERVED_COMMANDS`` when *Keep Backend* (``keep``, read from the preferences by the caller) is above 0, a one-shot
+``BackendJob`` otherwise and inside ``one_shot()`` (what ``blender -c scpainter`` uses: a process that runs one
+command and ends has nothing to keep warm). *Check Backend* (``doctor``)
 is always one-shot: it reports on a new process of the interpreter the preferences name.
 """
 
@@ -21,10 +22,9 @@ import contextlib
 import hashlib
 import os
 
-from ..backend_client import BackendRun, Invocation, backend_env, backend_python
-from ..backend_warm import WarmBackend
 from ..core import backend_protocol as protocol
-from . import preferences
+from .client import BackendRun, Invocation, backend_env, backend_python
+from .warm_process import WarmBackend
 
 #: The session's warm backend and the key it was started with (``_key``); None when there is none.
 _SESSION: dict = {"backend": None, "key": None}
@@ -86,11 +86,10 @@ def one_shot():
         _ONE_SHOT[0] -= 1
 
 
-def launch(context, run: Invocation) -> BackendRun:
-    """Start ``run`` (its jobs set): a request to the session's warm backend when the preferences keep one (*Keep
-    Backend* > 0) and the command is one a warm backend runs, else its own process. BackendError when the
-    interpreter cannot run the backend."""
-    idle = preferences.keep_backend(preferences.get(context))
-    if idle <= 0 or _ONE_SHOT[0] or run.command not in protocol.SERVED_COMMANDS:
+def launch(run: Invocation, keep: float) -> BackendRun:
+    """Start ``run`` (its jobs set): a request to the session's warm backend when the preferences keep one (``keep``:
+    *Keep Backend*, seconds, > 0) and the command is one a warm backend runs, else its own process. BackendError
+    when the interpreter cannot run the backend."""
+    if keep <= 0 or _ONE_SHOT[0] or run.command not in protocol.SERVED_COMMANDS:
         return run.start()
-    return backend(run.python, run.device, idle).submit(run.argv())
+    return backend(run.python, run.device, keep).submit(run.argv())

@@ -5,6 +5,7 @@ from __future__ import annotations
 import bpy
 
 from ..core import backend_protocol
+from . import warm_session
 
 #: The extension's package (``bl_ext.<repo>.scpainter`` when installed): two levels above this module.
 ADDON_PACKAGE = __package__.rsplit(".", 2)[0]
@@ -12,10 +13,11 @@ ADDON_PACKAGE = __package__.rsplit(".", 2)[0]
 
 def _backend_changed(self, context):
     """A setting the warm backend was started with changed: it ends now (the next run starts one that fits)."""
-    from . import warm_backend
+    warm_session.end()
 
-    warm_backend.end()
 
+#: The last "Check Backend" report (written by the operator, shown under its button here): ok, text, report.
+DOCTOR: dict = {}
 
 #: *Keep Backend*'s default: seconds a warm backend waits for the next run before it ends.
 KEEP_BACKEND_DEFAULT = 600
@@ -49,8 +51,6 @@ class SCPAINTER_AP_preferences(bpy.types.AddonPreferences):
             col.label(text="No checkpoint: Generate makes the OpenCV inpainting baseline (no model)", icon="INFO")
         col.prop(self, "device")
         col.prop(self, "keep_backend")
-        from .runs import DOCTOR
-
         row = self.layout.row()
         row.operator("scpainter.check_backend", icon="CHECKMARK")
         if DOCTOR:
@@ -64,7 +64,7 @@ def device(prefs: SCPAINTER_AP_preferences | None) -> str:
 
 
 def python(prefs: SCPAINTER_AP_preferences | None) -> str:
-    """The Backend Python the preferences name, "" without one (``backend_client.backend_python`` then takes the
+    """The Backend Python the preferences name, "" without one (``client.backend_python`` then takes the
     running interpreter when it can import torch)."""
     return prefs.backend_python if prefs else ""
 

@@ -1,0 +1,104 @@
+"""The custom (ID) property keys the add-on stores on Blender data: objects, cameras, images, movie clips, node
+groups. Saved .blend files hold these strings: renaming one loses what older files carry, so the values never change
+(``tests/scene/test_keys.py``); code names them through these constants, never by their strings. The properties
+registered with ``bpy.props`` (``Scene.scpainter_output_dir``, ...: ``scene/props.py``) and ``kinds.PROPERTY`` (the
+kind of object, with its finders in ``scene/kinds.py``) are not here."""
+
+from __future__ import annotations
+
+# -- The points object (``scene/importer.py``; read back by ``job_export``, ``replace``, ``drive_lane``)
+#: The file the object was imported from (predictions .npz; on an asset: its Gaussian file).
+SOURCE = "scpainter_source"
+#: Frames of the recording.
+NUM_FRAMES = "scpainter_num_frames"
+#: The scene frame of the recording's first frame.
+FRAME_START = "scpainter_frame_start"
+#: (16,) the row-major 4x4 similarity from VGGT's frame to Blender's world.
+VGGT_TO_WORLD = "scpainter_vggt_to_world"
+#: The extrinsic convention the import resolved (``core.vggt``).
+EXTRINSIC_CONVENTION = "scpainter_extrinsic_convention"
+#: (left, top, right, bottom) pixels the import cropped.
+CROP = "scpainter_crop"
+#: The confidence percentile the points were kept at.
+CONFIDENCE_PERCENTILE = "scpainter_confidence_percentile"
+#: The depth-edge ratio the points were cleaned with.
+DEPTH_EDGE_RATIO = "scpainter_depth_edge_ratio"
+#: (16,) the object's matrix_world when imported (moved since: the job follows).
+MATRIX_WORLD_AT_IMPORT = "scpainter_matrix_world_at_import"
+#: (9,) a recorded camera's K, row-major (on the recorded camera).
+INTRINSICS = "scpainter_intrinsics"
+#: How the metric scale was found.
+SCALE_METHOD = "scpainter_scale_method"
+#: The scale fit's residual, metres.
+SCALE_RESIDUAL_M = "scpainter_scale_residual_m"
+
+# -- A Gaussian asset (``scene/gaussians.py``; read by ``placement``, ``job_export``, the panel)
+#: (16,) the asset file's frame to the object's data frame, row-major.
+FILE_TO_DATA = "scpainter_file_to_data"
+#: The file axes applied (AUTO's choice, TRELLIS, NONE).
+AXES = "scpainter_axes"
+#: Why those axes.
+AXES_REASON = "scpainter_axes_reason"
+#: (3,) the asset's size, metres.
+SIZE = "scpainter_size"
+#: (3,) its oriented box's size, metres.
+OBB_SIZE = "scpainter_obb_size"
+#: The SH degree read.
+SH_DEGREE = "scpainter_sh_degree"
+#: The file format read.
+FORMAT = "scpainter_format"
+#: Rows dropped as invalid.
+DROPPED = "scpainter_dropped"
+#: The mesh a mesh car was converted from.
+MESH_SOURCE = "scpainter_mesh_source"
+#: The file a SOG was converted from.
+SPLAT_SOURCE = "scpainter_splat_source"
+#: The placement's first stage (how the asset was put on the road).
+STAGE1 = "scpainter_stage1"
+#: How far the first stage's fit deviates.
+STAGE1_DEVIATION = "scpainter_stage1_deviation"
+#: The artist's review: unchecked, accepted or rejected.
+REVIEW = "scpainter_review"
+
+# -- Placement (``scene/placement.py``, ``scene/replace.py``)
+#: The box an asset was placed into.
+TARGET_BOX = "scpainter_target_box"
+#: The name of the points object it belongs to.
+POINTS_OBJECT = "scpainter_points_object"
+
+# -- A camera path (``scene/camera.py``)
+#: The recorded camera it was made from.
+SOURCE_CAMERA = "scpainter_source_camera"
+#: Its sideways shift, metres.
+SHIFT_M = "scpainter_shift_m"
+
+# -- An asset's label box (``scene/asset_box.py``)
+#: Its label class.
+CLASS = "scpainter_class"
+
+# -- A loaded result (image sequence, movie clip: ``scene/results.py``)
+#: Its kind (``results.CONDITIONS``, ...).
+RESULT = "scpainter_result"
+#: The name of the camera that saw it.
+CAMERA = "scpainter_camera"
+#: The generator (scpainter, baseline).
+MODEL = "scpainter_model"
+#: The backend's one line about what made it.
+DESCRIPTION = "scpainter_description"
+#: Files in the sequence.
+FRAMES = "scpainter_frames"
+
+# -- A node group the add-on builds (``scene/node_groups.py``)
+#: Its version.
+VERSION = "scpainter_version"
+
+#: Keys renamed since older .blend files were saved: {current key: the key older files carry} (``props.matrix_property``
+#: reads either).
+RENAMED = {VGGT_TO_WORLD: "scpainter_world_from_vggt", FILE_TO_DATA: "scpainter_data_from_file"}
+
+#: Every key above, the renamed ones' old names included.
+ALL = (SOURCE, NUM_FRAMES, FRAME_START, VGGT_TO_WORLD, EXTRINSIC_CONVENTION, CROP, CONFIDENCE_PERCENTILE,
+       DEPTH_EDGE_RATIO, MATRIX_WORLD_AT_IMPORT, INTRINSICS, SCALE_METHOD, SCALE_RESIDUAL_M, FILE_TO_DATA, AXES,
+       AXES_REASON, SIZE, OBB_SIZE, SH_DEGREE, FORMAT, DROPPED, MESH_SOURCE, SPLAT_SOURCE, STAGE1, STAGE1_DEVIATION,
+       REVIEW, TARGET_BOX, POINTS_OBJECT, SOURCE_CAMERA, SHIFT_M, CLASS, RESULT, CAMERA, MODEL, DESCRIPTION, FRAMES,
+       VERSION, *RENAMED.values())

@@ -103,6 +103,12 @@ UNMIRRORED = {
     "scpainter_blender/core/variation/library.py": "tested by tests/core/variation/test_variants.py: the cars drawn",
     "scpainter_blender/core/variation/spec.py": "tested by tests/core/variation/test_variants.py: "
                                                 "scpainter.variation/1 read and written",
+    # -- cli (`blender -c scpainter`)
+    "scpainter_blender/cli/generate.py": "tested by tests/cli/test_batch.py: `generate` of a scene with the "
+                                         "baseline (--inpaint, --output) and a tiny checkpoint "
+                                         "(test_render_generate_and_batch_headless)",
+    "scpainter_blender/cli/vary.py": "tested by tests/scene/test_variations.py: `vary` from predictions and from a "
+                                     "saved .blend (test_vary_headless_from_predictions_and_from_a_blend)",
     # -- scene
     "scpainter_blender/scene/compat.py": "tested by tests/scene/test_visibility.py: Blender 4.2 and later alike",
     "scpainter_blender/scene/materials.py": "exercised by tests/scene/test_gaussians.py: the imported car's "

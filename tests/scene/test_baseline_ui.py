@@ -1,5 +1,5 @@
 """Without a checkpoint, Generate makes the OpenCV inpainting baseline: what the panel, the tooltip, the progress text
-and the exported job say, without running the backend (the runs themselves: tests/runs/test_camera_run.py, test_cli.py)."""
+and the exported job say, without running the backend (the runs themselves: tests/runs/test_camera_run.py, tests/cli/)."""
 
 import json
 import sys

@@ -2,8 +2,8 @@
 Gaussian car beside the road, add a camera path 2 m to the left of the drive, export the job, render the
 condition layers and their labels with the backend (``python -m backend render``), generate the video — with the
 SCPainter model when a checkpoint is configured (``--checkpoint`` or ``$SCPAINTER_CHECKPOINT``), otherwise the
-OpenCV inpainting baseline, saying so and how to use a checkpoint instead —, export the labels as KITTI, COCO and
-OpenLABEL datasets and render a Cycles preview.
+OpenCV inpainting baseline, saying so and how to use a checkpoint instead —, export the labels in every dataset
+format (``EXPORT_FORMATS``) and render a Cycles preview.
 
     .venv/bin/python tools/demo.py [--out build/demo] [--scale camera_height|trajectory|factor]
 
@@ -206,9 +206,9 @@ def generation_summary(output_dir: str) -> dict:
 
 
 def labels_summary(output_dir: str) -> dict:
-    """The labels render wrote: per frame the objects seen (track, class, visible fraction) and the flags; where the
-    labelled previews are."""
-    from scpainter_blender.core import files
+    """The labels render wrote: per frame the objects seen (track, class, synthetic and the measures exports carry:
+    ``core.labels.CARRIED_MEASURES``) and the flags; where the labelled previews are."""
+    from scpainter_blender.core import files, labels
     from scpainter_blender.core.output_layout import FRAME_LABELS, LABELLED_PREVIEW
 
     folder = OutputLayout(output_dir).conditions
@@ -218,8 +218,8 @@ def labels_summary(output_dir: str) -> dict:
         frames.append({"frame": lab["frame"], "timestamp_s": lab["timestamp_s"], "coverage": lab["coverage"],
                        "flags": lab["flags"],
                        "objects": [{"track_id": o["track_id"], "class": o["class"], "synthetic": o["synthetic"],
-                                    "visible_fraction": o["visible_fraction"], "occlusion": o["occlusion"],
-                                    "truncation": o["truncation"]} for o in lab["objects"] if o["visible_pixels"]]})
+                                    **{k: o[k] for k in labels.CARRIED_MEASURES}}
+                                   for o in lab["objects"] if o["visible_pixels"]]})
     return {"frames": frames, "labelled_previews": LABELLED_PREVIEW.in_folder(folder)}
 
 

@@ -5,8 +5,8 @@
 
 ``images``: id (from 1), file_name, width, height, plus ``frame`` (scene frame) and ``timestamp_s``.
 ``categories``: the classes of the exported objects, sorted, ids from 1. ``annotations`` (ids from 1), for each
-object that shows (visible pixels, not removed) with ``track_id``, ``synthetic``, ``occlusion``, ``truncation``,
-``visible_fraction`` as extra keys and ``iscrowd`` 0:
+object that shows (visible pixels, not removed) with ``EXTRA_KEYS`` (the fields ``core.labels`` says exports carry:
+``track_id``, ``occlusion`` …) as extra keys and ``iscrowd`` 0:
 
 - an inserted (synthetic) object: ``segmentation`` its visible mask (the instance layer == its track id) as
   compressed RLE, ``area`` the mask's pixel count, ``bbox`` [x, y, w, h] the mask's box;
@@ -30,9 +30,13 @@ import os
 
 import numpy as np
 
+from scpainter_blender.core import labels
+
 from . import common
 
 IMAGES, ANNOTATIONS = "images", "annotations.json"
+#: Whether ``write`` reads the frames' instance layers (``command.FORMATS``): the synthetic objects' masks.
+NEEDS_INSTANCE = True
 
 
 def run_lengths(mask) -> list:
@@ -74,9 +78,12 @@ def mask_bbox(mask) -> list:
     return [float(xs.min()), float(ys.min()), float(xs.max() + 1 - xs.min()), float(ys.max() + 1 - ys.min())]
 
 
+#: The extra keys of an annotation: the labels' carried identity, then their carried measures by name.
+EXTRA_KEYS = labels.CARRIED_IDENTITY + tuple(sorted(labels.CARRIED_MEASURES))
+
+
 def _extra(obj: dict) -> dict:
-    return {"track_id": obj["track_id"], "synthetic": obj["synthetic"], "occlusion": obj["occlusion"],
-            "truncation": obj["truncation"], "visible_fraction": obj["visible_fraction"]}
+    return {k: obj[k] for k in EXTRA_KEYS}
 
 
 def dataset(frames: list, file_names: list) -> dict:

@@ -1,4 +1,5 @@
-"""The body of ``python -m backend export JOB --format kitti|coco|openlabel [--out DIR]`` (docs/design.md §15).
+"""The body of ``python -m backend export JOB --format FORMAT [--out DIR]`` (docs/design.md §15); the formats:
+``FORMATS``.
 
 Steps: the job's inputs and output folder are checked and the folder locked (``locking.OutputLock``, as
 ``render`` does); ``render_job`` renders what is missing (it resumes: after ``render`` or ``generate`` it renders
@@ -25,16 +26,20 @@ from .. import events
 from ..errors import FolderBusyError
 from . import coco, common, kitti, openlabel
 
+#: The writer of each ``export --format``: a module of this package with ``write(folder, frames, progress)`` and
+#: ``NEEDS_INSTANCE`` (it reads the frames' instance layers). The names are ``core.backend_protocol.EXPORT_FORMATS``',
+#: in its order (a test says so), which gives each its label and description: Blender lists them without the
+#: backend. A new format: its writer module, an entry here and there, its tests and docs.
 FORMATS = {"kitti": kitti, "coco": coco, "openlabel": openlabel}
 #: The formats whose writer needs the instance layer.
-NEEDS_INSTANCE = ("coco",)
+NEEDS_INSTANCE = tuple(name for name, writer in FORMATS.items() if writer.NEEDS_INSTANCE)
 NO_GENERATED = "no_generated_frames"
 RENDER_AGAIN = "render again: python -m backend render JOB --force (this export renders only missing frames)"
 EXPORT_SCHEMA = "scpainter.export/1"
 
 
 def check_format(fmt: str) -> str:
-    if fmt not in FORMATS:  # (FORMATS' keys are core.backend_protocol.EXPORT_FORMAT_NAMES: a test says so)
+    if fmt not in FORMATS:
         raise errors.ArgumentError("--format", f"expected one of {list(FORMATS)}, got {fmt!r}")
     return fmt
 

@@ -32,6 +32,8 @@ import numpy as np
 from . import common
 
 IMAGES, LABELS, CALIB, FRAMES = "image_2", "label_2", "calib", "frames.json"
+#: Whether ``write`` reads the frames' instance layers (``command.FORMATS``).
+NEEDS_INSTANCE = False
 
 
 def alpha(rotation_y: float, x: float, z: float) -> float:

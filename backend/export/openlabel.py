@@ -23,8 +23,9 @@ Conventions, with their sources:
   ``boolean synthetic``; per frame (every frame whose labels list it) ``cuboid`` ``box3d`` in ``odom``:
   [x, y, z, qx, qy, qz, qw, sx, sy, sz] with the object frame x forward, y left, z up (ISO 8855, OpenLABEL's
   object convention) and sizes length, width, height; ``bbox`` ``visible`` and ``amodal`` in ``camera``:
-  [cx, cy, w, h] (centre, OpenCV pixel convention) when known; ``num`` ``visible_fraction``, ``occlusion``
-  (KITTI's levels), ``truncation``; ``boolean`` ``removed``. ``frame_intervals`` say where each exists.
+  [cx, cy, w, h] (centre, OpenCV pixel convention) when known; ``num`` the measures the labels say exports carry
+  (``core.labels.CARRIED_MEASURES``: ``visible_fraction``, ``occlusion`` …; one that is null left out);
+  ``boolean`` ``removed``. ``frame_intervals`` say where each exists.
 """
 
 from __future__ import annotations
@@ -34,6 +35,8 @@ import os
 
 import numpy as np
 
+from scpainter_blender.core import labels
+
 from . import common
 
 from typing import TYPE_CHECKING
@@ -42,6 +45,8 @@ if TYPE_CHECKING:
     from collections.abc import Callable, Iterable
 
 IMAGES, FILE = "images", "openlabel.json"
+#: Whether ``write`` reads the frames' instance layers (``command.FORMATS``).
+NEEDS_INSTANCE = False
 SCHEMA_VERSION = "1.0.0"
 WORLD, CAMERA = "odom", "camera"
 
@@ -86,10 +91,7 @@ def _frame_object(o: dict) -> dict:
              for n, k in (("visible", "bbox_visible"), ("amodal", "bbox_amodal")) if o[k] is not None]
     if boxes:
         data["bbox"] = boxes
-    nums = [("occlusion", o["occlusion"]), ("truncation", o["truncation"])]
-    if o["visible_fraction"] is not None:
-        nums.insert(0, ("visible_fraction", o["visible_fraction"]))
-    data["num"] = [{"name": n, "val": float(v)} for n, v in nums]
+    data["num"] = [{"name": n, "val": float(o[n])} for n in labels.CARRIED_MEASURES if o[n] is not None]
     data["boolean"] = [{"name": "removed", "val": bool(o["removed"])}]
     return {"object_data": data}
 

@@ -1,9 +1,9 @@
-"""Per-frame labels of a rendered job: ``conditions/labels_NNNNNN.json``, schema ``scpainter.labels/1``.
+"""Per-frame labels of a rendered job: ``conditions/labels_NNNNNN.json``, schema ``SCHEMA``.
 
 ``render`` writes one file per output frame beside its condition EXR (``core/output_layout.FRAME_LABELS``); the
-exporters (``backend/export``: KITTI, COCO, OpenLABEL) read them with the EXR's ``instance`` pass. The file::
+exporters (``backend/export``, one writer per format) read them with the EXR's ``instance`` pass. The file::
 
-    {"schema": "scpainter.labels/1",
+    {"schema": SCHEMA,
      "key": "…",                       what the labels were made from (the render's resume key for them)
      "layers_key": "…",                the condition layers' key they were made from (a label-only edit keeps it)
      "frame": 12, "index": 0,          scene frame number; position in the job's frames
@@ -33,6 +33,9 @@ exporters (``backend/export``: KITTI, COCO, OpenLABEL) read them with the EXR's 
               "truncation": 0..1, "occlusion": 0 | 1 | 2 | 3,
               "in_view": bool, "camera_inside": bool}
 
+(An OBJECT's keys are ``OBJECT_FIELDS``, in that order; the exporters carry its ``CARRIED_IDENTITY`` and
+``CARRIED_MEASURES`` as extra attributes of each object.)
+
 Conventions: world is the job's (Blender's: Z up, metres). Boxes use ``core.geometry.boxes``' object frame (x
 forward, y left, z up) for ``quaternion`` (object_to_world, object_to_camera) and sizes (length, width, height);
 ``box_world.yaw`` is the forward axis' heading from world +x towards +y; ``box_camera.yaw`` is KITTI's
@@ -48,6 +51,8 @@ numpy only; ``render`` computes the pixel counts, this module the geometry and t
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -72,6 +77,43 @@ OCCLUSION_LEVELS = (0.05, 0.5)
 DEPTH_MARGIN_M = 0.5
 #: Near plane of the box projection (metres; the renderer's).
 NEAR = 0.05
+
+
+@dataclass(frozen=True)
+class ObjectField:
+    """A field of an OBJECT (the module docstring says what each holds): its ``name``, its JSON ``type`` ("int",
+    "number", "bool", "string" or a structure's name; "|null" when it may be null), and whether the exporters
+    carry it as an extra attribute of each object: ``IDENTITY`` (which object: COCO annotation keys; OpenLABEL has
+    them as the object's key and static data) or ``MEASURE`` (COCO annotation keys, OpenLABEL per-frame ``num``:
+    numbers only), else ``""``."""
+    name: str
+    type: str
+    carried: str = ""
+
+    @property
+    def nullable(self) -> bool:
+        return self.type.endswith("|null")
+
+
+IDENTITY, MEASURE = "identity", "measure"
+#: An OBJECT's fields in the file's key order (both builders write them in it: ``_ordered``). A new field: an
+#: entry here, its value in both builders (``_object`` for what the box gives), its words in the docstring.
+OBJECT_FIELDS = (
+    ObjectField("track_id", "int", IDENTITY), ObjectField("name", "string"), ObjectField("class", "string"),
+    ObjectField("synthetic", "bool", IDENTITY),
+    ObjectField("box_world", "box3d|null"), ObjectField("box_camera", "box3d|null"),
+    ObjectField("velocity", "vec3|null"), ObjectField("bbox_amodal", "box2d|null"),
+    ObjectField("truncation", "number", MEASURE), ObjectField("in_view", "bool"),
+    ObjectField("camera_inside", "bool"), ObjectField("asset", "asset|null"), ObjectField("box_source", "string"),
+    ObjectField("removed", "bool"), ObjectField("bbox_visible", "box2d|null"), ObjectField("visible_pixels", "int"),
+    ObjectField("amodal_pixels", "int"), ObjectField("visible_fraction", "number|null", MEASURE),
+    ObjectField("occlusion", "int", MEASURE))
+FIELDS = {f.name: f for f in OBJECT_FIELDS}
+#: What the exporters carry of each object: its identity (in the table's order), then its measures, those that
+#: may be null first, each group by name — the order the exports have written them since their first version.
+CARRIED_IDENTITY = tuple(f.name for f in OBJECT_FIELDS if f.carried == IDENTITY)
+CARRIED_MEASURES = tuple(f.name for f in sorted((f for f in OBJECT_FIELDS if f.carried == MEASURE),
+                                                key=lambda f: (not f.nullable, f.name)))
 
 
 def occlusion_level(visible: int, amodal: int) -> int:
@@ -140,6 +182,22 @@ _NO_GEOMETRY = {"box_world": None, "box_camera": None, "velocity": None, "bbox_a
 _NO_PROJECTION = {"polygon": np.zeros((0, 2)), "bbox": None, "truncation": 1.0, "depth_range": None}
 
 
+def _ordered(fields: dict) -> dict:
+    """An OBJECT with its keys in ``OBJECT_FIELDS``' order; KeyError naming a field a builder did not fill,
+    ValueError for one the table does not have."""
+    obj = {f.name: fields[f.name] for f in OBJECT_FIELDS}
+    if len(obj) != len(fields):
+        raise ValueError(f"fields not in OBJECT_FIELDS: {sorted(set(fields) - set(obj))}")
+    return obj
+
+
+def _pixel_fields(bbox_visible, visible: int, amodal: int) -> dict:
+    """The fields of an object's pixel counts (``visible``, ``amodal``) and its visible pixels' box."""
+    return {"bbox_visible": bbox_visible, "visible_pixels": visible, "amodal_pixels": amodal,
+            "visible_fraction": min(1.0, visible / amodal) if amodal else None,
+            "occlusion": occlusion_level(visible, amodal)}
+
+
 def _object(track_id, name, category, synthetic, placed, entry, width, height, *, frames, index, fps, centres):
     """The object's identity and geometry (``placed`` = (box_to_world, size), or None: no geometry) and its box's
     projection."""
@@ -194,11 +252,8 @@ def frame_labels(job: job_mod.Job, index: int, *, instance, hole, depth, amodal_
                          index=index, fps=fps, centres=centres)
         visible, amodal = int(visible_counts[track]), int(amodal_pixels[a_i])
         obj.update({"asset": {"file": asset.ply, "sha256": asset_hashes[a_i]}, "box_source": source,
-                    "removed": False, "bbox_visible": pixel_box(ids == track) if visible else None,
-                    "visible_pixels": visible, "amodal_pixels": amodal,
-                    "visible_fraction": min(1.0, visible / amodal) if amodal else None,
-                    "occlusion": occlusion_level(visible, amodal)})
-        objects.append(obj)
+                    "removed": False, **_pixel_fields(pixel_box(ids == track) if visible else None, visible, amodal)})
+        objects.append(_ordered(obj))
     depth = np.asarray(depth, np.float64)
     for r_i, rec in enumerate(sc.recorded_objects if sc is not None else []):
         if entry.frame not in rec.boxes:
@@ -217,11 +272,8 @@ def frame_labels(job: job_mod.Job, index: int, *, instance, hole, depth, amodal_
             seen = amodal_mask & ~hole & (depth >= z0 - DEPTH_MARGIN_M) & (depth <= z1 + DEPTH_MARGIN_M)
         visible, amodal = int(seen.sum()), int(amodal_mask.sum())
         obj.update({"asset": None, "box_source": "recording", "removed": removed,
-                    "bbox_visible": pixel_box(seen) if visible else None,
-                    "visible_pixels": visible, "amodal_pixels": amodal,
-                    "visible_fraction": min(1.0, visible / amodal) if amodal else None,
-                    "occlusion": occlusion_level(visible, amodal)})
-        objects.append(obj)
+                    **_pixel_fields(pixel_box(seen) if visible else None, visible, amodal)})
+        objects.append(_ordered(obj))
     flags = []
     if coverage < low_coverage:
         flags.append(LOW_COVERAGE_FLAG)

@@ -8,7 +8,7 @@
         backend.log                     the commands' human log; a bug's traceback (the error event's ``log``)
         conditions/frame_NNNNNN.exr     condition layers of output frame NNNNNN (``backend/render/channels.py``)
         conditions/preview_NNNNNN.png   the same image for people (what Blender shows behind the camera)
-        conditions/labels_NNNNNN.json   the frame's labels (``core/labels.py``, schema ``scpainter.labels/1``)
+        conditions/labels_NNNNNN.json   the frame's labels (``core/labels.py``, its ``SCHEMA``)
         conditions/labelled_NNNNNN.png  the preview with the labels drawn (boxes, ids, visible fractions)
         conditions/record.json          the render's job key, the files it wrote, their precision
         generated/frame_NNNNNN.png      the video's frames
@@ -16,7 +16,7 @@
         generated.mp4                   the video
         generate_state.safetensors      the sampler's latents after each step (resume); removed when finished
         baseline.mp4, contact_sheet.png only in ``evaluate``'s task folders: the baseline's video, the task's pictures
-        export/<format>/                ``export``'s default destination (KITTI, COCO, OpenLABEL: ``backend/export``)
+        export/<format>/                ``export``'s default destination (``backend_protocol.EXPORT_FORMATS``)
         export/<format>/export.json     in every export (any ``--out``): what made it; an existing folder is
                                         replaced by a new export only when it has one (or is empty)
 

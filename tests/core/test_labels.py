@@ -125,6 +125,25 @@ def test_recorded_objects_visibility_from_depth_and_removal():
     assert len(_labels(job, 2)["objects"]) == 1                     # frame 3: no recorded box, not labelled
 
 
+def test_both_builders_write_the_fields_of_the_table_in_its_order():
+    """An asset's and a recorded object's OBJECT have exactly ``OBJECT_FIELDS``' keys, in its order (the key order
+    is part of the file), with values of its types; the carried measures are numbers (OpenLABEL's ``num``)."""
+    rec = [{"id": "parked", "size": [1.8, 4.4, 1.6], "boxes": {"1": _box(3, 15).tolist()}}]
+    lab = _labels(_job(recorded=rec), 0)
+    assert [o["synthetic"] for o in lab["objects"]] == [True, False]
+    python = {"int": (int,), "number": (int, float), "bool": (bool,), "string": (str,)}
+    for o in lab["objects"]:
+        assert list(o) == [f.name for f in labels.OBJECT_FIELDS]
+        for f in labels.OBJECT_FIELDS:
+            base = f.type.split("|")[0]
+            if o[f.name] is None:
+                assert f.nullable, f.name
+            elif base in python:
+                assert isinstance(o[f.name], python[base]) and (base == "bool") == isinstance(o[f.name], bool), f.name
+    assert all(labels.FIELDS[n].type.split("|")[0] in ("int", "number") for n in labels.CARRIED_MEASURES)
+    assert set(labels.CARRIED_IDENTITY) == {"track_id", "synthetic"}
+
+
 def test_an_overflowing_transform_gives_no_geometry():
     """A transform scaled by 1e200 is a valid affine (the render draws nothing): its object is listed without a
     box, and the labels stay strict JSON."""

@@ -20,6 +20,9 @@ NEEDS_INSTANCE = pytest.mark.skipif(not HAS_INSTANCE, reason="needs the render's
 
 def test_format_names_have_one_home():
     assert tuple(command.FORMATS) == backend_protocol.EXPORT_FORMAT_NAMES
+    for name, writer in command.FORMATS.items():             # each writer says what it reads
+        assert writer.__name__ == f"backend.export.{name}" and callable(writer.write)
+        assert isinstance(writer.NEEDS_INSTANCE, bool)
     with pytest.raises(errors.ArgumentError) as e:
         command.check_format("yolo")
     assert e.value.field == "--format"
@@ -214,3 +217,21 @@ def test_every_format_carries_each_frames_coverage_and_flags(tmp_path):
     for rows in (index, images, props):
         assert [r["flags"] for r in rows] == [fr.labels["flags"] for fr in frames]
         assert [r["coverage"] for r in rows] == [fr.labels["coverage"] for fr in frames]
+
+
+def test_coco_and_openlabel_carry_the_fields_the_labels_table_says(tmp_path):
+    """COCO's annotations have the labels' carried identity and measures as keys, OpenLABEL's objects the carried
+    measures as per-frame ``num`` (``core.labels.OBJECT_FIELDS``, which both read), in the order they always had."""
+    from backend.export import coco, openlabel
+
+    frames = F.export_frames(tmp_path)
+    names = [fr.image for fr in frames]
+    anns = coco.dataset(frames, names)["annotations"]
+    assert anns and all(list(a)[-5:] == ["track_id", "synthetic", "occlusion", "truncation", "visible_fraction"]
+                        for a in anns)
+    assert set(coco.EXTRA_KEYS) == set(labels.CARRIED_IDENTITY + labels.CARRIED_MEASURES)
+    doc = openlabel.document(frames, names)["openlabel"]
+    nums = [[n["name"] for n in o["object_data"]["num"]] for f in doc["frames"].values()
+            for o in f.get("objects", {}).values()]
+    assert ["visible_fraction", "occlusion", "truncation"] in nums
+    assert {n for ns in nums for n in ns} == set(labels.CARRIED_MEASURES)

@@ -16,9 +16,9 @@ ORDER = 40
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """``export``'s parser."""
-    from scpainter_blender.core.backend_protocol import EXPORT_FORMAT_NAMES
+    from scpainter_blender.core.backend_protocol import EXPORT_FORMAT_NAMES, export_format_labels
 
-    x = sub.add_parser(NAME, help="a job's labels as a training dataset (KITTI, COCO or OpenLABEL), rendering "
+    x = sub.add_parser(NAME, help=f"a job's labels as a training dataset ({export_format_labels()}), rendering "
                                   "missing frames first; images: the generated frames, else the condition "
                                   "previews")
     x.add_argument("job", help="job.json (the job contract: docs/design.md)")

@@ -16,8 +16,8 @@ ORDER = 60
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """``export BLEND --format F``, ``--out``, the scene options, the common options."""
-    x = sub.add_parser(NAME, help="a .blend's labels as a dataset (KITTI, COCO or OpenLABEL), rendering missing "
-                                  "frames first")
+    x = sub.add_parser(NAME, help=f"a .blend's labels as a dataset ({protocol.export_format_labels()}), rendering "
+                                  "missing frames first")
     x.add_argument("blend", help="the scene (.blend)")
     x.add_argument("--format", required=True, choices=protocol.EXPORT_FORMAT_NAMES)
     x.add_argument("--out", help="destination folder, written whole (default: <output folder>/export/<format>); an "

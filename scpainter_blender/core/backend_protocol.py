@@ -22,6 +22,12 @@ EXPORT_FORMATS = {"kitti": ("KITTI", "KITTI object: image_2, label_2, calib per 
                   "openlabel": ("OpenLABEL", "ASAM OpenLABEL 1.0 JSON: cuboids, boxes, camera per frame")}
 EXPORT_FORMAT_NAMES = tuple(EXPORT_FORMATS)
 
+
+def export_format_labels() -> str:
+    """The formats' labels as help texts list them: "KITTI, COCO or OpenLABEL"."""
+    labels = [label for label, _ in EXPORT_FORMATS.values()]
+    return labels[0] if len(labels) == 1 else ", ".join(labels[:-1]) + " or " + labels[-1]
+
 #: Exit codes: done; a failure (explained, or a bug with its traceback); bad input (an ``InputError``: the error
 #: event names ``file`` and ``field``); interrupted by Ctrl-C (128 + SIGINT, the shell's convention).
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130

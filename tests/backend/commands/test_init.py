@@ -106,3 +106,18 @@ def test_doctor_parses_with_the_standard_library_alone():
                              "print(sorted(m for m in sys.modules if m.startswith('backend.commands.')))"],
                             cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert loaded.stdout.strip() == "['backend.commands.doctor']", loaded  # not every command (they import numpy)
+
+
+def test_the_export_help_names_every_export_format():
+    """The export formats' one home is ``core.backend_protocol.EXPORT_FORMATS``: ``export``'s summary is made from
+    its labels, and its ``--format`` help (which says what each writes) names every format, so a format added there
+    without a word in the help fails here rather than going unexplained."""
+    from backend.__main__ import build_parser
+    from scpainter_blender.core.backend_protocol import EXPORT_FORMATS, export_format_labels
+
+    sub = next(a for a in build_parser()._actions if a.dest == "command")
+    export = sub.choices["export"]
+    assert export_format_labels() in next(a.help for a in sub._choices_actions if a.dest == "export")
+    fmt = next(a for a in export._actions if a.dest == "format")
+    assert tuple(fmt.choices) == tuple(EXPORT_FORMATS)
+    assert [n for n in EXPORT_FORMATS if n not in fmt.help] == []

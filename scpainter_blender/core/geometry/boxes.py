@@ -157,9 +157,11 @@ def rigid_box(M) -> tuple:
 
 
 def corners(box_to_world, size) -> np.ndarray:
-    """(8, 3) corners of a box; corner i has sign bits (x: bit 2, y: bit 1, z: bit 0) of ``_CORNER_SIGNS``."""
+    """(8, 3) corners of a box; corner i has sign bits (x: bit 2, y: bit 1, z: bit 0) of ``_CORNER_SIGNS``. Of N
+    boxes at once: ``box_to_world`` (N, 4, 4), ``size`` (N, 3) give (N, 8, 3)."""
     T = np.asarray(box_to_world, np.float64)
-    return (_CORNER_SIGNS * np.asarray(size, np.float64)) @ T[:3, :3].T + T[:3, 3]
+    return ((_CORNER_SIGNS * np.asarray(size, np.float64)[..., None, :]) @ np.swapaxes(T[..., :3, :3], -1, -2)
+            + T[..., None, :3, 3])
 
 
 def contains(box_to_world, size, point, margin: float = 0.0) -> bool:
@@ -172,13 +174,13 @@ def contains(box_to_world, size, point, margin: float = 0.0) -> bool:
 def object_pose(box_to_x, size) -> dict:
     """A box as labels describe it in frame x: ``center`` (3,), ``size`` (length, width, height), ``rotation`` the
     object_to_x rotation (3, 3) of the object frame (x forward, y left, z up), its ``quaternion`` (w, x, y, z)
-    and ``yaw`` = atan2 of the forward axis' y and x components in frame x (radians, −π..π)."""
+    and ``yaw`` = atan2 of the forward axis' y and x components in frame x (radians, −π..π). Also of N boxes at
+    once: ``box_to_x`` (N, 4, 4), ``size`` (N, 3) give each entry a leading N axis (``yaw`` an array)."""
     T = np.asarray(box_to_x, np.float64)
-    R = T[:3, :3] @ OBJECT_TO_BOX
-    w, l, h = np.asarray(size, np.float64)
-    return {"center": T[:3, 3].copy(), "size": np.array([l, w, h]), "rotation": R,
-            "quaternion": cameras.rotation_to_quaternion(R).reshape(4),
-            "yaw": float(np.arctan2(R[1, 0], R[0, 0]))}
+    R = T[..., :3, :3] @ OBJECT_TO_BOX
+    yaw = np.arctan2(R[..., 1, 0], R[..., 0, 0])
+    return {"center": T[..., :3, 3].copy(), "size": np.asarray(size, np.float64)[..., [1, 0, 2]], "rotation": R,
+            "quaternion": cameras.rotation_to_quaternion(R), "yaw": float(yaw) if yaw.ndim == 0 else yaw}
 
 
 def rotation_y(object_to_camera_rotation) -> float:
@@ -245,30 +247,44 @@ def convex_hull(xy) -> np.ndarray:
         return P
 
     def half(points):
+        # on Python floats (the same IEEE arithmetic as ``cross2`` on rows, without numpy's cost per small call)
         h = []
-        for p in points:
-            while len(h) >= 2 and cross2(h[-1] - h[-2], p - h[-2]) <= 0:
+        for px, py in points:
+            while len(h) >= 2 and ((h[-1][0] - h[-2][0]) * (py - h[-2][1])
+                                   - (h[-1][1] - h[-2][1]) * (px - h[-2][0])) <= 0:
                 h.pop()
-            h.append(p)
+            h.append((px, py))
         return h[:-1]
 
-    return np.array(half(P) + half(P[::-1]))
+    rows = P.tolist()
+    return np.array(half(rows) + half(rows[::-1]), np.float64)
 
 
 def polygon_mask(polygon, width: int, height: int) -> np.ndarray:
     """(height, width) bool: the pixels whose centres (u + 0.5, v + 0.5) lie inside a convex polygon (M, 2)."""
     mask = np.zeros((height, width), bool)
+    window = polygon_window(polygon, width, height)
+    if window is not None:
+        (x0, y0), inside = window
+        mask[y0:y0 + inside.shape[0], x0:x0 + inside.shape[1]] = inside
+    return mask
+
+
+def polygon_window(polygon, width: int, height: int):
+    """``polygon_mask`` within the image rectangle that holds the polygon: ((x0, y0) its top-left pixel,
+    inside (h, w) bool), None when it covers no pixel of the image. Work in proportion to the polygon's size."""
     P = np.asarray(polygon, np.float64)
     if len(P) < 3:
-        return mask
+        return None
     x0, y0 = np.clip(np.floor(P.min(0)).astype(np.int64), 0, [width, height])
     x1, y1 = np.clip(np.ceil(P.max(0)).astype(np.int64) + 1, 0, [width, height])
     if x1 <= x0 or y1 <= y0:
-        return mask
-    u, v = np.meshgrid(np.arange(x0, x1) + 0.5, np.arange(y0, y1) + 0.5)
-    inside = np.ones(u.shape, bool)
+        return None
+    # pixel centres as a row (u) and a column (v): each edge's two products are made once per column or row,
+    # the same numbers as on a full grid
+    u, v = (np.arange(x0, x1) + 0.5)[None, :], (np.arange(y0, y1) + 0.5)[:, None]
+    inside = np.ones((len(v), u.shape[1]), bool)
     orient = np.sign(cross2(P[1] - P[0], P[2] - P[0])) or 1.0
     for a, b in zip(P, np.roll(P, -1, axis=0)):
         inside &= orient * ((b[0] - a[0]) * (v - a[1]) - (b[1] - a[1]) * (u - a[0])) >= 0
-    mask[y0:y1, x0:x1] = inside
-    return mask
+    return (int(x0), int(y0)), inside

@@ -165,29 +165,20 @@ def _object(track_id, name, category, synthetic, placed, entry, width, height, *
 
 
 def _recorded_geometry(placed: list, entry, width: int, height: int) -> list:
-    """((world pose, camera pose), projection or None) of each box of ``placed`` ((box_to_world, size), finite) at
-    output frame ``entry``, all boxes at once (the same numbers as ``_object`` one at a time): the poses as
-    ``boxes.object_pose`` gives them; the projection ``_NO_PROJECTION`` for a box that cannot show (every corner
-    behind the near plane, or every corner in front and their projection off the image: ``boxes.project_box``
-    finds no bbox for it), None for the others (``_object`` projects them). A frame's thousand objects out of view
-    cost one numpy pass, not a hull and a mask each."""
+    """((world pose, camera pose), projection) of each box of ``placed`` ((box_to_world, size), finite) at output
+    frame ``entry``, all boxes at once (the same numbers as ``_object`` one at a time): the poses as
+    ``boxes.object_pose`` gives them, the projection as ``boxes.project_boxes`` does (a box that cannot show,
+    behind the camera or off the image, costs no hull and no mask)."""
     if not placed:
         return []
     T = np.array([p[0] for p in placed], np.float64)
     size = np.array([p[1] for p in placed], np.float64)
     w2c = np.asarray(entry.world_to_camera, np.float64)
     world, camera = boxes.object_pose(T, size), boxes.object_pose(w2c @ T, size)
-    cam = boxes.corners(T, size) @ w2c[:3, :3].T + w2c[:3, 3]   # (N, 8, 3), as project_box has them
-    with np.errstate(all="ignore"):  # corners at or behind the camera divide by z <= 0: those boxes are not used
-        uv = (cam @ np.asarray(entry.K, np.float64).T)[..., :2] / cam[..., 2:3]
-        lo, hi = uv.min(1), uv.max(1)
-        projectable = (cam[..., 2] >= NEAR).all(1) & (np.abs(uv) < 1e150).all((1, 2))
-        off = ((np.minimum(hi[:, 0], float(width)) <= np.maximum(lo[:, 0], 0.0))
-               | (np.minimum(hi[:, 1], float(height)) <= np.maximum(lo[:, 1], 0.0)))
-    unseen = (cam[..., 2] < NEAR).all(1) | (projectable & off)
+    projections = boxes.project_boxes(T, size, entry.K, w2c, width, height, NEAR)
     pose = lambda p, n: {"center": p["center"][n], "size": p["size"][n], "rotation": p["rotation"][n],  # noqa: E731
                          "quaternion": p["quaternion"][n], "yaw": float(p["yaw"][n])}
-    return [((pose(world, n), pose(camera, n)), _NO_PROJECTION if unseen[n] else None) for n in range(len(placed))]
+    return [((pose(world, n), pose(camera, n)), projections[n]) for n in range(len(placed))]
 
 
 def frame_labels(job: job_mod.Job, index: int, *, instance, hole, depth, amodal_pixels, asset_boxes, asset_hashes,

@@ -221,14 +221,47 @@ def project_box(box_to_world, size, K, world_to_camera, width: int, height: int,
     uv = (V @ K.T)[:, :2] / V[:, 2:3]
     out["polygon"] = convex_hull(uv)
     out["depth_range"] = (float(V[:, 2].min()), float(V[:, 2].max()))
-    x0, y0 = uv.min(0)
-    x1, y1 = uv.max(0)
+    out.update(_image_rect(*uv.min(0), *uv.max(0), width, height))
+    return out
+
+
+def _image_rect(x0, y0, x1, y1, width: int, height: int) -> dict:
+    """``project_box``'s ``bbox`` and ``truncation`` of projected points spanning [x0, x1] x [y0, y1]; {} when
+    they miss the image (or their area overflows): the box's defaults stand."""
     cx0, cy0, cx1, cy1 = max(x0, 0.0), max(y0, 0.0), min(x1, float(width)), min(y1, float(height))
     area = (x1 - x0) * (y1 - y0)
     if cx1 <= cx0 or cy1 <= cy0 or not np.isfinite(area):
-        return out
-    out["bbox"] = [float(cx0), float(cy0), float(cx1), float(cy1)]
-    out["truncation"] = float(np.clip(1.0 - (cx1 - cx0) * (cy1 - cy0) / area, 0.0, 1.0)) if area > 0 else 0.0
+        return {}
+    return {"bbox": [float(cx0), float(cy0), float(cx1), float(cy1)],
+            "truncation": float(np.clip(1.0 - (cx1 - cx0) * (cy1 - cy0) / area, 0.0, 1.0)) if area > 0 else 0.0}
+
+
+def project_boxes(box_to_world, size, K, world_to_camera, width: int, height: int, near: float = 0.05) -> list:
+    """``project_box`` of N boxes at once (``box_to_world`` (N, 4, 4), ``size`` (N, 3)), the same numbers as one at
+    a time. The boxes wholly behind the near plane, and those wholly in front whose corners project to finite
+    pixels (below 1e150), take one numpy pass, then a hull each for those in the image only: one of them that
+    misses the image gets an empty ``polygon`` (its hull would be finite, and nothing of it is rasterised). A
+    box the plane cuts, or whose projection overflows, takes ``project_box``."""
+    T, S = np.asarray(box_to_world, np.float64), np.asarray(size, np.float64)
+    w2c = np.asarray(world_to_camera, np.float64)
+    cam = corners(T, S) @ w2c[:3, :3].T + w2c[:3, 3]   # (N, 8, 3), as project_box has them
+    with np.errstate(all="ignore"):  # corners at or behind the camera divide by z <= 0: those boxes are not used
+        uv = (cam @ np.asarray(K, np.float64).T)[..., :2] / cam[..., 2:3]
+        behind = (cam[..., 2] < near).all(1)
+        front = (cam[..., 2] >= near).all(1) & (np.abs(uv) < 1e150).all((1, 2))
+    lo, hi, z = uv.min(1).tolist(), uv.max(1).tolist(), cam[..., 2]
+    out = []
+    for n in range(len(T)):
+        if behind[n]:
+            out.append({"polygon": np.zeros((0, 2)), "bbox": None, "truncation": 1.0, "depth_range": None})
+        elif front[n]:
+            p = {"polygon": np.zeros((0, 2)), "bbox": None, "truncation": 1.0,
+                 "depth_range": (float(z[n].min()), float(z[n].max())), **_image_rect(*lo[n], *hi[n], width, height)}
+            if p["bbox"] is not None:
+                p["polygon"] = convex_hull(uv[n])
+            out.append(p)
+        else:
+            out.append(project_box(T[n], S[n], K, w2c, width, height, near))
     return out
 
 
@@ -285,6 +318,7 @@ def polygon_window(polygon, width: int, height: int):
     u, v = (np.arange(x0, x1) + 0.5)[None, :], (np.arange(y0, y1) + 0.5)[:, None]
     inside = np.ones((len(v), u.shape[1]), bool)
     orient = np.sign(cross2(P[1] - P[0], P[2] - P[0])) or 1.0
-    for a, b in zip(P, np.roll(P, -1, axis=0)):
-        inside &= orient * ((b[0] - a[0]) * (v - a[1]) - (b[1] - a[1]) * (u - a[0])) >= 0
+    corners = P.tolist()   # Python floats: the same arithmetic as numpy's scalars, without their cost
+    for (ax, ay), (bx, by) in zip(corners, corners[1:] + corners[:1]):
+        inside &= orient * ((bx - ax) * (v - ay) - (by - ay) * (u - ax)) >= 0
     return (int(x0), int(y0)), inside

@@ -315,14 +315,15 @@ def polygon_window(polygon, width: int, height: int):
     P = np.asarray(polygon, np.float64)
     if len(P) < 3:
         return None
-    x0, y0 = np.clip(np.floor(P.min(0)).astype(np.int64), 0, [width, height])
-    x1, y1 = np.clip(np.ceil(P.max(0)).astype(np.int64) + 1, 0, [width, height])
+    # clipped to the image (np.minimum of np.maximum: np.clip's numbers at a tenth of its cost on two values)
+    x0, y0 = np.minimum(np.maximum(np.floor(P.min(0)).astype(np.int64), 0), [width, height])
+    x1, y1 = np.minimum(np.maximum(np.ceil(P.max(0)).astype(np.int64) + 1, 0), [width, height])
     if x1 <= x0 or y1 <= y0:
         return None
     # every edge (a -> b) at once, (edges, rows, columns); pixel centres as a row (u) and a column (v): each
     # edge's two products are made once per column or row, the same numbers as on a full grid
     u, v = (np.arange(x0, x1) + 0.5)[None, None, :], (np.arange(y0, y1) + 0.5)[None, :, None]
-    a, b = P[:, :, None, None], np.roll(P, -1, axis=0)[:, :, None, None]
+    a, b = P[:, :, None, None], np.concatenate([P[1:], P[:1]])[:, :, None, None]
     orient = np.sign(cross2(P[1] - P[0], P[2] - P[0])) or 1.0
     inside = (orient * ((b[:, 0] - a[:, 0]) * (v - a[:, 1]) - (b[:, 1] - a[:, 1]) * (u - a[:, 0])) >= 0).all(0)
     return (int(x0), int(y0)), inside

@@ -21,7 +21,7 @@ field's rule beside its ``to_dict``, read together; what the job points at on di
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from functools import partial
 
 import numpy as np
@@ -652,7 +652,12 @@ class Job:
     def layers_dict(self) -> dict:
         """``to_dict`` without the generation settings, the output folder and the ``LABEL_ONLY`` fields: what the
         condition layers depend on."""
-        d = {k: v for k, v in self.to_dict().items() if k not in ("generate", "output_dir")}
+        # the recorded objects (LABEL_ONLY) left out before serialising, not popped after: a job's 1000 of them
+        # cost more to write out than all the rest, and the render asks for this twice
+        job = self
+        if self.scene is not None and self.scene.recorded_objects:
+            job = replace(self, scene=replace(self.scene, recorded_objects=[]))
+        d = {k: v for k, v in job.to_dict().items() if k not in ("generate", "output_dir")}
         for name in self.LABEL_ONLY:
             where, _, key = name.rpartition(".")
             parents = d.get("assets", []) if where == "assets[]" else [d.get("scene", {})] if where == "scene" else [d]

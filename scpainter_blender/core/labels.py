@@ -198,17 +198,19 @@ def _pixel_fields(bbox_visible, visible: int, amodal: int) -> dict:
             "occlusion": occlusion_level(visible, amodal)}
 
 
-def _object(track_id, name, category, synthetic, placed, entry, width, height, *, frames, index, fps, centres):
+def _object(track_id, name, category, synthetic, placed, entry, width, height, *, frames, index, fps, centres,
+            poses=None, proj=None):
     """The object's identity and geometry (``placed`` = (box_to_world, size), or None: no geometry) and its box's
-    projection."""
+    projection (``poses``, ``proj``: as ``_recorded_geometry`` gives them, None: computed here)."""
     head = {"track_id": int(track_id), "name": name, "class": category, "synthetic": synthetic}
     if placed is None:
         return {**head, **_NO_GEOMETRY}, _NO_PROJECTION
     box_to_world, size = placed
     w2c = np.asarray(entry.world_to_camera, np.float64)
     cam_box = _in_camera(box_to_world, w2c)
-    pose_w, pose_c = boxes.object_pose(box_to_world, size), boxes.object_pose(cam_box, size)
-    proj = boxes.project_box(box_to_world, size, entry.K, w2c, width, height, NEAR)
+    pose_w, pose_c = poses or (boxes.object_pose(box_to_world, size), boxes.object_pose(cam_box, size))
+    if proj is None:
+        proj = boxes.project_box(box_to_world, size, entry.K, w2c, width, height, NEAR)
     if not _finite(cam_box, proj["polygon"]):
         return {**head, **_NO_GEOMETRY}, _NO_PROJECTION
     centre = cameras.camera_centers(w2c)
@@ -218,6 +220,23 @@ def _object(track_id, name, category, synthetic, placed, entry, width, height, *
             "bbox_amodal": proj["bbox"], "truncation": float(proj["truncation"]),
             "in_view": proj["bbox"] is not None,
             "camera_inside": boxes.contains(box_to_world, size, centre)}, proj
+
+
+def _recorded_geometry(placed: list, entry, width: int, height: int) -> list:
+    """((world pose, camera pose), projection) of each box of ``placed`` ((box_to_world, size), finite) at output
+    frame ``entry``, all boxes at once (the same numbers as ``_object`` one at a time): the poses as
+    ``boxes.object_pose`` gives them, the projection as ``boxes.project_boxes`` does (a box that cannot show,
+    behind the camera or off the image, costs no hull and no mask)."""
+    if not placed:
+        return []
+    T = np.array([p[0] for p in placed], np.float64)
+    size = np.array([p[1] for p in placed], np.float64)
+    w2c = np.asarray(entry.world_to_camera, np.float64)
+    world, camera = boxes.object_pose(T, size), boxes.object_pose(w2c @ T, size)
+    projections = boxes.project_boxes(T, size, entry.K, w2c, width, height, NEAR)
+    pose = lambda p, n: {"center": p["center"][n], "size": p["size"][n], "rotation": p["rotation"][n],  # noqa: E731
+                         "quaternion": p["quaternion"][n], "yaw": float(p["yaw"][n])}
+    return [((pose(world, n), pose(camera, n)), projections[n]) for n in range(len(placed))]
 
 
 def frame_labels(job: job_mod.Job, index: int, *, instance, hole, depth, amodal_pixels, asset_boxes, asset_hashes,
@@ -255,24 +274,39 @@ def frame_labels(job: job_mod.Job, index: int, *, instance, hole, depth, amodal_
                     "removed": False, **_pixel_fields(pixel_box(ids == track) if visible else None, visible, amodal)})
         objects.append(_ordered(obj))
     depth = np.asarray(depth, np.float64)
-    for r_i, rec in enumerate(sc.recorded_objects if sc is not None else []):
-        if entry.frame not in rec.boxes:
-            continue
+    shown = ~hole
+    present = [(r_i, rec) for r_i, rec in enumerate(sc.recorded_objects if sc is not None else [])
+               if entry.frame in rec.boxes]
+    placed_all = [(rec.boxes[entry.frame], rec.size) if _finite(rec.boxes[entry.frame], rec.size) else None
+                  for _, rec in present]
+    geometry = iter(_recorded_geometry([p for p in placed_all if p is not None], entry, W, H))
+    for (r_i, rec), placed in zip(present, placed_all):
         track = len(job.assets) + 1 + r_i
         bw = rec.boxes[entry.frame]
-        centres = {f: m[:3, 3] for f, m in rec.boxes.items() if _finite(m)}
-        placed = (bw, rec.size) if _finite(bw, rec.size) else None
+        # this frame and its neighbours (the velocity's), as for assets
+        centres = {f: rec.boxes[f][:3, 3] for f in frames[max(index - 1, 0):index + 2]
+                   if f in rec.boxes and _finite(rec.boxes[f])}
+        poses, proj = next(geometry) if placed is not None else (None, None)
         obj, proj = _object(track, rec.id, rec.category, False, placed, entry, W, H, frames=frames,
-                            index=index, fps=fps, centres=centres)
+                            index=index, fps=fps, centres=centres, poses=poses, proj=proj)
         removed = any(boxes.contains(b.box_to_world, b.size, bw[:3, 3]) for b in sc.removal_boxes)
-        amodal_mask = boxes.polygon_mask(proj["polygon"], W, H) if proj["bbox"] is not None else np.zeros((H, W), bool)
-        seen = np.zeros((H, W), bool)
-        if proj["depth_range"] is not None and not removed:
-            z0, z1 = proj["depth_range"]
-            seen = amodal_mask & ~hole & (depth >= z0 - DEPTH_MARGIN_M) & (depth <= z1 + DEPTH_MARGIN_M)
-        visible, amodal = int(seen.sum()), int(amodal_mask.sum())
+        # the pixel counts within the rectangle of the projected box (the rest of the image is outside it)
+        window = boxes.polygon_window(proj["polygon"], W, H) if proj["bbox"] is not None else None
+        visible, amodal, bbox_visible = 0, 0, None
+        if window is not None:
+            (x0, y0), inside = window
+            rows, cols = slice(y0, y0 + inside.shape[0]), slice(x0, x0 + inside.shape[1])
+            amodal = int(inside.sum())
+            if proj["depth_range"] is not None and not removed:
+                z0, z1 = proj["depth_range"]
+                d = depth[rows, cols]
+                seen = inside & shown[rows, cols] & (d >= z0 - DEPTH_MARGIN_M) & (d <= z1 + DEPTH_MARGIN_M)
+                visible = int(seen.sum())
+                if visible:
+                    bx0, by0, bx1, by1 = pixel_box(seen)
+                    bbox_visible = [bx0 + x0, by0 + y0, bx1 + x0, by1 + y0]
         obj.update({"asset": None, "box_source": "recording", "removed": removed,
-                    **_pixel_fields(pixel_box(seen) if visible else None, visible, amodal)})
+                    **_pixel_fields(bbox_visible, visible, amodal)})
         objects.append(_ordered(obj))
     flags = []
     if coverage < low_coverage:

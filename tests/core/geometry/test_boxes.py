@@ -130,6 +130,46 @@ def test_project_box_inside_cut_and_behind():
     assert boxes.contains(T, [1.8, 4.4, 1.6], [0, 0, 1.5])
 
 
+def _random_boxes(n, seed):
+    """(box_to_world (n, 4, 4), size (n, 3)): boxes all round a camera at the origin looking along +y, some
+    behind it, some cut by its near plane, some off the image, some inside it, at any heading."""
+    rng = np.random.default_rng(seed)
+    T = np.tile(np.eye(4), (n, 1, 1))
+    T[:, :3, :3] = cameras.quaternion_to_rotation(rng.normal(size=(n, 4)))
+    T[:, :3, 3] = rng.normal(size=(n, 3)) * [15.0, 15.0, 3.0]
+    T[: n // 8, :3, 3] = rng.normal(size=(n // 8, 3)) * 0.5          # around the camera
+    return T, rng.uniform(0.5, 6.0, size=(n, 3))
+
+
+def test_project_boxes_is_project_box_at_once():
+    T, size = _random_boxes(400, 3)
+    w2c = _camera_looking_along_y([0, 0, 0])
+    kinds = set()
+    for p, t, s in zip(boxes.project_boxes(T, size, K, w2c, 160, 96), T, size):
+        q = boxes.project_box(t, s, K, w2c, 160, 96)
+        kinds.add((q["bbox"] is None, q["depth_range"] is None))
+        assert p["bbox"] == q["bbox"] and p["truncation"] == q["truncation"]
+        assert p["depth_range"] == q["depth_range"]
+        # bit for bit the same hull, but off the image one may be left out (then it was finite: labels test that)
+        if not (q["bbox"] is None and len(p["polygon"]) == 0 and np.isfinite(q["polygon"]).all()):
+            assert p["polygon"].shape == q["polygon"].shape and p["polygon"].tobytes() == q["polygon"].tobytes()
+    assert kinds == {(False, False), (True, False), (True, True)}   # in view, off the image, behind
+    z = (boxes.corners(T, size) @ w2c[:3, :3].T + w2c[:3, 3])[..., 2]
+    assert ((z < 0.05).any(1) & (z >= 0.05).any(1)).sum() > 10         # and cut by the near plane
+
+
+def test_object_pose_and_corners_of_many_boxes_are_each_boxs():
+    T, size = _random_boxes(50, 4)
+    many = boxes.object_pose(T, size)
+    assert many["yaw"].shape == (50,) and many["quaternion"].shape == (50, 4)
+    for n, (t, s) in enumerate(zip(T, size)):
+        one = boxes.object_pose(t, s)
+        assert isinstance(one["yaw"], float) and one["yaw"] == many["yaw"][n]
+        for key in ("center", "size", "rotation", "quaternion"):
+            assert one[key].tobytes() == many[key][n].tobytes(), key
+        assert boxes.corners(t, s).tobytes() == boxes.corners(T, size)[n].tobytes()
+
+
 def test_polygon_mask_counts_pixel_centres():
     square = np.array([[2.0, 2.0], [6.0, 2.0], [6.0, 5.0], [2.0, 5.0]])
     m = boxes.polygon_mask(square, 10, 8)

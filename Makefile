@@ -25,12 +25,12 @@ bench: setup
 clean-cache:
 	rm -rf .cache
 
-# The Blender-side tests (the add-on inside bpy: tests/scene, tests/runs, tests/street, the demo) on bpy 4.2 LTS and 4.5 LTS,
+# The Blender-side tests (the add-on inside bpy: tests/scene, tests/runs, tests/cli, tests/street, the demo) on bpy 4.2 LTS and 4.5 LTS,
 # each in its own environment built by tools/lts_envs.sh (LTS_VENV_DIR moves them; ~4.5 GB each). The street is
 # built once by the project's own bpy 5.0.1 (.venv), so every version reads the same ground truth. Both versions
 # run even when the first fails; the target fails if either did (docs/design.md §6).
 .PHONY: test-blender-lts
-BLENDER_SIDE_TESTS = tests/scene tests/runs tests/street tests/test_demo.py
+BLENDER_SIDE_TESTS = tests/scene tests/runs tests/cli tests/street tests/test_demo.py
 test-blender-lts: setup
 	.venv/bin/python -c "from scpainter_blender.street.dataset import ensure_street; ensure_street()"
 	@bash tools/lts_envs.sh

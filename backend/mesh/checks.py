@@ -172,10 +172,11 @@ def _glb(path, data: bytes, error):
     after = container.next_chunk(first, aligned=False)  # trimesh reads on at the JSON's end, unpadded
     if after is None or after.kind != glb.BIN_CHUNK:
         return tree, None, None
-    problem = container.problem(after)  # the header's length is within the file: past it is past the end too
+    problem = container.problem(after)  # past the header's length (checked above to lie within the file)
     if problem is not None:
         raise error("(file)", f"the GLB's BIN chunk promises {after.length:,} bytes but only "
-                              f"{container.length - after.data_at:,} follow: truncated", "copy or export the file again")
+                              f"{container.length - after.data_at:,} follow: truncated",
+                    "copy or export the file again")
     return tree, after.length, after.data_at
 
 

@@ -13,7 +13,7 @@ The layout (glTF 2.0 specification, §4.4 "GLB File Format Specification"), litt
 ``Glb(data)`` reads the header (``Glb.problems``: what is wrong with it); chunks are read on demand, so that a
 caller that looks at two chunks never walks a file of millions: ``chunks`` walks them as the specification lays
 them out, ``chunk_at`` and ``next_chunk`` read one, ``problem`` says whether a chunk's data lies within the file and
-the header's length, ``order_problems`` whether the JSON chunk is first and a BIN chunk second, ``data`` gives a
+the header's length, ``order_problems`` whether the JSON chunk is first and a BIN chunk second, ``data_of`` gives a
 chunk's bytes. A chunk whose length is not a multiple of 4 is outside the specification; ``next_chunk`` then finds
 the next one at the next 4-byte boundary (``aligned``, as the specification places it) or right at its end (as
 trimesh reads a GLB).

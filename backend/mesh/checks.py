@@ -27,7 +27,7 @@ The bounds, in one place:
   options that change the colours read (``-o``, ``-s``, ``-t``, ``-mm``, ``-cc on``) are not: a ``warning``.
 * A backslash in a name a mesh gives is a path separator (Windows-made files: ``textures\\tex.png``).
 
-glTF / GLB (the glTF 2.0 specification): a GLB is a 12-byte header (``glTF``, version, length), a JSON chunk and an
+glTF / GLB (the glTF 2.0 specification): a GLB (its container read by ``core.glb``) holds a JSON chunk and an
 optional BIN chunk (buffer 0 without a ``uri``). URIs are percent-decoded (RFC 3986, as the specification says),
 ``data:`` URIs base64-decoded; a ``file:`` URI is refused (an absolute path); any other URI names a file relative
 to the mesh's folder. ``extensionsRequired`` is
@@ -51,7 +51,7 @@ import warnings
 from typing import NamedTuple
 from urllib.parse import unquote
 
-from scpainter_blender.core import files
+from scpainter_blender.core import files, glb
 
 from typing import TYPE_CHECKING
 
@@ -69,7 +69,6 @@ ZERO_ACCESSOR_ELEMENTS_PER_BYTE = 1
 COMPONENT_BYTES = {5120: 1, 5121: 1, 5122: 2, 5123: 2, 5124: 4, 5125: 4, 5126: 4}
 #: glTF accessor type -> components
 TYPE_COMPONENTS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
-GLB_MAGIC, GLB_JSON, GLB_BIN = b"glTF", 0x4E4F534A, 0x004E4942
 #: File extensions read as images when a mesh names them (OBJ ``map_Kd``, a PLY's ``TextureFile``).
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tga", ".tif", ".tiff", ".webp", ".gif", ".ppm", ".pgm")
 
@@ -148,33 +147,37 @@ def named_file(mesh_path: str | os.PathLike, name: str, error: Callable[..., Exc
 # ------------------------------------------------------------------------------------------------------- glTF
 
 def _glb(path, data: bytes, error):
-    """(JSON dict, BIN chunk length or None) of a GLB container, its lengths checked against the file's bytes."""
-    if len(data) < 20 or data[:4] != GLB_MAGIC:
-        raise error("(file)", "is not a GLB file (no 'glTF' header)", "export the car again as GLB")
-    version, length = struct.unpack_from("<II", data, 4)
-    if version != 2:
-        raise error("(file)", f"is GLB version {version}; only glTF 2.0 is read", "export the car again as glTF 2.0")
-    if length > len(data):
-        raise error("(file)", f"the GLB header promises {length:,} bytes but the file has {len(data):,}: truncated",
-                    "copy or export the file again")
-    json_len, json_type = struct.unpack_from("<II", data, 12)
-    if json_type != GLB_JSON or 20 + json_len > length:
-        raise error("(file)", f"the GLB's first chunk is not a JSON chunk of {json_len:,} bytes within the file",
+    """(JSON dict, BIN chunk length or None, BIN chunk's data offset or None) of a GLB container (``core.glb``), its
+    lengths checked against the file's bytes: the header's length within the file, the JSON chunk first and within
+    that length, a BIN chunk (trimesh's buffer 0) looked for right at the JSON chunk's end, where trimesh reads it."""
+    container = glb.Glb(data)
+    for problem in container.problems:  # in the header's order: magic or size, version, length
+        if problem.code in (glb.NOT_GLB, glb.SHORT):
+            raise error("(file)", "is not a GLB file (no 'glTF' header)", "export the car again as GLB")
+        if problem.code == glb.BAD_VERSION:
+            raise error("(file)", f"is GLB version {problem.claimed}; only glTF 2.0 is read",
+                        "export the car again as glTF 2.0")
+        if problem.code == glb.LENGTH_PAST_END:
+            raise error("(file)", f"the GLB header promises {problem.claimed:,} bytes but the file has "
+                                  f"{problem.bound:,}: truncated", "copy or export the file again")
+    first = container.chunk_at(glb.HEADER_BYTES)  # read even where the header's length ends before it
+    if first.kind != glb.JSON_CHUNK or container.problem(first) is not None:
+        raise error("(file)", f"the GLB's first chunk is not a JSON chunk of {first.length:,} bytes within the file",
                     "export the car again as GLB")
     try:
-        tree = json.loads(data[20:20 + json_len].decode("utf-8"))
+        tree = json.loads(container.data_of(first).decode("utf-8"))
     except (ValueError, RecursionError) as e:
         raise error("(file)", f"the GLB's JSON chunk is not JSON ({type(e).__name__}: {e})",
                     "export the car again as GLB") from None
-    at, bin_len = 20 + json_len, None
-    if at + 8 <= length:
-        chunk_len, chunk_type = struct.unpack_from("<II", data, at)
-        if chunk_type == GLB_BIN:
-            if at + 8 + chunk_len > length:
-                raise error("(file)", f"the GLB's BIN chunk promises {chunk_len:,} bytes but only "
-                                      f"{length - at - 8:,} follow: truncated", "copy or export the file again")
-            bin_len = chunk_len
-    return tree, bin_len, (at + 8 if bin_len is not None else None)
+    after = container.next_chunk(first, aligned=False)  # trimesh reads on at the JSON's end, unpadded
+    if after is None or after.kind != glb.BIN_CHUNK:
+        return tree, None, None
+    problem = container.problem(after)  # past the header's length (checked above to lie within the file)
+    if problem is not None:
+        raise error("(file)", f"the GLB's BIN chunk promises {after.length:,} bytes but only "
+                              f"{container.length - after.data_at:,} follow: truncated",
+                    "copy or export the file again")
+    return tree, after.length, after.data_at
 
 
 def _index(node, key, field, error, count=None, required=True, minimum=0):

@@ -46,6 +46,8 @@ import struct
 
 import numpy as np
 
+from scpainter_blender.core import glb
+
 from . import checks
 from .colors import DEFAULT_WRAP
 
@@ -415,6 +417,6 @@ def plain_glb(path: str | os.PathLike, tree: dict, error: Callable[..., Exceptio
             new[key] = [e for e in new[key] if e != DRACO]
     text = json.dumps(new).encode()
     text += b" " * (-len(text) % 4)
-    body = struct.pack("<II", len(text), checks.GLB_JSON) + text + struct.pack("<II", len(blob), checks.GLB_BIN) \
+    body = struct.pack("<II", len(text), glb.JSON_CHUNK) + text + struct.pack("<II", len(blob), glb.BIN_CHUNK) \
         + bytes(blob)
-    return checks.GLB_MAGIC + struct.pack("<II", 2, 12 + len(body)) + body
+    return glb.MAGIC + struct.pack("<II", glb.VERSION, glb.HEADER_BYTES + len(body)) + body

@@ -42,6 +42,7 @@ import urllib.parse
 
 import numpy as np
 
+from .. import glb
 from ..geometry import cameras
 from .gaussians import GaussianPly, SplatsError, open_file, read_bytes, sh_basis
 from .sh import SH_C0
@@ -51,8 +52,6 @@ EXTENSION = "KHR_gaussian_splatting"
 Y_UP_TO_Z_UP = cameras.Y_UP_TO_Z_UP
 #: Required extensions a splat glTF may list and still be read here.
 READ_EXTENSIONS = (EXTENSION, "KHR_mesh_quantization")
-GLB_MAGIC = b"glTF"
-_JSON_CHUNK, _BIN_CHUNK = 0x4E4F534A, 0x004E4942
 _COMPONENTS = {5120: np.dtype("i1"), 5121: np.dtype("u1"), 5122: np.dtype("<i2"), 5123: np.dtype("<u2"),
                5125: np.dtype("<u4"), 5126: np.dtype("<f4")}
 _WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
@@ -87,24 +86,25 @@ def read_tree(path: str | os.PathLike, data: bytes | None = None) -> tuple[dict,
     if data is None:
         data = read_bytes(path)
     bin_chunk = None
-    if data.startswith(GLB_MAGIC):
-        if len(data) < 20:
-            raise SplatsError(path, "a GLB shorter than its 20-byte header: truncated", "header")
-        version, length = np.frombuffer(data, "<u4", 2, 4).tolist()
-        if version != 2:
-            raise SplatsError(path, f"GLB version {version}: only glTF 2.0 is read", "header")
-        chunks, at = [], 12
-        while at + 8 <= min(length, len(data)):
-            size, kind = np.frombuffer(data, "<u4", 2, at).tolist()
-            if at + 8 + size > len(data):
-                raise SplatsError(path, f"GLB chunk at byte {at} claims {size:,} bytes, the file ends at "
-                                        f"{len(data):,}: truncated", "chunks")
-            chunks.append((kind, data[at + 8:at + 8 + size]))
-            at += 8 + size + (-size % 4)
-        if not chunks or chunks[0][0] != _JSON_CHUNK:
+    if data.startswith(glb.MAGIC):
+        container = glb.Glb(data)
+        for problem in container.problems:  # a header length past the file's end is tolerated: read what is there
+            if problem.code == glb.SHORT:
+                raise SplatsError(path, "a GLB shorter than its 20-byte header: truncated", "header")
+            if problem.code == glb.BAD_VERSION:
+                raise SplatsError(path, f"GLB version {problem.claimed}: only glTF 2.0 is read", "header")
+        chunks = []
+        for chunk in container.chunks():
+            problem = container.problem(chunk)  # past the header's length but in the file: tolerated
+            if problem is not None and problem.code == glb.CHUNK_PAST_END:
+                raise SplatsError(path, f"GLB chunk at byte {chunk.at} claims {chunk.length:,} bytes, the file ends "
+                                        f"at {container.size:,}: truncated", "chunks")
+            chunks.append(chunk)
+        if any(p.code == glb.NO_JSON_FIRST for p in glb.order_problems(chunks)):
             raise SplatsError(path, "a GLB without its JSON chunk first", "chunks")
-        text = chunks[0][1]
-        bin_chunk = next((c for k, c in chunks[1:] if k == _BIN_CHUNK), None)
+        text = container.data_of(chunks[0])
+        # a BIN chunk out of its place (second) is tolerated: the first one after the JSON
+        bin_chunk = next((container.data_of(c) for c in chunks[1:] if c.kind == glb.BIN_CHUNK), None)
     else:
         text = data
     try:
@@ -123,10 +123,10 @@ def peek_tree(path: str | os.PathLike) -> dict:
     try:
         with open_file(path) as f:
             size = os.fstat(f.fileno()).st_size
-            data = f.read(20)
-            if data.startswith(GLB_MAGIC) and len(data) == 20:
-                json_size = int(np.frombuffer(data, "<u4", 1, 12)[0])
-                data += f.read(min(json_size, max(0, size - 20)))
+            data = f.read(glb.MIN_BYTES)  # the header and the JSON chunk's header: then the JSON chunk alone
+            if data.startswith(glb.MAGIC) and len(data) == glb.MIN_BYTES:
+                json_size = glb.Glb(data).chunk_at(glb.HEADER_BYTES).length
+                data += f.read(min(json_size, max(0, size - glb.MIN_BYTES)))
             else:
                 data += f.read()
     except OSError as e:

@@ -25,6 +25,7 @@ import json
 import os
 import zipfile
 
+from .. import glb
 from . import compressed, formats, gltf_splats, inria, ksplat, ply_format, spz
 from .gaussians import ACCEPTED, GaussianPly, Gaussians, SplatsError, decode, open_file, read_bytes
 
@@ -78,7 +79,7 @@ def detect(path: str | os.PathLike) -> str:
                 return "ply"
             if spz.is_spz(head):
                 return "spz"
-            if head.startswith(gltf_splats.GLB_MAGIC) or (head.lstrip()[:1] == b"{"):
+            if head.startswith(glb.MAGIC) or (head.lstrip()[:1] == b"{"):
                 return _json_kind(path, head, ext)
             if head.startswith(ZIP_MAGIC):
                 return _zip_kind(path, f, ext)
@@ -109,7 +110,7 @@ def _json_kind(path, head: bytes, ext: str) -> str:
     """A GLB or JSON file: ``sog`` (a SOG meta.json), ``gltf_splats``; a mesh glTF or other JSON is refused. A SOG
     meta.json is tried first: it is a JSON object too, which a glTF reader would take for a glTF without meshes."""
     data = None  # a GLB: peek_tree reads its JSON chunk alone; a JSON file: read once, for both questions
-    if not head.startswith(gltf_splats.GLB_MAGIC):
+    if not head.startswith(glb.MAGIC):
         data = read_bytes(path)
         try:
             meta = json.loads(data.decode("utf-8-sig"))
@@ -120,7 +121,7 @@ def _json_kind(path, head: bytes, ext: str) -> str:
     try:
         tree = gltf_splats.peek_tree(path) if data is None else gltf_splats.read_tree(path, data)[0]
     except SplatsError as e:
-        if head.startswith(gltf_splats.GLB_MAGIC) or ext in (".gltf", ".glb"):
+        if head.startswith(glb.MAGIC) or ext in (".gltf", ".glb"):
             # a damaged glTF is neither a mesh nor splats yet: its own problem first
             reason = e.args[0].split(": ", 1)[-1].removesuffix(f" ({e.path})")
             raise SplatsError(path, f"its glTF cannot be read ({reason}): a damaged or truncated file, export it "
@@ -172,7 +173,7 @@ def is_mesh(path: str | os.PathLike) -> bool:
 
 def _not_accepted(head: bytes, ext: str) -> str:
     """Why a file of no accepted format is refused, and what to do, from its first bytes and extension."""
-    if head.startswith(b"glTF") or ext in MESH_EXTENSIONS:
+    if head.startswith(glb.MAGIC) or ext in MESH_EXTENSIONS:
         return (f"a mesh ({ext or 'glTF'}), not Gaussian splats (no {gltf_splats.EXTENSION}): the car-asset import "
                 f"and `python -m backend mesh-asset` turn meshes into Gaussians; Gaussian files accepted are "
                 f"{ACCEPTED}")

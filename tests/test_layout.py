@@ -184,13 +184,17 @@ PENDING_TESTS = {
 
 
 def tracked_files(commit=None) -> list:
-    """The git-tracked paths of the checkout (or of ``commit``), relative, with "/". Skips outside a checkout."""
-    cmd = ["git", "ls-files"] if commit is None else ["git", "ls-tree", "-r", "--name-only", commit]
+    """The paths of the checkout (or of ``commit``), relative, with "/": in the checkout the git-tracked files and the
+    untracked ones git does not ignore (a new module or test counts before it is staged), less those deleted from
+    disk. Skips outside a checkout."""
+    cmd = ["git", "ls-files", "--cached", "--others", "--exclude-standard"] if commit is None else \
+        ["git", "ls-tree", "-r", "--name-only", commit]
     try:
         listed = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=True)
     except (OSError, subprocess.CalledProcessError):
         pytest.skip("not a git checkout")
-    return listed.stdout.split()
+    paths = listed.stdout.split()
+    return paths if commit is not None else [p for p in paths if os.path.lexists(os.path.join(ROOT, p))]
 
 
 def _read(path, commit=None) -> str:

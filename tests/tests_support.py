@@ -211,21 +211,24 @@ SHIPPED = ("scpainter_blender", "operators", "panels", "backend", "__init__.py")
 
 
 def tracked_sources(exclude=(), shipped_only=False) -> dict:
-    """{path: text} of the git-tracked .py files outside tests/ (paths relative to the checkout, with "/"), for the
-    tests that check a fact is spelled only in its one home: ``shipped_only`` keeps only ``SHIPPED``; ``exclude``
-    leaves out paths and folder prefixes ("bench/", the fact's home). Skips the calling test outside a git
-    checkout."""
+    """{path: text} of the checkout's .py files outside tests/ (paths relative to the checkout, with "/"), for the
+    tests that check a fact is spelled only in its one home and for the documents' tests: the git-tracked files and
+    the untracked ones git does not ignore (a new module counts before it is staged), less those deleted from disk.
+    ``shipped_only`` keeps only ``SHIPPED``; ``exclude`` leaves out paths and folder prefixes ("bench/", the fact's
+    home). Skips the calling test outside a git checkout."""
     import pytest
 
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     try:
-        listed = subprocess.run(["git", "ls-files", "*.py"], cwd=root, capture_output=True, text=True, check=True)
+        listed = subprocess.run(["git", "ls-files", "--cached", "--others", "--exclude-standard", "*.py"], cwd=root,
+                                capture_output=True, text=True, check=True)
     except (OSError, subprocess.CalledProcessError):
         pytest.skip("not a git checkout")
     out = {}
     for path in listed.stdout.split():
         if path.startswith("tests/") or (shipped_only and path.split("/")[0] not in SHIPPED) or \
-                any(path == e or (e.endswith("/") and path.startswith(e)) for e in exclude):
+                any(path == e or (e.endswith("/") and path.startswith(e)) for e in exclude) or \
+                not os.path.isfile(os.path.join(root, path)):
             continue
         with open(os.path.join(root, path), encoding="utf-8") as f:
             out[path] = f.read()

@@ -22,7 +22,6 @@ import os
 import platform
 import shutil
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
@@ -37,6 +36,7 @@ sys.path.insert(0, os.path.join(ROOT, "tests"))
 
 import fuzz_inputs as F  # noqa: E402
 from scpainter_blender.core import outputs  # noqa: E402
+import provenance  # noqa: E402  (bench/, the script's folder)
 
 #: --cases value -> the fuzz case's description (tests/fuzz_inputs.JOB_FAMILIES, family "assets")
 DESCRIPTIONS = {100: "assets: 100 assets on the same PLY", 50: "assets: 50 assets on the same PLY",
@@ -122,13 +122,7 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
 
     rows = measure(args.cases, args.rounds, args.seed, args.job_index)
-    try:
-        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
-                                text=True).stdout.strip()
-        dirty = bool(subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=ROOT,
-                                    capture_output=True, text=True).stdout.strip())
-    except OSError:
-        commit, dirty = "", False
+    commit, dirty = provenance.commit_and_dirty(ROOT)
     print(f"fuzz case cost ({args.label}): commit {commit}{' + local changes' if dirty else ''}, seed {args.seed}, "
           f"{args.rounds} round(s), one thread, load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs")
     print(format_table(rows))

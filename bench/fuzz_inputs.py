@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import subprocess
 import sys
 import time
 
@@ -29,6 +28,7 @@ sys.path.insert(0, os.path.join(ROOT, "tests"))
 import fuzz_inputs as F  # noqa: E402
 import fuzz_surfaces  # noqa: E402
 from scpainter_blender.core import outputs  # noqa: E402
+import provenance  # noqa: E402  (bench/, the script's folder)
 
 
 def compact(r: dict) -> dict:
@@ -60,13 +60,7 @@ def main() -> int:
     seconds = time.perf_counter() - t0
     results = run["results"]
     summary = F.summarize(results)
-    try:
-        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
-                                text=True).stdout.strip()
-        dirty = bool(subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=ROOT,
-                                    capture_output=True, text=True).stdout.strip())
-    except OSError:
-        commit, dirty = "", False
+    commit, dirty = provenance.commit_and_dirty(ROOT)
 
     print(f"\nfuzz_inputs ({args.label}): commit {commit}{' + local changes' if dirty else ''}, seed {args.seed}, "
           f"timeout {args.timeout:g} s, generate --check: {'yes' if run['check'] else 'no (generate runs for real)'}, "

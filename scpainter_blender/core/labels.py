@@ -179,7 +179,7 @@ def _velocity(centres: dict, frames: list, i: int, fps: float):
 #: An object's geometry when its box cannot be placed (non-finite or overflowing transforms).
 _NO_GEOMETRY = {"box_world": None, "box_camera": None, "velocity": None, "bbox_amodal": None, "truncation": 1.0,
                 "in_view": False, "camera_inside": False}
-_NO_PROJECTION = {"polygon": np.zeros((0, 2)), "bbox": None, "truncation": 1.0, "depth_range": None}
+_NO_PROJECTION = boxes.unseen_projection()
 
 
 def _ordered(fields: dict) -> dict:

@@ -205,6 +205,12 @@ def _clipped_vertices(corners_cam: np.ndarray, near: float) -> np.ndarray:
     return np.concatenate(keep)
 
 
+def unseen_projection() -> dict:
+    """``project_box``'s answer for a box no camera pixel shows (wholly behind the near plane; the defaults the
+    others start from): no polygon, no bbox, truncation 1, no depth range. A new dict each call."""
+    return {"polygon": np.zeros((0, 2)), "bbox": None, "truncation": 1.0, "depth_range": None}
+
+
 def project_box(box_to_world, size, K, world_to_camera, width: int, height: int, near: float = 0.05) -> dict:
     """A box seen by a camera: ``polygon`` (M, 2) pixel coordinates of the convex hull of the projected box (cut at
     z = ``near`` first, so boxes reaching behind the camera project correctly; empty when wholly behind),
@@ -214,7 +220,7 @@ def project_box(box_to_world, size, K, world_to_camera, width: int, height: int,
     w2c = np.asarray(world_to_camera, np.float64)
     cam = corners(box_to_world, size) @ w2c[:3, :3].T + w2c[:3, 3]
     V = _clipped_vertices(cam, near)
-    out = {"polygon": np.zeros((0, 2)), "bbox": None, "truncation": 1.0, "depth_range": None}
+    out = unseen_projection()
     if len(V) == 0:
         return out
     K = np.asarray(K, np.float64)
@@ -253,10 +259,10 @@ def project_boxes(box_to_world, size, K, world_to_camera, width: int, height: in
     out = []
     for n in range(len(T)):
         if behind[n]:
-            out.append({"polygon": np.zeros((0, 2)), "bbox": None, "truncation": 1.0, "depth_range": None})
+            out.append(unseen_projection())
         elif front[n]:
-            p = {"polygon": np.zeros((0, 2)), "bbox": None, "truncation": 1.0,
-                 "depth_range": (float(z[n].min()), float(z[n].max())), **_image_rect(*lo[n], *hi[n], width, height)}
+            p = {**unseen_projection(), "depth_range": (float(z[n].min()), float(z[n].max())),
+                 **_image_rect(*lo[n], *hi[n], width, height)}
             if p["bbox"] is not None:
                 p["polygon"] = convex_hull(uv[n])
             out.append(p)

@@ -16,12 +16,11 @@ import math
 import signal
 import sys
 import traceback
+from typing import TYPE_CHECKING
 
 from scpainter_blender.core import backend_protocol as protocol
 # the exit codes, here too: the commands return events.EXIT_* (their values: core/backend_protocol.py)
 from scpainter_blender.core.backend_protocol import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK  # noqa: F401
-
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from collections.abc import Iterator

@@ -6,9 +6,9 @@ squared, with no rescaling (pytorch-fid and the KID paper report the same number
 
 from __future__ import annotations
 
-import numpy as np
-
 from typing import TYPE_CHECKING
+
+import numpy as np
 
 if TYPE_CHECKING:
     import torch

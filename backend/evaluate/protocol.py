@@ -41,6 +41,7 @@ from __future__ import annotations
 import os
 import time
 from dataclasses import asdict, dataclass, field, fields, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -59,8 +60,6 @@ from . import pictures
 from ..train import clip as clip_mod
 from ..train.pairs import load_clip_frames, load_resized
 from ..train.view_settings import ViewSettings
-
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     import argparse

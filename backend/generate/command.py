@@ -23,6 +23,7 @@ import json
 import os
 import time
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -38,8 +39,6 @@ from ..errors import FolderBusyError
 from ..model import checkpoint as ckpt_mod
 from ..render import command as render_cmd
 from ..render import channels
-
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from collections.abc import Sequence

@@ -48,12 +48,10 @@ import os
 import re
 import struct
 import warnings
-from typing import NamedTuple
+from typing import NamedTuple, TYPE_CHECKING
 from urllib.parse import unquote
 
 from scpainter_blender.core import files, glb
-
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterable, Iterator, Sequence

@@ -43,6 +43,7 @@ import json
 import math
 import os
 import struct
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -50,8 +51,6 @@ from scpainter_blender.core import glb
 
 from . import checks
 from .colors import DEFAULT_WRAP
-
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence

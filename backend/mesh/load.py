@@ -53,6 +53,7 @@ from __future__ import annotations
 import contextlib
 import os
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -61,8 +62,6 @@ from scpainter_blender.core.geometry import cameras
 from scpainter_blender.core.splats import ply_format, gaussians as splats
 
 from . import checks, gltf as gltf_plain
-
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     import trimesh

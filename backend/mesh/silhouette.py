@@ -9,12 +9,11 @@ as everywhere in the project. No bpy; torch only in ``render_mask`` (the conditi
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from scpainter_blender.core.splats import gaussians as splats
-
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from collections.abc import Sequence

@@ -15,6 +15,8 @@ window is one window: the same arithmetic as SVD's own loop.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import torch
 import torch.nn.functional as F
 
@@ -23,8 +25,6 @@ from scpainter_blender.core.job import GENERATE_DEFAULTS
 from ..errors import NonFiniteError
 from . import edm
 from .condition import encode_conditions
-
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from collections.abc import Callable

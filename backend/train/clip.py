@@ -47,6 +47,7 @@ import os
 import re
 import string
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -58,8 +59,6 @@ from scpainter_blender.core import job as job_mod
 from scpainter_blender.core.job import JobError
 
 from . import camera_frames
-
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from collections.abc import Sequence

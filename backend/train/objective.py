@@ -24,13 +24,13 @@ processes × batch 1 train exactly as 1 process × batch 2, up to float summatio
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import torch
 
 from ..model import edm
 from ..model.condition import encode_conditions
 from ..model.pipeline import clip_embeddings
-
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from collections.abc import Iterable

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 from collections import OrderedDict
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -37,8 +38,6 @@ from ..render import cleaning
 from ..render import frames as fr
 from . import clip as clip_mod
 from .view_settings import ViewSettings
-
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from collections.abc import Sequence

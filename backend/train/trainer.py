@@ -36,6 +36,7 @@ import os
 import shutil
 import time
 from dataclasses import asdict
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -51,8 +52,6 @@ from . import objective
 from .config import TrainConfig, TrainConfigError
 from .ema import EMA
 from .pairs import PairDataset
-
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Sequence

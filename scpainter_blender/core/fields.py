@@ -8,12 +8,11 @@ rules serves every document and each reports as its own kind. No bpy, no torch.
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .errors import InputError
-
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     import os

@@ -26,13 +26,12 @@ import os
 import shutil
 import stat
 import tempfile
+from typing import TYPE_CHECKING
 
 from .errors import ArgumentError, InputError
 from .user_cache import user_cache_dir  # noqa: F401  (outputs.user_cache_dir: its callers' name for it)
 from .files import NONBLOCK
 from .output_layout import OutputLayout
-
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterable, Iterator, Sequence

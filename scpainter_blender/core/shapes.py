@@ -9,14 +9,14 @@ No bpy, no torch: numpy only.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from .geometry import cameras
 from .splats import gaussians as splats, inria as splats_inria, trellis
 from .splats.sh import SH_C0
 from .geometry.similarity import decompose_similarity  # a bare name: transform_gaussians has a parameter "similarity"
-
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from collections.abc import Sequence

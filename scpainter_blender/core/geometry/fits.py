@@ -15,12 +15,11 @@ everything is computed relative to the points' centroid. Numpy only (1.x and 2.x
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from . import cameras
-
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from collections.abc import Sequence

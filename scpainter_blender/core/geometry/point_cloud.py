@@ -11,13 +11,12 @@ No bpy, no torch: numpy only.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from . import fits, similarity, unproject
 from ..vggt import predictions as vggt
-
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from collections.abc import Iterable

@@ -37,6 +37,7 @@ No bpy, no torch: numpy only.
 from __future__ import annotations
 
 import os
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -45,8 +46,6 @@ from . import ply_format
 from .sh import SH_C0
 from .gaussians import (DROPPED_REASONS, MOSTLY_INVALID_SHARE, GaussianPly, SplatsError, decode, open_file,
                         valid_rows)
-
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from .gaussians import Gaussians

@@ -33,13 +33,12 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .. import errors, files
 from . import formats as _formats, sh as _sh
-
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from typing import BinaryIO

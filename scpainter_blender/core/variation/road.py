@@ -29,12 +29,11 @@ raised.
 from __future__ import annotations
 
 from collections import deque
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..geometry import fits
-
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from .placement import Path

@@ -24,10 +24,9 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 from .. import errors, fields, files
-
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     import argparse

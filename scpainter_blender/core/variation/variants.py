@@ -20,6 +20,7 @@ import re
 import shutil
 import time
 from dataclasses import replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -30,8 +31,6 @@ from . import library as library_mod, placement
 from .road import Road
 from . import spec as spec_mod
 from .spec import VariationError, VariationSpec
-
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from collections.abc import Callable

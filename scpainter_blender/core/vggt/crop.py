@@ -11,11 +11,11 @@ the field "crop"). No bpy, no torch: numpy only.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from . import predictions as vggt
-
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     import os

@@ -28,7 +28,7 @@ class SplatFormat:
     file browsers' filter (``.glb``/``.gltf``/``.ply`` are meshes too, told apart by content); ``read``: its reader,
     ``"module.function"`` within ``core.splats``, taking a path and returning a ``GaussianPly``; ``layouts``: the
     ``GaussianPly.format`` values its reader gives, with their human names (``FORMAT_NAMES``); ``accepted``: the
-    phrases ``ACCEPTED`` names it by; ``by_extension``: ``detect`` names it by its extension alone (a headerless
+    phrases ``ACCEPTED`` names it by when ``name`` alone does not say it all (empty: its ``name``); ``by_extension``: ``detect`` names it by its extension alone (a headerless
     format: nothing in its bytes says what it is); ``needs_backend``: its decoding needs what Blender's Python
     lacks, so the import has ``python -m backend splat-asset`` rewrite it as an INRIA PLY first.
     """
@@ -38,9 +38,14 @@ class SplatFormat:
     extensions: tuple
     read: str
     layouts: tuple
-    accepted: tuple
+    accepted: tuple = ()
     by_extension: bool = False
     needs_backend: bool = False
+
+    @property
+    def accepted_phrases(self) -> tuple:
+        """The phrases ``ACCEPTED`` names this format by: ``accepted``, else its ``name``."""
+        return self.accepted or (self.name,)
 
 
 #: Every Gaussian format the readers take, in the order the file browser's filter lists their extensions.
@@ -52,14 +57,14 @@ FORMATS = (
                 ("binary INRIA 3DGS PLY (float, double or half floats in ushort slots; TRELLIS/Amodal3R included)",
                  "SuperSplat compressed PLY (.compressed.ply)")),
     SplatFormat("splat", "antimatter15 .splat", (".splat",), "compressed.read_splat",
-                (("splat", "antimatter15 .splat"),), ("antimatter15 .splat",), by_extension=True),
+                (("splat", "antimatter15 .splat"),), by_extension=True),
     SplatFormat("ksplat", "GaussianSplats3D .ksplat", (".ksplat",), "ksplat.read",
-                (("ksplat", "GaussianSplats3D .ksplat"),), ("GaussianSplats3D .ksplat",)),
-    SplatFormat("spz", "Niantic .spz", (".spz",), "spz.read", (("spz", "Niantic SPZ"),), ("Niantic .spz",)),
+                (("ksplat", "GaussianSplats3D .ksplat"),)),
+    SplatFormat("spz", "Niantic .spz", (".spz",), "spz.read", (("spz", "Niantic SPZ"),)),
     SplatFormat("sog", "PlayCanvas SOG (.sog or meta.json)", (".sog",), "sog.read", (("sog", "PlayCanvas SOG"),),
-                ("PlayCanvas SOG (.sog or meta.json)",), needs_backend=True),
+                needs_backend=True),
     SplatFormat("gltf_splats", "glTF/GLB with KHR_gaussian_splatting", (".glb", ".gltf"), "gltf_splats.read",
-                (("gltf_splats", "glTF KHR_gaussian_splatting"),), ("glTF/GLB with KHR_gaussian_splatting",)),
+                (("gltf_splats", "glTF KHR_gaussian_splatting"),)),
 )
 #: The record of each key.
 BY_KEY = {f.key: f for f in FORMATS}
@@ -74,7 +79,7 @@ ACCEPTED_ORDER = ("ply", "splat", "spz", "ksplat")
 
 def _accepted_text() -> str:
     ordered = [BY_KEY[k] for k in ACCEPTED_ORDER] + [f for f in FORMATS if f.key not in ACCEPTED_ORDER]
-    phrases = [p for f in ordered for p in f.accepted]
+    phrases = [p for f in ordered for p in f.accepted_phrases]
     return ", ".join(phrases[:-1]) + " and " + phrases[-1]
 
 

@@ -46,7 +46,7 @@ def test_every_record_is_well_formed():
     exts = [e for f in formats.FORMATS for e in f.extensions]
     assert len(set(exts)) == len(exts) and all(re.fullmatch(r"\.[a-z0-9]+", e) for e in exts)
     for f in formats.FORMATS:
-        assert f.name and f.accepted and f.layouts and f.extensions, f
+        assert f.name and f.accepted_phrases and f.layouts and f.extensions, f
         assert callable(reader.READERS[f.key]) and reader.READERS[f.key].__name__ == f.read.rsplit(".", 1)[1]
     assert set(formats.ACCEPTED_ORDER) <= set(keys)
 

@@ -14,6 +14,9 @@ continues from the saved step and gives exactly the frames of an uninterrupted r
 after the start). A finished run writes ``generated/manifest.json`` last; running again with the same key skips.
 A run removes the previous manifest before it replaces the first frame (``_write_outputs``), so a run killed or
 failing while it writes frames leaves a folder that is never called up to date (the model's and the baseline's).
+
+(Just over 400 lines: the plan, the conditions' loading, the resume keys and the outputs' writing are the model's
+and the baseline's alike; one module keeps the two generators on one path to the same files.)
 """
 
 from __future__ import annotations

@@ -437,16 +437,22 @@ class RecordedObject:
     """An object of the recording (a tracked car of the drive): ``id`` (its track name), ``category`` (the file's
     ``class``), ``size`` (3,) [width, length, height] metres and ``boxes`` {output frame: (4, 4) rigid
     box_to_world} for the frames it is in (the box convention of ``AssetBox``). Labelled as a recorded
-    (``synthetic: false``) object; one inside a removal box is listed as removed."""
+    (``synthetic: false``) object; one inside a removal box is listed as removed. ``ignore`` (the file's
+    ``"ignore": true``): an object seen but not labelled (a rejected-as-unsure proposal, a blurred far car): its
+    pixels become an ignore region in every export (``core.categories.IGNORE``), never a label."""
     id: str
     size: np.ndarray
     boxes: dict
     category: str = DEFAULT_CLASS
+    ignore: bool = False
 
     @classmethod
     def from_dict(cls, d: dict, path: str | os.PathLike, where: str) -> "RecordedObject":
         _object(d, path, where)
-        _known(d, path, where, ("id", "class", "size", "boxes"))
+        _known(d, path, where, ("id", "class", "size", "boxes", "ignore"))
+        ignore = d.get("ignore", False)
+        if not isinstance(ignore, bool):
+            raise JobError(path, f"{where}.ignore", f"expected true or false, got {_short(ignore)}")
         boxes = d.get("boxes")
         if not isinstance(boxes, dict) or not boxes:
             raise JobError(path, f"{where}.boxes", "expected a non-empty object {output frame: box_to_world 4x4}")
@@ -458,13 +464,15 @@ class RecordedObject:
                 raise JobError(path, f"{where}.boxes[{k!r}]", "expected a frame number as the key") from None
             out[f] = _rigid(m, path, f"{where}.boxes[{k!r}]")
         return cls(_str(d.get("id"), path, f"{where}.id"), _box_size(d.get("size"), path, f"{where}.size"), out,
-                   _class(d, path, f"{where}.class"))
+                   _class(d, path, f"{where}.class"), ignore)
 
     def to_dict(self) -> dict:
         d = {"id": self.id, "size": [float(v) for v in self.size],
              "boxes": {str(f): _matrix_list(m) for f, m in sorted(self.boxes.items())}}
         if self.category != DEFAULT_CLASS:
             d["class"] = self.category
+        if self.ignore:
+            d["ignore"] = True
         return d
 
 

@@ -373,6 +373,16 @@ def test_label_fields_round_trip_and_stay_out_of_the_layers():
     twice = {**d, "scene": {**d["scene"], "recorded_objects": d["scene"]["recorded_objects"] * 2}}
     with pytest.raises(J.JobError, match="appears twice"):
         J.Job.from_dict(twice)
+    ignored = {**d, "scene": {**d["scene"], "recorded_objects": [
+        {**d["scene"]["recorded_objects"][0], "ignore": True}]}}
+    job = J.Job.from_dict(ignored)
+    assert job.scene.recorded_objects[0].ignore and J.Job.from_dict(job.to_dict()).to_dict() == job.to_dict()
+    assert not J.Job.from_dict(d).scene.recorded_objects[0].ignore
+    assert "ignore" not in J.Job.from_dict(d).to_dict()["scene"]["recorded_objects"][0]
+    bad = {**d, "scene": {**d["scene"], "recorded_objects": [{**d["scene"]["recorded_objects"][0], "ignore": 1}]}}
+    with pytest.raises(J.JobError) as e:
+        J.Job.from_dict(bad)
+    assert e.value.field == "scene.recorded_objects[0].ignore"
     with pytest.raises(J.JobError) as e:
         J.Job.from_dict({**d, "scene": {**d["scene"], "recorded_frames": [3, 1]}})
     assert e.value.field == "scene.recorded_frames"

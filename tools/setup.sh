@@ -13,3 +13,4 @@ ensure_libusb
 install_venv .venv requirements.txt
 
 ensure_splat_transform
+ensure_loaders .venv

@@ -44,7 +44,7 @@ def test_demo_writes_blend_and_preview(street, tmp_path):
     assert len(j["frames"]) == 16 and j["assets"][0]["name"] == "car_01"
     assert sorted(o["id"] for o in j["scene"]["recorded_objects"]) == [f"street_car_{i}" for i in range(1, 6)]
     labelled = {o["track_id"] for fr in summary["labels"]["frames"] for o in fr["objects"] if not o["synthetic"]}
-    assert {"street_car_1", "street_car_2"} <= labelled   # the parked cars beside the path are labelled
+    assert len(labelled) >= 3   # the parked cars the 2 m path sees (3 of the 5) are labelled, as recorded objects
     # the condition layers of the 2 m shifted path, rendered by the backend: every frame, the car in view
     cond = summary["conditions"]
     assert cond["frames"] == 16 and len(cond["previews"]) == 16

@@ -62,7 +62,8 @@ def test_the_streets_cars_land_on_the_ground_truth_and_go_into_the_job(empty_sce
             np.testing.assert_allclose(size, size0, atol=1e-4)
             centre_err.append(np.linalg.norm(T[:3, 3] - T0[:3, 3]))
             angle_err.append(np.degrees(np.arccos(np.clip((np.trace(T[:3, :3].T @ T0[:3, :3]) - 1) / 2, -1, 1))))
-    print(f"recorded cars against the ground truth: centres ≤ {max(centre_err):.4f} m, axes ≤ {max(angle_err):.3f}°")
+    print(f"recorded cars against the ground truth: centres ≤ {max(centre_err):.4f} m, "
+          f"axes ≤ {max(angle_err):.3f}°")
     assert max(centre_err) < CENTRE_M and max(angle_err) < ANGLE_DEG
 
     # the job (every camera path's) carries them as scene.recorded_objects, each box where the scene has it
@@ -73,7 +74,8 @@ def test_the_streets_cars_land_on_the_ground_truth_and_go_into_the_job(empty_sce
     for o in objs:
         T, _ = placement.box_matrix(o)
         np.testing.assert_allclose(rec[o[keys.TRACK_ID]].boxes[scene.frame_start], T, atol=1e-9)
-    assert job_mod.Scene.from_dict(job.scene.to_dict(), "job.json").recorded_objects[0].id == job.scene.recorded_objects[0].id
+    again = job_mod.Scene.from_dict(job.scene.to_dict(), "job.json").recorded_objects   # valid job JSON
+    assert [o.id for o in again] == [o.id for o in job.scene.recorded_objects]
 
     # a removal box from a recorded car: the same box, at the current frame
     bpy.ops.object.select_all(action="DESELECT")

@@ -9,7 +9,8 @@ sequence's image numbers from 0, the reconstruction's frames in order; the file 
 the recording's length is not known (``Recording.num_frames`` None).
 
 The boxes are moved into the colour camera the reconstruction was made from (``image_02``: ``P2``, or ``image_03``:
-``P3``): a rectified camera j sees x_j = x_0 + t_j with t_j = K_j⁻¹ P_j[:, 3] (the calib line ``Pj`` = K_j [I | t_j]).
+``P3``): a rectified camera j sees x_j = x_0 + t_j with t_j = K_j⁻¹ P_j[:, 3] (the calib line ``Pj`` = K_j
+[I | t_j]).
 Classes map through ``core.categories.from_kitti``.
 """
 

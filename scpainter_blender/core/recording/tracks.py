@@ -113,8 +113,9 @@ def category(name: str, mapper: Callable[[str], str | None], path, where: str, s
     InputError naming the file, the field and the table when the table has no row for it."""
     ours = mapper(name)
     if ours is None:
+        known = sorted({getattr(c, spelling, c.name) for c in categories.CATEGORIES})
         raise bad(path, where, f"class {name!r} is not in the class table (core/categories.py CATEGORIES, "
-                               f"{spelling} names: {sorted({getattr(c, spelling, c.name) for c in categories.CATEGORIES})})",
+                               f"{spelling} names: {known})",
                   hint="remove those annotations, or map the class in core/categories.py (append a row)")
     return ours
 

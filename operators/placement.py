@@ -5,7 +5,7 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
-from ..scpainter_blender.scene import keys, kinds, placement, visibility
+from ..scpainter_blender.scene import keys, kinds, placement, recorded_objects, visibility
 from . import reports, selection
 
 
@@ -116,7 +116,8 @@ class SCPAINTER_OT_add_removal_box(bpy.types.Operator):
 
 
 class SCPAINTER_OT_replace_car(_AssetOperator, bpy.types.Operator):
-    """Align the active asset to the selected removal box (the recorded car it replaces) and check its size"""
+    """Align the active asset to the selected removal box (the recorded car it replaces), or to a removal box made
+    from the selected recorded object, and check its size"""
 
     bl_idname = "scpainter.replace_car"
     bl_label = "Replace Car"
@@ -128,8 +129,11 @@ class SCPAINTER_OT_replace_car(_AssetOperator, bpy.types.Operator):
     @reports.reported
     def execute(self, context):
         boxes = [o for o in context.selected_objects if kinds.is_kind(o, kinds.REMOVAL_BOX)]
+        recorded = recorded_objects.of_selection(context)
+        if not boxes and len(recorded) == 1:  # the recorded car's box becomes the removal box it is replaced in
+            boxes = [recorded_objects.removal_box(context, recorded[0], _rendered_points(context))]
         if len(boxes) != 1:
-            self.report({"ERROR"}, "select exactly one removal box together with the asset")
+            self.report({"ERROR"}, "select exactly one removal box (or one recorded object) together with the asset")
             return {"CANCELLED"}
         asset = _asset(context)
         placement.align_to_box(asset, boxes[0], self.uniform)

@@ -94,6 +94,7 @@ class SCPAINTER_PT_main(bpy.types.Panel):
         col.operator("scpainter.fit_asset")
         col.operator("scpainter.snap_to_ground")
         col.operator("scpainter.add_removal_box")
+        col.operator("scpainter.removal_box_from_recorded")
         col.operator("scpainter.replace_car")
         col.operator("scpainter.check_assets")
         col.operator("scpainter.drive_along_lane", icon="AUTO")

@@ -35,12 +35,16 @@ def test_demo_writes_blend_and_preview(street, tmp_path):
     assert f"SCPainter Conditions · {path}" in bpy.data.images   # kept in the .blend although the video replaced it
     assert scene.camera.data.show_background_images and bg[0].image.name == f"SCPainter Baseline · {path}"
     assert os.path.dirname(summary["job"]) == os.path.join(str(out), "Camera_path_2_m_left")   # its own folder
-    assert kinds == ["asset_box", "asset_front", "camera_path", "gaussian_asset", "points", "recorded_camera"]
+    assert kinds == ["asset_box", "asset_front", "camera_path", "gaussian_asset", "points", "recorded_camera",
+                     *["recorded_object"] * 5]   # the street's own parked cars, from their ground truth
     assert abs(summary["asset_location"][2]) < 0.05  # stood on the road (z = 0)
     from scpainter_blender.core import job
 
     j = job.load(summary["job"]).to_dict()
     assert len(j["frames"]) == 16 and j["assets"][0]["name"] == "car_01"
+    assert sorted(o["id"] for o in j["scene"]["recorded_objects"]) == [f"street_car_{i}" for i in range(1, 6)]
+    labelled = {o["track_id"] for fr in summary["labels"]["frames"] for o in fr["objects"] if not o["synthetic"]}
+    assert len(labelled) >= 3   # the parked cars the 2 m path sees (3 of the 5) are labelled, as recorded objects
     # the condition layers of the 2 m shifted path, rendered by the backend: every frame, the car in view
     cond = summary["conditions"]
     assert cond["frames"] == 16 and len(cond["previews"]) == 16

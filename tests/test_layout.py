@@ -76,6 +76,8 @@ UNMIRRORED = {
     "operators/camera_path.py": "tested by tests/scene/test_camera.py: bpy.ops.scpainter.new_camera_path",
     "operators/drive_lane.py": "tested by tests/scene/test_drive_lane.py: *Drive Along Lane* on the street",
     "operators/import_gaussians.py": "tested by tests/scene/test_gaussians.py: bpy.ops.scpainter.import_gaussians",
+    "operators/recorded_objects.py": "tested by tests/scene/test_recorded_objects.py: Import Recorded Objects and "
+                                     "a removal box from one, on the street",
     "operators/import_vggt.py": "tested by tests/scene/test_importer.py: bpy.ops.scpainter.import_vggt",
     "operators/job.py": "tested by tests/scene/test_job_export.py: bpy.ops.scpainter.export_job",
     "operators/placement.py": "tested by tests/scene/test_placement.py: fit, snap, removal boxes, replace a car",

@@ -1,4 +1,5 @@
-"""The README's main command: build the ground-truth street, import it into a new .blend, park a procedural
+"""The README's main command: build the ground-truth street, import it into a new .blend (with the street's own
+parked cars as recorded objects, from their ground truth written as a scpainter.objects/1 file), park a procedural
 Gaussian car beside the road, add a camera path 2 m to the left of the drive, export the job, render the
 condition layers and their labels with the backend (``python -m backend render``), generate the video — with the
 SCPainter model when a checkpoint is configured (``--checkpoint`` or ``$SCPAINTER_CHECKPOINT``), otherwise the
@@ -71,7 +72,10 @@ def main(argv=None):
     bpy.ops.wm.read_homefile(use_empty=True)
     scene = bpy.context.scene
     scene.name = "street"
-    kw = {"scale_mode": args.scale.upper()}
+    # the street's own cars as the recording's tracked boxes: imported with the reconstruction, so every parked car
+    # the camera sees is labelled (core/recording, scene/recorded_objects.py)
+    kw = {"scale_mode": args.scale.upper(),
+          "objects": street.write_objects(os.path.join(out, "street_objects.json"))}
     if args.scale == "camera_height":
         kw["camera_height"] = street.params.camera_height_m
     elif args.scale == "trajectory":
@@ -164,6 +168,7 @@ def main(argv=None):
     t_render = time.perf_counter() - t_render
 
     summary = {"blend": blend, "preview": preview, "job": job_path, "asset": car_ply,
+               "recorded_objects": [o.name for o in kinds.recorded_objects(scene)],
                "camera_path": path_cam.name, "shift_m": args.shift, "conditions": cond, "generation": generation,
                "labels": labels, "exports": exports,
                "asset_location": list(car.location), "asset_stage1": car[keys.STAGE1],

@@ -1,6 +1,7 @@
 """``blender -c scpainter import``: VGGT predictions imported as points + the recorded camera into the scene that
 is open (``blender -b scene.blend -c ...`` imports into scene.blend), with the import options as
-``core/import_options.py`` defines them; ``--save`` writes the scene to a .blend (a temporary file, then renamed).
+``core/import_options.py`` defines them (``--objects FILE``: the drive's tracked boxes as recorded objects);
+``--save`` writes the scene to a .blend (a temporary file, then renamed).
 """
 
 from __future__ import annotations
@@ -41,6 +42,8 @@ def run(args: argparse.Namespace) -> tuple[dict, int]:
            "warnings": result.warnings, "predictions": result.load_report.to_json(), "timings_s": result.timings,
            # a camera path stays the scene camera when the scene had one (importer.import_vggt)
            "scene_camera": bpy.context.scene.camera.name if bpy.context.scene.camera else None}
+    if opts.objects:  # the recorded objects the import made (--objects)
+        out["recorded_objects"] = [o.name for o in result.recorded_objects]
     if args.save:
         path = os.path.abspath(args.save)
         os.makedirs(os.path.dirname(path), exist_ok=True)

@@ -20,6 +20,7 @@ import numpy as np
 from . import errors
 from . import job as job_mod
 from .geometry import point_cloud
+from .recording import reader as recording
 from .vggt import predictions as vggt
 
 #: The ``path`` of an InputError about an import option (``field``: the ``ImportOptions`` name).
@@ -95,6 +96,24 @@ _OPTIONS = (   # in the order the operator draws them
     Option("crop", "Crop", "auto", "Borders to leave out, in pixels: 'auto' (the white padding of VGGT's pad "
                                    "preprocessing), 'none', or 'left top right bottom'. The camera's principal point "
                                    "and resolution follow", flag="--crop"),
+    Option("objects", "Recorded Objects", "", "The drive's tracked 3D boxes, imported as recorded objects (labelled "
+                                              "in every export): a nuScenes tables folder, a KITTI tracking "
+                                              "label_02/NNNN.txt (calib/ beside it), an OpenLABEL JSON or a "
+                                              "scpainter.objects/1 JSON, of the same frames as the predictions",
+           flag="--objects", ui={"subtype": "FILE_PATH"}),
+    Option("objects_format", "Objects Format", recording.AUTO, "The recorded objects file's format",
+           items=((recording.AUTO, "Auto", "By the file's content"),
+                  ("nuscenes", "nuScenes", "A folder of the devkit's JSON tables (one scene)"),
+                  ("kitti", "KITTI Tracking", "label_02/NNNN.txt with calib/NNNN.txt"),
+                  ("openlabel", "OpenLABEL", "ASAM OpenLABEL 1.0 JSON with cuboids"),
+                  ("plain", "Plain JSON", "scpainter.objects/1 (docs/design.md §15)")),
+           flag="--objects-format"),
+    Option("objects_scene", "Objects Scene", "", "nuScenes: the scene's name or token (needed when the tables hold "
+                                                 "several scenes)", flag="--objects-scene"),
+    Option("objects_camera", "Objects Camera", "", "The recording's camera the predictions were made from: a "
+                                                   "nuScenes channel (default CAM_FRONT), KITTI image_02 or image_03 "
+                                                   "(default image_02), an OpenLABEL coordinate system (default "
+                                                   "'camera', or the only sensor)", flag="--objects-camera"),
     Option("point_radius", "Point Radius", 0.03, "Radius of each point in the viewport, metres", min=0.0,
            ui={"unit": "LENGTH"}),
     Option("current_frame_only", "Current Frame Only", False,
@@ -131,6 +150,10 @@ class ImportOptions:
     set_scene_camera: bool = True
     extrinsic_convention: str = _default("extrinsic_convention")
     crop: str = _default("crop")                            # "auto", "none", or "left top right bottom" pixels
+    objects: str = _default("objects")                      # recorded objects file ("": none), core.recording
+    objects_format: str = _default("objects_format")        # core.recording.reader.FORMATS or auto
+    objects_scene: str = _default("objects_scene")          # nuScenes scene name or token
+    objects_camera: str = _default("objects_camera")        # the recording's camera (per format)
     # drop pixels whose depth jumps by more than this fraction of their own to a neighbour (VGGT's "flying pixels",
     # core.geometry.point_cloud.depth_edges); None or 0: off. Stored on the objects; the exported job renders with it.
     depth_edge_ratio: float | None = _default("depth_edge_ratio")

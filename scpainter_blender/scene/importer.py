@@ -2,7 +2,8 @@
 
 The heavy lifting is numpy in ``core``; this module only turns arrays into Blender data. The options and their
 checks live in ``core.import_options``. All three metric-scale modes run here, in Blender's own process (the
-camera-height one is ``core.geometry.metric_scale.camera_height_fit``; no backend).
+camera-height one is ``core.geometry.metric_scale.camera_height_fit``; no backend). With ``objects`` the drive's
+tracked boxes come in too (``core.recording``, mapped through the recorded camera in metres: scene/recorded_objects.py).
 """
 
 from __future__ import annotations
@@ -17,11 +18,13 @@ import numpy as np
 from ..core.geometry import cameras, metric_scale, point_cloud, similarity
 from ..core import errors
 from ..core.import_options import DEPTH_EDGE_RATIO, ERROR_PATH, SCALE_MODES, ImportOptions
+from ..core.recording import reader as recording
 from ..core.vggt import predictions as vggt, npz as vggt_io
 from . import camera as camera_mod
 from . import keys, kinds
 from . import node_groups
 from . import points as points_mod
+from . import recorded_objects as recorded_mod
 
 
 @dataclass
@@ -37,6 +40,7 @@ class ImportResult:
     depth_edge_points: int = 0                   # confident pixels it left out
     # the camera path that stays the scene camera (the import adds the recorded camera without taking its place)
     kept_camera: bpy.types.Object | None = None
+    recorded_objects: list = field(default_factory=list)   # the recorded objects made (``opts.objects``)
 
 
 def metric_fit(pred: vggt.VGGTPredictions, opts: ImportOptions) -> metric_scale.MetricFit:
@@ -87,6 +91,13 @@ def import_vggt(context, filepath: str, opts: ImportOptions | None = None, colle
     pts = point_cloud.point_cloud(pred, opts.confidence_percentile, opts.point_source, fit.vggt_to_world,
                                   depth_edge_ratio=opts.edge_ratio)
     t_unproject = time.perf_counter()
+    w2c = similarity.transform_world_to_camera(cameras.orthonormalize(pred.world_to_camera), fit.vggt_to_world)
+    mapped = None
+    if opts.objects:  # read, mapped and checked against the recording before anything is made
+        rec = recording.read(os.path.abspath(bpy.path.abspath(opts.objects)), opts.objects_format,
+                             opts.objects_scene, opts.objects_camera)
+        mapped = recording.recorded_objects(rec, w2c, opts.frame_start)
+        recorded_mod.check_new(context.scene, mapped.objects)
 
     scene = context.scene
     stem = os.path.splitext(os.path.basename(filepath))[0]
@@ -102,7 +113,6 @@ def import_vggt(context, filepath: str, opts: ImportOptions | None = None, colle
     node_groups.set_input(mod, "Frame Window", int(opts.frame_window))
     t_points = time.perf_counter()
 
-    w2c = similarity.transform_world_to_camera(cameras.orthonormalize(pred.world_to_camera), fit.vggt_to_world)
     cam, p0, warnings = camera_mod.create_recorded_camera(f"{parent_name} recorded camera", w2c, pred.K,
                                                           pred.width, pred.height, opts.frame_start, coll)
     camera_mod.apply_render_settings(scene, p0)
@@ -117,6 +127,9 @@ def import_vggt(context, filepath: str, opts: ImportOptions | None = None, colle
     obj[keys.MATRIX_WORLD_AT_IMPORT] = np.array(obj.matrix_basis, dtype=np.float64).ravel().tolist()
     cam[keys.INTRINSICS] = pred.K.ravel().tolist()
     cam[keys.FRAME_START] = int(opts.frame_start)
+    made = recorded_mod.add_objects(context, mapped.objects) if mapped is not None else []
+    if mapped is not None:
+        warnings = list(warnings) + list(mapped.warnings)
     t_end = time.perf_counter()
     timings = {"load": t_load - t0, "metric_fit": t_fit - t_load, "unproject": t_unproject - t_fit,
                "points_object": t_points - t_unproject, "camera": t_end - t_points, "total": t_end - t0}
@@ -125,4 +138,4 @@ def import_vggt(context, filepath: str, opts: ImportOptions | None = None, colle
             f"the depth-edge test left out {pts.depth_edge_points:,} of {pts.depth_edge_points + len(pts):,} points: "
             f"the ratio {opts.edge_ratio} is small for this clip (the default is {DEPTH_EDGE_RATIO}; 0 turns it off)"]
     return ImportResult(obj, cam, fit, len(pts), timings, list(pred.report.warnings) + list(warnings), pred.report,
-                        opts.edge_ratio, pts.depth_edge_points, kept if opts.set_scene_camera else None)
+                        opts.edge_ratio, pts.depth_edge_points, kept if opts.set_scene_camera else None, made)

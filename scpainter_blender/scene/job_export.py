@@ -11,7 +11,8 @@ K, world_to_camera and the resolution are scene/camera.py's (``K_of_camera_objec
 points' cleaning is the depth-edge ratio they were imported with (``point_cleaning``), so the render loads the
 points the viewport shows. For labels: each asset's ``class`` and ``box`` (its box object in the PLY file's
 coordinates, scene/asset_box.py; an asset without one exports no box and the backend estimates it), the scene's
-``fps`` and ``scene.recorded_frames`` (``recorded_frames``).
+``fps`` and ``scene.recorded_frames`` (``recorded_frames``); the recorded objects (scene/recorded_objects.py,
+``job_objects``) as ``scene.recorded_objects``, so every camera path's job carries them.
 What the scene does not use is left out: no reconstruction, no ``scene``; no (accepted) assets, no ``assets``; no
 checkpoint, no ``generate``. Generation settings are not written: the backend takes them from the checkpoint
 (window, guidance, fps) and ``core.job.GENERATE_DEFAULTS``; the one exception is the baseline's inpainting method
@@ -30,6 +31,7 @@ from ..core import labels
 from . import camera as camera_mod
 from . import asset_box, keys, kinds, node_groups, placement, props, visibility
 from . import points as points_mod
+from . import recorded_objects
 
 
 def _m(value):
@@ -104,7 +106,8 @@ def build_job(context, job_path: str, output_dir: str | None = None, checkpoint:
                            crop=[int(v) for v in pts.get(keys.CROP, [0, 0, 0, 0])],
                            removal_boxes=[job_mod.RemovalBox(*placement.box_matrix(b)) for b in boxes],
                            point_cleaning=point_cleaning(pts),
-                           recorded_frames=recorded_frames(scene, pts))
+                           recorded_frames=recorded_frames(scene, pts),
+                           recorded_objects=recorded_objects.job_objects(scene, frames))
     return job_mod.Job(camera_mod.render_size(scene), out_frames, os.path.relpath(output_dir or job_dir, job_dir),
                        scene=sc,
                        assets=[job_mod.Asset(a.name, os.path.relpath(a[keys.SOURCE], job_dir), asset_m[a.name],

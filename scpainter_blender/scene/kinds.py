@@ -9,7 +9,9 @@ are saved in .blend files: never rename them.
 * ``GAUSSIAN_ASSET``: a Gaussian car asset (scene/gaussians.py);
 * ``REMOVAL_BOX``: a cube empty whose points are removed from the points object (scene/placement.py);
 * ``ASSET_BOX``: a Gaussian asset's upright 3D box, a cube empty parented to the asset (scene/asset_box.py);
-* ``ASSET_FRONT``: the arrow that marks the front (+y) of an asset box, parented to the box (scene/asset_box.py).
+* ``ASSET_FRONT``: the arrow that marks the front (+y) of an asset box, parented to the box (scene/asset_box.py);
+* ``RECORDED_OBJECT``: a tracked object of the recording, a cube empty whose unit cube is its box
+  (scene/recorded_objects.py).
 
 Objects are anything with ``get`` (Blender objects, ``None`` allowed where noted); no bpy needed here.
 """
@@ -25,7 +27,8 @@ GAUSSIAN_ASSET = "gaussian_asset"
 REMOVAL_BOX = "removal_box"
 ASSET_BOX = "asset_box"
 ASSET_FRONT = "asset_front"
-ALL = (POINTS, RECORDED_CAMERA, CAMERA_PATH, GAUSSIAN_ASSET, REMOVAL_BOX, ASSET_BOX, ASSET_FRONT)
+RECORDED_OBJECT = "recorded_object"
+ALL = (POINTS, RECORDED_CAMERA, CAMERA_PATH, GAUSSIAN_ASSET, REMOVAL_BOX, ASSET_BOX, ASSET_FRONT, RECORDED_OBJECT)
 
 
 def mark(obj, kind: str) -> None:
@@ -98,6 +101,11 @@ def gaussian_assets(scene) -> list:
 def removal_boxes(scene) -> list:
     """The scene's removal boxes."""
     return objects_of_kind(scene, REMOVAL_BOX)
+
+
+def recorded_objects(scene) -> list:
+    """The scene's recorded objects (tracked boxes of the recording), in ``scene.objects`` order."""
+    return objects_of_kind(scene, RECORDED_OBJECT)
 
 
 def child_of_kind(obj, kind: str):

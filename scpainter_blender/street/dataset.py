@@ -16,6 +16,10 @@ Layout of a street folder::
     street.json            parameters, views, parked cars (box_to_world, size, instance id), timings
     street.blend           the procedural scene itself
     <view>/frame_NNNNNN.png  renders: "recorded" and each shifted view ("left_2m", "right_3m", ...)
+
+``write_objects`` writes the parked cars as a recording's tracked boxes (``core.recording.plain``,
+``scpainter.objects/1`` in the street's world with the recorded cameras' poses): the ground truth the demo imports
+as recorded objects. It is written where asked, never into the street folder (the cache key is the parameters').
 """
 
 from __future__ import annotations
@@ -32,6 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core import outputs
+from ..core.recording import plain
 
 GENERATOR_VERSION = 2  # 2: a_to_b names (vggt_to_world) in the files it writes
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -98,6 +103,18 @@ class Street:
 
     def frame_path(self, view: str, i: int) -> str:
         return os.path.join(self.root, view, f"frame_{i:06d}.png")
+
+    def write_objects(self, path: str) -> str:
+        """The parked cars (``street.json`` ``cars``: box_to_world and size [w, l, h] in the street's world) as a
+        ``scpainter.objects/1`` file at ``path`` (written atomically), in every recorded frame, with the recorded
+        cameras' world_to_camera (``metric.npz``); track ids ``street_car_<instance>``. Returns ``path``."""
+        w2c = self.metric()["world_to_camera"]
+        n = len(w2c)
+        cars = [{"id": f"street_car_{c['instance']}", "class": "car", "size": c["size"],
+                 "boxes": {f: np.asarray(c["box_to_world"], np.float64) for f in range(n)}}
+                for c in self.info["cars"]]
+        outputs.write_json(path, plain.document(n, cars, w2c))
+        return path
 
     @property
     def views(self) -> list:

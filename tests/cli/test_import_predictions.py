@@ -11,10 +11,12 @@ from tests.cli import cli_support as CS
 
 def test_import_and_save(addon, empty_scene, street, tmp_path, capsys):
     out = tmp_path / "not yet" / "batch.blend"     # a folder that does not exist yet is made
+    objects = street.write_objects(str(tmp_path / "objects.json"))   # the street's cars as recorded objects
     code = CS.cli(addon).execute(["import", street.predictions_path, "--trajectory",
-                                os.path.join(street.root, "metric.npz"), "--save", str(out)])
+                                os.path.join(street.root, "metric.npz"), "--save", str(out), "--objects", objects])
     ev = CS.last_event(capsys)
     assert code == 0, ev
+    assert ev["recorded_objects"] == [f"car street_car_{i}" for i in range(1, 6)]
     assert ev["event"] == "done" and ev["scale_method"] == "trajectory"
     assert abs(ev["scale"] - float(street.metric()["metres_per_unit"])) < 1e-4
     assert ev["blend"] == str(out) and out.stat().st_size > 1_000_000

@@ -85,6 +85,21 @@ def test_command_line_options_are_made_from_the_options():
         assert (e.value.path, e.value.field) == (errors.COMMAND_LINE, flag)
 
 
+def test_the_recorded_objects_options_follow_the_readers():
+    """``objects_format``'s choices are auto plus the formats core.recording reads; ``--objects`` and its companions
+    reach ``ImportOptions``; an unknown format is refused naming the option."""
+    from scpainter_blender.core.recording import reader
+
+    assert IO.OPTIONS["objects_format"].choices == (reader.AUTO, *reader.FORMATS)
+    opts = IO.from_arguments(_parser().parse_args(["--objects", "o.json", "--objects-format", "kitti",
+                                                   "--objects-scene", "scene-0001", "--objects-camera", "image_03"]))
+    assert (opts.objects, opts.objects_format, opts.objects_scene, opts.objects_camera) == \
+        ("o.json", "kitti", "scene-0001", "image_03")
+    with pytest.raises(errors.InputError) as e:
+        IO.ImportOptions(objects_format="csv").check()
+    assert e.value.field == "objects_format" and "expected one of" in e.value.message
+
+
 def test_blender_property_keywords_are_made_from_the_options():
     props = IO.blender_properties()
     assert list(props) == list(IO.OPTIONS)   # the order the operator draws them

@@ -72,7 +72,7 @@ def test_installed_and_enabled(addon):
     assert {"SCPAINTER_OT_import_vggt", "SCPAINTER_OT_import_gaussians", "SCPAINTER_PT_main",
             "SCPAINTER_FH_vggt", "SCPAINTER_FH_gaussians"} <= set(_our_classes())
     assert bpy.types.SCPAINTER_PT_main.bl_category == "SCPainter"
-    assert len(_our_menu_entries()) == 2
+    assert len(_our_menu_entries()) == 3   # VGGT, Gaussian asset, recorded objects
     mod = __import__(addon, fromlist=["register"])
     assert os.path.realpath(mod.__file__).startswith(os.path.realpath(os.environ["BLENDER_USER_RESOURCES"]))
 
@@ -87,7 +87,7 @@ def test_register_unregister_register_leaves_nothing_behind(addon):
         bpy.ops.scpainter.import_vggt.get_rna_type()
     addon_utils.enable(addon, default_set=True)
     assert _our_classes() == before_classes
-    assert len(_our_menu_entries()) == before_menu == 2
+    assert len(_our_menu_entries()) == before_menu == 3
     assert hasattr(bpy.ops.scpainter, "import_vggt")
 
 

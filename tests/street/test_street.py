@@ -168,3 +168,22 @@ def test_drive_files_give_back_the_metric_points(tmp_path):
     assert len(pts) == hit.sum() and np.abs(pts.positions - truth).max() < 1e-4
     # VGGT's normalisation: mean distance of the valid points from the first camera is one unit
     assert np.linalg.norm(truth - C.camera_centers(w2c[0]), axis=1).mean() == pytest.approx(m)
+
+
+def test_the_streets_cars_as_an_objects_file(tmp_path):
+    """``Street.write_objects``: the parked cars as scpainter.objects/1 in the street's world; read back and mapped
+    through the street's own cameras they are the ground truth again (no bpy: the cached street only)."""
+    from scpainter_blender.core.recording import plain, reader
+    from scpainter_blender.street.dataset import cached_street
+
+    street = cached_street()
+    if street is None:
+        pytest.skip("the ground-truth street is not in the cache")
+    path = street.write_objects(str(tmp_path / "objects.json"))
+    mapped = reader.recorded_objects(plain.read(path), street.metric()["world_to_camera"], 1)
+    assert not mapped.warnings
+    assert [o.id for o in mapped.objects] == [f"street_car_{c['instance']}" for c in street.info["cars"]]
+    for o, c in zip(mapped.objects, street.info["cars"]):
+        assert sorted(o.boxes) == list(range(1, street.params.num_frames + 1))
+        np.testing.assert_allclose(o.boxes[7], c["box_to_world"], atol=1e-5)
+        np.testing.assert_allclose(o.size, c["size"])

@@ -32,7 +32,8 @@ Conventions, with their sources:
 - **Ignore regions** (``core.labels.ignore_region``): objects of type ``ignore`` (``core.categories.IGNORE``),
   keyed by the object's track id plus ``ignore_key_offset`` (the largest track id of the document: a track that is
   labelled in some frames and unlabelled in others keeps both), with the static ``text`` ``class`` and ``num``
-  ``track_id`` of the object they stand for; per frame a ``bbox`` ``region`` in ``camera`` ([cx, cy, w, h]).
+  ``track_id`` of the object they stand for; per frame a ``bbox`` ``region`` in ``camera`` ([cx, cy, w, h]) and
+  the object's carried measures as ``num``.
 """
 
 from __future__ import annotations
@@ -91,13 +92,18 @@ def intervals(indices: Iterable[int]) -> list:
     return out
 
 
+def _measures(o: dict) -> list:
+    """The ``num`` entries of an object's carried measures (``labels.CARRIED_MEASURES``; a null one left out)."""
+    return [{"name": n, "val": float(o[n])} for n in labels.CARRIED_MEASURES if o[n] is not None]
+
+
 def _frame_object(o: dict) -> dict:
     data = {"cuboid": [{"name": "box3d", "val": cuboid_val(o["box_world"]), "coordinate_system": WORLD}]}
     boxes = [{"name": n, "val": bbox_val(o[k]), "coordinate_system": CAMERA}
              for n, k in (("visible", "bbox_visible"), ("amodal", "bbox_amodal")) if o[k] is not None]
     if boxes:
         data["bbox"] = boxes
-    data["num"] = [{"name": n, "val": float(o[n])} for n in labels.CARRIED_MEASURES if o[n] is not None]
+    data["num"] = _measures(o)
     data["boolean"] = [{"name": "removed", "val": bool(o["removed"])}]
     return {"object_data": data}
 
@@ -134,8 +140,9 @@ def document(frames: list, image_names: list, name: str = "scpainter") -> dict:
                 objects.setdefault(key, {"name": o["name"], "type": categories.IGNORE, "object_data": {
                     "text": [{"name": "class", "val": o["class"]}],
                     "num": [{"name": "track_id", "val": int(o["track_id"])}]}})
-                frame_objects[key] = {"object_data": {"bbox": [
-                    {"name": "region", "val": bbox_val(region), "coordinate_system": CAMERA}]}}
+                frame_objects[key] = {"object_data": {
+                    "bbox": [{"name": "region", "val": bbox_val(region), "coordinate_system": CAMERA}],
+                    "num": _measures(o)}}
             elif o["box_world"] is None or o.get("ignore") or o.get("points_missing"):
                 continue      # no box to give (its transform overflows: core.labels), or seen but not labelled
             else:

@@ -113,7 +113,9 @@ def test_ignore_regions_are_objects_of_type_ignore(exported):
         (o,) = [o for o in fr.labels["objects"] if o["ignore"]]
         assert str(o["track_id"]) not in doc["frames"][str(i)]["objects"]        # never a normal label
         key = str(o["track_id"] + offset)
-        (box,) = doc["frames"][str(i)]["objects"][key]["object_data"]["bbox"]
+        data = doc["frames"][str(i)]["objects"][key]["object_data"]
+        assert {n["name"]: n["val"] for n in data["num"]}["occlusion"] == o["occlusion"]
+        (box,) = data["bbox"]
         assert (box["name"], box["coordinate_system"]) == ("region", "camera")
         assert box["val"] == pytest.approx(openlabel.bbox_val(labels.ignore_region(o)))
     assert doc["objects"][str(4 + offset)] == {

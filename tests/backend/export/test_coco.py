@@ -1,14 +1,15 @@
 """COCO export read back with the loaders teams train with (test-only tools): pycocotools' ``COCO`` and
-torchvision's ``CocoDetection`` + ``wrap_dataset_for_transforms_v2``: masks equal to the instance pass, boxes,
-the fixed category table, ignore regions as ``iscrowd`` 1."""
+torchvision's ``CocoDetection`` + ``wrap_dataset_for_transforms_v2`` (in a process of its own:
+``torchvision_loader.py`` says why): masks equal to the instance pass, boxes, the fixed category table, ignore
+regions as ``iscrowd`` 1."""
 
 import json
 import os
+import subprocess
 import sys
 
 import numpy as np
 import pytest
-import torch
 from pycocotools import mask as mask_utils
 from pycocotools.coco import COCO
 
@@ -16,29 +17,10 @@ from tests.backend.export import export_fixtures as F
 from backend.export import coco
 from scpainter_blender.core import categories, errors, labels
 
-#: Kept alive while the tests run: see ``_torchvision``.
-_SCHEMAS = []
-
-
-def _torchvision():
-    """torchvision (requirements.txt's test-only pin). PyPI's torchvision wheel is built against PyPI's CUDA torch;
-    beside a CPU build of the same torch release (this project's machines install torch 2.13.0+cpu) its compiled
-    operators do not load, and its import then fails declaring a fake kernel for ``torchvision::nms`` ("operator
-    torchvision::nms does not exist"). The loaders tested here are pure Python (the masks come from pycocotools),
-    so in that case the two operators' schemas are declared, without kernels, and the import retried."""
-    try:
-        import torchvision
-    except RuntimeError as e:
-        if "torchvision::nms" not in str(e):
-            raise
-        for name in [n for n in sys.modules if n == "torchvision" or n.startswith("torchvision.")]:
-            del sys.modules[name]
-        lib = torch.library.Library("torchvision", "DEF")
-        for op in ("nms", "qnms"):
-            lib.define(f"{op}(Tensor dets, Tensor scores, float iou_threshold) -> Tensor")
-        _SCHEMAS.append(lib)
-        import torchvision
-    return torchvision
+#: Where the isolated test-only packages are (``requirements-isolated.txt``; tools/setup*.sh install them into the
+#: environment's ``isolated`` folder); ``SCPAINTER_ISOLATED_PACKAGES`` names another.
+ISOLATED = os.environ.get("SCPAINTER_ISOLATED_PACKAGES") or os.path.join(sys.prefix, "isolated")
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
 
 
 @pytest.mark.parametrize("seed", range(40))
@@ -126,21 +108,28 @@ def test_pycocotools_reads_it_back(exported):
 
 
 def test_torchvision_loads_masks_boxes_and_labels(exported):
+    """torchvision's CocoDetection + wrap_dataset_for_transforms_v2 (in its own process: ``torchvision_loader``)
+    loads every image, with each annotation's mask equal to the instance pass (or the rectangle), its box and its
+    category id."""
     out, frames, _ = exported
-    tv = _torchvision()
-    from torchvision import datasets
-
-    ds = datasets.CocoDetection(str(out / "images"), str(out / "annotations.json"))
-    wrapped = datasets.wrap_dataset_for_transforms_v2(ds, target_keys=("boxes", "labels", "masks", "image_id"))
-    assert len(wrapped) == len(frames) and tv.__version__.startswith("0.28.0")
+    assert os.path.isdir(os.path.join(ISOLATED, "torchvision")), \
+        f"torchvision is not in {ISOLATED}: run tools/setup.sh (requirements-isolated.txt)"
+    result = str(out.parent / "torchvision.npz")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([ISOLATED, ROOT])}
+    run = subprocess.run([sys.executable, "-m", "tests.backend.export.torchvision_loader",
+                          str(out / "annotations.json"), str(out / "images"), result],
+                         cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-3000:]
+    got = np.load(result)
+    assert str(got["version"]).startswith("0.28.0") and int(got["count"]) == len(frames)
+    api = COCO(str(out / "annotations.json"))
     for i, fr in enumerate(frames):
-        image, target = wrapped[i]
-        assert target["image_id"] == i + 1 and tuple(image.size) == (F.W, F.H)
-        anns = ds.coco.loadAnns(ds.coco.getAnnIds(imgIds=[i + 1]))
+        assert int(got[f"image_id_{i}"]) == i + 1 and tuple(got[f"size_{i}"]) == (F.W, F.H)
+        anns = api.loadAnns(api.getAnnIds(imgIds=[i + 1]))
         expected = _expected_masks(fr)
-        masks = target["masks"].numpy().astype(bool)
+        masks = got[f"masks_{i}"]
         assert masks.shape == (len(anns), F.H, F.W)
-        for a, m, box, label in zip(anns, masks, target["boxes"].tolist(), target["labels"].tolist()):
+        for a, m, box, label in zip(anns, masks, got[f"boxes_{i}"].tolist(), got[f"labels_{i}"].tolist()):
             assert np.array_equal(m, expected[a["track_id"]][1])
             x, y, w, h = a["bbox"]
             assert box == pytest.approx([x, y, x + w, y + h]) and label == a["category_id"]

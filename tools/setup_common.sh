@@ -60,17 +60,24 @@ find_python() {  # find_python WHO WHY VERSION...
   exit 1
 }
 
-# VENV with the exact pins of PINS (a file) and this project installed editable (the `scpainter-backend` command),
-# made with $PY when missing. Idempotent: a stamp of the pins' and pyproject.toml's hash skips pip when nothing
-# changed.
+# VENV with the exact pins of PINS (a file), the test-only packages of requirements-nodeps.txt without their
+# dependencies (they declare ones that must not be installed) and those of requirements-isolated.txt in VENV/isolated,
+# outside site-packages (importing them there would break other packages) — each file says why —, and this project
+# installed editable (the `scpainter-backend` command), made with $PY when missing. Idempotent: a stamp of the pin
+# files' and pyproject.toml's hash skips pip when nothing changed.
 install_venv() {  # install_venv VENV PINS
   local venv="$1" pins="$2" stamp
-  stamp="$venv/.requirements-$(cat "$pins" pyproject.toml | sha256sum | cut -c1-16)"
+  stamp="$venv/.requirements-$(cat "$pins" requirements-nodeps.txt requirements-isolated.txt pyproject.toml \
+    | sha256sum | cut -c1-16)"
   if [ ! -x "$venv/bin/python" ]; then
     "$PY" -m venv "$venv"
   fi
   if [ ! -f "$stamp" ] || [ ! -x "$venv/bin/scpainter-backend" ]; then
     "$venv/bin/python" -m pip install -q --disable-pip-version-check -r "$pins"
+    "$venv/bin/python" -m pip install -q --disable-pip-version-check --no-deps -r requirements-nodeps.txt
+    rm -rf "$venv/isolated"
+    "$venv/bin/python" -m pip install -q --disable-pip-version-check --no-deps --target "$venv/isolated" \
+      -r requirements-isolated.txt
     # the project itself, without dependencies (they are the pins above)
     "$venv/bin/python" -m pip install -q --disable-pip-version-check --no-deps --no-build-isolation -e .
     rm -f "$venv"/.requirements-*

@@ -23,8 +23,9 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                                   "previews")
     x.add_argument("job", help="job.json (the job contract: docs/design.md)")
     x.add_argument("--format", required=True, choices=EXPORT_FORMAT_NAMES,
-                   help="kitti (image_2, label_2, calib), coco (annotations.json with RLE masks) or openlabel "
-                        "(ASAM OpenLABEL 1.0 JSON): docs/design.md §15")
+                   help="kitti (image_2, label_2, calib), coco (annotations.json with RLE masks), openlabel "
+                        "(ASAM OpenLABEL 1.0 JSON) or kitti-tracking (image_02, label_02 with track ids, calib, "
+                        "pose): docs/design.md §15")
     x.add_argument("--out", help="destination folder, written whole (default: <output_dir>/export/<format>); an "
                                  "existing one must be empty or a previous export")
     options.device_option(x, "for rendering missing frames; " + options.DEVICE_HELP)

@@ -1,26 +1,31 @@
-"""COCO instances (the COCO data format, "Object Detection"; read with ``pycocotools`` in the tests only):
+"""COCO instances (the COCO data format, "Object Detection"; read with ``pycocotools`` and torchvision's
+``CocoDetection`` + ``wrap_dataset_for_transforms_v2`` in the tests only):
 
     annotations.json   {"info", "images", "annotations", "categories"}
     images/NNNNNN.png  the frames' images, NNNNNN sequential from 000000 in the job's frame order
 
-``images``: id (from 1), file_name, width, height, plus ``frame`` (scene frame) and ``timestamp_s``.
-``categories``: the classes of the exported objects, sorted, ids from 1. ``annotations`` (ids from 1), for each
-object that shows (visible pixels, not removed) with ``EXTRA_KEYS`` (the fields ``core.labels`` says exports carry:
-``track_id``, ``occlusion`` …) as extra keys and ``iscrowd`` 0:
+``images``: id (sequential from 1: unique within the file), file_name, width, height, plus ``frame`` (scene frame),
+``timestamp_s`` and the frame's quality (``common.frame_quality``). ``categories``: the whole fixed class table
+``core.categories.CATEGORIES`` (id, name, supercategory), whatever classes the frames show, so every export of
+every job agrees on the ids; an object whose class the table lacks is an ``InputError`` naming it.
+``annotations`` (ids from 1), with ``EXTRA_KEYS`` (the fields ``core.labels`` says exports carry: ``track_id``,
+``occlusion`` …) as extra keys:
 
-- an inserted (synthetic) object: ``segmentation`` its visible mask (the instance layer == its track id) as
-  compressed RLE, ``area`` the mask's pixel count, ``bbox`` [x, y, w, h] the mask's box;
-- an object of the recording: only an estimate is known (``core.labels``: the depth test inside its projected
-  box), so ``bbox`` is its ``bbox_visible``, ``segmentation`` that rectangle as a polygon and ``area`` its area —
-  approximate, not the object's outline.
+- each object exported as a label (``common.exported``: visible pixels, not removed, not ignored), ``iscrowd`` 0:
+  ``segmentation`` its visible mask — the instance layer's pixels with its track id (an inserted car; a recorded
+  object whose pixels the layer holds), else (a recorded object: only an estimate is known, ``core.labels``' depth
+  test inside its projected box) the pixels of its ``bbox_visible`` rectangle, approximate, not its outline;
+- each ignore region (``core.labels.ignore_region``: an object seen but not labelled), ``iscrowd`` 1:
+  ``segmentation`` the pixels of the region's rectangle, ``category_id`` its class's.
+
+``area`` is the mask's pixel count and ``bbox`` [x, y, w, h] the mask's box. Masks are **uncompressed** RLE
+(``rle``: ``{"size": [H, W], "counts": [run lengths]}``), exact for any mask and what ``pycocotools.mask.
+frPyObjects`` accepts for ``iscrowd`` 0 as well as 1 (torchvision's wrapper turns every ``segmentation`` into a
+mask with it; a compressed ``counts`` string raises there for ``iscrowd`` 0).
 
 Pixel coordinates are ours (pixel (u, v) covers [u, u+1) x [v, v+1)), which are COCO's: pycocotools' ``toBbox``
-gives x = the first column and w = the number of columns of a mask.
-
-RLE (``rle_encode``): the mask read in column-major (Fortran) order as run lengths, starting with a run of
-zeros (possibly empty); ``counts`` is the compressed string of pycocotools' ``maskApi.c`` ``rleToString``: each
-count after the second stored as its difference from the count two before, then written 5 bits at a time, low
-bits first, as characters 48 + (bits | 0x20 when more follow), the last group's bit 0x10 giving the sign.
+gives x = the first column and w = the number of columns of a mask. RLE: the mask read in column-major (Fortran)
+order as run lengths, starting with a run of zeros (possibly empty) — pycocotools' ``maskApi.c`` convention.
 """
 
 from __future__ import annotations
@@ -30,7 +35,7 @@ import os
 
 import numpy as np
 
-from scpainter_blender.core import labels
+from scpainter_blender.core import categories, labels
 
 from . import common
 
@@ -50,26 +55,21 @@ def run_lengths(mask) -> list:
     return ([0] + runs) if flat[0] else runs
 
 
-def counts_string(counts) -> str:
-    """pycocotools' compressed ``counts`` string of run lengths (``maskApi.c`` ``rleToString``)."""
-    out = []
-    for i, c in enumerate(counts):
-        x = int(c) - (int(counts[i - 2]) if i > 2 else 0)
-        more = True
-        while more:
-            ch = x & 0x1F
-            x >>= 5  # arithmetic shift: a negative difference keeps its sign
-            more = x != -1 if ch & 0x10 else x != 0
-            if more:
-                ch |= 0x20
-            out.append(chr(ch + 48))
-    return "".join(out)
-
-
-def rle_encode(mask) -> dict:
-    """A (H, W) boolean mask as COCO's compressed RLE ``{"size": [H, W], "counts": str}``."""
+def rle(mask) -> dict:
+    """A (H, W) boolean mask as COCO's uncompressed RLE ``{"size": [H, W], "counts": [int, …]}``."""
     mask = np.asarray(mask, bool)
-    return {"size": [int(mask.shape[0]), int(mask.shape[1])], "counts": counts_string(run_lengths(mask))}
+    return {"size": [int(mask.shape[0]), int(mask.shape[1])], "counts": [int(c) for c in run_lengths(mask)]}
+
+
+def rectangle_mask(box, width: int, height: int) -> np.ndarray:
+    """(H, W) mask of the pixels a box [x0, y0, x1, y1] (continuous pixel coordinates) touches, clipped to the
+    image."""
+    x0, y0, x1, y1 = box
+    c0, r0 = max(int(np.floor(x0)), 0), max(int(np.floor(y0)), 0)
+    c1, r1 = min(int(np.ceil(x1)), width), min(int(np.ceil(y1)), height)
+    mask = np.zeros((height, width), bool)
+    mask[r0:r1, c0:c1] = True
+    return mask
 
 
 def mask_bbox(mask) -> list:
@@ -86,39 +86,52 @@ def _extra(obj: dict) -> dict:
     return {k: obj[k] for k in EXTRA_KEYS}
 
 
+def _mask(o: dict, ids, width: int, height: int):
+    """The visible mask of an object exported as a label (see the module's docstring); None when an inserted car's
+    pixels are missing from the layer (the labels counted pixels the layer does not have: nothing to outline)."""
+    if ids is not None:
+        mask = ids == o["track_id"]
+        if mask.any():
+            return mask
+    if o["synthetic"]:
+        return None
+    return rectangle_mask(o["bbox_visible"], width, height)
+
+
+def categories_table() -> list:
+    """The ``categories`` of every export: the whole fixed table, in its order."""
+    return [{"id": c.id, "name": c.name, "supercategory": c.supercategory} for c in categories.CATEGORIES]
+
+
 def dataset(frames: list, file_names: list) -> dict:
     """The ``annotations.json`` content of ``frames`` (``common.ExportFrame`` with their instance layers), whose
     images are called ``file_names``."""
-    shown = [[o for o in fr.labels["objects"] if common.exported(o)] for fr in frames]
-    classes = sorted({o["class"] for objs in shown for o in objs})
-    category = {c: i + 1 for i, c in enumerate(classes)}
     images, annotations = [], []
-    for i, (fr, objs, name) in enumerate(zip(frames, shown, file_names)):
+    for i, (fr, name) in enumerate(zip(frames, file_names)):
         lab = fr.labels
         W, H = lab["image_size"]
         images.append({"id": i + 1, "file_name": name, "width": W, "height": H, "frame": lab["frame"],
                        "timestamp_s": lab["timestamp_s"], **common.frame_quality(lab)})
         ids = None if fr.instance is None else np.rint(np.asarray(fr.instance)).astype(np.int64)
-        for o in objs:
-            ann = {"id": len(annotations) + 1, "image_id": i + 1, "category_id": category[o["class"]], "iscrowd": 0}
-            if o["synthetic"]:
-                mask = ids == o["track_id"]
-                if not mask.any():  # the labels counted pixels the layer does not have: nothing to outline
-                    continue
-                ann.update(segmentation=rle_encode(mask), area=float(mask.sum()), bbox=mask_bbox(mask))
-            else:
-                x0, y0, x1, y1 = o["bbox_visible"]
-                ann.update(segmentation=[[x0, y0, x1, y0, x1, y1, x0, y1]], area=float((x1 - x0) * (y1 - y0)),
-                           bbox=[x0, y0, x1 - x0, y1 - y0])
-            annotations.append({**ann, **_extra(o)})
-    return {"info": {"description": "SCPainter export (COCO instances)", "version": "1.0"},
-            "images": images, "annotations": annotations,
-            "categories": [{"id": category[c], "name": c} for c in classes]}
+        for k, o in enumerate(lab["objects"]):
+            region = labels.ignore_region(o)
+            if region is None and not common.exported(o):
+                continue
+            category = common.category(lab, k)
+            mask = rectangle_mask(region, W, H) if region is not None else _mask(o, ids, W, H)
+            if mask is None or not mask.any():
+                continue
+            annotations.append({"id": len(annotations) + 1, "image_id": i + 1, "category_id": category.id,
+                                "iscrowd": int(region is not None), "segmentation": rle(mask),
+                                "area": float(mask.sum()), "bbox": mask_bbox(mask), **_extra(o)})
+    return {"info": {"description": "SCPainter export (COCO instances)", "version": "2.0"},
+            "images": images, "annotations": annotations, "categories": categories_table()}
 
 
 def write(folder: str, frames: list, progress=None) -> dict:
     """The dataset into ``folder`` (existing, empty); ``progress(i)`` after each frame's image. Returns
-    {"frames", "objects"} (objects: annotations)."""
+    {"frames", "objects", "ignore_regions"} (objects: the ``iscrowd`` 0 annotations; ignore_regions: the
+    ``iscrowd`` 1 ones)."""
     os.makedirs(os.path.join(folder, IMAGES))
     names = [common.index_name(i, ".png") for i in range(len(frames))]
     for i, (fr, name) in enumerate(zip(frames, names)):
@@ -128,4 +141,5 @@ def write(folder: str, frames: list, progress=None) -> dict:
     data = dataset(frames, names)
     with open(os.path.join(folder, ANNOTATIONS), "w", encoding="utf-8") as f:
         json.dump(data, f, allow_nan=False)
-    return {"frames": len(frames), "objects": len(data["annotations"])}
+    crowd = sum(a["iscrowd"] for a in data["annotations"])
+    return {"frames": len(frames), "objects": len(data["annotations"]) - crowd, "ignore_regions": crowd}

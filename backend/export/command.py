@@ -24,13 +24,14 @@ from scpainter_blender.core.output_layout import OutputLayout
 
 from .. import events
 from ..errors import FolderBusyError
-from . import coco, common, kitti, openlabel
+from . import coco, common, kitti, kitti_tracking, openlabel
 
-#: The writer of each ``export --format``: a module of this package with ``write(folder, frames, progress)`` and
+#: The writer of each ``export --format``: a module of this package (named after the format, ``-`` spelled ``_``)
+#: with ``write(folder, frames, progress)`` and
 #: ``NEEDS_INSTANCE`` (it reads the frames' instance layers). The names are ``core.backend_protocol.EXPORT_FORMATS``',
 #: in its order (a test says so), which gives each its label and description: Blender lists them without the
 #: backend. A new format: its writer module, an entry here and there, its tests and docs.
-FORMATS = {"kitti": kitti, "coco": coco, "openlabel": openlabel}
+FORMATS = {"kitti": kitti, "coco": coco, "openlabel": openlabel, "kitti-tracking": kitti_tracking}
 #: The formats whose writer needs the instance layer.
 NEEDS_INSTANCE = tuple(name for name, writer in FORMATS.items() if writer.NEEDS_INSTANCE)
 NO_GENERATED = "no_generated_frames"

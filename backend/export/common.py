@@ -6,7 +6,7 @@ projecting onto them) and OpenLABEL (its ``camera_matrix`` "as in OpenCV") put p
 coordinates: their coordinates are ours − 0.5, and their principal point is ours − 0.5 (``opencv_K``). COCO's
 boxes and masks (pycocotools ``toBbox``: x = first column, w = number of columns) use ours unchanged.
 
-numpy only.
+numpy and ``core`` only.
 """
 
 from __future__ import annotations
@@ -15,6 +15,8 @@ import shutil
 from dataclasses import dataclass
 
 import numpy as np
+
+from scpainter_blender.core import categories, errors, labels
 
 #: Our pixel coordinates minus this are OpenCV's (pixel centres at integers).
 OPENCV_SHIFT = 0.5
@@ -48,21 +50,46 @@ def copy_image(src: str, dst: str) -> None:
 
 
 def exported(obj: dict, hidden: bool = False) -> bool:
-    """Whether an object of the labels is exported: not removed, with a box (labels leave it out, ``box_world``
-    null, when the object's transform overflows), and some visible pixel — or, with ``hidden`` (KITTI, whose 3D
-    detectors expect occluded objects, marked ``occluded`` 2 or 3), only its projected box in the image."""
-    if obj["removed"] or obj["box_world"] is None:
+    """Whether an object of the labels is exported as a label: not removed, not an object seen but not labelled
+    (``ignore`` or ``points_missing``: those are ignore regions or nothing, ``core.labels.ignore_region``), with a
+    box (labels leave it out, ``box_world`` null, when the object's transform overflows), and some visible pixel —
+    or, with ``hidden`` (KITTI, whose 3D detectors expect occluded objects, marked ``occluded`` 2 or 3), only its
+    projected box in the image."""
+    if obj["removed"] or obj["box_world"] is None or obj.get("ignore") or obj.get("points_missing"):
         return False
     return obj["in_view"] if hidden else obj["visible_pixels"] > 0
+
+
+def ignore_regions(labels_: dict) -> list:
+    """(object, [x0, y0, x1, y1]) of each ignore region of a frame's labels (``core.labels.ignore_region``), in
+    the labels' order."""
+    out = []
+    for o in labels_["objects"]:
+        region = labels.ignore_region(o)
+        if region is not None:
+            out.append((o, region))
+    return out
+
+
+def category(labels_: dict, index: int) -> categories.Category:
+    """The class table's row (``core.categories.CATEGORIES``) of the ``index``-th object of a frame's labels; an
+    ``InputError`` naming the frame and the object's ``class`` when the table has no such class."""
+    name = labels_["objects"][index]["class"]
+    try:
+        return categories.category(name)
+    except (KeyError, TypeError):
+        raise errors.InputError(f"(labels of frame {labels_['frame']})", f"objects[{index}].class",
+                                f"class {name!r} is not in the class table {list(categories.NAMES)}",
+                                hint="label the object with a class of core/categories.py (the job's class), "
+                                     "then render again") from None
 
 
 def frame_quality(labels: dict) -> dict:
     """What every format carries of a frame's quality, so a pipeline reading only the export can drop weak
     frames: ``coverage`` and ``flags`` (``core.labels.FLAGS``: low coverage, outside the recording, the camera
-    inside an object)."""
-    return {"coverage": float(labels["coverage"]), "flags": list(labels["flags"])}
-
-
-def class_name(category: str) -> str:
-    """A class as KITTI spells its types: the first letter upper-cased (``car`` -> ``Car``)."""
-    return category[:1].upper() + category[1:]
+    inside an object) and, when the labels give it, ``unlabelled_fraction`` (the share of the image's pixels
+    showing objects seen but not labelled: ignore regions)."""
+    out = {"coverage": float(labels["coverage"]), "flags": list(labels["flags"])}
+    if labels.get("unlabelled_fraction") is not None:
+        out["unlabelled_fraction"] = float(labels["unlabelled_fraction"])
+    return out

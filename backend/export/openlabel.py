@@ -7,7 +7,9 @@ Conventions, with their sources:
   non-negative keys, scene frames may be negative); ``frame_properties`` carries ``timestamp`` (seconds from the
   job's first frame, the labels' ``timestamp_s``), ``scene_frame`` and the image (``streams.camera.uri``).
 - **Coordinate systems**: ``odom`` (type ``scene_cs``, the root: the job's world, Z up, metres) and ``camera``
-  (``sensor_cs``, child of ``odom``). The camera's axes are OpenCV's, x right, y down, z forward: what the
+  (``sensor_cs``, child of ``odom``); each lists its ``children`` (an empty list for the leaf ``camera``: the
+  schema lets it be left out, but Vicomtech's ``vcd`` toolkit walks every ``children`` list to chain transforms,
+  ``vcd.scl.Scene.get_transform``, and fails without it). The camera's axes are OpenCV's, x right, y down, z forward: what the
   schema's ``camera_matrix`` assumes ("x-to-right, y-down, z-forward") and what Vicomtech's VCD tutorial
   ``02_From_pose_to_transform_opencv_camera`` sets up — the same axes as ours, so no axis change is needed.
 - **Transforms**: ``matrix4x4`` row-major (VCD reads it with ``reshape(4, 4)``), mapping column vectors
@@ -25,7 +27,13 @@ Conventions, with their sources:
   object convention) and sizes length, width, height; ``bbox`` ``visible`` and ``amodal`` in ``camera``:
   [cx, cy, w, h] (centre, OpenCV pixel convention) when known; ``num`` the measures the labels say exports carry
   (``core.labels.CARRIED_MEASURES``: ``visible_fraction``, ``occlusion`` …; one that is null left out);
-  ``boolean`` ``removed``. ``frame_intervals`` say where each exists.
+  ``boolean`` ``removed``. ``frame_intervals`` say where each exists. An object seen but not labelled
+  (``ignore`` or ``points_missing``) is never such an object.
+- **Ignore regions** (``core.labels.ignore_region``): objects of type ``ignore`` (``core.categories.IGNORE``),
+  keyed by the object's track id plus ``ignore_key_offset`` (the largest track id of the document: a track that is
+  labelled in some frames and unlabelled in others keeps both), with the static ``text`` ``class`` and ``num``
+  ``track_id`` of the object they stand for; per frame a ``bbox`` ``region`` in ``camera`` ([cx, cy, w, h]) and
+  the object's carried measures as ``num``.
 """
 
 from __future__ import annotations
@@ -36,7 +44,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from scpainter_blender.core import labels
+from scpainter_blender.core import categories, labels
 
 from . import common
 
@@ -84,15 +92,25 @@ def intervals(indices: Iterable[int]) -> list:
     return out
 
 
+def _measures(o: dict) -> list:
+    """The ``num`` entries of an object's carried measures (``labels.CARRIED_MEASURES``; a null one left out)."""
+    return [{"name": n, "val": float(o[n])} for n in labels.CARRIED_MEASURES if o[n] is not None]
+
+
 def _frame_object(o: dict) -> dict:
     data = {"cuboid": [{"name": "box3d", "val": cuboid_val(o["box_world"]), "coordinate_system": WORLD}]}
     boxes = [{"name": n, "val": bbox_val(o[k]), "coordinate_system": CAMERA}
              for n, k in (("visible", "bbox_visible"), ("amodal", "bbox_amodal")) if o[k] is not None]
     if boxes:
         data["bbox"] = boxes
-    data["num"] = [{"name": n, "val": float(o[n])} for n in labels.CARRIED_MEASURES if o[n] is not None]
+    data["num"] = _measures(o)
     data["boolean"] = [{"name": "removed", "val": bool(o["removed"])}]
     return {"object_data": data}
+
+
+def ignore_key_offset(frames: list) -> int:
+    """What is added to a track id to key its ignore-region object: the largest track id of ``frames``' labels."""
+    return max((int(o["track_id"]) for fr in frames for o in fr.labels["objects"]), default=0)
 
 
 def document(frames: list, image_names: list, name: str = "scpainter") -> dict:
@@ -101,6 +119,7 @@ def document(frames: list, image_names: list, name: str = "scpainter") -> dict:
     first = frames[0].labels
     K0 = np.asarray(first["camera"]["K"], np.float64)
     W, H = first["image_size"]
+    offset = ignore_key_offset(frames)
     objects, seen = {}, {}
     out_frames = {}
     for i, (fr, image) in enumerate(zip(frames, image_names)):
@@ -113,14 +132,26 @@ def document(frames: list, image_names: list, name: str = "scpainter") -> dict:
                  "transforms": {f"{CAMERA}_to_{WORLD}": {"src": CAMERA, "dst": WORLD, "transform_src_to_dst": {
                      "matrix4x4": _matrix(lab["camera"]["camera_to_world"])}}}}
         frame_objects = {}
-        for o in lab["objects"]:
-            if o["box_world"] is None:  # its transform overflows: no box to give (core.labels)
-                continue
-            key = str(int(o["track_id"]))
+        for k, o in enumerate(lab["objects"]):
+            region = labels.ignore_region(o)
+            if region is not None:
+                common.category(lab, k)           # a class the table lacks is an error here too
+                key = str(int(o["track_id"]) + offset)
+                objects.setdefault(key, {"name": o["name"], "type": categories.IGNORE, "object_data": {
+                    "text": [{"name": "class", "val": o["class"]}],
+                    "num": [{"name": "track_id", "val": int(o["track_id"])}]}})
+                frame_objects[key] = {"object_data": {
+                    "bbox": [{"name": "region", "val": bbox_val(region), "coordinate_system": CAMERA}],
+                    "num": _measures(o)}}
+            elif o["box_world"] is None or o.get("ignore") or o.get("points_missing"):
+                continue      # no box to give (its transform overflows: core.labels), or seen but not labelled
+            else:
+                common.category(lab, k)
+                key = str(int(o["track_id"]))
+                objects.setdefault(key, {"name": o["name"], "type": o["class"], "object_data": {
+                    "boolean": [{"name": "synthetic", "val": bool(o["synthetic"])}]}})
+                frame_objects[key] = _frame_object(o)
             seen.setdefault(key, []).append(i)
-            objects.setdefault(key, {"name": o["name"], "type": o["class"], "object_data": {
-                "boolean": [{"name": "synthetic", "val": bool(o["synthetic"])}]}})
-            frame_objects[key] = _frame_object(o)
         out_frames[str(i)] = {"frame_properties": props, **({"objects": frame_objects} if frame_objects else {})}
     for key, idx in seen.items():
         objects[key]["frame_intervals"] = intervals(idx)
@@ -129,7 +160,7 @@ def document(frames: list, image_names: list, name: str = "scpainter") -> dict:
                                    "openlabel.py"},
            "coordinate_systems": {
                WORLD: {"type": "scene_cs", "parent": "", "children": [CAMERA]},
-               CAMERA: {"type": "sensor_cs", "parent": WORLD,
+               CAMERA: {"type": "sensor_cs", "parent": WORLD, "children": [],
                         "pose_wrt_parent": {"matrix4x4": _matrix(first["camera"]["camera_to_world"])}}},
            "streams": {CAMERA: {"type": "camera", "description": "the rendered camera (pinhole, no distortion)",
                                 "stream_properties": intrinsics(K0, W, H)}},
@@ -141,8 +172,8 @@ def document(frames: list, image_names: list, name: str = "scpainter") -> dict:
 
 
 def write(folder: str, frames: list, progress: Callable[[int], None] | None = None, name: str = "scpainter") -> dict:
-    """``openlabel.json`` and ``images/`` into ``folder`` (existing, empty). Returns {"frames", "objects"}
-    (objects: per-frame object entries)."""
+    """``openlabel.json`` and ``images/`` into ``folder`` (existing, empty). Returns {"frames", "objects",
+    "ignore_regions"} (per-frame entries of labelled objects, of ignore regions)."""
     os.makedirs(os.path.join(folder, IMAGES))
     names = [f"{IMAGES}/{common.index_name(i, '.png')}" for i in range(len(frames))]
     for i, (fr, rel) in enumerate(zip(frames, names)):
@@ -152,5 +183,7 @@ def write(folder: str, frames: list, progress: Callable[[int], None] | None = No
     doc = document(frames, names, name)
     with open(os.path.join(folder, FILE), "w", encoding="utf-8") as f:
         json.dump(doc, f, allow_nan=False)
-    count = sum(len(f.get("objects", {})) for f in doc["openlabel"]["frames"].values())
-    return {"frames": len(frames), "objects": count}
+    kinds = doc["openlabel"].get("objects", {})
+    entries = [kinds[key]["type"] for f in doc["openlabel"]["frames"].values() for key in f.get("objects", {})]
+    regions = entries.count(categories.IGNORE)
+    return {"frames": len(frames), "objects": len(entries) - regions, "ignore_regions": regions}

@@ -19,7 +19,9 @@ DEVICE_NAMES = tuple(DEVICES)
 #: ``export --format``: the dataset formats, each with its label and description (``backend/export``, design §15).
 EXPORT_FORMATS = {"kitti": ("KITTI", "KITTI object: image_2, label_2, calib per frame"),
                   "coco": ("COCO", "COCO instances: annotations.json with RLE masks, images"),
-                  "openlabel": ("OpenLABEL", "ASAM OpenLABEL 1.0 JSON: cuboids, boxes, camera per frame")}
+                  "openlabel": ("OpenLABEL", "ASAM OpenLABEL 1.0 JSON: cuboids, boxes, camera per frame"),
+                  "kitti-tracking": ("KITTI tracking", "KITTI tracking: image_02, label_02 with track ids, calib, "
+                                                       "poses")}
 EXPORT_FORMAT_NAMES = tuple(EXPORT_FORMATS)
 
 

@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from . import fields as fields_mod
-from . import errors, files, outputs
+from . import categories, errors, files, outputs
 from .geometry import point_cloud, similarity
 from .vggt.predictions import EXTRINSIC_CONVENTIONS  # scene.extrinsic_convention: what the predictions' extrinsic holds
 
@@ -349,10 +349,15 @@ MAX_CLASS = 64
 
 
 def _class(d, path, where) -> str:
+    """The ``class`` of an asset or recorded object: a name of the fixed class table (``core.categories``: every
+    export gives each class the same id), default ``DEFAULT_CLASS``."""
     c = d.get("class", DEFAULT_CLASS)
     if not isinstance(c, str) or not c or len(c) > MAX_CLASS or any(ch.isspace() for ch in c):
         raise JobError(path, where, f"expected a class name without spaces (at most {MAX_CLASS} characters), "
                        f"got {_short(c)}", hint=f"for example {DEFAULT_CLASS!r}")
+    if c not in categories.NAMES:
+        raise JobError(path, where, f"class {c!r} is not in the class table",
+                       hint=f"one of {', '.join(categories.NAMES)} (core/categories.py; the table only grows)")
     return c
 
 

@@ -338,3 +338,15 @@ def warnings(labels: dict) -> list:
             out.append((CAMERA_INSIDE_FLAG, f"frame {f}: the camera is inside the box of {o['name']!r} (the camera "
                         "path drives through it)", o["name"]))
     return out
+
+
+def ignore_region(obj: dict) -> list | None:
+    """The ignore region of an OBJECT, [x0, y0, x1, y1] (pixels, as ``bbox_visible``), or None when it has none.
+
+    An object is exported as an ignore region (COCO ``iscrowd 1``, KITTI ``DontCare``, an OpenLABEL object of type
+    ``ignore``) exactly when it is not ``removed``, ``in_view``, and ``ignore`` (the recorded object is seen but not
+    labelled) or ``points_missing`` (its points were cut, so its pixels cannot label it); its region is
+    ``bbox_visible`` when known, else ``bbox_amodal``. Such an object is never exported as a normal label."""
+    if obj["removed"] or not obj["in_view"] or not (obj.get("ignore") or obj.get("points_missing")):
+        return None
+    return obj["bbox_visible"] if obj["bbox_visible"] is not None else obj["bbox_amodal"]

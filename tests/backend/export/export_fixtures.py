@@ -1,6 +1,7 @@
-"""A small labelled job for the exporters' tests, no renderer needed: two inserted cars and one recorded van seen
-by a level camera, their labels made by ``core.labels.frame_labels`` from known boxes and instance masks drawn
-from the projected boxes (the nearer car drawn last, so it hides part of the farther one)."""
+"""A small labelled job for the exporters' tests, no renderer needed: two inserted cars, one recorded van and one
+recorded car seen but not labelled (``ignore``: an ignore region in every export) seen by a level camera (or any
+camera: ``job(world_to_camera=...)``), their labels made by ``core.labels.frame_labels`` from known boxes and
+instance masks drawn from the projected boxes (the nearer car drawn last, so it hides part of the farther one)."""
 
 import numpy as np
 
@@ -23,6 +24,18 @@ def world_to_camera(x: float = 0.0) -> np.ndarray:
     return T
 
 
+def tilted_camera(x: float = 0.0, pitch_deg: float = 8.0, roll_deg: float = 5.0) -> np.ndarray:
+    """``world_to_camera(x)`` pitched down by ``pitch_deg`` (about the camera's x axis) and rolled by ``roll_deg``
+    (about its optical axis)."""
+    p, r = np.radians(pitch_deg), np.radians(roll_deg)
+    pitch = np.array([[1.0, 0.0, 0.0], [0.0, np.cos(p), -np.sin(p)], [0.0, np.sin(p), np.cos(p)]])
+    roll = np.array([[np.cos(r), np.sin(r), 0.0], [-np.sin(r), np.cos(r), 0.0], [0.0, 0.0, 1.0]])
+    T = world_to_camera(x)
+    turn = np.eye(4)
+    turn[:3, :3] = roll @ pitch
+    return turn @ T
+
+
 def placed(x: float, y: float, yaw_deg: float) -> np.ndarray:
     """object_to_world: the file frame turned by yaw about z and moved to (x, y, 0)."""
     c, s = np.cos(np.radians(yaw_deg)), np.sin(np.radians(yaw_deg))
@@ -37,14 +50,20 @@ ASSETS = {"car_a": [placed(-1.5, 10.0, 30.0), placed(-1.4, 10.5, 30.0)],
           "car_b": [placed(1.5, 14.0, -60.0), placed(1.6, 14.2, -60.0)]}
 
 
-def job() -> job_mod.Job:
-    frames = [job_mod.Frame(f, K.copy(), world_to_camera(0.1 * i)) for i, f in enumerate(FRAMES)]
+def job(cameras=None) -> job_mod.Job:
+    """The job; ``cameras`` one world_to_camera per frame (default: the level camera moving 0.1 m a frame)."""
+    cameras = cameras or [world_to_camera(0.1 * i) for i in range(len(FRAMES))]
+    frames = [job_mod.Frame(f, K.copy(), c) for f, c in zip(FRAMES, cameras)]
     assets = [job_mod.Asset(name, "car.ply", {f: m for f, m in zip(FRAMES, ms)},
                             box=job_mod.AssetBox(*CAR)) for name, ms in ASSETS.items()]
     van = job_mod.RecordedObject("rec_7", np.array([2.0, 5.0, 2.2]),
                                  {f: placed(0.5, 24.0, 90.0 + 5 * i) @ _lift(1.1) for i, f in enumerate(FRAMES)},
                                  "van")
-    scene = job_mod.Scene("predictions.npz", np.eye(4), recorded_objects=[van])
+    # seen but not labelled: left of the van at its depth (its depth test finds pixels: a bbox_visible)
+    unlabelled = job_mod.RecordedObject("rec_8", np.array([1.8, 4.2, 1.5]),
+                                        {f: placed(-9.0, 24.0, 0.0) @ _lift(0.75) for f in FRAMES}, "car",
+                                        ignore=True)
+    scene = job_mod.Scene("predictions.npz", np.eye(4), recorded_objects=[van, unlabelled])
     return job_mod.Job((W, H), frames, "out", scene, assets, fps=10.0)
 
 
@@ -80,7 +99,22 @@ def frame_labels(j: job_mod.Job, index: int) -> tuple:
     lab = labels.frame_labels(j, index, instance=lay["instance"], hole=lay["hole"], depth=lay["depth"],
                               amodal_pixels=lay["amodal_pixels"], asset_boxes=[(*CAR, "job")] * len(j.assets),
                               asset_hashes=["0" * 64] * len(j.assets), key="test")
-    return lab, lay["instance"]
+    return with_issue41_fields(j, lab), lay["instance"]
+
+
+def with_issue41_fields(j: job_mod.Job, lab: dict) -> dict:
+    """Until core.labels writes them (``scpainter.labels/2``): each object's ``ignore`` (its recorded object's),
+    ``points_missing`` (false: every point is there), ``hole_fraction`` (0: no holes here; null without visible
+    pixels) and the frame's ``unlabelled_fraction`` (the ignored objects' visible pixels over the image's), added
+    when absent. Drop this helper once core.labels gives them."""
+    ignored = {r.id for r in (j.scene.recorded_objects if j.scene is not None else []) if r.ignore}
+    for o in lab["objects"]:
+        o.setdefault("ignore", (not o["synthetic"]) and o["name"] in ignored)
+        o.setdefault("points_missing", False)
+        o.setdefault("hole_fraction", 0.0 if o["visible_pixels"] else None)
+    shown = sum(o["visible_pixels"] for o in lab["objects"] if o["ignore"] or o["points_missing"])
+    lab.setdefault("unlabelled_fraction", shown / (j.width * j.height))
+    return lab
 
 
 def write_png(path, seed: int = 0) -> str:
@@ -90,9 +124,9 @@ def write_png(path, seed: int = 0) -> str:
     return str(path)
 
 
-def export_frames(tmp_path) -> list:
-    """``common.ExportFrame`` of every frame of ``job()``, with a PNG each."""
-    j = job()
+def export_frames(tmp_path, cameras=None) -> list:
+    """``common.ExportFrame`` of every frame of ``job(cameras)``, with a PNG each."""
+    j = job(cameras)
     out = []
     for i in range(len(j.frames)):
         lab, inst = frame_labels(j, i)

@@ -21,7 +21,7 @@ NEEDS_INSTANCE = pytest.mark.skipif(not HAS_INSTANCE, reason="needs the render's
 def test_format_names_have_one_home():
     assert tuple(command.FORMATS) == backend_protocol.EXPORT_FORMAT_NAMES
     for name, writer in command.FORMATS.items():             # each writer says what it reads
-        assert writer.__name__ == f"backend.export.{name}" and callable(writer.write)
+        assert writer.__name__ == f"backend.export.{name.replace('-', '_')}" and callable(writer.write)
         assert isinstance(writer.NEEDS_INSTANCE, bool)
     with pytest.raises(errors.ArgumentError) as e:
         command.check_format("yolo")
@@ -94,12 +94,13 @@ def _output_folder(tmp_path, generated: bool) -> tuple:
     return j, layout
 
 
-@pytest.mark.parametrize("fmt", ["kitti", "openlabel", pytest.param("coco", marks=NEEDS_INSTANCE)])
+@pytest.mark.parametrize("fmt", ["kitti", "openlabel", "kitti-tracking",
+                                 pytest.param("coco", marks=NEEDS_INSTANCE)])
 def test_write_export_from_an_output_folder(tmp_path, capsys, fmt):
     j, layout = _output_folder(tmp_path, generated=False)
     dest = layout.export(fmt)
     result = command.write_export(str(tmp_path / "job.json"), j, layout, fmt, dest)
-    assert result == {"frames": 2, "objects": 6, "images": "conditions"}
+    assert result == {"frames": 2, "objects": 6, "ignore_regions": 2, "images": "conditions"}
     evs = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
     assert [e["code"] for e in evs if e["event"] == "warning"] == [command.NO_GENERATED]
     assert [(e["done"], e["frame"]) for e in evs if e["event"] == "progress"] == [(1, 4), (2, 5)]
@@ -199,13 +200,13 @@ def test_an_export_of_another_format_is_never_written_over(tmp_path):
 
 def test_every_format_carries_each_frames_coverage_and_flags(tmp_path):
     """A pipeline reading only the export can drop weak frames: KITTI's frames.json, COCO's images and OpenLABEL's
-    frame_properties hold the labels' coverage and flags."""
-    from backend.export import coco, kitti, openlabel
+    frame_properties (and KITTI tracking's frames.json) hold the labels' coverage and flags."""
+    from backend.export import coco, kitti, kitti_tracking, openlabel
 
     frames = F.export_frames(tmp_path)
     frames[1].labels["flags"] = [labels.CAMERA_INSIDE_FLAG]
     got = {}
-    for name, module in (("kitti", kitti), ("coco", coco), ("openlabel", openlabel)):
+    for name, module in (("kitti", kitti), ("coco", coco), ("openlabel", openlabel), ("tracking", kitti_tracking)):
         out = tmp_path / name
         out.mkdir()
         module.write(str(out), frames)
@@ -214,7 +215,8 @@ def test_every_format_carries_each_frames_coverage_and_flags(tmp_path):
     images = json.loads((got["coco"] / "annotations.json").read_text())["images"]
     props = [f["frame_properties"] for f in json.loads((got["openlabel"] / "openlabel.json").read_text())[
         "openlabel"]["frames"].values()]
-    for rows in (index, images, props):
+    tracking = json.loads((got["tracking"] / "frames.json").read_text())["frames"]
+    for rows in (index, images, props, tracking):
         assert [r["flags"] for r in rows] == [fr.labels["flags"] for fr in frames]
         assert [r["coverage"] for r in rows] == [fr.labels["coverage"] for fr in frames]
 

@@ -1,5 +1,6 @@
-"""OpenLABEL export: valid against the official ASAM OpenLABEL 1.0 schema (jsonschema, draft-07); boxes, camera
-and intrinsics round-trip."""
+"""OpenLABEL export: valid against the official ASAM OpenLABEL 1.0 schema (jsonschema, draft-07); loaded by
+Vicomtech's ``vcd`` 6.0.3 (a test-only tool), whose scene evaluates the camera's transform chain; boxes, camera,
+intrinsics and ignore regions round-trip."""
 
 import json
 import os
@@ -38,7 +39,7 @@ def test_valid_against_the_official_schema(exported):
 def test_cuboid_of_a_known_box_round_trips(exported):
     _, frames, counts, doc = exported
     j = F.job()
-    assert counts == {"frames": 2, "objects": 6}
+    assert counts == {"frames": 2, "objects": 6, "ignore_regions": 2}
     for i, entry in enumerate(j.frames):
         fo = doc["frames"][str(i)]["objects"]
         for a, asset in enumerate(j.assets):
@@ -64,6 +65,7 @@ def test_camera_pose_intrinsics_and_boxes(exported):
     _, frames, _, doc = exported
     cs = doc["coordinate_systems"]
     assert cs["odom"]["parent"] == "" and cs["camera"]["parent"] == "odom"
+    assert cs["odom"]["children"] == ["camera"] and cs["camera"]["children"] == []
     for i, fr in enumerate(frames):
         w2c = np.asarray(fr.labels["camera"]["world_to_camera"])
         props = doc["frames"][str(i)]["frame_properties"]
@@ -85,6 +87,8 @@ def test_camera_pose_intrinsics_and_boxes(exported):
         ours = np.asarray(ours[0] if isinstance(ours, tuple) else ours).reshape(-1)[:2]
         assert u[:2] / u[2] == pytest.approx(ours - common.OPENCV_SHIFT)
         for o in fr.labels["objects"]:
+            if o["ignore"]:
+                continue
             data = doc["frames"][str(i)]["objects"][str(o["track_id"])]["object_data"]
             vis = next(b for b in data["bbox"] if b["name"] == "visible")
             x0, y0, x1, y1 = o["bbox_visible"]
@@ -99,3 +103,54 @@ def test_intervals():
     assert openlabel.intervals([0, 1, 2, 5, 7, 8]) == [{"frame_start": 0, "frame_end": 2},
                                                        {"frame_start": 5, "frame_end": 5},
                                                        {"frame_start": 7, "frame_end": 8}]
+
+
+def test_ignore_regions_are_objects_of_type_ignore(exported):
+    _, frames, _, doc = exported
+    offset = openlabel.ignore_key_offset(frames)
+    assert offset == 4
+    for i, fr in enumerate(frames):
+        (o,) = [o for o in fr.labels["objects"] if o["ignore"]]
+        assert str(o["track_id"]) not in doc["frames"][str(i)]["objects"]        # never a normal label
+        key = str(o["track_id"] + offset)
+        data = doc["frames"][str(i)]["objects"][key]["object_data"]
+        assert {n["name"]: n["val"] for n in data["num"]}["occlusion"] == o["occlusion"]
+        (box,) = data["bbox"]
+        assert (box["name"], box["coordinate_system"]) == ("region", "camera")
+        assert box["val"] == pytest.approx(openlabel.bbox_val(labels.ignore_region(o)))
+    assert doc["objects"][str(4 + offset)] == {
+        "name": "rec_8", "type": "ignore", "frame_intervals": [{"frame_start": 0, "frame_end": 1}],
+        "object_data": {"text": [{"name": "class", "val": "car"}], "num": [{"name": "track_id", "val": 4}]}}
+
+
+def test_vcd_loads_it_and_evaluates_the_transform_chain(tmp_path):
+    """``vcd.core.OpenLABEL`` loads the file (validating it against the schema it ships) and ``vcd.scl.Scene``'s
+    ``get_transform`` between ``camera`` and ``odom`` at each frame gives our camera_to_world and world_to_camera,
+    for a tilted camera; the ignore region reads back as an object of type ignore."""
+    from vcd import core as vcd_core
+    from vcd import scl
+
+    frames = F.export_frames(tmp_path, [F.tilted_camera(0.1 * i) for i in range(len(F.FRAMES))])
+    out = tmp_path / "d"
+    out.mkdir()
+    openlabel.write(str(out), frames)
+    doc = vcd_core.OpenLABEL()
+    doc.load_from_file(str(out / "openlabel.json"), validation=True)
+    scene = scl.Scene(doc)
+    for i, fr in enumerate(frames):
+        to_world, static = scene.get_transform("camera", "odom", frame_num=i)
+        assert not static and np.allclose(to_world, fr.labels["camera"]["camera_to_world"], atol=1e-12)
+        to_camera, _ = scene.get_transform("odom", "camera", frame_num=i)
+        assert np.allclose(to_camera, fr.labels["camera"]["world_to_camera"], atol=1e-12)
+    key = str(4 + openlabel.ignore_key_offset(frames))
+    assert doc.get_object(key)["type"] == "ignore"
+    (o,) = [o for o in frames[1].labels["objects"] if o["ignore"]]
+    assert doc.get_object_data(key, "region", 1)["val"] == pytest.approx(openlabel.bbox_val(o["bbox_visible"]))
+    # the check is not vacuous: without the leaf's children list vcd cannot chain the transforms
+    raw = json.loads((out / "openlabel.json").read_text())
+    del raw["openlabel"]["coordinate_systems"]["camera"]["children"]
+    (out / "old.json").write_text(json.dumps(raw))
+    old = vcd_core.OpenLABEL()
+    old.load_from_file(str(out / "old.json"))
+    with pytest.raises(KeyError, match="children"):
+        scl.Scene(old).get_transform("camera", "odom", frame_num=0)

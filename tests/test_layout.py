@@ -165,8 +165,6 @@ CROSS_CUTTING = {
     "tests/test_layout.py": "this file: the tests mirror the code",
     "tests/test_docs.py": "the documents' lists (design §2's module table, both programs' commands, the README's "
                           "format table) against the code",
-    "tests/test_loaders.py": "the test-only dataset loaders (tests/loaders.py, requirements-loaders.txt) import in "
-                             "their subprocess",
     "tests/test_annotations.py": "the share of fully annotated public functions of core/ and backend/",
     "tests/test_bench_fuzz_case_cost.py": "bench/fuzz_case_cost.py keeps running (a benchmark's smoke test)",
     "tests/street/test_street.py": "the ground-truth street end to end: build, render, predictions, dataset cache",

@@ -13,4 +13,3 @@ ensure_libusb
 install_venv .venv requirements.txt
 
 ensure_splat_transform
-ensure_loaders .venv

@@ -30,19 +30,6 @@ ensure_splat_transform() {
   fi
 }
 
-# Test-only: the dataset loaders of requirements-loaders.txt (torchvision, vcd) into VENV/loaders, without their
-# dependencies (the file says why); tests/loaders.py puts that folder on the path of a subprocess only.
-ensure_loaders() {  # ensure_loaders VENV
-  local venv="$1" stamp
-  stamp="$venv/loaders/.requirements-$(sha256sum requirements-loaders.txt | cut -c1-16)"
-  if [ ! -f "$stamp" ]; then
-    rm -rf "$venv/loaders"
-    "$venv/bin/python" -m pip install -q --disable-pip-version-check --no-deps --target "$venv/loaders" \
-      -r requirements-loaders.txt && touch "$stamp" \
-      || echo "setup: the test-only loaders (requirements-loaders.txt) did not install; their tests will skip" >&2
-  fi
-}
-
 # The interpreter a virtual environment is made with: $PYTHON, else the first of python3.X (for each VERSION given,
 # in order) and python3 whose version is one of them; exits naming WHO and WHY otherwise.
 find_python() {  # find_python WHO WHY VERSION...

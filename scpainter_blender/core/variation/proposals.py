@@ -40,7 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import job as job_mod
-from ..geometry import boxes
+from ..geometry import boxes, cameras
 from . import placement
 from .road import Road, footprint_samples
 from .variants import reference_path
@@ -64,6 +64,8 @@ CAR_HEIGHT_M = (1.0, 2.5)
 #: ignore region (a recorded object with ``ignore``), or nothing.
 MODES = ("accept", "ignore", "off")
 DEFAULT_MODE = "ignore"
+#: Changes when the rules above change what is proposed (the backend's per-scene cache key holds it).
+VERSION = 1
 
 
 @dataclass
@@ -175,10 +177,11 @@ def _dilate(mask: np.ndarray, steps: int) -> np.ndarray:
     return out
 
 
-def _covered(road: Road, cells: np.ndarray, covers: list) -> bool:
+def _covered(xy: np.ndarray, covers: list) -> bool:
+    """Step 3: whether ``COVERED_FRACTION`` of cell centres ``xy`` (M, 2) lie in the grown footprints of
+    ``covers``."""
     if not covers:
         return False
-    xy = road.cell_centres(cells)
     inside = np.zeros(len(xy), bool)
     for T, size in covers:
         fp = placement.box_footprint(T, size, COVER_MARGIN_M)
@@ -204,16 +207,25 @@ def _on_road(road: Road, cells: np.ndarray) -> bool:
     return float(road.raised[lo[0]:hi[0], lo[1]:hi[1]][seen].mean()) <= MAX_RAISED_RING
 
 
-def propose(points: np.ndarray, job: job_mod.Job, asset_boxes: list | None = None,
-            road: Road | None = None) -> list:
-    """The proposals (``Proposal``, ids in order) of a job's reconstruction: ``points`` (N, 3) world metres as the
-    renderer loads them (``variants.scene_points``), the job (its first camera path's centres grow the road; its
-    recorded objects, removal boxes and assets cover what they label: ``covering_boxes`` with ``asset_boxes``).
-    ``road``: the ``Road`` of these points and this path when the caller has it. ValueError when the
-    reconstruction holds no road under the drive (``Road``)."""
-    path = reference_path(job)
+@dataclass
+class Cluster:
+    """A cluster of occupied cells standing on the road (steps 1, 2, 4 and 6), before the job's boxes are asked:
+    its box (``box_to_world``, ``size``), ``points``, ``score`` and the world x, y of its cells' centres
+    ``cells_xy`` (M, 2)."""
+    box_to_world: np.ndarray
+    size: np.ndarray
+    points: int
+    score: float
+    cells_xy: np.ndarray
+
+
+def clusters(points: np.ndarray, path_centres: np.ndarray, road: Road | None = None) -> list:
+    """The ``Cluster`` list of a reconstruction: ``points`` (N, 3) world metres as the renderer loads them
+    (``variants.scene_points``), the road grown from the drive's camera centres ``path_centres`` (F, 3) (or
+    ``road``, the ``Road`` of these points when the caller has it). ValueError when the reconstruction holds no road
+    under the drive (``Road``)."""
     if road is None:
-        road = Road(points, path.centres, seed=SEED)
+        road = Road(points, path_centres, seed=SEED)
     P = np.asarray(points, np.float64).reshape(-1, 3)
     # only the points over occupied cells matter: found by their cell first (cheap), heights for those alone
     c = np.floor((P[:, :2] - road.origin[:2] - road.lo) / road.cell_m)
@@ -228,7 +240,6 @@ def propose(points: np.ndarray, job: job_mod.Job, asset_boxes: list | None = Non
     flat = cij[:, 0] * road.cell_shape[1] + cij[:, 1]
     order = np.argsort(flat, kind="stable")
     flat_sorted = flat[order]
-    covers = covering_boxes(job, asset_boxes)
     found = []
     for cells in components(road.occupied):
         if len(cells) < MIN_CELLS:
@@ -236,20 +247,47 @@ def propose(points: np.ndarray, job: job_mod.Job, asset_boxes: list | None = Non
         keys = np.sort(cells[:, 0] * road.cell_shape[1] + cells[:, 1])
         lo, hi = np.searchsorted(flat_sorted, keys, "left"), np.searchsorted(flat_sorted, keys, "right")
         idx = order[np.concatenate([np.arange(a, b) for a, b in zip(lo, hi)])]
-        if len(idx) < MIN_POINTS or h[idx].max() < MIN_TOP_M:
-            continue
-        if not _on_road(road, cells) or _covered(road, cells, covers):
+        if len(idx) < MIN_POINTS or h[idx].max() < MIN_TOP_M or not _on_road(road, cells):
             continue
         found.append(_fit(road, P[idx], cells))
-    first = path.centres[0, :2]
-    found.sort(key=lambda p: (round(float(np.linalg.norm(p[0][:2, 3] - first)), 3), float(p[0][0, 3]),
-                              float(p[0][1, 3])))
-    return [Proposal(f"proposal_{k + 1:02d}", guess_class(size), T, size, n, score, cells)
-            for k, (T, size, n, score, cells) in enumerate(found)]
+    return found
 
 
-def _fit(road: Road, pts: np.ndarray, cells: np.ndarray) -> tuple:
-    """(box_to_world, size, points, score, cells) of one cluster (steps 4 and 6)."""
+def select(found: list, job: job_mod.Job, asset_boxes: list | None = None) -> list:
+    """The proposals of a job among a scene's ``clusters``: those no box of the job covers (step 3:
+    ``covering_boxes`` with ``asset_boxes``), classed and numbered (steps 5 and 7; a number a recorded object of
+    the job already uses as its id is skipped)."""
+    covers = covering_boxes(job, asset_boxes)
+    kept = [c for c in found if not _covered(c.cells_xy, covers)]
+    first = cameras.camera_centers(job.frames[0].world_to_camera) if job.frames else np.zeros(3)
+    kept.sort(key=lambda c: (round(float(np.linalg.norm(c.box_to_world[:2, 3] - first[:2])), 3),
+                             float(c.box_to_world[0, 3]), float(c.box_to_world[1, 3])))
+    taken = {o.id for o in job.scene.recorded_objects} if job.scene is not None else set()
+    out, n = [], 0
+    for c in kept:
+        n += 1
+        while f"proposal_{n:02d}" in taken:
+            n += 1
+        out.append(Proposal(f"proposal_{n:02d}", guess_class(c.size), c.box_to_world, c.size, c.points, c.score,
+                            len(c.cells_xy)))
+    return out
+
+
+def propose(points: np.ndarray, job: job_mod.Job, asset_boxes: list | None = None) -> list:
+    """``select(clusters(points, the job's first camera path's centres), job, asset_boxes)``: the proposals
+    (``Proposal``) of one job."""
+    return select(clusters(points, reference_path(job).centres), job, asset_boxes)
+
+
+def describe(p: Proposal) -> str:
+    """``proposal_01: a car (4.4 x 1.8 x 1.6 m) at (6.2, 17.5)``: a proposal in words (events, the Blender UI)."""
+    T = p.box_to_world
+    return (f"{p.id}: a {p.category} ({p.size[1]:.1f} x {p.size[0]:.1f} x {p.size[2]:.1f} m) at "
+            f"({T[0, 3]:.1f}, {T[1, 3]:.1f})")
+
+
+def _fit(road: Road, pts: np.ndarray, cells: np.ndarray) -> Cluster:
+    """The ``Cluster`` of one cluster's cells and points (steps 4 and 6)."""
     sample = pts if len(pts) <= FIT_POINTS else pts[np.random.default_rng(SEED).choice(len(pts), FIT_POINTS, False)]
     T, size = boxes.estimate_box(sample)
     bottom, top = T[2, 3] - size[2] / 2, T[2, 3] + size[2] / 2
@@ -263,4 +301,4 @@ def _fit(road: Road, pts: np.ndarray, cells: np.ndarray) -> tuple:
     inside = np.all((c >= 0) & (c < np.array(road.cell_shape)), axis=1)
     c = np.unique(c[inside], axis=0)
     score = float(road.occupied[c[:, 0], c[:, 1]].mean()) if len(c) else 0.0
-    return T, size, len(pts), score, len(cells)
+    return Cluster(T, size, len(pts), score, road.cell_centres(cells))

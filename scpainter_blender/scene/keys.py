@@ -76,6 +76,14 @@ SHIFT_M = "scpainter_shift_m"
 #: Its label class.
 CLASS = "scpainter_class"
 
+# -- A recorded object and a box proposal (``scene/job_export.py``, ``scene/proposals.py``)
+#: Its track id (str): the recording's, or a proposal's ``proposal_NN``.
+TRACK_ID = "scpainter_track_id"
+#: Seen but not labelled (bool): an ignore region in every export.
+IGNORE = "scpainter_ignore"
+#: A proposal's score, 0-1 (``core.variation.proposals``).
+PROPOSAL_SCORE = "scpainter_proposal_score"
+
 # -- A loaded result (image sequence, movie clip: ``scene/results.py``)
 #: Its kind (``results.CONDITIONS``, ...).
 RESULT = "scpainter_result"
@@ -100,5 +108,5 @@ RENAMED = {VGGT_TO_WORLD: "scpainter_world_from_vggt", FILE_TO_DATA: "scpainter_
 ALL = (SOURCE, NUM_FRAMES, FRAME_START, VGGT_TO_WORLD, EXTRINSIC_CONVENTION, CROP, CONFIDENCE_PERCENTILE,
        DEPTH_EDGE_RATIO, MATRIX_WORLD_AT_IMPORT, INTRINSICS, SCALE_METHOD, SCALE_RESIDUAL_M, FILE_TO_DATA, AXES,
        AXES_REASON, SIZE, OBB_SIZE, SH_DEGREE, FORMAT, DROPPED, MESH_SOURCE, SPLAT_SOURCE, STAGE1, STAGE1_DEVIATION,
-       REVIEW, TARGET_BOX, POINTS_OBJECT, SOURCE_CAMERA, SHIFT_M, CLASS, RESULT, CAMERA, MODEL, DESCRIPTION, FRAMES,
-       VERSION, *RENAMED.values())
+       REVIEW, TARGET_BOX, POINTS_OBJECT, SOURCE_CAMERA, SHIFT_M, CLASS, TRACK_ID, IGNORE, PROPOSAL_SCORE, RESULT,
+       CAMERA, MODEL, DESCRIPTION, FRAMES, VERSION, *RENAMED.values())

@@ -118,11 +118,11 @@ class SCPAINTER_PT_main(bpy.types.Panel):
             row.operator("scpainter.flip_asset_front", text="Flip Front")
         icons = {"accepted": "CHECKMARK", "rejected": "X", "unchecked": "QUESTION"}
         box.operator("scpainter.propose_boxes", icon="MESH_CUBE")
-        for obj in kinds.objects_of_kind(context.scene, kinds.PROPOSAL):  # each proposal: accept, relabel, ...
+        if kinds.is_kind(active, kinds.PROPOSAL):  # its class: the relabel menu acts on the active proposal
+            box.operator_menu_enum("scpainter.relabel_proposal", "category", text=f"Class: {active.get(keys.CLASS)}")
+        for obj in kinds.objects_of_kind(context.scene, kinds.PROPOSAL):  # each proposal: accept, ignore, reject
             row = box.row(align=True)
             row.label(text=obj.name, icon="QUESTION")
-            op = row.operator_menu_enum("scpainter.relabel_proposal", "category", text="", icon="SORTALPHA")
-            op.name = obj.name
             for action, icon in (("accept", "CHECKMARK"), ("ignore", "HIDE_ON"), ("reject", "X")):
                 op = row.operator("scpainter.review_proposal", text="", icon=icon)
                 op.name, op.action = obj.name, action

@@ -34,16 +34,19 @@ road, a few ms for the rest (``tests/core/variation/test_proposals.py`` measures
 
 from __future__ import annotations
 
-from collections import deque
-from dataclasses import dataclass
+import json
+import os
+from collections import OrderedDict, deque
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .. import frame_keys
 from .. import job as job_mod
 from ..geometry import boxes, cameras
 from . import placement
 from .road import Road, footprint_samples
-from .variants import reference_path
+from .variants import reference_path, scene_points
 
 #: The road's RANSAC seed for proposals: fixed, so the same input always gives the same proposals.
 SEED = 0
@@ -64,8 +67,13 @@ CAR_HEIGHT_M = (1.0, 2.5)
 #: ignore region (a recorded object with ``ignore``), or nothing.
 MODES = ("accept", "ignore", "off")
 DEFAULT_MODE = "ignore"
-#: Changes when the rules above change what is proposed (the backend's per-scene cache key holds it).
+#: The ``warning`` event's code for a proposal added as an ignore region (the backend's and Blender's render plan's).
+UNLABELLED = "unlabelled_object"
+#: Changes when the rules above change what is proposed (the per-scene cache key holds it).
 VERSION = 1
+#: Scenes whose clusters a process keeps (``scene_clusters``: the last used).
+KEPT_SCENES = 4
+_SCENES: OrderedDict = OrderedDict()
 
 
 @dataclass
@@ -302,3 +310,58 @@ def _fit(road: Road, pts: np.ndarray, cells: np.ndarray) -> Cluster:
     c = np.unique(c[inside], axis=0)
     score = float(road.occupied[c[:, 0], c[:, 1]].mean()) if len(c) else 0.0
     return Cluster(T, size, len(pts), score, road.cell_centres(cells))
+
+
+def unlabelled_message(p: Proposal) -> str:
+    """The ``warning`` event's message for a proposal made an ignore region."""
+    return (describe(p) + ": nothing labels it, so it is an ignore region in every export (accept it in Blender, "
+            "or pass --proposals accept to label it)")
+
+
+# -- a job's proposals, once per scene ----------------------------------------------------------------------------
+
+def _scene_key(job: job_mod.Job, job_path: str | os.PathLike) -> str:
+    """What a scene's clusters depend on: the predictions file (real path, size, mtime: ``frame_keys.stamp``), the
+    settings its cloud is made from (``Job.layers_dict()["scene"]``: transform, confidence, removal boxes,
+    cleaning) and the ends of the drive (the road grows from it)."""
+    pred = os.path.realpath(job_mod.resolve(job_path, job.scene.predictions))
+    scene = {k: v for k, v in job.layers_dict()["scene"].items() if k != "predictions"}
+    ends = reference_path(job).centres[[0, -1]].round(3).tolist()
+    return json.dumps({"points": [pred, *frame_keys.stamp(pred)], "scene": scene, "drive": ends,
+                       "version": VERSION}, sort_keys=True)
+
+
+def scene_clusters(job: job_mod.Job, job_path: str | os.PathLike) -> tuple:
+    """(``clusters`` of the job's reconstruction, None) computed once per scene in a process (``_scene_key``; the
+    last ``KEPT_SCENES`` kept: a warm backend, a batch, many variants of one drive, Blender's render clicks), or
+    ([], why) when it holds no road under the drive. The points are read as the renderer reads them
+    (``variants.scene_points``; its InputErrors name the file)."""
+    key = _scene_key(job, job_path)
+    if key not in _SCENES:
+        try:
+            _SCENES[key] = clusters(scene_points(job, job_path), reference_path(job).centres), None
+        except ValueError as e:   # the Road's: no level ground under the drive
+            _SCENES[key] = [], str(e)
+        while len(_SCENES) > KEPT_SCENES:
+            _SCENES.popitem(last=False)
+    _SCENES.move_to_end(key)
+    return _SCENES[key]
+
+
+def with_proposals(job: job_mod.Job, job_path: str | os.PathLike, mode: str) -> tuple:
+    """(the job with its proposals added as ``mode`` says, the proposals, why there are none or None): ``accept``
+    adds each as a recorded object (a static box at every output frame, its class guessed), ``ignore`` as one with
+    ``ignore`` (an ignore region in every export), ``off`` nothing. Label-only (``Job.LABEL_ONLY``): the layers'
+    key does not change. A job without a scene or frames is returned as it is. ValueError for another mode."""
+    if mode not in MODES:
+        raise ValueError(f"proposals mode {mode!r} is not one of {MODES}")   # the callers' choices
+    if mode == "off" or job.scene is None or not job.frames:
+        return job, [], None
+    found, why = scene_clusters(job, job_path)
+    chosen = select(found, job)
+    if not chosen:
+        return job, [], why
+    frames = [e.frame for e in job.frames]
+    added = [p.recorded_object(frames, mode == "ignore") for p in chosen]
+    return replace(job, scene=replace(job.scene, recorded_objects=list(job.scene.recorded_objects) + added)), \
+        chosen, None

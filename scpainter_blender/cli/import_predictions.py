@@ -1,6 +1,9 @@
 """``blender -c scpainter import``: VGGT predictions imported as points + the recorded camera into the scene that
 is open (``blender -b scene.blend -c ...`` imports into scene.blend), with the import options as
 ``core/import_options.py`` defines them; ``--save`` writes the scene to a .blend (a temporary file, then renamed).
+``--proposals``: the objects above the road that nothing labels (``scene/proposals.py``) left as box proposals for
+review (``review``, as after File > Import), made recorded objects (``accept``), ignore regions (``ignore``), or not
+proposed (``off``).
 """
 
 from __future__ import annotations
@@ -14,7 +17,9 @@ import bpy
 
 from ..core import backend_protocol as protocol
 from ..core import import_options
-from ..scene import importer
+from ..core.variation import proposals as proposals_core
+from ..scene import importer, keys, proposals
+from ..scene.props import SceneError
 
 NAME = "import"
 ORDER = 10
@@ -26,6 +31,11 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     i.add_argument("predictions")
     import_options.add_arguments(i)  # the import options, as core.import_options defines them
     i.add_argument("--save", help="write the scene to this .blend (written to a temporary file, then renamed)")
+    i.add_argument("--proposals", choices=("review", *proposals_core.MODES), default="review",
+                   help="objects above the road that nothing labels (parked cars), found in the points: box "
+                        "proposals to review in Blender (review, the default), recorded objects labelled with the "
+                        "class their size suggests (accept), recorded objects that every export makes ignore "
+                        "regions (ignore), or nothing (off)")
     i.set_defaults(func=run)
     return i
 
@@ -41,6 +51,7 @@ def run(args: argparse.Namespace) -> tuple[dict, int]:
            "warnings": result.warnings, "predictions": result.load_report.to_json(), "timings_s": result.timings,
            # a camera path stays the scene camera when the scene had one (importer.import_vggt)
            "scene_camera": bpy.context.scene.camera.name if bpy.context.scene.camera else None}
+    out["proposals"] = [] if args.proposals == "off" else _proposals(args.proposals)
     if args.save:
         path = os.path.abspath(args.save)
         os.makedirs(os.path.dirname(path), exist_ok=True)
@@ -54,3 +65,17 @@ def run(args: argparse.Namespace) -> tuple[dict, int]:
             shutil.rmtree(tmp, ignore_errors=True)
         out["blend"] = path
     return out, protocol.EXIT_OK
+
+
+def _proposals(mode: str) -> list:
+    """The track ids of the box proposals made (``mode``: review, accept or ignore); none without a road under the
+    drive (a reconstruction not in metres)."""
+    try:
+        made = proposals.propose(bpy.context)
+    except SceneError:
+        return []
+    ids = [str(o[keys.TRACK_ID]) for o in made]
+    if mode != "review":
+        for o in made:
+            proposals.accept(bpy.context, o, ignore=mode == "ignore")
+    return ids

@@ -8,7 +8,8 @@ import bpy
 from bpy_extras.io_utils import ImportHelper
 
 from ..scpainter_blender.core import import_options
-from ..scpainter_blender.scene import importer, kinds, replace
+from ..scpainter_blender.scene import importer, kinds, proposals, replace
+from ..scpainter_blender.scene.props import SceneError
 from . import reports, selection
 
 
@@ -32,14 +33,28 @@ class SCPAINTER_OT_import_vggt(bpy.types.Operator, ImportHelper):
 
     filename_ext = ".npz"
     filter_glob: bpy.props.StringProperty(default="*.npz", options={"HIDDEN"})
+    propose_boxes: bpy.props.BoolProperty(
+        name="Propose Boxes", default=True,
+        description="After the import, propose a box for each object above the road (a parked car) for review "
+                    "in the SCPainter tab: accept, relabel, ignore or reject each (about a second)")
 
     def draw(self, context):
         _draw_options(self)
+        self.layout.prop(self, "propose_boxes")
 
     @reports.reported
     def execute(self, context):
         result = importer.import_vggt(context, self.filepath, _options(self, context))  # InputError: reported
         _report_import(self, context, result)
+        if self.propose_boxes:
+            try:
+                made = proposals.propose(context)
+            except SceneError as e:   # no road under the drive (a clip not in metres, a tiny test scene)
+                self.report({"INFO"}, f"no box proposals: {e}")
+            else:
+                if made:
+                    self.report({"WARNING"}, f"{len(made)} objects above the road are not labelled: review the "
+                                             "box proposals in the SCPainter tab (accept, relabel, ignore, reject)")
         if result.kept_camera is not None:
             self.report({"INFO"}, f"{result.camera.name!r} was added; the camera path {result.kept_camera.name!r} "
                                   "stays the scene camera (make the recorded camera active to look through it)")

@@ -1,11 +1,13 @@
-"""Placing car assets: fit, snap to the ground, removal boxes, replace a recorded car, the two review stages."""
+"""Placing car assets: fit, snap to the ground, removal boxes, replace a recorded car, the two review stages; box
+proposals and their review (scene/proposals.py)."""
 
 from __future__ import annotations
 
 import bpy
 import numpy as np
 
-from ..scpainter_blender.scene import keys, kinds, placement, recorded_objects, visibility
+from ..scpainter_blender.core import categories
+from ..scpainter_blender.scene import keys, kinds, placement, proposals, recorded_objects, visibility
 from . import reports, selection
 
 
@@ -189,5 +191,80 @@ class SCPAINTER_OT_review_asset(bpy.types.Operator):
         return {"FINISHED"}
 
 
+class SCPAINTER_OT_propose_boxes(bpy.types.Operator):
+    """Propose a box for each object above the road that nothing labels (a parked car): for review"""
+
+    bl_idname = "scpainter.propose_boxes"
+    bl_label = "Propose Boxes"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        if _points(context) is None or kinds.recorded_camera(context.scene) is None:
+            cls.poll_message_set("Import a VGGT reconstruction first (File > Import > SCPainter VGGT Reconstruction)")
+            return False
+        return True
+
+    @reports.reported
+    def execute(self, context):
+        made = proposals.propose(context)
+        self.report({"INFO"}, f"{len(made)} box proposals" + (f": {', '.join(o.name for o in made)}" if made else
+                                                             ": every object above the road is labelled"))
+        return {"FINISHED"}
+
+
+def _named_proposal(op, context):
+    obj = bpy.data.objects.get(op.name) if op.name else context.active_object
+    return obj if kinds.is_kind(obj, kinds.PROPOSAL) else None
+
+
+class SCPAINTER_OT_review_proposal(bpy.types.Operator):
+    """Accept a box proposal (a recorded object, labelled), ignore it (a recorded object that every export makes an
+    ignore region) or reject it (deleted)"""
+
+    bl_idname = "scpainter.review_proposal"
+    bl_label = "Review Proposal"
+    bl_options = {"REGISTER", "UNDO"}
+
+    name: bpy.props.StringProperty(name="Proposal", description="The proposal's object (default: the active one)")
+    action: bpy.props.EnumProperty(name="Action", items=[
+        ("accept", "Accept", "A recorded object of its class, labelled in every frame"),
+        ("ignore", "Ignore", "A recorded object that is not labelled: an ignore region in every export"),
+        ("reject", "Reject", "Not an object: delete the proposal")])
+
+    @reports.reported
+    def execute(self, context):
+        obj = _named_proposal(self, context)
+        if obj is None:
+            self.report({"ERROR"}, f"no box proposal named {self.name or '(the active object)'!r}")
+            return {"CANCELLED"}
+        if self.action == "reject":
+            proposals.reject(obj)
+        else:
+            proposals.accept(context, obj, ignore=self.action == "ignore")
+        return {"FINISHED"}
+
+
+class SCPAINTER_OT_relabel_proposal(bpy.types.Operator):
+    """Set the class of a box proposal"""
+
+    bl_idname = "scpainter.relabel_proposal"
+    bl_label = "Relabel Proposal"
+    bl_options = {"REGISTER", "UNDO"}
+
+    name: bpy.props.StringProperty(name="Proposal", description="The proposal's object (default: the active one)")
+    category: bpy.props.EnumProperty(name="Class", items=[(n, n, "") for n in categories.NAMES])
+
+    @reports.reported
+    def execute(self, context):
+        obj = _named_proposal(self, context)
+        if obj is None:
+            self.report({"ERROR"}, f"no box proposal named {self.name or '(the active object)'!r}")
+            return {"CANCELLED"}
+        proposals.relabel(obj, self.category)
+        return {"FINISHED"}
+
+
 classes = (SCPAINTER_OT_fit_asset, SCPAINTER_OT_snap_to_ground, SCPAINTER_OT_add_removal_box,
-           SCPAINTER_OT_replace_car, SCPAINTER_OT_check_assets, SCPAINTER_OT_review_asset)
+           SCPAINTER_OT_replace_car, SCPAINTER_OT_check_assets, SCPAINTER_OT_review_asset, SCPAINTER_OT_propose_boxes,
+           SCPAINTER_OT_review_proposal, SCPAINTER_OT_relabel_proposal)

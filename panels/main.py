@@ -118,6 +118,15 @@ class SCPAINTER_PT_main(bpy.types.Panel):
             row.operator("scpainter.estimate_asset_box", text="Estimate")
             row.operator("scpainter.flip_asset_front", text="Flip Front")
         icons = {"accepted": "CHECKMARK", "rejected": "X", "unchecked": "QUESTION"}
+        box.operator("scpainter.propose_boxes", icon="MESH_CUBE")
+        if kinds.is_kind(active, kinds.PROPOSAL):  # its class: the relabel menu acts on the active proposal
+            box.operator_menu_enum("scpainter.relabel_proposal", "category", text=f"Class: {active.get(keys.CLASS)}")
+        for obj in kinds.objects_of_kind(context.scene, kinds.PROPOSAL):  # each proposal: accept, ignore, reject
+            row = box.row(align=True)
+            row.label(text=obj.name, icon="QUESTION")
+            for action, icon in (("accept", "CHECKMARK"), ("ignore", "HIDE_ON"), ("reject", "X")):
+                op = row.operator("scpainter.review_proposal", text="", icon=icon)
+                op.name, op.action = obj.name, action
         for obj in kinds.gaussian_assets(context.scene):  # stage 2: a person accepts or rejects each asset
             row = box.row(align=True)
             stage1 = obj.get(keys.STAGE1, "")

@@ -30,6 +30,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                                  "existing one must be empty or a previous export")
     options.device_option(x, "for rendering missing frames; " + options.DEVICE_HELP)
     options.confinement_options(x)
+    options.proposals_option(x)
     x.set_defaults(func=run)
     return x
 
@@ -42,6 +43,7 @@ def run(args: argparse.Namespace) -> int:
     from scpainter_blender.core import outputs
 
     from ..export import command
+    from ..render import proposals
 
     roots = outputs.data_roots_option(args.data_root)
     if args.out is not None and not args.out.strip():
@@ -51,6 +53,7 @@ def run(args: argparse.Namespace) -> int:
     job = job_mod.load(args.job)
     device = options.resolve_device(args.device)
     t0 = time.perf_counter()
+    job, _ = proposals.apply(args.job, job, args.proposals, args.allow_outside, roots)
     with events.stop_on_sigterm() as stop:
         result = command.export_job(args.job, job, args.format, args.out, device, args.allow_outside, stop, roots)
     if result.pop("stopped"):

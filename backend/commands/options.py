@@ -87,6 +87,18 @@ def confinement_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(outputs.DATA_ROOT_OPTION, action="append", metavar="DIR", help=DATA_ROOT_HELP)
 
 
+def proposals_option(p: argparse.ArgumentParser) -> None:
+    """``--proposals accept|ignore|off`` (render, generate, export): what the labels make of the reconstruction's
+    objects that nothing labels (``backend/render/proposals.py``)."""
+    from scpainter_blender.core.variation.proposals import DEFAULT_MODE, MODES
+
+    p.add_argument("--proposals", choices=MODES, default=DEFAULT_MODE,
+                   help="objects of the reconstruction above the road that no recorded object, removal box or car "
+                        "covers (found from the points): accept labels each as a recorded object of the class its "
+                        "size suggests; ignore (default) makes each an ignore region in every export, with a "
+                        "warning naming it; off leaves them unlabelled. Label-only: the layers are kept")
+
+
 def input_options(p: argparse.ArgumentParser) -> None:
     """``confinement_options`` and ``--check`` (render, generate)."""
     confinement_options(p)

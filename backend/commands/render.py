@@ -26,6 +26,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                    help="splat each point over (2r+1)^2 pixels (0-16)")
     r.add_argument("--half-float", action="store_true", help=options.HALF_FLOAT_HELP)
     options.input_options(r)
+    options.proposals_option(r)
     r.set_defaults(func=run)
     return r
 
@@ -38,7 +39,7 @@ def run(args: argparse.Namespace) -> int:
     from scpainter_blender.core import job_inputs, locking, outputs
     from scpainter_blender.core import job as job_mod
 
-    from ..render import command
+    from ..render import command, proposals
 
     roots = outputs.data_roots_option(args.data_root)
     job = job_mod.load(args.job)
@@ -51,6 +52,7 @@ def run(args: argparse.Namespace) -> int:
         return events.EXIT_OK
     device = options.resolve_device(args.device)
     t0 = time.perf_counter()
+    job, proposed = proposals.apply(args.job, job, args.proposals, args.allow_outside, roots)
     with events.stop_on_sigterm() as stop:
         result = command.render_job(args.job, job, device, force=args.force, point_radius=args.point_radius,
                                     stop=stop, allow_outside=args.allow_outside, half=args.half_float,
@@ -60,5 +62,6 @@ def run(args: argparse.Namespace) -> int:
                      "frames", hint="finished frames are kept: run the same command again to resume")
         return events.EXIT_FAILED
     result.pop("stopped")
+    result["warnings"] += proposed
     events.done(command=NAME, device=device, seconds=time.perf_counter() - t0, **result)
     return events.EXIT_OK

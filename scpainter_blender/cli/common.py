@@ -24,6 +24,7 @@ from ..core import backend_protocol as protocol
 from ..core import batch_items as batch_mod
 from ..core import errors, files
 from ..core import job as job_mod
+from ..core.variation import proposals
 from ..runs import camera_run, warm_session
 from ..scene import job_export, props
 
@@ -52,6 +53,13 @@ def common_options(c: argparse.ArgumentParser) -> None:
     c.add_argument("--backend-python", help="interpreter for the backend (default: the add-on preference)")
     c.add_argument("--timeout", type=float, default=0.0,
                    help="stop the backend after this many s (batch: the whole batch's)")
+
+
+def proposals_option(c: argparse.ArgumentParser) -> None:
+    """``--proposals accept|ignore|off`` (render, export): passed on to the backend's option of that name."""
+    c.add_argument("--proposals", choices=proposals.MODES,
+                   help="objects of the reconstruction that nothing labels: label them (accept), make them ignore "
+                        f"regions (ignore) or leave them (off); default {proposals.DEFAULT_MODE}, the backend's")
 
 
 def checkpoint_option(c: argparse.ArgumentParser) -> None:

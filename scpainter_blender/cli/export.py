@@ -24,6 +24,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                                  "existing one must be empty or a previous export")
     common.scene_options(x)
     common.common_options(x)
+    common.proposals_option(x)
     x.set_defaults(func=run)
     return x
 
@@ -32,4 +33,4 @@ def run(args: argparse.Namespace) -> tuple[dict, int]:
     """The scene's dataset; the summary (its outputs: ``format``, ``out``, ``objects``, ``images``; camera,
     warnings) and exit code 0."""
     return common.run_scene(args, NAME, export_format=args.format,
-                            out=os.path.abspath(args.out) if args.out else None)
+                            out=os.path.abspath(args.out) if args.out else None, proposals=args.proposals)

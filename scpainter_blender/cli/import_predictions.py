@@ -1,7 +1,9 @@
 """``blender -c scpainter import``: VGGT predictions imported as points + the recorded camera into the scene that
 is open (``blender -b scene.blend -c ...`` imports into scene.blend), with the import options as
 ``core/import_options.py`` defines them (``--objects FILE``: the drive's tracked boxes as recorded objects);
-``--save`` writes the scene to a .blend (a temporary file, then renamed).
+``--save`` writes the scene to a .blend (a temporary file, then renamed). ``--proposals``: the objects above the road
+that nothing labels (``scene/proposals.py``) left as box proposals for review (``review``, as after File > Import),
+made recorded objects (``accept``), ignore regions (``ignore``), or not proposed (``off``).
 """
 
 from __future__ import annotations
@@ -15,7 +17,9 @@ import bpy
 
 from ..core import backend_protocol as protocol
 from ..core import import_options
-from ..scene import importer
+from ..core.variation import proposals as proposals_core
+from ..scene import importer, keys, proposals
+from ..scene.props import SceneError
 
 NAME = "import"
 ORDER = 10
@@ -27,6 +31,11 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     i.add_argument("predictions")
     import_options.add_arguments(i)  # the import options, as core.import_options defines them
     i.add_argument("--save", help="write the scene to this .blend (written to a temporary file, then renamed)")
+    i.add_argument("--proposals", choices=("review", *proposals_core.MODES), default="review",
+                   help="objects above the road that nothing labels (parked cars), found in the points: box "
+                        "proposals to review in Blender (review, the default), recorded objects labelled with the "
+                        "class their size suggests (accept), recorded objects that every export makes ignore "
+                        "regions (ignore), or nothing (off)")
     i.set_defaults(func=run)
     return i
 
@@ -44,6 +53,7 @@ def run(args: argparse.Namespace) -> tuple[dict, int]:
            "scene_camera": bpy.context.scene.camera.name if bpy.context.scene.camera else None}
     if opts.objects:  # the recorded objects the import made (--objects)
         out["recorded_objects"] = [o.name for o in result.recorded_objects]
+    out["proposals"] = [] if args.proposals == "off" else _proposals(args.proposals)
     if args.save:
         path = os.path.abspath(args.save)
         os.makedirs(os.path.dirname(path), exist_ok=True)
@@ -57,3 +67,17 @@ def run(args: argparse.Namespace) -> tuple[dict, int]:
             shutil.rmtree(tmp, ignore_errors=True)
         out["blend"] = path
     return out, protocol.EXIT_OK
+
+
+def _proposals(mode: str) -> list:
+    """The track ids of the box proposals made (``mode``: review, accept or ignore); none without a road under the
+    drive (a reconstruction not in metres)."""
+    try:
+        made = proposals.propose(bpy.context)
+    except SceneError:
+        return []
+    ids = [str(o[keys.TRACK_ID]) for o in made]
+    if mode != "review":
+        for o in made:
+            proposals.accept(bpy.context, o, ignore=mode == "ignore")
+    return ids

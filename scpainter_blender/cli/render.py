@@ -20,10 +20,11 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     common.scene_options(c)
     common.common_options(c)
     common.checkpoint_option(c)
+    common.proposals_option(c)
     c.set_defaults(func=run)
     return c
 
 
 def run(args: argparse.Namespace) -> tuple[dict, int]:
     """The scene's render; the summary (its outputs, camera, warnings) and exit code 0."""
-    return common.run_scene(args, NAME)
+    return common.run_scene(args, NAME, proposals=args.proposals)

@@ -273,7 +273,7 @@ _FLAGS = (("batch_command", "--command"), ("lists", "--list"), ("trusted_lists",
           ("seed", "--seed"), ("inpaint", "--inpaint"), ("point_radius", "--point-radius"), ("force", "--force"),
           ("allow_outside", "--allow-outside"), ("data_roots", "--data-root"), ("shard", "--shard"), ("ray", "--ray"),
           ("retries", "--retries"), ("cpus_per_job", "--cpus-per-job"), ("export_format", "--format"), ("out", "--out"),
-          ("count", "--count"))
+          ("count", "--count"), ("proposals", "--proposals"))
 #: How ``argv()`` writes a value other than ``str``: the idle time as ``serve --help`` does ("600", not "600.0").
 _SPELLING = {"idle_timeout": lambda seconds: f"{float(seconds):g}"}
 
@@ -293,7 +293,8 @@ class Invocation:
     for the default cluster, else its address. ``shard``: "K/N" (batch). ``export_format``: one of
     ``core.backend_protocol.EXPORT_FORMAT_NAMES`` and ``out`` the destination folder (export) or file (mesh-asset,
     splat-asset: the Gaussian PLY). ``count``: Gaussians of a mesh (mesh-asset). ``idle_timeout``: seconds a
-    ``serve`` process waits for a request (0: never ends by itself)."""
+    ``serve`` process waits for a request (0: never ends by itself). ``proposals``: accept, ignore or off (render,
+    export: ``core.variation.proposals.MODES``)."""
 
     command: str
     jobs: tuple = ()
@@ -318,6 +319,7 @@ class Invocation:
     export_format: str | None = None
     out: str | None = None
     count: int | None = None
+    proposals: str | None = None
     idle_timeout: float | None = None
     python: str = ""
 

@@ -13,9 +13,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from ..core import backend_protocol as protocol
-from ..core import frame_keys
+from ..core import errors, frame_keys
 from ..core import job as job_mod
 from ..core import labels as labels_mod
+from ..core.variation import proposals
 from . import camera_run
 from .client import Invocation
 
@@ -39,16 +40,21 @@ def check(context, run: Invocation, camera) -> Check | None:
         return None
     job_path, out = camera_run.export(context, camera=camera)
     job = job_mod.load(job_path)
-    try:
+    mode = run.proposals or proposals.DEFAULT_MODE
+    try:  # the job as the backend labels it: its proposals added as the run's mode says (the backend's own rule)
+        job, found, _ = proposals.with_proposals(job, job_path, mode)
         plan = frame_keys.plan_from_record(out, job_path, job, run.point_radius or 0)
-    except OSError:  # an input file is gone: the backend names it
+    except (OSError, errors.InputError):  # an input file is gone or unreadable: the backend names it
         plan = None
     if plan is None or not plan.up_to_date:
         return Check(job_path, out)
-    warnings = [protocol.event(protocol.WARNING, message=message, code=code, frame=lab["frame"],
-                               **({"object": obj} if obj else {}))
-                for e in job.frames for lab in [plan.done[e.frame]]
-                for code, message, obj in labels_mod.warnings(lab)]
+    # said again as the backend says them on every run: the ignored proposals, then each frame's
+    warnings = [protocol.event(protocol.WARNING, message=proposals.unlabelled_message(p), code=proposals.UNLABELLED,
+                               object=p.id) for p in found if mode == "ignore"]
+    warnings += [protocol.event(protocol.WARNING, message=message, code=code, frame=lab["frame"],
+                                **({"object": obj} if obj else {}))
+                 for e in job.frames for lab in [plan.done[e.frame]]
+                 for code, message, obj in labels_mod.warnings(lab)]
     n = len(job.frames)
     done = protocol.event(protocol.DONE, frames=n, rendered=0, skipped=n, relabelled=0, output_dir=out,
                           stopped=False, warnings=len(warnings), up_to_date=True)

@@ -75,12 +75,16 @@ SHIFT_M = "scpainter_shift_m"
 # -- An asset's label box (``scene/asset_box.py``); a recorded object (``scene/recorded_objects.py``)
 #: Its label class.
 CLASS = "scpainter_class"
-#: A recorded object's track id (the job's ``recorded_objects[i].id``).
+#: A recorded object's track id (the job's ``recorded_objects[i].id``; a proposal's ``proposal_NN``).
 TRACK_ID = "scpainter_track_id"
 #: Whether a recorded object is seen but not labelled (an ignore region in every export).
 IGNORE = "scpainter_ignore"
 #: The scene frames a recorded object is in (its track's frames); absent: every frame.
 TRACK_FRAMES = "scpainter_track_frames"
+
+# -- A box proposal (``scene/proposals.py``): also a TRACK_ID (its ``proposal_NN``) and a CLASS
+#: Its score, 0-1 (``core.variation.proposals``).
+PROPOSAL_SCORE = "scpainter_proposal_score"
 
 # -- A loaded result (image sequence, movie clip: ``scene/results.py``)
 #: Its kind (``results.CONDITIONS``, ...).
@@ -106,6 +110,5 @@ RENAMED = {VGGT_TO_WORLD: "scpainter_world_from_vggt", FILE_TO_DATA: "scpainter_
 ALL = (SOURCE, NUM_FRAMES, FRAME_START, VGGT_TO_WORLD, EXTRINSIC_CONVENTION, CROP, CONFIDENCE_PERCENTILE,
        DEPTH_EDGE_RATIO, MATRIX_WORLD_AT_IMPORT, INTRINSICS, SCALE_METHOD, SCALE_RESIDUAL_M, FILE_TO_DATA, AXES,
        AXES_REASON, SIZE, OBB_SIZE, SH_DEGREE, FORMAT, DROPPED, MESH_SOURCE, SPLAT_SOURCE, STAGE1, STAGE1_DEVIATION,
-       REVIEW, TARGET_BOX, POINTS_OBJECT, SOURCE_CAMERA, SHIFT_M, CLASS, TRACK_ID, IGNORE,
-       TRACK_FRAMES, RESULT, CAMERA, MODEL, DESCRIPTION, FRAMES,
-       VERSION, *RENAMED.values())
+       REVIEW, TARGET_BOX, POINTS_OBJECT, SOURCE_CAMERA, SHIFT_M, CLASS, TRACK_ID, IGNORE, TRACK_FRAMES,
+       PROPOSAL_SCORE, RESULT, CAMERA, MODEL, DESCRIPTION, FRAMES, VERSION, *RENAMED.values())

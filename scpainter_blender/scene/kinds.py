@@ -10,8 +10,9 @@ are saved in .blend files: never rename them.
 * ``REMOVAL_BOX``: a cube empty whose points are removed from the points object (scene/placement.py);
 * ``ASSET_BOX``: a Gaussian asset's upright 3D box, a cube empty parented to the asset (scene/asset_box.py);
 * ``ASSET_FRONT``: the arrow that marks the front (+y) of an asset box, parented to the box (scene/asset_box.py);
-* ``RECORDED_OBJECT``: a tracked object of the recording, a cube empty whose unit cube is its box
-  (scene/recorded_objects.py).
+* ``RECORDED_OBJECT``: an object of the recording (a tracked car), a cube empty whose unit cube is its box; the job's
+  ``scene.recorded_objects`` (scene/job_export.py; an accepted proposal becomes one: scene/proposals.py);
+* ``PROPOSAL``: a box proposal for review, a cube empty like a recorded object (scene/proposals.py).
 
 Objects are anything with ``get`` (Blender objects, ``None`` allowed where noted); no bpy needed here.
 """
@@ -28,7 +29,9 @@ REMOVAL_BOX = "removal_box"
 ASSET_BOX = "asset_box"
 ASSET_FRONT = "asset_front"
 RECORDED_OBJECT = "recorded_object"
-ALL = (POINTS, RECORDED_CAMERA, CAMERA_PATH, GAUSSIAN_ASSET, REMOVAL_BOX, ASSET_BOX, ASSET_FRONT, RECORDED_OBJECT)
+PROPOSAL = "proposal"
+ALL = (POINTS, RECORDED_CAMERA, CAMERA_PATH, GAUSSIAN_ASSET, REMOVAL_BOX, ASSET_BOX, ASSET_FRONT, RECORDED_OBJECT,
+       PROPOSAL)
 
 
 def mark(obj, kind: str) -> None:

@@ -13,10 +13,12 @@ def test_import_and_save(addon, empty_scene, street, tmp_path, capsys):
     out = tmp_path / "not yet" / "batch.blend"     # a folder that does not exist yet is made
     objects = street.write_objects(str(tmp_path / "objects.json"))   # the street's cars as recorded objects
     code = CS.cli(addon).execute(["import", street.predictions_path, "--trajectory",
-                                os.path.join(street.root, "metric.npz"), "--save", str(out), "--objects", objects])
+                                os.path.join(street.root, "metric.npz"), "--save", str(out), "--objects", objects,
+                                "--proposals", "accept"])
     ev = CS.last_event(capsys)
     assert code == 0, ev
     assert ev["recorded_objects"] == [f"car street_car_{i}" for i in range(1, 6)]
+    assert ev["proposals"] == []   # every parked car the points show is covered by its recorded object
     assert ev["event"] == "done" and ev["scale_method"] == "trajectory"
     assert abs(ev["scale"] - float(street.metric()["metres_per_unit"])) < 1e-4
     assert ev["blend"] == str(out) and out.stat().st_size > 1_000_000
@@ -26,6 +28,10 @@ def test_import_and_save(addon, empty_scene, street, tmp_path, capsys):
     assert len(pts.data.vertices) == ev["points"]
     M = np.array(pts["scpainter_vggt_to_world"]).reshape(4, 4)
     assert np.abs(M - street.metric()["vggt_to_world"]).max() < 1e-4
+    recorded = [o for o in bpy.context.scene.objects if o.get("scpainter_kind") == "recorded_object"]
+    assert sorted(o["scpainter_track_id"] for o in recorded) == [f"street_car_{i}" for i in range(1, 6)]  # saved
+    assert not any(o["scpainter_ignore"] for o in recorded)
+    assert not [o for o in bpy.context.scene.objects if o.get("scpainter_kind") == "proposal"]
     bpy.ops.wm.read_homefile(use_empty=True)
 
 

@@ -43,6 +43,7 @@ def test_device_names_match_the_preferences_enum_order():
 @pytest.mark.parametrize("run", [
     Invocation("render", jobs=("/x/job.json",), device="cpu", allow_outside=True, force=True, point_radius=2),
     Invocation("render", jobs=("/x/job.json",), data_roots=("/data",)),
+    Invocation("render", jobs=("/x/job.json",), proposals="accept"),
     Invocation("generate", jobs=("/x/job.json",), data_roots=("/data", "/assets")),
     Invocation("generate", jobs=("job.json",), device="cuda", checkpoint="/ck", model="baseline", steps=3, seed=7,
                inpaint="telea"),
@@ -55,6 +56,7 @@ def test_device_names_match_the_preferences_enum_order():
     Invocation("export", jobs=("/x/job.json",), export_format="openlabel", out="/x/dataset", device="cpu",
                allow_outside=True),
     Invocation("export", jobs=("job.json",), export_format="kitti", data_roots=("/data",)),
+    Invocation("export", jobs=("job.json",), export_format="coco", proposals="off"),
     Invocation("mesh-asset", asset="/x/car.glb", out="/x/car.ply", count=5000),
     Invocation("splat-asset", asset="/x/car.sog", out="/x/car.ply"),
     Invocation("serve", idle_timeout=600.0, device="cpu"),
@@ -70,7 +72,8 @@ def test_invocation_argv_round_trips_through_the_backend_parser(run):
                 "shard": run.shard, "ray": run.ray,
                 "retries": run.retries, "cpus_per_job": run.cpus_per_job, "command_name": run.batch_command,
                 "list": list(run.lists) or None, "trusted_list": list(run.trusted_lists) or None,
-                "format": run.export_format, "out": run.out, "count": run.count, "idle_timeout": run.idle_timeout}
+                "format": run.export_format, "out": run.out, "count": run.count, "idle_timeout": run.idle_timeout,
+                "proposals": run.proposals}
     if run.command in ("render", "generate", "export"):
         expected["job"] = run.jobs[0]
     elif run.command == "batch":

@@ -238,14 +238,17 @@ def test_one_undo_step(empty_scene, street):
 
     assert {"REGISTER", "UNDO"} <= set(bpy.types.SCPAINTER_OT_import_vggt.bl_options)
     root = os.path.join(os.path.dirname(__file__), "..", "..", "scpainter_blender", "scene")
-    for name in ("importer.py", "points.py", "camera.py", "compat.py"):
+    for name in ("importer.py", "points.py", "camera.py", "compat.py", "proposals.py"):
         tree = ast.parse(open(os.path.join(root, name)).read())
         calls = [n for n in ast.walk(tree) if isinstance(n, ast.Attribute) and n.attr == "ops"
                  and isinstance(n.value, ast.Name) and n.value.id == "bpy"]
         assert not calls, f"{name} calls bpy.ops"
     n_before = len(bpy.data.objects)
     _import(street)
-    assert len(bpy.data.objects) == n_before + 2
+    # the points, the recorded camera and the box proposals made after the import (scene/proposals.py): one per
+    # parked car the reconstruction shows
+    proposed = [o for o in bpy.context.scene.objects if o.get("scpainter_kind") == "proposal"]
+    assert len(proposed) == 3 and len(bpy.data.objects) == n_before + 2 + len(proposed)
 
 
 def _synthetic(**kw):

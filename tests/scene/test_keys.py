@@ -25,11 +25,12 @@ def test_stored_keys_never_change():
         "TARGET_BOX": "scpainter_target_box", "POINTS_OBJECT": "scpainter_points_object",
         "SOURCE_CAMERA": "scpainter_source_camera", "SHIFT_M": "scpainter_shift_m", "CLASS": "scpainter_class",
         "TRACK_ID": "scpainter_track_id", "IGNORE": "scpainter_ignore", "TRACK_FRAMES": "scpainter_track_frames",
+        "PROPOSAL_SCORE": "scpainter_proposal_score",
         "RESULT": "scpainter_result", "CAMERA": "scpainter_camera", "MODEL": "scpainter_model",
         "DESCRIPTION": "scpainter_description", "FRAMES": "scpainter_frames", "VERSION": "scpainter_version"}
     assert keys.RENAMED == {"scpainter_vggt_to_world": "scpainter_world_from_vggt",
                             "scpainter_file_to_data": "scpainter_data_from_file"}
-    assert len(set(keys.ALL)) == len(keys.ALL) == 41
+    assert len(set(keys.ALL)) == len(keys.ALL) == 42
 
 
 def _spelled_keys(source, rel):

@@ -21,7 +21,7 @@ def test_stored_values_never_change():
     """Saved .blend files hold these strings: renaming one loses every object of that kind."""
     assert kinds.PROPERTY == "scpainter_kind"
     assert kinds.ALL == ("points", "recorded_camera", "camera_path", "gaussian_asset", "removal_box", "asset_box",
-                         "asset_front", "recorded_object")
+                         "asset_front", "recorded_object", "proposal")
 
 
 class _Obj(dict):

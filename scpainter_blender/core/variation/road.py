@@ -151,16 +151,21 @@ class Road:
                     queue.append((a, b))
         return ref
 
-    def _cells(self, P, min_object_m, max_object_m) -> None:
+    def _heights(self, P) -> tuple:
+        """(height above the road (M,), cell index (M, 2), keep (N,)) of points ``P`` (N, 3) relative to the
+        origin: the points kept are those inside the grid with a road tile reachable (module docstring, step 3)."""
         ij, inside = self._tile_index(P[:, :2])
         keep = np.zeros(len(P), bool)
         keep[inside] = self.reference[ij[inside, 0], ij[inside, 1], 0] >= 0
         Q, rij = P[keep], self.reference[ij[keep, 0], ij[keep, 1]]
         h = Q[:, 2] - self._plane_height(rij[:, 0], rij[:, 1], Q[:, :2])   # height above the road
+        cij = np.floor((Q[:, :2] - self.lo) / self.cell_m).astype(np.int64)
+        return h, np.minimum(cij, np.array(self.cell_shape) - 1), keep
+
+    def _cells(self, P, min_object_m, max_object_m) -> None:
         per_tile = int(round(self.tile_m / self.cell_m))
         self.cell_shape = (self.shape[0] * per_tile, self.shape[1] * per_tile)
-        cij = np.floor((Q[:, :2] - self.lo) / self.cell_m).astype(np.int64)
-        cij = np.minimum(cij, np.array(self.cell_shape) - 1)
+        h, cij, _ = self._heights(P)
         flat = cij[:, 0] * self.cell_shape[1] + cij[:, 1]
         size = self.cell_shape[0] * self.cell_shape[1]
         objects = (h >= min_object_m) & (h <= max_object_m)
@@ -174,6 +179,22 @@ class Road:
         self.raised = (n_raised * 2 > n_low).reshape(self.cell_shape)
 
     # -- queries -----------------------------------------------------------------------------------------------
+
+    def heights(self, points: np.ndarray) -> tuple:
+        """(height above the road (M,) metres, cell index (M, 2) into ``occupied``/``raised``, keep (N,) bool) of
+        world ``points`` (N, 3): the points kept lie inside the grid where a road tile is reachable, their heights
+        above that road tile's plane (module docstring, step 3: what makes a cell occupied)."""
+        P = np.asarray(points, np.float64).reshape(-1, 3) - self.origin
+        finite = np.flatnonzero(np.isfinite(P).all(1))
+        h, cij, kept = self._heights(P[finite])
+        keep = np.zeros(len(P), bool)
+        keep[finite[kept]] = True
+        return h, cij, keep
+
+    def cell_centres(self, cij: np.ndarray) -> np.ndarray:
+        """World x, y (..., 2) of the centres of cells ``cij`` (..., 2)."""
+        return self.origin[:2] + self.lo + (np.asarray(cij, np.float64) + 0.5) * self.cell_m
+
 
     def ground(self, xy: np.ndarray) -> tuple:
         """(z (...,), unit normal (..., 3)) of the ground plane under world points ``xy`` (..., 2); NaN where no

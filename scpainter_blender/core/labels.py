@@ -317,15 +317,18 @@ def recorded_pixels(window, origin, rays, size, margin: float, depth, hole, asse
     o = np.asarray(origin, np.float64)[:, None, None]
     lim = (np.asarray(size, np.float64) / 2 + margin)[:, None, None]
     d = rays[:, 0, None, None] * u + rays[:, 1, None, None] * v + rays[:, 2, None, None]   # (3, h, w)
-    with np.errstate(all="ignore"):  # a ray parallel to a face: ±inf (or NaN at its very edge, which fmin/fmax skip)
+    if (d == 0).any():  # a ray parallel to a face: ±inf (NaN at its very edge, which fmin/fmax skip)
+        with np.errstate(divide="ignore", invalid="ignore"):  # (only then: entering errstate costs ~50 µs)
+            a, b = (-lim - o) / d, (lim - o) / d
+    else:
         a, b = (-lim - o) / d, (lim - o) / d
-        entry = np.fmax.reduce(np.fmin(a, b), axis=0)
-        leave = np.fmin.reduce(np.fmax(a, b), axis=0)
-        near, far = entry * (1.0 - DEPTH_NOISE), leave * (1.0 + DEPTH_NOISE)
-        hits = inside & (entry <= leave)
-        shown = ~hl
-        visible = hits & shown & ~asset & (Z >= near) & (Z <= far)
-        hidden = (hits & shown & ~asset & (Z < near)) | (inside & asset & ~(Z > far))
+    entry = np.fmax.reduce(np.fmin(a, b), axis=0)
+    leave = np.fmin.reduce(np.fmax(a, b), axis=0)
+    near, far = entry * (1.0 - DEPTH_NOISE), leave * (1.0 + DEPTH_NOISE)
+    hits = inside & (entry <= leave)
+    shown = ~hl
+    visible = hits & shown & ~asset & (Z >= near) & (Z <= far)
+    hidden = (hits & shown & ~asset & (Z < near)) | (inside & asset & ~(Z > far))
     holes = inside & hl
     empty = inside & shown & ~visible & ~hidden & (asset | ~np.isnan(Z))
     return {"visible": visible, "hidden": hidden, "empty": empty, "holes": holes}

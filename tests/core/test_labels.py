@@ -318,6 +318,22 @@ def test_extreme_recorded_boxes_and_layers():
     lab, o = _recorded(_recorded_job(), nan, hole)
     assert o["visible_pixels"] == (car & ~np.isnan(nan)).sum() and o["occlusion"] == 0
     json.dumps(lab, allow_nan=False)
+    # a row of rays parallel to the box's top and bottom faces (principal point on a pixel centre): the same
+    # pixels, no warning
+    import warnings
+
+    k2 = np.array(K)
+    k2[1, 2] = 48.5
+    d2, which = _raycast([_part(_car_box(), c, sz) for c, sz in CAR_PARTS] + [(_box(0, 40, 0, 0), [200, 0.1, 200])],
+                         k=k2)
+    proj = boxes.project_box(_car_box(), CAR_SIZE, k2, _w2c(CAMERA), W, H)
+    origin, rays = labels.ray_frames(cameras.rigid_inverse(_w2c(CAMERA) @ _car_box()), k2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        m = labels.recorded_pixels(boxes.polygon_window(proj["polygon"], W, H), origin, rays, CAR_SIZE,
+                                   labels.lateral_margin(k2, proj["depth_range"][1]), d2, np.isinf(d2),
+                                   np.zeros((H, W), bool))
+    assert m["visible"].sum() == (which < 2).sum()
     # an empty scene: every pixel a hole, nothing recorded
     lab = _labels(_job(), 0, hole=np.ones((H, W)))
     assert lab["unlabelled_fraction"] == 0.0 and lab["coverage"] == 0.0 and len(lab["objects"]) == 1

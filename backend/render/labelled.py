@@ -2,9 +2,12 @@
 for people to check the labels at a glance (docs/design.md §15).
 
 Per object not removed and in view: its projected 3D box (edges cut at the near plane, so boxes reaching behind the
-camera draw correctly), its amodal 2D box thin, its visible 2D box, and ``#track class visible%``; inserted cars in
-a colour per track, recorded objects in white. A banner gives the frame, its timestamp, its coverage and its flags
-(red when it has any). Drawn with OpenCV's primitives (antialiased lines, Hershey text).
+camera draw correctly), its visible 2D box, and ``#track class visible%``; inserted cars in a colour per track,
+recorded objects in white. Ignore regions (``core.labels.ignore_region``: objects marked ignore, and recorded
+objects whose points are missing) are greyed and hatched instead, their box and text grey, the text ending
+``ignore`` or ``no points``. A banner gives the frame, its timestamp, its coverage, the share of unlabelled pixels
+when there are any, and its flags (red when it has any). Drawn with OpenCV's primitives (antialiased lines, Hershey
+text) and numpy (the hatching).
 """
 
 from __future__ import annotations
@@ -17,6 +20,21 @@ from scpainter_blender.core.geometry import boxes
 from .. import png
 
 RECORDED_COLOUR = (255, 255, 255)
+#: Ignore regions: their boxes and text, and the hatching's lines (every ``HATCH_PERIOD`` px along a diagonal).
+IGNORE_COLOUR, HATCH_COLOUR, HATCH_PERIOD = (170, 170, 170), (60, 60, 60), 6
+
+
+def hatch(img: np.ndarray, regions: list) -> None:
+    """Grey out and hatch ``regions`` ([x0, y0, x1, y1] continuous pixel boxes) of (H, W, 3) uint8 ``img`` in place:
+    the pixels whose centres they hold, each once however many regions cover it."""
+    H, W = img.shape[:2]
+    mask = np.zeros((H, W), bool)
+    for x0, y0, x1, y1 in regions:
+        mask[max(int(np.ceil(y0 - 0.5)), 0):max(int(np.ceil(y1 - 0.5)), 0),
+             max(int(np.ceil(x0 - 0.5)), 0):max(int(np.ceil(x1 - 0.5)), 0)] = True
+    img[mask] = (img[mask] // 2 + 64).astype(np.uint8)                       # halfway to mid grey
+    lines = mask & (np.add.outer(np.arange(H), np.arange(W)) % HATCH_PERIOD == 0)
+    img[lines] = HATCH_COLOUR
 
 
 def track_colour(track_id: int) -> tuple:
@@ -73,19 +91,27 @@ def draw(rgb, labels: dict) -> np.ndarray:
     K = np.asarray(labels["camera"]["K"], np.float64)
     scale = max(0.4, min(W, H) / 600.0)   # OpenCV's font scale: ~0.4 keeps 10 px letters legible at 518 x 294
     shown = [o for o in labels["objects"] if not o["removed"] and o["in_view"]]
-    for o, T, size in zip(shown, *_box_to([o["box_camera"] for o in shown])):
+    regions = [labels_mod.ignore_region(o) for o in shown]
+    hatch(img, [r for r in regions if r is not None])
+    for o, region, T, size in zip(shown, regions, *_box_to([o["box_camera"] for o in shown])):
         colour = track_colour(o["track_id"]) if o["synthetic"] else RECORDED_COLOUR
+        if region is not None:
+            colour = IGNORE_COLOUR
         for pa, pb in _edges(boxes.corners(T, size), K):
             cv2.line(img, pa, pb, colour, 1, cv2.LINE_AA)
-        if o["bbox_visible"] is not None:
+        if o["bbox_visible"] is not None and region is None:
             x0, y0, x1, y1 = (int(round(v)) for v in o["bbox_visible"])
             cv2.rectangle(img, (x0, y0), (x1 - 1, y1 - 1), colour, 2)
         x0, y0 = (int(round(v)) for v in o["bbox_amodal"][:2])
-        vis = "" if o["visible_fraction"] is None else f" {o['visible_fraction']:.0%}"
-        _text(img, f"#{o['track_id']} {o['class']}{vis}", (max(x0, 0), y0), colour, scale)
+        if region is not None:
+            what = " no points" if o["points_missing"] else " ignore"
+        else:
+            what = "" if o["visible_fraction"] is None else f" {o['visible_fraction']:.0%}"
+        _text(img, f"#{o['track_id']} {o['class']}{what}", (max(x0, 0), y0), colour, scale)
     flags = labels["flags"]
+    unlabelled = labels["unlabelled_fraction"]
     banner = (f"frame {labels['frame']}  t={labels['timestamp_s']:.2f}s  coverage {labels['coverage']:.0%}"
-              + (f"  {', '.join(flags)}" if flags else ""))
+              + (f"  unlabelled {unlabelled:.1%}" if unlabelled else "") + (f"  {', '.join(flags)}" if flags else ""))
     _text(img, banner, (0, H), (255, 90, 90) if flags else (255, 255, 255), scale)
     return img
 

@@ -152,12 +152,15 @@ def recorded_extents(rec: dict | None, job: job_mod.Job, inputs: Inputs) -> list
 # -- the plan -----------------------------------------------------------------------------------------------------
 
 def frame_labels(path: str) -> dict:
-    """A frame's labels as render wrote them ({} when missing, unreadable or of another schema: not finished)."""
+    """A frame's labels as render wrote them ({} when missing, unreadable or of an unknown schema: not finished).
+    Labels of an older schema (``labels.OLD_SCHEMAS``) are returned too: their key never matches (it holds the
+    schema), so the plan makes them again from the frame's layers when those are current, never renders it again."""
     try:
         lab = files.read_json(path)
     except errors.InputError:
         return {}
-    return lab if isinstance(lab, dict) and lab.get("schema") == labels_mod.SCHEMA else {}
+    known = (labels_mod.SCHEMA, *labels_mod.OLD_SCHEMAS)
+    return lab if isinstance(lab, dict) and lab.get("schema") in known else {}
 
 
 @dataclass

@@ -99,22 +99,7 @@ def frame_labels(j: job_mod.Job, index: int) -> tuple:
     lab = labels.frame_labels(j, index, instance=lay["instance"], hole=lay["hole"], depth=lay["depth"],
                               amodal_pixels=lay["amodal_pixels"], asset_boxes=[(*CAR, "job")] * len(j.assets),
                               asset_hashes=["0" * 64] * len(j.assets), key="test")
-    return with_issue41_fields(j, lab), lay["instance"]
-
-
-def with_issue41_fields(j: job_mod.Job, lab: dict) -> dict:
-    """Until core.labels writes them (``scpainter.labels/2``): each object's ``ignore`` (its recorded object's),
-    ``points_missing`` (false: every point is there), ``hole_fraction`` (0: no holes here; null without visible
-    pixels) and the frame's ``unlabelled_fraction`` (the ignored objects' visible pixels over the image's), added
-    when absent. Drop this helper once core.labels gives them."""
-    ignored = {r.id for r in (j.scene.recorded_objects if j.scene is not None else []) if r.ignore}
-    for o in lab["objects"]:
-        o.setdefault("ignore", (not o["synthetic"]) and o["name"] in ignored)
-        o.setdefault("points_missing", False)
-        o.setdefault("hole_fraction", 0.0 if o["visible_pixels"] else None)
-    shown = sum(o["visible_pixels"] for o in lab["objects"] if o["ignore"] or o["points_missing"])
-    lab.setdefault("unlabelled_fraction", shown / (j.width * j.height))
-    return lab
+    return lab, lay["instance"]
 
 
 def write_png(path, seed: int = 0) -> str:

@@ -229,11 +229,11 @@ def test_coco_and_openlabel_carry_the_fields_the_labels_table_says(tmp_path):
     frames = F.export_frames(tmp_path)
     names = [fr.image for fr in frames]
     anns = coco.dataset(frames, names)["annotations"]
-    assert anns and all(list(a)[-5:] == ["track_id", "synthetic", "occlusion", "truncation", "visible_fraction"]
-                        for a in anns)
+    assert anns and all(list(a)[-6:] == ["track_id", "synthetic", "hole_fraction", "occlusion", "truncation",
+                                         "visible_fraction"] for a in anns)
     assert set(coco.EXTRA_KEYS) == set(labels.CARRIED_IDENTITY + labels.CARRIED_MEASURES)
     doc = openlabel.document(frames, names)["openlabel"]
     nums = [[n["name"] for n in o["object_data"]["num"]] for f in doc["frames"].values()
             for o in f.get("objects", {}).values()]
-    assert ["visible_fraction", "occlusion", "truncation"] in nums
+    assert ["hole_fraction", "visible_fraction", "occlusion", "truncation"] in nums
     assert {n for ns in nums for n in ns} == set(labels.CARRIED_MEASURES)

@@ -96,7 +96,7 @@ def test_camera_pose_intrinsics_and_boxes(exported):
             assert vis["val"] == pytest.approx([(x0 + x1) / 2 - 0.5, (y0 + y1) / 2 - 0.5, x1 - x0, y1 - y0])
             nums = {n["name"]: n["val"] for n in data["num"]}
             assert nums == {"visible_fraction": o["visible_fraction"], "occlusion": o["occlusion"],
-                            "truncation": o["truncation"]}
+                            "truncation": o["truncation"], "hole_fraction": o["hole_fraction"]}
 
 
 def test_intervals():

@@ -3,11 +3,12 @@
 
 import os
 
+import cv2
 import numpy as np
 import pytest
 
 from backend.render import channels
-from scpainter_blender.core import files, labels, shapes
+from scpainter_blender.core import files, labels, outputs, shapes
 from scpainter_blender.core import job as J
 from scpainter_blender.core.geometry import boxes, cameras
 from scpainter_blender.core.output_layout import OutputLayout
@@ -158,3 +159,90 @@ def test_exr_header_carries_the_camera(rendered):
     ndc = p @ header["worldToNDC"]
     u, v = (np.array(K) @ cam[:3])[:2] / cam[2]
     assert np.allclose(ndc[:2] / ndc[3], [u / W, v / H], atol=1e-6)
+
+
+def _behind_as_recorded(rendered, **extra):
+    """The "behind" car's rendered pixels taken as a recorded object's points (its instance ids cleared, so its
+    depth is a point's), in its true box, "front" still inserted: (labels, layers, box_to_world)."""
+    tmp, _, labs, layout = rendered
+    layers = channels.read(layout.condition_exr(1))
+    ids = np.rint(layers[channels.INSTANCE]).astype(int)
+    T = _placement(*CARS["behind"])
+    T[:3, 3] += T[:3, :3] @ CAR_BOX[0]
+    d = J.load(tmp / "job.json").to_dict()
+    d["assets"] = d["assets"][:1]
+    d["scene"] = {"predictions": "p.npz", "vggt_to_world": np.eye(4).tolist(), "recorded_objects": [
+        {"id": "behind", "size": CAR_BOX[1].tolist(), "boxes": {"1": T.tolist()}, **extra}]}
+    inst = np.where(ids == 1, 1, 0).astype(np.float32)
+    lab = labels.frame_labels(J.Job.from_dict(d), 0, instance=inst, hole=layers[channels.HOLE],
+                              depth=layers[channels.DEPTH], asset_hashes=["0" * 64],
+                              amodal_pixels=np.array([_by_name(labs[0])["front"]["amodal_pixels"]]),
+                              asset_boxes=[(np.eye(4), np.ones(3), "job")])
+    return lab, layers, T
+
+
+def test_a_recorded_car_of_rendered_points_is_labelled_by_its_shape(rendered):
+    """The "behind" car as a recorded object (``_behind_as_recorded``): its mask is the car's pixels (not its
+    box's), hidden where the inserted "front" car is nearer; background (no scene: holes) in its box's corners
+    would be its ``hole_fraction``."""
+    lab, layers, T = _behind_as_recorded(rendered)
+    ids, track = np.rint(layers[channels.INSTANCE]).astype(int), 2
+    o = lab["objects"][1]
+    box = boxes.polygon_mask(boxes.project_box(T, CAR_BOX[1], K, _w2c([0, 0, 1.5]), W, H)["polygon"], W, H)
+    # the Gaussians' extent beyond their means (the box's) and the screen-space blur put a ring of the car's
+    # rendered pixels up to 2 px (30 cm at 17 m) outside its box's projection, 36 of 163 here: a recording's points
+    # render one pixel each, inside it
+    car = (ids == track) & box
+    ring = (ids == track) & ~box
+    near_box = cv2.dilate(box.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+    assert car.sum() > 2 * ring.sum() and np.all(near_box[ring])
+    assert o["visible_pixels"] == car.sum() and o["bbox_visible"] == labels.pixel_box(car)
+    assert not o["points_missing"] and o["occlusion"] in (1, 2) and o["amodal_pixels"] > o["visible_pixels"]
+    assert o["amodal_pixels"] == car.sum() + (box & (ids == 1)).sum()      # hidden: where "front" wins
+    holes = (box & (layers[channels.HOLE] > 0.5)).sum()
+    assert o["hole_fraction"] == holes / (car.sum() + holes)
+
+
+def test_labels_of_the_former_schema_are_made_again_from_the_layers(rendered):
+    """A labels file of ``labels.OLD_SCHEMAS`` (a folder rendered before the schema changed) is relabelled from the
+    EXR's layers, not rendered again and not an error."""
+    tmp, _, labs, layout = rendered
+    for f in (1, 2):
+        old = files.read_json(layout.frame_labels(f))
+        for o in old["objects"]:
+            for k in ("ignore", "points_missing", "hole_fraction"):
+                del o[k]
+        del old["unlabelled_fraction"]
+        outputs.write_json(layout.frame_labels(f), {**old, "schema": labels.OLD_SCHEMAS[0], "key": "its /1 key"})
+    code, ev, err = backend("render", tmp / "job.json", "--device", "cpu")
+    assert code == 0, err
+    done = [e for e in ev if e.get("event") == "done"][0]
+    assert done["rendered"] == 0 and done["relabelled"] == 2
+    new = files.read_json(layout.frame_labels(1))
+    assert new["schema"] == labels.SCHEMA and new["unlabelled_fraction"] == 0.0
+    for name in CARS:
+        assert _by_name(new)[name]["amodal_pixels"] == _by_name(labs[0])[name]["amodal_pixels"]
+
+
+def test_the_labelled_preview_greys_and_hatches_ignore_regions(rendered):
+    from backend.render import labelled
+
+    lab, layers, _ = _behind_as_recorded(rendered, ignore=True)
+    o = lab["objects"][1]
+    x0, y0, x1, y1 = (int(v) for v in labels.ignore_region(o))
+    assert o["ignore"] and lab["unlabelled_fraction"] > 0
+    black = np.zeros((H, W, 3), np.uint8)
+    img = labelled.draw(black, lab)
+    plain = labelled.draw(black, _behind_as_recorded(rendered)[0])          # not ignored: nothing greyed
+    assert (img[y0:y1, x0:x1] != plain[y0:y1, x0:x1]).any(-1).mean() > 0.3
+    # the hatching: the pixels whose centres a region holds, greyed once however many regions cover them
+    once = np.zeros((20, 30, 3), np.uint8)
+    labelled.hatch(once, [[2.0, 3.0, 12.0, 9.0]])
+    twice = np.zeros((20, 30, 3), np.uint8)
+    labelled.hatch(twice, [[2.0, 3.0, 12.0, 9.0], [1.6, 2.6, 11.4, 8.4]])
+    assert np.array_equal(once, twice)
+    inside = np.zeros((20, 30), bool)
+    inside[3:9, 2:12] = True
+    lines = inside & (np.add.outer(np.arange(20), np.arange(30)) % labelled.HATCH_PERIOD == 0)
+    assert (once[lines] == labelled.HATCH_COLOUR).all() and (once[inside & ~lines] == 64).all()
+    assert (once[~inside] == 0).all()

@@ -95,11 +95,15 @@ def test_the_three_modes(tmp_path, capsys):
         return [e for e in ev if e["event"] == "warning"], ev[-1], labels(path)
 
     warnings, done, lab = run()
-    assert [(w["code"], w["object"]) for w in warnings] == [("unlabelled_object", "proposal_01")]
-    assert "proposal_01: a car" in warnings[0]["message"] and done["warnings"] == 1 and done["rendered"] == F
+    proposed = [w for w in warnings if w["code"] == "unlabelled_object"]
+    assert [w["object"] for w in proposed] == ["proposal_01"] and "proposal_01: a car" in proposed[0]["message"]
+    # and each frame that shows it says how much of the image is left unlabelled (core.labels.UNLABELLED_FLAG)
+    shown = [w for w in warnings if w["code"] != "unlabelled_object"]
+    assert shown and {w["code"] for w in shown} == {"unlabelled_objects"} and len(shown) + 1 == len(warnings)
+    assert done["warnings"] == len(warnings) and done["rendered"] == F
     (obj,) = recorded(lab)
-    # (the labels' own ``ignore`` field is core/labels.py's to write: the job's object carries it, tested below)
-    assert obj["class"] == "car" and obj["track_id"] and obj["visible_pixels"] > 0
+    assert obj["class"] == "car" and obj["track_id"] and obj["visible_pixels"] > 0 and obj["ignore"]
+    assert 0 < lab["unlabelled_fraction"] < 1
     # the box of BOX_LO..BOX_HI, in world (x right, y forward, z up), as the points show it
     centre = VGGT_TO_WORLD[:3, :3] @ ((BOX_LO + BOX_HI) / 2)
     assert np.allclose(obj["box_world"]["center"], centre, atol=0.05)
@@ -107,7 +111,7 @@ def test_the_three_modes(tmp_path, capsys):
     warnings, done, accepted = run("--proposals", "accept")
     assert warnings == [] and done["rendered"] == 0 and done["relabelled"] == F   # label-only: the layers kept
     (obj,) = recorded(accepted)
-    assert obj["class"] == "car" and obj["box_world"] == recorded(lab)[0]["box_world"]
+    assert obj["class"] == "car" and obj["box_world"] == recorded(lab)[0]["box_world"] and not obj["ignore"]
     assert accepted["layers_key"] == lab["layers_key"]
 
     warnings, done, off = run("--proposals", "off")

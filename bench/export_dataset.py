@@ -39,7 +39,7 @@ sys.path.insert(0, os.path.join(ROOT, "tests"))
 
 from scpainter_blender.core import job as job_mod, outputs, shapes  # noqa: E402
 from scpainter_blender.core.backend_protocol import EXPORT_FORMAT_NAMES  # noqa: E402
-from scpainter_blender.core.batch_items import read_job_list  # noqa: E402
+from scpainter_blender.core.batch_items import DATA_ROOT_DIRECTIVE, read_job_list  # noqa: E402
 from scpainter_blender.core.output_layout import VariationLayout  # noqa: E402
 from scpainter_blender.core.variation import spec as spec_mod, variants  # noqa: E402
 from scpainter_blender.street.dataset import ensure_street  # noqa: E402
@@ -71,20 +71,24 @@ def build(out: str, count: int, frames: int, W: int, H: int) -> tuple:
                                 shapes.procedural_car_gaussians(count=8000, seed=seed, paint=paint))
     base = os.path.join(out, "base", "job.json")
     street_base_job(street, base, recorded_cars=True)
-    spec = spec_mod.VariationSpec(variants=count, seed=0, library=lib, resolution=(W, H),
+    # a few more drawn than wanted: some find no place (reported by vary); the first ``count`` placed are kept
+    spec = spec_mod.VariationSpec(variants=count + count // 10 + 2, seed=0, library=lib, resolution=(W, H),
                                   shifts_m=(-2.0, 0.0, 2.0), lane_change_probability=0.2, car_count=(1, 3))
     t0 = time.perf_counter()
     variants.make_variants(base, spec, os.path.join(out, "variants"))
     t_vary = time.perf_counter() - t0
     layout = VariationLayout(os.path.join(out, "variants"))
     listed = read_job_list(layout.list)
-    for path in listed.paths:  # fewer frames: the variants' first N (the road is found under the whole drive)
+    paths = listed.paths[:count]
+    with open(layout.list, "w") as f:   # the list of the kept ones, as vary writes it: data-root: lines, then jobs
+        f.writelines([f"{DATA_ROOT_DIRECTIVE} {r}\n" for r in listed.data_roots] + [f"{p}\n" for p in paths])
+    for path in paths:  # fewer frames: the variants' first N (the road is found under the whole drive)
         job = job_mod.load(path)
         if frames < len(job.frames):
             job.frames = job.frames[:frames]
             job_mod.save(path, job)
     t_render, _ = backend("batch", "--list", layout.list, "--command", "render", "--device", "cpu")
-    return listed, t_vary, t_render
+    return read_job_list(layout.list), t_vary, t_render
 
 
 def main(argv=None) -> int:

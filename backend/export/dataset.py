@@ -55,6 +55,8 @@ FORMAT = "dataset"
 MANIFEST = "manifest.json"
 MANIFEST_SCHEMA = "scpainter.dataset-manifest/1"
 TRAIN = "train"
+#: The warning event's ``code`` of a split that got no drive (fewer drives than splits).
+EMPTY_SPLIT = "empty_split"
 #: The sub-folders of the formats.
 COCO_IMAGES, COCO_ANNOTATIONS = "images", "annotations"
 KITTI_TRAINING, KITTI_SETS = "training", "ImageSets"
@@ -356,7 +358,7 @@ def export_dataset(items: Sequence[str], formats: Sequence[str], out: str, split
     for name in split:
         if name not in drives.values():
             events.warning(f"the split {name} has no drive: {len(set(drives))} drive(s) in all, and train keeps one "
-                           "(a split by drive needs several drives)", "empty_split", split=name)
+                           "(a split by drive needs several drives)", EMPTY_SPLIT, split=name)
     instance = any(command.FORMATS[f].NEEDS_INSTANCE for f in formats)
     total = sum(len(m.job.frames) for m in jobs)
     done, rendered = 0, 0
@@ -369,9 +371,9 @@ def export_dataset(items: Sequence[str], formats: Sequence[str], out: str, split
                     raise _Stopped
                 paths = command.checked_paths(m.path, m.job, m.allow_outside, m.data_roots)
                 layout = OutputLayout(paths["output_dir"])
-                with command.rendered_job(m.path, m.job, device, paths, m.allow_outside, stop) as (result, log):
-                    rendered += result["rendered"]
-                    if result["stopped"]:
+                with command.rendered_job(m.path, m.job, device, paths, m.allow_outside, stop) as (render, log):
+                    rendered += render["rendered"]
+                    if render["stopped"]:
                         raise _Stopped
                     m.images, _ = command.image_source(layout, m.job)
                     frames = []

@@ -42,7 +42,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                    help="--command generate: the baseline's OpenCV method for every job made without a checkpoint "
                         "(default: each job's)")
     b.add_argument("--half-float", action="store_true", help=options.HALF_FLOAT_HELP + " (--command render)")
-    b.add_argument("--format", help="--command export: the formats, separated by commas (kitti, coco, openlabel)")
+    b.add_argument("--format", choices=export_cmd.FORMAT_CHOICES,
+                   help="--command export: the formats, separated by commas (kitti, coco, openlabel)")
     b.add_argument("--out", help="--command export: the dataset's folder, written whole (new, empty or a previous "
                                  "dataset)")
     export_cmd.dataset_options(b, " (--command export)")
@@ -122,7 +123,7 @@ def run(args: argparse.Namespace) -> int:
     return events.EXIT_OK if summary["ok"] == summary["jobs"] else events.EXIT_FAILED
 
 
-def _export(args: argparse.Namespace, items: list, allow_outside, data_roots: dict) -> int:
+def _export(args: argparse.Namespace, items: list, allow_outside: bool | frozenset, data_roots: dict) -> int:
     """``batch --command export``: the jobs as one dataset (``export.run_dataset``); the options that spread jobs
     over processes or machines are refused (one process writes one dataset)."""
     from scpainter_blender.core import batch_items as batch_mod

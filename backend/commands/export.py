@@ -20,6 +20,24 @@ SPLIT_HELP = ("NAME=FRACTION[,NAME=FRACTION]: the share of the base drives each 
               "val=0.1); a drive's jobs all go to one split (default: every job in train)")
 
 
+class FormatChoices(tuple):
+    """``--format``'s choices: the format names (what argparse lists and help shows), and a value is among them when
+    each of its comma-separated names is one (``coco,kitti``: a dataset in both)."""
+
+    def __contains__(self, value: object) -> bool:
+        return isinstance(value, str) and all(tuple.__contains__(self, v.strip()) for v in value.split(","))
+
+
+def _format_choices() -> FormatChoices:
+    from scpainter_blender.core.backend_protocol import EXPORT_FORMAT_NAMES
+
+    return FormatChoices(EXPORT_FORMAT_NAMES)
+
+
+#: ``export --format`` and ``batch --format``'s choices.
+FORMAT_CHOICES = _format_choices()
+
+
 def dataset_options(p: argparse.ArgumentParser, what: str) -> None:
     """``--split`` (``export`` and ``batch``): how a dataset of many jobs is split."""
     p.add_argument("--split", help=SPLIT_HELP + what)
@@ -37,7 +55,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     x.add_argument("--list", action="append", help="a text file of job paths, one per line, as batch --list reads "
                                                    "it (a vary run's variants.txt): the jobs of one dataset "
                                                    "(repeatable)")
-    x.add_argument("--format", required=True,
+    x.add_argument("--format", required=True, choices=FORMAT_CHOICES,
                    help="kitti (image_2, label_2, calib), coco (annotations.json with RLE masks) or openlabel "
                         "(ASAM OpenLABEL 1.0 JSON), or several separated by commas (a dataset): docs/design.md §15")
     x.add_argument("--out", help="destination folder, written whole (one job and format: default "
@@ -87,8 +105,8 @@ def run(args: argparse.Namespace) -> int:
     return events.EXIT_OK
 
 
-def run_dataset(items: list, formats: list, out: str | None, split: dict, device: str, allow_outside,
-                data_roots: dict, command_name: str = NAME) -> int:
+def run_dataset(items: list, formats: list, out: str | None, split: dict, device: str,
+                allow_outside: bool | frozenset, data_roots: dict, command_name: str = NAME) -> int:
     """One dataset of ``items`` (``backend.export.dataset.export_dataset``) and its ``done`` event (``command``:
     ``command_name``), or an error event when SIGTERM stopped a render (exit 1)."""
     import time

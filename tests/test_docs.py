@@ -222,7 +222,8 @@ def test_command_lists_are_the_parsers(doc, prog):
 
 def _option_claims(text, prog, commands):
     """(span, [commands], --option, [choices or None]) for every ``--option`` of every code span that starts with
-    ``prog cmd`` (or ``prog a|b|c``), the span's commands being parser commands; ``--opt a|b|c`` gives choices."""
+    ``prog cmd`` (or ``prog a|b|c``), the span's commands being parser commands; ``--opt a|b|c`` (or ``a,b,c``)
+    gives choices."""
     claims = []
     for span in _command_lines(text, prog):
         if " | " in span:
@@ -231,7 +232,9 @@ def _option_claims(text, prog, commands):
         if not all(n in commands for n in names):
             continue  # not a command (checked by the command lists)
         for opt, value in re.findall(r"(--[a-z][\w-]*)(?:[ =]([^\s\]\[]+))?", span):
-            choices = value.split("|") if value and "|" in value else None
+            # a|b|c: the choices; a,b,c: the names an option taking several separated by commas lists
+            # (export --format)
+            choices = re.split(r"[|,]", value) if value and re.search(r"[|,]", value) else None
             claims.append((span, names, opt, choices))
     return claims
 

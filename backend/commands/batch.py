@@ -12,7 +12,7 @@ import argparse
 import os
 
 from .. import events
-from . import options
+from . import export as export_cmd, options
 
 NAME = "batch"
 ORDER = 50
@@ -22,14 +22,16 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """``batch``'s parser."""
     from scpainter_blender.core.job import INPAINT_METHODS
 
-    b = sub.add_parser(NAME, help="run render or generate over many jobs; sharded under torchrun/accelerate")
+    b = sub.add_parser(NAME, help="run render or generate over many jobs; sharded under torchrun/accelerate; export: "
+                                  "one dataset of them all")
     b.add_argument("jobs", nargs="*", help="job.json files")
     b.add_argument("--list", action="append", help="a text file of job paths, one per line, relative ones taken "
                                                    "from the list file's folder (repeatable); before the first "
                                                    "path it may declare 'data-root: DIR' lines, a --data-root for "
                                                    "its own jobs")
-    b.add_argument("--command", dest="command_name", choices=["render", "generate"], default="render",
-                   help="what each job runs (default render)")
+    b.add_argument("--command", dest="command_name", choices=["render", "generate", "export"], default="render",
+                   help="what each job runs (default render); export: every job into one dataset, in this process "
+                        "(--format, --out, --split as export's)")
     options.device_option(b, "each job's device (default auto: CUDA when there is one); with --ray, the workers'")
     b.add_argument("--checkpoint", help="checkpoint for generate (default: each job's generate.checkpoint)")
     options.confinement_options(b)
@@ -40,6 +42,11 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                    help="--command generate: the baseline's OpenCV method for every job made without a checkpoint "
                         "(default: each job's)")
     b.add_argument("--half-float", action="store_true", help=options.HALF_FLOAT_HELP + " (--command render)")
+    b.add_argument("--format", choices=export_cmd.FORMAT_CHOICES,
+                   help="--command export: the formats, separated by commas (kitti, coco, openlabel)")
+    b.add_argument("--out", help="--command export: the dataset's folder, written whole (new, empty or a previous "
+                                 "dataset)")
+    export_cmd.dataset_options(b, " (--command export)")
     b.add_argument("--shard", help="K/N: run every N-th job starting at K in this process alone, reporting only "
                                    "those (default: RANK/WORLD_SIZE of torchrun / accelerate, the ranks gathering "
                                    "one summary); 0/1 runs every job here whatever the environment says")
@@ -85,6 +92,11 @@ def run(args: argparse.Namespace) -> int:
         raise ArgumentError("--half-float", "applies to --command render only",
                             hint="render the conditions with batch --command render --half-float first; generate "
                                  "keeps the precision of the conditions it finds")
+    if args.command_name == "export":  # one dataset from every job: one process writes it (export's own form)
+        return _export(args, items, allow_outside, data_roots)
+    for option, value in (("--format", args.format), ("--out", args.out), ("--split", args.split)):
+        if value is not None:
+            raise ArgumentError(option, "applies to --command export only")
     shard = batch_mod.shard_option(args.shard, args.ray)  # checked before any job
     if args.ray is not None:  # Ray schedules the jobs (backend/batch/ray_pool.py); this process is the driver
         from ..batch import ray_pool as batch_ray
@@ -109,3 +121,25 @@ def run(args: argparse.Namespace) -> int:
     if reports:  # in every ending (SIGTERM, Ctrl-C too): ok, failed, stopped and not_run apart (BATCH_SUMMARY_FIELDS)
         events.done(command=NAME, **summary, items=results)
     return events.EXIT_OK if summary["ok"] == summary["jobs"] else events.EXIT_FAILED
+
+
+def _export(args: argparse.Namespace, items: list, allow_outside: bool | frozenset, data_roots: dict) -> int:
+    """``batch --command export``: the jobs as one dataset (``export.run_dataset``); the options that spread jobs
+    over processes or machines are refused (one process writes one dataset)."""
+    from scpainter_blender.core import batch_items as batch_mod
+    from scpainter_blender.core.errors import ArgumentError
+
+    from ..export import dataset
+
+    for option, given in (("--ray", args.ray is not None), ("--shard", bool(args.shard)),
+                          ("--checkpoint", bool(args.checkpoint)), ("--half-float", args.half_float)):
+        if given:
+            raise ArgumentError(option, "not with --command export: one process writes the whole dataset")
+    if batch_mod.ranks_from_env()[1] > 1:
+        raise ArgumentError("--command", "export under torchrun/accelerate (WORLD_SIZE > 1): one process writes "
+                                         "the whole dataset", hint="run it as one process")
+    if args.format is None:
+        raise ArgumentError("--format", "--command export needs --format (e.g. coco,kitti,openlabel)")
+    return export_cmd.run_dataset(items, dataset.parse_formats(args.format), args.out,
+                                  dataset.parse_split(args.split), args.device, allow_outside, data_roots,
+                                  command_name=NAME)

@@ -1,6 +1,10 @@
 """``python -m backend export``: a job's labels as a training dataset (KITTI, COCO or OpenLABEL), rendering missing
 frames first; images: the generated frames, else the condition previews (``backend/export/command.py``;
 docs/design.md §15). The formats: ``core.backend_protocol.EXPORT_FORMATS``.
+
+Two forms: one job and one format (``export JOB --format coco [--out DIR]``), or one dataset from many jobs in
+several formats (``export --list variants.txt --format coco,kitti,openlabel --out DATASET [--split val=0.1]``:
+``backend/export/dataset.py``), which ``batch --command export`` runs too (``run_dataset``).
 """
 
 from __future__ import annotations
@@ -12,22 +16,53 @@ from . import options
 
 NAME = "export"
 ORDER = 40
+SPLIT_HELP = ("NAME=FRACTION[,NAME=FRACTION]: the share of the base drives each split gets, the rest train's (e.g. "
+              "val=0.1); a drive's jobs all go to one split (default: every job in train)")
+
+
+class FormatChoices(tuple):
+    """``--format``'s choices: the format names (what argparse lists and help shows), and a value is among them when
+    each of its comma-separated names is one (``coco,kitti``: a dataset in both)."""
+
+    def __contains__(self, value: object) -> bool:
+        return isinstance(value, str) and all(tuple.__contains__(self, v.strip()) for v in value.split(","))
+
+
+def _format_choices() -> FormatChoices:
+    from scpainter_blender.core.backend_protocol import EXPORT_FORMAT_NAMES
+
+    return FormatChoices(EXPORT_FORMAT_NAMES)
+
+
+#: ``export --format`` and ``batch --format``'s choices.
+FORMAT_CHOICES = _format_choices()
+
+
+def dataset_options(p: argparse.ArgumentParser, what: str) -> None:
+    """``--split`` (``export`` and ``batch``): how a dataset of many jobs is split."""
+    p.add_argument("--split", help=SPLIT_HELP + what)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """``export``'s parser."""
-    from scpainter_blender.core.backend_protocol import EXPORT_FORMAT_NAMES, export_format_labels
+    from scpainter_blender.core.backend_protocol import export_format_labels
 
     x = sub.add_parser(NAME, help=f"a job's labels as a training dataset ({export_format_labels()}), rendering "
                                   "missing frames first; images: the generated frames, else the condition "
-                                  "previews")
-    x.add_argument("job", help="job.json (the job contract: docs/design.md)")
-    x.add_argument("--format", required=True, choices=EXPORT_FORMAT_NAMES,
-                   help="kitti (image_2, label_2, calib), coco (annotations.json with RLE masks), openlabel "
-                        "(ASAM OpenLABEL 1.0 JSON) or kitti-tracking (image_02, label_02 with track ids, calib, "
-                        "pose): docs/design.md §15")
-    x.add_argument("--out", help="destination folder, written whole (default: <output_dir>/export/<format>); an "
-                                 "existing one must be empty or a previous export")
+                                  "previews; several jobs (--list) and formats: one dataset")
+    x.add_argument("jobs", nargs="*", metavar="job", help="job.json (the job contract: docs/design.md); several, "
+                                                          "or --list: one dataset of them all")
+    x.add_argument("--list", action="append", help="a text file of job paths, one per line, as batch --list reads "
+                                                   "it (a vary run's variants.txt): the jobs of one dataset "
+                                                   "(repeatable)")
+    x.add_argument("--format", required=True, choices=FORMAT_CHOICES,
+                   help="kitti (image_2, label_2, calib), coco (annotations.json with uncompressed RLE masks), "
+                        "openlabel (ASAM OpenLABEL 1.0 JSON) or kitti-tracking (image_02, label_02 with track ids, "
+                        "calib, pose), or several separated by commas (a dataset): docs/design.md §15")
+    x.add_argument("--out", help="destination folder, written whole (one job and format: default "
+                                 "<output_dir>/export/<format>; a dataset: required, one folder per format in it); "
+                                 "an existing one must be empty or a previous export of the same kind")
+    dataset_options(x, " (a dataset)")
     options.device_option(x, "for rendering missing frames; " + options.DEVICE_HELP)
     options.confinement_options(x)
     options.proposals_option(x)
@@ -36,29 +71,68 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Export the job; a ``done`` event, else an error event when SIGTERM stopped the rendering (exit 1)."""
+    """Export the job, or the jobs as one dataset; a ``done`` event, else an error event when SIGTERM stopped the
+    rendering (exit 1)."""
     import time
 
+    from scpainter_blender.core import batch_items
     from scpainter_blender.core import job as job_mod
     from scpainter_blender.core import outputs
+    from scpainter_blender.core.errors import ArgumentError
 
-    from ..export import command
+    from ..export import command, dataset
     from ..render import proposals
 
     roots = outputs.data_roots_option(args.data_root)
     if args.out is not None and not args.out.strip():
-        from scpainter_blender.core.errors import ArgumentError
-
         raise ArgumentError("--out", "is empty", hint="give a folder, or leave --out out for export/<format>/")
-    job = job_mod.load(args.job)
+    formats = dataset.parse_formats(args.format)
+    split = dataset.parse_split(args.split)
+    listed = [batch_items.read_job_list(f) for f in args.list or []]
+    if args.list or len(args.jobs) != 1 or len(formats) > 1 or args.split is not None:
+        from ..batch import command as batch
+
+        items = list(args.jobs) + [p for jobs in listed for p in jobs.paths]
+        return run_dataset(items, formats, args.out, split, args.device, args.allow_outside,
+                           batch.job_data_roots(args.jobs, listed, roots), proposals=args.proposals)
+    job = job_mod.load(args.jobs[0])
     device = options.resolve_device(args.device)
     t0 = time.perf_counter()
-    job, _ = proposals.apply(args.job, job, args.proposals, args.allow_outside, roots)
+    job, _ = proposals.apply(args.jobs[0], job, args.proposals, args.allow_outside, roots)
     with events.stop_on_sigterm() as stop:
-        result = command.export_job(args.job, job, args.format, args.out, device, args.allow_outside, stop, roots)
+        result = command.export_job(args.jobs[0], job, formats[0], args.out, device, args.allow_outside, stop, roots)
     if result.pop("stopped"):
         events.error("stopped by SIGTERM while rendering the missing frames: nothing exported",
                      hint="finished frames are kept: run the same command again to resume")
         return events.EXIT_FAILED
     events.done(command=NAME, device=device, seconds=time.perf_counter() - t0, **result)
+    return events.EXIT_OK
+
+
+def run_dataset(items: list, formats: list, out: str | None, split: dict, device: str,
+                allow_outside: bool | frozenset, data_roots: dict, command_name: str = NAME,
+                proposals: str | None = None) -> int:
+    """One dataset of ``items`` (``backend.export.dataset.export_dataset``) and its ``done`` event (``command``:
+    ``command_name``), or an error event when SIGTERM stopped a render (exit 1)."""
+    import time
+
+    from scpainter_blender.core.errors import ArgumentError
+
+    from ..export import dataset
+
+    if not items:
+        raise ArgumentError("jobs", "no jobs given", hint="give job.json paths, or --list FILE")
+    if not out:
+        raise ArgumentError("--out", "a dataset (several jobs or formats, --list, --split) needs --out DATASET",
+                            hint="name a new folder: one folder per format is written in it")
+    device = options.resolve_device(device)
+    t0 = time.perf_counter()
+    with events.stop_on_sigterm() as stop:
+        result = dataset.export_dataset(items, formats, out, split, device, allow_outside, stop, data_roots,
+                                        proposals=proposals)
+    if result.pop("stopped"):
+        events.error("stopped by SIGTERM while rendering the missing frames: nothing exported",
+                     hint="finished frames are kept: run the same command again to resume")
+        return events.EXIT_FAILED
+    events.done(command=command_name, device=device, seconds=time.perf_counter() - t0, **result)
     return events.EXIT_OK

@@ -16,7 +16,9 @@ an export is refused (``--out``), never overwritten.
 
 from __future__ import annotations
 
+import contextlib
 import os
+from collections.abc import Iterator
 
 from scpainter_blender.core import errors, files, job_inputs, labels, locking, outputs
 from scpainter_blender.core import job as job_mod
@@ -106,7 +108,10 @@ def image_source(layout: OutputLayout, job: job_mod.Job) -> tuple[str, str]:
     return "generated", ""
 
 
-def _frame(layout: OutputLayout, frame: int, images: str, instance: bool) -> common.ExportFrame:
+def read_frame(layout: OutputLayout, frame: int, images: str, instance: bool) -> common.ExportFrame:
+    """Output frame ``frame`` of ``layout`` as the writers take it: its labels (``read_labels``), its image (the
+    generated frame when ``images`` is "generated", else the condition preview) and, with ``instance``, its
+    instance layer."""
     from ..render import channels
 
     lab = read_labels(layout.frame_labels(frame), frame)
@@ -123,24 +128,41 @@ def export_job(job_path: str, job: job_mod.Job, fmt: str, out: str | None = None
     ``stopped`` (SIGTERM during the render: nothing exported). The job's paths are confined to its folder and
     ``data_roots`` unless ``allow_outside`` (``job_inputs.check_inputs``)."""
     check_format(fmt)
+    paths = checked_paths(job_path, job, allow_outside, data_roots)
+    layout = OutputLayout(paths["output_dir"])
+    dest = os.path.abspath(out) if out else layout.export(fmt)
+    check_destination(dest, layout.root, given=bool(out), fmt=fmt)
+    with rendered_job(job_path, job, device, paths, allow_outside, stop) as (rendered, log):
+        result = {"format": fmt, "out": dest, "output_dir": layout.root, "rendered": rendered["rendered"]}
+        if rendered["stopped"]:
+            return {**result, "stopped": True}
+        return {**result, **write_export(job_path, job, layout, fmt, dest, log), "stopped": False}
+
+
+def checked_paths(job_path: str, job: job_mod.Job, allow_outside: bool = False, data_roots=()) -> dict:
+    """The job's paths (``job_inputs.check_inputs``: its inputs confined to its folder and ``data_roots`` unless
+    ``allow_outside``), its output folder checked and made (``paths["output_dir"]``, absolute)."""
     paths = job_inputs.check_inputs(job_path, job, allow_outside, data_roots)
     outputs.check_output(paths["output_dir"], allow_outside)
-    output_dir = outputs.make_folder(paths["output_dir"], "output_dir")
-    layout = OutputLayout(output_dir)
-    dest = os.path.abspath(out) if out else layout.export(fmt)
-    check_destination(dest, output_dir, given=bool(out), fmt=fmt)
+    return {**paths, "output_dir": outputs.make_folder(paths["output_dir"], "output_dir")}
+
+
+@contextlib.contextmanager
+def rendered_job(job_path: str, job: job_mod.Job, device: str, paths: dict, allow_outside: bool = False,
+                 stop=()) -> Iterator[tuple]:
+    """``with rendered_job(...) as (rendered, log):`` the job's output folder (``paths``: ``checked_paths``)
+    locked for an export (``locking.OutputLock``; busy: ``FolderBusyError``), what is missing rendered
+    (``render_job``, which resumes: after ``render`` or ``generate`` it renders nothing; ``rendered["stopped"]``
+    after SIGTERM), the folder's log open; the lock held until the block ends, while the frames are read."""
+    output_dir = paths["output_dir"]
     with locking.OutputLock(output_dir, "export", busy=FolderBusyError) as held, events.log_scope():
-        log = events.FileLog(layout.log)
+        log = events.FileLog(OutputLayout(output_dir).log)
         if held.stale:
             log(f"export: {held.took_over()}")
         from ..render import command as render_cmd
 
-        rendered = render_cmd.render_job(job_path, job, device, stop=stop, log=log, allow_outside=allow_outside,
-                                         lock=False, checked=paths)
-        result = {"format": fmt, "out": dest, "output_dir": output_dir, "rendered": rendered["rendered"]}
-        if rendered["stopped"]:
-            return {**result, "stopped": True}
-        return {**result, **write_export(job_path, job, layout, fmt, dest, log), "stopped": False}
+        yield render_cmd.render_job(job_path, job, device, stop=stop, log=log, allow_outside=allow_outside,
+                                    lock=False, checked=paths), log
 
 
 def write_export(job_path: str, job: job_mod.Job, layout: OutputLayout, fmt: str, dest: str, log=None) -> dict:
@@ -151,7 +173,7 @@ def write_export(job_path: str, job: job_mod.Job, layout: OutputLayout, fmt: str
     if images == "conditions":
         events.warning(f"exporting the condition previews as images: {why} (run generate first for the "
                        "generated video's frames)", NO_GENERATED)
-    frames = [_frame(layout, e.frame, images, fmt in NEEDS_INSTANCE) for e in job.frames]
+    frames = [read_frame(layout, e.frame, images, fmt in NEEDS_INSTANCE) for e in job.frames]
     total = len(frames)
     outputs.make_folder(os.path.dirname(dest), "(folder)")
     # check_destination said what may be replaced (nothing, an empty folder, a previous export)

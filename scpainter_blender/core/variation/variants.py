@@ -6,7 +6,8 @@ with ``numpy.random.default_rng([seed, i])`` alone (so variant i is the same wha
 1. the camera: the base path shifted left by a drawn shift, plus a lane change (a smoothstep shift) when drawn;
 2. the cars: a count, then per car an asset, a scale and a hue, parked or moving, and up to ``tries`` placements,
    each checked against the rules of ``placement`` (the first that passes is kept);
-3. the job: the base job with the new frames and the cars added (labelled: class and box), or, when a car found
+3. the job: the base job with the new frames and the cars added (labelled: class and box; named ``car_names``,
+   never a name of the base's own cars, which every variant keeps with their class and box), or, when a car found
    no place, no job and the reasons in the manifest.
 
 Nothing is dropped silently: every variant is in the manifest with its outcome; the list names the placed ones.
@@ -77,6 +78,21 @@ def _car(box_to_world: list, size, frames, moving: bool) -> placement.Car | None
                              False)
     return placement.Car(size, dict(zip(frames, box_to_world)),
                          {f: placement.box_footprint(T, size) for f, T in zip(frames, box_to_world)}, True)
+
+
+#: A variant's cars are called CAR_NAME.format(n) for n = 1, 2, … (the names the base's own assets hold skipped).
+CAR_NAME = "car_{:02d}"
+
+
+def car_names(count: int, taken: list) -> list:
+    """The names of a variant's ``count`` cars: ``CAR_NAME`` numbered from 1, skipping the ``taken`` names (the
+    base job's assets, which every variant keeps: a job's asset names are unique, ``job.load``)."""
+    taken, out, n = set(taken), [], 0
+    while len(out) < count:
+        n += 1
+        if CAR_NAME.format(n) not in taken:
+            out.append(CAR_NAME.format(n))
+    return out
 
 
 def smoothstep(x: np.ndarray | float) -> np.ndarray:
@@ -250,6 +266,7 @@ class Variation:
                                 self.ego_rects(w2c, grow=s.ego_margin_m), self.fixed,
                                 s.gap_m, headway_frames=round(s.headway_s * self.base.frame_rate()[0]))
         count = int(rng.integers(s.car_count[0], s.car_count[1] + 1))
+        names = car_names(count, [a.name for a in self.base.assets])
         placed = []
         for j in range(count):
             asset = self.library[int(rng.integers(len(self.library)))]
@@ -257,7 +274,7 @@ class Variation:
             if car is None:
                 entry.update(outcome="unplaced", job=None, unplaced=dict(details, car=j + 1, what="car"))
                 return None, entry
-            details["name"] = car.details["name"] = f"car_{j + 1:02d}"
+            details["name"] = car.details["name"] = names[j]
             rules.placed.append(car)
             placed.append((asset, car))
             entry["cars"].append(details)

@@ -323,3 +323,38 @@ def test_the_base_jobs_own_cars_are_obstacles(bases, library, tmp_path):
                 for f in v.frames:
                     T, size = boxes.place_box(a.box.box_to_file, a.box.size, a.object_to_world[f.frame])
                     assert not placement.rectangles_overlap(placement.box_footprint(T, size), foot), e["id"]
+
+
+def test_variant_cars_never_take_a_name_of_the_bases_cars(bases, library, tmp_path):
+    """The base's own cars (here ``car_01`` and ``car_03``, labelled: class and box) are kept in every variant as
+    they are, and the drawn cars take the free names: the variant jobs load (asset names are unique in a job)."""
+    from scpainter_blender.core.splats import gaussians as splats, inria
+
+    job = J.load(bases[0])
+    g = shapes.procedural_car_gaussians(count=3000, seed=2)
+    inria.write_ply(tmp_path / "base_car.ply", splats.encode(g))
+    box = J.AssetBox(np.eye(4), np.array([1.8, 4.4, 1.6]))
+    at = [np.eye(4), np.eye(4)]
+    at[0][:3, 3], at[1][:3, 3] = [5.5, 30.0, 0.8], [-5.5, 40.0, 0.8]   # parked at the kerbs, out of the way
+    job.assets = [J.Asset(name, str(tmp_path / "base_car.ply"), {f.frame: T for f in job.frames}, "car", box)
+                  for name, T in zip(("car_01", "car_03"), at)]
+    J.save(tmp_path / "b" / "job.json", job)
+    m = variants.make_variants(str(tmp_path / "b" / "job.json"), spec(library, variants=3, car_count=(2, 2)),
+                               str(tmp_path / "o"))
+    placed = [e for e in m["variants"] if e["job"]]
+    assert placed
+    for e in placed:
+        v = J.load(tmp_path / "o" / e["job"])                      # validates: no name twice
+        assert [c["name"] for c in e["cars"]] == ["car_02", "car_04"]
+        assert [a.name for a in v.assets] == ["car_01", "car_03", "car_02", "car_04"]
+        for mine, theirs in zip(v.assets[:2], job.assets):        # the base's cars, labelled as in the base
+            assert mine.category == theirs.category == "car"
+            assert np.array_equal(mine.box.box_to_file, theirs.box.box_to_file)
+            assert np.array_equal(mine.box.size, theirs.box.size)
+            assert all(np.array_equal(mine.object_to_world[f], theirs.object_to_world[f]) for f in mine.object_to_world)
+
+
+def test_car_names_skip_the_taken_ones():
+    assert variants.car_names(3, []) == ["car_01", "car_02", "car_03"]
+    assert variants.car_names(3, ["car_01", "car_03", "truck"]) == ["car_02", "car_04", "car_05"]
+    assert variants.car_names(0, ["car_01"]) == []

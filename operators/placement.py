@@ -214,8 +214,13 @@ class SCPAINTER_OT_propose_boxes(bpy.types.Operator):
 
 
 def _named_proposal(op, context):
+    """The proposal the operator names (its ``name``, else the active object); None, reported as an error, when
+    that is no box proposal."""
     obj = bpy.data.objects.get(op.name) if op.name else context.active_object
-    return obj if kinds.is_kind(obj, kinds.PROPOSAL) else None
+    if kinds.is_kind(obj, kinds.PROPOSAL):
+        return obj
+    op.report({"ERROR"}, f"no box proposal named {op.name or '(the active object)'!r}")
+    return None
 
 
 class SCPAINTER_OT_review_proposal(bpy.types.Operator):
@@ -236,7 +241,6 @@ class SCPAINTER_OT_review_proposal(bpy.types.Operator):
     def execute(self, context):
         obj = _named_proposal(self, context)
         if obj is None:
-            self.report({"ERROR"}, f"no box proposal named {self.name or '(the active object)'!r}")
             return {"CANCELLED"}
         if self.action == "reject":
             proposals.reject(obj)
@@ -259,7 +263,6 @@ class SCPAINTER_OT_relabel_proposal(bpy.types.Operator):
     def execute(self, context):
         obj = _named_proposal(self, context)
         if obj is None:
-            self.report({"ERROR"}, f"no box proposal named {self.name or '(the active object)'!r}")
             return {"CANCELLED"}
         proposals.relabel(obj, self.category)
         return {"FINISHED"}

@@ -101,12 +101,7 @@ def run(args: argparse.Namespace) -> int:
     job, _ = proposals.apply(args.jobs[0], job, args.proposals, args.allow_outside, roots)
     with events.stop_on_sigterm() as stop:
         result = command.export_job(args.jobs[0], job, formats[0], args.out, device, args.allow_outside, stop, roots)
-    if result.pop("stopped"):
-        events.error("stopped by SIGTERM while rendering the missing frames: nothing exported",
-                     hint="finished frames are kept: run the same command again to resume")
-        return events.EXIT_FAILED
-    events.done(command=NAME, device=device, seconds=time.perf_counter() - t0, **result)
-    return events.EXIT_OK
+    return _finished(result, NAME, device, time.perf_counter() - t0)
 
 
 def run_dataset(items: list, formats: list, out: str | None, split: dict, device: str,
@@ -130,9 +125,15 @@ def run_dataset(items: list, formats: list, out: str | None, split: dict, device
     with events.stop_on_sigterm() as stop:
         result = dataset.export_dataset(items, formats, out, split, device, allow_outside, stop, data_roots,
                                         proposals=proposals)
+    return _finished(result, command_name, device, time.perf_counter() - t0)
+
+
+def _finished(result: dict, command_name: str, device: str, seconds: float) -> int:
+    """The end of an export (one job's or a dataset's): an error event when SIGTERM stopped the rendering of the
+    missing frames (exit 1), else the ``done`` event with ``result``."""
     if result.pop("stopped"):
         events.error("stopped by SIGTERM while rendering the missing frames: nothing exported",
                      hint="finished frames are kept: run the same command again to resume")
         return events.EXIT_FAILED
-    events.done(command=command_name, device=device, seconds=time.perf_counter() - t0, **result)
+    events.done(command=command_name, device=device, seconds=seconds, **result)
     return events.EXIT_OK

@@ -215,7 +215,7 @@ class _Writer:
         self.root, self.formats, self.splits = root, formats, splits
         self.next_index = 0
         self.rows: list = []
-        self.counts = {f: {s: {"frames": 0, "objects": 0} for s in splits} for f in formats}
+        self.counts = {f: {s: {"frames": 0, "objects": 0, "ignore_regions": 0} for s in splits} for f in formats}
         self.coco = {s: {"images": [], "annotations": []} for s in splits}
         self.coco_info = None
         self.annotations = 0   # COCO annotation ids so far: unique over the dataset, from 1
@@ -232,9 +232,11 @@ class _Writer:
         first = self.next_index
         names = [common.index_name(first + i, "") for i in range(len(frames))]
         for fmt in self.formats:
-            n_objects = getattr(self, "_" + fmt.replace("-", "_"))(m, frames, names)
-            self.counts[fmt][m.split]["frames"] += len(frames)
-            self.counts[fmt][m.split]["objects"] += n_objects
+            written = getattr(self, "_" + fmt.replace("-", "_"))(m, frames, names)
+            counts = self.counts[fmt][m.split]
+            counts["frames"] += len(frames)
+            counts["objects"] += written["objects"]   # as each format's own export counts them
+            counts["ignore_regions"] += written["ignore_regions"]
         job_fields = _variant_fields(m)
         for name, fr in zip(names, frames):
             lab = fr.labels
@@ -265,7 +267,8 @@ class _Writer:
             self.annotations += 1
             split["annotations"].append({**ann, "id": self.annotations, "image_id": image_id[ann["image_id"]],
                                          "category_id": categories.category_id(name)})
-        return len(data["annotations"])
+        crowd = sum(ann["iscrowd"] for ann in data["annotations"])
+        return {"objects": len(data["annotations"]) - crowd, "ignore_regions": crowd}
 
     def _kitti(self, m: Member, frames: list, names: list) -> int:
         """The KITTI writer's files of this job (written into a scratch folder) moved under ``training/`` with
@@ -293,7 +296,7 @@ class _Writer:
                 os.rename(os.path.join(src, name), os.path.join(dest, local[stem] + ext))
         shutil.rmtree(scratch)
         self.kitti_sets[m.split] += names
-        return counts["objects"]
+        return counts
 
     def _openlabel(self, m: Member, frames: list, names: list) -> int:
         folder = os.path.join(self.root, "openlabel")
@@ -307,7 +310,7 @@ class _Writer:
         with open(os.path.join(folder, doc_name), "w", encoding="utf-8") as f:
             json.dump(doc, f, allow_nan=False)
         self.openlabel_sets[m.split].append(doc_name)
-        return sum(len(f.get("objects", {})) for f in doc["openlabel"]["frames"].values())
+        return openlabel.counts(doc)
 
     def _kitti_tracking(self, m: Member, frames: list, names: list) -> int:
         """The job as one KITTI tracking sequence (``m.sequence``, four digits): the tracking writer's sequence
@@ -328,7 +331,7 @@ class _Writer:
                 self.tracking_frames.append({**row, "sequence": seq, "image": name + ".png"})
         shutil.rmtree(scratch)
         self.tracking_sets[m.split].append(seq)
-        return counts["objects"]
+        return counts
 
     def finish(self) -> None:
         """What is written once every job is in: COCO's annotation files, KITTI's index lists and frames index,
@@ -362,11 +365,23 @@ def _write_lines(path: str, lines: list) -> None:
         f.writelines(f"{line}\n" for line in lines)
 
 
-def check_out(out: str, jobs: list) -> None:
-    """``--out`` may be new, empty or a previous dataset of this command; never other content (a single-job
-    export included) or a folder holding a job's output folder (``command.check_destination``, for every job)."""
+def check_out(out: str, jobs: list, formats: list) -> None:
+    """``--out`` may be new, empty or a previous dataset of this command in the same ``formats``; never other
+    content (a single-job export included), a dataset of other formats (replacing it would silently delete those)
+    or a folder holding a job's output folder (``command.check_destination``, for every job)."""
     for m in jobs:
         command.check_destination(out, job_mod.resolve(m.path, m.job.output_dir), given=True, fmt=FORMAT)
+    record = os.path.join(out, OutputLayout.EXPORT_RECORD)
+    if os.path.isfile(record):
+        try:
+            previous = files.read_json(record).get("formats")
+        except (errors.InputError, AttributeError):
+            previous = None
+        if not isinstance(previous, list) or sorted(map(str, previous)) != sorted(formats):
+            was = ",".join(map(str, previous)) if isinstance(previous, list) else "unknown formats"
+            raise errors.ArgumentError(
+                "--out", f"{out} holds a dataset of {was}, not {','.join(formats)}: replacing it would delete the "
+                "formats this export does not write", hint=f"give a new folder, or --format {was}")
 
 
 def export_dataset(items: Sequence[str], formats: Sequence[str], out: str, split: dict | None = None,
@@ -388,7 +403,7 @@ def export_dataset(items: Sequence[str], formats: Sequence[str], out: str, split
     for m in jobs:  # what nothing labels, as a single export adds it (label-only: the layers are kept)
         m.job, _ = render_proposals.apply(m.path, m.job, proposals or proposals_core.DEFAULT_MODE, m.allow_outside,
                                           m.data_roots)
-    check_out(out, jobs)
+    check_out(out, jobs, formats)
     drives = assign_splits([m.drive for m in jobs], split)
     for m in jobs:
         m.split = drives[m.drive]

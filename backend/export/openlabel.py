@@ -183,7 +183,13 @@ def write(folder: str, frames: list, progress: Callable[[int], None] | None = No
     doc = document(frames, names, name)
     with open(os.path.join(folder, FILE), "w", encoding="utf-8") as f:
         json.dump(doc, f, allow_nan=False)
+    return {"frames": len(frames), **counts(doc)}
+
+
+def counts(doc: dict) -> dict:
+    """{"objects", "ignore_regions"} of a ``document``: its per-frame entries of labelled objects, of ignore
+    regions (objects of type ``ignore``)."""
     kinds = doc["openlabel"].get("objects", {})
     entries = [kinds[key]["type"] for f in doc["openlabel"]["frames"].values() for key in f.get("objects", {})]
     regions = entries.count(categories.IGNORE)
-    return {"frames": len(frames), "objects": len(entries) - regions, "ignore_regions": regions}
+    return {"objects": len(entries) - regions, "ignore_regions": regions}

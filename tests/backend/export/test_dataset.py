@@ -92,7 +92,9 @@ def test_one_dataset_of_every_format_split_by_drive(exported):
         assert [c["id"] for c in api.loadCats(api.getCatIds())] == [c.id for c in categories.CATEGORIES]
         for ann in api.loadAnns(api.getAnnIds()):
             assert api.annToMask(ann).sum() > 0 and ann["category_id"] == categories.category_id("car")
-        assert done["counts"]["coco"][split] == {"frames": len(imgs), "objects": len(api.getAnnIds())}
+        crowd = len(api.getAnnIds(iscrowd=True))
+        assert done["counts"]["coco"][split] == {"frames": len(imgs), "objects": len(api.getAnnIds()) - crowd,
+                                                 "ignore_regions": crowd}
         image_ids += api.getImgIds()
         ann_ids += api.getAnnIds()
     assert sorted(image_ids) == list(range(1, 7)) and len(set(ann_ids)) == len(ann_ids)
@@ -149,9 +151,10 @@ def test_batch_export_writes_the_same_dataset_and_replaces_its_own(exported, cap
     assert done["command"] == "batch" and done["rendered"] == 0 and done["frames"] == 6
     for rel in ("manifest.json", "coco/annotations/instances_val.json", "kitti/ImageSets/val.txt"):
         assert (again / rel).read_bytes() == (out / rel).read_bytes()
-    # a previous dataset is replaced (here by kitti alone, one split)
-    assert main(["export", "--list", str(lists[0]), "--format", "kitti", "--out", str(again)]) == 0
-    assert sorted(os.listdir(again)) == ["export.json", "kitti", "manifest.json"]
+    # a previous dataset of the same formats is replaced (here by one run's jobs, one split)
+    assert main(["export", "--list", str(lists[0]), "--format", FORMATS, "--out", str(again)]) == 0
+    assert json.loads((again / "export.json").read_text())["jobs"] == 2
+    assert sorted(os.listdir(again)) == sorted(["export.json", "manifest.json", *FORMATS.split(",")])
 
 
 def test_a_folder_with_other_content_or_another_export_is_refused(exported, tmp_path):
@@ -168,6 +171,12 @@ def test_a_folder_with_other_content_or_another_export_is_refused(exported, tmp_
             dataset.export_dataset(jobs, ["kitti"], str(folder), data_roots={jobs[0]: (str(root / "a"),)})
         assert e.value.field == "--out"
     assert (mine / "thesis.tex").read_text() == "keep me" and os.listdir(single) == [OutputLayout.EXPORT_RECORD]
+    # a dataset of other formats is not replaced by one of fewer: that would delete the formats left out
+    _, _, out, _ = exported
+    made = sorted(os.listdir(out))
+    with pytest.raises(errors.ArgumentError, match="holds a dataset of coco,kitti,openlabel,kitti-tracking") as e:
+        dataset.export_dataset(jobs, ["coco"], str(out), data_roots={jobs[0]: (str(root / "a"),)})
+    assert e.value.field == "--out" and sorted(os.listdir(out)) == made
 
 
 def test_a_failed_export_leaves_nothing_and_keeps_the_previous_dataset(exported, tmp_path, monkeypatch):

@@ -206,6 +206,32 @@ def test_a_failed_export_leaves_nothing_and_keeps_the_previous_dataset(exported,
     assert sorted(os.listdir(tmp_path)) == ["d"]                                     # a new one: nothing at all
 
 
+def test_a_run_of_twenty_variants_of_four_drives_is_one_dataset_split_by_drive(tmp_path):
+    """Issue 41's done-when: 20 variants (four base drives, five variants each) rendered and exported in one call
+    as one COCO + KITTI dataset with ``--split val=0.25``: one drive's five variants in val, the others' in train,
+    every image once with its own id, each split loaded by pycocotools."""
+    from pycocotools.coco import COCO
+
+    lists = [_run(tmp_path / f"drive_{d}", [0.3 * k - 0.6 for k in range(5)]) for d in range(4)]
+    jobs = [os.path.join(os.path.dirname(lst), line.strip()) for lst in lists
+            for line in open(lst) if line.strip() and not line.startswith(DATA_ROOT_DIRECTIVE)]
+    roots = {j: (os.path.dirname(os.path.dirname(j)),) for j in jobs}
+    out = tmp_path / "dataset"
+    done = dataset.export_dataset(jobs, ["coco", "kitti"], str(out), {"val": 0.25}, data_roots=roots)
+    assert done["jobs"] == 20 and done["frames"] == 40 and done["rendered"] == 40
+    assert done["splits"]["val"] == {"drives": 1, "jobs": 5, "frames": 10}
+    assert done["splits"]["train"] == {"drives": 3, "jobs": 15, "frames": 30}
+    manifest = json.loads((out / dataset.MANIFEST).read_text())["images"]
+    by_split = {s: {r["drive"] for r in manifest if r["split"] == s} for s in ("train", "val")}
+    assert len(by_split["val"]) == 1 and len(by_split["train"]) == 3 and not by_split["val"] & by_split["train"]
+    ids = []
+    for split in ("train", "val"):
+        api = COCO(str(out / "coco" / "annotations" / f"instances_{split}.json"))
+        ids += api.getImgIds()
+        assert all(api.annToMask(a).sum() > 0 for a in api.loadAnns(api.getAnnIds()))
+    assert sorted(ids) == list(range(1, 41))
+
+
 def test_splits_are_by_drive_deterministic_and_leave_train_a_drive():
     drives = [f"/data/drive_{i}" for i in range(20)]
     a = dataset.assign_splits(drives, {"val": 0.1})

@@ -79,11 +79,7 @@ def mask_bbox(mask) -> list:
 
 
 #: The extra keys of an annotation: the labels' carried identity, then their carried measures by name.
-EXTRA_KEYS = labels.CARRIED_IDENTITY + tuple(sorted(labels.CARRIED_MEASURES))
-
-
-def _extra(obj: dict) -> dict:
-    return {k: obj[k] for k in EXTRA_KEYS}
+EXTRA_KEYS = common.CARRIED_KEYS
 
 
 def _mask(o: dict, ids, width: int, height: int):
@@ -123,7 +119,7 @@ def dataset(frames: list, file_names: list) -> dict:
                 continue
             annotations.append({"id": len(annotations) + 1, "image_id": i + 1, "category_id": category.id,
                                 "iscrowd": int(region is not None), "segmentation": rle(mask),
-                                "area": float(mask.sum()), "bbox": mask_bbox(mask), **_extra(o)})
+                                "area": float(mask.sum()), "bbox": mask_bbox(mask), **common.carried(o)})
     return {"info": {"description": "SCPainter export (COCO instances)", "version": "2.0"},
             "images": images, "annotations": annotations, "categories": categories_table()}
 

@@ -60,6 +60,16 @@ def exported(obj: dict, hidden: bool = False) -> bool:
     return obj["in_view"] if hidden else obj["visible_pixels"] > 0
 
 
+#: An object's fields every export carries beside its format's own (``core.labels``: which object, then its
+#: measures by name): COCO's extra annotation keys, KITTI's per-line entries of ``frames.json``.
+CARRIED_KEYS = labels.CARRIED_IDENTITY + tuple(sorted(labels.CARRIED_MEASURES))
+
+
+def carried(obj: dict) -> dict:
+    """``CARRIED_KEYS`` of an object of the labels."""
+    return {k: obj[k] for k in CARRIED_KEYS}
+
+
 def ignore_regions(labels_: dict) -> list:
     """(object, [x0, y0, x1, y1]) of each ignore region of a frame's labels (``core.labels.ignore_region``), in
     the labels' order."""

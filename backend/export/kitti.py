@@ -6,7 +6,8 @@
                           type truncated occluded alpha left top right bottom h w l x y z rotation_y
     calib/NNNNNN.txt      P0..P3, R0_rect, Tr_velo_to_cam, Tr_imu_to_velo ("key: values", %.12e), in that order
                           (OpenPCDet's ``get_calib_from_file`` reads P2, P3, R0, Tr_velo_to_cam by line: 2..5)
-    frames.json           KITTI index -> scene frame, timestamp, the frame's quality (``FRAMES``)
+    frames.json           KITTI index -> scene frame, timestamp, the frame's quality (``FRAMES``) and per label
+                          line what the devkit's columns cannot hold (``line_extras``: track id, hole_fraction …)
 
 **The level frame.** KITTI boxes have one angle, ``rotation_y`` about the camera's y axis, so they are upright only
 in a camera frame whose y axis is gravity's. Labels are therefore given in the frame's *level camera*
@@ -111,6 +112,16 @@ def dontcare_fields(region: list, width: int, height: int) -> str:
     return f"DontCare -1 -1 -10 {x0:.2f} {y0:.2f} {x1:.2f} {y1:.2f} -1 -1 -1 -1000 -1000 -1000 -10"
 
 
+def line_extras(lab: dict) -> list:
+    """What each line of ``frame_lines`` (same order) carries beside the devkit's columns, for ``frames.json``:
+    a label's ``common.carried`` fields (track id, synthetic, hole_fraction, occlusion …), an ignore region's track
+    id and why (``ignore`` or ``points_missing``)."""
+    out = [common.carried(o) for o in lab["objects"] if common.exported(o, hidden=True)]
+    out += [{"track_id": int(o["track_id"]), "dontcare": "ignore" if o["ignore"] else "points_missing"}
+            for o, _ in common.ignore_regions(lab)]
+    return out
+
+
 def frame_lines(lab: dict, level_to_camera) -> list:
     """(track_id, columns) of each line of a frame's labels (``core.labels``): the objects exported as labels,
     then the ignore regions (track id −1)."""
@@ -162,7 +173,7 @@ def write(folder: str, frames: list, progress=None) -> dict:
         with open(os.path.join(folder, CALIB, common.index_name(i, ".txt")), "w", encoding="utf-8") as f:
             f.write(calib_text(lab["camera"]["K"], R))
         index.append({"index": common.index_name(i, ""), "frame": lab["frame"], "timestamp_s": lab["timestamp_s"],
-                      **common.frame_quality(lab)})
+                      **common.frame_quality(lab), "lines": line_extras(lab)})
         if progress:
             progress(i)
     with open(os.path.join(folder, FRAMES), "w", encoding="utf-8") as f:

@@ -79,6 +79,26 @@ def test_layout_images_and_index(exported):
     assert index[1]["timestamp_s"] == pytest.approx(0.1)
     assert index[0]["unlabelled_fraction"] == frames[0].labels["unlabelled_fraction"] > 0
     assert counts == {"frames": 2, "objects": 6, "ignore_regions": 2}
+    # per label line, in the line's order, what the devkit's columns cannot hold (issue 41: hole_fraction)
+    for i, fr in enumerate(frames):
+        lines = (out / "label_2" / f"00000{i}.txt").read_text().splitlines()
+        extras = index[i]["lines"]
+        assert len(extras) == len(lines)
+        by_track = {o["track_id"]: o for o in fr.labels["objects"]}
+        for line, extra in zip(lines, extras):
+            if line.startswith("DontCare"):
+                assert extra == {"track_id": extra["track_id"], "dontcare": "ignore"}
+                assert by_track[extra["track_id"]]["ignore"]
+            else:
+                o = by_track[extra["track_id"]]
+                assert line.split()[0] == labels_kitti_type(o) and extra["hole_fraction"] == o["hole_fraction"]
+                assert set(extra) == set(labels.CARRIED_IDENTITY + labels.CARRIED_MEASURES)
+
+
+def labels_kitti_type(o: dict) -> str:
+    from scpainter_blender.core import categories
+
+    return categories.category(o["class"]).kitti
 
 
 def test_label_columns_follow_the_devkit(exported):

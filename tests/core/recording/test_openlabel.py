@@ -74,3 +74,27 @@ def test_bad_files_name_the_field(tmp_path, edit, field, words):
     with pytest.raises(InputError) as e:
         openlabel.read(path)
     assert e.value.field == field and words in e.value.message
+
+
+def test_rotations_are_vcds():
+    """Both rotation spellings a cuboid may use mean what Vicomtech's ``vcd`` (the OpenLABEL toolkit, a test-only
+    dependency) makes of them: Euler (rx, ry, rz) as ``vcd.utils.euler2R([rz, ry, rx])`` (ZYX), quaternions as
+    ``q2R`` — checked on the cuboid's 8 corners, as ``generate_cuboid_points_ref_4x8`` places them."""
+    import numpy as np
+    from vcd import utils as vcd_utils
+
+    from scpainter_blender.core.recording import openlabel as ol
+
+    rng = np.random.default_rng(7)
+    for _ in range(20):
+        rx, ry, rz = rng.uniform(-np.pi, np.pi, 3)
+        assert np.allclose(ol._euler([rz, ry, rx]), vcd_utils.euler2R([rz, ry, rx]), atol=1e-12)
+        q = rng.normal(size=4)
+        q /= np.linalg.norm(q)
+        for val in ([1.0, 2.0, 3.0, rx, ry, rz, 4.2, 1.8, 1.5], [1.0, 2.0, 3.0, *q, 4.2, 1.8, 1.5]):
+            box_to_cs, size, _ = ol._cuboid_box({"val": val}, "f.json", "cuboid")
+            corners = vcd_utils.generate_cuboid_points_ref_4x8(val)[:3].T        # (8, 3) in the cuboid's system
+            unit = np.array([[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5)])
+            ours = (box_to_cs[:3, :3] @ (unit * size).T).T + box_to_cs[:3, 3]   # our box frame: x width, y length
+            gap = np.linalg.norm(ours[:, None, :] - corners[None, :, :], axis=2)   # the same 8 points, any order
+            assert gap.min(axis=1).max() < 1e-9 and gap.min(axis=0).max() < 1e-9

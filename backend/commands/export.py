@@ -46,6 +46,7 @@ def dataset_options(p: argparse.ArgumentParser, what: str) -> None:
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """``export``'s parser."""
     from scpainter_blender.core.backend_protocol import export_format_labels
+    from scpainter_blender.core.output_layout import VariationLayout
 
     x = sub.add_parser(NAME, help=f"a job's labels as a training dataset ({export_format_labels()}), rendering "
                                   "missing frames first; images: the generated frames, else the condition "
@@ -53,8 +54,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     x.add_argument("jobs", nargs="*", metavar="job", help="job.json (the job contract: docs/design.md); several, "
                                                           "or --list: one dataset of them all")
     x.add_argument("--list", action="append", help="a text file of job paths, one per line, as batch --list reads "
-                                                   "it (a vary run's variants.txt): the jobs of one dataset "
-                                                   "(repeatable)")
+                                                   f"it (a vary run's {VariationLayout.LIST}): the jobs of one "
+                                                   "dataset (repeatable)")
     x.add_argument("--format", required=True, choices=FORMAT_CHOICES,
                    help="kitti (image_2, label_2, calib), coco (annotations.json with uncompressed RLE masks), "
                         "openlabel (ASAM OpenLABEL 1.0 JSON) or kitti-tracking (image_02, label_02 with track ids, "

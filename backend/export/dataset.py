@@ -48,7 +48,7 @@ from dataclasses import dataclass
 from scpainter_blender.core import categories, errors, files, outputs
 from scpainter_blender.core import job as job_mod
 from scpainter_blender.core.batch_items import first_items, shared_output_items
-from scpainter_blender.core.output_layout import OutputLayout, VariationLayout
+from scpainter_blender.core.output_layout import DatasetLayout, OutputLayout, VariationLayout
 from scpainter_blender.core.variation import proposals as proposals_core
 
 from .. import events
@@ -57,7 +57,7 @@ from . import coco, command, common, kitti, kitti_tracking, openlabel
 
 #: The record's ``format`` of a merged dataset (``command.check_destination`` replaces only its own kind).
 FORMAT = "dataset"
-MANIFEST = "manifest.json"
+MANIFEST = DatasetLayout.MANIFEST
 MANIFEST_SCHEMA = "scpainter.dataset-manifest/1"
 TRAIN = "train"
 #: The warning event's ``code`` of a split that got no drive (fewer drives than splits).

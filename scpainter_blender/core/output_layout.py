@@ -264,3 +264,17 @@ class VariationLayout:
     def variant(self, index: int) -> OutputLayout:
         """Variant ``index``'s output folder."""
         return OutputLayout(self._at(self.variant_name(index)))
+
+
+class DatasetLayout:
+    """The top of a dataset exported from many jobs (``export --list``, docs/design.md §15; each format's folder is
+    its writer's, and ``backend/export/dataset.py``'s docstring has the whole tree)::
+
+        <root>/
+            export.json         the record (``OutputLayout.EXPORT_RECORD``): formats, split, counts
+            manifest.json       one row per image: its job, variant, drive, split, quality
+            <format>/           one folder per format
+    """
+
+    RECORD = OutputLayout.EXPORT_RECORD
+    MANIFEST = "manifest.json"

@@ -74,9 +74,9 @@ def test_invocation_argv_round_trips_through_the_backend_parser(run):
                 "list": list(run.lists) or None, "trusted_list": list(run.trusted_lists) or None,
                 "format": run.export_format, "out": run.out, "count": run.count, "idle_timeout": run.idle_timeout,
                 "proposals": run.proposals}
-    if run.command in ("render", "generate", "export"):
+    if run.command in ("render", "generate"):
         expected["job"] = run.jobs[0]
-    elif run.command == "batch":
+    elif run.command in ("batch", "export"):   # export: one job, or several as one dataset
         expected["jobs"] = list(run.jobs)
     elif run.command in ("mesh-asset", "splat-asset"):
         expected["mesh" if run.command == "mesh-asset" else "splats"] = run.asset

@@ -245,7 +245,10 @@ def test_followed_runs_cancel_finish_and_time_out(street_scene, tmp_path, addon)
         time.sleep(0.05)
     assert status == "finished"
     level, message = follow.report(bpy.context, status)
-    assert level == "INFO" and bpy.data.images[_name("SCPainter Conditions")]["scpainter_frames"] == 4
+    # finished, with a warning: the street's parked cars the import proposed are not reviewed yet (issue 41: no
+    # visible object goes unlabelled silently), each an ignore region until accepted
+    assert level == "WARNING" and message.startswith("Condition layers of 4 frames") and "proposal_01" in message
+    assert bpy.data.images[_name("SCPainter Conditions")]["scpainter_frames"] == 4
     # Generate followed without a checkpoint: the baseline, said from the first tick to the report
     prefs = bpy.context.preferences.addons[addon].preferences
     prefs.checkpoint_dir = ""

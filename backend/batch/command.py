@@ -32,13 +32,21 @@ from .. import events
 
 
 def run_one(job_path: str, command: str, device: str, checkpoint: str | None, stop, allow_outside: bool = False,
-            half: bool = False, precision: str = "auto", overrides: dict | None = None, data_roots=()) -> dict:
+            half: bool = False, precision: str = "auto", overrides: dict | None = None, data_roots=(),
+            proposals: str | None = None) -> dict:
     """One job: ``render`` (``half``: half-float EXRs, ``render_cmd.render_job``) or ``generate`` (``precision``
     and ``overrides`` as ``generate_job``'s: the settings a job's ``generate`` block sets, e.g. ``inpaint``). Its
-    paths stay in its folder and ``data_roots`` unless ``allow_outside`` (``job_inputs.job_paths``)."""
+    paths stay in its folder and ``data_roots`` unless ``allow_outside`` (``job_inputs.job_paths``). ``proposals``:
+    what its labels make of the objects nothing labels, as ``render``'s ``--proposals`` (None: its default), so a
+    batch's labels are a single run's."""
     from scpainter_blender.core import job as job_mod
+    from scpainter_blender.core.variation import proposals as proposals_core
+
+    from ..render import proposals as render_proposals
 
     job = job_mod.load(job_path)
+    job, _ = render_proposals.apply(job_path, job, proposals or proposals_core.DEFAULT_MODE, allow_outside,
+                                    data_roots)
     if command == "render":
         from ..render import command as render_cmd
 
@@ -107,7 +115,8 @@ def gather(results: list, world: int) -> list:
 
 def run_batch(items: list[str], command: str, device: str, checkpoint: str | None = None,
               allow_outside=False, half: bool = False, overrides: dict | None = None,
-              shard_of: tuple[int, int] | None = None, data_roots: dict | None = None) -> tuple[list, bool]:
+              shard_of: tuple[int, int] | None = None, data_roots: dict | None = None,
+              proposals: str | None = None) -> tuple[list, bool]:
     """Run this process's share; returns (the results, whether this process reports them). ``allow_outside``:
     ``allows_outside``'s; ``data_roots``: ``{job path: its data roots}`` (``job_data_roots``); ``half``: render
     half-float EXRs; ``overrides``: generate settings for every job (``run_one``). ``shard_of``: (K, N) of
@@ -153,7 +162,8 @@ def run_batch(items: list[str], command: str, device: str, checkpoint: str | Non
                 try:
                     with events.log_scope():  # a bug's traceback goes to this job's backend.log
                         out = run_one(path, command, device, checkpoint, stop, allows_outside(allow_outside, path),
-                                      half, overrides=overrides, data_roots=(data_roots or {}).get(path, ()))
+                                      half, overrides=overrides, data_roots=(data_roots or {}).get(path, ()),
+                                      proposals=proposals)
                     status = STOPPED if out.pop("stopped") else OK
                     results.append({"job": path, "rank": rank, "status": status, **out})
                 except Exception as e:  # one bad scene must not stop the batch: record it and go on

@@ -267,7 +267,7 @@ def run_ray_batch(items: list[str], command: str, device: str = "auto", checkpoi
                   allow_outside=False, half: bool = False, address: str | None = None,
                   retries: int = DEFAULT_RETRIES, cpus_per_job: float = batch_items.DEFAULT_CPUS_PER_JOB, stop=(),
                   job_fn=None, precision: str = "auto", overrides: dict | None = None, stage: str = "batch",
-                  data_roots: dict | None = None) -> list[dict]:
+                  data_roots: dict | None = None, proposals: str | None = None) -> list[dict]:
     """Run every job of ``items`` as a Ray task (see the module docstring); returns one result per item, in order:
     ``job``, ``status`` (``ok``, ``stopped``, ``failed``, ``not run (SIGTERM)``), the job's outputs, ``worker``,
     ``attempts``, ``seconds``. ``allow_outside``: True, or the paths of the jobs that may lead outside their folder
@@ -308,6 +308,8 @@ def run_ray_batch(items: list[str], command: str, device: str = "auto", checkpoi
     interrupt = ray.remote(_interrupt)
     run_id = uuid.uuid4().hex[:12]
     options = {"checkpoint": checkpoint, "half": half, "precision": precision, "overrides": overrides}
+    if proposals is not None:  # (run_one's keyword; a test's job_fn need not take it)
+        options["proposals"] = proposals
     # a job listed twice (a hard or symbolic link, another spelling) runs once: run at once, the two would meet at
     # their output lock; the copy's item gets the first's result
     first = batch_items.first_items(items)

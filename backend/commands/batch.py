@@ -35,6 +35,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     options.device_option(b, "each job's device (default auto: CUDA when there is one); with --ray, the workers'")
     b.add_argument("--checkpoint", help="checkpoint for generate (default: each job's generate.checkpoint)")
     options.confinement_options(b)
+    options.proposals_option(b)
     b.add_argument("--trusted-list", action="append", metavar="FILE",
                    help="like --list, and these jobs may lead outside their folder (--allow-outside for them only): "
                         "jobs a tool wrote itself, such as blender -c scpainter batch's exports of .blend files")
@@ -111,12 +112,13 @@ def run(args: argparse.Namespace) -> int:
                                               allow_outside=allow_outside, half=args.half_float,
                                               address=args.ray, retries=args.retries,
                                               cpus_per_job=args.cpus_per_job, stop=stop, overrides=overrides,
-                                              data_roots=data_roots)
+                                              data_roots=data_roots, proposals=args.proposals)
         reports = True
     else:
         results, reports = batch.run_batch(items, args.command_name, options.resolve_device(args.device),
                                            args.checkpoint, allow_outside=allow_outside, half=args.half_float,
-                                           overrides=overrides, shard_of=shard, data_roots=data_roots)
+                                           overrides=overrides, shard_of=shard, data_roots=data_roots,
+                                           proposals=args.proposals)
     summary = batch_mod.summary(results)
     if reports:  # in every ending (SIGTERM, Ctrl-C too): ok, failed, stopped and not_run apart (BATCH_SUMMARY_FIELDS)
         events.done(command=NAME, **summary, items=results)
@@ -142,4 +144,4 @@ def _export(args: argparse.Namespace, items: list, allow_outside: bool | frozens
         raise ArgumentError("--format", "--command export needs --format (e.g. coco,kitti,openlabel)")
     return export_cmd.run_dataset(items, dataset.parse_formats(args.format), args.out,
                                   dataset.parse_split(args.split), args.device, allow_outside, data_roots,
-                                  command_name=NAME)
+                                  command_name=NAME, proposals=args.proposals)

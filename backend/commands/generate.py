@@ -42,6 +42,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     n.add_argument("--seed", type=int, help=f"seed (default: the job's, else {GENERATE_DEFAULTS['seed']})")
     n.add_argument("--force", action="store_true", help="generate again even if the video is up to date")
     options.input_options(n)
+    options.proposals_option(n)
     n.set_defaults(func=run)
     return n
 
@@ -55,6 +56,7 @@ def run(args: argparse.Namespace) -> int:
     from scpainter_blender.core import job as job_mod
 
     from ..generate import command as generate
+    from ..render import proposals
 
     roots = outputs.data_roots_option(args.data_root)
     job = job_mod.load(args.job)
@@ -80,6 +82,7 @@ def run(args: argparse.Namespace) -> int:
         return events.EXIT_OK
     device = options.resolve_device(args.device)
     t0 = time.perf_counter()
+    job, _ = proposals.apply(args.job, job, args.proposals, args.allow_outside, roots)
     with events.stop_on_sigterm() as stop:
         result = generate.generate_job(args.job, job, device, args.checkpoint, args.precision, args.force, stop,
                                        overrides, allow_outside=args.allow_outside, data_roots=roots)

@@ -88,7 +88,7 @@ def confinement_options(p: argparse.ArgumentParser) -> None:
 
 
 def proposals_option(p: argparse.ArgumentParser) -> None:
-    """``--proposals accept|ignore|off`` (render, generate, export): what the labels make of the reconstruction's
+    """``--proposals accept|ignore|off`` (render, generate, export, batch): what the labels make of the reconstruction's
     objects that nothing labels (``backend/render/proposals.py``)."""
     from scpainter_blender.core.variation.proposals import DEFAULT_MODE, MODES
 

@@ -294,7 +294,7 @@ class Invocation:
     ``core.backend_protocol.EXPORT_FORMAT_NAMES`` and ``out`` the destination folder (export) or file (mesh-asset,
     splat-asset: the Gaussian PLY). ``count``: Gaussians of a mesh (mesh-asset). ``idle_timeout``: seconds a
     ``serve`` process waits for a request (0: never ends by itself). ``proposals``: accept, ignore or off (render,
-    export: ``core.variation.proposals.MODES``)."""
+    generate, export, batch: ``core.variation.proposals.MODES``)."""
 
     command: str
     jobs: tuple = ()

@@ -57,6 +57,8 @@ def test_device_names_match_the_preferences_enum_order():
                allow_outside=True),
     Invocation("export", jobs=("job.json",), export_format="kitti", data_roots=("/data",)),
     Invocation("export", jobs=("job.json",), export_format="coco", proposals="off"),
+    Invocation("generate", jobs=("job.json",), proposals="accept"),
+    Invocation("batch", jobs=("a.json", "b.json"), batch_command="render", proposals="off"),
     Invocation("mesh-asset", asset="/x/car.glb", out="/x/car.ply", count=5000),
     Invocation("splat-asset", asset="/x/car.sog", out="/x/car.ply"),
     Invocation("serve", idle_timeout=600.0, device="cpu"),

@@ -134,3 +134,21 @@ def test_a_recorded_object_over_it_leaves_nothing_to_propose(tmp_path):
     job, warned = proposals.apply(path, J.load(path), "ignore")
     assert warned == 1 and [(o.id, o.ignore) for o in job.scene.recorded_objects] == [("proposal_01", True)]
     assert sorted(job.scene.recorded_objects[0].boxes) == list(range(1, F + 1))
+
+
+def test_batch_labels_as_render_does_so_an_export_has_nothing_to_make_again(tmp_path, capsys):
+    """``batch`` adds the proposals as ``render`` does (its default mode): the labels it writes hold the ignored
+    proposal, and an export after it neither renders nor relabels a frame."""
+    from backend.__main__ import main
+
+    path = road_job(tmp_path)
+    assert main(["batch", path, "--command", "render", "--device", "cpu"]) == 0
+    (obj,) = recorded(labels(path))
+    assert obj["name"] == "proposal_01" and obj["ignore"]
+    layout = OutputLayout(os.path.join(os.path.dirname(path), "out"))
+    written = [os.stat(layout.frame_labels(f)).st_mtime_ns for f in range(1, F + 1)]
+    capsys.readouterr()
+    assert main(["export", path, "--format", "kitti", "--device", "cpu"]) == 0
+    events = [json.loads(line) for line in capsys.readouterr().out.splitlines() if line.strip()]
+    assert events[-1]["rendered"] == 0 and events[-1]["ignore_regions"] > 0
+    assert [os.stat(layout.frame_labels(f)).st_mtime_ns for f in range(1, F + 1)] == written   # not made again

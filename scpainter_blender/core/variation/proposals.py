@@ -43,12 +43,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .. import frame_keys
+from .. import frame_keys, job_inputs
 from .. import job as job_mod
 from ..geometry import boxes, cameras
 from . import placement
 from .road import Road, footprint_samples
-from .variants import reference_path, scene_points
+from .variants import recorded_path, reference_path, scene_points
 
 #: The road's RANSAC seed for proposals: fixed, so the same input always gives the same proposals.
 SEED = 0
@@ -72,7 +72,7 @@ DEFAULT_MODE = "ignore"
 #: The ``warning`` event's code for a proposal added as an ignore region (the backend's and Blender's render plan's).
 UNLABELLED = "unlabelled_object"
 #: Changes when the rules above change what is proposed (the per-scene cache key holds it).
-VERSION = 1
+VERSION = 2
 #: Scenes whose clusters a process keeps (``scene_clusters``: the last used).
 KEPT_SCENES = 4
 _SCENES: OrderedDict = OrderedDict()
@@ -323,25 +323,28 @@ def unlabelled_message(p: Proposal) -> str:
 # -- a job's proposals, once per scene ----------------------------------------------------------------------------
 
 def _scene_key(job: job_mod.Job, job_path: str | os.PathLike) -> str:
-    """What a scene's clusters depend on: the predictions file (real path, size, mtime: ``frame_keys.stamp``), the
-    settings its cloud is made from (``Job.layers_dict()["scene"]``: transform, confidence, removal boxes,
-    cleaning) and the ends of the drive (the road grows from it)."""
+    """What a scene's clusters depend on: the predictions file (real path, size, mtime: ``frame_keys.stamp``) and
+    the settings its cloud is made from (``Job.layers_dict()["scene"]``: transform, confidence, removal boxes,
+    cleaning). Not the job's camera path: the road grows from the recording's own drive (``recorded_path``), so
+    every camera path and variant of a drive shares one entry."""
     pred = os.path.realpath(job_mod.resolve(job_path, job.scene.predictions))
     scene = {k: v for k, v in job.layers_dict()["scene"].items() if k != "predictions"}
-    ends = reference_path(job).centres[[0, -1]].round(3).tolist()
-    return json.dumps({"points": [pred, *frame_keys.stamp(pred)], "scene": scene, "drive": ends,
-                       "version": VERSION}, sort_keys=True)
+    return json.dumps({"points": [pred, *frame_keys.stamp(pred)], "scene": scene, "version": VERSION},
+                      sort_keys=True)
 
 
 def scene_clusters(job: job_mod.Job, job_path: str | os.PathLike) -> tuple:
     """(``clusters`` of the job's reconstruction, None) computed once per scene in a process (``_scene_key``; the
     last ``KEPT_SCENES`` kept: a warm backend, a batch, many variants of one drive, Blender's render clicks), or
-    ([], why) when it holds no road under the drive. The points are read as the renderer reads them
-    (``variants.scene_points``; its InputErrors name the file)."""
+    ([], why) when it holds no road under the recording's drive. The points are read as the renderer reads them
+    (``variants.scene_points``; its InputErrors name the file); the road grows from the recording's own cameras
+    (``variants.recorded_path``), not the job's: a variant 3 m to the side finds the drive's proposals."""
     key = _scene_key(job, job_path)
     if key not in _SCENES:
+        predictions = job_inputs.scene_predictions(job_path, job.scene)
+        points, drive = scene_points(job, job_path, predictions), recorded_path(job, predictions).centres
         try:
-            _SCENES[key] = clusters(scene_points(job, job_path), reference_path(job).centres), None
+            _SCENES[key] = clusters(points, drive), None
         except ValueError as e:   # the Road's: no level ground under the drive
             _SCENES[key] = [], str(e)
         while len(_SCENES) > KEPT_SCENES:

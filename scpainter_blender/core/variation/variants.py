@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .. import batch_items, errors, files, job as job_mod, job_inputs, outputs
-from ..geometry import boxes, cameras, point_cloud, trajectory
+from ..geometry import boxes, cameras, point_cloud, similarity, trajectory
 from ..output_layout import VariationLayout
 from . import library as library_mod, placement
 from .road import Road
@@ -43,15 +43,17 @@ if TYPE_CHECKING:
 MIN_ROAD_M2 = 100.0
 
 
-def scene_points(job: job_mod.Job, job_path: str | os.PathLike) -> np.ndarray:
+def scene_points(job: job_mod.Job, job_path: str | os.PathLike, predictions=None) -> np.ndarray:
     """World points (N, 3) of a job's reconstruction as the renderer loads them (same reading of the file,
     confidence, depth edges, ``vggt_to_world``), minus the points inside its removal boxes. The job's optional
     outlier removal (open3d, backend only) is not applied: the road's RANSAC planes and its per-cell point counts
-    are robust to floaters."""
+    are robust to floaters. ``predictions``: the file already read (``job_inputs.scene_predictions``), else read."""
     sc = job.scene
     ratio = sc.point_cleaning.depth_edge_ratio if sc.point_cleaning is not None else None
-    cloud, keep = point_cloud.scene_cloud(job_inputs.scene_predictions(job_path, sc), sc.confidence_percentile,
-                                          sc.vggt_to_world, ratio, sc.removal_boxes)
+    if predictions is None:
+        predictions = job_inputs.scene_predictions(job_path, sc)
+    cloud, keep = point_cloud.scene_cloud(predictions, sc.confidence_percentile, sc.vggt_to_world, ratio,
+                                          sc.removal_boxes)
     return cloud.positions[keep]
 
 
@@ -65,6 +67,22 @@ def ground_track(world_to_camera: np.ndarray) -> tuple:
 def reference_path(job: job_mod.Job) -> placement.Path:
     """The base job's camera path on the ground: centres and directions of travel."""
     return placement.Path.of(*ground_track(np.stack([f.world_to_camera for f in job.frames])))
+
+
+def recorded_path(job: job_mod.Job, predictions) -> placement.Path:
+    """The recording's own camera path on the ground (``predictions.world_to_camera``, VGGT units, carried into the
+    world by ``job.scene.vggt_to_world``): the same for every camera path and variant of a drive. A camera at
+    X_c = R X_v + t sits at c_v = −Rᵀ t; in metres at M c_v, M = vggt_to_world = [sQ | m], turned by R Qᵀ
+    (world-to-camera rotation, the scale taken out)."""
+    s, Q, m = similarity.decompose_similarity(job.scene.vggt_to_world)
+    E = cameras.orthonormalize(np.asarray(predictions.world_to_camera, np.float64).reshape(-1, 4, 4))
+    R, t = E[:, :3, :3], E[:, :3, 3]
+    centres_v = -np.einsum("sji,sj->si", R, t)
+    w2c = np.tile(np.eye(4), (len(E), 1, 1))
+    w2c[:, :3, :3] = R @ Q.T
+    centres_w = s * centres_v @ Q.T + m
+    w2c[:, :3, 3] = -np.einsum("sij,sj->si", w2c[:, :3, :3], centres_w)
+    return placement.Path.of(*ground_track(w2c))
 
 
 def _car(box_to_world: list, size, frames, moving: bool) -> placement.Car | None:

@@ -161,3 +161,33 @@ def test_the_streets_parked_cars(street, tmp_path):
             assert np.allclose(p.size, size, atol=0.15)
             assert abs(heading_deg(p.box_to_world) - heading_deg(T)) < 2.0
     assert sorted(matched) == seen
+
+
+def test_every_camera_path_of_a_drive_shares_the_drives_proposals(street, tmp_path):
+    """The road grows from the recording's own cameras (``variants.recorded_path``: the predictions' poses through
+    ``vggt_to_world``, here within 1 mm of the street's true cameras), not the job's: a camera path 3 m to the
+    side gets the drive's proposals, from the same per-process entry (computed once for both)."""
+    from scpainter_blender.core import job_inputs
+
+    path = str(tmp_path / "base" / "job.json")
+    base = street_base_job(street, path)
+    preds = job_inputs.scene_predictions(path, base.scene)
+    assert np.abs(variants.recorded_path(base, preds).centres - variants.reference_path(base).centres).max() < 1e-3
+    shifted_frames = []
+    for f in base.frames:
+        w2c = np.array(f.world_to_camera)
+        w2c[:3, 3] -= w2c[:3, :3] @ np.array([-3.0, 0.0, 0.0])    # the camera 3 m to the left (world -x)
+        shifted_frames.append(J.Frame(f.frame, f.K, w2c, f.source_frames))
+    shifted_path = str(tmp_path / "shifted" / "job.json")
+    import dataclasses
+    import os
+
+    os.makedirs(os.path.dirname(shifted_path))
+    shifted = dataclasses.replace(base, frames=shifted_frames, scene=dataclasses.replace(
+        base.scene, predictions=os.path.abspath(street.predictions_path)))
+    proposals._SCENES.clear()
+    _, found, _ = proposals.with_proposals(base, path, "ignore")
+    _, found_shifted, _ = proposals.with_proposals(shifted, shifted_path, "ignore")
+    assert len(proposals._SCENES) == 1 and len(found) == 3
+    assert [(p.id, p.category) for p in found_shifted] == [(p.id, p.category) for p in found]
+    assert all(np.array_equal(a.box_to_world, b.box_to_world) for a, b in zip(found, found_shifted))

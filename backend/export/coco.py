@@ -12,9 +12,9 @@ every job agrees on the ids; an object whose class the table lacks is an ``Input
 ``occlusion`` …) as extra keys:
 
 - each object exported as a label (``common.exported``: visible pixels, not removed, not ignored), ``iscrowd`` 0:
-  ``segmentation`` its visible mask — the instance layer's pixels with its track id (an inserted car; a recorded
-  object whose pixels the layer holds), else (a recorded object: only an estimate is known, ``core.labels``' depth
-  test inside its projected box) the pixels of its ``bbox_visible`` rectangle, approximate, not its outline;
+  ``segmentation`` its visible mask — an inserted car: the instance layer's pixels with its track id; a recorded
+  object: the pixels of its ``bbox_visible`` rectangle (the box of the pixels ``core.labels`` found showing its
+  points; the layer holds only inserted cars, so the outline itself is not written), approximate;
 - each ignore region (``core.labels.ignore_region``: an object seen but not labelled), ``iscrowd`` 1:
   ``segmentation`` the pixels of the region's rectangle, ``category_id`` its class's.
 
@@ -85,13 +85,12 @@ EXTRA_KEYS = common.CARRIED_KEYS
 def _mask(o: dict, ids, width: int, height: int):
     """The visible mask of an object exported as a label (see the module's docstring); None when an inserted car's
     pixels are missing from the layer (the labels counted pixels the layer does not have: nothing to outline)."""
-    if ids is not None:
-        mask = ids == o["track_id"]
-        if mask.any():
-            return mask
-    if o["synthetic"]:
+    if not o["synthetic"]:
+        return rectangle_mask(o["bbox_visible"], width, height)
+    if ids is None:
         return None
-    return rectangle_mask(o["bbox_visible"], width, height)
+    mask = ids == o["track_id"]
+    return mask if mask.any() else None
 
 
 def categories_table() -> list:

@@ -55,7 +55,7 @@ def exported(obj: dict, hidden: bool = False) -> bool:
     box (labels leave it out, ``box_world`` null, when the object's transform overflows), and some visible pixel —
     or, with ``hidden`` (KITTI, whose 3D detectors expect occluded objects, marked ``occluded`` 2 or 3), only its
     projected box in the image."""
-    if obj["removed"] or obj["box_world"] is None or obj.get("ignore") or obj.get("points_missing"):
+    if obj["removed"] or obj["box_world"] is None or labels.unlabelled(obj):
         return False
     return obj["in_view"] if hidden else obj["visible_pixels"] > 0
 
@@ -97,9 +97,7 @@ def category(labels_: dict, index: int) -> categories.Category:
 def frame_quality(labels: dict) -> dict:
     """What every format carries of a frame's quality, so a pipeline reading only the export can drop weak
     frames: ``coverage`` and ``flags`` (``core.labels.FLAGS``: low coverage, outside the recording, the camera
-    inside an object) and, when the labels give it, ``unlabelled_fraction`` (the share of the image's pixels
-    showing objects seen but not labelled: ignore regions)."""
-    out = {"coverage": float(labels["coverage"]), "flags": list(labels["flags"])}
-    if labels.get("unlabelled_fraction") is not None:
-        out["unlabelled_fraction"] = float(labels["unlabelled_fraction"])
-    return out
+    inside an object) and ``unlabelled_fraction`` (the share of the image's pixels showing objects seen but not
+    labelled: ignore regions)."""
+    return {"coverage": float(labels["coverage"]), "flags": list(labels["flags"]),
+            "unlabelled_fraction": float(labels["unlabelled_fraction"])}

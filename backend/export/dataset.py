@@ -33,6 +33,10 @@ followed); a job without one belongs to its variation's base job (``vary``'s ``v
 else to itself. ``--split val=0.1`` gives val a tenth of the drives (rounded, at least one when there are two or
 more, always leaving one for train), drawn by the SHA-256 of the drive's path, so the split does not depend on the
 list's order and no drive is in two splits; every job of a drive goes to its split.
+
+One module over 400 lines: the jobs and their drives, the split, and the writer that places each format's files
+under the dataset's names are one pass over the jobs sharing the numbering (``_Writer``); apart, each would need
+the others' state passed around.
 """
 
 from __future__ import annotations
@@ -52,6 +56,7 @@ from scpainter_blender.core.output_layout import DatasetLayout, OutputLayout, Va
 from scpainter_blender.core.variation import proposals as proposals_core
 
 from .. import events
+from ..batch import command as batch
 from ..render import proposals as render_proposals
 from . import coco, command, common, kitti, kitti_tracking, openlabel
 
@@ -188,8 +193,7 @@ def members(items: Sequence[str], allow_outside=False, data_roots: dict | None =
         if first[k] != k:
             continue
         path = os.path.abspath(item)
-        m = Member(path, job_mod.load(path),
-                   allow_outside is True or (not isinstance(allow_outside, bool) and item in allow_outside),
+        m = Member(path, job_mod.load(path), batch.allows_outside(allow_outside, item),
                    tuple((data_roots or {}).get(item, ())))
         m.base, m.variant = variation_entry(path, manifests)
         m.drive = drive_of(m)

@@ -143,7 +143,7 @@ def document(frames: list, image_names: list, name: str = "scpainter") -> dict:
                 frame_objects[key] = {"object_data": {
                     "bbox": [{"name": "region", "val": bbox_val(region), "coordinate_system": CAMERA}],
                     "num": _measures(o)}}
-            elif o["box_world"] is None or o.get("ignore") or o.get("points_missing"):
+            elif o["box_world"] is None or labels.unlabelled(o):
                 continue      # no box to give (its transform overflows: core.labels), or seen but not labelled
             else:
                 common.category(lab, k)

@@ -169,12 +169,19 @@ CARRIED_MEASURES = tuple(f.name for f in sorted((f for f in OBJECT_FIELDS if f.c
                                                 key=lambda f: (not f.nullable, f.name)))
 
 
+def unlabelled(obj: dict) -> bool:
+    """Whether an OBJECT is seen but not labelled: ``ignore`` (the recorded object says so) or ``points_missing``
+    (its pixels cannot label it). Never exported as a normal label; an ignore region when in view
+    (``ignore_region``)."""
+    return bool(obj["ignore"] or obj["points_missing"])
+
+
 def ignore_region(obj: dict) -> list | None:
     """[x0, y0, x1, y1] of an OBJECT exported as an ignore region (COCO ``iscrowd 1``, KITTI ``DontCare``, an
-    OpenLABEL object of type ignore), else None: one that is not ``removed``, ``in_view``, and ``ignore`` or
-    ``points_missing``; its region is ``bbox_visible`` when not null, else ``bbox_amodal``. Such an object is never
-    exported as a normal label."""
-    if obj["removed"] or not obj["in_view"] or not (obj["ignore"] or obj["points_missing"]):
+    OpenLABEL object of type ignore), else None: one that is not ``removed``, ``in_view`` and ``unlabelled``; its
+    region is ``bbox_visible`` when not null, else ``bbox_amodal``. Such an object is never exported as a normal
+    label."""
+    if obj["removed"] or not obj["in_view"] or not unlabelled(obj):
         return None
     return obj["bbox_visible"] if obj["bbox_visible"] is not None else obj["bbox_amodal"]
 

@@ -452,8 +452,13 @@ def displayed(rgb: np.ndarray, orientation: tuple[bool, bool, bool]) -> np.ndarr
 
 def probe_video(path: str, error: Callable[[str], Exception]) -> tuple:
     """(frame count, (W, H)) of the first video stream of a video file. The count is the stream's packets (one
-    per frame; no header's estimate), read without decoding; the size is the first decoded frame's, as shown
-    (``display_orientation``: a phone video filmed upright is W x H as players show it, not as coded).
+    per frame; no header's estimate) that players show, read without decoding: an MP4/MOV edit list (what
+    ``ffmpeg -ss … -t … -c copy`` and phone trimming write: the file keeps the packets from the key frame before
+    the cut, the edit list says which presentation times play) is applied by FFmpeg's demuxer, which marks the
+    packets whose presentation time lies outside the edited timeline as discarded, and the decoder drops their
+    frames (``decode_video`` yields the shown frames only, their pts from 0), so those packets are not counted.
+    The size is the first decoded frame's, as shown (``display_orientation``: a phone video filmed upright is
+    W x H as players show it, not as coded).
     ``error(message)`` -> the exception for a file that is missing, not regular, or not a decodable video."""
     import av
 
@@ -465,7 +470,8 @@ def probe_video(path: str, error: Callable[[str], Exception]) -> tuple:
                 streams = container.streams.video
                 stream = streams[0] if streams else None
                 for packet in container.demux(stream) if stream is not None else ():
-                    count += packet.size > 0  # the last packet, empty, flushes the decoder
+                    # the last packet, empty, flushes the decoder; a discarded one is outside the edit list
+                    count += packet.size > 0 and not packet.is_discard
                     if size is None:  # decoders may hold the first frames back for a few packets
                         for frame in packet.decode():
                             transpose = display_orientation(frame, path)[0]
@@ -484,7 +490,8 @@ def probe_video(path: str, error: Callable[[str], Exception]) -> tuple:
 
 def decode_video(path: str, stop: int, error: Callable[[str], Exception]) -> Iterator[tuple[int, np.ndarray]]:
     """Yields (t, (H, W, 3) uint8 RGB) for frames t = 0 .. stop − 1 of the video, as players show them (each
-    frame's display matrix applied: ``display_orientation``), decoding each once and stopping there.
+    frame's display matrix applied: ``display_orientation``; an edit list's cut frames left out, as
+    ``probe_video`` says), decoding each once and stopping there.
     ``error(message)`` -> the exception for a file that cannot be read or decoded, or that ends before ``stop``."""
     import av
 

@@ -5,12 +5,18 @@ The layout, as nianticlabs/spz (``src/cc/load-spz.cc``) and playcanvas/splat-tra
 read-spz.ts``; its writer runs Niantic's own packer, ``@adobe/spz``) read and write it, all little-endian:
 
 * Header, 16 bytes: magic ``NGSP`` (uint32 0x5053474e), version uint32, N uint32, SH degree uint8 (0-3; 4 is
-  refused like splat-transform does), fractional bits uint8, flags uint8 (bit 0: trained with antialiasing),
-  reserved uint8. Versions 2 and 3: the whole file (header and attributes) is one gzip stream. Version 4 (what
-  splat-transform 3.7 writes by default): a plain 32-byte header (byte 15: the number of streams, uint32 at 16: the
-  offset of a table of contents), then per stream (uint64 compressed size, uint64 uncompressed size), then each
-  attribute as its own Zstandard frame (read with the ``zstandard`` module, which Blender bundles; without it the
-  file is refused saying how to write version 3 instead).
+  refused like splat-transform does), fractional bits uint8, flags uint8 (bit 0: trained with antialiasing; bit 1,
+  ``FLAG_EXTENSIONS``: extension records follow), reserved uint8. Versions 2 and 3: the whole file (header,
+  attributes, then the extension records if flagged) is one gzip stream. Version 4 (what splat-transform 3.7 writes
+  by default): a plain 32-byte header (byte 15: the number of streams, uint32 at 16: the offset of a table of
+  contents), the extension records if flagged (bytes 32 up to the table), then per stream (uint64 compressed size,
+  uint64 uncompressed size), then each attribute as its own Zstandard frame (read with the ``zstandard`` module,
+  which Blender bundles; without it the file is refused saying how to write version 3 instead).
+* Extension records (nianticlabs/spz ``extensions/README.md``): back to back, each uint32 type (vendor in the high
+  16 bits), uint32 byte length, then that many payload bytes. Unknown types are skipped by their length, as the
+  spec says readers do; ``SPZ_ADOBE_coordinate_system`` (``COORDINATE_SYSTEM_EXTENSION``) is read (below). A record
+  running past its zone, a coordinate-system payload that is not one uint32 of 0-16, or more than
+  ``MAX_EXTENSION_BYTES`` of records is refused as damaged (field ``extensions``).
 * The attributes, one block each, in this order: positions (N × 3 signed 24-bit fixed point: value = k / 2^fb),
   alphas (N bytes: sigmoid(opacity) · 255), colours (N × 3 bytes: f_dc · 0.15 + 0.5 as byte / 255, SPZ's own colour
   scale, not SH_C0), scales (N × 3 bytes: (log σ + 10) · 16), rotations, SH (N × 3 ((d + 1)² - 1) bytes).
@@ -22,11 +28,23 @@ read-spz.ts``; its writer runs Niantic's own packer, ``@adobe/spz``) read and wr
   (byte - 128) / 128; INRIA's ``f_rest`` is channel-major, so they are transposed.
 * Opacity is read back as the logit of byte / 255 clamped to [1e-6, 1 - 1e-6] (splat-transform's reader).
 
-Axes: the format carries no axis metadata. Niantic's converters turn a PLY's frame (RDF: x right, y down, z
-forward) into SPZ's stated RUB by negating y and z; splat-transform, which reads and writes the values unchanged
-("CoordinateSystem UNSPECIFIED"), does not. The values are read unchanged, as splat-transform does, so a PLY
-converted by splat-transform reads back in its own frame (tested); a file from Niantic's own converter comes in
-turned 180° about x (upside down), which the import's placement can turn back.
+Axes: a file without a coordinate-system extension carries no axis metadata (the spec's default is RUB: x right,
+y up, z back). Niantic's converters turn a PLY's frame (RDF: x right, y down, z forward) into that RUB by negating
+y and z; splat-transform, which reads and writes the values unchanged ("CoordinateSystem UNSPECIFIED"), does not.
+Such values are read unchanged, as splat-transform does, so a PLY converted by splat-transform reads back in its own
+frame (tested); a file from Niantic's own converter comes in turned 180° about x (upside down), which the import's
+placement can turn back. **Convention**: whatever a file declares, the reader returns the frame a file without the
+declaration holds (SPZ's default RUB), exactly what Niantic's own loader returns with ``to = RUB`` (tested against
+its WebAssembly build, ``@adobe/spz``). A file whose ``SPZ_ADOBE_coordinate_system`` record declares another of the
+16 systems (``COORDINATE_SYSTEMS``; value 0 means none) is turned from it by ``system_matrix``: p_RUB = M p_file,
+each Gaussian's rotation by det(M)·M (a proper rotation giving the same covariance M Σ Mᵀ, scales unchanged), its
+SH by M (``gltf_splats.sh_rotation``). So one car written with and without a declaration reads back the same
+(tested), where it came back turned 90°. M is the library's (nianticlabs/spz ``coordinateConverter``, packing and
+unpacking alike): for the eight "standard" systems the letters' flips (R/L x, U/D y, B/F z); for the eight
+"rotated" ones a quarter turn about x, (x, y, z) -> (x, z, -y), after the flips of the standard system eight
+values before. That is the letters' meaning for twelve systems; for LFD, RFD, LBU and RBU the library's y and z
+flips are the other way round (its files of those store y and z negated against their names), and the reader
+follows the library, whose files these are.
 
 No bpy, no torch: numpy (and zlib; ``zstandard`` for version 4 only).
 """
@@ -38,7 +56,9 @@ import zlib
 
 import numpy as np
 
+from ..geometry import cameras
 from .gaussians import GaussianPly, SplatsError, read_bytes
+from .gltf_splats import sh_rotation
 
 #: 'NGSP' as the little-endian uint32 every SPZ header starts with.
 MAGIC = b"NGSP"
@@ -48,6 +68,24 @@ VERSIONS = (2, 3, 4)
 GZIP_MAGIC = b"\x1f\x8b"
 #: SPZ's DC colour scale: byte / 255 = f_dc · COLOR_SCALE + 0.5 (Niantic's ``colorScale``, not SH_C0).
 COLOR_SCALE = 0.15
+#: Header flags bit: extension records follow the attributes (v2/v3) or the 32-byte header (v4).
+FLAG_EXTENSIONS = 0x2
+#: ``SPZ_ADOBE_coordinate_system``'s record type; its payload is one uint32, an index into ``COORDINATE_SYSTEMS``.
+COORDINATE_SYSTEM_EXTENSION = 0xADBE0003
+#: Niantic's ``CoordinateSystem`` values 1-16 (``src/cc/splat-types.h``; 0 is UNSPECIFIED, the default RUB): the
+#: directions of +x, +y, +z as Right/Left, Up/Down, Back/Front. The first eight are the "standard" family, the
+#: last eight the "rotated" one (y and z swapped by a quarter turn about x).
+COORDINATE_SYSTEMS = ("LDB", "RDB", "LUB", "RUB", "LDF", "RDF", "LUF", "RUF",
+                      "LFD", "RFD", "LFU", "RFU", "LBD", "RBD", "LBU", "RBU")
+#: The system values are read in (a file without a declaration; the spec's default).
+DEFAULT_SYSTEM = "RUB"
+#: The sign each standard-family letter gives its axis against RUB's.
+_LETTER_SIGNS = {"R": 1.0, "L": -1.0, "U": 1.0, "D": -1.0, "B": 1.0, "F": -1.0}
+#: From the rotated family to the standard one: a quarter turn about x, (x, y, z) -> (x, z, -y).
+_ROTATED_TO_STANDARD = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+#: The most extension-record bytes read: the known records are 4 and 12 bytes of descriptors; a stream holding more
+#: after the attributes is damage (a wrong count or SH degree), not metadata.
+MAX_EXTENSION_BYTES = 1 << 16
 _HEADER = np.dtype([("magic", "<u4"), ("version", "<u4"), ("count", "<u4"), ("sh_degree", "u1"),
                     ("fractional_bits", "u1"), ("flags", "u1"), ("reserved", "u1")])
 _V4_HEADER_SIZE = 32
@@ -97,15 +135,71 @@ def _header(path, raw: bytes):
     return version, n, degree, int(h["fractional_bits"])
 
 
+def _flags(raw: bytes) -> int:
+    return raw[_HEADER.fields["flags"][1]]
+
+
 def read(path) -> GaussianPly:
-    """Read an SPZ file (module docstring) as raw INRIA values; SplatsError naming the file if unusable."""
+    """Read an SPZ file (module docstring) as raw INRIA values in the frame of a file without a coordinate-system
+    declaration (the docstring's convention); SplatsError naming the file if unusable."""
     path = os.fspath(path)
     data = read_bytes(path)
     if data.startswith(GZIP_MAGIC):
-        version, n, degree, fb, blocks = _gzip_blocks(path, data)
+        version, n, degree, fb, blocks, system = _gzip_blocks(path, data)
     else:
-        version, n, degree, fb, blocks = _zstd_blocks(path, data)
-    return _decode(blocks, version, n, degree, fb)
+        version, n, degree, fb, blocks, system = _zstd_blocks(path, data)
+    ply = _decode(blocks, version, n, degree, fb)
+    return _from_system(ply, system) if system not in (None, DEFAULT_SYSTEM) else ply
+
+
+def system_matrix(system: str) -> np.ndarray:
+    """(3, 3) M with p_RUB = M p for the values p of a file declaring ``system`` (a ``COORDINATE_SYSTEMS`` name), as
+    Niantic's library packs and unpacks them (module docstring): the standard family's letter flips, for the rotated
+    family those of the standard system eight values before, then a quarter turn about x."""
+    index = COORDINATE_SYSTEMS.index(system)
+    M = np.diag([_LETTER_SIGNS[letter] for letter in COORDINATE_SYSTEMS[index % 8]])
+    return _ROTATED_TO_STANDARD @ M if index >= 8 else M
+
+
+def _from_system(ply: GaussianPly, system: str) -> GaussianPly:
+    """``ply`` whose values are in ``system``, turned into the default frame (module docstring)."""
+    M = system_matrix(system)
+    proper = np.linalg.det(M) * M   # a rotation: M R and det(M) M R give one covariance M Σ Mᵀ
+    w, x, y, z = cameras.rotation_to_quaternion(proper)
+    left = np.array([[w, -x, -y, -z], [x, w, -z, y], [y, z, w, -x], [z, -y, x, w]])  # q -> m ⊗ q
+    ply.xyz = (ply.xyz.astype(np.float64) @ M.T).astype(np.float32)
+    ply.rot = (ply.rot.astype(np.float64) @ left.T).astype(np.float32)
+    if ply.f_rest.shape[2]:
+        rest = sh_rotation(M, ply.sh_degree)[1:, 1:]   # (K-1, K-1) on coefficient-major; f_rest is channel-major
+        ply.f_rest = np.einsum("kj,ncj->nck", rest, ply.f_rest.astype(np.float64)).astype(np.float32)
+    return ply
+
+
+def _extensions(path, zone: bytes, where: str) -> str | None:
+    """The coordinate system (a ``COORDINATE_SYSTEMS`` name) that the extension records ``zone`` declare, or None;
+    other record types skipped by their length. ``where`` says where the records were, for the errors."""
+    if len(zone) > MAX_EXTENSION_BYTES:
+        raise SplatsError(path, f"SPZ extension records {where} are {len(zone):,} bytes, more than the "
+                                f"{MAX_EXTENSION_BYTES:,} read (damaged file: a wrong count or SH degree?)", "extensions")
+    at, system = 0, None
+    while at < len(zone):
+        if len(zone) - at < 8:
+            raise SplatsError(path, f"SPZ extension record {where} at byte {at} is cut after {len(zone) - at} of its "
+                                    "8 header bytes (type, length): damaged file", "extensions")
+        kind, length = (int(v) for v in np.frombuffer(zone, "<u4", 2, at))
+        if length > len(zone) - at - 8:
+            raise SplatsError(path, f"SPZ extension record 0x{kind:08X} {where} claims {length:,} bytes, "
+                                    f"{len(zone) - at - 8:,} remain: damaged file", "extensions")
+        if kind == COORDINATE_SYSTEM_EXTENSION:
+            value = int(np.frombuffer(zone, "<u4", 1, at + 8)[0]) if length == 4 else None
+            if value is None or value > len(COORDINATE_SYSTEMS):
+                raise SplatsError(path, f"SPZ_ADOBE_coordinate_system record {where} holds "
+                                        f"{'value ' + str(value) if value is not None else f'{length} bytes'}, not "
+                                        f"one uint32 of 0-{len(COORDINATE_SYSTEMS)} (a named coordinate system): "
+                                        "damaged file, or a newer SPZ", "extensions")
+            system = COORDINATE_SYSTEMS[value - 1] if value else None  # 0: UNSPECIFIED, the default
+        at += 8 + length
+    return system
 
 
 def _gzip_blocks(path, data: bytes):
@@ -126,21 +220,30 @@ def _gzip_blocks(path, data: bytes):
             raise SplatsError(path, f"SPZ file truncated: {n:,} Gaussians of SH degree {degree} need "
                                     f"{sum(sizes):,} bytes after the header, the gzip stream holds {len(body):,}",
                               "count")
-        # the stream must end where the header says: more data means a wrong count or SH degree (the blocks would
-        # be read misaligned), no end a truncated file (its checksum is read too)
+        # the stream must end where the header says (after the extension records when flagged): more data means a
+        # wrong count or SH degree (the blocks would be read misaligned), no end a truncated file (checksum read too)
+        flagged = bool(_flags(head) & FLAG_EXTENSIONS)
+        limit = MAX_EXTENSION_BYTES + 1 if flagged else 64
         more = b""
-        while not (more or d.eof) and d.unconsumed_tail:   # (past the end, zlib keeps the rest as unused data)
-            more = d.decompress(d.unconsumed_tail, 64)
-        if more:
+        while not d.eof and len(more) < limit:   # (past the end, zlib keeps the rest as unused data)
+            piece = d.decompress(d.unconsumed_tail, limit - len(more))
+            if not piece:
+                break
+            more += piece
+            if not flagged:
+                break
+        system = _extensions(path, more, "after the attributes") if flagged else None
+        if more and not flagged:
             raise SplatsError(path, f"SPZ header says {n:,} Gaussians of SH degree {degree} ({sum(sizes):,} bytes "
                                     "after the header), but its gzip stream holds more: the count or SH degree is "
-                                    "wrong (damaged file)", "count")
+                                    "wrong (damaged file; extension records follow only when the header's flags "
+                                    "say so)", "count")
         if not d.eof:
             raise SplatsError(path, "its gzip stream ends before its end marker and checksum: truncated SPZ file",
                               "header")
     except zlib.error as e:
         raise SplatsError(path, f"its gzip stream is corrupt ({e}): truncated or damaged SPZ file") from None
-    return version, n, degree, fb, _split(body, sizes)
+    return version, n, degree, fb, _split(body, sizes), system
 
 
 def _split(body: bytes, sizes) -> list:
@@ -163,6 +266,8 @@ def _zstd_blocks(path, data: bytes):
         raise SplatsError(path, f"SPZ version 4 header is inconsistent: {streams} streams at byte {toc} "
                                 f"({len(sizes)} expected for SH degree {degree}, in a file of {len(data):,} bytes)",
                           "header")
+    system = (_extensions(path, data[_V4_HEADER_SIZE:toc], "between the header and the table of contents")
+              if _flags(data) & FLAG_EXTENSIONS else None)
     entries = np.frombuffer(data, "<u8", 2 * streams, toc).reshape(streams, 2)
     try:
         import zstandard  # bundled with Blender (its .blend compression) and pinned in requirements.txt
@@ -192,7 +297,7 @@ def _zstd_blocks(path, data: bytes):
             raise SplatsError(path, f"SPZ stream {i} holds {len(raw):,} bytes, its entry says {want:,}", "streams")
         blocks.append(np.frombuffer(raw, np.uint8))
         at += packed
-    return version, n, degree, fb, blocks
+    return version, n, degree, fb, blocks, system
 
 
 def _byte_table(f) -> np.ndarray:

@@ -217,19 +217,58 @@ def same_rotation_error(a, b):
 
 # -- writers of the formats issue 31 added (shared by their tests and tests/fuzz_splat_formats.py) ------------------
 
-def spz_body(ply, version=2, fractional_bits=12, count=None, degree=None) -> bytes:
+def spz_body(ply, version=2, fractional_bits=12, count=None, degree=None, flags=0, extensions=b"") -> bytes:
     """The uncompressed bytes of an SPZ file (header and attributes; version 2 or 3) of raw INRIA values ``ply``, from
     the format's description (nianticlabs/spz, src/cc/load-spz.cc: packGaussians). Version 2: rotations as 3 bytes
     x y z of the unit quaternion with w >= 0, byte = round((v + 1) · 127.5); version 3: "smallest three" in a uint32
     (bits 30-31 the index of the largest |component| in x y z w order, made positive; the other three from bit 0 up
     in decreasing index order, 9 bits of |v| / √½ · 511 and a sign bit). ``count`` / ``degree``: header values other
-    than the data's (for damaged files)."""
-    from scpainter_blender.core.splats import spz
-
+    than the data's (for damaged files). ``flags``: the header's flags byte; ``extensions``: extension records
+    (``spz_extension``) after the attributes, as Niantic's serializer writes them (set flags bit 0x2 with them)."""
     n, deg = len(ply), ply.sh_degree
     header = np.array([(0x5053474E, version, n if count is None else count, deg if degree is None else degree,
-                        fractional_bits, 0, 0)],
+                        fractional_bits, flags, 0)],
                       [("m", "<u4"), ("v", "<u4"), ("n", "<u4"), ("d", "u1"), ("fb", "u1"), ("f", "u1"), ("r", "u1")])
+    return header.tobytes() + b"".join(_spz_blocks(ply, version, fractional_bits)) + extensions
+
+
+def spz_v4(ply, fractional_bits=12, flags=0, extensions=b"") -> bytes:
+    """An SPZ version 4 file of raw INRIA values ``ply`` (nianticlabs/spz README, "File layout (version 4)"): the
+    32-byte plain header (magic, version, N, SH degree, fractional bits, flags, number of streams, uint32 offset of
+    the table of contents, 12 reserved zero bytes), the extension records ``extensions`` (flags bit 0x2 says they are
+    there), the table (per stream uint64 compressed, uint64 uncompressed size), one Zstandard frame per attribute."""
+    import struct
+
+    import zstandard
+
+    blocks = _spz_blocks(ply, 4, fractional_bits)
+    frames = [zstandard.ZstdCompressor().compress(b) for b in blocks]
+    toc = 32 + len(extensions)
+    header = struct.pack("<IIIBBBBI12x", 0x5053474E, 4, len(ply), ply.sh_degree, fractional_bits, flags,
+                         len(blocks), toc)
+    table = b"".join(struct.pack("<QQ", len(f), len(b)) for f, b in zip(frames, blocks))
+    return header + extensions + table + b"".join(frames)
+
+
+def spz_extension(kind: int, payload: bytes) -> bytes:
+    """One SPZ extension record (nianticlabs/spz extensions/README.md): uint32 type, uint32 length, the payload."""
+    import struct
+
+    return struct.pack("<II", kind, len(payload)) + payload
+
+
+def spz_coordinate_system(value: int) -> bytes:
+    """An ``SPZ_ADOBE_coordinate_system`` record (type 0xADBE0003) declaring Niantic's CoordinateSystem ``value``."""
+    import struct
+
+    return spz_extension(0xADBE0003, struct.pack("<I", value))
+
+
+def _spz_blocks(ply, version, fractional_bits) -> list:
+    """The attribute blocks (positions, alphas, colours, scales, rotations[, SH]) as ``spz_body`` describes them."""
+    from scpainter_blender.core.splats import spz
+
+    n = len(ply)
     fixed = np.rint(ply.xyz.astype(np.float64) * (1 << fractional_bits)).astype(np.int64) & 0xFFFFFF
     pos = np.stack([(fixed >> s) & 0xFF for s in (0, 8, 16)], axis=-1).astype(np.uint8)
     byte = lambda v: np.clip(np.rint(v), 0, 255).astype(np.uint8)  # noqa: E731
@@ -253,7 +292,7 @@ def spz_body(ply, version=2, fractional_bits=12, count=None, degree=None) -> byt
             word |= (m | np.where(v < 0, np.uint32(512), np.uint32(0))) << np.uint32(10 * slot)
         rot = word.astype("<u4")
     sh = byte(np.swapaxes(ply.f_rest, 1, 2).astype(np.float64) * 128 + 128)  # coefficient-major, channel inner
-    return b"".join(a.tobytes() for a in (header, pos, alpha, color, scale, rot, sh))
+    return [a.tobytes() for a in (pos, alpha, color, scale, rot) + ((sh,) if sh.size else ())]
 
 
 def write_spz(path, ply, version=2, fractional_bits=12):

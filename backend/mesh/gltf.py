@@ -12,8 +12,12 @@ What trimesh 5.2.0 (``trimesh/exchange/gltf``) does itself, and what is done her
   ``texCoord`` and ``KHR_texture_transform``. Here: the set the textureInfo names (the extension's ``texCoord``
   overriding it), moved by ``texture_transform``.
 * ``KHR_draco_mesh_compression``: trimesh decodes it with DracoPy (a placeholder of zeros and a log line when that
-  fails). Here: decoded with DracoPy (``DRACOPY``, pinned in requirements.txt) into the plain accessors, a failure
-  an error naming the primitive; without DracoPy installed the file is refused (``check_required``).
+  fails, and data of the wrong shape surfaces as a reshape error inside trimesh). Here: decoded with DracoPy
+  (``DRACOPY``, pinned in requirements.txt) into the plain accessors and checked against them (every attribute the
+  extension names present, the accessor type's number of components, finite positions, face indices within the
+  decoded vertices and as many as the indices accessor declares); a failure is an error naming
+  ``KHR_draco_mesh_compression`` and the primitive (``meshes[m].primitives[p]``); without DracoPy installed the file
+  is refused (``check_required``).
 
 * Samplers: trimesh keeps no sampler, and the colours were read with REPEAT whatever ``wrapS`` / ``wrapT`` said.
   Here: a material whose base-colour texture wraps otherwise (``base_colour_wrap``) is renamed in the plain GLB
@@ -62,6 +66,8 @@ TRANSFORM = "KHR_texture_transform"
 #: the name prefix that marks a material with a non-default wrap in the plain GLB (``part_wraps`` removes it)
 WRAP_TAG = "scpainter-wrap:"
 DRACOPY = "DracoPy==2.2.0"      # what requirements.txt pins; named in the refusal when it is not installed
+#: What to do about Draco data that does not decode into the primitive's accessors.
+DRACO_HINT = "export the car again (without Draco, or with another exporter): its Draco data is damaged"
 #: Required extensions read here, or read as absent without changing the geometry or the base colour (material
 #: extensions change shading only; unlit keeps the base colour; lights, XMP and variants' default are harmless).
 READ_EXTENSIONS = frozenset({
@@ -307,7 +313,9 @@ class _Reader:
         return out
 
     def draco(self, where, prim) -> dict:
-        """{glTF attribute name or "indices": decoded values} of a Draco-compressed primitive."""
+        """{glTF attribute name or "indices": decoded values} of a Draco-compressed primitive, checked against the
+        accessors it replaces (``_check_draco``): every error names ``KHR_draco_mesh_compression`` and the
+        primitive, never a reshape deep in trimesh."""
         DracoPy = _dracopy()
         ext = prim["extensions"][DRACO]
         try:
@@ -316,10 +324,45 @@ class _Reader:
             out = {ids[a["unique_id"]]: np.asarray(a["data"]) for a in decoded.attributes if a["unique_id"] in ids}
             out["indices"] = np.asarray(decoded.faces).reshape(-1)
         except Exception as e:  # DracoPy raises its own errors (and KeyError/TypeError on a malformed extension)
-            raise self.error(f"{where}.extensions.{DRACO}", f"{where}: its Draco-compressed data cannot be decoded "
-                                                            f"({type(e).__name__}: {e})",
-                             "export the car again (without Draco, or with another exporter)") from None
+            raise self.error(f"{where}.extensions.{DRACO}", f"{where}: {DRACO}: its Draco-compressed data cannot be "
+                                                            f"decoded ({type(e).__name__}: {e})", DRACO_HINT) from None
+        self._check_draco(where, prim, ext, out)
         return out
+
+    def _check_draco(self, where, prim, ext, out) -> None:
+        """Refuse decoded Draco data that cannot be the accessors it stands for (a damaged payload decodes into
+        any shape, or an extension whose ``attributes`` name the wrong ids): an attribute it lacks, another number
+        of components than the accessor's type, non-finite positions, face indices past its vertices."""
+        field = f"{where}.extensions.{DRACO}"
+        attrs = prim.get("attributes") or {}
+        acc = self.tree["accessors"]
+        for name, uid in (ext.get("attributes") or {}).items():
+            if name not in attrs:
+                continue
+            if name not in out:
+                raise self.error(f"{field}.attributes.{name}", f"{where}: {DRACO}: its Draco data has no attribute "
+                                                               f"{uid}, which the extension names for {name}: a "
+                                                               "damaged payload or extension", DRACO_HINT)
+            values = out[name] = out[name].reshape(len(out[name]), -1)
+            i = attrs[name]
+            want = checks.TYPE_COMPONENTS.get(acc[i].get("type"))
+            if values.shape[1] != want:
+                raise self.error(f"{field}.attributes.{name}", f"{where}: {DRACO}: its Draco data gives {name} "
+                                                               f"{values.shape[1]} components per vertex, "
+                                                               f"accessors[{i}] ({acc[i].get('type')}) {want}: a "
+                                                               "damaged payload or extension", DRACO_HINT)
+        positions = out.get("POSITION")
+        if positions is not None and not np.isfinite(positions).all():
+            raise self.error(f"{field}.attributes.POSITION", f"{where}: {DRACO}: its Draco data decodes to "
+                                                             "non-finite positions: a damaged payload", DRACO_HINT)
+        indices = out["indices"]
+        if positions is not None and len(indices) and int(indices.max()) >= len(positions):
+            raise self.error(field, f"{where}: {DRACO}: its Draco data's faces name vertex {int(indices.max()):,}, "
+                                    f"it decodes {len(positions):,} vertices: a damaged payload", DRACO_HINT)
+        if "indices" in prim and len(indices) != acc[prim["indices"]].get("count"):
+            raise self.error(field, f"{where}: {DRACO}: its Draco data holds {len(indices):,} face indices but "
+                                    f"accessors[{prim['indices']}] declares {acc[prim['indices']].get('count'):,}: "
+                                    "a damaged payload", DRACO_HINT)
 
 
 def plain_glb(path: str | os.PathLike, tree: dict, error: Callable[..., Exception],
@@ -364,10 +407,9 @@ def plain_glb(path: str | os.PathLike, tree: dict, error: Callable[..., Exceptio
 
             def values(name, i):
                 if name in dec and len(dec[name]) != acc[i]["count"]:
-                    raise error(f"{where}.attributes.{name}", f"{where}: its Draco data holds {len(dec[name]):,} "
-                                                              f"{name} values but accessors[{i}] declares "
-                                                              f"{acc[i]['count']:,}", "export the car again "
-                                                                                      "(the glTF is corrupt)")
+                    raise error(f"{where}.attributes.{name}", f"{where}: {DRACO}: its Draco data holds "
+                                                              f"{len(dec[name]):,} {name} values but accessors[{i}] "
+                                                              f"declares {acc[i]['count']:,}", DRACO_HINT)
                 return dequantize(src.accessor(i, dec.get(name)), acc[i].get("normalized", False))
 
             out = new["meshes"][m]["primitives"][p]

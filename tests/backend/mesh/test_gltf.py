@@ -367,6 +367,43 @@ def test_draco_data_that_does_not_match_its_accessors_is_refused(tmp_path):
         mesh_load.load_mesh(path)
 
 
+def test_damaged_draco_is_refused_naming_the_extension_and_primitive(tmp_path):
+    """Issue 42: Draco data that decodes into the wrong shape was reported as "trimesh cannot read it as a mesh
+    (ValueError: cannot reshape array of size 8 into shape (4,3))", a missing attribute as "the car is 0 units
+    across", a damaged face index as "its faces name vertices 0 to 255" — none naming Draco. Each now names
+    KHR_draco_mesh_compression, the primitive and the attribute."""
+    path = quad_gltf(tmp_path, "quad.gltf", draco=True)
+    with open(path) as f:
+        tree = json.load(f)
+    ext = tree["meshes"][0]["primitives"][0]["extensions"][mesh_gltf.DRACO]
+    ids = dict(ext["attributes"])
+    where = r"meshes\[0\]\.primitives\[0\]: KHR_draco_mesh_compression: "
+    for attributes, message, field in (
+            ({"POSITION": ids["TEXCOORD_0"], "TEXCOORD_0": ids["POSITION"]},
+             r"its Draco data gives POSITION 2 components per vertex, accessors\[0\] \(VEC3\) 3", "POSITION"),
+            ({"POSITION": 7, "TEXCOORD_0": ids["TEXCOORD_0"]},
+             "its Draco data has no attribute 7, which the extension names for POSITION", "POSITION")):
+        ext["attributes"] = attributes
+        with open(path, "w") as f:
+            json.dump(tree, f)
+        with pytest.raises(mesh_load.MeshAssetError, match=where + message) as e:
+            mesh_load.load_mesh(path)
+        assert e.value.field == f"meshes[0].primitives[0].extensions.KHR_draco_mesh_compression.attributes.{field}"
+        assert "Draco" in e.value.hint
+    ext["attributes"] = ids
+    with open(path, "w") as f:
+        json.dump(tree, f)
+    view = tree["bufferViews"][ext["bufferView"]]
+    data = bytearray((tmp_path / "quad.bin").read_bytes())
+    payload = data[view["byteOffset"]:view["byteOffset"] + view["byteLength"]]
+    at = view["byteOffset"] + payload.find(QUAD_FACES.astype(np.uint8).tobytes())  # stored in order, one byte each
+    data[at + 5] = 0xFF                                                               # the last index: 3 -> 255
+    (tmp_path / "quad.bin").write_bytes(bytes(data))
+    with pytest.raises(mesh_load.MeshAssetError, match=where + "its Draco data's faces name vertex 255, it decodes "
+                                                               "4 vertices: a damaged payload"):
+        mesh_load.load_mesh(path)
+
+
 def test_draco_without_dracopy_is_refused_naming_the_fix(tmp_path, monkeypatch):
     path = quad_gltf(tmp_path, draco=True)
     monkeypatch.setitem(sys.modules, "DracoPy", None)   # an environment without DracoPy: import fails

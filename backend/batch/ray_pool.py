@@ -146,9 +146,11 @@ def _check_reachable(address: str | None) -> None:
     or answers but not as a gRPC server (a Ray head's GCS is one; a web server, Redis or the dashboard's port is
     not): ``_address_error``, where ``ray.init`` would retry for ever. The second test opens a gRPC channel and
     waits for it to be ready (HTTP/2 set up), skipped with ``RAY_USE_TLS`` (the head then needs Ray's
-    certificates). ``auto``, ``ray://`` (Ray Client) and no address at all are left to Ray."""
+    certificates). An address in none of ``core.batch_items.RAY_ADDRESS_FORMS`` (a dashboard URL) is refused first
+    (``check_ray_address``); ``auto``, ``local``, ``ray://`` (Ray Client) and no address at all are left to Ray."""
+    batch_items.check_ray_address(address)
     given = address or os.environ.get("RAY_ADDRESS", "").strip()
-    if not given or given == "auto" or "://" in given:
+    if not given or given in ("auto", "local") or "://" in given:
         return
     host, _, port = given.rpartition(":")
     if not host or not port.isdigit() or not 0 < int(port) < 65536:

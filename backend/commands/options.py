@@ -116,7 +116,7 @@ def ray_options(p: argparse.ArgumentParser, what: str) -> None:
     p.add_argument("--ray", nargs="?", const="", metavar="ADDRESS",
                    help=f"run {what} on a Ray cluster (one task per job: one GPU each, or --cpus-per-job CPUs on "
                         "a cluster without GPUs; retried when a worker dies): the cluster at ADDRESS (HOST:PORT of "
-                        "its head), else RAY_ADDRESS or the one `ray start` started here, else a new local one; "
+                        "its head, ray://HOST:PORT, auto or local; not the dashboard's http:// URL), else RAY_ADDRESS or the one `ray start` started here, else a new local one; "
                         "files on a shared file system (README)")
     p.add_argument("--retries", type=bounded_int(0, MAX_RETRIES), default=None,
                    help="--ray: run a job again at most this often when its worker dies or it fails unexpectedly "

@@ -18,6 +18,15 @@ DEFAULT_RETRIES = 2
 MAX_RETRIES = 100
 #: ``--cpus-per-job``: what each job asks of a Ray cluster without GPUs (a GPU cluster's jobs take 1 GPU, 1 CPU).
 DEFAULT_CPUS_PER_JOB = 1.0
+#: The cluster addresses ``--ray ADDRESS`` and ``RAY_ADDRESS`` take (what ``ray.init(address=)`` joins): ``auto``
+#: (the cluster ``ray start`` started on this machine), ``local`` (a new one here), ``HOST:PORT`` (the head's GCS,
+#: port 6379 unless ``ray start --port`` said otherwise) and ``ray://HOST:PORT`` (Ray Client, port 10001).
+RAY_ADDRESS_FORMS = ("auto", "local", "HOST:PORT", "ray://HOST:PORT")
+#: What to give instead of another address; the dashboard's URL (http://HEAD:8265) is what ``ray job submit`` and
+#: the web page take, and is the address people copy.
+RAY_ADDRESS_HINT = ("give the cluster's address: ray://HEAD:10001 (Ray Client) or HEAD:6379 (its GCS, as `ray start "
+                    "--head` prints it), auto or local; the dashboard's URL http://HEAD:8265 is for `ray job submit`, "
+                    "not for joining the cluster")
 
 
 def check_ray_options(retries: int | None, cpus_per_job: float | None) -> None:
@@ -32,10 +41,46 @@ def check_ray_options(retries: int | None, cpus_per_job: float | None) -> None:
                                   hint="e.g. --cpus-per-job 4 for jobs that use 4 threads each")
 
 
+def ray_address_problem(address: str) -> str | None:
+    """Why ``address`` is none of the ``RAY_ADDRESS_FORMS``, or None: a web URL (http/https: the dashboard's),
+    another scheme, a HOST:PORT without a host or with a port outside 1-65535. Whether a head answers there is
+    ``backend.batch.ray_pool``'s to find out."""
+    given = address.strip()
+    if given in ("auto", "local"):
+        return None
+    scheme, sep, rest = given.partition("://")
+    if sep and scheme.lower() in ("http", "https"):
+        return (f"{given!r} is a web address (the Ray dashboard's, where Ray Jobs are submitted), not the address "
+                "of a Ray cluster")
+    if sep and scheme != "ray":
+        return f"{given!r}: {scheme}:// is not a Ray cluster address (expected {', '.join(RAY_ADDRESS_FORMS)})"
+    host, colon, port = (rest if sep else given).rpartition(":")
+    if not colon or not host or "/" in host or not port.isdigit() or not 0 < int(port) < 65536:
+        return f"{given!r}: expected {', '.join(RAY_ADDRESS_FORMS)}, e.g. 10.0.0.5:6379"
+    return None
+
+
+def check_ray_address(address: str | None) -> None:
+    """``--ray``'s ADDRESS, or where none is given ("" or None) ``RAY_ADDRESS`` if set, in one of the
+    ``RAY_ADDRESS_FORMS``: ``ArgumentError`` naming ``--ray``, or ``InputError`` "(environment)" naming
+    ``RAY_ADDRESS``, with ``RAY_ADDRESS_HINT`` (before any cluster is started or joined: Ray itself fails on a
+    dashboard URL with an error that read as an internal one)."""
+    if address:
+        problem = ray_address_problem(address)
+        if problem is not None:
+            raise errors.ArgumentError("--ray", problem, hint=RAY_ADDRESS_HINT)
+        return
+    given = os.environ.get("RAY_ADDRESS", "")
+    problem = ray_address_problem(given) if given.strip() else None
+    if problem is not None:
+        raise errors.InputError("(environment)", "RAY_ADDRESS", problem, hint=RAY_ADDRESS_HINT + " (or unset "
+                                                                                                "RAY_ADDRESS)")
+
+
 def ray_options(ray: str | None, retries: int | None = None, cpus_per_job: float | None = None) -> tuple[int, float]:
     """``(retries, cpus_per_job)`` of a batch from its ``--ray``, ``--retries`` and ``--cpus-per-job`` (None: not
-    given, the default), checked with ``check_ray_options``. Without ``--ray`` (``ray`` None) either option would
-    be ignored: ``ArgumentError`` naming it."""
+    given, the default), checked with ``check_ray_options``, and its address with ``check_ray_address``. Without
+    ``--ray`` (``ray`` None) either option would be ignored: ``ArgumentError`` naming it."""
     if ray is None:
         for option, value in (("--retries", retries), ("--cpus-per-job", cpus_per_job)):
             if value is not None:
@@ -44,6 +89,7 @@ def ray_options(ray: str | None, retries: int | None = None, cpus_per_job: float
     retries = DEFAULT_RETRIES if retries is None else retries
     cpus_per_job = DEFAULT_CPUS_PER_JOB if cpus_per_job is None else cpus_per_job
     if ray is not None:
+        check_ray_address(ray)
         check_ray_options(retries, cpus_per_job)
     return retries, cpus_per_job
 

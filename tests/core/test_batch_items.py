@@ -199,3 +199,35 @@ def test_a_failed_item_without_a_hint_of_its_own_gets_one():
     assert fields["hint"] and "/data/car.ply" in fields["hint"], fields
     kept = batch.bad_input_fields(errors.InputError(item, "frames", "bad", hint="fix it"), item)
     assert kept["hint"] == "fix it"
+
+
+def test_ray_addresses_in_the_forms_ray_joins_are_accepted(monkeypatch):
+    """Issue 42: auto, local, HOST:PORT (IPv6 in brackets) and ray://HOST:PORT pass; a dashboard URL, another
+    scheme or a HOST:PORT without host or with a bad port is refused before any cluster is joined."""
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    for good in ("auto", "local", "10.0.0.5:6379", "head:6379", "[::1]:6379", "ray://head:10001", " auto "):
+        assert batch.ray_address_problem(good) is None, good
+        batch.check_ray_address(good)
+    for bad, says in (("http://127.0.0.1:8265", "is a web address (the Ray dashboard's"),
+                      ("https://ray.example.com", "is a web address"),
+                      ("grpc://head:6379", "grpc:// is not a Ray cluster address"),
+                      ("head", "expected auto, local, HOST:PORT, ray://HOST:PORT"),
+                      (":6379", "expected"), ("head:0", "expected"), ("head:65536", "expected"),
+                      ("ray://head", "expected"), ("head/x:1", "expected")):
+        with pytest.raises(errors.ArgumentError) as e:
+            batch.check_ray_address(bad)
+        assert e.value.field == "--ray" and says in e.value.message, (bad, e.value.message)
+        assert "ray://HEAD:10001" in e.value.hint and "8265" in e.value.hint
+
+
+def test_a_dashboard_url_in_the_environment_is_refused_naming_it(monkeypatch):
+    monkeypatch.setenv("RAY_ADDRESS", "http://127.0.0.1:8265")
+    for given in ("", None):   # --ray without an address reads RAY_ADDRESS
+        with pytest.raises(errors.InputError) as e:
+            batch.check_ray_address(given)
+        assert (e.value.path, e.value.field) == ("(environment)", "RAY_ADDRESS") and "web address" in e.value.message
+        assert "unset RAY_ADDRESS" in e.value.hint
+    with pytest.raises(errors.InputError):
+        batch.ray_options("", None, None)
+    batch.check_ray_address("head:6379")      # an address given wins over the environment's
+    assert batch.ray_options(None) == (batch.DEFAULT_RETRIES, batch.DEFAULT_CPUS_PER_JOB)   # no --ray: not read

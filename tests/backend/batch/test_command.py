@@ -94,6 +94,33 @@ def test_ray_options_without_ray_are_refused_not_ignored(tmp_path):
     assert not os.path.exists(tmp_path / "a" / "out_a")
 
 
+def test_a_ray_dashboard_url_is_refused_as_bad_input_not_an_internal_error(tmp_path, monkeypatch):
+    """Issue 42: ``--ray http://127.0.0.1:8265`` (or that URL in RAY_ADDRESS, ``--ray`` without an address) exited 1
+    as "an internal error … please report it"; now exit 2 naming the option or the variable, with what to give,
+    before any cluster is joined or job run. In-process (``backend.__main__.main``)."""
+    import contextlib
+    import io
+
+    from backend.__main__ import main
+
+    job = _car_job(tmp_path / "a", "a")
+
+    def run(*args):
+        out = io.StringIO()
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(io.StringIO()):
+            code = main(["batch", job, "--command", "render", "--device", "cpu", *args])
+        return code, json.loads(out.getvalue().strip().splitlines()[-1])
+
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    code, last = run("--ray", "http://127.0.0.1:8265")
+    assert code == 2 and last["field"] == "--ray" and "web address" in last["message"], last
+    assert "ray://HEAD:10001" in last["hint"]
+    monkeypatch.setenv("RAY_ADDRESS", "http://127.0.0.1:8265")
+    code, last = run("--ray")
+    assert code == 2 and (last["file"], last["field"]) == ("(environment)", "RAY_ADDRESS"), last
+    assert not os.path.exists(tmp_path / "a" / "out_a")
+
+
 def test_a_checkpoint_that_is_not_one_is_refused_before_any_job(tmp_path):
     job = _car_job(tmp_path / "a", "a")
     proc = subprocess.run([sys.executable, "-m", "backend", "batch", job, "--command", "generate", "--checkpoint",

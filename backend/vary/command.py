@@ -20,7 +20,7 @@ def vary(args) -> tuple:
     the run. Returns (the done event's fields, exit code: 1 when no variant could be placed)."""
     spec = spec_mod.from_arguments(args)
     manifest = variants.make_variants(args.job, spec, args.out, convert_mesh=convert_mesh,
-                                      progress=lambda d, n: events.progress("vary", d, n))
+                                      progress=lambda d, n: events.progress("vary", d, n), skip_bad=args.skip_bad)
     for w in variants.warnings(manifest):
         events.warning(**w)
     code = events.EXIT_OK if manifest["summary"]["placed"] else events.EXIT_FAILED

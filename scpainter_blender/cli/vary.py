@@ -57,7 +57,7 @@ def run(args: argparse.Namespace) -> tuple[dict, int]:
     def progress(done: int, total: int) -> None:
         print(f"scpainter: vary {done}/{total}", file=sys.stderr, flush=True)
 
-    manifest = variations.make_variations(bpy.context, spec, args.out, camera, python, progress)
+    manifest = variations.make_variations(bpy.context, spec, args.out, camera, python, progress, args.skip_bad)
     for w in vary_mod.warnings(manifest):
         print(json.dumps(protocol.event(protocol.WARNING, **w)), flush=True)
     code = protocol.EXIT_OK if manifest["summary"]["placed"] else protocol.EXIT_FAILED

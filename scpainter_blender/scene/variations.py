@@ -19,12 +19,15 @@ def mesh_converter(python: str = ""):
     return convert
 
 
-def make_variations(context, spec, out: str, camera=None, python: str = "", progress=None) -> dict:
+def make_variations(context, spec, out: str, camera=None, python: str = "", progress=None,
+                    skip_bad: bool = False) -> dict:
     """Export the scene's job seen from ``camera`` (None: the scene camera) as the base
-    (``VariationLayout.base_job``) and write ``spec``'s variants into ``out``; returns the manifest. Errors:
+    (``VariationLayout.base_job``) and write ``spec``'s variants into ``out`` (``skip_bad``: ``vary --skip-bad``,
+    ``variants.make_variants``); returns the manifest. Errors:
     ``SceneError`` (no camera, no points), ``VariationError`` and the readers' ``InputError``s, a mesh's
     ``BackendError``."""
     out = os.path.abspath(out)
     layout = VariationLayout(out)
     job_export.export_job(context, layout.base_job, output_dir=os.path.dirname(layout.base_job), camera=camera)
-    return variants.make_variants(layout.base_job, spec, out, convert_mesh=mesh_converter(python), progress=progress)
+    return variants.make_variants(layout.base_job, spec, out, convert_mesh=mesh_converter(python), progress=progress,
+                                  skip_bad=skip_bad)

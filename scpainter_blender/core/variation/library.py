@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import colors, files
+from .. import colors, errors, files
 from ..geometry import boxes
 from ..job import DEFAULT_CLASS
 from ..splats import asset_frame, inria, reader
@@ -24,6 +24,48 @@ from .spec import VariationError
 MAX_ASSET_BYTES = 4 << 30
 #: At most this many files in a library.
 MAX_ASSETS = 10_000
+
+# The shape of a road vehicle, which a library car's box (metres, as the import stands it: Z up, its length the
+# longer horizontal side, so width <= length) must have (``vehicle_shape_problem``; the length's bounds are
+# ``asset_frame.CAR_LENGTH_M``, where a length outside says "other units"). The widest and tallest vehicles allowed
+# on public roads: 2.55 m wide (2.60 m refrigerated) and 4.00 m high in the EU (Council Directive 96/53/EC, Annex
+# I), 102 in (2.59 m) wide in the US (23 CFR 658.15), 13.5-14.5 ft (4.1-4.4 m) high by state; mirrors are not
+# counted, and the box of a capture's Gaussians runs a little beyond the body. Whatever is wider or taller than
+# these, or taller than long, or flatter than the flattest cars (a Formula 1 car is 0.95 m high for 5.6 m long, a
+# sixth), is no vehicle: a capture with its ground or a wall around the car, a room, a tree, a sheet.
+#: Widest library car, metres: 2.60 m allowed plus 0.4 m for mirrors and the Gaussians' edge.
+MAX_VEHICLE_WIDTH_M = 3.0
+#: Tallest library car, metres: 4.4 m allowed (the tallest US states) plus 0.1 m.
+MAX_VEHICLE_HEIGHT_M = 4.5
+#: Least height for its length: a tenth (the flattest cars are a sixth).
+MIN_VEHICLE_HEIGHT_RATIO = 0.1
+#: What to do with a library file that is no car: a hint every shape refusal shares.
+SHAPE_HINT = ("take it out of the car library, or crop it to the car (a capture's ground or surroundings?) and stand "
+              "it Z up in metres")
+#: What a bad library file's error adds to its hint when ``vary`` runs without ``--skip-bad``.
+SKIP_BAD_HINT = "or run vary with --skip-bad to leave the library files that cannot be used out (listed in the manifest)"
+
+
+def vehicle_shape_problem(width: float, length: float, height: float) -> str | None:
+    """Why a box of ``width`` x ``length`` x ``height`` metres (width <= length, as ``boxes.estimate_box`` gives
+    them) is not a road vehicle's (the rule above), or None."""
+    lo, hi = asset_frame.CAR_LENGTH_M
+    if not lo <= length <= hi:
+        return (f"would be {length:.3g} m long in its file's units, not a car's {lo:g}–{hi:g} m (millimetres or "
+                "centimetres?)")
+    if width > MAX_VEHICLE_WIDTH_M:
+        return (f"is not shaped like a road vehicle: {width:.2f} m wide ({length:.2f} m long, {height:.2f} m high), "
+                f"wider than the {MAX_VEHICLE_WIDTH_M:g} m any road vehicle is (2.55–2.60 m allowed, with mirrors)")
+    if height > MAX_VEHICLE_HEIGHT_M:
+        return (f"is not shaped like a road vehicle: {height:.2f} m high, taller than the {MAX_VEHICLE_HEIGHT_M:g} m "
+                "any road vehicle is")
+    if height > length:  # what stands taller than it is long drives on no road: a stool, a tree, a car on its end
+        return (f"is not shaped like a road vehicle: {height:.2f} m high for {length:.2f} m long (as the import "
+                "stands it, Z up)")
+    if height < MIN_VEHICLE_HEIGHT_RATIO * length:
+        return (f"is not shaped like a road vehicle: {height:.2f} m high for {length:.2f} m long, flatter than a "
+                f"tenth of its length (a sheet or a patch of ground, or its up axis wrong)")
+    return None
 
 
 @dataclass
@@ -110,19 +152,35 @@ def load_asset(path, cache: str, convert_mesh=None, mesh_count: int = 200_000, c
     box_to_data, box_size = boxes.estimate_box(means_data, up=(0.0, 0.0, 1.0))
     box_to_file = np.linalg.inv(frame.file_to_data) @ box_to_data
     width, length, height = np.asarray(box_size, np.float64) * frame.scale
-    lo, hi = asset_frame.CAR_LENGTH_M
-    if car and not lo <= length <= hi:
-        raise VariationError(path, "(file)", f"would be {length:.3g} m long in its file's units, not a car's "
-                                             f"{lo:g}–{hi:g} m (millimetres or centimetres?)",
-                             hint="scale it to metres, or take it out of the library")
-    if car and height > length:  # what stands taller than it is long drives on no road: a stool, a tree, a car on its end
-        raise VariationError(path, "(file)", f"is not shaped like a road vehicle: {height:.2f} m high for "
-                                             f"{length:.2f} m long (as the import stands it, Z up)",
-                             hint="take it out of the car library (or fix its up axis)")
+    problem = vehicle_shape_problem(width, length, height) if car else None
+    if problem is not None:
+        raise VariationError(path, "(file)", problem, hint=SHAPE_HINT)
     return LibraryAsset(os.path.basename(path), path, ply_path, box_to_file, np.asarray(box_size, np.float64),
                         float(frame.scale))
 
 
-def load_library(folder, cache: str, convert_mesh=None, mesh_count: int = 200_000) -> list:
-    """Every car of a library folder (``library_files``), loaded with ``load_asset``."""
-    return [load_asset(p, cache, convert_mesh, mesh_count) for p in library_files(folder)]
+def load_library(folder, cache: str, convert_mesh=None, mesh_count: int = 200_000, skipped: list | None = None) -> list:
+    """Every car of a library folder (``library_files``), loaded with ``load_asset``. A file that cannot be used
+    (any ``InputError``: unreadable, damaged, no car's shape) stops the run, its error's hint suggesting
+    ``--skip-bad`` (``SKIP_BAD_HINT``); with ``skipped`` (a list: ``vary --skip-bad``) it is left out and appended
+    there as ``{"file": path, "field": ..., "reason": the error's text}``, and only a library of which no file
+    can be used is an error (``VariationError`` ``cars.library``)."""
+    paths, assets = library_files(folder), []
+    for path in paths:
+        try:
+            assets.append(load_asset(path, cache, convert_mesh, mesh_count))
+        except errors.InputError as e:
+            if skipped is None:
+                e.hint = f"{e.hint}; {SKIP_BAD_HINT}" if e.hint else SKIP_BAD_HINT[len("or "):]
+                raise
+            skipped.append({"file": path, "field": e.field, "reason": str(e)})
+    if not assets:
+        raise VariationError(folder, "cars.library", f"none of its {len(paths)} car files can be used (the first: "
+                                                     f"{skipped[0]['reason'] if skipped else 'none'})",
+                             hint="put car files that the import reads into the library")
+    return assets
+
+
+def skipped_text(entry: dict) -> str:
+    """The warning for a library file ``load_library`` left out (one of its ``skipped`` entries)."""
+    return f"library file {os.path.basename(entry['file'])} left out (--skip-bad): {entry['reason']}"

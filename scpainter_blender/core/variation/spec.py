@@ -226,6 +226,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, help="the run's seed: variant i is the same for one seed (default: the "
                                                  "spec's)")
     parser.add_argument("--library", help="folder of car files to draw from (default: the spec's cars.library)")
+    parser.add_argument("--skip-bad", action="store_true",
+                        help="leave out library files that cannot be used (unreadable, damaged, not shaped like a "
+                             "car), each listed in the manifest with why and warned of; without it the first stops "
+                             "the run")
 
 
 def from_arguments(args: argparse.Namespace) -> VariationSpec:

@@ -122,7 +122,8 @@ class Variation:
     """One run: the base job and what every variant shares (its road, its library, the obstacles of the base)."""
 
     def __init__(self, base_path: str | os.PathLike, spec: VariationSpec, out: str | os.PathLike,
-                 convert_mesh: Callable[[str, str, int], object] | None = None, mesh_count: int = 200_000) -> None:
+                 convert_mesh: Callable[[str, str, int], object] | None = None, mesh_count: int = 200_000,
+                 skip_bad: bool = False) -> None:
         self.base_path = os.path.abspath(base_path)
         self.base = job_mod.load(self.base_path)
         self.spec, self.layout = spec, VariationLayout(os.path.abspath(out))
@@ -144,12 +145,14 @@ class Variation:
                                  "reconstruction in metres? (import it with a camera height, a metric trajectory "
                                  "or a scale factor)")
         t1 = time.perf_counter()
-        self.library = []
+        self.library, self.skipped = [], []  # skipped: the library files --skip-bad left out, with why
         if spec.car_count[1] > 0:
             if not spec.library:
                 raise VariationError("(variation spec)", "cars.library", "cars are asked for but no library is given",
                                      hint="set cars.library in the spec or pass --library DIR")
-            self.library = library_mod.load_library(spec.library, self.layout.library, convert_mesh, mesh_count)
+            self.library = library_mod.load_library(spec.library, self.layout.library, convert_mesh, mesh_count,
+                                                    skipped=self.skipped if skip_bad else None)
+            self.warnings += [library_mod.skipped_text(entry) for entry in self.skipped]
         self.fixed = self._base_obstacles(convert_mesh, mesh_count)
         self.timings = {"road_s": t1 - t0, "library_s": time.perf_counter() - t1}
 
@@ -346,12 +349,15 @@ class Variation:
 
 def make_variants(base_path: str | os.PathLike, spec: VariationSpec, out: str | os.PathLike,
                   convert_mesh: Callable[[str, str, int], object] | None = None,
-                  progress: Callable[[int, int], None] | None = None, mesh_count: int = 200_000) -> dict:
+                  progress: Callable[[int, int], None] | None = None, mesh_count: int = 200_000,
+                  skip_bad: bool = False) -> dict:
     """Write ``spec.variants`` variants of the job at ``base_path`` into ``out`` (``VariationLayout``): a job folder
     per placed variant, the ``batch`` list and the manifest, which it returns. ``convert_mesh(mesh, out_ply,
     count)`` turns a library mesh into Gaussians (None: meshes refused). ``progress(done, total)`` after each.
+    ``skip_bad`` (``vary --skip-bad``): library files that cannot be used are left out, each in the manifest's
+    ``library_skipped`` (file, field, reason) and its ``warnings`` (``library.load_library``).
     Errors: ``VariationError`` / the readers' ``InputError`` naming the file and field."""
-    v = Variation(base_path, spec, out, convert_mesh, mesh_count)
+    v = Variation(base_path, spec, out, convert_mesh, mesh_count, skip_bad)
     layout = v.layout
     outputs.make_folder(layout.root, "--out")
     earlier = _earlier_variants(layout)
@@ -386,6 +392,7 @@ def make_variants(base_path: str | os.PathLike, spec: VariationSpec, out: str | 
     manifest = {"schema": "scpainter.variation-manifest/1", "base": v.base_path, "spec": spec_mod.to_file(spec),
                 "library": [{"name": a.name, "source": a.source, "ply": a.ply, "size_m": a.size_m.tolist(),
                              "category": a.category} for a in v.library],
+                "library_skipped": v.skipped,
                 "road_area_m2": v.road.area_m2, "warnings": warnings, "removed": removed,
                 "summary": summary, "variants": entries,
                 "timings": dict(v.timings, placement_s=seconds,

@@ -81,3 +81,48 @@ def test_a_run_that_places_nothing_fails_and_says_why(street, tmp_path):
     assert events[-1]["event"] == "done" and events[-1]["summary"]["placed"] == 0
     code, events, err = run_backend("batch", "--list", str(tmp_path / "v" / "variants.txt"))
     assert code == 2 and "list no jobs" in events[-1]["message"] and "variation.json" in events[-1]["hint"]
+
+
+def _main(*args):
+    """(exit code, events) of ``python -m backend *args`` run in this process."""
+    import contextlib
+    import io
+
+    from backend.__main__ import main
+
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(io.StringIO()):
+        code = main([str(a) for a in args])
+    return code, [json.loads(line) for line in out.getvalue().splitlines() if line.strip()]
+
+
+def test_skip_bad_lists_the_library_files_left_out(street, tmp_path):
+    """Issue 42: one unreadable library file aborted the whole run. With --skip-bad the run goes on with the good
+    cars, the manifest's library_skipped names each bad file (a damaged one, one no car's shape) and why, and a
+    warning event says so. In-process (``backend.__main__.main``)."""
+    import numpy as np
+
+    from scpainter_blender.core.splats import gaussians as splats, inria
+
+    lib = tmp_path / "cars"
+    lib.mkdir()
+    shapes.save_as_amodal3r(str(lib / "blue.ply"), shapes.procedural_car_gaussians(count=2000, seed=7))
+    (lib / "broken.spz").write_bytes(b"\x1f\x8b" + bytes(40))              # gzip magic, then nothing
+    g = shapes.procedural_car_gaussians(count=2000, seed=1)                 # 9.2 x 5.8 m: no car
+    k = (np.array([5.8, 9.2, 1.5]) / (g.means.max(0) - g.means.min(0))).astype(np.float32)
+    inria.write_ply(lib / "wide.ply", splats.encode(splats.Gaussians(g.means * k, g.scales, g.quats, g.opacities,
+                                                                     g.sh)))
+    base = tmp_path / "base" / "job.json"
+    street_base_job(street, str(base))
+    spec = tmp_path / "spec.json"
+    spec.write_text(json.dumps({"variants": 2, "seed": 1, "resolution": [32, 18], "cars": {"count": [1, 1]}}))
+    # (without --skip-bad the first bad file's error stops the run, suggesting it: test_variants.py, in-process)
+    code, events = _main("vary", base, "--out", tmp_path / "v", "--spec", spec, "--library", lib, "--skip-bad")
+    assert code == 0, events[-1]
+    manifest = json.loads((tmp_path / "v" / "variation.json").read_text())
+    assert [a["name"] for a in manifest["library"]] == ["blue.ply"]
+    skipped = manifest["library_skipped"]
+    assert [s["file"] for s in skipped] == [str(lib / "broken.spz"), str(lib / "wide.ply")]
+    assert all(s["reason"] and s["field"] for s in skipped) and "5.80 m wide" in skipped[1]["reason"]
+    warned = [e["message"] for e in events if e["event"] == "warning" and e["code"] == "variation"]
+    assert sum("left out (--skip-bad)" in w for w in warned) == 2

@@ -297,6 +297,59 @@ def test_a_library_object_that_is_no_car_is_refused(tmp_path):
         library_mod.load_asset(tmp_path / "mm.ply", str(tmp_path / "cache"))
 
 
+def _wide_cloud(path, size=(5.8, 9.2, 1.5)):
+    """The field case (issue 42): a splat cloud 9.2 m long and 5.8 m wide (a car captured with the ground around
+    it), metric and Z up: the procedural car stretched to that box."""
+    from scpainter_blender.core.splats import inria, gaussians as splats
+
+    g = shapes.procedural_car_gaussians(count=3000, seed=1)
+    k = (np.array(size) / (g.means.max(0) - g.means.min(0))).astype(np.float32)
+    inria.write_ply(path, splats.encode(splats.Gaussians(g.means * k, g.scales, g.quats, g.opacities, g.sh)))
+    return path
+
+
+def test_a_library_object_wider_or_flatter_than_any_vehicle_is_refused(tmp_path):
+    """The stated rule (library.vehicle_shape_problem): a 9.2 x 5.8 m cloud was accepted as a car; now refused
+    naming its width and the bound. Real vehicles pass: a city car, a bus, a Formula 1 car."""
+    from scpainter_blender.core.variation import library as library_mod
+
+    with pytest.raises(spec_mod.VariationError, match=r"5\.80 m wide \(9\.20 m long, 1\.50 m high\), wider than the "
+                                                      r"3 m any road vehicle is") as e:
+        library_mod.load_asset(_wide_cloud(tmp_path / "wide.ply"), str(tmp_path / "cache"))
+    assert e.value.path == str(tmp_path / "wide.ply") and e.value.hint == library_mod.SHAPE_HINT
+    for width, length, height in ((1.66, 2.7, 1.55), (2.55, 12.0, 3.2), (2.0, 5.6, 0.95), (2.5, 16.5, 4.0)):
+        assert library_mod.vehicle_shape_problem(width, length, height) is None, (width, length, height)
+    for box, says in (((2.0, 4.5, 5.0), "taller than the 4.5 m"), ((2.0, 4.5, 0.3), "flatter than a tenth"),
+                      ((1.8, 4.4, 4.41), "4.41 m high for 4.40 m long"), ((1.8, 4400, 1500), "millimetres")):
+        assert says in library_mod.vehicle_shape_problem(*box), box
+
+
+def test_a_bad_library_file_names_itself_and_skip_bad_leaves_it_out(tmp_path):
+    """Issue 42: one unreadable library file aborted the run. Without --skip-bad its error still stops it, naming
+    the file and suggesting --skip-bad; with it (``skipped``) the bad files are left out, each with its reason."""
+    from scpainter_blender.core import errors
+    from scpainter_blender.core.variation import library as library_mod
+
+    lib = tmp_path / "cars"
+    lib.mkdir()
+    shapes.save_as_amodal3r(str(lib / "blue.ply"), shapes.procedural_car_gaussians(count=2000, seed=7))
+    (lib / "broken.ply").write_bytes((lib / "blue.ply").read_bytes()[:700])   # cut mid-data
+    _wide_cloud(lib / "wide.ply")
+    with pytest.raises(errors.InputError) as e:
+        library_mod.load_library(str(lib), str(tmp_path / "cache"))
+    assert e.value.path == str(lib / "broken.ply") and "--skip-bad" in e.value.hint
+    skipped = []
+    cars = library_mod.load_library(str(lib), str(tmp_path / "cache"), skipped=skipped)
+    assert [c.name for c in cars] == ["blue.ply"]
+    assert [s["file"] for s in skipped] == [str(lib / "broken.ply"), str(lib / "wide.ply")]
+    assert "broken.ply" in skipped[0]["reason"] and "5.80 m wide" in skipped[1]["reason"]
+    assert library_mod.skipped_text(skipped[1]).startswith("library file wide.ply left out (--skip-bad): ")
+    (lib / "blue.ply").unlink()
+    with pytest.raises(spec_mod.VariationError, match="none of its 2 car files can be used") as e:
+        library_mod.load_library(str(lib), str(tmp_path / "cache"), skipped=[])
+    assert e.value.field == "cars.library"
+
+
 def test_the_base_jobs_own_cars_are_obstacles(bases, library, tmp_path):
     """A car the base already holds, without a box (estimated, whatever its shape: the user placed it), is never
     overlapped; here it stands across the right lane, in every parked car's and moving car's way."""

@@ -343,6 +343,9 @@ class _Reader:
                 raise self.error(f"{field}.attributes.{name}", f"{where}: {DRACO}: its Draco data has no attribute "
                                                                f"{uid}, which the extension names for {name}: a "
                                                                "damaged payload or extension", DRACO_HINT)
+            if out[name].size == 0:   # (nothing to reshape: numpy cannot infer a width from no values)
+                raise self.error(f"{field}.attributes.{name}", f"{where}: {DRACO}: its Draco data holds no {name} "
+                                                               "values: a damaged payload", DRACO_HINT)
             values = out[name] = out[name].reshape(len(out[name]), -1)
             i = attrs[name]
             want = checks.TYPE_COMPONENTS.get(acc[i].get("type"))

@@ -23,13 +23,14 @@ from __future__ import annotations
 
 import os
 
+import bpy
 import numpy as np
 
 from ..core.geometry import point_cloud
 from ..core import job as job_mod
 from ..core import labels
 from . import camera as camera_mod
-from . import asset_box, keys, kinds, node_groups, placement, props, visibility
+from . import asset_box, keys, kinds, node_groups, paths, placement, props, visibility
 from . import points as points_mod
 from . import recorded_objects
 
@@ -68,16 +69,18 @@ def point_cleaning(obj) -> job_mod.PointCleaning:
 
 def build_job(context, job_path: str, output_dir: str | None = None, checkpoint: str = "",
               camera=None) -> job_mod.Job:
-    """The job for the scene's frame range, seen by ``camera`` (default: the scene camera)."""
+    """The job for the scene's frame range, seen by ``camera``, or (None) by the camera Blender renders each frame
+    with: the scene camera, switched by timeline markers bound to cameras as the render switches it."""
     scene = context.scene
-    cam = camera or scene.camera
-    if cam is None:
-        raise props.SceneError("scene.camera", "the scene has no active camera",
-                               hint="add one (or a camera path) before exporting a job")
-    if cam.type != "CAMERA":
-        raise props.SceneError(f"objects[{cam.name!r}]", "is not a camera", hint="give a camera object")
+    if camera is not None:
+        drawable_camera(camera, None)
     job_dir = os.path.dirname(os.path.abspath(job_path))
     frames = output_frames(scene)
+    size = camera_mod.output_size(scene)
+    if min(size) < 1:
+        raise props.SceneError("scene.render.border", f"the render region crops the frame to {size[0]} x {size[1]} "
+                               "pixels", hint="widen the render region (Output Properties > Format > Render Region) "
+                                              "or turn off Crop to Render Region")
     pts, assets = rendered_objects(context)
     boxes = placement.applied_removal_boxes(pts) if pts is not None else []
     out_frames = []
@@ -86,19 +89,19 @@ def build_job(context, job_path: str, output_dir: str | None = None, checkpoint:
     current = scene.frame_current
     try:
         for f in frames:
-            scene.frame_set(f)
+            scene.frame_set(f)  # also switches the scene camera by the markers, as the render does
+            cam = drawable_camera(camera or scene.camera, f)
             K, w2c = camera_mod.K_of_camera_object(scene, cam), camera_mod.world_to_camera(cam)
             out_frames.append(job_mod.Frame(f, K, w2c, source_frames(pts, f) if pts is not None else []))
             for a in assets:
-                asset_m[a.name][f] = (np.array(a.matrix_world, dtype=np.float64)
-                                      @ props.matrix_property(a, keys.FILE_TO_DATA))
+                asset_m[a.name][f] = a.matrix_world() @ props.matrix_property(a.obj, keys.FILE_TO_DATA)
                 if a.name not in asset_boxes:  # the box in the asset's own frame, as it stands at the first frame
-                    asset_boxes[a.name] = asset_box.job_box(a)
+                    asset_boxes[a.name] = asset_box.job_box(a.obj)
     finally:
         scene.frame_set(current)
     sc = None
     if pts is not None:
-        sc = job_mod.Scene(os.path.relpath(pts[keys.SOURCE], job_dir), effective_vggt_to_world(pts),
+        sc = job_mod.Scene(_job_path(pts, job_dir), effective_vggt_to_world(pts),
                            confidence_percentile=float(pts.get(keys.CONFIDENCE_PERCENTILE,
                                                                     point_cloud.CONFIDENCE_PERCENTILE)),
                            # how the import read the file: the backend loads the same poses and pixels
@@ -108,13 +111,44 @@ def build_job(context, job_path: str, output_dir: str | None = None, checkpoint:
                            point_cleaning=point_cleaning(pts),
                            recorded_frames=recorded_frames(scene, pts),
                            recorded_objects=recorded_objects.job_objects(scene, frames))
-    return job_mod.Job(camera_mod.render_size(scene), out_frames, os.path.relpath(output_dir or job_dir, job_dir),
+    return job_mod.Job(size, out_frames, os.path.relpath(output_dir or job_dir, job_dir),
                        scene=sc,
-                       assets=[job_mod.Asset(a.name, os.path.relpath(a[keys.SOURCE], job_dir), asset_m[a.name],
-                                             asset_box.category(a), asset_boxes[a.name])
+                       assets=[job_mod.Asset(a.name, _job_path(a.obj, job_dir), asset_m[a.name],
+                                             asset_box.category(a.obj), asset_boxes[a.name])
                                for a in assets],
                        generate=_generate_settings(checkpoint, props.baseline_inpaint(scene)),
                        fps=frame_rate(scene))
+
+
+#: Blender camera types the condition renderer draws (an OpenCV pinhole): perspective only.
+DRAWABLE_CAMERA_TYPES = ("PERSP",)
+
+
+def drawable_camera(cam, frame: int | None):
+    """``cam`` when the renderer can draw what it sees: a camera object of a ``DRAWABLE_CAMERA_TYPES`` type.
+    SceneError naming the camera (and the frame, for a camera the markers switch to) otherwise: none at all, not a
+    camera, or an orthographic or panoramic one, which a pinhole job would draw wrong (never exported as one)."""
+    at = f" at frame {frame}" if frame is not None else ""
+    if cam is None:
+        raise props.SceneError("scene.camera", f"the scene has no active camera{at}",
+                               hint="add one (or a camera path) before exporting a job")
+    if cam.type != "CAMERA":
+        raise props.SceneError(f"objects[{cam.name!r}]", f"is not a camera{at}", hint="give a camera object")
+    kind = cam.data.type
+    if kind not in DRAWABLE_CAMERA_TYPES:
+        what = {"ORTHO": "orthographic"}.get(kind, f"panoramic ({getattr(cam.data, 'panorama_type', kind)})"
+                                             if kind == "PANO" else kind)
+        raise props.SceneError(f"objects[{cam.name!r}].data.type", f"the camera{at} is {what} ({kind}): the "
+                               "renderer draws perspective cameras only",
+                               hint="set its Camera Properties > Lens > Type to Perspective, or render through "
+                                    "another camera")
+    return cam
+
+
+def _job_path(obj, job_dir: str) -> str:
+    """The file ``obj`` was imported from (``keys.SOURCE``: absolute or relative to the .blend, ``paths``), relative
+    to the job's folder (absolute when no relative path reaches it: another drive)."""
+    return paths.relative_to(paths.resolve(obj[keys.SOURCE]), job_dir)
 
 
 def output_frames(scene) -> list:
@@ -129,8 +163,11 @@ def rendered_objects(context) -> tuple:
     render (``visibility.points_object``) or nothing does: a job of holes only would "succeed" with nothing in it."""
     scene, view_layer = context.scene, context.view_layer
     pts = visibility.points_object(scene, view_layer)
-    candidates = [o for o in kinds.gaussian_assets(scene) if o.get(keys.REVIEW) != "rejected"]
-    assets = visibility.rendered(candidates, view_layer)
+    in_scene = kinds.gaussian_assets(scene)
+    # a collection instance may draw a car from a collection the scene does not hold (only in the .blend's data)
+    elsewhere = [o for o in bpy.data.objects if kinds.is_kind(o, kinds.GAUSSIAN_ASSET) and o not in set(in_scene)]
+    candidates = [o for o in in_scene + elsewhere if o.get(keys.REVIEW) != "rejected"]
+    assets = visibility.rendered_placements(candidates, view_layer)
     if pts is None and not assets:
         left_out = [o.name for o in kinds.point_clouds(scene)] + [o.name for o in candidates]
         why = (f"; not rendered (hidden from renders, or in a collection excluded from the view layer): "

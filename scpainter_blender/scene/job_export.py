@@ -130,7 +130,7 @@ def drawable_camera(cam, frame: int | None):
     camera, or an orthographic or panoramic one, which a pinhole job would draw wrong (never exported as one)."""
     at = f" at frame {frame}" if frame is not None else ""
     if cam is None:
-        raise props.SceneError("scene.camera", f"the scene has no active camera{at}",
+        raise props.SceneError("scene.camera", "the scene has no active camera",
                                hint="add one (or a camera path) before exporting a job")
     if cam.type != "CAMERA":
         raise props.SceneError(f"objects[{cam.name!r}]", f"is not a camera{at}", hint="give a camera object")

@@ -27,7 +27,8 @@ def write_mp4(path: str, frames: np.ndarray, fps: float, crf: int = 18, metadata
     if len(ticks) != F or ticks[0] != 0 or any(b <= a for a, b in zip(ticks, ticks[1:])):
         raise ValueError(f"{path}: ticks must be {F} strictly increasing ints from 0, got {ticks[:8]}")
     # how long each frame shows, keyed by its tick (packets come out in decoding order)
-    durations = {t: (ticks[i + 1] if i + 1 < F else t + (t - ticks[i - 1] if i else 1)) - t for i, t in enumerate(ticks)}
+    gaps = [b - a for a, b in zip(ticks, ticks[1:])]
+    durations = dict(zip(ticks, gaps + [gaps[-1] if gaps else 1]))
     frames = np.pad(frames, ((0, 0), (0, H % 2), (0, W % 2), (0, 0)), mode="edge")
     with outputs.atomic_path(path) as tmp:
         with av.open(tmp, "w", format="mp4") as container:

@@ -66,8 +66,8 @@ def render_size(scene) -> tuple:
 def render_region(scene) -> tuple:
     """(left, top, width, height) in pixels of the whole frame (rows down, DESIGN §3) of the image Blender's render
     writes: the render region when *Render Region* and *Crop to Render Region* are both on (its borders, fractions of
-    the frame with y up, taken to whole pixels as Blender does: float32 products truncated, checked with Cycles), else the whole
-    frame (a region without crop still writes a whole-frame image)."""
+    the frame with y up, taken to whole pixels as Blender does: float32 products truncated, checked with Cycles),
+    else the whole frame (a region without crop still writes a whole-frame image)."""
     W, H = render_size(scene)
     r = scene.render
     if not (r.use_border and r.use_crop_to_border):

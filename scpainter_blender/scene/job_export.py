@@ -1,18 +1,24 @@
 """Write the scene as a ``job.json`` (``core.job.Job``): active camera per frame, points, removal boxes, assets.
 
 What the job renders is what Blender's render would (``rendered_objects``): the one points object and the
-assets the view layer renders (scene/visibility.py), the removal boxes the points object's modifiers apply; a
-scene with nothing to render, or two reconstructions, is refused. ``warnings`` says what would come out wrong
-without failing (frames outside the recording).
-Per output frame the scene is evaluated, so keyframes, drivers, constraints and parents are all honoured:
-K, world_to_camera and the resolution are scene/camera.py's (``K_of_camera_object``, ``world_to_camera``,
-``render_size``), the removal boxes scene/placement.py's (``box_matrix``), the objects found by kind
-(scene/kinds.py); an asset's object_to_world is its matrix_world composed with ``scpainter_file_to_data``; the
-points' cleaning is the depth-edge ratio they were imported with (``point_cleaning``), so the render loads the
-points the viewport shows. For labels: each asset's ``class`` and ``box`` (its box object in the PLY file's
-coordinates, scene/asset_box.py; an asset without one exports no box and the backend estimates it), the scene's
-``fps`` and ``scene.recorded_frames`` (``recorded_frames``); the recorded objects (scene/recorded_objects.py,
-``job_objects``) as ``scene.recorded_objects``, so every camera path's job carries them.
+assets the view layer renders, themselves or through collection instances (scene/visibility.py: each drawing an
+asset of its own), the removal boxes the points object's modifiers apply; a scene with nothing to render, or two
+reconstructions, is refused. Each frame is seen by the camera Blender renders it with (the scene camera as timeline
+markers switch it, unless a camera is given); a camera the renderer cannot draw (orthographic, panoramic) is refused
+(``drawable_camera``); the size and K are those of the image the render writes (a cropped render region included,
+scene/camera.py's ``render_region``). File paths stored relative to the .blend are resolved (scene/paths.py) and
+written relative to the job file. ``warnings`` says what would come out wrong without failing (frames outside the
+recording).
+Per output frame the scene is evaluated, so keyframes, drivers, constraints and parents are all honoured: K,
+world_to_camera and the resolution are scene/camera.py's (``K_of_camera_object``, ``world_to_camera``,
+``output_size``), the removal boxes scene/placement.py's (``box_matrix``), the objects found by kind
+(scene/kinds.py); an asset's object_to_world is its drawn world matrix (``Placed.matrix_world``) composed with
+``scpainter_file_to_data``; the points' cleaning is the depth-edge ratio they were imported with
+(``point_cleaning``), so the render loads the points the viewport shows. For labels: each asset's ``class`` and
+``box`` (its box object in the PLY file's coordinates, scene/asset_box.py; an asset without one exports no box and
+the backend estimates it), the scene's ``fps`` and ``scene.recorded_frames`` (``recorded_frames``); the recorded
+objects (scene/recorded_objects.py, ``job_objects``) as ``scene.recorded_objects``, so every camera path's job
+carries them.
 What the scene does not use is left out: no reconstruction, no ``scene``; no (accepted) assets, no ``assets``; no
 checkpoint, no ``generate``. Generation settings are not written: the backend takes them from the checkpoint
 (window, guidance, fps) and ``core.job.GENERATE_DEFAULTS``; the one exception is the baseline's inpainting method

@@ -80,6 +80,8 @@ def build_job(context, job_path: str, output_dir: str | None = None, checkpoint:
     scene = context.scene
     if camera is not None:
         drawable_camera(camera, None)
+    elif scene.camera is None and not any(m.camera for m in scene.timeline_markers):
+        drawable_camera(None, None)  # no camera at all; the ones the frames use are checked frame by frame below
     job_dir = os.path.dirname(os.path.abspath(job_path))
     frames = output_frames(scene)
     size = camera_mod.output_size(scene)

@@ -15,7 +15,6 @@ def test_a_copied_project_reads_its_own_files(addon, empty_scene, tmp_path):
     becomes ``//car.ply``), the folder copied elsewhere and the original deleted: the copy opens, exports, and its job
     reads the copy's ``car.ply``. *Save As* elsewhere remaps the path (it still reaches the same file), *Save Copy*
     leaves the open file's value as it was, and with Blender's Relative Paths preference off paths stay absolute."""
-    paths = sys.modules[addon + ".scpainter_blender.scene.paths"]
     old, new = tmp_path / "old" / "project", tmp_path / "new" / "project"
     old.mkdir(parents=True)
     ply = str(old / "car.ply")
@@ -38,6 +37,7 @@ def test_a_copied_project_reads_its_own_files(addon, empty_scene, tmp_path):
     assert asset.ply == "car.ply" and os.path.isfile(J.resolve(job_path, asset.ply))
     assert J.resolve(job_path, asset.ply) == str(new / "car.ply")
 
+    paths = sys.modules[addon + ".scpainter_blender.scene.paths"]
     car = bpy.data.objects["car"]
     (tmp_path / "elsewhere").mkdir()
     bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "elsewhere" / "moved.blend"))

@@ -144,8 +144,8 @@ def drawable_camera(cam, frame: int | None):
         raise props.SceneError(f"objects[{cam.name!r}]", f"is not a camera{at}", hint="give a camera object")
     kind = cam.data.type
     if kind not in DRAWABLE_CAMERA_TYPES:
-        what = {"ORTHO": "orthographic"}.get(kind, f"panoramic ({getattr(cam.data, 'panorama_type', kind)})"
-                                             if kind == "PANO" else kind)
+        what = ("orthographic" if kind == "ORTHO" else
+                f"panoramic ({getattr(cam.data, 'panorama_type', '?')})" if kind == "PANO" else kind)
         raise props.SceneError(f"objects[{cam.name!r}].data.type", f"the camera{at} is {what} ({kind}): the "
                                "renderer draws perspective cameras only",
                                hint="set its Camera Properties > Lens > Type to Perspective, or render through "

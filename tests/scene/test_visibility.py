@@ -236,7 +236,8 @@ def _drawn_by_blender(car) -> list:
     return [out[k] for k in sorted(out, key=lambda k: (k[3], k[7], k[11]))]
 
 
-def _drawn_by_job(job, car) -> list:
+def _drawn_by_job(job, car) -> dict:
+    """{asset name: [(4, 4) world matrix of the car per frame]} of a job, its file_to_data taken off."""
     D_inv = np.linalg.inv(np.array(car["scpainter_file_to_data"]).reshape(4, 4))
     out = {a.name: [np.asarray(m) @ D_inv for _, m in sorted(a.object_to_world.items())] for a in job.assets}
     return out
@@ -282,7 +283,6 @@ def test_collection_instances_are_the_cars_blender_draws(empty_scene, addon, tmp
     instancer("Left", src, (0.0, 5.0, 0.0), 0.0, pair)
     instancer("Right", src, (0.0, -5.0, 0.0), 1.0, pair)
     pairs = instancer("Pairs", pair, (-20.0, 0.0, 0.0), -0.3, scene.collection)
-    pairs.scale = (1.0, 1.0, 1.0)
     scene.frame_start, scene.frame_end = 1, 2
     scene.camera = bpy.data.objects.new("cam", bpy.data.cameras.new("cam"))
     scene.collection.objects.link(scene.camera)

@@ -8,7 +8,7 @@ import bpy
 from . import operators, panels
 from .scpainter_blender import cli
 from .scpainter_blender.runs import preferences, warm_session
-from .scpainter_blender.scene import props
+from .scpainter_blender.scene import paths, props
 
 _classes = (*preferences.classes, *operators.classes, *panels.classes)
 
@@ -17,6 +17,7 @@ def register():
     for cls in _classes:
         bpy.utils.register_class(cls)
     props.register()
+    paths.register()  # file paths kept relative to the .blend when it is saved
     for draw in operators.menu_import:
         bpy.types.TOPBAR_MT_file_import.append(draw)
     cli.register()
@@ -27,6 +28,7 @@ def unregister():
     cli.unregister()
     for draw in operators.menu_import:
         bpy.types.TOPBAR_MT_file_import.remove(draw)
+    paths.unregister()
     props.unregister()
     for cls in reversed(_classes):
         bpy.utils.unregister_class(cls)

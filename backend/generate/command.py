@@ -282,12 +282,12 @@ def _generate(job_path, job, device, plan: Plan, precision, force, stop, lock) -
     gen_dir, mp4 = layout.generated, layout.video
     if plan.model == "baseline":
         key = conditions_key({"model": "baseline", "settings": s}, image, asset_mask, valid)
-        if not force and _up_to_date(gen_dir, mp4, key, playback_fps(job, plan)):
+        if not force and _up_to_date(gen_dir, mp4, key, playback_fps(job, plan), video_ticks(job)):
             log(f"generate: {mp4} is up to date (the same baseline settings and conditions)")
             return {**_result(job, plan, mp4, gen_dir, frames_n, skipped=True), **s}
         return _baseline(job, plan, image, valid, key, stop, log, t0)
     key = state_key(ckpt, s, precision, image, asset_mask, valid)
-    if not force and _up_to_date(gen_dir, mp4, key, playback_fps(job, plan)):
+    if not force and _up_to_date(gen_dir, mp4, key, playback_fps(job, plan), video_ticks(job)):
         log(f"generate: {mp4} is up to date (same checkpoint, settings and conditions)")
         return _result(job, plan, mp4, gen_dir, frames_n, skipped=True)
 
@@ -357,16 +357,27 @@ def playback_fps(job: job_mod.Job, plan: Plan) -> float:
     return float(job.fps) if job.fps is not None else float(plan.settings["fps"])
 
 
-def _up_to_date(gen_dir: str, mp4: str, key: str, fps: float) -> bool:
+def video_ticks(job: job_mod.Job) -> list:
+    """When the MP4 shows each output frame, in frames of 1/``playback_fps``: the job's ``frame_ticks`` (its scene
+    frames' offsets, so a Frame Step 2 job plays at the times its labels say), or 0, 1, … for a hand-written job
+    whose frames do not increase (it plays in its own order)."""
+    ticks = job.frame_ticks()
+    return ticks if all(b > a for a, b in zip(ticks, ticks[1:])) else list(range(len(ticks)))
+
+
+def _up_to_date(gen_dir: str, mp4: str, key: str, fps: float, ticks: list | None = None) -> bool:
     """A finished run with the same key left the video and its manifest, at the same playback rate (a manifest
-    written before the rate was recorded played at the generation's ``fps``, which is then what ``fps`` is)."""
+    written before the rate was recorded played at the generation's ``fps``, which is then what ``fps`` is) and the
+    same frame times (``video_ticks``; a manifest without them played its frames one tick apart)."""
     manifest = os.path.join(gen_dir, OutputLayout.MANIFEST)
     if not (os.path.isfile(manifest) and os.path.isfile(mp4)):
         return False
     try:
         m = files.read_json(manifest)
         written = m.get("playback_fps", m.get("settings", {}).get("fps"))
-        return m.get("key") == key and (written is None or abs(float(written) - fps) < 1e-9)
+        written_ticks = m.get("video_ticks", list(range(len(m.get("frames", [])))))
+        return (m.get("key") == key and (written is None or abs(float(written) - fps) < 1e-9)
+                and (ticks is None or written_ticks == ticks))
     except (errors.InputError, AttributeError, TypeError, ValueError):  # unreadable: generate again
         return False
 
@@ -397,8 +408,9 @@ def _write_outputs(job, plan: Plan, rgb: np.ndarray, mp4: str, manifest: dict) -
         png.write_png(path, frame)
         events.artifact(path, frame=entry.frame, kind="generated", model=plan.model)
     fps = playback_fps(job, plan)
-    write_mp4(mp4, rgb, fps, metadata={"title": f"SCPainter {plan.model}", "comment": plan.description()})
+    write_mp4(mp4, rgb, fps, metadata={"title": f"SCPainter {plan.model}", "comment": plan.description()},
+              ticks=video_ticks(job))
     events.artifact(mp4, kind="video", model=plan.model)
     outputs.write_json(os.path.join(gen_dir, OutputLayout.MANIFEST),
                        {**manifest, "model": plan.model, "description": plan.description(), "playback_fps": fps,
-                        "frames": [e.frame for e in job.frames]})
+                        "frames": [e.frame for e in job.frames], "video_ticks": video_ticks(job)})

@@ -657,6 +657,14 @@ class Job:
         rate ("default", ``BASELINE_DEFAULTS``), which the MP4 then plays at too."""
         return (float(self.fps), "job") if self.fps is not None else (float(BASELINE_DEFAULTS["fps"]), "default")
 
+    def frame_ticks(self) -> list:
+        """Each output frame's scene-frame offset from the first, ``frame − frames[0].frame`` (ints): its time in
+        frames of the timeline. A job of every 2nd frame (Blender's Frame Step 2) has ticks 0, 2, 4, …: the labels'
+        ``timestamp_s`` is ticks / fps (``core.labels``), and the MP4 shows each frame at its tick of 1/fps
+        (``backend/generate/video.py``), so both say 0, 0.2 s, … at 10 fps."""
+        first = self.frames[0].frame
+        return [int(f.frame) - int(first) for f in self.frames]
+
     #: What labels depend on and the condition layers do not: left out of the render's layer key
     #: (``backend.render.command.job_key``), so editing a box or a class rewrites labels, not layers.
     LABEL_ONLY = ("fps", "assets[].class", "assets[].box", "scene.recorded_frames", "scene.recorded_objects")

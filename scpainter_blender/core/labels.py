@@ -462,7 +462,7 @@ def frame_labels(job: job_mod.Job, index: int, *, instance, hole, depth, amodal_
     if unlabelled_fraction > UNLABELLED_SHARE or any(ignore_region(o) and o["points_missing"] for o in objects):
         flags.append(UNLABELLED_FLAG)
     return {"schema": SCHEMA, "key": key, "layers_key": layers_key, "frame": int(entry.frame), "index": int(index),
-            "timestamp_s": float((entry.frame - frames[0]) / fps), "fps": fps, "fps_source": fps_source,
+            "timestamp_s": float(job.frame_ticks()[index] / fps), "fps": fps, "fps_source": fps_source,
             "image_size": [W, H],
             "camera": {"K": np.asarray(entry.K, np.float64).tolist(), "world_to_camera": w2c.tolist(),
                        "camera_to_world": cameras.rigid_inverse(w2c).tolist(),

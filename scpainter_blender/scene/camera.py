@@ -57,19 +57,47 @@ def apply_render_settings(scene, cam: cameras.BlenderCamera):
 
 
 def render_size(scene) -> tuple:
-    """(width, height) in pixels the scene renders at: its resolution times its percentage, rounded."""
+    """(width, height) in pixels of the scene's whole frame: its resolution times its percentage, rounded down as
+    Blender's render does (``BKE_render_resolution``: 23 px at 50 % is 11)."""
     r = scene.render
-    return round(r.resolution_x * r.resolution_percentage / 100), round(r.resolution_y * r.resolution_percentage / 100)
+    return r.resolution_x * r.resolution_percentage // 100, r.resolution_y * r.resolution_percentage // 100
+
+
+def render_region(scene) -> tuple:
+    """(left, top, width, height) in pixels of the whole frame (rows down, DESIGN §3) of the image Blender's render
+    writes: the render region when *Render Region* and *Crop to Render Region* are both on (its borders, fractions of
+    the frame with y up, taken to whole pixels as Blender does: float32 products truncated, checked with Cycles),
+    else the whole frame (a region without crop still writes a whole-frame image)."""
+    W, H = render_size(scene)
+    r = scene.render
+    if not (r.use_border and r.use_crop_to_border):
+        return 0, 0, W, H
+    # Blender multiplies in float32 (0.9 · 60 is 54 there, 53.99… in float64) and truncates; y counts from the bottom
+    x0, x1, y0, y1 = (int(np.float32(b) * np.float32(n)) for b, n in
+                      ((r.border_min_x, W), (r.border_max_x, W), (r.border_min_y, H), (r.border_max_y, H)))
+    return x0, H - y1, x1 - x0, y1 - y0
+
+
+def output_size(scene) -> tuple:
+    """(width, height) of the image the scene renders: ``render_region``'s."""
+    return render_region(scene)[2:]
 
 
 def K_of_camera_object(scene, cam_obj) -> np.ndarray:
-    """Our K for a Blender camera object with the scene's render settings (at the current frame)."""
+    """Our K for a Blender camera object with the scene's render settings (at the current frame), for the image the
+    render writes: the whole frame's K with the principal point moved by the cropped region's corner
+    (``render_region``)."""
     d, r = cam_obj.data, scene.render
     W, H = render_size(scene)
-    return cameras.K_from_blender_camera(cameras.BlenderCamera(
+    K = cameras.K_from_blender_camera(cameras.BlenderCamera(
         lens=d.lens, sensor_width=d.sensor_width, sensor_height=d.sensor_height, sensor_fit=d.sensor_fit,
         shift_x=d.shift_x, shift_y=d.shift_y, resolution_x=W, resolution_y=H,
         pixel_aspect_x=r.pixel_aspect_x, pixel_aspect_y=r.pixel_aspect_y))
+    left, top = render_region(scene)[:2]
+    K = np.array(K, dtype=np.float64)
+    K[0, 2] -= left
+    K[1, 2] -= top
+    return K
 
 
 def world_to_camera(cam_obj) -> np.ndarray:

@@ -39,7 +39,7 @@ from ..core.geometry import boxes, cameras
 from ..core.variation import placement as car_placement, variants
 from ..core.variation.road import Road
 from ..core.variation.spec import VariationSpec
-from . import asset_box, compat, job_export, keys, kinds
+from . import asset_box, compat, job_export, keys, kinds, paths
 from .props import SceneError
 
 #: Roads kept for the session (each ~1 s to find on a street of 1.2 M points), newest last.
@@ -83,7 +83,7 @@ def drive_job(context):
         raise SceneError("scene.objects", "the scene has no points object: the car drives on the reconstructed road",
                          hint="import a VGGT reconstruction (File > Import > SCPainter VGGT Reconstruction)")
     # a job beside the predictions (never written): their path in it stays a plain name
-    job_path = os.path.join(os.path.dirname(os.path.abspath(pts[keys.SOURCE])), "job.json")
+    job_path = os.path.join(os.path.dirname(paths.resolve(pts[keys.SOURCE])), "job.json")
     return job_export.build_job(context, job_path, camera=cam), job_path
 
 

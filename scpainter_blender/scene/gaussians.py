@@ -32,7 +32,7 @@ from ..core import job as job_mod, outputs
 from ..core.splats import asset_frame, formats, gaussians as splats, reader as splats_io, sog, trellis
 from ..core.output_layout import SceneFolder
 from ..runs.client import Invocation
-from . import asset_box, keys, kinds, materials, node_groups, props
+from . import asset_box, keys, kinds, materials, node_groups, paths, props
 from .points import linear_rgba
 
 NODE_GROUP = "SCPainter Gaussians"
@@ -228,7 +228,7 @@ def import_gaussians(context, filepath: str, axes: str = "AUTO", target_length: 
         obj.scale = (target_length / extent,) * 3
     node_groups.add_modifier(obj, "SCPainter Gaussians", ensure_node_group(), {"Ellipsoids": bool(ellipsoids)})
     kinds.mark(obj, kinds.GAUSSIAN_ASSET)
-    obj[keys.SOURCE] = filepath
+    obj[keys.SOURCE] = paths.stored(filepath)  # relative to the saved .blend: a moved project reads its own
     obj[keys.FORMAT] = fmt
     obj[keys.FILE_TO_DATA] = file_to_data.ravel().tolist()
     obj[keys.AXES] = axes
@@ -240,11 +240,11 @@ def import_gaussians(context, filepath: str, axes: str = "AUTO", target_length: 
     obj[asset_box.CLASS_PROPERTY] = job_mod.DEFAULT_CLASS
     asset_box.estimate(obj, pos)  # its upright box in the data frame, a child cube empty (scene/asset_box.py)
     if mesh:
-        obj[keys.MESH_SOURCE] = mesh["source"]
+        obj[keys.MESH_SOURCE] = paths.stored(mesh["source"])
         # trimesh's upright oriented box (length, width, height) of the mesh, for stage 1 (placement.asset_size)
         obj[keys.OBB_SIZE] = [float(v) for v in mesh["obb"]["size"]]
     if converted:
-        obj[keys.SPLAT_SOURCE] = converted["source"]
+        obj[keys.SPLAT_SOURCE] = paths.stored(converted["source"])
     # what the backend read past in the mesh (an unsupported material, faces with non-finite corners, ...)
     warnings = [w["message"] for w in mesh.get("warnings", [])] if mesh else []
     if extent > 0 and not MIN_CAR_LENGTH <= target_length <= MAX_CAR_LENGTH:

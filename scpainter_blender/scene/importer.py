@@ -21,7 +21,7 @@ from ..core.import_options import DEPTH_EDGE_RATIO, ERROR_PATH, SCALE_MODES, Imp
 from ..core.recording import reader as recording
 from ..core.vggt import predictions as vggt, npz as vggt_io
 from . import camera as camera_mod
-from . import keys, kinds
+from . import keys, kinds, paths
 from . import node_groups
 from . import points as points_mod
 from . import recorded_objects as recorded_mod
@@ -61,7 +61,7 @@ def metric_fit(pred: vggt.VGGTPredictions, opts: ImportOptions) -> metric_scale.
 
 def _tag(obj, kind, filepath, fit, opts, rep: vggt.LoadReport):
     kinds.mark(obj, kind)
-    obj[keys.SOURCE] = filepath
+    obj[keys.SOURCE] = paths.stored(filepath)  # relative to the saved .blend: a moved project reads its own
     obj[keys.VGGT_TO_WORLD] = np.asarray(fit.vggt_to_world, np.float64).ravel().tolist()
     obj[keys.SCALE_METHOD] = fit.method
     obj[keys.SCALE_RESIDUAL_M] = float(fit.residual_m)

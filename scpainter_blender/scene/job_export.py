@@ -1,18 +1,24 @@
 """Write the scene as a ``job.json`` (``core.job.Job``): active camera per frame, points, removal boxes, assets.
 
 What the job renders is what Blender's render would (``rendered_objects``): the one points object and the
-assets the view layer renders (scene/visibility.py), the removal boxes the points object's modifiers apply; a
-scene with nothing to render, or two reconstructions, is refused. ``warnings`` says what would come out wrong
-without failing (frames outside the recording).
-Per output frame the scene is evaluated, so keyframes, drivers, constraints and parents are all honoured:
-K, world_to_camera and the resolution are scene/camera.py's (``K_of_camera_object``, ``world_to_camera``,
-``render_size``), the removal boxes scene/placement.py's (``box_matrix``), the objects found by kind
-(scene/kinds.py); an asset's object_to_world is its matrix_world composed with ``scpainter_file_to_data``; the
-points' cleaning is the depth-edge ratio they were imported with (``point_cleaning``), so the render loads the
-points the viewport shows. For labels: each asset's ``class`` and ``box`` (its box object in the PLY file's
-coordinates, scene/asset_box.py; an asset without one exports no box and the backend estimates it), the scene's
-``fps`` and ``scene.recorded_frames`` (``recorded_frames``); the recorded objects (scene/recorded_objects.py,
-``job_objects``) as ``scene.recorded_objects``, so every camera path's job carries them.
+assets the view layer renders, themselves or through collection instances (scene/visibility.py: each drawing an
+asset of its own), the removal boxes the points object's modifiers apply; a scene with nothing to render, or two
+reconstructions, is refused. Each frame is seen by the camera Blender renders it with (the scene camera as timeline
+markers switch it, unless a camera is given); a camera the renderer cannot draw (orthographic, panoramic) is refused
+(``drawable_camera``); the size and K are those of the image the render writes (a cropped render region included,
+scene/camera.py's ``render_region``). File paths stored relative to the .blend are resolved (scene/paths.py) and
+written relative to the job file. ``warnings`` says what would come out wrong without failing (frames outside the
+recording).
+Per output frame the scene is evaluated, so keyframes, drivers, constraints and parents are all honoured: K,
+world_to_camera and the resolution are scene/camera.py's (``K_of_camera_object``, ``world_to_camera``,
+``output_size``), the removal boxes scene/placement.py's (``box_matrix``), the objects found by kind
+(scene/kinds.py); an asset's object_to_world is its drawn world matrix (``Placed.matrix_world``) composed with
+``scpainter_file_to_data``; the points' cleaning is the depth-edge ratio they were imported with
+(``point_cleaning``), so the render loads the points the viewport shows. For labels: each asset's ``class`` and
+``box`` (its box object in the PLY file's coordinates, scene/asset_box.py; an asset without one exports no box and
+the backend estimates it), the scene's ``fps`` and ``scene.recorded_frames`` (``recorded_frames``); the recorded
+objects (scene/recorded_objects.py, ``job_objects``) as ``scene.recorded_objects``, so every camera path's job
+carries them.
 What the scene does not use is left out: no reconstruction, no ``scene``; no (accepted) assets, no ``assets``; no
 checkpoint, no ``generate``. Generation settings are not written: the backend takes them from the checkpoint
 (window, guidance, fps) and ``core.job.GENERATE_DEFAULTS``; the one exception is the baseline's inpainting method
@@ -23,13 +29,14 @@ from __future__ import annotations
 
 import os
 
+import bpy
 import numpy as np
 
 from ..core.geometry import point_cloud
 from ..core import job as job_mod
 from ..core import labels
 from . import camera as camera_mod
-from . import asset_box, keys, kinds, node_groups, placement, props, visibility
+from . import asset_box, keys, kinds, node_groups, paths, placement, props, visibility
 from . import points as points_mod
 from . import recorded_objects
 
@@ -68,16 +75,20 @@ def point_cleaning(obj) -> job_mod.PointCleaning:
 
 def build_job(context, job_path: str, output_dir: str | None = None, checkpoint: str = "",
               camera=None) -> job_mod.Job:
-    """The job for the scene's frame range, seen by ``camera`` (default: the scene camera)."""
+    """The job for the scene's frame range, seen by ``camera``, or (None) by the camera Blender renders each frame
+    with: the scene camera, switched by timeline markers bound to cameras as the render switches it."""
     scene = context.scene
-    cam = camera or scene.camera
-    if cam is None:
-        raise props.SceneError("scene.camera", "the scene has no active camera",
-                               hint="add one (or a camera path) before exporting a job")
-    if cam.type != "CAMERA":
-        raise props.SceneError(f"objects[{cam.name!r}]", "is not a camera", hint="give a camera object")
+    if camera is not None:
+        drawable_camera(camera, None)
+    elif scene.camera is None and not any(m.camera for m in scene.timeline_markers):
+        drawable_camera(None, None)  # no camera at all; the ones the frames use are checked frame by frame below
     job_dir = os.path.dirname(os.path.abspath(job_path))
     frames = output_frames(scene)
+    size = camera_mod.output_size(scene)
+    if min(size) < 1:
+        raise props.SceneError("scene.render.border", f"the render region crops the frame to {size[0]} x {size[1]} "
+                               "pixels", hint="widen the render region (Output Properties > Format > Render Region) "
+                                              "or turn off Crop to Render Region")
     pts, assets = rendered_objects(context)
     boxes = placement.applied_removal_boxes(pts) if pts is not None else []
     out_frames = []
@@ -86,19 +97,19 @@ def build_job(context, job_path: str, output_dir: str | None = None, checkpoint:
     current = scene.frame_current
     try:
         for f in frames:
-            scene.frame_set(f)
+            scene.frame_set(f)  # also switches the scene camera by the markers, as the render does
+            cam = drawable_camera(camera or scene.camera, f)
             K, w2c = camera_mod.K_of_camera_object(scene, cam), camera_mod.world_to_camera(cam)
             out_frames.append(job_mod.Frame(f, K, w2c, source_frames(pts, f) if pts is not None else []))
             for a in assets:
-                asset_m[a.name][f] = (np.array(a.matrix_world, dtype=np.float64)
-                                      @ props.matrix_property(a, keys.FILE_TO_DATA))
+                asset_m[a.name][f] = a.matrix_world() @ props.matrix_property(a.obj, keys.FILE_TO_DATA)
                 if a.name not in asset_boxes:  # the box in the asset's own frame, as it stands at the first frame
-                    asset_boxes[a.name] = asset_box.job_box(a)
+                    asset_boxes[a.name] = asset_box.job_box(a.obj)
     finally:
         scene.frame_set(current)
     sc = None
     if pts is not None:
-        sc = job_mod.Scene(os.path.relpath(pts[keys.SOURCE], job_dir), effective_vggt_to_world(pts),
+        sc = job_mod.Scene(_job_path(pts, job_dir), effective_vggt_to_world(pts),
                            confidence_percentile=float(pts.get(keys.CONFIDENCE_PERCENTILE,
                                                                     point_cloud.CONFIDENCE_PERCENTILE)),
                            # how the import read the file: the backend loads the same poses and pixels
@@ -108,13 +119,44 @@ def build_job(context, job_path: str, output_dir: str | None = None, checkpoint:
                            point_cleaning=point_cleaning(pts),
                            recorded_frames=recorded_frames(scene, pts),
                            recorded_objects=recorded_objects.job_objects(scene, frames))
-    return job_mod.Job(camera_mod.render_size(scene), out_frames, os.path.relpath(output_dir or job_dir, job_dir),
+    return job_mod.Job(size, out_frames, os.path.relpath(output_dir or job_dir, job_dir),
                        scene=sc,
-                       assets=[job_mod.Asset(a.name, os.path.relpath(a[keys.SOURCE], job_dir), asset_m[a.name],
-                                             asset_box.category(a), asset_boxes[a.name])
+                       assets=[job_mod.Asset(a.name, _job_path(a.obj, job_dir), asset_m[a.name],
+                                             asset_box.category(a.obj), asset_boxes[a.name])
                                for a in assets],
                        generate=_generate_settings(checkpoint, props.baseline_inpaint(scene)),
                        fps=frame_rate(scene))
+
+
+#: Blender camera types the condition renderer draws (an OpenCV pinhole): perspective only.
+DRAWABLE_CAMERA_TYPES = ("PERSP",)
+
+
+def drawable_camera(cam, frame: int | None):
+    """``cam`` when the renderer can draw what it sees: a camera object of a ``DRAWABLE_CAMERA_TYPES`` type.
+    SceneError naming the camera (and the frame, for a camera the markers switch to) otherwise: none at all, not a
+    camera, or an orthographic or panoramic one, which a pinhole job would draw wrong (never exported as one)."""
+    at = f" at frame {frame}" if frame is not None else ""
+    if cam is None:
+        raise props.SceneError("scene.camera", "the scene has no active camera",
+                               hint="add one (or a camera path) before exporting a job")
+    if cam.type != "CAMERA":
+        raise props.SceneError(f"objects[{cam.name!r}]", f"is not a camera{at}", hint="give a camera object")
+    kind = cam.data.type
+    if kind not in DRAWABLE_CAMERA_TYPES:
+        what = ("orthographic" if kind == "ORTHO" else
+                f"panoramic ({getattr(cam.data, 'panorama_type', '?')})" if kind == "PANO" else kind)
+        raise props.SceneError(f"objects[{cam.name!r}].data.type", f"the camera{at} is {what} ({kind}): the "
+                               "renderer draws perspective cameras only",
+                               hint="set its Camera Properties > Lens > Type to Perspective, or render through "
+                                    "another camera")
+    return cam
+
+
+def _job_path(obj, job_dir: str) -> str:
+    """The file ``obj`` was imported from (``keys.SOURCE``: absolute or relative to the .blend, ``paths``), relative
+    to the job's folder (absolute when no relative path reaches it: another drive)."""
+    return paths.relative_to(paths.resolve(obj[keys.SOURCE]), job_dir)
 
 
 def output_frames(scene) -> list:
@@ -129,8 +171,11 @@ def rendered_objects(context) -> tuple:
     render (``visibility.points_object``) or nothing does: a job of holes only would "succeed" with nothing in it."""
     scene, view_layer = context.scene, context.view_layer
     pts = visibility.points_object(scene, view_layer)
-    candidates = [o for o in kinds.gaussian_assets(scene) if o.get(keys.REVIEW) != "rejected"]
-    assets = visibility.rendered(candidates, view_layer)
+    in_scene = kinds.gaussian_assets(scene)
+    # a collection instance may draw a car from a collection the scene does not hold (only in the .blend's data)
+    elsewhere = [o for o in bpy.data.objects if kinds.is_kind(o, kinds.GAUSSIAN_ASSET) and o not in set(in_scene)]
+    candidates = [o for o in in_scene + elsewhere if o.get(keys.REVIEW) != "rejected"]
+    assets = visibility.rendered_placements(candidates, view_layer)
     if pts is None and not assets:
         left_out = [o.name for o in kinds.point_clouds(scene)] + [o.name for o in candidates]
         why = (f"; not rendered (hidden from renders, or in a collection excluded from the view layer): "

@@ -295,6 +295,8 @@ def test_meshes_of_one_name_never_share_their_gaussians(tmp_path, empty_scene, m
         assert bpy.ops.scpainter.import_gaussians(filepath=str(tmp_path / name), mesh_count=500) == {"FINISHED"}
         sources.append(bpy.context.active_object["scpainter_source"])
     assert sources[0] != sources[1]
+    assert all(p.startswith("//scpainter/Scene/assets/") for p in sources)  # relative to the saved .blend (§9)
+    sources = [os.path.normpath(bpy.path.abspath(p)) for p in sources]
     assert all(os.path.dirname(p) == str(tmp_path / "scpainter" / "Scene" / "assets") for p in sources)
     red = splats_io.read(sources[1]).f_dc * SH_C0 + 0.5
     grey = splats_io.read(sources[0]).f_dc * SH_C0 + 0.5

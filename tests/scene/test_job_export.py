@@ -210,3 +210,121 @@ def test_frames_outside_the_recording_are_warned(empty_scene, addon, tmp_path, c
     assert bpy.ops.scpainter.import_vggt(filepath=path, depth_edge_ratio=0.0) == {"FINISHED"}  # a second cloud
     ((level, text),) = job_export.job_notes(bpy.context)
     assert level == "ERROR" and text.startswith("2 reconstructions render") and "Replace Reconstruction" in text
+
+
+def _car_and_two_cameras(scene, tmp_path):
+    """A 60-Gaussian car (so the job has something to render) and two cameras A and B looking at it from 8 m and
+    10 m; A is the scene camera. Returns (car, A, B)."""
+    ply = str(tmp_path / "car.ply")
+    shapes.save_as_amodal3r(ply, shapes.procedural_car_gaussians(count=60, seed=1))
+    assert bpy.ops.scpainter.import_gaussians(filepath=ply, target_length=4.4) == {"FINISHED"}
+    car = bpy.context.active_object
+    cams = []
+    for name, y in (("A", -8.0), ("B", -10.0)):
+        cam = bpy.data.objects.new(name, bpy.data.cameras.new(name))
+        scene.collection.objects.link(cam)
+        cam.location, cam.rotation_euler = (0.5, y, 1.0), (np.pi / 2, 0.0, 0.0)
+        cams.append(cam)
+    scene.camera = cams[0]
+    return car, *cams
+
+
+def test_each_frame_is_seen_by_the_camera_blender_renders_it_with(empty_scene, addon, tmp_path):
+    """Timeline markers bound to cameras switch the scene camera: each output frame's K and world_to_camera are
+    those of the camera Blender's own frame evaluation makes the scene camera (A for 1–5, B for 6–10, with its own
+    lens); a camera given to the export (a camera path's run) is used for every frame. A camera the renderer cannot
+    draw — orthographic, panoramic — is refused naming it, its type and the frame, never exported as a pinhole."""
+    import sys
+
+    job_export = sys.modules[addon + ".scpainter_blender.scene.job_export"]
+    camera_mod = sys.modules[addon + ".scpainter_blender.scene.camera"]
+    scene = empty_scene
+    _, A, B = _car_and_two_cameras(scene, tmp_path)
+    B.data.lens = 35.0
+    scene.frame_start, scene.frame_end = 1, 10
+    scene.timeline_markers.new("A", frame=1).camera = A
+    scene.timeline_markers.new("B", frame=6).camera = B
+    path = str(tmp_path / "job.json")
+    assert bpy.ops.scpainter.export_job(filepath=path) == {"FINISHED"}
+    job = J.load(path)
+    seen = []
+    for fr in job.frames:
+        scene.frame_set(fr.frame)  # Blender's own switch, frame by frame
+        cam = scene.camera
+        seen.append(cam.name)
+        assert np.allclose(fr.world_to_camera, camera_mod.world_to_camera(cam), atol=1e-9), fr.frame
+        assert np.allclose(fr.K, camera_mod.K_of_camera_object(scene, cam), atol=1e-9), fr.frame
+    assert seen == ["A"] * 5 + ["B"] * 5
+    assert not np.allclose(job.frames[0].K, job.frames[-1].K)
+    fixed = job_export.build_job(bpy.context, path, camera=A)  # a camera path's run: its own camera throughout
+    assert all(np.allclose(f.world_to_camera, job.frames[0].world_to_camera) for f in fixed.frames)
+
+    B.data.type = "ORTHO"
+    with pytest.raises(RuntimeError, match=r"objects\['B'\]\.data\.type: the camera at frame 6 is orthographic "
+                                           r"\(ORTHO\): the renderer draws perspective cameras only \(set its"):
+        bpy.ops.scpainter.export_job(filepath=path)
+    B.data.type = "PANO"
+    with pytest.raises(RuntimeError, match=r"objects\['B'\]\.data\.type: the camera at frame 6 is panoramic"):
+        bpy.ops.scpainter.export_job(filepath=path)
+    with pytest.raises(Exception, match=r"objects\['B'\]\.data\.type: the camera is panoramic \(\w+\) \(PANO\)"):
+        job_export.build_job(bpy.context, path, camera=B)
+    assert J.load(path).to_dict() == job.to_dict()  # nothing written by a refusal
+
+
+def test_a_cropped_render_region_is_the_jobs_image_checked_with_cycles(empty_scene, addon, tmp_path):
+    """*Render Region* with *Crop to Render Region*: the job's size is the image Cycles writes and its K the whole
+    frame's with the principal point moved to the region's corner, so a lit point projects where Cycles draws it;
+    a region without crop is the whole frame (Blender writes a whole-frame image); the percentage rounds down as
+    Blender's does (23 px at 50 % is 11)."""
+    import sys
+
+    camera_mod = sys.modules[addon + ".scpainter_blender.scene.camera"]
+    scene = empty_scene
+    car, A, _ = _car_and_two_cameras(scene, tmp_path)
+    car.location = (0.0, -20.0, 0.0)  # behind the cameras: Cycles sees only the lamp below
+    lamp_at = np.array([0.9, 0.0, 1.4])
+    mesh = bpy.data.meshes.new("lamp")
+    h = 0.1
+    mesh.from_pydata([(-h, 0, -h), (h, 0, -h), (h, 0, h), (-h, 0, h)], [], [(0, 1, 2, 3)])
+    lamp = bpy.data.objects.new("lamp", mesh)
+    lamp.location = lamp_at.tolist()
+    scene.collection.objects.link(lamp)
+    from scpainter_blender.scene import compat
+
+    mat = bpy.data.materials.new("white")
+    tree = compat.node_tree(mat, clear=True)
+    tree.links.new(tree.nodes.new("ShaderNodeEmission").outputs[0], tree.nodes.new("ShaderNodeOutputMaterial").inputs[0])
+    mesh.materials.append(mat)
+    r = scene.render
+    scene.render.engine, scene.cycles.samples, scene.cycles.device = "CYCLES", 16, "CPU"
+    r.filter_size = 0.01  # no pixel filter: the lamp's pixels are its own
+    r.resolution_x, r.resolution_y, r.resolution_percentage = 80, 60, 100
+    r.use_border = r.use_crop_to_border = True
+    r.border_min_x, r.border_max_x, r.border_min_y, r.border_max_y = 0.43, 0.93, 0.33, 0.9
+    scene.frame_start = scene.frame_end = 1
+    path = str(tmp_path / "job.json")
+    assert bpy.ops.scpainter.export_job(filepath=path) == {"FINISHED"}
+    job = J.load(path)
+    r.filepath = str(tmp_path / "r.exr")
+    r.image_settings.file_format = "OPEN_EXR"  # linear: a partly covered pixel weighs what it covers
+    bpy.ops.render.render(write_still=True)
+    img = bpy.data.images.load(r.filepath, check_existing=False)
+    w, h = img.size
+    pix = np.array(img.pixels[:]).reshape(h, w, 4)[::-1, :, 0]  # rows down
+    bpy.data.images.remove(img)
+    assert (job.width, job.height) == (w, h) == (40, 35)
+    weight = np.clip(pix, 0.0, 1.0)
+    assert weight.sum() > 4, "the lamp is in the cropped image"
+    v, u = np.mgrid[:h, :w] + 0.5  # pixel centres
+    seen = [(u * weight).sum() / weight.sum(), (v * weight).sum() / weight.sum()]
+    x = job.frames[0].K @ (job.frames[0].world_to_camera @ np.append(lamp_at, 1.0))[:3]
+    assert np.abs(x[:2] / x[2] - seen).max() < 0.25, (x[:2] / x[2], seen)
+    r.use_crop_to_border = False  # a region without crop: Blender writes the whole frame
+    assert bpy.ops.scpainter.export_job(filepath=path) == {"FINISHED"}
+    whole = J.load(path)
+    assert (whole.width, whole.height) == (80, 60)
+    assert np.allclose(whole.frames[0].K, camera_mod.K_of_camera_object(scene, A))
+    assert np.allclose(whole.frames[0].K[:2, 2] - job.frames[0].K[:2, 2], [34, 60 - 54])
+    r.use_border = False
+    r.resolution_x, r.resolution_y, r.resolution_percentage = 23, 13, 50
+    assert camera_mod.render_size(scene) == (11, 6)

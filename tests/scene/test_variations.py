@@ -91,3 +91,19 @@ def test_make_variations_operator(addon, empty_scene, street, library, tmp_path)
     for e in placed:
         job = J.load(out / e["job"])
         assert len(job.assets) == len(e["cars"]) >= 1
+
+
+    # a spec file's variants and seed stand unless the artist changes them in the dialog (or a caller gives them):
+    # the dialog's own values (16, 0) never replace them, nor do the values Blender remembers from the last run
+    spec = tmp_path / "spec.json"
+    spec.write_text(json.dumps({"variants": 2, "seed": 5, "resolution": [64, 36], "cars": {"count": [0, 0]}}))
+
+    def run(name, **chosen):
+        folder = tmp_path / name
+        assert bpy.ops.scpainter.make_variations(spec=str(spec), folder=str(folder), **chosen) == {"FINISHED"}
+        m = json.loads((folder / "variation.json").read_text())
+        return m["summary"]["variants"], m["variants"][0]["seed"][0]
+
+    assert run("spec") == (2, 5)
+    assert run("chosen", variants=3, seed=9) == (3, 9)
+    assert run("spec_again") == (2, 5)  # 3 and 9 are remembered by Blender, not chosen this time

@@ -223,3 +223,92 @@ def test_nothing_to_render_is_refused(empty_scene, tmp_path):
         bpy.ops.scpainter.export_job(filepath=str(tmp_path / "job.json"))
     pts.hide_render = False
     assert _export(tmp_path)["scene"]["predictions"]
+
+
+def _drawn_by_blender(car) -> list:
+    """(4, 4) world matrices of every drawing of ``car`` in Blender's evaluated depsgraph (itself and its collection
+    instances), sorted by translation; each once (its Geometry Nodes output is drawn as one instance per geometry
+    component, all at the same matrix)."""
+    bpy.context.view_layer.update()
+    dg = bpy.context.evaluated_depsgraph_get()
+    out = {tuple(np.round(np.array(i.matrix_world, dtype=np.float64), 5).ravel()): np.array(i.matrix_world)
+           for i in dg.object_instances if i.object.original == car}
+    return [out[k] for k in sorted(out, key=lambda k: (k[3], k[7], k[11]))]
+
+
+def _drawn_by_job(job, car) -> dict:
+    """{asset name: [(4, 4) world matrix of the car per frame]} of a job, its file_to_data taken off."""
+    D_inv = np.linalg.inv(np.array(car["scpainter_file_to_data"]).reshape(4, 4))
+    out = {a.name: [np.asarray(m) @ D_inv for _, m in sorted(a.object_to_world.items())] for a in job.assets}
+    return out
+
+
+def test_collection_instances_are_the_cars_blender_draws(empty_scene, addon, tmp_path):
+    """Cars placed as collection instances (an empty drawing a collection, with its instance offset; nested: an
+    empty drawing a collection of such empties) are each an asset of the job, with the world matrix Blender's
+    depsgraph draws it at (``object_instances``), frame by frame; with the source collection excluded from the view
+    layer the car itself no longer renders but its instances do (never "nothing to render"); an instancer hidden from
+    renders draws nothing."""
+    from scpainter_blender.core import shapes
+
+    scene = empty_scene
+    ply = str(tmp_path / "car.ply")
+    shapes.save_as_amodal3r(ply, shapes.procedural_car_gaussians(count=60, seed=1))
+    assert bpy.ops.scpainter.import_gaussians(filepath=ply, target_length=4.4) == {"FINISHED"}
+    car = bpy.context.active_object
+    car.location, car.rotation_euler = (1.0, 2.0, 0.0), (0.0, 0.0, 0.4)
+    src = bpy.data.collections.new("Src")
+    scene.collection.children.link(src)
+    for c in list(car.users_collection):
+        c.objects.unlink(car)
+    src.objects.link(car)
+    for child in car.children:  # its box goes along (an empty: never drawn)
+        for c in list(child.users_collection):
+            c.objects.unlink(child)
+        src.objects.link(child)
+    src.instance_offset = (1.0, 0.0, 0.0)
+
+    def instancer(name, coll, location, angle, into):
+        e = bpy.data.objects.new(name, None)
+        e.instance_type, e.instance_collection = "COLLECTION", coll
+        e.location, e.rotation_euler = location, (0.0, 0.0, angle)
+        into.objects.link(e)
+        return e
+
+    one = instancer("One", src, (10.0, 0.0, 0.0), 0.5, scene.collection)
+    one.keyframe_insert("location", frame=1)
+    one.location.x = 14.0
+    one.keyframe_insert("location", frame=2)
+    pair = bpy.data.collections.new("Pair")  # held only by the .blend's data, drawn by "Pairs" below
+    instancer("Left", src, (0.0, 5.0, 0.0), 0.0, pair)
+    instancer("Right", src, (0.0, -5.0, 0.0), 1.0, pair)
+    pairs = instancer("Pairs", pair, (-20.0, 0.0, 0.0), -0.3, scene.collection)
+    scene.frame_start, scene.frame_end = 1, 2
+    scene.camera = bpy.data.objects.new("cam", bpy.data.cameras.new("cam"))
+    scene.collection.objects.link(scene.camera)
+    path = str(tmp_path / "job.json")
+
+    def check(expected_names):
+        assert bpy.ops.scpainter.export_job(filepath=path) == {"FINISHED"}
+        job = J.load(path)
+        by_job = _drawn_by_job(job, car)
+        assert sorted(by_job) == sorted(expected_names)
+        for i, frame in enumerate((1, 2)):
+            scene.frame_set(frame)
+            blender = _drawn_by_blender(car)
+            ours = sorted((m[i] for m in by_job.values()), key=lambda m: tuple(np.round(m[:3, 3], 5)))
+            assert len(ours) == len(blender), frame
+            for a, b in zip(ours, blender):
+                assert np.abs(a - b).max() < 1e-5, frame
+        scene.frame_set(1)
+
+    assert car.name == "car"
+    check([car.name, "One/car", "Pairs/Left/car", "Pairs/Right/car"])
+    bpy.context.view_layer.layer_collection.children["Src"].exclude = True  # the source left out of the render
+    check(["One/car", "Pairs/Left/car", "Pairs/Right/car"])
+    one.hide_render = True
+    assert bpy.ops.scpainter.export_job(filepath=path) == {"FINISHED"}
+    assert sorted(a.name for a in J.load(path).assets) == ["Pairs/Left/car", "Pairs/Right/car"]
+    pairs.hide_render = True
+    with pytest.raises(RuntimeError, match=r"nothing to render"):
+        bpy.ops.scpainter.export_job(filepath=path)

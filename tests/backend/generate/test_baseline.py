@@ -184,3 +184,30 @@ def test_the_video_plays_at_the_jobs_frame_rate(tmp_path):
     assert code == 0 and not ev[-1]["skipped"] and rate(job) == 10
     other = small_job(tmp_path / "b", frames=(1, 2))
     assert run_backend("generate", other, "--device", "cpu")[0] == 0 and rate(other) == 7
+
+
+def test_a_frame_step_job_plays_at_the_times_its_labels_say(tmp_path):
+    """Every 2nd scene frame (Blender's Frame Step 2) at 10 fps: the labels say 0, 0.2, 0.4 s and the MP4 shows
+    its frames at those times (not 0.1 s apart); a video written before its frame times were recorded in the
+    manifest (one tick apart) is not up to date for such a job."""
+    from backend.generate import command as generate_cmd
+    from backend.generate.video import frame_times
+    from scpainter_blender.core import files, outputs
+
+    job = small_job(tmp_path, frames=(1, 3, 5), fps=10.0, asset=False)
+    code, ev, err = run_backend("generate", job, "--device", "cpu")
+    assert code == 0, err
+    out = os.path.join(os.path.dirname(job), "out")
+    said = [files.read_json(os.path.join(out, "conditions", f"labels_{f:06d}.json"))["timestamp_s"] for f in (1, 3, 5)]
+    assert said == pytest.approx([0.0, 0.2, 0.4], abs=1e-12)
+    assert frame_times(os.path.join(out, "generated.mp4")) == pytest.approx(said, abs=1e-9)
+    manifest_path = os.path.join(out, "generated", "manifest.json")
+    manifest = files.read_json(manifest_path)
+    assert manifest["video_ticks"] == [0, 2, 4]
+    fps, ticks = manifest["playback_fps"], generate_cmd.video_ticks(J.load(job))
+    assert generate_cmd._up_to_date(os.path.join(out, "generated"), os.path.join(out, "generated.mp4"),
+                                    manifest["key"], fps, ticks)
+    del manifest["video_ticks"]  # as written before
+    outputs.write_json(manifest_path, manifest)
+    assert not generate_cmd._up_to_date(os.path.join(out, "generated"), os.path.join(out, "generated.mp4"),
+                                        manifest["key"], fps, ticks)

@@ -89,8 +89,6 @@ UNMIRRORED = {
     # -- core
     "scpainter_blender/core/colors.py": "tested by tests/backend/mesh/test_colors.py: linear glTF factors to sRGB",
     "scpainter_blender/core/errors.py": "tested by tests/core/test_files.py: InputError and ArgumentError",
-    "scpainter_blender/core/fields.py": "exercised by tests/core/test_job.py: every job field's validator, each "
-                                        "refusal naming the field (test_bad_fields_are_named)",
     "scpainter_blender/core/geometry/unproject.py": "tested by tests/core/geometry/test_point_cloud.py: VGGT's "
                                                     "unprojection formula, exactly",
     "scpainter_blender/core/geometry/visibility.py": "tested by tests/backend/render/test_frames_culling.py: the "

@@ -152,7 +152,6 @@ UNMIRRORED = {
     "backend/render/warmup.py": "tested by tests/backend/test_serve.py: the kernels made ready before the first frame",
     "backend/train/ema.py": "tested by tests/backend/train/test_trainer.py: the checkpoint holds the EMA weights",
     "backend/train/street_clip.py": "tested by tests/backend/train/test_clip.py: the street exported as a clip",
-    "backend/vary/sheet.py": "tested by tests/backend/vary/test_command.py: `contact-sheet` after `vary`",
 }
 
 # -- test files that are no module's mirror -----------------------------------------------------------------------

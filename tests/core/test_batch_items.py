@@ -199,3 +199,13 @@ def test_a_failed_item_without_a_hint_of_its_own_gets_one():
     assert fields["hint"] and "/data/car.ply" in fields["hint"], fields
     kept = batch.bad_input_fields(errors.InputError(item, "frames", "bad", hint="fix it"), item)
     assert kept["hint"] == "fix it"
+
+
+def test_a_nul_byte_in_a_list_is_refused_naming_its_line(tmp_path):
+    """Issue 42: a NUL byte in a batch list reached os.stat (ValueError, a traceback)."""
+    listed = tmp_path / "list.txt"
+    listed.write_bytes(b"# jobs\na/job.json\nx\x00y/job.json\n")
+    for read in (batch.read_job_list, batch.read_list):
+        with pytest.raises(errors.InputError) as e:
+            read(listed)
+        assert e.value.path == str(listed) and e.value.field == "line 3" and "NUL" in e.value.message

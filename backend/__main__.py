@@ -71,7 +71,8 @@ def main(argv: list[str] | None = None) -> int:
     # doctor first imports nothing but the standard library: it reports what this Python lacks instead of failing
     # on it; every other command needs numpy to parse its arguments, and says what to install when it is missing
     try:  # argparse errors: usage on standard error, an error event, exit 2
-        args = (_doctor_parser() if argv[:1] == ["doctor"] else build_parser()).parse_args(argv)
+        parser = _doctor_parser() if argv[:1] == ["doctor"] else build_parser()
+        args = parser.parse_args(argv)
     except ModuleNotFoundError as e:
         from scpainter_blender.core.backend_protocol import install_hint
 
@@ -80,11 +81,21 @@ def main(argv: list[str] | None = None) -> int:
         return events.EXIT_BAD_INPUT
     from scpainter_blender.core.errors import InputError  # (stdlib only, as is CleanFailure's module)
 
-    from .errors import CleanFailure
+    from .errors import CleanFailure, explained
 
     try:
+        if argv[:1] != ["doctor"]:  # (doctor imports the standard library alone)
+            from .commands.options import check_names
+
+            check_names(parser, args)
         with events.log_scope():  # a bug's traceback goes to the log the command had open (backend.log)
-            return args.func(args)
+            try:
+                return args.func(args)
+            except OSError as e:  # a name too long (bad input) or a full disk (explained): not a bug
+                known = explained(e)
+                if known is None:
+                    raise
+                raise known from e
     except InputError as e:  # bad input, and only that: the message names the file and field
         events.error(str(e), hint=e.hint or "check the input file and arguments", file=e.path, field=e.field)
         return events.EXIT_BAD_INPUT

@@ -120,7 +120,12 @@ class FileLog:
         """``text`` appended to the file only (not standard error)."""
         from scpainter_blender.core import outputs
 
-        outputs.append_text(self.path, text)  # never through a planted symbolic link
+        try:
+            outputs.append_text(self.path, text)  # never through a planted symbolic link
+        except OSError as e:
+            if e.filename is None:  # a write's error (a full disk) names no file: the log's
+                e.filename = self.path
+            raise
 
 
 @contextlib.contextmanager

@@ -19,18 +19,136 @@ progress event) and keeps loaded points and assets between requests (``render.sc
 
 from __future__ import annotations
 
-import json
+import functools
+import os
 import queue
 import signal
 import sys
 import threading
 
+from typing import TYPE_CHECKING
+
 from scpainter_blender.core import backend_protocol as protocol
+from scpainter_blender.core import fields, files
+from scpainter_blender.core.errors import InputError
 
 from . import events
 
+if TYPE_CHECKING:
+    from collections.abc import Callable, Iterator
+
 #: A line the reader thread hands to the main loop when standard input has ended.
 _EOF = object()
+
+
+def request_lines(read: Callable[[], bytes], limit: int = protocol.MAX_REQUEST_BYTES) -> Iterator[bytes | None]:
+    """The lines (bytes, newline kept) of what ``read()`` returns piece by piece (b"": the end); None for a line
+    longer than ``limit`` bytes, whose rest is read past and never held. ``read`` is ``os.read`` on standard
+    input's descriptor: a buffered reader's lock, held by this daemon thread while it waits, would abort the
+    interpreter's shutdown."""
+    pending, skipping = bytearray(), False
+    while True:
+        chunk = read()
+        if not chunk:
+            break
+        pending += chunk
+        while True:
+            end = pending.find(b"\n")
+            if end < 0:
+                if len(pending) > limit:
+                    if not skipping:
+                        yield None
+                    pending.clear()
+                    skipping = True
+                break
+            line = bytes(pending[:end + 1])
+            del pending[:end + 1]
+            if skipping:
+                skipping = False
+            elif len(line) > limit:
+                yield None
+            else:
+                yield line
+    if pending and not skipping:
+        yield bytes(pending)
+
+
+def _refuse(field: str, message: str, hint: str | None = None) -> InputError:
+    return InputError(protocol.REQUEST_SOURCE, field, message, hint=hint)
+
+
+#: What the lines may be (the hint of every refusal).
+_SHAPES = ('one JSON object per line: {"id": N, "argv": ["render", ...]}, {"cancel": N} or {"quit": true} '
+           "(core/backend_protocol.py)")
+
+
+def parse_request(line: bytes | None) -> dict:
+    """A request line (``request_lines``) as one of the three requests of ``core.backend_protocol`` (request,
+    cancel, quit), checked field by field; ``InputError`` (path ``REQUEST_SOURCE``) naming the field otherwise: a
+    line too long, not UTF-8, not JSON or beyond ``core.files``' nesting and number bounds; not an object; an
+    unknown or missing key; an ``id`` or cancelled id that is not an integer (int64); an ``argv`` that is not a
+    non-empty list of strings (at most ``fields.MAX_STRING`` characters, no NUL)."""
+    if line is None:
+        raise _refuse("(line)", f"is longer than {protocol.MAX_REQUEST_BYTES:,} bytes", hint=_SHAPES)
+
+    def error(path, field, message):
+        return _refuse("(line)" if field == "(file)" else field, message, hint=_SHAPES)
+
+    msg = files.parse_json(line, protocol.REQUEST_SOURCE, error, max_bytes=protocol.MAX_REQUEST_BYTES)
+    if not isinstance(msg, dict):
+        raise error(None, "(top level)", f"expected a request object, got {fields.short(msg)}")
+    for shape in ((protocol.REQUEST_ID, protocol.REQUEST_ARGV), (protocol.REQUEST_CANCEL,), (protocol.REQUEST_QUIT,)):
+        if shape[0] in msg:
+            break
+    else:
+        raise error(None, "(top level)", f"is none of the requests: it has no {protocol.REQUEST_ID!r}, "
+                                         f"{protocol.REQUEST_CANCEL!r} or {protocol.REQUEST_QUIT!r}")
+    unknown = [k for k in msg if k not in shape]
+    if unknown or len(msg) != len(shape):
+        field = unknown[0] if unknown else next(k for k in shape if k not in msg)
+        raise error(None, field, "is not a field of this request" if unknown else "is missing")
+    if protocol.REQUEST_QUIT in msg:
+        if msg[protocol.REQUEST_QUIT] is not True:
+            raise error(None, protocol.REQUEST_QUIT, f"expected true, got {fields.short(msg[protocol.REQUEST_QUIT])}")
+        return msg
+    key = protocol.REQUEST_CANCEL if protocol.REQUEST_CANCEL in msg else protocol.REQUEST_ID
+    fields.integer(msg[key], protocol.REQUEST_SOURCE, key, error=error)
+    if key == protocol.REQUEST_ID:
+        argv = msg[protocol.REQUEST_ARGV]
+        if not isinstance(argv, list) or not argv:
+            raise error(None, protocol.REQUEST_ARGV, f"expected a non-empty list of strings, got {fields.short(argv)}")
+        for i, a in enumerate(argv):
+            if not isinstance(a, str) or len(a) > fields.MAX_STRING or "\0" in a:
+                raise error(None, f"{protocol.REQUEST_ARGV}[{i}]", f"expected a string of at most "
+                                                                    f"{fields.MAX_STRING} characters without NUL, "
+                                                                    f"got {fields.short(a)}")
+    return msg
+
+
+def _readable_id(line: bytes | None) -> int | None:
+    """The ``id`` of a malformed request, where it can be read (a JSON object with an integer id), else None."""
+    try:
+        msg = files.parse_json(line, protocol.REQUEST_SOURCE, max_bytes=protocol.MAX_REQUEST_BYTES)
+        rid = msg.get(protocol.REQUEST_ID) if isinstance(msg, dict) else None
+        return fields.integer(rid, protocol.REQUEST_SOURCE, protocol.REQUEST_ID)
+    except (InputError, TypeError):
+        return None
+
+
+class _Malformed:
+    """A malformed line, answered by the main loop in its turn: an error event naming the problem (and the
+    request's ``id`` where it could be read, then its ``served`` event with exit code 2)."""
+
+    def __init__(self, error: InputError, rid: int | None):
+        self.error, self.id = error, rid
+
+    def answer(self) -> None:
+        e = self.error
+        events.log(f"scpainter-serve: malformed request refused: {e}")
+        events.error(str(e), hint=e.hint, file=e.path, field=e.field, id=self.id)
+        if self.id is not None:
+            events.log(protocol.served_marker(self.id))
+            events.emit(protocol.SERVED, id=self.id, exit_code=events.EXIT_BAD_INPUT)
 
 
 class _Server:
@@ -52,30 +170,34 @@ class _Server:
         self.stop_current()
         self.lines.put(_EOF)  # wakes the main loop when it waits for a request
 
-    def read(self, stream) -> None:
-        """The reader thread: cancel and quit act at once; requests queue for the main loop."""
-        for line in stream:
-            try:
-                msg = json.loads(line)
-            except json.JSONDecodeError:
-                events.log(f"scpainter-serve: not a JSON line, ignored: {line.strip()[:200]!r}")
-                continue
-            if not isinstance(msg, dict):
-                events.log(f"scpainter-serve: not a request object, ignored: {line.strip()[:200]!r}")
-            elif protocol.REQUEST_CANCEL in msg:
-                with self.lock:
-                    if self.current is not None and self.current[0] == msg[protocol.REQUEST_CANCEL]:
-                        self.current[1].append(True)
-                    else:
-                        self.cancelled.add(msg[protocol.REQUEST_CANCEL])
-            elif msg.get(protocol.REQUEST_QUIT):
-                self.ending = True
-                self.lines.put(_EOF)
-            else:
-                self.lines.put(msg)
-        self.ending = True  # Blender has gone: whatever runs stops, nothing else starts
-        self.stop_current()
-        self.lines.put(_EOF)
+    def read(self, read: Callable[[], bytes]) -> None:
+        """The reader thread (``read``: standard input's next bytes, ``request_lines``): cancel and quit act at once; requests, and the
+        answers to malformed lines, queue for the main loop (the one writer of events). Whatever a line holds, the
+        thread reads on; when it ends (input closed, or a bug here) the server ends too."""
+        try:
+            for line in request_lines(read):
+                try:
+                    msg = parse_request(line)
+                except InputError as e:
+                    self.lines.put(_Malformed(e, _readable_id(line)))
+                    continue
+                if protocol.REQUEST_CANCEL in msg:
+                    with self.lock:
+                        if self.current is not None and self.current[0] == msg[protocol.REQUEST_CANCEL]:
+                            self.current[1].append(True)
+                        else:
+                            self.cancelled.add(msg[protocol.REQUEST_CANCEL])
+                elif protocol.REQUEST_QUIT in msg:
+                    self.ending = True
+                    self.lines.put(_EOF)
+                else:
+                    self.lines.put(msg)
+        except Exception as e:  # a bug of the reader: the server cannot hear requests any more, so it ends
+            events.report_bug(e, "reading requests")
+        finally:
+            self.ending = True  # Blender has gone: whatever runs stops, nothing else starts
+            self.stop_current()
+            self.lines.put(_EOF)
 
     def run(self, msg: dict) -> None:
         """One request: its command's events, then the ``served`` event (after the stderr marker)."""
@@ -136,7 +258,8 @@ def serve(idle_timeout: float, device: str) -> int:
     # Ctrl-C in Blender's terminal must stop a request cleanly, as SIGTERM does
     signal.signal(signal.SIGTERM, server.on_signal)
     signal.signal(signal.SIGINT, server.on_signal)
-    threading.Thread(target=server.read, args=(sys.stdin,), daemon=True).start()
+    read = functools.partial(os.read, sys.stdin.fileno(), 1 << 16)
+    threading.Thread(target=server.read, args=(read,), daemon=True).start()
     scene_cache.enable()
     try:  # its events go to the first request's client (it waits for this process anyway)
         warmup.announce_and_warm(device, warmup.kernels_cached() if device == "cpu" else None)
@@ -151,5 +274,8 @@ def serve(idle_timeout: float, device: str) -> int:
             break
         if msg is _EOF:
             continue  # the loop's test says whether to end
-        server.run(msg)
+        if isinstance(msg, _Malformed):
+            msg.answer()
+        else:
+            server.run(msg)
     return events.EXIT_OK

@@ -89,8 +89,6 @@ UNMIRRORED = {
     # -- core
     "scpainter_blender/core/colors.py": "tested by tests/backend/mesh/test_colors.py: linear glTF factors to sRGB",
     "scpainter_blender/core/errors.py": "tested by tests/core/test_files.py: InputError and ArgumentError",
-    "scpainter_blender/core/fields.py": "exercised by tests/core/test_job.py: every job field's validator, each "
-                                        "refusal naming the field (test_bad_fields_are_named)",
     "scpainter_blender/core/geometry/unproject.py": "tested by tests/core/geometry/test_point_cloud.py: VGGT's "
                                                     "unprojection formula, exactly",
     "scpainter_blender/core/geometry/visibility.py": "tested by tests/backend/render/test_frames_culling.py: the "
@@ -154,7 +152,6 @@ UNMIRRORED = {
     "backend/render/warmup.py": "tested by tests/backend/test_serve.py: the kernels made ready before the first frame",
     "backend/train/ema.py": "tested by tests/backend/train/test_trainer.py: the checkpoint holds the EMA weights",
     "backend/train/street_clip.py": "tested by tests/backend/train/test_clip.py: the street exported as a clip",
-    "backend/vary/sheet.py": "tested by tests/backend/vary/test_command.py: `contact-sheet` after `vary`",
 }
 
 # -- test files that are no module's mirror -----------------------------------------------------------------------

@@ -88,8 +88,9 @@ def failure(e: Exception, path: str) -> dict:
     from scpainter_blender.core.batch_items import bad_input_fields
     from scpainter_blender.core.errors import InputError
 
-    from ..errors import CleanFailure
+    from ..errors import CleanFailure, explained
 
+    e = explained(e) or e  # a name too long, a full disk
     if isinstance(e, InputError):
         events.log(f"batch: {path}: bad input: {e}")
         return bad_input_fields(e, path)

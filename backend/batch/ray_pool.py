@@ -191,7 +191,7 @@ def _run_job(path: str, command: str, device: str, options: dict, task: str, job
     from scpainter_blender.core.errors import InputError
 
     from . import command as batch
-    from ..errors import CleanFailure
+    from ..errors import CleanFailure, explained
 
     global _job_stop
     stop: list = []
@@ -220,8 +220,10 @@ def _run_job(path: str, command: str, device: str, options: dict, task: str, job
         except (InputError, CleanFailure) as e:
             result = {"status": FAILED, **batch.failure(e, path)}
         except Exception as e:  # a bug or a transient failure: its traceback to the job's log, then a retry
-            e.scpainter_log = events.report_bug(e, f"batch: {path} failed on {worker}")
-            raise
+            if explained(e) is None:
+                e.scpainter_log = events.report_bug(e, f"batch: {path} failed on {worker}")
+                raise
+            result = {"status": FAILED, **batch.failure(e, path)}  # a name too long, a full disk: no retry
         finally:
             os.environ.pop(locking.TASK_ENV, None)
         yield {**result, "worker": worker, "seconds": time.perf_counter() - t0, "started": started,

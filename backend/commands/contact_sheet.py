@@ -27,6 +27,9 @@ def run(args: argparse.Namespace) -> int:
     from ..vary import sheet
 
     result = sheet.contact_sheet(args.folder, args.out)
+    if result["shown"] < result["variants"]:
+        events.warning(f"the sheet shows the first {result['shown']:,} of {result['variants']:,} variants "
+                       f"(at most {sheet.MAX_TILES} tiles)", sheet.TRUNCATED)
     events.artifact(result["path"], kind="contact_sheet")
     events.done(command=NAME, **result)
     return events.EXIT_OK

@@ -123,3 +123,30 @@ def ray_options(p: argparse.ArgumentParser, what: str) -> None:
                         f"(bad input is never retried; default {DEFAULT_RETRIES})")
     p.add_argument("--cpus-per-job", type=float, default=None,
                    help=f"--ray on a cluster without GPUs: CPUs each job asks for (default {DEFAULT_CPUS_PER_JOB:g})")
+
+
+def check_names(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """``ArgumentError`` naming the option (or positional argument) whose value is not UTF-8: a file name's bytes
+    that are not (Python holds them as surrogates, ``\\udcff``) could not be written into the jobs, records,
+    lists, events and logs that name it as text, nor read back from them (``core.files.read_json`` refuses such
+    strings), so such a path is refused before any work rather than half-used."""
+    from scpainter_blender.core.errors import ArgumentError
+
+    subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]  # noqa: SLF001
+    command = subs[0].choices.get(getattr(args, "command", None)) if subs else None
+    for action in (command or parser)._actions:  # noqa: SLF001
+        value = getattr(args, action.dest, None)
+        for v in value if isinstance(value, list) else [value]:
+            if isinstance(v, str) and not _is_text(v):
+                name = next((o for o in action.option_strings if o.startswith("--")), action.dest)
+                raise ArgumentError(name, f"{v!r} is not UTF-8 text (a file name's bytes that are not are never "
+                                          "written into jobs, records or events)",
+                                    hint="rename the file or folder to a UTF-8 name")
+
+
+def _is_text(value: str) -> bool:
+    try:
+        value.encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True

@@ -82,6 +82,13 @@ REQUEST_ID, REQUEST_ARGV, REQUEST_CANCEL, REQUEST_QUIT = "id", "argv", "cancel",
 #: <argv>`` would have exited with).
 SERVED = "served"
 SERVED_FIELDS = ("id", "exit_code")
+#: A request line is at most this many bytes (a render's argv is a few hundred); a longer one is refused, read
+#: past in bounded pieces, never held whole. Its nesting and numbers have ``core.files.read_json``'s bounds.
+MAX_REQUEST_BYTES = 2 ** 20
+#: A malformed request line is answered by an ``error`` event whose ``file`` is this, whose ``field`` names what
+#: is wrong (``id``, ``argv[2]``, ``(line)``) and whose ``id`` is the request's where it could be read (then a
+#: ``served`` event with exit code ``EXIT_BAD_INPUT`` follows); the server goes on.
+REQUEST_SOURCE = "(request)"
 
 
 def request(request_id: int, argv) -> dict:

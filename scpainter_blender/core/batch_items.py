@@ -126,6 +126,9 @@ def _parse(path) -> tuple[list, list]:
     for n, text in enumerate(lines, 1):
         if not text or text.startswith("#"):
             continue
+        if "\0" in text:  # no path holds one (the system refuses it): a damaged or forged list
+            raise errors.InputError(path, f"line {n}", "holds a NUL byte: not a path",
+                                    hint="write one path a line, as text")
         if not text.startswith(DATA_ROOT_DIRECTIVE):
             paths.append(text if os.path.isabs(text) else os.path.join(base, text))
         elif paths:

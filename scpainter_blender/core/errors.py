@@ -10,6 +10,7 @@ stdlib only: the add-on and the backend share it.
 
 from __future__ import annotations
 
+import errno
 import os
 import re
 
@@ -43,6 +44,11 @@ def _rebuild_error(cls, args, state):
     e.__dict__.update(state)
     return e
 
+
+#: The errnos of a full file system: no space left (ENOSPC) or the user's quota spent (EDQUOT). Not bad input: the
+#: backend reports them as ``backend.errors.DiskFullError`` naming the folder; readers and folder makers let them
+#: pass.
+DISK_FULL_ERRNOS = (errno.ENOSPC, errno.EDQUOT)
 
 #: The ``path`` of an InputError about a command-line argument.
 COMMAND_LINE = "(command line)"

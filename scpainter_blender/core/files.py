@@ -212,8 +212,16 @@ def read_json(path: str | os.PathLike, error: Callable[..., Exception] = InputEr
     path = os.fspath(path)
     with open_regular(path, error) as f:
         data = f.read(max_bytes + 1)
+    return parse_json(data, path, error, max_bytes, max_depth)
+
+
+def parse_json(data: bytes, path: str, error: Callable[..., Exception] = InputError,
+               max_bytes: int = MAX_JSON_BYTES, max_depth: int = MAX_JSON_DEPTH) -> object:
+    """``read_json`` for bytes already read (a warm backend's request line: ``path`` then names the source, such
+    as ``"(request)"``): the same limits, the same ``error(path, field, message)`` calls."""
     if len(data) > max_bytes:
-        raise error(path, "(file)", f"is larger than {max_bytes // 2 ** 20} MB: not a file this program writes")
+        size = f"{max_bytes // 2 ** 20} MB" if max_bytes >= 2 ** 20 else f"{max_bytes:,} bytes"
+        raise error(path, "(file)", f"is larger than {size}: not a file this program writes")
     try:
         text = data.decode("utf-8-sig")
     except UnicodeDecodeError as e:

@@ -143,6 +143,17 @@ def intrinsics_problem(K: np.ndarray, size: tuple[int, int] | None = None) -> st
     return None
 
 
+def _frame_key(key: str, path, where) -> int:
+    """An object's key that is a frame number (``"12"``) as an int within ``FRAME_RANGE``."""
+    try:
+        f = int(key)
+    except ValueError:  # not a number, or more digits than Python reads (4,300)
+        f = None
+    if f is None or not FRAME_RANGE[0] <= f <= FRAME_RANGE[1]:
+        raise JobError(path, where, f"expected a frame number in [{FRAME_RANGE[0]}, {FRAME_RANGE[1]}] as the key")
+    return f
+
+
 def _matrix_list(m: np.ndarray) -> list:
     return np.asarray(m, np.float64).tolist()
 
@@ -306,7 +317,7 @@ class Scene:
         crop = d.get("crop", [0, 0, 0, 0])
         if not isinstance(crop, list) or len(crop) != 4:
             raise JobError(path, f"{where}.crop", f"expected [left, top, right, bottom] in pixels, got {_short(crop)}")
-        crop = [_int(v, path, f"{where}.crop[{i}]", lo=0) for i, v in enumerate(crop)]
+        crop = [_int(v, path, f"{where}.crop[{i}]", lo=0, hi=MAX_SIDE) for i, v in enumerate(crop)]
         boxes = _list(d.get("removal_boxes", []), path, f"{where}.removal_boxes")
         boxes = [RemovalBox.from_dict(b, path, f"{where}.removal_boxes[{i}]") for i, b in enumerate(boxes)]
         cleaning = PointCleaning.from_dict(d.get("point_cleaning", {}), path, f"{where}.point_cleaning")
@@ -418,11 +429,7 @@ class Asset:
         out = {}
         for k, m in o2w.items():
             M = _affine(m, path, f"{where}.object_to_world[{k!r}]")
-            try:
-                out[int(k)] = M
-            except ValueError:
-                raise JobError(path, f"{where}.object_to_world[{k!r}]", "expected a frame number as the key") \
-                    from None
+            out[_frame_key(k, path, f"{where}.object_to_world[{k!r}]")] = M
         box = d.get("box")
         box = None if box is None else AssetBox.from_dict(box, path, f"{where}.box")
         return cls(name, ply, out, _class(d, path, f"{where}.class"), box)
@@ -463,11 +470,7 @@ class RecordedObject:
             raise JobError(path, f"{where}.boxes", "expected a non-empty object {output frame: box_to_world 4x4}")
         out = {}
         for k, m in boxes.items():
-            try:
-                f = int(k)
-            except ValueError:
-                raise JobError(path, f"{where}.boxes[{k!r}]", "expected a frame number as the key") from None
-            out[f] = _rigid(m, path, f"{where}.boxes[{k!r}]")
+            out[_frame_key(k, path, f"{where}.boxes[{k!r}]")] = _rigid(m, path, f"{where}.boxes[{k!r}]")
         return cls(_str(d.get("id"), path, f"{where}.id"), _box_size(d.get("size"), path, f"{where}.size"), out,
                    _class(d, path, f"{where}.class"), ignore)
 

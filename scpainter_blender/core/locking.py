@@ -108,6 +108,10 @@ class OutputLock:
                 with os.fdopen(fd2, "w", encoding="utf-8") as f:
                     json.dump(me, f)
             return True
+        except OSError as e:
+            if e.filename is None:  # a write's error (a full disk) names no file: the lock's
+                e.filename = self.path
+            raise
         finally:
             with contextlib.suppress(OSError):
                 os.remove(tmp)

@@ -28,7 +28,7 @@ import stat
 import tempfile
 from typing import TYPE_CHECKING
 
-from .errors import ArgumentError, InputError
+from .errors import DISK_FULL_ERRNOS, ArgumentError, InputError
 from .user_cache import user_cache_dir  # noqa: F401  (outputs.user_cache_dir: its callers' name for it)
 from .files import NONBLOCK
 from .output_layout import OutputLayout
@@ -83,9 +83,11 @@ def atomic_path(path: str | os.PathLike) -> Iterator[str]:
         except IsADirectoryError:  # a file is never renamed over a folder
             raise InputError(path, "(file)", "is a folder where this output file goes",
                              hint="move or remove the folder, then run again") from None
-    except BaseException:
+    except BaseException as e:
         with contextlib.suppress(OSError):
             os.remove(tmp)
+        if isinstance(e, OSError) and e.filename is None:  # a write's error (a full disk) names no file: this one
+            e.filename = path
         raise
 
 
@@ -198,7 +200,8 @@ def append_text(path: str | os.PathLike, text: str) -> None:
             raise InputError(path, "(file)", _IRREGULAR_LOG, hint="remove it, or choose another output folder") \
                 from None
         raise
-    with os.fdopen(fd, "a", encoding="utf-8") as f:
+    # a file name that is not UTF-8 (its bytes kept as surrogates) is written as \udcff: the log stays UTF-8 text
+    with os.fdopen(fd, "a", encoding="utf-8", errors="backslashreplace") as f:
         if not stat.S_ISREG(os.fstat(fd).st_mode):
             raise InputError(path, "(file)", _IRREGULAR_LOG)
         f.write(text)
@@ -287,6 +290,8 @@ def make_folder(path: str | os.PathLike, field: str = "(folder)") -> str:
         raise InputError(path, field, "exists and is not a folder", hint="remove it or choose another output "
                                                                          "folder") from None
     except OSError as e:
+        if e.errno in DISK_FULL_ERRNOS:  # not the folder's fault: the backend names the full disk
+            raise
         raise InputError(path, field, f"cannot be made: {e.strerror or e}") from None
     if not os.path.isdir(path):
         raise InputError(path, field, "exists and is not a folder")

@@ -143,3 +143,69 @@ def test_log_scope_marks_an_exception_with_the_innermost_open_log(tmp_path):
         with events.log_scope():
             raise ValueError("no log open")
     assert events.log_of(e.value) is None and events.report_bug(e.value) is None
+
+
+def test_long_non_utf8_and_nul_names_are_refused_by_name(tmp_path):
+    """Issue 42: a name too long for the file system, a path that is not UTF-8 and a NUL byte in a batch list gave
+    tracebacks ("an internal error, please report it"); each is now bad input naming the path, option or line."""
+    job = small_job(tmp_path / "a")
+    long_out = tmp_path / ("e" * 300)                           # 300 bytes: beyond NAME_MAX (255)
+    code, evs, _ = run("export", job, "--format", "kitti", "--out", long_out, "--device", "cpu")
+    assert code == events.EXIT_BAD_INPUT and evs[-1]["file"] == str(long_out), evs[-1]
+    assert "too long" in evs[-1]["message"] and not os.path.exists(tmp_path / ("e" * 100))
+    assert not [n for n in os.listdir(tmp_path) if n.endswith(".tmp")]   # the export's temporary folder is gone
+    odd = os.fsdecode(os.fsencode(str(tmp_path)) + b"/caf\xe9")  # Latin-1 bytes: Python holds \udce9
+    code, evs, _ = run("render", small_job(odd), "--device", "cpu")
+    assert code == events.EXIT_BAD_INPUT and evs[-1]["field"] == "job" and "UTF-8" in evs[-1]["message"], evs[-1]
+    json.dumps(evs[-1])                                          # the event holds the name, escaped
+    listed = tmp_path / "list.txt"
+    listed.write_bytes(b"a/job.json\nx\x00y/job.json\n")
+    code, evs, _ = run("batch", "--list", listed, "--command", "render", "--device", "cpu")
+    assert code == events.EXIT_BAD_INPUT and evs[-1]["file"] == str(listed) and evs[-1]["field"] == "line 2"
+
+
+@pytest.fixture
+def small_disk(tmp_path):
+    """A 1 MB tmpfs (root only; skipped elsewhere), unmounted afterwards."""
+    import subprocess
+
+    folder = tmp_path / "disk"
+    folder.mkdir()
+    if os.geteuid() != 0:
+        pytest.skip("mounting a small tmpfs needs root")
+    made = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(folder)], capture_output=True,
+                          text=True)
+    if made.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {made.stderr.strip()}")
+    try:
+        yield folder
+    finally:
+        subprocess.run(["umount", str(folder)], check=True)
+
+
+def test_a_full_disk_is_an_error_naming_the_folder_with_nothing_half_written(small_disk):
+    """Issue 42: a full disk was "an internal error, please report it". Now exit 1 with an error event naming the
+    folder (``errors.DiskFullError``, no traceback), no temporary left, the finished frames whole; the same render
+    after space is freed finishes. Filled to leave nothing (the lock fails), then a few kilobytes (a frame
+    fails)."""
+    from backend.render import channels
+
+    job = small_job(small_disk / "a")
+    out = small_disk / "a" / "out"
+    for leave in (0, 8000):
+        st = os.statvfs(small_disk)
+        with open(small_disk / "filler", "ab") as f:
+            f.write(b"\0" * max(0, st.f_bavail * st.f_frsize - leave))
+        code, evs, err = run("render", job, "--device", "cpu")
+        assert code == events.EXIT_FAILED and evs[-1]["event"] == "error", evs
+        assert "no space is left" in evs[-1]["message"] and "please report" not in evs[-1]["hint"]
+        assert evs[-1]["folder"] and evs[-1]["folder"].startswith(str(out)), evs[-1]
+        assert "Traceback" not in err
+        for root, _, names in os.walk(small_disk):
+            assert not [n for n in names if n.endswith(".tmp") or n.startswith(".scpainter.lock")], (root, names)
+            for n in names:
+                if n.endswith(".exr"):
+                    channels.read(os.path.join(root, n))        # every frame written is whole
+        os.remove(small_disk / "filler")
+    code, evs, err = run("render", job, "--device", "cpu")
+    assert code == events.EXIT_OK, evs

@@ -187,3 +187,77 @@ def test_one_shot_render_says_it_compiles_the_kernels(tmp_path):
     code, events, err = run_backend(*_render(small_job(tmp_path / "b")), env={"NUMBA_CACHE_DIR": cache})
     assert code == 0, err
     assert protocol.COMPILE_STAGE not in [e.get("stage") for e in events]
+
+
+def test_malformed_requests_are_each_answered_and_the_server_serves_on(tmp_path):
+    """Issue 42: a non-integer id killed the server; deep nesting, a 5,000-digit integer, ``{"cancel": [1]}`` or
+    invalid UTF-8 killed its reader thread (it then answered nothing until the idle timeout). Each malformed line
+    now gets an error event naming the problem (file "(request)", the field, the id where one can be read, then a
+    ``served`` event with exit code 2), in order, and a valid request after them all is still served. One real
+    server process for every case (bounded waits on its events, no sleeps)."""
+    import json
+    import queue
+    import subprocess
+    import threading
+
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    proc = subprocess.Popen([sys.executable, "-m", "backend", "serve", "--device", "cpu", "--idle-timeout", "0"],
+                            cwd=root, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
+    got: queue.Queue = queue.Queue()
+    threading.Thread(target=lambda: [got.put(json.loads(line)) for line in proc.stdout], daemon=True).start()
+    limit = protocol.MAX_REQUEST_BYTES
+    cases = [  # (line, the field named, the id the answer carries)
+        (b'{"id": "seven", "argv": ["render", "job.json"]}', "id", None),
+        (b'{"id": 1.5, "argv": ["render"]}', "id", None),
+        (b"[" * 100_000 + b"]" * 100_000, "(line)", None),
+        (b'{"id": 1' + b"2" * 5000 + b', "argv": ["render"]}', "id", None),
+        (b'{"cancel": [1]}', "cancel", None),
+        (b'{"cancel": "all"}', "cancel", None),
+        (b'{"id": 8, "argv": ["render", "caf\xc3"]}', "(line)", None),                  # invalid UTF-8
+        (b"\xff\xfe{}", "(line)", None),
+        (b'{"id": 9, "argv": "render job.json"}', "argv", 9),
+        (b'{"id": 10, "argv": ["render", 5]}', "argv[1]", 10),
+        (b'{"id": 11, "argv": ["render", "a\\u0000b"]}', "argv[1]", 11),
+        (b'{"id": 12}', "argv", 12),
+        (b'{"id": 13, "argv": ["render"], "extra": 1}', "extra", 13),
+        (b'{"quit": "yes"}', "quit", None),
+        (b"not json", "(line)", None),
+        (b"[1, 2]", "(top level)", None),
+        (b"{}", "(top level)", None),
+        (b'{"id": 14, "argv": ["' + b"x" * limit + b'"]}', "(line)", None),           # longer than the bound
+        (b'{"id": NaN, "argv": ["render"]}', "id", None),
+    ]
+    job = small_job(tmp_path / "a")
+    try:
+        for line, *_ in cases:
+            proc.stdin.write(line + b"\n")
+        proc.stdin.write(json.dumps(protocol.request(99, ["render", str(job), "--check"])).encode() + b"\n")
+        proc.stdin.flush()
+
+        def next_event(timeout):
+            try:
+                return got.get(timeout=timeout)
+            except queue.Empty:
+                pytest.fail(f"no event in {timeout} s (server alive: {proc.poll() is None})")
+
+        for line, field, rid in cases:
+            ev = next_event(START_S)
+            while protocol.kind_of(ev) == protocol.PROGRESS:  # the kernels' warm-up, before the first answer
+                ev = next_event(START_S)
+            assert protocol.kind_of(ev) == protocol.ERROR, (line[:60], ev)
+            assert ev["file"] == protocol.REQUEST_SOURCE and ev["field"] == field and ev["id"] == rid, (line[:60], ev)
+            assert ev["hint"] and len(ev["message"]) < 500
+            if rid is not None:
+                assert next_event(REQUEST_S) == protocol.event(protocol.SERVED, id=rid,
+                                                               exit_code=protocol.EXIT_BAD_INPUT)
+        answer = [next_event(REQUEST_S)]
+        while protocol.kind_of(answer[-1]) != protocol.SERVED:
+            answer.append(next_event(REQUEST_S))
+        assert answer[-1]["id"] == 99 and answer[-1]["exit_code"] == protocol.EXIT_OK, answer
+        assert any(protocol.kind_of(e) == protocol.DONE and e.get("check") for e in answer)
+        proc.stdin.close()                                    # and it still ends on the end of its input
+        assert proc.wait(timeout=START_S) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()

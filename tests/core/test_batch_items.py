@@ -231,3 +231,13 @@ def test_a_dashboard_url_in_the_environment_is_refused_naming_it(monkeypatch):
         batch.ray_options("", None, None)
     batch.check_ray_address("head:6379")      # an address given wins over the environment's
     assert batch.ray_options(None) == (batch.DEFAULT_RETRIES, batch.DEFAULT_CPUS_PER_JOB)   # no --ray: not read
+
+
+def test_a_nul_byte_in_a_list_is_refused_naming_its_line(tmp_path):
+    """Issue 42: a NUL byte in a batch list reached os.stat (ValueError, a traceback)."""
+    listed = tmp_path / "list.txt"
+    listed.write_bytes(b"# jobs\na/job.json\nx\x00y/job.json\n")
+    for read in (batch.read_job_list, batch.read_list):
+        with pytest.raises(errors.InputError) as e:
+            read(listed)
+        assert e.value.path == str(listed) and e.value.field == "line 3" and "NUL" in e.value.message

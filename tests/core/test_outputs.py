@@ -114,3 +114,11 @@ def test_folders_are_built_whole_only_by_atomic_folder():
         if "mkdtemp(" in text and "rename(" in text:
             copies.append(f)
     assert copies == []
+
+
+def test_a_log_line_naming_a_non_utf8_file_is_written_escaped(tmp_path):
+    """A file name whose bytes are not UTF-8 (Python holds them as surrogates) in a log line: written as \\udce9,
+    the log stays UTF-8 text (it raised UnicodeEncodeError, a traceback, issue 42)."""
+    log = tmp_path / "backend.log"
+    outputs.append_text(log, "render /data/caf\udce9/job.json\n")
+    assert log.read_text(encoding="utf-8") == "render /data/caf\\udce9/job.json\n"

@@ -155,7 +155,10 @@ def _read(kind, v, field, lo, hi, path):
     if kind == "shifts":  # {"min": m, "max": m}: drawn uniformly
         if set(v) != {"min", "max"}:
             raise _error(path, field, 'expected a list of shifts or {"min": m, "max": m}')
-        return _read("range", [v["min"], v["max"]], field, lo, hi, path)
+        low, high = (num(v[k], f"{field}.{k}") for k in ("min", "max"))
+        if low > high:
+            raise _error(path, field, f"min {low} is above max {high}")
+        return (low, high)
     if kind == "folder":
         folder = fields.string(v, path, field, error=VariationError)
         return folder if os.path.isabs(folder) else os.path.join(os.path.dirname(os.path.abspath(path)), folder)

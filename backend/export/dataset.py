@@ -421,7 +421,7 @@ def export_dataset(items: Sequence[str], formats: Sequence[str], out: str, split
     done, rendered = 0, 0
     outputs.make_folder(os.path.dirname(out), "--out")
     try:
-        with outputs.atomic_folder(out, replace=True, usual_mode=True) as tmp:
+        with outputs.atomic_folder(out, replace=True, usual_mode=True, record=OutputLayout.EXPORT_RECORD) as tmp:
             writer = _Writer(tmp, formats, splits)
             for m in jobs:
                 if stop:

@@ -385,8 +385,8 @@ def owned_names(layout: VariationLayout) -> set:
     except (errors.InputError, KeyError, TypeError, AttributeError):
         return set()
     if not isinstance(names, list):
-        return set()
-    return {n for n in names if isinstance(n, str) and (n in _OWN_NAMES or n == VariationLayout.BASE
+        return {VariationLayout.MANIFEST}
+    return {VariationLayout.MANIFEST} | {n for n in names if isinstance(n, str) and (n in _OWN_NAMES or n == VariationLayout.BASE
                                                          or _VARIANT_NAME.fullmatch(n))}
 
 
@@ -436,8 +436,7 @@ def make_variants(base_path: str | os.PathLike, spec: VariationSpec, out: str | 
         batch_items.list_line(os.path.abspath(spec.library), "(variation spec)", "cars.library")
     check_out(layout.root, spec.variants)
     outputs.make_folder(layout.root, "--out")
-    busy = busy or (lambda message, hint, **fields: VariationError(fields.get("file", layout.root), "(folder)",
-                                                                    message, hint))
+    busy = busy or (lambda message, hint, **fields: VariationError(layout.root, "(folder)", message, hint))
     with locking.OutputLock(layout.root, "vary", busy=busy):
         owned = check_out(layout.root, spec.variants)   # again, now that no other run writes here
         return _make_variants(layout, owned, base_path, spec, convert_mesh, progress, mesh_count, allow_outside,

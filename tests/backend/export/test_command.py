@@ -36,14 +36,18 @@ def test_destination_never_overwrites_what_is_not_an_export(tmp_path):
     command.check_destination(str(tmp_path / "empty"), str(out_dir), given=True)  # empty: fine
     prev = tmp_path / "prev"
     prev.mkdir()
-    (prev / OutputLayout.EXPORT_RECORD).write_text("{}")
+    (prev / OutputLayout.EXPORT_RECORD).write_text('{"files": ["x.txt"]}')          # the files it wrote
     (prev / "x.txt").write_text("old")
     command.check_destination(str(prev), str(out_dir), given=True)                # a previous export: fine
     (tmp_path / "mine").mkdir()
     (tmp_path / "mine" / "thesis.tex").write_text("keep me")
+    planted = tmp_path / "planted"                 # a user's folder with an export.json: its files are not the export's
+    planted.mkdir()
+    (planted / OutputLayout.EXPORT_RECORD).write_text("{}")
+    (planted / "thesis.tex").write_text("keep me")
     (tmp_path / "file").write_text("")
     os.symlink(tmp_path / "empty", tmp_path / "link")
-    for bad in ("mine", "file", "link", ".", "out"):
+    for bad in ("mine", "planted", "file", "link", ".", "out"):
         with pytest.raises(errors.ArgumentError) as e:
             command.check_destination(str(tmp_path / bad), str(out_dir), given=True)
         assert e.value.field == "--out" and e.value.path == errors.COMMAND_LINE, bad

@@ -1,14 +1,18 @@
 """Writing outputs safely (issue 14): whole files or none, never through a planted link, never outside the folder.
 
-- ``atomic_write`` / ``atomic_path``: a unique temporary file (``mkstemp``, never a planted link) in the target
-  folder, renamed over the target when complete; nothing half-written survives an error. ``atomic_folder`` the
-  same for a folder built whole (a checkpoint, a clip, a cached street). ``write_json`` is the one JSON writer
-  (strict: NaN/inf refused). ``remove_temporaries`` removes the temporary files a killed run left.
-- Log files: ``append_text`` never appends through a symbolic link; ``check_log`` refuses one beforehand.
+- ``atomic_write`` / ``atomic_path``: a unique temporary file (``O_EXCL | O_NOFOLLOW``, never a planted link) in the
+  target folder, renamed over the target when complete; nothing half-written survives an error. Both work relative
+  to the folder opened once (``open_folder``): a folder of the output tree swapped for a link after it was checked
+  receives nothing. ``atomic_folder`` the same for a folder built whole (a checkpoint, a clip, a cached street);
+  with ``replace`` and a ``record`` (an export) it replaces only a folder holding nothing but the files its record
+  lists (``foreign_files``: a command never deletes or replaces what it did not create). ``write_json`` is the one
+  JSON writer (strict: NaN/inf refused). ``remove_temporaries`` removes the temporary files a killed run left.
+- Log files: ``append_text`` never appends through a symbolic or hard link; ``check_log`` refuses one beforehand.
 - Confinement: ``confined``, a job's paths may not leave the job's folder (``..`` or a symlink) except into a data
   root the user trusts (``--data-root``: ``data_root``, ``data_roots_option``), unless the user allows everything
   (``--allow-outside``); ``inside`` is the test.
 - Output folders: ``make_folder``, ``output_folder`` (``conditions/``, ``generated/`` may not lead elsewhere),
+  ``own_folder`` (a command's own folder in an output tree, never through a link: ``vNNNN/``, ``export/``),
   ``check_output`` (what a run would refuse, checked without creating anything), ``remove_listed`` (the files a
   record of this program's outputs lists, and nothing else).
 

@@ -241,3 +241,19 @@ def test_coco_and_openlabel_carry_the_fields_the_labels_table_says(tmp_path):
             for o in f.get("objects", {}).values()]
     assert ["hole_fraction", "visible_fraction", "occlusion", "truncation"] in nums
     assert {n for ns in nums for n in ns} == set(labels.CARRIED_MEASURES)
+
+
+def test_the_default_destination_is_never_written_through_a_planted_export_link(tmp_path):
+    """export followed a link at out/export (issue 42): the default destination under it is refused by name."""
+    out_dir = tmp_path / "out"
+    out_dir.mkdir()
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    os.symlink(elsewhere, out_dir / OutputLayout.EXPORT)
+    dest = OutputLayout(str(out_dir)).export("coco")
+    with pytest.raises(errors.InputError) as e:
+        command.check_destination(dest, str(out_dir), given=False, fmt="coco")
+    assert e.value.path == dest and "symbolic link" in e.value.message
+    with pytest.raises(errors.InputError):       # and where the folder is made, never through it
+        outputs.own_folder(str(out_dir), OutputLayout.EXPORT)
+    assert os.listdir(elsewhere) == []

@@ -18,7 +18,8 @@ def convert_mesh(mesh: str, out: str, count: int) -> None:
 def vary(args) -> tuple:
     """Run the variation: progress events per variant, a warning event per unplaced variant and per warning of
     the run. The base job's paths are confined as ``render`` confines them (``--data-root``, ``--allow-outside``);
-    the output folder is locked for the run (a second run: ``FolderBusyError``). Returns (the done event's fields, exit code: 1 when no variant could be placed)."""
+    the output folder is locked for the run (a second run: ``FolderBusyError``). Returns (the done event's fields,
+    exit code: 1 when no variant could be placed)."""
     from scpainter_blender.core import outputs
 
     from ..errors import FolderBusyError

@@ -199,6 +199,7 @@ def atomic_folder(path: str | os.PathLike, keep_existing: bool = False, replace:
             os.rename(path, os.path.join(aside, name))
         try:
             os.rename(tmp, path)
+            _FOLDERS.pop(path, None)   # a new folder now has the name: a record of an earlier one no longer holds
         except OSError:
             if aside is not None and not os.path.lexists(path):
                 os.rename(os.path.join(aside, name), path)
@@ -486,6 +487,14 @@ def output_folder(parent: str | os.PathLike, name: str, allow_outside: bool = Fa
         raise _leads_outside(path)
     _register(path, os.stat(path))
     return path
+
+
+def remove_own_folder(parent: str | os.PathLike, name: str) -> None:
+    """Delete ``parent/name``, a folder of a command's own output tree, with everything in it: opened first as
+    ``own_folder`` opens it (a link there is an InputError, never followed), forgotten by ``open_folder`` after."""
+    path = own_folder(parent, name)
+    shutil.rmtree(path, ignore_errors=True)
+    _FOLDERS.pop(path, None)
 
 
 def own_folder(parent: str | os.PathLike, name: str, field: str = "(folder)") -> str:

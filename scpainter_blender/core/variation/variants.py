@@ -19,7 +19,6 @@ import contextlib
 import json
 import os
 import re
-import shutil
 import time
 from dataclasses import replace
 from typing import TYPE_CHECKING
@@ -386,8 +385,9 @@ def owned_names(layout: VariationLayout) -> set:
         return set()
     if not isinstance(names, list):
         return {VariationLayout.MANIFEST}
-    return {VariationLayout.MANIFEST} | {n for n in names if isinstance(n, str) and (n in _OWN_NAMES or n == VariationLayout.BASE
-                                                         or _VARIANT_NAME.fullmatch(n))}
+    plain = {n for n in names if isinstance(n, str)
+             and (n in _OWN_NAMES or n == VariationLayout.BASE or _VARIANT_NAME.fullmatch(n))}
+    return {VariationLayout.MANIFEST} | plain
 
 
 def check_out(out: str | os.PathLike, variants_count: int, writes=()) -> set:
@@ -445,12 +445,14 @@ def make_variants(base_path: str | os.PathLike, spec: VariationSpec, out: str | 
 
 def _make_variants(layout, owned, base_path, spec, convert_mesh, progress, mesh_count, allow_outside, data_roots,
                    own) -> dict:
-    pending = sorted(owned | set(own) | set(_OWN_NAMES) | {VariationLayout.variant_name(i) for i in range(spec.variants)})
+    pending = sorted(owned | set(own) | set(_OWN_NAMES)
+                     | {VariationLayout.variant_name(i) for i in range(spec.variants)})
     # first: the manifest says a run is under way and names everything it may leave; the list goes (batch then
     # finds no list to take as whole until this run has written every variant)
     outputs.write_json(layout.manifest, {
-        "schema": MANIFEST_SCHEMA, "state": "running", "base": os.path.abspath(base_path), "spec": spec_mod.to_file(spec),
-        "library": [], "road_area_m2": None, "warnings": [], "removed": [], "summary": summarize([]), "variants": [],
+        "schema": MANIFEST_SCHEMA, "state": "running", "base": os.path.abspath(base_path),
+        "spec": spec_mod.to_file(spec), "library": [], "road_area_m2": None, "warnings": [], "removed": [],
+        "summary": summarize([]), "variants": [],
         "files": pending, "timings": {}})
     with contextlib.suppress(FileNotFoundError):
         os.remove(layout.list)
@@ -475,8 +477,7 @@ def _make_variants(layout, owned, base_path, spec, convert_mesh, progress, mesh_
     removed = sorted(n for n in set(pending) - placed if _VARIANT_NAME.fullmatch(n)
                      and os.path.isdir(os.path.join(layout.root, n)))
     for name in removed:
-        outputs.own_folder(layout.root, name)   # a link there is refused, never followed into
-        shutil.rmtree(os.path.join(layout.root, name), ignore_errors=True)
+        outputs.remove_own_folder(layout.root, name)   # a link there is refused, never followed into
     summary = summarize(entries)
     warnings = v.warnings + ([f"no variant could be placed ({summary['variants']} tried)"]
                              if not summary["placed"] else [])

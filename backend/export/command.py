@@ -140,7 +140,8 @@ def export_job(job_path: str, job: job_mod.Job, fmt: str, out: str | None = None
     layout = OutputLayout(paths["output_dir"])
     dest = os.path.abspath(out) if out else layout.export(fmt)
     check_destination(dest, layout.root, given=bool(out), fmt=fmt)
-    with rendered_job(job_path, job, device, paths, allow_outside, stop) as (rendered, log):
+    with job_inputs.reading(job_path, allow_outside, data_roots), \
+            rendered_job(job_path, job, device, paths, allow_outside, stop) as (rendered, log):  # inputs as opened
         result = {"format": fmt, "out": dest, "output_dir": layout.root, "rendered": rendered["rendered"]}
         if rendered["stopped"]:
             return {**result, "stopped": True}

@@ -234,7 +234,8 @@ def _tree_files(folder: str) -> list:
 def _record_created(folder: str, record: str) -> None:
     """Add ``CREATED_KEY`` (every file of ``folder`` but the record) to the record the caller wrote there."""
     rec_path = os.path.join(folder, record)
-    content = files.read_json(rec_path)
+    with files.confined_reads(None):   # the command's own file, wherever its destination is
+        content = files.read_json(rec_path)
     content[CREATED_KEY] = [f for f in _tree_files(folder) if f != record]
     write_json(rec_path, content)
 
@@ -244,7 +245,8 @@ def created_files(folder: str | os.PathLike, record: str | None) -> set | None:
     if record is None:
         return None
     try:
-        content = files.read_json(os.path.join(folder, record))
+        with files.confined_reads(None):   # a destination's record: read wherever the destination is
+            content = files.read_json(os.path.join(folder, record))
     except InputError:
         return None
     listed = content.get(CREATED_KEY) if isinstance(content, dict) else None

@@ -257,3 +257,26 @@ def test_the_default_destination_is_never_written_through_a_planted_export_link(
     with pytest.raises(errors.InputError):       # and where the folder is made, never through it
         outputs.own_folder(str(out_dir), OutputLayout.EXPORT)
     assert os.listdir(elsewhere) == []
+
+
+def test_a_file_put_in_the_destination_while_frames_render_is_never_deleted(tmp_path, monkeypatch):
+    """export --out deleted a user's file created in the destination while the missing frames rendered (2 of 2,
+    issue 42). The user's write is made at the point between the render and the export's rename (in-process)."""
+    from scpainter_blender.core import job as J
+    from tests_support import small_job
+
+    job = small_job(tmp_path / "job")
+    dest = tmp_path / "dataset"
+    chose = command.image_source
+
+    def rendered_then_user_writes(*args):
+        dest.mkdir()                                  # the destination did not exist when it was checked
+        (dest / "thesis.tex").write_text("keep me")
+        return chose(*args)
+
+    monkeypatch.setattr(command, "image_source", rendered_then_user_writes)
+    with pytest.raises(errors.InputError) as e:
+        command.export_job(job, J.load(job), "kitti", out=str(dest))
+    assert e.value.path == str(dest) and "thesis.tex" in e.value.message
+    assert os.listdir(dest) == ["thesis.tex"] and (dest / "thesis.tex").read_text() == "keep me"
+    assert sorted(os.listdir(tmp_path)) == ["dataset", "job"]      # nothing left beside it

@@ -82,7 +82,8 @@ def atomic_path(path: str | os.PathLike) -> Iterator[str]:
     descriptor; for such a folder the path yielded is ``/proc/self/fd/N/<temporary>`` (Linux), so a folder swapped
     for a link after the check still receives nothing."""
     with _temporary(path) as (dfd, folder, tmp):
-        yield _fd_path(dfd, folder, tmp) if os.path.abspath(folder) in _FOLDERS else os.path.join(folder, tmp)
+        checked = dfd is not None and os.path.abspath(folder) in _FOLDERS
+        yield _fd_path(dfd, folder, tmp) if checked else os.path.join(folder, tmp)
 
 
 @contextlib.contextmanager
@@ -92,30 +93,46 @@ def _temporary(path: str | os.PathLike) -> Iterator[tuple]:
     folder, name = os.path.split(os.path.abspath(path))
     dfd = open_folder(folder)
     try:
-        tmp = _create_temporary(dfd, name)
+        tmp = _create_temporary(dfd, folder, name)
         try:
             yield dfd, folder, tmp
             try:
-                os.replace(tmp, name, src_dir_fd=dfd, dst_dir_fd=dfd)
+                if dfd is None:
+                    os.replace(os.path.join(folder, tmp), os.path.join(folder, name))
+                else:
+                    os.replace(tmp, name, src_dir_fd=dfd, dst_dir_fd=dfd)
             except IsADirectoryError:  # a file is never renamed over a folder
                 raise InputError(path, "(file)", "is a folder where this output file goes",
                                  hint="move or remove the folder, then run again") from None
         except BaseException:
             with contextlib.suppress(OSError):
-                os.remove(tmp, dir_fd=dfd)
+                where, at = _at(dfd, folder, tmp)
+                os.remove(where, **at)
             raise
     finally:
+        _close(dfd)
+
+
+def _at(dfd: int | None, folder: str, name: str) -> tuple:
+    """The arguments naming ``name`` in a folder opened by ``open_folder``: ``(name,)`` and its descriptor, or the
+    joined path where the system has no ``*at`` calls (``dfd`` None)."""
+    return (name, {"dir_fd": dfd}) if dfd is not None else (os.path.join(folder, name), {})
+
+
+def _close(dfd: int | None) -> None:
+    if dfd is not None:
         os.close(dfd)
 
 
-def _create_temporary(dfd: int, name: str) -> str:
+def _create_temporary(dfd: int | None, folder: str, name: str) -> str:
     """A new empty file ``.<name>.<random>.tmp`` in the folder ``dfd`` (``O_CREAT | O_EXCL | O_NOFOLLOW``; the
     user's usual permissions, 0666 less the umask), closed; returns its name."""
     flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
     for _ in range(100):
         tmp = f"{_temporary_prefix(name)}{secrets.token_hex(4)}{_TEMPORARY_SUFFIX}"
         try:
-            os.close(os.open(tmp, flags, 0o666, dir_fd=dfd))
+            where, at = _at(dfd, folder, tmp)
+            os.close(os.open(where, flags, 0o666, **at))
             return tmp
         except FileExistsError:
             continue
@@ -138,12 +155,24 @@ def _register(path: str, st: os.stat_result) -> None:
     _FOLDERS[os.path.abspath(path)] = (st.st_dev, st.st_ino)
 
 
-def open_folder(folder: str | os.PathLike) -> int:
+#: Whether this system works relative to a folder's descriptor (``openat``, ``renameat``, ...: POSIX); elsewhere
+#: (Windows, which has no symbolic links a user makes without privileges) by path, the folder's identity checked.
+_AT = hasattr(os, "O_DIRECTORY") and {os.open, os.rename, os.unlink, os.mkdir, os.stat} <= os.supports_dir_fd
+
+
+def open_folder(folder: str | os.PathLike) -> int | None:
     """A descriptor of the folder ``folder`` (``O_DIRECTORY``), for work relative to it. When this process made
     or checked it as part of an output tree (``output_folder``, ``own_folder``), the folder opened must be that
     very folder (device and inode): one swapped for a symbolic link, or another folder, since is an InputError
-    naming it, and nothing is written there."""
+    naming it, and nothing is written there. None where the system has no ``*at`` calls (``_AT``): the identity
+    is then checked by path."""
     folder = os.path.abspath(os.fspath(folder))
+    if not _AT:
+        st = os.stat(folder)
+        if _FOLDERS.get(folder, (st.st_dev, st.st_ino)) != (st.st_dev, st.st_ino) or not stat.S_ISDIR(st.st_mode):
+            raise InputError(folder, "(folder)", "was replaced while this command ran: nothing is written through it",
+                             hint="remove what was put there, then run again")
+        return None
     try:
         dfd = os.open(folder, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0) | getattr(os, "O_CLOEXEC", 0))
     except NotADirectoryError:
@@ -302,11 +331,12 @@ def _remove_recorded(folder: str, record: str | None) -> None:
 def atomic_write(path: str | os.PathLike, mode: str = "wb") -> Iterator[IO]:
     """``with atomic_write(path, "w") as f:`` — ``f`` writes a temporary file that replaces ``path`` only when the
     block ends without an error (see ``atomic_path``)."""
-    with _temporary(path) as (dfd, _, tmp):
+    with _temporary(path) as (dfd, folder, tmp):
         # opened in the folder's descriptor; O_NOFOLLOW: the fresh name is ours, but a link swapped in for it in a
         # shared folder is not followed
-        with open(tmp, mode, **({} if "b" in mode else {"encoding": "utf-8"}),
-                  opener=lambda p, flags: os.open(p, flags | getattr(os, "O_NOFOLLOW", 0), 0o600, dir_fd=dfd)) as f:
+        where, at = _at(dfd, folder, tmp)
+        with open(where, mode, **({} if "b" in mode else {"encoding": "utf-8"}),
+                  opener=lambda p, flags: os.open(p, flags | getattr(os, "O_NOFOLLOW", 0), 0o600, **at)) as f:
             yield f
 
 
@@ -328,14 +358,15 @@ def remove_temporaries(folder: str | os.PathLike, names: Iterable[str]) -> int:
     except (OSError, InputError):
         return 0
     try:
-        for entry in os.listdir(dfd):
+        for entry in os.listdir(folder if dfd is None else dfd):
             if entry.endswith(_TEMPORARY_SUFFIX) and entry.startswith(prefixes) and "/" not in entry:
                 with contextlib.suppress(OSError):
-                    if stat.S_ISLNK(mode := os.lstat(entry, dir_fd=dfd).st_mode) or stat.S_ISREG(mode):
-                        os.remove(entry, dir_fd=dfd)
+                    where, at = _at(dfd, os.fspath(folder), entry)
+                    if stat.S_ISLNK(mode := os.lstat(where, **at).st_mode) or stat.S_ISREG(mode):
+                        os.remove(where, **at)
                         removed += 1
     finally:
-        os.close(dfd)
+        _close(dfd)
     return removed
 
 
@@ -507,8 +538,16 @@ def own_folder(parent: str | os.PathLike, name: str, field: str = "(folder)") ->
     path = os.path.join(os.path.abspath(os.fspath(parent)), name)
     pfd = open_folder(parent)
     try:
+        where, at = _at(pfd, os.path.dirname(path), name)
         with contextlib.suppress(FileExistsError):
-            os.mkdir(name, 0o777, dir_fd=pfd)
+            os.mkdir(where, 0o777, **at)
+        if pfd is None:   # by path (no *at calls): what is there must be a folder, not a link
+            if os.path.islink(path) or not os.path.isdir(path):
+                what = "a symbolic link" if os.path.islink(path) else "not a folder"
+                raise InputError(path, field, f"is {what}: an output folder is never written through a link",
+                                 hint="remove it, then run again")
+            _register(path, os.stat(path))
+            return path
         try:
             fd = os.open(name, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0) | getattr(os, "O_NOFOLLOW", 0)
                          | getattr(os, "O_CLOEXEC", 0), dir_fd=pfd)
@@ -524,7 +563,7 @@ def own_folder(parent: str | os.PathLike, name: str, field: str = "(folder)") ->
         finally:
             os.close(fd)
     finally:
-        os.close(pfd)
+        _close(pfd)
     return path
 
 
@@ -570,10 +609,11 @@ def remove_listed(folder: str | os.PathLike, names: Iterable[str]) -> int:
                     (os.altsep and os.altsep in name) or "\0" in name:  # a NUL makes os calls raise ValueError
                 continue
             with contextlib.suppress(FileNotFoundError, IsADirectoryError, PermissionError):
-                mode = os.lstat(name, dir_fd=dfd).st_mode
+                where, at = _at(dfd, os.fspath(folder), name)
+                mode = os.lstat(where, **at).st_mode
                 if stat.S_ISLNK(mode) or stat.S_ISREG(mode):
-                    os.remove(name, dir_fd=dfd)
+                    os.remove(where, **at)
                     removed += 1
     finally:
-        os.close(dfd)
+        _close(dfd)
     return removed

@@ -40,6 +40,7 @@ def test_a_folder_swapped_for_a_link_after_it_was_made_receives_nothing(tmp_path
     assert os.listdir(str(cond) + ".moved") == ["000000.exr"]
 
 
+@pytest.mark.skipif(not outputs._AT, reason="no *at calls here (Windows): the folder is checked by path")
 def test_a_swap_between_the_folder_check_and_the_rename_changes_nothing(tmp_path):
     """The temporary is opened in the folder's descriptor, renamed within it: swapping the folder while a writer
     holds the temporary (here, inside the block) still puts the file in the folder that was checked."""

@@ -347,10 +347,12 @@ def write_json(path: str | os.PathLike, value: object, indent: int | None = 1) -
         f.write(text + "\n")
 
 
-def remove_temporaries(folder: str | os.PathLike, names: Iterable[str]) -> int:
+def remove_temporaries(folder: str | os.PathLike, names: Iterable[str], folders: bool = False) -> int:
     """Delete what ``atomic_path`` left for the targets ``names`` in ``folder`` when a process was killed
     (``.<name>.<random>.tmp``); only those names' temporaries, for a caller holding the folder's lock. Relative to
-    the folder opened once (``open_folder``): a folder swapped for a link meanwhile loses nothing."""
+    the folder opened once (``open_folder``): a folder swapped for a link meanwhile loses nothing. ``folders``:
+    also the temporary folders ``atomic_folder`` left for them (removed with what they hold; a link never
+    followed)."""
     prefixes = tuple(_temporary_prefix(n) for n in names)
     removed = 0
     try:
@@ -364,6 +366,12 @@ def remove_temporaries(folder: str | os.PathLike, names: Iterable[str]) -> int:
                     where, at = _at(dfd, os.fspath(folder), entry)
                     if stat.S_ISLNK(mode := os.lstat(where, **at).st_mode) or stat.S_ISREG(mode):
                         os.remove(where, **at)
+                        removed += 1
+                    elif folders and stat.S_ISDIR(mode) and dfd is not None:
+                        shutil.rmtree(entry, dir_fd=dfd)   # never follows a link inside it
+                        removed += 1
+                    elif folders and stat.S_ISDIR(mode):
+                        shutil.rmtree(where)
                         removed += 1
     finally:
         _close(dfd)

@@ -456,6 +456,8 @@ def _make_variants(layout, owned, base_path, spec, convert_mesh, progress, mesh_
         "files": pending, "timings": {}})
     with contextlib.suppress(FileNotFoundError):
         os.remove(layout.list)
+    # what a killed run left half-made: temporary files of the list and manifest, temporary variant folders
+    outputs.remove_temporaries(layout.root, pending, folders=True)
     if os.path.lexists(layout.library):
         outputs.own_folder(layout.root, VariationLayout.LIBRARY)   # never a link planted there
     v = Variation(base_path, spec, layout.root, convert_mesh, mesh_count, allow_outside, data_roots)

@@ -109,6 +109,7 @@ def test_a_killed_run_leaves_no_list_and_its_next_run_cleans_up(street, tmp_path
     assert not os.path.exists(layout.list)                  # batch finds no list to take as whole
     with pytest.raises(errors.InputError):
         batch_items.read_job_list(layout.list)
+    os.mkdir(out / ".v0002.half.tmp")                       # killed while variant 2's folder was built
     running = json.loads(open(layout.manifest).read())
     assert running["state"] == "running" and {"v0000", "v0001", "v0002"} <= set(running["files"])
     again = variants.make_variants(base, spec(variants=1, seed=9), str(out), data_roots=(street.root,))

@@ -17,7 +17,12 @@
   record of this program's outputs lists, and nothing else).
 
 Bad outputs (a file in the way, a link) raise ``errors.InputError`` naming the path. One run per output folder is
-``core.locking``; the names in an output folder are ``core.output_layout``. stdlib only (no bpy): the add-on and
+``core.locking``; the names in an output folder are ``core.output_layout``.
+
+Why one module over 400 lines: every write of the project goes through it, and its parts share one state and one
+rule: the folders of an output tree this process checked (``_FOLDERS``), opened once by ``open_folder`` for every
+write, rename and deletion (atomic files and folders, clean-up, own folders). Split, that registry would be shared
+across modules and a new writer could bypass it. stdlib only (no bpy): the add-on and
 the backend share it.
 """
 

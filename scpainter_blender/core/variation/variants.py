@@ -11,6 +11,14 @@ with ``numpy.random.default_rng([seed, i])`` alone (so variant i is the same wha
    no place, no job and the reasons in the manifest.
 
 Nothing is dropped silently: every variant is in the manifest with its outcome; the list names the placed ones.
+
+The run's folder (``make_variants``): the base confined as ``render`` confines it (``check_base``), the folder
+checked for a user's files (``check_out``) and locked, a running manifest first, each new variant folder renamed
+into place whole, the finished manifest and then the list last (docs/design.md §16).
+
+Why one module over 400 lines: the variants and the folder they are written to are one run (``make_variants``):
+what a run may remove or overwrite is what its manifest (written here) says it placed, so the manifest's writer and
+its reader stay together.
 """
 
 from __future__ import annotations
@@ -399,7 +407,7 @@ def check_out(out: str | os.PathLike, variants_count: int, writes=()) -> set:
     layout = VariationLayout(os.path.abspath(out))
     if not os.path.lexists(layout.root):
         return set()
-    if os.path.islink(layout.root) and not os.path.isdir(layout.root) or not os.path.isdir(layout.root):
+    if not os.path.isdir(layout.root):
         raise errors.InputError(layout.root, "--out", "exists and is not a folder")
     owned = owned_names(layout)
     present = set(os.listdir(layout.root))
@@ -425,11 +433,11 @@ def make_variants(base_path: str | os.PathLike, spec: VariationSpec, out: str | 
     count)`` turns a library mesh into Gaussians (None: meshes refused). ``progress(done, total)`` after each.
     ``allow_outside``, ``data_roots``: where the base's paths may lead (``check_base``, as ``render``). ``own``:
     top-level names the caller wrote into ``out`` for this run (Blender's ``base``, after its own ``check_out``),
-    recorded as the run's. The folder is locked for the
-    run (``locking.OutputLock``; ``busy(message, hint, file=, owner=)`` the error when another run holds it); a
-    user's files are never overwritten (``check_out``); until the run ends the manifest says it is running and
-    there is no list, so a killed run's folder is never taken as whole (its next run finishes or removes what it
-    left). Errors: ``VariationError`` / the readers' ``InputError`` naming the file and field."""
+    recorded as the run's. The folder is locked for the run (``locking.OutputLock``; ``busy(message, hint, file=,
+    owner=)`` the error when another run holds it); a user's files are never overwritten (``check_out``); until
+    the run ends the manifest says it is running and there is no list, so a killed run's folder is never taken as
+    whole (its next run finishes or removes what it left). Errors: ``VariationError`` / the readers'
+    ``InputError`` naming the file and field."""
     layout = VariationLayout(os.path.abspath(out))
     check_base(base_path, allow_outside, data_roots)  # refused before anything is made
     if spec.library:   # the library's folder becomes a data-root: line of the list
@@ -445,6 +453,7 @@ def make_variants(base_path: str | os.PathLike, spec: VariationSpec, out: str | 
 
 def _make_variants(layout, owned, base_path, spec, convert_mesh, progress, mesh_count, allow_outside, data_roots,
                    own) -> dict:
+    """``make_variants``' run, its folder locked and checked (``owned``: ``check_out``'s names)."""
     pending = sorted(owned | set(own) | set(_OWN_NAMES)
                      | {VariationLayout.variant_name(i) for i in range(spec.variants)})
     # first: the manifest says a run is under way and names everything it may leave; the list goes (batch then

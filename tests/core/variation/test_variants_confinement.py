@@ -116,3 +116,12 @@ def test_a_killed_run_leaves_no_list_and_its_next_run_cleans_up(street, tmp_path
     assert again["state"] == "complete" and again["removed"] == ["v0001", "v0002"]
     assert sorted(os.listdir(out)) == ["v0000", "variants.txt", "variation.json"]
     assert batch_items.read_job_list(layout.list).paths == [str(out / "v0000" / "job.json")]
+    # a link planted where a variant of this run goes is refused, never written through
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    os.rename(out / "v0000", tmp_path / "v0000.moved")
+    os.symlink(outside, out / "v0000")
+    with pytest.raises(errors.InputError) as e:
+        variants.make_variants(base, spec(variants=1, seed=9), str(out), data_roots=(street.root,))
+    assert e.value.path == str(out / "v0000") and "symbolic link" in e.value.message
+    assert os.listdir(outside) == []

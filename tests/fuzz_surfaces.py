@@ -1673,8 +1673,11 @@ def _gate_renames(ack_fd):
         def call(src, dst, *args, **kwargs):
             name = os.path.basename(os.fspath(src))
             if name.startswith(".") and name.endswith(".tmp"):
+                target = os.fspath(dst)
+                if kwargs.get("dst_dir_fd") is not None:   # core.outputs renames within a folder's descriptor
+                    target = os.path.join(os.readlink(f"/proc/self/fd/{kwargs['dst_dir_fd']}"), target)
                 with lock:
-                    os.write(1, f"{GATE}{os.fspath(dst)}\n".encode())
+                    os.write(1, f"{GATE}{target}\n".encode())
                     if not opened and not os.read(ack_fd, 1):
                         opened.append(True)
             return real(src, dst, *args, **kwargs)

@@ -18,8 +18,11 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
     v = sub.add_parser(NAME, help="variants of a job (camera shifts, lane changes, cars from a library placed on "
                                   "the road), written as job folders with a batch list and a manifest")
+    from . import options
+
     v.add_argument("job", help="the base job (job.json), e.g. as Blender exports it")
     variation_spec.add_arguments(v)
+    options.confinement_options(v)   # the base's paths confined as render confines them
     v.set_defaults(func=run)
     return v
 

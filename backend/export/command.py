@@ -9,9 +9,10 @@ are read (a missing or other-schema file is an ``InputError`` naming it: render 
 (``generated/manifest.json`` listing the job's frames, every PNG present, written after the condition EXRs) is
 there, else the condition previews, with a ``warning`` event (code ``NO_GENERATED``) saying so; the ``done`` event
 says which (``images``). The destination (default ``OutputLayout(output_dir).export(format)``) is written whole
-(``outputs.atomic_folder``): a killed export leaves no half dataset, and a previous export there (a folder with
-``OutputLayout.EXPORT_RECORD``) is replaced only when the new one is complete. A folder that is not empty and not
-an export is refused (``--out``), never overwritten.
+(``outputs.atomic_folder``): a killed export leaves no half dataset, and a previous export there (a folder whose
+``OutputLayout.EXPORT_RECORD`` lists every file in it) is replaced only when the new one is complete. A folder with
+anything else is refused (``--out``), never overwritten, also when the file appeared while the frames rendered;
+an empty folder the user made is filled, never replaced.
 """
 
 from __future__ import annotations
@@ -48,10 +49,11 @@ def check_format(fmt: str) -> str:
 
 
 def check_destination(out: str, output_dir: str, given: bool, fmt: str | None = None) -> None:
-    """What an export may replace: nothing, an empty folder, or a previous export (its ``EXPORT_RECORD``) — of
-    the same format ``fmt`` when given; never a file, a link, another folder with content, or a folder holding the
-    job's output folder. ``given``: the user named it (``--out``: an ``ArgumentError``), else the default (an
-    ``InputError`` naming the folder)."""
+    """What an export may replace: nothing, an empty folder, or a previous export (its ``EXPORT_RECORD``, listing
+    every file it wrote: ``outputs.foreign_files``) — of the same format ``fmt`` when given; never a file, a link,
+    a folder with a file its record does not list (a planted ``export.json`` protects nothing), a folder holding
+    the job's output folder, or (the default) one under an ``export/`` that is a link. ``given``: the user named
+    it (``--out``: an ``ArgumentError``), else the default (an ``InputError`` naming the folder)."""
     def refuse(message, hint="give a new or empty folder, or a previous export of this command"):
         raise (errors.ArgumentError("--out", f"{out} {message}", hint) if given
                else errors.InputError(out, "(folder)", message, hint))
@@ -59,13 +61,19 @@ def check_destination(out: str, output_dir: str, given: bool, fmt: str | None = 
     real, real_out = os.path.realpath(out), os.path.realpath(output_dir)
     if real == real_out or real_out.startswith(real.rstrip(os.sep) + os.sep):
         refuse("holds the job's output folder: an export there would replace it")
+    parent = os.path.dirname(out)
+    if not given and os.path.islink(parent):   # export/ in the output folder: never written through a link
+        refuse(f"lies in {parent}, a symbolic link: an export is never written through one",
+               hint="remove the link, then run again")
     if not os.path.lexists(out):
         return
     if os.path.islink(out) or not os.path.isdir(out):
         refuse("exists and is not a folder")
     record = os.path.join(out, OutputLayout.EXPORT_RECORD)
-    if os.listdir(out) and not os.path.isfile(record):
-        refuse("is a folder with other content (not an export of this command): it is never overwritten")
+    foreign = outputs.foreign_files(out, OutputLayout.EXPORT_RECORD)
+    if foreign:
+        refuse(f"is a folder with other content (not an export of this command: {foreign[0]!r}"
+               f"{' and more' if len(foreign) > 1 else ''} not in its record): it is never overwritten")
     if fmt is not None and os.path.isfile(record):
         try:
             previous = files.read_json(record).get("format")
@@ -132,7 +140,8 @@ def export_job(job_path: str, job: job_mod.Job, fmt: str, out: str | None = None
     layout = OutputLayout(paths["output_dir"])
     dest = os.path.abspath(out) if out else layout.export(fmt)
     check_destination(dest, layout.root, given=bool(out), fmt=fmt)
-    with rendered_job(job_path, job, device, paths, allow_outside, stop) as (rendered, log):
+    with job_inputs.reading(job_path, allow_outside, data_roots), \
+            rendered_job(job_path, job, device, paths, allow_outside, stop) as (rendered, log):  # inputs as opened
         result = {"format": fmt, "out": dest, "output_dir": layout.root, "rendered": rendered["rendered"]}
         if rendered["stopped"]:
             return {**result, "stopped": True}
@@ -175,9 +184,13 @@ def write_export(job_path: str, job: job_mod.Job, layout: OutputLayout, fmt: str
                        "generated video's frames)", NO_GENERATED)
     frames = [read_frame(layout, e.frame, images, fmt in NEEDS_INSTANCE) for e in job.frames]
     total = len(frames)
-    outputs.make_folder(os.path.dirname(dest), "(folder)")
-    # check_destination said what may be replaced (nothing, an empty folder, a previous export)
-    with outputs.atomic_folder(dest, replace=True, usual_mode=True) as tmp:
+    if os.path.dirname(dest) == os.path.join(layout.root, OutputLayout.EXPORT):   # the default: never via a link
+        outputs.own_folder(layout.root, OutputLayout.EXPORT)
+    else:
+        outputs.make_folder(os.path.dirname(dest), "(folder)")
+    # check_destination said what may be replaced (nothing, an empty folder, a previous export); atomic_folder
+    # checks again at the rename: a file put there meanwhile is never deleted
+    with outputs.atomic_folder(dest, replace=True, usual_mode=True, record=OutputLayout.EXPORT_RECORD) as tmp:
         counts = FORMATS[fmt].write(tmp, frames, progress=lambda i: events.progress(
             "export", i + 1, total, frame=job.frames[i].frame))
         outputs.write_json(os.path.join(tmp, OutputLayout.EXPORT_RECORD), {

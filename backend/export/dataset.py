@@ -49,7 +49,7 @@ import shutil
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from scpainter_blender.core import categories, errors, files, outputs
+from scpainter_blender.core import categories, errors, files, job_inputs, outputs
 from scpainter_blender.core import job as job_mod
 from scpainter_blender.core.batch_items import first_items, shared_output_items
 from scpainter_blender.core.output_layout import DatasetLayout, OutputLayout, VariationLayout
@@ -421,14 +421,15 @@ def export_dataset(items: Sequence[str], formats: Sequence[str], out: str, split
     done, rendered = 0, 0
     outputs.make_folder(os.path.dirname(out), "--out")
     try:
-        with outputs.atomic_folder(out, replace=True, usual_mode=True) as tmp:
+        with outputs.atomic_folder(out, replace=True, usual_mode=True, record=OutputLayout.EXPORT_RECORD) as tmp:
             writer = _Writer(tmp, formats, splits)
             for m in jobs:
                 if stop:
                     raise _Stopped
                 paths = command.checked_paths(m.path, m.job, m.allow_outside, m.data_roots)
                 layout = OutputLayout(paths["output_dir"])
-                with command.rendered_job(m.path, m.job, device, paths, m.allow_outside, stop) as (render, log):
+                with job_inputs.reading(m.path, m.allow_outside, m.data_roots), \
+                        command.rendered_job(m.path, m.job, device, paths, m.allow_outside, stop) as (render, log):
                     rendered += render["rendered"]
                     if render["stopped"]:
                         raise _Stopped

@@ -163,7 +163,10 @@ def render_job(job_path: str, job: job_mod.Job, device: str, force: bool = False
         log = log or events.FileLog(OutputLayout(out).log)
         if held is not None and held.stale:
             log(f"render: {held.took_over()}")
-        result = _render(job_path, job, device, force, point_radius, stop, log, out, allow_outside, half)
+        # the inputs read where job_paths allowed them, each file checked as opened (not swapped for a link since);
+        # a caller that checked them itself (``checked``) keeps its own reading rules
+        with job_inputs.reading(job_path, allow_outside, data_roots) if checked is None else contextlib.nullcontext():
+            result = _render(job_path, job, device, force, point_radius, stop, log, out, allow_outside, half)
         return {**result, "warnings": result["warnings"] + warned}
 
 

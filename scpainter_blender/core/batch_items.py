@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+import unicodedata
 
 from . import backend_protocol, errors, files, outputs
 
@@ -119,11 +120,18 @@ def _parse(path) -> tuple[list, list]:
     if len(data) > files.MAX_JSON_BYTES:
         raise errors.InputError(path, "(file)", "is too large for a list of job paths")
     try:
-        lines = [line.strip() for line in data.decode("utf-8-sig").splitlines()]
+        # lines end at "\n" alone (and "\r\n"): str.splitlines would also split at other control characters
+        lines = [line.removesuffix("\r") for line in data.decode("utf-8-sig").split("\n")]
     except UnicodeDecodeError as e:
         raise errors.InputError(path, "(file)", f"is not UTF-8 text (byte {e.start})") from None
     paths, directives = [], []
     for n, text in enumerate(lines, 1):
+        bad = control_character(text)
+        if bad is not None:
+            raise errors.InputError(path, f"line {n}", f"holds the control character {bad!r}: a list line is one "
+                                                       "path, and a control character in it would change the list's "
+                                                       "meaning", hint="rename the file or folder it names")
+        text = text.strip()
         if not text or text.startswith("#"):
             continue
         if "\0" in text:  # no path holds one (the system refuses it): a damaged or forged list
@@ -139,13 +147,52 @@ def _parse(path) -> tuple[list, list]:
     return paths, directives
 
 
+def control_character(text: str) -> str | None:
+    """The first control character of ``text`` (Unicode category Cc: newlines, NUL, escapes; and the line and
+    paragraph separators), None when it has none: what a list file's line and a manifest's name may not hold."""
+    for ch in text:
+        if unicodedata.category(ch) == "Cc" or ch in "\u2028\u2029":
+            return ch
+    return None
+
+
+def list_line(value: str, path: str | os.PathLike, field: str) -> str:
+    """``value`` (a path a list file names) as one line of a list file, unchanged in meaning when read back
+    (``read_job_list``): no control character (a newline would start a line of its own: another job, or a
+    ``data-root:``), no space at either end, not starting with ``#`` or ``DATA_ROOT_DIRECTIVE``. InputError naming
+    ``path`` (what the value came from) and ``field`` otherwise."""
+    bad = control_character(value)
+    problem = (f"holds the control character {bad!r}" if bad is not None else
+               "begins or ends with a space" if value != value.strip() else
+               f"begins with '#' or '{DATA_ROOT_DIRECTIVE}'" if value.startswith(("#", DATA_ROOT_DIRECTIVE)) else None)
+    if problem:
+        raise errors.InputError(path, field, f"{value!r} {problem}: written into a list file it would change the "
+                                             "list's meaning (another job, or a trusted folder)",
+                                hint="rename the file or folder")
+    return value
+
+
+def write_job_list(path: str | os.PathLike, roots: list, items: list, comment: str = "") -> None:
+    """Write a list file (``read_job_list``'s format), atomically: ``comment`` (a ``#`` line), a ``data-root:`` line
+    per root, then the items; every value checked by ``list_line`` first (InputError naming ``path``)."""
+    for field, values in (("data-root", roots), ("(jobs)", items)):
+        for v in values:
+            list_line(v, path, field)
+    with outputs.atomic_write(path, "w") as f:
+        if comment:
+            f.write(f"# {comment}\n")
+        f.writelines(f"{DATA_ROOT_DIRECTIVE} {r}\n" for r in roots)
+        f.writelines(f"{p}\n" for p in items)
+
+
 def read_job_list(path: str | os.PathLike) -> JobList:
     """A ``--list`` file of ``python -m backend batch``. The format: one path a line, relative ones taken from the
     file's folder; blank lines and lines starting with ``#`` are skipped; before the first path, any number of
     ``data-root: DIR`` lines (``DATA_ROOT_DIRECTIVE``; DIR relative to the file's folder): folders the paths of
     the jobs this file lists may lead into besides their own folders (the recording and asset library many
-    variant jobs share), as ``--data-root`` allows for every job of a run. InputError naming the file and the
-    line: a ``data-root:`` line after a path, without a folder, or naming something that is not a folder."""
+    variant jobs share), as ``--data-root`` allows for every job of a run. Lines end at a newline alone. InputError
+    naming the file and the line: a control character in a line (``control_character``), a ``data-root:`` line
+    after a path, without a folder, or naming something that is not a folder."""
     path = os.fspath(path)
     base = os.path.dirname(os.path.abspath(path))
     paths, directives = _parse(path)

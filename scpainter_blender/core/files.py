@@ -1,7 +1,9 @@
 """Reading files from users safely, for every command that takes them (issue 14).
 
 - Every reader raises ``core.errors.InputError`` (or the caller's subclass of it), naming the file and the field.
-- Inputs are opened with ``open_regular``: a FIFO, a directory or a device is refused before anything blocks on it.
+- Inputs are opened with ``open_regular``: a FIFO, a directory or a device is refused before anything blocks on it;
+  inside ``confined_reads`` the file actually opened (its descriptor's path, not the name) must lie in the folders
+  allowed, so a file swapped for a link after a job's paths were checked is refused, not read.
 - ``read_json``: size, depth and integer-length limits (validators then name any out-of-range field).
 - ``read_npz``: each ``.npy`` member's header is parsed and checked against the member's size before a byte of
   data is allocated; object dtypes (pickles) are refused; every zip/zlib/header failure names the file and key.
@@ -21,6 +23,7 @@ stdlib and numpy only (no bpy): the add-on and the backend share it.
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import errno
 import json
 import math
@@ -36,7 +39,7 @@ import numpy as np
 from .errors import InputError
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Iterable
+    from collections.abc import Callable, Iterable, Iterator
     from typing import BinaryIO
 
 
@@ -92,7 +95,8 @@ def open_regular(path: str | os.PathLike, error: Callable[..., Exception] = Inpu
     """``path`` opened for binary reading if it is a regular file, else ``error(path, "(file)", message)``.
 
     Opened non-blocking and checked with ``fstat`` on the open descriptor: opening a FIFO this way returns at
-    once (a plain open waits for a writer, forever), and the check is about the file actually opened."""
+    once (a plain open waits for a writer, forever), and the check is about the file actually opened. Inside
+    ``confined_reads``, the file opened must lie in one of its folders (``error`` otherwise)."""
     try:
         fd = os.open(path, os.O_RDONLY | NONBLOCK | getattr(os, "O_CLOEXEC", 0) | getattr(os, "O_BINARY", 0))
     except OSError as e:
@@ -103,6 +107,7 @@ def open_regular(path: str | os.PathLike, error: Callable[..., Exception] = Inpu
         st = os.fstat(fd)
         if not stat.S_ISREG(st.st_mode):
             raise error(path, "(file)", f"is {_kind(st.st_mode)}, not a regular file")
+        _check_confined(fd, path, error)
         try:  # regular files ignore O_NONBLOCK; clear it anyway so the descriptor behaves as usual
             import fcntl
 
@@ -113,6 +118,41 @@ def open_regular(path: str | os.PathLike, error: Callable[..., Exception] = Inpu
     except BaseException:
         os.close(fd)
         raise
+
+
+#: The folders reads are confined to in this context (``confined_reads``), resolved; None: anywhere.
+_READ_ROOTS: contextvars.ContextVar = contextvars.ContextVar("scpainter_read_roots", default=None)
+
+
+@contextlib.contextmanager
+def confined_reads(folders: Iterable[str | os.PathLike] | None) -> Iterator[None]:
+    """Within the block (this thread's context), every file ``open_regular`` opens must lie, as opened, inside one
+    of ``folders`` (links and ``..`` resolved): a job's folder and the data roots the user trusts
+    (``job_inputs.reading``). The check is on the open descriptor (``/proc/self/fd``), so a path checked first and
+    swapped for a link to another file before it is read is refused, not read. ``folders`` None: no limit (the
+    user allowed everything)."""
+    token = _READ_ROOTS.set(None if folders is None else tuple(os.path.realpath(f) for f in folders))
+    try:
+        yield
+    finally:
+        _READ_ROOTS.reset(token)
+
+
+def _opened_path(fd: int, path) -> str:
+    """Where the file open as ``fd`` is (Linux: its descriptor's link in ``/proc``), else ``path`` resolved."""
+    with contextlib.suppress(OSError):
+        return os.readlink(f"/proc/self/fd/{fd}")
+    return os.path.realpath(path)
+
+
+def _check_confined(fd: int, path, error) -> None:
+    roots = _READ_ROOTS.get()
+    if roots is None:
+        return
+    real = _opened_path(fd, path)
+    if not any(real == r or real.startswith(r.rstrip(os.sep) + os.sep) for r in roots):
+        raise error(path, "(file)", f"leads outside the job's folder and the data roots ({', '.join(roots)}): the "
+                                    f"file opened is {real} (a link swapped in after the check?)")
 
 
 # ------------------------------------------------------------------------------------------------------ JSON

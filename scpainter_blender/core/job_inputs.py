@@ -38,6 +38,16 @@ def job_paths(job_path, job: Job, allow_outside: bool = False, checkpoint: bool 
     return out
 
 
+def reading(job_path, allow_outside: bool = False, data_roots=()):
+    """``with reading(job_path, ...):`` the job's input files read (``files.open_regular``) only where
+    ``job_paths`` allows them, checked on each file as opened (``files.confined_reads``): a path that passed
+    ``job_paths`` and was swapped for a link leading out before it was read is refused, not read. No limit with
+    ``allow_outside``."""
+    if allow_outside:
+        return files.confined_reads(None)
+    return files.confined_reads([os.path.dirname(os.path.abspath(os.fspath(job_path))), *data_roots])
+
+
 def check_inputs(job_path, job: Job, allow_outside: bool = False, data_roots=()) -> dict:
     """Everything about a validated job that can be checked before any work, from file headers: the paths
     (``job_paths``), that the predictions file is a readable ``.npz`` whose frames include every
@@ -47,11 +57,18 @@ def check_inputs(job_path, job: Job, allow_outside: bool = False, data_roots=())
     ``splats.MOSTLY_INVALID_SHARE`` invalid, or that share never drawn, is listed in ``asset_warnings`` as
     (i, message, code), for the caller's ``warning`` event). Returns the paths plus ``num_source_frames`` and ``asset_warnings``; raises an InputError
     (JobError, PredictionsError, SplatsError) naming file and field. ``allow_outside``, ``data_roots``:
-    ``job_paths``'s."""
+    ``job_paths``'s. Every file is read within ``reading``."""
+    paths = job_paths(job_path, job, allow_outside, data_roots=data_roots)
+    with reading(job_path, allow_outside, data_roots):   # each file checked again as opened
+        _check_files(job_path, job, paths)
+    return paths
+
+
+def _check_files(job_path, job: Job, paths: dict) -> None:
+    """``check_inputs``' reading of the files (``paths`` filled in)."""
     from .splats import gaussians as splats, reader as splats_io
     from .vggt import predictions as vggt
 
-    paths = job_paths(job_path, job, allow_outside, data_roots=data_roots)
     if job.scene is not None:
         pred = paths["scene.predictions"]
         shapes = files.npz_shapes(pred, ["extrinsic"], error=lambda p, k, m: vggt.PredictionsError(p, k, m))
@@ -81,7 +98,6 @@ def check_inputs(job_path, job: Job, allow_outside: bool = False, data_roots=())
         if found is not None:
             paths["asset_warnings"].append((i, f"asset {job.assets[i].name!r} ({ply_path}): {found.text}",
                                             found.code))
-    return paths
 
 
 def scene_predictions(job_path, scene: Scene):

@@ -1,19 +1,28 @@
 """Writing outputs safely (issue 14): whole files or none, never through a planted link, never outside the folder.
 
-- ``atomic_write`` / ``atomic_path``: a unique temporary file (``mkstemp``, never a planted link) in the target
-  folder, renamed over the target when complete; nothing half-written survives an error. ``atomic_folder`` the
-  same for a folder built whole (a checkpoint, a clip, a cached street). ``write_json`` is the one JSON writer
-  (strict: NaN/inf refused). ``remove_temporaries`` removes the temporary files a killed run left.
-- Log files: ``append_text`` never appends through a symbolic link; ``check_log`` refuses one beforehand.
+- ``atomic_write`` / ``atomic_path``: a unique temporary file (``O_EXCL | O_NOFOLLOW``, never a planted link) in the
+  target folder, renamed over the target when complete; nothing half-written survives an error. Both work relative
+  to the folder opened once (``open_folder``): a folder of the output tree swapped for a link after it was checked
+  receives nothing. ``atomic_folder`` the same for a folder built whole (a checkpoint, a clip, a cached street);
+  with ``replace`` and a ``record`` (an export) it replaces only a folder holding nothing but the files its record
+  lists (``foreign_files``: a command never deletes or replaces what it did not create). ``write_json`` is the one
+  JSON writer (strict: NaN/inf refused). ``remove_temporaries`` removes the temporary files a killed run left.
+- Log files: ``append_text`` never appends through a symbolic or hard link; ``check_log`` refuses one beforehand.
 - Confinement: ``confined``, a job's paths may not leave the job's folder (``..`` or a symlink) except into a data
   root the user trusts (``--data-root``: ``data_root``, ``data_roots_option``), unless the user allows everything
   (``--allow-outside``); ``inside`` is the test.
 - Output folders: ``make_folder``, ``output_folder`` (``conditions/``, ``generated/`` may not lead elsewhere),
+  ``own_folder`` (a command's own folder in an output tree, never through a link: ``vNNNN/``, ``export/``),
   ``check_output`` (what a run would refuse, checked without creating anything), ``remove_listed`` (the files a
   record of this program's outputs lists, and nothing else).
 
 Bad outputs (a file in the way, a link) raise ``errors.InputError`` naming the path. One run per output folder is
-``core.locking``; the names in an output folder are ``core.output_layout``. stdlib only (no bpy): the add-on and
+``core.locking``; the names in an output folder are ``core.output_layout``.
+
+Why one module over 400 lines: every write of the project goes through it, and its parts share one state and one
+rule: the folders of an output tree this process checked (``_FOLDERS``), opened once by ``open_folder`` for every
+write, rename and deletion (atomic files and folders, clean-up, own folders). Split, that registry would be shared
+across modules and a new writer could bypass it. stdlib only (no bpy): the add-on and
 the backend share it.
 """
 
@@ -23,6 +32,7 @@ import contextlib
 import errno
 import json
 import os
+import secrets
 import shutil
 import stat
 import tempfile
@@ -30,6 +40,7 @@ from typing import TYPE_CHECKING
 
 from .errors import DISK_FULL_ERRNOS, ArgumentError, InputError
 from .user_cache import user_cache_dir  # noqa: F401  (outputs.user_cache_dir: its callers' name for it)
+from . import files
 from .files import NONBLOCK
 from .output_layout import OutputLayout
 
@@ -66,42 +77,141 @@ def _temporary_prefix(name: str) -> str:
 
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[str]:
-    """Yields a fresh temporary path in ``path``'s folder (created by ``mkstemp``: a unique name, exclusive, so a
-    planted file or link is never written through); on success it is renamed over ``path`` (a link at ``path``
-    is replaced, not followed), on any error removed; a folder at ``path`` is an InputError naming it. For writers
-    that open by name (PyAV, safetensors)."""
+    """Yields a fresh temporary path in ``path``'s folder (created exclusively with ``O_NOFOLLOW``: a unique name,
+    so a planted file or link is never written through); on success it is renamed over ``path`` (a link at
+    ``path`` is replaced, not followed), on any error removed; a folder at ``path`` is an InputError naming it. For
+    writers that open by name (PyAV, safetensors).
+
+    The folder is opened once (``open_folder``: a folder this process made with ``output_folder`` /
+    ``own_folder`` must still be that folder, not a link swapped in for it) and the rename happens relative to that
+    descriptor; for such a folder the path yielded is ``/proc/self/fd/N/<temporary>`` (Linux), so a folder swapped
+    for a link after the check still receives nothing."""
+    with _temporary(path) as (dfd, folder, tmp):
+        checked = dfd is not None and os.path.abspath(folder) in _FOLDERS
+        yield _fd_path(dfd, folder, tmp) if checked else os.path.join(folder, tmp)
+
+
+@contextlib.contextmanager
+def _temporary(path: str | os.PathLike) -> Iterator[tuple]:
+    """``atomic_path``'s work: yields (descriptor of the folder, the folder, the temporary's name in it)."""
     path = os.fspath(path)
-    folder = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix=_temporary_prefix(os.path.basename(path)), suffix=_TEMPORARY_SUFFIX,
-                               dir=folder)
-    os.close(fd)
+    folder, name = os.path.split(os.path.abspath(path))
+    dfd = open_folder(folder)
     try:
-        yield tmp
-        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; outputs get the user's usual permissions
+        tmp = _create_temporary(dfd, folder, name)
         try:
-            os.replace(tmp, path)
-        except IsADirectoryError:  # a file is never renamed over a folder
-            raise InputError(path, "(file)", "is a folder where this output file goes",
-                             hint="move or remove the folder, then run again") from None
-    except BaseException as e:
-        with contextlib.suppress(OSError):
-            os.remove(tmp)
-        if isinstance(e, OSError) and e.filename is None:  # a write's error (a full disk) names no file: this one
-            e.filename = path
-        raise
+            yield dfd, folder, tmp
+            try:
+                if dfd is None:
+                    os.replace(os.path.join(folder, tmp), os.path.join(folder, name))
+                else:
+                    os.replace(tmp, name, src_dir_fd=dfd, dst_dir_fd=dfd)
+            except IsADirectoryError:  # a file is never renamed over a folder
+                raise InputError(path, "(file)", "is a folder where this output file goes",
+                                 hint="move or remove the folder, then run again") from None
+        except BaseException as e:
+            with contextlib.suppress(OSError):
+                where, at = _at(dfd, folder, tmp)
+                os.remove(where, **at)
+            if isinstance(e, OSError) and e.filename is None:  # a write's error (a full disk) names no file: this one
+                e.filename = path
+            raise
+    finally:
+        _close(dfd)
+
+
+def _at(dfd: int | None, folder: str, name: str) -> tuple:
+    """The arguments naming ``name`` in a folder opened by ``open_folder``: ``(name,)`` and its descriptor, or the
+    joined path where the system has no ``*at`` calls (``dfd`` None)."""
+    return (name, {"dir_fd": dfd}) if dfd is not None else (os.path.join(folder, name), {})
+
+
+def _close(dfd: int | None) -> None:
+    if dfd is not None:
+        os.close(dfd)
+
+
+def _create_temporary(dfd: int | None, folder: str, name: str) -> str:
+    """A new empty file ``.<name>.<random>.tmp`` in the folder ``dfd`` (``O_CREAT | O_EXCL | O_NOFOLLOW``; the
+    user's usual permissions, 0666 less the umask), closed; returns its name."""
+    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
+    for _ in range(100):
+        tmp = f"{_temporary_prefix(name)}{secrets.token_hex(4)}{_TEMPORARY_SUFFIX}"
+        try:
+            where, at = _at(dfd, folder, tmp)
+            os.close(os.open(where, flags, 0o666, **at))
+            return tmp
+        except FileExistsError:
+            continue
+    raise FileExistsError(errno.EEXIST, "no free temporary name", name)
+
+
+def _fd_path(dfd: int, folder: str, name: str) -> str:
+    """A path naming ``name`` in the folder open as ``dfd`` itself (``/proc/self/fd/N/name`` where the system has
+    it), else in ``folder`` by name."""
+    proc = f"/proc/self/fd/{dfd}"
+    return os.path.join(proc if os.path.isdir(proc) else folder, name)
+
+
+#: The folders this process made or checked in an output tree (``output_folder``, ``own_folder``): absolute path
+#: -> (st_dev, st_ino). ``open_folder`` refuses one that is no longer that folder (swapped for a link meanwhile).
+_FOLDERS: dict = {}
+
+
+def _register(path: str, st: os.stat_result) -> None:
+    _FOLDERS[os.path.abspath(path)] = (st.st_dev, st.st_ino)
+
+
+#: Whether this system works relative to a folder's descriptor (``openat``, ``renameat``, ...: POSIX); elsewhere
+#: (Windows, which has no symbolic links a user makes without privileges) by path, the folder's identity checked.
+_AT = hasattr(os, "O_DIRECTORY") and {os.open, os.rename, os.unlink, os.mkdir, os.stat} <= os.supports_dir_fd
+
+
+def open_folder(folder: str | os.PathLike) -> int | None:
+    """A descriptor of the folder ``folder`` (``O_DIRECTORY``), for work relative to it. When this process made
+    or checked it as part of an output tree (``output_folder``, ``own_folder``), the folder opened must be that
+    very folder (device and inode): one swapped for a symbolic link, or another folder, since is an InputError
+    naming it, and nothing is written there. None where the system has no ``*at`` calls (``_AT``): the identity
+    is then checked by path."""
+    folder = os.path.abspath(os.fspath(folder))
+    if not _AT:
+        st = os.stat(folder)
+        if _FOLDERS.get(folder, (st.st_dev, st.st_ino)) != (st.st_dev, st.st_ino) or not stat.S_ISDIR(st.st_mode):
+            raise InputError(folder, "(folder)", "was replaced while this command ran: nothing is written through it",
+                             hint="remove what was put there, then run again")
+        return None
+    try:
+        dfd = os.open(folder, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0) | getattr(os, "O_CLOEXEC", 0))
+    except NotADirectoryError:
+        raise InputError(folder, "(folder)", "exists and is not a folder") from None
+    expected = _FOLDERS.get(folder)
+    st = os.fstat(dfd)
+    if expected is not None and (st.st_dev, st.st_ino) != expected:
+        os.close(dfd)
+        raise InputError(folder, "(folder)", "was replaced while this command ran (a link or another folder put in "
+                                             f"its place, now leading to {os.path.realpath(folder)}): nothing is "
+                                             "written through it", hint="remove what was put there, then run again")
+    return dfd
 
 
 @contextlib.contextmanager
 def atomic_folder(path: str | os.PathLike, keep_existing: bool = False, replace: bool = False,
-                  usual_mode: bool = False) -> Iterator[str]:
+                  usual_mode: bool = False, record: str | None = None) -> Iterator[str]:
     """Yields a fresh empty folder beside ``path`` (``mkdtemp``: ``.<name>.<random>.tmp``, a unique name, mode 0700
     as mkdtemp makes it); when the block ends without an error it is renamed to ``path``, on any error removed with
     everything in it, so ``path`` appears whole or not at all. The parent folder must exist. ``keep_existing``:
     when ``path`` appeared meanwhile (another process finished first), ours is removed and theirs kept; otherwise
-    the rename's OSError is raised (``path`` a folder that is not empty). ``replace``: an existing ``path`` (the
-    caller decided it may go) is moved aside just before ours takes its name, deleted once it has, and put back
-    if the rename fails. ``usual_mode``: the folder gets the permissions a new folder would (0777 less the umask)
-    before it is renamed."""
+    the rename's OSError is raised (``path`` a folder that is not empty). ``usual_mode``: the folder gets the
+    permissions a new folder would (0777 less the umask) before it is renamed.
+
+    ``replace`` (with ``record``, the name of the JSON object the caller writes into the folder: an export's
+    ``export.json``): the folder is a command's own, replaced whole by its next run, and nothing of anyone else's is
+    ever deleted or replaced. ``record`` gets a ``CREATED_KEY`` list of every file the folder holds (what this
+    command created); an existing ``path`` is replaced only when it holds nothing else (``foreign_files``: checked
+    again just before the rename, so a file a user put there while the command ran is found), moved aside and then
+    only its recorded files deleted; an existing folder without a record that holds nothing (one the user made) is
+    filled, never replaced; anything else is an InputError naming ``path`` and a foreign file, and ``path`` is left
+    as it was."""
     path = os.path.abspath(os.fspath(path))
     parent, name = os.path.dirname(path), os.path.basename(path)
     tmp = tempfile.mkdtemp(prefix=_temporary_prefix(name), suffix=_TEMPORARY_SUFFIX, dir=parent)
@@ -110,31 +220,130 @@ def atomic_folder(path: str | os.PathLike, keep_existing: bool = False, replace:
         yield tmp
         if usual_mode:
             os.chmod(tmp, 0o777 & ~_umask())
+        if record is not None:
+            _record_created(tmp, record)
         if replace and os.path.lexists(path):
+            foreign = foreign_files(path, record)
+            if foreign:
+                raise InputError(path, "(folder)", f"holds files this command did not write ({foreign[0]!r}"
+                                 f"{f' and {len(foreign) - 1} more' if len(foreign) > 1 else ''}): it is never "
+                                 "replaced", hint="give a new or empty folder, or move those files away")
+            if record is None or not os.path.lexists(os.path.join(path, record)):
+                _move_into(tmp, path, record)   # a folder the user made, empty: filled, never replaced
+                return
             aside = tempfile.mkdtemp(prefix=_temporary_prefix(name), suffix=".old" + _TEMPORARY_SUFFIX, dir=parent)
             os.rename(path, os.path.join(aside, name))
         try:
             os.rename(tmp, path)
+            _FOLDERS.pop(path, None)   # a new folder now has the name: a record of an earlier one no longer holds
         except OSError:
             if aside is not None and not os.path.lexists(path):
                 os.rename(os.path.join(aside, name), path)
+                aside = None
             if not (keep_existing and os.path.isdir(path)):
                 raise
     finally:  # after an error, or when theirs was kept (renamed, it is gone); the replaced folder once it is
         if os.path.isdir(tmp) and not os.path.islink(tmp):
             shutil.rmtree(tmp, ignore_errors=True)
         if aside is not None:
-            shutil.rmtree(aside, ignore_errors=True)
+            _remove_recorded(os.path.join(aside, name), record)
+            with contextlib.suppress(OSError):
+                os.rmdir(aside)   # kept (with what a user put there at the last instant) unless it is empty
+
+
+#: The key of a folder's record (``atomic_folder``'s ``record``) listing the files the command created in it.
+CREATED_KEY = "files"
+
+
+def _tree_files(folder: str) -> list:
+    """Every file, link or other non-folder below ``folder``, as relative paths with ``/``; links are not
+    followed (a link to a folder is a file here)."""
+    out = []
+    for root, dirs, names in os.walk(folder, followlinks=False):
+        rel = os.path.relpath(root, folder)
+        links = [d for d in dirs if os.path.islink(os.path.join(root, d))]
+        dirs[:] = [d for d in dirs if d not in links]
+        out += [n if rel == "." else f"{rel}/{n}".replace(os.sep, "/") for n in names + links]
+    return sorted(out)
+
+
+def _record_created(folder: str, record: str) -> None:
+    """Add ``CREATED_KEY`` (every file of ``folder`` but the record) to the record the caller wrote there."""
+    rec_path = os.path.join(folder, record)
+    with files.confined_reads(None):   # the command's own file, wherever its destination is
+        content = files.read_json(rec_path)
+    content[CREATED_KEY] = [f for f in _tree_files(folder) if f != record]
+    write_json(rec_path, content)
+
+
+def created_files(folder: str | os.PathLike, record: str | None) -> set | None:
+    """The files ``folder``'s ``record`` says its command created (``CREATED_KEY``), None without a readable one."""
+    if record is None:
+        return None
+    try:
+        with files.confined_reads(None):   # a destination's record: read wherever the destination is
+            content = files.read_json(os.path.join(folder, record))
+    except InputError:
+        return None
+    listed = content.get(CREATED_KEY) if isinstance(content, dict) else None
+    if not isinstance(listed, list) or not all(isinstance(f, str) for f in listed):
+        return None
+    return set(listed)
+
+
+def foreign_files(folder: str | os.PathLike, record: str | None) -> list:
+    """The files of an existing ``folder`` that its ``record`` does not list as created by this program (all but the
+    record itself when it lists none, or there is none: a record planted in a user's folder protects nothing);
+    ``[]``: the folder may be replaced. A link or a file at ``folder`` itself is ``[folder]``."""
+    folder = os.fspath(folder)
+    if os.path.islink(folder) or not os.path.isdir(folder):
+        return [folder]
+    mine = created_files(folder, record) or set()
+    return [f for f in _tree_files(folder) if f not in mine and f != record]
+
+
+def _move_into(src: str, dst: str, record: str | None) -> None:
+    """Every entry of the folder ``src`` into the existing folder ``dst`` without replacing anything there (a new
+    file is a hard link made exclusively, a new folder ``mkdir``): what appears meanwhile in ``dst`` is never
+    overwritten (an InputError naming it). The record last, so the folder is marked as this command's only once
+    it holds everything."""
+    names = sorted(os.listdir(src), key=lambda n: n == record)
+    for n in names:
+        s, d = os.path.join(src, n), os.path.join(dst, n)
+        try:
+            if os.path.isdir(s) and not os.path.islink(s):
+                os.mkdir(d)
+                _move_into(s, d, None)
+            else:
+                os.link(s, d, follow_symlinks=False)
+        except FileExistsError:
+            raise InputError(d, "(file)", "appeared while this command ran: it is never replaced",
+                             hint="move it away and run again") from None
+
+
+def _remove_recorded(folder: str, record: str | None) -> None:
+    """Delete the files ``folder``'s record lists (and the record), then the folders left empty; anything else
+    stays (the folder too, then)."""
+    mine = (created_files(folder, record) or set()) | ({record} if record else set())
+    for f in _tree_files(folder):
+        if f in mine:
+            with contextlib.suppress(OSError):
+                os.remove(os.path.join(folder, *f.split("/")))
+    for root, _, _ in sorted(os.walk(folder, followlinks=False), key=lambda w: -len(w[0])):
+        with contextlib.suppress(OSError):
+            os.rmdir(root)
 
 
 @contextlib.contextmanager
 def atomic_write(path: str | os.PathLike, mode: str = "wb") -> Iterator[IO]:
     """``with atomic_write(path, "w") as f:`` — ``f`` writes a temporary file that replaces ``path`` only when the
     block ends without an error (see ``atomic_path``)."""
-    with atomic_path(path) as tmp:
-        # O_NOFOLLOW: the fresh name is ours, but a link swapped in for it in a shared folder is not followed
-        with open(tmp, mode, **({} if "b" in mode else {"encoding": "utf-8"}),
-                  opener=lambda p, flags: os.open(p, flags | getattr(os, "O_NOFOLLOW", 0), 0o600)) as f:
+    with _temporary(path) as (dfd, folder, tmp):
+        # opened in the folder's descriptor; O_NOFOLLOW: the fresh name is ours, but a link swapped in for it in a
+        # shared folder is not followed
+        where, at = _at(dfd, folder, tmp)
+        with open(where, mode, **({} if "b" in mode else {"encoding": "utf-8"}),
+                  opener=lambda p, flags: os.open(p, flags | getattr(os, "O_NOFOLLOW", 0), 0o600, **at)) as f:
             yield f
 
 
@@ -145,22 +354,34 @@ def write_json(path: str | os.PathLike, value: object, indent: int | None = 1) -
         f.write(text + "\n")
 
 
-def remove_temporaries(folder: str | os.PathLike, names: Iterable[str]) -> int:
+def remove_temporaries(folder: str | os.PathLike, names: Iterable[str], folders: bool = False) -> int:
     """Delete what ``atomic_path`` left for the targets ``names`` in ``folder`` when a process was killed
-    (``.<name>.<random>.tmp``); only those names' temporaries, for a caller holding the folder's lock."""
+    (``.<name>.<random>.tmp``); only those names' temporaries, for a caller holding the folder's lock. Relative to
+    the folder opened once (``open_folder``): a folder swapped for a link meanwhile loses nothing. ``folders``:
+    also the temporary folders ``atomic_folder`` left for them (removed with what they hold; a link never
+    followed)."""
     prefixes = tuple(_temporary_prefix(n) for n in names)
     removed = 0
     try:
-        entries = os.listdir(folder)
-    except OSError:
+        dfd = open_folder(folder)
+    except (OSError, InputError):
         return 0
-    for entry in entries:
-        if entry.endswith(_TEMPORARY_SUFFIX) and entry.startswith(prefixes) and "/" not in entry:
-            with contextlib.suppress(OSError):
-                p = os.path.join(folder, entry)
-                if os.path.islink(p) or os.path.isfile(p):
-                    os.remove(p)
-                    removed += 1
+    try:
+        for entry in os.listdir(folder if dfd is None else dfd):
+            if entry.endswith(_TEMPORARY_SUFFIX) and entry.startswith(prefixes) and "/" not in entry:
+                with contextlib.suppress(OSError):
+                    where, at = _at(dfd, os.fspath(folder), entry)
+                    if stat.S_ISLNK(mode := os.lstat(where, **at).st_mode) or stat.S_ISREG(mode):
+                        os.remove(where, **at)
+                        removed += 1
+                    elif folders and stat.S_ISDIR(mode) and dfd is not None:
+                        shutil.rmtree(entry, dir_fd=dfd)   # never follows a link inside it
+                        removed += 1
+                    elif folders and stat.S_ISDIR(mode):
+                        shutil.rmtree(where)
+                        removed += 1
+    finally:
+        _close(dfd)
     return removed
 
 
@@ -186,10 +407,13 @@ def link_or_copy_tree(src: str | os.PathLike, dst: str | os.PathLike) -> None:
 
 _LINKED_LOG = "is a symbolic link: the log is not written through links"
 _IRREGULAR_LOG = "is not a regular file: the log cannot be appended to it"
+_HARD_LINKED_LOG = ("has other hard links (another name of the same file, maybe outside the output folder): the log "
+                    "is not written through links")
 
 
 def append_text(path: str | os.PathLike, text: str) -> None:
-    """Append to a log file, never through a symbolic link (``O_NOFOLLOW``): InputError if ``path`` is one."""
+    """Append to a log file, never through a link: InputError if ``path`` is a symbolic link (``O_NOFOLLOW``) or a
+    file with more than one hard link (checked on the open descriptor: another name of a user's file)."""
     flags = os.O_WRONLY | os.O_APPEND | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
     try:
         fd = os.open(path, flags | NONBLOCK, 0o666)  # a FIFO without a reader fails at once (ENXIO), not blocks
@@ -202,22 +426,28 @@ def append_text(path: str | os.PathLike, text: str) -> None:
         raise
     # a file name that is not UTF-8 (its bytes kept as surrogates) is written as \udcff: the log stays UTF-8 text
     with os.fdopen(fd, "a", encoding="utf-8", errors="backslashreplace") as f:
-        if not stat.S_ISREG(os.fstat(fd).st_mode):
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
             raise InputError(path, "(file)", _IRREGULAR_LOG)
+        if st.st_nlink > 1:
+            raise InputError(path, "(file)", _HARD_LINKED_LOG, hint="remove it (the other name keeps the file)")
         f.write(text)
 
 
 def check_log(path: str | os.PathLike) -> None:
-    """InputError if the log file ``path`` exists as a symbolic link (never appended through) or as anything but a
-    regular file; a missing one is fine (it is created)."""
+    """InputError if the log file ``path`` exists as a symbolic link or a file with other hard links (never appended
+    through) or as anything but a regular file; a missing one is fine (it is created)."""
     try:
-        mode = os.lstat(path).st_mode
+        st = os.lstat(path)
     except FileNotFoundError:
         return
+    mode = st.st_mode
     if stat.S_ISLNK(mode):
         raise InputError(path, "(file)", _LINKED_LOG, hint="remove the link")
     if not stat.S_ISREG(mode):
         raise InputError(path, "(file)", _IRREGULAR_LOG)
+    if st.st_nlink > 1:
+        raise InputError(path, "(file)", _HARD_LINKED_LOG, hint="remove it (the other name keeps the file)")
 
 
 # ----------------------------------------------------------------------------------------------- confinement
@@ -300,11 +530,58 @@ def make_folder(path: str | os.PathLike, field: str = "(folder)") -> str:
 
 def output_folder(parent: str | os.PathLike, name: str, allow_outside: bool = False) -> str:
     """``parent/name`` created if missing; InputError if it is a symbolic link (or lies) outside ``parent``
-    unless ``allow_outside``: a link planted in an output folder must not carry writes elsewhere."""
+    unless ``allow_outside``: a link planted in an output folder must not carry writes elsewhere. The folder found
+    is remembered (``open_folder``): swapped for a link later in the run, it receives nothing."""
     path = os.path.join(parent, name)
     make_folder(path)
     if not allow_outside and not inside(path, parent):
         raise _leads_outside(path)
+    _register(path, os.stat(path))
+    return path
+
+
+def remove_own_folder(parent: str | os.PathLike, name: str) -> None:
+    """Delete ``parent/name``, a folder of a command's own output tree, with everything in it: opened first as
+    ``own_folder`` opens it (a link there is an InputError, never followed), forgotten by ``open_folder`` after."""
+    path = own_folder(parent, name)
+    shutil.rmtree(path, ignore_errors=True)
+    _FOLDERS.pop(path, None)
+
+
+def own_folder(parent: str | os.PathLike, name: str, field: str = "(folder)") -> str:
+    """``parent/name``, a folder of a command's own output tree (``vary``'s variant folders and ``library/``,
+    ``export``'s ``export/``), made if missing (``mkdir`` relative to ``parent``, never through a link) and
+    otherwise opened without following a link at ``name``: a symbolic link there (planted, wherever it leads) or a
+    file is an InputError naming it. Remembered like ``output_folder``'s. Returns the path."""
+    path = os.path.join(os.path.abspath(os.fspath(parent)), name)
+    pfd = open_folder(parent)
+    try:
+        where, at = _at(pfd, os.path.dirname(path), name)
+        with contextlib.suppress(FileExistsError):
+            os.mkdir(where, 0o777, **at)
+        if pfd is None:   # by path (no *at calls): what is there must be a folder, not a link
+            if os.path.islink(path) or not os.path.isdir(path):
+                what = "a symbolic link" if os.path.islink(path) else "not a folder"
+                raise InputError(path, field, f"is {what}: an output folder is never written through a link",
+                                 hint="remove it, then run again")
+            _register(path, os.stat(path))
+            return path
+        try:
+            fd = os.open(name, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0) | getattr(os, "O_NOFOLLOW", 0)
+                         | getattr(os, "O_CLOEXEC", 0), dir_fd=pfd)
+        except OSError as e:
+            if os.path.islink(path):
+                raise InputError(path, field, f"is a symbolic link (to {os.readlink(path)}): an output folder is "
+                                              "never written through a link",
+                                 hint="remove the link, then run again") from None
+            raise InputError(path, field, f"cannot be used as a folder: {e.strerror or e}",
+                             hint="remove or move it, then run again") from None
+        try:
+            _register(path, os.fstat(fd))
+        finally:
+            os.close(fd)
+    finally:
+        _close(pfd)
     return path
 
 
@@ -337,17 +614,24 @@ def check_output(out: str | os.PathLike, allow_outside: bool = False) -> None:
 def remove_listed(folder: str | os.PathLike, names: Iterable[str]) -> int:
     """Delete the files ``names`` (bare file names, as a record of this program's outputs lists them) from
     ``folder``; names with a path separator or ``..`` are ignored, a link is removed itself, never its target.
-    Returns how many were removed."""
+    Relative to the folder opened once (``open_folder``: one this process made, swapped for a link since, is an
+    InputError). Returns how many were removed."""
     removed = 0
-    for name in names:
-        if not isinstance(name, str) or not name or name in (".", "..") or os.sep in name or "/" in name or \
-                (os.altsep and os.altsep in name) or "\0" in name:  # a NUL makes os.path raise ValueError
-            continue
-        with contextlib.suppress(FileNotFoundError, IsADirectoryError, PermissionError):
-            p = os.path.join(folder, name)
-            if os.path.islink(p) or os.path.isfile(p):
-                os.remove(p)
-                removed += 1
+    try:
+        dfd = open_folder(folder)
+    except FileNotFoundError:
+        return 0
+    try:
+        for name in names:
+            if not isinstance(name, str) or not name or name in (".", "..") or os.sep in name or "/" in name or \
+                    (os.altsep and os.altsep in name) or "\0" in name:  # a NUL makes os calls raise ValueError
+                continue
+            with contextlib.suppress(FileNotFoundError, IsADirectoryError, PermissionError):
+                where, at = _at(dfd, os.fspath(folder), name)
+                mode = os.lstat(where, **at).st_mode
+                if stat.S_ISLNK(mode) or stat.S_ISREG(mode):
+                    os.remove(where, **at)
+                    removed += 1
+    finally:
+        _close(dfd)
     return removed
-
-

@@ -28,6 +28,8 @@ def make_variations(context, spec, out: str, camera=None, python: str = "", prog
     ``BackendError``."""
     out = os.path.abspath(out)
     layout = VariationLayout(out)
+    variants.check_out(out, spec.variants, writes=(VariationLayout.BASE,))   # never over a user's files
     job_export.export_job(context, layout.base_job, output_dir=os.path.dirname(layout.base_job), camera=camera)
+    # the add-on trusts the files the user imported (as it passes --allow-outside to every backend run)
     return variants.make_variants(layout.base_job, spec, out, convert_mesh=mesh_converter(python), progress=progress,
-                                  skip_bad=skip_bad)
+                                  skip_bad=skip_bad, allow_outside=True, own=(VariationLayout.BASE,))

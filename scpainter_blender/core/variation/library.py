@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import colors, errors, files
+from .. import colors, errors, files, outputs
 from ..geometry import boxes
 from ..job import DEFAULT_CLASS
 from ..splats import asset_frame, inria, reader
@@ -98,7 +98,7 @@ class LibraryAsset:
             ply.f_dc = np.ascontiguousarray(ply.f_dc @ M.T)
             ply.f_rest = np.ascontiguousarray(np.einsum("ij,njk->nik", M, ply.f_rest))
             ply.format = "inria"
-            os.makedirs(folder, exist_ok=True)
+            outputs.own_folder(*os.path.split(folder))   # never through a link planted there
             inria.write_ply(out, ply, comment=f"{self.name}: hue turned {int(degrees):+d} degrees by SCPainter")
         return out
 
@@ -140,7 +140,7 @@ def load_asset(path, cache: str, convert_mesh=None, mesh_count: int = 200_000, c
                                       "with `python -m backend mesh-asset`")
         ply_path = os.path.join(cache, asset_frame.mesh_gaussians_name(path, mesh_count))
         if not os.path.isfile(ply_path):
-            os.makedirs(cache, exist_ok=True)
+            outputs.own_folder(*os.path.split(cache))   # never through a link planted there
             convert_mesh(path, ply_path, mesh_count)
     ply = reader.read(ply_path)
     keep, dropped = valid_rows(ply)

@@ -11,21 +11,29 @@ with ``numpy.random.default_rng([seed, i])`` alone (so variant i is the same wha
    no place, no job and the reasons in the manifest.
 
 Nothing is dropped silently: every variant is in the manifest with its outcome; the list names the placed ones.
+
+The run's folder (``make_variants``): the base confined as ``render`` confines it (``check_base``), the folder
+checked for a user's files (``check_out``) and locked, a running manifest first, each new variant folder renamed
+into place whole, the finished manifest and then the list last (docs/design.md §16).
+
+Why one module over 400 lines: the variants and the folder they are written to are one run (``make_variants``):
+what a run may remove or overwrite is what its manifest (written here) says it placed, so the manifest's writer and
+its reader stay together.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
-import shutil
 import time
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .. import batch_items, errors, files, job as job_mod, job_inputs, outputs
+from .. import batch_items, errors, files, job as job_mod, job_inputs, locking, outputs
 from ..geometry import boxes, cameras, point_cloud, similarity, trajectory
 from ..output_layout import VariationLayout
 from . import library as library_mod, placement
@@ -123,17 +131,17 @@ class Variation:
 
     def __init__(self, base_path: str | os.PathLike, spec: VariationSpec, out: str | os.PathLike,
                  convert_mesh: Callable[[str, str, int], object] | None = None, mesh_count: int = 200_000,
-                 skip_bad: bool = False) -> None:
+                 skip_bad: bool = False, allow_outside: bool = False, data_roots=()) -> None:
         self.base_path = os.path.abspath(base_path)
-        self.base = job_mod.load(self.base_path)
+        self.base = check_base(self.base_path, allow_outside, data_roots)
         self.spec, self.layout = spec, VariationLayout(os.path.abspath(out))
-        if self.base.scene is None:
-            raise VariationError(self.base_path, "scene", "the base job has no reconstruction: variations place "
-                                 "cars on its road", hint="export the job from a scene with imported points")
+        self.reading = lambda: job_inputs.reading(self.base_path, allow_outside, data_roots)  # noqa: E731
         t0 = time.perf_counter()
         self.path = reference_path(self.base)
         try:
-            self.road = Road(scene_points(self.base, self.base_path), self.path.centres, seed=spec.seed)
+            with self.reading():   # the base's files read where render would read them, checked as opened
+                points = scene_points(self.base, self.base_path)
+            self.road = Road(points, self.path.centres, seed=spec.seed)
         except ValueError as e:
             raise VariationError(self.base_path, "scene.predictions", str(e),
                                  hint="check the reconstruction (its scale and the recorded camera)") from None
@@ -169,8 +177,9 @@ class Variation:
         for a in self.base.assets:
             box = a.box
             if box is None:  # estimated as labels estimate it
-                lib = library_mod.load_asset(job_mod.resolve(self.base_path, a.ply), self.layout.library,
-                                             convert_mesh, mesh_count, car=False)
+                with self.reading():
+                    lib = library_mod.load_asset(job_mod.resolve(self.base_path, a.ply), self.layout.library,
+                                                 convert_mesh, mesh_count, car=False)
                 box = job_mod.AssetBox(lib.box_to_file, lib.size)
             for f in frames:
                 T, size = boxes.place_box(box.box_to_file, box.size, a.object_to_world[f])
@@ -347,69 +356,177 @@ class Variation:
         return roots
 
 
+def check_base(base_path: str | os.PathLike, allow_outside: bool = False, data_roots=()) -> job_mod.Job:
+    """The base job, loaded, with a reconstruction, its paths confined as ``render`` confines them
+    (``job_inputs.job_paths``: its folder and ``data_roots`` unless ``allow_outside``; a JobError naming the field
+    otherwise), and each folder a variant's list would name as a ``data-root:`` line writable as one
+    (``batch_items.list_line``): a variation never reads what a render of the base may not, and never makes its
+    list trust more."""
+    base_path = os.path.abspath(base_path)
+    base = job_mod.load(base_path)
+    if base.scene is None:
+        raise VariationError(base_path, "scene", "the base job has no reconstruction: variations place "
+                             "cars on its road", hint="export the job from a scene with imported points")
+    paths = job_inputs.job_paths(base_path, base, allow_outside, checkpoint=True, data_roots=data_roots)
+    for field, p in paths.items():
+        if field != "output_dir":
+            batch_items.list_line(os.path.dirname(p), base_path, field)
+    return base
+
+
+#: The top-level names a variation run writes in its folder besides its variant folders.
+_OWN_NAMES = (VariationLayout.LIST, VariationLayout.MANIFEST, VariationLayout.LIBRARY)
+_VARIANT_NAME = re.compile(r"v[0-9]+", re.ASCII)
+
+
+def owned_names(layout: VariationLayout) -> set:
+    """The top-level names of ``layout``'s folder that an earlier variation run wrote (its manifest's ``files``;
+    a manifest without them, from an older run: its placed variants, list, manifest and library); none without a
+    readable manifest. Only plain names (``_OWN_NAMES``, ``base``, ``vNNNN``) count: a manifest's field never
+    makes a run touch anything else."""
+    try:
+        earlier = files.read_json(layout.manifest)
+        if not isinstance(earlier, dict) or earlier.get("schema") != MANIFEST_SCHEMA:
+            return set()
+        names = earlier.get("files")
+        if names is None:
+            names = [e["id"] for e in earlier["variants"] if e.get("outcome") == "placed"] + list(_OWN_NAMES)
+    except (errors.InputError, KeyError, TypeError, AttributeError):
+        return set()
+    if not isinstance(names, list):
+        return {VariationLayout.MANIFEST}
+    plain = {n for n in names if isinstance(n, str)
+             and (n in _OWN_NAMES or n == VariationLayout.BASE or _VARIANT_NAME.fullmatch(n))}
+    return {VariationLayout.MANIFEST} | plain
+
+
+def check_out(out: str | os.PathLike, variants_count: int, writes=()) -> set:
+    """What a variation run into ``out`` may write: nothing there yet, or what an earlier run wrote
+    (``owned_names``). A file or folder of the user's (not in an earlier manifest) with a name the run would
+    write (its list, manifest, ``library/``, a variant folder ``vNNNN`` of the ``variants_count``, or ``writes``)
+    is an InputError naming it, before anything is written: never overwritten. Other files stay untouched.
+    Returns the owned names."""
+    layout = VariationLayout(os.path.abspath(out))
+    if not os.path.lexists(layout.root):
+        return set()
+    if not os.path.isdir(layout.root):
+        raise errors.InputError(layout.root, "--out", "exists and is not a folder")
+    owned = owned_names(layout)
+    present = set(os.listdir(layout.root))
+    wanted = set(_OWN_NAMES) | set(writes) | {VariationLayout.variant_name(i) for i in range(variants_count)}
+    theirs = sorted((present & wanted) - owned)
+    if theirs:
+        raise errors.InputError(os.path.join(layout.root, theirs[0]), "--out",
+                                f"was not written by a variation run (no earlier {VariationLayout.MANIFEST} there "
+                                f"names it{f'; nor {len(theirs) - 1} more' if len(theirs) > 1 else ''}): vary never "
+                                "overwrites it", hint="give a new or empty folder, or move those files away")
+    return owned
+
+
+MANIFEST_SCHEMA = "scpainter.variation-manifest/1"
+
+
 def make_variants(base_path: str | os.PathLike, spec: VariationSpec, out: str | os.PathLike,
                   convert_mesh: Callable[[str, str, int], object] | None = None,
                   progress: Callable[[int, int], None] | None = None, mesh_count: int = 200_000,
-                  skip_bad: bool = False) -> dict:
+                  skip_bad: bool = False, allow_outside: bool = False, data_roots=(), busy=None,
+                  own=()) -> dict:
     """Write ``spec.variants`` variants of the job at ``base_path`` into ``out`` (``VariationLayout``): a job folder
     per placed variant, the ``batch`` list and the manifest, which it returns. ``convert_mesh(mesh, out_ply,
     count)`` turns a library mesh into Gaussians (None: meshes refused). ``progress(done, total)`` after each.
     ``skip_bad`` (``vary --skip-bad``): library files that cannot be used are left out, each in the manifest's
     ``library_skipped`` (file, field, reason) and its ``warnings`` (``library.load_library``).
-    Errors: ``VariationError`` / the readers' ``InputError`` naming the file and field."""
-    v = Variation(base_path, spec, out, convert_mesh, mesh_count, skip_bad)
-    layout = v.layout
+    ``allow_outside``, ``data_roots``: where the base's paths may lead (``check_base``, as ``render``). ``own``:
+    top-level names the caller wrote into ``out`` for this run (Blender's ``base``, after its own ``check_out``),
+    recorded as the run's. The folder is locked for the run (``locking.OutputLock``; ``busy(message, hint, file=,
+    owner=)`` the error when another run holds it); a user's files are never overwritten (``check_out``); until
+    the run ends the manifest says it is running and there is no list, so a killed run's folder is never taken as
+    whole (its next run finishes or removes what it left). Errors: ``VariationError`` / the readers'
+    ``InputError`` naming the file and field."""
+    layout = VariationLayout(os.path.abspath(out))
+    check_base(base_path, allow_outside, data_roots)  # refused before anything is made
+    if spec.library:   # the library's folder becomes a data-root: line of the list
+        batch_items.list_line(os.path.abspath(spec.library), "(variation spec)", "cars.library")
+    check_out(layout.root, spec.variants)
     outputs.make_folder(layout.root, "--out")
-    earlier = _earlier_variants(layout)
+    busy = busy or (lambda message, hint, **fields: VariationError(layout.root, "(folder)", message, hint))
+    with locking.OutputLock(layout.root, "vary", busy=busy):
+        owned = check_out(layout.root, spec.variants)   # again, now that no other run writes here
+        return _make_variants(layout, owned, base_path, spec, convert_mesh, progress, mesh_count, skip_bad,
+                              allow_outside, data_roots, own)
+
+
+def _make_variants(layout, owned, base_path, spec, convert_mesh, progress, mesh_count, skip_bad, allow_outside,
+                   data_roots, own) -> dict:
+    """``make_variants``' run, its folder locked and checked (``owned``: ``check_out``'s names)."""
+    pending = sorted(owned | set(own) | set(_OWN_NAMES)
+                     | {VariationLayout.variant_name(i) for i in range(spec.variants)})
+    # first: the manifest says a run is under way and names everything it may leave; the list goes (batch then
+    # finds no list to take as whole until this run has written every variant)
+    outputs.write_json(layout.manifest, {
+        "schema": MANIFEST_SCHEMA, "state": "running", "base": os.path.abspath(base_path),
+        "spec": spec_mod.to_file(spec), "library": [], "road_area_m2": None, "warnings": [], "removed": [],
+        "summary": summarize([]), "variants": [],
+        "files": pending, "timings": {}})
+    with contextlib.suppress(FileNotFoundError):
+        os.remove(layout.list)
+    # what a killed run left half-made: temporary files of the list and manifest, temporary variant folders
+    outputs.remove_temporaries(layout.root, pending, folders=True)
+    if os.path.lexists(layout.library):
+        outputs.own_folder(layout.root, VariationLayout.LIBRARY)   # never a link planted there
+    v = Variation(base_path, spec, layout.root, convert_mesh, mesh_count, skip_bad, allow_outside, data_roots)
     entries, listed = [], []
     t0 = time.perf_counter()
     for i in range(spec.variants):
         job, entry = v.variant(i)
-        job_path = layout.variant(i).job
         if job is not None:
-            _save_if_changed(job_path, job)
-            entry["job"] = os.path.relpath(job_path, layout.root)
+            _publish(layout, i, job)
+            entry["job"] = os.path.relpath(layout.variant(i).job, layout.root)
             listed.append(entry["job"])
         entries.append(entry)
         if progress:
             progress(i + 1, spec.variants)
     seconds = time.perf_counter() - t0
-    # an earlier run's variants this run does not place (fewer variants, or unplaced now): their folders go, so
-    # no one collects one run's labels beside another's
-    removed = sorted(name for name in earlier - {VariationLayout.variant_name(i) for i, e in enumerate(entries)
-                                                 if e["outcome"] == "placed"})
+    placed = {VariationLayout.variant_name(i) for i, e in enumerate(entries) if e["outcome"] == "placed"}
+    # what an earlier (or killed) run wrote that this run does not place (fewer variants, or unplaced now): its
+    # folders go, so no one collects one run's labels beside another's; only names a manifest of ours listed
+    removed = sorted(n for n in set(pending) - placed if _VARIANT_NAME.fullmatch(n)
+                     and os.path.isdir(os.path.join(layout.root, n)))
     for name in removed:
-        shutil.rmtree(os.path.join(layout.root, name), ignore_errors=True)
-    with outputs.atomic_write(layout.list, "w") as f:
-        f.write(f"# SCPainter variants: python -m backend batch --list {VariationLayout.LIST}\n")
-        for root in v.data_roots():  # the run's own folder as ".": the folder can move as a whole
-            rel = os.path.relpath(root, layout.root) if outputs.inside(root, layout.root) else root
-            f.write(f"{batch_items.DATA_ROOT_DIRECTIVE} {rel}\n")
-        f.writelines(f"{p}\n" for p in listed)
+        outputs.remove_own_folder(layout.root, name)   # a link there is refused, never followed into
     summary = summarize(entries)
     warnings = v.warnings + ([f"no variant could be placed ({summary['variants']} tried)"]
                              if not summary["placed"] else [])
-    manifest = {"schema": "scpainter.variation-manifest/1", "base": v.base_path, "spec": spec_mod.to_file(spec),
+    names = sorted(placed | set(own) | {VariationLayout.LIST, VariationLayout.MANIFEST}
+                   | ({VariationLayout.LIBRARY} if os.path.lexists(layout.library) else set()))
+    manifest = {"schema": MANIFEST_SCHEMA, "state": "complete", "base": v.base_path, "spec": spec_mod.to_file(spec),
                 "library": [{"name": a.name, "source": a.source, "ply": a.ply, "size_m": a.size_m.tolist(),
                              "category": a.category} for a in v.library],
                 "library_skipped": v.skipped,
                 "road_area_m2": v.road.area_m2, "warnings": warnings, "removed": removed,
-                "summary": summary, "variants": entries,
+                "summary": summary, "variants": entries, "files": names,
                 "timings": dict(v.timings, placement_s=seconds,
                                 variants_per_s=spec.variants / seconds if seconds > 0 else None)}
     outputs.write_json(layout.manifest, manifest)
+    roots = [os.path.relpath(r, layout.root) if outputs.inside(r, layout.root) else r for r in v.data_roots()]
+    # the list last: the run's own folder as "." (it can move as a whole)
+    batch_items.write_job_list(layout.list, roots, listed,
+                               comment=f"SCPainter variants: python -m backend batch --list {VariationLayout.LIST}")
     return manifest
 
 
-def _earlier_variants(layout: VariationLayout) -> set:
-    """The variant folders an earlier run wrote here (its manifest's placed variants); none when there is no
-    manifest or it cannot be read (a folder this module did not write is never removed)."""
-    try:
-        earlier = files.read_json(layout.manifest)
-        names = {e["id"] for e in earlier["variants"] if e.get("outcome") == "placed"}
-    except (errors.InputError, KeyError, TypeError):
-        return set()
-    return {n for n in names if isinstance(n, str) and re.fullmatch(r"v\d+", n)}
+def _publish(layout: VariationLayout, index: int, job: job_mod.Job) -> None:
+    """Variant ``index``'s folder with its job: a new folder built under a temporary name and renamed whole; an
+    existing one (an earlier run's: ``check_out``) opened without following a link, its job rewritten only when it
+    changed (``_save_if_changed``)."""
+    name = VariationLayout.variant_name(index)
+    folder = os.path.join(layout.root, name)
+    if not os.path.lexists(folder):
+        with outputs.atomic_folder(folder, usual_mode=True) as tmp:
+            job_mod.save(os.path.join(tmp, os.path.basename(layout.variant(index).job)), job)
+        return
+    outputs.own_folder(layout.root, name)
+    _save_if_changed(layout.variant(index).job, job)
 
 
 def _save_if_changed(path, job) -> None:

@@ -36,14 +36,18 @@ def test_destination_never_overwrites_what_is_not_an_export(tmp_path):
     command.check_destination(str(tmp_path / "empty"), str(out_dir), given=True)  # empty: fine
     prev = tmp_path / "prev"
     prev.mkdir()
-    (prev / OutputLayout.EXPORT_RECORD).write_text("{}")
+    (prev / OutputLayout.EXPORT_RECORD).write_text('{"files": ["x.txt"]}')          # the files it wrote
     (prev / "x.txt").write_text("old")
     command.check_destination(str(prev), str(out_dir), given=True)                # a previous export: fine
     (tmp_path / "mine").mkdir()
     (tmp_path / "mine" / "thesis.tex").write_text("keep me")
+    planted = tmp_path / "planted"                 # a user's folder with an export.json: its files are not the export's
+    planted.mkdir()
+    (planted / OutputLayout.EXPORT_RECORD).write_text("{}")
+    (planted / "thesis.tex").write_text("keep me")
     (tmp_path / "file").write_text("")
     os.symlink(tmp_path / "empty", tmp_path / "link")
-    for bad in ("mine", "file", "link", ".", "out"):
+    for bad in ("mine", "planted", "file", "link", ".", "out"):
         with pytest.raises(errors.ArgumentError) as e:
             command.check_destination(str(tmp_path / bad), str(out_dir), given=True)
         assert e.value.field == "--out" and e.value.path == errors.COMMAND_LINE, bad
@@ -237,3 +241,42 @@ def test_coco_and_openlabel_carry_the_fields_the_labels_table_says(tmp_path):
             for o in f.get("objects", {}).values()]
     assert ["hole_fraction", "visible_fraction", "occlusion", "truncation"] in nums
     assert {n for ns in nums for n in ns} == set(labels.CARRIED_MEASURES)
+
+
+def test_the_default_destination_is_never_written_through_a_planted_export_link(tmp_path):
+    """export followed a link at out/export (issue 42): the default destination under it is refused by name."""
+    out_dir = tmp_path / "out"
+    out_dir.mkdir()
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    os.symlink(elsewhere, out_dir / OutputLayout.EXPORT)
+    dest = OutputLayout(str(out_dir)).export("coco")
+    with pytest.raises(errors.InputError) as e:
+        command.check_destination(dest, str(out_dir), given=False, fmt="coco")
+    assert e.value.path == dest and "symbolic link" in e.value.message
+    with pytest.raises(errors.InputError):       # and where the folder is made, never through it
+        outputs.own_folder(str(out_dir), OutputLayout.EXPORT)
+    assert os.listdir(elsewhere) == []
+
+
+def test_a_file_put_in_the_destination_while_frames_render_is_never_deleted(tmp_path, monkeypatch):
+    """export --out deleted a user's file created in the destination while the missing frames rendered (2 of 2,
+    issue 42). The user's write is made at the point between the render and the export's rename (in-process)."""
+    from scpainter_blender.core import job as J
+    from tests_support import small_job
+
+    job = small_job(tmp_path / "job")
+    dest = tmp_path / "dataset"
+    chose = command.image_source
+
+    def rendered_then_user_writes(*args):
+        dest.mkdir()                                  # the destination did not exist when it was checked
+        (dest / "thesis.tex").write_text("keep me")
+        return chose(*args)
+
+    monkeypatch.setattr(command, "image_source", rendered_then_user_writes)
+    with pytest.raises(errors.InputError) as e:
+        command.export_job(job, J.load(job), "kitti", out=str(dest))
+    assert e.value.path == str(dest) and "thesis.tex" in e.value.message
+    assert os.listdir(dest) == ["thesis.tex"] and (dest / "thesis.tex").read_text() == "keep me"
+    assert sorted(os.listdir(tmp_path)) == ["dataset", "job"]      # nothing left beside it

@@ -23,7 +23,8 @@ def test_vary_batch_and_contact_sheet(street, tmp_path):
     spec.write_text(json.dumps({"variants": 5, "seed": 4, "resolution": [64, 36], "camera": {"shifts_m": [-2, 2]},
                                 "cars": {"count": [1, 2]}}))
     out = tmp_path / "variants"
-    code, events, err = run_backend("vary", str(base), "--out", str(out), "--spec", str(spec), "--library", str(lib))
+    code, events, err = run_backend("vary", str(base), "--out", str(out), "--spec", str(spec), "--library", str(lib),
+                                    "--data-root", street.root)   # the recording the base reads: trusted
     assert code == 0, err
     assert [e["done"] for e in events if e["event"] == "progress" and e["stage"] == "vary"] == [1, 2, 3, 4, 5]
     done = events[-1]
@@ -73,7 +74,7 @@ def test_a_run_that_places_nothing_fails_and_says_why(street, tmp_path):
     spec = tmp_path / "spec.json"
     spec.write_text(json.dumps({"variants": 2, "cars": {"count": [12, 12]}, "placement": {"tries": 1}}))
     code, events, err = run_backend("vary", str(base), "--out", str(tmp_path / "v"), "--spec", str(spec),
-                                    "--library", str(lib))
+                                    "--library", str(lib), "--data-root", street.root)
     assert code == 1, err
     warned = [e for e in events if e["event"] == "warning"]
     assert [w["code"] for w in warned] == ["variant_unplaced", "variant_unplaced", "variation"]

@@ -35,6 +35,12 @@ def bases(street, tmp_path_factory):
             and str(d / "recorded" / "job.json"))
 
 
+def make(base, sp, out, **kw):
+    """``make_variants`` with the base's paths allowed anywhere: these bases read the street's cache and cars
+    beside their folders (confinement has its own tests, test_variants_confinement.py)."""
+    return variants.make_variants(base, sp, out, allow_outside=True, **kw)
+
+
 def spec(library, **kw):
     base = dict(variants=12, seed=5, library=library, shifts_m=(-2.0, 0.0, 2.0), resolution=(128, 72),
                 lane_change_probability=0.3, car_count=(1, 3))
@@ -45,7 +51,7 @@ def spec(library, **kw):
 @pytest.fixture(scope="module")
 def run(bases, library, tmp_path_factory):
     out = str(tmp_path_factory.mktemp("vary") / "out")
-    return out, variants.make_variants(bases[0], spec(library), out)
+    return out, make(bases[0], spec(library), out)
 
 
 def _jobs(out, manifest):
@@ -54,15 +60,15 @@ def _jobs(out, manifest):
 
 def test_same_seed_same_jobs_and_variant_i_independent_of_the_count(run, bases, library, tmp_path):
     out, manifest = run
-    again = variants.make_variants(bases[0], spec(library), str(tmp_path / "again"))
-    fewer = variants.make_variants(bases[0], spec(library, variants=5), str(tmp_path / "fewer"))
+    again = make(bases[0], spec(library), str(tmp_path / "again"))
+    fewer = make(bases[0], spec(library, variants=5), str(tmp_path / "fewer"))
     assert again["variants"] == manifest["variants"]
     assert fewer["variants"] == manifest["variants"][:5]
     for e in manifest["variants"]:
         if e["job"]:
             with open(os.path.join(out, e["job"]), "rb") as a, open(tmp_path / "again" / e["job"], "rb") as b:
                 assert a.read() == b.read()
-    other = variants.make_variants(bases[0], spec(library, seed=6), str(tmp_path / "other"))
+    other = make(bases[0], spec(library, seed=6), str(tmp_path / "other"))
     assert other["variants"] != manifest["variants"]
 
 
@@ -132,11 +138,11 @@ def test_no_placed_car_breaks_a_rule(run, street):
 def test_camera_paths_that_leave_the_road_are_drawn_again(bases, library, tmp_path):
     """Shifts of ±6 m put the ego on the kerb or into the parked cars: each such path is drawn again and counted;
     a variant whose every draw fails is reported as the camera's."""
-    m = variants.make_variants(bases[0], spec(library, variants=6, shifts_m=(-6.0, -6.5, 0.0)), str(tmp_path / "c"))
+    m = make(bases[0], spec(library, variants=6, shifts_m=(-6.0, -6.5, 0.0)), str(tmp_path / "c"))
     rej = m["summary"]["rejections"]
     assert rej["camera_off_road"] + rej["camera_blocked"] > 0
     assert all(e["camera"]["shift_m"] == 0.0 for e in m["variants"] if e["outcome"] == "placed")
-    m = variants.make_variants(bases[0], spec(library, variants=2, shifts_m=(-6.5,), tries=3), str(tmp_path / "d"))
+    m = make(bases[0], spec(library, variants=2, shifts_m=(-6.5,), tries=3), str(tmp_path / "d"))
     assert [e["outcome"] for e in m["variants"]] == ["unplaced", "unplaced"]
     assert m["variants"][0]["unplaced"]["what"] == "camera" and "the camera path" in \
         variants.unplaced_text(m["variants"][0])
@@ -170,7 +176,7 @@ def test_every_car_is_placement_drive(run, bases, library, tmp_path):
     """The variants' cars are ``placement.drive``'s poses (the one function *Drive Along Lane* keys too): from
     each car's drawn lane and speed and where it stands at the first frame, on the run's road and path."""
     out, manifest = run
-    v = variants.Variation(bases[0], spec(library), str(tmp_path / "v"))
+    v = variants.Variation(bases[0], spec(library), str(tmp_path / "v"), allow_outside=True)
     checked = 0
     for e in manifest["variants"]:
         if e["outcome"] != "placed":
@@ -191,7 +197,7 @@ def test_every_car_is_placement_drive(run, bases, library, tmp_path):
 
 
 def test_recorded_boxes_are_avoided_and_counted(bases, library, street, tmp_path):
-    m = variants.make_variants(bases[1], spec(library, variants=8, car_count=(2, 3)), str(tmp_path / "r"))
+    m = make(bases[1], spec(library, variants=8, car_count=(2, 3)), str(tmp_path / "r"))
     assert m["summary"]["rejections"]["recorded_box"] > 0
     parked = street_parked_cars(street)
     for e in m["variants"]:
@@ -207,13 +213,13 @@ def test_a_variant_that_cannot_be_placed_is_reported(bases, library, tmp_path):
     """Eight cars with one try each do not fit: each such variant is in the manifest with its reasons, not in
     the list, and no job of an earlier run stays in its folder."""
     out = str(tmp_path / "u")
-    first = variants.make_variants(bases[0], spec(library, variants=4, car_count=(1, 1)), out)
+    first = make(bases[0], spec(library, variants=4, car_count=(1, 1)), out)
     assert all(e["job"] for e in first["variants"])
     job0 = VariationLayout(out).variant(0).job
     mtime = os.stat(job0).st_mtime_ns
-    again = variants.make_variants(bases[0], spec(library, variants=4, car_count=(1, 1)), out)
+    again = make(bases[0], spec(library, variants=4, car_count=(1, 1)), out)
     assert again["variants"] == first["variants"] and os.stat(job0).st_mtime_ns == mtime   # unchanged: not rewritten
-    m = variants.make_variants(bases[0], spec(library, variants=3, car_count=(8, 8), tries=1), out)
+    m = make(bases[0], spec(library, variants=3, car_count=(8, 8), tries=1), out)
     bad = [e for e in m["variants"] if e["outcome"] == "unplaced"]
     assert bad and m["summary"]["unplaced"] == len(bad)
     for e in bad:
@@ -255,10 +261,10 @@ def test_a_base_without_points_or_library_is_refused(bases, library, tmp_path):
     job.scene = None
     J.save(tmp_path / "none" / "job.json", job)
     with pytest.raises(spec_mod.VariationError) as e:
-        variants.make_variants(str(tmp_path / "none" / "job.json"), spec(library), str(tmp_path / "o"))
+        make(str(tmp_path / "none" / "job.json"), spec(library), str(tmp_path / "o"))
     assert e.value.field == "scene"
     with pytest.raises(spec_mod.VariationError) as e:
-        variants.make_variants(bases[0], spec(None), str(tmp_path / "o"))
+        make(bases[0], spec(None), str(tmp_path / "o"))
     assert e.value.field == "cars.library"
 
 
@@ -363,7 +369,7 @@ def test_the_base_jobs_own_cars_are_obstacles(bases, library, tmp_path):
     at[:3, 3] = [3.5, 18.0, 0.0]
     job.assets = [J.Asset("parked_base", str(tmp_path / "base_car.ply"), {f.frame: at for f in job.frames})]
     J.save(tmp_path / "b" / "job.json", job)
-    m = variants.make_variants(str(tmp_path / "b" / "job.json"), spec(library, variants=6), str(tmp_path / "o"))
+    m = make(str(tmp_path / "b" / "job.json"), spec(library, variants=6), str(tmp_path / "o"))
     assert m["summary"]["rejections"]["recorded_box"] > 0          # it was in the way, and kept out of it
     foot = placement.box_footprint(*boxes.rigid_box(at @ np.diag([1.8, 4.4, 1.6, 1.0]) @
                                                    np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0.5],
@@ -392,7 +398,7 @@ def test_variant_cars_never_take_a_name_of_the_bases_cars(bases, library, tmp_pa
     job.assets = [J.Asset(name, str(tmp_path / "base_car.ply"), {f.frame: T for f in job.frames}, "car", box)
                   for name, T in zip(("car_01", "car_03"), at)]
     J.save(tmp_path / "b" / "job.json", job)
-    m = variants.make_variants(str(tmp_path / "b" / "job.json"), spec(library, variants=3, car_count=(2, 2)),
+    m = make(str(tmp_path / "b" / "job.json"), spec(library, variants=3, car_count=(2, 2)),
                                str(tmp_path / "o"))
     placed = [e for e in m["variants"] if e["job"]]
     assert placed

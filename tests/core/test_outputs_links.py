@@ -1,0 +1,139 @@
+"""Writes that a link, a swap or a user's file must not redirect (issue 42): a folder of the output tree swapped for
+a link after it was made, a link planted where a command's own folder goes, a log hard-linked to a user's file, and
+a destination a command replaces whole holding a user's files (``core/outputs.py``)."""
+
+import os
+
+import pytest
+
+from scpainter_blender.core import outputs
+from scpainter_blender.core.errors import InputError
+
+
+def _swap_for_link(folder, target):
+    """``folder`` renamed away and a symbolic link to ``target`` put in its place (what an attacker with write
+    access to the output folder does between a check and a write)."""
+    os.rename(folder, str(folder) + ".moved")
+    os.symlink(target, folder)
+
+
+def test_a_folder_swapped_for_a_link_after_it_was_made_receives_nothing(tmp_path):
+    """conditions/ swapped for a link after render made it received frames (7 of 8 trials). The writes now
+    happen relative to the folder opened and checked once: a swap is refused by name, nothing lands outside."""
+    out, outside = tmp_path / "out", tmp_path / "outside"
+    out.mkdir()
+    outside.mkdir()
+    (outside / "000001.exr").write_bytes(b"a user's file")
+    cond = outputs.output_folder(str(out), "conditions")
+    with outputs.atomic_write(os.path.join(cond, "000000.exr")) as f:   # before the swap: written
+        f.write(b"frame")
+    _swap_for_link(cond, outside)
+    for write in (lambda: outputs.write_json(os.path.join(cond, "record.json"), {}),
+                  lambda: outputs.atomic_write(os.path.join(cond, "000002.exr")).__enter__()):
+        with pytest.raises(InputError) as e:
+            write()
+        assert e.value.path == cond and "replaced" in e.value.message
+    with pytest.raises(InputError):   # nor are files deleted through it
+        outputs.remove_listed(cond, ["000001.exr"])
+    assert outputs.remove_temporaries(cond, ["000001.exr"]) == 0
+    assert sorted(os.listdir(outside)) == ["000001.exr"] and (outside / "000001.exr").read_bytes() == b"a user's file"
+    assert os.listdir(str(cond) + ".moved") == ["000000.exr"]
+
+
+@pytest.mark.skipif(not outputs._AT, reason="no *at calls here (Windows): the folder is checked by path")
+def test_a_swap_between_the_folder_check_and_the_rename_changes_nothing(tmp_path):
+    """The temporary is opened in the folder's descriptor, renamed within it: swapping the folder while a writer
+    holds the temporary (here, inside the block) still puts the file in the folder that was checked."""
+    out, outside = tmp_path / "out", tmp_path / "outside"
+    out.mkdir()
+    outside.mkdir()
+    cond = outputs.output_folder(str(out), "conditions")
+    with outputs.atomic_path(os.path.join(cond, "video.mp4")) as tmp:
+        _swap_for_link(cond, outside)
+        with open(tmp, "wb") as f:   # a writer that opens by name (PyAV)
+            f.write(b"frames")
+    assert os.listdir(outside) == [] and os.listdir(str(cond) + ".moved") == ["video.mp4"]
+
+
+def test_own_folder_never_follows_a_planted_link(tmp_path):
+    """vary followed a link at out/v0000 and out/library, export at out/export."""
+    out, outside = tmp_path / "out", tmp_path / "outside"
+    out.mkdir()
+    outside.mkdir()
+    os.symlink(outside, out / "library")
+    with pytest.raises(InputError) as e:
+        outputs.own_folder(str(out), "library")
+    assert e.value.path == str(out / "library") and "symbolic link" in e.value.message
+    (out / "v0000").write_text("a file")
+    with pytest.raises(InputError):
+        outputs.own_folder(str(out), "v0000")
+    made = outputs.own_folder(str(out), "v0001")
+    assert os.path.isdir(made) and not os.path.islink(made) and os.listdir(outside) == []
+
+
+def test_a_log_hard_linked_to_a_users_file_is_refused(tmp_path):
+    """backend.log appended through a hard link to a user's file (a symbolic link was refused already)."""
+    mine = tmp_path / "notes.txt"
+    mine.write_text("mine\n")
+    out = tmp_path / "out"
+    out.mkdir()
+    os.link(mine, out / "backend.log")
+    with pytest.raises(InputError) as e:
+        outputs.check_log(str(out / "backend.log"))
+    assert "hard link" in e.value.message
+    with pytest.raises(InputError):
+        outputs.append_text(str(out / "backend.log"), "a line\n")
+    assert mine.read_text() == "mine\n"
+    fresh = out / "fresh.log"
+    outputs.append_text(str(fresh), "a\n")
+    outputs.append_text(str(fresh), "b\n")
+    assert fresh.read_text() == "a\nb\n"
+
+
+def _export(path, content, record="export.json"):
+    """A folder written whole as an export writes its destination (``replace`` with its record)."""
+    with outputs.atomic_folder(path, replace=True, record=record) as tmp:
+        for name, text in content.items():
+            os.makedirs(os.path.dirname(os.path.join(tmp, name)), exist_ok=True)
+            with open(os.path.join(tmp, name), "w") as f:
+                f.write(text)
+        outputs.write_json(os.path.join(tmp, record), {"format": "test"})
+
+
+def test_replace_never_deletes_a_file_put_in_the_destination_while_the_command_ran(tmp_path):
+    """export --out deleted a user's file created in the destination while the missing frames rendered (2 of 2)."""
+    dest = tmp_path / "dest"
+    with pytest.raises(InputError) as e:
+        with outputs.atomic_folder(str(dest), replace=True, record="export.json") as tmp:
+            outputs.write_json(os.path.join(tmp, "export.json"), {})
+            dest.mkdir()                                    # meanwhile, the user makes the folder and writes there
+            (dest / "thesis.tex").write_text("keep me")
+    assert e.value.path == str(dest) and "thesis.tex" in e.value.message
+    assert os.listdir(dest) == ["thesis.tex"] and (dest / "thesis.tex").read_text() == "keep me"
+    assert sorted(os.listdir(tmp_path)) == ["dest"]     # no temporary left
+
+
+def test_replace_keeps_a_users_folder_with_a_planted_record(tmp_path):
+    """A user's folder holding a planted export.json had its files replaced."""
+    dest = tmp_path / "dest"
+    dest.mkdir()
+    (dest / "export.json").write_text('{"format": "test"}')
+    (dest / "thesis.tex").write_text("keep me")
+    with pytest.raises(InputError):
+        _export(str(dest), {"a.txt": "new"})
+    assert sorted(os.listdir(dest)) == ["export.json", "thesis.tex"]
+    assert outputs.foreign_files(str(dest), "export.json") == ["thesis.tex"]
+
+
+def test_replace_takes_its_own_folder_and_fills_an_empty_one(tmp_path):
+    dest = tmp_path / "dest"
+    dest.mkdir()                                             # the user made it, empty: filled, not replaced
+    _export(str(dest), {"a.txt": "one", "sub/b.txt": "two"})
+    assert sorted(outputs.created_files(str(dest), "export.json")) == ["a.txt", "sub/b.txt"]
+    _export(str(dest), {"c.txt": "three"})                   # its own: replaced whole
+    assert sorted(os.listdir(dest)) == ["c.txt", "export.json"]
+    (dest / "thesis.tex").write_text("mine")                 # once a user adds a file, it is theirs too
+    with pytest.raises(InputError):
+        _export(str(dest), {"d.txt": "four"})
+    assert sorted(os.listdir(dest)) == ["c.txt", "export.json", "thesis.tex"]
+    assert sorted(os.listdir(tmp_path)) == ["dest"]

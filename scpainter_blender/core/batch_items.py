@@ -128,15 +128,14 @@ def _parse(path) -> tuple[list, list]:
     for n, text in enumerate(lines, 1):
         bad = control_character(text)
         if bad is not None:
-            raise errors.InputError(path, f"line {n}", f"holds the control character {bad!r}: a list line is one "
+            # a NUL byte: no path holds one (the system refuses it), a damaged or forged list
+            what = "a NUL byte" if bad == "\0" else f"the control character {bad!r}"
+            raise errors.InputError(path, f"line {n}", f"holds {what}: a list line is one "
                                                        "path, and a control character in it would change the list's "
                                                        "meaning", hint="rename the file or folder it names")
         text = text.strip()
         if not text or text.startswith("#"):
             continue
-        if "\0" in text:  # no path holds one (the system refuses it): a damaged or forged list
-            raise errors.InputError(path, f"line {n}", "holds a NUL byte: not a path",
-                                    hint="write one path a line, as text")
         if not text.startswith(DATA_ROOT_DIRECTIVE):
             paths.append(text if os.path.isabs(text) else os.path.join(base, text))
         elif paths:

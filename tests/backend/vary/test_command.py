@@ -118,7 +118,8 @@ def test_skip_bad_lists_the_library_files_left_out(street, tmp_path):
     spec = tmp_path / "spec.json"
     spec.write_text(json.dumps({"variants": 2, "seed": 1, "resolution": [32, 18], "cars": {"count": [1, 1]}}))
     # (without --skip-bad the first bad file's error stops the run, suggesting it: test_variants.py, in-process)
-    code, events = _main("vary", base, "--out", tmp_path / "v", "--spec", spec, "--library", lib, "--skip-bad")
+    code, events = _main("vary", base, "--out", tmp_path / "v", "--spec", spec, "--library", lib, "--skip-bad",
+                         "--data-root", street.root)   # the recording the base reads: trusted
     assert code == 0, events[-1]
     manifest = json.loads((tmp_path / "v" / "variation.json").read_text())
     assert [a["name"] for a in manifest["library"]] == ["blue.ply"]

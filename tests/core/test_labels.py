@@ -1,6 +1,7 @@
 """core.labels: a frame's labels from the job and its layers (geometry, recorded objects, flags, timestamps)."""
 
 import numpy as np
+import pytest
 
 from scpainter_blender.core import job as J
 from scpainter_blender.core import labels
@@ -359,14 +360,22 @@ def test_both_builders_write_the_fields_of_the_table_in_its_order():
 
 
 def test_an_overflowing_transform_gives_no_geometry():
-    """A transform scaled by 1e200 is a valid affine (the render draws nothing): its object is listed without a
-    box, and the labels stay strict JSON."""
+    """A transform scaled by 1e200 is refused by a job file (issue 42: ``fields.MAX_MATRIX_ENTRY``, by name); one
+    made in code still labels: its object is listed without a box, and the labels stay strict JSON."""
     import json
 
+    from scpainter_blender.core import fields
+
     d = _job().to_dict()
-    d["assets"][0]["object_to_world"]["2"] = (np.diag([1e200, 1e200, 1e200, 1.0])).tolist()
-    lab = _labels(J.Job.from_dict(d), 1)
+    huge = np.diag([1e200, 1e200, 1e200, 1.0])
+    d["assets"][0]["object_to_world"]["2"] = huge.tolist()
+    with pytest.raises(J.JobError) as e:
+        J.Job.from_dict(d)
+    assert e.value.field == "assets[0].object_to_world['2']" and f"{fields.MAX_MATRIX_ENTRY:g}" in e.value.message
+    job = _job()
+    job.assets[0].object_to_world[2] = huge
+    lab = _labels(job, 1)
     o = lab["objects"][0]
     assert o["box_world"] is None and o["bbox_amodal"] is None and not o["in_view"] and o["velocity"] is None
     json.dumps(lab, allow_nan=False)
-    assert _labels(J.Job.from_dict(d), 0)["objects"][0]["velocity"] is None   # its neighbour has no box
+    assert _labels(job, 0)["objects"][0]["velocity"] is None   # its neighbour has no box

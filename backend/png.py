@@ -14,19 +14,49 @@ from scpainter_blender.core import outputs
 #: ~40-75 ms, a large part of a rendered frame's cost) for files within 5 % of the size, and the same pixels
 #: (bench/render_writes.py). zlib releases the GIL while it compresses, so a writer thread overlaps it.
 LEVEL = 1
+SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
-def write_png(path, rgb) -> None:
+def _chunk(kind: bytes, data: bytes) -> bytes:
+    return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+
+
+def write_png(path, rgb, text: dict | None = None) -> None:
     """8-bit RGB PNG (the condition image is display-referred already), written atomically. rgb:
-    (H, W, 3) float in [0, 1] (rounded to 8 bits) or uint8 (written as it is)."""
+    (H, W, 3) float in [0, 1] (rounded to 8 bits) or uint8 (written as it is). ``text``: Latin-1 keyword -> value
+    pairs written as ``tEXt`` chunks before the pixels (``has_text`` reads them back)."""
     a = rgb if rgb.dtype == np.uint8 else (np.clip(rgb, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
     H, W, _ = a.shape
     raw = np.concatenate([np.zeros((H, 1), np.uint8), a.reshape(H, W * 3)], axis=1).tobytes()
-
-    def chunk(kind, data):
-        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
-
-    png = (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", W, H, 8, 2, 0, 0, 0))
-           + chunk(b"IDAT", zlib.compress(raw, LEVEL)) + chunk(b"IEND", b""))
+    texts = b"".join(_chunk(b"tEXt", k.encode("latin-1") + b"\0" + v.encode("latin-1"))
+                     for k, v in (text or {}).items())
+    png = (SIGNATURE + _chunk(b"IHDR", struct.pack(">IIBBBBB", W, H, 8, 2, 0, 0, 0)) + texts
+           + _chunk(b"IDAT", zlib.compress(raw, LEVEL)) + _chunk(b"IEND", b""))
     with outputs.atomic_write(path) as f:
         f.write(png)
+
+
+def has_text(path, keyword: str, value: str) -> bool:
+    """Whether the file at ``path`` is a PNG with the ``tEXt`` chunk ``keyword`` = ``value`` before its pixels
+    (as ``write_png(..., text=)`` writes it): how a command knows a file at its destination is one it wrote. Reads
+    the chunks before the first ``IDAT`` only (at most 64 KB); a missing or unreadable file, or any other content,
+    is False."""
+    from scpainter_blender.core import files
+    from scpainter_blender.core.errors import InputError
+
+    try:
+        with files.open_regular(path) as f:
+            head = f.read(1 << 16)
+    except (InputError, OSError):
+        return False
+    if not head.startswith(SIGNATURE):
+        return False
+    want, at = keyword.encode("latin-1") + b"\0" + value.encode("latin-1"), len(SIGNATURE)
+    while at + 8 <= len(head):
+        n, kind = struct.unpack(">I4s", head[at:at + 8])
+        if kind == b"IDAT":
+            return False
+        if kind == b"tEXt" and head[at + 8:at + 8 + n] == want:
+            return True
+        at += 12 + n
+    return False

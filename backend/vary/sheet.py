@@ -20,7 +20,7 @@ from scpainter_blender.core.job import MAX_PIXELS
 from scpainter_blender.core.output_layout import VariationLayout
 from scpainter_blender.core.variation.spec import MAX_CARS, MAX_VARIANTS, VariationError
 
-from ..png import write_png
+from ..png import has_text, write_png
 
 CAPTION_PX = 16
 #: The grid is at most this many tiles wide.
@@ -35,6 +35,9 @@ TILE_WIDTH = 320
 MAX_TILES = 256
 MAX_TILE_HEIGHT = 2 * TILE_WIDTH
 MAX_PREVIEW_BYTES = 256 * 2 ** 20
+#: The ``tEXt`` chunk every sheet carries (``png.write_png``): a file at the destination without it is a user's,
+#: never replaced (``png.has_text``).
+SHEET_MARK = ("Software", "SCPainter contact-sheet")
 #: The warning code of a sheet showing fewer variants than the manifest lists.
 TRUNCATED = "contact_sheet_truncated"
 #: A variant's name in the manifest (``VariationLayout.variant_name``: "v" and at least that many digits).
@@ -148,6 +151,13 @@ def contact_sheet(root: str, out: str | None = None) -> dict:
     manifest = files.read_json(layout.manifest, error=VariationError)
     if not isinstance(manifest, dict):
         raise VariationError(layout.manifest, "(top level)", "expected a JSON object", hint="run vary again")
+    if manifest.get("state") == "running":   # vary's manifest while it writes (variants.make_variants)
+        raise VariationError(layout.manifest, "state", "says the vary run writing this folder has not finished (or "
+                                                       "was stopped)", hint="wait for it, or run vary again")
+    path = os.path.abspath(out or layout.sheet)
+    if os.path.lexists(path) and not has_text(path, *SHEET_MARK):
+        raise VariationError(path, "--out", "exists and is not a contact sheet this command wrote: it is never "
+                                            "replaced", hint="move it away, or give another --out")
     entries = manifest.get("variants")
     if not isinstance(entries, list) or not entries:
         raise VariationError(layout.manifest, "variants", "lists no variants", hint="run vary again")
@@ -188,6 +198,5 @@ def contact_sheet(root: str, out: str | None = None) -> dict:
         else:
             tile[:] = 200
             cv2.putText(tile, note, (6, th // 2), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (60, 60, 60), 1, cv2.LINE_AA)
-    path = os.path.abspath(out or layout.sheet)
-    write_png(path, sheet)  # the backend's one PNG writer (atomic)
+    write_png(path, sheet, text=dict([SHEET_MARK]))  # the backend's one PNG writer (atomic)
     return dict(path=path, variants=len(entries), shown=len(shown), **counts)

@@ -148,3 +148,31 @@ def test_only_regular_images_inside_the_folder_are_read(tmp_path, capsys):
     assert tile[..., 0].min() == 255 and tile[..., 1].max() == 0  # v0000's red preview
     secret = img[S.CAPTION_PX:S.CAPTION_PX + th, S.TILE_WIDTH + 2:2 * S.TILE_WIDTH + 2]
     assert (secret != 7).any() and not (secret == 7).all()        # the linked file's grey 7 is not shown
+
+
+def test_a_users_file_at_the_destination_is_never_replaced_the_commands_own_sheet_is(tmp_path, capsys):
+    """Issue 42 (h3's leftover): contact-sheet replaced whatever was at ``contact_sheet.png`` or ``--out``. Now only
+    a sheet it wrote itself (its ``tEXt`` mark, ``S.SHEET_MARK``) is replaced; a user's file, even a PNG, is
+    refused by name and left as it was."""
+    root = folder(tmp_path, [entry(0, "unplaced")])
+    users = tmp_path / "v" / VariationLayout.SHEET
+    write_png(str(users), np.full((4, 4, 3), 9, np.uint8))        # a PNG of the user's (no mark)
+    before = users.read_bytes()
+    code, evs = run(root, capsys)
+    assert code == protocol.EXIT_BAD_INPUT and evs[-1]["field"] == "--out" and evs[-1]["file"] == str(users)
+    assert users.read_bytes() == before
+    users.unlink()
+    assert run(root, capsys)[0] == protocol.EXIT_OK                # its own sheet: written, then replaced
+    assert run(root, capsys)[0] == protocol.EXIT_OK
+    other = tmp_path / "notes.txt"
+    other.write_text("mine")
+    assert main(["contact-sheet", str(root), "--out", str(other)]) == protocol.EXIT_BAD_INPUT
+    assert other.read_text() == "mine"
+
+
+def test_a_folder_whose_vary_run_has_not_finished_says_so(tmp_path, capsys):
+    """A vary run killed midway leaves its manifest ``state: running`` (``variants.make_variants``): the sheet
+    says the run did not finish, not that the folder 'lists no variants'."""
+    root = folder(tmp_path, {"schema": "scpainter.variation-manifest/1", "state": "running", "variants": []})
+    code, evs = run(root, capsys)
+    assert code == protocol.EXIT_BAD_INPUT and evs[-1]["field"] == "state" and "not finished" in evs[-1]["message"]

@@ -29,7 +29,7 @@ import os
 import bpy
 
 from ..core.output_layout import CONDITION_PREVIEW, GENERATED_FRAME, LABELLED_PREVIEW
-from . import keys
+from . import keys, paths
 
 CONDITIONS = "SCPainter Conditions"
 LABELS = "SCPainter Labels"   # the condition previews with the labels drawn (boxes, ids), beside CONDITIONS
@@ -86,8 +86,10 @@ def _sequence(kind: str, camera: str | None, files: list, replaces=()) -> bpy.ty
     if img is None:
         img = bpy.data.images.load(first, check_existing=False)
         img.name = result_name(kind, camera)
-    elif bpy.path.abspath(img.filepath) != first:  # another output folder: the same datablock, pointed there
-        img.filepath = first
+    # relative to the saved .blend (``paths.stored``), so a moved project shows its own results; another output
+    # folder: the same datablock, pointed there
+    if img.filepath != (where := paths.stored(first)):
+        img.filepath = where
     _tag(img, kind, camera)
     img.source = "SEQUENCE"
     img.use_fake_user = True  # kept in the saved .blend when the camera background shows another result
@@ -124,6 +126,7 @@ def load_generated(frames_dir: str, mp4: str, model: str = "scpainter", descript
             bpy.data.movieclips.remove(old)
     if clip is not None:
         clip.name = result_name(video, camera)
+        clip.filepath = paths.stored(mp4)
         _tag(clip, video, camera)
         clip.use_fake_user = True  # nothing uses a fresh clip yet: without this, saving the .blend would drop it
     for block in (img, clip):

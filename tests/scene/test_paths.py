@@ -53,3 +53,30 @@ def test_a_copied_project_reads_its_own_files(addon, empty_scene, tmp_path):
         assert paths.stored(str(new / "car.ply")) == str(new / "car.ply")
     finally:
         prefs.use_relative_paths = True
+
+
+def test_a_copied_project_shows_its_own_results(addon, empty_scene, tmp_path):
+    """Issue 42 (h1's leftover): a render's previews were loaded by absolute path, so a copied project showed the
+    old folder's results (or none once it was gone). Loaded into a saved .blend they are ``//``-relative, and the
+    copy's image sequence reads the copy's files."""
+    import numpy as np
+
+    from backend.png import write_png
+    from scpainter_blender.core.output_layout import OutputLayout
+
+    results = sys.modules[addon + ".scpainter_blender.scene.results"]
+    old, new = tmp_path / "old" / "project", tmp_path / "new" / "project"
+    layout = OutputLayout(str(old / "out"))
+    os.makedirs(layout.conditions)
+    for f in (1, 2):
+        write_png(layout.condition_preview(f), np.full((4, 6, 3), f / 10.0))
+    bpy.ops.wm.save_as_mainfile(filepath=str(old / "scene.blend"))
+    img = results.load_conditions(layout.conditions)
+    assert img.filepath == "//out/conditions/" + os.path.basename(layout.condition_preview(1))
+    bpy.ops.wm.save_mainfile()
+    shutil.copytree(old, new)
+    shutil.rmtree(old)
+    bpy.ops.wm.open_mainfile(filepath=str(new / "scene.blend"))
+    img = bpy.data.images[results.CONDITIONS]
+    assert bpy.path.abspath(img.filepath) == OutputLayout(str(new / "out")).condition_preview(1)
+    assert os.path.isfile(bpy.path.abspath(img.filepath))

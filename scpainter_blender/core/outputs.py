@@ -590,11 +590,38 @@ def _leads_outside(path) -> InputError:
                       hint=f"remove the link, or run with {ALLOW_OUTSIDE_OPTION} if you made it")
 
 
+def name_too_long(path: str | os.PathLike) -> str | None:
+    """Which part of ``path`` (absolute) is longer than the file system allows, said in words, or None: a name
+    beyond ``NAME_MAX`` bytes of the nearest existing folder's file system (``os.pathconf``; 255 where it cannot be
+    asked), or the whole path beyond its ``PATH_MAX``. So ``--check`` refuses what the run would fail on
+    (``ENAMETOOLONG``) without making anything."""
+    path = os.path.abspath(os.fspath(path))
+    existing = path
+    while not os.path.isdir(existing) and os.path.dirname(existing) != existing:
+        existing = os.path.dirname(existing)
+    limits = {}
+    for key, default in (("PC_NAME_MAX", 255), ("PC_PATH_MAX", 4096)):
+        try:
+            limits[key] = os.pathconf(existing, key)
+        except (OSError, ValueError, AttributeError):
+            limits[key] = default
+    for part in path.split(os.sep):
+        if len(os.fsencode(part)) > limits["PC_NAME_MAX"]:
+            return f"{part[:20]}… is {len(os.fsencode(part))} bytes, at most {limits['PC_NAME_MAX']}"
+    if len(os.fsencode(path)) >= limits["PC_PATH_MAX"]:
+        return f"the path is {len(os.fsencode(path))} bytes, at most {limits['PC_PATH_MAX'] - 1}"
+    return None
+
+
 def check_output(out: str | os.PathLike, allow_outside: bool = False) -> None:
     """What a run would refuse in an output folder, checked without creating anything (``--check`` and the start
     of every run): ``out`` not a folder; ``conditions/`` or ``generated/`` not a folder or leading outside ``out``
-    (unless ``allow_outside``); ``backend.log`` a symbolic link or not a regular file. InputError names it."""
+    (unless ``allow_outside``); ``backend.log`` a symbolic link or not a regular file; a folder still to be made
+    whose name is longer than its file system allows (``name_too_long``). InputError names it."""
     if not os.path.lexists(out):
+        if (long := name_too_long(out)) is not None:
+            raise InputError(out, "output_dir", f"has a name longer than its file system allows ({long})",
+                             hint="choose a shorter output folder name")
         return
     if not os.path.isdir(out):
         raise InputError(out, "output_dir", "exists and is not a folder", hint="remove it or choose another "

@@ -164,6 +164,17 @@ def test_long_non_utf8_and_nul_names_are_refused_by_name(tmp_path):
     assert code == events.EXIT_BAD_INPUT and evs[-1]["file"] == str(listed) and evs[-1]["field"] == "line 2"
 
 
+
+def test_check_refuses_an_output_folder_name_the_run_could_not_make(tmp_path):
+    """Issue 42 (h4's leftover): ``render --check`` passed a job whose ``output_dir`` is longer than the file system
+    allows, and the run then failed; now the check refuses it naming ``output_dir``, and makes nothing."""
+    job = small_job(tmp_path / "a", output_dir="o" * 300)
+    code, evs, _ = run("render", job, "--check", "--device", "cpu")
+    assert code == events.EXIT_BAD_INPUT and evs[-1]["field"] == "output_dir", evs[-1]
+    assert "longer than its file system allows" in evs[-1]["message"]
+    assert sorted(os.listdir(tmp_path / "a")) == ["car.ply", "job.json", "predictions.npz"]
+
+
 @pytest.fixture
 def small_disk(tmp_path):
     """A 1 MB tmpfs (root only; skipped elsewhere), unmounted afterwards."""

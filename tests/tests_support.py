@@ -68,6 +68,36 @@ def run_backend(*args, timeout=900, env=None):
     return p.returncode, [json.loads(line) for line in p.stdout.splitlines() if line.strip()], p.stderr
 
 
+def run_backend_here(*args):
+    """What ``run_backend(*args)`` gives (exit code, the events, standard error), from the same entry point,
+    ``backend.__main__.main``, run in this process in the folder ``run_backend`` runs in.
+
+    For the tests that are not about the process itself (signals, kills, the environment it starts with, what
+    reaches its file descriptors): a ``python -m backend`` start imports torch, and ``generate`` diffusers, again
+    (2 to 8 s each on the CI machine), which this process has imported once. A command that reserves standard output
+    for its events (``events.reserve_stdout``: ``batch --ray``, ``evaluate --ray``, ``serve``) changes this
+    process for good: it fails the test here, saying to use ``run_backend``."""
+    import contextlib
+    import io
+    import json
+    import os
+
+    from backend import events
+    from backend.__main__ import main
+
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.chdir(root), contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            code = main([str(a) for a in args])
+        except SystemExit as e:  # argparse's errors, as `python -m backend` exits with them
+            code = e.code if isinstance(e.code, int) else (0 if e.code is None else 1)
+    if events._EVENT_STREAM is not None:
+        events._EVENT_STREAM = None
+        raise AssertionError(f"backend {args[0]} reserved standard output for this process: use run_backend")
+    return code, [json.loads(line) for line in out.getvalue().splitlines() if line.strip()], err.getvalue()
+
+
 def street_with_car(street, folder, count=3000, seed=7, paint=(0.1, 0.3, 0.8), location=(-3.5, 9.0, 0.0),
                     shift=2.0):
     """In the current bpy session: the ground-truth street imported at its true scale, a procedural Gaussian car

@@ -11,14 +11,14 @@ import sog_fixtures as S
 import splat_transform
 from scpainter_blender.core import job as J
 from scpainter_blender.core.splats import reader as splats_io, sog
-from tests_support import run_backend, small_job
+from tests_support import run_backend_here, small_job
 
 
 def test_splat_asset_writes_the_values_read(tmp_path):
     meta, images = S.tiny(n=12, bands=3)
     bundle = S.write_bundle(tmp_path / "car.sog", meta, images)
     out = tmp_path / "assets" / "car.ply"
-    code, events, err = run_backend("splat-asset", bundle, "--out", out)
+    code, events, err = run_backend_here("splat-asset", bundle, "--out", out)
     assert code == 0, err
     assert events[0] == {"event": "artifact", "path": str(out), "kind": "gaussians"}
     done = events[-1]
@@ -30,14 +30,14 @@ def test_splat_asset_writes_the_values_read(tmp_path):
     for k in ("xyz", "f_dc", "f_rest", "opacity", "scale", "rot"):
         assert np.array_equal(getattr(got, k), getattr(want, k)), k
     folder = S.write_folder(tmp_path / "unbundled", meta, images)
-    code, events, err = run_backend("splat-asset", folder, "--out", tmp_path / "u.ply")
+    code, events, err = run_backend_here("splat-asset", folder, "--out", tmp_path / "u.ply")
     assert code == 0 and np.array_equal(splats_io.read(tmp_path / "u.ply").rot, want.rot), err
 
 
 def test_splat_asset_bad_input_names_the_entry(tmp_path):
     meta, images = S.tiny(n=12)
     bundle = S.write_bundle(tmp_path / "car.sog", meta, images, leave_out=["sh0.webp"])
-    code, events, err = run_backend("splat-asset", bundle, "--out", tmp_path / "o.ply")
+    code, events, err = run_backend_here("splat-asset", bundle, "--out", tmp_path / "o.ply")
     assert code == 2 and "Traceback" not in err
     assert events[-1]["event"] == "error" and events[-1]["field"] == "sh0.webp" and events[-1]["file"] == bundle
     assert "no entry 'sh0.webp'" in events[-1]["message"] and not (tmp_path / "o.ply").exists()
@@ -69,9 +69,9 @@ def test_a_job_whose_asset_is_a_sog_renders_as_its_decode(tmp_path):
         J.save(job, d)
         jobs[name] = job
     # two conversions of the same car.ply (small_job's, SH 0: no k-means palette, so the writer is deterministic)
-    code, events, err = run_backend("render", jobs["sog"], "--check", "--device", "cpu")
+    code, events, err = run_backend_here("render", jobs["sog"], "--check", "--device", "cpu")
     assert code == 0 and events[-1]["check"] is True, err
     for job in jobs.values():
-        code, events, err = run_backend("render", job, "--device", "cpu")
+        code, events, err = run_backend_here("render", job, "--device", "cpu")
         assert code == 0, err
     assert _conditions(jobs["sog"]) == _conditions(jobs["ply"])

@@ -128,9 +128,9 @@ def test_evaluate_says_why_a_metric_is_empty(street_clip_path, tmp_path):
 
 
 def test_evaluate_command_refuses_missing_inception_weights_before_any_work(street_clip_path, tmp_path):
-    from tests_support import run_backend
+    from tests_support import run_backend_here
 
-    code, events, _ = run_backend("evaluate", os.path.dirname(street_clip_path), "--output-dir", tmp_path / "e",
+    code, events, _ = run_backend_here("evaluate", os.path.dirname(street_clip_path), "--output-dir", tmp_path / "e",
                                   "--inception", tmp_path / "nope.pth", "--device", "cpu")
     assert code == 2
     msg = events[-1]["message"]
@@ -149,9 +149,9 @@ def test_evaluate_command_refuses_missing_inception_weights_before_any_work(stre
 ])
 def test_evaluate_arguments_are_checked_before_any_work(street_clip_path, tmp_path, args, option):
     """A bad option is bad input (exit 2, named), not an internal error deep in the metrics."""
-    from tests_support import run_backend
+    from tests_support import run_backend_here
 
-    code, events, _ = run_backend("evaluate", os.path.dirname(street_clip_path), "--output-dir", tmp_path / "e",
+    code, events, _ = run_backend_here("evaluate", os.path.dirname(street_clip_path), "--output-dir", tmp_path / "e",
                                   "--device", "cpu", *args)
     assert code == 2 and events[-1]["file"] == "(command line)" and events[-1]["field"] == option, events[-1]
     assert not os.path.exists(tmp_path / "e")

@@ -12,7 +12,7 @@ from backend.export import command
 from backend.render import channels
 from scpainter_blender.core import backend_protocol, errors, labels, outputs
 from scpainter_blender.core.output_layout import OutputLayout
-from tests_support import run_backend
+from tests_support import run_backend_here
 
 HAS_INSTANCE = hasattr(channels, "INSTANCE")
 NEEDS_INSTANCE = pytest.mark.skipif(not HAS_INSTANCE, reason="needs the render's instance layer (channels.INSTANCE)")
@@ -148,11 +148,11 @@ def test_a_new_export_replaces_the_previous_one_only_when_complete(tmp_path, mon
 
 
 def test_command_line_errors_exit_2(tmp_path):
-    code, ev, _ = run_backend("export", tmp_path / "job.json", "--format", "yolo")
+    code, ev, _ = run_backend_here("export", tmp_path / "job.json", "--format", "yolo")
     assert code == 2 and ev[-1]["file"] == errors.COMMAND_LINE and ev[-1]["field"] == "--format"
-    code, ev, _ = run_backend("export", tmp_path / "job.json", "--format", "coco", "--out", " ")
+    code, ev, _ = run_backend_here("export", tmp_path / "job.json", "--format", "coco", "--out", " ")
     assert code == 2 and ev[-1]["field"] == "--out"
-    code, ev, _ = run_backend("export", tmp_path / "job.json", "--format", "coco")
+    code, ev, _ = run_backend_here("export", tmp_path / "job.json", "--format", "coco")
     assert code == 2 and ev[-1]["file"] == str(tmp_path / "job.json")
 
 
@@ -172,7 +172,7 @@ def _tiny_job(tmp_path) -> str:
 
 def test_export_command_end_to_end(tmp_path):
     job = _tiny_job(tmp_path)
-    code, ev, err = run_backend("export", job, "--format", "coco", "--device", "cpu")
+    code, ev, err = run_backend_here("export", job, "--format", "coco", "--device", "cpu")
     assert code == 0, err
     done = ev[-1]
     out = os.path.join(tmp_path, "out", "export", "coco")
@@ -187,7 +187,7 @@ def test_export_command_end_to_end(tmp_path):
                          required=(channels.INSTANCE,))[channels.INSTANCE]
     ann = api.loadAnns(api.getAnnIds(imgIds=[1]))[0]
     assert np.array_equal(api.annToMask(ann).astype(bool), np.rint(inst) == 1)
-    code, ev, _ = run_backend("export", job, "--format", "coco", "--device", "cpu")   # again: nothing rendered
+    code, ev, _ = run_backend_here("export", job, "--format", "coco", "--device", "cpu")   # again: nothing rendered
     assert code == 0 and ev[-1]["rendered"] == 0 and os.path.isdir(out)
 
 

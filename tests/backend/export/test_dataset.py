@@ -14,7 +14,7 @@ from scpainter_blender.core import categories, errors, outputs
 from scpainter_blender.core import job as J
 from scpainter_blender.core.batch_items import DATA_ROOT_DIRECTIVE
 from scpainter_blender.core.output_layout import OutputLayout, VariationLayout
-from tests_support import run_backend
+from tests_support import run_backend_here
 
 FORMATS = "coco,kitti,openlabel,kitti-tracking"
 
@@ -55,7 +55,7 @@ def exported(tmp_path_factory):
     root = tmp_path_factory.mktemp("runs")
     lists = [_run(root / "a", [-1.0, 1.0]), _run(root / "b", [0.5])]
     out = root / "dataset"
-    code, ev, err = run_backend("export", "--list", lists[0], "--list", lists[1], "--format", FORMATS,
+    code, ev, err = run_backend_here("export", "--list", lists[0], "--list", lists[1], "--format", FORMATS,
                                 "--out", out, "--split", "val=0.5", "--device", "cpu")
     assert code == 0, err[-3000:]
     return root, lists, out, ev
@@ -262,11 +262,11 @@ def test_formats_are_checked_and_kept_once():
 
 def test_command_line_errors_exit_2(tmp_path):
     job = str(tmp_path / "job.json")
-    code, ev, _ = run_backend("export", job, job, "--format", "coco")
+    code, ev, _ = run_backend_here("export", job, job, "--format", "coco")
     assert code == 2 and ev[-1]["field"] == "--out"
-    code, ev, _ = run_backend("export", job, "--format", "coco", "--split", "val=2")
+    code, ev, _ = run_backend_here("export", job, "--format", "coco", "--split", "val=2")
     assert code == 2 and ev[-1]["field"] == "--split"
-    code, ev, _ = run_backend("batch", job, "--command", "export", "--out", str(tmp_path / "d"))
+    code, ev, _ = run_backend_here("batch", job, "--command", "export", "--out", str(tmp_path / "d"))
     assert code == 2 and ev[-1]["field"] == "--format"
-    code, ev, _ = run_backend("batch", job, "--command", "render", "--format", "coco")
+    code, ev, _ = run_backend_here("batch", job, "--command", "render", "--format", "coco")
     assert code == 2 and ev[-1]["field"] == "--format"

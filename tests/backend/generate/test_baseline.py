@@ -11,7 +11,7 @@ from backend.generate import baseline
 from backend.render import channels
 from backend.generate.video import mp4_metadata, read_mp4
 from scpainter_blender.core import job as J
-from tests_support import run_backend, small_job
+from tests_support import run_backend_here, small_job
 
 
 def smooth_image(H=48, W=64):
@@ -82,11 +82,11 @@ def test_job_settings_are_checked_by_name(tmp_path):
 
 def test_generate_without_a_checkpoint_writes_the_baseline_video_marked_as_such(tmp_path):
     path = small_job(tmp_path, frames=(1, 2, 3), resolution=(32, 24))
-    code, ev, err = run_backend("generate", path, "--device", "cpu", "--check")
+    code, ev, err = run_backend_here("generate", path, "--device", "cpu", "--check")
     assert code == 0 and ev[-1]["model"] == "baseline" and ev[-1]["checkpoint"] is None, err[-2000:]
     assert not (tmp_path / "out").exists()                           # --check renders nothing
 
-    code, ev, err = run_backend("generate", path, "--device", "cpu")
+    code, ev, err = run_backend_here("generate", path, "--device", "cpu")
     assert code == 0, err[-3000:]
     done = ev[-1]
     assert done["event"] == "done" and done["model"] == "baseline" and done["frames"] == 3
@@ -113,28 +113,28 @@ def test_generate_without_a_checkpoint_writes_the_baseline_video_marked_as_such(
         expected = baseline.inpaint_frame(image, layers[channels.HOLE])
         assert np.array_equal(np.asarray(Image.open(out / "generated" / f"frame_{f:06d}.png")), expected)
 
-    code, ev, _ = run_backend("generate", path, "--device", "cpu")    # the same again: up to date
+    code, ev, _ = run_backend_here("generate", path, "--device", "cpu")    # the same again: up to date
     assert code == 0 and ev[-1]["skipped"] is True and ev[-1]["model"] == "baseline" and ev[-1]["ignored"] == []
     # the model's settings given to the baseline: said, not silently dropped
-    code, ev, err = run_backend("generate", path, "--device", "cpu", "--model", "baseline", "--steps", "9",
+    code, ev, err = run_backend_here("generate", path, "--device", "cpu", "--model", "baseline", "--steps", "9",
                                 "--precision", "bf16")
     assert code == 0 and ev[-1]["skipped"] is True and ev[-1]["ignored"] == ["--steps", "--precision"]
     assert "the baseline ignores --steps, --precision" in err
-    code, ev, _ = run_backend("generate", path, "--device", "cpu", "--inpaint", "navier-stokes")
+    code, ev, _ = run_backend_here("generate", path, "--device", "cpu", "--inpaint", "navier-stokes")
     assert code == 0 and ev[-1]["skipped"] is False and ev[-1]["inpaint"] == "navier-stokes"
     assert J.read_json(out / "generated" / "manifest.json")["settings"]["inpaint"] == "navier-stokes"
 
 
 def test_asking_for_the_model_without_a_checkpoint_fails_fast(tmp_path):
     path = small_job(tmp_path)
-    code, ev, _ = run_backend("generate", path, "--device", "cpu", "--model", "scpainter")
+    code, ev, _ = run_backend_here("generate", path, "--device", "cpu", "--model", "scpainter")
     assert code == 2 and ev[-1]["field"] == "generate.checkpoint" and "init-checkpoint" in ev[-1]["message"]
     assert not (tmp_path / "out").exists()                           # nothing rendered before failing
     job = J.load(path).to_dict()
     J.save(path, {**job, "generate": {"model": "scpainter"}})        # the job's own choice, the same
-    code, ev, _ = run_backend("generate", path, "--device", "cpu")
+    code, ev, _ = run_backend_here("generate", path, "--device", "cpu")
     assert code == 2 and ev[-1]["field"] == "generate.checkpoint"
-    code, ev, _ = run_backend("generate", path, "--device", "cpu", "--inpaint-radius", "0", "--model", "baseline")
+    code, ev, _ = run_backend_here("generate", path, "--device", "cpu", "--inpaint-radius", "0", "--model", "baseline")
     assert code == 2 and ev[-1]["field"] == "--inpaint-radius"
     assert not os.path.exists(tmp_path / "out")
 
@@ -143,15 +143,15 @@ def test_baseline_ignores_a_configured_checkpoint_when_asked(tmp_path):
     path = small_job(tmp_path)
     job = J.load(path).to_dict()
     J.save(path, {**job, "generate": {"checkpoint": "no/such/checkpoint"}})
-    code, ev, _ = run_backend("generate", path, "--device", "cpu", "--check")  # auto: the model; no such folder
+    code, ev, _ = run_backend_here("generate", path, "--device", "cpu", "--check")  # auto: the model; no such folder
     assert code == 2 and "does not exist" in ev[-1]["message"] and ev[-1]["file"].endswith("no/such/checkpoint")
-    code, ev, err = run_backend("generate", path, "--device", "cpu", "--model", "baseline")
+    code, ev, err = run_backend_here("generate", path, "--device", "cpu", "--model", "baseline")
     assert code == 0 and ev[-1]["model"] == "baseline", err[-2000:]
 
 
 def test_batch_generate_without_a_checkpoint_makes_each_jobs_baseline(tmp_path):
     jobs = [small_job(tmp_path / name, asset=False) for name in ("a", "b")]
-    code, ev, err = run_backend("batch", *jobs, "--command", "generate", "--device", "cpu")
+    code, ev, err = run_backend_here("batch", *jobs, "--command", "generate", "--device", "cpu")
     assert code == 0, err[-2000:]
     items = ev[-1]["items"]
     assert [r["status"] for r in items] == ["ok", "ok"] and all(r["model"] == "baseline" for r in items)
@@ -170,7 +170,7 @@ def test_the_video_plays_at_the_jobs_frame_rate(tmp_path):
             return c.streams.video[0].average_rate
 
     job = small_job(tmp_path / "a", frames=(1, 2, 3), fps=29.97)
-    code, ev, err = run_backend("generate", job, "--device", "cpu")
+    code, ev, err = run_backend_here("generate", job, "--device", "cpu")
     assert code == 0, err
     assert rate(job) == Fraction(2997, 100)
     manifest = files.read_json(os.path.join(os.path.dirname(job), "out", "generated", "manifest.json"))
@@ -180,10 +180,10 @@ def test_the_video_plays_at_the_jobs_frame_rate(tmp_path):
     d = J.load(job).to_dict()
     d["fps"] = 10.0
     J.save(job, d)
-    code, ev, err = run_backend("generate", job, "--device", "cpu")
+    code, ev, err = run_backend_here("generate", job, "--device", "cpu")
     assert code == 0 and not ev[-1]["skipped"] and rate(job) == 10
     other = small_job(tmp_path / "b", frames=(1, 2))
-    assert run_backend("generate", other, "--device", "cpu")[0] == 0 and rate(other) == 7
+    assert run_backend_here("generate", other, "--device", "cpu")[0] == 0 and rate(other) == 7
 
 
 def test_a_frame_step_job_plays_at_the_times_its_labels_say(tmp_path):
@@ -195,7 +195,7 @@ def test_a_frame_step_job_plays_at_the_times_its_labels_say(tmp_path):
     from scpainter_blender.core import files, outputs
 
     job = small_job(tmp_path, frames=(1, 3, 5), fps=10.0, asset=False)
-    code, ev, err = run_backend("generate", job, "--device", "cpu")
+    code, ev, err = run_backend_here("generate", job, "--device", "cpu")
     assert code == 0, err
     out = os.path.join(os.path.dirname(job), "out")
     said = [files.read_json(os.path.join(out, "conditions", f"labels_{f:06d}.json"))["timestamp_s"] for f in (1, 3, 5)]

@@ -14,12 +14,12 @@ from PIL import Image
 
 from backend.generate.video import read_mp4
 from scpainter_blender.core import job as J
-from tests_support import run_backend, street_with_car
+from tests_support import run_backend_here, street_with_car
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
 
 
-backend = run_backend
+backend = run_backend_here
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,7 @@ import pytest
 
 from backend.render import channels
 from scpainter_blender.core import files
-from tests_support import run_backend, small_job
+from tests_support import run_backend_here, small_job
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
 
@@ -65,7 +65,7 @@ def test_a_generate_killed_while_writing_frames_leaves_no_folder_called_up_to_da
     frames = tuple(range(1, 81))  # 80 frames: their events fill a one-page pipe many times over
     job = small_job(tmp_path, frames=frames, resolution=(32, 24))
     out = tmp_path / "out"
-    code, ev, err = run_backend("generate", job, "--device", "cpu")
+    code, ev, err = run_backend_here("generate", job, "--device", "cpu")
     assert code == 0 and not ev[-1]["skipped"], err[-2000:]
     clean = _frames(out, frames)
 
@@ -75,7 +75,7 @@ def test_a_generate_killed_while_writing_frames_leaves_no_folder_called_up_to_da
     assert 0 < len(replaced) < len(frames)          # killed mid-way: some frames are the killed run's
     assert not (out / "generated" / "manifest.json").exists()   # nothing says this folder is finished
 
-    code, ev, err = run_backend("generate", job, "--device", "cpu")
+    code, ev, err = run_backend_here("generate", job, "--device", "cpu")
     assert code == 0 and ev[-1]["skipped"] is False, err[-2000:]
     assert _frames(out, frames) == clean
     manifest = files.read_json(out / "generated" / "manifest.json")
@@ -84,7 +84,7 @@ def test_a_generate_killed_while_writing_frames_leaves_no_folder_called_up_to_da
 
 def _rendered(tmp_path, frames=(1, 2, 3)):
     job = small_job(tmp_path, frames=frames, resolution=(32, 24))
-    code, ev, err = run_backend("render", job, "--device", "cpu")
+    code, ev, err = run_backend_here("render", job, "--device", "cpu")
     assert code == 0, err[-2000:]
     return job, tmp_path / "out" / "conditions"
 
@@ -96,7 +96,7 @@ def test_a_condition_exr_of_another_size_than_the_job_is_refused_naming_it(tmp_p
     job, cond = _rendered(tmp_path)
     exr = cond / "frame_000002.exr"
     channels.write(str(exr), {k: v[:12, :16] for k, v in channels.read(str(exr)).items()})
-    code, ev, err = run_backend("generate", job, "--device", "cpu")
+    code, ev, err = run_backend_here("generate", job, "--device", "cpu")
     assert code == 2 and ev[-1]["event"] == "error" and "Traceback" not in err, err[-2000:]
     assert ev[-1]["file"] == str(exr) and ev[-1]["field"] == "dataWindow"
     assert "16x12" in ev[-1]["message"] and "32x24" in ev[-1]["message"]
@@ -106,11 +106,11 @@ def test_a_condition_exr_of_another_size_than_the_job_is_refused_naming_it(tmp_p
     for f in (1, 2, 3):  # every frame of one wrong size: refused the same (never a video at the wrong size)
         p = str(cond / f"frame_{f:06d}.exr")
         channels.write(p, {k: v[:12, :16] for k, v in channels.read(p).items()})
-    code, ev, _ = run_backend("generate", job, "--device", "cpu")
+    code, ev, _ = run_backend_here("generate", job, "--device", "cpu")
     assert code == 2 and ev[-1]["file"] == str(cond / "frame_000001.exr") and "16x12" in ev[-1]["message"]
     # what the hint says works
-    assert run_backend("render", job, "--device", "cpu", "--force")[0] == 0
-    code, ev, err = run_backend("generate", job, "--device", "cpu")
+    assert run_backend_here("render", job, "--device", "cpu", "--force")[0] == 0
+    code, ev, err = run_backend_here("generate", job, "--device", "cpu")
     assert code == 0 and ev[-1]["frames"] == 3, err[-2000:]
 
 
@@ -122,7 +122,7 @@ def test_a_folder_where_a_condition_frame_goes_is_refused_naming_it(tmp_path):
     os.remove(exr)
     os.mkdir(exr)
     for command in ("render", "generate"):
-        code, ev, err = run_backend(command, job, "--device", "cpu")
+        code, ev, err = run_backend_here(command, job, "--device", "cpu")
         assert code == 2 and ev[-1]["event"] == "error" and "Traceback" not in err, err[-2000:]
         assert ev[-1]["file"] == str(exr) and "folder" in ev[-1]["message"] and "remove" in ev[-1]["hint"]
 
@@ -140,14 +140,14 @@ def test_a_condition_layer_with_nan_is_refused_naming_the_file_and_channel(tmp_p
     job, cond = _rendered(tmp_path)
     exr = cond / "frame_000002.exr"
     _replace_layer(exr, "R", np.nan)
-    code, ev, err = run_backend("generate", job, "--device", "cpu")
+    code, ev, err = run_backend_here("generate", job, "--device", "cpu")
     assert code == 2 and ev[-1]["event"] == "error" and "Traceback" not in err, err[-2000:]
     assert ev[-1]["file"] == str(exr) and ev[-1]["field"] == "image.R"
     assert "NaN" in ev[-1]["message"] and "768 of its 768 pixels" in ev[-1]["message"]
     assert "render" in ev[-1]["hint"] and "--force" in ev[-1]["hint"]
     assert not (tmp_path / "out" / "generated").exists()
-    assert run_backend("render", job, "--device", "cpu", "--force")[0] == 0   # what the hint says works
-    code, ev, err = run_backend("generate", job, "--device", "cpu")
+    assert run_backend_here("render", job, "--device", "cpu", "--force")[0] == 0   # what the hint says works
+    code, ev, err = run_backend_here("generate", job, "--device", "cpu")
     assert code == 0 and ev[-1]["frames"] == 3, err[-2000:]
 
 
@@ -197,12 +197,12 @@ def test_masks_outside_zero_to_one_are_refused_naming_the_file_and_channel(tmp_p
     exr = cond / "frame_000003.exr"
     _replace_layer(exr, "hole", 7.0)
     _replace_layer(exr, "asset_mask", -3.0)
-    code, ev, err = run_backend("generate", job, "--device", "cpu")
+    code, ev, err = run_backend_here("generate", job, "--device", "cpu")
     assert code == 2 and ev[-1]["event"] == "error" and "Traceback" not in err, err[-2000:]
     assert ev[-1]["file"] == str(exr) and ev[-1]["field"] == "hole.Y"
     assert "outside [0, 1]" in ev[-1]["message"] and "7" in ev[-1]["message"] and "--force" in ev[-1]["hint"]
     _replace_layer(exr, "hole", 0.0)
-    code, ev, err = run_backend("generate", job, "--device", "cpu")
+    code, ev, err = run_backend_here("generate", job, "--device", "cpu")
     assert code == 2 and ev[-1]["field"] == "asset_mask.Y" and "-3" in ev[-1]["message"], err[-2000:]
     assert not (tmp_path / "out" / "generated").exists()
 
@@ -212,16 +212,16 @@ def test_a_generate_that_fails_while_writing_frames_leaves_no_folder_called_up_t
     frame. It says so (exit 2, naming it); the first command then generates again, never answering up to date."""
     job = small_job(tmp_path, frames=(1, 2, 3, 4), resolution=(32, 24))
     out = tmp_path / "out"
-    assert run_backend("generate", job, "--device", "cpu")[0] == 0
+    assert run_backend_here("generate", job, "--device", "cpu")[0] == 0
     clean = _frames(out, (1, 2, 3, 4))
     png = out / "generated" / "frame_000003.png"
     os.remove(png)
     os.mkdir(png)
-    code, ev, err = run_backend("generate", job, "--device", "cpu", "--inpaint", "navier-stokes")
+    code, ev, err = run_backend_here("generate", job, "--device", "cpu", "--inpaint", "navier-stokes")
     assert code == 2 and ev[-1]["file"] == str(png) and "Traceback" not in err, err[-2000:]
     assert not (out / "generated" / "manifest.json").exists()
     assert _frames(out, (1, 2)) != {f: clean[f] for f in (1, 2)}   # the failed run's frames are there
     os.rmdir(png)
-    code, ev, err = run_backend("generate", job, "--device", "cpu")
+    code, ev, err = run_backend_here("generate", job, "--device", "cpu")
     assert code == 0 and ev[-1]["skipped"] is False, err[-2000:]
     assert _frames(out, (1, 2, 3, 4)) == clean

@@ -14,7 +14,7 @@ from backend.mesh import asset as ma
 from backend.mesh import colors as mesh_colors, load as mesh_load
 from scpainter_blender.core.geometry import cameras
 from scpainter_blender.core.splats import gaussians as splats, inria as splats_inria, reader as splats_io, trellis
-from tests_support import realdata, run_backend
+from tests_support import realdata, run_backend_here
 
 
 # -- Gaussians -----------------------------------------------------------------------------------------------------
@@ -142,7 +142,7 @@ def test_command_end_to_end(tmp_path):
     glb = trimesh.Trimesh(np.asarray(zup.vertices) @ MF.R_GLTF, zup.faces, process=False)
     path = MF.export(glb, tmp_path / "car.glb")
     out = tmp_path / "out" / "car.gaussians.ply"
-    code, events, err = run_backend("mesh-asset", path, "--out", out, "--count", 3000, "--seed", 2)
+    code, events, err = run_backend_here("mesh-asset", path, "--out", out, "--count", 3000, "--seed", 2)
     assert code == 0, err
     assert [e["event"] for e in events][-2:] == ["artifact", "done"]
     assert all(e["event"] == "progress" for e in events[:-2])
@@ -161,7 +161,7 @@ def test_command_end_to_end(tmp_path):
     assert g.dropped == {} and g.means[:, 2].min() >= -1e-6 and g.means[:, 2].max() <= 2 + 1e-6
     assert trellis.detect_axes(ply)[0] == "NONE"
     # same seed, same file
-    code, _, _ = run_backend("mesh-asset", path, "--out", tmp_path / "again.ply", "--count", 3000, "--seed", 2)
+    code, _, _ = run_backend_here("mesh-asset", path, "--out", tmp_path / "again.ply", "--count", 3000, "--seed", 2)
     assert code == 0 and (tmp_path / "again.ply").read_bytes() == out.read_bytes()
 
 
@@ -170,7 +170,7 @@ def test_command_bad_input_exits_2(tmp_path):
     bad.write_bytes(b"glTF not really")
     for args in ([bad, "--out", tmp_path / "o.ply"], [tmp_path / "missing.obj", "--out", tmp_path / "o.ply"],
                  [bad, "--out", tmp_path / "o.ply", "--count", 0]):
-        code, events, _ = run_backend("mesh-asset", *args)
+        code, events, _ = run_backend_here("mesh-asset", *args)
         assert code == 2
         assert events[-1]["event"] == "error" and ("broken.glb" in events[-1]["message"]
                                                   or "missing.obj" in events[-1]["message"]
@@ -284,14 +284,14 @@ def test_command_refuses_hostile_files_with_exit_2_and_no_traceback(tmp_path):
 
     Image.new("RGB", (8, 8), (200, 0, 0)).save(tmp_path / "tex.png")
     nan_uv = MF.triangle_gltf(tmp_path, image_uri="tex.png", uv=[[np.nan, 0], [0, 0], [0, 1]])
-    code, events, err = run_backend("mesh-asset", nan_uv, "--out", tmp_path / "o.ply", "--count", 100)
+    code, events, err = run_backend_here("mesh-asset", nan_uv, "--out", tmp_path / "o.ply", "--count", 100)
     assert code == 2 and events[-1]["event"] == "error", err   # was: a 0-Gaussian PLY and exit 0
     assert events[-1]["file"] == nan_uv and events[-1]["field"] == "TEXCOORD_0" and events[-1]["hint"]
     (tmp_path / "t.ply").write_text(
         "ply\nformat ascii 1.0\ncomment TextureFile lost.png\nelement vertex 3\nproperty float x\nproperty float y\n"
         "property float z\nproperty float texture_u\nproperty float texture_v\nelement face 1\n"
         "property list uchar int vertex_indices\nend_header\n0 0 0 0 0\n1 0 0 1 0\n0 1 0 0 1\n3 0 1 2\n")
-    code, events, err = run_backend("mesh-asset", tmp_path / "t.ply", "--out", tmp_path / "o.ply", "--count", 100)
+    code, events, err = run_backend_here("mesh-asset", tmp_path / "t.ply", "--out", tmp_path / "o.ply", "--count", 100)
     assert code == 2 and events[-1]["field"] == "lost.png" and "Traceback" not in err, err
     assert not (tmp_path / "o.ply").exists()
 
@@ -304,7 +304,7 @@ def test_command_warns_for_what_trimesh_went_past(tmp_path):
     tree["materials"] = [{"extensions": {"KHR_materials_pbrSpecularGlossiness": {"diffuseFactor": "red"}}}]
     tree["meshes"][0]["primitives"][0]["material"] = 0
     json.dump(tree, open(path, "w"))
-    code, events, err = run_backend("mesh-asset", path, "--out", tmp_path / "o.ply", "--count", 100)
+    code, events, err = run_backend_here("mesh-asset", path, "--out", tmp_path / "o.ply", "--count", 100)
     assert code == 0, err
     warned = [e for e in events if e["event"] == "warning"]
     assert [w["code"] for w in warned] == [mesh_load.READER_WARNING] and "specular-glossiness" in warned[0]["message"]
@@ -365,7 +365,7 @@ def test_a_killed_run_leaves_a_temporary_the_next_run_removes(tmp_path):
     # a live run's temporary is never taken from it: another run for the same output finishes beside it
     live, tmp = _held_run(mesh, out)
     assert os.path.isfile(tmp) and temporaries() == [os.path.basename(tmp)]
-    code, _, err = run_backend("mesh-asset", mesh, "--out", out, "--count", 100)
+    code, _, err = run_backend_here("mesh-asset", mesh, "--out", out, "--count", 100)
     assert code == 0 and os.path.isfile(tmp), err
     live.stdin.write(b"\n")
     live.stdin.close()
@@ -374,6 +374,6 @@ def test_a_killed_run_leaves_a_temporary_the_next_run_removes(tmp_path):
     killed, tmp = _held_run(mesh, out)
     killed.send_signal(signal.SIGKILL)
     assert killed.wait(60) == -signal.SIGKILL and temporaries() == [os.path.basename(tmp)]
-    code, _, err = run_backend("mesh-asset", mesh, "--out", out, "--count", 100)
+    code, _, err = run_backend_here("mesh-asset", mesh, "--out", out, "--count", 100)
     assert code == 0, err
     assert temporaries() == [] and len(splats_io.load(out)) == 100

@@ -19,7 +19,7 @@ from tests.backend.mesh import mesh_fixtures as MF
 from backend.mesh import asset as ma
 from backend.mesh import gltf as mesh_gltf, load as mesh_load
 from scpainter_blender.core.splats import reader as splats_io
-from tests_support import realdata, run_backend
+from tests_support import realdata, run_backend_here
 
 CELL, GRID = 16, 4                     # texture: GRID x GRID cells of CELL px (64 x 64)
 COLOURS = np.array([[(i * 80 + 15), (j * 80 + 15), 230 - 12 * (i + GRID * j)]
@@ -416,7 +416,7 @@ def test_draco_without_dracopy_is_refused_naming_the_fix(tmp_path, monkeypatch):
 
 def test_unsupported_required_extensions_are_refused_by_name(tmp_path):
     path = quad_gltf(tmp_path, meshopt=True, required=("EXT_mesh_gpu_instancing",))
-    code, events, err = run_backend("mesh-asset", path, "--out", tmp_path / "o.ply", "--count", 100)
+    code, events, err = run_backend_here("mesh-asset", path, "--out", tmp_path / "o.ply", "--count", 100)
     assert code == 2 and "Traceback" not in err
     msg, hint = events[-1]["message"], events[-1]["hint"]
     assert "EXT_meshopt_compression" in msg and "EXT_mesh_gpu_instancing" in msg and "quad.glb" in msg
@@ -499,7 +499,7 @@ def test_texture_indices_out_of_range_exit_2_naming_the_field(tmp_path, field, e
     """A base-colour texture, image or sampler index the file does not have: trimesh went on with a log line
     and a white car (exit 0); a missing texture file is an error, so is this."""
     path = _edited(tmp_path, edit)
-    code, events, err = run_backend("mesh-asset", path, "--out", tmp_path / "o.ply", "--count", 100)
+    code, events, err = run_backend_here("mesh-asset", path, "--out", tmp_path / "o.ply", "--count", 100)
     assert code == 2 and "Traceback" not in err
     assert events[-1]["event"] == "error" and events[-1]["field"] == field and field in events[-1]["message"]
     assert not (tmp_path / "o.ply").exists()
@@ -523,7 +523,7 @@ def test_texture_problems_exit_2_naming_the_file(tmp_path, uri, data, what):
         (tmp_path / "outside.png").write_bytes(grid_png())
         data = b""
     path = quad_gltf(folder, "quad.gltf", image=uri, image_bytes=data)
-    code, events, err = run_backend("mesh-asset", path, "--out", tmp_path / "o.ply", "--count", 100)
+    code, events, err = run_backend_here("mesh-asset", path, "--out", tmp_path / "o.ply", "--count", 100)
     assert code == 2 and "Traceback" not in err
     assert events[-1]["event"] == "error" and uri in events[-1]["message"] and what in events[-1]["message"]
     assert not (tmp_path / "o.ply").exists()
@@ -534,7 +534,7 @@ def test_file_uri_texture_is_refused_as_a_file_uri(tmp_path, uri):
     """A ``file://`` URI (an absolute path, which the model's folder rule does not allow) is said to be one, not
     "not found"."""
     path = quad_gltf(tmp_path, "quad.gltf", image=uri, image_bytes=b"")
-    code, events, err = run_backend("mesh-asset", path, "--out", tmp_path / "o.ply", "--count", 100)
+    code, events, err = run_backend_here("mesh-asset", path, "--out", tmp_path / "o.ply", "--count", 100)
     assert code == 2 and "Traceback" not in err
     message = events[-1]["message"]
     assert uri in message and "file:// URI" in message and "not found" not in message

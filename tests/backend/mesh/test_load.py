@@ -144,7 +144,7 @@ def test_gaussian_splat_files_are_refused_pointing_to_the_splat_import(tmp_path,
     others written by splat-transform from the PLY) are told as splats, with the commands that read them, not as a
     point cloud or a format to export again."""
     from scpainter_blender.core.splats import compressed
-    from tests_support import run_backend
+    from tests_support import run_backend_here
 
     g = ma.mesh_to_gaussians(trimesh.creation.box(), 64, seed=2)
     splats_inria.write_ply(tmp_path / "car.ply", splats.encode(g))
@@ -158,7 +158,7 @@ def test_gaussian_splat_files_are_refused_pointing_to_the_splat_import(tmp_path,
     with pytest.raises(mesh_load.MeshAssetError, match="holds Gaussian splats") as e:
         mesh_load.load_mesh(path)
     assert "splat-asset" in e.value.hint and "Import Gaussian Asset" in e.value.hint
-    code, events, err = run_backend("mesh-asset", path, "--out", tmp_path / "o.ply", "--count", 100)
+    code, events, err = run_backend_here("mesh-asset", path, "--out", tmp_path / "o.ply", "--count", 100)
     assert code == 2 and "Traceback" not in err and "Gaussian splats" in events[-1]["message"]
     assert "point cloud" not in events[-1]["message"] and "export the car" not in events[-1]["message"]
 

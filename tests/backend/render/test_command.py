@@ -12,12 +12,12 @@ import pytest
 from backend.render import channels
 from scpainter_blender.core import job as J
 from scpainter_blender.core import shapes
-from tests_support import run_backend
+from tests_support import run_backend_here
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
 
 
-backend = run_backend
+backend = run_backend_here
 
 
 def _pixels(path):

@@ -10,7 +10,7 @@ from scpainter_blender.core import job as J
 from scpainter_blender.core import job_inputs
 from scpainter_blender.core.splats import gaussians as splats, inria, reader
 from tests.core.splats import splat_fixtures as F
-from tests_support import run_backend, small_job
+from tests_support import run_backend_here, small_job
 
 
 def _car(job):
@@ -64,7 +64,7 @@ def test_render_and_checks_refuse_an_asset_without_one_valid_gaussian(tmp_path):
     ply, path = _car(job)
     _nan_chunk_ranges(path, ply)
     for args in (("render", "--check"), ("render",), ("generate", "--check"), ("generate",)):
-        code, ev, err = run_backend(*args[:1], job, "--device", "cpu", *args[1:])
+        code, ev, err = run_backend_here(*args[:1], job, "--device", "cpu", *args[1:])
         assert code == 2 and ev[-1]["event"] == "error" and "Traceback" not in err, (args, err[-2000:])
         assert ev[-1]["file"] == job and ev[-1]["field"] == "assets[0].ply", args
         assert path in ev[-1]["message"] and "none of its 300 Gaussians is valid" in ev[-1]["message"]
@@ -88,7 +88,7 @@ def test_an_asset_mostly_invalid_renders_with_a_warning(tmp_path):
     ply, path = _car(job)
     _write_inria(path, ply, slice(0, 200), rot=0.0)                   # 200 of 300: two thirds
     for args in (("render", "--check"), ("render",), ("render",)):
-        code, ev, err = run_backend(*args[:1], job, "--device", "cpu", *args[1:])
+        code, ev, err = run_backend_here(*args[:1], job, "--device", "cpu", *args[1:])
         assert code == 0, err[-2000:]
         warnings = [e for e in ev if e["event"] == "warning" and e["code"] == splats.INVALID_GAUSSIANS]
         assert len(warnings) == 1 and warnings[0]["object"] == "car", (args, warnings)
@@ -98,7 +98,7 @@ def test_an_asset_mostly_invalid_renders_with_a_warning(tmp_path):
     assert layers["objects"] and layers["objects"][0]["visible_pixels"] > 0   # the car that is left is drawn
 
     _write_inria(path, ply, slice(0, 150), rot=0.0)                   # half: accepted as is
-    code, ev, err = run_backend("render", job, "--device", "cpu")
+    code, ev, err = run_backend_here("render", job, "--device", "cpu")
     assert code == 0 and not [e for e in ev if e["event"] == "warning" and e["code"] == splats.INVALID_GAUSSIANS]
     assert 0 < splats.MOSTLY_INVALID_SHARE < 1
 
@@ -117,7 +117,7 @@ def test_an_asset_whose_gaussians_are_all_below_the_drawn_opacity_is_refused_nam
     assert path in e.value.message and "none of its 300 Gaussians would be drawn" in e.value.message
     assert "300 with an opacity below 1/255" in e.value.message
     for args in (("render", "--check"), ("render",), ("generate", "--check")):
-        code, ev, err = run_backend(*args[:1], job, "--device", "cpu", *args[1:])
+        code, ev, err = run_backend_here(*args[:1], job, "--device", "cpu", *args[1:])
         assert code == 2 and ev[-1]["event"] == "error" and "Traceback" not in err, (args, err[-2000:])
         assert ev[-1]["field"] == "assets[0].ply" and "would be drawn" in ev[-1]["message"], args
     assert not os.path.exists(tmp_path / "out" / "conditions" / "frame_000001.exr")
@@ -152,7 +152,7 @@ def test_an_asset_mostly_below_the_drawn_opacity_renders_with_a_warning(tmp_path
     ply, path = _car(job)
     _write_inria(path, ply, slice(0, 200), opacity=-60.0)
     for args in (("render", "--check"), ("render",)):
-        code, ev, err = run_backend(*args[:1], job, "--device", "cpu", *args[1:])
+        code, ev, err = run_backend_here(*args[:1], job, "--device", "cpu", *args[1:])
         assert code == 0, err[-2000:]
         warnings = [e for e in ev if e["event"] == "warning" and e["code"] == splats.TRANSPARENT_ASSET]
         assert len(warnings) == 1 and warnings[0]["object"] == "car", (args, warnings)

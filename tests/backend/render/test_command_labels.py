@@ -13,7 +13,7 @@ from scpainter_blender.core import job as J
 from scpainter_blender.core.geometry import boxes, cameras
 from scpainter_blender.core.output_layout import OutputLayout
 from scpainter_blender.core.splats import trellis
-from tests.tests_support import run_backend as backend
+from tests.tests_support import run_backend_here as backend
 
 W, H = 192, 112
 K = [[110.0, 0, 96], [0, 110.0, 56], [0, 0, 1]]

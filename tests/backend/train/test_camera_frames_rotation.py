@@ -146,7 +146,7 @@ def test_phone_photos_are_turned_by_their_exif_orientation(street_clip_path, tmp
             exif = Image.Exif()
             exif[0x0112] = 6  # "rotate 90 CW to display": undoes the counter-clockwise quarter above
             p.unlink()  # the copy's own file, never one it might share with the cached street
-            coded.save(p, exif=exif)
+            coded.save(p, exif=exif, compress_level=1)  # lossless either way; the default level is slow
         _no_poses(d)
 
     c = clip_mod.load(copy_clip(street_clip_path, tmp_path, edit, "exif"))
@@ -160,7 +160,7 @@ def _resized_frames(size):
         for p in sorted((folder / "frames").iterdir()):
             im = Image.open(p).convert("RGB").resize(size, Image.LANCZOS)
             p.unlink()  # the copy's own file, never one it might share with the cached street
-            im.save(p)
+            im.save(p, compress_level=1)  # the same pixels, written fast (zlib's default level was most of the test)
         _no_poses(d)
     return edit
 

@@ -128,7 +128,7 @@ def test_a_poses_K_for_another_image_size_is_refused(street_clip_path, tmp_path)
         for p in sorted((folder / "frames").iterdir()):
             im = Image.open(p).convert("RGB").resize((1036, 588), Image.LANCZOS)
             p.unlink()  # the copy's own file, never one it might share with the cached street
-            im.save(p)
+            im.save(p, compress_level=1)  # the same pixels, written fast (zlib's default level was most of the test)
 
     folder = _copy(street_clip_path, tmp_path, edit)
     with pytest.raises(clip_mod.ClipError) as e:

@@ -229,7 +229,7 @@ def _names(c, extra=()) -> set:
     import fuzz_inputs as F
     names = F._case_names(c, F.Case("job", 0, 0, "", None)) | {"spec.json", "variants.txt", "variation.json",
                                                                "out", "vary", "road", "cars", "list.txt"}
-    for dirpath, dirnames, filenames in os.walk(c.root):
+    for _, dirnames, filenames in os.walk(c.root):
         names.update(dirnames + filenames)
     names.update(extra)
     return {n for n in names if n}
@@ -252,8 +252,10 @@ def _lenient(ran: dict) -> dict:
     return ran
 
 
-def _run(case, c, root, workdir, argv, timeout, names=(), lenient=False, hooks=None) -> tuple:
-    """Run ``argv`` in-process with the snapshot of the case folder around it; (result, outcome, ran)."""
+def _run(case, c, root, workdir, argv, timeout, names=(), lenient=True, hooks=None) -> tuple:
+    """Run ``argv`` in-process with the snapshot of the case folder around it; (result, outcome, ran). Exit 1
+    without a traceback or "an internal error" is a failure the command explains (``backend.errors.CleanFailure``:
+    a busy folder, a full disk, a batch with a failed job), classified as exit 2 would be (``_lenient``)."""
     import fuzz_inputs as F
     names = _names(c, names)
     before, top_before = F.snapshot(root, c.job_dir), set(os.listdir(workdir))
@@ -369,8 +371,7 @@ def _run_links(case, base, root, workdir, timeout):
     if p["after"]:
         _untimed(argv)
     dest = plant(c, os.path.join(c.job_dir, "out", p["site"]), p["what"], p["target"], p["style"])
-    return c, _run(case, c, root, workdir, argv, timeout, names={os.path.basename(dest), os.path.basename(p["site"])},
-                   lenient=p["command"] == "vary")
+    return c, _run(case, c, root, workdir, argv, timeout, names={os.path.basename(dest), os.path.basename(p["site"])})
 
 
 # ---------------------------------------------------------------------------------------------- races
@@ -489,8 +490,7 @@ def _run_races(case, base, root, workdir, timeout):
 
     op = {"under": "open", "mkdir-under": "mkdir"}.get(p["op"], p["op"])
     hooks = Hooks(c.outside, c.path("job/" + p["trigger"]), op, swap, under=p["op"] in ("under", "mkdir-under"))
-    c_res = _run(case, c, root, workdir, argv, timeout, names={p["target"], os.path.basename(victim)},
-                 lenient=command == "vary", hooks=hooks)
+    c_res = _run(case, c, root, workdir, argv, timeout, names={p["target"], os.path.basename(victim)}, hooks=hooks)
     c_res[0]["swapped"] = bool(hooks.fired)
     return c, c_res
 
@@ -603,7 +603,7 @@ def _run_lists(case, base, root, workdir, timeout):
         data = p["list"](c)
         c.write("job/list.txt", data)
         argv = ["batch", "--list", c.path("job/list.txt"), "--command", "render", "--device", "cpu"]
-        return c, _run(case, c, root, workdir, argv, timeout, names={"list.txt"}, lenient=True)
+        return c, _run(case, c, root, workdir, argv, timeout, names={"list.txt"})
     if "manifest" in p:
         add_road(c, base)
         _untimed(vary_argv(c))
@@ -626,7 +626,7 @@ def _run_lists(case, base, root, workdir, timeout):
     else:
         add_road(c, base)
         out = _chain(c, "out/" + odd)
-    result, outcome, ran = _run(case, c, root, workdir, vary_argv(c, out=out), timeout, lenient=True)
+    result, outcome, ran = _run(case, c, root, workdir, vary_argv(c, out=out), timeout)
     if outcome == "accepted":
         why = _list_meaning(out, {out, os.path.dirname(c.road_job), c.cars})
         if why:
@@ -796,7 +796,7 @@ def _server(workdir, base):
         _SERVE["job"] = c.job_json
     s = ServeProcess(workdir)
     _SERVE["proc"] = s
-    seen, how, _ = s.valid(_SERVE["job"], SERVE_START_S)
+    _, how, _ = s.valid(_SERVE["job"], SERVE_START_S)
     if how != "served":
         raise RuntimeError(f"the serve process did not answer its first request ({how}): {s.stderr_tail()[-800:]}")
     return s
@@ -806,7 +806,8 @@ def _run_serve(case, base, root, workdir, timeout):
     import fuzz_inputs as F
     result = _record(case)
     s = _server(workdir, base)
-    line = _raw(case.apply["line"].replace("ARGV", _ARGV).replace("JOB", _SERVE["job"]))
+    line = case.apply["line"]
+    line = _raw(line.replace("ARGV", _ARGV).replace("JOB", _SERVE["job"]) if isinstance(line, str) else line)
     t0 = time.perf_counter()
     sent = s.send(line)
     seen, how, rid = s.valid(_SERVE["job"], SERVE_WAIT_S) if sent else ([], "died", None)
@@ -902,7 +903,7 @@ def _num_spec(rng, base):
 
 
 def _num_cli(rng, base):
-    options = [("--variants", x) for x in (_D310, "1e308", "-0", "0x10", "1_000", "nan", "true", " 2", "100001")] + \
+    options = [("--variants", x) for x in (_D310, "1e308", "-0", "0x10", "1_0", "nan", "true", " 2", "100001")] + \
               [("--seed", x) for x in (_D310, "-" + _D310, "1e308", "-0", "-1", str(2 ** 64), "nan", "1.5")]
     opt, val = rng.cycle(options)
     return f"vary option: {opt} {val[:20]}{'...' if len(val) > 20 else ''}", {"option": opt, "arg": val}
@@ -945,7 +946,7 @@ def _run_numerics(case, base, root, workdir, timeout):
         argv = vary_argv(c)
     else:
         argv = vary_argv(c) + [p["option"], p["arg"]]
-    return c, _run(case, c, root, workdir, argv, timeout, names={"--variants", "--seed"}, lenient=True)
+    return c, _run(case, c, root, workdir, argv, timeout, names={"--variants", "--seed"})
 
 
 # ---------------------------------------------------------------------------------------------- names
@@ -993,24 +994,24 @@ def _run_names(case, base, root, workdir, timeout):
     stem = {"scene.predictions": "pred", "assets[0].ply": "car", "output_dir": "out"}.get(target, "dir")
     name = _hostile_name(style, stem)
     makeable = b"\x00" not in name and len(name) < 3000 and all(len(part) <= 255 for part in name.split(b"/"))
-    lenient = False
     names = {stem}
 
-    def place_file(src: str, name: bytes):
-        if makeable:
-            dst = _mk_path(c.job_dir, name + (b".npz" if stem == "pred" else b".ply"))
-            os.makedirs(os.path.dirname(dst), exist_ok=True)
-            os.rename(os.fsencode(src), dst)
-
     if target in ("scene.predictions", "assets[0].ply"):
-        ext = ".npz" if stem == "pred" else ".ply"
-        place_file(c.predictions if stem == "pred" else c.ply, name)
-        value = os.fsdecode(name) + ext
+        ext = b".npz" if stem == "pred" else b".ply"
+        # a file name of exactly the style's length, its extension included
+        label = NAME_STYLES[style][0]
+        full = (("é" * 125 + "n").encode() + ext if label.startswith("255 bytes of") else
+                name[:len(name) - len(ext)] + ext if label.startswith(("255", "256")) else name + ext)
+        makeable = b"\x00" not in full and len(full) < 3000 and all(len(x) <= 255 for x in full.split(b"/"))
+        if makeable:
+            dst = _mk_path(c.job_dir, full)
+            os.makedirs(os.path.dirname(dst), exist_ok=True)
+            os.rename(os.fsencode(c.predictions if stem == "pred" else c.ply), dst)
         if stem == "pred":
-            c.job["scene"]["predictions"] = value
+            c.job["scene"]["predictions"] = os.fsdecode(full)
         else:
-            c.job["assets"][0]["ply"] = value
-        c.write("job/job.json", F.to_json(c.job).replace("\\udc", "\\udc"))
+            c.job["assets"][0]["ply"] = os.fsdecode(full)
+        c.write("job/job.json", F.to_json(c.job))
         argv = ["render", c.job_json, "--device", "cpu"]
     elif target == "output_dir":
         c.job["output_dir"] = os.fsdecode(name)
@@ -1033,7 +1034,6 @@ def _run_names(case, base, root, workdir, timeout):
                 os.fsdecode(_mk_path(os.path.join(c.job_dir, "out"), name))]
     else:
         add_road(c, base)
-        lenient = True
         if target == "vary --out":
             argv = vary_argv(c, out=os.fsdecode(_mk_path(os.path.join(c.job_dir, "out"), name)))
         else:
@@ -1044,7 +1044,7 @@ def _run_names(case, base, root, workdir, timeout):
             argv = vary_argv(c)
             argv[argv.index("--library") + 1] = os.fsdecode(lib)
     names.update(os.fsdecode(x) for x in name.split(b"/") if x)
-    return c, _run(case, c, root, workdir, argv, timeout, names=names, lenient=lenient)
+    return c, _run(case, c, root, workdir, argv, timeout, names=names)
 
 
 # ---------------------------------------------------------------------------------------------- disk full
@@ -1085,8 +1085,7 @@ def _run_diskfull(case, base, root, workdir, timeout):
             st = os.statvfs(out)
             with open(os.path.join(out, "filler.bin"), "wb") as fh:
                 fh.write(b"\0" * (st.f_bavail * st.f_frsize * p["fill"] // 100))
-        result, outcome, ran = _run(case, c, root, workdir, argv, timeout, names={"out", "filler.bin"},
-                                    lenient=True)
+        result, outcome, ran = _run(case, c, root, workdir, argv, timeout, names={"out", "filler.bin"})
         text = ran["stdout"] + ran["stderr"]
         if outcome in ("clean", "unclear") and ("internal error" in text or "please report" in text):
             outcome = "traceback"
@@ -1370,7 +1369,7 @@ def run_case(case: Case, base, workdir: str, timeout: float, keep: bool = False)
     root = os.path.join(workdir, f"{case.kind}-{case.index:04d}")
     runner = {"links": _run_links, "races": _run_races, "lists": _run_lists, "numerics": _run_numerics,
               "names": _run_names, "diskfull": _run_diskfull}[case.kind]
-    c, (result, outcome, ran) = runner(case, base, root, workdir, timeout)
+    _, (result, outcome, ran) = runner(case, base, root, workdir, timeout)
     return F.finish(result, outcome, ran, root, keep)
 
 

@@ -1,4 +1,5 @@
-"""Seeded fuzz cases for the backend's input files (issue 14), and the harness that runs and classifies them.
+"""Seeded fuzz cases for the backend's input files (issue 14), and the harness that runs and classifies them
+(also the cases of issue 30's ``tests/fuzz_surfaces.py`` and issue 42's ``tests/fuzz_round3.py``).
 
 Every case starts from a tiny valid job in its own folder and changes one thing::
 

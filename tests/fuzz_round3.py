@@ -85,7 +85,7 @@ import numpy as np  # noqa: E402
 
 KINDS = ("links", "races", "lists", "serve", "numerics", "names", "diskfull", "varykill")
 CASES = {"links": 60, "races": 40, "lists": 60, "serve": 120, "numerics": 180, "names": 60, "diskfull": 30,
-         "varykill": 16}
+         "varykill": 10}
 #: The wall-clock seconds a serve case waits for the valid request's ``served`` event.
 SERVE_WAIT_S = 10.0
 #: How long a new serve process may take to answer its first request (imports, kernels).
@@ -225,10 +225,20 @@ def _folder(case, base, root):
     return c
 
 
+#: What the commands write (a clean error may name any of them: a full disk, a planted link).
+OUTPUT_NAMES = {"out", "conditions", "generated", "generated.mp4", "export", "kitti", "backend.log", "record.json",
+                ".scpainter.lock", "variants.txt", "variation.json", "vary", "library", "v0000", "v0001",
+                "contact_sheet.png"} | {f"{p}_{f:06d}.{e}" for f in (1, 2) for p, e in
+                                        (("frame", "exr"), ("preview", "png"), ("labels", "json"),
+                                         ("labelled", "png"), ("frame", "png"))}
+
+
 def _names(c, extra=()) -> set:
+    """The names a clean error may give: the case's files and folders (``fuzz_inputs._case_names``, everything
+    under the case folder now), what the commands write (``OUTPUT_NAMES``) and ``extra``."""
     import fuzz_inputs as F
-    names = F._case_names(c, F.Case("job", 0, 0, "", None)) | {"spec.json", "variants.txt", "variation.json",
-                                                               "out", "vary", "road", "cars", "list.txt"}
+    names = F._case_names(c, F.Case("job", 0, 0, "", None)) | {"spec.json", "road", "cars", "list.txt"} | \
+        OUTPUT_NAMES
     for _, dirnames, filenames in os.walk(c.root):
         names.update(dirnames + filenames)
     names.update(extra)
@@ -268,6 +278,7 @@ def _run(case, c, root, workdir, argv, timeout, names=(), lenient=True, hooks=No
             {"event": "error", "message": f"{opt}: {usage[-1]}", "field": opt}) + "\n")
     escapes = F._changed(before, F.snapshot(root, c.job_dir))
     escapes += [f"created ../{n}" for n in sorted(set(os.listdir(workdir)) - top_before)]
+    names |= _names(c)   # and what the run made
     if hooks is not None and ran["rc"] == 0:   # opened, then refused: nothing of it was used
         escapes += [f"read {os.path.relpath(p, root)}" for p in dict.fromkeys(hooks.read_outside)]
     result = _record(case, ran)
@@ -1386,6 +1397,8 @@ def warm_up(kind: str, base, workdir: str, seed: int) -> dict:
         elif kind == "varykill":
             got = FS.start_fork_server(base, workdir).warm(kind="varykill")
             outcome, message = got["outcome"], got["message"]
+        elif "road" in _ROAD and "checked" in _ROAD:   # the road base was tried for another kind already
+            outcome, message = _ROAD["checked"]
         elif kind in ("links", "races", "lists", "numerics", "names", "diskfull"):
             case = Case(kind, -1, seed, "base: the valid input", {})
             c = _folder(case, base, os.path.join(workdir, f"{kind}-base"))
@@ -1399,6 +1412,7 @@ def warm_up(kind: str, base, workdir: str, seed: int) -> dict:
                 if placed != VARY_SPEC["variants"]:
                     outcome, message = "unclear", f"vary placed {placed} of {VARY_SPEC['variants']} on the road base"
             shutil.rmtree(c.root, ignore_errors=True)
+            _ROAD["checked"] = (outcome, message)
     except Exception as e:  # noqa: BLE001
         outcome, message = "traceback", f"{type(e).__name__}: {e}"[:400]
     return {"outcome": outcome, "seconds": round(time.perf_counter() - t0, 3), "message": message}

@@ -3,8 +3,8 @@
 glTF splats; ``tests/fuzz_splat_formats.py``), exr, clip; 810 cases) is accepted or refused cleanly;
 kills and concurrent runs on one output folder (``kill``, 36 cases) leave no mixed frames, lock or temporary behind.
 Issue 42's surfaces (``tests/fuzz_round3.py``: links, races, lists, serve, numerics, names, diskfull where a tmpfs
-can be mounted, varykill; 566 cases) write, read and delete nothing outside the case's job folder, keep list files'
-meaning, answer every malformed serve request, and never leave a mixed vary folder; 2,562 cases in all (2,532
+can be mounted, varykill; 560 cases) write, read and delete nothing outside the case's job folder, keep list files'
+meaning, answer every malformed serve request, and never leave a mixed vary folder; 2,556 cases in all (2,526
 without diskfull).
 
 1,150 seeded cases (job.json, predictions.npz, car.ply and the checkpoint's files) run through
@@ -103,7 +103,7 @@ def test_a_full_disk_is_an_error_naming_the_folder_with_nothing_half_written(fuz
 def test_killed_and_concurrent_vary_runs_never_leave_a_mixed_list(fuzz_run):
     """Issue 42's ``varykill``: vary killed before a seeded rename, then a re-run or none, or two at once: the list
     and the jobs it names are wholly one run's (or refused), no temporary after a re-run."""
-    _assert_clean(fuzz_run, ("varykill",), 16, need_field=False)
+    _assert_clean(fuzz_run, ("varykill",), 10, need_field=False)
     missed = [f"{r['index']} {r['description']}: {r['killed_before']}" for r in fuzz_run["results"]
               if r["kind"] == "varykill" and r.get("killed_before", "").startswith("(the run ended")]
     assert not missed, "kills that came after the run ended:\n" + "\n".join(missed)

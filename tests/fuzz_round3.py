@@ -16,11 +16,12 @@ Kinds (``CASES`` says how many of each; a case is reproducible from (kind, index
 * ``races``: the product's own file calls hooked in-process (``os.open``, ``open``, ``io.open``, ``os.mkdir``):
   right after the first open of an input (car.ply, predictions.npz, job.json, the road's predictions, the
   library's car) it is swapped for a link into ``outside/``; right after an output folder is made
-  (``conditions/``, ``generated/``, ``export/``, ``export/kitti``, ``v0000``, ``library``, or ``out/`` itself
-  after its first file) it is moved aside and a link into ``outside/`` put in its place. No timing: the swap
-  happens at that call. ``escape``: a file outside ``job/`` created, changed or deleted, or opened by a run that
-  then succeeded (the hooks see every open: a run that opened the swapped file and refused it used nothing). ``swapped`` in the result says the swap happened (a case whose hook never fired
-  proves nothing: the CI test asserts every one did).
+  (``conditions/``, ``generated/``, ``export/``, the first folder made in ``export/``, ``v0000``, ``library``,
+  or ``out/`` and ``out/vary`` themselves after their first file) it is moved aside and a link into ``outside/``
+  put in its place. No timing: the swap happens at that call. ``escape``: a file outside ``job/`` created,
+  changed or deleted, or opened by a run that then succeeded (the hooks see every open: a run that opened the
+  swapped file and refused it used nothing). ``swapped`` in the result says the swap happened (a case whose hook
+  never fired proves nothing: the CI test asserts every one did).
 * ``lists``: (a) ``batch --list`` files with Unicode line breaks that are not newlines (CR, VT, FF, FS, GS, RS,
   NEL, LS, PS) hiding a ``data-root:`` line in a path or a root, NUL bytes, control characters, non-UTF-8 bytes,
   5000-character lines, CRLF and a BOM (valid); the list's job, if the injected root were honoured, writes into
@@ -54,8 +55,11 @@ Kinds (``CASES`` says how many of each; a case is reproducible from (kind, index
   or two ``vary`` runs at once on one folder, their renames interleaved by the gates (one is refused by the lock,
   or the list is wholly one run's). A mixed list is ``misread``.
 
-Outcome classes are ``fuzz_inputs``' (accepted, clean, unclear, traceback, hang, escape, misread). One case by
-hand: ``.venv/bin/python -m tests.fuzz_inputs --kind links --index 7 [--keep]``.
+Outcome classes are ``fuzz_inputs``' (accepted, clean, unclear, traceback, hang, escape, misread); exit 1 with
+neither a traceback nor "an internal error" is a failure the command explains (``backend.errors.CleanFailure``:
+a busy folder, a batch with a failed job) and is classified as exit 2 (``_lenient``); argparse's usage error
+naming an option is exit 2 naming that option. One case by hand:
+``.venv/bin/python -m tests.fuzz_inputs --kind links --index 7 [--keep]``.
 """
 
 from __future__ import annotations
@@ -69,7 +73,6 @@ import os
 import random
 import select
 import shutil
-import signal
 import subprocess
 import sys
 import time
@@ -346,7 +349,8 @@ def _links_plan(rng):
     style = styles[(rng.turn // len(LINK_SITES)) % len(styles)]
     after = bool(rng.turn // len(LINK_SITES) // len(styles) % 2) or rng.random() < 0.3
     return (f"{command}: out/{site} {'an' if style[0] in 'ah' else 'a'} {style} into outside/"
-            f"{'(new)' if style == 'dangling symlink' else (target or 'target')}{' after a first run' if after else ''}",
+            f"{'(new)' if style == 'dangling symlink' else (target or 'target')}"
+            f"{' after a first run' if after else ''}",
             {"command": command, "site": site, "what": what, "target": target, "style": style, "after": after})
 
 
@@ -474,7 +478,8 @@ def _races_plan(rng):
             "mkdir-under": "after it was made"}[op]
     swapped = ("out/conditions" if what == "conditions" else f"job/{trigger}/(the first folder made in it)"
                if op == "mkdir-under" else f"job/{trigger}")
-    return (f"{command.split()[0]}: {swapped} swapped for {'an' if style[0] == 'a' else 'a'} {style} link to outside/{target} {when}"
+    return (f"{command.split()[0]}: {swapped} swapped for {'an' if style[0] == 'a' else 'a'} {style} link to "
+            f"outside/{target} {when}"
             + (" (a second run)" if what == "conditions" else ""),
             {"command": command, "trigger": trigger, "op": op, "target": target, "what": what, "style": style})
 
@@ -833,7 +838,8 @@ def _run_serve(case, base, root, workdir, timeout):
         with contextlib.suppress(Exception):
             s.proc.wait(5)
         outcome = "traceback"
-        result["message"] = f"the server ended (exit {s.proc.returncode}): {F._first_line(s.stderr_tail().strip().splitlines()[-1] if s.stderr_tail().strip() else '')}"
+        last = (s.stderr_tail().strip().splitlines() or [""])[-1]
+        result["message"] = f"the server ended (exit {s.proc.returncode}): {F._first_line(last)}"
         s.close()
         _SERVE.pop("proc", None)
     elif how == "hang":

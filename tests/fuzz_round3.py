@@ -51,7 +51,8 @@ Kinds (``CASES`` says how many of each; a case is reproducible from (kind, index
 * ``varykill``: ``vary`` (forked from ``fuzz_surfaces.ForkServer``, stopped at each atomic rename until the
   harness lets it on: ``fuzz_surfaces._gate_renames``) killed with SIGKILL or SIGTERM before a seeded rename,
   after a finished run of another spec or on a fresh folder, then a re-run (the folder must then be exactly the
-  re-run's: list and jobs, no temporary) or no re-run (the list, read back, must be wholly one run's or refused);
+  re-run's: list and jobs, no temporary) or no re-run (the list, read back, must be wholly one run's, or refused
+  by ``batch --list``);
   or two ``vary`` runs at once on one folder, their renames interleaved by the gates (one is refused by the lock,
   or the list is wholly one run's). A mixed list is ``misread``.
 
@@ -1310,9 +1311,10 @@ def run_varykill(case, base, root, workdir, keep) -> dict:
                 why.append(f"temporaries left after the re-run: {left[:3]}")
         elif state is not None and "(refused)" not in state:
             whole = [n for n in ("A", "B") if state == _VARY_REFS[n]]
-            if not whole:
-                why.append("variants.txt and the jobs it lists are neither wholly A's nor B's: "
-                           + _diff(state, _VARY_REFS["A"]) + " / " + _diff(state, _VARY_REFS["B"]))
+            # mixed: only a batch that refuses the list (however the folder says it is unfinished) is right
+            if not whole and _batch_takes(c.vary_out, os.path.join(workdir, f"varykill-{case.index}-batch.log")):
+                why.append("variants.txt and the jobs it lists are neither wholly A's nor B's, and batch --list "
+                           "takes them: " + _diff(state, _VARY_REFS["A"]) + " / " + _diff(state, _VARY_REFS["B"]))
         outcome = "misread" if why else "accepted"
         result["message"] = "; ".join(why)
         result["rc"] = 0
@@ -1325,6 +1327,16 @@ def run_varykill(case, base, root, workdir, keep) -> dict:
     else:
         shutil.rmtree(root, ignore_errors=True)
     return result
+
+
+def _batch_takes(out, log) -> bool:
+    """Whether ``batch --list out/variants.txt --command render`` runs the list (exit 0) rather than refusing it;
+    in a forked child, as the case's vary runs (``fuzz_surfaces._Child``)."""
+    import fuzz_surfaces as FS
+    ch = FS._Child(["batch", "--list", os.path.join(out, "variants.txt"), "--command", "render", "--device", "cpu"],
+                   log)
+    ended = ch.wait(time.monotonic() + FS.KILL_TIMEOUT_S)
+    return not ended or ch.rc == 0   # a batch that never ends has not refused the list either
 
 
 def _diff(got, want) -> str:

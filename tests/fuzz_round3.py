@@ -237,12 +237,16 @@ OUTPUT_NAMES = {"out", "conditions", "generated", "generated.mp4", "export", "ki
                                          ("labelled", "png"), ("frame", "png"))}
 
 
+#: The options a case gives a path or number with (an ArgumentError naming one is a clean refusal).
+OPTION_NAMES = {"--out", "--library", "--spec", "--list", "--data-root", "--variants", "--seed"}
+
+
 def _names(c, extra=()) -> set:
     """The names a clean error may give: the case's files and folders (``fuzz_inputs._case_names``, everything
     under the case folder now), what the commands write (``OUTPUT_NAMES``) and ``extra``."""
     import fuzz_inputs as F
     names = F._case_names(c, F.Case("job", 0, 0, "", None)) | {"spec.json", "road", "cars", "list.txt"} | \
-        OUTPUT_NAMES
+        OUTPUT_NAMES | OPTION_NAMES
     for _, dirnames, filenames in os.walk(c.root):
         names.update(dirnames + filenames)
     names.update(extra)
@@ -306,13 +310,14 @@ def _untimed(argv) -> dict:
 
 
 def leftovers(folder) -> list:
-    """Temporaries (``.<name>.<random>.tmp``) and empty files under ``folder`` (the lock excepted)."""
+    """Temporaries (``.<name>.<random>.tmp``) and empty files under ``folder``: outputs are written whole or not at
+    all (the lock and ``backend.log``, appended line by line, excepted)."""
     out = []
     for dirpath, dirnames, filenames in os.walk(folder):
         for n in dirnames + filenames:
             p = os.path.join(dirpath, n)
-            if (n.startswith(".") and ".tmp" in n) or (n in filenames and n != ".scpainter.lock" and
-                                                         not os.path.islink(p) and os.path.getsize(p) == 0):
+            if (n.startswith(".") and ".tmp" in n) or (n in filenames and n not in (".scpainter.lock", "backend.log")
+                                                         and not os.path.islink(p) and os.path.getsize(p) == 0):
                 out.append(os.path.relpath(p, folder))
     return out
 
@@ -1107,6 +1112,8 @@ def _run_diskfull(case, base, root, workdir, timeout):
         text = ran["stdout"] + ran["stderr"]
         if outcome in ("clean", "unclear") and ("internal error" in text or "please report" in text):
             outcome = "traceback"
+        elif outcome == "unclear" and out + os.sep in result["message"]:   # names a path inside the full folder
+            outcome = "clean"
         left = [x for x in leftovers(out) if x != "filler.bin"]
         if outcome in ("accepted", "clean", "unclear") and left:
             outcome, result["message"] = "misread", f"left behind: {left[:4]} ({result['message'][:100]})"

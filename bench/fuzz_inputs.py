@@ -1,11 +1,18 @@
-"""The fuzz cases of issues 14 and 30 on this checkout: per input kind, how many are accepted, refused cleanly, or end badly.
+"""The fuzz cases of issues 14, 30 and 42 on this checkout: per input kind, how many are accepted, refused cleanly, or end badly.
 
-    .venv/bin/python bench/fuzz_inputs.py [--label before|after] [--kinds job npz ply checkpoint mesh splat exr clip kill] [--seed 14]
+    .venv/bin/python bench/fuzz_inputs.py [--label before|after] [--kinds job npz ply checkpoint mesh splat exr clip kill
+                                          links races lists serve numerics names diskfull varykill] [--seed 14]
                                           [--timeout 5] [--out bench/results/fuzz_inputs.json]
+
+Issue 42's kinds alone, as the closing note's before/after table (``tests/fuzz_round3.py``; diskfull needs root)::
+
+    .venv/bin/python bench/fuzz_inputs.py --label before --kinds links races lists serve numerics names diskfull varykill \
+                                          --out bench/results/fuzz_round3_before.json
 
 Runs the cases of ``tests/fuzz_inputs.py`` (the same ones ``tests/backend/test_fuzz_inputs.py`` asserts on) and
 prints the table of the closing note (input kind, cases, accepted, clean errors, unclear, tracebacks, hangs,
-escapes, misreads), then the failing cases grouped by family with one example each. Outcome classes are defined in
+escapes, misreads), then the failing cases grouped by family with one example each, then by failure class (kind,
+outcome, the message with paths and numbers blanked: one line per defect). Outcome classes are defined in
 ``tests/fuzz_inputs.py``: ``clean`` = exit 2 with an error naming the file; ``unclear`` = exit 2 naming none;
 ``traceback`` = exit 1 or a traceback; ``hang`` = no answer within the timeout; ``escape`` = a file outside the
 job folder created, changed or deleted; ``misread`` = a PLY rewritten without changing its Gaussians, accepted with
@@ -26,6 +33,7 @@ sys.path.insert(0, ROOT)
 sys.path.insert(0, os.path.join(ROOT, "tests"))
 
 import fuzz_inputs as F  # noqa: E402
+import fuzz_round3  # noqa: E402
 import fuzz_surfaces  # noqa: E402
 from scpainter_blender.core import outputs  # noqa: E402
 import provenance  # noqa: E402  (bench/, the script's folder)
@@ -42,8 +50,9 @@ def compact(r: dict) -> dict:
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--label", default="after", help="before | after (recorded in the JSON)")
-    p.add_argument("--kinds", nargs="+", choices=F.KINDS, default=list(F.INPUT_KINDS + fuzz_surfaces.CI_KINDS),
-                   help="default: the kinds the test runs (all)")
+    p.add_argument("--kinds", nargs="+", choices=F.KINDS,
+                   default=list(F.INPUT_KINDS + fuzz_surfaces.CI_KINDS + fuzz_round3.ci_kinds()),
+                   help="default: the kinds the test runs (all; diskfull where a tmpfs can be mounted)")
     p.add_argument("--seed", type=int, default=F.SEED)
     p.add_argument("--timeout", type=float, default=F.TIMEOUT_S, help="seconds per case before it is a hang")
     p.add_argument("--out", default=os.path.join(ROOT, "bench", "results", "fuzz_inputs.json"))
@@ -55,6 +64,9 @@ def main() -> int:
             print(f"  {r['kind']:<10} {r['index']:>4} {r['outcome']:<9} {r['description'][:60]:<60} "
                   f"{r['message'][:110]}", flush=True)
 
+    if "diskfull" in args.kinds and not fuzz_round3.can_mount():
+        print("diskfull left out: it needs root and `mount -t tmpfs` (fuzz_round3.can_mount)")
+        args.kinds = [k for k in args.kinds if k != "diskfull"]
     t0 = time.perf_counter()
     run = F.run(args.kinds, seed=args.seed, timeout=args.timeout, on_result=on_result)
     seconds = time.perf_counter() - t0
@@ -74,6 +86,11 @@ def main() -> int:
         print("\nfailing cases by family (kind, family, outcome, count, an example):")
         for kind, family, outcome, count, example in groups:
             print(f"  {kind:<10} {family:<28} {outcome:<9} {count:>3}  {example[:200]}")
+    classes = F.failure_classes(results)
+    if classes:
+        print("\nfailure classes (kind, outcome, count, message with paths and numbers blanked; an example):")
+        for kind, outcome, msg, count, example in classes:
+            print(f"  {kind:<10} {outcome:<9} {count:>3}  {msg}  [{example}]")
 
     os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
     outputs.write_json(args.out, {
@@ -83,6 +100,7 @@ def main() -> int:
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version()},
         "summary": summary,
         "families": [dict(zip(("kind", "family", "outcome", "count", "example"), g)) for g in groups],
+        "failure_classes": [dict(zip(("kind", "outcome", "message", "count", "example"), g)) for g in classes],
         # every case is reproducible from (kind, index, seed): only the ones that end badly are kept
         "failing_cases": [compact(r) for r in results if r["outcome"] in F.FAILURES]})
     print(f"\nwrote {os.path.relpath(args.out)}")

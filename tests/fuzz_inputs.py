@@ -1,4 +1,5 @@
-"""Seeded fuzz cases for the backend's input files (issue 14), and the harness that runs and classifies them.
+"""Seeded fuzz cases for the backend's input files (issue 14), and the harness that runs and classifies them
+(also the cases of issue 30's ``tests/fuzz_surfaces.py`` and issue 42's ``tests/fuzz_round3.py``).
 
 Every case starts from a tiny valid job in its own folder and changes one thing::
 
@@ -86,12 +87,16 @@ import numpy as np  # noqa: E402
 
 if __name__ == "__main__":   # a worker (python tests/fuzz_inputs.py --worker): fuzz_surfaces imports us by name
     sys.modules.setdefault("fuzz_inputs", sys.modules[__name__])
+import fuzz_round3  # noqa: E402
 import fuzz_surfaces  # noqa: E402
 
-#: The input kinds of issue 14 (this module's mutations); issue 30's surfaces follow (``fuzz_surfaces.KINDS``).
+#: The input kinds of issue 14 (this module's mutations); issue 30's surfaces follow (``fuzz_surfaces.KINDS``),
+#: then issue 42's (``fuzz_round3.KINDS``: links, races, lists, serve, numerics, names, diskfull, varykill).
 INPUT_KINDS = ("job", "npz", "ply", "checkpoint")
-KINDS = INPUT_KINDS + fuzz_surfaces.KINDS
-CASES = {"job": 480, "npz": 270, "ply": 270, "checkpoint": 130, **fuzz_surfaces.CASES}
+#: The kinds whose cases another module makes and runs (``make_case``, ``run_case``, ``warm_up``).
+SURFACE_KINDS = fuzz_surfaces.KINDS + fuzz_round3.KINDS
+KINDS = INPUT_KINDS + SURFACE_KINDS
+CASES = {"job": 480, "npz": 270, "ply": 270, "checkpoint": 130, **fuzz_surfaces.CASES, **fuzz_round3.CASES}
 SEED = 14
 TIMEOUT_S = 5.0                  # CPU seconds a case may use in its worker (a loaded machine does not make a hang)
 WALL_FACTOR = 12.0               # ... and wall seconds, as many times that: a case blocked without using CPU
@@ -1822,6 +1827,8 @@ def make_case(kind: str, index: int, seed: int, base: Base) -> Case:
     by (seed, kind, index), so a case is the same on every run and machine."""
     if kind in fuzz_surfaces.KINDS:
         return fuzz_surfaces.make_case(kind, index, seed)
+    if kind in fuzz_round3.KINDS:
+        return fuzz_round3.make_case(kind, index, seed)
     families = FAMILIES[kind]
     slots = _schedule(families)
     slot = index % len(slots)
@@ -2050,6 +2057,8 @@ def run_case(case: Case, base: Base, workdir: str, timeout: float = TIMEOUT_S, c
     """Build, run and classify one case in this process; returns a JSON-able result."""
     if case.kind in fuzz_surfaces.KINDS:
         return fuzz_surfaces.run_case(case, base, workdir, timeout, keep)
+    if case.kind in fuzz_round3.KINDS:
+        return fuzz_round3.run_case(case, base, workdir, timeout, keep)
     root = os.path.join(workdir, f"{case.kind}-{case.index:04d}")
     c = prepare(case, base, root)
     argv = command(case, c, check)
@@ -2121,7 +2130,7 @@ def worker(fd: int, slot: int, seed: int, timeout: float, workdir: str, checkpoi
     import torch
 
     base = Base(os.path.join(workdir, f"base-{slot}"))
-    if "kill" in surfaces:   # forked before numba's threading layer is launched here (fuzz_surfaces.ForkServer)
+    if {"kill", "varykill"} & set(surfaces):   # forked before numba's threading layer is launched here (fuzz_surfaces.ForkServer)
         fuzz_surfaces.start_fork_server(base, os.path.join(workdir, f"w{slot}"))
     torch.set_num_threads(1)       # tiny cases: threads only cost time, more so on a shared 2-core machine
     numba.set_num_threads(1)
@@ -2130,8 +2139,9 @@ def worker(fd: int, slot: int, seed: int, timeout: float, workdir: str, checkpoi
     for kind in ("job", "checkpoint") if checkpoint else ("job",):   # warm-up outside the timeouts
         r = run_case(base_case(kind, seed), base, os.path.join(workdir, f"w{slot}"), timeout=600, check=check)
         warm[kind] = {"outcome": r["outcome"], "seconds": r["seconds"], "message": r["message"]}
-    for kind in surfaces:     # issue 30's kinds: their valid inputs, and the references misreads are judged by
-        r = fuzz_surfaces.warm_up(kind, base, os.path.join(workdir, f"w{slot}"), seed)
+    for kind in surfaces:     # issue 30's and 42's kinds: their valid inputs, the references misreads are judged by
+        r = (fuzz_round3 if kind in fuzz_round3.KINDS else fuzz_surfaces).warm_up(kind, base,
+                                                                                 os.path.join(workdir, f"w{slot}"), seed)
         warm[kind] = {"outcome": r["outcome"], "seconds": r["seconds"], "message": r["message"]}
     _limit_resources()
     import backend
@@ -2229,10 +2239,11 @@ class _Pool:
         self.results, self.live, self.started = {}, {}, 0
         self.meta = {"base": {}, "check": None, "backend": None}
         # a kill case runs several backend processes in turn, each under its own (longer) timeout
-        self.case_wait = WALL_FACTOR * timeout + 15 + (fuzz_surfaces.KILL_TIMEOUT_S * 4 if any(x[0] == "kill" for x in todo)
+        self.case_wait = WALL_FACTOR * timeout + 15 + (fuzz_surfaces.KILL_TIMEOUT_S * 4 if any(x[0] in ("kill", "varykill")
+                                                                                                for x in todo)
                                              else 0)
         self.slots = [0] + ([1] if workers > 1 and self.other else [])
-        self.surfaces = tuple(k for k in fuzz_surfaces.KINDS if any(x[0] == k for x in todo))
+        self.surfaces = tuple(k for k in SURFACE_KINDS if any(x[0] == k for x in todo))
 
     def start(self, slot) -> None:
         self.started += 1
@@ -2413,6 +2424,22 @@ def families(results) -> list:
                    for k, g in groups.items()), key=lambda x: (KINDS.index(x[0]), -x[3]))
 
 
+def failure_classes(results) -> list:
+    """[(kind, outcome, message pattern, count, an example "#index description")] of the failing outcomes: the
+    message with paths, hex keys and numbers blanked, so one defect is one line, largest first."""
+    groups = {}
+    for r in results:
+        if r["outcome"] not in FAILURES:
+            continue
+        msg = re.sub(r"(/[^\s'\":,;()]+)+", "<path>", r.get("message") or "")
+        msg = re.sub(r"\b[0-9a-f]{8,}\b", "<key>", msg)
+        msg = re.sub(r"\d+", "N", msg)[:120]
+        g = groups.setdefault((r["kind"], r["outcome"], msg), [0, r])
+        g[0] += 1
+    return sorted(((k[0], k[1], k[2], g[0], f"#{g[1]['index']} {g[1]['description'][:100]}")
+                   for k, g in groups.items()), key=lambda x: (KINDS.index(x[0]), -x[3]))
+
+
 # ---------------------------------------------------------------------------------------------- command line
 
 def _cli(argv=None) -> int:
@@ -2443,13 +2470,13 @@ def _cli(argv=None) -> int:
         return 0
     if a.kind is None or a.index is None:
         p.error("give --kind and --index (or --list)")
-    if a.kind == "kill":   # before the warm-up below launches numba's threading layer in this process
+    if a.kind in ("kill", "varykill"):   # before the warm-up below launches numba's threading layer in this process
         fuzz_surfaces.start_fork_server(base, workdir)
     check = has_check_option()
     warm = run_case(base_case(a.kind if a.kind == "checkpoint" else "job", a.seed), base, workdir, 600, check)
     print(f"warm-up (the valid input): {warm['outcome']} in {warm['seconds']:.2f} s {warm['message']}")
-    if a.kind in fuzz_surfaces.KINDS:
-        warm = fuzz_surfaces.warm_up(a.kind, base, workdir, a.seed)
+    if a.kind in SURFACE_KINDS:
+        warm = (fuzz_round3 if a.kind in fuzz_round3.KINDS else fuzz_surfaces).warm_up(a.kind, base, workdir, a.seed)
         print(f"warm-up ({a.kind}): {warm['outcome']} in {warm['seconds']:.2f} s {warm['message']}")
     case = make_case(a.kind, a.index, a.seed, base)
     r = run_case(case, base, workdir, a.timeout, check, keep=a.keep)

@@ -2008,15 +2008,17 @@ class ForkServer:
         line, self.buf = self.buf.split(b"\n", 1)
         return json.loads(line)
 
-    def warm(self) -> dict:
-        self._send({"op": "warm"})
-        return self._reply(1200) or {"outcome": "hang", "message": "the kill references took over 20 minutes"}
+    def warm(self, kind="kill") -> dict:
+        """Build the references of ``kind``'s cases (kill, or ``fuzz_round3``'s varykill) in the server."""
+        self._send({"op": "warm", "kind": kind})
+        return self._reply(1200) or {"outcome": "hang", "message": f"the {kind} references took over 20 minutes"}
 
-    def case(self, index, seed, workdir, keep) -> dict | None:
-        """Run kill case ``index`` in a forked runner; its result dict, or None if it did not end in time (the
-        runner's process group is then killed)."""
-        out = os.path.join(workdir, f"kill-{index}-result.json")
-        self._send({"op": "case", "index": index, "seed": seed, "workdir": workdir, "keep": keep, "out": out})
+    def case(self, index, seed, workdir, keep, kind="kill") -> dict | None:
+        """Run case ``index`` of ``kind`` (kill, or ``fuzz_round3``'s varykill) in a forked runner; its result
+        dict, or None if it did not end in time (the runner's process group is then killed)."""
+        out = os.path.join(workdir, f"{kind}-{index}-result.json")
+        self._send({"op": "case", "index": index, "seed": seed, "workdir": workdir, "keep": keep, "out": out,
+                    "kind": kind})
         started = self._reply(60)
         if started is None:
             raise RuntimeError("the kill cases' fork server does not answer")
@@ -2064,7 +2066,11 @@ def _serve(sock, base, workdir):
         if req["op"] == "warm":
             t0 = time.perf_counter()
             try:
-                _kill_references(F, base, os.path.join(workdir, "kill-refs"))
+                if req.get("kind", "kill") == "kill":
+                    _kill_references(F, base, os.path.join(workdir, "kill-refs"))
+                else:
+                    import fuzz_round3
+                    fuzz_round3.varykill_references(base, workdir)
                 answer = {"outcome": "accepted", "message": ""}
             except Exception as e:  # noqa: BLE001
                 answer = {"outcome": "traceback", "message": f"{type(e).__name__}: {e}"[:400]}
@@ -2077,8 +2083,14 @@ def _serve(sock, base, workdir):
             try:
                 os.setpgid(0, 0)
                 sock.close()
-                case = make_case("kill", req["index"], req["seed"])
-                result = run_case(case, base, req["workdir"], KILL_TIMEOUT_S, req["keep"])
+                if req.get("kind", "kill") == "kill":
+                    case = make_case("kill", req["index"], req["seed"])
+                    result = run_case(case, base, req["workdir"], KILL_TIMEOUT_S, req["keep"])
+                else:   # fuzz_round3's varykill: vary forked from here
+                    import fuzz_round3
+                    case = fuzz_round3.make_case(req["kind"], req["index"], req["seed"])
+                    result = fuzz_round3.run_varykill(case, base, os.path.join(
+                        req["workdir"], f"{case.kind}-{case.index:04d}"), req["workdir"], req["keep"])
                 with open(req["out"] + ".part", "w") as out:
                     json.dump(result, out)
                 os.replace(req["out"] + ".part", req["out"])

@@ -169,7 +169,7 @@ CROSS_CUTTING = {
     "tests/bench/test_inputs_round3.py": "bench/inputs_round3.py keeps running (a benchmark's smoke test)",
     "tests/street/test_street.py": "the ground-truth street end to end: build, render, predictions, dataset cache",
     "tests/backend/test_fuzz_inputs.py": "hostile input files of every kind through every command "
-                                         "(tests/fuzz_inputs.py, tests/fuzz_surfaces.py)",
+                                         "(tests/fuzz_inputs.py, tests/fuzz_surfaces.py, tests/fuzz_round3.py)",
     "tests/backend/test_output_safety.py": "output folders across commands: confinement, one run per folder, "
                                            "clean-up of only our own files",
     "tests/scene/test_extension.py": "the extension as Blender sees it: built, validated, installed, registered; "

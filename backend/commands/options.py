@@ -129,7 +129,9 @@ def check_names(parser: argparse.ArgumentParser, args: argparse.Namespace) -> No
     """``ArgumentError`` naming the option (or positional argument) whose value is not UTF-8: a file name's bytes
     that are not (Python holds them as surrogates, ``\\udcff``) could not be written into the jobs, records,
     lists, events and logs that name it as text, nor read back from them (``core.files.read_json`` refuses such
-    strings), so such a path is refused before any work rather than half-used."""
+    strings), so such a path is refused before any work rather than half-used. Likewise a value holding a NUL
+    byte, which no file name can hold (the OS calls raise ValueError on it): the one check for every command's
+    options."""
     from scpainter_blender.core.errors import ArgumentError
 
     subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]  # noqa: SLF001
@@ -137,11 +139,16 @@ def check_names(parser: argparse.ArgumentParser, args: argparse.Namespace) -> No
     for action in (command or parser)._actions:  # noqa: SLF001
         value = getattr(args, action.dest, None)
         for v in value if isinstance(value, list) else [value]:
-            if isinstance(v, str) and not _is_text(v):
-                name = next((o for o in action.option_strings if o.startswith("--")), action.dest)
+            if not isinstance(v, str):
+                continue
+            name = next((o for o in action.option_strings if o.startswith("--")), action.dest)
+            if not _is_text(v):
                 raise ArgumentError(name, f"{v!r} is not UTF-8 text (a file name's bytes that are not are never "
                                           "written into jobs, records or events)",
                                     hint="rename the file or folder to a UTF-8 name")
+            if "\0" in v:
+                raise ArgumentError(name, f"{v!r} holds a NUL byte, which no file name can hold",
+                                    hint="give the path without it")
 
 
 def _is_text(value: str) -> bool:

@@ -52,12 +52,17 @@ def check_destination(out: str, output_dir: str, given: bool, fmt: str | None = 
     """What an export may replace: nothing, an empty folder, or a previous export (its ``EXPORT_RECORD``, listing
     every file it wrote: ``outputs.foreign_files``) — of the same format ``fmt`` when given; never a file, a link,
     a folder with a file its record does not list (a planted ``export.json`` protects nothing), a folder holding
-    the job's output folder, or (the default) one under an ``export/`` that is a link. ``given``: the user named
+    the job's output folder, a name longer than its file system allows (``outputs.name_too_long``), or (the
+    default) one under an ``export/`` that is a link. ``given``: the user named
     it (``--out``: an ``ArgumentError``), else the default (an ``InputError`` naming the folder)."""
     def refuse(message, hint="give a new or empty folder, or a previous export of this command"):
         raise (errors.ArgumentError("--out", f"{out} {message}", hint) if given
                else errors.InputError(out, "(folder)", message, hint))
 
+    if (long := outputs.name_too_long(out)) is not None:   # before anything is made: named, not its temporary
+        raise errors.InputError(out, "--out" if given else "(folder)",
+                                f"has a name too long for its file system ({long})",
+                                hint="choose a shorter destination or a folder nearer the root")
     real, real_out = os.path.realpath(out), os.path.realpath(output_dir)
     if real == real_out or real_out.startswith(real.rstrip(os.sep) + os.sep):
         refuse("holds the job's output folder: an export there would replace it")

@@ -165,6 +165,19 @@ def test_long_non_utf8_and_nul_names_are_refused_by_name(tmp_path):
 
 
 
+@pytest.mark.parametrize("command", [("vary", "{job}", "--out"), ("export", "{job}", "--format", "kitti", "--out"),
+                                     ("render", "{job}", "--data-root")])
+def test_a_nul_byte_in_a_path_option_is_refused_naming_it(tmp_path, command):
+    """Issue 42 (fuzz names 7): `vary --out` with a NUL byte gave a traceback (ValueError: embedded null byte).
+    The one check of every command's options (``check_names``) refuses it naming the option; nothing is made."""
+    job = small_job(tmp_path / "a")
+    args = [a.format(job=job) for a in command] + [str(tmp_path / "dir\x00x")]
+    code, evs, err = run(*args, "--device", "cpu") if command[0] != "vary" else run(*args)
+    assert code == events.EXIT_BAD_INPUT and "Traceback" not in err, (evs, err)
+    assert evs[-1]["field"] == command[-1] and "NUL byte" in evs[-1]["message"], evs[-1]
+    assert sorted(os.listdir(tmp_path / "a")) == ["car.ply", "job.json", "predictions.npz"]
+
+
 def test_check_refuses_an_output_folder_name_the_run_could_not_make(tmp_path):
     """Issue 42 (h4's leftover): ``render --check`` passed a job whose ``output_dir`` is longer than the file system
     allows, and the run then failed; now the check refuses it naming ``output_dir``, and makes nothing."""

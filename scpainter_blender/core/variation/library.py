@@ -88,7 +88,8 @@ class LibraryAsset:
     def recoloured(self, degrees: int, folder: str) -> str:
         """The Gaussian file with its colours' hue turned by ``degrees`` (whole degrees; 0: ``ply`` itself),
         written once into ``folder`` as ``<name>.<file key>.hue±DDD.ply`` (INRIA layout, every SH coefficient
-        turned by ``colors.hue_rotation``)."""
+        turned by ``colors.hue_rotation``); the temporaries a killed run left for that name go first (``folder``:
+        the variation run's own ``library/``, under its lock)."""
         if degrees == 0:
             return self.ply
         out = os.path.join(folder, f"{self.name}.{asset_frame.file_key(self.ply)}.hue{int(degrees):+04d}.ply")
@@ -99,6 +100,7 @@ class LibraryAsset:
             ply.f_rest = np.ascontiguousarray(np.einsum("ij,njk->nik", M, ply.f_rest))
             ply.format = "inria"
             outputs.own_folder(*os.path.split(folder))   # never through a link planted there
+            outputs.remove_temporaries(folder, [os.path.basename(out)])   # what a killed run left for it
             inria.write_ply(out, ply, comment=f"{self.name}: hue turned {int(degrees):+d} degrees by SCPainter")
         return out
 
@@ -141,6 +143,7 @@ def load_asset(path, cache: str, convert_mesh=None, mesh_count: int = 200_000, c
         ply_path = os.path.join(cache, asset_frame.mesh_gaussians_name(path, mesh_count))
         if not os.path.isfile(ply_path):
             outputs.own_folder(*os.path.split(cache))   # never through a link planted there
+            outputs.remove_temporaries(cache, [os.path.basename(ply_path)])   # what a killed run left for it
             convert_mesh(path, ply_path, mesh_count)
     ply = reader.read(ply_path)
     keep, dropped = valid_rows(ply)

@@ -517,8 +517,8 @@ def _make_variants(layout, owned, base_path, spec, convert_mesh, progress, mesh_
 
 def _publish(layout: VariationLayout, index: int, job: job_mod.Job) -> None:
     """Variant ``index``'s folder with its job: a new folder built under a temporary name and renamed whole; an
-    existing one (an earlier run's: ``check_out``) opened without following a link, its job rewritten only when it
-    changed (``_save_if_changed``)."""
+    existing one (an earlier run's: ``check_out``) opened without following a link, the job file's temporaries a
+    killed run left removed, its job rewritten only when it changed (``_save_if_changed``)."""
     name = VariationLayout.variant_name(index)
     folder = os.path.join(layout.root, name)
     if not os.path.lexists(folder):
@@ -526,6 +526,8 @@ def _publish(layout: VariationLayout, index: int, job: job_mod.Job) -> None:
             job_mod.save(os.path.join(tmp, os.path.basename(layout.variant(index).job)), job)
         return
     outputs.own_folder(layout.root, name)
+    # what a killed run left half-written there: the temporaries of the job file (only its name)
+    outputs.remove_temporaries(folder, [os.path.basename(layout.variant(index).job)])
     _save_if_changed(layout.variant(index).job, job)
 
 

@@ -280,3 +280,18 @@ def test_a_file_put_in_the_destination_while_frames_render_is_never_deleted(tmp_
     assert e.value.path == str(dest) and "thesis.tex" in e.value.message
     assert os.listdir(dest) == ["thesis.tex"] and (dest / "thesis.tex").read_text() == "keep me"
     assert sorted(os.listdir(tmp_path)) == ["dataset", "job"]      # nothing left beside it
+
+
+def test_a_destination_path_too_long_is_refused_naming_it_before_anything_is_made(tmp_path):
+    """Issue 42 (fuzz names 39): `export --out` with a 4,200-byte path (every name short) failed naming the export's
+    temporary folder (`.dddd….tmp`); now the destination itself is refused (field --out) and nothing is made."""
+    from scpainter_blender.core import job as J
+    from tests_support import small_job
+
+    job = small_job(tmp_path / "job")
+    dest = os.path.join(tmp_path, *["d" * 200] * 21)          # 21 names of 200 bytes: beyond PATH_MAX (4,096)
+    before = sorted(os.listdir(tmp_path))
+    with pytest.raises(errors.InputError) as e:
+        command.export_job(job, J.load(job), "kitti", out=dest)
+    assert (e.value.path, e.value.field) == (dest, "--out") and "too long for its file system" in e.value.message
+    assert sorted(os.listdir(tmp_path)) == before                 # no folder of the destination, no temporary

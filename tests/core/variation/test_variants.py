@@ -417,3 +417,21 @@ def test_car_names_skip_the_taken_ones():
     assert variants.car_names(3, []) == ["car_01", "car_02", "car_03"]
     assert variants.car_names(3, ["car_01", "car_03", "truck"]) == ["car_02", "car_04", "car_05"]
     assert variants.car_names(0, ["car_01"]) == []
+
+
+def test_recolouring_removes_the_temporaries_a_killed_run_left_for_its_file(tmp_path):
+    """Issue 42 (fuzz varykill 4, 9): a run killed before renaming a recoloured car left
+    `library/.car.ply.<key>.hue+019.ply.<random>.tmp`, which the re-run kept. Now writing that file first removes
+    the temporaries left for its name, and only those."""
+    from scpainter_blender.core.variation import library as library_mod
+
+    shapes.save_as_amodal3r(str(tmp_path / "car.ply"), shapes.procedural_car_gaussians(count=2000, seed=7))
+    asset = library_mod.load_asset(tmp_path / "car.ply", str(tmp_path / "library"))
+    folder = tmp_path / "library"
+    folder.mkdir()
+    name = os.path.basename(asset.recoloured(19, str(tmp_path / "elsewhere")))   # the name it writes
+    (folder / f".{name}.0f2c2660.tmp").write_bytes(b"ply\nhalf")               # killed before its rename
+    (folder / f".{name[:-4]}.other.ply.0f2c2660.tmp").write_bytes(b"not ours")  # another name's: stays
+    out = asset.recoloured(19, str(folder))
+    assert sorted(os.listdir(folder)) == sorted([name, f".{name[:-4]}.other.ply.0f2c2660.tmp"])
+    assert os.path.basename(out) == name

@@ -125,3 +125,19 @@ def test_a_killed_run_leaves_no_list_and_its_next_run_cleans_up(street, tmp_path
         variants.make_variants(base, spec(variants=1, seed=9), str(out), data_roots=(street.root,))
     assert e.value.path == str(out / "v0000") and "symbolic link" in e.value.message
     assert os.listdir(outside) == []
+
+
+def test_a_rerun_removes_the_temporaries_a_killed_run_left_in_its_variant_folders(street, tmp_path):
+    """Issue 42 (fuzz varykill 8): a run killed before renaming a variant's job.json left `v0001/.job.json.….tmp`,
+    which the next run kept. Now the next run removes the temporaries of the names it writes there, and only
+    those (a render's temporary of another name in the folder stays)."""
+    base = str(tmp_path / "base" / "job.json")
+    street_base_job(street, base)
+    out = tmp_path / "out"
+    first = variants.make_variants(base, spec(), str(out), data_roots=(street.root,))
+    assert first["summary"]["placed"] == 2
+    (out / "v0001" / ".job.json.0f2c2660.tmp").write_text('{"half')       # killed before its rename
+    (out / "v0001" / ".frames.json.0f2c2660.tmp").write_text("a render's")  # not a name vary writes
+    again = variants.make_variants(base, spec(), str(out), data_roots=(street.root,))
+    assert again["summary"]["placed"] == 2
+    assert sorted(os.listdir(out / "v0001")) == [".frames.json.0f2c2660.tmp", "job.json"]

@@ -318,9 +318,11 @@ import os, runpy, sys
 # temporary on the descriptor named by SCPAINTER_TEST_FD and waits for a byte on standard input (or a SIGKILL)
 out, report = os.path.abspath(sys.argv[1]), int(os.environ["SCPAINTER_TEST_FD"])
 real = os.replace
+def where(name, fd):  # outputs renames relative to the folder's descriptor (dst_dir_fd): the full path
+    return os.path.join(os.readlink(f"/proc/self/fd/{fd}"), name) if fd is not None else os.path.abspath(name)
 def held(src, dst, *args, **kwargs):
-    if os.path.abspath(dst) == out:
-        os.write(report, (src + "\n").encode())
+    if where(dst, kwargs.get("dst_dir_fd")) == out:
+        os.write(report, (where(src, kwargs.get("src_dir_fd")) + "\n").encode())
         os.read(0, 1)
     return real(src, dst, *args, **kwargs)
 os.replace = held

@@ -75,7 +75,8 @@ def build(out: str, count: int, frames: int, W: int, H: int) -> tuple:
     spec = spec_mod.VariationSpec(variants=count + count // 10 + 2, seed=0, library=lib, resolution=(W, H),
                                   shifts_m=(-2.0, 0.0, 2.0), lane_change_probability=0.2, car_count=(1, 3))
     t0 = time.perf_counter()
-    variants.make_variants(base, spec, os.path.join(out, "variants"))
+    variants.make_variants(base, spec, os.path.join(out, "variants"),
+                           data_roots=(street.root,))   # the recording the base reads: trusted
     t_vary = time.perf_counter() - t0
     layout = VariationLayout(os.path.join(out, "variants"))
     listed = read_job_list(layout.list)

@@ -56,7 +56,8 @@ def main(argv=None) -> int:
     spec = spec_mod.VariationSpec(variants=args.variants, seed=0, library=lib, resolution=(W, H),
                                   shifts_m=(-3.0, -2.0, 0.0, 2.0, 3.0), lane_change_probability=0.2)
     t0 = time.perf_counter()
-    manifest = variants.make_variants(base, spec, os.path.join(out, "variants"))
+    manifest = variants.make_variants(base, spec, os.path.join(out, "variants"),
+                                      data_roots=(street.root,))   # the recording the base reads: trusted
     t_vary = time.perf_counter() - t0
     layout = VariationLayout(os.path.join(out, "variants"))
     with open(layout.list) as f:

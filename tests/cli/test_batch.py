@@ -91,8 +91,7 @@ def test_batch_on_ray_exports_the_scenes_and_runs_every_job_as_one_ray_batch(add
     os.makedirs(tmp_path / "a")
     a = CS.street_blend(street, tmp_path / "a")
     b = str(tmp_path / "b" / "street.blend")               # a second scene, its own output folder beside it
-    os.makedirs(os.path.dirname(b))
-    shutil.copy(a, b)
+    shutil.copytree(tmp_path / "a", tmp_path / "b")         # the project folder: the .blend names car.ply as //car.ply
     digest = hashlib.sha256(open(a, "rb").read()).hexdigest()
     job = small_job(tmp_path / "job")                       # a job file: straight to the backend, as given
     common = ["--device", "cpu", "--backend-python", sys.executable, "--ray", ray_cluster]
@@ -100,7 +99,7 @@ def test_batch_on_ray_exports_the_scenes_and_runs_every_job_as_one_ray_batch(add
     code = cli.execute(["batch", *items, "--command", "render", *common])
     captured = capsys.readouterr()
     ev = json.loads([line for line in captured.out.splitlines() if line.startswith("{")][-1])
-    assert code == 1 and ev["failed"] == 1, ev                                 # the missing scene, and only it
+    assert code == 1 and ev["failed"] == 1, [r.get("error") for r in ev["items"]]  # the missing scene, and only it
     assert [r["item"] for r in ev["items"]] == items
     assert [r["status"] for r in ev["items"]] == ["ok", "failed", "ok", "ok"]
     assert "missing.blend" in ev["items"][1]["error"] and "worker" not in ev["items"][1]   # never sent to Ray

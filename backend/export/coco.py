@@ -35,7 +35,7 @@ import os
 
 import numpy as np
 
-from scpainter_blender.core import categories, labels
+from scpainter_blender.core import categories, labels, outputs
 
 from . import common
 
@@ -127,14 +127,14 @@ def write(folder: str, frames: list, progress=None) -> dict:
     """The dataset into ``folder`` (existing, empty); ``progress(i)`` after each frame's image. Returns
     {"frames", "objects", "ignore_regions"} (objects: the ``iscrowd`` 0 annotations; ignore_regions: the
     ``iscrowd`` 1 ones)."""
-    os.makedirs(os.path.join(folder, IMAGES))
+    outputs.make_folder(os.path.join(folder, IMAGES))
     names = [common.index_name(i, ".png") for i in range(len(frames))]
     for i, (fr, name) in enumerate(zip(frames, names)):
         common.copy_image(fr.image, os.path.join(folder, IMAGES, name))
         if progress:
             progress(i)
     data = dataset(frames, names)
-    with open(os.path.join(folder, ANNOTATIONS), "w", encoding="utf-8") as f:
+    with outputs.atomic_write(os.path.join(folder, ANNOTATIONS), "w") as f:
         json.dump(data, f, allow_nan=False)
     crowd = sum(a["iscrowd"] for a in data["annotations"])
     return {"frames": len(frames), "objects": len(data["annotations"]) - crowd, "ignore_regions": crowd}

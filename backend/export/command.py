@@ -158,7 +158,7 @@ def checked_paths(job_path: str, job: job_mod.Job, allow_outside: bool = False, 
     ``allow_outside``), its output folder checked and made (``paths["output_dir"]``, absolute)."""
     paths = job_inputs.check_inputs(job_path, job, allow_outside, data_roots)
     outputs.check_output(paths["output_dir"], allow_outside)
-    return {**paths, "output_dir": outputs.make_folder(paths["output_dir"], "output_dir")}
+    return {**paths, "output_dir": outputs.make_folder(paths["output_dir"], "output_dir", root=True)}
 
 
 @contextlib.contextmanager

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from scpainter_blender.core import categories, errors, labels
+from scpainter_blender.core import categories, errors, labels, outputs
 
 #: Our pixel coordinates minus this are OpenCV's (pixel centres at integers).
 OPENCV_SHIFT = 0.5
@@ -45,8 +45,10 @@ def index_name(index: int, ext: str) -> str:
 
 
 def copy_image(src: str, dst: str) -> None:
-    """The frame's PNG into the dataset (a copy: the export must survive a later render or generate)."""
-    shutil.copyfile(src, dst)
+    """The frame's PNG into the dataset (a copy: the export must survive a later render or generate), written as
+    every output is (``outputs.atomic_path``: relative to the checked folder, never through a link)."""
+    with outputs.atomic_path(dst) as tmp:
+        shutil.copyfile(src, tmp)
 
 
 def exported(obj: dict, hidden: bool = False) -> bool:

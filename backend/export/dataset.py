@@ -229,7 +229,7 @@ class _Writer:
         self.tracking_sets: dict = {s: [] for s in splits}
         self.tracking_frames: list = []
         for f in formats:
-            os.makedirs(os.path.join(root, f))
+            outputs.make_folder(os.path.join(root, f))
 
     def add(self, m: Member, frames: list) -> None:
         """Job ``m``'s frames (``common.ExportFrame``, in its order) in every format; their manifest rows."""
@@ -250,7 +250,7 @@ class _Writer:
 
     def _coco(self, m: Member, frames: list, names: list) -> int:
         folder = os.path.join(self.root, "coco", COCO_IMAGES)
-        os.makedirs(folder, exist_ok=True)
+        outputs.make_folder(folder)
         files_ = [n + ".png" for n in names]
         for fr, name in zip(frames, files_):
             common.copy_image(fr.image, os.path.join(folder, name))
@@ -278,7 +278,7 @@ class _Writer:
         """The KITTI writer's files of this job (written into a scratch folder) moved under ``training/`` with
         the dataset's names; its frames index merged."""
         scratch = os.path.join(self.root, ".kitti_job")
-        os.makedirs(scratch)
+        outputs.make_folder(scratch)
         counts = kitti.write(scratch, frames)
         training = os.path.join(self.root, "kitti", KITTI_TRAINING)
         local = {common.index_name(i, ""): name for i, name in enumerate(names)}
@@ -292,7 +292,7 @@ class _Writer:
             if not os.path.isdir(src):
                 raise RuntimeError(f"the KITTI writer wrote {entry}, which a merged dataset does not place")
             dest = os.path.join(training, entry)
-            os.makedirs(dest, exist_ok=True)
+            outputs.make_folder(dest)
             for name in os.listdir(src):
                 stem, ext = os.path.splitext(name)
                 if stem not in local:
@@ -304,14 +304,14 @@ class _Writer:
 
     def _openlabel(self, m: Member, frames: list, names: list) -> int:
         folder = os.path.join(self.root, "openlabel")
-        os.makedirs(os.path.join(folder, OPENLABEL_IMAGES), exist_ok=True)
+        outputs.make_folder(os.path.join(folder, OPENLABEL_IMAGES))
         rel = [f"{OPENLABEL_IMAGES}/{n}.png" for n in names]
         for fr, r in zip(frames, rel):
             common.copy_image(fr.image, os.path.join(folder, r))
         name = (m.variant or {}).get("id") or os.path.basename(os.path.dirname(m.path)) or "job"
         doc = openlabel.document(frames, rel, name=f"{m.sequence:04d} {name}")
         doc_name = f"{m.sequence:04d}.json"
-        with open(os.path.join(folder, doc_name), "w", encoding="utf-8") as f:
+        with outputs.atomic_write(os.path.join(folder, doc_name), "w") as f:
             json.dump(doc, f, allow_nan=False)
         self.openlabel_sets[m.split].append(doc_name)
         return openlabel.counts(doc)
@@ -321,14 +321,14 @@ class _Writer:
         ``0000`` (written into a scratch folder) moved under ``training/`` with its number; its frames index
         merged."""
         scratch = os.path.join(self.root, ".kitti_tracking_job")
-        os.makedirs(scratch)
+        outputs.make_folder(scratch)
         counts = kitti_tracking.write(scratch, frames)
         seq, own = f"{m.sequence:04d}", kitti_tracking.SEQUENCE
         training = os.path.join(self.root, "kitti-tracking", KITTI_TRAINING)
         for sub in (kitti_tracking.LABELS, kitti_tracking.CALIB, kitti_tracking.POSES):
-            os.makedirs(os.path.join(training, sub), exist_ok=True)
+            outputs.make_folder(os.path.join(training, sub))
             os.rename(os.path.join(scratch, sub, own + ".txt"), os.path.join(training, sub, seq + ".txt"))
-        os.makedirs(os.path.join(training, kitti_tracking.IMAGES), exist_ok=True)
+        outputs.make_folder(os.path.join(training, kitti_tracking.IMAGES))
         os.rename(os.path.join(scratch, kitti_tracking.IMAGES, own), os.path.join(training, kitti_tracking.IMAGES, seq))
         with open(os.path.join(scratch, kitti.FRAMES), encoding="utf-8") as f:
             for row, name in zip(json.load(f)["frames"], names):
@@ -342,17 +342,17 @@ class _Writer:
         OpenLABEL's split lists."""
         if "coco" in self.formats:
             folder = os.path.join(self.root, "coco", COCO_ANNOTATIONS)
-            os.makedirs(folder)
+            outputs.make_folder(folder)
             table = [{"id": c.id, "name": c.name, "supercategory": c.supercategory} for c in categories.CATEGORIES]
             for split, data in self.coco.items():
-                with open(os.path.join(folder, f"instances_{split}.json"), "w", encoding="utf-8") as f:
+                with outputs.atomic_write(os.path.join(folder, f"instances_{split}.json"), "w") as f:
                     json.dump({"info": self.coco_info or {}, **data, "categories": table}, f, allow_nan=False)
         if "kitti" in self.formats:
             sets = os.path.join(self.root, "kitti", KITTI_SETS)
-            os.makedirs(sets)
+            outputs.make_folder(sets)
             for split, names in self.kitti_sets.items():
                 _write_lines(os.path.join(sets, f"{split}.txt"), names)
-            with open(os.path.join(self.root, "kitti", kitti.FRAMES), "w", encoding="utf-8") as f:
+            with outputs.atomic_write(os.path.join(self.root, "kitti", kitti.FRAMES), "w") as f:
                 json.dump({"frames": self.kitti_frames}, f, indent=1)
         if "openlabel" in self.formats:
             for split, docs in self.openlabel_sets.items():
@@ -360,12 +360,12 @@ class _Writer:
         if "kitti-tracking" in self.formats:
             for split, seqs in self.tracking_sets.items():
                 _write_lines(os.path.join(self.root, "kitti-tracking", f"{split}.txt"), seqs)
-            with open(os.path.join(self.root, "kitti-tracking", kitti.FRAMES), "w", encoding="utf-8") as f:
+            with outputs.atomic_write(os.path.join(self.root, "kitti-tracking", kitti.FRAMES), "w") as f:
                 json.dump({"frames": self.tracking_frames}, f, indent=1)
 
 
 def _write_lines(path: str, lines: list) -> None:
-    with open(path, "w", encoding="utf-8") as f:
+    with outputs.atomic_write(path, "w") as f:
         f.writelines(f"{line}\n" for line in lines)
 
 

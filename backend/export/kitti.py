@@ -48,6 +48,7 @@ import os
 
 import numpy as np
 
+from scpainter_blender.core import outputs
 from scpainter_blender.core.geometry import cameras
 
 from . import common
@@ -159,7 +160,7 @@ def write(folder: str, frames: list, progress=None) -> dict:
     ``progress(i)`` after each frame. Returns {"frames", "objects", "ignore_regions"} (label lines, DontCare
     lines)."""
     for sub in (IMAGES, LABELS, CALIB):
-        os.makedirs(os.path.join(folder, sub))
+        outputs.make_folder(os.path.join(folder, sub))
     index, objects, regions = [], 0, 0
     for i, fr in enumerate(frames):
         lab = fr.labels
@@ -168,14 +169,14 @@ def write(folder: str, frames: list, progress=None) -> dict:
         lines = frame_lines(lab, R)
         regions += sum(track == -1 for track, _ in lines)
         objects += sum(track != -1 for track, _ in lines)
-        with open(os.path.join(folder, LABELS, common.index_name(i, ".txt")), "w", encoding="utf-8") as f:
+        with outputs.atomic_write(os.path.join(folder, LABELS, common.index_name(i, ".txt")), "w") as f:
             f.write("".join(line + "\n" for _, line in lines))
-        with open(os.path.join(folder, CALIB, common.index_name(i, ".txt")), "w", encoding="utf-8") as f:
+        with outputs.atomic_write(os.path.join(folder, CALIB, common.index_name(i, ".txt")), "w") as f:
             f.write(calib_text(lab["camera"]["K"], R))
         index.append({"index": common.index_name(i, ""), "frame": lab["frame"], "timestamp_s": lab["timestamp_s"],
                       **common.frame_quality(lab), "lines": line_extras(lab)})
         if progress:
             progress(i)
-    with open(os.path.join(folder, FRAMES), "w", encoding="utf-8") as f:
+    with outputs.atomic_write(os.path.join(folder, FRAMES), "w") as f:
         json.dump({"frames": index}, f, indent=1)
     return {"frames": len(frames), "objects": objects, "ignore_regions": regions}

@@ -35,6 +35,8 @@ import os
 
 import numpy as np
 
+from scpainter_blender.core import outputs
+
 from . import common, kitti
 
 IMAGES, LABELS, CALIB, POSES = "image_02", "label_02", "calib", "pose"
@@ -68,7 +70,7 @@ def write(folder: str, frames: list, progress=None) -> dict:
     ``progress(i)`` after each frame. Returns {"frames", "objects", "ignore_regions"} (label lines, DontCare
     lines)."""
     for sub in (os.path.join(IMAGES, SEQUENCE), LABELS, CALIB, POSES):
-        os.makedirs(os.path.join(folder, sub))
+        outputs.make_folder(os.path.join(folder, sub))
     first = frames[0].labels["camera"]
     R = kitti.level_rotation(first["world_to_camera"])
     lines, poses, index, objects, regions = [], [], [], 0, 0
@@ -88,8 +90,8 @@ def write(folder: str, frames: list, progress=None) -> dict:
     for sub, text in ((LABELS, "".join(line + "\n" for line in lines)),
                       (CALIB, kitti.calib_text(first["K"], R, kitti.TRACKING_KEYS)),
                       (POSES, "".join(row + "\n" for row in poses))):
-        with open(os.path.join(folder, sub, SEQUENCE + ".txt"), "w", encoding="utf-8") as f:
+        with outputs.atomic_write(os.path.join(folder, sub, SEQUENCE + ".txt"), "w") as f:
             f.write(text)
-    with open(os.path.join(folder, kitti.FRAMES), "w", encoding="utf-8") as f:
+    with outputs.atomic_write(os.path.join(folder, kitti.FRAMES), "w") as f:
         json.dump({"sequence": SEQUENCE, "frames": index}, f, indent=1)
     return {"frames": len(frames), "objects": int(objects), "ignore_regions": int(regions)}

@@ -44,7 +44,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from scpainter_blender.core import categories, labels
+from scpainter_blender.core import categories, labels, outputs
 
 from . import common
 
@@ -174,14 +174,14 @@ def document(frames: list, image_names: list, name: str = "scpainter") -> dict:
 def write(folder: str, frames: list, progress: Callable[[int], None] | None = None, name: str = "scpainter") -> dict:
     """``openlabel.json`` and ``images/`` into ``folder`` (existing, empty). Returns {"frames", "objects",
     "ignore_regions"} (per-frame entries of labelled objects, of ignore regions)."""
-    os.makedirs(os.path.join(folder, IMAGES))
+    outputs.make_folder(os.path.join(folder, IMAGES))
     names = [f"{IMAGES}/{common.index_name(i, '.png')}" for i in range(len(frames))]
     for i, (fr, rel) in enumerate(zip(frames, names)):
         common.copy_image(fr.image, os.path.join(folder, rel))
         if progress:
             progress(i)
     doc = document(frames, names, name)
-    with open(os.path.join(folder, FILE), "w", encoding="utf-8") as f:
+    with outputs.atomic_write(os.path.join(folder, FILE), "w") as f:
         json.dump(doc, f, allow_nan=False)
     return {"frames": len(frames), **counts(doc)}
 

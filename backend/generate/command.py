@@ -243,7 +243,7 @@ def generate_job(job_path: str, job: job_mod.Job, device: str, checkpoint: str |
     (``prepare``, with ``allow_outside`` and ``data_roots``), one run per output folder (``locking.OutputLock``). A
     model producing NaN/inf raises ``errors.NonFiniteError`` and writes no frame, video or manifest."""
     plan = prepare(job_path, job, checkpoint, overrides, allow_outside, data_roots)
-    outputs.make_folder(plan.output_dir, "output_dir")
+    outputs.make_folder(plan.output_dir, "output_dir", root=True)
     with locking.OutputLock(plan.output_dir, "generate", busy=FolderBusyError) as lock, events.log_scope():
         return _generate(job_path, job, device, plan, precision, force, stop, lock)
 

@@ -157,7 +157,7 @@ def render_job(job_path: str, job: job_mod.Job, device: str, force: bool = False
         paths = job_inputs.check_inputs(job_path, job, allow_outside, data_roots)
         outputs.check_output(paths["output_dir"], allow_outside)
     warned = warn_inputs(job, paths)
-    out = outputs.make_folder(paths["output_dir"], "output_dir")
+    out = outputs.make_folder(paths["output_dir"], "output_dir", root=True)
     with (locking.OutputLock(out, "render", busy=FolderBusyError) if lock else contextlib.nullcontext()) as held, \
             events.log_scope():  # an exception from here on is marked with backend.log (events.report_bug)
         log = log or events.FileLog(OutputLayout(out).log)

@@ -13,14 +13,14 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import secrets
 import socket
-import tempfile
 import time
 
 from .errors import InputError
 from .files import open_regular
 from .output_layout import OutputLayout
-from .outputs import make_folder
+from .outputs import make_folder, open_folder
 
 LOCK_NAME = OutputLayout.LOCK  # the lock's name in any folder it guards (a job's output folder, train's)
 UNREADABLE_LOCK_S = 60   # a lock file nobody can read is taken over after this (a crash mid-write on old systems)
@@ -90,19 +90,44 @@ class OutputLock:
 
     def _take(self, me: dict) -> bool:
         """Create the lock file whole or not at all: written to a private temporary file, then hard-linked to its
-        name (``link`` fails if the name exists, never follows a planted link), so no reader sees it empty."""
-        fd, tmp = tempfile.mkstemp(prefix=f"{LOCK_NAME}.", dir=self.folder)
+        name (``link`` fails if the name exists, never follows a planted link), so no reader sees it empty. All of
+        it relative to the folder opened once (``outputs.open_folder``): an output folder swapped for a link since
+        it was made is an InputError, and no lock file is written through it."""
+        dfd = open_folder(self.folder)
+        try:
+            return self._take_in(dfd, me)
+        finally:
+            if dfd is not None:
+                os.close(dfd)
+
+    def _take_in(self, dfd, me: dict) -> bool:
+        def at(name):   # a name in the folder: relative to its descriptor where the system has one
+            return (name, {"dir_fd": dfd}) if dfd is not None else (os.path.join(self.folder, name), {})
+
+        nofollow = getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
+        for _ in range(100):
+            tmp = f"{LOCK_NAME}.{secrets.token_hex(4)}"
+            try:
+                where, kw = at(tmp)
+                fd = os.open(where, os.O_WRONLY | os.O_CREAT | os.O_EXCL | nofollow, 0o600, **kw)
+                break
+            except FileExistsError:
+                continue
+        else:
+            raise FileExistsError(f"{self.path}: no free temporary name")
         try:
             with os.fdopen(fd, "w", encoding="utf-8") as f:
                 json.dump(me, f)
             try:
-                os.link(tmp, self.path)
+                src, kw = at(tmp)
+                dst, _ = at(LOCK_NAME)
+                os.link(src, dst, **({"src_dir_fd": dfd, "dst_dir_fd": dfd} if dfd is not None else {}))
             except FileExistsError:
                 return False
             except OSError:  # a file system without hard links: exclusive create, then write
                 try:
-                    fd2 = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0),
-                                  0o644)
+                    where, kw = at(LOCK_NAME)
+                    fd2 = os.open(where, os.O_WRONLY | os.O_CREAT | os.O_EXCL | nofollow, 0o644, **kw)
                 except FileExistsError:
                     return False
                 with os.fdopen(fd2, "w", encoding="utf-8") as f:
@@ -114,7 +139,8 @@ class OutputLock:
             raise
         finally:
             with contextlib.suppress(OSError):
-                os.remove(tmp)
+                where, kw = at(tmp)
+                os.remove(where, **kw)
 
     def __enter__(self):
         make_folder(self.folder)
@@ -146,8 +172,7 @@ class OutputLock:
                                 f"{owner.get('host')} ({owner.get('command')}, since {owner.get('since')})",
                                 f"wait for it to finish or stop it; if it is gone, delete {self.path}",
                                 file=self.path, owner=owner)
-            with contextlib.suppress(FileNotFoundError):
-                os.remove(self.path)
+            self._remove()
         raise self.busy(f"{self.path}: could not take the output folder's lock", "try again", file=self.path,
                         owner=None)
 
@@ -166,11 +191,25 @@ class OutputLock:
         except OSError:
             return 0.0
 
+    def _remove(self) -> None:
+        """Delete the lock file, relative to the folder checked again (``open_folder``): swapped for a link
+        meanwhile, nothing is removed there (InputError)."""
+        dfd = open_folder(self.folder)
+        try:
+            with contextlib.suppress(FileNotFoundError):
+                if dfd is None:
+                    os.remove(self.path)
+                else:
+                    os.remove(LOCK_NAME, dir_fd=dfd)
+        finally:
+            if dfd is not None:
+                os.close(dfd)
+
     def __exit__(self, *exc):
         if self._held:
-            with contextlib.suppress(FileNotFoundError):
-                os.remove(self.path)
             self._held = False
+            with contextlib.suppress(OSError, InputError):   # a folder swapped meanwhile keeps its lock file
+                self._remove()
         return False
 
 

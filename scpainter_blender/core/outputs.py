@@ -87,7 +87,7 @@ def atomic_path(path: str | os.PathLike) -> Iterator[str]:
     descriptor; for such a folder the path yielded is ``/proc/self/fd/N/<temporary>`` (Linux), so a folder swapped
     for a link after the check still receives nothing."""
     with _temporary(path) as (dfd, folder, tmp):
-        checked = dfd is not None and os.path.abspath(folder) in _FOLDERS
+        checked = dfd is not None and _registered_above(os.path.abspath(folder)) is not None
         yield _fd_path(dfd, folder, tmp) if checked else os.path.join(folder, tmp)
 
 
@@ -159,7 +159,102 @@ _FOLDERS: dict = {}
 
 
 def _register(path: str, st: os.stat_result) -> None:
-    _FOLDERS[os.path.abspath(path)] = (st.st_dev, st.st_ino)
+    path = os.path.abspath(path)
+    if _FOLDERS.get(path) != (st.st_dev, st.st_ino):
+        _forget(path, itself=False)   # a new folder at this name: what was known below the old one no longer holds
+    _FOLDERS[path] = (st.st_dev, st.st_ino)
+
+
+def _forget(path: str, itself: bool = True) -> None:
+    """Drop ``path`` (with ``itself``) and every folder registered below it from ``_FOLDERS``."""
+    below = path.rstrip(os.sep) + os.sep
+    for known in [k for k in _FOLDERS if k.startswith(below) or (itself and k == path)]:
+        del _FOLDERS[known]
+
+
+def _registered_above(folder: str) -> str | None:
+    """The nearest folder of ``_FOLDERS`` that is ``folder`` (absolute) or holds it, or None: where a checked
+    walk to ``folder`` starts."""
+    p = folder
+    while p not in _FOLDERS:
+        up = os.path.dirname(p)
+        if up == p:
+            return None
+        p = up
+    return p
+
+
+def _replaced(folder: str) -> InputError:
+    return InputError(folder, "(folder)", "was replaced while this command ran (a link or another folder put in "
+                                          f"its place, now leading to {os.path.realpath(folder)}): nothing is "
+                                          "written through it", hint="remove what was put there, then run again")
+
+
+_DIR_FLAGS = os.O_RDONLY | getattr(os, "O_DIRECTORY", 0) | getattr(os, "O_CLOEXEC", 0)
+
+
+def _open_walk(folder: str, create: bool = False, allow_outside: bool = False) -> int:
+    """A descriptor of the folder ``folder`` (absolute; ``_AT`` systems), reached from the nearest folder this
+    process registered (``_registered_above``) one name at a time, never through a link swapped in: that folder is
+    opened and must still be the one registered, each name below it is opened relative to its parent with
+    ``O_NOFOLLOW`` (``create``: made first, ``mkdir`` relative to the parent, and registered), and a folder
+    registered on the way must still be that folder (InputError naming it). A link the user put inside the tree
+    is followed only when it leads inside the registered folder (or ``allow_outside``), as ``output_folder``
+    allows. Without a registered folder above, ``folder`` is opened by path (``create``: ``os.makedirs``).
+
+    ``create`` (making folders, ``make_folder``) accepts a registered folder that is now another real folder (not
+    a link): removed and made again by the user between two runs of one process (the add-on, tests); nothing is
+    written through a link either way."""
+    top = _registered_above(folder)
+    if top is None:
+        if create:
+            os.makedirs(folder, exist_ok=True)
+        return os.open(folder, _DIR_FLAGS)
+    try:
+        fd = os.open(top, _DIR_FLAGS)
+    except FileNotFoundError:
+        if not create or os.path.lexists(top):
+            raise
+        _forget(top)   # removed since it was registered: made anew
+        return _open_walk(folder, create, allow_outside)
+    except NotADirectoryError:
+        raise InputError(top, "(folder)", "exists and is not a folder") from None
+    st = os.fstat(fd)
+    if (st.st_dev, st.st_ino) != _FOLDERS[top]:
+        if not create or os.path.islink(top):
+            os.close(fd)
+            raise _replaced(top)
+        _register(top, st)
+    here = top
+    try:
+        for name in ([] if folder == top else os.path.relpath(folder, top).split(os.sep)):
+            here = os.path.join(here, name)
+            made = False
+            if create:
+                with contextlib.suppress(FileExistsError):
+                    os.mkdir(name, 0o777, dir_fd=fd)
+                    made = True
+            try:
+                sub = os.open(name, _DIR_FLAGS | getattr(os, "O_NOFOLLOW", 0), dir_fd=fd)
+            except OSError:
+                try:
+                    os.readlink(name, dir_fd=fd)
+                except OSError:
+                    raise   # not a link: missing, or not a folder
+                if not allow_outside and not inside(here, top):
+                    raise _leads_outside(here) from None
+                sub = os.open(here, _DIR_FLAGS)   # a link inside the tree, as output_folder allows
+            os.close(fd)
+            fd = sub
+            st, expected = os.fstat(fd), _FOLDERS.get(here)
+            if made or (create and expected != (st.st_dev, st.st_ino)):
+                _register(here, st)
+            elif expected is not None and expected != (st.st_dev, st.st_ino):
+                raise _replaced(here)
+    except BaseException:
+        os.close(fd)
+        raise
+    return fd
 
 
 #: Whether this system works relative to a folder's descriptor (``openat``, ``renameat``, ...: POSIX); elsewhere
@@ -171,7 +266,9 @@ def open_folder(folder: str | os.PathLike) -> int | None:
     """A descriptor of the folder ``folder`` (``O_DIRECTORY``), for work relative to it. When this process made
     or checked it as part of an output tree (``output_folder``, ``own_folder``), the folder opened must be that
     very folder (device and inode): one swapped for a symbolic link, or another folder, since is an InputError
-    naming it, and nothing is written there. None where the system has no ``*at`` calls (``_AT``): the identity
+    naming it, and nothing is written there. A folder below a registered one (``make_folder``'s subfolders, a
+    writer's folders in ``atomic_folder``'s staging folder) is reached from it name by name (``_open_walk``):
+    swapping any folder on the way for a link is found too. None where the system has no ``*at`` calls (``_AT``): the identity
     is then checked by path."""
     folder = os.path.abspath(os.fspath(folder))
     if not _AT:
@@ -181,17 +278,9 @@ def open_folder(folder: str | os.PathLike) -> int | None:
                              hint="remove what was put there, then run again")
         return None
     try:
-        dfd = os.open(folder, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0) | getattr(os, "O_CLOEXEC", 0))
+        return _open_walk(folder)
     except NotADirectoryError:
         raise InputError(folder, "(folder)", "exists and is not a folder") from None
-    expected = _FOLDERS.get(folder)
-    st = os.fstat(dfd)
-    if expected is not None and (st.st_dev, st.st_ino) != expected:
-        os.close(dfd)
-        raise InputError(folder, "(folder)", "was replaced while this command ran (a link or another folder put in "
-                                             f"its place, now leading to {os.path.realpath(folder)}): nothing is "
-                                             "written through it", hint="remove what was put there, then run again")
-    return dfd
 
 
 @contextlib.contextmanager
@@ -214,7 +303,7 @@ def atomic_folder(path: str | os.PathLike, keep_existing: bool = False, replace:
     as it was."""
     path = os.path.abspath(os.fspath(path))
     parent, name = os.path.dirname(path), os.path.basename(path)
-    tmp = tempfile.mkdtemp(prefix=_temporary_prefix(name), suffix=_TEMPORARY_SUFFIX, dir=parent)
+    tmp = _staging_folder(parent, name)
     aside = None
     try:
         yield tmp
@@ -234,8 +323,10 @@ def atomic_folder(path: str | os.PathLike, keep_existing: bool = False, replace:
             aside = tempfile.mkdtemp(prefix=_temporary_prefix(name), suffix=".old" + _TEMPORARY_SUFFIX, dir=parent)
             os.rename(path, os.path.join(aside, name))
         try:
+            _close(open_folder(tmp))   # still the staging folder made (not a link swapped in): else InputError
             os.rename(tmp, path)
-            _FOLDERS.pop(path, None)   # a new folder now has the name: a record of an earlier one no longer holds
+            _forget(tmp)
+            _forget(path)   # a new folder now has the name: a record of an earlier one no longer holds
         except OSError:
             if aside is not None and not os.path.lexists(path):
                 os.rename(os.path.join(aside, name), path)
@@ -245,10 +336,42 @@ def atomic_folder(path: str | os.PathLike, keep_existing: bool = False, replace:
     finally:  # after an error, or when theirs was kept (renamed, it is gone); the replaced folder once it is
         if os.path.isdir(tmp) and not os.path.islink(tmp):
             shutil.rmtree(tmp, ignore_errors=True)
+        _forget(tmp)
         if aside is not None:
             _remove_recorded(os.path.join(aside, name), record)
             with contextlib.suppress(OSError):
                 os.rmdir(aside)   # kept (with what a user put there at the last instant) unless it is empty
+
+
+def _staging_folder(parent: str, name: str) -> str:
+    """A new folder ``.<name>.<random>.tmp`` (mode 0700, as ``mkdtemp`` makes it) in ``parent``, made relative to
+    ``parent`` opened by ``open_folder`` (a registered parent swapped for a link is an InputError) and registered:
+    the folders and files a writer makes in it are checked (``make_folder``, ``atomic_write``), so a staging folder
+    swapped for a link after it was made receives nothing. Returns its path."""
+    if not _AT:
+        return tempfile.mkdtemp(prefix=_temporary_prefix(name), suffix=_TEMPORARY_SUFFIX, dir=parent)
+    pfd = open_folder(parent)
+    try:
+        for _ in range(100):
+            tmp = f"{_temporary_prefix(name)}{secrets.token_hex(4)}{_TEMPORARY_SUFFIX}"
+            try:
+                os.mkdir(tmp, 0o700, dir_fd=pfd)
+                break
+            except FileExistsError:
+                continue
+        else:
+            raise FileExistsError(errno.EEXIST, "no free temporary name", os.path.join(parent, name))
+        try:
+            fd = os.open(tmp, _DIR_FLAGS | getattr(os, "O_NOFOLLOW", 0), dir_fd=pfd)
+        except OSError:   # swapped for a link (or a file) the instant after it was made: nothing goes there
+            raise _replaced(os.path.join(parent, tmp)) from None
+        try:
+            _register(os.path.join(parent, tmp), os.fstat(fd))
+        finally:
+            os.close(fd)
+    finally:
+        _close(pfd)
+    return os.path.join(parent, tmp)
 
 
 #: The key of a folder's record (``atomic_folder``'s ``record``) listing the files the command created in it.
@@ -388,10 +511,18 @@ def remove_temporaries(folder: str | os.PathLike, names: Iterable[str], folders:
 def link_or_copy(src: str | os.PathLike, dst: str | os.PathLike) -> None:
     """``dst`` as a hard link to ``src`` where the file system allows (multi-GB model weights cost nothing), a
     copy with its metadata otherwise (another device, a file system without links)."""
+    folder, name = os.path.split(os.path.abspath(os.fspath(dst)))
+    dfd = open_folder(folder)   # a folder of an output tree swapped for a link: InputError, nothing linked there
     try:
-        os.link(src, dst)
+        where, at = _at(dfd, folder, name)
+        os.link(src, where, **({"dst_dir_fd": dfd} if at else {}))
+        return
     except OSError:
-        shutil.copy2(src, dst)
+        pass
+    finally:
+        _close(dfd)
+    with atomic_path(dst) as tmp:   # a copy, written as every output is
+        shutil.copy2(src, tmp)
 
 
 def link_or_copy_tree(src: str | os.PathLike, dst: str | os.PathLike) -> None:
@@ -415,8 +546,14 @@ def append_text(path: str | os.PathLike, text: str) -> None:
     """Append to a log file, never through a link: InputError if ``path`` is a symbolic link (``O_NOFOLLOW``) or a
     file with more than one hard link (checked on the open descriptor: another name of a user's file)."""
     flags = os.O_WRONLY | os.O_APPEND | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
+    folder, name = os.path.split(os.path.abspath(os.fspath(path)))
     try:
-        fd = os.open(path, flags | NONBLOCK, 0o666)  # a FIFO without a reader fails at once (ENXIO), not blocks
+        dfd = open_folder(folder)   # the output folder swapped for a link since it was made: InputError
+        try:
+            where, at = _at(dfd, folder, name)
+            fd = os.open(where, flags | NONBLOCK, 0o666, **at)  # a FIFO without a reader fails at once (ENXIO)
+        finally:
+            _close(dfd)
     except OSError as e:
         if e.errno == errno.ELOOP:
             raise InputError(path, "(file)", _LINKED_LOG, hint="remove the link") from None
@@ -511,29 +648,61 @@ def confined(base: str | os.PathLike, value: str, error: Callable[..., Exception
 
 # -------------------------------------------------------------------------------------------- output folders
 
-def make_folder(path: str | os.PathLike, field: str = "(folder)") -> str:
+def make_folder(path: str | os.PathLike, field: str = "(folder)", root: bool = False,
+                allow_outside: bool = False) -> str:
     """``os.makedirs(path, exist_ok=True)``, with InputError naming the folder when it cannot be made (a file or a
-    FIFO in the way, a name too long, no permission)."""
+    FIFO in the way, a name too long, no permission). Below a folder of an output tree (registered: ``root``,
+    ``output_folder``, ``own_folder``, ``atomic_folder``'s staging folder) the folders are made and opened name by
+    name relative to it (``_open_walk``) and registered in turn: a folder on the way swapped for a link (or a
+    link there leading outside the tree, unless ``allow_outside``) is an InputError naming it, and nothing is
+    made through it. ``root``: ``path`` is the root of a command's output tree (``output_dir``, ``vary --out``),
+    registered so that every later write in it is checked the same way."""
+    path = os.fspath(path)
+    full = os.path.abspath(path)
+    if not _AT:
+        _make_by_path(path, field)
+        if root:
+            _register(full, os.stat(full))
+        return path
     try:
-        os.makedirs(path, exist_ok=True)
-    except FileExistsError:
+        fd = _open_walk(full, create=True, allow_outside=allow_outside)
+    except (FileExistsError, NotADirectoryError):
         raise InputError(path, field, "exists and is not a folder", hint="remove it or choose another output "
                                                                          "folder") from None
     except OSError as e:
         if e.errno in DISK_FULL_ERRNOS:  # not the folder's fault: the backend names the full disk
             raise
         raise InputError(path, field, f"cannot be made: {e.strerror or e}") from None
+    try:
+        if root:
+            _register(full, os.fstat(fd))
+    finally:
+        os.close(fd)
+    return path
+
+
+def _make_by_path(path: str, field: str) -> None:
+    """``make_folder`` where the system has no ``*at`` calls."""
+    try:
+        os.makedirs(path, exist_ok=True)
+    except FileExistsError:
+        raise InputError(path, field, "exists and is not a folder", hint="remove it or choose another output "
+                                                                         "folder") from None
+    except OSError as e:
+        if e.errno in DISK_FULL_ERRNOS:
+            raise
+        raise InputError(path, field, f"cannot be made: {e.strerror or e}") from None
     if not os.path.isdir(path):
         raise InputError(path, field, "exists and is not a folder")
-    return path
 
 
 def output_folder(parent: str | os.PathLike, name: str, allow_outside: bool = False) -> str:
     """``parent/name`` created if missing; InputError if it is a symbolic link (or lies) outside ``parent``
     unless ``allow_outside``: a link planted in an output folder must not carry writes elsewhere. The folder found
-    is remembered (``open_folder``): swapped for a link later in the run, it receives nothing."""
+    is remembered (``open_folder``): swapped for a link later in the run, it receives nothing; made below a
+    registered ``parent`` (``make_folder``), a ``parent`` swapped meanwhile is found too."""
     path = os.path.join(parent, name)
-    make_folder(path)
+    make_folder(path, allow_outside=allow_outside)
     if not allow_outside and not inside(path, parent):
         raise _leads_outside(path)
     _register(path, os.stat(path))

@@ -82,3 +82,22 @@ def test_a_retried_task_takes_over_its_own_lock_from_another_host(tmp_path, monk
     with pytest.raises(Busy):  # a run outside any scheduler never takes over another host's lock
         with locking.OutputLock(tmp_path, "render", busy=Busy):
             pass
+
+
+def test_the_lock_is_never_taken_through_a_folder_swapped_for_a_link(tmp_path):
+    """render: job/out swapped for a link after it was made: the lock file was made in the link's target (fuzz
+    race 7). The lock is taken relative to the folder checked once (``outputs.open_folder``): an InputError, and
+    nothing is made there."""
+    from scpainter_blender.core import outputs
+    from scpainter_blender.core.errors import InputError
+
+    out, outside = tmp_path / "out", tmp_path / "outside"
+    outside.mkdir()
+    root = outputs.make_folder(str(out), root=True)
+    os.rename(root, str(out) + ".moved")
+    os.symlink(outside, root)
+    with pytest.raises(InputError) as e:
+        with locking.OutputLock(root, "render"):
+            pass
+    assert e.value.path == root
+    assert os.listdir(outside) == []

@@ -137,3 +137,83 @@ def test_replace_takes_its_own_folder_and_fills_an_empty_one(tmp_path):
         _export(str(dest), {"d.txt": "four"})
     assert sorted(os.listdir(dest)) == ["c.txt", "export.json", "thesis.tex"]
     assert sorted(os.listdir(tmp_path)) == ["dest"]
+
+
+# ------------------------------------------- issue 42 round 3: an output root or a staging folder swapped later on
+
+def test_an_output_root_swapped_after_its_first_file_gets_no_folder_log_or_file(tmp_path):
+    """render: job/out swapped for a link after its first file, then backend.log, conditions/ and frames were
+    created in the link's target (fuzz races 7/21/35). The root is registered (``make_folder(root=True)``): its
+    subfolders are made name by name from it, the log and every file relative to it, and a swap is refused."""
+    out, outside = tmp_path / "out", tmp_path / "outside"
+    outside.mkdir()
+    root = outputs.make_folder(str(out), "output_dir", root=True)
+    outputs.append_text(os.path.join(root, "backend.log"), "first line\n")   # before the swap: written
+    _swap_for_link(root, outside)
+    for write in (lambda: outputs.make_folder(os.path.join(root, "conditions")),
+                  lambda: outputs.output_folder(root, "conditions"),
+                  lambda: outputs.append_text(os.path.join(root, "backend.log"), "more\n"),
+                  lambda: outputs.write_json(os.path.join(root, "a", "record.json"), {}),
+                  lambda: outputs.make_folder(root, "output_dir", root=True)):   # a second check of the root
+        with pytest.raises(InputError) as e:
+            write()
+        assert e.value.path == root and "replaced" in e.value.message
+    assert os.listdir(outside) == []
+    assert os.listdir(str(out) + ".moved") == ["backend.log"]
+
+
+def test_a_folder_below_a_registered_one_swapped_later_is_refused(tmp_path):
+    """A subfolder made by ``make_folder`` under a registered root (an export writer's ``calib/``) is registered in
+    turn: swapped for a link afterwards, a file written into it (``atomic_write``, ``link_or_copy``) is refused."""
+    out, outside = tmp_path / "out", tmp_path / "outside"
+    outside.mkdir()
+    root = outputs.make_folder(str(out), root=True)
+    calib = outputs.make_folder(os.path.join(root, "x", "calib"))
+    src = tmp_path / "frame.png"
+    src.write_bytes(b"png")
+    _swap_for_link(calib, outside)
+    for write in (lambda: outputs.atomic_write(os.path.join(calib, "000000.txt"), "w").__enter__(),
+                  lambda: outputs.link_or_copy(str(src), os.path.join(calib, "000000.png"))):
+        with pytest.raises(InputError) as e:
+            write()
+        assert e.value.path == calib
+    assert os.listdir(outside) == []
+
+
+def test_a_staging_folder_swapped_after_it_was_made_receives_nothing(tmp_path):
+    """export: its staging folder ``.kitti.*.tmp`` swapped for a link after it was made, the KITTI writer created
+    calib/ and its files in the link's target (fuzz races 4/18/32). The staging folder is made relative to its
+    checked parent and registered: the writer's folders and files are refused, and it is never renamed into
+    place."""
+    out, outside = tmp_path / "out", tmp_path / "outside"
+    outside.mkdir()
+    root = outputs.make_folder(str(out), root=True)
+    dest = os.path.join(root, "kitti")
+    with pytest.raises(InputError) as e:
+        with outputs.atomic_folder(dest, replace=True, record="export.json") as tmp:
+            _swap_for_link(tmp, outside)
+            outputs.make_folder(os.path.join(tmp, "calib"))
+    assert e.value.path == tmp and "replaced" in e.value.message
+    with pytest.raises(InputError):   # nor is a staging folder swapped just before the rename put in place
+        with outputs.atomic_folder(dest) as tmp2:
+            outputs.write_json(os.path.join(tmp2, "export.json"), {})
+            _swap_for_link(tmp2, outside)
+    assert os.listdir(outside) == [] and not os.path.lexists(dest)
+
+
+def test_an_output_root_removed_and_made_again_between_runs_is_taken_anew(tmp_path):
+    """One process runs commands one after another (the add-on, the tests): a registered root deleted and made
+    again (a real folder, not a link) is the next run's root, and its old subfolders' identities are forgotten;
+    a link in its place is still refused."""
+    out = tmp_path / "out"
+    root = outputs.make_folder(str(out), root=True)
+    outputs.output_folder(root, "conditions")
+    os.rename(root, str(out) + ".old")
+    os.mkdir(root)
+    assert outputs.make_folder(root, root=True) == root
+    cond = outputs.output_folder(root, "conditions")
+    outputs.write_json(os.path.join(cond, "record.json"), {})
+    assert os.listdir(cond) == ["record.json"]
+    _swap_for_link(root, tmp_path)
+    with pytest.raises(InputError):
+        outputs.make_folder(root, root=True)

@@ -448,7 +448,7 @@ def make_variants(base_path: str | os.PathLike, spec: VariationSpec, out: str | 
     if spec.library:   # the library's folder becomes a data-root: line of the list
         batch_items.list_line(os.path.abspath(spec.library), "(variation spec)", "cars.library")
     check_out(layout.root, spec.variants)
-    outputs.make_folder(layout.root, "--out")
+    outputs.make_folder(layout.root, "--out", root=True)
     busy = busy or (lambda message, hint, **fields: VariationError(layout.root, "(folder)", message, hint))
     with locking.OutputLock(layout.root, "vary", busy=busy):
         owned = check_out(layout.root, spec.variants)   # again, now that no other run writes here

@@ -1325,15 +1325,7 @@ def run_varykill(case, base, root, workdir, keep) -> dict:
         outcome = "misread" if why else "accepted"
         result["message"] = "; ".join(why)
         result["rc"] = 0
-    result["outcome"] = outcome
-    for n in os.listdir(workdir):
-        if n.startswith(f"varykill-{case.index}-"):
-            os.unlink(os.path.join(workdir, n))
-    if keep:
-        result["folder"] = root
-    else:
-        shutil.rmtree(root, ignore_errors=True)
-    return result
+    return FS.finish_case(result, outcome, workdir, f"varykill-{case.index}-", root, keep)
 
 
 def _batch_takes(out, log) -> bool:

@@ -1945,9 +1945,15 @@ def _run_kill(F, case, base, root, workdir, result, keep) -> dict:
         outcome = "misread" if why else "accepted"
         result["message"] = "; ".join(why)
         result["rc"] = 0
+    return finish_case(result, outcome, workdir, f"kill-{case.index}-", root, keep)
+
+
+def finish_case(result: dict, outcome: str, workdir: str, prefix: str, root: str, keep: bool) -> dict:
+    """A kill case's end: its outcome set, the harness's files for it (``prefix``) removed from ``workdir``, its
+    folder ``root`` kept (``--keep``: named in the result) or removed."""
     result["outcome"] = outcome
     for n in os.listdir(workdir):
-        if n.startswith(f"kill-{case.index}-"):
+        if n.startswith(prefix):
             os.unlink(os.path.join(workdir, n))
     if keep:
         result["folder"] = root

@@ -2,8 +2,6 @@
 names file and field); any other exception, a plain ValueError included, is a bug: exit 1, its traceback on
 standard error and in the command's ``backend.log``, which the error event names. Runs ``main`` in-process."""
 
-import contextlib
-import io
 import json
 import os
 
@@ -13,15 +11,12 @@ from backend import events
 from backend.__main__ import main
 from backend.render import frames as fr
 from scpainter_blender.core import errors
-from tests_support import small_job
+from tests_support import run_backend_here, small_job
 
 
 def run(*args):
     """(exit code, events, standard error) of ``python -m backend *args`` run in this process."""
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = main([str(a) for a in args])
-    return code, [json.loads(line) for line in out.getvalue().splitlines() if line.strip()], err.getvalue()
+    return run_backend_here(*args)
 
 
 def broken_job(folder, **top_level):

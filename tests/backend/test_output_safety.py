@@ -1,8 +1,6 @@
 """A job from someone else reads and writes only its own folder; one run per output folder; clean-up deletes only
 what this project wrote (issue 14, points 4 and 5). Runs ``python -m backend`` in-process on small jobs."""
 
-import contextlib
-import io
 import json
 import os
 import shutil
@@ -11,19 +9,16 @@ import sys
 
 import pytest
 
-from backend.__main__ import main
 from scpainter_blender.core import files, locking
 from scpainter_blender.core import job as J
-from tests_support import small_job, variant_jobs
+from tests_support import run_backend_here, small_job, variant_jobs
 
 
 def run(*args):
-    """(exit code, events) of ``python -m backend *args`` run in this process."""
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = main([str(a) for a in args])
-    assert "Traceback" not in err.getvalue(), err.getvalue()
-    return code, [json.loads(line) for line in out.getvalue().splitlines() if line.strip()]
+    """(exit code, events) of ``python -m backend *args`` run in this process, with no traceback."""
+    code, evs, err = run_backend_here(*args)
+    assert "Traceback" not in err, err
+    return code, evs
 
 
 def snapshot(folder):

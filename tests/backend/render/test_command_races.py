@@ -2,23 +2,18 @@
 conditions/ swapped after render made it received frames (7 of 8 trials), an asset swapped after the check was read
 (4 of 4). The swap is done in-process at the point between the two (a wrapped function), so no timing decides."""
 
-import contextlib
-import io
-import json
 import os
 
-from backend.__main__ import main
 from backend.render import command as render_command
 from scpainter_blender.core import outputs
-from tests_support import small_job
+from tests_support import run_backend_here, small_job
 
 
 def run(*args):
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = main([str(a) for a in args])
-    assert "Traceback" not in err.getvalue(), err.getvalue()
-    return code, [json.loads(line) for line in out.getvalue().splitlines() if line.strip()]
+    """(exit code, events) of ``python -m backend *args`` run in this process, with no traceback."""
+    code, evs, err = run_backend_here(*args)
+    assert "Traceback" not in err, err
+    return code, evs
 
 
 def test_conditions_swapped_for_a_link_after_it_was_made_receive_nothing(tmp_path, monkeypatch):

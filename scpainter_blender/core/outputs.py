@@ -113,8 +113,8 @@ def _temporary(path: str | os.PathLike) -> Iterator[tuple]:
             with contextlib.suppress(OSError):
                 where, at = _at(dfd, folder, tmp)
                 os.remove(where, **at)
-            if isinstance(e, OSError) and e.filename is None:  # a write's error (a full disk) names no file: this one
-                e.filename = path
+            if isinstance(e, OSError):
+                _name_output(e, path, dfd)
             raise
     finally:
         _close(dfd)
@@ -144,6 +144,19 @@ def _create_temporary(dfd: int | None, folder: str, name: str) -> str:
         except FileExistsError:
             continue
     raise FileExistsError(errno.EEXIST, "no free temporary name", name)
+
+
+def _name_output(e: OSError, path: str, dfd: int | None) -> None:
+    """Make the error of a write into ``path``'s temporary name ``path``: a write's error (a full disk) names no
+    file, and a copy's (``shutil``: ``filename2``) or a writer's opened by name names the folder's descriptor alias
+    (``/proc/self/fd/N/...``, ``_fd_path``), a path the user never gave."""
+    alias = f"/proc/self/fd/{dfd}/" if dfd is not None else None
+    if e.filename is None:
+        e.filename = path
+    for attr in ("filename", "filename2"):
+        value = getattr(e, attr)
+        if alias and isinstance(value, (str, bytes)) and os.fsdecode(value).startswith(alias):
+            setattr(e, attr, path)
 
 
 def _fd_path(dfd: int, folder: str, name: str) -> str:

@@ -217,3 +217,25 @@ def test_an_output_root_removed_and_made_again_between_runs_is_taken_anew(tmp_pa
     _swap_for_link(root, tmp_path)
     with pytest.raises(InputError):
         outputs.make_folder(root, root=True)
+
+
+def test_a_write_error_names_the_output_not_the_folders_descriptor_alias(tmp_path):
+    """In a registered folder ``atomic_path`` yields ``/proc/self/fd/N/<temporary>``; an error a writer raised
+    naming that alias (a copy's ``filename2``, as shutil sets it, or a full disk naming no file) names the output
+    instead, so the full-disk error names the user's folder (fuzz diskfull 27 named ``/proc/self/fd/3``)."""
+    import errno
+    import shutil
+
+    root = outputs.make_folder(str(tmp_path / "out"), "output_dir", root=True)
+    target = os.path.join(root, "frame.png")
+    for raised in (lambda where: OSError(errno.ENOSPC, "No space left on device", "src.png", None, where),
+                   lambda where: OSError(errno.ENOSPC, "No space left on device")):
+        with pytest.raises(OSError) as e:
+            with outputs.atomic_path(target) as where:
+                if os.path.isdir("/proc/self/fd"):
+                    assert where.startswith("/proc/self/fd/")
+                raise raised(where)
+        assert e.value.filename2 in (None, target) and e.value.filename in ("src.png", target)
+        assert "/proc/self/fd" not in str(e.value)
+    assert os.listdir(root) == []
+    shutil.rmtree(root)

@@ -144,6 +144,10 @@ class OutputLock:
 
     def __enter__(self):
         make_folder(self.folder)
+        if os.path.islink(self.path):   # planted: never read or followed (taking the lock never writes through it)
+            raise InputError(self.path, "(file)", "is a symbolic link where the output folder's lock goes: "
+                                                  "SCPainter never makes one, and never follows it",
+                             hint="remove it, then run again")
         me = {"pid": os.getpid(), "host": socket.gethostname(), "started": _process_start(os.getpid()),
               "command": self.command, "since": time.strftime("%Y-%m-%d %H:%M:%S")}
         if os.environ.get(TASK_ENV):

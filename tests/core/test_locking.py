@@ -101,3 +101,24 @@ def test_the_lock_is_never_taken_through_a_folder_swapped_for_a_link(tmp_path):
             pass
     assert e.value.path == root
     assert os.listdir(outside) == []
+
+
+@pytest.mark.parametrize("target", ["outside/lock.json", "outside/missing"])
+def test_a_link_planted_at_the_lock_file_is_refused_by_name_never_followed(tmp_path, target):
+    """fuzz links 6/26/46: a symbolic link at ``.scpainter.lock`` (into another folder, or dangling) was read as an
+    unreadable lock ("the output folder is locked", naming no field). It is bad input naming the file; the link's
+    target is neither read nor written, and the link stays for the user to remove."""
+    from scpainter_blender.core.errors import InputError
+
+    (tmp_path / "outside").mkdir()
+    (tmp_path / "outside" / "lock.json").write_text('{"pid": 1}')
+    out = tmp_path / "out"
+    out.mkdir()
+    lock = out / locking.LOCK_NAME
+    os.symlink(tmp_path / target, lock)
+    with pytest.raises(InputError) as e:
+        with locking.OutputLock(str(out), "render"):
+            pass
+    assert (e.value.path, e.value.field) == (str(lock), "(file)") and "symbolic link" in e.value.message
+    assert os.path.islink(lock) and sorted(os.listdir(tmp_path / "outside")) == ["lock.json"]
+    assert (tmp_path / "outside" / "lock.json").read_text() == '{"pid": 1}'

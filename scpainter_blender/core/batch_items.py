@@ -2,7 +2,11 @@
 file of job or scene paths (its format, and the ``data-root:`` line of the backend's lists: ``read_job_list``),
 which items one rank of a multi-process run takes (``--shard`` or the environment), the ``--ray`` options, which
 items name one job (``first_items``), which would write another job's output folder (``shared_output_items``) and
-the summary's counts. No bpy, no torch."""
+the summary's counts. No bpy, no torch.
+
+Just over 400 lines, as one module: the list file is written (``write_job_list``, by ``vary``) and read here with one
+rule for what a line may hold, and both batch command lines (the backend's and Blender's) take their options and
+shards from here; split, the writer and the reader of one format would drift."""
 
 from __future__ import annotations
 

@@ -173,7 +173,9 @@ class _Server:
     def read(self, read: Callable[[], bytes]) -> None:
         """The reader thread (``read``: standard input's next bytes, ``request_lines``): cancel and quit act at once; requests, and the
         answers to malformed lines, queue for the main loop (the one writer of events). Whatever a line holds, the
-        thread reads on; when it ends (input closed, or a bug here) the server ends too."""
+        thread reads on, up to a quit request (the last line it reads); when it ends (a quit, input closed, or a bug
+        here) the server ends too, answering what is queued."""
+        quitting = False
         try:
             for line in request_lines(read):
                 try:
@@ -187,17 +189,25 @@ class _Server:
                             self.current[1].append(True)
                         else:
                             self.cancelled.add(msg[protocol.REQUEST_CANCEL])
-                elif protocol.REQUEST_QUIT in msg:
-                    self.ending = True
-                    self.lines.put(_EOF)
+                elif protocol.REQUEST_QUIT in msg:   # the last line read: the request running finishes, the
+                    quitting = True                    # ones queued before it are answered (``serve``), then it ends
+                    break
                 else:
                     self.lines.put(msg)
         except Exception as e:  # a bug of the reader: the server cannot hear requests any more, so it ends
             events.report_bug(e, "reading requests")
         finally:
-            self.ending = True  # Blender has gone: whatever runs stops, nothing else starts
-            self.stop_current()
+            self.ending = True
+            if not quitting:  # input closed (Blender has gone) or a bug here: whatever runs stops, nothing starts
+                self.stop_current()
             self.lines.put(_EOF)
+
+    def answer(self, msg) -> None:
+        """One queued line: a malformed one's answer, a request's run (the end marker: nothing)."""
+        if isinstance(msg, _Malformed):
+            msg.answer()
+        elif msg is not _EOF:
+            self.run(msg)
 
     def run(self, msg: dict) -> None:
         """One request: its command's events, then the ``served`` event (after the stderr marker)."""
@@ -274,8 +284,12 @@ def serve(idle_timeout: float, device: str) -> int:
             break
         if msg is _EOF:
             continue  # the loop's test says whether to end
-        if isinstance(msg, _Malformed):
-            msg.answer()
-        else:
-            server.run(msg)
+        server.answer(msg)
+    # what came before the end (or after a quit) is answered, never dropped: a malformed line's error, a request's
+    # "cancelled before it started" (``run``: the server is ending)
+    while True:
+        try:
+            server.answer(server.lines.get_nowait())
+        except queue.Empty:
+            break
     return events.EXIT_OK

@@ -204,7 +204,8 @@ def test_malformed_requests_are_each_answered_and_the_server_serves_on(tmp_path)
     proc = subprocess.Popen([sys.executable, "-m", "backend", "serve", "--device", "cpu", "--idle-timeout", "0"],
                             cwd=root, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
     got: queue.Queue = queue.Queue()
-    threading.Thread(target=lambda: [got.put(json.loads(line)) for line in proc.stdout], daemon=True).start()
+    reader = threading.Thread(target=lambda: [got.put(json.loads(line)) for line in proc.stdout], daemon=True)
+    reader.start()
     limit = protocol.MAX_REQUEST_BYTES
     cases = [  # (line, the field named, the id the answer carries)
         (b'{"id": "seven", "argv": ["render", "job.json"]}', "id", None),
@@ -255,8 +256,24 @@ def test_malformed_requests_are_each_answered_and_the_server_serves_on(tmp_path)
             answer.append(next_event(REQUEST_S))
         assert answer[-1]["id"] == 99 and answer[-1]["exit_code"] == protocol.EXIT_OK, answer
         assert any(protocol.kind_of(e) == protocol.DONE and e.get("check") for e in answer)
-        proc.stdin.close()                                    # and it still ends on the end of its input
+        # lines queued when a quit arrives are answered, not dropped (a burst of requests then a quit gave no
+        # answer): the malformed line's error, then the request run or "cancelled before it started", and its served
+        # event; nothing after the quit is read, and the server ends with exit 0
+        proc.stdin.write(b"not json\n" + json.dumps(protocol.request(100, ["render", str(job), "--check"])).encode()
+                         + b'\n{"quit": true}\n{"id": 101, "argv": ["render"]}\n')
+        proc.stdin.flush()
         assert proc.wait(timeout=START_S) == 0
+        proc.stdin.close()
+        reader.join(timeout=REQUEST_S)                        # every event it wrote is read (its output ended)
+        assert not reader.is_alive()
+        rest = [next_event(REQUEST_S)]
+        while protocol.kind_of(rest[-1]) != protocol.SERVED:
+            rest.append(next_event(REQUEST_S))
+        assert protocol.kind_of(rest[0]) == protocol.ERROR and rest[0]["field"] == "(line)", rest
+        assert rest[-1]["id"] == 100 and rest[-1]["exit_code"] in (protocol.EXIT_OK, protocol.EXIT_FAILED), rest
+        if rest[-1]["exit_code"] == protocol.EXIT_FAILED:
+            assert any("cancelled before it started" in e.get("message", "") for e in rest), rest
+        assert got.empty(), got.get()                         # nothing for the line after the quit
     finally:
         if proc.poll() is None:
             proc.kill()

@@ -20,6 +20,7 @@ ORDER = 50
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """``batch``'s parser."""
+    from scpainter_blender.core import backend_protocol as protocol
     from scpainter_blender.core.job import INPAINT_METHODS
 
     b = sub.add_parser(NAME, help="run render or generate over many jobs; sharded under torchrun/accelerate; export: "
@@ -44,7 +45,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                         "(default: each job's)")
     b.add_argument("--half-float", action="store_true", help=options.HALF_FLOAT_HELP + " (--command render)")
     b.add_argument("--format", choices=export_cmd.FORMAT_CHOICES,
-                   help="--command export: the formats, separated by commas (kitti, coco, openlabel)")
+                   help="--command export: the formats, separated by commas "
+                        f"({', '.join(protocol.EXPORT_FORMATS)})")
     b.add_argument("--out", help="--command export: the dataset's folder, written whole (new, empty or a previous "
                                  "dataset)")
     export_cmd.dataset_options(b, " (--command export)")

@@ -85,8 +85,11 @@ def check_destination(out: str, output_dir: str, given: bool, fmt: str | None = 
         except (errors.InputError, AttributeError):
             previous = None
         if previous != fmt:
-            refuse(f"holds a {previous or 'damaged'} export, not {fmt}: another format is never written over it",
-                   hint=f"give a new folder, or the {previous} export's own command")
+            from .dataset import FORMAT as DATASET   # (dataset.py imports this module)
+
+            wanted = "a dataset (several formats, or --list)" if fmt == DATASET else fmt
+            refuse(f"holds a {previous or 'damaged'} export, not {wanted}: another format is never written over it",
+                   hint=f"give a new --out folder (the {previous or 'damaged'} export there is kept)")
 
 
 def read_labels(path: str, frame: int) -> dict:

@@ -400,12 +400,14 @@ def _run_links(case, base, root, workdir, timeout):
 class Hooks:
     """``os.open``, ``open``/``io.open`` and ``os.mkdir`` wrapped for one run: every path they open that resolves
     into ``outside`` is recorded (``read_outside``); after the first successful call on ``trigger`` (an open of a
-    file, a mkdir of a folder, or with ``under`` any open or mkdir inside that folder) ``swap(path)`` runs once
-    (``fired``: that path)."""
+    file, a mkdir of a folder, or with ``under`` any open or mkdir inside that folder; with ``staging`` the mkdir
+    of the folder ``outputs.atomic_folder`` builds ``trigger`` in, ``.<name>.<random>.tmp`` beside it) ``swap(path)``
+    runs once (``fired``: that path)."""
 
-    def __init__(self, outside, trigger, op, swap, under=False):
+    def __init__(self, outside, trigger, op, swap, under=False, staging=False):
         self.outside = os.path.realpath(outside)
         self.trigger, self.op, self.swap, self.under = os.path.abspath(trigger), op, swap, under
+        self.staging = staging
         self.read_outside, self.fired = [], False
 
     @staticmethod
@@ -426,7 +428,10 @@ class Hooks:
             real = os.path.realpath(p)
             if real == self.outside or real.startswith(self.outside + os.sep):
                 self.read_outside.append(real)
-        hit = p.startswith(self.trigger + os.sep) if self.under else p == self.trigger
+        folder, name = os.path.split(self.trigger)
+        hit = (p.startswith(self.trigger + os.sep) if self.under else
+               os.path.dirname(p) == folder and os.path.basename(p).startswith(f".{name}.") if self.staging else
+               p == self.trigger)
         if not self.fired and op == self.op and hit:
             self.fired = p
             self.swap(p)
@@ -469,7 +474,7 @@ RACE_SITES = [
     ("generate", "out/generated", "mkdir", "target", "dir"),
     ("export", "out/export", "mkdir", "target", "dir"),
     ("export", "out/export", "mkdir-under", "target", "made"),
-    ("vary", "out/vary/v0000", "mkdir", "target", "dir"),
+    ("vary", "out/vary/v0000", "mkdir-staging", "target", "made"),   # built under .v0000.*.tmp, renamed whole
     ("vary", "out/vary/library", "mkdir", "target", "dir"),
     ("vary", "road/predictions.npz", "open", "predictions.npz", "file"),
     ("vary", "cars/car.ply", "open", "car.ply", "file"),
@@ -481,9 +486,10 @@ def _races_plan(rng):
     command, trigger, op, target, what = rng.cycle(RACE_SITES)
     style = ("absolute", "relative")[rng.turn // len(RACE_SITES) % 2]
     when = {"open": "after its first open", "mkdir": "after it was made", "under": "after its first file",
-            "mkdir-under": "after it was made"}[op]
+            "mkdir-under": "after it was made", "mkdir-staging": "after it was made"}[op]
     swapped = ("out/conditions" if what == "conditions" else f"job/{trigger}/(the first folder made in it)"
-               if op == "mkdir-under" else f"job/{trigger}")
+               if op == "mkdir-under" else f"job/{trigger}'s staging folder (.{os.path.basename(trigger)}.*.tmp)"
+               if op == "mkdir-staging" else f"job/{trigger}")
     return (f"{command.split()[0]}: {swapped} swapped for {'an' if style[0] == 'a' else 'a'} {style} link to "
             f"outside/{target} {when}"
             + (" (a second run)" if what == "conditions" else ""),
@@ -510,8 +516,9 @@ def _run_races(case, base, root, workdir, timeout):
         os.rename(made, moved)
         os.symlink(dest if p["style"] == "absolute" else os.path.relpath(dest, os.path.dirname(made)), made)
 
-    op = {"under": "open", "mkdir-under": "mkdir"}.get(p["op"], p["op"])
-    hooks = Hooks(c.outside, c.path("job/" + p["trigger"]), op, swap, under=p["op"] in ("under", "mkdir-under"))
+    op = {"under": "open", "mkdir-under": "mkdir", "mkdir-staging": "mkdir"}.get(p["op"], p["op"])
+    hooks = Hooks(c.outside, c.path("job/" + p["trigger"]), op, swap, under=p["op"] in ("under", "mkdir-under"),
+                  staging=p["op"] == "mkdir-staging")
     c_res = _run(case, c, root, workdir, argv, timeout, names={p["target"], os.path.basename(victim)}, hooks=hooks)
     c_res[0]["swapped"] = bool(hooks.fired)
     return c, c_res

@@ -30,6 +30,8 @@ import numpy as np
 from . import fields as fields_mod
 from . import categories, errors, files, outputs
 from .geometry import point_cloud, similarity
+# what a usable K is (its bounds, job fields and rig cameras alike): the cameras' module owns it
+from .geometry.cameras import MAX_FOCAL_RATIO, MAX_K, MIN_FOCAL_RATIO, PRINCIPAL_POINT_MARGIN, intrinsics_problem  # noqa: F401
 from .vggt.predictions import EXTRINSIC_CONVENTIONS  # scene.extrinsic_convention: what the predictions' extrinsic holds
 
 if TYPE_CHECKING:
@@ -46,15 +48,6 @@ MAX_FRAMES = 100_000               # output frames in one job
 FRAME_RANGE = (-1048574, 1048574)  # Blender's MINAFRAME..MAXFRAME
 MAX_SOURCE_FRAME = 1_000_000
 MAX_SEED = 2 ** 63 - 1
-#: A camera's intrinsics K (``intrinsics_problem``): every entry at most this in size (pixels). Checked against an
-#: image's size (a training clip's poses.npz, whose frames are resized for training up to MAX_SIDE): focal lengths
-#: at most MAX_FOCAL_RATIO image sizes (a field of view of 0.06°: no camera), the principal point at most
-#: PRINCIPAL_POINT_MARGIN image sizes outside the image; so a K resized to any job size stays within MAX_K.
-MAX_K = 1e8
-MAX_FOCAL_RATIO = 1000.0
-#: the focal length's lower bound, as a share of the image size: fx = W / 1000 is a 179.9° field of view
-MIN_FOCAL_RATIO = 1.0 / MAX_FOCAL_RATIO
-PRINCIPAL_POINT_MARGIN = 1.0
 #: ``generate`` settings: (low, high) of each; the checkpoint's own values obey the same (backend.model.checkpoint)
 GENERATE_INT_BOUNDS = {"steps": (1, 1000), "window": (1, 256), "overlap": (0, 255), "seed": (0, MAX_SEED),
                        "decode_chunk": (1, 256)}
@@ -115,32 +108,6 @@ def _list(value, path, where, what="a list") -> list:
     if not isinstance(value, list):
         raise JobError(path, where, f"expected {what}")
     return value
-
-
-def intrinsics_problem(K: np.ndarray, size: tuple[int, int] | None = None) -> str | None:
-    """Why ``K`` (3, 3) is not usable intrinsics — ours: [[fx, s, cx], [0, fy, cy], [0, 0, 1]] in pixels, finite,
-    fx, fy > 0, every entry at most ``MAX_K`` in size — or None. With the image's ``size`` (W, H) also fx between
-    ``MIN_FOCAL_RATIO`` W and ``MAX_FOCAL_RATIO`` W, fy between as many H, and (cx, cy) at most ``PRINCIPAL_POINT_MARGIN`` image sizes
-    outside the image. A job's ``frames[i].K`` and a training clip's ``poses.npz`` K are checked by it."""
-    K = np.asarray(K, np.float64)
-    shape = f"expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0 (pixels, at most {MAX_K:g})"
-    if K.shape != (3, 3) or not np.all(np.isfinite(K)) or not (K[0, 0] > 0 and K[1, 1] > 0) or \
-            np.any(K[2] != [0, 0, 1]) or K[1, 0] != 0 or np.abs(K).max() > MAX_K:
-        return shape
-    if size is None:
-        return None
-    W, H = float(size[0]), float(size[1])
-    if K[0, 0] > MAX_FOCAL_RATIO * W or K[1, 1] > MAX_FOCAL_RATIO * H:
-        return (f"fx, fy = {K[0, 0]:g}, {K[1, 1]:g} px: more than {MAX_FOCAL_RATIO:g} times the image's "
-                f"{W:g} x {H:g} px (a field of view no camera has)")
-    if K[0, 0] < MIN_FOCAL_RATIO * W or K[1, 1] < MIN_FOCAL_RATIO * H:
-        return (f"fx, fy = {K[0, 0]:g}, {K[1, 1]:g} px: less than 1/{MAX_FOCAL_RATIO:g} of the image's "
-                f"{W:g} x {H:g} px (a field of view of 180° or more, which no pinhole camera has)")
-    m = PRINCIPAL_POINT_MARGIN
-    if not (-m * W <= K[0, 2] <= (1 + m) * W and -m * H <= K[1, 2] <= (1 + m) * H):
-        return (f"the principal point (cx, cy) = ({K[0, 2]:g}, {K[1, 2]:g}) px lies more than {m:g} image size "
-                f"outside the {W:g} x {H:g} px image (fx = {K[0, 0]:g})")
-    return None
 
 
 def _frame_key(key: str, path, where) -> int:

@@ -8,6 +8,7 @@ import bpy
 
 from ..scpainter_blender.runs import camera_run
 from ..scpainter_blender.scene import asset_box, job_export, keys, kinds, node_groups, points, props
+from ..scpainter_blender.scene import rig as rig_scene
 
 
 class SCPAINTER_PT_main(bpy.types.Panel):
@@ -30,6 +31,7 @@ class SCPAINTER_PT_main(bpy.types.Panel):
             label = f"{abs(shift):g} m {'L' if shift > 0 else 'R'}"
             row.operator("scpainter.new_camera_path", text=label).shift = shift
         box.operator("scpainter.new_camera_path", text="Custom Shift...").shift = 1.0
+        self.draw_rig(context, layout.box())
         self.draw_assets(context, layout.box())
         box = layout.box()
         box.label(text="Job", icon="FILE")
@@ -52,6 +54,29 @@ class SCPAINTER_PT_main(bpy.types.Panel):
             for name in ("Point Radius", "Current Frame Only", "Frame Window"):
                 box.prop(mod, f'["{node_groups.socket_identifier(mod.node_group, name)}"]', text=name)
 
+
+    @staticmethod
+    def draw_rig(context, box):
+        """The camera rig of the active camera path (``rig_scene.target_camera``): its cameras (resolution, lens)
+        and LiDAR, Remove; or Add Camera Rig with its presets."""
+        cam = rig_scene.target_camera(context)
+        rig_obj = kinds.rig_of(cam)
+        box.label(text="Camera Rig" + (f" of {cam.name}" if cam is not None else ""), icon="OUTLINER_OB_CAMERA")
+        if rig_obj is None:
+            box.operator_menu_enum("scpainter.add_camera_rig", "preset", text="Add Camera Rig", icon="ADD")
+            return
+        box.label(text=f"{rig_obj.get(keys.RIG_NAME, 'custom')}: the path is {rig_scene.follow_of(rig_obj)}")
+        col = box.column(align=True)
+        for c in kinds.rig_sensors(rig_obj, kinds.RIG_CAMERA):
+            row = col.row(align=True)
+            row.label(text=str(c.get(keys.SENSOR, c.name)), icon="CAMERA_DATA")
+            row.prop(c, f'["{keys.RESOLUTION}"]', text="")
+            row.prop(c.data, "lens", text="")
+        for ld in kinds.rig_sensors(rig_obj, kinds.RIG_LIDAR):
+            col.label(text=f"{ld.get(keys.SENSOR, ld.name)}: {ld.get(keys.LIDAR_MODEL, '?')}", icon="LIGHT_POINT")
+        row = box.row(align=True)
+        row.operator_menu_enum("scpainter.add_camera_rig", "preset", text="Replace", icon="FILE_REFRESH")
+        row.operator("scpainter.remove_camera_rig", text="Remove", icon="X")
 
     @staticmethod
     def draw_job_warnings(context, box):

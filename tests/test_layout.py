@@ -80,6 +80,7 @@ UNMIRRORED = {
                                      "a removal box from one, on the street",
     "operators/import_vggt.py": "tested by tests/scene/test_importer.py: bpy.ops.scpainter.import_vggt",
     "operators/job.py": "tested by tests/scene/test_job_export.py: bpy.ops.scpainter.export_job",
+    "operators/rig.py": "tested by tests/scene/test_rig.py: bpy.ops.scpainter.add_camera_rig / remove_camera_rig",
     "operators/placement.py": "tested by tests/scene/test_placement.py: fit, snap, removal boxes, replace a car",
     "operators/reports.py": "exercised by tests/scene/test_gaussians.py: bad files reported by the import "
                             "operator (test_bad_files_report_and_create_nothing)",

@@ -15,6 +15,7 @@ import bpy
 from ..core import backend_protocol as protocol
 from ..core import job as job_mod
 from ..core import outputs
+from ..core.errors import InputError
 from ..core.output_layout import OutputLayout
 from ..scene import job_export, props, results
 from . import preferences, warm_session
@@ -111,22 +112,66 @@ def finish(context, command: str, out: str, done: dict, camera: str | None = Non
         images = "generated frames" if done.get("images") == "generated" else "condition previews (no video yet)"
         return (f"{name} export: {done.get('frames', '?')} frames, {done.get('objects', '?')} objects, images: "
                 f"{images}, in {done.get('out')}")
+    rig = _rig_of_run(layout)
+    if rig is not None:  # a rig job: each camera's results from its own folder, shown behind its rig camera
+        return _finish_rig(context, command, layout, done, rig, camera, cam)
     if command == "render":
-        folder = layout.conditions
-        img = results.load_conditions(folder, camera)
-        results.load_labels(folder, camera)  # beside the conditions, for an image editor: the camera shows those
+        img = _load(command, layout, done, camera)
         results.show_behind_camera(context.scene, img, camera=cam)
         fresh = " (up to date: nothing changed since they were rendered)" if done.get("up_to_date") else ""
-        return f"Condition layers of {done.get('frames', '?')} frames in {folder}{fresh}"
+        return f"Condition layers of {done.get('frames', '?')} frames in {layout.conditions}{fresh}"
     model = done.get("model", "scpainter")  # a backend from before the baseline: always the model
-    img, _clip = results.load_generated(done.get("frames_dir") or layout.generated, done.get("video") or layout.video,
-                                        model, done.get("description", ""), camera)
+    img = _load(command, layout, done, camera)
     results.show_behind_camera(context.scene, img, camera=cam)
     if model == "baseline":
         method = job_mod.INPAINT_NAMES.get(done.get("inpaint"), "")
         return (f"Baseline video (OpenCV {method + ' ' if method else ''}inpainting, no model): {done.get('video')}"
                 f"; for SCPainter's video set Preferences > Add-ons > SCPainter > Checkpoint Folder")
     return f"Video {done.get('video')}"
+
+
+def _load(command: str, layout: OutputLayout, done: dict, camera: str | None, own_folder: bool = False):
+    """Load a render's conditions (and labelled previews) or a generation's frames and video from ``layout`` as
+    the results of the camera named ``camera``; the image sequence to show. ``own_folder``: a rig camera's folder,
+    whose paths are the layout's (the ``done`` event's name the rig job's top folder)."""
+    if command == "render":
+        img = results.load_conditions(layout.conditions, camera)
+        results.load_labels(layout.conditions, camera)  # for an image editor: the camera shows the conditions
+        return img
+    model = done.get("model", "scpainter")
+    frames_dir = layout.generated if own_folder else done.get("frames_dir") or layout.generated
+    video = layout.video if own_folder else done.get("video") or layout.video
+    img, _clip = results.load_generated(frames_dir, video, model, done.get("description", ""), camera)
+    return img
+
+
+def _rig_of_run(layout: OutputLayout):
+    """The rig of the job the run ran (``layout.job``, what ``export`` wrote), None for a single-camera job or a job
+    that cannot be read (then the results are looked for as one camera's)."""
+    try:
+        return job_mod.load(layout.job).rig
+    except (OSError, InputError):
+        return None
+
+
+def _finish_rig(context, command: str, layout: OutputLayout, done: dict, rig, camera: str | None, cam) -> str:
+    """A rig job's results: each rig camera's from ``<out>/<CAMERA>/``, loaded under the name of the Blender camera
+    that is that sensor (``results.rig_cameras``; a rig removed since: "<path camera>/<sensor>") and shown behind it;
+    the camera path shows the sensor it is (its rig's ``follow``)."""
+    sensors, follow = results.rig_cameras(context.scene, cam)
+    for rc in rig.cameras:
+        obj = sensors.get(rc.name)
+        img = _load(command, layout.camera(rc.name), done, obj.name if obj else f"{camera}/{rc.name}", own_folder=True)
+        results.show_behind_camera(context.scene, img, camera=obj)
+        if rc.name == follow:
+            results.show_behind_camera(context.scene, img, camera=cam)
+    names = ", ".join(c.name for c in rig.cameras)
+    if command == "render":
+        fresh = " (up to date: nothing changed since they were rendered)" if done.get("up_to_date") else ""
+        return (f"Condition layers of {done.get('frames', '?')} frames of {len(rig.cameras)} cameras ({names}) in "
+                f"{layout.root}{fresh}")
+    what = "Baseline videos (no model)" if done.get("model") == "baseline" else "Videos"
+    return f"{what} of {len(rig.cameras)} cameras ({names}) in {layout.root}"
 
 
 def with_warnings(message: str, warnings: list) -> tuple[str, str]:

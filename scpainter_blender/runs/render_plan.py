@@ -5,7 +5,8 @@ rules (``core.frame_keys``: each frame's layers key from its camera and the asse
 assets' extents from the conditions folder's record). When every frame is finished under its keys, the run is
 over before it starts: its results are loaded as a finished render's, and the frames' warnings are said again
 as the backend says them on every run. Anything the record cannot answer (no record, an asset file changed, a
-forced run) goes to the backend.
+forced run) goes to the backend. A rig job is planned as the backend runs it, camera by camera (``Job.camera_jobs``,
+each in its own ``<output folder>/<CAMERA>/``): it is over only when every camera's frames are.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from ..core import backend_protocol as protocol
 from ..core import errors, frame_keys
 from ..core import job as job_mod
 from ..core import labels as labels_mod
+from ..core.output_layout import OutputLayout
 from ..core.variation import proposals
 from . import camera_run
 from .client import Invocation
@@ -41,20 +43,27 @@ def check(context, run: Invocation, camera) -> Check | None:
     job_path, out = camera_run.export(context, camera=camera)
     job = job_mod.load(job_path)
     mode = run.proposals or proposals.DEFAULT_MODE
-    try:  # the job as the backend labels it: its proposals added as the run's mode says (the backend's own rule)
-        job, found, _ = proposals.with_proposals(job, job_path, mode)
-        plan = frame_keys.plan_from_record(out, job_path, job, run.point_radius or 0)
-    except (OSError, errors.InputError):  # an input file is gone or unreadable: the backend names it
-        plan = None
-    if plan is None or not plan.up_to_date:
-        return Check(job_path, out)
-    # said again as the backend says them on every run: the ignored proposals, then each frame's
+    found, done_labels = [], []
+    # a rig job is planned camera by camera, as the backend renders it: each camera job in its own folder
+    # (<out>/<CAMERA>/); the run is over only when every camera's is
+    for cam, cjob in job.camera_jobs():
+        cout = out if cam is None else OutputLayout(out).camera(cam.name).root
+        try:  # the job as the backend labels it: its proposals added as the run's mode says (the backend's own rule)
+            cjob, cfound, _ = proposals.with_proposals(cjob, job_path, mode)
+            plan = frame_keys.plan_from_record(cout, job_path, cjob, run.point_radius or 0)
+        except (OSError, errors.InputError):  # an input file is gone or unreadable: the backend names it
+            plan = None
+        if plan is None or not plan.up_to_date:
+            return Check(job_path, out)
+        found += cfound
+        done_labels += [(cam, plan.done[e.frame]) for e in cjob.frames]
+    # said again as the backend says them on every run: the ignored proposals, then each frame's (a rig's cameras
+    # each name theirs)
     warnings = [protocol.event(protocol.WARNING, message=proposals.unlabelled_message(p), code=proposals.UNLABELLED,
                                object=p.id) for p in found if mode == "ignore"]
-    warnings += [protocol.event(protocol.WARNING, message=message, code=code, frame=lab["frame"],
-                                **({"object": obj} if obj else {}))
-                 for e in job.frames for lab in [plan.done[e.frame]]
-                 for code, message, obj in labels_mod.warnings(lab)]
+    warnings += [protocol.event(protocol.WARNING, message=message if cam is None else f"{cam.name}: {message}",
+                                code=code, frame=lab["frame"], **({"object": obj} if obj else {}))
+                 for cam, lab in done_labels for code, message, obj in labels_mod.warnings(lab)]
     n = len(job.frames)
     done = protocol.event(protocol.DONE, frames=n, rendered=0, skipped=n, relabelled=0, output_dir=out,
                           stopped=False, warnings=len(warnings), up_to_date=True)

@@ -39,6 +39,7 @@ from . import camera as camera_mod
 from . import asset_box, keys, kinds, node_groups, paths, placement, props, visibility
 from . import points as points_mod
 from . import recorded_objects
+from . import rig as rig_scene
 
 
 def _m(value):
@@ -84,29 +85,47 @@ def build_job(context, job_path: str, output_dir: str | None = None, checkpoint:
         drawable_camera(None, None)  # no camera at all; the ones the frames use are checked frame by frame below
     job_dir = os.path.dirname(os.path.abspath(job_path))
     frames = output_frames(scene)
-    size = camera_mod.output_size(scene)
-    if min(size) < 1:
-        raise props.SceneError("scene.render.border", f"the render region crops the frame to {size[0]} x {size[1]} "
-                               "pixels", hint="widen the render region (Output Properties > Format > Render Region) "
-                                              "or turn off Crop to Render Region")
     pts, assets = rendered_objects(context)
     boxes = placement.applied_removal_boxes(pts) if pts is not None else []
     out_frames = []
     asset_m = {a.name: {} for a in assets}
     asset_boxes = {}
     current = scene.frame_current
+    rig = rig_obj = None
     try:
         for f in frames:
             scene.frame_set(f)  # also switches the scene camera by the markers, as the render does
             cam = drawable_camera(camera or scene.camera, f)
-            K, w2c = camera_mod.K_of_camera_object(scene, cam), camera_mod.world_to_camera(cam)
-            out_frames.append(job_mod.Frame(f, K, w2c, source_frames(pts, f) if pts is not None else []))
+            if f == frames[0]:  # a camera path with a rig: a rig job, its rig as it stands at the first frame
+                rig_obj, path_camera = kinds.rig_of(cam), cam
+                if rig_obj is not None:
+                    for c in kinds.rig_sensors(rig_obj, kinds.RIG_CAMERA):
+                        drawable_camera(c, None)
+                    rig = rig_scene.read_rig(rig_obj)
+            elif cam != path_camera and (rig_obj is not None or kinds.rig_of(cam) is not None):
+                rigged = path_camera if rig_obj is not None else cam
+                raise props.SceneError("scene.timeline_markers", f"a timeline marker switches the camera from "
+                                       f"{path_camera.name!r} to {cam.name!r} at frame {f}, and {rigged.name!r} "
+                                       "has a camera rig: a rig job follows one camera path",
+                                       hint="remove the markers bound to cameras, or run one camera path "
+                                            "(All Camera Paths, --camera)")
+            src = source_frames(pts, f) if pts is not None else []
+            if rig is not None:
+                out_frames.append(job_mod.Frame(f, None, None, src, ego_to_world=rig_scene.ego_to_world(rig_obj)))
+            else:
+                K, w2c = camera_mod.K_of_camera_object(scene, cam), camera_mod.world_to_camera(cam)
+                out_frames.append(job_mod.Frame(f, K, w2c, src))
             for a in assets:
                 asset_m[a.name][f] = a.matrix_world() @ props.matrix_property(a.obj, keys.FILE_TO_DATA)
                 if a.name not in asset_boxes:  # the box in the asset's own frame, as it stands at the first frame
                     asset_boxes[a.name] = asset_box.job_box(a.obj)
     finally:
         scene.frame_set(current)
+    size = None if rig is not None else camera_mod.output_size(scene)  # a rig's cameras have their own sizes
+    if size is not None and min(size) < 1:
+        raise props.SceneError("scene.render.border", f"the render region crops the frame to {size[0]} x {size[1]} "
+                               "pixels", hint="widen the render region (Output Properties > Format > Render Region) "
+                                              "or turn off Crop to Render Region")
     sc = None
     if pts is not None:
         sc = job_mod.Scene(_job_path(pts, job_dir), effective_vggt_to_world(pts),
@@ -125,7 +144,7 @@ def build_job(context, job_path: str, output_dir: str | None = None, checkpoint:
                                              asset_box.category(a.obj), asset_boxes[a.name])
                                for a in assets],
                        generate=_generate_settings(checkpoint, props.baseline_inpaint(scene)),
-                       fps=frame_rate(scene))
+                       fps=frame_rate(scene), rig=rig)
 
 
 #: Blender camera types the condition renderer draws (an OpenCV pinhole): perspective only.

@@ -25,7 +25,7 @@ CONFIDENCE_PERCENTILE = "scpainter_confidence_percentile"
 DEPTH_EDGE_RATIO = "scpainter_depth_edge_ratio"
 #: (16,) the object's matrix_world when imported (moved since: the job follows).
 MATRIX_WORLD_AT_IMPORT = "scpainter_matrix_world_at_import"
-#: (9,) a recorded camera's K, row-major (on the recorded camera).
+#: (9,) a recorded camera's K, row-major (on the recorded camera; on a rig camera: the K it was added with).
 INTRINSICS = "scpainter_intrinsics"
 #: How the metric scale was found.
 SCALE_METHOD = "scpainter_scale_method"
@@ -72,6 +72,25 @@ SOURCE_CAMERA = "scpainter_source_camera"
 #: Its sideways shift, metres.
 SHIFT_M = "scpainter_shift_m"
 
+# -- A camera rig (``scene/rig.py``): the rig empty, its cameras and its LiDAR; a rig camera's K as added is
+#    ``INTRINSICS``
+#: The rig's name (a preset's: "nuscenes", "front"; "recording"), on the rig empty.
+RIG_NAME = "scpainter_rig_name"
+#: The sensor the camera path is (the rig empty follows the path as this camera's ego pose), on the rig empty.
+RIG_FOLLOW = "scpainter_rig_follow"
+#: A rig camera's or LiDAR's sensor name ("CAM_FRONT"; the object's name may carry Blender's ".001").
+SENSOR = "scpainter_sensor"
+#: A rig sensor's place in the rig (the order of its cameras in the job and every export).
+SENSOR_INDEX = "scpainter_sensor_index"
+#: (2,) a rig camera's own resolution, pixels (Blender renders one resolution per scene).
+RESOLUTION = "scpainter_resolution"
+#: (2,) a rig camera's pixel aspect (x, y): how fx != fy is held, as the scene's render settings hold it.
+PIXEL_ASPECT = "scpainter_pixel_aspect"
+#: (16,) a rig sensor's mounting pose as added, row-major: camera_to_ego / lidar_to_ego in float64.
+MOUNT = "scpainter_mount"
+#: A rig LiDAR's model (a key of ``core.lidar_model.MODELS``).
+LIDAR_MODEL = "scpainter_lidar_model"
+
 # -- An asset's label box (``scene/asset_box.py``); a recorded object (``scene/recorded_objects.py``)
 #: Its label class.
 CLASS = "scpainter_class"
@@ -111,4 +130,5 @@ ALL = (SOURCE, NUM_FRAMES, FRAME_START, VGGT_TO_WORLD, EXTRINSIC_CONVENTION, CRO
        DEPTH_EDGE_RATIO, MATRIX_WORLD_AT_IMPORT, INTRINSICS, SCALE_METHOD, SCALE_RESIDUAL_M, FILE_TO_DATA, AXES,
        AXES_REASON, SIZE, OBB_SIZE, SH_DEGREE, FORMAT, DROPPED, MESH_SOURCE, SPLAT_SOURCE, STAGE1, STAGE1_DEVIATION,
        REVIEW, TARGET_BOX, POINTS_OBJECT, SOURCE_CAMERA, SHIFT_M, CLASS, TRACK_ID, IGNORE, TRACK_FRAMES,
-       PROPOSAL_SCORE, RESULT, CAMERA, MODEL, DESCRIPTION, FRAMES, VERSION, *RENAMED.values())
+       PROPOSAL_SCORE, RESULT, CAMERA, MODEL, DESCRIPTION, FRAMES, VERSION, RIG_NAME, RIG_FOLLOW, SENSOR,
+       SENSOR_INDEX, RESOLUTION, PIXEL_ASPECT, MOUNT, LIDAR_MODEL, *RENAMED.values())

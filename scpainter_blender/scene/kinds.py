@@ -12,12 +12,17 @@ are saved in .blend files: never rename them.
 * ``ASSET_FRONT``: the arrow that marks the front (+y) of an asset box, parented to the box (scene/asset_box.py);
 * ``RECORDED_OBJECT``: an object of the recording (a tracked car), a cube empty whose unit cube is its box; the job's
   ``scene.recorded_objects`` (scene/job_export.py; an accepted proposal becomes one: scene/proposals.py);
-* ``PROPOSAL``: a box proposal for review, a cube empty like a recorded object (scene/proposals.py).
+* ``PROPOSAL``: a box proposal for review, a cube empty like a recorded object (scene/proposals.py);
+* ``RIG``: a camera rig, an empty parented to the camera path it follows, at the ego pose (scene/rig.py);
+* ``RIG_CAMERA``: one camera of a rig, a camera parented to the rig empty (scene/rig.py);
+* ``RIG_LIDAR``: a rig's LiDAR, an empty parented to the rig empty (scene/rig.py).
 
 Objects are anything with ``get`` (Blender objects, ``None`` allowed where noted); no bpy needed here.
 """
 
 from __future__ import annotations
+
+from . import keys
 
 PROPERTY = "scpainter_kind"
 
@@ -30,8 +35,11 @@ ASSET_BOX = "asset_box"
 ASSET_FRONT = "asset_front"
 RECORDED_OBJECT = "recorded_object"
 PROPOSAL = "proposal"
+RIG = "rig"
+RIG_CAMERA = "rig_camera"
+RIG_LIDAR = "rig_lidar"
 ALL = (POINTS, RECORDED_CAMERA, CAMERA_PATH, GAUSSIAN_ASSET, REMOVAL_BOX, ASSET_BOX, ASSET_FRONT, RECORDED_OBJECT,
-       PROPOSAL)
+       PROPOSAL, RIG, RIG_CAMERA, RIG_LIDAR)
 
 
 def mark(obj, kind: str) -> None:
@@ -132,3 +140,18 @@ def owning_asset(obj):
     while obj is not None and is_kind(obj, ASSET_BOX, ASSET_FRONT):
         obj = obj.parent
     return obj if is_kind(obj, GAUSSIAN_ASSET) else None
+
+
+def rig_of(camera):
+    """The camera rig that follows ``camera`` (its child of kind ``RIG``), or None (also for ``camera`` None)."""
+    return child_of_kind(camera, RIG)
+
+
+def rig_sensors(rig, kind: str) -> list:
+    """A rig's direct children of ``kind`` (``RIG_CAMERA`` or ``RIG_LIDAR``) in the rig's order: by their stored
+    place (``scpainter_sensor_index``), then by name; [] for ``rig`` None."""
+    if rig is None:
+        return []
+    return sorted((c for c in rig.children if is_kind(c, kind)),
+                  key=lambda c: (int(c.get(keys.SENSOR_INDEX, 1 << 30)), c.name))
+

@@ -19,7 +19,9 @@ there (``NAMES``): loading one kind renames that camera's datablock of the other
 it) and replaces its movie clip, so the scene never shows one generator's frames under the other's name. Each
 datablock also carries ``scpainter_model`` and ``scpainter_description`` (the backend's one line about what made
 it). Results loaded before results were per camera keep their plain names ("SCPainter Conditions") and are left
-alone, except that the camera background slot showing one is reused.
+alone, except that the camera background slot showing one is reused. A rig job's results (docs/design.md §17) are
+each camera's, from its own folder ``<output folder>/<CAMERA>/``, loaded under the name of the rig camera that is
+that sensor and shown behind it (``rig_cameras``); the camera path shows the sensor it is (CAM_FRONT for a preset).
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ import os
 import bpy
 
 from ..core.output_layout import CONDITION_PREVIEW, GENERATED_FRAME, LABELLED_PREVIEW
-from . import keys, paths
+from . import keys, kinds, paths
 
 CONDITIONS = "SCPainter Conditions"
 LABELS = "SCPainter Labels"   # the condition previews with the labels drawn (boxes, ids), beside CONDITIONS
@@ -133,6 +135,17 @@ def load_generated(frames_dir: str, mp4: str, model: str = "scpainter", descript
         if block is not None:
             block[keys.MODEL], block[keys.DESCRIPTION] = model, description
     return img, clip
+
+
+def rig_cameras(scene, camera) -> tuple[dict, str | None]:
+    """({sensor name: camera object}, the sensor the camera path is) of the camera rig that follows ``camera`` (a
+    camera object, or None): where a rig job's results are shown, each camera's behind its own rig camera
+    (scene/rig.py); ({}, None) without a rig."""
+    rig = kinds.rig_of(camera)
+    if rig is None:
+        return {}, None
+    return ({str(c.get(keys.SENSOR, c.name)): c for c in kinds.rig_sensors(rig, kinds.RIG_CAMERA)},
+            rig.get(keys.RIG_FOLLOW))
 
 
 def _is_result(image) -> bool:

@@ -27,10 +27,13 @@ def test_stored_keys_never_change():
         "TRACK_ID": "scpainter_track_id", "IGNORE": "scpainter_ignore", "TRACK_FRAMES": "scpainter_track_frames",
         "PROPOSAL_SCORE": "scpainter_proposal_score",
         "RESULT": "scpainter_result", "CAMERA": "scpainter_camera", "MODEL": "scpainter_model",
-        "DESCRIPTION": "scpainter_description", "FRAMES": "scpainter_frames", "VERSION": "scpainter_version"}
+        "DESCRIPTION": "scpainter_description", "FRAMES": "scpainter_frames", "VERSION": "scpainter_version",
+        "RIG_NAME": "scpainter_rig_name", "RIG_FOLLOW": "scpainter_rig_follow", "SENSOR": "scpainter_sensor",
+        "SENSOR_INDEX": "scpainter_sensor_index", "RESOLUTION": "scpainter_resolution",
+        "PIXEL_ASPECT": "scpainter_pixel_aspect", "MOUNT": "scpainter_mount", "LIDAR_MODEL": "scpainter_lidar_model"}
     assert keys.RENAMED == {"scpainter_vggt_to_world": "scpainter_world_from_vggt",
                             "scpainter_file_to_data": "scpainter_data_from_file"}
-    assert len(set(keys.ALL)) == len(keys.ALL) == 42
+    assert len(set(keys.ALL)) == len(keys.ALL) == 50
 
 
 def _spelled_keys(source, rel):

@@ -21,7 +21,7 @@ def test_stored_values_never_change():
     """Saved .blend files hold these strings: renaming one loses every object of that kind."""
     assert kinds.PROPERTY == "scpainter_kind"
     assert kinds.ALL == ("points", "recorded_camera", "camera_path", "gaussian_asset", "removal_box", "asset_box",
-                         "asset_front", "recorded_object", "proposal")
+                         "asset_front", "recorded_object", "proposal", "rig", "rig_camera", "rig_lidar")
 
 
 class _Obj(dict):
@@ -122,3 +122,25 @@ def test_kinds_are_spelled_only_in_their_module():
             if found:
                 spelled[rel] = found
     assert spelled == {}
+
+
+def test_rig_finders():
+    """A camera path's rig is its child of kind ``rig``; the rig's cameras and LiDAR come in their stored order
+    (``scpainter_sensor_index``), whatever order Blender lists the children in, unnumbered ones last by name."""
+    path, lone = _Obj(), _Obj()
+    rig = _Obj(path)
+    _Obj(path)  # another child of the path
+    made = {}
+    for name, index, kind in (("CAM_BACK", 3, kinds.RIG_CAMERA), ("LIDAR_TOP", 6, kinds.RIG_LIDAR),
+                              ("CAM_FRONT", 0, kinds.RIG_CAMERA), ("EXTRA", None, kinds.RIG_CAMERA),
+                              ("CAM_FRONT_LEFT", 2, kinds.RIG_CAMERA)):
+        o = made[name] = _Obj(rig)
+        o.name = name
+        kinds.mark(o, kind)
+        if index is not None:
+            o["scpainter_sensor_index"] = index
+    kinds.mark(rig, kinds.RIG)
+    assert kinds.rig_of(path) is rig and kinds.rig_of(lone) is None and kinds.rig_of(None) is None
+    assert [o.name for o in kinds.rig_sensors(rig, kinds.RIG_CAMERA)] == ["CAM_FRONT", "CAM_FRONT_LEFT", "CAM_BACK",
+                                                                          "EXTRA"]
+    assert kinds.rig_sensors(rig, kinds.RIG_LIDAR) == [made["LIDAR_TOP"]] and kinds.rig_sensors(None, kinds.RIG) == []

@@ -1,0 +1,168 @@
+"""scene/rig.py: *Add Camera Rig* on a camera path, the rig read back as a ``core.rig.Rig``, and its job (through the
+real bpy: a camera keyed along a short drive, no street)."""
+
+import sys
+
+import bpy
+import numpy as np
+import pytest
+
+from scpainter_blender.core import rig as core_rig
+from scpainter_blender.core.geometry import cameras as C
+
+
+def _modules(addon):
+    return (sys.modules[addon + ".scpainter_blender.scene.rig"], sys.modules[addon + ".scpainter_blender.scene.kinds"])
+
+
+def _path_camera(scene):
+    """A camera path: a camera keyed over frames 1-5, 100 m from the origin (float32 matters there), turning."""
+    cam = bpy.data.objects.new("Path", bpy.data.cameras.new("Path"))
+    scene.collection.objects.link(cam)
+    cam["scpainter_kind"] = "camera_path"
+    cam.rotation_mode = "QUATERNION"
+    for frame, x, yaw in ((1, 100.0, 0.0), (5, 108.0, 0.2)):
+        cam.location = (x, -50.0, 1.5)
+        cam.rotation_quaternion = (np.cos(yaw / 2), 0, 0, np.sin(yaw / 2))
+        cam.rotation_quaternion = (cam.rotation_quaternion @ _euler_x(np.pi / 2))  # look along +y, level
+        cam.keyframe_insert("location", frame=frame)
+        cam.keyframe_insert("rotation_quaternion", frame=frame)
+    scene.frame_start, scene.frame_end = 1, 5
+    scene.camera = cam
+    bpy.context.view_layer.objects.active = cam
+    return cam
+
+
+def _euler_x(angle):
+    from mathutils import Euler
+
+    return Euler((angle, 0.0, 0.0)).to_quaternion()
+
+
+def _camera_to_world(obj):
+    return C.rigid_inverse(C.world_to_camera_from_blender(np.array(obj.matrix_world, dtype=np.float64)))
+
+
+def test_add_camera_rig_follows_the_path_and_reads_back_the_preset(addon, empty_scene):
+    """The nuScenes preset at scale 1: one camera per sensor (named after it, its resolution stored, lens and shifts
+    from K), the LiDAR, all under a rig empty that puts CAM_FRONT on the camera path at every frame; read back it is
+    the preset (to 1e-6: the float64 values it was added with, which Blender's float32 still rounds to)."""
+    rig_scene, kinds = _modules(addon)
+    scene = empty_scene
+    path = _path_camera(scene)
+    assert bpy.ops.scpainter.add_camera_rig(preset="nuscenes", scale=1.0) == {"FINISHED"}
+    rig_obj = kinds.rig_of(path)
+    assert rig_obj.name == "SCPainter Rig" and rig_obj["scpainter_kind"] == "rig" and rig_obj.parent == path
+    assert bpy.context.active_object == rig_obj
+    preset = core_rig.preset("nuscenes")
+    cams = kinds.rig_sensors(rig_obj, kinds.RIG_CAMERA)
+    assert [c.name for c in cams] == list(core_rig.NUSCENES_CAMERAS)
+    assert all(c["scpainter_kind"] == "rig_camera" and list(c["scpainter_resolution"]) == [1600, 900] for c in cams)
+    (lidar,) = kinds.rig_sensors(rig_obj, kinds.RIG_LIDAR)
+    assert lidar.name == "LIDAR_TOP" and lidar["scpainter_lidar_model"] == "nuscenes-32"
+    for f in (1, 3, 5):
+        scene.frame_set(f)
+        got = rig_scene.read_rig(rig_obj)
+        assert got.to_dict().keys() == preset.to_dict().keys() and got.name == "nuscenes"
+        for a, b in zip(got.cameras, preset.cameras):
+            assert a.name == b.name and a.resolution == b.resolution
+            assert np.abs(a.K - b.K).max() < 1e-6 and np.abs(a.camera_to_ego - b.camera_to_ego).max() < 1e-6
+        assert np.abs(got.lidar.lidar_to_ego - preset.lidar.lidar_to_ego).max() < 1e-6
+        # the path camera is CAM_FRONT: the rig empty is core.rig.ego_path's ego pose; every camera hangs from it
+        ego = core_rig.ego_path(_camera_to_world(path)[None], preset, "CAM_FRONT")[0]
+        assert np.abs(rig_scene.ego_to_world(rig_obj) - ego).max() < 3e-5, f
+        for c, rc in zip(cams, preset.cameras):
+            assert np.abs(_camera_to_world(c) - core_rig.camera_to_world(ego, rc.camera_to_ego)).max() < 5e-5, c.name
+            # what Blender's camera itself holds gives the K (float32 lens and shifts: to 1e-3 px)
+            bc = C.blender_camera_from_K(rc.K, 1600, 900)
+            assert abs(c.data.lens - bc.lens) < 1e-5 and abs(c.data.shift_x - bc.shift_x) < 1e-7
+    # the quarter-size default: 400 x 225 with K scaled to the same rays; without the LiDAR on request
+    assert bpy.ops.scpainter.add_camera_rig(preset="nuscenes", lidar=False) == {"FINISHED"}
+    rig_obj = kinds.rig_of(path)  # replaced: one rig per camera path
+    assert len([o for o in scene.objects if o.get("scpainter_kind") == "rig"]) == 1
+    got = rig_scene.read_rig(rig_obj)
+    assert got.lidar is None and all(c.resolution == (400, 225) for c in got.cameras)
+    assert np.abs(got.cameras[3].K - preset.scaled(0.25).cameras[3].K).max() < 1e-6
+    assert bpy.ops.scpainter.remove_camera_rig() == {"FINISHED"}
+    assert kinds.rig_of(path) is None and not [o for o in scene.objects if o != path]
+    assert not [d for d in bpy.data.cameras if d.name.startswith("CAM_")]
+
+
+def test_edits_are_what_the_rig_reads_and_bad_ones_are_named(addon, empty_scene):
+    """The rig is editable: a turned camera and a longer lens are what is read (camera_to_ego = its matrix relative
+    to the rig · the OpenCV axes; K from the lens at its stored resolution); an edit the rig cannot be is refused
+    naming the object and the field."""
+    rig_scene, kinds = _modules(addon)
+    path = _path_camera(empty_scene)
+    assert bpy.ops.scpainter.add_camera_rig(preset="nuscenes", scale=0.25) == {"FINISHED"}
+    rig_obj = kinds.rig_of(path)
+    left = bpy.data.objects["CAM_FRONT_LEFT"]
+    back = bpy.data.objects["CAM_BACK"]
+    before = rig_scene.read_rig(rig_obj)
+    turn = np.eye(4)
+    turn[:3, :3] = C.quaternion_to_rotation(np.array([np.cos(0.05), 0.0, 0.0, np.sin(0.05)]))  # 0.1 rad about ego z
+    turn[:3, 3] = [0.0, 0.0, 0.2]  # and 20 cm up
+    left.matrix_basis = rig_scene._matrix(turn @ np.array(left.matrix_basis, dtype=np.float64))
+    back.data.lens *= 1.5
+    after = rig_scene.read_rig(rig_obj)
+    i_left, i_back = core_rig.NUSCENES_CAMERAS.index("CAM_FRONT_LEFT"), core_rig.NUSCENES_CAMERAS.index("CAM_BACK")
+    want = turn @ before.cameras[i_left].camera_to_ego
+    assert np.abs(after.cameras[i_left].camera_to_ego - want).max() < 1e-5
+    assert np.allclose(after.cameras[i_back].K[0, 0], 1.5 * before.cameras[i_back].K[0, 0], rtol=1e-6)
+    untouched = [i for i in range(6) if i not in (i_left, i_back)]
+    assert all(np.array_equal(after.cameras[i].K, before.cameras[i].K) for i in untouched)
+    back.data.lens = 1e5  # a field of view no camera has at 400 x 225
+    with pytest.raises(Exception, match=r"objects\['CAM_BACK'\] \(rig\.cameras\[3\]\.K\): does not fit the camera's "
+                                        r"400 x 225 resolution"):
+        rig_scene.read_rig(rig_obj)
+    back.data.lens = 20.0
+    back["scpainter_sensor"] = "CAM_FRONT"  # two sensors with one name
+    with pytest.raises(Exception, match=r"objects\['CAM_BACK'\] \(rig\.cameras\[3\]\.name\): 'CAM_FRONT' is also the "
+                                        r"name of rig\.cameras\[0\]: two sensors with one name"):
+        rig_scene.read_rig(rig_obj)
+
+
+class _Layout:
+    """What the panel's rig section asks of a UILayout, recorded; each property it shows is resolved on its data
+    (a path that does not exist would draw nothing in Blender, silently) and each operator must be registered."""
+
+    def __init__(self, drawn):
+        self.drawn = drawn
+
+    def box(self):
+        return self
+
+    column = row = lambda self, **kw: self
+
+    def label(self, text="", icon="NONE"):
+        self.drawn.append(("label", text))
+
+    def prop(self, data, path, text=""):
+        data.path_resolve(path)
+        self.drawn.append(("prop", data.name, path))
+
+    def operator(self, idname, **kw):
+        assert hasattr(getattr(bpy.ops, idname.split(".")[0]), idname.split(".")[1]), idname
+        self.drawn.append(("operator", idname))
+
+    def operator_menu_enum(self, idname, prop, **kw):
+        self.operator(idname)
+
+
+def test_panel_shows_the_rig_of_the_active_path(addon, empty_scene):
+    """The panel's rig section: Add Camera Rig (its presets) without one; with one, each camera with its resolution
+    and lens, the LiDAR and its model, Replace and Remove; a selected rig camera shows its own path's rig."""
+    main = sys.modules[addon + ".panels.main"]
+    path = _path_camera(empty_scene)
+    drawn = []
+    main.SCPAINTER_PT_main.draw_rig(bpy.context, _Layout(drawn))
+    assert drawn == [("label", "Camera Rig of Path"), ("operator", "scpainter.add_camera_rig")]
+    assert bpy.ops.scpainter.add_camera_rig(preset="front", scale=0.25) == {"FINISHED"}
+    bpy.context.view_layer.objects.active = bpy.data.objects["CAM_FRONT"]
+    drawn.clear()
+    main.SCPAINTER_PT_main.draw_rig(bpy.context, _Layout(drawn))
+    assert drawn == [("label", "Camera Rig of Path"), ("label", "front: the path is CAM_FRONT"),
+                     ("label", "CAM_FRONT"), ("prop", "CAM_FRONT", '["scpainter_resolution"]'),
+                     ("prop", "CAM_FRONT", "lens"), ("label", "LIDAR_TOP: nuscenes-32"),
+                     ("operator", "scpainter.add_camera_rig"),
+                     ("operator", "scpainter.remove_camera_rig")]

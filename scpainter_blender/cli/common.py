@@ -26,7 +26,9 @@ from ..core import errors, files
 from ..core import job as job_mod
 from ..core.variation import proposals
 from ..runs import camera_run, warm_session
+from ..core import rig as core_rig
 from ..scene import job_export, props
+from ..scene import rig as rig_scene
 
 
 class Parser(argparse.ArgumentParser):
@@ -45,6 +47,12 @@ def scene_options(c: argparse.ArgumentParser) -> None:
                    help="the camera object whose job runs (default: the scene camera), e.g. a camera path")
     c.add_argument("--output", help="the scene's output folder (default: its SCPainter output folder); the run "
                                     "writes into its camera's folder inside it")
+    c.add_argument("--rig", metavar="PRESET|FILE",
+                   help="mount a camera rig on the run's camera for this run (the .blend is not written): a preset "
+                        f"({', '.join(core_rig.PRESETS)}, with its LiDAR), 'recording' (the recording's own) or a "
+                        "rig file (.json); the run renders every camera of it (default: the camera's own rig, if any)")
+    c.add_argument("--rig-scale", type=float, default=1.0, metavar="F",
+                   help="the --rig's cameras' resolution times F (default 1: nuScenes' 1600 x 900)")
 
 
 def common_options(c: argparse.ArgumentParser) -> None:
@@ -159,6 +167,17 @@ def failure(e: Exception) -> dict:
     return {"error": f"{type(e).__name__}: {e}", "bug": True}
 
 
+def mount_rig(args: argparse.Namespace, camera) -> None:
+    """``--rig``: the rig (preset, recording or file, scaled by ``--rig-scale``) added to ``camera`` for this run,
+    replacing any it has (``scene.rig.add_rig``). ``ArgumentError`` on ``--rig-scale`` outside (0, 4]; an unknown
+    preset is one on ``--rig`` listing them."""
+    if not 0 < args.rig_scale <= 4:
+        raise errors.ArgumentError("--rig-scale", f"{args.rig_scale:g} is not a scale in (0, 4]",
+                                   hint="give e.g. 0.25 for 400 x 225 nuScenes cameras")
+    rig_scene.add_rig(camera, rig_scene.make_rig(bpy.context.scene, args.rig, lidar=None, scale=args.rig_scale,
+                                                 field="--rig"))
+
+
 # -- the scene run of render, generate and export ----------------------------------------------------------------
 
 def run_scene(args: argparse.Namespace, command: str, **options: object) -> tuple[dict, int]:
@@ -170,6 +189,8 @@ def run_scene(args: argparse.Namespace, command: str, **options: object) -> tupl
     check_paths(args)
     open_blend(args.blend, args, args.output)
     camera = props.named_camera(bpy.context.scene, args.camera, args.blend)
+    if args.rig:
+        mount_rig(args, camera or bpy.context.scene.camera)
     warned = export_warnings(bpy.context)
     with warm_session.one_shot():  # one command and the process ends: nothing to keep warm
         job, out = camera_run.start(bpy.context, invocation(args, command, **options), checkpoint(args), camera)

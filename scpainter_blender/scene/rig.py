@@ -72,19 +72,20 @@ def preset_items(scene) -> list:
     return items
 
 
-def make_rig(scene, name: str, lidar: bool = True, scale: float = 1.0) -> rig_mod.Rig:
-    """The rig called ``name``: a preset (``core.rig.preset``, with its LiDAR when ``lidar``) or "recording" (the
-    recording's own, ``recording_rig``; its LiDAR dropped unless ``lidar``), cameras scaled by ``scale``.
-    ArgumentError for an unknown preset; SceneError for "recording" in a scene whose recording stored none."""
-    if name == RECORDING:
-        rig = recording_rig(scene)
+def make_rig(scene, name: str, lidar: bool | None = True, scale: float = 1.0, field: str = "preset") -> rig_mod.Rig:
+    """The rig called ``name``: a preset (``core.rig.preset``; with its LiDAR when ``lidar``, the preset's own choice
+    for None), "recording" (the recording's own, ``recording_rig``; its LiDAR dropped when ``lidar`` is False) or a
+    rig file (a name ending in .json, ``core.rig.load``), cameras scaled by ``scale``. ArgumentError on ``field``
+    (the operator's property, the command line's option) for an unknown preset; SceneError for "recording" in a scene whose recording stored none; InputError for a bad rig file."""
+    if name == RECORDING or name.lower().endswith(".json"):
+        rig = rig_mod.load(name) if name != RECORDING else recording_rig(scene)
         if rig is None:
             raise props.SceneError("scene.objects", "the scene's recording stored no camera rig",
                                    hint="import a multi-camera recording, or choose a preset")
-        if not lidar:
+        if lidar is False:
             rig = rig_mod.Rig(rig.name, rig.cameras, None)
         return rig if scale == 1.0 else rig.scaled(scale)
-    return rig_mod.preset(name, lidar=lidar, scale=scale, field="preset")
+    return rig_mod.preset(name, lidar=lidar, scale=scale, field=field)
 
 
 def follow_camera(rig: rig_mod.Rig) -> str:

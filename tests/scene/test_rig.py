@@ -1,6 +1,7 @@
 """scene/rig.py: *Add Camera Rig* on a camera path, the rig read back as a ``core.rig.Rig``, and its job (through the
 real bpy: a camera keyed along a short drive, no street)."""
 
+import os
 import sys
 
 import bpy
@@ -166,3 +167,138 @@ def test_panel_shows_the_rig_of_the_active_path(addon, empty_scene):
                      ("prop", "CAM_FRONT", "lens"), ("label", "LIDAR_TOP: nuscenes-32"),
                      ("operator", "scpainter.add_camera_rig"),
                      ("operator", "scpainter.remove_camera_rig")]
+
+
+def _car(tmp_path):
+    """A 60-Gaussian car 10 m ahead of the path's start (something for the job to render)."""
+    from scpainter_blender.core import shapes
+
+    ply = str(tmp_path / "car.ply")
+    shapes.save_as_amodal3r(ply, shapes.procedural_car_gaussians(count=60, seed=1))
+    assert bpy.ops.scpainter.import_gaussians(filepath=ply, target_length=4.4) == {"FINISHED"}
+    car = bpy.context.active_object
+    car.location = (100.0, -40.0, 0.0)
+    return car
+
+
+def test_a_camera_path_with_a_rig_exports_a_rig_job(addon, empty_scene, tmp_path):
+    """The job of a camera path with the nuScenes rig: ``rig`` is the preset (to 1e-6), each output frame (Frame
+    Step 2: 1, 3, 5) carries ``ego_to_world`` putting CAM_FRONT on the camera path (``core.rig.ego_path``), no
+    resolution; its CAM_FRONT camera job sees what the path camera sees. A marker switching to another camera is
+    refused; without the rig the path's job is a single-camera job again."""
+    from scpainter_blender.core import job as J
+
+    rig_scene, kinds = _modules(addon)
+    scene = empty_scene
+    _car(tmp_path)
+    path = _path_camera(scene)
+    scene.frame_step = 2
+    assert bpy.ops.scpainter.add_camera_rig(preset="nuscenes", scale=1.0) == {"FINISHED"}
+    job_path = str(tmp_path / "job.json")
+    assert bpy.ops.scpainter.export_job(filepath=job_path) == {"FINISHED"}
+    job = J.load(job_path)
+    preset = core_rig.preset("nuscenes")
+    assert job.resolution is None and "resolution" not in job.to_dict()
+    got, want = job.rig.to_dict(), preset.to_dict()
+    assert got["name"] == want["name"] == "nuscenes" and got["lidar"]["model"] == "nuscenes-32"
+    for a, b in zip(got["cameras"] + [got["lidar"]], want["cameras"] + [want["lidar"]]):
+        for key in b:
+            if key in ("K", "camera_to_ego", "lidar_to_ego"):
+                assert np.abs(np.array(a[key]) - np.array(b[key])).max() < 1e-6, (b["name"], key)
+            else:
+                assert a[key] == b[key]
+    assert [f.frame for f in job.frames] == [1, 3, 5]
+    (_, front), *_ = job.camera_jobs()
+    for f, cf in zip(job.frames, front.frames):
+        scene.frame_set(f.frame)
+        ego = core_rig.ego_path(_camera_to_world(path)[None], preset, "CAM_FRONT")[0]
+        assert np.abs(f.ego_to_world - ego).max() < 3e-5, f.frame
+        assert f.K is None and f.world_to_camera is None
+        assert np.abs(cf.world_to_camera - C.world_to_camera_from_blender(np.array(path.matrix_world))).max() < 5e-5
+    assert front.resolution == (1600, 900) and os.path.normpath(front.output_dir) == "CAM_FRONT"
+    # a timeline marker switching to another camera mid-job: one rig job follows one path
+    other = bpy.data.objects.new("Other", bpy.data.cameras.new("Other"))
+    scene.collection.objects.link(other)
+    scene.timeline_markers.new("O", frame=3).camera = other
+    marker = scene.timeline_markers.new("P", frame=1)
+    marker.camera = path
+    with pytest.raises(RuntimeError, match=r"scene\.timeline_markers: a timeline marker switches the camera from "
+                                           r"'Path' to 'Other' at frame 3, and 'Path' has a camera rig"):
+        bpy.ops.scpainter.export_job(filepath=job_path)
+    scene.timeline_markers.clear()
+    assert bpy.ops.scpainter.remove_camera_rig() == {"FINISHED"}
+    assert bpy.ops.scpainter.export_job(filepath=job_path) == {"FINISHED"}
+    single = J.load(job_path)
+    assert single.rig is None and single.frames[0].K is not None
+
+
+def _rig_scene_exported(addon, scene, tmp_path, preset="nuscenes"):
+    """A car, a camera path with a rig (at 1 % size: 16 x 9 cameras) and the path's job exported into its output
+    folder as a run exports it; (path camera, job path, output folder)."""
+    from scpainter_blender.runs import camera_run
+
+    _car(tmp_path)
+    path = _path_camera(scene)
+    scene.frame_end = 3
+    assert bpy.ops.scpainter.add_camera_rig(preset=preset, scale=0.01) == {"FINISHED"}
+    scene.scpainter_output_dir = str(tmp_path / "out")
+    job_path, out = camera_run.export(bpy.context, camera=path)
+    return path, job_path, out
+
+
+def test_a_rig_jobs_results_load_behind_each_rig_camera(addon, empty_scene, tmp_path):
+    """A rig job's output is one folder per camera: each camera's condition previews load under its rig camera's
+    name and show behind it, and the camera path shows CAM_FRONT's (the sensor it is)."""
+    from backend.png import write_png
+    from scpainter_blender.core.output_layout import OutputLayout
+    from scpainter_blender.runs import camera_run
+    from scpainter_blender.scene import results
+
+    path, job_path, out = _rig_scene_exported(addon, empty_scene, tmp_path)
+    assert os.path.dirname(job_path) == out
+    for i, name in enumerate(core_rig.NUSCENES_CAMERAS):
+        layout = OutputLayout(out).camera(name)
+        os.makedirs(layout.conditions)
+        for f in (1, 2, 3):
+            write_png(layout.condition_preview(f), np.full((9, 16, 3), (i + f) / 10.0))
+    report = camera_run.finish(bpy.context, "render", out, {"output_dir": out, "frames": 3}, camera=path.name)
+    assert report.startswith("Condition layers of 3 frames of 6 cameras (CAM_FRONT, CAM_FRONT_RIGHT")
+    for name in core_rig.NUSCENES_CAMERAS:
+        (bg,) = bpy.data.objects[name].data.background_images
+        assert bg.image == results.find(bpy.data.images, results.CONDITIONS, name)
+        assert bpy.path.abspath(bg.image.filepath) == OutputLayout(out).camera(name).condition_preview(1)
+        assert bg.image["scpainter_frames"] == 3
+    (bg,) = path.data.background_images
+    assert bg.image == bpy.data.objects["CAM_FRONT"].data.background_images[0].image
+
+
+def test_render_plan_of_a_rig_job_asks_every_cameras_folder(addon, empty_scene, tmp_path):
+    """Render Conditions' plan of a rig job (nothing rendered yet): the backend is needed (no record in any camera's
+    folder), said without failing on the rig job's frames, which carry no K."""
+    from scpainter_blender.runs import render_plan
+    from scpainter_blender.runs.client import Invocation
+
+    path, job_path, out = _rig_scene_exported(addon, empty_scene, tmp_path, preset="front")
+    check = render_plan.check(bpy.context, Invocation("render"), path)
+    assert check.job_path == job_path and check.out == out and check.done is None
+
+
+def test_command_line_rig_option_names_what_is_wrong(addon, empty_scene, tmp_path, capsys):
+    """``blender -c scpainter render SCENE.blend --rig ...`` mounts a rig for the run: an unknown preset is bad
+    input on ``--rig`` listing the presets, a scale outside (0, 4] on ``--rig-scale`` (exit 2, nothing run)."""
+    from tests.cli import cli_support as CS
+
+    _car(tmp_path)
+    _path_camera(empty_scene)
+    blend = str(tmp_path / "rig.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=blend)
+    cli = CS.cli(addon)
+    for extra, field, message in ((["--rig", "nuscnes"], "--rig", "no rig preset 'nuscnes': expected one of "
+                                                                   "['front', 'nuscenes'] or a rig file (.json)"),
+                                  (["--rig", "front", "--rig-scale", "0"], "--rig-scale", "0 is not a scale in "
+                                                                                         "(0, 4]")):
+        assert cli.execute(["render", blend, *extra, "--backend-python", sys.executable]) == 2, extra
+        ev = CS.last_event(capsys)
+        assert ev["file"] == "(command line)" and ev["field"] == field and message in ev["message"], ev
+    assert not (tmp_path / "scpainter").exists()
+    bpy.ops.wm.read_homefile(use_empty=True)

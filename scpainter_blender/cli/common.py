@@ -167,7 +167,7 @@ def failure(e: Exception) -> dict:
     return {"error": f"{type(e).__name__}: {e}", "bug": True}
 
 
-def mount_rig(args: argparse.Namespace, camera) -> None:
+def mount_rig(args: argparse.Namespace, camera: bpy.types.Object | None) -> None:
     """``--rig``: the rig (preset, recording or file, scaled by ``--rig-scale``) added to ``camera`` for this run,
     replacing any it has (``scene.rig.add_rig``). ``ArgumentError`` on ``--rig-scale`` outside (0, 4]; an unknown
     preset is one on ``--rig`` listing them."""

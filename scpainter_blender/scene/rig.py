@@ -9,10 +9,10 @@ ego pose (ego axes: x forward, y left, z up): its local matrix is ``F · camera_
 
 with the path camera taken as the rig camera ``follow`` (``keys.RIG_FOLLOW``: CAM_FRONT for the presets; it is
 ``core.rig.ego_path``'s rule, the parent relation doing it per frame). Under it, one Blender camera per rig camera
-(kind ``rig_camera``, named after its sensor, ``keys.SENSOR``), local matrix ``camera_to_ego · F``, its lens, sensor and
-shifts from K (``cameras.blender_camera_from_K``) for the camera's own resolution, stored on it (``keys.RESOLUTION``,
-``keys.PIXEL_ASPECT``: Blender renders one resolution per scene); and, when the rig has one, a LiDAR empty (kind
-``rig_lidar``, local matrix ``lidar_to_ego``, its model in ``keys.LIDAR_MODEL``).
+(kind ``rig_camera``, named after its sensor, ``keys.SENSOR``), local matrix ``camera_to_ego · F``, its lens, sensor
+and shifts from K (``cameras.blender_camera_from_K``) for the camera's own resolution, stored on it
+(``keys.RESOLUTION``, ``keys.PIXEL_ASPECT``: Blender renders one resolution per scene); and, when the rig has one, a
+LiDAR empty (kind ``rig_lidar``, local matrix ``lidar_to_ego``, its model in ``keys.LIDAR_MODEL``).
 
 Everything stays editable: the user moves and turns the cameras, changes their lens, sensor, shift or stored
 resolution, moves the LiDAR, and ``read_rig`` reads what is there: ``camera_to_ego`` = the camera's local matrix
@@ -65,7 +65,8 @@ def recording_rig(scene) -> rig_mod.Rig | None:
 def preset_items(scene) -> list:
     """(identifier, label, description) of each rig *Add Camera Rig* offers: ``core.rig.PRESETS``, and "recording"
     when the scene's recording stored a rig (``recording_rig``)."""
-    items = [(name, name.capitalize() if name != "nuscenes" else "nuScenes", description)
+    labels = {"nuscenes": "nuScenes"}
+    items = [(name, labels.get(name, name.capitalize()), description)
              for name, (description, _maker) in rig_mod.PRESETS.items()]
     if scene is not None and recording_rig(scene) is not None:
         items.append((RECORDING, "Recording", "the cameras (and LiDAR) of the imported multi-camera recording"))
@@ -74,9 +75,10 @@ def preset_items(scene) -> list:
 
 def make_rig(scene, name: str, lidar: bool | None = True, scale: float = 1.0, field: str = "preset") -> rig_mod.Rig:
     """The rig called ``name``: a preset (``core.rig.preset``; with its LiDAR when ``lidar``, the preset's own choice
-    for None), "recording" (the recording's own, ``recording_rig``; its LiDAR dropped when ``lidar`` is False) or a
-    rig file (a name ending in .json, ``core.rig.load``), cameras scaled by ``scale``. ArgumentError on ``field``
-    (the operator's property, the command line's option) for an unknown preset; SceneError for "recording" in a scene whose recording stored none; InputError for a bad rig file."""
+    for None), "recording" (the recording's own, ``recording_rig``; its LiDAR dropped when ``lidar`` is False, and
+    nuScenes' top LiDAR mounted when ``lidar`` is True and it has none: its ego frame is nuScenes') or a rig file (a name ending in .json, ``core.rig.load``), cameras scaled by ``scale``. ArgumentError on ``field``
+    (the operator's property, the command line's option) for an unknown preset; SceneError for "recording" in a
+    scene whose recording stored none; InputError for a bad rig file."""
     if name == RECORDING or name.lower().endswith(".json"):
         rig = rig_mod.load(name) if name != RECORDING else recording_rig(scene)
         if rig is None:
@@ -84,6 +86,8 @@ def make_rig(scene, name: str, lidar: bool | None = True, scale: float = 1.0, fi
                                    hint="import a multi-camera recording, or choose a preset")
         if lidar is False:
             rig = rig_mod.Rig(rig.name, rig.cameras, None)
+        elif lidar and rig.lidar is None:
+            rig = rig_mod.Rig(rig.name, rig.cameras, rig_mod.preset("nuscenes", lidar=True).lidar)
         return rig if scale == 1.0 else rig.scaled(scale)
     return rig_mod.preset(name, lidar=lidar, scale=scale, field=field)
 

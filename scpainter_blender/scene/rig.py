@@ -76,9 +76,10 @@ def preset_items(scene) -> list:
 def make_rig(scene, name: str, lidar: bool | None = True, scale: float = 1.0, field: str = "preset") -> rig_mod.Rig:
     """The rig called ``name``: a preset (``core.rig.preset``; with its LiDAR when ``lidar``, the preset's own choice
     for None), "recording" (the recording's own, ``recording_rig``; its LiDAR dropped when ``lidar`` is False, and
-    nuScenes' top LiDAR mounted when ``lidar`` is True and it has none: its ego frame is nuScenes') or a rig file (a name ending in .json, ``core.rig.load``), cameras scaled by ``scale``. ArgumentError on ``field``
-    (the operator's property, the command line's option) for an unknown preset; SceneError for "recording" in a
-    scene whose recording stored none; InputError for a bad rig file."""
+    nuScenes' top LiDAR mounted when ``lidar`` is True and it has none: its ego frame is nuScenes') or a rig file (a
+    name ending in .json, ``core.rig.load``), cameras scaled by ``scale``. ArgumentError on ``field`` (the operator's
+    property, the command line's option) for an unknown preset; SceneError for "recording" in a scene whose recording
+    stored none; InputError for a bad rig file."""
     if name == RECORDING or name.lower().endswith(".json"):
         rig = rig_mod.load(name) if name != RECORDING else recording_rig(scene)
         if rig is None:

@@ -215,16 +215,38 @@ def camera_K(obj) -> np.ndarray:
     """Our K (3, 3) of rig camera ``obj`` at its stored resolution and pixel aspect, from its lens, sensor and shifts
     now (the K it was added with while they still give it, module docstring)."""
     d = obj.data
-    W, H = (int(v) for v in obj.get(keys.RESOLUTION, (0, 0)))
-    ax, ay = (float(v) for v in obj.get(keys.PIXEL_ASPECT, (1.0, 1.0)))
-    if W < 1 or H < 1:
-        raise props.SceneError(f"objects[{obj.name!r}][{keys.RESOLUTION!r}]",
-                               f"the rig camera's resolution is {W} x {H}", hint="give it a width and height in "
-                               "pixels (Object Properties > Custom Properties), or add the rig again")
+    W, H = resolution(obj)
+    ax, ay = _pair(obj, keys.PIXEL_ASPECT, (1.0, 1.0), float)
     K = cameras.K_from_blender_camera(cameras.BlenderCamera(
         lens=d.lens, sensor_width=d.sensor_width, sensor_height=d.sensor_height, sensor_fit=d.sensor_fit,
         shift_x=d.shift_x, shift_y=d.shift_y, resolution_x=W, resolution_y=H, pixel_aspect_x=ax, pixel_aspect_y=ay))
     return _kept(obj, keys.INTRINSICS, K, KEPT_K_PX * max(W, H) / 1000.0)
+
+
+def _pair(obj, key: str, default: tuple, kind) -> tuple:
+    """Two numbers stored on ``obj`` under ``key`` (``default`` when absent); SceneError naming the object and the
+    key for anything else (a value typed over by hand)."""
+    value = obj.get(key, default)
+    try:
+        a, b = (kind(v) for v in value)
+        if not (np.isfinite(a) and np.isfinite(b) and a > 0 and b > 0):
+            raise ValueError
+    except (TypeError, ValueError):
+        shown = repr(getattr(value, "to_list", lambda: value)())[:100]
+        raise props.SceneError(f"objects[{obj.name!r}][{key!r}]", f"expected two positive numbers, got {shown}",
+                               hint="set them again (Object Properties > Custom Properties), or "
+                                                        "add the rig again") from None
+    return a, b
+
+
+def resolution(obj) -> tuple:
+    """(width, height) px a rig camera renders at (``keys.RESOLUTION``); SceneError naming it when not two positive
+    whole numbers."""
+    W, H = _pair(obj, keys.RESOLUTION, (0, 0), float)
+    if W != int(W) or H != int(H):
+        raise props.SceneError(f"objects[{obj.name!r}][{keys.RESOLUTION!r}]", f"{W:g} x {H:g} is not a size in "
+                               "whole pixels", hint="give a width and height in pixels")
+    return int(W), int(H)
 
 
 def _mount(obj, extra: np.ndarray | None = None) -> np.ndarray:
@@ -243,8 +265,7 @@ def read_rig(rig_obj) -> rig_mod.Rig:
         raise props.SceneError(f"objects[{rig_obj.name!r}]", "the camera rig has no camera",
                                hint="add the rig again (Add Camera Rig) or remove it (Remove Camera Rig)")
     d = {"name": str(rig_obj.get(keys.RIG_NAME, "custom")),
-         "cameras": [{"name": str(c.get(keys.SENSOR, c.name)), "resolution": [int(v) for v in c.get(keys.RESOLUTION,
-                                                                                                      (0, 0))],
+         "cameras": [{"name": str(c.get(keys.SENSOR, c.name)), "resolution": list(resolution(c)),
                       "K": camera_K(c).tolist(), "camera_to_ego": _mount(c, F).tolist()} for c in cams]}
     lidars = kinds.rig_sensors(rig_obj, kinds.RIG_LIDAR)
     if lidars:

@@ -117,6 +117,11 @@ def test_edits_are_what_the_rig_reads_and_bad_ones_are_named(addon, empty_scene)
                                         r"400 x 225 resolution"):
         rig_scene.read_rig(rig_obj)
     back.data.lens = 20.0
+    back["scpainter_resolution"] = "400 x 225"  # typed over by hand
+    with pytest.raises(Exception, match=r"objects\['CAM_BACK'\]\['scpainter_resolution'\]: expected two positive "
+                                        r"numbers, got '400 x 225'"):
+        rig_scene.read_rig(rig_obj)
+    back["scpainter_resolution"] = [400, 225]
     back["scpainter_sensor"] = "CAM_FRONT"  # two sensors with one name
     with pytest.raises(Exception, match=r"objects\['CAM_BACK'\] \(rig\.cameras\[3\]\.name\): 'CAM_FRONT' is also the "
                                         r"name of rig\.cameras\[0\]: two sensors with one name"):

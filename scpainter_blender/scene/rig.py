@@ -234,8 +234,8 @@ def _pair(obj, key: str, default: tuple, kind) -> tuple:
     except (TypeError, ValueError):
         shown = repr(getattr(value, "to_list", lambda: value)())[:100]
         raise props.SceneError(f"objects[{obj.name!r}][{key!r}]", f"expected two positive numbers, got {shown}",
-                               hint="set them again (Object Properties > Custom Properties), or "
-                                                        "add the rig again") from None
+                               hint="set them again (Object Properties > Custom Properties), or add the rig "
+                                    "again") from None
     return a, b
 
 

@@ -168,8 +168,8 @@ def _finish_rig(context, command: str, layout: OutputLayout, done: dict, rig, ca
     names = ", ".join(c.name for c in rig.cameras)
     if command == "render":
         fresh = " (up to date: nothing changed since they were rendered)" if done.get("up_to_date") else ""
-        return (f"Condition layers of {done.get('frames', '?')} frames of {len(rig.cameras)} cameras ({names}) in "
-                f"{layout.root}{fresh}")
+        return (f"Condition layers of {len(rig.cameras)} cameras ({names}), {done.get('frames', '?')} frames in all, "
+                f"in {layout.root}{fresh}")
     what = "Baseline videos (no model)" if done.get("model") == "baseline" else "Videos"
     return f"{what} of {len(rig.cameras)} cameras ({names}) in {layout.root}"
 

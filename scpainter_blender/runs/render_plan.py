@@ -43,28 +43,33 @@ def check(context, run: Invocation, camera) -> Check | None:
     job_path, out = camera_run.export(context, camera=camera)
     job = job_mod.load(job_path)
     mode = run.proposals or proposals.DEFAULT_MODE
-    found, done_labels = [], []
+    try:  # the job as the backend labels it: its proposals added as the run's mode says (the backend's own rule;
+        # a rig job gets one set, which its camera jobs share)
+        job, found, _ = proposals.with_proposals(job, job_path, mode)
+    except (OSError, errors.InputError):  # an input file is gone or unreadable: the backend names it
+        return Check(job_path, out)
+    done_labels = []
     # a rig job is planned camera by camera, as the backend renders it: each camera job in its own folder
     # (<out>/<CAMERA>/); the run is over only when every camera's is
     for cam, cjob in job.camera_jobs():
         cout = out if cam is None else OutputLayout(out).camera(cam.name).root
-        try:  # the job as the backend labels it: its proposals added as the run's mode says (the backend's own rule)
-            cjob, cfound, _ = proposals.with_proposals(cjob, job_path, mode)
+        try:
             plan = frame_keys.plan_from_record(cout, job_path, cjob, run.point_radius or 0)
-        except (OSError, errors.InputError):  # an input file is gone or unreadable: the backend names it
+        except (OSError, errors.InputError):
             plan = None
         if plan is None or not plan.up_to_date:
             return Check(job_path, out)
-        found += cfound
         done_labels += [(cam, plan.done[e.frame]) for e in cjob.frames]
-    # said again as the backend says them on every run: the ignored proposals, then each frame's (a rig's cameras
-    # each name theirs)
+    # said again as the backend says them on every run: the ignored proposals, then each frame's (a rig camera's
+    # naming the camera, as the backend tags them)
     warnings = [protocol.event(protocol.WARNING, message=proposals.unlabelled_message(p), code=proposals.UNLABELLED,
                                object=p.id) for p in found if mode == "ignore"]
-    warnings += [protocol.event(protocol.WARNING, message=message if cam is None else f"{cam.name}: {message}",
-                                code=code, frame=lab["frame"], **({"object": obj} if obj else {}))
+    warnings += [protocol.event(protocol.WARNING, message=message, code=code, frame=lab["frame"],
+                                **({"object": obj} if obj else {}),
+                                **({protocol.CAMERA_FIELD: cam.name} if cam is not None else {}))
                  for cam, lab in done_labels for code, message, obj in labels_mod.warnings(lab)]
-    n = len(job.frames)
+    n = len(done_labels)  # a rig's frames counted over its cameras, as the backend counts them
+    rig = {} if job.rig is None else {"cameras": [c.name for c in job.rig.cameras]}
     done = protocol.event(protocol.DONE, frames=n, rendered=0, skipped=n, relabelled=0, output_dir=out,
-                          stopped=False, warnings=len(warnings), up_to_date=True)
+                          stopped=False, warnings=len(warnings), up_to_date=True, **rig)
     return Check(job_path, out, done, warnings)

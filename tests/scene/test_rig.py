@@ -266,8 +266,8 @@ def test_a_rig_jobs_results_load_behind_each_rig_camera(addon, empty_scene, tmp_
         os.makedirs(layout.conditions)
         for f in (1, 2, 3):
             write_png(layout.condition_preview(f), np.full((9, 16, 3), (i + f) / 10.0))
-    report = camera_run.finish(bpy.context, "render", out, {"output_dir": out, "frames": 3}, camera=path.name)
-    assert report.startswith("Condition layers of 3 frames of 6 cameras (CAM_FRONT, CAM_FRONT_RIGHT")
+    report = camera_run.finish(bpy.context, "render", out, {"output_dir": out, "frames": 18}, camera=path.name)
+    assert report.startswith("Condition layers of 6 cameras (CAM_FRONT, CAM_FRONT_RIGHT")
     for name in core_rig.NUSCENES_CAMERAS:
         (bg,) = bpy.data.objects[name].data.background_images
         assert bg.image == results.find(bpy.data.images, results.CONDITIONS, name)
@@ -307,3 +307,37 @@ def test_command_line_rig_option_names_what_is_wrong(addon, empty_scene, tmp_pat
         assert ev["file"] == "(command line)" and ev["field"] == field and message in ev["message"], ev
     assert not (tmp_path / "scpainter").exists()
     bpy.ops.wm.read_homefile(use_empty=True)
+
+
+def test_a_rig_scene_renders_per_camera_then_is_up_to_date(addon, empty_scene, tmp_path, capsys):
+    """A camera path with the nuScenes rig (1 % size: 16 x 9, three frames) exported as *Render Conditions* exports
+    it and rendered by the backend (``python -m backend render``'s command line, parsed and run in this process:
+    ``blender -c scpainter render`` starts the same on the job it exports): one output folder per camera with its
+    condition layers, the ``done`` event listing the cameras; then *Render Conditions* knows, without a backend,
+    that every camera is up to date, and loads each camera's results behind its rig camera."""
+    import json
+
+    from backend.__main__ import main
+    from scpainter_blender.core.output_layout import OutputLayout
+    from scpainter_blender.runs import camera_run, render_plan
+    from scpainter_blender.runs.client import Invocation
+
+    path, job_path, out = _rig_scene_exported(addon, empty_scene, tmp_path)
+    capsys.readouterr()
+    assert main(["render", job_path, "--device", "cpu", "--allow-outside"]) == 0
+    done = [json.loads(line) for line in capsys.readouterr().out.splitlines() if line.startswith("{")][-1]
+    assert done["event"] == "done" and done["cameras"] == list(core_rig.NUSCENES_CAMERAS) and done["frames"] == 18
+    for name in core_rig.NUSCENES_CAMERAS:
+        layout = OutputLayout(out).camera(name)
+        assert [os.path.exists(layout.condition_preview(f)) for f in (1, 2, 3)] == [True] * 3, name
+    found = render_plan.check(bpy.context, Invocation("render"), path)
+    assert found.job_path == job_path and found.done is not None and found.done["up_to_date"]
+    assert found.done["frames"] == 18 and found.done["cameras"] == list(core_rig.NUSCENES_CAMERAS)
+    report = camera_run.finish(bpy.context, "render", found.out, found.done, camera=path.name)
+    assert report.startswith("Condition layers of 6 cameras") and "(up to date" in report
+    for name in core_rig.NUSCENES_CAMERAS:
+        (bg,) = bpy.data.objects[name].data.background_images
+        assert bpy.path.abspath(bg.image.filepath) == OutputLayout(out).camera(name).condition_preview(1)
+    # a camera's frame changed (its lens): only the rig is no longer up to date
+    bpy.data.objects["CAM_BACK"].data.lens *= 1.2
+    assert render_plan.check(bpy.context, Invocation("render"), path).done is None

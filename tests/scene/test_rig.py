@@ -306,6 +306,23 @@ def test_command_line_rig_option_names_what_is_wrong(addon, empty_scene, tmp_pat
         ev = CS.last_event(capsys)
         assert ev["file"] == "(command line)" and ev["field"] == field and message in ev["message"], ev
     assert not (tmp_path / "scpainter").exists()
+    # what a good --rig does before the run starts (the run itself is any scene's): the rig mounted on the run's
+    # camera, a preset at --rig-scale or a rig file as it is, so the job the run exports is a rig job
+    import argparse
+
+    from scpainter_blender.core import job as J
+
+    common = sys.modules[addon + ".scpainter_blender.cli.common"]
+    camera_run = sys.modules[addon + ".scpainter_blender.runs.camera_run"]
+    rig_file = str(tmp_path / "two.json")
+    two = core_rig.preset("nuscenes", lidar=False).scaled(0.02)
+    core_rig.save(rig_file, core_rig.Rig("two", two.cameras[:2]))
+    for rig, scale, names, size in (("nuscenes", 0.01, list(core_rig.NUSCENES_CAMERAS) + ["LIDAR_TOP"], (16, 9)),
+                                    (rig_file, 1.0, ["CAM_FRONT", "CAM_FRONT_RIGHT"], (32, 18))):
+        common.open_blend(blend, argparse.Namespace())
+        common.mount_rig(argparse.Namespace(rig=rig, rig_scale=scale), bpy.context.scene.camera)
+        job = J.load(camera_run.export(bpy.context)[0])
+        assert job.rig.sensor_names == names and job.rig.cameras[0].resolution == size, rig
     bpy.ops.wm.read_homefile(use_empty=True)
 
 

@@ -151,14 +151,15 @@ def read(folder: str, scene: str = "", camera: str = "") -> tracks.Recording:
 SENSOR_TABLES = ("scene", "sample", "sample_data", "calibrated_sensor", "sensor")
 
 
-def sensors(folder: str, scene: str = "", channels: list | tuple = (), calibration: bool = True) -> sensors_mod.Sensors:
+def sensors(folder: str, scene: str = "", channels: list | tuple = (), calibration: bool = True) -> tuple[sensors_mod.Sensors, list]:
     """The sensors sidecar (``core.vggt.sensors``) of the reconstruction VGGT made from nuScenes scene ``scene``'s
     keyframe images of camera ``channels``: frames in sample order (the scene's keyframes along ``next``), and within
     a sample in the order of ``channels`` (default: those of ``rig.NUSCENES_CAMERAS`` the scene has, in that order:
     CAM_FRONT, CAM_FRONT_RIGHT, CAM_FRONT_LEFT, CAM_BACK, CAM_BACK_LEFT, CAM_BACK_RIGHT), each with its
     ``sample_data`` timestamp (µs). With ``calibration`` every sensor gets its ``calibrated_sensor`` pose as
     ``camera_to_ego`` and its image ``width``/``height`` as ``resolution`` (the recording's rig is then nuScenes'
-    own, not estimated). Give VGGT the images (``sample_data.filename``) in exactly this order."""
+    own, not estimated). Returns (the sidecar, the frames' images: ``sample_data.filename`` relative to the dataroot):
+    give VGGT the images in exactly this order."""
     folder = folder if os.path.isdir(folder) else os.path.dirname(folder)
     t = {name: _table(folder, name) for name in SENSOR_TABLES}
     sc, samples = _scene_samples(t, scene)
@@ -177,7 +178,7 @@ def sensors(folder: str, scene: str = "", channels: list | tuple = (), calibrati
     if not channels:
         raise tracks.bad(t["sample_data"][0], "is_key_frame", f"no camera keyframe images in scene "
                                                               f"{sc.get('name')!r}")
-    frames, stamps, info = [], [], {}
+    frames, stamps, images, info = [], [], [], {}
     for i in range(len(samples)):
         for ch in channels:
             if (i, ch) not in found:
@@ -192,6 +193,7 @@ def sensors(folder: str, scene: str = "", channels: list | tuple = (), calibrati
                 raise tracks.bad(t["sample_data"][0], f"{where}.timestamp", f"expected microseconds, got {ts!r}")
             frames.append(ch)
             stamps.append(ts)
+            images.append(str(sd.get("filename", "")))
             if calibration and ch not in info:
                 res = (sd.get("width"), sd.get("height"))
                 ok = all(isinstance(v, int) and not isinstance(v, bool) and 0 < v <= 16384 for v in res)
@@ -200,4 +202,4 @@ def sensors(folder: str, scene: str = "", channels: list | tuple = (), calibrati
                     tuple(res) if ok else None)
     out = sensors_mod.Sensors(frames, np.array(stamps, np.int64), info, os.path.join(folder, "sample_data.json"))
     # the sidecar's own checks (sensor names, each sensor's timestamps increasing), naming sample_data.json
-    return sensors_mod.from_dict(out.to_dict(), out.path)
+    return sensors_mod.from_dict(out.to_dict(), out.path), images

@@ -19,8 +19,9 @@ with it (``SensorFit``).
   about the circular median of yaw − direction of travel, three passes, residuals beyond 3 robust sigmas left out).
   L needs turns: with less than ``MIN_TURN_DEG`` of yaw change, or a standard error above ``MAX_AXLE_STD_M``, L is 0
   (the origin below the reference camera) and the report says so.
-* Between reference frames the ego pose is interpolated (translation linear, rotation slerp), and extrapolated up to
-  half the median reference interval beyond the first and last one; frames further out are not used.
+* Between reference frames the ego pose is interpolated along the screw motion from one to the next (exact for a
+  car on an arc), and extrapolated so up to half the median reference interval beyond the first and last one;
+  frames further out are not used.
 
 **The estimate per sensor**: at each of its frames camera_to_ego = ego_to_world(t)⁻¹ · camera_to_world; the
 translation's per-axis median and the rotations' chordal median (Weiszfeld on the 3×3 matrices, projected on SO(3))
@@ -89,19 +90,21 @@ class SensorFit:
 @dataclass
 class RigFit:
     """``rig`` (``Rig`` "recording"), ``reference`` (the sensor of the ego path), ``ego_to_world`` (n, 4, 4) at the
-    reference frames, ``sensors`` {name: SensorFit} in rig order, ``yaw_offset_deg`` / ``rear_axle_m`` (the
-    estimated ego path's δ and L; None when the sidecar gave the reference's pose), ``notes`` (sentences)."""
+    reference frames, ``sensors`` {name: SensorFit} in rig order, ``yaw_offset_deg`` / ``rear_axle_m`` /
+    ``rear_axle_std_m`` (the estimated ego path's δ, L and L's standard error; None when the sidecar gave the
+    reference's pose, or L was not estimated), ``notes`` (sentences)."""
     rig: rig_mod.Rig
     reference: str
     ego_to_world: np.ndarray
     sensors: dict
     yaw_offset_deg: float | None = None
     rear_axle_m: float | None = None
+    rear_axle_std_m: float | None = None
     notes: list = field(default_factory=list)
 
     def to_json(self) -> dict:
         return {"name": self.rig.name, "reference": self.reference, "yaw_offset_deg": self.yaw_offset_deg,
-                "rear_axle_m": self.rear_axle_m, "notes": list(self.notes),
+                "rear_axle_m": self.rear_axle_m, "rear_axle_std_m": self.rear_axle_std_m, "notes": list(self.notes),
                 "sensors": {n: s.to_json() for n, s in self.sensors.items()}}
 
 
@@ -143,7 +146,7 @@ def _robust_lstsq(A: np.ndarray, b: np.ndarray) -> tuple:
 
 
 def ego_path_from_camera(camera_to_world: np.ndarray, t_s: np.ndarray, ground_z: float = 0.0) -> tuple:
-    """(ego_to_world (n, 4, 4), δ radians, L metres or None, notes) of a reference camera's poses ``camera_to_world``
+    """(ego_to_world (n, 4, 4), δ radians, L metres or None, L's standard error m or None, notes) of a reference camera's poses ``camera_to_world``
     (n, 4, 4) at times ``t_s`` (n,) seconds: the module's rule (x = heading = camera yaw − δ, z up, origin on
     z = ``ground_z`` L metres behind the camera)."""
     T = np.asarray(camera_to_world, np.float64)
@@ -159,7 +162,7 @@ def ego_path_from_camera(camera_to_world: np.ndarray, t_s: np.ndarray, ground_z:
     omega = _derivative(psi, t_s)
     speed = np.linalg.norm(u, axis=1)
     moving = speed > 0.2 * np.median(speed) if n > 1 and np.median(speed) > 0 else np.zeros(n, bool)
-    delta, L = 0.0, None
+    delta, L, L_std = 0.0, None, None
     if moving.sum() >= 2:
         phi = np.arctan2(u[:, 1], u[:, 0])
         d = _wrap(psi - phi)[moving]
@@ -181,7 +184,7 @@ def ego_path_from_camera(camera_to_world: np.ndarray, t_s: np.ndarray, ground_z:
             cov = sigma ** 2 * np.linalg.pinv(A[keep].T @ A[keep])
             std = float(np.sqrt(max(cov[1, 1], 0.0)))
             if std <= MAX_AXLE_STD_M:
-                L = float(x[1])
+                L, L_std = float(x[1]), std
             else:
                 notes.append(f"the rear axle's offset behind the reference camera is uncertain (±{std:.2g} m): the "
                              "ego origin is taken below the reference camera")
@@ -202,13 +205,39 @@ def ego_path_from_camera(camera_to_world: np.ndarray, t_s: np.ndarray, ground_z:
     E[:, 0, 3] = c[:, 0] - (L or 0.0) * np.cos(theta)
     E[:, 1, 3] = c[:, 1] - (L or 0.0) * np.sin(theta)
     E[:, 2, 3] = ground_z
-    return E, float(_wrap(delta)), L, notes
+    return E, float(_wrap(delta)), L, L_std, notes
+
+
+def _skew(w: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+
+
+def _screw(T0: np.ndarray, T1: np.ndarray, a: float) -> np.ndarray:
+    """The pose a fraction ``a`` (any real: < 0 and > 1 extrapolate) along the screw motion from rigid ``T0`` to
+    ``T1``: T0 · exp(a · log(T0⁻¹ T1)). A car on an arc (constant curvature and speed) moves exactly so; linear
+    interpolation would cut the arc's chord (8 cm in the middle of a 4 m step on a 25 m radius)."""
+    rel = cameras.rigid_inverse(T0) @ T1
+    R, t = rel[:3, :3], rel[:3, 3]
+    theta = float(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)))
+    out = np.eye(4)
+    if theta < 1e-9:
+        out[:3, 3] = a * t
+        return T0 @ out
+    # the unit axis from the skew part (theta < pi: a vehicle turns far less between two frames)
+    axis = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]]) / (2.0 * np.sin(theta))
+    Kx = _skew(axis / np.linalg.norm(axis))
+    V1 = np.eye(3) + (1 - np.cos(theta)) / theta * Kx + (theta - np.sin(theta)) / theta * Kx @ Kx
+    u = np.linalg.solve(V1, t)
+    at = a * theta
+    out[:3, :3] = np.eye(3) + np.sin(at) * Kx + (1 - np.cos(at)) * Kx @ Kx
+    out[:3, 3] = (a * np.eye(3) + (1 - np.cos(at)) / theta * Kx + (at - np.sin(at)) / theta * Kx @ Kx) @ u
+    return T0 @ out
 
 
 def interpolate_poses(T: np.ndarray, t_ref: np.ndarray, t: np.ndarray, reach: float) -> tuple:
-    """(poses (m, 4, 4), inside (m,) bool): rigid poses ``T`` (n, 4, 4) at sorted times ``t_ref`` interpolated at
-    ``t`` (translation linear, rotation slerp), extrapolated from the end intervals up to ``reach`` beyond them;
-    ``inside`` False (identity) further out."""
+    """(poses (m, 4, 4), inside (m,) bool): rigid poses ``T`` (n, 4, 4) at increasing times ``t_ref`` interpolated
+    at ``t`` along the screw motion between the two around it (``_screw``), extrapolated from the end intervals up
+    to ``reach`` beyond them; ``inside`` False (identity) further out."""
     T = np.asarray(T, np.float64)
     t_ref, t = np.asarray(t_ref, np.float64), np.asarray(t, np.float64)
     out = np.tile(np.eye(4), (len(t), 1, 1))
@@ -218,17 +247,8 @@ def interpolate_poses(T: np.ndarray, t_ref: np.ndarray, t: np.ndarray, reach: fl
         return out, inside
     k = np.searchsorted(t_ref, t).clip(1, len(t_ref) - 1)
     a = (t - t_ref[k - 1]) / (t_ref[k] - t_ref[k - 1])
-    q0 = cameras.rotation_to_quaternion(T[k - 1, :3, :3])
-    q1 = cameras.rotation_to_quaternion(T[k, :3, :3])
-    q1 = np.where(((q0 * q1).sum(1) < 0)[:, None], -q1, q1)
-    ang = np.arccos(np.clip((q0 * q1).sum(1), -1.0, 1.0))
-    small = ang < 1e-9
-    s = np.where(small, 1.0, np.sin(ang))
-    w0 = np.where(small, 1 - a, np.sin((1 - a) * ang) / s)
-    w1 = np.where(small, a, np.sin(a * ang) / s)
-    out[:, :3, :3] = cameras.quaternion_to_rotation(w0[:, None] * q0 + w1[:, None] * q1)
-    out[:, :3, 3] = (1 - a)[:, None] * T[k - 1, :3, 3] + a[:, None] * T[k, :3, 3]
-    out[~inside] = np.eye(4)
+    for j in np.flatnonzero(inside):
+        out[j] = _screw(T[k[j] - 1], T[k[j]], float(a[j]))
     return out, inside
 
 
@@ -286,13 +306,13 @@ def fit(sensors: Sensors, camera_to_world: np.ndarray, K: np.ndarray, size: tupl
     ref = sensors.reference
     ref_idx = sensors.frames_of(ref)
     given_ref = sensors.info.get(ref)
-    delta = L = None
+    delta = L = L_std = None
     notes = []
     if given_ref is not None and given_ref.camera_to_ego is not None:
         ego = c2w[ref_idx] @ cameras.rigid_inverse(given_ref.camera_to_ego)
         notes.append(f"ego path from {ref} and the sidecar's camera_to_ego")
     else:
-        ego, delta, L, notes = ego_path_from_camera(c2w[ref_idx], t_s[ref_idx])
+        ego, delta, L, L_std, notes = ego_path_from_camera(c2w[ref_idx], t_s[ref_idx])
         delta = float(np.degrees(delta))
     reach = 0.5 * float(np.median(np.diff(t_s[ref_idx]))) if len(ref_idx) > 1 else 0.0
     cams, fits = [], {}
@@ -328,4 +348,4 @@ def fit(sensors: Sensors, camera_to_world: np.ndarray, K: np.ndarray, size: tupl
     rig = rig_mod.Rig(RIG_NAME, cams)
     # the rig file's own checks (K fits its resolution, rigid mounts): what Add Camera Rig will read back
     rig = rig_mod.Rig.from_dict(rig.to_dict(), sensors.path, "recording rig")
-    return RigFit(rig, ref, ego, fits, delta, L, notes)
+    return RigFit(rig, ref, ego, fits, delta, L, L_std, notes)

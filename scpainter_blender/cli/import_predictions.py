@@ -69,6 +69,7 @@ def run(args: argparse.Namespace) -> tuple[dict, int]:
                                                      "recording rig to save",
                                        hint="give the sensors sidecar (--sensors) of a multi-camera recording")
         out["rig_file"] = os.path.abspath(args.save_rig)
+        os.makedirs(os.path.dirname(out["rig_file"]), exist_ok=True)
         rig.save(out["rig_file"], result.rig_fit.rig)
     out["proposals"] = [] if args.proposals == "off" else _proposals(args.proposals)
     if args.save:

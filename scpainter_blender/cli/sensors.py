@@ -44,6 +44,7 @@ def run(args: argparse.Namespace) -> tuple[dict, int]:
     """The sidecar written (atomically); the summary: its path, frames, sensors in order, calibrated or not."""
     made, images = nuscenes.sensors(os.path.abspath(args.tables), args.scene, args.channels or (), args.calibration)
     out = os.path.abspath(args.out)
+    os.makedirs(os.path.dirname(out), exist_ok=True)
     sensors_mod.write(out, made)
     return {"sensors_file": out, "frames": made.num_frames, "sensors": made.names,
             "calibrated": sorted(n for n, i in made.info.items() if i.camera_to_ego is not None),

@@ -45,3 +45,35 @@ def recording(rig, samples=8, period_s=0.5, stagger_s=0.008, noise_m=0.0, noise_
     for j in outliers:
         c2w[j, :3, 3] += [1.0, -0.5, 0.3]
     return S.Sensors(names, np.array(stamps, np.int64), {}, "recording.sensors.json"), c2w
+
+
+#: Blender's world from VGGT's in factor mode at 1 m per unit (``metric_scale.vggt_to_world_by_factor(1)``).
+VGGT_TO_WORLD = np.array([[1.0, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]])
+
+
+def small_rig(W=16, H=12):
+    """nuScenes' CAM_FRONT and CAM_BACK mounts with a small camera (fx = W · 0.75, centred) each."""
+    from scpainter_blender.core import rig as R
+
+    K = np.array([[0.75 * W, 0.0, W / 2], [0.0, 0.75 * W, H / 2], [0.0, 0.0, 1.0]])
+    ns = R.preset("nuscenes")
+    return R.Rig("small", [R.RigCamera(n, (W, H), K.copy(), ns.camera(n).camera_to_ego) for n in ("CAM_FRONT",
+                                                                                                 "CAM_BACK")])
+
+
+def predictions(rig, samples=4, seed=0):
+    """(arrays for ``vggt.npz.save_predictions``, Sensors, camera_to_world (S, 4, 4) in Blender's world) of
+    ``rig``'s cameras along ``recording``'s drive, as a factor-mode import at 1 m per unit reads them back."""
+    from scpainter_blender.core.vggt import predictions as V
+
+    sensors, c2w = recording(rig, samples=samples)
+    rng = np.random.default_rng(seed)
+    W, H = rig.cameras[0].resolution
+    S = len(c2w)
+    w2c_vggt = cameras.rigid_inverse(c2w) @ VGGT_TO_WORLD
+    K = V.ours_K_to_vggt(np.stack([rig.camera(n).K for n in sensors.sensor]))
+    arrays = dict(images=rng.random((S, H, W, 3), dtype=np.float32),
+                  depth=rng.uniform(2.0, 6.0, (S, H, W)).astype(np.float32),
+                  depth_conf=(1.0 + rng.exponential(2.0, (S, H, W))).astype(np.float32),
+                  extrinsic=w2c_vggt, intrinsic_vggt=K)
+    return arrays, sensors, c2w

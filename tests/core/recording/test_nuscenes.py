@@ -61,3 +61,31 @@ def test_a_recording_of_another_length_or_order_is_refused(tmp_path):
         reader.recorded_objects(rec, d["world_to_camera"][:2], 1)
     with pytest.raises(InputError, match="camera path does not match"):
         reader.recorded_objects(rec, d["world_to_camera"][::-1], 1)
+
+
+def test_sensors_sidecar_from_the_tables(tmp_path):
+    """The sidecar of VGGT run on a scene's keyframe images of two cameras: sample-major, channels in nuScenes'
+    order, sample_data timestamps, calibrated sensors and image sizes; a channel missing is refused by name."""
+    import numpy as np
+
+    from scpainter_blender.core.errors import InputError as Bad
+    from scpainter_blender.core.vggt import sensors as S
+
+    from .recording_fixtures import CAMERA_TO_EGO, EXTRA_CAMERAS
+
+    folder = write_nuscenes(str(tmp_path / "v1.0-mini"), drive(3), extra_cameras=("CAM_BACK",))
+    s, images = nuscenes.sensors(folder, "scene-0001")
+    assert s.sensor == ["CAM_FRONT", "CAM_BACK"] * 3 and s.reference == "CAM_FRONT"
+    assert list(s.timestamp_us) == [1_000_005, 1_007_000, 1_500_005, 1_507_000, 2_000_005, 2_007_000]
+    assert images[:2] == ["samples/CAM_FRONT/sd-cam-0.jpg", "samples/CAM_BACK/0.jpg"]
+    np.testing.assert_allclose(s.info["CAM_FRONT"].camera_to_ego, CAMERA_TO_EGO, atol=1e-12)
+    np.testing.assert_allclose(s.info["CAM_BACK"].camera_to_ego, EXTRA_CAMERAS["CAM_BACK"], atol=1e-12)
+    assert s.info["CAM_FRONT"].resolution == (1600, 900) and s.info["CAM_BACK"].resolution == (800, 450)
+    S.write(tmp_path / "p.sensors.json", s)
+    assert S.read(tmp_path / "p.sensors.json").sensor == s.sensor
+    # the order VGGT was given: the channels named; no calibration
+    s, _ = nuscenes.sensors(folder, "scene-0001", ["CAM_BACK", "CAM_FRONT"], calibration=False)
+    assert s.sensor[:2] == ["CAM_BACK", "CAM_FRONT"] and s.info == {}
+    with pytest.raises(Bad) as e:
+        nuscenes.sensors(folder, "scene-0001", ["CAM_FRONT", "CAM_FRONT_LEFT"])
+    assert e.value.path.endswith("sample_data.json") and "no CAM_FRONT_LEFT keyframe image for sample" in e.value.message

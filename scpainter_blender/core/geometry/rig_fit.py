@@ -20,8 +20,8 @@ with it (``SensorFit``).
   L needs turns: with less than ``MIN_TURN_DEG`` of yaw change, or a standard error above ``MAX_AXLE_STD_M``, L is 0
   (the origin below the reference camera) and the report says so.
 * Between reference frames the ego pose is interpolated along the screw motion from one to the next (exact for a
-  car on an arc), and extrapolated so up to half the median reference interval beyond the first and last one;
-  frames further out are not used.
+  car on an arc), and extrapolated so up to half the median reference interval beyond the first and last one
+  (with one reference frame, frames within ``ONE_FRAME_REACH_S`` take its pose); frames further out are not used.
 
 **The estimate per sensor**: at each of its frames camera_to_ego = ego_to_world(t)⁻¹ · camera_to_world; the
 translation's per-axis median and the rotations' chordal median (Weiszfeld on the 3×3 matrices, projected on SO(3))
@@ -55,6 +55,9 @@ OUTLIER_SIGMAS = 3.0
 MIN_TURN_DEG = 5.0
 #: L's standard error above which it is not trusted (metres).
 MAX_AXLE_STD_M = 0.25
+#: With one reference frame, the other sensors' frames this close in time (s) share its ego pose (nuScenes' six
+#: cameras of one sample fire within about 50 ms).
+ONE_FRAME_REACH_S = 0.1
 _MAD = 1.4826
 
 
@@ -314,7 +317,12 @@ def fit(sensors: Sensors, camera_to_world: np.ndarray, K: np.ndarray, size: tupl
     else:
         ego, delta, L, L_std, notes = ego_path_from_camera(c2w[ref_idx], t_s[ref_idx])
         delta = float(np.degrees(delta))
-    reach = 0.5 * float(np.median(np.diff(t_s[ref_idx]))) if len(ref_idx) > 1 else 0.0
+    if len(ref_idx) > 1:
+        reach = 0.5 * float(np.median(np.diff(t_s[ref_idx])))
+    else:   # one sample of every camera (one moment): the vehicle's motion between their shutters is not known
+        reach = ONE_FRAME_REACH_S
+        notes.append(f"one {ref} frame: the other sensors' frames within {ONE_FRAME_REACH_S:g} s of it are taken at "
+                     "its ego pose (the motion between their shutters is ignored)")
     cams, fits = [], {}
     for name in sensors.names:
         idx = sensors.frames_of(name)

@@ -5,7 +5,9 @@ multi-camera reconstruction made from a nuScenes scene's keyframe images, writte
 (``sample_data.filename``, relative to the dataroot) in that order: the order to give VGGT. With
 ``--calibration`` (the default) each sensor's ``calibrated_sensor`` pose and image size go into the sidecar, so the
 import takes nuScenes' own rig instead of estimating it; ``--no-calibration`` leaves them out (the import estimates
-the rig from the reconstruction).
+the rig from the reconstruction). ``--trajectory-out NPZ``: the frames' camera poses in nuScenes' global frame, a
+metric trajectory for the import's ``--trajectory`` (metric scale; the global frame's z = 0 is near the road, where
+nuScenes' ego poses lie).
 """
 
 from __future__ import annotations
@@ -13,8 +15,10 @@ from __future__ import annotations
 import argparse
 import os
 
+import numpy as np
+
 from ..core import backend_protocol as protocol
-from ..core import rig
+from ..core import outputs, rig
 from ..core.recording import nuscenes
 from ..core.vggt import sensors as sensors_mod
 
@@ -34,6 +38,9 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     s.add_argument("--calibration", action=argparse.BooleanOptionalAction, default=True,
                    help="write each sensor's calibrated_sensor pose (camera_to_ego) and image size, so the import "
                         "takes nuScenes' rig; --no-calibration: the import estimates it from the reconstruction")
+    s.add_argument("--trajectory-out", metavar="NPZ",
+                   help="also write the frames' camera poses in nuScenes' global frame (metres) as a metric "
+                        "trajectory (.npz world_to_camera), for the import's --trajectory")
     s.add_argument("--out", required=True, help="the sidecar to write, e.g. <predictions stem>.sensors.json beside "
                                                 "the predictions (where the import finds it)")
     s.set_defaults(func=run)
@@ -42,10 +49,18 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> tuple[dict, int]:
     """The sidecar written (atomically); the summary: its path, frames, sensors in order, calibrated or not."""
-    made, images = nuscenes.sensors(os.path.abspath(args.tables), args.scene, args.channels or (), args.calibration)
+    read = nuscenes.sensors(os.path.abspath(args.tables), args.scene, args.channels or (), args.calibration)
+    made = read.sensors
     out = os.path.abspath(args.out)
     os.makedirs(os.path.dirname(out), exist_ok=True)
     sensors_mod.write(out, made)
-    return {"sensors_file": out, "frames": made.num_frames, "sensors": made.names,
-            "calibrated": sorted(n for n, i in made.info.items() if i.camera_to_ego is not None),
-            "images": images}, protocol.EXIT_OK
+    summary = {"sensors_file": out, "frames": made.num_frames, "sensors": made.names,
+               "calibrated": sorted(n for n, i in made.info.items() if i.camera_to_ego is not None),
+               "images": read.images}
+    if args.trajectory_out:
+        path = os.path.abspath(args.trajectory_out)
+        os.makedirs(os.path.dirname(path), exist_ok=True)
+        with outputs.atomic_write(path) as f:
+            np.savez(f, world_to_camera=read.world_to_camera)
+        summary["trajectory"] = path
+    return summary, protocol.EXIT_OK

@@ -5,6 +5,7 @@ import bpy
 import numpy as np
 
 from scpainter_blender.core import rig as R
+from scpainter_blender.core.geometry import metric_scale
 from scpainter_blender.core.vggt import npz as vggt_io
 from scpainter_blender.core.vggt import sensors as S
 from tests.cli import cli_support as CS
@@ -13,11 +14,17 @@ from tests.core.recording.recording_fixtures import EXTRA_CAMERAS, drive, write_
 
 
 def test_sidecar_from_nuscenes_tables(addon, tmp_path, capsys):
-    folder = write_nuscenes(str(tmp_path / "v1.0-mini"), drive(2), extra_cameras=("CAM_BACK",))
+    d = drive(2)
+    folder = write_nuscenes(str(tmp_path / "v1.0-mini"), d, extra_cameras=("CAM_BACK",))
     out = tmp_path / "predictions.sensors.json"
     cli = CS.cli(addon)
-    assert cli.execute(["sensors", folder, "--scene", "scene-0001", "--out", str(out)]) == 0
+    traj = tmp_path / "metric.npz"
+    assert cli.execute(["sensors", folder, "--scene", "scene-0001", "--out", str(out), "--trajectory-out",
+                        str(traj)]) == 0
     ev = CS.last_event(capsys)
+    w2c, _ = metric_scale.load_metric_trajectory(str(traj), 4)     # what the import's --trajectory reads
+    np.testing.assert_allclose(w2c[::2], d["world_to_camera"], atol=1e-9)
+    assert ev["trajectory"] == str(traj)
     assert ev["sensors"] == ["CAM_FRONT", "CAM_BACK"] and ev["frames"] == 4 and ev["sensors_file"] == str(out)
     assert ev["calibrated"] == ["CAM_BACK", "CAM_FRONT"]
     assert ev["images"] == ["samples/CAM_FRONT/sd-cam-0.jpg", "samples/CAM_BACK/0.jpg",

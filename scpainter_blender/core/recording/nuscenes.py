@@ -19,6 +19,7 @@ unknown name is an error naming ``category.json``.
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -148,18 +149,28 @@ def read(folder: str, scene: str = "", camera: str = "") -> tracks.Recording:
 
 
 #: The tables ``sensors`` reads.
-SENSOR_TABLES = ("scene", "sample", "sample_data", "calibrated_sensor", "sensor")
+SENSOR_TABLES = ("scene", "sample", "sample_data", "calibrated_sensor", "sensor", "ego_pose")
 
 
-def sensors(folder: str, scene: str = "", channels: list | tuple = (), calibration: bool = True) -> tuple[sensors_mod.Sensors, list]:
+@dataclass
+class SensorFrames:
+    """What ``sensors`` reads of a scene's camera keyframes, per VGGT frame in order: ``sensors`` (the sidecar),
+    ``images`` (``sample_data.filename``, relative to the dataroot), ``world_to_camera`` (S, 4, 4) in nuScenes'
+    global frame (ego_pose · calibrated_sensor, inverted; metres, OpenCV camera axes)."""
+    sensors: sensors_mod.Sensors
+    images: list
+    world_to_camera: np.ndarray
+
+
+def sensors(folder: str, scene: str = "", channels: list | tuple = (), calibration: bool = True) -> SensorFrames:
     """The sensors sidecar (``core.vggt.sensors``) of the reconstruction VGGT made from nuScenes scene ``scene``'s
     keyframe images of camera ``channels``: frames in sample order (the scene's keyframes along ``next``), and within
     a sample in the order of ``channels`` (default: those of ``rig.NUSCENES_CAMERAS`` the scene has, in that order:
     CAM_FRONT, CAM_FRONT_RIGHT, CAM_FRONT_LEFT, CAM_BACK, CAM_BACK_LEFT, CAM_BACK_RIGHT), each with its
     ``sample_data`` timestamp (µs). With ``calibration`` every sensor gets its ``calibrated_sensor`` pose as
     ``camera_to_ego`` and its image ``width``/``height`` as ``resolution`` (the recording's rig is then nuScenes'
-    own, not estimated). Returns (the sidecar, the frames' images: ``sample_data.filename`` relative to the dataroot):
-    give VGGT the images in exactly this order."""
+    own, not estimated). Returns the sidecar, the frames' images (give VGGT the images in exactly this order) and
+    their camera poses (a metric trajectory for the import's trajectory scale mode)."""
     folder = folder if os.path.isdir(folder) else os.path.dirname(folder)
     t = {name: _table(folder, name) for name in SENSOR_TABLES}
     sc, samples = _scene_samples(t, scene)
@@ -178,7 +189,7 @@ def sensors(folder: str, scene: str = "", channels: list | tuple = (), calibrati
     if not channels:
         raise tracks.bad(t["sample_data"][0], "is_key_frame", f"no camera keyframe images in scene "
                                                               f"{sc.get('name')!r}")
-    frames, stamps, images, info = [], [], [], {}
+    frames, stamps, images, w2c, info = [], [], [], [], {}
     for i in range(len(samples)):
         for ch in channels:
             if (i, ch) not in found:
@@ -194,6 +205,10 @@ def sensors(folder: str, scene: str = "", channels: list | tuple = (), calibrati
             frames.append(ch)
             stamps.append(ts)
             images.append(str(sd.get("filename", "")))
+            ego = _get(t["ego_pose"], sd.get("ego_pose_token"), where, "token")
+            w2c.append(cameras.rigid_inverse(
+                _pose(ego, t["ego_pose"][0], f"ego_pose {ego['token']!r}") @
+                _pose(cs, t["calibrated_sensor"][0], f"calibrated_sensor {cs['token']!r}")))
             if calibration and ch not in info:
                 res = (sd.get("width"), sd.get("height"))
                 ok = all(isinstance(v, int) and not isinstance(v, bool) and 0 < v <= 16384 for v in res)
@@ -202,4 +217,4 @@ def sensors(folder: str, scene: str = "", channels: list | tuple = (), calibrati
                     tuple(res) if ok else None)
     out = sensors_mod.Sensors(frames, np.array(stamps, np.int64), info, os.path.join(folder, "sample_data.json"))
     # the sidecar's own checks (sensor names, each sensor's timestamps increasing), naming sample_data.json
-    return sensors_mod.from_dict(out.to_dict(), out.path), images
+    return SensorFrames(sensors_mod.from_dict(out.to_dict(), out.path), images, np.stack(w2c))

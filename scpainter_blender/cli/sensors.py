@@ -15,10 +15,9 @@ from __future__ import annotations
 import argparse
 import os
 
-import numpy as np
-
 from ..core import backend_protocol as protocol
-from ..core import outputs, rig
+from ..core import rig
+from ..core.geometry import metric_scale
 from ..core.recording import nuscenes
 from ..core.vggt import sensors as sensors_mod
 
@@ -60,7 +59,6 @@ def run(args: argparse.Namespace) -> tuple[dict, int]:
     if args.trajectory_out:
         path = os.path.abspath(args.trajectory_out)
         os.makedirs(os.path.dirname(path), exist_ok=True)
-        with outputs.atomic_write(path) as f:
-            np.savez(f, world_to_camera=read.world_to_camera)
+        metric_scale.save_metric_trajectory(path, read.world_to_camera)
         summary["trajectory"] = path
     return summary, protocol.EXIT_OK

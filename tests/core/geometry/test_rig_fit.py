@@ -131,3 +131,18 @@ def test_one_moment_of_every_camera():
     assert any("one CAM_FRONT frame" in n for n in fit.notes) and all(f.used == 1 for f in fit.sensors.values())
     for name, (dt, dr) in _relative_errors(fit, RIG).items():
         assert dt <= 8.0 * 0.008 * R.NUSCENES_CAMERAS.index(name) + 1e-6 and dr < 1e-5, (name, dt, dr)
+
+
+def test_K_median_and_its_spread():
+    """K varies a little per frame (VGGT predicts it per frame): the rig camera gets the median, the spread says how
+    far the frames are from it."""
+    rig = R.Rig("two", [RIG.camera("CAM_FRONT"), RIG.camera("CAM_BACK")])
+    sensors, c2w = recording(rig, samples=5)
+    K = _K(sensors, rig)
+    K[0::2, 0, 0] += [0.1, -0.2, 0.0, 0.3, -0.1]     # CAM_FRONT's fx: median + 0
+    K[1::2, 1, 2] += [0.0, 0.05, -0.4, 0.02, 0.01]   # CAM_BACK's cy: median + 0.01
+    fit = rig_fit.fit(sensors, c2w, K, (16, 9))
+    np.testing.assert_allclose(fit.rig.camera("CAM_FRONT").K, rig.camera("CAM_FRONT").K)
+    assert fit.rig.camera("CAM_BACK").K[1, 2] == pytest.approx(rig.camera("CAM_BACK").K[1, 2] + 0.01)
+    assert fit.sensors["CAM_FRONT"].K_spread_px == pytest.approx((0.1, 0.3))
+    assert fit.sensors["CAM_BACK"].K_spread_px == pytest.approx((0.01, 0.41))

@@ -27,6 +27,12 @@ DEPTH_EDGE_RATIO = "scpainter_depth_edge_ratio"
 MATRIX_WORLD_AT_IMPORT = "scpainter_matrix_world_at_import"
 #: (9,) a recorded camera's K, row-major (on the recorded camera; on a rig camera: the K it was added with).
 INTRINSICS = "scpainter_intrinsics"
+#: A multi-camera recording's rig (``core.rig.Rig.to_dict()`` as JSON text; on the points object: *Add Camera Rig*'s
+#: preset "recording", read back by ``scene/recording_rig.py``).
+RECORDING_RIG = "scpainter_recording_rig"
+#: The sensor (camera channel) a recorded camera of a multi-camera recording is (on the recorded camera); a rig
+#: camera's or LiDAR's sensor name (``scene/rig.py``: "CAM_FRONT"; the object's name may carry Blender's ".001").
+SENSOR = "scpainter_sensor"
 #: How the metric scale was found.
 SCALE_METHOD = "scpainter_scale_method"
 #: The scale fit's residual, metres.
@@ -78,8 +84,7 @@ SHIFT_M = "scpainter_shift_m"
 RIG_NAME = "scpainter_rig_name"
 #: The sensor the camera path is (the rig empty follows the path as this camera's ego pose), on the rig empty.
 RIG_FOLLOW = "scpainter_rig_follow"
-#: A rig camera's or LiDAR's sensor name ("CAM_FRONT"; the object's name may carry Blender's ".001").
-SENSOR = "scpainter_sensor"
+#: (a rig camera's or LiDAR's sensor name is ``SENSOR``)
 #: A rig sensor's place in the rig (the order of its cameras in the job and every export).
 SENSOR_INDEX = "scpainter_sensor_index"
 #: (2,) a rig camera's own resolution, pixels (Blender renders one resolution per scene).
@@ -127,8 +132,8 @@ RENAMED = {VGGT_TO_WORLD: "scpainter_world_from_vggt", FILE_TO_DATA: "scpainter_
 
 #: Every key above, the renamed ones' old names included.
 ALL = (SOURCE, NUM_FRAMES, FRAME_START, VGGT_TO_WORLD, EXTRINSIC_CONVENTION, CROP, CONFIDENCE_PERCENTILE,
-       DEPTH_EDGE_RATIO, MATRIX_WORLD_AT_IMPORT, INTRINSICS, SCALE_METHOD, SCALE_RESIDUAL_M, FILE_TO_DATA, AXES,
+       DEPTH_EDGE_RATIO, MATRIX_WORLD_AT_IMPORT, INTRINSICS, RECORDING_RIG, SENSOR, SCALE_METHOD, SCALE_RESIDUAL_M, FILE_TO_DATA, AXES,
        AXES_REASON, SIZE, OBB_SIZE, SH_DEGREE, FORMAT, DROPPED, MESH_SOURCE, SPLAT_SOURCE, STAGE1, STAGE1_DEVIATION,
        REVIEW, TARGET_BOX, POINTS_OBJECT, SOURCE_CAMERA, SHIFT_M, CLASS, TRACK_ID, IGNORE, TRACK_FRAMES,
-       PROPOSAL_SCORE, RESULT, CAMERA, MODEL, DESCRIPTION, FRAMES, VERSION, RIG_NAME, RIG_FOLLOW, SENSOR,
+       PROPOSAL_SCORE, RESULT, CAMERA, MODEL, DESCRIPTION, FRAMES, VERSION, RIG_NAME, RIG_FOLLOW,
        SENSOR_INDEX, RESOLUTION, PIXEL_ASPECT, MOUNT, LIDAR_MODEL, *RENAMED.values())

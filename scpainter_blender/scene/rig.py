@@ -31,7 +31,9 @@ from mathutils import Matrix
 
 from ..core import rig as rig_mod
 from ..core.geometry import cameras
+from ..core.errors import InputError
 from . import keys, kinds, props
+from . import recording_rig as recording_rig_mod
 
 RIG_NAME = "SCPainter Rig"
 #: The preset *Add Camera Rig* offers beside ``core.rig.PRESETS`` when the scene's recording stored its own rig.
@@ -57,9 +59,9 @@ def _array(M) -> np.ndarray:
 
 
 def recording_rig(scene) -> rig_mod.Rig | None:
-    """The rig the scene's recording stored (a multi-camera import), or None. Until the multi-camera import stores
-    one on the points object (issue 43, item 1), no scene has one: the "recording" preset is then not offered."""
-    return None
+    """The rig the scene's multi-camera recording stored on its points object (``recording_rig.recording_rig``), or
+    None (a single-camera import). InputError naming the object and key for a stored rig that is not one."""
+    return recording_rig_mod.recording_rig(scene)
 
 
 def preset_items(scene) -> list:
@@ -68,7 +70,11 @@ def preset_items(scene) -> list:
     labels = {"nuscenes": "nuScenes"}
     items = [(name, labels.get(name, name.capitalize()), description)
              for name, (description, _maker) in rig_mod.PRESETS.items()]
-    if scene is not None and recording_rig(scene) is not None:
+    try:
+        stored = recording_rig(scene) if scene is not None else None
+    except InputError:  # a stored rig edited into nonsense: not offered (choosing it by name says what is wrong)
+        stored = None
+    if stored is not None:
         items.append((RECORDING, "Recording", "the cameras (and LiDAR) of the imported multi-camera recording"))
     return items
 
@@ -99,16 +105,28 @@ def follow_camera(rig: rig_mod.Rig) -> str:
     return FOLLOW if FOLLOW in names else names[0]
 
 
+def path_sensor(path_camera, rig: rig_mod.Rig) -> str | None:
+    """The sensor of ``rig`` a camera path was made from: the sensor (``keys.SENSOR``) of the recorded camera it
+    follows (``keys.SOURCE_CAMERA``; a multi-camera recording has one recorded camera per sensor) or of the camera
+    itself; None when that is no camera of ``rig``."""
+    source = bpy.data.objects.get(str(path_camera.get(keys.SOURCE_CAMERA, "")))
+    for obj in (source, path_camera):
+        sensor = obj.get(keys.SENSOR) if obj is not None else None
+        if sensor is not None and str(sensor) in [c.name for c in rig.cameras]:
+            return str(sensor)
+    return None
+
+
 def add_rig(path_camera, rig: rig_mod.Rig, follow: str | None = None):
     """Add ``rig`` to the scene following camera object ``path_camera`` (a camera path: the path is rig camera
-    ``follow``, default ``follow_camera``); a rig that already follows it is removed first. Returns the rig
-    empty. SceneError when ``path_camera`` is not a camera."""
+    ``follow``, default the sensor it was made from, ``path_sensor``, else ``follow_camera``); a rig that already
+    follows it is removed first. Returns the rig empty. SceneError when ``path_camera`` is not a camera."""
     if path_camera is None or path_camera.type != "CAMERA":
         field = "scene.camera" if path_camera is None else f"objects[{path_camera.name!r}]"
         raise props.SceneError(field, "a camera rig follows a camera path: " +
                                ("there is no active camera" if path_camera is None else "this is not a camera"),
                                hint="make a camera path (New Camera Path) the active object or the scene camera")
-    follow = follow or follow_camera(rig)
+    follow = follow or path_sensor(path_camera, rig) or follow_camera(rig)
     mount = rig.camera(follow).camera_to_ego
     remove_rig(kinds.rig_of(path_camera))
     collection = path_camera.users_collection[0] if path_camera.users_collection else bpy.context.scene.collection

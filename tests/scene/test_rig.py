@@ -358,3 +358,38 @@ def test_a_rig_scene_renders_per_camera_then_is_up_to_date(addon, empty_scene, t
     # a camera's frame changed (its lens): only the rig is no longer up to date
     bpy.data.objects["CAM_BACK"].data.lens *= 1.2
     assert render_plan.check(bpy.context, Invocation("render"), path).done is None
+
+
+def test_the_recordings_own_rig_is_offered_when_the_import_stored_one(addon, empty_scene):
+    """A multi-camera import stores its rig on the points object: *Add Camera Rig* then offers "recording" and
+    mounts it as stored; a camera path made from the recorded camera of one sensor is that sensor (not CAM_FRONT).
+    Asked for a LiDAR, a recording without one gets nuScenes' top LiDAR."""
+    import json
+
+    rig_scene, kinds = _modules(addon)
+    path = _path_camera(empty_scene)
+    assert [item[0] for item in rig_scene.preset_items(empty_scene)] == ["front", "nuscenes"]
+    nus = core_rig.preset("nuscenes", lidar=False).scaled(0.1)
+    stored = core_rig.Rig("recording", [nus.camera("CAM_FRONT"), nus.camera("CAM_FRONT_LEFT")])
+    pts = bpy.data.objects.new("points", bpy.data.meshes.new("points"))
+    empty_scene.collection.objects.link(pts)
+    pts["scpainter_kind"] = "points"
+    pts["scpainter_recording_rig"] = json.dumps(stored.to_dict())
+    recorded = bpy.data.objects.new("Recorded CAM_FRONT_LEFT", bpy.data.cameras.new("rec"))
+    empty_scene.collection.objects.link(recorded)
+    recorded["scpainter_kind"], recorded["scpainter_sensor"] = "recorded_camera", "CAM_FRONT_LEFT"
+    path["scpainter_source_camera"] = recorded.name
+    assert [item[0] for item in rig_scene.preset_items(empty_scene)] == ["front", "nuscenes", "recording"]
+    bpy.context.view_layer.objects.active = path
+    assert bpy.ops.scpainter.add_camera_rig(preset="recording", scale=1.0, lidar=False) == {"FINISHED"}
+    rig_obj = kinds.rig_of(path)
+    assert rig_obj["scpainter_rig_follow"] == "CAM_FRONT_LEFT" == rig_scene.follow_of(rig_obj)
+    got = rig_scene.read_rig(rig_obj)
+    assert got.name == "recording" and got.lidar is None and [c.name for c in got.cameras] == ["CAM_FRONT",
+                                                                                                "CAM_FRONT_LEFT"]
+    assert all(np.abs(a.K - b.K).max() < 1e-6 and np.abs(a.camera_to_ego - b.camera_to_ego).max() < 1e-6
+               for a, b in zip(got.cameras, stored.cameras))
+    ego = core_rig.ego_path(_camera_to_world(path)[None], stored, "CAM_FRONT_LEFT")[0]
+    assert np.abs(rig_scene.ego_to_world(rig_obj) - ego).max() < 3e-5
+    assert bpy.ops.scpainter.add_camera_rig(preset="recording", scale=1.0, lidar=True) == {"FINISHED"}
+    assert rig_scene.read_rig(kinds.rig_of(path)).lidar.name == "LIDAR_TOP"

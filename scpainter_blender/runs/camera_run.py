@@ -162,8 +162,9 @@ def _finish_rig(context, command: str, layout: OutputLayout, done: dict, rig, ca
     for rc in rig.cameras:
         obj = sensors.get(rc.name)
         img = _load(command, layout.camera(rc.name), done, obj.name if obj else f"{camera}/{rc.name}", own_folder=True)
-        results.show_behind_camera(context.scene, img, camera=obj)
-        if rc.name == follow:
+        if obj is not None:  # (none: shown behind nothing, never behind the scene camera)
+            results.show_behind_camera(context.scene, img, camera=obj)
+        if rc.name == follow and cam is not None:
             results.show_behind_camera(context.scene, img, camera=cam)
     names = ", ".join(c.name for c in rig.cameras)
     if command == "render":

@@ -142,8 +142,15 @@ def export_job(job_path: str, job: job_mod.Job, fmt: str, out: str | None = None
     """Export a job's labels as ``fmt`` into ``out`` (None: ``OutputLayout(output_dir).export(fmt)``), rendering
     what is missing first; emits progress and warning events. Returns the counts, ``out``, ``images``,
     ``stopped`` (SIGTERM during the render: nothing exported). The job's paths are confined to its folder and
-    ``data_roots`` unless ``allow_outside`` (``job_inputs.check_inputs``)."""
+    ``data_roots`` unless ``allow_outside`` (``job_inputs.check_inputs``).
+
+    A rig job (docs/design.md §17) is exported camera by camera, each camera job as a single camera's export of its
+    own frames and labels, into ``<out>/<camera>/`` (without ``out``: each camera's ``<output_dir>/<camera>/export/
+    <format>``); every destination is checked before the first is written; the result's ``outs`` is {camera:
+    destination} and its counts are summed over the cameras."""
     check_format(fmt)
+    if job.rig is not None:
+        return _export_rig(job_path, job, fmt, out, device, allow_outside, stop, data_roots)
     paths = checked_paths(job_path, job, allow_outside, data_roots)
     layout = OutputLayout(paths["output_dir"])
     dest = os.path.abspath(out) if out else layout.export(fmt)
@@ -154,6 +161,24 @@ def export_job(job_path: str, job: job_mod.Job, fmt: str, out: str | None = None
         if rendered["stopped"]:
             return {**result, "stopped": True}
         return {**result, **write_export(job_path, job, layout, fmt, dest, log), "stopped": False}
+
+
+def _export_rig(job_path, job, fmt, out, device, allow_outside, stop, data_roots) -> dict:
+    from ..render import rig_jobs
+
+    root = checked_paths(job_path, job, allow_outside, data_roots)["output_dir"]
+    dests = {}
+    for cam in job.rig.cameras:   # all refused before any is written
+        cam_out = rig_jobs.camera_output(root, cam.name)
+        dests[cam.name] = os.path.join(os.path.abspath(out), cam.name) if out else OutputLayout(cam_out).export(fmt)
+        check_destination(dests[cam.name], cam_out, given=bool(out), fmt=fmt)
+    results = rig_jobs.run_cameras(job, lambda cam, camera_job: export_job(
+        job_path, camera_job, fmt, dests[cam.name], device, allow_outside, stop, data_roots), stop)
+    first = results[0][1] if results else {}
+    counts = [k for k, v in first.items() if isinstance(v, int) and not isinstance(v, bool)]
+    result = rig_jobs.combined(job, results, root, counts, stop)
+    result.update(out=os.path.abspath(out) if out else None, outs=dests)
+    return result
 
 
 def checked_paths(job_path: str, job: job_mod.Job, allow_outside: bool = False, data_roots=()) -> dict:

@@ -193,7 +193,10 @@ def members(items: Sequence[str], allow_outside=False, data_roots: dict | None =
         if first[k] != k:
             continue
         path = os.path.abspath(item)
-        m = Member(path, job_mod.load(path), batch.allows_outside(allow_outside, item),
+        job = job_mod.load(path).require_single_camera(
+            path, "a dataset export (several jobs or formats, --list, --split)",
+            hint="export a rig job on its own, one format at a time: one export per camera in <out>/<camera>/")
+        m = Member(path, job, batch.allows_outside(allow_outside, item),
                    tuple((data_roots or {}).get(item, ())))
         m.base, m.variant = variation_entry(path, manifests)
         m.drive = drive_of(m)

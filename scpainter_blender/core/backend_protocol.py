@@ -51,6 +51,10 @@ WARNING_FIELDS = ("message", "code", "frame", "object")
 ERROR_FIELDS = ("message", "hint", "file", "field", "log")
 #: A progress event's fields: the stage, how many of its units are done, of how many.
 PROGRESS_FIELDS = ("stage", "done", "total")
+#: A rig job's (docs/design.md §17) ``progress``, ``artifact`` and ``warning`` events of one camera carry this field:
+#: the camera's sensor name (``CAM_FRONT``); its ``done`` event lists the cameras (``cameras``) and counts ``frames``
+#: over all of them.
+CAMERA_FIELD = "camera"
 
 #: How a batch item ended (its ``status``: ``python -m backend batch`` with or without ``--ray``, ``blender -c
 #: scpainter batch``): done (or found up to date); failed (bad input, an explained failure, a bug, a worker that

@@ -600,14 +600,14 @@ class Job:
             raise ValueError(f"a rig job has no single {what}: each camera has its own (Job.camera_jobs)")
         return self
 
-    def require_single_camera(self, path: str | os.PathLike, what: str) -> "Job":
+    def require_single_camera(self, path: str | os.PathLike, what: str, hint: str | None = None) -> "Job":
         """This job, when it is a single-camera job; a rig job raises JobError on ``rig`` saying that ``what`` (a
-        command) takes one camera, and how to run the rig's cameras instead."""
+        command) takes one camera, and (``hint``, else the default) how to run the rig's cameras instead."""
         if self.rig is not None:
             raise JobError(path, "rig", f"{what} takes a single-camera job; this is a rig job "
                            f"({', '.join(c.name for c in self.rig.cameras)})",
-                           hint="render / generate / export run a rig job camera by camera "
-                                "(<output_dir>/<camera>/); use one of them, or a job without a rig")
+                           hint=hint or "render / generate / export run a rig job camera by camera "
+                                        "(<output_dir>/<camera>/); use one of them, or a job without a rig")
         return self
 
     def camera_jobs(self) -> list:

@@ -257,10 +257,11 @@ def generate_job(job_path: str, job: job_mod.Job, device: str, checkpoint: str |
 
 def _generate_rig(job_path, job, device, checkpoint, precision, force, stop, overrides, allow_outside,
                   data_roots) -> dict:
-    plan = prepare(job_path, job, checkpoint, overrides, allow_outside, data_roots)  # the rig's, checked once first
+    # each camera job is prepared (checked) as it starts: the first finds any bad setting before any work
+    root = job_inputs.job_paths(job_path, job, allow_outside, data_roots=data_roots)["output_dir"]
     results = rig_jobs.run_cameras(job, lambda cam, camera_job: generate_job(
         job_path, camera_job, device, checkpoint, precision, force, stop, overrides, allow_outside, data_roots), stop)
-    out = rig_jobs.combined(job, results, plan.output_dir, ("frames",), stop)
+    out = rig_jobs.combined(job, results, root, ("frames",), stop)
     finished = [(name, r) for name, r in results if not r.get("stopped")]
     out.update(video=None, frames_dir=None, videos={name: r["video"] for name, r in finished},
                frames_dirs={name: r["frames_dir"] for name, r in finished},

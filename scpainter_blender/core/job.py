@@ -33,6 +33,7 @@ from . import fields as fields_mod
 from . import categories, errors, files, outputs
 from . import rig as rig_mod
 from .geometry import point_cloud, similarity
+from .output_layout import OutputLayout
 # what a usable K is (its bounds, job fields and rig cameras alike): the cameras' module owns it
 from .geometry.cameras import MAX_FOCAL_RATIO, MAX_K, MIN_FOCAL_RATIO, PRINCIPAL_POINT_MARGIN, intrinsics_problem  # noqa: F401
 from .vggt.predictions import EXTRINSIC_CONVENTIONS  # scene.extrinsic_convention: what the predictions' extrinsic holds
@@ -73,6 +74,10 @@ OUTLIER_FIELDS = {"statistical": {"neighbours": 16, "std_ratio": 2.0},
 #: job from running for hours.
 OUTLIER_BOUNDS = {"neighbours": (1, 100), "std_ratio": (0.01, 100.0), "radius_m": (1e-6, 0.5), "min_points": (1, 100)}
 DEPTH_EDGE_RATIO_BOUNDS = (1e-4, 100.0)
+
+
+#: Names a rig camera may not take: its folder (``<output_dir>/<camera>``) would be an output folder's own.
+RESERVED_SENSOR_NAMES = (*OutputLayout.FOLDERS, OutputLayout.EXPORT)
 
 
 class JobError(errors.InputError):
@@ -641,6 +646,10 @@ class Job:
         rig = None
         if job.get("rig") is not None:
             rig = rig_mod.Rig.from_dict(job["rig"], path, "rig", error=JobError)
+            for i, c in enumerate(rig.cameras):  # its folder beside the rig folder's own (a run's, an export's)
+                if c.name in RESERVED_SENSOR_NAMES:
+                    raise JobError(path, f"rig.cameras[{i}].name", f"{c.name!r} is the name of an output folder's "
+                                   f"own folder: a camera's folder cannot take it", hint="rename the camera")
             if "resolution" in job:
                 raise JobError(path, "resolution", "a rig job has no resolution of its own: each camera has its own "
                                "(rig.cameras[].resolution)", hint="remove resolution (or remove rig)")

@@ -109,3 +109,18 @@ def test_generate_and_export_run_camera_by_camera(rigged):
     code, ev, err = backend("export", job_path, "--format", "kitti,coco", "--out", tmp / "ds", "--device", "cpu",
                             "--data-root", tmp / "drive")
     assert code == 2 and ev[-1]["field"] == "rig" and "one export per camera" in ev[-1]["hint"]
+
+
+def test_batch_runs_a_rig_job_camera_by_camera(rigged):
+    tmp, job_path = rigged
+    code, ev, err = backend("batch", job_path, "--command", "render", "--device", "cpu", "--data-root", tmp / "drive")
+    assert code == 0, err
+    item = ev[-1]["items"][0]
+    assert item["status"] == "ok" and item["frames"] == 4 and item["output_dir"] == str(tmp / "surround")
+
+
+def test_check_counts_every_camera(rigged):
+    tmp, job_path = rigged
+    code, ev, err = backend("render", job_path, "--check", "--data-root", tmp / "drive")
+    assert code == 0, err
+    assert ev[-1]["check"] and ev[-1]["frames"] == 4 and ev[-1]["cameras"] == ["CAM_FRONT", "CAM_BACK"]

@@ -40,8 +40,6 @@ def check(context, run: Invocation, camera) -> Check | None:
         return None
     job_path, out = camera_run.export(context, camera=camera)
     job = job_mod.load(job_path)
-    if job.rig is not None:  # a rig job is planned camera by camera, by the backend (backend/render/rig_jobs.py)
-        return Check(job_path, out)
     mode = run.proposals or proposals.DEFAULT_MODE
     try:  # the job as the backend labels it: its proposals added as the run's mode says (the backend's own rule)
         job, found, _ = proposals.with_proposals(job, job_path, mode)

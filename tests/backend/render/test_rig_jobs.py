@@ -3,6 +3,7 @@ each camera job is an ordinary single-camera job in ``<output_dir>/<camera>/``, 
 pass; the scene's points are read once for all cameras; a second render renders nothing, and a changed K of one
 camera renders that camera alone."""
 
+import json
 import os
 
 import numpy as np
@@ -103,6 +104,9 @@ def test_generate_and_export_run_camera_by_camera(rigged):
     done = ev[-1]
     assert done["outs"] == {c: str(out / c) for c in ("CAM_FRONT", "CAM_BACK")} and done["frames"] == 4
     assert done["rendered"] == 0 and done["images"] == "generated"
+    # each camera's labels its own: the car ahead is CAM_FRONT's object, CAM_BACK (looking away) has none
+    per = done["per_camera"]
+    assert per["CAM_FRONT"]["objects"] >= 1 and per["CAM_BACK"]["objects"] == 0
     for cam in ("CAM_FRONT", "CAM_BACK"):
         assert files.read_json(out / cam / OutputLayout.EXPORT_RECORD)["scene_frames"] == [1, 2]
     # a dataset export (several formats) takes one camera: refused naming the rig
@@ -124,3 +128,25 @@ def test_check_counts_every_camera(rigged):
     code, ev, err = backend("render", job_path, "--check", "--data-root", tmp / "drive")
     assert code == 0, err
     assert ev[-1]["check"] and ev[-1]["frames"] == 4 and ev[-1]["cameras"] == ["CAM_FRONT", "CAM_BACK"]
+
+
+def test_a_stop_ends_the_rig_before_the_next_camera(rigged, capsys):
+    from backend import events
+    from backend.render import rig_jobs
+
+    tmp, job_path = rigged
+    job = J.load(job_path)
+    stop = []
+
+    def run(cam, camera_job):
+        events.progress("render", 1, 1, frame=1)
+        stop.append("SIGTERM")   # arrives while the first camera runs
+        return {"frames": len(camera_job.frames), "stopped": False}
+
+    results = rig_jobs.run_cameras(job, run, stop)
+    assert [name for name, _ in results] == ["CAM_FRONT"]
+    out = rig_jobs.combined(job, results, "/out", ("frames",), stop)
+    assert out["stopped"] and out["frames"] == 2 and out["cameras"] == ["CAM_FRONT", "CAM_BACK"]
+    assert json.loads(capsys.readouterr().out.splitlines()[-1])["camera"] == "CAM_FRONT"
+    events.progress("render", 1, 1)   # the tag ends with the camera
+    assert "camera" not in json.loads(capsys.readouterr().out)

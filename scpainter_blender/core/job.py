@@ -8,8 +8,8 @@ world metres), the output folder and generation settings; under ``scene``, how i
 and tracked objects, and the frame rate (``Job.LABEL_ONLY``). Paths are relative to the job file. ``scene`` and
 ``assets`` may be absent. A rig job (``Job.rig``, docs/design.md §17) has a ``rig`` (``core.rig.Rig``) instead of a
 resolution and ``ego_to_world`` per frame instead of K and world_to_camera; ``Job.camera_jobs`` makes it one
-single-camera job per rig camera, which is what every command runs. ``Job.from_dict`` validates every field, and each error names the file and the field
-(``frames[3].K``), never a numpy traceback; ``Job.to_dict`` is the file's content. The Blender export, the
+single-camera job per rig camera, which is what every command runs. ``Job.from_dict`` validates every field, and
+each error names the file and the field (``frames[3].K``), never a numpy traceback; ``Job.to_dict`` is the file's content. The Blender export, the
 evaluation protocol, the training pairs and the backend commands build and read jobs only through these classes
 (docs/design.md §4.2).
 

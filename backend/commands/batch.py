@@ -149,4 +149,4 @@ def _export(args: argparse.Namespace, items: list, allow_outside: bool | frozens
     return export_cmd.run_dataset(items, dataset.parse_formats(args.format), args.out,
                                   dataset.parse_split(args.split), args.device, allow_outside, data_roots,
                                   command_name=NAME, proposals=args.proposals,
-                                  options=export_cmd.format_options(args))
+                                  fmt_options=export_cmd.format_options(args))

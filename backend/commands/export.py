@@ -119,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
         items = list(args.jobs) + [p for jobs in listed for p in jobs.paths]
         return run_dataset(items, formats, args.out, split, args.device, args.allow_outside,
                            batch.job_data_roots(args.jobs, listed, roots), proposals=args.proposals,
-                           options=fmt_options)
+                           fmt_options=fmt_options)
     job = job_mod.load(args.jobs[0])
     device = options.resolve_device(args.device)
     t0 = time.perf_counter()
@@ -132,7 +132,7 @@ def run(args: argparse.Namespace) -> int:
 
 def run_dataset(items: list, formats: list, out: str | None, split: dict, device: str,
                 allow_outside: bool | frozenset, data_roots: dict, command_name: str = NAME,
-                proposals: str | None = None, options: dict | None = None) -> int:
+                proposals: str | None = None, fmt_options: dict | None = None) -> int:
     """One dataset of ``items`` (``backend.export.dataset.export_dataset``) and its ``done`` event (``command``:
     ``command_name``), or an error event when SIGTERM stopped a render (exit 1)."""
     import time
@@ -150,7 +150,7 @@ def run_dataset(items: list, formats: list, out: str | None, split: dict, device
     t0 = time.perf_counter()
     with events.stop_on_sigterm() as stop:
         result = dataset.export_dataset(items, formats, out, split, device, allow_outside, stop, data_roots,
-                                        proposals=proposals, options=options)
+                                        proposals=proposals, options=fmt_options)
     return _finished(result, command_name, device, time.perf_counter() - t0)
 
 

@@ -12,7 +12,7 @@ import pytest
 
 from backend.export import dataset, nuscenes
 from backend.export import nuscenes_tables as T
-from scpainter_blender.core import categories, errors, outputs
+from scpainter_blender.core import outputs
 from scpainter_blender.core import job as job_mod
 from scpainter_blender.core.output_layout import OutputLayout
 from tests.backend.export import export_fixtures as F
@@ -167,18 +167,6 @@ def test_mmdetection3d_converter_checks(exported):
     assert splits == {"train": [nusc.scene[0]["name"]]}
 
 
-def test_visibility_bins_and_attributes_follow_nuscenes():
-    assert [T.visibility_token(v, 100) for v in (0, 40, 41, 60, 79, 100)] == ["1", "1", "2", "2", "3", "4"]
-    assert T.visibility_token(0, 0) == "1"
-    assert T.attributes("vehicle.car", "car", 0.2, True) == ["vehicle.stopped"]
-    assert T.attributes("vehicle.bicycle", "cyclist", 0.0, False) == ["cycle.with_rider"]
-    assert T.attributes("human.pedestrian.adult", "pedestrian", 1.4, False) == ["pedestrian.moving"]
-    assert T.attributes("movable_object.barrier", "barrier", None, False) == []
-    assert T.keyframes([0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6], 2.0) == [0, 5]
-    assert T.keyframes([0.0, 0.2, 0.4, 0.6, 0.8, 1.0, 1.2], 2.0) == [0, 3, 6]   # a job of every 2nd frame
-    assert {c.nuscenes for c in categories.CATEGORIES} <= {n for n, _ in categories.NUSCENES_CATEGORIES}
-
-
 def test_a_single_camera_job_is_cam_front_without_lidar_and_says_so(tmp_path, capsys):
     frames = F.export_frames(tmp_path)
     out = tmp_path / "dataroot"
@@ -234,8 +222,3 @@ def test_a_folder_holding_another_dataset_or_bad_options_are_refused(tmp_path):
     for option, value in (("--version", "v1.0-test"), ("--keyframe-hz", "0")):
         code, ev, _ = run_backend_here("export", job, "--format", "nuscenes", option, value)
         assert code == 2 and ev[-1]["field"] == option, ev[-1]
-    with pytest.raises(errors.InputError) as e:                # a keyframe without its sweep
-        clip = R.clip(R.build(str(tmp_path / "rig")))
-        os.remove(clip.sweeps[0])
-        T.Tables().add(clip)
-    assert e.value.path == clip.sweeps[0] and "LIDAR_TOP" in e.value.message

@@ -43,7 +43,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from scpainter_blender.core import categories, errors
+from scpainter_blender.core import categories, errors, labels
 from scpainter_blender.core.geometry import cameras
 
 from . import common
@@ -140,14 +140,15 @@ def read_sweep(path: str) -> np.ndarray:
     """(R, 5) float32 rows of a ``.pcd.bin`` sweep (x, y, z, intensity, ring; sensor frame); InputError naming the
     file when its size is not a whole number of rows."""
     try:
-        raw = np.fromfile(path, dtype="<f4")
+        with open(path, "rb") as f:
+            raw = f.read()
     except OSError as e:
         raise errors.InputError(path, "(file)", f"cannot read the LiDAR sweep: {e.strerror or e}",
                                 hint="render again: python -m backend render JOB") from None
-    if raw.size % SWEEP_COLUMNS:
-        raise errors.InputError(path, "(file)", f"{raw.size * 4} bytes: not rows of {SWEEP_COLUMNS} float32 "
+    if len(raw) % (4 * SWEEP_COLUMNS):
+        raise errors.InputError(path, "(file)", f"{len(raw)} bytes: not rows of {SWEEP_COLUMNS} float32 "
                                 "(x, y, z, intensity, ring)", hint="render again: python -m backend render JOB")
-    return raw.reshape(-1, SWEEP_COLUMNS)
+    return np.frombuffer(raw, dtype="<f4").reshape(-1, SWEEP_COLUMNS)
 
 
 def points_in_boxes(points: np.ndarray, centres, sizes_wlh, rotations_wxyz) -> np.ndarray:
@@ -315,7 +316,7 @@ class Tables:
             lab = cam.labels[i]
             for k, o in enumerate(lab["objects"]):
                 tid = int(o["track_id"])
-                if common.ignore_regions({"objects": [o]}):
+                if labels.ignore_region(o) is not None:
                     regions += 1
                 if o["box_world"] is None or o["removed"] or o["ignore"] or (o["points_missing"] and o["in_view"]):
                     dropped.add(tid)

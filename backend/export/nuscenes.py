@@ -49,8 +49,6 @@ DEFAULT_KEYFRAME_HZ = 2.0
 SPLITS = "splits.json"
 #: Warning codes: a clip without a LiDAR; a clip with a single keyframe.
 NO_LIDAR, ONE_KEYFRAME = "no_lidar", "one_keyframe"
-#: The sweep file of a rig's LiDAR at a scene frame, under the job's output folder (the contract's layout).
-SWEEP_NAME = "sweep_{:06d}.pcd.bin"
 
 
 def check_options(version: str = DEFAULT_VERSION, keyframe_hz: float = DEFAULT_KEYFRAME_HZ) -> dict:
@@ -91,17 +89,18 @@ def folder_clip(root: str, rig: rig_mod.Rig, frames: list, ego_to_world, name: s
     """(clip, images) of a rig job's output folder ``root``: each camera's labels and images from
     ``<root>/<CAMERA>/`` (``command.read_frame``; images: the generated frames where a finished generation is there,
     else the condition previews — ``images`` says which, per camera), the LiDAR's sweeps from
-    ``<root>/<LIDAR>/`` (``SWEEP_NAME``). ``frames``: the scene frame numbers; ``ego_to_world`` (N, 4, 4)."""
+    ``<root>/<LIDAR>/`` (``OutputLayout.lidar_sweep``). ``frames``: the scene frame numbers; ``ego_to_world`` (N, 4, 4)."""
     from . import command
 
     cams, images = [], []
+    out = OutputLayout(root)
     for cam in rig.cameras:
-        layout = OutputLayout(os.path.join(root, cam.name))
+        layout = out.camera(cam.name)
         source, _ = command.frames_image_source(layout, frames)
         read = [command.read_frame(layout, f, source, False) for f in frames]
         cams.append(CameraClip(cam.name, cam.camera_to_ego, [r.labels for r in read], [r.image for r in read]))
         images.append(source)
-    sweeps = [os.path.join(root, rig.lidar.name, SWEEP_NAME.format(f)) for f in frames] if rig.lidar else []
+    sweeps = [out.lidar_sweep(f, rig.lidar.name) for f in frames] if rig.lidar else []
     times = [float(lab["timestamp_s"]) for lab in cams[0].labels]
     return Clip(name, description or f"rig {rig.name}", rig.name, list(frames), times,
                 np.asarray(ego_to_world, np.float64), cams, rig.lidar, sweeps), images

@@ -6,7 +6,9 @@ world_to_camera, the VGGT frames whose points project into it), the scene recons
 world metres), the output folder and generation settings; under ``scene``, how its points are cleaned
 (``point_cleaning``); for labels (docs/design.md §15), each asset's ``class`` and ``box``, the recording's frames
 and tracked objects, and the frame rate (``Job.LABEL_ONLY``). Paths are relative to the job file. ``scene`` and
-``assets`` may be absent. ``Job.from_dict`` validates every field, and each error names the file and the field
+``assets`` may be absent. A rig job (``Job.rig``, docs/design.md §17) has a ``rig`` (``core.rig.Rig``) instead of a
+resolution and ``ego_to_world`` per frame instead of K and world_to_camera; ``Job.camera_jobs`` makes it one
+single-camera job per rig camera, which is what every command runs. ``Job.from_dict`` validates every field, and each error names the file and the field
 (``frames[3].K``), never a numpy traceback; ``Job.to_dict`` is the file's content. The Blender export, the
 evaluation protocol, the training pairs and the backend commands build and read jobs only through these classes
 (docs/design.md §4.2).
@@ -29,6 +31,7 @@ import numpy as np
 
 from . import fields as fields_mod
 from . import categories, errors, files, outputs
+from . import rig as rig_mod
 from .geometry import point_cloud, similarity
 # what a usable K is (its bounds, job fields and rig cameras alike): the cameras' module owns it
 from .geometry.cameras import MAX_FOCAL_RATIO, MAX_K, MIN_FOCAL_RATIO, PRINCIPAL_POINT_MARGIN, intrinsics_problem  # noqa: F401
@@ -36,6 +39,8 @@ from .vggt.predictions import EXTRINSIC_CONVENTIONS  # scene.extrinsic_conventio
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterable
+
+    from .rig import Rig
 
 SCHEMA = "scpainter.job/2"
 #: Older schemas still read, each with its fields renamed since: {schema: {old field: current field}} (scene level)
@@ -129,28 +134,50 @@ def _matrix_list(m: np.ndarray) -> list:
 class Frame:
     """One output frame: ``K`` (3, 3) our intrinsics in pixels (pixel centres at +0.5), ``world_to_camera``
     (4, 4) rigid, OpenCV axes (x right, y down, z forward), metres; ``source_frames``: the VGGT frames whose
-    points project into it (empty: no points)."""
+    points project into it (empty: no points). A rig job's frame (``Job.rig``) has ``ego_to_world`` (4, 4) rigid,
+    the ego frame (x forward, y left, z up, ``core.rig``) to world, instead: its ``K`` and ``world_to_camera`` are
+    None (each camera's come from the rig, ``Job.camera_jobs``)."""
     frame: int
-    K: np.ndarray
-    world_to_camera: np.ndarray
+    K: np.ndarray | None
+    world_to_camera: np.ndarray | None
     source_frames: list = field(default_factory=list)
+    ego_to_world: np.ndarray | None = None
 
     @classmethod
-    def from_dict(cls, d: dict, path: str | os.PathLike, where: str) -> "Frame":
+    def from_dict(cls, d: dict, path: str | os.PathLike, where: str, rig: bool = False) -> "Frame":
+        """A frame of a single-camera job (``K``, ``world_to_camera``) or, with ``rig``, of a rig job
+        (``ego_to_world``); the other kind's fields are refused by name."""
         _object(d, path, where)
-        _known(d, path, where, ("frame", "K", "world_to_camera", "source_frames"))
+        _known(d, path, where, ("frame", "K", "world_to_camera", "ego_to_world", "source_frames"))
         f = _int(d.get("frame"), path, f"{where}.frame", *FRAME_RANGE)
-        K = _matrix(d.get("K"), path, f"{where}.K", (3, 3))
-        problem = intrinsics_problem(K)
-        if problem is not None:
-            raise JobError(path, f"{where}.K", problem)
-        w2c = _rigid(d.get("world_to_camera"), path, f"{where}.world_to_camera")
+        if rig:
+            for key in ("K", "world_to_camera"):
+                if key in d:
+                    raise JobError(path, f"{where}.{key}", "a rig job's frames carry ego_to_world only: each camera's "
+                                   "K and pose come from the rig (rig.cameras[].K, camera_to_ego)",
+                                   hint=f"remove {key} from the frames (or remove rig for a single-camera job)")
+            K = w2c = None
+            e2w = _rigid(d.get("ego_to_world"), path, f"{where}.ego_to_world")
+        else:
+            if "ego_to_world" in d:
+                raise JobError(path, f"{where}.ego_to_world", "only a rig job's frames carry ego_to_world (this job "
+                               "has no rig)", hint="give the job a rig, or give the frame K and world_to_camera")
+            K = _matrix(d.get("K"), path, f"{where}.K", (3, 3))
+            problem = intrinsics_problem(K)
+            if problem is not None:
+                raise JobError(path, f"{where}.K", problem)
+            w2c = _rigid(d.get("world_to_camera"), path, f"{where}.world_to_camera")
+            e2w = None
         src = _list(d.get("source_frames", []), path, f"{where}.source_frames", "a list of frame indices")
         src = [_int(s, path, f"{where}.source_frames[{j}]", lo=0, hi=MAX_SOURCE_FRAME) for j, s in enumerate(src)]
-        return cls(f, K, w2c, src)
+        return cls(f, K, w2c, src, e2w)
 
     def to_dict(self) -> dict:
-        d = {"frame": int(self.frame), "K": _matrix_list(self.K), "world_to_camera": _matrix_list(self.world_to_camera)}
+        d = {"frame": int(self.frame)}
+        if self.ego_to_world is not None:
+            d["ego_to_world"] = _matrix_list(self.ego_to_world)
+        else:
+            d.update(K=_matrix_list(self.K), world_to_camera=_matrix_list(self.world_to_camera))
         if self.source_frames:
             d["source_frames"] = [int(s) for s in self.source_frames]
         return d
@@ -545,22 +572,60 @@ class GenerateSettings:
 class Job:
     """A whole job. ``resolution`` (width, height) pixels; ``frames`` in output order; ``output_dir`` relative to
     the job file; ``scene`` None = no points; ``assets`` empty = no Gaussian pass; ``generate`` None = the
-    defaults and the checkpoint given on the command line."""
-    resolution: tuple
+    defaults and the checkpoint given on the command line.
+
+    A **rig job** (``rig``: a ``core.rig.Rig``; docs/design.md §17) renders every camera of its rig along one ego
+    path: its ``resolution`` is None (each camera has its own) and its frames carry ``ego_to_world`` instead of K
+    and world_to_camera. The commands run it as its camera jobs (``camera_jobs``), each an ordinary single-camera
+    job writing ``<output_dir>/<camera name>/``."""
+    resolution: tuple | None
     frames: list
     output_dir: str
     scene: Scene | None = None
     assets: list = field(default_factory=list)
     generate: GenerateSettings | None = None
     fps: float | None = None   # output frames per second (the scene's); None: not known (LABEL_FPS for timestamps)
+    rig: Rig | None = None     # a rig job's cameras (and LiDAR); None: a single-camera job
 
     @property
     def width(self) -> int:
-        return int(self.resolution[0])
+        return int(self._single("width").resolution[0])
 
     @property
     def height(self) -> int:
-        return int(self.resolution[1])
+        return int(self._single("height").resolution[1])
+
+    def _single(self, what: str) -> "Job":
+        if self.rig is not None:  # a caller that forgot camera_jobs: say so rather than compute with None
+            raise ValueError(f"a rig job has no single {what}: each camera has its own (Job.camera_jobs)")
+        return self
+
+    def require_single_camera(self, path: str | os.PathLike, what: str) -> "Job":
+        """This job, when it is a single-camera job; a rig job raises JobError on ``rig`` saying that ``what`` (a
+        command) takes one camera, and how to run the rig's cameras instead."""
+        if self.rig is not None:
+            raise JobError(path, "rig", f"{what} takes a single-camera job; this is a rig job "
+                           f"({', '.join(c.name for c in self.rig.cameras)})",
+                           hint="render / generate / export run a rig job camera by camera "
+                                "(<output_dir>/<camera>/); use one of them, or a job without a rig")
+        return self
+
+    def camera_jobs(self) -> list:
+        """[(RigCamera, Job)]: a rig job as one ordinary single-camera job per rig camera, in the rig's order: the
+        camera's resolution and K, per frame ``world_to_camera`` = (ego_to_world · camera_to_ego)⁻¹ (float64,
+        ``rig.world_to_camera``), the same frame numbers and source frames, scene, assets, generate and fps, and
+        ``output_dir`` = ``<output_dir>/<camera name>``. A single-camera job gives ``[(None, self)]``. The camera
+        jobs share this job's scene and assets (read only)."""
+        if self.rig is None:
+            return [(None, self)]
+        out = []
+        for cam in self.rig.cameras:
+            K = np.asarray(cam.K, np.float64)
+            frames = [Frame(f.frame, K.copy(), rig_mod.world_to_camera(f.ego_to_world, cam.camera_to_ego),
+                            list(f.source_frames)) for f in self.frames]
+            out.append((cam, replace(self, resolution=tuple(int(v) for v in cam.resolution), frames=frames,
+                                     output_dir=os.path.join(self.output_dir, cam.name), rig=None)))
+        return out
 
     @classmethod
     def from_dict(cls, job: dict, path: str | os.PathLike = "job.json") -> "Job":
@@ -571,14 +636,24 @@ class Job:
         schema = job.get("schema")
         if schema != SCHEMA and schema not in OLD_SCHEMAS:
             raise JobError(path, "schema", f"expected {SCHEMA!r}, got {_short(schema)}")
-        _known(job, path, "", ("schema", "resolution", "frames", "scene", "assets", "output_dir", "generate", "fps"))
-        res = job.get("resolution")
-        if not isinstance(res, list) or len(res) != 2:
-            raise JobError(path, "resolution", f"expected [width, height], got {_short(res)}")
-        for i, v in enumerate(res):
-            _int(v, path, f"resolution[{i}]", lo=1, hi=MAX_SIDE)
-        if res[0] * res[1] > MAX_PIXELS:
-            raise JobError(path, "resolution", f"{res[0]} x {res[1]} is more than {MAX_PIXELS:,} pixels")
+        _known(job, path, "", ("schema", "resolution", "rig", "frames", "scene", "assets", "output_dir", "generate",
+                               "fps"))
+        rig = None
+        if job.get("rig") is not None:
+            rig = rig_mod.Rig.from_dict(job["rig"], path, "rig", error=JobError)
+            if "resolution" in job:
+                raise JobError(path, "resolution", "a rig job has no resolution of its own: each camera has its own "
+                               "(rig.cameras[].resolution)", hint="remove resolution (or remove rig)")
+            res = None
+        else:
+            res = job.get("resolution")
+            if not isinstance(res, list) or len(res) != 2:
+                raise JobError(path, "resolution", f"expected [width, height], got {_short(res)}")
+            for i, v in enumerate(res):
+                _int(v, path, f"resolution[{i}]", lo=1, hi=MAX_SIDE)
+            if res[0] * res[1] > MAX_PIXELS:
+                raise JobError(path, "resolution", f"{res[0]} x {res[1]} is more than {MAX_PIXELS:,} pixels")
+            res = (int(res[0]), int(res[1]))
         frames = job.get("frames")
         if not isinstance(frames, list) or not frames:
             raise JobError(path, "frames", "expected a non-empty list")
@@ -586,7 +661,7 @@ class Job:
             raise JobError(path, "frames", f"{len(frames):,} frames: at most {MAX_FRAMES:,} in one job (split it)")
         out_frames, seen = [], set()
         for i, fr in enumerate(frames):
-            f = Frame.from_dict(fr, path, f"frames[{i}]")
+            f = Frame.from_dict(fr, path, f"frames[{i}]", rig=rig is not None)
             if f.frame in seen:
                 raise JobError(path, f"frames[{i}].frame", f"frame {f.frame} appears twice")
             seen.add(f.frame)
@@ -606,11 +681,16 @@ class Job:
         gen = None if gen is None else GenerateSettings.from_dict(gen, path)
         fps = job.get("fps")
         fps = None if fps is None else _number(fps, path, "fps", *GENERATE_NUMBER_BOUNDS["fps"])
-        return cls((int(res[0]), int(res[1])), out_frames, output_dir, scene, assets, gen, fps)
+        return cls(res, out_frames, output_dir, scene, assets, gen, fps, rig)
 
     def to_dict(self) -> dict:
         """The job file's content, in the current schema."""
-        d = {"schema": SCHEMA, "resolution": [self.width, self.height], "frames": [f.to_dict() for f in self.frames]}
+        d = {"schema": SCHEMA}
+        if self.rig is not None:
+            d["rig"] = self.rig.to_dict()
+        else:
+            d["resolution"] = [self.width, self.height]
+        d["frames"] = [f.to_dict() for f in self.frames]
         if self.scene is not None:
             d["scene"] = self.scene.to_dict()
         if self.assets:
@@ -641,7 +721,8 @@ class Job:
 
     def layers_dict(self) -> dict:
         """``to_dict`` without the generation settings, the output folder and the ``LABEL_ONLY`` fields: what the
-        condition layers depend on."""
+        condition layers depend on. A rig job's also leaves out the rig's LiDAR (no camera layer depends on it);
+        the render keys each camera by its camera job's own (``camera_jobs``), which holds that camera alone."""
         # the recorded objects (LABEL_ONLY) left out before serialising, not popped after: a job's 1000 of them
         # cost more to write out than all the rest, and the render asks for this twice
         job = self
@@ -653,6 +734,8 @@ class Job:
             parents = d.get("assets", []) if where == "assets[]" else [d.get("scene", {})] if where == "scene" else [d]
             for parent in parents:
                 parent.pop(key, None)
+        if "rig" in d:
+            d["rig"].pop("lidar", None)
         return d
 
 

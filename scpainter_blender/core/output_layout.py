@@ -20,6 +20,15 @@
         export/<format>/export.json     in every export (any ``--out``): what made it; an existing folder is
                                         replaced by a new export only when it has one (or is empty)
 
+A rig job's output folder (docs/design.md §17) holds one such output folder per camera (``OutputLayout.camera``),
+named by the camera's sensor name, and the LiDAR's sweeps in a folder named by the LiDAR (``OutputLayout.lidar``)::
+
+    <output_dir>/
+        job.json                        the rig job
+        CAM_FRONT/ ... CAM_BACK/        each camera's output folder (the layout above: conditions/, generated/, ...)
+        LIDAR_TOP/sweep_NNNNNN.pcd.bin  the sweep of scene frame NNNNNN (nuScenes' layout: x, y, z, intensity, ring)
+        LIDAR_TOP/sweep_NNNNNN.json     its objects' ``num_lidar_pts`` by track id and the sweep's ``lidar_to_world``
+
 In Blender a scene's output folder (``Scene.scpainter_output_dir``, default ``//scpainter/<scene name>/``) holds one
 such output folder per camera and the converted mesh assets its cameras share (``SceneFolder``)::
 
@@ -73,6 +82,8 @@ CONDITION_PREVIEW = FrameFiles("preview_", ".png")  # in conditions/
 FRAME_LABELS = FrameFiles("labels_", ".json")       # in conditions/
 LABELLED_PREVIEW = FrameFiles("labelled_", ".png")  # in conditions/
 GENERATED_FRAME = FrameFiles("frame_", ".png")      # in generated/
+LIDAR_SWEEP = FrameFiles("sweep_", ".pcd.bin")      # in a rig job's <LIDAR>/
+LIDAR_SWEEP_INFO = FrameFiles("sweep_", ".json")    # in a rig job's <LIDAR>/
 
 
 class OutputLayout:
@@ -94,6 +105,7 @@ class OutputLayout:
     EVAL_SHEET = "contact_sheet.png"      # evaluate's task folders only
     EXPORT = "export"                     # export/<format>/: the exporters' default destination
     EXPORT_RECORD = "export.json"         # in an export's folder: marks it as one (replaced whole by the next)
+    LIDAR = "LIDAR_TOP"                   # a rig job's LiDAR folder when none is named (nuScenes' channel)
 
     def __init__(self, output_dir: str | os.PathLike) -> None:
         self.root = os.fspath(output_dir)
@@ -168,6 +180,24 @@ class OutputLayout:
     def export(self, fmt: str) -> str:
         """``export/<fmt>``: where ``export --format fmt`` writes unless told ``--out``."""
         return self._at(self.EXPORT, fmt)
+
+    # a rig job's sensors
+    def camera(self, name: str) -> "OutputLayout":
+        """The output folder of a rig job's camera ``name`` (a sensor name, ``core.rig.NAME_PATTERN``): an ordinary
+        output folder, ``<root>/<name>`` (``Job.camera_jobs`` gives its job this ``output_dir``)."""
+        return OutputLayout(self._at(name))
+
+    def lidar(self, name: str = LIDAR) -> str:
+        """The folder of a rig job's LiDAR ``name`` (its sweeps)."""
+        return self._at(name)
+
+    def lidar_sweep(self, frame: int, name: str = LIDAR) -> str:
+        """``<LIDAR>/sweep_NNNNNN.pcd.bin``: the sweep of scene frame ``frame`` (``FRAME_DIGITS`` digits)."""
+        return self._at(name, LIDAR_SWEEP.name(frame))
+
+    def lidar_sweep_info(self, frame: int, name: str = LIDAR) -> str:
+        """``<LIDAR>/sweep_NNNNNN.json``: the sweep's per-object point counts and pose."""
+        return self._at(name, LIDAR_SWEEP_INFO.name(frame))
 
     # generated/
     @property

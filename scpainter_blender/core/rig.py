@@ -33,13 +33,14 @@ import numpy as np
 from . import fields
 from .errors import ArgumentError, InputError
 from .geometry import cameras
+from .output_layout import OutputLayout
 
 RIG_SCHEMA = "scpainter.rig/1"
 #: A sensor's name: what nuScenes calls a channel (a folder name in every export, so no path characters).
 NAME_PATTERN = re.compile(r"[A-Za-z0-9_]{1,64}")
 #: The six camera channels in nuScenes' (and mmdetection3d's info converter's) order.
 NUSCENES_CAMERAS = ("CAM_FRONT", "CAM_FRONT_RIGHT", "CAM_FRONT_LEFT", "CAM_BACK", "CAM_BACK_LEFT", "CAM_BACK_RIGHT")
-NUSCENES_LIDAR = "LIDAR_TOP"
+NUSCENES_LIDAR = OutputLayout.LIDAR  # "LIDAR_TOP": its sweeps' folder is named by the channel
 MAX_CAMERAS = 32
 
 #: nuScenes' calibrated sensors of log n015 (v1.0-mini): channel -> (translation m, rotation (w, x, y, z), (fx, cx,

@@ -137,3 +137,23 @@ def test_output_names_are_spelled_only_in_the_layout():
         if hits:
             found[rel] = hits
     assert found == {}, "use scpainter_blender.core.output_layout instead of spelling these names"
+
+
+def test_a_rig_jobs_folders(tmp_path):
+    from scpainter_blender.core import rig
+    from scpainter_blender.core.output_layout import LIDAR_SWEEP
+
+    lay = OutputLayout(tmp_path)
+    cam = lay.camera("CAM_BACK")
+    assert isinstance(cam, OutputLayout) and cam.root == os.path.join(str(tmp_path), "CAM_BACK")
+    assert cam.condition_exr(3) == os.path.join(str(tmp_path), "CAM_BACK", "conditions", "frame_000003.exr")
+    assert OutputLayout.LIDAR == rig.NUSCENES_LIDAR == "LIDAR_TOP"
+    assert lay.lidar() == os.path.join(str(tmp_path), "LIDAR_TOP")
+    assert lay.lidar_sweep(12) == os.path.join(str(tmp_path), "LIDAR_TOP", "sweep_000012.pcd.bin")
+    assert lay.lidar_sweep_info(12) == os.path.join(str(tmp_path), "LIDAR_TOP", "sweep_000012.json")
+    assert lay.lidar_sweep(7, "LIDAR_2") == os.path.join(str(tmp_path), "LIDAR_2", "sweep_000007.pcd.bin")
+    os.makedirs(lay.lidar())
+    for f in (10, 2):
+        open(lay.lidar_sweep(f), "w").close()
+        open(lay.lidar_sweep_info(f), "w").close()
+    assert LIDAR_SWEEP.in_folder(lay.lidar()) == [lay.lidar_sweep(2), lay.lidar_sweep(10)]

@@ -5,7 +5,7 @@ parked front left), a recorded van following behind and a recorded car marked ig
 
 The output folder is the contract's rig layout: ``<out>/<CAMERA>/conditions/labels_NNNNNN.json`` and previews per
 camera (each camera's labels made by ``core.labels.frame_labels`` as a single-camera job with
-``rig.world_to_camera``, what ``Job.camera_jobs()`` gives, from layers ray-cast against the boxes: ``layers``), and
+``Job.camera_jobs()``, from layers ray-cast against the boxes: ``layers``), and
 ``<out>/LIDAR_TOP/sweep_NNNNNN.pcd.bin``. **The sweeps here are a stand-in** (``write_sweep``: a 4 x 4 x 4 lattice
 inside every box and a ground grid, in the sensor frame) until ``render`` writes the simulated ones: the test that
 reads render's sweeps replaces ``build(...)`` with a render of the rig job.
@@ -71,20 +71,18 @@ def world_boxes(i: int) -> list:
     return out
 
 
-def camera_job(cam: rig_mod.RigCamera) -> job_mod.Job:
-    """The rig camera's single-camera job (what ``Job.camera_jobs()`` gives): its K, resolution and
-    world_to_camera = inv(ego_to_world · camera_to_ego) per frame; the assets placed by their file frame."""
-    frames = [job_mod.Frame(f, cam.K.copy(), rig_mod.world_to_camera(ego_to_world(i), cam.camera_to_ego))
-              for i, f in enumerate(FRAMES)]
+def rig_job() -> job_mod.Job:
+    """The rig job (``core.job``'s rig form: ``rig``, frames with ``ego_to_world``); its assets placed by their file
+    frame, the recorded objects by their boxes."""
+    frames = [job_mod.Frame(f, None, None, [], ego_to_world=ego_to_world(i)) for i, f in enumerate(FRAMES)]
     file_to_box = np.linalg.inv(CAR[0])
     assets = [job_mod.Asset(name, "car.ply", {f: world_boxes(i)[a][1] @ file_to_box for i, f in enumerate(FRAMES)},
-                            box=job_mod.AssetBox(*CAR))
-              for a, name in enumerate(INSERTED)]
+                            box=job_mod.AssetBox(*CAR)) for a, name in enumerate(INSERTED)]
     recorded = [job_mod.RecordedObject(name, size, {f: world_boxes(i)[k][1] for i, f in enumerate(FRAMES)},
                                        "van" if name == "rec_van" else "car", ignore=ignore)
                 for k, (name, _, size, a, ignore) in enumerate(world_boxes(0)) if a is None]
     scene = job_mod.Scene("predictions.npz", np.eye(4), recorded_objects=recorded)
-    return job_mod.Job(tuple(cam.resolution), frames, "out", scene, assets, fps=FPS)
+    return job_mod.Job(None, frames, "out", scene, assets, fps=FPS, rig=RIG)
 
 
 def layers(cam: rig_mod.RigCamera, i: int) -> dict:
@@ -137,12 +135,12 @@ def write_sweep(path: str, i: int) -> None:
 
 
 def build(root: str) -> str:
-    """The rendered rig job's output folder at ``root`` (module docstring); returns it."""
-    for cam in RIG.cameras:
-        j = camera_job(cam)
-        layout = OutputLayout(os.path.join(root, cam.name))
+    """The rendered rig job's output folder at ``root`` (module docstring): each of ``rig_job().camera_jobs()``
+    labelled as a single-camera job in its ``OutputLayout.camera`` folder; returns ``root``."""
+    out = OutputLayout(root)
+    for cam, j in rig_job().camera_jobs():
+        layout = out.camera(cam.name)
         os.makedirs(layout.conditions, exist_ok=True)
-        W, H = cam.resolution
         for i, e in enumerate(j.frames):
             lay = layers(cam, i)
             lab = labels.frame_labels(j, i, instance=lay["instance"], hole=lay["hole"], depth=lay["depth"],
@@ -151,16 +149,14 @@ def build(root: str) -> str:
             outputs.write_json(layout.frame_labels(e.frame), lab)
             shade = (lay["instance"][..., None] * 90 + 40).clip(0, 255).astype(np.uint8)
             png.write_png(layout.condition_preview(e.frame), np.repeat(shade, 3, axis=2))
-    os.makedirs(os.path.join(root, RIG.lidar.name), exist_ok=True)
+    os.makedirs(out.lidar(RIG.lidar.name), exist_ok=True)
     for i, f in enumerate(FRAMES):
-        write_sweep(os.path.join(root, RIG.lidar.name, f"sweep_{f:06d}.pcd.bin"), i)
+        write_sweep(out.lidar_sweep(f, RIG.lidar.name), i)
     return root
 
 
 def clip(root: str, name: str = "scpainter-0000"):
-    """``nuscenes.folder_clip`` of ``build(root)``."""
+    """``nuscenes.job_clip`` of ``rig_job()`` rendered by ``build`` at ``root``."""
     from backend.export import nuscenes
 
-    return nuscenes.folder_clip(root, RIG, list(FRAMES), np.stack([ego_to_world(i) for i in range(len(FRAMES))]),
-                                name)[0]
-
+    return nuscenes.job_clip(rig_job(), root, name)[0]

@@ -121,6 +121,8 @@ def run(args: argparse.Namespace) -> int:
                            batch.job_data_roots(args.jobs, listed, roots), proposals=args.proposals,
                            fmt_options=fmt_options)
     job = job_mod.load(args.jobs[0])
+    if formats[0] != "nuscenes":      # before anything reads its inputs: a rig job has several cameras
+        job.require_single_camera(args.jobs[0], f"export --format {formats[0]}")
     device = options.resolve_device(args.device)
     t0 = time.perf_counter()
     job, _ = proposals.apply(args.jobs[0], job, args.proposals, args.allow_outside, roots)

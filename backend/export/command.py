@@ -150,8 +150,10 @@ def export_job(job_path: str, job: job_mod.Job, fmt: str, out: str | None = None
     ``data_roots`` unless ``allow_outside`` (``job_inputs.check_inputs``). ``options``: the format's own
     (nuscenes: ``version``, ``keyframe_hz``, checked by ``nuscenes.check_options``)."""
     check_format(fmt)
-    if fmt == nuscenes.FORMAT:
+    if fmt == nuscenes.FORMAT:   # the one format of several cameras: a rig job's (§17)
         options = nuscenes.check_options(**(options or {}))
+    else:
+        job.require_single_camera(job_path, f"export --format {fmt}")
     paths = checked_paths(job_path, job, allow_outside, data_roots)
     layout = OutputLayout(paths["output_dir"])
     dest = os.path.abspath(out) if out else layout.export(fmt)

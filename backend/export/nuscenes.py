@@ -181,7 +181,7 @@ class Writer:
             json.dump(self.splits, f, indent=1)
         outputs.make_folder(os.path.join(self.folder, "maps"))
         for rel, raster in self.tables.maps:
-            png.write_png(os.path.join(self.folder, *rel.split("/")), np.repeat(raster[..., None], 3, axis=2))
+            png.write_png(os.path.join(self.folder, *rel.split("/")), raster)
 
 
 def write_clips(folder: str, clips: list, progress: Callable[[int], None] | None = None,

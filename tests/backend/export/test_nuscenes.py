@@ -130,9 +130,12 @@ def test_the_evaluation_filter_keeps_every_inserted_box(exported):
 
 def test_render_sample_runs(exported, tmp_path):
     import matplotlib
+    from PIL import Image
 
     matplotlib.use("Agg")
-    _, _, _, nusc = exported
+    out, _, _, nusc = exported
+    with Image.open(os.path.join(out, nusc.map[0]["filename"])) as im:     # the map under the LiDAR's view
+        assert im.mode == "L" and im.getextrema() == (0, 255)
     nusc.render_sample(nusc.sample[1]["token"], out_path=str(tmp_path / "sample.png"), verbose=False)
     assert os.path.getsize(tmp_path / "sample.png") > 10_000
 
@@ -222,3 +225,6 @@ def test_a_folder_holding_another_dataset_or_bad_options_are_refused(tmp_path):
     for option, value in (("--version", "v1.0-test"), ("--keyframe-hz", "0")):
         code, ev, _ = run_backend_here("export", job, "--format", "nuscenes", option, value)
         assert code == 2 and ev[-1]["field"] == option, ev[-1]
+    job_mod.save(tmp_path / "rig.json", R.rig_job())             # a rig job: nuScenes only, said on its rig
+    code, ev, _ = run_backend_here("export", tmp_path / "rig.json", "--format", "kitti")
+    assert code == 2 and ev[-1]["field"] == "rig" and "single-camera" in ev[-1]["message"], ev[-1]

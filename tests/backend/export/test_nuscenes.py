@@ -171,7 +171,10 @@ def test_mmdetection3d_converter_checks(exported):
 
 
 def test_a_single_camera_job_is_cam_front_without_lidar_and_says_so(tmp_path, capsys):
-    frames = F.export_frames(tmp_path)
+    from nuscenes.utils.geometry_utils import view_points
+
+    # a camera pitched and rolled: the ego pose (camera_to_world · CAM_FRONT's mount⁻¹) must carry the tilt
+    frames = F.export_frames(tmp_path, [F.tilted_camera(0.1 * i) for i in range(len(F.FRAMES))])
     out = tmp_path / "dataroot"
     out.mkdir()
     counts = nuscenes.write(str(out), frames, keyframe_hz=10.0)
@@ -180,11 +183,37 @@ def test_a_single_camera_job_is_cam_front_without_lidar_and_says_so(tmp_path, ca
     assert nuscenes.NO_LIDAR in codes and nuscenes.ONE_KEYFRAME not in codes
     nusc = devkit.NuScenes(VERSION, str(out), verbose=False)
     assert [s["channel"] for s in nusc.sensor] == ["CAM_FRONT"]
-    s = nusc.sample[0]
-    assert sorted(s["data"]) == ["CAM_FRONT"] and all(
-        nusc.get("sample_annotation", a)["num_lidar_pts"] == 0 for a in s["anns"])
-    _, boxes, _ = nusc.get_sample_data(s["data"]["CAM_FRONT"])
-    assert len(boxes) == 3          # the two cars and the van: the ignored car is no annotation
+    for s, fr in zip(nusc.sample, frames):
+        assert sorted(s["data"]) == ["CAM_FRONT"] and all(
+            nusc.get("sample_annotation", a)["num_lidar_pts"] == 0 for a in s["anns"])
+        _, boxes, K = nusc.get_sample_data(s["data"]["CAM_FRONT"])
+        assert len(boxes) == 3          # the two cars and the van: the ignored car is no annotation
+        by_track = {o["track_id"]: o for o in fr.labels["objects"]}
+        for box in boxes:
+            corners = view_points(box.corners(), K, normalize=True)[:2] + 0.5
+            mine = np.r_[corners.min(1).clip(0, [F.W, F.H]), corners.max(1).clip(0, [F.W, F.H])]
+            ours = by_track[nusc.get("sample_annotation", box.token)["track_id"]]["bbox_amodal"]
+            assert np.abs(mine - ours).max() < 1.0
+
+
+def test_write_export_of_an_output_folder(tmp_path, capsys):
+    from backend.export import command
+    from tests.backend.export.test_command import _output_folder
+
+    j, layout = _output_folder(tmp_path, generated=False)
+    dest = layout.export("nuscenes")
+    result = command.write_export(str(tmp_path / "job.json"), j, layout, "nuscenes", dest,
+                                  options=nuscenes.check_options("v1.0-trainval", 2.0))
+    assert result == {"frames": 2, "samples": 1, "objects": 3, "inserted": 2, "ignore_regions": 1,
+                      "version": "v1.0-trainval", "keyframe_hz": 2.0, "images": "conditions"}
+    evs = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert sorted(e["code"] for e in evs if e["event"] == "warning") == sorted(
+        [command.NO_GENERATED, nuscenes.NO_LIDAR, nuscenes.ONE_KEYFRAME])
+    assert [(e["done"], e["frame"]) for e in evs if e["event"] == "progress"] == [(1, 4), (2, 5)]
+    assert json.load(open(os.path.join(dest, OutputLayout.EXPORT_RECORD)))["format"] == "nuscenes"
+    nusc = devkit.NuScenes("v1.0-trainval", dest, verbose=False)
+    assert [sd["filename"].split("/")[0] for sd in nusc.sample_data] == ["samples", "sweeps"]
+    assert nusc.scene[0]["description"] == str(tmp_path / "job.json")
 
 
 def test_one_dataset_of_several_jobs_with_its_split(tmp_path):

@@ -43,7 +43,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from scpainter_blender.core import categories, errors, labels
+from scpainter_blender.core import categories, errors, files, labels
 from scpainter_blender.core.geometry import cameras
 
 from . import common
@@ -70,6 +70,8 @@ MAP_MARGIN_M = 60.0
 #: (unknown, not known to be undrivable).
 DRIVEN_HALF_WIDTH_M = 2.0
 SWEEP_COLUMNS = 5
+#: A sweep larger than this is no sweep (a 128-beam sensor's 0.1° sweep is ~ 9 MB).
+MAX_SWEEP_BYTES = 1 << 28
 
 
 def token(*parts) -> str:
@@ -139,12 +141,11 @@ def attributes(nuscenes_name: str, our_class: str, speed: float | None, track_mo
 def read_sweep(path: str) -> np.ndarray:
     """(R, 5) float32 rows of a ``.pcd.bin`` sweep (x, y, z, intensity, ring; sensor frame); InputError naming the
     file when its size is not a whole number of rows."""
-    try:
-        with open(path, "rb") as f:
-            raw = f.read()
-    except OSError as e:
-        raise errors.InputError(path, "(file)", f"cannot read the LiDAR sweep: {e.strerror or e}",
-                                hint="render again: python -m backend render JOB") from None
+    with files.open_regular(path) as f:   # a FIFO, device or folder there: an InputError, never a hang
+        raw = f.read(MAX_SWEEP_BYTES + 1)
+    if len(raw) > MAX_SWEEP_BYTES:
+        raise errors.InputError(path, "(file)", f"is over {MAX_SWEEP_BYTES} bytes: not a LiDAR sweep",
+                                hint="render again: python -m backend render JOB")
     if len(raw) % (4 * SWEEP_COLUMNS):
         raise errors.InputError(path, "(file)", f"{len(raw)} bytes: not rows of {SWEEP_COLUMNS} float32 "
                                 "(x, y, z, intensity, ring)", hint="render again: python -m backend render JOB")

@@ -65,3 +65,8 @@ def test_a_keyframe_without_its_sweep_names_the_file(tmp_path):
     with pytest.raises(errors.InputError) as e:
         T.Tables().add(clip)
     assert e.value.path == clip.sweeps[0] and "float32" in e.value.message
+    os.remove(clip.sweeps[0])
+    os.mkfifo(clip.sweeps[0])                          # a FIFO planted there: refused at once, never waited on
+    with pytest.raises(errors.InputError) as e:
+        T.read_sweep(clip.sweeps[0])
+    assert e.value.path == clip.sweeps[0] and "regular file" in e.value.message

@@ -225,7 +225,7 @@ class Tables:
         "inserted"} (annotations; ignore regions left out, per keyframe and camera)."""
         name, n = clip.name, len(clip.frames)
         R = self.records
-        keys = keyframes(clip.times_s, self.keyframe_hz)
+        keys = keyframes(clip.times_s, self.keyframe_hz)   # a list: in order (membership tests are few)
         ego = np.asarray(clip.ego_to_world, np.float64)
         offset = MAP_MARGIN_M - ego[:, :2, 3].min(axis=0)
         world_to_global = np.eye(4)

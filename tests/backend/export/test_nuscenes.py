@@ -222,13 +222,17 @@ def test_one_dataset_of_several_jobs_with_its_split(tmp_path):
                              nuscenes.check_options(keyframe_hz=10.0))
     for k, split in enumerate(("train", "val")):
         writer.add(dataset.Member(f"/jobs/{k}/job.json", F.job(), split=split, sequence=k), frames)
+    rig = dataset.Member("/jobs/rig/job.json", R.rig_job(), split="val", sequence=2)   # a rig job beside them
+    writer.add_rig(rig, R.build(str(tmp_path / "rig")))
     writer.finish()
     nusc = devkit.NuScenes(VERSION, str(tmp_path / "ds" / "nuscenes"), verbose=False)
-    assert [s["name"] for s in nusc.scene] == ["scpainter-0000", "scpainter-0001"]
-    assert len(nusc.log) == len(nusc.map) == 2 and len(nusc.sample) == 4
+    assert [s["name"] for s in nusc.scene] == ["scpainter-0000", "scpainter-0001", "scpainter-0002"]
+    assert len(nusc.log) == len(nusc.map) == 3 and len(nusc.sample) == 4 + 6        # 10 Hz: every frame a sample
+    assert len({sd["token"] for sd in nusc.sample_data}) == len(nusc.sample_data) == 4 + 6 * 7
     assert json.load(open(tmp_path / "ds" / "nuscenes" / VERSION / nuscenes.SPLITS)) == {
-        "train": ["scpainter-0000"], "val": ["scpainter-0001"]}
-    assert writer.counts["nuscenes"]["val"] == {"frames": 2, "objects": 6, "ignore_regions": 2}
+        "train": ["scpainter-0000"], "val": ["scpainter-0001", "scpainter-0002"]}
+    assert writer.counts["nuscenes"]["val"] == {"frames": 2 + 6, "objects": 6 + 3 * 6, "ignore_regions": 2 + 2 * 6}
+    assert [r["camera"] for r in writer.rows[-6:]] == ["CAM_FRONT"] * 6 and rig.images == "conditions"
 
 
 def _bare_job(tmp_path) -> str:

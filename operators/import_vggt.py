@@ -117,6 +117,11 @@ def _report_import(op, context, result, warnings=None):
         op.report({"WARNING"}, w)
     for line in result.load_report.info:
         op.report({"INFO"}, line)
+    if result.rig_fit is not None:   # a multi-camera recording: its rig and the spread per sensor
+        for line in result.rig_fit.notes + [f.sentence() for f in result.rig_fit.sensors.values()]:
+            op.report({"INFO"}, line)
+        op.report({"INFO"}, f"{len(result.cameras)} recorded cameras; the rig 'recording' is stored with the points "
+                            f"(Add Camera Rig offers it)")
     selection.select_only(context, result.points)
     _show_attribute_colours(context)
     fit = result.fit

@@ -3,7 +3,10 @@ is open (``blender -b scene.blend -c ...`` imports into scene.blend), with the i
 ``core/import_options.py`` defines them (``--objects FILE``: the drive's tracked boxes as recorded objects);
 ``--save`` writes the scene to a .blend (a temporary file, then renamed). ``--proposals``: the objects above the road
 that nothing labels (``scene/proposals.py``) left as box proposals for review (``review``, as after File > Import),
-made recorded objects (``accept``), ignore regions (``ignore``), or not proposed (``off``).
+made recorded objects (``accept``), ignore regions (``ignore``), or not proposed (``off``). A multi-camera recording
+(``--sensors SIDECAR``, or ``<predictions stem>.sensors.json`` beside the predictions) imports one recorded camera per
+sensor; the summary's ``recording_rig`` holds the rig's spread per sensor, and ``--save-rig FILE`` writes the rig as
+a rig file (``scpainter.rig/1``, ``core.rig.save``) for the commands that render rigs.
 """
 
 from __future__ import annotations
@@ -16,7 +19,7 @@ import tempfile
 import bpy
 
 from ..core import backend_protocol as protocol
-from ..core import import_options
+from ..core import errors, import_options, rig
 from ..core.variation import proposals as proposals_core
 from ..scene import importer, keys, proposals
 from ..scene.props import SceneError
@@ -31,6 +34,9 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     i.add_argument("predictions")
     import_options.add_arguments(i)  # the import options, as core.import_options defines them
     i.add_argument("--save", help="write the scene to this .blend (written to a temporary file, then renamed)")
+    i.add_argument("--save-rig", metavar="FILE",
+                   help="a multi-camera recording (--sensors): write its rig (the sidecar's camera_to_ego or the "
+                        "estimate) to this rig file (scpainter.rig/1 JSON)")
     i.add_argument("--proposals", choices=("review", *proposals_core.MODES), default="review",
                    help="objects above the road that nothing labels (parked cars), found in the points: box "
                         "proposals to review in Blender (review, the default), recorded objects labelled with the "
@@ -53,6 +59,18 @@ def run(args: argparse.Namespace) -> tuple[dict, int]:
            "scene_camera": bpy.context.scene.camera.name if bpy.context.scene.camera else None}
     if opts.objects:  # the recorded objects the import made (--objects)
         out["recorded_objects"] = [o.name for o in result.recorded_objects]
+    if result.rig_fit is not None:   # a multi-camera recording: its cameras, its rig and the spread per sensor
+        out["cameras"] = [c.name for c in result.cameras]
+        out["sensors"] = result.sensors_path
+        out["recording_rig"] = result.rig_fit.to_json()
+    if args.save_rig:
+        if result.rig_fit is None:
+            raise errors.ArgumentError("--save-rig", "the predictions were imported as one camera: there is no "
+                                                     "recording rig to save",
+                                       hint="give the sensors sidecar (--sensors) of a multi-camera recording")
+        out["rig_file"] = os.path.abspath(args.save_rig)
+        os.makedirs(os.path.dirname(out["rig_file"]), exist_ok=True)
+        rig.save(out["rig_file"], result.rig_fit.rig)
     out["proposals"] = [] if args.proposals == "off" else _proposals(args.proposals)
     if args.save:
         path = os.path.abspath(args.save)

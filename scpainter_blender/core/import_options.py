@@ -96,6 +96,11 @@ _OPTIONS = (   # in the order the operator draws them
     Option("crop", "Crop", "auto", "Borders to leave out, in pixels: 'auto' (the white padding of VGGT's pad "
                                    "preprocessing), 'none', or 'left top right bottom'. The camera's principal point "
                                    "and resolution follow", flag="--crop"),
+    Option("sensors", "Sensors", "", "A multi-camera recording's sidecar (scpainter.sensors/1 JSON: each VGGT frame's "
+                                     "sensor and timestamp): one recorded camera per sensor and the recording's "
+                                     "camera rig. Default: <predictions stem>.sensors.json beside the predictions "
+                                     "when there is one, else one recorded camera",
+           flag="--sensors", ui={"subtype": "FILE_PATH"}),
     Option("objects", "Recorded Objects", "", "The drive's tracked 3D boxes, imported as recorded objects (labelled "
                                               "in every export): a nuScenes tables folder, a KITTI tracking "
                                               "label_02/NNNN.txt (calib/ beside it), an OpenLABEL JSON or a "
@@ -150,6 +155,7 @@ class ImportOptions:
     set_scene_camera: bool = True
     extrinsic_convention: str = _default("extrinsic_convention")
     crop: str = _default("crop")                            # "auto", "none", or "left top right bottom" pixels
+    sensors: str = _default("sensors")                      # sensors sidecar ("": <stem>.sensors.json if any)
     objects: str = _default("objects")                      # recorded objects file ("": none), core.recording
     objects_format: str = _default("objects_format")        # core.recording.reader.FORMATS or auto
     objects_scene: str = _default("objects_scene")          # nuScenes scene name or token

@@ -15,8 +15,9 @@ from . import compat, keys, kinds
 
 
 def create_recorded_camera(name: str, world_to_camera, K, width: int, height: int, frame_start: int,
-                           collection, sensor_width: float = 36.0):
-    """Camera object keyed at frames frame_start + i. Returns (object, settings of frame 0, warnings)."""
+                           collection, sensor_width: float = 36.0, frames=None):
+    """Camera object keyed at scene frames ``frames`` (S,) increasing (default: frame_start + i). Returns (object,
+    settings of its first frame, warnings)."""
     T = cameras.as_matrix4(world_to_camera)
     K = np.asarray(K, np.float64)
     S = len(T)
@@ -31,7 +32,7 @@ def create_recorded_camera(name: str, world_to_camera, K, width: int, height: in
     obj = bpy.data.objects.new(name, data)
     collection.objects.link(obj)
 
-    frames = frame_start + np.arange(S)
+    frames = frame_start + np.arange(S) if frames is None else np.asarray(frames, np.int64)
     lens = np.array([p.lens for p in params])
     shifts = np.array([[p.shift_x, p.shift_y] for p in params])
     if S > 1 and (np.ptp(lens) > 1e-9 * lens[0] or np.ptp(shifts, axis=0).max() > 1e-12):

@@ -4,10 +4,19 @@ The heavy lifting is numpy in ``core``; this module only turns arrays into Blend
 checks live in ``core.import_options``. All three metric-scale modes run here, in Blender's own process (the
 camera-height one is ``core.geometry.metric_scale.camera_height_fit``; no backend). With ``objects`` the drive's
 tracked boxes come in too (``core.recording``, mapped through the recorded camera in metres: scene/recorded_objects.py).
+
+A multi-camera recording (a sensors sidecar, ``core.vggt.sensors``: ``opts.sensors``, or
+``<predictions stem>.sensors.json`` beside the predictions) gets one recorded camera per sensor, named
+``"<folder> <SENSOR>"``, each keyed only at its own frames' scene frames (``Sensors.scene_frames``: scene frame k is
+the reference sensor's k-th frame; the others' frames go to the reference frame nearest in time), the reference
+sensor's camera first (the scene camera; the one ``kinds.recorded_camera_of`` finds); and the recording's rig
+(``core.geometry.rig_fit``), stored on the points object as JSON (``keys.RECORDING_RIG``, read back by
+``scene/recording_rig.py``).
 """
 
 from __future__ import annotations
 
+import json
 import os
 import time
 from dataclasses import dataclass, field
@@ -15,11 +24,11 @@ from dataclasses import dataclass, field
 import bpy
 import numpy as np
 
-from ..core.geometry import cameras, metric_scale, point_cloud, similarity
+from ..core.geometry import cameras, metric_scale, point_cloud, rig_fit, similarity
 from ..core import errors
 from ..core.import_options import DEPTH_EDGE_RATIO, ERROR_PATH, SCALE_MODES, ImportOptions
 from ..core.recording import reader as recording
-from ..core.vggt import predictions as vggt, npz as vggt_io
+from ..core.vggt import predictions as vggt, npz as vggt_io, sensors as sensors_mod
 from . import camera as camera_mod
 from . import keys, kinds, paths
 from . import node_groups
@@ -41,6 +50,11 @@ class ImportResult:
     # the camera path that stays the scene camera (the import adds the recorded camera without taking its place)
     kept_camera: bpy.types.Object | None = None
     recorded_objects: list = field(default_factory=list)   # the recorded objects made (``opts.objects``)
+    # a multi-camera recording: every recorded camera (the reference sensor's first, ``camera``), the sidecar read
+    # and the rig fitted (None: one recorded camera, as before)
+    cameras: list = field(default_factory=list)
+    sensors_path: str | None = None
+    rig_fit: rig_fit.RigFit | None = None
 
 
 def metric_fit(pred: vggt.VGGTPredictions, opts: ImportOptions) -> metric_scale.MetricFit:
@@ -57,6 +71,16 @@ def metric_fit(pred: vggt.VGGTPredictions, opts: ImportOptions) -> metric_scale.
     if opts.scale_mode == "CAMERA_HEIGHT":
         return metric_scale.camera_height_fit(pred, opts.camera_height, opts.confidence_percentile)
     raise ValueError(f"unknown scale mode {opts.scale_mode!r}; expected one of {SCALE_MODES}")
+
+
+def read_sensors(filepath: str, opts: ImportOptions, num_frames: int) -> sensors_mod.Sensors | None:
+    """The sensors sidecar of the predictions ``filepath`` (absolute): ``opts.sensors``, else
+    ``<stem>.sensors.json`` beside them when there is one; None without (one recorded camera). Its frame count must
+    be the predictions' (InputError naming the sidecar's ``frames``)."""
+    path = os.path.abspath(bpy.path.abspath(opts.sensors)) if opts.sensors else sensors_mod.default_path(filepath)
+    if not opts.sensors and not os.path.isfile(path):
+        return None
+    return sensors_mod.read(path).check_frames(num_frames, filepath)
 
 
 def _tag(obj, kind, filepath, fit, opts, rep: vggt.LoadReport):
@@ -85,6 +109,7 @@ def import_vggt(context, filepath: str, opts: ImportOptions | None = None, colle
     pred = vggt_io.load_predictions(filepath, world_points=opts.point_source == "world_points",
                                     extrinsic_convention=opts.extrinsic_convention, crop=opts.crop,
                                     metres_per_unit=opts.scale_factor if opts.scale_mode == "FACTOR" else None)
+    sensors = read_sensors(filepath, opts, pred.num_frames)   # a refused sidecar: before the points are made
     t_load = time.perf_counter()
     fit = metric_fit(pred, opts)
     t_fit = time.perf_counter()
@@ -92,11 +117,22 @@ def import_vggt(context, filepath: str, opts: ImportOptions | None = None, colle
                                   depth_edge_ratio=opts.edge_ratio)
     t_unproject = time.perf_counter()
     w2c = similarity.transform_world_to_camera(cameras.orthonormalize(pred.world_to_camera), fit.vggt_to_world)
+    fitted = offsets = None
+    # which VGGT frames each recorded camera gets, the reference sensor's first: {name: frame indices}
+    groups = {"": np.arange(pred.num_frames)}
+    if sensors is not None:
+        fitted = rig_fit.fit(sensors, cameras.rigid_inverse(w2c), pred.K, (pred.width, pred.height))
+        offsets = sensors.scene_frames()
+        names = [fitted.reference] + [n for n in sensors.names if n != fitted.reference]
+        groups = {n: sensors.frames_of(n) for n in names}
     mapped = None
     if opts.objects:  # read, mapped and checked against the recording before anything is made
         rec = recording.read(os.path.abspath(bpy.path.abspath(opts.objects)), opts.objects_format,
                              opts.objects_scene, opts.objects_camera)
-        mapped = recording.recorded_objects(rec, w2c, opts.frame_start)
+        # a multi-camera recording: the boxes are seen from the sensor they name (default: the reference)
+        idx = groups.get(opts.objects_camera, next(iter(groups.values())))
+        start = opts.frame_start + (int(offsets[idx[0]]) if offsets is not None else 0)
+        mapped = recording.recorded_objects(rec, w2c[idx], start)
         recorded_mod.check_new(context.scene, mapped.objects)
 
     scene = context.scene
@@ -113,20 +149,32 @@ def import_vggt(context, filepath: str, opts: ImportOptions | None = None, colle
     node_groups.set_input(mod, "Frame Window", int(opts.frame_window))
     t_points = time.perf_counter()
 
-    cam, p0, warnings = camera_mod.create_recorded_camera(f"{parent_name} recorded camera", w2c, pred.K,
-                                                          pred.width, pred.height, opts.frame_start, coll)
+    made_cameras, warnings, p0 = [], [], None
+    for name, idx in groups.items():
+        frames = opts.frame_start + (offsets[idx] if offsets is not None else np.arange(len(idx)))
+        c, p, w = camera_mod.create_recorded_camera(f"{parent_name} {name or 'recorded camera'}", w2c[idx],
+                                                    pred.K[idx], pred.width, pred.height, opts.frame_start, coll,
+                                                    frames=frames)
+        p0 = p if p0 is None else p0
+        warnings += [f"{name}: {x}" if name else x for x in w]
+        _tag(c, kinds.RECORDED_CAMERA, filepath, fit, opts, pred.report)
+        c[keys.INTRINSICS] = pred.K[idx].ravel().tolist()
+        c[keys.FRAME_START] = int(frames[0])
+        if name:
+            c[keys.SENSOR] = name
+        made_cameras.append(c)
+    cam = made_cameras[0]
     camera_mod.apply_render_settings(scene, p0)
     scene.frame_start = opts.frame_start
-    scene.frame_end = opts.frame_start + pred.num_frames - 1
+    scene.frame_end = opts.frame_start + (int(offsets.max()) if offsets is not None else pred.num_frames - 1)
     kept = scene.camera if kinds.is_kind(scene.camera, kinds.CAMERA_PATH) else None
     if opts.set_scene_camera and kept is None:
         scene.camera = cam
-    for o, kind in ((obj, kinds.POINTS), (cam, kinds.RECORDED_CAMERA)):
-        _tag(o, kind, filepath, fit, opts, pred.report)
+    _tag(obj, kinds.POINTS, filepath, fit, opts, pred.report)
     obj[keys.NUM_FRAMES] = pred.num_frames
     obj[keys.MATRIX_WORLD_AT_IMPORT] = np.array(obj.matrix_basis, dtype=np.float64).ravel().tolist()
-    cam[keys.INTRINSICS] = pred.K.ravel().tolist()
-    cam[keys.FRAME_START] = int(opts.frame_start)
+    if fitted is not None:
+        obj[keys.RECORDING_RIG] = json.dumps(fitted.rig.to_dict())
     made = recorded_mod.add_objects(context, mapped.objects) if mapped is not None else []
     if mapped is not None:
         warnings = list(warnings) + list(mapped.warnings)
@@ -138,4 +186,5 @@ def import_vggt(context, filepath: str, opts: ImportOptions | None = None, colle
             f"the depth-edge test left out {pts.depth_edge_points:,} of {pts.depth_edge_points + len(pts):,} points: "
             f"the ratio {opts.edge_ratio} is small for this clip (the default is {DEPTH_EDGE_RATIO}; 0 turns it off)"]
     return ImportResult(obj, cam, fit, len(pts), timings, list(pred.report.warnings) + list(warnings), pred.report,
-                        opts.edge_ratio, pts.depth_edge_points, kept if opts.set_scene_camera else None, made)
+                        opts.edge_ratio, pts.depth_edge_points, kept if opts.set_scene_camera else None, made,
+                        made_cameras, sensors.path if sensors is not None else None, fitted)

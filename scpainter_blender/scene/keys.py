@@ -27,6 +27,11 @@ DEPTH_EDGE_RATIO = "scpainter_depth_edge_ratio"
 MATRIX_WORLD_AT_IMPORT = "scpainter_matrix_world_at_import"
 #: (9,) a recorded camera's K, row-major (on the recorded camera).
 INTRINSICS = "scpainter_intrinsics"
+#: A multi-camera recording's rig (``core.rig.Rig.to_dict()`` as JSON text; on the points object: *Add Camera Rig*'s
+#: preset "recording", read back by ``scene/recording_rig.py``).
+RECORDING_RIG = "scpainter_recording_rig"
+#: The sensor (camera channel) a recorded camera of a multi-camera recording is (on the recorded camera).
+SENSOR = "scpainter_sensor"
 #: How the metric scale was found.
 SCALE_METHOD = "scpainter_scale_method"
 #: The scale fit's residual, metres.
@@ -108,7 +113,7 @@ RENAMED = {VGGT_TO_WORLD: "scpainter_world_from_vggt", FILE_TO_DATA: "scpainter_
 
 #: Every key above, the renamed ones' old names included.
 ALL = (SOURCE, NUM_FRAMES, FRAME_START, VGGT_TO_WORLD, EXTRINSIC_CONVENTION, CROP, CONFIDENCE_PERCENTILE,
-       DEPTH_EDGE_RATIO, MATRIX_WORLD_AT_IMPORT, INTRINSICS, SCALE_METHOD, SCALE_RESIDUAL_M, FILE_TO_DATA, AXES,
+       DEPTH_EDGE_RATIO, MATRIX_WORLD_AT_IMPORT, INTRINSICS, RECORDING_RIG, SENSOR, SCALE_METHOD, SCALE_RESIDUAL_M, FILE_TO_DATA, AXES,
        AXES_REASON, SIZE, OBB_SIZE, SH_DEGREE, FORMAT, DROPPED, MESH_SOURCE, SPLAT_SOURCE, STAGE1, STAGE1_DEVIATION,
        REVIEW, TARGET_BOX, POINTS_OBJECT, SOURCE_CAMERA, SHIFT_M, CLASS, TRACK_ID, IGNORE, TRACK_FRAMES,
        PROPOSAL_SCORE, RESULT, CAMERA, MODEL, DESCRIPTION, FRAMES, VERSION, *RENAMED.values())

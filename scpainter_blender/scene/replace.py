@@ -7,7 +7,9 @@ modifiers move to the new points object, in order, with their on/off switches), 
 paths are keyed over it) and the scene camera (unless it was the old recorded camera: then the new one). The new
 objects go into the old points object's collection and take the old objects' names, so everything naming them
 (``scpainter_points_object`` on a box, ``scpainter_source_camera`` on a camera path) still does. The recording is
-placed on the same scene frames as the old one (its recorded camera's ``scpainter_frame_start``).
+placed on the same scene frames as the old one (its recorded camera's ``scpainter_frame_start``). A multi-camera
+recording's other recorded cameras (``keys.SENSOR``, in the points' collection) go too, each new camera of the same
+sensor taking the old one's name.
 """
 
 from __future__ import annotations
@@ -57,6 +59,11 @@ def replace_reconstruction(context, filepath: str, opts: ImportOptions | None = 
     scene = context.scene
     old = old_points(context, chosen)
     old_cam = kinds.recorded_camera_of(scene, old)
+    # a multi-camera recording's other sensors' cameras (sharing the points' collection): replaced too, each by the
+    # new camera of its sensor (which takes its name), or removed
+    own = set(old.users_collection)
+    old_sensors = {o[keys.SENSOR]: o for o in kinds.objects_of_kind(scene, kinds.RECORDED_CAMERA)
+                   if o != old_cam and keys.SENSOR in o and own.intersection(o.users_collection)}
     start = int(old_cam[keys.FRAME_START]) if old_cam is not None and keys.FRAME_START in old_cam \
         else scene.frame_start
     opts = dataclasses.replace(opts or ImportOptions(), frame_start=start, set_scene_camera=False)
@@ -82,12 +89,18 @@ def replace_reconstruction(context, filepath: str, opts: ImportOptions | None = 
                         f"{old_frames}: the frame range stays {frame_range[0]}–{frame_range[1]} (the camera paths are "
                         "keyed over it); make new camera paths to follow the new recording")
     names = (old.name, old_cam.name if old_cam is not None else None)
+    sensor_names = {sensor: o.name for sensor, o in old_sensors.items()}
     _remove(old)
     if old_cam is not None:
         _remove(old_cam)
+    for o in old_sensors.values():
+        _remove(o)
     result.points.name = names[0]  # free now: everything naming the old objects names the new ones
     if names[1] is not None:
         result.camera.name = names[1]
+    for cam in result.cameras[1:]:
+        if cam.get(keys.SENSOR) in sensor_names:
+            cam.name = sensor_names[cam[keys.SENSOR]]
     for name in boxes:  # attach_removal_box wrote the new object's name before it took the old one's
         bpy.data.objects[name][keys.POINTS_OBJECT] = result.points.name
     context.view_layer.update()  # the view layer drops the deleted objects (its selection would still list them)

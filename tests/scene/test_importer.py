@@ -548,3 +548,58 @@ def test_depth_edge_ratio_checked_before_reading(addon, empty_scene, tmp_path):
     prop = bpy.ops.scpainter.import_vggt.get_rna_type().properties["depth_edge_ratio"]
     assert prop.default == pytest.approx(EDGE_RATIO) and prop.hard_min == 0.0
     assert "flying pixels" in prop.description and "0 turns it off" in prop.description
+
+
+def test_multi_camera_recording(empty_scene, tmp_path):
+    """VGGT run on two cameras at once (frames interleaved: F0 B0 F1 B1 ...) with its sensors sidecar beside the
+    predictions: one recorded camera per sensor, each keyed at its own frames' scene frames with its own poses; the
+    reference (CAM_FRONT) is the scene camera; the recording's rig is stored with the points and read back. A
+    sidecar whose frame count differs from the predictions' is refused before anything is made."""
+    from scpainter_blender.core import errors, import_options
+    from scpainter_blender.core.vggt import sensors as S
+    from scpainter_blender.scene import compat, importer, recording_rig
+    from tests.core.geometry.rig_cases import predictions, small_rig
+
+    rig = small_rig()
+    arrays, sensors, c2w = predictions(rig)
+    folder = tmp_path / "drive"
+    folder.mkdir()
+    path = str(folder / "predictions.npz")
+    vggt_io.save_predictions(path, **arrays)
+    short = S.Sensors(sensors.sensor[:6], sensors.timestamp_us[:6])
+    S.write(tmp_path / "short.json", short)
+    with pytest.raises(errors.InputError) as e:
+        importer.import_vggt(bpy.context, path, import_options.ImportOptions(sensors=str(tmp_path / "short.json")))
+    assert e.value.field == "frames" and "6 frames, but the predictions predictions.npz hold 8" in e.value.message
+    assert len(bpy.data.objects) == 0
+
+    S.write(S.default_path(path), sensors)          # found beside the predictions
+    assert bpy.ops.scpainter.import_vggt(filepath=path, propose_boxes=False) == {"FINISHED"}
+    scene = bpy.context.scene
+    cams = [o for o in scene.objects if o.get("scpainter_kind") == "recorded_camera"]
+    assert sorted(c.name for c in cams) == ["drive CAM_BACK", "drive CAM_FRONT"]
+    assert scene.camera.name == "drive CAM_FRONT" and (scene.frame_start, scene.frame_end) == (1, 4)
+    for cam in cams:
+        name = cam["scpainter_sensor"]
+        idx = sensors.frames_of(name)            # VGGT frames 0, 2, 4, 6 (front) and 1, 3, 5, 7 (back)
+        assert list(idx) == list(range(0 if name == "CAM_FRONT" else 1, 8, 2))
+        assert cam["scpainter_frame_start"] == 1 and len(cam["scpainter_intrinsics"]) == 4 * 9
+        frames = sorted({int(k.co[0]) for fc in compat.fcurves(cam) for k in fc.keyframe_points})
+        assert frames == [1, 2, 3, 4]            # its own four frames, at scene frames 1-4
+        for f, j in zip(frames, idx):
+            scene.frame_set(f)
+            np.testing.assert_allclose(C.world_to_camera_from_blender(np.array(cam.matrix_world)),
+                                       C.rigid_inverse(c2w[j]), atol=1e-4)
+    pts = next(o for o in scene.objects if o.get("scpainter_kind") == "points")
+    assert pts["scpainter_num_frames"] == 8
+    stored = recording_rig.recording_rig(scene)
+    assert stored.name == "recording" and [c.name for c in stored.cameras] == ["CAM_FRONT", "CAM_BACK"]
+    for c in stored.cameras:
+        assert c.resolution == (16, 12)
+        np.testing.assert_allclose(c.K, rig.camera(c.name).K, atol=1e-5)
+    # CAM_BACK relative to CAM_FRONT as mounted; CAM_FRONT's height over the road (z = 0 of this world)
+    rel = np.linalg.inv(stored.camera("CAM_FRONT").camera_to_ego) @ stored.camera("CAM_BACK").camera_to_ego
+    true = np.linalg.inv(rig.camera("CAM_FRONT").camera_to_ego) @ rig.camera("CAM_BACK").camera_to_ego
+    np.testing.assert_allclose(rel, true, atol=2e-3)
+    assert abs(stored.camera("CAM_FRONT").camera_to_ego[2, 3] - rig.camera("CAM_FRONT").camera_to_ego[2, 3]) < 1e-3
+

@@ -15,7 +15,8 @@ def test_stored_keys_never_change():
         "VGGT_TO_WORLD": "scpainter_vggt_to_world", "EXTRINSIC_CONVENTION": "scpainter_extrinsic_convention",
         "CROP": "scpainter_crop", "CONFIDENCE_PERCENTILE": "scpainter_confidence_percentile",
         "DEPTH_EDGE_RATIO": "scpainter_depth_edge_ratio", "MATRIX_WORLD_AT_IMPORT": "scpainter_matrix_world_at_import",
-        "INTRINSICS": "scpainter_intrinsics", "SCALE_METHOD": "scpainter_scale_method",
+        "INTRINSICS": "scpainter_intrinsics", "RECORDING_RIG": "scpainter_recording_rig",
+        "SENSOR": "scpainter_sensor", "SCALE_METHOD": "scpainter_scale_method",
         "SCALE_RESIDUAL_M": "scpainter_scale_residual_m", "FILE_TO_DATA": "scpainter_file_to_data",
         "AXES": "scpainter_axes", "AXES_REASON": "scpainter_axes_reason", "SIZE": "scpainter_size",
         "OBB_SIZE": "scpainter_obb_size", "SH_DEGREE": "scpainter_sh_degree", "FORMAT": "scpainter_format",
@@ -30,7 +31,7 @@ def test_stored_keys_never_change():
         "DESCRIPTION": "scpainter_description", "FRAMES": "scpainter_frames", "VERSION": "scpainter_version"}
     assert keys.RENAMED == {"scpainter_vggt_to_world": "scpainter_world_from_vggt",
                             "scpainter_file_to_data": "scpainter_data_from_file"}
-    assert len(set(keys.ALL)) == len(keys.ALL) == 42
+    assert len(set(keys.ALL)) == len(keys.ALL) == 44
 
 
 def _spelled_keys(source, rel):

@@ -104,3 +104,23 @@ def test_reimport_keeps_the_camera_path_as_scene_camera(empty_scene, street, tmp
     scene.camera = new_cam  # a recorded camera active: the next import's recorded camera takes over
     assert bpy.ops.scpainter.import_vggt(**_street_args(street)) == {"FINISHED"}
     assert scene.camera == _of_kind(scene, "recorded_camera")[2]
+
+
+def test_replace_multi_camera_recording_replaces_every_sensor_camera(empty_scene, tmp_path):
+    """A multi-camera recording replaced: no old sensor camera is left behind, the new ones take their names."""
+    from scpainter_blender.core.vggt import npz as vggt_io
+    from scpainter_blender.core.vggt import sensors as S
+    from tests.core.geometry.rig_cases import predictions, small_rig
+
+    arrays, sensors, _ = predictions(small_rig())
+    path = str(tmp_path / "predictions.npz")
+    vggt_io.save_predictions(path, **arrays)
+    S.write(S.default_path(path), sensors)
+    assert bpy.ops.scpainter.import_vggt(filepath=path, propose_boxes=False) == {"FINISHED"}
+    before = sorted(o.name for o in bpy.context.scene.objects)
+    old = {o.name: o.as_pointer() for o in bpy.context.scene.objects}
+    assert bpy.ops.scpainter.replace_reconstruction(filepath=path, confidence_percentile=10.0) == {"FINISHED"}
+    assert sorted(o.name for o in bpy.context.scene.objects) == before   # same names, nothing left over
+    assert all(o.as_pointer() != old[o.name] for o in bpy.context.scene.objects)   # every one of them new
+    cams = [o for o in bpy.context.scene.objects if o.get("scpainter_kind") == "recorded_camera"]
+    assert sorted(c["scpainter_sensor"] for c in cams) == ["CAM_BACK", "CAM_FRONT"]

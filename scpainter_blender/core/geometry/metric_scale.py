@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import cameras, fits, point_cloud, similarity
-from .. import errors, files
+from .. import errors, files, outputs
 from ..vggt import predictions as vggt
 from ..vggt.predictions import PredictionsError
 
@@ -141,6 +141,13 @@ def load_metric_trajectory(path, num_frames: int | None = None):
     if num_frames is not None and len(centres) != num_frames:
         raise PredictionsError(path, None, f"has {len(centres)} poses but the clip has {num_frames} frames")
     return w2c, centres
+
+
+def save_metric_trajectory(path, world_to_camera: np.ndarray) -> None:
+    """Write a metric camera path as ``load_metric_trajectory`` reads it: ``.npz`` with ``world_to_camera``
+    (N, 4, 4) float64, atomically."""
+    with outputs.atomic_write(path) as f:
+        np.savez(f, world_to_camera=np.asarray(world_to_camera, np.float64))
 
 
 def _trajectory_error(path, key, message):

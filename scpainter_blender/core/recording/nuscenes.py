@@ -19,11 +19,14 @@ unknown name is an error naming ``category.json``.
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 
 import numpy as np
 
 from .. import categories, files
+from .. import rig as rig_mod
 from ..geometry import cameras
+from ..vggt import sensors as sensors_mod
 from . import tracks
 
 TABLES = ("scene", "sample", "sample_data", "calibrated_sensor", "sensor", "ego_pose", "sample_annotation",
@@ -66,12 +69,9 @@ def _pose(record: dict, path, where: str) -> np.ndarray:
     return tracks.pose(cameras.quaternion_to_rotation(q), t)
 
 
-def read(folder: str, scene: str = "", camera: str = "") -> tracks.Recording:
-    """The tracks of nuScenes scene ``scene`` (name or token; may be empty when the tables hold one scene) seen from
-    channel ``camera`` (default ``CAM_FRONT``), from the tables in ``folder`` (or the folder of a table file)."""
-    folder = folder if os.path.isdir(folder) else os.path.dirname(folder)
-    camera = camera or DEFAULT_CAMERA
-    t = {name: _table(folder, name) for name in TABLES}
+def _scene_samples(t: dict, scene: str) -> tuple:
+    """(the scene record, its samples in order along ``next`` from the first) of scene ``scene`` (name or token; may
+    be empty when the tables hold one scene), from the tables ``t`` (name -> ``_table``)."""
     scenes_path, scenes = t["scene"]
     chosen = [s for s in scenes.values() if scene in (s.get("name"), s["token"])] if scene else list(scenes.values())
     if len(chosen) != 1:
@@ -91,6 +91,16 @@ def read(folder: str, scene: str = "", camera: str = "") -> tracks.Recording:
     stamps = [s.get("timestamp", 0) for s in samples]
     if any(b <= a for a, b in zip(stamps, stamps[1:])):
         raise tracks.bad(t["sample"][0], "timestamp", f"the samples of scene {sc.get('name')!r} are not in time order")
+    return sc, samples
+
+
+def read(folder: str, scene: str = "", camera: str = "") -> tracks.Recording:
+    """The tracks of nuScenes scene ``scene`` (name or token; may be empty when the tables hold one scene) seen from
+    channel ``camera`` (default ``CAM_FRONT``), from the tables in ``folder`` (or the folder of a table file)."""
+    folder = folder if os.path.isdir(folder) else os.path.dirname(folder)
+    camera = camera or DEFAULT_CAMERA
+    t = {name: _table(folder, name) for name in TABLES}
+    sc, samples = _scene_samples(t, scene)
     frame_of = {s["token"]: i for i, s in enumerate(samples)}
     # per keyframe the camera's sample_data: global -> camera
     sd_path = t["sample_data"][0]
@@ -136,3 +146,75 @@ def read(folder: str, scene: str = "", camera: str = "") -> tracks.Recording:
         entry[3][i] = w2c[i] @ box_to_global
     out = [tracks.track(tok, cls, sizes, b, ig) for tok, (cls, ig, sizes, b) in sorted(seen.items())]
     return tracks.Recording(folder, "nuscenes", len(samples), out, np.stack(w2c))
+
+
+#: The tables ``sensors`` reads.
+SENSOR_TABLES = ("scene", "sample", "sample_data", "calibrated_sensor", "sensor", "ego_pose")
+
+
+@dataclass
+class SensorFrames:
+    """What ``sensors`` reads of a scene's camera keyframes, per VGGT frame in order: ``sensors`` (the sidecar),
+    ``images`` (``sample_data.filename``, relative to the dataroot), ``world_to_camera`` (S, 4, 4) in nuScenes'
+    global frame (ego_pose · calibrated_sensor, inverted; metres, OpenCV camera axes)."""
+    sensors: sensors_mod.Sensors
+    images: list
+    world_to_camera: np.ndarray
+
+
+def sensors(folder: str, scene: str = "", channels: list | tuple = (), calibration: bool = True) -> SensorFrames:
+    """The sensors sidecar (``core.vggt.sensors``) of the reconstruction VGGT made from nuScenes scene ``scene``'s
+    keyframe images of camera ``channels``: frames in sample order (the scene's keyframes along ``next``), and within
+    a sample in the order of ``channels`` (default: those of ``rig.NUSCENES_CAMERAS`` the scene has, in that order:
+    CAM_FRONT, CAM_FRONT_RIGHT, CAM_FRONT_LEFT, CAM_BACK, CAM_BACK_LEFT, CAM_BACK_RIGHT), each with its
+    ``sample_data`` timestamp (µs). With ``calibration`` every sensor gets its ``calibrated_sensor`` pose as
+    ``camera_to_ego`` and its image ``width``/``height`` as ``resolution`` (the recording's rig is then nuScenes'
+    own, not estimated). Returns the sidecar, the frames' images (give VGGT the images in exactly this order) and
+    their camera poses (a metric trajectory for the import's trajectory scale mode)."""
+    folder = folder if os.path.isdir(folder) else os.path.dirname(folder)
+    t = {name: _table(folder, name) for name in SENSOR_TABLES}
+    sc, samples = _scene_samples(t, scene)
+    sample_of = {s["token"]: i for i, s in enumerate(samples)}
+    found: dict = {}   # (sample index, channel) -> (timestamp, calibrated sensor, width, height)
+    for sd in t["sample_data"][1].values():
+        i = sample_of.get(sd.get("sample_token"))
+        if i is None or not sd.get("is_key_frame"):
+            continue
+        where = f"sample_data {sd['token']!r}"
+        cs = _get(t["calibrated_sensor"], sd.get("calibrated_sensor_token"), where, "token")
+        sensor = _get(t["sensor"], cs.get("sensor_token"), f"calibrated_sensor {cs['token']!r}", "token")
+        found[(i, sensor.get("channel"))] = (sd, cs)
+    have = {ch for _, ch in found}
+    channels = list(channels) or [c for c in rig_mod.NUSCENES_CAMERAS if c in have]
+    if not channels:
+        raise tracks.bad(t["sample_data"][0], "is_key_frame", f"no camera keyframe images in scene "
+                                                              f"{sc.get('name')!r}")
+    frames, stamps, images, w2c, info = [], [], [], [], {}
+    for i in range(len(samples)):
+        for ch in channels:
+            if (i, ch) not in found:
+                raise tracks.bad(t["sample_data"][0], "is_key_frame",
+                                 f"no {ch} keyframe image for sample {samples[i]['token']!r} of scene "
+                                 f"{sc.get('name')!r} (the scene has {sorted(have)})",
+                                 hint="choose channels that every keyframe has (--channels)")
+            sd, cs = found[(i, ch)]
+            where = f"sample_data {sd['token']!r}"
+            ts = sd.get("timestamp")
+            if isinstance(ts, bool) or not isinstance(ts, int) or ts < 0:
+                raise tracks.bad(t["sample_data"][0], f"{where}.timestamp", f"expected microseconds, got {ts!r}")
+            frames.append(ch)
+            stamps.append(ts)
+            images.append(str(sd.get("filename", "")))
+            ego = _get(t["ego_pose"], sd.get("ego_pose_token"), where, "token")
+            w2c.append(cameras.rigid_inverse(
+                _pose(ego, t["ego_pose"][0], f"ego_pose {ego['token']!r}") @
+                _pose(cs, t["calibrated_sensor"][0], f"calibrated_sensor {cs['token']!r}")))
+            if calibration and ch not in info:
+                res = (sd.get("width"), sd.get("height"))
+                ok = all(isinstance(v, int) and not isinstance(v, bool) and 0 < v <= 16384 for v in res)
+                info[ch] = sensors_mod.SensorInfo(
+                    _pose(cs, t["calibrated_sensor"][0], f"calibrated_sensor {cs['token']!r}"),
+                    tuple(res) if ok else None)
+    out = sensors_mod.Sensors(frames, np.array(stamps, np.int64), info, os.path.join(folder, "sample_data.json"))
+    # the sidecar's own checks (sensor names, each sensor's timestamps increasing), naming sample_data.json
+    return SensorFrames(sensors_mod.from_dict(out.to_dict(), out.path), images, np.stack(w2c))

@@ -192,3 +192,13 @@ def test_camera_height_fit_refusals_name_the_file_and_field():
         with pytest.raises(metric_scale.GroundPlaneError, match="positive number of metres") as e:
             metric_scale.camera_height_fit(_road(), height)
         assert e.value.field == "(camera height)" and e.value.hint
+
+
+def test_saved_trajectory_reads_back(tmp_path):
+    """``save_metric_trajectory`` writes what ``load_metric_trajectory`` reads (``sensors --trajectory-out``)."""
+    T = np.tile(np.eye(4), (3, 1, 1))
+    T[:, :3, 3] = [[400.0, 1100.0, -1.5], [404.0, 1100.5, -1.5], [408.0, 1101.0, -1.5]]
+    metric_scale.save_metric_trajectory(tmp_path / "m.npz", T)
+    w2c, centres = metric_scale.load_metric_trajectory(str(tmp_path / "m.npz"), 3)
+    np.testing.assert_allclose(w2c, T, atol=1e-12)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.npz"]   # no temporary left

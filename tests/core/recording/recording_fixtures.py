@@ -100,9 +100,14 @@ def _quat(R):
     return cameras.rotation_to_quaternion(R).tolist()
 
 
-def write_nuscenes(folder, d, extra_category=None):
+#: Extra camera channels ``write_nuscenes`` can add: channel -> camera_to_ego (CAM_BACK: looking backwards).
+EXTRA_CAMERAS = {"CAM_BACK": pose(np.array([[0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]), [0.0, 0.0, 1.6])}
+
+
+def write_nuscenes(folder, d, extra_category=None, extra_cameras=()):
     """The devkit's tables of drive ``d`` as one scene (plus another scene's sample, a LIDAR_TOP keyframe and a
-    CAM_FRONT sweep that must be left out); returns the folder."""
+    CAM_FRONT sweep that must be left out; ``extra_cameras``: channels of ``EXTRA_CAMERAS`` with a keyframe image
+    per sample, 7 ms after CAM_FRONT's, at 800 x 450); returns the folder."""
     os.makedirs(folder, exist_ok=True)
     n = len(d["world_to_camera"])
     t = {name: [] for name in ("scene", "sample", "sample_data", "calibrated_sensor", "sensor", "ego_pose",
@@ -134,9 +139,21 @@ def write_nuscenes(folder, d, extra_category=None):
         for token, cs, key in ((f"sd-cam-{i}", "cs-cam", True), (f"sd-lidar-{i}", "cs-lidar", True),
                                (f"sd-sweep-{i}", "cs-cam", False)):
             t["sample_data"].append({"token": token, "sample_token": samples[i], "ego_pose_token": f"ego-{i}",
-                                     "calibrated_sensor_token": cs, "timestamp": 0, "fileformat": "jpg",
+                                     "calibrated_sensor_token": cs, "timestamp": 1_000_000 + 500_000 * i + 5 * key,
+                                     "fileformat": "jpg",
                                      "is_key_frame": key, "height": 900, "width": 1600,
                                      "filename": f"samples/CAM_FRONT/{token}.jpg", "prev": "", "next": ""})
+    for k, ch in enumerate(extra_cameras):
+        T = EXTRA_CAMERAS[ch]
+        t["sensor"].append({"token": f"s-{ch}", "channel": ch, "modality": "camera"})
+        t["calibrated_sensor"].append({"token": f"cs-{ch}", "sensor_token": f"s-{ch}",
+                                       "translation": T[:3, 3].tolist(), "rotation": _quat(T[:3, :3]),
+                                       "camera_intrinsic": K.tolist()})
+        for i in range(n):
+            t["sample_data"].append({"token": f"sd-{ch}-{i}", "sample_token": samples[i], "ego_pose_token": f"ego-{i}",
+                                     "calibrated_sensor_token": f"cs-{ch}", "timestamp": 1_000_000 + 500_000 * i + 7_000,
+                                     "fileformat": "jpg", "is_key_frame": True, "height": 450, "width": 800,
+                                     "filename": f"samples/{ch}/{i}.jpg", "prev": "", "next": ""})
     for k, o in enumerate(d["objects"]):
         t["instance"].append({"token": o["id"], "category_token": f"cat-{o['class']}",
                               "nbr_annotations": len(o["boxes"])})

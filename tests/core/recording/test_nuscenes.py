@@ -61,3 +61,40 @@ def test_a_recording_of_another_length_or_order_is_refused(tmp_path):
         reader.recorded_objects(rec, d["world_to_camera"][:2], 1)
     with pytest.raises(InputError, match="camera path does not match"):
         reader.recorded_objects(rec, d["world_to_camera"][::-1], 1)
+
+
+def test_sensors_sidecar_from_the_tables(tmp_path):
+    """The sidecar of VGGT run on a scene's keyframe images of two cameras: sample-major, channels in nuScenes'
+    order, sample_data timestamps, calibrated sensors and image sizes; a channel missing is refused by name."""
+    import numpy as np
+
+    from scpainter_blender.core.errors import InputError as Bad
+    from scpainter_blender.core.vggt import sensors as S
+
+    from .recording_fixtures import CAMERA_TO_EGO, EXTRA_CAMERAS
+
+    d = drive(3)
+    folder = write_nuscenes(str(tmp_path / "v1.0-mini"), d, extra_cameras=("CAM_BACK",))
+    read = nuscenes.sensors(folder, "scene-0001")
+    s, images = read.sensors, read.images
+    assert s.sensor == ["CAM_FRONT", "CAM_BACK"] * 3 and s.reference == "CAM_FRONT"
+    assert list(s.timestamp_us) == [1_000_005, 1_007_000, 1_500_005, 1_507_000, 2_000_005, 2_007_000]
+    assert images[:2] == ["samples/CAM_FRONT/sd-cam-0.jpg", "samples/CAM_BACK/0.jpg"]
+    np.testing.assert_allclose(s.info["CAM_FRONT"].camera_to_ego, CAMERA_TO_EGO, atol=1e-12)
+    np.testing.assert_allclose(s.info["CAM_BACK"].camera_to_ego, EXTRA_CAMERAS["CAM_BACK"], atol=1e-12)
+    assert s.info["CAM_FRONT"].resolution == (1600, 900) and s.info["CAM_BACK"].resolution == (800, 450)
+    # the cameras' poses in the global frame: a metric trajectory of the frames
+    from scpainter_blender.core.geometry import cameras as C
+    for i in range(3):
+        np.testing.assert_allclose(read.world_to_camera[2 * i], d["world_to_camera"][i], atol=1e-9)
+        ego = d["camera_to_world"][i] @ C.rigid_inverse(CAMERA_TO_EGO)
+        np.testing.assert_allclose(read.world_to_camera[2 * i + 1],
+                                   C.rigid_inverse(ego @ EXTRA_CAMERAS["CAM_BACK"]), atol=1e-9)
+    S.write(tmp_path / "p.sensors.json", s)
+    assert S.read(tmp_path / "p.sensors.json").sensor == s.sensor
+    # the order VGGT was given: the channels named; no calibration
+    s = nuscenes.sensors(folder, "scene-0001", ["CAM_BACK", "CAM_FRONT"], calibration=False).sensors
+    assert s.sensor[:2] == ["CAM_BACK", "CAM_FRONT"] and s.info == {}
+    with pytest.raises(Bad) as e:
+        nuscenes.sensors(folder, "scene-0001", ["CAM_FRONT", "CAM_FRONT_LEFT"])
+    assert e.value.path.endswith("sample_data.json") and "no CAM_FRONT_LEFT keyframe image for sample" in e.value.message

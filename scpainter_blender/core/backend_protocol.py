@@ -21,7 +21,9 @@ EXPORT_FORMATS = {"kitti": ("KITTI", "KITTI object: image_2, label_2, calib per 
                   "coco": ("COCO", "COCO instances: annotations.json with RLE masks, images"),
                   "openlabel": ("OpenLABEL", "ASAM OpenLABEL 1.0 JSON: cuboids, boxes, camera per frame"),
                   "kitti-tracking": ("KITTI tracking", "KITTI tracking: image_02, label_02 with track ids, calib, "
-                                                       "poses")}
+                                                       "poses"),
+                  "nuscenes": ("nuScenes", "nuScenes tables, samples and sweeps per camera and LiDAR, a map: what "
+                                           "nuscenes-devkit and mmdetection3d's converter read")}
 EXPORT_FORMAT_NAMES = tuple(EXPORT_FORMATS)
 
 

@@ -60,7 +60,26 @@ def write(ev: dict, /, stream: TextIO | None = None) -> None:
     stream.flush()
 
 
+#: Fields every ``progress``, ``artifact`` and ``warning`` event carries while a ``tagged`` block runs.
+_tags: dict = {}
+
+
+@contextlib.contextmanager
+def tagged(**fields: object) -> Iterator[None]:
+    """Inside the block every ``progress``, ``artifact`` and ``warning`` event also carries ``fields`` (a rig job's
+    camera: ``protocol.CAMERA_FIELD``), under the event's own fields of the same name."""
+    global _tags
+    before = _tags
+    _tags = {**before, **fields}
+    try:
+        yield
+    finally:
+        _tags = before
+
+
 def emit(kind: str, /, stream: TextIO | None = None, **fields: object) -> None:
+    if _tags and kind in (protocol.PROGRESS, protocol.ARTIFACT, protocol.WARNING):
+        fields = {**_tags, **fields}
     write(protocol.event(kind, **fields), stream)
 
 

@@ -23,14 +23,17 @@ def _chunk(kind: bytes, data: bytes) -> bytes:
 
 def write_png(path, rgb, text: dict | None = None) -> None:
     """8-bit RGB PNG (the condition image is display-referred already), written atomically. rgb:
-    (H, W, 3) float in [0, 1] (rounded to 8 bits) or uint8 (written as it is). ``text``: Latin-1 keyword -> value
-    pairs written as ``tEXt`` chunks before the pixels (``has_text`` reads them back)."""
+    (H, W, 3) float in [0, 1] (rounded to 8 bits) or uint8 (written as it is); (H, W): an 8-bit greyscale PNG (a
+    nuScenes map). ``text``: Latin-1 keyword -> value pairs written as ``tEXt`` chunks before the pixels
+    (``has_text`` reads them back)."""
     a = rgb if rgb.dtype == np.uint8 else (np.clip(rgb, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
-    H, W, _ = a.shape
-    raw = np.concatenate([np.zeros((H, 1), np.uint8), a.reshape(H, W * 3)], axis=1).tobytes()
+    H, W = a.shape[:2]
+    channels = 1 if a.ndim == 2 else 3
+    raw = np.concatenate([np.zeros((H, 1), np.uint8), a.reshape(H, W * channels)], axis=1).tobytes()
     texts = b"".join(_chunk(b"tEXt", k.encode("latin-1") + b"\0" + v.encode("latin-1"))
                      for k, v in (text or {}).items())
-    png = (SIGNATURE + _chunk(b"IHDR", struct.pack(">IIBBBBB", W, H, 8, 2, 0, 0, 0)) + texts
+    colour = 0 if channels == 1 else 2
+    png = (SIGNATURE + _chunk(b"IHDR", struct.pack(">IIBBBBB", W, H, 8, colour, 0, 0, 0)) + texts
            + _chunk(b"IDAT", zlib.compress(raw, LEVEL)) + _chunk(b"IEND", b""))
     with outputs.atomic_write(path) as f:
         f.write(png)

@@ -50,6 +50,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     b.add_argument("--out", help="--command export: the dataset's folder, written whole (new, empty or a previous "
                                  "dataset)")
     export_cmd.dataset_options(b, " (--command export)")
+    export_cmd.nuscenes_options(b, ", --command export")
     b.add_argument("--shard", help="K/N: run every N-th job starting at K in this process alone, reporting only "
                                    "those (default: RANK/WORLD_SIZE of torchrun / accelerate, the ranks gathering "
                                    "one summary); 0/1 runs every job here whatever the environment says")
@@ -97,7 +98,8 @@ def run(args: argparse.Namespace) -> int:
                                  "keeps the precision of the conditions it finds")
     if args.command_name == "export":  # one dataset from every job: one process writes it (export's own form)
         return _export(args, items, allow_outside, data_roots)
-    for option, value in (("--format", args.format), ("--out", args.out), ("--split", args.split)):
+    for option, value in (("--format", args.format), ("--out", args.out), ("--split", args.split),
+                          ("--version", args.version), ("--keyframe-hz", args.keyframe_hz)):
         if value is not None:
             raise ArgumentError(option, "applies to --command export only")
     shard = batch_mod.shard_option(args.shard, args.ray)  # checked before any job
@@ -146,4 +148,5 @@ def _export(args: argparse.Namespace, items: list, allow_outside: bool | frozens
         raise ArgumentError("--format", "--command export needs --format (e.g. coco,kitti,openlabel)")
     return export_cmd.run_dataset(items, dataset.parse_formats(args.format), args.out,
                                   dataset.parse_split(args.split), args.device, allow_outside, data_roots,
-                                  command_name=NAME, proposals=args.proposals)
+                                  command_name=NAME, proposals=args.proposals,
+                                  fmt_options=export_cmd.format_options(args))

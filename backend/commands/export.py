@@ -43,6 +43,26 @@ def dataset_options(p: argparse.ArgumentParser, what: str) -> None:
     p.add_argument("--split", help=SPLIT_HELP + what)
 
 
+def nuscenes_options(p: argparse.ArgumentParser, what: str) -> None:
+    """``--version`` and ``--keyframe-hz`` (``export`` and ``batch``): the nuScenes format's."""
+    from ..export import nuscenes
+
+    p.add_argument("--version", help=f"--format nuscenes{what}: the tables' "
+                   f"folder, {' or '.join(nuscenes.VERSIONS)} (default {nuscenes.DEFAULT_VERSION}: what "
+                   "mmdetection3d's create_data.py nuscenes --version v1.0-mini converts)")
+    p.add_argument("--keyframe-hz", type=float,
+                   help=f"--format nuscenes{what}: keyframes (samples) per second; the other frames are sweeps "
+                        f"(default {nuscenes.DEFAULT_KEYFRAME_HZ:g}, nuScenes')")
+
+
+def format_options(args: argparse.Namespace) -> dict:
+    """The formats' own options of ``args`` (``nuscenes_options``), checked."""
+    from ..export import nuscenes
+
+    return nuscenes.check_options(nuscenes.DEFAULT_VERSION if args.version is None else args.version,
+                                  nuscenes.DEFAULT_KEYFRAME_HZ if args.keyframe_hz is None else args.keyframe_hz)
+
+
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """``export``'s parser."""
     from scpainter_blender.core.backend_protocol import export_format_labels
@@ -59,11 +79,13 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     x.add_argument("--format", required=True, choices=FORMAT_CHOICES,
                    help="kitti (image_2, label_2, calib), coco (annotations.json with uncompressed RLE masks), "
                         "openlabel (ASAM OpenLABEL 1.0 JSON) or kitti-tracking (image_02, label_02 with track ids, "
-                        "calib, pose), or several separated by commas (a dataset): docs/design.md §15")
+                        "calib, pose), nuscenes (the 13 nuScenes tables, samples/ and sweeps/ per camera and LiDAR, "
+                        "maps/), or several separated by commas (a dataset): docs/design.md §15")
     x.add_argument("--out", help="destination folder, written whole (one job and format: default "
                                  "<output_dir>/export/<format>; a dataset: required, one folder per format in it); "
                                  "an existing one must be empty or a previous export of the same kind")
     dataset_options(x, " (a dataset)")
+    nuscenes_options(x, "")
     options.device_option(x, "for rendering missing frames; " + options.DEVICE_HELP)
     options.confinement_options(x)
     options.proposals_option(x)
@@ -89,25 +111,28 @@ def run(args: argparse.Namespace) -> int:
         raise ArgumentError("--out", "is empty", hint="give a folder, or leave --out out for export/<format>/")
     formats = dataset.parse_formats(args.format)
     split = dataset.parse_split(args.split)
+    fmt_options = format_options(args)
     listed = [batch_items.read_job_list(f) for f in args.list or []]
     if args.list or len(args.jobs) != 1 or len(formats) > 1 or args.split is not None:
         from ..batch import command as batch
 
         items = list(args.jobs) + [p for jobs in listed for p in jobs.paths]
         return run_dataset(items, formats, args.out, split, args.device, args.allow_outside,
-                           batch.job_data_roots(args.jobs, listed, roots), proposals=args.proposals)
+                           batch.job_data_roots(args.jobs, listed, roots), proposals=args.proposals,
+                           fmt_options=fmt_options)
     job = job_mod.load(args.jobs[0])
     device = options.resolve_device(args.device)
     t0 = time.perf_counter()
     job, _ = proposals.apply(args.jobs[0], job, args.proposals, args.allow_outside, roots)
     with events.stop_on_sigterm() as stop:
-        result = command.export_job(args.jobs[0], job, formats[0], args.out, device, args.allow_outside, stop, roots)
+        result = command.export_job(args.jobs[0], job, formats[0], args.out, device, args.allow_outside, stop, roots,
+                                    fmt_options if formats[0] == "nuscenes" else None)
     return _finished(result, NAME, device, time.perf_counter() - t0)
 
 
 def run_dataset(items: list, formats: list, out: str | None, split: dict, device: str,
                 allow_outside: bool | frozenset, data_roots: dict, command_name: str = NAME,
-                proposals: str | None = None) -> int:
+                proposals: str | None = None, fmt_options: dict | None = None) -> int:
     """One dataset of ``items`` (``backend.export.dataset.export_dataset``) and its ``done`` event (``command``:
     ``command_name``), or an error event when SIGTERM stopped a render (exit 1)."""
     import time
@@ -125,7 +150,7 @@ def run_dataset(items: list, formats: list, out: str | None, split: dict, device
     t0 = time.perf_counter()
     with events.stop_on_sigterm() as stop:
         result = dataset.export_dataset(items, formats, out, split, device, allow_outside, stop, data_roots,
-                                        proposals=proposals)
+                                        proposals=proposals, options=fmt_options)
     return _finished(result, command_name, device, time.perf_counter() - t0)
 
 

@@ -47,8 +47,15 @@ def run(args: argparse.Namespace) -> int:
         paths = job_inputs.check_inputs(args.job, job, args.allow_outside, roots)
         outputs.check_output(paths["output_dir"], args.allow_outside)
         command.warn_inputs(job, paths)
-        events.done(command=NAME, check=True, frames=len(job.frames), output_dir=paths["output_dir"],
-                    locked_by=locking.lock_owner(paths["output_dir"]))
+        rig = {}
+        if job.rig is not None:  # each camera's folder checked too; the frames counted over the cameras
+            from ..render import rig_jobs
+
+            for c in job.rig.cameras:
+                outputs.check_output(rig_jobs.camera_output(paths["output_dir"], c.name), args.allow_outside)
+            rig = {"cameras": [c.name for c in job.rig.cameras]}
+        events.done(command=NAME, check=True, frames=len(job.frames) * len(rig.get("cameras", [None])),
+                    output_dir=paths["output_dir"], locked_by=locking.lock_owner(paths["output_dir"]), **rig)
         return events.EXIT_OK
     device = options.resolve_device(args.device)
     t0 = time.perf_counter()

@@ -27,14 +27,15 @@ from scpainter_blender.core.output_layout import OutputLayout
 
 from .. import events
 from ..errors import FolderBusyError
-from . import coco, common, kitti, kitti_tracking, openlabel
+from . import coco, common, kitti, kitti_tracking, nuscenes, openlabel
 
 #: The writer of each ``export --format``: a module of this package (named after the format, ``-`` spelled ``_``)
 #: with ``write(folder, frames, progress)`` and
 #: ``NEEDS_INSTANCE`` (it reads the frames' instance layers). The names are ``core.backend_protocol.EXPORT_FORMATS``',
 #: in its order (a test says so), which gives each its label and description: Blender lists them without the
 #: backend. A new format: its writer module, an entry here and there, its tests and docs.
-FORMATS = {"kitti": kitti, "coco": coco, "openlabel": openlabel, "kitti-tracking": kitti_tracking}
+FORMATS = {"kitti": kitti, "coco": coco, "openlabel": openlabel, "kitti-tracking": kitti_tracking,
+           "nuscenes": nuscenes}
 #: The formats whose writer needs the instance layer.
 NEEDS_INSTANCE = tuple(name for name, writer in FORMATS.items() if writer.NEEDS_INSTANCE)
 NO_GENERATED = "no_generated_frames"
@@ -109,11 +110,15 @@ def read_labels(path: str, frame: int) -> dict:
 def image_source(layout: OutputLayout, job: job_mod.Job) -> tuple[str, str]:
     """("generated", "") when a finished generation of these frames is newer than their conditions, else
     ("conditions", why not)."""
+    return frames_image_source(layout, [e.frame for e in job.frames])
+
+
+def frames_image_source(layout: OutputLayout, frames: list) -> tuple[str, str]:
+    """``image_source`` of the scene frames ``frames`` of the output folder ``layout`` (a rig camera's)."""
     try:
         manifest = files.read_json(layout.manifest)
     except errors.InputError:
         return "conditions", "no finished generation (generated/ has no manifest)"
-    frames = [e.frame for e in job.frames]
     if not isinstance(manifest, dict) or manifest.get("frames") != frames:
         return "conditions", "the finished generation is of other frames"
     if not all(os.path.isfile(layout.generated_frame(f)) for f in frames):
@@ -138,12 +143,23 @@ def read_frame(layout: OutputLayout, frame: int, images: str, instance: bool) ->
 
 
 def export_job(job_path: str, job: job_mod.Job, fmt: str, out: str | None = None, device: str = "cpu",
-               allow_outside: bool = False, stop=(), data_roots=()) -> dict:
+               allow_outside: bool = False, stop=(), data_roots=(), options: dict | None = None) -> dict:
     """Export a job's labels as ``fmt`` into ``out`` (None: ``OutputLayout(output_dir).export(fmt)``), rendering
     what is missing first; emits progress and warning events. Returns the counts, ``out``, ``images``,
     ``stopped`` (SIGTERM during the render: nothing exported). The job's paths are confined to its folder and
-    ``data_roots`` unless ``allow_outside`` (``job_inputs.check_inputs``)."""
+    ``data_roots`` unless ``allow_outside`` (``job_inputs.check_inputs``). ``options``: the format's own
+    (nuscenes: ``version``, ``keyframe_hz``, checked by ``nuscenes.check_options``).
+
+    nuScenes is the one format of several cameras: a rig job is exported whole (§17). In any other format a rig job
+    is exported camera by camera, each camera job as a single camera's export of its own frames and labels, into
+    ``<out>/<camera>/`` (without ``out``: each camera's ``<output_dir>/<camera>/export/<format>``); every
+    destination is checked before the first is written; the result's ``outs`` is {camera: destination} and its
+    counts are summed over the cameras."""
     check_format(fmt)
+    if fmt == nuscenes.FORMAT:
+        options = nuscenes.check_options(**(options or {}))
+    elif job.rig is not None:
+        return _export_rig(job_path, job, fmt, out, device, allow_outside, stop, data_roots)
     paths = checked_paths(job_path, job, allow_outside, data_roots)
     layout = OutputLayout(paths["output_dir"])
     dest = os.path.abspath(out) if out else layout.export(fmt)
@@ -153,7 +169,25 @@ def export_job(job_path: str, job: job_mod.Job, fmt: str, out: str | None = None
         result = {"format": fmt, "out": dest, "output_dir": layout.root, "rendered": rendered["rendered"]}
         if rendered["stopped"]:
             return {**result, "stopped": True}
-        return {**result, **write_export(job_path, job, layout, fmt, dest, log), "stopped": False}
+        return {**result, **write_export(job_path, job, layout, fmt, dest, log, options), "stopped": False}
+
+
+def _export_rig(job_path, job, fmt, out, device, allow_outside, stop, data_roots) -> dict:
+    from ..render import rig_jobs
+
+    root = checked_paths(job_path, job, allow_outside, data_roots)["output_dir"]
+    dests = {}
+    for cam in job.rig.cameras:   # all refused before any is written
+        cam_out = rig_jobs.camera_output(root, cam.name)
+        dests[cam.name] = os.path.join(os.path.abspath(out), cam.name) if out else OutputLayout(cam_out).export(fmt)
+        check_destination(dests[cam.name], cam_out, given=bool(out), fmt=fmt)
+    results = rig_jobs.run_cameras(job, lambda cam, camera_job: export_job(
+        job_path, camera_job, fmt, dests[cam.name], device, allow_outside, stop, data_roots), stop)
+    first = results[0][1] if results else {}
+    counts = [k for k, v in first.items() if isinstance(v, int) and not isinstance(v, bool)]
+    result = rig_jobs.combined(job, results, root, counts, stop)
+    result.update(out=os.path.abspath(out) if out else None, outs=dests)
+    return result
 
 
 def checked_paths(job_path: str, job: job_mod.Job, allow_outside: bool = False, data_roots=()) -> dict:
@@ -182,16 +216,25 @@ def rendered_job(job_path: str, job: job_mod.Job, device: str, paths: dict, allo
                                     lock=False, checked=paths), log
 
 
-def write_export(job_path: str, job: job_mod.Job, layout: OutputLayout, fmt: str, dest: str, log=None) -> dict:
+def write_export(job_path: str, job: job_mod.Job, layout: OutputLayout, fmt: str, dest: str, log=None,
+                 options: dict | None = None) -> dict:
     """The export itself, once the frames are rendered (labels and layers in ``layout``): the images chosen (a
     warning event when they are the condition previews), every frame read, the destination written whole (a
-    previous export there replaced only when this one is complete). Returns the format's counts and ``images``."""
-    images, why = image_source(layout, job)
+    previous export there replaced only when this one is complete). Returns the format's counts and ``images``.
+    nuScenes reads the job's cameras and LiDAR itself (``nuscenes.job_clip``: a rig job's output folder holds one
+    folder per sensor)."""
+    progress = lambda i: events.progress("export", i + 1, total, frame=job.frames[i].frame)  # noqa: E731
+    if fmt == nuscenes.FORMAT:
+        clip, images, why = nuscenes.job_clip(job, layout.root, nuscenes.scene_name(0), os.path.abspath(job_path))
+        write = lambda tmp: nuscenes.write_clips(tmp, [clip], progress, **(options or {}))  # noqa: E731
+    else:
+        images, why = image_source(layout, job)
+        frames = [read_frame(layout, e.frame, images, fmt in NEEDS_INSTANCE) for e in job.frames]
+        write = lambda tmp: FORMATS[fmt].write(tmp, frames, progress=progress)  # noqa: E731
     if images == "conditions":
         events.warning(f"exporting the condition previews as images: {why} (run generate first for the "
                        "generated video's frames)", NO_GENERATED)
-    frames = [read_frame(layout, e.frame, images, fmt in NEEDS_INSTANCE) for e in job.frames]
-    total = len(frames)
+    total = len(job.frames)
     if os.path.dirname(dest) == os.path.join(layout.root, OutputLayout.EXPORT):   # the default: never via a link
         outputs.own_folder(layout.root, OutputLayout.EXPORT)
     else:
@@ -199,8 +242,7 @@ def write_export(job_path: str, job: job_mod.Job, layout: OutputLayout, fmt: str
     # check_destination said what may be replaced (nothing, an empty folder, a previous export); atomic_folder
     # checks again at the rename: a file put there meanwhile is never deleted
     with outputs.atomic_folder(dest, replace=True, usual_mode=True, record=OutputLayout.EXPORT_RECORD) as tmp:
-        counts = FORMATS[fmt].write(tmp, frames, progress=lambda i: events.progress(
-            "export", i + 1, total, frame=job.frames[i].frame))
+        counts = write(tmp)
         outputs.write_json(os.path.join(tmp, OutputLayout.EXPORT_RECORD), {
             "schema": EXPORT_SCHEMA, "format": fmt, "job": os.path.abspath(job_path), "images": images,
             **counts, "scene_frames": [e.frame for e in job.frames]})

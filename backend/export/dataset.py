@@ -23,6 +23,9 @@ its inputs) stops the whole export: a dataset silently missing jobs would be wor
         kitti-tracking/training/{image_02/SSSS/NNNNNN.png, label_02/SSSS.txt, calib/SSSS.txt, pose/SSSS.txt}
                                             KITTI tracking: one sequence SSSS per job, its frames numbered from 0
         kitti-tracking/<split>.txt          the sequences of each split; kitti-tracking/frames.json: their frames
+        nuscenes/<version>/*.json, samples/, sweeps/, maps/   nuScenes: one dataroot, one scene per job
+                                            (``scpainter-SSSS``); its ``<version>/splits.json`` lists each split's
+                                            scenes. A rig job (several cameras, a LiDAR) exports as nuScenes only.
 
 Names: image NNNNNN is the same frame in every format (sequential over the jobs in listed order, each job's frames in
 its order: unique file names and ids); COCO image id = NNNNNN + 1, annotation ids unique over the dataset, one
@@ -58,7 +61,7 @@ from scpainter_blender.core.variation import proposals as proposals_core
 from .. import events
 from ..batch import command as batch
 from ..render import proposals as render_proposals
-from . import coco, command, common, kitti, kitti_tracking, openlabel
+from . import coco, command, common, kitti, kitti_tracking, nuscenes, openlabel
 
 #: The record's ``format`` of a merged dataset (``command.check_destination`` replaces only its own kind).
 FORMAT = "dataset"
@@ -193,7 +196,10 @@ def members(items: Sequence[str], allow_outside=False, data_roots: dict | None =
         if first[k] != k:
             continue
         path = os.path.abspath(item)
-        m = Member(path, job_mod.load(path), batch.allows_outside(allow_outside, item),
+        job = job_mod.load(path).require_single_camera(
+            path, "a dataset export (several jobs or formats, --list, --split)",
+            hint="export a rig job on its own, one format at a time: one export per camera in <out>/<camera>/")
+        m = Member(path, job, batch.allows_outside(allow_outside, item),
                    tuple((data_roots or {}).get(item, ())))
         m.base, m.variant = variation_entry(path, manifests)
         m.drive = drive_of(m)
@@ -215,7 +221,7 @@ def _variant_fields(m: Member) -> dict:
 class _Writer:
     """The dataset being written into ``root`` (the temporary folder): each job's frames added in every format."""
 
-    def __init__(self, root: str, formats: list, splits: list) -> None:
+    def __init__(self, root: str, formats: list, splits: list, options: dict | None = None) -> None:
         self.root, self.formats, self.splits = root, formats, splits
         self.next_index = 0
         self.rows: list = []
@@ -230,6 +236,8 @@ class _Writer:
         self.tracking_frames: list = []
         for f in formats:
             outputs.make_folder(os.path.join(root, f))
+        self.nuscenes = nuscenes.Writer(os.path.join(root, nuscenes.FORMAT), **(options or {})) \
+            if nuscenes.FORMAT in formats else None
 
     def add(self, m: Member, frames: list) -> None:
         """Job ``m``'s frames (``common.ExportFrame``, in its order) in every format; their manifest rows."""
@@ -337,9 +345,32 @@ class _Writer:
         self.tracking_sets[m.split].append(seq)
         return counts
 
+    def _nuscenes(self, m: Member, frames: list, names: list) -> dict:
+        """The job as one scene of the nuScenes dataroot (``frames``: a single-camera job's; a rig job's clip is
+        read from its output folder by ``add_rig``)."""
+        return self.nuscenes.add(nuscenes.clip_of_frames(frames, nuscenes.scene_name(m.sequence), m.path), m.split)
+
+    def add_rig(self, m: Member, root: str) -> None:
+        """A rig job (its output folder ``root``) into the nuScenes dataroot (the only format a rig job has here);
+        one manifest row per frame (its image: CAM_FRONT's, else the first camera's)."""
+        clip, m.images, _ = nuscenes.job_clip(m.job, root, nuscenes.scene_name(m.sequence), m.path)
+        written = self.nuscenes.add(clip, m.split)
+        counts = self.counts[nuscenes.FORMAT][m.split]
+        for k in ("frames", "objects", "ignore_regions"):
+            counts[k] += written[k]
+        cam = next((c for c in clip.cameras if c.name == "CAM_FRONT"), clip.cameras[0])
+        job_fields = _variant_fields(m)
+        for i, lab in enumerate(cam.labels):
+            name = common.index_name(self.next_index + i, "")
+            self.rows.append({"index": name, "image": None, "camera": cam.name, **job_fields, "frame": lab["frame"],
+                              "timestamp_s": lab["timestamp_s"], "images": m.images, **common.frame_quality(lab)})
+        self.next_index += len(cam.labels)
+
     def finish(self) -> None:
         """What is written once every job is in: COCO's annotation files, KITTI's index lists and frames index,
-        OpenLABEL's split lists."""
+        OpenLABEL's split lists, nuScenes' tables."""
+        if self.nuscenes is not None:
+            self.nuscenes.finish()
         if "coco" in self.formats:
             folder = os.path.join(self.root, "coco", COCO_ANNOTATIONS)
             outputs.make_folder(folder)
@@ -390,11 +421,12 @@ def check_out(out: str, jobs: list, formats: list) -> None:
 
 def export_dataset(items: Sequence[str], formats: Sequence[str], out: str, split: dict | None = None,
                    device: str = "cpu", allow_outside=False, stop=(), data_roots: dict | None = None,
-                   proposals: str | None = None) -> dict:
+                   proposals: str | None = None, options: dict | None = None) -> dict:
     """Export the jobs ``items`` as one dataset per format (``formats``, ``command.FORMATS``' names) under
     ``out``, split by drive (``split``: ``parse_split``'s), rendering what each job is missing. ``allow_outside``,
     ``data_roots``: as ``members``; ``proposals``: each job's box proposals (``backend/render/proposals.py``; None:
-    its default mode). Emits a progress event per frame and warning events. Returns the done
+    its default mode); ``options``: the nuScenes format's (``nuscenes.check_options``). Emits a progress event per
+    frame and warning events. Returns the done
     event's fields (``out``, ``formats``, ``jobs``, ``frames``, ``rendered``, ``counts`` {format: {split:
     {"frames", "objects"}}}, ``splits`` {split: {"drives", "jobs", "frames"}}, ``images``, ``manifest``) and
     ``stopped`` (SIGTERM while rendering: nothing written)."""
@@ -408,6 +440,11 @@ def export_dataset(items: Sequence[str], formats: Sequence[str], out: str, split
         m.job, _ = render_proposals.apply(m.path, m.job, proposals or proposals_core.DEFAULT_MODE, m.allow_outside,
                                           m.data_roots)
     check_out(out, jobs, formats)
+    rigs = [m.path for m in jobs if getattr(m.job, "rig", None) is not None]
+    if rigs and formats != [nuscenes.FORMAT]:
+        raise errors.ArgumentError("--format", f"{rigs[0]} is a rig job (several cameras): a dataset of rig jobs is "
+                                               f"written as {nuscenes.FORMAT} only", hint="--format nuscenes")
+    options = nuscenes.check_options(**(options or {})) if nuscenes.FORMAT in formats else None
     drives = assign_splits([m.drive for m in jobs], split)
     for m in jobs:
         m.split = drives[m.drive]
@@ -422,7 +459,7 @@ def export_dataset(items: Sequence[str], formats: Sequence[str], out: str, split
     outputs.make_folder(os.path.dirname(out), "--out")
     try:
         with outputs.atomic_folder(out, replace=True, usual_mode=True, record=OutputLayout.EXPORT_RECORD) as tmp:
-            writer = _Writer(tmp, formats, splits)
+            writer = _Writer(tmp, formats, splits, options)
             for m in jobs:
                 if stop:
                     raise _Stopped
@@ -433,6 +470,11 @@ def export_dataset(items: Sequence[str], formats: Sequence[str], out: str, split
                     rendered += render["rendered"]
                     if render["stopped"]:
                         raise _Stopped
+                    if getattr(m.job, "rig", None) is not None:
+                        writer.add_rig(m, layout.root)
+                        done += len(m.job.frames)
+                        events.progress("export", done, total, job=m.path)
+                        continue
                     m.images, _ = command.image_source(layout, m.job)
                     frames = []
                     for e in m.job.frames:

@@ -41,7 +41,7 @@ from .. import events, png
 from ..errors import FolderBusyError
 from ..model import checkpoint as ckpt_mod
 from ..render import command as render_cmd
-from ..render import channels
+from ..render import channels, rig_jobs
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -241,11 +241,37 @@ def generate_job(job_path: str, job: job_mod.Job, device: str, checkpoint: str |
                  allow_outside: bool = False, data_roots: Sequence[str] = ()) -> dict:
     """Render the missing condition layers and generate the video (see the module docstring); validated first
     (``prepare``, with ``allow_outside`` and ``data_roots``), one run per output folder (``locking.OutputLock``). A
-    model producing NaN/inf raises ``errors.NonFiniteError`` and writes no frame, video or manifest."""
+    model producing NaN/inf raises ``errors.NonFiniteError`` and writes no frame, video or manifest.
+
+    A rig job (docs/design.md §17) is generated camera by camera (``render.rig_jobs``): each camera job's video in
+    ``<output_dir>/<camera>/``; the result's ``videos`` and ``frames_dirs`` are {camera: path}, ``frames`` counts
+    over all cameras, ``skipped`` is true when every camera was up to date."""
+    if job.rig is not None:
+        return _generate_rig(job_path, job, device, checkpoint, precision, force, stop, overrides, allow_outside,
+                             data_roots)
     plan = prepare(job_path, job, checkpoint, overrides, allow_outside, data_roots)
     outputs.make_folder(plan.output_dir, "output_dir", root=True)
     with locking.OutputLock(plan.output_dir, "generate", busy=FolderBusyError) as lock, events.log_scope():
         return _generate(job_path, job, device, plan, precision, force, stop, lock)
+
+
+def _generate_rig(job_path, job, device, checkpoint, precision, force, stop, overrides, allow_outside,
+                  data_roots) -> dict:
+    # each camera job is prepared (checked) as it starts: the first finds any bad setting before any work
+    root = job_inputs.job_paths(job_path, job, allow_outside, data_roots=data_roots)["output_dir"]
+    results = rig_jobs.run_cameras(job, lambda cam, camera_job: generate_job(
+        job_path, camera_job, device, checkpoint, precision, force, stop, overrides, allow_outside, data_roots), stop)
+    out = rig_jobs.combined(job, results, root, ("frames",), stop)
+    finished = [(name, r) for name, r in results if not r.get("stopped")]
+    out.update(video=None, frames_dir=None, videos={name: r["video"] for name, r in finished},
+               frames_dirs={name: r["frames_dir"] for name, r in finished},
+               skipped=bool(results) and all(r.get("skipped") for _, r in results))
+    stopped = [r for _, r in results if r.get("stopped")]
+    if stopped:  # where the camera that stopped was
+        out.update(stage=stopped[0]["stage"], steps_done=stopped[0]["steps_done"])
+    elif out["stopped"]:  # stopped between two cameras
+        out.update(stage="render", steps_done=0)
+    return out
 
 
 def torch_threads() -> int:

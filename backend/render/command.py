@@ -22,7 +22,7 @@ from .. import events, png
 from ..errors import FolderBusyError
 from . import channels
 from . import frames as fr
-from . import labelled, writer
+from . import labelled, rig_jobs, writer
 
 
 def frame_paths(job_path: str, job: job_mod.Job, frame: int) -> tuple[str, str]:
@@ -156,6 +156,9 @@ def render_job(job_path: str, job: job_mod.Job, device: str, force: bool = False
     if paths is None:
         paths = job_inputs.check_inputs(job_path, job, allow_outside, data_roots)
         outputs.check_output(paths["output_dir"], allow_outside)
+    if job.rig is not None:
+        return _render_rig(job_path, job, device, force, point_radius, stop, log, allow_outside, lock, paths,
+                           checked is None, half, data_roots)
     warned = warn_inputs(job, paths)
     out = outputs.make_folder(paths["output_dir"], "output_dir", root=True)
     with (locking.OutputLock(out, "render", busy=FolderBusyError) if lock else contextlib.nullcontext()) as held, \
@@ -168,6 +171,33 @@ def render_job(job_path: str, job: job_mod.Job, device: str, force: bool = False
         with job_inputs.reading(job_path, allow_outside, data_roots) if checked is None else contextlib.nullcontext():
             result = _render(job_path, job, device, force, point_radius, stop, log, out, allow_outside, half)
         return {**result, "warnings": result["warnings"] + warned}
+
+
+#: The render's counts, summed over a rig job's cameras.
+COUNTS = ("frames", "rendered", "skipped", "relabelled", "warnings")
+
+
+def _render_rig(job_path, job, device, force, point_radius, stop, log, allow_outside, lock, paths, reading, half,
+                data_roots) -> dict:
+    """A rig job (``rig_jobs``): each camera job rendered into ``<output_dir>/<camera>/`` as a single camera's,
+    the inputs checked once (``paths``: the rig job's; ``reading``: this call checked them, so it also confines
+    the reads), the scene loaded once."""
+    root = outputs.make_folder(paths["output_dir"], "output_dir", root=True)
+    warned = warn_inputs(job, paths)
+
+    def one(cam, camera_job):
+        out = rig_jobs.camera_output(root, cam.name)
+        outputs.check_output(out, allow_outside)
+        # the rig's checks stand for the camera's (the same inputs); its asset warnings were said once, above
+        checked = {**paths, "output_dir": out, "asset_warnings": ()}
+        return render_job(job_path, camera_job, device, force, point_radius, stop, log, allow_outside, lock,
+                          checked, half, data_roots)
+
+    with job_inputs.reading(job_path, allow_outside, data_roots) if reading else contextlib.nullcontext():
+        results = rig_jobs.run_cameras(job, one, stop)
+    result = rig_jobs.combined(job, results, os.path.abspath(root), COUNTS, stop)
+    result["warnings"] += warned
+    return result
 
 
 def _render(job_path, job, device, force, point_radius, stop, log, out, allow_outside, half) -> dict:

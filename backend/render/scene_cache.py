@@ -20,18 +20,25 @@ command running (``events.log_here``: the output folder's ``backend.log``).
 from __future__ import annotations
 
 import collections
+import contextlib
 import json
 import os
+from typing import TYPE_CHECKING
 
 from scpainter_blender.core import frame_keys
 
 from .. import events
+
+if TYPE_CHECKING:
+    from collections.abc import Iterator
 
 #: How many point clouds and assets a warm backend keeps (the last used): a scene or two and their cars.
 POINTS_KEPT, ASSETS_KEPT = 2, 8
 
 #: {"points": OrderedDict, "assets": OrderedDict} while enabled; None: nothing is kept.
 _kept: dict | None = None
+#: (whose memory, who loaded what a hit serves): the log line's words, a warm backend's or ``shared``'s.
+_source = ("warm backend", "an earlier request")
 
 
 def enable() -> None:
@@ -39,6 +46,23 @@ def enable() -> None:
     global _kept
     if _kept is None:
         _kept = {"points": collections.OrderedDict(), "assets": collections.OrderedDict()}
+
+
+@contextlib.contextmanager
+def shared(whose: str, what: str) -> Iterator[None]:
+    """Inside the block what is loaded is kept, as a warm backend keeps it (``enable``), so that the cameras of one
+    rig job (docs/design.md §17) read and clean the scene's points once; on leaving, a process that kept nothing
+    before forgets it again. ``whose``, ``what``: the log line of a hit ("rig job", "its first camera")."""
+    global _kept, _source
+    was, before = _kept is not None, _source
+    enable()
+    _source = (whose, what)
+    try:
+        yield
+    finally:
+        _source = before
+        if not was:
+            disable()
 
 
 def disable() -> None:
@@ -55,7 +79,7 @@ def _get(kind: str, key: str, make, limit: int, what: str):
     kept = _kept[kind]
     if key in kept:
         kept.move_to_end(key)
-        events.log_here(f"warm backend: {what} served from memory (loaded by an earlier request)")
+        events.log_here(f"{_source[0]}: {what} served from memory (loaded by {_source[1]})")
         return kept[key]
     value = make()
     kept[key] = value

@@ -124,12 +124,13 @@ def _first_frame(folder: str, root: str):
     from scpainter_blender.core.output_layout import CONDITION_PREVIEW, LABELLED_PREVIEW, OutputLayout
 
     layout = OutputLayout(folder)
+    shown = layout.camera(_first_camera(layout.job)) if not os.path.lexists(layout.record) else layout
     try:
-        if os.stat(layout.record).st_mtime_ns < os.stat(layout.job).st_mtime_ns:
+        if os.stat(shown.record).st_mtime_ns < os.stat(layout.job).st_mtime_ns:
             return None
     except (OSError, ValueError):  # no record: never rendered
         return None
-    cond = layout.conditions
+    cond = shown.conditions
     if not outputs.inside(cond, root):
         return None
     for kind in (LABELLED_PREVIEW, CONDITION_PREVIEW):
@@ -138,6 +139,18 @@ def _first_frame(folder: str, root: str):
             if img is not None:
                 return img
     return None
+
+
+def _first_camera(job_path: str) -> str:
+    """The first camera's name of a rig job's variant (its frames are in that camera's folder, docs/design.md §17),
+    or "" when the job is none (a single camera's, unreadable: its own folder is looked at)."""
+    from scpainter_blender.core import rig as rig_mod
+
+    try:
+        name = files.read_json(job_path)["rig"]["cameras"][0]["name"]
+    except (InputError, KeyError, IndexError, TypeError):
+        return ""
+    return name if isinstance(name, str) and rig_mod.NAME_PATTERN.fullmatch(name) else ""
 
 
 def contact_sheet(root: str, out: str | None = None) -> dict:

@@ -21,7 +21,9 @@ EXPORT_FORMATS = {"kitti": ("KITTI", "KITTI object: image_2, label_2, calib per 
                   "coco": ("COCO", "COCO instances: annotations.json with RLE masks, images"),
                   "openlabel": ("OpenLABEL", "ASAM OpenLABEL 1.0 JSON: cuboids, boxes, camera per frame"),
                   "kitti-tracking": ("KITTI tracking", "KITTI tracking: image_02, label_02 with track ids, calib, "
-                                                       "poses")}
+                                                       "poses"),
+                  "nuscenes": ("nuScenes", "nuScenes tables, samples and sweeps per camera and LiDAR, a map: what "
+                                           "nuscenes-devkit and mmdetection3d's converter read")}
 EXPORT_FORMAT_NAMES = tuple(EXPORT_FORMATS)
 
 
@@ -51,6 +53,10 @@ WARNING_FIELDS = ("message", "code", "frame", "object")
 ERROR_FIELDS = ("message", "hint", "file", "field", "log")
 #: A progress event's fields: the stage, how many of its units are done, of how many.
 PROGRESS_FIELDS = ("stage", "done", "total")
+#: A rig job's (docs/design.md §17) ``progress``, ``artifact`` and ``warning`` events of one camera carry this field:
+#: the camera's sensor name (``CAM_FRONT``); its ``done`` event lists the cameras (``cameras``) and counts ``frames``
+#: over all of them.
+CAMERA_FIELD = "camera"
 
 #: How a batch item ended (its ``status``: ``python -m backend batch`` with or without ``--ray``, ``blender -c
 #: scpainter batch``): done (or found up to date); failed (bad input, an explained failure, a bug, a worker that

@@ -49,6 +49,34 @@ CATEGORIES = (
     Category(13, "tram", "vehicle", "Tram", "vehicle.bus.rigid"),
     Category(14, "misc", "object", "Misc", "movable_object.debris"),
 )
+#: The nuScenes devkit's 23 detection-benchmark categories (v1.0 ``category.json``; the names of its ``category``
+#: table and of ``Category.nuscenes``), in the devkit's order, with a short description each: a nuScenes export
+#: writes all of them, whatever classes it shows, as nuScenes' own tables do.
+NUSCENES_CATEGORIES = (
+    ("human.pedestrian.adult", "Adult subcategory."),
+    ("human.pedestrian.child", "Child subcategory."),
+    ("human.pedestrian.wheelchair", "Wheelchairs."),
+    ("human.pedestrian.stroller", "Strollers."),
+    ("human.pedestrian.personal_mobility", "A small electric or self-propelled vehicle ridden by a person."),
+    ("human.pedestrian.police_officer", "Police officer."),
+    ("human.pedestrian.construction_worker", "Construction worker."),
+    ("animal", "All animals."),
+    ("vehicle.car", "Vehicle designed primarily for personal use."),
+    ("vehicle.motorcycle", "Gasoline or electric powered 2-wheeled vehicle."),
+    ("vehicle.bicycle", "Human or electric powered 2-wheeled vehicle."),
+    ("vehicle.bus.bendy", "Bendy bus subcategory."),
+    ("vehicle.bus.rigid", "Rigid bus subcategory."),
+    ("vehicle.truck", "Vehicles primarily designed to haul cargo."),
+    ("vehicle.construction", "Vehicles primarily designed for construction."),
+    ("vehicle.emergency.ambulance", "All types of ambulances."),
+    ("vehicle.emergency.police", "All types of police vehicles."),
+    ("vehicle.trailer", "Any vehicle trailer."),
+    ("movable_object.barrier", "Temporary road barrier placed in the scene in order to redirect traffic."),
+    ("movable_object.trafficcone", "All types of traffic cone."),
+    ("movable_object.pushable_pullable", "Objects that a pedestrian may push or pull."),
+    ("movable_object.debris", "Movable object that is left on the driveable surface."),
+    ("static_object.bicycle_rack", "Area or device intended to park or secure the bicycles in a row."),
+)
 BY_NAME = {c.name: c for c in CATEGORIES}
 NAMES = tuple(c.name for c in CATEGORIES)
 #: What an unlabelled-but-visible region is called in the labels and the exports (not a class).

@@ -8,8 +8,8 @@ world metres), the output folder and generation settings; under ``scene``, how i
 and tracked objects, and the frame rate (``Job.LABEL_ONLY``). Paths are relative to the job file. ``scene`` and
 ``assets`` may be absent. A rig job (``Job.rig``, docs/design.md §17) has a ``rig`` (``core.rig.Rig``) instead of a
 resolution and ``ego_to_world`` per frame instead of K and world_to_camera; ``Job.camera_jobs`` makes it one
-single-camera job per rig camera, which is what every command runs. ``Job.from_dict`` validates every field, and each error names the file and the field
-(``frames[3].K``), never a numpy traceback; ``Job.to_dict`` is the file's content. The Blender export, the
+single-camera job per rig camera, which is what every command runs. ``Job.from_dict`` validates every field, and
+each error names the file and the field (``frames[3].K``), never a numpy traceback; ``Job.to_dict`` is the file's content. The Blender export, the
 evaluation protocol, the training pairs and the backend commands build and read jobs only through these classes
 (docs/design.md §4.2).
 
@@ -33,6 +33,7 @@ from . import fields as fields_mod
 from . import categories, errors, files, outputs
 from . import rig as rig_mod
 from .geometry import point_cloud, similarity
+from .output_layout import OutputLayout
 # what a usable K is (its bounds, job fields and rig cameras alike): the cameras' module owns it
 from .geometry.cameras import MAX_FOCAL_RATIO, MAX_K, MIN_FOCAL_RATIO, PRINCIPAL_POINT_MARGIN, intrinsics_problem  # noqa: F401
 from .vggt.predictions import EXTRINSIC_CONVENTIONS  # scene.extrinsic_convention: what the predictions' extrinsic holds
@@ -73,6 +74,10 @@ OUTLIER_FIELDS = {"statistical": {"neighbours": 16, "std_ratio": 2.0},
 #: job from running for hours.
 OUTLIER_BOUNDS = {"neighbours": (1, 100), "std_ratio": (0.01, 100.0), "radius_m": (1e-6, 0.5), "min_points": (1, 100)}
 DEPTH_EDGE_RATIO_BOUNDS = (1e-4, 100.0)
+
+
+#: Names a rig camera may not take: its folder (``<output_dir>/<camera>``) would be an output folder's own.
+RESERVED_SENSOR_NAMES = (*OutputLayout.FOLDERS, OutputLayout.EXPORT)
 
 
 class JobError(errors.InputError):
@@ -600,14 +605,14 @@ class Job:
             raise ValueError(f"a rig job has no single {what}: each camera has its own (Job.camera_jobs)")
         return self
 
-    def require_single_camera(self, path: str | os.PathLike, what: str) -> "Job":
+    def require_single_camera(self, path: str | os.PathLike, what: str, hint: str | None = None) -> "Job":
         """This job, when it is a single-camera job; a rig job raises JobError on ``rig`` saying that ``what`` (a
-        command) takes one camera, and how to run the rig's cameras instead."""
+        command) takes one camera, and (``hint``, else the default) how to run the rig's cameras instead."""
         if self.rig is not None:
             raise JobError(path, "rig", f"{what} takes a single-camera job; this is a rig job "
                            f"({', '.join(c.name for c in self.rig.cameras)})",
-                           hint="render / generate / export run a rig job camera by camera "
-                                "(<output_dir>/<camera>/); use one of them, or a job without a rig")
+                           hint=hint or "render / generate / export run a rig job camera by camera "
+                                        "(<output_dir>/<camera>/); use one of them, or a job without a rig")
         return self
 
     def camera_jobs(self) -> list:
@@ -641,6 +646,10 @@ class Job:
         rig = None
         if job.get("rig") is not None:
             rig = rig_mod.Rig.from_dict(job["rig"], path, "rig", error=JobError)
+            for i, c in enumerate(rig.cameras):  # its folder beside the rig folder's own (a run's, an export's)
+                if c.name in RESERVED_SENSOR_NAMES:
+                    raise JobError(path, f"rig.cameras[{i}].name", f"{c.name!r} is the name of an output folder's "
+                                   f"own folder: a camera's folder cannot take it", hint="rename the camera")
             if "resolution" in job:
                 raise JobError(path, "resolution", "a rig job has no resolution of its own: each camera has its own "
                                "(rig.cameras[].resolution)", hint="remove resolution (or remove rig)")

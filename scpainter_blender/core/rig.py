@@ -140,19 +140,20 @@ class Rig:
         """A rig from its JSON content (``to_dict``'s); ``error(path, field, message, hint)`` names the field
         (``rig.cameras[2].K``) for anything that is not a usable rig."""
         path = os.fspath(path)
+        top = f"{where}." if where else ""   # a rig file's fields are its top level: "cameras[2].K"
         if not isinstance(d, dict):
-            raise error(path, where, f"expected an object, got {fields.short(d)}")
+            raise error(path, where or "(top level)", f"expected an object, got {fields.short(d)}")
         _known(d, path, where, ("name", "cameras", "lidar"), error)
-        name = fields.string(d.get("name", "custom"), path, f"{where}.name", error)
+        name = fields.string(d.get("name", "custom"), path, f"{top}name", error)
         cams_in = d.get("cameras")
         if not isinstance(cams_in, list) or not cams_in:
-            raise error(path, f"{where}.cameras", "expected a non-empty list of cameras")
+            raise error(path, f"{top}cameras", "expected a non-empty list of cameras")
         if len(cams_in) > MAX_CAMERAS:
-            raise error(path, f"{where}.cameras", f"{len(cams_in)} cameras: at most {MAX_CAMERAS} in one rig")
+            raise error(path, f"{top}cameras", f"{len(cams_in)} cameras: at most {MAX_CAMERAS} in one rig")
         seen: dict = {}
         cams = []
         for i, c in enumerate(cams_in):
-            at = f"{where}.cameras[{i}]"
+            at = f"{top}cameras[{i}]"
             if not isinstance(c, dict):
                 raise error(path, at, f"expected an object, got {fields.short(c)}")
             _known(c, path, at, ("name", "resolution", "K", "camera_to_ego"), error)
@@ -170,7 +171,7 @@ class Rig:
             cams.append(RigCamera(cname, (W, H), K, T))
         lidar = None
         if d.get("lidar") is not None:
-            at = f"{where}.lidar"
+            at = f"{top}lidar"
             ld = d["lidar"]
             if not isinstance(ld, dict):
                 raise error(path, at, f"expected an object, got {fields.short(ld)}")

@@ -32,3 +32,13 @@ def test_nuscenes_names_map_back():
     assert categories.from_nuscenes("animal") is None
     for name in ("car", "truck", "bus", "trailer", "pedestrian", "barrier", "traffic_cone"):
         assert categories.from_nuscenes(categories.category(name).nuscenes) == name
+
+
+def test_the_nuscenes_table_holds_the_devkits_23_categories_and_every_class_maps_into_it():
+    from scpainter_blender.core.recording import nuscenes
+
+    names = [n for n, _ in categories.NUSCENES_CATEGORIES]
+    assert len(names) == len(set(names)) == 23
+    assert {c.nuscenes for c in categories.CATEGORIES} <= set(names)
+    assert set(nuscenes.NOT_LABELLED) <= set(names)
+    assert all(categories.from_nuscenes(n) is not None or n in nuscenes.NOT_LABELLED for n in names)

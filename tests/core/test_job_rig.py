@@ -85,6 +85,7 @@ def _single() -> dict:
     (lambda j: j["rig"]["lidar"].update(model="hdl-9000"), "rig.lidar.model"),
     (lambda j: j["rig"].update(cameras=[]), "rig.cameras"),
     (lambda j: j.update(rig=[]), "rig"),
+    (lambda j: j["rig"]["cameras"][4].update(name="conditions"), "rig.cameras[4].name"),
 ])
 def test_a_rig_jobs_fields_are_checked(mutate, field):
     d = copy.deepcopy(rig_job())

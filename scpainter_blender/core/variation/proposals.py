@@ -357,13 +357,15 @@ def with_proposals(job: job_mod.Job, job_path: str | os.PathLike, mode: str) -> 
     """(the job with its proposals added as ``mode`` says, the proposals, why there are none or None): ``accept``
     adds each as a recorded object (a static box at every output frame, its class guessed), ``ignore`` as one with
     ``ignore`` (an ignore region in every export), ``off`` nothing. Label-only (``Job.LABEL_ONLY``): the layers'
-    key does not change. A job without a scene or frames is returned as it is. ValueError for another mode."""
+    key does not change. A job without a scene or frames is returned as it is; a rig job gets one set, its first
+camera's, which all its camera jobs then share. ValueError for another mode."""
     if mode not in MODES:
         raise ValueError(f"proposals mode {mode!r} is not one of {MODES}")   # the callers' choices
     if mode == "off" or job.scene is None or not job.frames:
         return job, [], None
     found, why = scene_clusters(job, job_path)
-    chosen = select(found, job)
+    # a rig job's proposals are its first camera's (numbered by distance from it): one set for every camera
+    chosen = select(found, job.camera_jobs()[0][1])
     if not chosen:
         return job, [], why
     frames = [e.frame for e in job.frames]

@@ -134,10 +134,13 @@ class Variation:
                  skip_bad: bool = False, allow_outside: bool = False, data_roots=()) -> None:
         self.base_path = os.path.abspath(base_path)
         self.base = check_base(self.base_path, allow_outside, data_roots)
+        # the camera path a variant shifts and checks: the job's camera, a rig job's first camera (its ego path
+        # moves by that camera's shift, so every camera moves together: ``_job``)
+        self.view = self.base.camera_jobs()[0][1]
         self.spec, self.layout = spec, VariationLayout(os.path.abspath(out))
         self.reading = lambda: job_inputs.reading(self.base_path, allow_outside, data_roots)  # noqa: E731
         t0 = time.perf_counter()
-        self.path = reference_path(self.base)
+        self.path = reference_path(self.view)
         try:
             with self.reading():   # the base's files read where render would read them, checked as opened
                 points = scene_points(self.base, self.base_path)
@@ -201,7 +204,7 @@ class Variation:
             left += by * smoothstep((np.arange(F) - start) / s.lane_change_frames)
             details["lane_change"] = {"shift_m": by, "start_frame": self.base.frames[start].frame if start < F
                                       else self.base.frames[-1].frame, "frames": s.lane_change_frames}
-        T = np.stack([f.world_to_camera for f in self.base.frames])
+        T = np.stack([f.world_to_camera for f in self.view.frames])
         return trajectory.shift_trajectory(T, left_m=left), details
 
     def check_camera(self, world_to_camera: np.ndarray) -> str | None:
@@ -314,12 +317,15 @@ class Variation:
     def _job(self, index, world_to_camera, placed) -> job_mod.Job:
         base, s = self.base, self.spec
         folder = self.layout.variant(index).root
-        frames = []
-        scale = np.ones(3)
-        if s.resolution is not None:
-            scale = np.array([s.resolution[0] / base.width, s.resolution[1] / base.height, 1.0])
-        for f, T in zip(base.frames, world_to_camera):
-            frames.append(job_mod.Frame(f.frame, scale[:, None] * f.K, T, list(f.source_frames)))
+        if base.rig is not None:
+            frames, rig = self._rig_frames(world_to_camera)
+        else:
+            frames, rig = [], None
+            scale = np.ones(3)
+            if s.resolution is not None:
+                scale = np.array([s.resolution[0] / base.width, s.resolution[1] / base.height, 1.0])
+            for f, T in zip(base.frames, world_to_camera):
+                frames.append(job_mod.Frame(f.frame, scale[:, None] * f.K, T, list(f.source_frames)))
         path = lambda p: self._path(folder, job_mod.resolve(self.base_path, p))  # noqa: E731
         assets = [replace(a, ply=path(a.ply)) for a in base.assets]
         for asset, car in placed:
@@ -333,8 +339,27 @@ class Variation:
         generate = base.generate
         if generate is not None and generate.checkpoint:
             generate = replace(generate, checkpoint=path(generate.checkpoint))
-        return replace(base, resolution=tuple(s.resolution or base.resolution), frames=frames, output_dir=".",
-                       scene=scene, assets=assets, generate=generate)
+        resolution = None if rig is not None else tuple(s.resolution or base.resolution)
+        return replace(base, resolution=resolution, frames=frames, output_dir=".", scene=scene, assets=assets,
+                       generate=generate, rig=rig)
+
+    def _rig_frames(self, world_to_camera) -> tuple:
+        """(frames, rig) of a rig job's variant whose first camera follows ``world_to_camera`` (the shifted path of
+        ``camera``: a translation per frame, orientation kept): every frame's ``ego_to_world`` moved by that
+        camera's shift, so all cameras move together; with the spec's ``resolution``, every camera scaled by its
+        width over the first camera's."""
+        base, s = self.base, self.spec
+        shift = cameras.camera_centers(world_to_camera) - \
+            cameras.camera_centers(np.stack([f.world_to_camera for f in self.view.frames]))
+        frames = []
+        for f, d in zip(base.frames, shift):
+            E = np.array(f.ego_to_world, np.float64)
+            E[:3, 3] += d
+            frames.append(job_mod.Frame(f.frame, None, None, list(f.source_frames), E))
+        rig = base.rig
+        if s.resolution is not None:
+            rig = rig.scaled(s.resolution[0] / rig.cameras[0].resolution[0])
+        return frames, rig
 
     def _path(self, folder, absolute) -> str:
         """A path as a variant's job names it: relative inside the run's folder (it moves as one), else absolute."""

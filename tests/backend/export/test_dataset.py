@@ -157,6 +157,28 @@ def test_batch_export_writes_the_same_dataset_and_replaces_its_own(exported, cap
     assert sorted(os.listdir(again)) == sorted(["export.json", "manifest.json", *FORMATS.split(",")])
 
 
+def test_batch_export_as_nuscenes_one_scene_per_job_with_its_split(exported, capsys):
+    pytest.importorskip("nuscenes")
+    from nuscenes.nuscenes import NuScenes
+
+    from backend.__main__ import main
+
+    root, lists, _, _ = exported
+    nus = root / "nus"
+    assert main(["batch", "--list", str(lists[0]), "--list", str(lists[1]), "--command", "export", "--format",
+                 "nuscenes", "--out", str(nus), "--split", "val=0.5", "--version", "v1.0-trainval",
+                 "--keyframe-hz", "10", "--device", "cpu"]) == 0
+    done = json.loads(capsys.readouterr().out.splitlines()[-1])
+    assert done["rendered"] == 0 and done["frames"] == 6
+    nusc = NuScenes("v1.0-trainval", str(nus / "nuscenes"), verbose=False)
+    assert [s["name"] for s in nusc.scene] == ["scpainter-0000", "scpainter-0001", "scpainter-0002"]
+    assert len(nusc.sample) == 6 and len(nusc.sample_annotation) == done["counts"]["nuscenes"]["train"]["objects"] \
+        + done["counts"]["nuscenes"]["val"]["objects"] > 0
+    splits = json.loads((nus / "nuscenes" / "v1.0-trainval" / "splits.json").read_text())
+    assert sorted(len(v) for v in splits.values()) == [1, 2]         # by drive: run a's two variants together
+    assert main(["batch", "--list", str(lists[0]), "--version", "v1.0-mini"]) == 2   # an export option elsewhere
+
+
 def test_a_folder_with_other_content_or_another_export_is_refused(exported, tmp_path):
     root, lists, _, _ = exported
     jobs = [str(root / "a" / "v0000" / "job.json")]

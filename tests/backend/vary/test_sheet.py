@@ -176,3 +176,26 @@ def test_a_folder_whose_vary_run_has_not_finished_says_so(tmp_path, capsys):
     root = folder(tmp_path, {"schema": "scpainter.variation-manifest/1", "state": "running", "variants": []})
     code, evs = run(root, capsys)
     assert code == protocol.EXIT_BAD_INPUT and evs[-1]["field"] == "state" and "not finished" in evs[-1]["message"]
+
+
+def test_a_rig_variant_shows_its_first_cameras_frame(tmp_path, capsys):
+    """A variant of a rig job (docs/design.md §17) renders into <variant>/<camera>/: the sheet shows its first
+    camera's first frame."""
+    root = folder(tmp_path, [entry(0), entry(1)])
+    green = np.zeros((18, 32, 3), np.uint8)
+    green[..., 1] = 255
+    for i in (0, 1):
+        variant = OutputLayout(os.path.join(root, VariationLayout.variant_name(i)))
+        os.makedirs(variant.root)
+        with open(variant.job, "w") as f:
+            json.dump({"rig": {"cameras": [{"name": "CAM_FRONT"}, {"name": "CAM_BACK"}]}}, f)
+        os.utime(variant.job, ns=(1, 1))
+        if i == 0:   # rendered: CAM_FRONT's folder holds its record and preview
+            cam = variant.camera("CAM_FRONT")
+            os.makedirs(cam.conditions)
+            with open(cam.record, "w") as f:
+                f.write("{}")
+            write_png(os.path.join(cam.conditions, CONDITION_PREVIEW.name(1)), green)
+    code, evs = run(root, capsys)
+    assert code == 0
+    assert evs[-1]["rendered"] == 1 and evs[-1]["not_rendered"] == 1

@@ -253,7 +253,8 @@ def _rig_scene_exported(addon, scene, tmp_path, preset="nuscenes"):
 
 def test_a_rig_jobs_results_load_behind_each_rig_camera(addon, empty_scene, tmp_path):
     """A rig job's output is one folder per camera: each camera's condition previews load under its rig camera's
-    name and show behind it, and the camera path shows CAM_FRONT's (the sensor it is)."""
+    name and show behind it, and the camera path shows CAM_FRONT's (the sensor it is); so do its generated frames
+    (the ``done`` event of a rig's generate names no one video: each camera's is in its folder)."""
     from backend.png import write_png
     from scpainter_blender.core.output_layout import OutputLayout
     from scpainter_blender.runs import camera_run
@@ -275,6 +276,20 @@ def test_a_rig_jobs_results_load_behind_each_rig_camera(addon, empty_scene, tmp_
         assert bg.image["scpainter_frames"] == 3
     (bg,) = path.data.background_images
     assert bg.image == bpy.data.objects["CAM_FRONT"].data.background_images[0].image
+    # generated (the baseline here): each camera's frames replace its conditions behind it, named as its own
+    for i, name in enumerate(core_rig.NUSCENES_CAMERAS):
+        layout = OutputLayout(out).camera(name)
+        os.makedirs(layout.generated)
+        for f in (1, 2, 3):
+            write_png(layout.generated_frame(f), np.full((9, 16, 3), (i + f) / 20.0))
+    done = {"output_dir": out, "frames": 18, "model": "baseline", "video": None, "frames_dir": None,
+            "cameras": list(core_rig.NUSCENES_CAMERAS)}
+    report = camera_run.finish(bpy.context, "generate", out, done, camera=path.name)
+    assert report.startswith("Baseline videos (no model) of 6 cameras")
+    for name in core_rig.NUSCENES_CAMERAS:
+        (bg,) = bpy.data.objects[name].data.background_images
+        assert bg.image == results.find(bpy.data.images, results.BASELINE, name)
+        assert bpy.path.abspath(bg.image.filepath) == OutputLayout(out).camera(name).generated_frame(1)
 
 
 def test_render_plan_of_a_rig_job_asks_every_cameras_folder(addon, empty_scene, tmp_path):

@@ -27,8 +27,9 @@ never passes through one. So, per ray (unit direction d0, with e1 the azimuth ta
 4. **The range**: for a plane n · x = h, a ray in direction d0 + u e1 + v e2 meets it at depth q with
    1 / q = (n · d0 + u n · e1 + v n · e2) / h, exactly linear in (u, v). So 1 / q = a + b u + c v is fitted to the
    cluster by least squares (a small ridge ``ridge`` · n · tan² α on b and c, so one point or a line of points
-   gives their mean and a line's slope), and the ray's range is 1 / a, exact on a plane whatever the sampling.
-   A fit that lands outside the cluster's depth span (by more than a gap) falls back to the harmonic mean of its
+   gives their mean and a line's slope), and the ray's range is 1 / a: exact on a plane whatever the sampling, but
+   for the ridge's bias (micrometres at 10 m).
+   A fit that lands outside the cluster's depth span (by more than tol) falls back to the harmonic mean of its
    depths. A range outside [min_range_m, max_range_m] is no return.
 5. **Intensity**: 255 × the mean luminance (Rec. 709 weights of the stored sRGB colour, 0..1) of the cluster's
    points — a reconstruction has no reflectance, so the return's brightness stands for it (0 without colours).
@@ -56,8 +57,10 @@ class LidarSettings:
     cluster's plane that does, once its offsets' smaller standard deviation reaches ``spread`` × tan α;
     ``coverage`` the mean
     offset (a fraction of the footprint) beyond which a surface only grazes the ray; ``ridge`` the fit's ridge;
-    ``opacity_min`` the opacity from which a Gaussian's mean counts as a surface sample."""
-    footprint_deg: float = 0.15
+    ``opacity_min`` the opacity from which a Gaussian's mean counts as a surface sample. The default footprint,
+    0.3°, is about the nuScenes sensor's azimuth step (1/3°): each point serves about one column; a narrower one
+    needs denser points for the same returns (``bench/lidar.py``'s table)."""
+    footprint_deg: float = 0.3
     gap_m: float = 0.5
     gap_rel: float = 0.05
     tol_m: float = 0.05
@@ -124,7 +127,7 @@ def resolve_ray(q: np.ndarray, u: np.ndarray, v: np.ndarray, lum: np.ndarray, p:
             w = 1.0 / cq
             a = fit(cu, cv, cq, ridge * n * tan2)[0]
             s = 1.0 / a if a > 0 else np.inf
-            if not (cq[0] - max(gap_m, gap_rel * cq[0]) <= s <= cq[-1] + max(gap_m, gap_rel * cq[-1])):
+            if not (cq[0] - max(tol_m, tol_rel * cq[0]) <= s <= cq[-1] + max(tol_m, tol_rel * cq[-1])):
                 s = n / w.sum()
             if not rmin <= s <= rmax:
                 return np.nan, 0.0, -1

@@ -245,8 +245,8 @@ def _resolve(start, P, rgb_a, rgb_b, p, luma, rng, inten, src):
             if np.hypot(su / n, sv / n) <= tan_a * (coverage + 0.25 / np.sqrt(n)):
                 a, b, c = _solve(n, su, sv, suu, suv, svv, sw, swu, swv, ridge * n * tan2)
                 s = 1.0 / a if a > 0.0 else np.inf
-                lo = P[a0, 0] - max(gap_m, gap_rel * P[a0, 0])
-                hi = P[a1 - 1, 0] + max(gap_m, gap_rel * P[a1 - 1, 0])
+                lo = P[a0, 0] - max(tol_m, tol_rel * P[a0, 0])
+                hi = P[a1 - 1, 0] + max(tol_m, tol_rel * P[a1 - 1, 0])
                 if not (s >= lo and s <= hi):
                     s = n / sw
                 if s >= rmin and s <= rmax:

@@ -73,7 +73,7 @@ class PlaneBox:
         d = np.asarray(dirs, np.float64)
         with np.errstate(divide="ignore", invalid="ignore"):
             tg = np.where(d[..., 2] < 0, -o[2] / d[..., 2], np.inf)
-        p = o + tg[..., None] * d
+            p = o + tg[..., None] * d
         tg = np.where((np.abs(p[..., 0]) <= self.half_side) & (np.abs(p[..., 1]) <= self.half_side), tg, np.inf)
         # slabs in the box frame
         R, c = self.box_to_world[:3, :3], self.box_to_world[:3, 3]
@@ -92,7 +92,7 @@ class PlaneBox:
         """(...,) int: which surface a ray meets first, the box's faces told apart (-1 none, 0 ground, 1.. box
         faces by the axis and side of the hit's box-frame coordinate nearest its face)."""
         rng, surface = self.cast(origin, dirs)
-        p = np.asarray(origin) + np.where(np.isinf(rng), 0, rng)[..., None] * dirs
+        p = np.asarray(origin) + np.where(np.isinf(rng), 0, rng)[..., None] * np.asarray(dirs)
         local = (p - self.box_to_world[:3, 3]) @ self.box_to_world[:3, :3]
         rel = np.abs(local) / (np.asarray(self.box_size) / 2)
         axis = np.argmax(rel, -1)

@@ -10,6 +10,7 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -44,12 +45,12 @@ class Sweep:
         T = np.asarray(self.lidar_to_world, np.float64)
         return self.points.astype(np.float64) @ T[:3, :3].T + T[:3, 3]
 
-    def counts(self, boxes) -> np.ndarray:
+    def counts(self, boxes: Sequence[tuple]) -> np.ndarray:
         """``counts(self, boxes)``."""
         return counts(self, boxes)
 
 
-def counts(sweep: Sweep, boxes) -> np.ndarray:
+def counts(sweep: Sweep, boxes: Sequence[tuple]) -> np.ndarray:
     """(K,) int64: per box the returns strictly inside it (nuScenes' ``num_lidar_pts``: the sweep's points in the
     box). ``boxes``: K pairs (box_to_world (4, 4) rigid, size (w, l, h) metres), the job's box frame (centre at the
     origin, ``core.geometry.boxes``); the test is in float64, in each box's frame."""

@@ -68,7 +68,7 @@ class LidarModel:
         """B · A, the rays of one sweep."""
         return self.beams * self.columns
 
-    def ring(self, row):
+    def ring(self, row: int | np.ndarray) -> int | np.ndarray:
         """The ring index (0 = lowest beam) of a row (0 = top beam) or an array of rows."""
         return self.beams - 1 - np.asarray(row)
 

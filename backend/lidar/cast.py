@@ -9,7 +9,8 @@ never passes through one. So, per ray (unit direction d0, with e1 the azimuth ta
    around d0. A point p (sensor frame) has depth q = p · d0 > 0 along the ray and gnomonic offsets
    u = (p · e1) / q, v = (p · e2) / q; it is a candidate when u² + v² ≤ tan² α. Points nearer than the model's
    ``min_range_m`` are invisible (the sensor's blind radius: rays go through them); points beyond
-   ``max_range_m`` plus one gap cannot make a return.
+   ``max_range_m`` plus one gap cannot make a return. A ray with more than ``max_candidates`` keeps every k-th of
+   them in point order (``thin``).
 2. **Surfaces**: the candidates sorted by q split into clusters where the next one is either further than
    gap = max(``gap_m``, ``gap_rel`` · q) behind the last (a car's flank in front of the road behind it), or off the
    plane fitted to the cluster so far (step 4's fit) by more than tol = max(``tol_m``, ``tol_rel`` · q) in depth
@@ -57,7 +58,8 @@ class LidarSettings:
     cluster's plane that does, once its offsets' smaller standard deviation reaches ``spread`` × tan α;
     ``coverage`` the mean
     offset (a fraction of the footprint) beyond which a surface only grazes the ray; ``ridge`` the fit's ridge;
-    ``opacity_min`` the opacity from which a Gaussian's mean counts as a surface sample. The default footprint,
+    ``opacity_min`` the opacity from which a Gaussian's mean counts as a surface sample; ``max_candidates`` the
+    candidates a ray keeps at most (``thin``). The default footprint,
     0.3°, is about the nuScenes sensor's azimuth step (1/3°): each point serves about one column; a narrower one
     needs denser points for the same returns (``bench/lidar.py``'s table)."""
     footprint_deg: float = 0.3
@@ -69,13 +71,14 @@ class LidarSettings:
     coverage: float = 0.42
     ridge: float = 1e-4
     opacity_min: float = 0.5
+    max_candidates: int = 256
 
     def params(self, model: LidarModel) -> np.ndarray:
-        """(11,) float64 in the numba kernels' order: tan α, tan² α, gap_m, gap_rel, coverage, ridge, min range,
-        max range, tol_m, tol_rel, spread."""
+        """(12,) float64 in the numba kernels' order: tan α, tan² α, gap_m, gap_rel, coverage, ridge, min range,
+        max range, tol_m, tol_rel, spread, max_candidates."""
         t = np.tan(np.deg2rad(self.footprint_deg))
         return np.array([t, t * t, self.gap_m, self.gap_rel, self.coverage, self.ridge, model.min_range_m,
-                         model.max_range_m, self.tol_m, self.tol_rel, self.spread], np.float64)
+                         model.max_range_m, self.tol_m, self.tol_rel, self.spread, self.max_candidates], np.float64)
 
 
 def ray_bases(model: LidarModel) -> tuple:
@@ -102,7 +105,7 @@ def resolve_ray(q: np.ndarray, u: np.ndarray, v: np.ndarray, lum: np.ndarray, p:
     """Steps 2-5 for one ray's candidates (depths ``q``, offsets ``u``, ``v``, luminances ``lum``, any order;
     ``p`` = ``LidarSettings.params``): (range m or NaN, intensity 0..255, the position of the cluster's nearest
     candidate in the given arrays, or -1)."""
-    tan_a, tan2, gap_m, gap_rel, coverage, ridge, rmin, rmax, tol_m, tol_rel, spread = p
+    tan_a, tan2, gap_m, gap_rel, coverage, ridge, rmin, rmax, tol_m, tol_rel, spread = p[:11]
     order = np.argsort(q, kind="stable")
     q, u, v, lum = q[order], u[order], v[order], lum[order]
     n_all = len(q)
@@ -150,18 +153,25 @@ def min_spread(u: np.ndarray, v: np.ndarray) -> float:
     return float(np.sqrt(max(0.0, (cuu + cvv) / 2 - np.hypot((cuu - cvv) / 2, cuv))))
 
 
+def thin(n: int, cap: int) -> np.ndarray:
+    """The positions kept of a ray's ``n`` candidates (in point order) when it has more than ``cap``: every k-th,
+    k = ceil(n / cap). A ray grazing the far road holds thousands (its footprint's patch grows as r³: 20 m long at
+    60 m); thinned evenly they describe the same plane, and sorting them no longer costs most of a sweep."""
+    return np.arange(0, n, -(-n // cap) if n > cap else 1)
+
+
 def candidates(xyz: np.ndarray, d0: np.ndarray, e1: np.ndarray, e2: np.ndarray, p: np.ndarray) -> tuple:
     """Step 1 for one ray against every point: (index, q, u, v) of the candidates of points ``xyz`` (N, 3) float64
     sensor frame."""
     tan_a, tan2, gap_m, gap_rel, _, _, rmin, rmax = p[:8]
     rho2 = np.einsum("ij,ij->i", xyz, xyz)
     q = xyz @ d0
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u, v = (xyz @ e1) / q, (xyz @ e2) / q
+    nu, nv = xyz @ e1, xyz @ e2
     far = rmax + max(gap_m, gap_rel * rmax)
-    ok = (q > 0) & (rho2 >= rmin * rmin) & (rho2 <= far * far) & (u * u + v * v <= tan2)
+    # u² + v² <= tan² α with u = nu / q, v = nv / q, tested as the kernels test it (no division)
+    ok = (q > 0) & (rho2 >= rmin * rmin) & (rho2 <= far * far) & (nu * nu + nv * nv <= tan2 * q * q)
     i = np.flatnonzero(ok)
-    return i, q[i], u[i], v[i]
+    return i, q[i], nu[i] / q[i], nv[i] / q[i]
 
 
 def cast_reference(model: LidarModel, xyz: np.ndarray, rgb: np.ndarray | None, settings: LidarSettings) -> tuple:
@@ -183,6 +193,8 @@ def cast_reference(model: LidarModel, xyz: np.ndarray, rgb: np.ndarray | None, s
     for c in range(A):
         for b in range(B):
             i, q, u, v = candidates(pts, d0[c, b], e1[c, b], e2[c, b], p)
+            keep = thin(len(i), int(p[11]))
+            i, q, u, v = i[keep], q[keep], u[keep], v[keep]
             if len(i):
                 s, it, k = resolve_ray(q, u, v, lum[i], p)
                 if k >= 0:

@@ -36,6 +36,8 @@ from .cast import LUMA, LidarSettings
 
 #: Bins of the elevation table over sin e in [-1, 1].
 ELEVATION_BINS = 8192
+#: A ray with more candidates than this is sorted by a merge sort rather than an insertion sort.
+INSERTION_MAX = 48
 #: Radians added to each row's azimuth half-width: more than ``_atan2``'s error.
 AZIMUTH_MARGIN = 1e-4
 
@@ -123,12 +125,13 @@ def _count(xyz_a, xyz_b, R, t, p, table, halfw, sphi, cphi, se, ce, step, hist, 
                 c1 = int(np.floor((phi + halfw[b]) / step))
                 for c in range(c0, c1 + 1):
                     cc = c % A
-                    q = sphi[cc] * ce[b] * sx + cphi[cc] * ce[b] * sy + se[b] * sz
+                    h = sphi[cc] * sx + cphi[cc] * sy  # the point's horizontal component along the column
+                    q = ce[b] * h + se[b] * sz
                     if q <= 0.0:
                         continue
-                    u = (cphi[cc] * sx - sphi[cc] * sy) / q
-                    v = (-sphi[cc] * se[b] * sx - cphi[cc] * se[b] * sy + ce[b] * sz) / q
-                    if u * u + v * v <= tan2:
+                    nu = cphi[cc] * sx - sphi[cc] * sy
+                    nv = ce[b] * sz - se[b] * h
+                    if nu * nu + nv * nv <= tan2 * q * q:  # u² + v² <= tan² α without dividing
                         hist[k, cc * B + b] += 1
                         mark[i] = 1
 
@@ -165,16 +168,17 @@ def _fill(xyz_a, xyz_b, R, t, p, table, halfw, sphi, cphi, se, ce, step, mark, s
                 c1 = int(np.floor((phi + halfw[b]) / step))
                 for c in range(c0, c1 + 1):
                     cc = c % A
-                    q = sphi[cc] * ce[b] * sx + cphi[cc] * ce[b] * sy + se[b] * sz
+                    h = sphi[cc] * sx + cphi[cc] * sy
+                    q = ce[b] * h + se[b] * sz
                     if q <= 0.0:
                         continue
-                    u = (cphi[cc] * sx - sphi[cc] * sy) / q
-                    v = (-sphi[cc] * se[b] * sx - cphi[cc] * se[b] * sy + ce[b] * sz) / q
-                    if u * u + v * v <= tan2:
+                    nu = cphi[cc] * sx - sphi[cc] * sy
+                    nv = ce[b] * sz - se[b] * h
+                    if nu * nu + nv * nv <= tan2 * q * q:
                         r = cc * B + b
                         j = slot[k, r]
                         slot[k, r] = j + 1
-                        pairs[j, 0], pairs[j, 1], pairs[j, 2], pairs[j, 3] = q, u, v, i
+                        pairs[j, 0], pairs[j, 1], pairs[j, 2], pairs[j, 3] = q, nu / q, nv / q, i
 
 
 @njit(inline="always")
@@ -197,12 +201,23 @@ def _resolve(start, P, rgb_a, rgb_b, p, luma, rng, inten, src):
     """Pass 4: per ray r (rows start[r]..start[r+1] of the pairs ``P``), its range (NaN: none), intensity and
     source point."""
     tan_a, tan2, gap_m, gap_rel, coverage, ridge, rmin, rmax = p[0], p[1], p[2], p[3], p[4], p[5], p[6], p[7]
-    tol_m, tol_rel, spread2 = p[8], p[9], (p[10] * p[0]) ** 2
+    tol_m, tol_rel, spread2, cap = p[8], p[9], (p[10] * p[0]) ** 2, np.int64(p[11])
     na = rgb_a.shape[0]
     for r in prange(start.shape[0] - 1):
         s0, s1 = start[r], start[r + 1]
         rng[r], inten[r], src[r] = np.nan, 0.0, -1
-        # stable insertion sort of the rows by depth (a ray holds tens of candidates)
+        if s1 - s0 > cap:  # thinned to every k-th candidate in point order (``cast.thin``)
+            k = (s1 - s0 + cap - 1) // cap
+            m = 0
+            for j in range(s0, s1, k):
+                P[s0 + m, 0], P[s0 + m, 1], P[s0 + m, 2], P[s0 + m, 3] = P[j, 0], P[j, 1], P[j, 2], P[j, 3]
+                m += 1
+            s1 = s0 + m
+        # the rows sorted by depth, stably: insertion sort for the tens of candidates most rays hold, a merge sort
+        # for the hundreds of a ray that grazes the far road (its footprint's patch grows as r³)
+        if s1 - s0 > INSERTION_MAX:
+            order = np.argsort(P[s0:s1, 0], kind="mergesort")
+            P[s0:s1] = P[s0:s1][order]
         for j in range(s0 + 1, s1):
             q, u, v, ii = P[j, 0], P[j, 1], P[j, 2], P[j, 3]
             m = j - 1

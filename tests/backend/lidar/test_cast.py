@@ -104,3 +104,8 @@ def test_reference_sweep_skips_nan_rows_and_reports_the_nearest_point():
     assert rng_[2, 0] == pytest.approx(15.0) and src[2, 0] >= 3
     q = xyz[3:] @ d0
     assert src[2, 0] == 3 + np.argmin(q)
+
+
+def test_a_crowded_ray_keeps_every_kth_candidate():
+    assert list(cast.thin(10, 4)) == [0, 3, 6, 9] and list(cast.thin(4, 4)) == [0, 1, 2, 3]
+    assert len(cast.thin(3221, 256)) <= 256

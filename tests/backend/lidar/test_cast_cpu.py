@@ -2,6 +2,8 @@
 micrometre, same intensities and source points), whatever the thread count, over two point sets read as one; the
 tables that cull points keep every candidate."""
 
+import dataclasses
+
 import numba
 import numpy as np
 import pytest
@@ -27,11 +29,13 @@ def _scene():
     return pts, rgb
 
 
-def test_numba_matches_the_float64_reference():
+@pytest.mark.parametrize("settings", [SETTINGS, dataclasses.replace(SETTINGS, max_candidates=8)],
+                         ids=["default", "thinned"])
+def test_numba_matches_the_float64_reference(settings):
     pts, rgb = _scene()
-    ref = cast.cast_reference(MODEL, pts.astype(np.float64), rgb.astype(np.float64), SETTINGS)
+    ref = cast.cast_reference(MODEL, pts.astype(np.float64), rgb.astype(np.float64), settings)
     k = len(pts) // 3
-    got = cast_cpu.cast(MODEL, pts[:k], rgb[:k], pts[k:], rgb[k:], np.eye(3), np.zeros(3), SETTINGS)
+    got = cast_cpu.cast(MODEL, pts[:k], rgb[:k], pts[k:], rgb[k:], np.eye(3), np.zeros(3), settings)
     hit = np.isfinite(ref[0])
     assert hit.sum() > 400  # the scene is seen
     assert np.array_equal(np.isfinite(got[0]), hit)

@@ -12,8 +12,10 @@
     the analytic one (rays whose first hit is the box).
 (b) **Speed**: a street of 3 M points (road, pavements, two facades) with three Gaussian cars (procedural, 100 k
     Gaussians each), the sensor driven along it, ``nuscenes-32`` and ``velodyne-64``: the first call (numba
-    compiles, or loads its cache: said in the table), then the median and best of the sweeps after it, and the
-    time of the numpy part around the kernels.
+    compiles, or loads its cache: said in the table), then the median and best wall time of the sweeps after it
+    and their CPU time (all threads: on an idle machine the wall time is about CPU / threads; this machine is
+    shared, so the load average is printed beside), and the same for the kernels alone (the arrays already
+    relative to the sensor, as ``sweep_for_frame`` hands them over: no float64 copy of the points).
 
 Prints the tables and writes the JSON (bench/results/lidar.json by default). ``--smoke``: the smallest sizes, one
 setting each, in seconds (tests/bench/test_lidar.py).
@@ -42,14 +44,6 @@ from scpainter_blender.core.lidar_model import MODELS  # noqa: E402
 from tests.backend.lidar.lidar_scenes import PlaneBox, edge_clearance  # noqa: E402
 
 import dataclasses  # noqa: E402
-
-
-def kernels_cached() -> bool | None:
-    """Whether every LiDAR kernel has code in numba's cache (read as numba reads its index; None: not readable)."""
-    try:
-        return all(bool(k._cache._cache_file._load_index()) for k in cast_cpu.kernels())
-    except AttributeError:
-        return None
 
 
 def accuracy_row(scene, pts, rgb, model, settings, repeats):
@@ -128,30 +122,34 @@ def speed_table(smoke: bool, repeats: int) -> list:
             T = np.eye(4)
             T[:3, 3] = (0.5, -20.0 + 40.0 * i / max(sweeps, 1), 1.84)
             poses.append(T)
-        cached = kernels_cached()
+        cached = cast_cpu.kernels_cached()
         t = time.perf_counter()
         first = sim.simulate(model, poses[0], pts, rgb, gaussians=cars)
         first_s = time.perf_counter() - t
-        times, returns, car_returns = [], [], []
+        times, cpu, returns, car_returns = [], [], [], []
         for T in poses[1:]:
-            t = time.perf_counter()
+            t, c = time.perf_counter(), time.process_time()
             s = sim.simulate(model, T, pts, rgb, gaussians=cars)
             times.append(time.perf_counter() - t)
+            cpu.append(time.process_time() - c)
             returns.append(len(s))
             car_returns.append(int((s.source > 0).sum()))
         # the kernels alone, on arrays already relative to the sensor (what sweep_for_frame hands them)
         xyz = (pts - poses[1][:3, 3]).astype(np.float32)
         cx = np.concatenate([sim.gaussian_samples(m, o, c, np.eye(4), poses[1][:3, 3], 0.5)[0] for m, o, c in cars])
         crgb = np.full((len(cx), 3), 0.5, np.float32)
-        kt = []
+        kt, kc = [], []
         for _ in range(max(2, repeats)):
-            t = time.perf_counter()
+            t, c = time.perf_counter(), time.process_time()
             cast_cpu.cast(model, xyz, rgb, cx, crgb, np.eye(3), np.zeros(3), cast.LidarSettings())
             kt.append(time.perf_counter() - t)
+            kc.append(time.process_time() - c)
         rows.append({"model": name, "points": n_points, "gaussians": 3 * n_gauss, "rays": model.rays,
                      "kernels_cached_before": cached, "first_call_s": first_s,
                      "sweep_median_s": statistics.median(times), "sweep_best_s": min(times),
                      "kernels_median_s": statistics.median(kt), "kernels_best_s": min(kt),
+                     "sweep_cpu_median_s": statistics.median(cpu), "kernels_cpu_median_s": statistics.median(kc),
+                     "load_average": os.getloadavg()[0],
                      "returns": int(statistics.median(returns)), "car_returns": int(statistics.median(car_returns)),
                      "first_returns": len(first)})
     return rows
@@ -166,7 +164,7 @@ def main(argv=None) -> int:
     import numba
 
     t = time.perf_counter()
-    cached = kernels_cached()
+    cached = cast_cpu.kernels_cached()
     warm_s = cast_cpu.warm()
     print(f"kernels: {'loaded from the cache' if cached else 'compiled'} in {warm_s:.2f} s "
           f"(numba {numba.__version__}, {numba.get_num_threads()} threads, {os.cpu_count()} CPUs)")
@@ -182,11 +180,12 @@ def main(argv=None) -> int:
     speed = speed_table(args.smoke, args.repeats)
     print("\n(b) speed: a street of points with three Gaussian cars, the sensor driven along it")
     print(f"{'model':>12} {'points':>9} {'gaussians':>9} {'rays':>7} {'first s':>8} {'median s':>8} {'best s':>7} "
-          f"{'kernels s':>9} {'returns':>7} {'on cars':>7}")
+          f"{'cpu s':>6} {'kernels s':>9} {'k cpu s':>7} {'returns':>7} {'on cars':>7} {'load':>5}")
     for r in speed:
         print(f"{r['model']:>12} {r['points']:>9d} {r['gaussians']:>9d} {r['rays']:>7d} {r['first_call_s']:>8.3f} "
-              f"{r['sweep_median_s']:>8.3f} {r['sweep_best_s']:>7.3f} {r['kernels_median_s']:>9.3f} "
-              f"{r['returns']:>7d} {r['car_returns']:>7d}")
+              f"{r['sweep_median_s']:>8.3f} {r['sweep_best_s']:>7.3f} {r['sweep_cpu_median_s']:>6.3f} "
+              f"{r['kernels_median_s']:>9.3f} {r['kernels_cpu_median_s']:>7.3f} {r['returns']:>7d} "
+              f"{r['car_returns']:>7d} {r['load_average']:>5.1f}")
     out = {"machine": {"platform": platform.platform(), "cpus": os.cpu_count(), "numba": numba.__version__,
                        "numba_threads": numba.get_num_threads()},
            "kernels": {"cached_before": cached, "warm_s": warm_s}, "smoke": args.smoke,

@@ -8,10 +8,11 @@ renderer's scene origin: sub-millimetre), never the sensor's distance from the w
 
 Parallel and deterministic without atomics, a counting sort of (point, ray) pairs:
 
-1. ``_count`` (parallel over T chunks of the points): each chunk counts, in its own row of a (T, rays) table, the
-   rays whose footprint holds each of its points. A point is culled first by its elevation alone (a table over
-   sin e = s_z / |s| gives the rows whose band [e_b − α, e_b + α] may hold it: most points of a scene lie between
-   two beams), then only the columns within the footprint's azimuth half-width are tested exactly.
+1. ``_count`` (parallel over T chunks of each point set): each chunk counts, in its own row of a (2T, rays) table,
+   the rays whose footprint holds each of its points. A point is culled first by its elevation alone (a table
+   over sin e |sin e| = s_z |s_z| / |s|² gives the rows whose band [e_b − α, e_b + α] may hold it: most points of a
+   scene lie between two beams), then only the columns within the footprint's azimuth half-width are tested
+   exactly.
 2. the offsets (exclusive prefix sum over rays, then chunks): every ray's candidates in one segment, chunk after
    chunk, each chunk's in point order, so the segment's order does not depend on T.
 3. ``_fill`` (parallel over the chunks): the same test again for the points pass 1 marked, writing each pair's
@@ -19,8 +20,10 @@ Parallel and deterministic without atomics, a counting sort of (point, ray) pair
 4. ``_resolve`` (parallel over rays): the segment sorted by q in place (stable insertion sort), then the clusters,
    the coverage test, the fit and the intensity, in the reference's order of summation.
 
-Kernels are cached (``cache=True``) in ``NUMBA_CACHE_DIR`` like the renderer's (``backend/render/warmup.py``);
-``warm()`` compiles or loads them on a tiny sweep.
+Kernels are cached (``cache=True``) in ``NUMBA_CACHE_DIR`` like the renderer's (``backend/render/warmup.py``): the
+first sweep after an install (or a change of this file) compiles them, 5 s on an idle two-core machine (up to 30 s
+when it is busy); later processes load them in a fraction of a second. ``warm()`` compiles or loads them on a tiny
+sweep, ``kernels_cached()`` says which it will be (so a caller can say so before a long first sweep).
 """
 
 from __future__ import annotations
@@ -34,8 +37,8 @@ from scpainter_blender.core.lidar_model import LidarModel
 
 from .cast import LUMA, LidarSettings
 
-#: Bins of the elevation table over sin e in [-1, 1].
-ELEVATION_BINS = 8192
+#: Bins of the elevation table over sin e |sin e| in [-1, 1] (the first bins either side of the horizon span 0.3°).
+ELEVATION_BINS = 32768
 #: A ray with more candidates than this is sorted by a merge sort rather than an insertion sort.
 INSERTION_MAX = 48
 #: Radians added to each row's azimuth half-width: more than ``_atan2``'s error.
@@ -43,11 +46,13 @@ AZIMUTH_MARGIN = 1e-4
 
 
 def elevation_table(model: LidarModel, footprint_deg: float, bins: int = ELEVATION_BINS) -> np.ndarray:
-    """(bins, 2) int32: for each bin of sin e over [-1, 1], the first and last row (0 = top) whose band
-    [e_b − α, e_b + α] overlaps the bin's elevations (last < first: none)."""
+    """(bins, 2) int32: for each bin of t = sin e · |sin e| = z |z| / |s|² over [-1, 1] (no square root per point),
+    the first and last row (0 = top) whose band [e_b − α, e_b + α] overlaps the bin's elevations (last < first:
+    none)."""
     e = np.deg2rad(np.asarray(model.elevations_deg, np.float64))
     a = np.deg2rad(footprint_deg)
-    edges = np.linspace(-1.0, 1.0, bins + 1)
+    t = np.linspace(-1.0, 1.0, bins + 1)
+    edges = np.sign(t) * np.sqrt(np.abs(t))
     lo_e, hi_e = np.arcsin(edges[:-1]), np.arcsin(edges[1:])
     hit = (e[None, :] - a <= hi_e[:, None] + 1e-12) & (e[None, :] + a >= lo_e[:, None] - 1e-12)  # (bins, B)
     first = np.where(hit.any(1), hit.argmax(1), 0)
@@ -98,23 +103,24 @@ def _sensor(xyz, i, R, t):
 def _count(xyz_a, xyz_b, R, t, p, table, halfw, sphi, cphi, se, ce, step, hist, mark):
     """Pass 1: hist[k, ray] = the (point, ray) pairs of chunk k (ray = column · B + row); mark[i] = 1 for a point
     in some pair (pass 3 skips the others unread)."""
-    na, nb = xyz_a.shape[0], xyz_b.shape[0]
-    n = na + nb
-    chunks = hist.shape[0]
+    na = xyz_a.shape[0]
+    chunks = hist.shape[0] // 2  # chunks of the first set, then as many of the second
     A, B = sphi.shape[0], se.shape[0]
     bins = table.shape[0]
     tan2, gap_m, gap_rel, rmin, rmax = p[1], p[2], p[3], p[6], p[7]
     far = rmax + max(gap_m, gap_rel * rmax)
-    for k in prange(chunks):
-        for i in range(k * n // chunks, (k + 1) * n // chunks):
-            if i < na:
-                sx, sy, sz = _sensor(xyz_a, i, R, t)
-            else:
-                sx, sy, sz = _sensor(xyz_b, i - na, R, t)
+    for k in prange(2 * chunks):
+        xyz = xyz_a if k < chunks else xyz_b
+        base = 0 if k < chunks else na
+        kk = k % chunks
+        n = xyz.shape[0]
+        for j in range(kk * n // chunks, (kk + 1) * n // chunks):
+            i = base + j
+            sx, sy, sz = _sensor(xyz, j, R, t)
             r2 = sx * sx + sy * sy + sz * sz
             if not (r2 >= rmin * rmin and r2 <= far * far):
                 continue  # NaN fails too
-            sb = int((sz / np.sqrt(r2) + 1.0) * 0.5 * bins)
+            sb = int((sz * abs(sz) / r2 + 1.0) * 0.5 * bins)
             sb = min(max(sb, 0), bins - 1)
             lo, hi = table[sb, 0], table[sb, 1]
             if hi < lo:
@@ -141,23 +147,23 @@ def _fill(xyz_a, xyz_b, R, t, p, table, halfw, sphi, cphi, se, ce, step, mark, s
     """Pass 3: the pairs (q, u, v, point index as a float64: exact below 2**53) written as rows of ``pairs`` at
     slot[k, ray] onwards (slot: the offsets, advanced as they are used); one row per pair keeps each write in one
     cache line."""
-    na, nb = xyz_a.shape[0], xyz_b.shape[0]
-    n = na + nb
-    chunks = slot.shape[0]
+    na = xyz_a.shape[0]
+    chunks = slot.shape[0] // 2
     A, B = sphi.shape[0], se.shape[0]
     bins = table.shape[0]
-    tan2, gap_m, gap_rel, rmin, rmax = p[1], p[2], p[3], p[6], p[7]
-    far = rmax + max(gap_m, gap_rel * rmax)
-    for k in prange(chunks):
-        for i in range(k * n // chunks, (k + 1) * n // chunks):
+    tan2 = p[1]
+    for k in prange(2 * chunks):
+        xyz = xyz_a if k < chunks else xyz_b
+        base = 0 if k < chunks else na
+        kk = k % chunks
+        n = xyz.shape[0]
+        for j in range(kk * n // chunks, (kk + 1) * n // chunks):
+            i = base + j
             if mark[i] == 0:
                 continue
-            if i < na:
-                sx, sy, sz = _sensor(xyz_a, i, R, t)
-            else:
-                sx, sy, sz = _sensor(xyz_b, i - na, R, t)
+            sx, sy, sz = _sensor(xyz, j, R, t)
             r2 = sx * sx + sy * sy + sz * sz
-            sb = int((sz / np.sqrt(r2) + 1.0) * 0.5 * bins)
+            sb = int((sz * abs(sz) / r2 + 1.0) * 0.5 * bins)
             sb = min(max(sb, 0), bins - 1)
             lo, hi = table[sb, 0], table[sb, 1]
             if hi < lo:
@@ -308,7 +314,7 @@ def cast(model: LidarModel, xyz_a: np.ndarray, rgb_a: np.ndarray, xyz_b: np.ndar
             np.ascontiguousarray(R, np.float64), np.ascontiguousarray(t, np.float64), p, table, halfw,
             np.sin(phi), np.cos(phi), np.sin(e), np.cos(e), 2 * np.pi / A)
     chunks = max(1, get_num_threads())
-    hist = np.zeros((chunks, A * B), np.int64)
+    hist = np.zeros((2 * chunks, A * B), np.int64)  # chunks of each point set
     mark = np.zeros(len(xyz_a) + len(xyz_b), np.uint8)
     _count(*args, hist, mark)
     slot = np.empty_like(hist)
@@ -325,6 +331,15 @@ def cast(model: LidarModel, xyz_a: np.ndarray, rgb_a: np.ndarray, xyz_b: np.ndar
 def kernels() -> list:
     """The numba dispatchers of this module (``cache=True``)."""
     return [_count, _fill, _resolve, _offsets]
+
+
+def kernels_cached() -> bool | None:
+    """Whether every kernel has compiled code in numba's cache for its current source (its index read as numba
+    reads it, like ``backend.render.warmup.kernels_cached``); None when this numba's cache cannot be inspected."""
+    try:
+        return all(bool(k._cache._cache_file._load_index()) for k in kernels())
+    except AttributeError:
+        return None
 
 
 def warm() -> float:

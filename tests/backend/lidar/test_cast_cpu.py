@@ -72,7 +72,7 @@ def test_the_culling_tables_are_conservative():
         r, t = np.tan(np.deg2rad(a)) * np.sqrt(rng.uniform()), rng.uniform(0, 2 * np.pi)
         d = d0[c, b] + r * (np.cos(t) * e1[c, b] + np.sin(t) * e2[c, b])
         d /= np.linalg.norm(d)
-        lo, hi = table[min(int((d[2] + 1) * 0.5 * len(table)), len(table) - 1)]
+        lo, hi = table[min(int((d[2] * abs(d[2]) + 1) * 0.5 * len(table)), len(table) - 1)]
         assert lo <= b <= hi
         dphi = np.angle(np.exp(1j * (np.arctan2(d[0], d[1]) - c * 2 * np.pi / m.columns)))
         assert abs(dphi) <= halfw[b]
@@ -84,5 +84,6 @@ def test_the_culling_tables_are_conservative():
 
 def test_warm_compiles_the_kernels():
     assert cast_cpu.warm() >= 0
+    assert cast_cpu.kernels_cached() in (True, None)  # compiled and written to the cache (None: numba changed)
     for k in cast_cpu.kernels():
         assert k.signatures  # compiled (or loaded) for the argument types a sweep passes

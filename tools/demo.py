@@ -7,6 +7,12 @@ OpenCV inpainting baseline, saying so and how to use a checkpoint instead —, e
 format (``EXPORT_FORMATS``) and render a Cycles preview.
 
     .venv/bin/python tools/demo.py [--out build/demo] [--scale camera_height|trajectory|factor]
+    .venv/bin/python tools/demo.py --surround [--rig-scale 0.2]
+
+``--surround`` (docs/design.md §17) is the surround variant: the same street, car and camera path, then *Add Camera
+Rig* mounts nuScenes' six cameras and its 32-beam top LiDAR on the path (the cameras at ``--rig-scale`` of
+1600 x 900), *Render Conditions* renders every camera and casts the LiDAR's sweeps, and *Export Labels* writes the
+nuScenes dataset (``export/nuscenes``); it leaves out the generation, the single-camera exports and the preview.
 
 Prints one JSON object at the end: where the .blend and the preview are, the metric scale found against the
 street's ground truth, and timings. Blender's own configuration is not touched: the add-on is built with
@@ -43,6 +49,11 @@ def main(argv=None):
                    help="SCPainter checkpoint folder (python -m backend init-checkpoint makes one); set as the "
                         "add-on preference, so the exported job generates")
     p.add_argument("--steps", type=int, help="sampler steps for the generation (default: the job's, 25)")
+    p.add_argument("--surround", action="store_true",
+                   help="the surround variant: nuScenes' six cameras and LiDAR on the camera path, rendered and "
+                        "exported as a nuScenes dataset (no generation, no other exports, no preview)")
+    p.add_argument("--rig-scale", type=float, default=0.2,
+                   help="--surround: each camera's resolution as a share of nuScenes' 1600 x 900 (default 0.2)")
     args = p.parse_args(argv)
     out = os.path.abspath(args.out)
     os.makedirs(out, exist_ok=True)
@@ -116,8 +127,10 @@ def main(argv=None):
     truth = float(street.metric()["metres_per_unit"])
     scale = float(np.cbrt(np.linalg.det(np.array(pts[keys.VGGT_TO_WORLD]).reshape(4, 4)[:3, :3])))
 
-    blend = os.path.join(out, "street_demo.blend")
+    blend = os.path.join(out, "street_surround.blend" if args.surround else "street_demo.blend")
     bpy.ops.wm.save_as_mainfile(filepath=blend)
+    if args.surround:
+        return surround(args, bpy, pkg, path_cam, cam_out, job_path, blend, street, t0, t_import)
 
     # the condition layers (I, M, M_a, Z per frame) and, with a checkpoint, the video: the add-on's own operators
     # (blocking in background mode) run the backend in a subprocess and load the results behind the camera
@@ -188,6 +201,55 @@ def main(argv=None):
         + "".join(f"\n      {path} ({fmt})" for fmt, path in exports.items()))
     if generation["model"] == "baseline":
         log(f"\nThis video is the baseline, not the model. {USE_A_CHECKPOINT}")
+    return 0
+
+
+def surround(args, bpy, pkg, path_cam, cam_out, job_path, blend, street, t0, t_import) -> int:
+    """The surround variant (``--surround``): nuScenes' rig on the camera path, rendered with its LiDAR and exported
+    as nuScenes; prints its summary."""
+    from scpainter_blender.core import files
+    from scpainter_blender.core import job as job_mod
+    from scpainter_blender.scene import kinds
+
+    scene = bpy.context.scene
+    bpy.context.view_layer.objects.active = path_cam
+    if bpy.ops.scpainter.add_camera_rig(preset="nuscenes", scale=args.rig_scale, lidar=True) != {"FINISHED"}:
+        raise SystemExit("adding the camera rig failed: see the message above")
+    scene.camera = path_cam
+    bpy.ops.scpainter.export_job(filepath=job_path)
+    bpy.ops.wm.save_mainfile()
+    job = job_mod.load(job_path)
+    prefs = bpy.context.preferences.addons[pkg].preferences
+    prefs.device = args.device.upper()
+    log(f"backend: rendering {len(job.rig.cameras)} cameras and the {job.rig.lidar.name} sweeps ...")
+    t_cond = time.perf_counter()
+    if bpy.ops.scpainter.render_conditions() != {"FINISHED"}:
+        raise SystemExit("rendering the rig failed: see the message above")
+    t_cond = time.perf_counter() - t_cond
+    log("backend: exporting the rig as nuScenes ...")
+    t_export = time.perf_counter()
+    if bpy.ops.scpainter.export_labels(format="nuscenes") != {"FINISHED"}:
+        raise SystemExit("the nuScenes export failed: see the message above")
+    t_export = time.perf_counter() - t_export
+    bpy.ops.wm.save_mainfile()
+    layout = OutputLayout(cam_out)
+    sweeps = [files.read_json(layout.lidar_sweep_info(e.frame, job.rig.lidar.name)) for e in job.frames]
+    summary = {"blend": blend, "job": job_path, "camera_path": path_cam.name, "street": street.root,
+               "rig": {"cameras": [c.name for c in job.rig.cameras], "resolution": list(job.rig.cameras[0].resolution),
+                       "lidar": job.rig.lidar.model},
+               "rig_objects": sorted(o.name for o in kinds.objects_of_kind(scene, kinds.RIG_CAMERA)),
+               "frames": len(job.frames),
+               "camera_folders": {c.name: layout.camera(c.name).root for c in job.rig.cameras},
+               "sweeps": [{"frame": s_["frame"], "returns": s_["returns"],
+                           "returns_per_source": s_["returns_per_source"]} for s_ in sweeps],
+               "surround_pictures": [layout.surround(e.frame) for e in job.frames],
+               "nuscenes": layout.export("nuscenes"),
+               "seconds": {"import": t_import, "render": t_cond, "export": t_export,
+                           "total": time.perf_counter() - t0}}
+    print(json.dumps(summary, indent=1))
+    log(f"\nSaved {blend}\n      {layout.root} ({len(job.rig.cameras)} cameras x {len(job.frames)} frames, "
+        f"{len(sweeps)} LiDAR sweeps)\n      {summary['surround_pictures'][0]} (the cameras and the sweep from above)"
+        f"\n      {summary['nuscenes']} (nuScenes)")
     return 0
 
 

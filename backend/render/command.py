@@ -16,13 +16,14 @@ from scpainter_blender.core import job as job_mod
 from scpainter_blender.core import job_inputs
 from scpainter_blender.core import labels as labels_mod
 from scpainter_blender.core.geometry import boxes
+from scpainter_blender.core.backend_protocol import CAMERA_FIELD
 from scpainter_blender.core.output_layout import FRAME_LABELS, OutputLayout
 
 from .. import events, png
 from ..errors import FolderBusyError
 from . import channels
 from . import frames as fr
-from . import labelled, rig_jobs, writer
+from . import labelled, lidar_sweeps, rig_jobs, scene_cache, surround_pictures, writer
 
 
 def frame_paths(job_path: str, job: job_mod.Job, frame: int) -> tuple[str, str]:
@@ -193,10 +194,26 @@ def _render_rig(job_path, job, device, force, point_radius, stop, log, allow_out
         return render_job(job_path, camera_job, device, force, point_radius, stop, log, allow_outside, lock,
                           checked, half, data_roots)
 
-    with job_inputs.reading(job_path, allow_outside, data_roots) if reading else contextlib.nullcontext():
+    sweeps = None
+    with job_inputs.reading(job_path, allow_outside, data_roots) if reading else contextlib.nullcontext(), \
+            scene_cache.shared("rig job", "its cameras"):   # the LiDAR casts from the points the cameras loaded
         results = rig_jobs.run_cameras(job, one, stop)
+        if job.rig.lidar is not None and not stop and not any(r.get("stopped") for _, r in results):
+            with events.tagged(**{CAMERA_FIELD: job.rig.lidar.name}):
+                sweeps = lidar_sweeps.render_sweeps(job_path, job, root, device, force, stop, log, allow_outside)
     result = rig_jobs.combined(job, results, os.path.abspath(root), COUNTS, stop)
     result["warnings"] += warned
+    if sweeps is not None:
+        result["lidar"] = sweeps
+        result["stopped"] = result["stopped"] or sweeps["stopped"]
+    elif job.rig.lidar is not None:
+        result["stopped"] = True   # the cameras stopped first: the sweeps are the next run's
+    if not result["stopped"]:
+        layout = OutputLayout(root)
+        if result["rendered"] or (sweeps or {}).get("cast") or \
+                not all(os.path.isfile(layout.surround(e.frame)) for e in job.frames):
+            for path, e in zip(surround_pictures.write_pictures(root, job), job.frames):
+                events.artifact(path, frame=e.frame, kind="surround")
     return result
 
 

@@ -89,6 +89,26 @@ def frame_keys(job: job_mod.Job, key_of_scene: str, inputs: Inputs, extents: lis
     return out
 
 
+def sweep_keys(job: job_mod.Job, inputs: Inputs, settings: dict) -> dict[int, str]:
+    """{frame: LiDAR sweep key} of a rig job with a LiDAR (docs/design.md §17): what its sweep at that frame depends
+    on. The scene (``Job.layers_dict``'s, with the predictions' stamp), the renderer's scene origin (the first
+    camera at the first frame: where float32 starts), the LiDAR (name, model, mount), the caster's ``settings``,
+    and per frame the ego pose and every asset's file, stamp and pose there: a LiDAR sees all around, so no asset
+    is left out of any frame's key."""
+    rig = job.rig
+    first_cam = rig.cameras[0].camera_to_ego
+    origin = np.asarray(job.frames[0].ego_to_world, np.float64) @ np.asarray(first_cam, np.float64)
+    base = _hash({"scene": job.layers_dict().get("scene"), "points": inputs.points,
+                  "origin": origin[:3, 3].tolist(), "lidar": rig.lidar.to_dict(), "settings": settings})
+    out = {}
+    for e in job.frames:
+        assets = [[i + 1, a.ply, inputs.assets[i], np.asarray(a.object_to_world[e.frame], np.float64).tolist()]
+                  for i, a in enumerate(job.assets) if e.frame in a.object_to_world]
+        out[e.frame] = _hash({"base": base, "ego_to_world": np.asarray(e.ego_to_world, np.float64).tolist(),
+                              "assets": assets})
+    return out
+
+
 def job_digest(job: job_mod.Job) -> str:
     """A hash of what every frame's labels depend on beyond its layers: the whole job but its generation settings
     and output folder (so editing a box, a class or the frame rate, or moving a car anywhere, makes new labels:

@@ -84,6 +84,7 @@ LABELLED_PREVIEW = FrameFiles("labelled_", ".png")  # in conditions/
 GENERATED_FRAME = FrameFiles("frame_", ".png")      # in generated/
 LIDAR_SWEEP = FrameFiles("sweep_", ".pcd.bin")      # in a rig job's <LIDAR>/
 LIDAR_SWEEP_INFO = FrameFiles("sweep_", ".json")    # in a rig job's <LIDAR>/
+SURROUND = FrameFiles("surround_", ".png")          # in a rig job's output folder: its cameras and sweep at a frame
 
 
 class OutputLayout:
@@ -196,8 +197,13 @@ class OutputLayout:
         return self._at(name, LIDAR_SWEEP.name(frame))
 
     def lidar_sweep_info(self, frame: int, name: str = LIDAR) -> str:
-        """``<LIDAR>/sweep_NNNNNN.json``: the sweep's per-object point counts and pose."""
+        """``<LIDAR>/sweep_NNNNNN.json``: the sweep's key, pose and returns (``backend.render.lidar_sweeps``)."""
         return self._at(name, LIDAR_SWEEP_INFO.name(frame))
+
+    def surround(self, frame: int) -> str:
+        """``surround_NNNNNN.png`` in a rig job's folder: its cameras tiled beside the sweep from above
+        (``backend.render.surround_pictures``)."""
+        return self._at(SURROUND.name(frame))
 
     # generated/
     @property

@@ -6,9 +6,9 @@ parked front left), a recorded van following behind and a recorded car marked ig
 The output folder is the contract's rig layout: ``<out>/<CAMERA>/conditions/labels_NNNNNN.json`` and previews per
 camera (each camera's labels made by ``core.labels.frame_labels`` as a single-camera job with
 ``Job.camera_jobs()``, from layers ray-cast against the boxes: ``layers``), and
-``<out>/LIDAR_TOP/sweep_NNNNNN.pcd.bin``. **The sweeps here are a stand-in** (``write_sweep``: a 4 x 4 x 4 lattice
-inside every box and a ground grid, in the sensor frame) until ``render`` writes the simulated ones: the test that
-reads render's sweeps replaces ``build(...)`` with a render of the rig job.
+``<out>/LIDAR_TOP/sweep_NNNNNN.pcd.bin``. The sweeps here are lattices whose counts are known exactly
+(``write_sweep``: a 4 x 4 x 4 lattice inside every box and a ground grid, in the sensor frame); the simulated sweeps
+``render`` writes are read end to end by ``test_nuscenes.py``'s command-line test.
 """
 
 import os

@@ -17,6 +17,7 @@ from scpainter_blender.core import job as job_mod
 from scpainter_blender.core.output_layout import OutputLayout
 from tests.backend.export import export_fixtures as F
 from tests.backend.export import rig_fixtures as R
+from tests.backend.export.nuscenes_checks import evaluation_filter
 from tests_support import run_backend_here
 
 devkit = pytest.importorskip("nuscenes.nuscenes")
@@ -102,30 +103,8 @@ def test_lidar_points_are_counted_as_the_devkit_counts_them(exported):
 
 
 def test_the_evaluation_filter_keeps_every_inserted_box(exported):
-    from nuscenes.eval.common.config import config_factory
-    from nuscenes.eval.common.data_classes import EvalBoxes
-    from nuscenes.eval.common.loaders import add_center_dist, filter_eval_boxes
-    from nuscenes.eval.detection.data_classes import DetectionBox
-    from nuscenes.eval.detection.utils import category_to_detection_name
-
     _, _, _, nusc = exported
-    boxes, inserted = EvalBoxes(), 0
-    for s in nusc.sample:   # the ground truth as load_gt builds it (its split is by the devkit's scene names)
-        gt = []
-        for ann in s["anns"]:
-            rec = nusc.get("sample_annotation", ann)
-            attrs = [nusc.get("attribute", t)["name"] for t in rec["attribute_tokens"]]
-            gt.append(DetectionBox(s["token"], rec["translation"], rec["size"], rec["rotation"],
-                                   nusc.box_velocity(ann)[:2], num_pts=rec["num_lidar_pts"] + rec["num_radar_pts"],
-                                   detection_name=category_to_detection_name(rec["category_name"]),
-                                   attribute_name=attrs[0] if attrs else ""))
-            inserted += rec["synthetic"]
-        boxes.add_boxes(s["token"], gt)
-    boxes = filter_eval_boxes(nusc, add_center_dist(nusc, boxes), config_factory("detection_cvpr_2019").class_range)
-    kept = [nusc.get("sample_annotation", ann)["synthetic"] for s in nusc.sample for ann in s["anns"]
-            if any(np.allclose(b.translation, nusc.get("sample_annotation", ann)["translation"])
-                   for b in boxes[s["token"]])]
-    assert inserted == 4 and sum(kept) == inserted and len(kept) == 6
+    assert evaluation_filter(nusc) == (4, 4, 6)
 
 
 def test_render_sample_runs(exported, tmp_path):
@@ -262,3 +241,26 @@ def test_a_folder_holding_another_dataset_or_bad_options_are_refused(tmp_path):
     code, ev, _ = run_backend_here("export", tmp_path / "rig.json", "--format", "kitti,coco", "--out",
                                    tmp_path / "ds")
     assert code == 2 and ev[-1]["field"] == "rig" and "one export per camera" in ev[-1]["hint"], ev[-1]
+
+
+def test_a_rendered_rig_job_with_its_simulated_lidar_loads_and_keeps_its_inserted_car(tmp_path):
+    """End to end through the command line: a job made a nuScenes-rig job (``rig``), rendered (six cameras and the
+    simulated LIDAR_TOP sweeps), exported; the devkit loads it and its evaluation filter keeps the inserted car:
+    its num_lidar_pts are the simulated sweep's points in its box."""
+    from tests_support import small_job
+
+    base = small_job(tmp_path / "drive", fps=10.0)
+    code, ev, err = run_backend_here("rig", base, "--preset", "nuscenes", "--scale", "0.02", "--out",
+                                     tmp_path / "surround" / "job.json")
+    assert code == 0, err
+    job = tmp_path / "surround" / "job.json"
+    code, ev, err = run_backend_here("export", job, "--format", "nuscenes", "--out", tmp_path / "nus",
+                                     "--device", "cpu", "--data-root", tmp_path / "drive")
+    assert code == 0, err
+    assert ev[-1]["rendered"] > 0
+    nusc = devkit.NuScenes(VERSION, str(tmp_path / "nus"), verbose=False)
+    assert sorted(nusc.sample[0]["data"]) == sorted(list(R.RIG.sensor_names))
+    car = [a for a in nusc.sample_annotation if a["synthetic"]]
+    assert car and all(a["num_lidar_pts"] > 0 for a in car)
+    inserted, kept_inserted, _ = evaluation_filter(nusc)
+    assert inserted == len(car) and kept_inserted == inserted

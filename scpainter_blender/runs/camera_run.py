@@ -169,8 +169,11 @@ def _finish_rig(context, command: str, layout: OutputLayout, done: dict, rig, ca
     names = ", ".join(c.name for c in rig.cameras)
     if command == "render":
         fresh = " (up to date: nothing changed since they were rendered)" if done.get("up_to_date") else ""
+        surround = results.load_surround(layout.root, camera)
+        lidar = f" and {rig.lidar.name}" if rig.lidar is not None else ""
+        seen = f"; the cameras{lidar} in image {surround.name!r}" if surround is not None else ""
         return (f"Condition layers of {len(rig.cameras)} cameras ({names}), {done.get('frames', '?')} frames in all, "
-                f"in {layout.root}{fresh}")
+                f"in {layout.root}{fresh}{seen}")
     what = "Baseline videos (no model)" if done.get("model") == "baseline" else "Videos"
     return f"{what} of {len(rig.cameras)} cameras ({names}) in {layout.root}"
 

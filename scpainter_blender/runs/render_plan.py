@@ -6,7 +6,8 @@ assets' extents from the conditions folder's record). When every frame is finish
 over before it starts: its results are loaded as a finished render's, and the frames' warnings are said again
 as the backend says them on every run. Anything the record cannot answer (no record, an asset file changed, a
 forced run) goes to the backend. A rig job is planned as the backend runs it, camera by camera (``Job.camera_jobs``,
-each in its own ``<output folder>/<CAMERA>/``): it is over only when every camera's frames are.
+each in its own ``<output folder>/<CAMERA>/``): it is over only when every camera's frames are; a rig with a LiDAR
+goes to the backend (its sweeps' keys hold the caster's settings, which live there).
 """
 
 from __future__ import annotations
@@ -47,6 +48,10 @@ def check(context, run: Invocation, camera) -> Check | None:
         # a rig job gets one set, which its camera jobs share)
         job, found, _ = proposals.with_proposals(job, job_path, mode)
     except (OSError, errors.InputError):  # an input file is gone or unreadable: the backend names it
+        return Check(job_path, out)
+    if job.rig is not None and job.rig.lidar is not None:
+        # its sweeps' keys (core.frame_keys.sweep_keys) hold the caster's settings, which only the backend has: it
+        # decides (a second render casts nothing), never a LiDAR moved in Blender called up to date
         return Check(job_path, out)
     done_labels = []
     # a rig job is planned camera by camera, as the backend renders it: each camera job in its own folder

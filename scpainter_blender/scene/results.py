@@ -21,7 +21,8 @@ datablock also carries ``scpainter_model`` and ``scpainter_description`` (the ba
 it). Results loaded before results were per camera keep their plain names ("SCPainter Conditions") and are left
 alone, except that the camera background slot showing one is reused. A rig job's results (docs/design.md §17) are
 each camera's, from its own folder ``<output folder>/<CAMERA>/``, loaded under the name of the rig camera that is
-that sensor and shown behind it (``rig_cameras``); the camera path shows the sensor it is (CAM_FRONT for a preset).
+that sensor and shown behind it (``rig_cameras``); the camera path shows the sensor it is (CAM_FRONT for a preset); the rig's surround pictures (its cameras tiled beside
+the LiDAR sweep) load as the camera path's kind "SCPainter Surround", for an image editor.
 """
 
 from __future__ import annotations
@@ -31,10 +32,12 @@ import os
 import bpy
 
 from ..core.output_layout import CONDITION_PREVIEW, GENERATED_FRAME, LABELLED_PREVIEW
+from ..core.output_layout import SURROUND as SURROUND_FILES
 from . import keys, kinds, paths
 
 CONDITIONS = "SCPainter Conditions"
 LABELS = "SCPainter Labels"   # the condition previews with the labels drawn (boxes, ids), beside CONDITIONS
+SURROUND = "SCPainter Surround"  # a rig render's frames as one picture: its cameras tiled beside the LiDAR sweep
 GENERATED = "SCPainter Generated"
 VIDEO = "SCPainter Video"
 BASELINE = "SCPainter Baseline"
@@ -109,6 +112,13 @@ def load_labels(folder: str, camera: str | None = None) -> bpy.types.Image | Non
     """The labelled previews in ``folder`` (``<output_dir>/conditions``) as ``camera``'s image sequence of kind
     ``LABELS``; None when the render wrote none (a backend from before labels)."""
     return _sequence(LABELS, camera, LABELLED_PREVIEW.in_folder(folder))
+
+
+def load_surround(folder: str, camera: str | None = None) -> bpy.types.Image | None:
+    """A rig render's surround pictures (``surround_NNNNNN.png`` in the rig job's ``folder``: its cameras tiled
+    beside the sweep from above) as the image sequence of kind ``SURROUND`` of the camera path named ``camera``, for an
+    image editor (not a camera background: it is no camera's view); None when the render wrote none."""
+    return _sequence(SURROUND, camera, SURROUND_FILES.in_folder(folder))
 
 
 def load_generated(frames_dir: str, mp4: str, model: str = "scpainter", description: str = "",

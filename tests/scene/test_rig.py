@@ -237,7 +237,7 @@ def test_a_camera_path_with_a_rig_exports_a_rig_job(addon, empty_scene, tmp_path
     assert single.rig is None and single.frames[0].K is not None
 
 
-def _rig_scene_exported(addon, scene, tmp_path, preset="nuscenes"):
+def _rig_scene_exported(addon, scene, tmp_path, preset="nuscenes", lidar=True):
     """A car, a camera path with a rig (at 1 % size: 16 x 9 cameras) and the path's job exported into its output
     folder as a run exports it; (path camera, job path, output folder)."""
     from scpainter_blender.runs import camera_run
@@ -245,7 +245,7 @@ def _rig_scene_exported(addon, scene, tmp_path, preset="nuscenes"):
     _car(tmp_path)
     path = _path_camera(scene)
     scene.frame_end = 3
-    assert bpy.ops.scpainter.add_camera_rig(preset=preset, scale=0.01) == {"FINISHED"}
+    assert bpy.ops.scpainter.add_camera_rig(preset=preset, scale=0.01, lidar=lidar) == {"FINISHED"}
     scene.scpainter_output_dir = str(tmp_path / "out")
     job_path, out = camera_run.export(bpy.context, camera=path)
     return path, job_path, out
@@ -253,7 +253,8 @@ def _rig_scene_exported(addon, scene, tmp_path, preset="nuscenes"):
 
 def test_a_rig_jobs_results_load_behind_each_rig_camera(addon, empty_scene, tmp_path):
     """A rig job's output is one folder per camera: each camera's condition previews load under its rig camera's
-    name and show behind it, and the camera path shows CAM_FRONT's (the sensor it is); so do its generated frames
+    name and show behind it, and the camera path shows CAM_FRONT's (the sensor it is), the surround pictures
+    (cameras and sweep) load as the path's image for an image editor; each camera's generated frames load likewise
     (the ``done`` event of a rig's generate names no one video: each camera's is in its folder)."""
     from backend.png import write_png
     from scpainter_blender.core.output_layout import OutputLayout
@@ -267,8 +268,13 @@ def test_a_rig_jobs_results_load_behind_each_rig_camera(addon, empty_scene, tmp_
         os.makedirs(layout.conditions)
         for f in (1, 2, 3):
             write_png(layout.condition_preview(f), np.full((9, 16, 3), (i + f) / 10.0))
+    for f in (1, 2, 3):  # the surround pictures the render writes with a LiDAR (cameras tiled beside the sweep)
+        write_png(OutputLayout(out).surround(f), np.full((18, 64, 3), f / 10.0))
     report = camera_run.finish(bpy.context, "render", out, {"output_dir": out, "frames": 18}, camera=path.name)
     assert report.startswith("Condition layers of 6 cameras (CAM_FRONT, CAM_FRONT_RIGHT")
+    surround = results.find(bpy.data.images, results.SURROUND, "Path")
+    assert report.endswith(f"; the cameras and LIDAR_TOP in image {surround.name!r}")
+    assert surround["scpainter_frames"] == 3 and bpy.path.abspath(surround.filepath) == OutputLayout(out).surround(1)
     for name in core_rig.NUSCENES_CAMERAS:
         (bg,) = bpy.data.objects[name].data.background_images
         assert bg.image == results.find(bpy.data.images, results.CONDITIONS, name)
@@ -354,7 +360,7 @@ def test_a_rig_scene_renders_per_camera_then_is_up_to_date(addon, empty_scene, t
     from scpainter_blender.runs import camera_run, render_plan
     from scpainter_blender.runs.client import Invocation
 
-    path, job_path, out = _rig_scene_exported(addon, empty_scene, tmp_path)
+    path, job_path, out = _rig_scene_exported(addon, empty_scene, tmp_path, lidar=False)
     capsys.readouterr()
     assert main(["render", job_path, "--device", "cpu", "--allow-outside"]) == 0
     done = [json.loads(line) for line in capsys.readouterr().out.splitlines() if line.startswith("{")][-1]
@@ -370,7 +376,13 @@ def test_a_rig_scene_renders_per_camera_then_is_up_to_date(addon, empty_scene, t
     for name in core_rig.NUSCENES_CAMERAS:
         (bg,) = bpy.data.objects[name].data.background_images
         assert bpy.path.abspath(bg.image.filepath) == OutputLayout(out).camera(name).condition_preview(1)
-    # a camera's frame changed (its lens): only the rig is no longer up to date
+    # the same cameras with a LiDAR: its sweeps are the backend's to plan (the caster's settings are in their keys)
+    bpy.context.view_layer.objects.active = path
+    assert bpy.ops.scpainter.add_camera_rig(preset="nuscenes", scale=0.01, lidar=True) == {"FINISHED"}
+    assert render_plan.check(bpy.context, Invocation("render"), path).done is None
+    assert bpy.ops.scpainter.add_camera_rig(preset="nuscenes", scale=0.01, lidar=False) == {"FINISHED"}
+    assert render_plan.check(bpy.context, Invocation("render"), path).done["up_to_date"]
+    # a camera's frames changed (its lens): the rig is no longer up to date
     bpy.data.objects["CAM_BACK"].data.lens *= 1.2
     assert render_plan.check(bpy.context, Invocation("render"), path).done is None
 

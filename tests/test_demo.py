@@ -122,7 +122,7 @@ def test_demo_surround_renders_the_rig_and_its_nuscenes_export_keeps_every_inser
     summary = json.loads(proc.stdout[proc.stdout.index("{"):])
     assert summary["rig"]["cameras"] == list(rig.NUSCENES_CAMERAS) and summary["rig"]["resolution"] == [320, 180]
     assert len(summary["rig_objects"]) == 6 and summary["frames"] == 16
-    assert all(s["returns"] > 5000 for s in summary["sweeps"])            # the street all around, every frame
+    assert all(s["returns"] > 3000 for s in summary["sweeps"])            # the street around it, every frame
     assert max(s["returns_per_source"]["car_01"] for s in summary["sweeps"]) > 50   # the parked car is hit
     for name, folder in summary["camera_folders"].items():
         assert len([f for f in os.listdir(os.path.join(folder, "conditions")) if f.startswith("labels_")]) == 16

@@ -71,7 +71,7 @@ class LidarSettings:
     coverage: float = 0.42
     ridge: float = 1e-4
     opacity_min: float = 0.5
-    max_candidates: int = 256
+    max_candidates: int = 64
 
     def params(self, model: LidarModel) -> np.ndarray:
         """(12,) float64 in the numba kernels' order: tan α, tan² α, gap_m, gap_rel, coverage, ridge, min range,

@@ -24,7 +24,7 @@ setting each, in seconds (tests/bench/test_lidar.py).
 from __future__ import annotations
 
 import argparse
-import json
+import dataclasses
 import os
 import platform
 import statistics
@@ -43,7 +43,6 @@ from scpainter_blender.core import outputs, shapes  # noqa: E402
 from scpainter_blender.core.lidar_model import MODELS  # noqa: E402
 from tests.backend.lidar.lidar_scenes import PlaneBox, edge_clearance  # noqa: E402
 
-import dataclasses  # noqa: E402
 
 
 def accuracy_row(scene, pts, rgb, model, settings, repeats):

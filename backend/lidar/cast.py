@@ -16,15 +16,15 @@ never passes through one. So, per ray (unit direction d0, with e1 the azimuth ta
    plane fitted to the cluster so far (step 4's fit) by more than tol = max(``tol_m``, ``tol_rel`` · q) in depth
    once that plane is known: the cluster has 3 points or more spread over the footprint (the smaller standard
    deviation of its offsets at least ``spread`` × tan α). The plane is fitted again each time the cluster has grown
-   by half since its last fit (at 3 points, then 5, 8, 12, ...: a fit per point would cost most of a sweep). The second rule separates surfaces that meet at a corner
-   (a car's far side behind its near side); a grazing patch of road, long in q (about 2 r² α / h) and sparse,
-   stays on its plane and stays one surface.
+   by half since its last fit (at 3 points, then 5, 8, 12, ...: a fit per point would cost most of a sweep). The
+   second rule separates surfaces that meet at a corner (a car's far side behind its near side); a grazing patch
+   of road, long in q (about 2 r² α / h) and sparse, stays on its plane and stays one surface.
 3. **The surface hit**: the nearest cluster that covers the ray, i.e. whose mean offset (ū, v̄) is at most
    tan α · (``coverage`` + 0.25 / √n) from it (n its points). A surface that covers half the footprint, its edge
    through the ray, has a mean offset 4/(3π) ≈ 0.42 of the radius, so ``coverage`` 0.42 puts the silhouette of an
-   object where its edge is, instead of a footprint further out; the 0.5 / √n term keeps a sparse but centred
-   surface (a few points fall off-centre by chance: the mean offset of n points spread evenly over the footprint scatters by about 0.25 / √n of its radius in each direction) from being taken for an edge. When no cluster covers the ray,
-   it has no return.
+   object where its edge is, instead of a footprint further out; the 0.25 / √n term keeps a sparse but centred
+   surface from being taken for an edge (the mean offset of n points spread evenly over the footprint scatters by
+   about 0.25 / √n of its radius in each direction). When no cluster covers the ray, it has no return.
 4. **The range**: for a plane n · x = h, a ray in direction d0 + u e1 + v e2 meets it at depth q with
    1 / q = (n · d0 + u n · e1 + v n · e2) / h, exactly linear in (u, v). So 1 / q = a + b u + c v is fitted to the
    cluster by least squares (a small ridge ``ridge`` · n · tan² α on b and c, so one point or a line of points

@@ -62,8 +62,8 @@ def elevation_table(model: LidarModel, footprint_deg: float, bins: int = ELEVATI
 
 def azimuth_halfwidths(model: LidarModel, footprint_deg: float) -> np.ndarray:
     """(B,) float64 radians: per row, the largest azimuth difference of a point inside a footprint of that row.
-    Two directions (φ1, e1), (φ2, e2) an angle δ apart have sin²(δ/2) = sin²(Δe/2) + cos e1 cos e2 sin²(Δφ/2), and
-    a point within α of the ray has |e − e_b| <= α, so |Δφ| <= 2 asin(sin(α/2) / √(cos e_b cos(|e_b| + α)))
+    Two directions (φ1, e1), (φ2, e2) an angle δ apart have sin²(δ/2) = sin²(Δe/2) + cos e1 cos e2 sin²(Δφ/2),
+    and a point within α of the ray has |e − e_b| <= α, so |Δφ| <= 2 asin(sin(α/2) / √(cos e_b cos(|e_b| + α)))
     (π once that passes 1), plus ``AZIMUTH_MARGIN``."""
     e = np.abs(np.deg2rad(np.asarray(model.elevations_deg, np.float64)))
     a = np.deg2rad(footprint_deg)

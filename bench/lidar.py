@@ -11,7 +11,8 @@
     over every return with an analytic hit, and the box's count (returns in its label box, 5 cm larger) against
     the analytic one (rays whose first hit is the box).
 (b) **Speed**: a street of 3 M points (road, pavements, two facades) with three Gaussian cars (procedural, 100 k
-    Gaussians each), the sensor driven along it, ``nuscenes-32`` and ``velodyne-64``: the first call (numba
+    Gaussians each), the sensor driven along it, ``nuscenes-32`` and ``velodyne-64``, the points stored as a
+    reconstruction stores them (frame by frame) and, for ``nuscenes-32``, shuffled: the first call (numba
     compiles, or loads its cache: said in the table), then the median and best wall time of the sweeps after it
     and their CPU time (all threads: on an idle machine the wall time is about CPU / threads; this machine is
     shared, so the load average is printed beside), and the same for the kernels alone (the arrays already
@@ -24,7 +25,7 @@ setting each, in seconds (tests/bench/test_lidar.py).
 from __future__ import annotations
 
 import argparse
-import json
+import dataclasses
 import os
 import platform
 import statistics
@@ -43,7 +44,6 @@ from scpainter_blender.core import outputs, shapes  # noqa: E402
 from scpainter_blender.core.lidar_model import MODELS  # noqa: E402
 from tests.backend.lidar.lidar_scenes import PlaneBox, edge_clearance  # noqa: E402
 
-import dataclasses  # noqa: E402
 
 
 def accuracy_row(scene, pts, rgb, model, settings, repeats):
@@ -95,28 +95,34 @@ def accuracy_table(smoke: bool, repeats: int) -> list:
     return rows
 
 
-def street(points: int, seed: int = 0) -> tuple:
+def street(points: int, seed: int = 0, order: str = "frames") -> tuple:
     """(points (N, 3) float64, colours (N, 3)): a 120 m street, y along it: road and pavements (z = 0, |x| <= 10),
-    two facades (x = ±10, 0 <= z <= 12); half the points on the ground, half on the facades."""
+    two facades (x = ±10, 0 <= z <= 12); half the points on the ground, half on the facades. ``order``: "frames"
+    stores them as a reconstruction does (source frame by source frame, here 2 m of street each, and in rows
+    within one), "shuffled" at random (the worst case for the kernels' memory traffic)."""
     rng = np.random.default_rng(seed)
     g, w = points // 2, points - points // 2
     ground = np.column_stack([rng.uniform(-10, 10, g), rng.uniform(-60, 60, g), np.zeros(g)])
     side = np.where(rng.uniform(size=w) < 0.5, -10.0, 10.0)
     walls = np.column_stack([side, rng.uniform(-60, 60, w), rng.uniform(0, 12, w)])
+    pts = np.concatenate([ground, walls])
+    if order == "frames":
+        pts = pts[np.lexsort((pts[:, 0], np.floor(pts[:, 2] / 0.05), np.floor(pts[:, 1] / 2.0)))]
     rgb = rng.uniform(0.2, 0.8, (points, 3)).astype(np.float32)
-    return np.concatenate([ground, walls]), rgb
+    return pts, rgb
 
 
 def speed_table(smoke: bool, repeats: int) -> list:
     n_points, n_gauss, sweeps = (200_000, 5_000, 2) if smoke else (3_000_000, 100_000, max(repeats, 5) * 2)
-    pts, rgb = street(n_points)
+    streets = {order: street(n_points, order=order) for order in ("frames", "shuffled")}
     cars = []
     for k, (x, y) in enumerate(((-3.5, 8.0), (3.5, -6.0), (-3.5, 20.0))):
         g = shapes.procedural_car_gaussians(count=n_gauss, seed=k)
         cars.append((g.means + (x, y, 0.0), g.opacities, None))
     rows = []
-    for name in ("nuscenes-32", "velodyne-64"):
+    for name, order in (("nuscenes-32", "frames"), ("nuscenes-32", "shuffled"), ("velodyne-64", "frames")):
         model = MODELS[name]
+        pts, rgb = streets[order]
         poses = []
         for i in range(sweeps + 1):
             T = np.eye(4)
@@ -144,7 +150,7 @@ def speed_table(smoke: bool, repeats: int) -> list:
             cast_cpu.cast(model, xyz, rgb, cx, crgb, np.eye(3), np.zeros(3), cast.LidarSettings())
             kt.append(time.perf_counter() - t)
             kc.append(time.process_time() - c)
-        rows.append({"model": name, "points": n_points, "gaussians": 3 * n_gauss, "rays": model.rays,
+        rows.append({"model": name, "order": order, "points": n_points, "gaussians": 3 * n_gauss, "rays": model.rays,
                      "kernels_cached_before": cached, "first_call_s": first_s,
                      "sweep_median_s": statistics.median(times), "sweep_best_s": min(times),
                      "kernels_median_s": statistics.median(kt), "kernels_best_s": min(kt),
@@ -179,10 +185,10 @@ def main(argv=None) -> int:
               f"{100 * r['box_count_error']:>9.1f}")
     speed = speed_table(args.smoke, args.repeats)
     print("\n(b) speed: a street of points with three Gaussian cars, the sensor driven along it")
-    print(f"{'model':>12} {'points':>9} {'gaussians':>9} {'rays':>7} {'first s':>8} {'median s':>8} {'best s':>7} "
+    print(f"{'model':>12} {'order':>8} {'points':>9} {'gaussians':>9} {'rays':>7} {'first s':>8} {'median s':>8} {'best s':>7} "
           f"{'cpu s':>6} {'kernels s':>9} {'k cpu s':>7} {'returns':>7} {'on cars':>7} {'load':>5}")
     for r in speed:
-        print(f"{r['model']:>12} {r['points']:>9d} {r['gaussians']:>9d} {r['rays']:>7d} {r['first_call_s']:>8.3f} "
+        print(f"{r['model']:>12} {r['order']:>8} {r['points']:>9d} {r['gaussians']:>9d} {r['rays']:>7d} {r['first_call_s']:>8.3f} "
               f"{r['sweep_median_s']:>8.3f} {r['sweep_best_s']:>7.3f} {r['sweep_cpu_median_s']:>6.3f} "
               f"{r['kernels_median_s']:>9.3f} {r['kernels_cpu_median_s']:>7.3f} {r['returns']:>7d} "
               f"{r['car_returns']:>7d} {r['load_average']:>5.1f}")

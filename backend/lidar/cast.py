@@ -11,27 +11,30 @@ never passes through one. So, per ray (unit direction d0, with e1 the azimuth ta
    ``min_range_m`` are invisible (the sensor's blind radius: rays go through them); points beyond
    ``max_range_m`` plus one gap cannot make a return. A ray with more than ``max_candidates`` keeps every k-th of
    them in point order (``thin``).
-2. **Surfaces**: the candidates sorted by q split into clusters where the next one is either further than
-   gap = max(``gap_m``, ``gap_rel`` · q) behind the last (a car's flank in front of the road behind it), or off the
-   plane fitted to the cluster so far (step 4's fit) by more than tol = max(``tol_m``, ``tol_rel`` · q) in depth
-   once that plane is known: the cluster has 3 points or more spread over the footprint (the smaller standard
-   deviation of its offsets at least ``spread`` × tan α). The plane is fitted again each time the cluster has grown
-   by half since its last fit (at 3 points, then 5, 8, 12, ...: a fit per point would cost most of a sweep). The second rule separates surfaces that meet at a corner
-   (a car's far side behind its near side); a grazing patch of road, long in q (about 2 r² α / h) and sparse,
-   stays on its plane and stays one surface.
+2. **Surfaces**: the candidates sorted by q split into clusters where the next one is further than
+   gap = max(``gap_m``, ``gap_rel`` · q) behind the last (a car's flank in front of the road behind it) while the
+   cluster's plane is not known, and where it is off that plane (step 4's fit) by more than
+   tol = max(``tol_m``, ``tol_rel`` · q) in depth once it is known: the cluster has 3 points or more spread over
+   the footprint (the smaller standard deviation of its offsets at least ``spread`` × tan α). A sparse patch of far
+   road has gaps wider than any fixed one between points of one plane. The plane is fitted again each time the cluster has grown
+   by half since its last fit (at 3 points, then 5, 8, 12, ...: a fit per point would cost most of a sweep). The
+   second rule separates surfaces that meet at a corner (a car's far side behind its near side); a grazing patch
+   of road, long in q (about 2 r² α / h) and sparse, stays on its plane and stays one surface.
 3. **The surface hit**: the nearest cluster that covers the ray, i.e. whose mean offset (ū, v̄) is at most
    tan α · (``coverage`` + 0.25 / √n) from it (n its points). A surface that covers half the footprint, its edge
    through the ray, has a mean offset 4/(3π) ≈ 0.42 of the radius, so ``coverage`` 0.42 puts the silhouette of an
-   object where its edge is, instead of a footprint further out; the 0.5 / √n term keeps a sparse but centred
-   surface (a few points fall off-centre by chance: the mean offset of n points spread evenly over the footprint scatters by about 0.25 / √n of its radius in each direction) from being taken for an edge. When no cluster covers the ray,
-   it has no return.
+   object where its edge is, instead of a footprint further out; the 0.25 / √n term keeps a sparse but centred
+   surface from being taken for an edge (the mean offset of n points spread evenly over the footprint scatters by
+   about 0.25 / √n of its radius in each direction). When no cluster covers the ray, it has no return.
 4. **The range**: for a plane n · x = h, a ray in direction d0 + u e1 + v e2 meets it at depth q with
    1 / q = (n · d0 + u n · e1 + v n · e2) / h, exactly linear in (u, v). So 1 / q = a + b u + c v is fitted to the
    cluster by least squares (a small ridge ``ridge`` · n · tan² α on b and c, so one point or a line of points
    gives their mean and a line's slope), and the ray's range is 1 / a: exact on a plane whatever the sampling, but
    for the ridge's bias (micrometres at 10 m).
-   A fit that lands outside the cluster's depth span (by more than tol) falls back to the harmonic mean of its
-   depths. A range outside [min_range_m, max_range_m] is no return.
+   A fit that lands outside the cluster's depth span by more than a gap (a plane known as in step 2), or by more
+   than tol (a plane not known: too few points, or on a line), falls back to the harmonic mean of its depths. A
+   surface seen on one side of the ray only (at its edge, or sparse) reaches the ray by extrapolation: its span
+   may not hold the hit. A range outside [min_range_m, max_range_m] is no return.
 5. **Intensity**: 255 × the mean luminance (Rec. 709 weights of the stored sRGB colour, 0..1) of the cluster's
    points — a reconstruction has no reflectance, so the return's brightness stands for it (0 without colours).
 
@@ -71,7 +74,7 @@ class LidarSettings:
     coverage: float = 0.42
     ridge: float = 1e-4
     opacity_min: float = 0.5
-    max_candidates: int = 256
+    max_candidates: int = 64
 
     def params(self, model: LidarModel) -> np.ndarray:
         """(12,) float64 in the numba kernels' order: tan α, tan² α, gap_m, gap_rel, coverage, ridge, min range,
@@ -114,7 +117,7 @@ def resolve_ray(q: np.ndarray, u: np.ndarray, v: np.ndarray, lum: np.ndarray, p:
         stop = start + 1
         fitted, plane = 0, None
         while stop < n_all:
-            if q[stop] - q[stop - 1] > max(gap_m, gap_rel * q[stop - 1]):
+            if plane is None and q[stop] - q[stop - 1] > max(gap_m, gap_rel * q[stop - 1]):
                 break
             k = stop - start
             if k >= 3 and 2 * k >= 3 * fitted and min_spread(u[start:stop], v[start:stop]) >= spread * tan_a:
@@ -130,7 +133,8 @@ def resolve_ray(q: np.ndarray, u: np.ndarray, v: np.ndarray, lum: np.ndarray, p:
             w = 1.0 / cq
             a = fit(cu, cv, cq, ridge * n * tan2)[0]
             s = 1.0 / a if a > 0 else np.inf
-            if not (cq[0] - max(tol_m, tol_rel * cq[0]) <= s <= cq[-1] + max(tol_m, tol_rel * cq[-1])):
+            reach = (gap_m, gap_rel) if n >= 3 and min_spread(cu, cv) >= spread * tan_a else (tol_m, tol_rel)
+            if not (cq[0] - max(reach[0], reach[1] * cq[0]) <= s <= cq[-1] + max(reach[0], reach[1] * cq[-1])):
                 s = n / w.sum()
             if not rmin <= s <= rmax:
                 return np.nan, 0.0, -1

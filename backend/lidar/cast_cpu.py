@@ -62,8 +62,8 @@ def elevation_table(model: LidarModel, footprint_deg: float, bins: int = ELEVATI
 
 def azimuth_halfwidths(model: LidarModel, footprint_deg: float) -> np.ndarray:
     """(B,) float64 radians: per row, the largest azimuth difference of a point inside a footprint of that row.
-    Two directions (φ1, e1), (φ2, e2) an angle δ apart have sin²(δ/2) = sin²(Δe/2) + cos e1 cos e2 sin²(Δφ/2), and
-    a point within α of the ray has |e − e_b| <= α, so |Δφ| <= 2 asin(sin(α/2) / √(cos e_b cos(|e_b| + α)))
+    Two directions (φ1, e1), (φ2, e2) an angle δ apart have sin²(δ/2) = sin²(Δe/2) + cos e1 cos e2 sin²(Δφ/2),
+    and a point within α of the ray has |e − e_b| <= α, so |Δφ| <= 2 asin(sin(α/2) / √(cos e_b cos(|e_b| + α)))
     (π once that passes 1), plus ``AZIMUTH_MARGIN``."""
     e = np.abs(np.deg2rad(np.asarray(model.elevations_deg, np.float64)))
     a = np.deg2rad(footprint_deg)
@@ -241,7 +241,7 @@ def _resolve(start, P, rgb_a, rgb_b, p, luma, rng, inten, src):
             a1 = a0 + 1
             while a1 < s1:
                 q, u, v = P[a1, 0], P[a1, 1], P[a1, 2]
-                if q - P[a1 - 1, 0] > max(gap_m, gap_rel * P[a1 - 1, 0]):
+                if not fitted and q - P[a1 - 1, 0] > max(gap_m, gap_rel * P[a1 - 1, 0]):
                     break
                 k = a1 - a0
                 if k >= 3 and 2 * k >= 3 * fitted:  # refit when the cluster has grown by half
@@ -266,8 +266,14 @@ def _resolve(start, P, rgb_a, rgb_b, p, luma, rng, inten, src):
             if np.hypot(su / n, sv / n) <= tan_a * (coverage + 0.25 / np.sqrt(n)):
                 a, b, c = _solve(n, su, sv, suu, suv, svv, sw, swu, swv, ridge * n * tan2)
                 s = 1.0 / a if a > 0.0 else np.inf
-                lo = P[a0, 0] - max(tol_m, tol_rel * P[a0, 0])
-                hi = P[a1 - 1, 0] + max(tol_m, tol_rel * P[a1 - 1, 0])
+                # how far beyond its depth span the fit may reach: a gap when the plane is known, else tol
+                q0, q1 = P[a0, 0], P[a1 - 1, 0]
+                lo, hi = q0 - max(tol_m, tol_rel * q0), q1 + max(tol_m, tol_rel * q1)
+                if n >= 3:
+                    mu, mv = su / n, sv / n
+                    cuu, cuv, cvv = suu / n - mu * mu, suv / n - mu * mv, svv / n - mv * mv
+                    if (cuu + cvv) / 2 - np.hypot((cuu - cvv) / 2, cuv) >= spread2:
+                        lo, hi = q0 - max(gap_m, gap_rel * q0), q1 + max(gap_m, gap_rel * q1)
                 if not (s >= lo and s <= hi):
                     s = n / sw
                 if s >= rmin and s <= rmax:

@@ -22,6 +22,7 @@ import numpy as np
 
 from scpainter_blender.core import errors, files, frame_keys, locking, outputs
 from scpainter_blender.core import job as job_mod
+from scpainter_blender.core.backend_protocol import COMPILE_STAGE
 from scpainter_blender.core import lidar_model
 from scpainter_blender.core.output_layout import OutputLayout
 
@@ -46,6 +47,21 @@ def done(info_path: str, key: str) -> bool:
         return False
     return isinstance(info, dict) and info.get("key") == key and \
         os.path.isfile(info_path[: -len(".json")] + ".pcd.bin")
+
+
+def _ensure_kernels() -> None:
+    """Before the first sweep of a process: the LiDAR's numba kernels compiled (or loaded) between two ``compile``
+    progress events when numba's cache does not hold them yet, so a first sweep's seconds of compiling are said, as
+    the renderer's are (``warmup.announce_and_warm``)."""
+    from backend.lidar import cast_cpu
+
+    if cast_cpu.kernels_cached():
+        return
+    what = "compiling the LiDAR's kernels (once after an install, 5-30 s)"
+    events.progress(COMPILE_STAGE, 0, 1, cached=False, message=what)
+    seconds = cast_cpu.warm()
+    events.progress(COMPILE_STAGE, 1, 1, cached=False, message=what, seconds=seconds)
+    events.log_here(f"{what}: {seconds:.1f} s")
 
 
 def render_sweeps(job_path: str, job: job_mod.Job, root: str, device: str, force: bool, stop: Sequence[object],
@@ -75,6 +91,7 @@ def render_sweeps(job_path: str, job: job_mod.Job, root: str, device: str, force
                 skipped += 1
             else:
                 if scene is None:  # the rig's first camera job: the same scene, its origin the renderer's
+                    _ensure_kernels()
                     _, camera_job = job.camera_jobs()[0]
                     scene = fr.load_scene(camera_job, job_path, device)
                     if log:

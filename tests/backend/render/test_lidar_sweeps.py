@@ -76,3 +76,14 @@ def test_a_second_render_casts_nothing_and_a_moved_lidar_casts_again(rigged):
     code, ev, err = _render(job_path, tmp)
     assert code == 0, err
     assert ev[-1]["lidar"]["cast"] == 2 and ev[-1]["rendered"] == 0         # the cameras' layers are kept
+
+
+def test_a_first_sweep_without_cached_kernels_says_it_compiles_them(rigged, monkeypatch):
+    from backend.lidar import cast_cpu
+
+    tmp, job_path = rigged
+    monkeypatch.setattr(cast_cpu, "kernels_cached", lambda: False)   # as on a new install
+    code, ev, err = _render(job_path, tmp, "--force")
+    assert code == 0, err
+    compile_ = [e for e in ev if e["event"] == "progress" and e["stage"] == "compile" and "LiDAR" in e["message"]]
+    assert [(e["done"], e["total"]) for e in compile_] == [(0, 1), (1, 1)]

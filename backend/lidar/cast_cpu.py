@@ -146,7 +146,9 @@ def _count(xyz_a, xyz_b, R, t, p, table, halfw, sphi, cphi, se, ce, step, hist, 
 def _fill(xyz_a, xyz_b, R, t, p, table, halfw, sphi, cphi, se, ce, step, mark, slot, pairs):
     """Pass 3: the pairs (q, u, v, point index as a float64: exact below 2**53) written as rows of ``pairs`` at
     slot[k, ray] onwards (slot: the offsets, advanced as they are used); one row per pair keeps each write in one
-    cache line."""
+    cache line. It walks exactly ``_count``'s candidates (the footprint test is written out in both, each one tight
+    loop inside its ``prange``: a change to one is a change to the other, and the tests compare the pairs with the
+    float64 reference's)."""
     na = xyz_a.shape[0]
     chunks = slot.shape[0] // 2
     A, B = sphi.shape[0], se.shape[0]

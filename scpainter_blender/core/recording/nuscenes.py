@@ -94,6 +94,18 @@ def _scene_samples(t: dict, scene: str) -> tuple:
     return sc, samples
 
 
+def _keyframe_data(t: dict, sample_of: dict):
+    """(sample index, sample_data, its calibrated_sensor, its channel) of each keyframe ``sample_data`` record of the
+    samples ``sample_of`` ({sample token: index}); a dangling token is an error naming the record."""
+    for sd in t["sample_data"][1].values():
+        i = sample_of.get(sd.get("sample_token"))
+        if i is None or not sd.get("is_key_frame"):
+            continue
+        cs = _get(t["calibrated_sensor"], sd.get("calibrated_sensor_token"), f"sample_data {sd['token']!r}", "token")
+        sensor = _get(t["sensor"], cs.get("sensor_token"), f"calibrated_sensor {cs['token']!r}", "token")
+        yield i, sd, cs, sensor.get("channel")
+
+
 def read(folder: str, scene: str = "", camera: str = "") -> tracks.Recording:
     """The tracks of nuScenes scene ``scene`` (name or token; may be empty when the tables hold one scene) seen from
     channel ``camera`` (default ``CAM_FRONT``), from the tables in ``folder`` (or the folder of a table file)."""
@@ -105,15 +117,10 @@ def read(folder: str, scene: str = "", camera: str = "") -> tracks.Recording:
     # per keyframe the camera's sample_data: global -> camera
     sd_path = t["sample_data"][0]
     w2c = [None] * len(samples)
-    for sd in t["sample_data"][1].values():
-        i = frame_of.get(sd.get("sample_token"))
-        if i is None or not sd.get("is_key_frame"):
+    for i, sd, cs, channel in _keyframe_data(t, frame_of):
+        if channel != camera:
             continue
         where = f"sample_data {sd['token']!r}"
-        cs = _get(t["calibrated_sensor"], sd.get("calibrated_sensor_token"), where, "token")
-        sensor = _get(t["sensor"], cs.get("sensor_token"), f"calibrated_sensor {cs['token']!r}", "token")
-        if sensor.get("channel") != camera:
-            continue
         ego = _get(t["ego_pose"], sd.get("ego_pose_token"), where, "token")
         camera_to_global = _pose(ego, t["ego_pose"][0], f"ego_pose {ego['token']!r}") @ \
             _pose(cs, t["calibrated_sensor"][0], f"calibrated_sensor {cs['token']!r}")
@@ -176,14 +183,8 @@ def sensors(folder: str, scene: str = "", channels: list | tuple = (), calibrati
     sc, samples = _scene_samples(t, scene)
     sample_of = {s["token"]: i for i, s in enumerate(samples)}
     found: dict = {}   # (sample index, channel) -> (timestamp, calibrated sensor, width, height)
-    for sd in t["sample_data"][1].values():
-        i = sample_of.get(sd.get("sample_token"))
-        if i is None or not sd.get("is_key_frame"):
-            continue
-        where = f"sample_data {sd['token']!r}"
-        cs = _get(t["calibrated_sensor"], sd.get("calibrated_sensor_token"), where, "token")
-        sensor = _get(t["sensor"], cs.get("sensor_token"), f"calibrated_sensor {cs['token']!r}", "token")
-        found[(i, sensor.get("channel"))] = (sd, cs)
+    for i, sd, cs, channel in _keyframe_data(t, sample_of):
+        found[(i, channel)] = (sd, cs)
     have = {ch for _, ch in found}
     channels = list(channels) or [c for c in rig_mod.NUSCENES_CAMERAS if c in have]
     if not channels:

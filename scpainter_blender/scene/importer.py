@@ -11,7 +11,9 @@ A multi-camera recording (a sensors sidecar, ``core.vggt.sensors``: ``opts.senso
 the reference sensor's k-th frame; the others' frames go to the reference frame nearest in time), the reference
 sensor's camera first (the scene camera; the one ``kinds.recorded_camera_of`` finds); and the recording's rig
 (``core.geometry.rig_fit``), stored on the points object as JSON (``keys.RECORDING_RIG``, read back by
-``scene/recording_rig.py``).
+``scene/recording_rig.py``) and its scene frame per VGGT frame (``keys.SCENE_FRAMES``, per point the
+``scene_frame`` attribute: scene/points.py), so *Current Frame Only* and a job's source frames take every sensor's
+frame grouped at a scene frame.
 """
 
 from __future__ import annotations
@@ -142,8 +144,10 @@ def import_vggt(context, filepath: str, opts: ImportOptions | None = None, colle
     if coll is None:
         coll = bpy.data.collections.new(f"SCPainter {parent_name}")
         scene.collection.children.link(coll)
+    # a multi-camera recording's points carry their scene frame too: Current Frame Only shows every sensor's
     obj = points_mod.create_point_cloud(f"{parent_name} points", pts.positions, pts.colors, pts.frame, coll,
-                                        radius=opts.point_radius, frame_offset=opts.frame_start)
+                                        radius=opts.point_radius, frame_offset=opts.frame_start,
+                                        scene_frame=offsets[pts.frame] if offsets is not None else None)
     mod = points_mod.points_modifier(obj)
     node_groups.set_input(mod, "Current Frame Only", bool(opts.current_frame_only))
     node_groups.set_input(mod, "Frame Window", int(opts.frame_window))
@@ -172,6 +176,8 @@ def import_vggt(context, filepath: str, opts: ImportOptions | None = None, colle
         scene.camera = cam
     _tag(obj, kinds.POINTS, filepath, fit, opts, pred.report)
     obj[keys.NUM_FRAMES] = pred.num_frames
+    if offsets is not None:  # which VGGT frames a job's output frame takes (scene/job_export.py's source_frames)
+        obj[keys.SCENE_FRAMES] = [int(v) for v in offsets]
     obj[keys.MATRIX_WORLD_AT_IMPORT] = np.array(obj.matrix_basis, dtype=np.float64).ravel().tolist()
     if fitted is not None:
         obj[keys.RECORDING_RIG] = json.dumps(fitted.rig.to_dict())

@@ -54,15 +54,17 @@ def effective_vggt_to_world(obj) -> np.ndarray:
 
 
 def source_frames(obj, scene_frame: int) -> list:
-    """VGGT frames whose points go into an output frame: the points object's frame window when it shows only
-    the current frame, every frame otherwise."""
-    n = int(obj.get(keys.NUM_FRAMES, 0))
+    """VGGT frames whose points go into an output frame, ascending: with the points object's *Current Frame Only*
+    those whose scene frame (``points.scene_frame_offsets`` + the modifier's Frame Offset: for a multi-camera
+    recording every sensor's frame grouped at a scene frame) lies within its Frame Window of ``scene_frame``, as the
+    viewport shows them; every frame otherwise."""
+    offsets = points_mod.scene_frame_offsets(obj)
     mod = points_mod.points_modifier(obj)
     if mod is not None and node_groups.get_input(mod, "Current Frame Only"):
         k = int(node_groups.get_input(mod, "Frame Window"))
         centre = scene_frame - int(node_groups.get_input(mod, "Frame Offset"))
-        return [i for i in range(centre - k, centre + k + 1) if 0 <= i < n]
-    return list(range(n))
+        return [int(i) for i in np.flatnonzero(np.abs(offsets - centre) <= k)]
+    return list(range(len(offsets)))
 
 
 def point_cleaning(obj) -> job_mod.PointCleaning:
@@ -255,14 +257,16 @@ def frame_rate(scene) -> float | None:
 
 def recorded_frames(scene, pts) -> list | None:
     """``scene.recorded_frames``: [first, last] scene frames the recording covers, [frame_start, frame_start +
-    num_frames − 1] from the recorded camera imported with ``pts`` (``kinds.recorded_camera_of``) and the points'
-    ``scpainter_num_frames``; None when either is missing (a .blend imported before them, or a recorded camera
-    deleted)."""
+    the last scene frame offset] from the recorded camera imported with ``pts`` (``kinds.recorded_camera_of``: a
+    multi-camera recording's reference sensor's, which starts it) and the points' scene frame per VGGT frame
+    (``points.scene_frame_offsets``: ``scpainter_num_frames`` frames of one camera, or the scene frames a
+    multi-camera recording's frames are grouped in); None when either is missing (a .blend imported before them,
+    or a recorded camera deleted)."""
     cam = kinds.recorded_camera_of(scene, pts)
     if cam is None or keys.FRAME_START not in cam or keys.NUM_FRAMES not in pts:
         return None
-    start, n = int(cam[keys.FRAME_START]), int(pts[keys.NUM_FRAMES])
-    return [start, start + n - 1] if n > 0 else None
+    start, offsets = int(cam[keys.FRAME_START]), points_mod.scene_frame_offsets(pts)
+    return [start, start + int(offsets.max())] if len(offsets) else None
 
 
 def _generate_settings(checkpoint: str, inpaint: str | None) -> job_mod.GenerateSettings | None:

@@ -4,7 +4,10 @@ A mesh filled with ``foreach_set`` and turned into points by "Mesh to Points" re
 EEVEE and scales to millions of points (instancing does not). Vertex positions are stored relative to the
 object's origin, placed near the points, so float32 vertices keep millimetres 1e5 m from the world origin.
 Attributes: ``point_color`` (FLOAT_COLOR, linear; the source images' sRGB values decoded), ``vggt_frame`` (INT,
-source frame).
+source frame), and for a multi-camera recording ``scene_frame`` (INT, the scene frame offset of the point's source
+frame: ``core.vggt.sensors.Sensors.scene_frames``; without it source frame i is scene frame offset i). *Current Frame
+Only* keeps the points whose scene frame offset lies within the window of the current one, so a multi-camera
+recording shows every sensor's frame grouped at the current scene frame.
 """
 
 from __future__ import annotations
@@ -13,13 +16,14 @@ import bpy
 import numpy as np
 
 from ..core import colors
-from . import materials, node_groups
+from . import keys, materials, node_groups
 
 NODE_GROUP = "SCPainter Points"
 MATERIAL = "SCPainter Points"
-NODE_GROUP_VERSION = 1
+NODE_GROUP_VERSION = 2  # 2: Current Frame Only by ``scene_frame`` where the points have it
 COLOR_ATTRIBUTE = "point_color"  # not "color": Cycles does not find a point-cloud attribute of that name
 FRAME_ATTRIBUTE = "vggt_frame"
+SCENE_FRAME_ATTRIBUTE = "scene_frame"
 
 INPUTS = (
     node_groups.Socket("Point Radius", "NodeSocketFloat", 0.03, 0.0),
@@ -42,11 +46,16 @@ def ensure_node_group() -> bpy.types.NodeTree:
 
 def _build_node_group(b: node_groups.Builder) -> None:
     gi = b.group_input
-    frame = b.node("GeometryNodeInputNamedAttribute", {"Name": FRAME_ATTRIBUTE}, data_type="INT")
+    vggt_frame = b.node("GeometryNodeInputNamedAttribute", {"Name": FRAME_ATTRIBUTE}, data_type="INT")
+    scene_frame = b.node("GeometryNodeInputNamedAttribute", {"Name": SCENE_FRAME_ATTRIBUTE}, data_type="INT")
+    # a point's scene frame offset: its own where the recording has several cameras, else its source frame's
+    frame = b.node("GeometryNodeSwitch", {"Switch": scene_frame.outputs["Exists"],
+                                          "False": vggt_frame.outputs["Attribute"],
+                                          "True": scene_frame.outputs["Attribute"]}, input_type="INT")
     time = b.node("GeometryNodeInputSceneTime")
-    # source frame shown now = scene frame - offset; drop points further than the window from it
+    # scene frame offset shown now = scene frame - offset; drop points further than the window from it
     current = b.math("SUBTRACT", time.outputs["Frame"], gi.outputs["Frame Offset"])
-    dist = b.math("ABSOLUTE", b.math("SUBTRACT", frame.outputs["Attribute"], current))
+    dist = b.math("ABSOLUTE", b.math("SUBTRACT", frame.outputs["Output"], current))
     outside = b.math("GREATER_THAN", dist, b.math("ADD", gi.outputs["Frame Window"], 0.5))
     delete = b.node("GeometryNodeDeleteGeometry", {"Geometry": gi.outputs["Geometry"],
                                                    "Selection": b.boolean("AND", gi.outputs["Current Frame Only"],
@@ -55,6 +64,15 @@ def _build_node_group(b: node_groups.Builder) -> None:
                                                     "Radius": gi.outputs["Point Radius"]})
     b.output(b.node("GeometryNodeSetMaterial", {"Geometry": to_points.outputs["Points"],
                                                 "Material": gi.outputs["Material"]}).outputs["Geometry"])
+
+
+def scene_frame_offsets(obj) -> np.ndarray:
+    """(S,) int64 per VGGT frame of the points object ``obj`` its scene frame offset from the import's first frame:
+    a multi-camera recording's ``keys.SCENE_FRAMES`` (several sensors' frames share one), else 0 ... S − 1 (S its
+    ``keys.NUM_FRAMES``; 0 when unknown)."""
+    if keys.SCENE_FRAMES in obj:
+        return np.array([int(v) for v in obj[keys.SCENE_FRAMES]], np.int64)
+    return np.arange(int(obj.get(keys.NUM_FRAMES, 0)), dtype=np.int64)
 
 
 def points_modifier(obj):
@@ -91,8 +109,9 @@ def linear_rgba(colors):
 
 
 def create_point_cloud(name: str, positions, colors, frame, collection, radius: float = 0.03,
-                       frame_offset: int = 1) -> bpy.types.Object:
-    """A point-cloud object from world positions (N, 3) float64, sRGB colours (N, 3) in [0, 1], frames (N,).
+                       frame_offset: int = 1, scene_frame=None) -> bpy.types.Object:
+    """A point-cloud object from world positions (N, 3) float64, sRGB colours (N, 3) in [0, 1], frames (N,) and,
+    for a multi-camera recording, scene frame offsets (N,) (``SCENE_FRAME_ATTRIBUTE``; None: none written).
 
     Everything is written with ``foreach_set`` in bulk: no per-point Python. Colours go in as linear
     FLOAT_COLOR (a straight copy; Blender's per-element sRGB conversion for BYTE_COLOR is ten times slower).
@@ -112,6 +131,10 @@ def create_point_cloud(name: str, positions, colors, frame, collection, radius: 
     fa = mesh.attributes.new(FRAME_ATTRIBUTE, "INT", "POINT")
     if N:
         fa.data.foreach_set("value", np.asarray(frame, dtype=np.int32))
+    if scene_frame is not None:
+        sa = mesh.attributes.new(SCENE_FRAME_ATTRIBUTE, "INT", "POINT")
+        if N:
+            sa.data.foreach_set("value", np.asarray(scene_frame, dtype=np.int32))
     col = mesh.color_attributes[COLOR_ATTRIBUTE]
     mesh.color_attributes.active_color = col
     mesh.color_attributes.render_color_index = mesh.color_attributes.active_color_index

@@ -592,6 +592,13 @@ def test_multi_camera_recording(empty_scene, tmp_path):
                                        C.rigid_inverse(c2w[j]), atol=1e-4)
     pts = next(o for o in scene.objects if o.get("scpainter_kind") == "points")
     assert pts["scpainter_num_frames"] == 8
+    # scene frame k groups each sensor's k-th frame: stored per VGGT frame, and per point for the viewport
+    assert list(pts["scpainter_scene_frames"]) == [0, 0, 1, 1, 2, 2, 3, 3] == list(sensors.scene_frames())
+    n = len(pts.data.vertices)
+    vggt_frame, scene_frame = np.empty(n, np.int32), np.empty(n, np.int32)
+    pts.data.attributes["vggt_frame"].data.foreach_get("value", vggt_frame)
+    pts.data.attributes["scene_frame"].data.foreach_get("value", scene_frame)
+    np.testing.assert_array_equal(scene_frame, vggt_frame // 2)
     stored = recording_rig.recording_rig(scene)
     assert stored.name == "recording" and [c.name for c in stored.cameras] == ["CAM_FRONT", "CAM_BACK"]
     for c in stored.cameras:

@@ -182,6 +182,45 @@ def test_labels_fields_fps_and_recorded_frames(empty_scene, tmp_path):
     assert J.load(job_path).fps is None
 
 
+def test_multi_camera_recording_frames_are_scene_frames(empty_scene, tmp_path):
+    """A multi-camera recording (CAM_FRONT and CAM_BACK, four timestamps: VGGT frames F0 B0 F1 B1 ...) imported at
+    scene frame 5 with *Current Frame Only* and a Frame Window of 1: an output frame takes every sensor's frames
+    grouped within one scene frame of it, as the viewport shows them; ``recorded_frames`` spans the four scene
+    frames (5-8), not the eight VGGT frames. Moving the Frame Offset moves the points' frames in both."""
+    from scpainter_blender.core.vggt import npz as vggt_io, sensors as S
+    from scpainter_blender.scene import job_export, node_groups, points
+    from tests.core.geometry.rig_cases import predictions, small_rig
+    from tests_support import evaluated_counts
+
+    arrays, sensors, _ = predictions(small_rig())
+    path = str(tmp_path / "predictions.npz")
+    vggt_io.save_predictions(path, **arrays)
+    S.write(S.default_path(path), sensors)
+    scene = empty_scene
+    scene.frame_start = 5
+    assert bpy.ops.scpainter.import_vggt(filepath=path, propose_boxes=False, current_frame_only=True, frame_window=1,
+                                         confidence_percentile=0.0, depth_edge_ratio=0.0) == {"FINISHED"}
+    assert (scene.frame_start, scene.frame_end) == (5, 8)
+    pts = next(o for o in scene.objects if o.get("scpainter_kind") == "points")
+    assert list(pts["scpainter_scene_frames"]) == [0, 0, 1, 1, 2, 2, 3, 3]
+    want = {5: [0, 1, 2, 3], 6: [0, 1, 2, 3, 4, 5], 7: [2, 3, 4, 5, 6, 7], 8: [4, 5, 6, 7]}
+    per_frame = arrays["depth"].shape[1] * arrays["depth"].shape[2]
+    for f, frames in want.items():
+        assert job_export.source_frames(pts, f) == frames, f
+        scene.frame_set(f)
+        assert evaluated_counts(pts)[0] == len(frames) * per_frame, f
+    assert job_export.recorded_frames(scene, pts) == [5, 8]
+    node_groups.set_input(points.points_modifier(pts), "Frame Offset", 6)  # scene frame 6 shows the first
+    pts.update_tag()
+    scene.frame_set(6)
+    assert job_export.source_frames(pts, 6) == [0, 1, 2, 3] and evaluated_counts(pts)[0] == 4 * per_frame
+    job_path = str(tmp_path / "job.json")
+    assert bpy.ops.scpainter.export_job(filepath=job_path) == {"FINISHED"}
+    job = J.load(job_path)
+    assert [f.source_frames for f in job.frames] == [[0, 1], [0, 1, 2, 3], [0, 1, 2, 3, 4, 5], [2, 3, 4, 5, 6, 7]]
+    assert job.scene.recorded_frames == [5, 8]
+
+
 def test_frames_outside_the_recording_are_warned(empty_scene, addon, tmp_path, capfd):
     """A frame range reaching past the recording (the camera stands still there, the frames are mostly holes) is
     exported as asked, with a warning from the operator, and the same words under the panel's Job box

@@ -420,3 +420,70 @@ def test_the_recordings_own_rig_is_offered_when_the_import_stored_one(addon, emp
     assert np.abs(rig_scene.ego_to_world(rig_obj) - ego).max() < 3e-5
     assert bpy.ops.scpainter.add_camera_rig(preset="recording", scale=1.0, lidar=True) == {"FINISHED"}
     assert rig_scene.read_rig(kinds.rig_of(path)).lidar.name == "LIDAR_TOP"
+
+
+def test_a_multi_camera_recording_renders_through_its_own_rig(addon, empty_scene, tmp_path, capsys):
+    """End to end: VGGT run on three cameras at once (CAM_FRONT, CAM_FRONT_LEFT, CAM_BACK of a known rig, three
+    timestamps along a drive, 16 x 12) imported with its sensors sidecar and *Current Frame Only*: one recorded
+    camera per sensor and the recording's rig; scene frame k groups each sensor's k-th frame, which is what the
+    viewport shows at k, what the job's output frame k takes (``source_frames``) and what ``recorded_frames``
+    spans (1-3, not the nine VGGT frames). A camera path on CAM_FRONT's recorded drive with the preset "recording"
+    renders through the backend: every rig camera at every frame sees its own sensor's points where that sensor
+    saw them (the rear camera the rear sensor's, which lie behind the front one), at the depth it measured."""
+    import json
+
+    from backend.__main__ import main
+    from backend.render import channels
+    from scpainter_blender.core import job as J
+    from scpainter_blender.core.output_layout import OutputLayout
+    from scpainter_blender.core.vggt import npz as vggt_io, sensors as S
+    from scpainter_blender.runs import camera_run
+    from tests.core.geometry.rig_cases import predictions, small_rig
+    from tests_support import evaluated_counts
+
+    names = ("CAM_FRONT", "CAM_FRONT_LEFT", "CAM_BACK")
+    arrays, sensors, _ = predictions(small_rig(names=names), samples=3)
+    # each sensor sees a wall square to its axis at its own distance: a rendered depth says whose points show
+    wall_m = {"CAM_FRONT": 3.0, "CAM_FRONT_LEFT": 4.0, "CAM_BACK": 5.0}
+    arrays["depth"][:] = np.array([wall_m[n] for n in sensors.sensor], np.float32)[:, None, None]
+    folder = tmp_path / "drive"
+    folder.mkdir()
+    npz = str(folder / "predictions.npz")
+    vggt_io.save_predictions(npz, **arrays)
+    S.write(S.default_path(npz), sensors)
+    assert bpy.ops.scpainter.import_vggt(filepath=npz, propose_boxes=False, current_frame_only=True,
+                                         confidence_percentile=0.0, depth_edge_ratio=0.0) == {"FINISHED"}
+    scene = bpy.context.scene
+    assert sorted(o.name for o in scene.objects if o.get("scpainter_kind") == "recorded_camera") == [
+        f"drive {n}" for n in sorted(names)]
+    assert (scene.frame_start, scene.frame_end) == (1, 3)
+    pts = next(o for o in scene.objects if o.get("scpainter_kind") == "points")
+    H, W = arrays["depth"].shape[1:]
+    for f in (1, 2, 3):  # the viewport at scene frame f: the three sensors' frames taken at the f-th timestamp
+        scene.frame_set(f)
+        assert evaluated_counts(pts)[0] == 3 * H * W, f
+
+    bpy.context.view_layer.objects.active = bpy.data.objects["drive CAM_FRONT"]
+    assert bpy.ops.scpainter.new_camera_path(shift=0.0) == {"FINISHED"}
+    path = scene.camera
+    assert bpy.ops.scpainter.add_camera_rig(preset="recording", scale=1.0, lidar=False) == {"FINISHED"}
+    scene.scpainter_output_dir = str(tmp_path / "out")
+    job_path, out = camera_run.export(bpy.context, camera=path)
+    job = J.load(job_path)
+    assert job.rig.name == "recording" and job.rig.sensor_names == list(names)
+    assert [f.source_frames for f in job.frames] == [[0, 1, 2], [3, 4, 5], [6, 7, 8]]
+    assert job.scene.recorded_frames == [1, 3]
+    capsys.readouterr()
+    assert main(["render", job_path, "--device", "cpu", "--allow-outside"]) == 0
+    done = [json.loads(line) for line in capsys.readouterr().out.splitlines() if line.startswith("{")][-1]
+    assert done["event"] == "done" and done["cameras"] == list(names)
+    for name in names:
+        for f in (1, 2, 3):
+            layers = channels.read(OutputLayout(out).camera(name).condition_exr(f))
+            seen = layers[channels.HOLE] < 0.5
+            # the rig stands where the ego was at CAM_FRONT's time: the others shot up to 16 ms later, 13 cm on
+            own_wall = np.abs(layers[channels.DEPTH] - wall_m[name]) < 0.2
+            assert seen.mean() > 0.9, (name, f, seen.mean())
+            # CAM_FRONT_LEFT's right edge shows CAM_FRONT's nearer wall where the two cameras' views overlap
+            share = own_wall[seen].mean()
+            assert share == 1.0 if name != "CAM_FRONT_LEFT" else share > 0.9, (name, f, share)

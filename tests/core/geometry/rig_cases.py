@@ -51,14 +51,14 @@ def recording(rig, samples=8, period_s=0.5, stagger_s=0.008, noise_m=0.0, noise_
 VGGT_TO_WORLD = np.array([[1.0, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]])
 
 
-def small_rig(W=16, H=12):
-    """nuScenes' CAM_FRONT and CAM_BACK mounts with a small camera (fx = W · 0.75, centred) each."""
+def small_rig(W=16, H=12, names=("CAM_FRONT", "CAM_BACK")):
+    """nuScenes' mounts of the cameras ``names`` (default CAM_FRONT and CAM_BACK) with a small camera (fx = W · 0.75,
+    centred) each."""
     from scpainter_blender.core import rig as R
 
     K = np.array([[0.75 * W, 0.0, W / 2], [0.0, 0.75 * W, H / 2], [0.0, 0.0, 1.0]])
     ns = R.preset("nuscenes")
-    return R.Rig("small", [R.RigCamera(n, (W, H), K.copy(), ns.camera(n).camera_to_ego) for n in ("CAM_FRONT",
-                                                                                                 "CAM_BACK")])
+    return R.Rig("small", [R.RigCamera(n, (W, H), K.copy(), ns.camera(n).camera_to_ego) for n in names])
 
 
 def predictions(rig, samples=4, seed=0):

@@ -6,8 +6,9 @@ Layout: the cameras named like nuScenes' six in two rows as the devkit's ``rende
 left, front, front right; back left, back, back right), any other rig's cameras in its order, three to a row;
 each tile the camera's ``labelled_NNNNNN.png`` scaled to one tile height. The bird's-eye view (``bird_eye``):
 the ego frame from above (x forward up the picture, y left to the left), ``BEV_RANGE_M`` around the ego; returns
-as dots shaded by height, each labelled object's box footprint (``box_world``, moved into the ego frame) in its
-class's colour with its track id, inserted cars drawn thicker, the ego as a triangle. OpenCV draws (as the
+as dots shaded by height, each labelled object's box footprint (``box_world``, moved into the ego frame) in the
+labelled previews' colours (an inserted car its track's, a recorded object white, an ignore region grey) with its
+track id, inserted cars drawn thicker, the ego as a triangle. OpenCV draws (as the
 labelled previews do).
 """
 
@@ -15,11 +16,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from scpainter_blender.core import errors, files
+from scpainter_blender.core import errors, files, labels
 from scpainter_blender.core.geometry import cameras
 from scpainter_blender.core.output_layout import OutputLayout
 
 from .. import png
+from . import labelled
 
 #: nuScenes' six cameras as the devkit's render_sample lays them out: two rows of three
 NUSCENES_TILES = (("CAM_FRONT_LEFT", "CAM_FRONT", "CAM_FRONT_RIGHT"), ("CAM_BACK_LEFT", "CAM_BACK", "CAM_BACK_RIGHT"))
@@ -77,22 +79,12 @@ def _read(path: str) -> np.ndarray | None:
     return None if img is None else cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
 
 
-def _colour(cls: str) -> tuple:
-    import colorsys
-
-    from scpainter_blender.core import categories
-
-    h = (categories.BY_NAME[cls].id * 0.61803398875) % 1.0 if cls in categories.BY_NAME else 0.0
-
-    r, g, b = colorsys.hsv_to_rgb(h, 0.8, 1.0)
-    return int(255 * r), int(255 * g), int(255 * b)
-
-
 def bird_eye(points_ego: np.ndarray, objects: list, world_to_ego: np.ndarray, size: int = BEV_SIZE,
              range_m: float = BEV_RANGE_M) -> np.ndarray:
     """(size, size, 3) uint8: returns ``points_ego`` (R, 3) in the ego frame (x forward, y left, z up, metres) from
     above, shaded by height, and each object of a frame's labels (``box_world``: centre, size [l, w, h], yaw) moved
-    into the ego frame by ``world_to_ego`` (4, 4), its footprint in its class's colour with ``#track_id``."""
+    into the ego frame by ``world_to_ego`` (4, 4), its footprint in the labelled previews' colours with
+    ``#track_id``."""
     import cv2
 
     img = np.full((size, size, 3), 24, np.uint8)
@@ -123,7 +115,9 @@ def bird_eye(points_ego: np.ndarray, objects: list, world_to_ego: np.ndarray, si
         world = corners @ rot.T + np.asarray(b["center"], np.float64)
         ego = world @ R.T + t
         poly = np.round(px(ego[:, :2])).astype(np.int32)
-        colour = (128, 128, 128) if o.get("ignore") else _colour(o.get("class", ""))
+        # the labelled previews' colours: an inserted car its track's, a recorded object white, ignore grey
+        colour = labelled.IGNORE_COLOUR if labels.unlabelled(o) else \
+            labelled.track_colour(o["track_id"]) if o.get("synthetic") else labelled.RECORDED_COLOUR
         cv2.polylines(img, [poly], True, colour, 2 if o.get("synthetic") else 1, cv2.LINE_AA)
         front = np.round(px(((ego[0] + ego[1]) / 2)[:2])).astype(int)
         centre = np.round(px(ego[:, :2].mean(0))).astype(int)

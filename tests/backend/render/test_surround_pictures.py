@@ -15,9 +15,9 @@ def test_nuscenes_cameras_tile_as_the_devkit_shows_them_and_others_in_rig_order(
 def test_bird_eye_puts_forward_up_and_left_left():
     size, rng = 200, 20.0
     ahead = {"box_world": {"center": [10.0, 0, 0.8], "size": [4.0, 2.0, 1.6], "quaternion": [1, 0, 0, 0]},
-             "class": "car", "track_id": 1, "synthetic": True}
+             "class": "car", "track_id": 1, "synthetic": True, "ignore": False, "points_missing": False}
     left = {"box_world": {"center": [0.0, 10.0, 0.8], "size": [4.0, 2.0, 1.6], "quaternion": [1, 0, 0, 0]},
-            "class": "car", "track_id": 2, "synthetic": False}
+            "class": "car", "track_id": 2, "synthetic": False, "ignore": False, "points_missing": False}
     img = S.bird_eye(np.array([[0.0, -10.0, 0.0]]), [ahead, left], np.eye(4), size=size, range_m=rng)
     assert img.shape == (size, size, 3)
     s = size / (2 * rng)

@@ -100,9 +100,10 @@ def error(message: str, hint: str | None = None, **fields: object) -> None:
 
 
 def warning(message: str, code: str, **fields: object) -> None:
-    """A ``warning`` event (``core.backend_protocol.WARNING_FIELDS``), also written to the human log (stderr)."""
+    """A ``warning`` event (``core.backend_protocol.WARNING_FIELDS``), also written to the human log: the command's
+    open ``FileLog`` (``<output_dir>/backend.log``, where Blender's report tells the user to look) and stderr."""
     emit(protocol.WARNING, message=message, code=code, **fields)
-    log(f"warning: {message}")
+    log_here(f"warning: {message}")
 
 
 def log(message: str) -> None:

@@ -228,3 +228,13 @@ def test_a_full_disk_is_an_error_naming_the_folder_with_nothing_half_written(sma
         os.remove(small_disk / "filler")
     code, evs, err = run("render", job, "--device", "cpu")
     assert code == events.EXIT_OK, evs
+
+
+def test_a_warning_goes_to_the_output_folders_log_where_blender_says_to_look(tmp_path, capsys):
+    """Blender's report of a run with warnings quotes the first and says "see the output folder's log" for the
+    rest (``runs.camera_run.with_warnings``): every ``warning`` event is in that ``backend.log`` too."""
+    with events.log_scope():
+        events.FileLog(str(tmp_path / "backend.log"))    # the command's log, as render opens it
+        events.warning("frame 3: coverage 12 %", "low_coverage", frame=3)
+    assert "warning: frame 3: coverage 12 %" in (tmp_path / "backend.log").read_text()
+    assert "warning: frame 3: coverage 12 %" in capsys.readouterr().err

@@ -322,3 +322,18 @@ def test_design_names_every_gaussian_layout():
     listed = re.findall(r"`(\w+)`", claim.group(1))
     assert set(listed) == set(formats.FORMAT_NAMES) and len(listed) == len(set(listed)), \
         f"docs/design.md §8 lists the layouts {listed}; core/splats/formats.py has {sorted(formats.FORMAT_NAMES)}"
+
+
+def test_the_readmes_sidecar_and_rig_file_examples_are_read_by_their_readers():
+    """The README shows a sensors sidecar and a rig file: both are what their readers accept."""
+    import json
+
+    from scpainter_blender.core import rig
+    from scpainter_blender.core.vggt import sensors
+
+    text = open(os.path.join(ROOT, "README.md"), encoding="utf-8").read()
+    block = text[text.index('{"schema": "scpainter.sensors/1"'):]
+    sidecar, rig_file = (json.loads(part) for part in block[:block.index("```")].strip().split("\n\n"))
+    assert sensors.from_dict(sidecar, "README.md").sensor == ["CAM_FRONT", "CAM_BACK"]
+    assert rig_file.pop("schema") == rig.RIG_SCHEMA
+    assert rig.Rig.from_dict(rig_file, "README.md").lidar.model == "nuscenes-32"

@@ -11,9 +11,10 @@ A multi-camera recording (a sensors sidecar, ``core.vggt.sensors``: ``opts.senso
 the reference sensor's k-th frame; the others' frames go to the reference frame nearest in time), the reference
 sensor's camera first (the scene camera; the one ``kinds.recorded_camera_of`` finds); and the recording's rig
 (``core.geometry.rig_fit``), stored on the points object as JSON (``keys.RECORDING_RIG``, read back by
-``scene/recording_rig.py``) and its scene frame per VGGT frame (``keys.SCENE_FRAMES``, per point the
-``scene_frame`` attribute: scene/points.py), so *Current Frame Only* and a job's source frames take every sensor's
-frame grouped at a scene frame.
+``scene/recording_rig.py``), its sensor per VGGT frame (``keys.FRAME_SENSORS``: *Import Recorded Objects* maps
+through the same camera, ``recorded_objects.map_recording``) and its scene frame per VGGT frame
+(``keys.SCENE_FRAMES``, per point the ``scene_frame`` attribute: scene/points.py), so *Current Frame Only* and a
+job's source frames take every sensor's frame grouped at a scene frame.
 """
 
 from __future__ import annotations
@@ -125,16 +126,16 @@ def import_vggt(context, filepath: str, opts: ImportOptions | None = None, colle
     if sensors is not None:
         fitted = rig_fit.fit(sensors, cameras.rigid_inverse(w2c), pred.K, (pred.width, pred.height))
         offsets = sensors.scene_frames()
-        names = [fitted.reference] + [n for n in sensors.names if n != fitted.reference]
-        groups = {n: sensors.frames_of(n) for n in names}
+        groups = sensors.camera_frames()   # the reference (fitted.reference) first
     mapped = None
     if opts.objects:  # read, mapped and checked against the recording before anything is made
         rec = recording.read(os.path.abspath(bpy.path.abspath(opts.objects)), opts.objects_format,
                              opts.objects_scene, opts.objects_camera)
-        # a multi-camera recording: the boxes are seen from the sensor they name (default: the reference)
-        idx = groups.get(opts.objects_camera, next(iter(groups.values())))
-        start = opts.frame_start + (int(offsets[idx[0]]) if offsets is not None else 0)
-        mapped = recording.recorded_objects(rec, w2c[idx], start)
+        # a multi-camera recording: the boxes are seen from the sensor they name (default: the reference); the
+        # same path as Import Recorded Objects later
+        scene_offsets = offsets if offsets is not None else np.arange(pred.num_frames)
+        mapped = recorded_mod.map_recording(rec, groups, scene_offsets, opts.frame_start, opts.objects_camera,
+                                            lambda _, idx, __: w2c[idx])
         recorded_mod.check_new(context.scene, mapped.objects)
 
     scene = context.scene
@@ -178,6 +179,7 @@ def import_vggt(context, filepath: str, opts: ImportOptions | None = None, colle
     obj[keys.NUM_FRAMES] = pred.num_frames
     if offsets is not None:  # which VGGT frames a job's output frame takes (scene/job_export.py's source_frames)
         obj[keys.SCENE_FRAMES] = [int(v) for v in offsets]
+        obj[keys.FRAME_SENSORS] = [str(v) for v in sensors.sensor]   # which recorded camera each VGGT frame is
     obj[keys.MATRIX_WORLD_AT_IMPORT] = np.array(obj.matrix_basis, dtype=np.float64).ravel().tolist()
     if fitted is not None:
         obj[keys.RECORDING_RIG] = json.dumps(fitted.rig.to_dict())

@@ -15,6 +15,10 @@ NUM_FRAMES = "scpainter_num_frames"
 #: import's first frame, ``core.vggt.sensors.Sensors.scene_frames``: every sensor's frame grouped at a scene frame).
 #: Absent (a single-camera recording): VGGT frame i is scene frame offset i.
 SCENE_FRAMES = "scpainter_scene_frames"
+#: A multi-camera recording's sensor per VGGT frame (on the points object; (S,) strings, the sidecar's
+#: ``frames[i].sensor``): which recorded camera each VGGT frame is (``core.vggt.sensors.camera_frames``). Absent: one
+#: camera.
+FRAME_SENSORS = "scpainter_frame_sensors"
 #: The scene frame of the recording's first frame.
 FRAME_START = "scpainter_frame_start"
 #: (16,) the row-major 4x4 similarity from VGGT's frame to Blender's world.
@@ -135,7 +139,7 @@ VERSION = "scpainter_version"
 RENAMED = {VGGT_TO_WORLD: "scpainter_world_from_vggt", FILE_TO_DATA: "scpainter_data_from_file"}
 
 #: Every key above, the renamed ones' old names included.
-ALL = (SOURCE, NUM_FRAMES, SCENE_FRAMES, FRAME_START, VGGT_TO_WORLD, EXTRINSIC_CONVENTION, CROP,
+ALL = (SOURCE, NUM_FRAMES, SCENE_FRAMES, FRAME_SENSORS, FRAME_START, VGGT_TO_WORLD, EXTRINSIC_CONVENTION, CROP,
        CONFIDENCE_PERCENTILE, DEPTH_EDGE_RATIO, MATRIX_WORLD_AT_IMPORT, INTRINSICS, RECORDING_RIG, SENSOR, SCALE_METHOD, SCALE_RESIDUAL_M, FILE_TO_DATA, AXES,
        AXES_REASON, SIZE, OBB_SIZE, SH_DEGREE, FORMAT, DROPPED, MESH_SOURCE, SPLAT_SOURCE, STAGE1, STAGE1_DEVIATION,
        REVIEW, TARGET_BOX, POINTS_OBJECT, SOURCE_CAMERA, SHIFT_M, CLASS, TRACK_ID, IGNORE, TRACK_FRAMES,

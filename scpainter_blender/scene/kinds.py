@@ -98,6 +98,14 @@ def recorded_camera_of(scene, points):
     return next((c for c in cams if own.intersection(c.users_collection)), cams[0] if len(cams) == 1 else None)
 
 
+def sensor_cameras_of(scene, points) -> dict:
+    """{sensor: recorded camera} of a multi-camera recording imported with ``points``: the recorded cameras sharing
+    a collection with it that carry ``keys.SENSOR`` (empty for a single-camera import or ``points`` None)."""
+    own = set(points.users_collection) if points is not None else set()
+    return {c[keys.SENSOR]: c for c in objects_of_kind(scene, RECORDED_CAMERA)
+            if keys.SENSOR in c and own.intersection(c.users_collection)}
+
+
 def camera_paths(scene) -> list:
     """The scene's camera paths (``scpainter.new_camera_path``'s cameras), in name order: what *Render/Generate
     All Camera Paths* runs, one after another."""

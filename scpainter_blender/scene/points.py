@@ -16,6 +16,7 @@ import bpy
 import numpy as np
 
 from ..core import colors
+from ..core.vggt import sensors as sensors_mod
 from . import keys, materials, node_groups
 
 NODE_GROUP = "SCPainter Points"
@@ -73,6 +74,25 @@ def scene_frame_offsets(obj) -> np.ndarray:
     if keys.SCENE_FRAMES in obj:
         return np.array([int(v) for v in obj[keys.SCENE_FRAMES]], np.int64)
     return np.arange(int(obj.get(keys.NUM_FRAMES, 0)), dtype=np.int64)
+
+
+def num_scene_frames(obj) -> int:
+    """The scene frames the recording of points object ``obj`` spans (the frame range the import set): the last
+    scene frame offset + 1 (``scene_frame_offsets``); a single-camera recording's VGGT frame count."""
+    offsets = scene_frame_offsets(obj)
+    return int(offsets.max()) + 1 if len(offsets) else 0
+
+
+def camera_frames(obj) -> dict:
+    """{sensor: (n,) its VGGT frame indices} of the points object ``obj``, one entry per recorded camera the import
+    made, the reference sensor's first: a multi-camera recording's ``keys.FRAME_SENSORS`` through
+    ``core.vggt.sensors.camera_frames`` (the import's own grouping), else {"": 0 ... S − 1} (its one camera). None
+    for a multi-camera recording imported before the sensors were stored (import it again)."""
+    if keys.FRAME_SENSORS in obj:
+        return sensors_mod.camera_frames([str(v) for v in obj[keys.FRAME_SENSORS]])
+    if keys.SCENE_FRAMES in obj:
+        return None
+    return {"": np.arange(int(obj.get(keys.NUM_FRAMES, 0)), dtype=np.int64)}
 
 
 def points_modifier(obj):

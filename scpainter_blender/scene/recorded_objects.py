@@ -25,6 +25,7 @@ from ..core.geometry import cameras
 from ..core.recording import reader
 from . import camera as camera_mod
 from . import compat, keys, kinds, placement, visibility
+from . import points as points_mod
 from .props import SceneError
 
 COLLECTION = "SCPainter Recorded Objects"
@@ -91,21 +92,58 @@ def add_objects(context, objects: list) -> list:
     return made
 
 
+def map_recording(recording, groups: dict, offsets, frame_start: int, camera: str, world_to_camera) -> reader.Mapped:
+    """The recording's boxes mapped into the world (``reader.recorded_objects``) through the recorded camera they are
+    seen from: the one path of the import's ``objects`` (scene/importer.py) and of *Import Recorded Objects*
+    (``import_file``), so both put them on the same scene frames through the same camera.
+
+    ``groups`` {sensor: (n,) VGGT frames} as the import makes its recorded cameras (``points.camera_frames``: the
+    reference sensor first; {"": all} for one camera), ``offsets`` (S,) each VGGT frame's scene frame offset
+    (``points.scene_frame_offsets``), ``frame_start`` the scene frame of offset 0, ``camera`` the recording's camera
+    (``reader.read``'s): the sensor of that name when the recording has one, else the reference. Recording frame i
+    is that sensor's i-th frame, keyed at its scene frame ``frame_start + offsets[groups[sensor][i]]`` (a sensor
+    that missed a reference frame skips that scene frame); ``world_to_camera(sensor, vggt_frames, scene_frames) ->
+    (n, 4, 4)`` gives its camera at its frames (metres, OpenCV)."""
+    name = camera if camera in groups else next(iter(groups))
+    idx = np.asarray(groups[name], np.int64)
+    frames = int(frame_start) + np.asarray(offsets, np.int64)[idx]
+    mapped = reader.recorded_objects(recording, world_to_camera(name, idx, frames), 0)   # keyed by recording frame
+    for o in mapped.objects:
+        o.boxes = {int(frames[f]): B for f, B in o.boxes.items()}
+    return mapped
+
+
 def import_file(context, path: str, fmt: str = reader.AUTO, scene_name: str = "", camera: str = "",
                 points=None) -> tuple:
     """(objects made, warnings): the recorded objects of ``path`` (``core.recording``) added to a scene that holds
-    the reconstruction ``points`` (default: the one the view layer renders) and its recorded camera, mapped through
-    that camera at each recorded frame. Read and checked before anything is made."""
+    the reconstruction ``points`` (default: the one the view layer renders) and its recorded cameras, mapped as the
+    import maps them (``map_recording``: a multi-camera recording's boxes through the camera of sensor ``camera``,
+    else the reference sensor's, at that sensor's scene frames). Read and checked before anything is made."""
     scene = context.scene
     points = points or visibility.points_object(scene, context.view_layer) or kinds.point_cloud(scene)
     cam = kinds.recorded_camera_of(scene, points)
     if points is None or cam is None or keys.NUM_FRAMES not in points or keys.FRAME_START not in cam:
         raise SceneError("scene.objects", "recorded objects need the imported reconstruction and its recorded camera",
                          hint="import the predictions first (Import VGGT Reconstruction)")
-    start, n = int(cam[keys.FRAME_START]), int(points[keys.NUM_FRAMES])
-    w2c = camera_mod.world_to_camera_per_frame(scene, cam, range(start, start + n))
+    groups = points_mod.camera_frames(points)
+    if groups is None:
+        raise SceneError(f"objects[{points.name!r}]", f"this multi-camera recording has no {keys.FRAME_SENSORS} "
+                                                      "(imported before it was stored): which camera took which "
+                                                      "frame is not known", hint="import the predictions again")
+    offsets = points_mod.scene_frame_offsets(points)
+    cams = kinds.sensor_cameras_of(scene, points) or {"": cam}
+    # the scene frame of offset 0: the import's frame_start (each recorded camera keeps its first frame's)
+    first = groups.get(cam.get(keys.SENSOR, ""), next(iter(groups.values())))
+    frame_start = int(cam[keys.FRAME_START]) - int(offsets[first[0]])
+
+    def world_to_camera(sensor, idx, frames):
+        if sensor not in cams:
+            raise SceneError("scene.objects", f"the recorded camera of sensor {sensor} is gone",
+                             hint="import the predictions again (Replace Reconstruction), or choose another camera")
+        return camera_mod.world_to_camera_per_frame(scene, cams[sensor], frames)
+
     recording = reader.read(os.path.abspath(bpy.path.abspath(path)), fmt, scene_name, camera)
-    mapped = reader.recorded_objects(recording, w2c, start)
+    mapped = map_recording(recording, groups, offsets, frame_start, camera, world_to_camera)
     return add_objects(context, mapped.objects), mapped.warnings
 
 

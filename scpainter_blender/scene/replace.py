@@ -21,6 +21,7 @@ import bpy
 
 from ..core.import_options import ImportOptions
 from . import importer, keys, kinds, node_groups, placement, visibility
+from . import points as points_mod
 from .props import SceneError
 
 
@@ -61,9 +62,9 @@ def replace_reconstruction(context, filepath: str, opts: ImportOptions | None = 
     old_cam = kinds.recorded_camera_of(scene, old)
     # a multi-camera recording's other sensors' cameras (sharing the points' collection): replaced too, each by the
     # new camera of its sensor (which takes its name), or removed
-    own = set(old.users_collection)
-    old_sensors = {o[keys.SENSOR]: o for o in kinds.objects_of_kind(scene, kinds.RECORDED_CAMERA)
-                   if o != old_cam and keys.SENSOR in o and own.intersection(o.users_collection)}
+    sensor_cams = kinds.sensor_cameras_of(scene, old)
+    old_sensors = {name: o for name, o in sensor_cams.items() if o != old_cam}
+    old_frames = points_mod.num_scene_frames(old)
     start = int(old_cam[keys.FRAME_START]) if old_cam is not None and keys.FRAME_START in old_cam \
         else scene.frame_start
     opts = dataclasses.replace(opts or ImportOptions(), frame_start=start, set_scene_camera=False)
@@ -83,11 +84,19 @@ def replace_reconstruction(context, filepath: str, opts: ImportOptions | None = 
     if follow:
         scene.camera = result.camera
     warnings = list(result.warnings)
-    old_frames = int(old.get(keys.NUM_FRAMES, 0))
-    if old_frames and old_frames != int(result.points[keys.NUM_FRAMES]):
-        warnings.append(f"the new recording has {result.points[keys.NUM_FRAMES]} frames, the old one "
-                        f"{old_frames}: the frame range stays {frame_range[0]}–{frame_range[1]} (the camera paths are "
-                        "keyed over it); make new camera paths to follow the new recording")
+    # scene frames, not VGGT frames: a multi-camera recording has one VGGT frame per sensor at each scene frame
+    new_frames = points_mod.num_scene_frames(result.points)
+    if old_frames and old_frames != new_frames:
+        warnings.append(f"the new recording has {new_frames} scene frames, the old one {old_frames}: the frame "
+                        f"range stays {frame_range[0]}–{frame_range[1]} (the camera paths are keyed over it); make "
+                        "new camera paths to follow the new recording")
+    old_set, new_set = sorted(sensor_cams), sorted(str(c[keys.SENSOR]) for c in result.cameras if keys.SENSOR in c)
+    if old_set != new_set:
+        lacks = [n for n in old_set if n not in new_set]
+        warnings.append(f"the new recording's sensors are {', '.join(new_set) or 'one camera'}, the old one's "
+                        f"{', '.join(old_set) or 'one camera'}"
+                        + (f": the cameras of {', '.join(lacks)} are removed; check the camera paths made from them"
+                           if lacks else ""))
     names = (old.name, old_cam.name if old_cam is not None else None)
     sensor_names = {sensor: o.name for sensor, o in old_sensors.items()}
     _remove(old)

@@ -594,6 +594,7 @@ def test_multi_camera_recording(empty_scene, tmp_path):
     assert pts["scpainter_num_frames"] == 8
     # scene frame k groups each sensor's k-th frame: stored per VGGT frame, and per point for the viewport
     assert list(pts["scpainter_scene_frames"]) == [0, 0, 1, 1, 2, 2, 3, 3] == list(sensors.scene_frames())
+    assert list(pts["scpainter_frame_sensors"]) == sensors.sensor   # which camera each VGGT frame is
     n = len(pts.data.vertices)
     vggt_frame, scene_frame = np.empty(n, np.int32), np.empty(n, np.int32)
     pts.data.attributes["vggt_frame"].data.foreach_get("value", vggt_frame)

@@ -12,7 +12,8 @@ def test_stored_keys_never_change():
     """Saved .blend files hold these strings: renaming one loses what every older file carries."""
     assert {name: getattr(keys, name) for name in dir(keys) if name.isupper() and name not in ("ALL", "RENAMED")} == {
         "SOURCE": "scpainter_source", "NUM_FRAMES": "scpainter_num_frames",
-        "SCENE_FRAMES": "scpainter_scene_frames", "FRAME_START": "scpainter_frame_start",
+        "SCENE_FRAMES": "scpainter_scene_frames", "FRAME_SENSORS": "scpainter_frame_sensors",
+        "FRAME_START": "scpainter_frame_start",
         "VGGT_TO_WORLD": "scpainter_vggt_to_world", "EXTRINSIC_CONVENTION": "scpainter_extrinsic_convention",
         "CROP": "scpainter_crop", "CONFIDENCE_PERCENTILE": "scpainter_confidence_percentile",
         "DEPTH_EDGE_RATIO": "scpainter_depth_edge_ratio", "MATRIX_WORLD_AT_IMPORT": "scpainter_matrix_world_at_import",
@@ -35,7 +36,7 @@ def test_stored_keys_never_change():
         "PIXEL_ASPECT": "scpainter_pixel_aspect", "MOUNT": "scpainter_mount", "LIDAR_MODEL": "scpainter_lidar_model"}
     assert keys.RENAMED == {"scpainter_vggt_to_world": "scpainter_world_from_vggt",
                             "scpainter_file_to_data": "scpainter_data_from_file"}
-    assert len(set(keys.ALL)) == len(keys.ALL) == 52
+    assert len(set(keys.ALL)) == len(keys.ALL) == 53
 
 
 def _spelled_keys(source, rel):

@@ -110,3 +110,78 @@ def test_a_bad_objects_file_imports_nothing(empty_scene, street, tmp_path):
     with pytest.raises(RuntimeError, match="already has recorded objects of tracks"):
         bpy.ops.scpainter.import_recorded_objects(filepath=path)
     assert len(kinds.recorded_objects(bpy.context.scene)) == 5
+
+
+
+@pytest.mark.parametrize("missing", [None, 5])
+def test_a_multi_camera_recordings_objects_import_later_as_with_the_import(empty_scene, tmp_path, missing):
+    """A multi-camera recording (two sensors, 8 VGGT frames at 4 scene frames): *Import Recorded Objects* after the
+    import maps the boxes as the import does with ``objects``: through the camera of the sensor the recording's
+    camera names (CAM_BACK here; the reference CAM_FRONT by default), recording frame i at that sensor's i-th scene
+    frame, onto the boxes' true world poses. ``missing``: CAM_BACK's image of scene frame 3 left out (VGGT frame 5):
+    its three frames are at scene frames 1, 2 and 4."""
+    import json
+
+    import bpy
+
+    from scpainter_blender.core.geometry import cameras
+    from scpainter_blender.core.recording import plain
+    from scpainter_blender.core.vggt import npz as vggt_io
+    from scpainter_blender.core.vggt import sensors as S
+    from scpainter_blender.scene import kinds, recorded_objects
+    from tests.core.geometry.rig_cases import predictions, small_rig
+    from tests.core.recording.recording_fixtures import pose, yaw
+
+    arrays, sensors, c2w = predictions(small_rig())       # frames F0 B0 F1 B1 ...: the import's world is c2w's
+    if missing is not None:
+        keep = np.arange(len(c2w)) != missing
+        arrays = {k: v[keep] for k, v in arrays.items()}
+        sensors = S.Sensors([s for s, k in zip(sensors.sensor, keep) if k], sensors.timestamp_us[keep])
+        c2w = c2w[keep]
+    path = str(tmp_path / "predictions.npz")
+    vggt_io.save_predictions(path, **arrays)
+    S.write(S.default_path(path), sensors)
+    files, truth = {}, {}
+    for name in ("CAM_FRONT", "CAM_BACK"):               # the boxes in the world, with the sensor's own path
+        idx = sensors.frames_of(name)
+        n = len(idx)
+        truth[name] = [{"id": "car-a", "class": "car", "size": [1.8, 4.4, 1.5],
+                        "boxes": {f: pose(yaw(0.3), [12.0, -3.0, 0.75]) for f in range(n)}},
+                       {"id": "ped-b", "class": "pedestrian", "size": [0.6, 0.7, 1.8],
+                        "boxes": {f: pose(yaw(1.2), [-6.0 + f, 4.0, 0.9]) for f in (1, 2)}}]
+        files[name] = str(tmp_path / f"objects_{name}.json")
+        doc = plain.document(n, truth[name], cameras.rigid_inverse(c2w[idx]))
+        (tmp_path / f"objects_{name}.json").write_text(json.dumps(doc))
+    scene_frame = {name: 1 + sensors.scene_frames()[sensors.frames_of(name)] for name in files}
+    assert list(scene_frame["CAM_BACK"]) == ([1, 2, 3, 4] if missing is None else [1, 2, 4])
+
+    def boxes():
+        objs = recorded_objects.job_objects(bpy.context.scene, list(range(1, 5)))
+        return {o.id: o.boxes for o in objs}
+
+    def check(got, name):
+        assert sorted(got) == ["car-a", "ped-b"]
+        for t in truth[name]:
+            assert sorted(got[t["id"]]) == [scene_frame[name][f] for f in sorted(t["boxes"])]
+            for f, B in t["boxes"].items():
+                np.testing.assert_allclose(got[t["id"]][scene_frame[name][f]], B, atol=1e-4)
+
+    def clear():
+        for o in kinds.recorded_objects(bpy.context.scene):
+            bpy.data.objects.remove(o, do_unlink=True)
+
+    assert bpy.ops.scpainter.import_vggt(filepath=path, propose_boxes=False, objects=files["CAM_BACK"],
+                                         objects_camera="CAM_BACK") == {"FINISHED"}
+    at_import = boxes()
+    check(at_import, "CAM_BACK")
+    clear()
+    assert bpy.ops.scpainter.import_recorded_objects(filepath=files["CAM_BACK"], objects_camera="CAM_BACK") \
+        == {"FINISHED"}
+    later = boxes()
+    check(later, "CAM_BACK")
+    for tid, bs in at_import.items():
+        for f, B in bs.items():
+            np.testing.assert_allclose(later[tid][f], B, atol=1e-5)
+    clear()                                              # no camera named: the reference sensor's
+    assert bpy.ops.scpainter.import_recorded_objects(filepath=files["CAM_FRONT"]) == {"FINISHED"}
+    check(boxes(), "CAM_FRONT")

@@ -124,3 +124,37 @@ def test_replace_multi_camera_recording_replaces_every_sensor_camera(empty_scene
     assert all(o.as_pointer() != old[o.name] for o in bpy.context.scene.objects)   # every one of them new
     cams = [o for o in bpy.context.scene.objects if o.get("scpainter_kind") == "recorded_camera"]
     assert sorted(c["scpainter_sensor"] for c in cams) == ["CAM_BACK", "CAM_FRONT"]
+
+
+def test_replace_multi_camera_recording_compares_scene_frames_and_sensors(empty_scene, tmp_path):
+    """The "different frame count" warning counts scene frames, not VGGT frames (sensors × scene frames), and a
+    different sensor set is said: two sensors at 6 scene frames (12 VGGT frames) replaced by three at 4 (12 VGGT
+    frames too) warns of both; the same recording again warns of neither."""
+    from scpainter_blender.core.vggt import npz as vggt_io
+    from scpainter_blender.core.vggt import sensors as S
+    from scpainter_blender.scene import replace
+    from tests.core.geometry.rig_cases import predictions, small_rig
+
+    paths = {}
+    for key, names, samples in (("two", ("CAM_FRONT", "CAM_BACK"), 6),
+                                ("three", ("CAM_FRONT", "CAM_BACK", "CAM_FRONT_LEFT"), 4)):
+        arrays, sensors, _ = predictions(small_rig(names=names), samples=samples)
+        (tmp_path / key).mkdir()
+        paths[key] = str(tmp_path / key / "predictions.npz")
+        vggt_io.save_predictions(paths[key], **arrays)
+        S.write(S.default_path(paths[key]), sensors)
+    assert bpy.ops.scpainter.import_vggt(filepath=paths["two"], propose_boxes=False) == {"FINISHED"}
+    same = replace.replace_reconstruction(bpy.context, paths["two"])
+    assert not [w for w in same.warnings if "scene frames" in w or "sensors" in w]
+    r = replace.replace_reconstruction(bpy.context, paths["three"])
+    assert ("the new recording has 4 scene frames, the old one 6: the frame range stays 1–6 (the camera paths are "
+            "keyed over it); make new camera paths to follow the new recording") in r.warnings
+    assert "the new recording's sensors are CAM_BACK, CAM_FRONT, CAM_FRONT_LEFT, the old one's CAM_BACK, " \
+           "CAM_FRONT" in r.warnings
+    back = replace.replace_reconstruction(bpy.context, paths["two"])
+    assert "the new recording has 6 scene frames, the old one 4: the frame range stays 1–6 (the camera paths are " \
+           "keyed over it); make new camera paths to follow the new recording" in back.warnings
+    assert "the new recording's sensors are CAM_BACK, CAM_FRONT, the old one's CAM_BACK, CAM_FRONT, CAM_FRONT_LEFT: " \
+           "the cameras of CAM_FRONT_LEFT are removed; check the camera paths made from them" in back.warnings
+    cams = [o for o in bpy.context.scene.objects if o.get("scpainter_kind") == "recorded_camera"]
+    assert sorted(c["scpainter_sensor"] for c in cams) == ["CAM_BACK", "CAM_FRONT"]

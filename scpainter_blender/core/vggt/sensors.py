@@ -75,9 +75,12 @@ class Sensors:
 
     @property
     def reference(self) -> str:
-        """The sensor whose frames make the ego path and the scene frames: ``CAM_FRONT`` when the recording has it,
-        else the sensor of the first frame."""
-        return PREFERRED_REFERENCE if PREFERRED_REFERENCE in self.sensor else self.sensor[0]
+        """The sensor whose frames make the ego path and the scene frames: ``reference_of(self.sensor)``."""
+        return reference_of(self.sensor)
+
+    def camera_frames(self) -> dict:
+        """``camera_frames(self.sensor)``: {sensor: its VGGT frames}, the reference first."""
+        return camera_frames(self.sensor)
 
     def check_frames(self, num_frames: int, predictions: str) -> Sensors:
         """``self`` if it has one record per frame of the predictions (``predictions`` the file, named in the
@@ -128,6 +131,24 @@ class Sensors:
                     rec["resolution"] = [int(v) for v in inf.resolution]
                 d["sensors"].append(rec)
         return d
+
+
+def reference_of(sensor: list) -> str:
+    """The reference sensor of a recording whose VGGT frame i is sensor ``sensor[i]`` (non-empty): ``CAM_FRONT``
+    when the recording has it, else the sensor of the first frame."""
+    return PREFERRED_REFERENCE if PREFERRED_REFERENCE in sensor else sensor[0]
+
+
+def camera_frames(sensor: list) -> dict:
+    """{sensor name: (n,) int64 its VGGT frame indices in frame order} of a recording whose VGGT frame i is sensor
+    ``sensor[i]``: one recorded camera each, the reference sensor (``reference_of``) first, then the others in the
+    order of their first frame. The import makes its cameras in this order and *Import Recorded Objects* reads the
+    stored sensors back through it (scene/recorded_objects.py)."""
+    sensor = [str(s) for s in sensor]
+    ref = reference_of(sensor)
+    names = [ref] + [n for n in dict.fromkeys(sensor) if n != ref]
+    arr = np.asarray(sensor)
+    return {n: np.flatnonzero(arr == n) for n in names}
 
 
 def default_path(predictions: str | os.PathLike) -> str:

@@ -94,3 +94,14 @@ def test_scene_frames_group_each_reference_frame(tmp_path):
     # without CAM_FRONT the first frame's sensor is the reference
     s = S.read(_write(tmp_path, _doc([{"sensor": "cam_b", "timestamp_us": 5}, {"sensor": "cam_a", "timestamp_us": 6}])))
     assert s.reference == "cam_b" and list(s.scene_frames()) == [0, 0]
+
+
+def test_camera_frames_put_the_reference_first():
+    """One recorded camera per sensor, the reference's first (CAM_FRONT wherever its first frame is; without it the
+    first frame's sensor), each with its VGGT frames in order."""
+    got = S.camera_frames(["CAM_BACK", "CAM_FRONT", "CAM_BACK", "CAM_FRONT_LEFT", "CAM_FRONT"])
+    assert list(got) == ["CAM_FRONT", "CAM_BACK", "CAM_FRONT_LEFT"]
+    assert [list(v) for v in got.values()] == [[1, 4], [0, 2], [3]]
+    assert list(S.camera_frames(["B", "A", "B"])) == ["B", "A"] and S.reference_of(["B", "A"]) == "B"
+    s = S.Sensors(["CAM_BACK", "CAM_FRONT"], np.array([1, 2], np.int64))
+    assert s.reference == "CAM_FRONT" and list(s.camera_frames()) == ["CAM_FRONT", "CAM_BACK"]

@@ -10,8 +10,13 @@ mmdetection3d's ``tools/create_data.py nuscenes``, in the tests only): a dataroo
 
 ``--version`` (``VERSIONS``): ``v1.0-mini`` (default) or ``v1.0-trainval``, the names mmdetection3d's converter
 accepts for annotated data (``v1.0-test`` has no annotations); ``create_data.py nuscenes --version v1.0-mini``
-converts only that one (with ``v1.0`` it wants ``-trainval`` and ``-test`` both). Its split is by hard-coded scene
-names: every scene of ours is in its val set; ``splits.json`` carries ours. Images stay PNG (``fileformat`` png):
+converts only that one (with ``v1.0`` it wants ``-trainval`` and ``-test`` both). Its split is by the devkit's
+hard-coded scene names (``splits.mini_train`` / ``splits.train``), every other scene in val: every scene of ours is in
+its val set and its train file is empty. ``splits.json`` carries ours (the devkit's custom split): a user's copy of
+the converter takes its train and val scenes from ``nuscenes.utils.splits.get_scenes_of_custom_split("train", nusc)``
+(README). Nothing here can change the converter, so no event says it. It also reads each sample's six camera
+channels by name: other channels get a ``NOT_SIX_CAMERAS`` warning. A single job's scene is named after its folder
+(``job_scene_name``), a dataset's ``scpainter-SSSS``; tokens are seeded by the name and ``job_identity``. Images stay PNG (``fileformat`` png):
 JPEG would lose detail for no reader's sake (the devkit opens them with PIL, mmdetection3d with ``mmcv.imread``,
 both by content). Keyframes every 1 / ``--keyframe-hz`` s (default 2 Hz, nuScenes'); a clip with one keyframe
 gets a warning (velocities need two).

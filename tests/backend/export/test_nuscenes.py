@@ -240,6 +240,9 @@ def test_one_dataset_of_several_jobs_with_its_split(tmp_path):
     assert [s["name"] for s in nusc.scene] == ["scpainter-0000", "scpainter-0001", "scpainter-0002"]
     assert len(nusc.log) == len(nusc.map) == 3 and len(nusc.sample) == 4 + 6        # 10 Hz: every frame a sample
     assert len({sd["token"] for sd in nusc.sample_data}) == len(nusc.sample_data) == 4 + 6 * 7
+    for table in ("scene", "log", "sample", "ego_pose", "calibrated_sensor", "instance", "sample_annotation"):
+        rows = getattr(nusc, table)
+        assert len({r["token"] for r in rows}) == len(rows), table        # unique over the dataset's jobs
     assert json.load(open(tmp_path / "ds" / "nuscenes" / VERSION / nuscenes.SPLITS)) == {
         "train": ["scpainter-0000"], "val": ["scpainter-0001", "scpainter-0002"]}
     assert writer.counts["nuscenes"]["val"] == {"frames": 2 + 6, "objects": 6 + 3 * 6, "ignore_regions": 2 + 2 * 6}

@@ -225,7 +225,8 @@ def write_export(job_path: str, job: job_mod.Job, layout: OutputLayout, fmt: str
     folder per sensor)."""
     progress = lambda i: events.progress("export", i + 1, total, frame=job.frames[i].frame)  # noqa: E731
     if fmt == nuscenes.FORMAT:
-        clip, images, why = nuscenes.job_clip(job, layout.root, nuscenes.scene_name(0), os.path.abspath(job_path))
+        clip, images, why = nuscenes.job_clip(job, layout.root, nuscenes.job_scene_name(job_path),
+                                              nuscenes.job_description(job_path), nuscenes.job_identity(job_path))
         write = lambda tmp: nuscenes.write_clips(tmp, [clip], progress, **(options or {}))  # noqa: E731
     else:
         images, why = image_source(layout, job)

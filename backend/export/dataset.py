@@ -136,7 +136,8 @@ def assign_splits(drives: Sequence[str], fractions: dict) -> dict:
 class Member:
     """A job of the dataset: ``path`` (absolute), the loaded ``job``, its confinement (``allow_outside``,
     ``data_roots``), what its variation manifest says of it (``variant``: the manifest's entry, None for a job
-    that is no variant; ``base``: the base job, else None), ``drive`` and, once assigned, ``split``."""
+    that is no variant; ``base``: the base job, else None), ``drive``, ``identity`` (``nuscenes.job_identity``)
+    and, once assigned, ``split``."""
     path: str
     job: job_mod.Job
     allow_outside: bool = False
@@ -147,6 +148,7 @@ class Member:
     split: str = TRAIN
     sequence: int = 0
     images: str = ""
+    identity: str = ""
 
 
 def variation_entry(job_path: str, manifests: dict) -> tuple:
@@ -180,11 +182,13 @@ def drive_of(member: Member) -> str:
     return member.base or member.path
 
 
-def members(items: Sequence[str], allow_outside=False, data_roots: dict | None = None) -> list:
+def members(items: Sequence[str], allow_outside=False, data_roots: dict | None = None,
+            formats: Sequence[str] | None = None) -> list:
     """The dataset's jobs: each item (a job path; ``allow_outside`` True, False or the collection of the items that
     may lead outside, ``data_roots`` {item: folders}, as ``batch`` takes them) loaded once (a job listed again is
     skipped), with its variation and drive. InputError: a job that cannot be read, two jobs sharing an output
-    folder (``batch_items.shared_output_items``)."""
+    folder (``batch_items.shared_output_items``); a rig job when ``formats`` (the dataset's) is not nuScenes alone
+    (JobError on ``rig``, its hint ``--format nuscenes``)."""
     items = list(items)
     first = first_items(items)
     for fields in shared_output_items(items, first).values():   # its error's text: "<file>: <field>: <message>"
@@ -196,13 +200,17 @@ def members(items: Sequence[str], allow_outside=False, data_roots: dict | None =
         if first[k] != k:
             continue
         path = os.path.abspath(item)
-        job = job_mod.load(path).require_single_camera(
-            path, "a dataset export (several jobs or formats, --list, --split)",
-            hint="export a rig job on its own, one format at a time: one export per camera in <out>/<camera>/")
+        job = job_mod.load(path)
+        if formats is not None and list(formats) != [nuscenes.FORMAT]:   # nuScenes alone takes several cameras
+            job.require_single_camera(
+                path, f"a dataset export as {','.join(formats)}",
+                hint=f"--format {nuscenes.FORMAT} takes rig jobs (one scene per job); for another format export "
+                     "the rig job on its own, one format at a time: one export per camera in <out>/<camera>/")
         m = Member(path, job, batch.allows_outside(allow_outside, item),
                    tuple((data_roots or {}).get(item, ())))
         m.base, m.variant = variation_entry(path, manifests)
         m.drive = drive_of(m)
+        m.identity = nuscenes.job_identity(path)   # its nuScenes tokens' seed
         m.sequence = len(out)
         out.append(m)
     return out
@@ -348,12 +356,14 @@ class _Writer:
     def _nuscenes(self, m: Member, frames: list, names: list) -> dict:
         """The job as one scene of the nuScenes dataroot (``frames``: a single-camera job's; a rig job's clip is
         read from its output folder by ``add_rig``)."""
-        return self.nuscenes.add(nuscenes.clip_of_frames(frames, nuscenes.scene_name(m.sequence), m.path), m.split)
+        return self.nuscenes.add(nuscenes.clip_of_frames(frames, nuscenes.scene_name(m.sequence),
+                                                         nuscenes.job_description(m.path), m.identity), m.split)
 
     def add_rig(self, m: Member, root: str) -> None:
         """A rig job (its output folder ``root``) into the nuScenes dataroot (the only format a rig job has here);
         one manifest row per frame (its image: CAM_FRONT's, else the first camera's)."""
-        clip, m.images, _ = nuscenes.job_clip(m.job, root, nuscenes.scene_name(m.sequence), m.path)
+        clip, m.images, _ = nuscenes.job_clip(m.job, root, nuscenes.scene_name(m.sequence),
+                                              nuscenes.job_description(m.path), m.identity)
         written = self.nuscenes.add(clip, m.split)
         counts = self.counts[nuscenes.FORMAT][m.split]
         for k in ("frames", "objects", "ignore_regions"):
@@ -433,17 +443,13 @@ def export_dataset(items: Sequence[str], formats: Sequence[str], out: str, split
     formats = [command.check_format(f) for f in formats]
     split = dict(split or {})
     out = os.path.abspath(out)
-    jobs = members(items, allow_outside, data_roots)
+    jobs = members(items, allow_outside, data_roots, formats)
     if not jobs:
         raise errors.ArgumentError("jobs", "no jobs given", hint="give job.json paths, or --list FILE")
     for m in jobs:  # what nothing labels, as a single export adds it (label-only: the layers are kept)
         m.job, _ = render_proposals.apply(m.path, m.job, proposals or proposals_core.DEFAULT_MODE, m.allow_outside,
                                           m.data_roots)
     check_out(out, jobs, formats)
-    rigs = [m.path for m in jobs if getattr(m.job, "rig", None) is not None]
-    if rigs and formats != [nuscenes.FORMAT]:
-        raise errors.ArgumentError("--format", f"{rigs[0]} is a rig job (several cameras): a dataset of rig jobs is "
-                                               f"written as {nuscenes.FORMAT} only", hint="--format nuscenes")
     options = nuscenes.check_options(**(options or {})) if nuscenes.FORMAT in formats else None
     drives = assign_splits([m.drive for m in jobs], split)
     for m in jobs:

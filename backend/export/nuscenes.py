@@ -10,8 +10,13 @@ mmdetection3d's ``tools/create_data.py nuscenes``, in the tests only): a dataroo
 
 ``--version`` (``VERSIONS``): ``v1.0-mini`` (default) or ``v1.0-trainval``, the names mmdetection3d's converter
 accepts for annotated data (``v1.0-test`` has no annotations); ``create_data.py nuscenes --version v1.0-mini``
-converts only that one (with ``v1.0`` it wants ``-trainval`` and ``-test`` both). Its split is by hard-coded scene
-names: every scene of ours is in its val set; ``splits.json`` carries ours. Images stay PNG (``fileformat`` png):
+converts only that one (with ``v1.0`` it wants ``-trainval`` and ``-test`` both). Its split is by the devkit's
+hard-coded scene names (``splits.mini_train`` / ``splits.train``), every other scene in val: every scene of ours is in
+its val set and its train file is empty. ``splits.json`` carries ours (the devkit's custom split): a user's copy of
+the converter takes its train and val scenes from ``nuscenes.utils.splits.get_scenes_of_custom_split("train", nusc)``
+(README). Nothing here can change the converter, so no event says it. It also reads each sample's six camera
+channels by name: other channels get a ``NOT_SIX_CAMERAS`` warning. A single job's scene is named after its folder
+(``job_scene_name``), a dataset's ``scpainter-SSSS``; tokens are seeded by the name and ``job_identity``. Images stay PNG (``fileformat`` png):
 JPEG would lose detail for no reader's sake (the devkit opens them with PIL, mmdetection3d with ``mmcv.imread``,
 both by content). Keyframes every 1 / ``--keyframe-hz`` s (default 2 Hz, nuScenes'); a clip with one keyframe
 gets a warning (velocities need two).
@@ -25,13 +30,15 @@ job** exports as the rig ``front``: its camera is ``CAM_FRONT`` mounted as nuSce
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
+import re
 from collections.abc import Callable
 
 import numpy as np
 
-from scpainter_blender.core import errors, outputs
+from scpainter_blender.core import errors, files, outputs
 from scpainter_blender.core import rig as rig_mod
 from scpainter_blender.core.geometry import cameras
 from scpainter_blender.core.output_layout import OutputLayout
@@ -47,8 +54,11 @@ VERSIONS = ("v1.0-mini", "v1.0-trainval")
 DEFAULT_VERSION = VERSIONS[0]
 DEFAULT_KEYFRAME_HZ = 2.0
 SPLITS = "splits.json"
-#: Warning codes: a clip without a LiDAR; a clip with a single keyframe.
-NO_LIDAR, ONE_KEYFRAME = "no_lidar", "one_keyframe"
+#: Warning codes: a clip without a LiDAR; a clip with a single keyframe; a clip whose sensors are not nuScenes'
+#: six cameras and LIDAR_TOP by name.
+NO_LIDAR, ONE_KEYFRAME, NOT_SIX_CAMERAS = "no_lidar", "one_keyframe", "not_six_cameras"
+#: What a scene's name may hold (it is in every file name of the scene) and its length.
+NAME_CHARS, MAX_NAME = re.compile(r"[^A-Za-z0-9_-]"), 64
 
 
 def check_options(version: str = DEFAULT_VERSION, keyframe_hz: float = DEFAULT_KEYFRAME_HZ) -> dict:
@@ -72,9 +82,9 @@ def front_rig(K, resolution) -> rig_mod.Rig:
     return rig_mod.Rig("front", [rig_mod.RigCamera("CAM_FRONT", tuple(resolution), np.asarray(K), mount)])
 
 
-def clip_of_frames(frames: list, name: str, description: str = "") -> Clip:
+def clip_of_frames(frames: list, name: str, description: str = "", identity: str = "") -> Clip:
     """The clip of a single-camera job's ``frames`` (``common.ExportFrame``): CAM_FRONT of ``front_rig``, the ego
-    pose from each frame's camera."""
+    pose from each frame's camera; ``identity``: the job's (``job_identity``)."""
     first = frames[0].labels
     rig = front_rig(first["camera"]["K"], first["image_size"])
     cam = rig.cameras[0]
@@ -82,10 +92,12 @@ def clip_of_frames(frames: list, name: str, description: str = "") -> Clip:
     ego = np.stack([np.asarray(f.labels["camera"]["camera_to_world"], np.float64) @ to_ego for f in frames])
     return Clip(name, description or "a single-camera job as CAM_FRONT", rig.name,
                 [f.labels["frame"] for f in frames], [float(f.labels["timestamp_s"]) for f in frames], ego,
-                [CameraClip(cam.name, cam.camera_to_ego, [f.labels for f in frames], [f.image for f in frames])])
+                [CameraClip(cam.name, cam.camera_to_ego, [f.labels for f in frames], [f.image for f in frames])],
+                identity=identity)
 
 
-def folder_clip(root: str, rig: rig_mod.Rig, frames: list, ego_to_world, name: str, description: str = "") -> tuple:
+def folder_clip(root: str, rig: rig_mod.Rig, frames: list, ego_to_world, name: str, description: str = "",
+                identity: str = "") -> tuple:
     """(clip, images) of a rig job's output folder ``root``: each camera's labels and images from
     ``<root>/<CAMERA>/`` (``command.read_frame``; images: the generated frames where a finished generation is there,
     else the condition previews — ``images`` says which, per camera), the LiDAR's sweeps from
@@ -103,35 +115,73 @@ def folder_clip(root: str, rig: rig_mod.Rig, frames: list, ego_to_world, name: s
     sweeps = [out.lidar_sweep(f, rig.lidar.name) for f in frames] if rig.lidar else []
     times = [float(lab["timestamp_s"]) for lab in cams[0].labels]
     return Clip(name, description or f"rig {rig.name}", rig.name, list(frames), times,
-                np.asarray(ego_to_world, np.float64), cams, rig.lidar, sweeps), images
+                np.asarray(ego_to_world, np.float64), cams, rig.lidar, sweeps, identity), images
 
 
 def scene_name(sequence: int) -> str:
-    """The scene (and log) name of a dataroot's ``sequence``-th clip: ``scpainter-NNNN``."""
+    """The scene (and log) name of a dataset's ``sequence``-th job: ``scpainter-NNNN``."""
     return f"scpainter-{int(sequence):04d}"
 
 
-def job_clip(job, root: str, name: str, description: str = "") -> tuple:
+def job_scene_name(job_path: str) -> str:
+    """The scene (and log) name of a single job's export: which job it is, its folder's name (a vary run's variant:
+    ``v0007``), with the file's stem when that is not ``job`` (``drive-night``); characters other than letters,
+    digits, ``_`` and ``-`` become ``_`` (the name is in every file name), at most ``MAX_NAME`` of them."""
+    folder = os.path.basename(os.path.dirname(os.path.abspath(job_path)))
+    stem = os.path.splitext(os.path.basename(job_path))[0]
+    name = "-".join(p for p in (folder, "" if stem == "job" else stem) if p)
+    return NAME_CHARS.sub("_", name)[:MAX_NAME] or "scpainter"
+
+
+def job_description(job_path: str) -> str:
+    """A scene's ``description``: the job as ``<folder>/<file>``, never its absolute path (a dataset is shared)."""
+    return "job " + "/".join(os.path.abspath(job_path).split(os.sep)[-2:])
+
+
+def job_identity(job_path: str) -> str:
+    """A job's identity, the seed of its tokens (``Clip.identity``): 32 hex digits of the SHA-256 of its resolved
+    path and its file's content: stable over exports of the same job, different for two jobs (a vary run's
+    variants differ in content, copies of one job in path)."""
+    real = os.path.realpath(job_path)
+    with files.open_regular(real) as f:
+        content = hashlib.sha256(f.read()).hexdigest()
+    return hashlib.sha256(f"{real}\n{content}".encode("utf-8")).hexdigest()[:32]
+
+
+def job_clip(job, root: str, name: str, description: str = "", identity: str = "") -> tuple:
     """(clip, images, why) of a rendered job whose output folder is ``root``: a rig job's ``folder_clip``, a
-    single-camera job's ``clip_of_frames``; images "generated" when every camera has a finished generation, else
-    "conditions" and why (``command.image_source``)."""
+    single-camera job's ``clip_of_frames`` (``identity``: the job's, ``job_identity``); images "generated" when
+    every camera has a finished generation, else "conditions" and why (``command.image_source``)."""
     from . import command
 
     frames = [e.frame for e in job.frames]
     if getattr(job, "rig", None) is not None:
         ego = np.stack([np.asarray(e.ego_to_world, np.float64) for e in job.frames])
-        clip, images = folder_clip(root, job.rig, frames, ego, name, description)
+        clip, images = folder_clip(root, job.rig, frames, ego, name, description, identity)
         lacking = [c.name for c, source in zip(clip.cameras, images) if source == "conditions"]
         return (clip, "conditions", f"no finished generation of {', '.join(lacking)}") if lacking else \
             (clip, "generated", "")
     layout = OutputLayout(root)
     images, why = command.image_source(layout, job)
     read = [command.read_frame(layout, f, images, False) for f in frames]
-    return clip_of_frames(read, name, description), images, why
+    return clip_of_frames(read, name, description, identity), images, why
 
 
 def warn(clip: Clip, keyframe_hz: float) -> None:
-    """The warning events of a clip: no LiDAR (every box num_lidar_pts 0), a single keyframe."""
+    """The warning events of a clip: no LiDAR (every box num_lidar_pts 0), a single keyframe, channels other than
+    nuScenes' six cameras (``rig.NUSCENES_CAMERAS``) and LIDAR_TOP, said with the channels missing and unknown."""
+    channels = [c.name for c in clip.cameras]
+    missing = [c for c in rig_mod.NUSCENES_CAMERAS if c not in channels]
+    unknown = [c for c in channels if c not in rig_mod.NUSCENES_CAMERAS]
+    if clip.lidar is not None and clip.lidar.name != rig_mod.NUSCENES_LIDAR:
+        unknown.append(clip.lidar.name)
+    if missing or unknown:
+        said = "; ".join(p for p in (f"missing {', '.join(missing)}" if missing else "",
+                                     f"not nuScenes' {', '.join(unknown)}" if unknown else "") if p)
+        events.warning(f"{clip.name}: not nuScenes' six cameras and {rig_mod.NUSCENES_LIDAR} ({said}): the devkit "
+                       "loads it, but mmdetection3d's nuScenes converter reads every sample's six camera channels "
+                       f"and {rig_mod.NUSCENES_LIDAR} by name and stops with a KeyError (use the rig preset "
+                       "nuscenes, or rename the channels)", NOT_SIX_CAMERAS, missing=missing, unknown=unknown)
     if clip.lidar is None:
         events.warning(f"{clip.name}: no LIDAR_TOP (a single-camera job, or a rig without a LiDAR): every box has "
                        "num_lidar_pts 0, so the devkit's filter_eval_boxes and mmdetection3d's valid_flag drop them "

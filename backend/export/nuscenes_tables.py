@@ -7,14 +7,15 @@ A **clip** (``Clip``) is one job: its output frames (times from the job's frame 
 each frame's sweep file (``.pcd.bin``: rows of 5 float32 x, y, z, intensity, ring in the sensor frame) when the rig
 has one. Each clip is one ``log``, one ``scene``, one ``map``.
 
-Conventions (the devkit's): timestamps in µs (``EPOCH_US`` + the frame's time), quaternions [w, x, y, z], sizes
+Conventions (the devkit's): timestamps in µs (``EPOCH_US`` + ``Clip.start_us`` + the frame's time), quaternions [w, x, y, z], sizes
 [w, l, h] metres, box rotation object_to_global with the object frame x forward, y left, z up (ours: labels'
 ``box_world``), ``translation`` the box centre. ``camera_intrinsic`` is our K in the devkit's pixel convention
 (pixel centres at integers: cx, cy − 0.5, ``common.opencv_K``). **Global frame**: the job's world translated by
 (ox, oy, 0) so that the clip's map raster (``MAP_RESOLUTION_M`` per pixel, its lower-left corner the global origin,
 as nuScenes' maps are) holds every ego position ``MAP_MARGIN_M`` from its edges; the translation is the log's
-``world_to_global`` (extra field). Tokens are the first 32 hex digits of the SHA-256 of ``<scene>/<table>/<key>``:
-the same clip gives the same tables. Visibility tokens are nuScenes' own "1".."4".
+``world_to_global`` (extra field). Tokens are the first 32 hex digits of the SHA-256 of ``<seed>/<table>/<key>``, the
+seed the scene's name and its job's identity (``Clip.seed``): the same job gives the same tables, two jobs never
+share a token. Visibility tokens are nuScenes' own "1".."4".
 
 Keyframes (``sample``): the first frame, then each first frame at least 1 / ``keyframe_hz`` s after the last
 keyframe. Every frame has a ``sample_data`` per camera (``samples/<CH>/`` on keyframes, ``sweeps/<CH>/`` else) and
@@ -23,8 +24,9 @@ one for the LiDAR where its sweep exists (a keyframe's must: mmdetection3d's con
 boxes towards. One ``ego_pose`` per frame, shared by its sensors (rendered synchronously).
 
 ``sample_annotation``: per keyframe each object of the labels (any camera's: ``box_world`` is the world's) that has a
-box, is not removed, not ``ignore`` and not ``points_missing`` in a camera that sees it — recorded and inserted
-alike; ignore regions are not annotations (nuScenes has none): they are left out, and counted. ``num_lidar_pts``:
+box, is not removed and not ``ignore`` (the object's own), unless every camera that sees it calls it
+``points_missing`` (a camera seeing a sliver of a car whose points are cut is no reason to drop the car another
+camera labels) — recorded and inserted alike; ignore regions are not annotations (nuScenes has none): they are left out, and counted. ``num_lidar_pts``:
 the keyframe's sweep points inside the box by the devkit's ``points_in_box`` rule (faces included), the sweep taken
 to global by lidar_to_ego and the ego pose; 0 without a LiDAR; ``num_radar_pts`` 0. ``visibility_token``: the
 visible share of the object's pixels over all cameras (Σ visible / Σ amodal pixels) in nuScenes' bins 0-40, 40-60,
@@ -94,7 +96,7 @@ class Clip:
     """One job as a nuScenes scene: ``name`` (unique in a dataroot: file names and tokens), ``description``,
     ``vehicle`` (the rig's name), ``frames`` (scene frame numbers), ``times_s`` (seconds from the first frame),
     ``ego_to_world`` (N, 4, 4), ``cameras`` ([CameraClip]), ``lidar`` (``core.rig.RigLidar`` or None) and ``sweeps``
-    (per frame a ``.pcd.bin`` path or None)."""
+    (per frame a ``.pcd.bin`` path or None); ``identity`` (``nuscenes.job_identity``: the job's; "" none)."""
     name: str
     description: str
     vehicle: str
@@ -104,6 +106,19 @@ class Clip:
     cameras: list
     lidar: object = None
     sweeps: list = field(default_factory=list)
+    identity: str = ""
+
+    @property
+    def seed(self) -> str:
+        """What the clip's tokens are derived from: its name, and its job's ``identity`` when it has one (so two
+        jobs' tables never share a token, and a job exported again keeps its own)."""
+        return f"{self.name}/{self.identity}" if self.identity else self.name
+
+    @property
+    def start_us(self) -> int:
+        """µs from ``EPOCH_US`` to the clip's first frame: 0 without an identity, else whole seconds within
+        ``DATE_CAPTURED``'s day drawn from it (two jobs' scenes do not start at one instant; a job keeps its own)."""
+        return int(token(self.identity), 16) % 86_400 * 1_000_000 if self.identity else 0
 
 
 def keyframes(times_s, keyframe_hz: float) -> list:
@@ -231,17 +246,18 @@ class Tables:
         world_to_global = np.eye(4)
         world_to_global[:2, 3] = offset
         ego_global = world_to_global @ ego
-        stamps = [EPOCH_US + int(round(t * 1e6)) for t in clip.times_s]
-        log_tok, map_tok, scene_tok = token(name, "log"), token(name, "map"), token(name, "scene")
+        stamps = [EPOCH_US + clip.start_us + int(round(t * 1e6)) for t in clip.times_s]
+        seed = clip.seed
+        log_tok, map_tok, scene_tok = token(seed, "log"), token(seed, "map"), token(seed, "scene")
         R["log"].append({"token": log_tok, "logfile": name, "vehicle": clip.vehicle, "date_captured": DATE_CAPTURED,
                          "location": "scpainter", "world_to_global": world_to_global.tolist()})
         map_file = f"maps/{map_tok}.png"
         self.maps.append((map_file, map_raster(ego_global[:, :2, 3])))
         R["map"].append({"token": map_tok, "log_tokens": [log_tok], "category": "semantic_prior",
                          "filename": map_file})
-        pose_tok = [token(name, "ego_pose", i) for i in range(n)]
+        pose_tok = [token(seed, "ego_pose", i) for i in range(n)]
         R["ego_pose"] += [_pose_record(pose_tok[i], ego_global[i], timestamp=stamps[i]) for i in range(n)]
-        sample_tok = [token(name, "sample", i) for i in keys]
+        sample_tok = [token(seed, "sample", i) for i in keys]
         R["sample"] += [{"token": sample_tok[k], "timestamp": stamps[i], "scene_token": scene_tok,
                          "prev": sample_tok[k - 1] if k else "",
                          "next": sample_tok[k + 1] if k + 1 < len(keys) else ""} for k, i in enumerate(keys)]
@@ -271,14 +287,14 @@ class Tables:
             K = [[float(v) for v in row] for row in common.opencv_K(lab["camera"]["K"])]
             key = repr(K)
             if key not in calibrations:   # one per intrinsics the camera has (a rig camera: one)
-                calibrations[key] = token(clip.name, "calibrated_sensor", cam.name, len(calibrations))
+                calibrations[key] = token(clip.seed, "calibrated_sensor", cam.name, len(calibrations))
                 self.records["calibrated_sensor"].append(_pose_record(
                     calibrations[key], cam.camera_to_ego, sensor_token=sensor, camera_intrinsic=K))
             folder = "samples" if i in keys else "sweeps"
             rel = f"{folder}/{cam.name}/{clip.name}__{cam.name}__{stamps[i]}.png"
             self.files.append((image, rel, i))
             W, H = lab["image_size"]
-            rows.append({"token": token(clip.name, "sample_data", cam.name, i), "sample_token": owner[i],
+            rows.append({"token": token(clip.seed, "sample_data", cam.name, i), "sample_token": owner[i],
                          "ego_pose_token": pose_tok[i], "calibrated_sensor_token": calibrations[key],
                          "filename": rel, "fileformat": "png", "width": int(W), "height": int(H),
                          "timestamp": stamps[i], "is_key_frame": i in keys})
@@ -286,7 +302,7 @@ class Tables:
 
     def _lidar_data(self, clip: Clip, keys, stamps, pose_tok, owner) -> None:
         lid = clip.lidar
-        cal = token(clip.name, "calibrated_sensor", lid.name)
+        cal = token(clip.seed, "calibrated_sensor", lid.name)
         self.records["calibrated_sensor"].append(_pose_record(cal, lid.lidar_to_ego,
                                                               sensor_token=self._sensor(lid.name, "lidar"),
                                                               camera_intrinsic=[]))
@@ -302,7 +318,7 @@ class Tables:
             folder = "samples" if i in keys else "sweeps"
             rel = f"{folder}/{lid.name}/{clip.name}__{lid.name}__{stamps[i]}.pcd.bin"
             self.files.append((path, rel, i))
-            rows.append({"token": token(clip.name, "sample_data", lid.name, i), "sample_token": owner[i],
+            rows.append({"token": token(clip.seed, "sample_data", lid.name, i), "sample_token": owner[i],
                          "ego_pose_token": pose_tok[i], "calibrated_sensor_token": cal, "filename": rel,
                          "fileformat": "pcd", "width": 0, "height": 0, "timestamp": stamps[i],
                          "is_key_frame": i in keys})
@@ -312,19 +328,24 @@ class Tables:
         """({track id: (object, Σ visible, Σ amodal)} of the objects annotated at frame ``i`` over every camera,
         the number of ignore regions)."""
         seen: dict = {}
-        dropped, regions = set(), 0
+        dropped, missing, labelled, regions = set(), set(), set(), 0
         for cam in clip.cameras:
             lab = cam.labels[i]
             for k, o in enumerate(lab["objects"]):
                 tid = int(o["track_id"])
                 if labels.ignore_region(o) is not None:
                     regions += 1
-                if o["box_world"] is None or o["removed"] or o["ignore"] or (o["points_missing"] and o["in_view"]):
+                if o["box_world"] is None or o["removed"] or o["ignore"]:   # the object's own: in every camera
                     dropped.add(tid)
                     continue
+                if o["points_missing"]:      # this camera's view of it only: another may label it
+                    missing.add(tid)
+                elif o["in_view"]:
+                    labelled.add(tid)
                 common.category(lab, k)      # a class the table lacks: an InputError naming it
                 prev = seen.get(tid, (o, 0, 0))
                 seen[tid] = (prev[0], prev[1] + int(o["visible_pixels"]), prev[2] + int(o["amodal_pixels"]))
+        dropped |= missing - labelled
         return {t: v for t, v in seen.items() if t not in dropped}, regions
 
     def _annotations(self, clip: Clip, keys, sample_tok, world_to_global, ego_global) -> dict:
@@ -341,8 +362,8 @@ class Tables:
                 centre = world_to_global[:3, :3] @ np.asarray(b["center"], np.float64) + world_to_global[:3, 3]
                 nus = categories.category(o["class"]).nuscenes
                 speed = None if o["velocity"] is None else float(np.linalg.norm(o["velocity"]))
-                rows.append({"token": token(clip.name, "sample_annotation", tid, i), "sample_token": s_tok,
-                             "instance_token": token(clip.name, "instance", tid),
+                rows.append({"token": token(clip.seed, "sample_annotation", tid, i), "sample_token": s_tok,
+                             "instance_token": token(clip.seed, "instance", tid),
                              "attribute_tokens": [token("attribute", a)
                                                   for a in attributes(nus, o["class"], speed, tid in moves)],
                              "visibility_token": visibility_token(visible, amodal),
@@ -363,7 +384,7 @@ class Tables:
             for k, a in enumerate(anns):
                 a["prev"] = anns[k - 1]["token"] if k else ""
                 a["next"] = anns[k + 1]["token"] if k + 1 < len(anns) else ""
-            R["instance"].append({"token": token(clip.name, "instance", tid), "category_token": token("category", nus),
+            R["instance"].append({"token": token(clip.seed, "instance", tid), "category_token": token("category", nus),
                                   "nbr_annotations": len(anns), "first_annotation_token": anns[0]["token"],
                                   "last_annotation_token": anns[-1]["token"], "track_id": tid, "name": obj_name})
         anns = [a for _, _, group in tracks.values() for a in group]

@@ -180,6 +180,7 @@ def test_write_export_of_an_output_folder(tmp_path, capsys):
     from tests.backend.export.test_command import _output_folder
 
     j, layout = _output_folder(tmp_path, generated=False)
+    job_mod.save(tmp_path / "job.json", j)
     dest = layout.export("nuscenes")
     result = command.write_export(str(tmp_path / "job.json"), j, layout, "nuscenes", dest,
                                   options=nuscenes.check_options("v1.0-trainval", 2.0))
@@ -187,12 +188,43 @@ def test_write_export_of_an_output_folder(tmp_path, capsys):
                       "version": "v1.0-trainval", "keyframe_hz": 2.0, "images": "conditions"}
     evs = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
     assert sorted(e["code"] for e in evs if e["event"] == "warning") == sorted(
-        [command.NO_GENERATED, nuscenes.NO_LIDAR, nuscenes.ONE_KEYFRAME])
+        [command.NO_GENERATED, nuscenes.NO_LIDAR, nuscenes.ONE_KEYFRAME, nuscenes.NOT_SIX_CAMERAS])
     assert [(e["done"], e["frame"]) for e in evs if e["event"] == "progress"] == [(1, 4), (2, 5)]
     assert json.load(open(os.path.join(dest, OutputLayout.EXPORT_RECORD)))["format"] == "nuscenes"
     nusc = devkit.NuScenes("v1.0-trainval", dest, verbose=False)
     assert [sd["filename"].split("/")[0] for sd in nusc.sample_data] == ["samples", "sweeps"]
-    assert nusc.scene[0]["description"] == str(tmp_path / "job.json")
+    assert nusc.scene[0]["description"] == f"job {tmp_path.name}/job.json"   # never the absolute path
+    assert nusc.scene[0]["name"] == nuscenes.job_scene_name(str(tmp_path / "job.json")) == tmp_path.name
+
+
+def test_two_jobs_exported_alone_share_no_token_and_name_themselves(tmp_path):
+    """Two variants' single exports merge: their scene names say which job, their tokens and start times differ,
+    and a job exported again keeps its own."""
+    from backend.export import command
+    from tests.backend.export.test_command import _output_folder
+
+    run = tmp_path / "my run (1)"
+    tables = {}
+    for name, dest in (("v0000", "a"), ("v0001", "b"), ("v0000", "again")):
+        folder = run / name
+        folder.mkdir(parents=True, exist_ok=True)
+        j, layout = _output_folder(folder, generated=False) if dest != "again" else (j0, layout0)
+        if dest == "a":
+            j0, layout0 = j, layout
+        job_mod.save(folder / "job.json", j)
+        command.write_export(str(folder / "job.json"), j, layout, "nuscenes", str(tmp_path / dest))
+        tables[dest] = {t: json.load(open(tmp_path / dest / VERSION / f"{t}.json")) for t in T.TABLE_NAMES}
+    a, b = tables["a"], tables["b"]
+    assert (a["scene"][0]["name"], b["scene"][0]["name"]) == ("v0000", "v0001")
+    assert str(tmp_path) not in json.dumps(a["scene"]) + json.dumps(a["log"])
+    own = ("scene", "sample", "sample_data", "ego_pose", "log", "calibrated_sensor", "instance", "sample_annotation",
+           "map")
+    for t in own:
+        assert a[t] and not {r["token"] for r in a[t]} & {r["token"] for r in b[t]}, t
+    assert {r["token"] for r in a["sensor"]} == {r["token"] for r in b["sensor"]}   # one CAM_FRONT sensor
+    assert a["sample"][0]["timestamp"] != b["sample"][0]["timestamp"]
+    assert tables["again"] == a                                                     # stable over exports
+    assert nuscenes.job_scene_name("/x/my drive (2)/night.json") == "my_drive__2_-night"
 
 
 def test_one_dataset_of_several_jobs_with_its_split(tmp_path):
@@ -208,6 +240,9 @@ def test_one_dataset_of_several_jobs_with_its_split(tmp_path):
     assert [s["name"] for s in nusc.scene] == ["scpainter-0000", "scpainter-0001", "scpainter-0002"]
     assert len(nusc.log) == len(nusc.map) == 3 and len(nusc.sample) == 4 + 6        # 10 Hz: every frame a sample
     assert len({sd["token"] for sd in nusc.sample_data}) == len(nusc.sample_data) == 4 + 6 * 7
+    for table in ("scene", "log", "sample", "ego_pose", "calibrated_sensor", "instance", "sample_annotation"):
+        rows = getattr(nusc, table)
+        assert len({r["token"] for r in rows}) == len(rows), table        # unique over the dataset's jobs
     assert json.load(open(tmp_path / "ds" / "nuscenes" / VERSION / nuscenes.SPLITS)) == {
         "train": ["scpainter-0000"], "val": ["scpainter-0001", "scpainter-0002"]}
     assert writer.counts["nuscenes"]["val"] == {"frames": 2 + 6, "objects": 6 + 3 * 6, "ignore_regions": 2 + 2 * 6}
@@ -241,6 +276,10 @@ def test_a_folder_holding_another_dataset_or_bad_options_are_refused(tmp_path):
     code, ev, _ = run_backend_here("export", tmp_path / "rig.json", "--format", "kitti,coco", "--out",
                                    tmp_path / "ds")
     assert code == 2 and ev[-1]["field"] == "rig" and "one export per camera" in ev[-1]["hint"], ev[-1]
+    assert "--format nuscenes" in ev[-1]["hint"]
+    (tmp_path / "two").mkdir()                          # nuScenes alone: rig jobs taken, given as paths too
+    job_mod.save(tmp_path / "two" / "job.json", R.rig_job())
+    assert len(dataset.members([tmp_path / "rig.json", tmp_path / "two" / "job.json"], formats=["nuscenes"])) == 2
 
 
 def test_a_rendered_rig_job_with_its_simulated_lidar_loads_and_keeps_its_inserted_car(tmp_path):
@@ -264,3 +303,13 @@ def test_a_rendered_rig_job_with_its_simulated_lidar_loads_and_keeps_its_inserte
     assert car and all(a["num_lidar_pts"] > 0 for a in car)
     inserted, kept_inserted, _ = evaluation_filter(nusc)
     assert inserted == len(car) and kept_inserted == inserted
+    # the same rig job as a dataset (--list, batch --command export): nuScenes takes rig jobs (rendered: no render)
+    (tmp_path / "variants.txt").write_text(f"{job}\n")
+    for command in (("export", "--list", tmp_path / "variants.txt"), ("batch", job, "--command", "export")):
+        out = tmp_path / f"ds-{command[0]}"
+        code, ev, err = run_backend_here(*command, "--format", "nuscenes", "--out", out, "--device", "cpu",
+                                         "--data-root", tmp_path / "drive")
+        assert code == 0, err[-3000:]
+        ds = devkit.NuScenes(VERSION, str(out / "nuscenes"), verbose=False)
+        assert [s["name"] for s in ds.scene] == ["scpainter-0000"] and len(ds.sample) == len(nusc.sample)
+        assert sorted(ds.sample[0]["data"]) == sorted(R.RIG.sensor_names)

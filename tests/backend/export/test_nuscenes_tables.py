@@ -70,3 +70,54 @@ def test_a_keyframe_without_its_sweep_names_the_file(tmp_path):
     with pytest.raises(errors.InputError) as e:
         T.read_sweep(clip.sweeps[0])
     assert e.value.path == clip.sweeps[0] and "regular file" in e.value.message
+
+
+def _annotated(clip, frame_index: int = 0) -> set:
+    tables = T.Tables(R.FPS)          # every frame a keyframe
+    tables.add(clip)
+    sample = tables.records["sample"][frame_index]["token"]
+    return {a["track_id"] for a in tables.records["sample_annotation"] if a["sample_token"] == sample}
+
+
+def test_a_car_one_camera_labels_is_kept_when_another_sees_a_sliver_of_it_points_missing(tmp_path):
+    """The rule: annotated when any camera labels it normally; ``points_missing`` drops it only when every camera
+    that sees it says so; ``ignore`` (the object's own) drops it whatever the other cameras say."""
+    clip = R.clip(R.build(str(tmp_path / "rig")))
+    van = next(o["track_id"] for o in clip.cameras[0].labels[0]["objects"] if o["name"] == "rec_van")
+    assert van in _annotated(clip)
+    seeing = [c for c in clip.cameras if next(o for o in c.labels[0]["objects"] if o["track_id"] == van)["in_view"]]
+    other = next(c for c in clip.cameras if c not in seeing)   # a camera that sees no more than a sliver of it
+    assert seeing
+    sliver = next(o for o in other.labels[0]["objects"] if o["track_id"] == van)
+    sliver.update(in_view=True, points_missing=True, visible_fraction=0.0)
+    assert van in _annotated(clip)                             # before: dropped for the sliver
+    for cam in seeing:                                         # every camera that sees it: its points are cut
+        next(o for o in cam.labels[0]["objects"] if o["track_id"] == van)["points_missing"] = True
+    assert van not in _annotated(clip)
+    for cam in seeing:
+        o = next(o for o in cam.labels[0]["objects"] if o["track_id"] == van)
+        o["points_missing"] = False
+    sliver.update(points_missing=False, ignore=True)           # ignore is the object's: one camera's word is enough
+    assert van not in _annotated(clip)
+
+
+def test_channels_other_than_nuscenes_six_cameras_are_warned(tmp_path, capsys):
+    import json
+
+    from backend.export import nuscenes
+
+    clip = R.clip(R.build(str(tmp_path / "rig")))
+    nuscenes.warn(clip, 2.0)                       # the six cameras and LIDAR_TOP: no word
+    assert nuscenes.NOT_SIX_CAMERAS not in capsys.readouterr().out
+    clip.cameras[1].name = "CAM_FRNOT_RIGHT"       # a typo
+    clip.lidar = None                              # as the front preset, one camera: no LIDAR_TOP either
+    nuscenes.warn(clip, 2.0)
+    ev = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    said = next(e for e in ev if e.get("code") == nuscenes.NOT_SIX_CAMERAS)
+    assert said["missing"] == ["CAM_FRONT_RIGHT"] and said["unknown"] == ["CAM_FRNOT_RIGHT"], said
+    assert "CAM_FRNOT_RIGHT" in said["message"] and "KeyError" in said["message"]
+    clip.cameras = [c for c in clip.cameras if c.name == "CAM_FRONT"]
+    nuscenes.warn(clip, 2.0)
+    said = next(json.loads(line) for line in capsys.readouterr().out.splitlines()
+                if json.loads(line).get("code") == nuscenes.NOT_SIX_CAMERAS)
+    assert len(said["missing"]) == 5 and said["unknown"] == []

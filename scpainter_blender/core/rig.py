@@ -15,7 +15,8 @@ Presets (``PRESETS``): ``front`` (nuScenes' front camera alone) and ``nuscenes``
 LiDAR), from the ``calibrated_sensor`` records of one nuScenes log (n015, Singapore Holland Village) as the devkit's
 v1.0-mini tables hold them: 1600 × 900 images, intrinsics shifted by +0.5 px into our pixel convention. A rig read
 from a file or a job is checked (``Rig.from_dict``): at least one camera, sensor names unique, each K usable at its
-resolution, every mounting pose rigid.
+resolution with its principal point in the middle half of the image (``PRINCIPAL_POINT_CENTRE_SHARE``: a K for
+another resolution is refused), every mounting pose rigid.
 
 No bpy, no torch: numpy.
 """
@@ -167,6 +168,10 @@ class Rig:
             if problem is not None:
                 raise error(path, f"{at}.K", f"does not fit the camera's {W} x {H} resolution: {problem}",
                             "give K in pixels of this camera's own resolution (scale K with it)")
+            off = _principal_point_off_centre(K, (W, H))
+            if off is not None:
+                raise error(path, f"{at}.K", f"does not fit the camera's {W} x {H} resolution: {off}",
+                            "K is for another resolution? scale it with the image (Rig.scaled / --scale)")
             T = fields.rigid(c.get("camera_to_ego"), path, f"{at}.camera_to_ego", error)
             cams.append(RigCamera(cname, (W, H), K, T))
         lidar = None
@@ -217,6 +222,24 @@ def pose(translation, rotation_wxyz) -> np.ndarray:
     T[:3, :3] = cameras.quaternion_to_rotation(np.asarray(rotation_wxyz, np.float64))
     T[:3, 3] = np.asarray(translation, np.float64)
     return T
+
+
+#: A rig camera's principal point lies within this share of the image size from its centre (real cameras are within
+#: a few %): stricter than ``cameras.intrinsics_problem`` so a K for another resolution (nuScenes' 1600 x 900 K at
+#: 800 x 450 puts the principal point at the image's corner) is refused rather than rendering an almost black camera.
+PRINCIPAL_POINT_CENTRE_SHARE = 0.25
+
+
+def _principal_point_off_centre(K: np.ndarray, size: tuple[int, int]) -> str | None:
+    """Why ``K``'s principal point is too far from the centre of a ``size`` (W, H) px image for a rig camera, or
+    None: |cx - W/2| <= ``PRINCIPAL_POINT_CENTRE_SHARE`` W and the same for cy with H."""
+    W, H = float(size[0]), float(size[1])
+    cx, cy = float(K[0, 2]), float(K[1, 2])
+    s = PRINCIPAL_POINT_CENTRE_SHARE
+    if abs(cx - W / 2) <= s * W and abs(cy - H / 2) <= s * H:
+        return None
+    return (f"the principal point (cx, cy) = ({cx:g}, {cy:g}) px is outside the middle half of the image "
+            f"(cx within {W / 2 - s * W:g}..{W / 2 + s * W:g}, cy within {H / 2 - s * H:g}..{H / 2 + s * H:g})")
 
 
 def nuscenes_K(fx: float, cx: float, cy: float) -> np.ndarray:

@@ -483,11 +483,16 @@ def atomic_write(path: str | os.PathLike, mode: str = "wb") -> Iterator[IO]:
             yield f
 
 
+def json_text(value: object, indent: int | None = 1) -> str:
+    """The text ``write_json`` writes for ``value`` (strict: NaN/inf refused), final newline included."""
+    return json.dumps(value, indent=indent, allow_nan=False) + "\n"
+
+
 def write_json(path: str | os.PathLike, value: object, indent: int | None = 1) -> None:
     """``value`` as JSON (strict: NaN/inf refused), atomically."""
-    text = json.dumps(value, indent=indent, allow_nan=False)
+    text = json_text(value, indent)
     with atomic_write(path, "w") as f:
-        f.write(text + "\n")
+        f.write(text)
 
 
 def remove_temporaries(folder: str | os.PathLike, names: Iterable[str], folders: bool = False) -> int:

@@ -32,7 +32,7 @@ from functools import partial
 import numpy as np
 
 from . import fields
-from .errors import ArgumentError, InputError
+from .errors import ArgumentError, InputError, did_you_mean
 from .geometry import cameras
 from .output_layout import OutputLayout
 
@@ -196,7 +196,8 @@ def lidar_model_problem(model: str) -> str | None:
 
     if model in lidar_model.MODELS:
         return None
-    return f"no LiDAR model {model!r}: expected one of {sorted(lidar_model.MODELS)}"
+    return (f"no LiDAR model {model!r}: expected one of {sorted(lidar_model.MODELS)}"
+            f"{did_you_mean(str(model), lidar_model.MODELS)}")
 
 
 def _known(d: dict, path, where, known, error) -> None:
@@ -267,7 +268,10 @@ def preset(name: str, *, lidar: bool | None = None, scale: float = 1.0, field: s
     ``nuscenes`` and none for ``front``; True/False: with or without it), cameras scaled by ``scale``. An unknown
     name is an ``ArgumentError`` on ``field`` listing the presets."""
     if name not in PRESETS:
-        raise ArgumentError(field, f"no rig preset {name!r}: expected one of {list(PRESETS)} or a rig file (.json)")
+        raise ArgumentError(field, f"no rig preset {name!r}: expected one of {list(PRESETS)} or a rig file "
+                            f"(.json){did_you_mean(name, PRESETS)}",
+                            hint=f"give a preset ({', '.join(PRESETS)}) or the path of a rig file ending in .json "
+                                 f"(schema {RIG_SCHEMA})")
     with_lidar = (name == "nuscenes") if lidar is None else bool(lidar)
     rig = PRESETS[name][1](with_lidar)
     return rig if scale == 1.0 else rig.scaled(scale)

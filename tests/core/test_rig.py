@@ -101,3 +101,14 @@ def test_a_K_for_another_resolution_is_refused():
     for name in rig.PRESETS:                                       # every preset at every usual scale passes
         for f in (1.0, 0.5, 0.25, 0.1):
             rig.Rig.from_dict(rig.preset(name, scale=f).to_dict(), "rig.json")
+
+
+def test_an_unknown_preset_or_lidar_model_suggests_the_close_name():
+    """``--rig nuscene`` had no hint; ``--lidar NUSCENES-32`` stays refused (names are exact) but says which one."""
+    with pytest.raises(errors.ArgumentError) as a:
+        rig.preset("nuscene")
+    assert "did you mean 'nuscenes'?" in str(a.value) and "front, nuscenes" in a.value.hint
+    assert ".json" in a.value.hint
+    assert "did you mean 'nuscenes-32'?" in rig.lidar_model_problem("NUSCENES-32")
+    assert "did you mean" not in rig.lidar_model_problem("hdl-999")
+    assert errors.did_you_mean("Velodyne64", ["nuscenes-32", "velodyne-64"]) == " (did you mean 'velodyne-64'?)"

@@ -36,6 +36,8 @@ def test_bad_input_exits_2_naming_the_file_and_field(tmp_path):
     assert "two sensors with one name" in ev[-1]["message"]
     code, ev, _ = backend("rig", base, "--preset", "front", "--lidar", "hdl-9000", "--out", out)
     assert code == 2 and ev[-1]["field"] == "--lidar"
+    code, ev, _ = backend("rig", base, "--preset", "front", "--lidar", "NUSCENES-32", "--out", out)   # names exact
+    assert code == 2 and ev[-1]["field"] == "--lidar" and "did you mean 'nuscenes-32'?" in ev[-1]["message"]
     code, ev, _ = backend("rig", base, "--preset", "front", "--follow", "CAM_BACK", "--out", out)
     assert code == 2 and ev[-1]["field"] == "--follow"
     assert not out.exists()

@@ -127,10 +127,13 @@ def open_blend(blend: str, args: argparse.Namespace, output: str | None = None) 
 
 
 def progress(ev: dict) -> None:
-    """A backend event as it arrives: progress as a line on standard error, a warning passed on as it is."""
+    """A backend event as it arrives: progress as a line on standard error ("scpainter: render 1/16"; a rig job's
+    names its rig camera: "scpainter CAM_BACK: render 1/16"), a warning passed on as it is."""
     if protocol.kind_of(ev) == protocol.PROGRESS:
         job = f" {ev['status']}: {ev['job']}" if "job" in ev and "status" in ev else ""  # batch: a job ended
-        print(f"scpainter: {ev['stage']} {ev['done']}/{ev['total']}{job}", file=sys.stderr, flush=True)
+        camera = ev.get(protocol.CAMERA_FIELD)
+        who = f"scpainter {camera}" if camera else "scpainter"
+        print(f"{who}: {ev['stage']} {ev['done']}/{ev['total']}{job}", file=sys.stderr, flush=True)
     elif protocol.kind_of(ev) == protocol.WARNING:  # the backend's warning events, passed on as they are
         print(json.dumps(ev), flush=True)
 

@@ -101,7 +101,8 @@ class _BackendRun:
 
         def show(ev):
             if protocol.kind_of(ev) == protocol.PROGRESS:
-                active = {**ev, "command": self.command, "model": ev.get("model") or model}
+                active = {**ev, "command": self.command, "model": ev.get("model") or model,
+                          "sensor": ev.get(protocol.CAMERA_FIELD)}   # a rig job's event names its rig camera
                 print(f"scpainter {progress_text(active)}", flush=True)
 
         try:

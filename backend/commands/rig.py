@@ -39,7 +39,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                    help=f"the rig's LiDAR model (a rig without one gets nuScenes' top mount), or {NO_LIDAR} "
                         "(default: the rig's own)")
     r.add_argument("--out", required=True, metavar="NEW_JOB.json",
-                   help="the rig job to write; its folder is its output folder (give it a folder of its own)")
+                   help="the rig job to write; its folder is its output folder (give it a folder of its own); "
+                        "an existing file is never overwritten")
     options.confinement_options(r)   # the base's paths confined as render confines them
     r.set_defaults(func=run)
     return r

@@ -153,8 +153,9 @@ def export_job(job_path: str, job: job_mod.Job, fmt: str, out: str | None = None
     nuScenes is the one format of several cameras: a rig job is exported whole (§17). In any other format a rig job
     is exported camera by camera, each camera job as a single camera's export of its own frames and labels, into
     ``<out>/<camera>/`` (without ``out``: each camera's ``<output_dir>/<camera>/export/<format>``); every
-    destination is checked before the first is written; the result's ``outs`` is {camera: destination} and its
-    counts are summed over the cameras."""
+    destination is checked before the first is written (``out`` itself too: ``check_destination``, a previous rig
+    export's record, ``_write_rig_record``, listing what it wrote); the result's ``outs`` is {camera: destination}
+    and its counts are summed over the cameras."""
     check_format(fmt)
     if fmt == nuscenes.FORMAT:
         options = nuscenes.check_options(**(options or {}))
@@ -176,6 +177,13 @@ def _export_rig(job_path, job, fmt, out, device, allow_outside, stop, data_roots
     from ..render import rig_jobs
 
     root = checked_paths(job_path, job, allow_outside, data_roots)["output_dir"]
+    if out:   # <out> itself as a single export's: new, empty, or a previous rig export of this format
+        out = os.path.abspath(out)
+        check_destination(out, root, given=True, fmt=fmt)
+        previous = outputs.created_files(out, OutputLayout.EXPORT_RECORD)
+        if previous is not None and not isinstance(_record(out).get("cameras"), list):
+            raise errors.ArgumentError("--out", f"{out} holds a single camera's {fmt} export, not a rig's: it is "
+                                       "never written into", "give a new --out folder (the export there is kept)")
     dests = {}
     for cam in job.rig.cameras:   # all refused before any is written
         cam_out = rig_jobs.camera_output(root, cam.name)
@@ -186,8 +194,31 @@ def _export_rig(job_path, job, fmt, out, device, allow_outside, stop, data_roots
     first = results[0][1] if results else {}
     counts = [k for k, v in first.items() if isinstance(v, int) and not isinstance(v, bool)]
     result = rig_jobs.combined(job, results, root, counts, stop)
-    result.update(out=os.path.abspath(out) if out else None, outs=dests)
+    if out and os.path.isdir(out):
+        _write_rig_record(out, fmt, job_path, [name for name, _ in results], previous or set())
+    result.update(out=out or None, outs=dests)
     return result
+
+
+def _record(folder: str) -> dict:
+    """``folder``'s ``EXPORT_RECORD`` ({} when missing or unreadable: ``check_destination`` judged it already)."""
+    try:
+        with files.confined_reads(None):   # a destination's record: read wherever the destination is
+            content = files.read_json(os.path.join(folder, OutputLayout.EXPORT_RECORD))
+    except errors.InputError:
+        return {}
+    return content if isinstance(content, dict) else {}
+
+
+def _write_rig_record(out: str, fmt: str, job_path: str, cameras: list, previous: set) -> None:
+    """The record of a rig job's ``--out`` (its ``EXPORT_RECORD``: format, cameras, and ``outputs.CREATED_KEY``
+    listing every file the camera exports wrote there, and those of the previous rig export still present), so the
+    next rig export of this format may replace it and anything else there stays refused (``check_destination``)."""
+    created = [f for f in outputs.tree_files(out) if f != OutputLayout.EXPORT_RECORD
+               and (f.split("/")[0] in cameras or f in previous)]
+    outputs.write_json(os.path.join(out, OutputLayout.EXPORT_RECORD), {
+        "schema": EXPORT_SCHEMA, "format": fmt, "job": os.path.abspath(job_path), "cameras": cameras,
+        outputs.CREATED_KEY: created})
 
 
 def checked_paths(job_path: str, job: job_mod.Job, allow_outside: bool = False, data_roots=()) -> dict:

@@ -51,8 +51,8 @@ def scene_options(c: argparse.ArgumentParser) -> None:
                    help="mount a camera rig on the run's camera for this run (the .blend is not written): a preset "
                         f"({', '.join(core_rig.PRESETS)}, with its LiDAR), 'recording' (the recording's own) or a "
                         "rig file (.json); the run renders every camera of it (default: the camera's own rig, if any)")
-    c.add_argument("--rig-scale", type=float, default=1.0, metavar="F",
-                   help="the --rig's cameras' resolution times F (default 1: nuScenes' 1600 x 900)")
+    c.add_argument("--rig-scale", type=float, metavar="F",
+                   help="the --rig's cameras' resolution times F (only with --rig; default 1: nuScenes' 1600 x 900)")
 
 
 def common_options(c: argparse.ArgumentParser) -> None:
@@ -127,10 +127,13 @@ def open_blend(blend: str, args: argparse.Namespace, output: str | None = None) 
 
 
 def progress(ev: dict) -> None:
-    """A backend event as it arrives: progress as a line on standard error, a warning passed on as it is."""
+    """A backend event as it arrives: progress as a line on standard error ("scpainter: render 1/16"; a rig job's
+    names its rig camera: "scpainter CAM_BACK: render 1/16"), a warning passed on as it is."""
     if protocol.kind_of(ev) == protocol.PROGRESS:
         job = f" {ev['status']}: {ev['job']}" if "job" in ev and "status" in ev else ""  # batch: a job ended
-        print(f"scpainter: {ev['stage']} {ev['done']}/{ev['total']}{job}", file=sys.stderr, flush=True)
+        camera = ev.get(protocol.CAMERA_FIELD)
+        who = f"scpainter {camera}" if camera else "scpainter"
+        print(f"{who}: {ev['stage']} {ev['done']}/{ev['total']}{job}", file=sys.stderr, flush=True)
     elif protocol.kind_of(ev) == protocol.WARNING:  # the backend's warning events, passed on as they are
         print(json.dumps(ev), flush=True)
 
@@ -170,12 +173,21 @@ def failure(e: Exception) -> dict:
 def mount_rig(args: argparse.Namespace, camera: bpy.types.Object | None) -> None:
     """``--rig``: the rig (preset, recording or file, scaled by ``--rig-scale``) added to ``camera`` for this run,
     replacing any it has (``scene.rig.add_rig``). ``ArgumentError`` on ``--rig-scale`` outside (0, 4]; an unknown
-    preset is one on ``--rig`` listing them."""
-    if not 0 < args.rig_scale <= 4:
-        raise errors.ArgumentError("--rig-scale", f"{args.rig_scale:g} is not a scale in (0, 4]",
+    preset is one on ``--rig`` listing them. ``--rig-scale`` None: 1."""
+    scale = 1.0 if args.rig_scale is None else args.rig_scale
+    if not 0 < scale <= 4:
+        raise errors.ArgumentError("--rig-scale", f"{scale:g} is not a scale in (0, 4]",
                                    hint="give e.g. 0.25 for 400 x 225 nuScenes cameras")
-    rig_scene.add_rig(camera, rig_scene.make_rig(bpy.context.scene, args.rig, lidar=None, scale=args.rig_scale,
+    rig_scene.add_rig(camera, rig_scene.make_rig(bpy.context.scene, args.rig, lidar=None, scale=scale,
                                                  field="--rig"))
+
+
+def check_rig_options(args: argparse.Namespace) -> None:
+    """``--rig-scale`` without ``--rig`` scales nothing: an ArgumentError rather than a run that ignores it."""
+    if getattr(args, "rig_scale", None) is not None and not getattr(args, "rig", None):
+        raise errors.ArgumentError("--rig-scale", "only with --rig: it scales the rig --rig mounts for the run",
+                                   hint="add --rig PRESET|FILE, or drop --rig-scale (a camera's own rig is "
+                                        "scaled in Blender: its cameras' resolution)")
 
 
 # -- the scene run of render, generate and export ----------------------------------------------------------------
@@ -187,6 +199,7 @@ def run_scene(args: argparse.Namespace, command: str, **options: object) -> tupl
     outputs, ``camera``, the number of ``warnings``) and exit code 0; a failed run raises its ``BackendError``, its
     message saying where the log is."""
     check_paths(args)
+    check_rig_options(args)
     open_blend(args.blend, args, args.output)
     camera = props.named_camera(bpy.context.scene, args.camera, args.blend)
     if args.rig:

@@ -10,6 +10,7 @@ stdlib only: the add-on and the backend share it.
 
 from __future__ import annotations
 
+import difflib
 import errno
 import os
 import re
@@ -52,6 +53,15 @@ DISK_FULL_ERRNOS = (errno.ENOSPC, errno.EDQUOT)
 
 #: The ``path`` of an InputError about a command-line argument.
 COMMAND_LINE = "(command line)"
+
+
+def did_you_mean(name: str, names) -> str:
+    """``" (did you mean 'X'?)"`` for the one of ``names`` closest to ``name`` (letter case ignored:
+    ``NUSCENES-32`` finds ``nuscenes-32``; ``difflib``'s ratio at least 0.6), else ``""``: the tail of a message
+    refusing an unknown name, which stays refused (names are matched exactly)."""
+    by_lower = {str(n).lower(): str(n) for n in names}
+    close = difflib.get_close_matches(str(name).lower(), list(by_lower), n=1)
+    return f" (did you mean {by_lower[close[0]]!r}?)" if close else ""
 
 
 class ArgumentError(InputError):

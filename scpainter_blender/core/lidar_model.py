@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import ArgumentError
+from .errors import ArgumentError, did_you_mean
 
 
 @dataclass(frozen=True)
@@ -100,5 +100,6 @@ def model(name: str, field: str = "--lidar") -> LidarModel:
     """The preset called ``name``; an unknown name is an ``ArgumentError`` on ``field`` listing the presets (a
     job file's reader catches it and names its own file and field, or checks ``name in MODELS`` itself)."""
     if name not in MODELS:
-        raise ArgumentError(field, f"no LiDAR model {name!r}", hint="one of: " + ", ".join(sorted(MODELS)))
+        raise ArgumentError(field, f"no LiDAR model {name!r}{did_you_mean(name, MODELS)}",
+                            hint="one of: " + ", ".join(sorted(MODELS)))
     return MODELS[name]

@@ -391,7 +391,7 @@ def _staging_folder(parent: str, name: str) -> str:
 CREATED_KEY = "files"
 
 
-def _tree_files(folder: str) -> list:
+def tree_files(folder: str) -> list:
     """Every file, link or other non-folder below ``folder``, as relative paths with ``/``; links are not
     followed (a link to a folder is a file here)."""
     out = []
@@ -408,7 +408,7 @@ def _record_created(folder: str, record: str) -> None:
     rec_path = os.path.join(folder, record)
     with files.confined_reads(None):   # the command's own file, wherever its destination is
         content = files.read_json(rec_path)
-    content[CREATED_KEY] = [f for f in _tree_files(folder) if f != record]
+    content[CREATED_KEY] = [f for f in tree_files(folder) if f != record]
     write_json(rec_path, content)
 
 
@@ -435,7 +435,7 @@ def foreign_files(folder: str | os.PathLike, record: str | None) -> list:
     if os.path.islink(folder) or not os.path.isdir(folder):
         return [folder]
     mine = created_files(folder, record) or set()
-    return [f for f in _tree_files(folder) if f not in mine and f != record]
+    return [f for f in tree_files(folder) if f not in mine and f != record]
 
 
 def _move_into(src: str, dst: str, record: str | None) -> None:
@@ -461,7 +461,7 @@ def _remove_recorded(folder: str, record: str | None) -> None:
     """Delete the files ``folder``'s record lists (and the record), then the folders left empty; anything else
     stays (the folder too, then)."""
     mine = (created_files(folder, record) or set()) | ({record} if record else set())
-    for f in _tree_files(folder):
+    for f in tree_files(folder):
         if f in mine:
             with contextlib.suppress(OSError):
                 os.remove(os.path.join(folder, *f.split("/")))
@@ -483,11 +483,16 @@ def atomic_write(path: str | os.PathLike, mode: str = "wb") -> Iterator[IO]:
             yield f
 
 
+def json_text(value: object, indent: int | None = 1) -> str:
+    """The text ``write_json`` writes for ``value`` (strict: NaN/inf refused), final newline included."""
+    return json.dumps(value, indent=indent, allow_nan=False) + "\n"
+
+
 def write_json(path: str | os.PathLike, value: object, indent: int | None = 1) -> None:
     """``value`` as JSON (strict: NaN/inf refused), atomically."""
-    text = json.dumps(value, indent=indent, allow_nan=False)
+    text = json_text(value, indent)
     with atomic_write(path, "w") as f:
-        f.write(text + "\n")
+        f.write(text)
 
 
 def remove_temporaries(folder: str | os.PathLike, names: Iterable[str], folders: bool = False) -> int:

@@ -15,7 +15,8 @@ Presets (``PRESETS``): ``front`` (nuScenes' front camera alone) and ``nuscenes``
 LiDAR), from the ``calibrated_sensor`` records of one nuScenes log (n015, Singapore Holland Village) as the devkit's
 v1.0-mini tables hold them: 1600 × 900 images, intrinsics shifted by +0.5 px into our pixel convention. A rig read
 from a file or a job is checked (``Rig.from_dict``): at least one camera, sensor names unique, each K usable at its
-resolution, every mounting pose rigid.
+resolution with its principal point in the middle half of the image (``PRINCIPAL_POINT_CENTRE_SHARE``: a K for
+another resolution is refused), every mounting pose rigid.
 
 No bpy, no torch: numpy.
 """
@@ -31,7 +32,7 @@ from functools import partial
 import numpy as np
 
 from . import fields
-from .errors import ArgumentError, InputError
+from .errors import ArgumentError, InputError, did_you_mean
 from .geometry import cameras
 from .output_layout import OutputLayout
 
@@ -167,6 +168,10 @@ class Rig:
             if problem is not None:
                 raise error(path, f"{at}.K", f"does not fit the camera's {W} x {H} resolution: {problem}",
                             "give K in pixels of this camera's own resolution (scale K with it)")
+            off = _principal_point_off_centre(K, (W, H))
+            if off is not None:
+                raise error(path, f"{at}.K", f"does not fit the camera's {W} x {H} resolution: {off}",
+                            "K is for another resolution? scale it with the image (Rig.scaled / --scale)")
             T = fields.rigid(c.get("camera_to_ego"), path, f"{at}.camera_to_ego", error)
             cams.append(RigCamera(cname, (W, H), K, T))
         lidar = None
@@ -191,7 +196,8 @@ def lidar_model_problem(model: str) -> str | None:
 
     if model in lidar_model.MODELS:
         return None
-    return f"no LiDAR model {model!r}: expected one of {sorted(lidar_model.MODELS)}"
+    return (f"no LiDAR model {model!r}: expected one of {sorted(lidar_model.MODELS)}"
+            f"{did_you_mean(str(model), lidar_model.MODELS)}")
 
 
 def _known(d: dict, path, where, known, error) -> None:
@@ -219,6 +225,24 @@ def pose(translation, rotation_wxyz) -> np.ndarray:
     return T
 
 
+#: A rig camera's principal point lies within this share of the image size from its centre (real cameras are within
+#: a few %): stricter than ``cameras.intrinsics_problem`` so a K for another resolution (nuScenes' 1600 x 900 K at
+#: 800 x 450 puts the principal point at the image's corner) is refused rather than rendering an almost black camera.
+PRINCIPAL_POINT_CENTRE_SHARE = 0.25
+
+
+def _principal_point_off_centre(K: np.ndarray, size: tuple[int, int]) -> str | None:
+    """Why ``K``'s principal point is too far from the centre of a ``size`` (W, H) px image for a rig camera, or
+    None: |cx - W/2| <= ``PRINCIPAL_POINT_CENTRE_SHARE`` W and the same for cy with H."""
+    W, H = float(size[0]), float(size[1])
+    cx, cy = float(K[0, 2]), float(K[1, 2])
+    s = PRINCIPAL_POINT_CENTRE_SHARE
+    if abs(cx - W / 2) <= s * W and abs(cy - H / 2) <= s * H:
+        return None
+    return (f"the principal point (cx, cy) = ({cx:g}, {cy:g}) px is outside the middle half of the image "
+            f"(cx within {W / 2 - s * W:g}..{W / 2 + s * W:g}, cy within {H / 2 - s * H:g}..{H / 2 + s * H:g})")
+
+
 def nuscenes_K(fx: float, cx: float, cy: float) -> np.ndarray:
     """Our K (pixel centres at +0.5) of a nuScenes ``camera_intrinsic`` (pixel centres at integers)."""
     return np.array([[fx, 0.0, cx + 0.5], [0.0, fx, cy + 0.5], [0.0, 0.0, 1.0]])
@@ -244,7 +268,10 @@ def preset(name: str, *, lidar: bool | None = None, scale: float = 1.0, field: s
     ``nuscenes`` and none for ``front``; True/False: with or without it), cameras scaled by ``scale``. An unknown
     name is an ``ArgumentError`` on ``field`` listing the presets."""
     if name not in PRESETS:
-        raise ArgumentError(field, f"no rig preset {name!r}: expected one of {list(PRESETS)} or a rig file (.json)")
+        raise ArgumentError(field, f"no rig preset {name!r}: expected one of {list(PRESETS)} or a rig file "
+                            f"(.json){did_you_mean(name, PRESETS)}",
+                            hint=f"give a preset ({', '.join(PRESETS)}) or the path of a rig file ending in .json "
+                                 f"(schema {RIG_SCHEMA})")
     with_lidar = (name == "nuscenes") if lidar is None else bool(lidar)
     rig = PRESETS[name][1](with_lidar)
     return rig if scale == 1.0 else rig.scaled(scale)

@@ -91,7 +91,8 @@ def relocated(job: job_mod.Job, paths: dict, folder: str) -> job_mod.Job:
 def make(base_path: str | os.PathLike, rig: rig_mod.Rig, out_path: str | os.PathLike, follow: str | None = None,
          allow_outside: bool = False, data_roots=()) -> tuple:
     """Write the rig job of the single-camera job at ``base_path`` to ``out_path`` (atomically, validated:
-    ``job.save``). The base's paths are confined as ``render`` confines them (``job_inputs.job_paths``: its folder
+    ``job.save``); an existing ``out_path`` is an ArgumentError naming ``--out`` unless it holds byte for byte what
+    would be written (then nothing is written). The base's paths are confined as ``render`` confines them (``job_inputs.job_paths``: its folder
     and ``data_roots`` unless ``allow_outside``; a JobError naming the field). Returns (the new job, the folders
     outside the new job's folder that its paths lead into: a render of it needs them as ``--data-root``)."""
     base_path, out_path = os.path.abspath(base_path), os.path.abspath(out_path)
@@ -104,4 +105,18 @@ def make(base_path: str | os.PathLike, rig: rig_mod.Rig, out_path: str | os.Path
     job = relocated(rig_job(base, rig, follow), paths, folder)
     outside = sorted({os.path.dirname(p) for f, p in paths.items() if f != "output_dir"
                       and not outputs.inside(p, folder)})
+    if os.path.lexists(out_path):   # never replaced: a rendered job's outputs would be left behind another job's
+        job = job_mod.Job.from_dict(job.to_dict(), out_path)
+        if not _holds(out_path, outputs.json_text(job.to_dict())):
+            raise ArgumentError("--out", f"{out_path} exists (another job): it is never overwritten",
+                                hint="give a new path, or delete the old job and its outputs first")
+        return job, outside   # the very job: nothing to write
     return job_mod.save(out_path, job), outside
+
+
+def _holds(path: str, text: str) -> bool:
+    """Whether the regular file ``path`` holds exactly ``text`` (UTF-8)."""
+    if os.path.islink(path) or not os.path.isfile(path):
+        return False
+    with open(path, "rb") as f:
+        return f.read() == text.encode("utf-8")

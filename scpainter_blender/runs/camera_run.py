@@ -189,11 +189,14 @@ def with_warnings(message: str, warnings: list) -> tuple[str, str]:
 
 
 def progress_text(active: dict | None = None) -> str:
-    """The run in progress in a few words (panel and status bar): "generate (Baseline): render 2/4"; one of
-    several cameras (``all_cameras.AllCameras``) says which: "render, camera 2/3: render 4/16"."""
+    """The run in progress in a few words (panel and status bar): "generate (Baseline): render 2/4"; a rig job's
+    progress names the rig camera its event names (``sensor``): "render CAM_BACK: render 1/16"; one of several
+    cameras (``all_cameras.AllCameras``) says which: "render, camera 2/3: render 4/16"."""
     a = ACTIVE if active is None else active
     model = MODEL_NAMES.get(a.get("model") or "")
     what = f"{a['command']} ({model})" if model else a["command"]
+    if a.get("sensor"):
+        what += f" {a['sensor']}"
     if a.get("position"):
         what += ", camera {}/{}".format(*a["position"])
     return f"{what}: {a['stage']} {a['done']}/{a['total']}"
@@ -254,7 +257,8 @@ class Follower:
 
         for ev in self.job.poll():
             if protocol.kind_of(ev) == protocol.PROGRESS:
-                ACTIVE.update(stage=ev["stage"], done=ev["done"], total=max(ev["total"], 1))
+                ACTIVE.update(stage=ev["stage"], done=ev["done"], total=max(ev["total"], 1),
+                              sensor=ev.get(protocol.CAMERA_FIELD))   # a rig job's event names its rig camera
                 if ev.get("model"):
                     ACTIVE["model"] = ev["model"]
         if self.timeout and time.monotonic() - self.t0 > self.timeout:

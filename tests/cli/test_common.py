@@ -38,3 +38,11 @@ def test_camera_option_runs_that_camera_into_its_folder(addon, street, tmp_path,
                 "right', ") in ev["message"], ev
         assert "recorded camera" in ev["message"]
     bpy.ops.wm.read_homefile(use_empty=True)
+
+
+def test_progress_lines_name_a_rig_camera(addon, capsys):
+    """A rig job's progress events name their rig camera: six cameras' "render 1/16" are told apart."""
+    common = sys.modules[addon + ".scpainter_blender.cli.common"]
+    common.progress({"event": "progress", "stage": "render", "done": 1, "total": 16, "camera": "CAM_BACK"})
+    common.progress({"event": "progress", "stage": "render", "done": 2, "total": 16})
+    assert capsys.readouterr().err.splitlines() == ["scpainter CAM_BACK: render 1/16", "scpainter: render 2/16"]

@@ -83,3 +83,32 @@ def test_bad_rigs_are_refused_naming_the_field():
     with pytest.raises(errors.ArgumentError) as a:
         rig.preset("waymo")
     assert a.value.field == "--rig" and "nuscenes" in str(a.value)
+
+
+def test_a_K_for_another_resolution_is_refused():
+    """nuScenes' full-size K (cx 816, cy 492) at 800 x 450 passes the single-camera rule (principal point at most one
+    image size outside) but renders an almost black camera: a rig camera's principal point must be in the middle
+    half of its image."""
+    full = rig.preset("nuscenes", lidar=False)
+    d = full.to_dict()
+    d["cameras"][3]["resolution"] = [800, 450]                  # K still 1600 x 900's
+    assert cameras.intrinsics_problem(np.asarray(d["cameras"][3]["K"]), (800, 450)) is None
+    with pytest.raises(errors.InputError) as e:
+        rig.Rig.from_dict(d, "rig.json")
+    assert e.value.field == "rig.cameras[3].K" and "800 x 450" in str(e.value)
+    assert "another resolution" in str(e.value.hint) and "--scale" in str(e.value.hint)
+    rig.Rig.from_dict(full.scaled(0.5).to_dict(), "rig.json")      # scaled with the image: accepted
+    for name in rig.PRESETS:                                       # every preset at every usual scale passes
+        for f in (1.0, 0.5, 0.25, 0.1):
+            rig.Rig.from_dict(rig.preset(name, scale=f).to_dict(), "rig.json")
+
+
+def test_an_unknown_preset_or_lidar_model_suggests_the_close_name():
+    """``--rig nuscene`` had no hint; ``--lidar NUSCENES-32`` stays refused (names are exact) but says which one."""
+    with pytest.raises(errors.ArgumentError) as a:
+        rig.preset("nuscene")
+    assert "did you mean 'nuscenes'?" in str(a.value) and "front, nuscenes" in a.value.hint
+    assert ".json" in a.value.hint
+    assert "did you mean 'nuscenes-32'?" in rig.lidar_model_problem("NUSCENES-32")
+    assert "did you mean" not in rig.lidar_model_problem("hdl-999")
+    assert errors.did_you_mean("Velodyne64", ["nuscenes-32", "velodyne-64"]) == " (did you mean 'velodyne-64'?)"

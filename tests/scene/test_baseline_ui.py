@@ -43,6 +43,9 @@ def test_progress_text_names_the_generator(addon):
     assert camera_run.progress_text(run) == "generate (Baseline): render 2/4"
     assert camera_run.progress_text({**run, "model": "scpainter"}) == "generate (SCPainter): render 2/4"
     assert camera_run.progress_text({**run, "command": "render", "model": None}) == "render: render 2/4"
+    # a rig job's progress names the rig camera its event names (the surround demo printed six "render 1/16")
+    rig_run = {**run, "command": "render", "model": None, "sensor": "CAM_BACK", "done": 1, "total": 16}
+    assert camera_run.progress_text(rig_run) == "render CAM_BACK: render 1/16"
 
 
 def test_job_export_writes_the_inpainting_method_only_when_chosen(empty_scene, addon, prefs, tmp_path):

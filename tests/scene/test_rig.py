@@ -321,11 +321,14 @@ def test_command_line_rig_option_names_what_is_wrong(addon, empty_scene, tmp_pat
     cli = CS.cli(addon)
     for extra, field, message in ((["--rig", "nuscnes"], "--rig", "no rig preset 'nuscnes': expected one of "
                                                                    "['front', 'nuscenes'] or a rig file (.json)"),
+                                  (["--rig", "nuscene"], "--rig", "(did you mean 'nuscenes'?)"),
+                                  (["--rig-scale", "0.1"], "--rig-scale", "only with --rig"),   # was ignored
                                   (["--rig", "front", "--rig-scale", "0"], "--rig-scale", "0 is not a scale in "
                                                                                          "(0, 4]")):
         assert cli.execute(["render", blend, *extra, "--backend-python", sys.executable]) == 2, extra
         ev = CS.last_event(capsys)
         assert ev["file"] == "(command line)" and ev["field"] == field and message in ev["message"], ev
+        assert ev["hint"], ev   # "--rig nuscene" had none
     assert not (tmp_path / "scpainter").exists()
     # what a good --rig does before the run starts (the run itself is any scene's): the rig mounted on the run's
     # camera, a preset at --rig-scale or a rig file as it is, so the job the run exports is a rig job

@@ -69,16 +69,17 @@ def _pose(record: dict, path, where: str) -> np.ndarray:
     return tracks.pose(cameras.quaternion_to_rotation(q), t)
 
 
-def _scene_samples(t: dict, scene: str) -> tuple:
+def _scene_samples(t: dict, scene: str, option: str = "--objects-scene") -> tuple:
     """(the scene record, its samples in order along ``next`` from the first) of scene ``scene`` (name or token; may
-    be empty when the tables hold one scene), from the tables ``t`` (name -> ``_table``)."""
+    be empty when the tables hold one scene), from the tables ``t`` (name -> ``_table``); ``option``: the command
+    line's option that names the scene (in the hint of a scene not found)."""
     scenes_path, scenes = t["scene"]
     chosen = [s for s in scenes.values() if scene in (s.get("name"), s["token"])] if scene else list(scenes.values())
     if len(chosen) != 1:
         names = sorted(str(s.get("name")) for s in scenes.values())
         raise tracks.bad(scenes_path, "name", (f"no scene {scene!r}" if scene else f"{len(chosen)} scenes") +
                          f" among {names[:10]}{' …' if len(names) > 10 else ''}",
-                         hint="name the scene (its name or token: --objects-scene)")
+                         hint=f"name the scene (its name or token: {option})")
     sc = chosen[0]
     # the keyframes in order, along next from the first
     samples, token = [], sc.get("first_sample_token")
@@ -180,7 +181,7 @@ def sensors(folder: str, scene: str = "", channels: list | tuple = (), calibrati
     their camera poses (a metric trajectory for the import's trajectory scale mode)."""
     folder = folder if os.path.isdir(folder) else os.path.dirname(folder)
     t = {name: _table(folder, name) for name in SENSOR_TABLES}
-    sc, samples = _scene_samples(t, scene)
+    sc, samples = _scene_samples(t, scene, "--scene")   # the option of the sensors command, its one caller
     sample_of = {s["token"]: i for i, s in enumerate(samples)}
     found: dict = {}   # (sample index, channel) -> (timestamp, calibrated sensor, width, height)
     for i, sd, cs, channel in _keyframe_data(t, sample_of):

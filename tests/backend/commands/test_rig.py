@@ -36,6 +36,26 @@ def test_bad_input_exits_2_naming_the_file_and_field(tmp_path):
     assert "two sensors with one name" in ev[-1]["message"]
     code, ev, _ = backend("rig", base, "--preset", "front", "--lidar", "hdl-9000", "--out", out)
     assert code == 2 and ev[-1]["field"] == "--lidar"
+    code, ev, _ = backend("rig", base, "--preset", "front", "--lidar", "NUSCENES-32", "--out", out)   # names exact
+    assert code == 2 and ev[-1]["field"] == "--lidar" and "did you mean 'nuscenes-32'?" in ev[-1]["message"]
     code, ev, _ = backend("rig", base, "--preset", "front", "--follow", "CAM_BACK", "--out", out)
     assert code == 2 and ev[-1]["field"] == "--follow"
     assert not out.exists()
+
+
+def test_an_existing_out_is_never_overwritten(tmp_path):
+    """A rendered six-camera job is not silently replaced by a one-camera one (its outputs left behind): an existing
+    ``--out`` exits 2 naming it, unless it holds exactly the job that would be written (a no-op)."""
+    base = small_job(tmp_path)
+    out = tmp_path / "surround" / "job.json"
+    args = ("rig", base, "--preset", "nuscenes", "--scale", "0.02", "--out", out)
+    code, ev, err = backend(*args)
+    assert code == 0, err
+    before = out.read_bytes()
+    code, ev, err = backend(*args)          # the same job again: nothing to do
+    assert code == 0, err
+    assert out.read_bytes() == before
+    code, ev, _ = backend("rig", base, "--preset", "front", "--scale", "0.02", "--out", out)
+    assert code == 2 and ev[-1]["field"] == "--out" and str(out) in ev[-1]["message"]
+    assert "delete the old job" in ev[-1]["hint"]
+    assert out.read_bytes() == before

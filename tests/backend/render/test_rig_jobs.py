@@ -117,6 +117,29 @@ def test_generate_and_export_run_camera_by_camera(rigged):
     assert code == 2 and ev[-1]["field"] == "rig" and "one export per camera" in ev[-1]["hint"]
 
 
+def test_a_rig_export_out_obeys_the_single_export_rule(rigged):
+    """``--out`` of a rig job's single-camera-format export: a folder with other content is refused before anything
+    is written (not only an occupied ``<out>/<CAMERA>/``); a previous rig export of the format is replaced."""
+    tmp, job_path = rigged
+    occupied = tmp / "occupied"
+    occupied.mkdir()
+    (occupied / "notes.txt").write_text("mine")
+    export = lambda out, fmt="kitti": backend("export", job_path, "--format", fmt, "--out", out,  # noqa: E731
+                                              "--device", "cpu", "--data-root", tmp / "drive")
+    code, ev, err = export(occupied)
+    assert code == 2 and ev[-1]["field"] == "--out" and "notes.txt" in ev[-1]["message"]
+    assert sorted(os.listdir(occupied)) == ["notes.txt"]
+    out = tmp / "kitti_again"
+    for _ in range(2):   # new, then its own previous export: replaced
+        code, ev, err = export(out)
+        assert code == 0, err
+    record = files.read_json(out / OutputLayout.EXPORT_RECORD)
+    assert record["format"] == "kitti" and record["cameras"] == ["CAM_FRONT", "CAM_BACK"]
+    assert "CAM_FRONT/export.json" in record["files"]
+    code, ev, err = export(out, "coco")   # another format over it: refused, as for one camera
+    assert code == 2 and ev[-1]["field"] == "--out" and "kitti" in ev[-1]["message"]
+
+
 def test_batch_runs_a_rig_job_camera_by_camera(rigged):
     tmp, job_path = rigged
     code, ev, err = backend("batch", job_path, "--command", "render", "--device", "cpu", "--data-root", tmp / "drive")

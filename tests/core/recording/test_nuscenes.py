@@ -26,7 +26,10 @@ def test_scene_camera_and_class_problems_name_the_table(tmp_path):
     folder = write_nuscenes(str(tmp_path), d, extra_category="vehicle.hovercraft")
     with pytest.raises(InputError, match=r"2 scenes among \['scene-0001', 'scene-0002'\]") as e:
         nuscenes.read(folder)
-    assert e.value.path.endswith("scene.json")
+    assert e.value.path.endswith("scene.json") and "--objects-scene" in e.value.hint
+    with pytest.raises(InputError, match="no scene 'scene-9'") as e:   # the sensors command's option is --scene
+        nuscenes.sensors(folder, "scene-9")
+    assert "--scene)" in e.value.hint and "--objects-scene" not in e.value.hint
     with pytest.raises(InputError, match="no CAM_BACK keyframe image"):
         nuscenes.read(folder, "scene-0001", "CAM_BACK")
     rows = json.load(open(os.path.join(folder, "instance.json")))

@@ -189,13 +189,19 @@ def _export_rig(job_path, job, fmt, out, device, allow_outside, stop, data_roots
         cam_out = rig_jobs.camera_output(root, cam.name)
         dests[cam.name] = os.path.join(os.path.abspath(out), cam.name) if out else OutputLayout(cam_out).export(fmt)
         check_destination(dests[cam.name], cam_out, given=bool(out), fmt=fmt)
-    results = rig_jobs.run_cameras(job, lambda cam, camera_job: export_job(
-        job_path, camera_job, fmt, dests[cam.name], device, allow_outside, stop, data_roots), stop)
+    done: list = []
+
+    def one(cam, camera_job):
+        r = export_job(job_path, camera_job, fmt, dests[cam.name], device, allow_outside, stop, data_roots)
+        done.append(cam.name)
+        if out and os.path.isdir(out):   # after each camera: a run that fails or is killed later leaves <out> a
+            _write_rig_record(out, fmt, job_path, list(done), previous or set())   # rig export the next replaces
+        return r
+
+    results = rig_jobs.run_cameras(job, one, stop)
     first = results[0][1] if results else {}
     counts = [k for k, v in first.items() if isinstance(v, int) and not isinstance(v, bool)]
     result = rig_jobs.combined(job, results, root, counts, stop)
-    if out and os.path.isdir(out):
-        _write_rig_record(out, fmt, job_path, [name for name, _ in results], previous or set())
     result.update(out=out or None, outs=dests)
     return result
 

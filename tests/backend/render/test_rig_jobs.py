@@ -140,6 +140,32 @@ def test_a_rig_export_out_obeys_the_single_export_rule(rigged):
     assert code == 2 and ev[-1]["field"] == "--out" and "kitti" in ev[-1]["message"]
 
 
+def test_a_rig_export_that_fails_after_its_first_camera_is_replaced_by_the_next(rigged, monkeypatch):
+    """Each camera's export is recorded in ``<out>``'s record as it finishes: a run that fails (or is killed) after
+    the first camera leaves a rig export the next run may replace, not a folder it refuses."""
+    from backend.export import command
+
+    tmp, job_path = rigged
+    out = tmp / "kitti_failed"
+    real, calls = command.export_job, []
+
+    def failing(*a, **k):   # the second camera's export breaks down
+        calls.append(1)
+        if len(calls) == 3:   # the rig's own call, then CAM_FRONT's, then CAM_BACK's
+            raise OSError("disk went away")
+        return real(*a, **k)
+
+    monkeypatch.setattr(command, "export_job", failing)
+    code, ev, err = backend("export", job_path, "--format", "kitti", "--out", out, "--device", "cpu",
+                            "--data-root", tmp / "drive")
+    assert code != 0 and sorted(os.listdir(out)) == ["CAM_FRONT", OutputLayout.EXPORT_RECORD]
+    monkeypatch.setattr(command, "export_job", real)
+    code, ev, err = backend("export", job_path, "--format", "kitti", "--out", out, "--device", "cpu",
+                            "--data-root", tmp / "drive")
+    assert code == 0, err
+    assert files.read_json(out / OutputLayout.EXPORT_RECORD)["cameras"] == ["CAM_FRONT", "CAM_BACK"]
+
+
 def test_batch_runs_a_rig_job_camera_by_camera(rigged):
     tmp, job_path = rigged
     code, ev, err = backend("batch", job_path, "--command", "render", "--device", "cpu", "--data-root", tmp / "drive")

@@ -21,7 +21,7 @@ of the level frame is its pixel in the image; ``R0_rect`` is the identity. That 
 OpenPCDet (``pcdet/utils/calibration_kitti.py``) projects labels with ``rect_to_img`` = P2 alone and uses R0 and
 Tr_velo2cam only for LiDAR points; mmdetection3d keeps P2 as ``cam2img`` (KITTI mono3d projects boxes with it) and
 R0_rect · Tr_velo_to_cam as ``lidar2cam``; the devkit's ``computeBox3D``/``projectToImage`` use P2. ``P0``..``P3``
-are all that one P2 (one camera: no stereo baseline); there is no lidar or IMU, so ``Tr_velo_to_cam`` and
+are all that one P2 (one camera: no stereo baseline); a single camera has no lidar or IMU, so ``Tr_velo_to_cam`` and
 ``Tr_imu_to_velo`` are the identity [I | 0] (the "lidar" frame is the level frame), written because readers
 expect the keys.
 

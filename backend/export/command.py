@@ -21,6 +21,8 @@ import contextlib
 import os
 from collections.abc import Iterator
 
+import numpy as np
+
 from scpainter_blender.core import errors, files, job_inputs, labels, locking, outputs
 from scpainter_blender.core import job as job_mod
 from scpainter_blender.core.output_layout import OutputLayout
@@ -143,7 +145,8 @@ def read_frame(layout: OutputLayout, frame: int, images: str, instance: bool) ->
 
 
 def export_job(job_path: str, job: job_mod.Job, fmt: str, out: str | None = None, device: str = "cpu",
-               allow_outside: bool = False, stop=(), data_roots=(), options: dict | None = None) -> dict:
+               allow_outside: bool = False, stop=(), data_roots=(), options: dict | None = None,
+               sweeps: dict | None = None) -> dict:
     """Export a job's labels as ``fmt`` into ``out`` (None: ``OutputLayout(output_dir).export(fmt)``), rendering
     what is missing first; emits progress and warning events. Returns the counts, ``out``, ``images``,
     ``stopped`` (SIGTERM during the render: nothing exported). The job's paths are confined to its folder and
@@ -155,7 +158,10 @@ def export_job(job_path: str, job: job_mod.Job, fmt: str, out: str | None = None
     ``<out>/<camera>/`` (without ``out``: each camera's ``<output_dir>/<camera>/export/<format>``); every
     destination is checked before the first is written (``out`` itself too: ``check_destination``, a previous rig
     export's record, ``_write_rig_record``, listing what it wrote); the result's ``outs`` is {camera: destination}
-    and its counts are summed over the cameras."""
+    and its counts are summed over the cameras. A rig job with a LiDAR exported as KITTI or KITTI tracking
+    (``LIDAR_FORMATS``) is rendered whole first (its sweeps too) and each camera's export carries the LiDAR
+    (``sweeps``: ``job_sweeps``, {scene frame: ``common.ExportSweep``}, for a camera job of that rig; its
+    ``velodyne/``, ``Tr_velo_to_cam``); the result then adds the render's ``lidar`` counts."""
     check_format(fmt)
     if fmt == nuscenes.FORMAT:
         options = nuscenes.check_options(**(options or {}))
@@ -170,7 +176,21 @@ def export_job(job_path: str, job: job_mod.Job, fmt: str, out: str | None = None
         result = {"format": fmt, "out": dest, "output_dir": layout.root, "rendered": rendered["rendered"]}
         if rendered["stopped"]:
             return {**result, "stopped": True}
-        return {**result, **write_export(job_path, job, layout, fmt, dest, log, options), "stopped": False}
+        return {**result, **write_export(job_path, job, layout, fmt, dest, log, options, sweeps), "stopped": False}
+
+
+#: The formats that carry a rig job's LiDAR in each camera's export (``common.ExportFrame.sweep``).
+LIDAR_FORMATS = ("kitti", "kitti-tracking")
+
+
+def job_sweeps(job: job_mod.Job, root: str) -> dict:
+    """{scene frame: ``common.ExportSweep``} of a rig job with a LiDAR whose output folder is ``root``: each frame's
+    ``<LIDAR>/sweep_NNNNNN.pcd.bin`` (``OutputLayout.lidar_sweep``) and the pose ``render`` cast it from,
+    ego_to_world · lidar_to_ego (``lidar_sweeps.render_sweeps``)."""
+    layout, lidar = OutputLayout(root), job.rig.lidar
+    return {e.frame: common.ExportSweep(layout.lidar_sweep(e.frame, lidar.name),
+                                        np.asarray(e.ego_to_world, np.float64) @ np.asarray(lidar.lidar_to_ego))
+            for e in job.frames}
 
 
 def _export_rig(job_path, job, fmt, out, device, allow_outside, stop, data_roots) -> dict:
@@ -189,10 +209,23 @@ def _export_rig(job_path, job, fmt, out, device, allow_outside, stop, data_roots
         cam_out = rig_jobs.camera_output(root, cam.name)
         dests[cam.name] = os.path.join(os.path.abspath(out), cam.name) if out else OutputLayout(cam_out).export(fmt)
         check_destination(dests[cam.name], cam_out, given=bool(out), fmt=fmt)
+    sweeps, pre = None, {}
+    if job.rig.lidar is not None and fmt in LIDAR_FORMATS:
+        # the whole rig rendered first, as ``render`` does it: the cameras, then the LiDAR's sweeps (a camera job
+        # alone never casts them); each camera's export then renders nothing
+        from ..render import command as render_cmd
+
+        pre = render_cmd.render_job(job_path, job, device, stop=stop, allow_outside=allow_outside,
+                                    data_roots=data_roots)
+        if pre["stopped"]:
+            return {"format": fmt, "out": out or None, "outs": dests, "output_dir": root,
+                    "rendered": pre["rendered"], "lidar": pre.get("lidar"), "stopped": True}
+        sweeps = job_sweeps(job, root)
     done: list = []
 
     def one(cam, camera_job):
-        r = export_job(job_path, camera_job, fmt, dests[cam.name], device, allow_outside, stop, data_roots)
+        r = export_job(job_path, camera_job, fmt, dests[cam.name], device, allow_outside, stop, data_roots,
+                       sweeps=sweeps)
         done.append(cam.name)
         if out and os.path.isdir(out):   # after each camera: a run that fails or is killed later leaves <out> a
             _write_rig_record(out, fmt, job_path, list(done), previous or set())   # rig export the next replaces
@@ -203,6 +236,8 @@ def _export_rig(job_path, job, fmt, out, device, allow_outside, stop, data_roots
     counts = [k for k, v in first.items() if isinstance(v, int) and not isinstance(v, bool)]
     result = rig_jobs.combined(job, results, root, counts, stop)
     result.update(out=out or None, outs=dests)
+    if sweeps is not None:
+        result.update(rendered=result.get("rendered", 0) + pre["rendered"], lidar=pre.get("lidar"))
     return result
 
 
@@ -254,12 +289,13 @@ def rendered_job(job_path: str, job: job_mod.Job, device: str, paths: dict, allo
 
 
 def write_export(job_path: str, job: job_mod.Job, layout: OutputLayout, fmt: str, dest: str, log=None,
-                 options: dict | None = None) -> dict:
+                 options: dict | None = None, sweeps: dict | None = None) -> dict:
     """The export itself, once the frames are rendered (labels and layers in ``layout``): the images chosen (a
     warning event when they are the condition previews), every frame read, the destination written whole (a
     previous export there replaced only when this one is complete). Returns the format's counts and ``images``.
     nuScenes reads the job's cameras and LiDAR itself (``nuscenes.job_clip``: a rig job's output folder holds one
-    folder per sensor)."""
+    folder per sensor). ``sweeps``: a rig camera's LiDAR sweeps by scene frame (``job_sweeps``), given to each
+    frame (``common.ExportFrame.sweep``)."""
     progress = lambda i: events.progress("export", i + 1, total, frame=job.frames[i].frame)  # noqa: E731
     if fmt == nuscenes.FORMAT:
         clip, images, why = nuscenes.job_clip(job, layout.root, nuscenes.job_scene_name(job_path),
@@ -268,6 +304,8 @@ def write_export(job_path: str, job: job_mod.Job, layout: OutputLayout, fmt: str
     else:
         images, why = image_source(layout, job)
         frames = [read_frame(layout, e.frame, images, fmt in NEEDS_INSTANCE) for e in job.frames]
+        for fr, e in zip(frames, job.frames):
+            fr.sweep = (sweeps or {}).get(e.frame)
         write = lambda tmp: FORMATS[fmt].write(tmp, frames, progress=progress)  # noqa: E731
     if images == "conditions":
         events.warning(f"exporting the condition previews as images: {why} (run generate first for the "

@@ -23,12 +23,23 @@ OPENCV_SHIFT = 0.5
 
 
 @dataclass
+class ExportSweep:
+    """A rig job's LiDAR sweep at an exported frame (docs/design.md §17): ``path`` its ``.pcd.bin``
+    (``backend.lidar.sweep``: rows x, y, z, intensity 0..255, ring in the sensor frame, x right, y forward, z up),
+    ``lidar_to_world`` (4, 4) rigid: that sensor frame to the world at the frame."""
+    path: str
+    lidar_to_world: np.ndarray
+
+
+@dataclass
 class ExportFrame:
     """One output frame to export: its ``labels`` (``core.labels``' dict), the ``image`` file (PNG) shown with
-    them, and its ``instance`` layer (H, W) (ids: 0 none, k = job.assets[k − 1]; None when the format needs none)."""
+    them, its ``instance`` layer (H, W) (ids: 0 none, k = job.assets[k − 1]; None when the format needs none) and,
+    for a camera of a rig job with a LiDAR, that frame's ``sweep`` (None otherwise: only KITTI's writers read it)."""
     labels: dict
     image: str
     instance: np.ndarray | None = None
+    sweep: ExportSweep | None = None
 
 
 def opencv_K(K) -> np.ndarray:

@@ -6,6 +6,7 @@
                           type truncated occluded alpha left top right bottom h w l x y z rotation_y
     calib/NNNNNN.txt      P0..P3, R0_rect, Tr_velo_to_cam, Tr_imu_to_velo ("key: values", %.12e), in that order
                           (OpenPCDet's ``get_calib_from_file`` reads P2, P3, R0, Tr_velo_to_cam by line: 2..5)
+    velodyne/NNNNNN.bin   only for a camera of a rig job with a LiDAR: the frame's sweep (see below)
     frames.json           KITTI index -> scene frame, timestamp, the frame's quality (``FRAMES``) and per label
                           line what the devkit's columns cannot hold (``line_extras``: track id, hole_fraction …)
 
@@ -20,9 +21,21 @@ of the level frame is its pixel in the image; ``R0_rect`` is the identity. That 
 OpenPCDet (``pcdet/utils/calibration_kitti.py``) projects labels with ``rect_to_img`` = P2 alone and uses R0 and
 Tr_velo2cam only for LiDAR points; mmdetection3d keeps P2 as ``cam2img`` (KITTI mono3d projects boxes with it) and
 R0_rect · Tr_velo_to_cam as ``lidar2cam``; the devkit's ``computeBox3D``/``projectToImage`` use P2. ``P0``..``P3``
-are all that one P2 (one camera: no stereo baseline); there is no lidar or IMU, so ``Tr_velo_to_cam`` and
+are all that one P2 (one camera: no stereo baseline); a single camera has no lidar or IMU, so ``Tr_velo_to_cam`` and
 ``Tr_imu_to_velo`` are the identity [I | 0] (the "lidar" frame is the level frame), written because readers
 expect the keys.
+
+**A rig job's camera with the rig's LiDAR** (``common.ExportFrame.sweep``, docs/design.md §17) adds
+``velodyne/NNNNNN.bin``: the frame's sweep as KITTI's rows of 4 little-endian float32 (x, y, z, reflectance =
+intensity / 255) in the export's *velodyne frame*, and its ``calib`` carries ``Tr_velo_to_cam`` = that frame to
+the level frame (``R0_rect`` stays I), so ``P2 · [Tr_velo_to_cam · X]`` is a return's pixel (OpenPCDet's
+``lidar_to_rect`` then ``rect_to_img``; mmdetection3d's ``lidar2cam`` = R0_rect · Tr_velo_to_cam). The velodyne
+frame is KITTI's axes (x forward, y left, z up) at the LiDAR: origin the sensor's, z the sensor's up, x **the
+camera's heading** laid in the sensor's horizontal plane (``velodyne_to_sensor``), so for a camera looking forward
+it is the sensor's own frame (x = its y, y = −its x), and for any other camera of the rig the returns the camera
+sees lie at x > 0 as KITTI's loaders assume (OpenPCDet's KITTI point cloud range starts at x = 0; its
+``boxes3d_kitti_camera_to_lidar`` turns a label's ``rotation_y`` into the lidar heading −(π/2 + ry), exact only
+when the velodyne x is the level camera's z). A spinning LiDAR's sweep turned about its axis is the same sweep.
 
 Columns (the devkit's; level frame: x right, y down, z forward, metres). ``type``: the class's KITTI type from the
 fixed table (``core.categories``: ``Car``, ``Van``, ``Misc`` …). ``truncated`` 0..1 and ``occluded`` 0..3 are the
@@ -48,12 +61,18 @@ import os
 
 import numpy as np
 
-from scpainter_blender.core import outputs
+from scpainter_blender.core import errors, outputs
 from scpainter_blender.core.geometry import cameras
 
 from . import common
 
 IMAGES, LABELS, CALIB, FRAMES = "image_2", "label_2", "calib", "frames.json"
+#: The folder of a rig job's camera export's LiDAR sweeps (KITTI's ``velodyne/NNNNNN.bin``).
+VELODYNE = "velodyne"
+#: Values per row of a KITTI velodyne file: x, y, z, reflectance.
+VELODYNE_COLUMNS = 4
+#: Reflectance = a return's intensity (``backend.lidar.sweep``: 0..255) / this, KITTI's 0..1.
+INTENSITY_SCALE = 255.0
 #: Whether ``write`` reads the frames' instance layers (``command.FORMATS``).
 NEEDS_INSTANCE = False
 
@@ -139,32 +158,92 @@ OBJECT_KEYS = ("R0_rect:", "Tr_velo_to_cam:", "Tr_imu_to_velo:")
 TRACKING_KEYS = ("R_rect", "Tr_velo_cam", "Tr_imu_velo")
 
 
-def calib_text(K, level_to_camera=None, keys: tuple = OBJECT_KEYS) -> str:
+def calib_text(K, level_to_camera=None, keys: tuple = OBJECT_KEYS, velo_to_cam=None) -> str:
     """A ``calib`` file for a camera with our intrinsics ``K`` (3, 3) whose labels are in the level frame of
-    ``level_to_camera`` (3, 3; None: the identity, a level camera): P0..P3 (all ``P2``), then the rectification,
-    velo-to-camera and imu-to-velo matrices (identities) under ``keys``; %.12e values."""
+    ``level_to_camera`` (3, 3; None: the identity, a level camera): P0..P3 (all ``P2``), then the rectification
+    (the identity), velo-to-camera (``velo_to_cam`` (3, 4), ``velo_to_level``; None: the identity, no LiDAR) and
+    imu-to-velo (the identity) matrices under ``keys``; %.12e values."""
     R = np.eye(3) if level_to_camera is None else np.asarray(level_to_camera, np.float64)
     P = np.hstack([common.opencv_K(K) @ R, np.zeros((3, 1))])
     eye34 = np.hstack([np.eye(3), np.zeros((3, 1))])
+    velo = eye34 if velo_to_cam is None else np.asarray(velo_to_cam, np.float64)[:3, :4]
 
     def row(key, m):
         return f"{key} " + " ".join(f"{v:.12e}" for v in np.asarray(m, np.float64).ravel())
 
     rows = [row(f"P{i}:", P) for i in range(4)]
-    rows += [row(key, m) for key, m in zip(keys, (np.eye(3), eye34, eye34))]
+    rows += [row(key, m) for key, m in zip(keys, (np.eye(3), velo, eye34))]
     return "\n".join(rows) + "\n"
+
+
+def level_to_world(camera_to_world, level_to_camera) -> np.ndarray:
+    """(4, 4) the level frame (X_camera = ``level_to_camera`` · X_level) to world, of a camera_to_world (4, 4)."""
+    R = np.eye(4)
+    R[:3, :3] = level_to_camera
+    return np.asarray(camera_to_world, np.float64) @ R
+
+
+def velodyne_to_sensor(lidar_to_world, level_to_world_) -> np.ndarray:
+    """(3, 3) rotation from the export's velodyne frame (see the module's docstring) to the LiDAR's sensor frame
+    (x right, y forward, z up) of ``lidar_to_world`` (4, 4), for a camera whose level frame is ``level_to_world_``
+    (4, 4): its columns are the velodyne axes in the sensor frame, x the level camera's heading (its z axis) laid in
+    the sensor's x-y plane, z the sensor's z, y = z × x. A heading along the sensor's z (no rig does that) takes the
+    sensor's forward (within 1e-6 rad of it the turn is noise: every frame would get another)."""
+    heading = np.asarray(lidar_to_world, np.float64)[:3, :3].T @ np.asarray(level_to_world_, np.float64)[:3, 2]
+    x = np.array([heading[0], heading[1], 0.0])
+    if np.linalg.norm(x) < 1e-6:
+        x = np.array([0.0, 1.0, 0.0])
+    x /= np.linalg.norm(x)
+    z = np.array([0.0, 0.0, 1.0])
+    return np.column_stack([x, np.cross(z, x), z])
+
+
+def velo_to_level(lidar_to_world, level_to_world_, velodyne_to_sensor_) -> np.ndarray:
+    """(3, 4) KITTI's ``Tr_velo_to_cam``: the velodyne frame (``velodyne_to_sensor_`` (3, 3) turns it into the
+    sensor frame of ``lidar_to_world`` (4, 4)) to the level frame of ``level_to_world_`` (4, 4)."""
+    V = np.eye(4)
+    V[:3, :3] = velodyne_to_sensor_
+    return (cameras.rigid_inverse(np.asarray(level_to_world_, np.float64))
+            @ np.asarray(lidar_to_world, np.float64) @ V)[:3]
+
+
+def velodyne_rows(sweep: common.ExportSweep, velodyne_to_sensor_) -> np.ndarray:
+    """(R, 4) little-endian float32: the sweep's returns (its ``.pcd.bin``, ``backend.lidar.sweep.read_pcd_bin``)
+    as KITTI's velodyne rows: x, y, z in the velodyne frame (``velodyne_to_sensor_`` (3, 3)), reflectance =
+    intensity / ``INTENSITY_SCALE``. A missing sweep is an ``InputError`` naming it (render the rig job again)."""
+    from backend.lidar import sweep as sweep_mod
+
+    if not os.path.isfile(sweep.path):
+        raise errors.InputError(sweep.path, "(file)", "the LiDAR's sweep of this frame is missing",
+                                hint="render the rig job again: python -m backend render JOB")
+    rows = sweep_mod.read_pcd_bin(sweep.path)
+    xyz = rows[:, :3].astype(np.float64) @ np.asarray(velodyne_to_sensor_, np.float64)   # X_v = V^T X_s, per row
+    return np.column_stack([xyz, rows[:, 3].astype(np.float64) / INTENSITY_SCALE]).astype("<f4")
+
+
+def write_velodyne(path: str, rows) -> None:
+    """KITTI velodyne rows (R, 4) float32 to ``path`` (no header: the raw little-endian floats), atomically."""
+    data = np.ascontiguousarray(rows, "<f4").tobytes()
+    with outputs.atomic_write(path, "wb") as f:
+        f.write(data)
 
 
 def write(folder: str, frames: list, progress=None) -> dict:
     """The dataset into ``folder`` (existing, empty) from ``frames`` (``common.ExportFrame``, in order);
     ``progress(i)`` after each frame. Returns {"frames", "objects", "ignore_regions"} (label lines, DontCare
     lines)."""
-    for sub in (IMAGES, LABELS, CALIB):
+    for sub in (IMAGES, LABELS, CALIB) + ((VELODYNE,) if any(fr.sweep for fr in frames) else ()):
         outputs.make_folder(os.path.join(folder, sub))
     index, objects, regions = [], 0, 0
     for i, fr in enumerate(frames):
         lab = fr.labels
         R = level_rotation(lab["camera"]["world_to_camera"])
+        velo = None
+        if fr.sweep is not None:   # a rig camera's export: its LiDAR's sweep and where it lies
+            level = level_to_world(lab["camera"]["camera_to_world"], R)
+            axes = velodyne_to_sensor(fr.sweep.lidar_to_world, level)
+            velo = velo_to_level(fr.sweep.lidar_to_world, level, axes)
+            write_velodyne(os.path.join(folder, VELODYNE, common.index_name(i, ".bin")), velodyne_rows(fr.sweep, axes))
         common.copy_image(fr.image, os.path.join(folder, IMAGES, common.index_name(i, ".png")))
         lines = frame_lines(lab, R)
         regions += sum(track == -1 for track, _ in lines)
@@ -172,7 +251,7 @@ def write(folder: str, frames: list, progress=None) -> dict:
         with outputs.atomic_write(os.path.join(folder, LABELS, common.index_name(i, ".txt")), "w") as f:
             f.write("".join(line + "\n" for _, line in lines))
         with outputs.atomic_write(os.path.join(folder, CALIB, common.index_name(i, ".txt")), "w") as f:
-            f.write(calib_text(lab["camera"]["K"], R))
+            f.write(calib_text(lab["camera"]["K"], R, velo_to_cam=velo))
         index.append({"index": common.index_name(i, ""), "frame": lab["frame"], "timestamp_s": lab["timestamp_s"],
                       **common.frame_quality(lab), "lines": line_extras(lab)})
         if progress:

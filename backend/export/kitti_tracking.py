@@ -7,6 +7,11 @@
     calib/0000.txt            the sequence's calibration: P0..P3, R_rect, Tr_velo_cam, Tr_imu_velo (the tracking
                               devkit's keys, the last three without a colon; ``kitti.calib_text``)
     pose/0000.txt             one row per frame: the 12 numbers (row-major 3x4) of the frame's label frame to world
+    velodyne/0000/NNNNNN.bin  only for a camera of a rig job with a LiDAR: each frame's sweep (``kitti``'s rows and
+                              velodyne frame); ``Tr_velo_cam`` is the first frame's velodyne frame to its label
+                              frame, which holds for every frame: the LiDAR and the camera are fixed to one rig, so
+                              frame i's returns in its velodyne frame (the first frame's axes relative to the
+                              sensor) map by it into L_i
     frames.json               KITTI frame -> scene frame, timestamp, the frame's quality (``kitti.FRAMES``)
 
 Each line is ``kitti``'s object label (the same columns, conventions and 4-decimal 3D values, the same rules for
@@ -48,9 +53,7 @@ NEEDS_INSTANCE = False
 
 def label_frame_to_world(camera_to_world, level_to_camera) -> np.ndarray:
     """(4, 4) the label frame L (X_camera = ``level_to_camera`` · X_L) to world, of a camera_to_world (4, 4)."""
-    R = np.eye(4)
-    R[:3, :3] = level_to_camera
-    return np.asarray(camera_to_world, np.float64) @ R
+    return kitti.level_to_world(camera_to_world, level_to_camera)
 
 
 def tilt_change_deg(world_to_camera, level_to_camera) -> float:
@@ -69,14 +72,24 @@ def write(folder: str, frames: list, progress=None) -> dict:
     """The sequence into ``folder`` (existing, empty) from ``frames`` (``common.ExportFrame``, in order);
     ``progress(i)`` after each frame. Returns {"frames", "objects", "ignore_regions"} (label lines, DontCare
     lines)."""
-    for sub in (os.path.join(IMAGES, SEQUENCE), LABELS, CALIB, POSES):
+    lidar = frames[0].sweep is not None
+    for sub in (os.path.join(IMAGES, SEQUENCE), LABELS, CALIB, POSES) + \
+            ((os.path.join(kitti.VELODYNE, SEQUENCE),) if lidar else ()):
         outputs.make_folder(os.path.join(folder, sub))
     first = frames[0].labels["camera"]
     R = kitti.level_rotation(first["world_to_camera"])
+    velo = axes = None
+    if lidar:   # the rig's LiDAR is fixed to its camera: the first frame's Tr_velo_cam holds for every frame
+        level = label_frame_to_world(first["camera_to_world"], R)
+        axes = kitti.velodyne_to_sensor(frames[0].sweep.lidar_to_world, level)
+        velo = kitti.velo_to_level(frames[0].sweep.lidar_to_world, level, axes)
     lines, poses, index, objects, regions = [], [], [], 0, 0
     for i, fr in enumerate(frames):
         lab = fr.labels
         common.copy_image(fr.image, os.path.join(folder, IMAGES, SEQUENCE, common.index_name(i, ".png")))
+        if lidar:
+            kitti.write_velodyne(os.path.join(folder, kitti.VELODYNE, SEQUENCE, common.index_name(i, ".bin")),
+                                 kitti.velodyne_rows(fr.sweep, axes))
         for track, columns in kitti.frame_lines(lab, R):
             lines.append(f"{i} {track} {columns}")
             regions += track == -1
@@ -88,7 +101,7 @@ def write(folder: str, frames: list, progress=None) -> dict:
         if progress:
             progress(i)
     for sub, text in ((LABELS, "".join(line + "\n" for line in lines)),
-                      (CALIB, kitti.calib_text(first["K"], R, kitti.TRACKING_KEYS)),
+                      (CALIB, kitti.calib_text(first["K"], R, kitti.TRACKING_KEYS, velo)),
                       (POSES, "".join(row + "\n" for row in poses))):
         with outputs.atomic_write(os.path.join(folder, sub, SEQUENCE + ".txt"), "w") as f:
             f.write(text)

@@ -233,3 +233,47 @@ def test_removed_out_of_view_and_unknown_objects(tmp_path):
     with pytest.raises(errors.InputError) as e:
         kitti.write(str(tmp_path / "f"), frames[:1])
     assert e.value.field == "objects[1].class" and "hovercraft" in e.value.message and "car" in e.value.message
+
+
+def test_a_rig_cameras_lidar_is_velodyne_points_and_tr_velo_to_cam(tmp_path):
+    """A camera of a rig with a LiDAR (``ExportFrame.sweep``): the LiDAR mounted 0.3 m above the level camera and
+    turned so its own forward is 90° left of the camera's heading; the sweep holds each labelled box's centre.
+    OpenPCDet's ``calibration_kitti`` (``lidar_to_rect``, ``rect_to_img``: exact for this level camera) puts each
+    at its label's centre and pixel; the velodyne frame's x is the camera's heading (KITTI's axes: Tr_velo_to_cam's
+    rotation is KITTI's x forward, y left, z up into the camera's x right, y down, z forward)."""
+    frames = F.export_frames(tmp_path)
+    sensor_axes = np.array([[0.0, -1, 0], [1, 0, 0], [0, 0, 1]])   # columns: its x right, y forward, z up in world
+    for i, fr in enumerate(frames):
+        lidar_to_world = np.eye(4)
+        lidar_to_world[:3, :3] = sensor_axes
+        lidar_to_world[:3, 3] = np.asarray(fr.labels["camera"]["camera_to_world"])[:3, 3] + [0.0, 0.0, 0.3]
+        centres = np.array([o["box_world"]["center"] for o in fr.labels["objects"] if o["box_world"]])
+        in_sensor = (centres - lidar_to_world[:3, 3]) @ sensor_axes
+        rows = np.column_stack([in_sensor, np.full(len(centres), 51.0), np.full(len(centres), 3.0)])
+        path = tmp_path / f"sweep_{i}.pcd.bin"
+        path.write_bytes(rows.astype("<f4").tobytes())
+        fr.sweep = common.ExportSweep(str(path), lidar_to_world)
+    out = tmp_path / "kitti"
+    out.mkdir()
+    kitti.write(str(out), frames)
+    canonical = np.array([[0.0, -1, 0], [0, 0, -1], [1, 0, 0]])
+    for i, fr in enumerate(frames):
+        velo = np.fromfile(out / "velodyne" / f"{i:06d}.bin", "<f4").reshape(-1, 4)
+        assert np.allclose(velo[:, 3], 0.2) and (velo[:, 0] > 0).all()     # reflectance 51/255; all ahead
+        calib = _read_calib(out / "calib" / f"{i:06d}.txt")
+        V2C, R0, P2 = calib["Tr_velo_to_cam"].reshape(3, 4), calib["R0_rect"].reshape(3, 3), calib["P2"].reshape(3, 4)
+        assert np.allclose(V2C[:, :3], canonical, atol=1e-12)
+        assert np.allclose(V2C[:, 3], [0.0, -0.3, 0.0], atol=1e-12)        # the LiDAR 0.3 m above the camera
+        hom = np.hstack([velo[:, :3], np.ones((len(velo), 1))])
+        rect = hom @ (V2C.T @ R0.T)                                           # OpenPCDet lidar_to_rect
+        img = ((np.hstack([rect, np.ones((len(rect), 1))]) @ P2.T)[:, :2].T / rect[:, 2]).T   # its rect_to_img
+        lines = [_parse(x) for x in open(out / "label_2" / f"{i:06d}.txt") if not x.startswith("DontCare")]
+        assert lines
+        for lab in lines:
+            h = lab["hwl"][0]
+            centre = lab["loc"] - [0.0, h / 2, 0.0]                           # the bottom centre, up half the height
+            k = int(np.argmin(np.linalg.norm(rect - centre, axis=1)))
+            assert np.linalg.norm(rect[k] - centre) < 1e-3                    # 4 decimals, float32 points
+            pixel = common.opencv_K(fr.labels["camera"]["K"]) @ centre
+            assert np.allclose(img[k], pixel[:2] / pixel[2], atol=1e-3)
+    assert sorted(os.listdir(out / "velodyne")) == ["000000.bin", "000001.bin"]

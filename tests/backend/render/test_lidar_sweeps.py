@@ -63,6 +63,86 @@ def test_render_casts_each_frames_sweep_with_the_car_among_its_returns(rigged):
     assert [x["kind"] for x in ev if x["event"] == "artifact" and x["path"].endswith(".pcd.bin")] == ["lidar"] * 2
 
 
+def _calib(path) -> dict:
+    """A KITTI calib file as OpenPCDet's ``get_calib_from_file`` reads it: ``key[:] v1 v2 ...`` per line."""
+    out = {}
+    for line in open(path, encoding="utf-8"):
+        key, *values = line.split()
+        out[key.rstrip(":")] = np.array([float(v) for v in values])
+    return out
+
+
+def _in_world_box(points, box) -> np.ndarray:
+    """Which world ``points`` (R, 3) lie strictly inside a labels ``box_world`` (centre, size l w h, quaternion)."""
+    from scpainter_blender.core.geometry import cameras
+
+    R_ = cameras.quaternion_to_rotation(np.asarray(box["quaternion"], np.float64)).reshape(3, 3)
+    local = (points - np.asarray(box["center"], np.float64)) @ R_
+    return np.all(np.abs(local) < np.asarray(box["size"], np.float64) / 2, axis=1)
+
+
+def _in_kitti_box(rect, h, w, l, loc, ry) -> np.ndarray:
+    """Which rectified-camera points (R, 3) lie strictly inside a KITTI label's box (the devkit's
+    ``computeBox3D``: from the bottom centre ``loc`` up along −y, length along x turned by ``ry`` about y)."""
+    d = rect - loc
+    c, s = np.cos(ry), np.sin(ry)
+    along, across = c * d[:, 0] - s * d[:, 2], s * d[:, 0] + c * d[:, 2]
+    return (np.abs(along) < l / 2) & (np.abs(across) < w / 2) & (d[:, 1] < 0) & (d[:, 1] > -h)
+
+
+def test_kitti_export_of_the_rig_camera_carries_its_lidar(rigged):
+    """KITTI's velodyne/ and Tr_velo_to_cam, read as OpenPCDet's ``calibration_kitti`` does (``lidar_to_rect``),
+    projected by P2: the returns inside the car's label box are the sweep's returns in its world box, and they land
+    on the label's 2D box; KITTI tracking carries the same points and one Tr_velo_cam."""
+    tmp, job_path = rigged
+    out = tmp / "kitti"
+    code, ev, err = backend("export", job_path, "--format", "kitti", "--out", out, "--device", "cpu",
+                            "--data-root", tmp / "drive")
+    assert code == 0, err
+    assert ev[-1]["lidar"]["sweeps"] == 2
+    layout, job = OutputLayout(tmp / "surround"), J.load(job_path)
+    cam = out / "CAM_FRONT"
+    for i, e in enumerate(job.frames):
+        rows = sweep_mod.read_pcd_bin(layout.lidar_sweep(e.frame))
+        info = files.read_json(layout.lidar_sweep_info(e.frame))
+        velo = np.fromfile(cam / "velodyne" / f"{i:06d}.bin", "<f4").reshape(-1, 4)
+        assert len(velo) == len(rows) and np.allclose(velo[:, 3], rows[:, 3] / 255.0)
+        # a camera looking forward: KITTI's velodyne axes are the sensor's (x forward = its y, y left = its -x)
+        assert np.allclose(velo[:, :3], np.column_stack([rows[:, 1], -rows[:, 0], rows[:, 2]]), atol=1e-5)
+        calib = _calib(cam / "calib" / f"{i:06d}.txt")
+        V2C, R0, P2 = calib["Tr_velo_to_cam"].reshape(3, 4), calib["R0_rect"].reshape(3, 3), calib["P2"].reshape(3, 4)
+        hom = np.hstack([velo[:, :3].astype(np.float64), np.ones((len(velo), 1))])
+        rect = hom @ (V2C.T @ R0.T)                                                      # lidar_to_rect
+        # P2 · X, divided by its third row (the devkit's projectToImage); OpenPCDet's rect_to_img divides by the
+        # rect z, the same for a level camera (P2's third row 0 0 1 0: test_kitti), but this camera looks up
+        uvw = np.hstack([rect, np.ones((len(rect), 1))]) @ P2.T
+        img = uvw[:, :2] / uvw[:, 2:3]
+        line = next(x.split() for x in open(cam / "label_2" / f"{i:06d}.txt") if x.startswith("Car "))
+        box2d = np.array(line[4:8], float)
+        h, w, l, x, y, z, ry = (float(v) for v in line[8:15])
+        inside = _in_kitti_box(rect, h, w, l, np.array([x, y, z]), ry)
+        # the same returns counted in the world, from the .pcd.bin and the sweep's pose, in the labels' box
+        lab = files.read_json(layout.camera("CAM_FRONT").frame_labels(e.frame))
+        car = next(o for o in lab["objects"] if o["class"] == "car" and o["synthetic"])
+        T = np.asarray(info["lidar_to_world"])
+        world = rows[:, :3].astype(np.float64) @ T[:3, :3].T + T[:3, 3]
+        assert inside.sum() == _in_world_box(world, car["box_world"]).sum() > 0
+        assert inside.sum() <= info["returns_per_source"]["car"] + info["returns_per_source"]["points"]
+        u, v = img[inside].T
+        assert (u >= box2d[0] - 0.5).all() and (u <= box2d[2] + 0.5).all()          # on the car's 2D box
+        assert (v >= box2d[1] - 0.5).all() and (v <= box2d[3] + 0.5).all()
+    # KITTI tracking: velodyne/0000/NNNNNN.bin, the sequence's one Tr_velo_cam (the rig holds the LiDAR fixed)
+    code, ev, err = backend("export", job_path, "--format", "kitti-tracking", "--out", tmp / "tracking",
+                            "--device", "cpu", "--data-root", tmp / "drive")
+    assert code == 0, err
+    seq = tmp / "tracking" / "CAM_FRONT"
+    tr = _calib(seq / "calib" / "0000.txt")["Tr_velo_cam"]
+    assert np.allclose(tr, _calib(cam / "calib" / "000000.txt")["Tr_velo_to_cam"], atol=1e-9)
+    for i in range(len(job.frames)):
+        assert np.array_equal(np.fromfile(seq / "velodyne" / "0000" / f"{i:06d}.bin", "<f4"),
+                              np.fromfile(cam / "velodyne" / f"{i:06d}.bin", "<f4"))
+
+
 def test_a_second_render_casts_nothing_and_a_moved_lidar_casts_again(rigged):
     tmp, job_path = rigged
     code, ev, err = _render(job_path, tmp)

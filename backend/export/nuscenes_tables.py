@@ -48,6 +48,7 @@ import numpy as np
 from scpainter_blender.core import categories, errors, files, labels
 from scpainter_blender.core.geometry import cameras
 
+from ..lidar import sweep as sweep_mod
 from . import common
 
 #: The devkit's tables, in its loading order (``NuScenes.table_names``).
@@ -71,9 +72,6 @@ MAP_MARGIN_M = 60.0
 #: The map marks as drivable (255) the strip the ego drove on, this far either side of its path; the rest is 0
 #: (unknown, not known to be undrivable).
 DRIVEN_HALF_WIDTH_M = 2.0
-SWEEP_COLUMNS = 5
-#: A sweep larger than this is no sweep (a 128-beam sensor's 0.1° sweep is ~ 9 MB).
-MAX_SWEEP_BYTES = 1 << 28
 
 
 def token(*parts) -> str:
@@ -151,20 +149,6 @@ def attributes(nuscenes_name: str, our_class: str, speed: float | None, track_mo
     if nuscenes_name.startswith("human.pedestrian."):
         return ["pedestrian.moving" if moving else "pedestrian.standing"]
     return []
-
-
-def read_sweep(path: str) -> np.ndarray:
-    """(R, 5) float32 rows of a ``.pcd.bin`` sweep (x, y, z, intensity, ring; sensor frame); InputError naming the
-    file when its size is not a whole number of rows."""
-    with files.open_regular(path) as f:   # a FIFO, device or folder there: an InputError, never a hang
-        raw = f.read(MAX_SWEEP_BYTES + 1)
-    if len(raw) > MAX_SWEEP_BYTES:
-        raise errors.InputError(path, "(file)", f"is over {MAX_SWEEP_BYTES} bytes: not a LiDAR sweep",
-                                hint="render again: python -m backend render JOB")
-    if len(raw) % (4 * SWEEP_COLUMNS):
-        raise errors.InputError(path, "(file)", f"{len(raw)} bytes: not rows of {SWEEP_COLUMNS} float32 "
-                                "(x, y, z, intensity, ring)", hint="render again: python -m backend render JOB")
-    return np.frombuffer(raw, dtype="<f4").reshape(-1, SWEEP_COLUMNS)
 
 
 def points_in_boxes(points: np.ndarray, centres, sizes_wlh, rotations_wxyz) -> np.ndarray:
@@ -372,7 +356,7 @@ class Tables:
                              "num_radar_pts": 0, "synthetic": bool(o["synthetic"]), "track_id": tid})
                 tracks.setdefault(tid, (nus, o["name"], []))[2].append(rows[-1])
             if clip.lidar is not None and rows and clip.sweeps[i] is not None:
-                pts = read_sweep(clip.sweeps[i])[:, :3].astype(np.float64)
+                pts = sweep_mod.read_pcd_bin(clip.sweeps[i])[:, :3].astype(np.float64)
                 to_global = ego_global[i] @ np.asarray(clip.lidar.lidar_to_ego, np.float64)
                 pts = pts @ to_global[:3, :3].T + to_global[:3, 3]
                 counts = points_in_boxes(pts, [r["translation"] for r in rows], [r["size"] for r in rows],

@@ -19,6 +19,8 @@ from scpainter_blender.core import errors, outputs
 
 #: Values per row of a ``.pcd.bin``: x, y, z, intensity, ring.
 PCD_COLUMNS = 5
+#: The largest sweep ``read_pcd_bin`` reads: 256 MiB, 13 M returns (a velodyne-64 sweep holds 136 k at most).
+MAX_PCD_BYTES = 1 << 28
 
 
 @dataclass(eq=False)
@@ -79,11 +81,19 @@ def write_pcd_bin(path: str | os.PathLike, sweep: Sweep) -> None:
 
 
 def read_pcd_bin(path: str | os.PathLike) -> np.ndarray:
-    """(R, 5) float32 rows of a ``.pcd.bin``; a file whose size is not a whole number of rows is an
-    ``InputError``."""
-    with open(path, "rb") as f:
-        data = f.read()
+    """(R, 5) float32 rows of a ``.pcd.bin`` (x, y, z, intensity, ring; sensor frame), the one reader of the files
+    ``write_pcd_bin`` writes (render's surround pictures, the nuScenes and KITTI exports). Opened as a regular file
+    only (a FIFO, device or folder there is an ``InputError``, never a hang) and bounded (``MAX_PCD_BYTES``); a size
+    that is not a whole number of rows is an ``InputError`` naming the file."""
+    from scpainter_blender.core import files
+
+    path = os.fspath(path)
+    with files.open_regular(path) as f:
+        data = f.read(MAX_PCD_BYTES + 1)
+    if len(data) > MAX_PCD_BYTES:
+        raise errors.InputError(path, "(file)", f"is over {MAX_PCD_BYTES} bytes: not a LiDAR sweep",
+                                hint="render again: python -m backend render JOB")
     if len(data) % (4 * PCD_COLUMNS):
-        raise errors.InputError(path, "(file)", f"{len(data)} bytes is not a whole number of {PCD_COLUMNS}-float32 "
-                                "rows (x, y, z, intensity, ring)", hint="write it again with write_pcd_bin")
+        raise errors.InputError(path, "(file)", f"{len(data)} bytes: not rows of {PCD_COLUMNS} float32 "
+                                "(x, y, z, intensity, ring)", hint="render again: python -m backend render JOB")
     return np.frombuffer(data, "<f4").reshape(-1, PCD_COLUMNS).astype(np.float32)

@@ -68,8 +68,8 @@ def test_a_keyframe_without_its_sweep_names_the_file(tmp_path):
     os.remove(clip.sweeps[0])
     os.mkfifo(clip.sweeps[0])                          # a FIFO planted there: refused at once, never waited on
     with pytest.raises(errors.InputError) as e:
-        T.read_sweep(clip.sweeps[0])
-    assert e.value.path == clip.sweeps[0] and "regular file" in e.value.message
+        T.Tables().add(clip)                          # not a sweep file: missing (the reader refuses it too)
+    assert e.value.path == clip.sweeps[0] and "missing" in e.value.message
 
 
 def _annotated(clip, frame_index: int = 0) -> set:

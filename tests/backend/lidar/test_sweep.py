@@ -50,6 +50,17 @@ def test_a_file_that_is_not_whole_rows_is_an_input_error(tmp_path):
     assert e.value.path == str(path) and "24 bytes" in e.value.message
 
 
+def test_a_fifo_or_a_folder_is_refused_at_once_never_waited_on(tmp_path):
+    import os
+
+    os.mkfifo(tmp_path / "fifo.pcd.bin")
+    (tmp_path / "dir.pcd.bin").mkdir()
+    for name in ("fifo.pcd.bin", "dir.pcd.bin"):
+        with pytest.raises(errors.InputError) as e:
+            sw.read_pcd_bin(tmp_path / name)
+        assert e.value.path == str(tmp_path / name)
+
+
 def test_world_points_apply_the_pose():
     T = np.eye(4)
     T[:3, :3] = [[0, -1, 0], [1, 0, 0], [0, 0, 1]]

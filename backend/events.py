@@ -103,7 +103,9 @@ def warning(message: str, code: str, **fields: object) -> None:
     """A ``warning`` event (``core.backend_protocol.WARNING_FIELDS``), also written to the human log: the command's
     open ``FileLog`` (``<output_dir>/backend.log``, where Blender's report tells the user to look) and stderr."""
     emit(protocol.WARNING, message=message, code=code, **fields)
-    log_here(f"warning: {message}")
+    log(f"warning: {message}")
+    if _open_logs:
+        _open_logs[-1].record(f"warning: {message}")
 
 
 def log(message: str) -> None:
@@ -130,11 +132,15 @@ class FileLog:
         _open_logs.append(self)
 
     def __call__(self, message: str) -> None:
+        log(self.record(message))
+
+    def record(self, message: str) -> str:
+        """``message`` appended to the file only, as a timestamped line; that line."""
         import time
 
         line = f"{time.strftime('%Y-%m-%d %H:%M:%S')} {message}"
-        log(line)
         self.append(line + "\n")
+        return line
 
     def append(self, text: str) -> None:
         """``text`` appended to the file only (not standard error)."""

@@ -237,4 +237,4 @@ def test_a_warning_goes_to_the_output_folders_log_where_blender_says_to_look(tmp
         events.FileLog(str(tmp_path / "backend.log"))    # the command's log, as render opens it
         events.warning("frame 3: coverage 12 %", "low_coverage", frame=3)
     assert "warning: frame 3: coverage 12 %" in (tmp_path / "backend.log").read_text()
-    assert "warning: frame 3: coverage 12 %" in capsys.readouterr().err
+    assert capsys.readouterr().err == "warning: frame 3: coverage 12 %\n"   # standard error as before

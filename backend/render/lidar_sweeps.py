@@ -82,7 +82,8 @@ def render_sweeps(job_path: str, job: job_mod.Job, root: str, device: str, force
     todo = {e.frame for e in job.frames if force or not done(layout.lidar_sweep_info(e.frame, rig.lidar.name),
                                                              keys[e.frame])}
     total, cast, skipped = len(job.frames), 0, 0
-    with locking.OutputLock(folder, "render", busy=FolderBusyError):
+    with locking.OutputLock(folder, "render", busy=FolderBusyError), events.log_scope():
+        log = log or events.FileLog(layout.log)   # the rig's own backend.log: its cameras keep theirs
         scene = None
         for n, e in enumerate(job.frames):
             if stop:
@@ -94,9 +95,8 @@ def render_sweeps(job_path: str, job: job_mod.Job, root: str, device: str, force
                     _ensure_kernels()
                     _, camera_job = job.camera_jobs()[0]
                     scene = fr.load_scene(camera_job, job_path, device)
-                    if log:
-                        log(f"lidar: {len(todo)} of {total} sweeps of {model.name} ({len(model.elevations_deg)} "
-                            f"beams, {model.azimuth_step_deg:g}° steps)")
+                    log(f"lidar: {len(todo)} of {total} sweeps of {model.name} ({len(model.elevations_deg)} "
+                        f"beams, {model.azimuth_step_deg:g}° steps)")
                 t = time.perf_counter()
                 lidar_to_world = np.asarray(e.ego_to_world, np.float64) @ np.asarray(rig.lidar.lidar_to_ego)
                 sw = simulate.sweep_for_frame(scene, e.frame, lidar_to_world, model, sets)
@@ -114,7 +114,6 @@ def render_sweeps(job_path: str, job: job_mod.Job, root: str, device: str, force
                                            **{a.name: int(by_source[i + 1]) for i, a in enumerate(job.assets)}}})
                 cast += 1
                 events.artifact(bin_path, frame=e.frame, kind="lidar")
-                if log:
-                    log(f"lidar frame {e.frame}: {len(sw):,} returns in {time.perf_counter() - t:.3f} s")
+                log(f"lidar frame {e.frame}: {len(sw):,} returns in {time.perf_counter() - t:.3f} s")
             events.progress("lidar", n + 1, total, frame=e.frame, reused=e.frame not in todo)
     return {"sweeps": total, "cast": cast, "skipped": skipped, "stopped": bool(stop)}

@@ -16,8 +16,9 @@ evaluation protocol, the training pairs and the backend commands build and read 
 Schema versions: ``scpainter.job/2`` names every transform ``a_to_b`` (``scene.vggt_to_world``). Files of
 ``scpainter.job/1`` (``scene.world_from_vggt``) are still read; ``save`` always writes the current version.
 
-No bpy, no torch: numpy for the matrix checks only. (About 680 lines: the ten classes of one document, each
-field's rule beside its ``to_dict``, read together; what the job points at on disk is ``core.job_inputs``.)
+No bpy, no torch: numpy for the matrix checks only. (About 800 lines: the ten classes of one document, a rig
+job's frames and camera jobs included (docs/design.md §17; the rig itself is ``core.rig``), each field's rule
+beside its ``to_dict``, read together; what the job points at on disk is ``core.job_inputs``.)
 """
 
 from __future__ import annotations

@@ -169,6 +169,7 @@ def project_factors_torch(means: torch.Tensor, factors: torch.Tensor, opacities:
     y0, y1 = centre_range(mean2[:, 1], radius[:, 1])
     on = ((x0 <= x1) & (x0 <= width - 1) & (x1 >= 0) & (y0 <= y1) & (y0 <= height - 1) & (y1 >= 0)
           & (det > 0) & torch.isfinite(radius).all(1) & torch.isfinite(conic).all(1))
+    on = torch.nonzero(on).squeeze(1)  # one host sync here (the boolean masks below would each sync again)
     index = index[on]
     centre = -w2c[:3, :3].T @ w2c[:3, 3]
     dirs = means[index] - centre
@@ -188,13 +189,17 @@ def pixel_boxes(proj: dict, width: int, height: int) -> torch.Tensor:
                         torch.clamp(y0, 0, height - 1), torch.clamp(y1, 0, height - 1)], 1).to(torch.int64)
 
 
-def depth_rank(proj: dict) -> torch.Tensor:
-    """(G,) int64: each projected Gaussian's position in front-to-back order, ties by original index."""
-    G = len(proj["depth"])
-    rank = torch.empty(G, dtype=torch.int64, device=proj["depth"].device)
+def depth_order(proj: dict) -> torch.Tensor:
+    """(G,) int64: the projected Gaussians' rows front to back, ties by original index (then by row)."""
     order = torch.sort(proj["index"], stable=True).indices
-    order = order[torch.sort(proj["depth"][order], stable=True).indices]
-    rank[order] = torch.arange(G, device=rank.device)
+    return order[torch.sort(proj["depth"][order], stable=True).indices]
+
+
+def depth_rank(proj: dict) -> torch.Tensor:
+    """(G,) int64: each projected Gaussian's position in front-to-back order (``depth_order``'s inverse)."""
+    order = depth_order(proj)
+    rank = torch.empty(len(order), dtype=torch.int64, device=order.device)
+    rank[order] = torch.arange(len(order), device=rank.device)
     return rank
 
 

@@ -25,91 +25,124 @@ from __future__ import annotations
 import torch
 
 from . import gaussians as gs
+from . import raster_choice
 
-TILE = 16       # CUDA: one Triton program per 16 x 16 tile (256 lanes)
-TILE_CPU = 8    # CPU: smaller tiles mean shorter lists per pixel (measured faster: bench/render.py)
 #: More assets than this in one frame: CUDA composites with the torch reference (the Triton kernel's per-pixel,
 #: per-asset accumulator is a [TILE², A_PAD] block, A_PAD the next power of two ≥ the number of assets).
 MAX_ASSETS_CUDA = 32
+#: Rows of ``kernel_inputs``' params (F32_ROWS, stride) float32, one column per tile entry: the mean relative to
+#: the entry's tile, conic, opacity, depth, colour, asset id (1-based, exact in float32 below 2^24).
+MX, MY, CA, CB, CC, OPACITY, DEPTH, RED, GREEN, BLUE, ASSET = range(11)
+F32_ROWS = 11
+#: Row stride alignment of params and boxes (elements): every row starts 128-byte aligned whatever the frame's
+#: entry count, so Triton's alignment specialisation of the pointers never changes between frames.
+STRIDE_ALIGN = 32
 
 
-def bin_tiles(proj, width: int, height: int, tile: int = TILE) -> dict:
+def bin_tiles(proj, width: int, height: int, tile: int = raster_choice.TILE_CUDA) -> dict:
     """Tile lists of projected Gaussians (see the module docstring). Returns ``boxes`` (G, 4) int32 x0 x1 y0 y1,
-    ``entries`` (E,) int32 rows of ``proj`` sorted by (tile, depth rank), ``entry_tile`` (E,) the tile of each
-    entry, ``tile_start`` (tiles + 1,) int64, ``tiles_x``, ``tiles_y`` and ``tile``."""
+    ``entries`` (E,) int32 rows of ``proj`` sorted by (tile, depth rank), ``entry_tile`` (E,) int64 the tile of
+    each entry, ``tile_start`` (tiles + 1,) int64, ``tiles_x``, ``tiles_y`` and ``tile``.
+
+    On the device, without Python loops: the Gaussians in depth order (``gaussians.depth_order``), their entries
+    generated in that order, then one stable sort by tile id alone (int16 keys when the tiles fit, else int32:
+    half or a quarter of the radix passes of a (tile, depth) int64 key), and the tile ranges by a binary search
+    of the sorted ids. One host sync: the entry count, to size the arrays."""
     dev = proj["mean2d"].device
     tiles_x, tiles_y = -(-width // tile), -(-height // tile)
+    n_tiles = tiles_x * tiles_y
     G = len(proj["depth"])
     boxes = gs.pixel_boxes(proj, width, height)
-    tx0, tx1, ty0, ty1 = (boxes // tile).unbind(1)
+    order = gs.depth_order(proj)
+    tx0, tx1, ty0, ty1 = (boxes[order] // tile).unbind(1)
     tw, th = tx1 - tx0 + 1, ty1 - ty0 + 1
     counts = tw * th
-    g = torch.repeat_interleave(torch.arange(G, device=dev), counts)
-    k = torch.arange(len(g), device=dev) - (torch.cumsum(counts, 0) - counts)[g]
-    tile_id = (ty0[g] + k // tw[g]) * tiles_x + tx0[g] + k % tw[g]
-    order = torch.argsort(tile_id * max(G, 1) + gs.depth_rank(proj)[g])
-    entries = g[order].to(torch.int32)
-    entry_tile = tile_id[order]
-    per_tile = torch.bincount(tile_id, minlength=tiles_x * tiles_y)
-    tile_start = torch.zeros(tiles_x * tiles_y + 1, dtype=torch.int64, device=dev)
-    tile_start[1:] = torch.cumsum(per_tile, 0)
-    return {"boxes": boxes.to(torch.int32), "entries": entries, "entry_tile": entry_tile, "tile_start": tile_start,
-            "tiles_x": tiles_x, "tiles_y": tiles_y, "tile": tile}
+    ends = torch.cumsum(counts, 0)
+    n_entries = int(ends[-1]) if G else 0  # the one host sync
+    rank = torch.repeat_interleave(torch.arange(G, device=dev), counts, output_size=n_entries)
+    k = torch.arange(n_entries, device=dev) - (ends - counts)[rank]
+    key_type = torch.int16 if n_tiles < torch.iinfo(torch.int16).max else torch.int32
+    tile_id = ((ty0[rank] + k // tw[rank]) * tiles_x + tx0[rank] + k % tw[rank]).to(key_type)
+    entry_tile, perm = torch.sort(tile_id, stable=True)  # entries were made in depth order: (tile, rank) order
+    entries = order[rank[perm]].to(torch.int32)
+    tile_start = torch.searchsorted(entry_tile, torch.arange(n_tiles + 1, device=dev, dtype=key_type))
+    return {"boxes": boxes.to(torch.int32), "entries": entries, "entry_tile": entry_tile.to(torch.int64),
+            "tile_start": tile_start.to(torch.int64), "tiles_x": tiles_x, "tiles_y": tiles_y, "tile": tile}
 
 
 def kernel_inputs(proj, bins, width, height, background_depth, dtype=torch.float32):
-    """The flat, contiguous arrays the Triton kernel reads, one row per tile entry: ``params`` (E, 12) = mean x,
-    mean y relative to the entry's tile origin, conic a b c, opacity, depth, r g b, the asset id (1-based,
-    ``gaussians.asset_ids``; exact in float32 below 2^24), one pad; ``boxes`` (E, 4) int32 absolute pixel boxes;
-    ``tile_start``; the background depth.
+    """The arrays the Triton kernel reads (``tiles_cuda``), one column per tile entry in list order, fields in
+    rows so that a batch of entries is one contiguous load per field: ``params`` (F32_ROWS, S) =
+    mean x, mean y relative to the entry's tile origin, conic a b c, opacity, depth, r g b, the asset id
+    (1-based, ``gaussians.asset_ids``; exact in float32 below 2^24); ``boxes`` (4, S) int32 absolute pixel boxes
+    x0 x1 y0 y1; ``tile_start``; the background depth (HW,). S is the entry count rounded up to
+    ``STRIDE_ALIGN`` (the columns past the entries are never read).
 
     Precision: the projection arrives in float64 (``frames.render_frame``); the kernel gets float32 (``dtype``)
-    with means relative to the tile (values below the tile size: ~1e-6 px of rounding instead of ~6e-5 px at
-    x ~ 1000, which thin, edge-on Gaussians would turn into ~1e-4 of α)."""
+    with means made relative to the tile in the projection's precision (values below the tile size: ~1e-6 px of
+    rounding instead of ~6e-5 px at x ~ 1000, which thin, edge-on Gaussians would turn into ~1e-4 of α)."""
     dev, dt = proj["mean2d"].device, dtype
     bg = (torch.full((height * width,), float("inf"), dtype=dt, device=dev) if background_depth is None
           else background_depth.reshape(-1).to(dt).contiguous())
-    per_gaussian = torch.zeros((len(proj["depth"]), 12), dtype=torch.float64, device=dev)
-    per_gaussian[:, 0:2] = proj["mean2d"]
-    per_gaussian[:, 2:5] = proj["conic"]
-    per_gaussian[:, 5] = proj["opacity"]
-    per_gaussian[:, 6] = proj["depth"]
-    per_gaussian[:, 7:10] = proj["color"]
-    per_gaussian[:, 10] = gs.asset_ids(proj)
     e = bins["entries"].to(torch.int64)
-    params = per_gaussian[e]                              # one gather: entry order, read front to back
+    n = len(e)
+    stride = max(STRIDE_ALIGN, -(-n // STRIDE_ALIGN) * STRIDE_ALIGN)
+    params = torch.zeros((F32_ROWS, stride), dtype=dt, device=dev)
     t, tile = bins["entry_tile"], bins["tile"]
-    params[:, 0] -= (t % bins["tiles_x"]) * tile          # relative to the entry's tile, still in float64
-    params[:, 1] -= (t // bins["tiles_x"]) * tile
-    return params.to(dt), bins["boxes"][e].contiguous(), bins["tile_start"].contiguous(), bg
+    m2 = proj["mean2d"][e]                                # the projection's precision until the tile origin is off
+    params[MX, :n] = m2[:, 0] - (t % bins["tiles_x"]) * tile
+    params[MY, :n] = m2[:, 1] - (t // bins["tiles_x"]) * tile
+    per_gaussian = torch.cat([proj["conic"], proj["opacity"][:, None], proj["depth"][:, None], proj["color"],
+                              gs.asset_ids(proj)[:, None].to(proj["conic"].dtype)], 1).to(dt)
+    params[CA:, :n] = per_gaussian.index_select(0, e).T  # rows CA..ASSET; one gather, in entry order
+    boxes = torch.zeros((4, stride), dtype=torch.int32, device=dev)
+    boxes[:, :n] = bins["boxes"].index_select(0, e).T
+    return params, boxes, bins["tile_start"].contiguous(), bg
 
 
-def rasterize(proj, width: int, height: int, background_depth=None, tile: int | None = None):
+def rasterize(proj, width: int, height: int, background_depth=None, tile: int | None = None,
+              method: str = "auto"):
     """Drop-in for ``gaussians.rasterize``: (color (H, W, 3) premultiplied, asset_mask (H, W) = 1 - transmittance,
-    depth (H, W), instance (H, W) int32).
-    ``tile``: the tile size in pixels (default ``TILE_CPU`` on the CPU, ``TILE`` elsewhere)."""
+    depth (H, W), instance (H, W) int32). The compositor and tile size are ``raster_choice.choose``'s for this
+    frame's sizes; ``method`` ("auto", "tiles", "pairs") and ``tile`` (pixels, a power of two) force them."""
     dev = proj["mean2d"].device
-    tile = tile or (TILE_CPU if dev.type == "cpu" else TILE)
-    if len(proj["depth"]) == 0:
+    G = len(proj["depth"])
+    choice = raster_choice.choose(dev.type, G, width, height, method=method, tile=tile)
+    if G == 0 or choice.method == "pairs":
         return gs.rasterize(proj, width, height, background_depth)
+    tile = choice.tile
     if dev.type == "cpu":
         from . import tiles_cpu
 
         color, asset_mask, depth, instance = tiles_cpu.rasterize(proj, width, height, background_depth, tile)
-    elif dev.type == "cuda":
-        n_assets = int(gs.asset_ids(proj).max())
-        try:
-            from . import tiles_cuda
-        except ImportError:  # no Triton: the reference is exact, only slower
-            return gs.rasterize(proj, width, height, background_depth)
+    else:
+        n_assets = int(gs.asset_ids(proj).max()) if "asset_id" in proj else 1
         if n_assets > MAX_ASSETS_CUDA:
             return gs.rasterize(proj, width, height, background_depth)
-        bins = bin_tiles(proj, width, height, tile)
-        color, asset_mask, depth, instance = tiles_cuda.composite(
-            *kernel_inputs(proj, bins, width, height, background_depth), width, height, bins["tiles_x"], tile,
-            n_assets)
-    else:
-        return gs.rasterize(proj, width, height, background_depth)
+        try:
+            color, asset_mask, depth, instance = composite_triton(proj, width, height, background_depth, tile,
+                                                                  n_assets)
+        except ImportError:  # no Triton: the reference is exact, only slower
+            return gs.rasterize(proj, width, height, background_depth)
     dt = proj["mean2d"].dtype
     return (color.reshape(height, width, 3).to(dt), asset_mask.reshape(height, width).to(dt),
             depth.reshape(height, width).to(dt), instance.reshape(height, width))
+
+
+def composite_triton(proj: dict, width: int, height: int, background_depth: torch.Tensor | None, tile: int,
+                     n_assets: int, stats: dict | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor,
+                                                                        torch.Tensor]:
+    """The CUDA path of ``rasterize`` after the choice: binning, the kernel's inputs and the Triton kernel, on
+    ``proj``'s device (CUDA; CPU tensors under Triton's interpreter, which the tests use). Returns (color (HW, 3),
+    asset_mask (HW), depth (HW)) float32 and instance (HW) int32. ImportError where Triton is missing.
+    ``stats``, a dict if given, receives ``entries`` (per tile list lengths, (tiles,) int64) and ``batches`` (the
+    batches each tile's program composited, (tiles,) int32; ``tiles_cuda.composite``)."""
+    from . import tiles_cuda
+
+    bins = bin_tiles(proj, width, height, tile)
+    batches = torch.empty(bins["tiles_x"] * bins["tiles_y"], dtype=torch.int32, device=proj["mean2d"].device)
+    out = tiles_cuda.composite(*kernel_inputs(proj, bins, width, height, background_depth), width, height,
+                               bins["tiles_x"], tile, n_assets, batches=batches)
+    if stats is not None:
+        stats.update(entries=torch.diff(bins["tile_start"]), batches=batches)
+    return out

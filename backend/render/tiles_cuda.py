@@ -1,14 +1,33 @@
-"""CUDA compositing kernel for ``tiles.rasterize``: Triton, one program per tile, the tile's pixels as one vector.
+"""CUDA compositing kernel for ``tiles.rasterize``: Triton, one program per tile, Gaussians in batches.
 
-Each program walks its tile's depth-sorted list one Gaussian at a time (the same per-pixel rules as
-``tiles_cpu`` and the torch reference, float32) and leaves the loop when every pixel of the tile is saturated,
-hidden by its point, or outside the image. Imported only on CUDA machines: importing Triton is not free and the
-CPU path does not need it.
+Each program holds its tile's pixels as one vector (P = TILE² lanes) and walks the tile's depth-sorted list
+(``tiles.kernel_inputs``: one column per entry, fields in rows, so a batch is one coalesced load per field) BATCH
+entries at a time: a batch's α for every pixel is a [P, BATCH] block, the transmittance inside it a cumulative
+product along the batch, and the colour, asset mask, depth and per-asset weights are reductions of that block.
+The per-pixel rules are ``gaussians.rasterize``' (float32 here):
 
-The instance: each pixel's weight per asset is a [TILE * TILE, A_PAD] block (A_PAD a power of two ≥ the number of
-assets, a compile-time constant; column c is asset c + 1, read from params column 10), the pixel's instance the
-first column of the largest weight (the lower id on ties) where that weight exceeds the transmittance left.
-``tiles.rasterize`` sends frames with more than ``tiles.MAX_ASSETS_CUDA`` assets to the torch reference instead.
+* α = min(0.99, o·exp(power)), used where the pixel lies in the Gaussian's pixel box, power ≤ 0, α ≥ 1/255 and
+  the Gaussian is in front of the pixel's point (depth order: once behind, every later one is too).
+* The stop "before the Gaussian that would take the transmittance below 1e-4" without a sequential loop: ``virt``
+  is the product of (1 − α) over every used Gaussian, stops ignored. It is non-increasing, so a Gaussian is
+  composited exactly when ``virt`` after it is still ≥ 1e-4 (the first failure fails because the transmittance
+  before it equals ``virt`` there; every later one fails because ``virt`` only falls). The transmittance proper,
+  ``trans``, is ``virt`` after the last composited Gaussian.
+* Weights α·T_before = α·(virt after)/(1 − α) (1 − α ≥ 0.01: one rounding), so no exclusive scan is needed.
+
+A program leaves its loop when no pixel of the tile is live: inside the image, ``virt`` ≥ 1e-4, and in front of
+its point at the next batch's first depth (one reduction per batch, not per Gaussian).
+
+The instance: one asset: the sum of the weights per pixel against ``trans``; more: a [P, A_PAD] block of
+per-asset weights (A_PAD a power of two ≥ 16 and ≥ the number of assets, a compile-time constant), each batch
+adding ``w @ onehot(asset)`` (an exact float32 dot: input_precision "ieee"), the instance the first column of the
+largest weight (the lower id on ties) where it exceeds ``trans``. ``tiles.rasterize`` sends frames with more than
+``tiles.MAX_ASSETS_CUDA`` assets to the torch reference instead.
+
+Compilation: TILE, BATCH and A_PAD are the only compile-time constants and the integer arguments are not
+specialised on their values (``do_not_specialize``; the row stride is a multiple of 32), so a render compiles
+once per tile size and asset case, not per frame. Imported only on CUDA machines (and by the interpreter test):
+importing Triton is not free and the CPU path does not need it.
 """
 
 from __future__ import annotations
@@ -18,80 +37,137 @@ import triton
 import triton.language as tl
 
 from .gaussians import ALPHA_MAX, ALPHA_MIN, TRANSMITTANCE_MIN
+from . import tiles
+from .tiles import F32_ROWS, STRIDE_ALIGN
+
+# kernel_inputs' rows, as the compile-time constants a kernel may read
+_MX, _MY, _CA, _CB, _CC, _OPACITY, _DEPTH, _RED, _GREEN, _BLUE, _ASSET = (tl.constexpr(v) for v in (
+    tiles.MX, tiles.MY, tiles.CA, tiles.CB, tiles.CC, tiles.OPACITY, tiles.DEPTH, tiles.RED, tiles.GREEN, tiles.BLUE,
+    tiles.ASSET))
 
 
-@triton.jit
+def launch_config(tile: int) -> tuple[int, int]:
+    """(BATCH, num_warps) for a tile size: the [TILE², BATCH] block about 8192 lanes (32 values per thread of each
+    temporary at 8 warps; 4 warps below 8192), BATCH between 16 (``tl.dot``'s minimum, for the per-asset
+    weights) and 64. Chosen from the register budget, not measured on a GPU yet (bench/render.py's
+    accuracy table has the figures per tile size)."""
+    pixels = tile * tile
+    batch = max(16, min(64, 8192 // pixels))
+    return batch, (8 if pixels * batch >= 8192 else 4)
+
+
+@triton.jit(do_not_specialize=["stride", "width", "height", "tiles_x"])
 def _composite_kernel(params_ptr, boxes_ptr, tile_start_ptr, bg_ptr, out_c_ptr, out_mask_ptr, out_z_ptr, out_inst_ptr,
-                      width, height, tiles_x, TILE: tl.constexpr, A_PAD: tl.constexpr, ALPHA_MAX: tl.constexpr,
-                      ALPHA_MIN: tl.constexpr, TRANSMITTANCE_MIN: tl.constexpr):
+                      out_batches_ptr, stride, width, height, tiles_x, TILE: tl.constexpr, BATCH: tl.constexpr, A_PAD: tl.constexpr,
+                      ALPHA_MAX: tl.constexpr, ALPHA_MIN: tl.constexpr, TRANSMITTANCE_MIN: tl.constexpr):
     t = tl.program_id(0)
     offs = tl.arange(0, TILE * TILE)
     px = (t % tiles_x) * TILE + offs % TILE
     py = (t // tiles_x) * TILE + offs // TILE
     inside = (px < width) & (py < height)
     pix = py * width + px
-    zbg = tl.load(bg_ptr + pix, mask=inside, other=0.0)
+    zbg = tl.load(bg_ptr + pix, mask=inside, other=float("-inf"))  # outside the image: everything is "behind"
     fx = (offs % TILE).to(tl.float32) + 0.5  # tile-relative, as the means are
     fy = (offs // TILE).to(tl.float32) + 0.5
     trans = tl.full([TILE * TILE], 1.0, tl.float32)
+    virt = tl.full([TILE * TILE], 1.0, tl.float32)
     r = tl.zeros([TILE * TILE], tl.float32)
     g = tl.zeros([TILE * TILE], tl.float32)
     b = tl.zeros([TILE * TILE], tl.float32)
+    w_sum = tl.zeros([TILE * TILE], tl.float32)
     z = tl.full([TILE * TILE], float("inf"), tl.float32)
     cols = tl.arange(0, A_PAD)
     w_asset = tl.zeros([TILE * TILE, A_PAD], tl.float32)
-    active = inside
+    lanes = tl.arange(0, BATCH)
     e = tl.load(tile_start_ptr + t)
     last = tl.load(tile_start_ptr + t + 1)
-    n_active = tl.sum(active.to(tl.int32), 0)
-    while (e < last) & (n_active > 0):
-        p = params_ptr + e * 12
-        depth = tl.load(p + 6)
-        active = active & (depth < zbg)  # depth order: hidden now means hidden for the rest of the list
-        x0 = tl.load(boxes_ptr + e * 4)
-        x1 = tl.load(boxes_ptr + e * 4 + 1)
-        y0 = tl.load(boxes_ptr + e * 4 + 2)
-        y1 = tl.load(boxes_ptr + e * 4 + 3)
-        dx = fx - tl.load(p)
-        dy = fy - tl.load(p + 1)
-        power = -0.5 * (tl.load(p + 2) * dx * dx + 2.0 * tl.load(p + 3) * dx * dy + tl.load(p + 4) * dy * dy)
-        alpha = tl.minimum(tl.load(p + 5) * tl.exp(power), ALPHA_MAX)
-        use = active & (px >= x0) & (px <= x1) & (py >= y0) & (py <= y1) & (power <= 0.0) & (alpha >= ALPHA_MIN)
-        trans_next = trans * (1.0 - alpha)
-        stop = use & (trans_next < TRANSMITTANCE_MIN)
-        active = active & ~stop
-        use = use & ~stop
-        w = tl.where(use, alpha * trans, 0.0)
-        r += w * tl.load(p + 7)
-        g += w * tl.load(p + 8)
-        b += w * tl.load(p + 9)
-        z = tl.where(use & (trans > 0.5) & (trans_next <= 0.5), depth, z)
-        asset = tl.load(p + 10).to(tl.int32) - 1
-        w_asset += tl.where((cols == asset)[None, :], w[:, None], 0.0)
-        trans = tl.where(use, trans_next, trans)
-        e += 1
-        n_active = tl.sum(active.to(tl.int32), 0)
+    first_depth = tl.load(params_ptr + _DEPTH * stride + e, mask=e < last, other=float("inf"))
+    n_live = tl.sum((inside & (first_depth < zbg)).to(tl.int32), 0)
+    batches = 0
+    while (e < last) & (n_live > 0):
+        idx = e + lanes
+        valid = idx < last
+        mx = tl.load(params_ptr + _MX * stride + idx, mask=valid, other=0.0)
+        my = tl.load(params_ptr + _MY * stride + idx, mask=valid, other=0.0)
+        ca = tl.load(params_ptr + _CA * stride + idx, mask=valid, other=0.0)
+        cb = tl.load(params_ptr + _CB * stride + idx, mask=valid, other=0.0)
+        cc = tl.load(params_ptr + _CC * stride + idx, mask=valid, other=0.0)
+        opac = tl.load(params_ptr + _OPACITY * stride + idx, mask=valid, other=0.0)
+        depth = tl.load(params_ptr + _DEPTH * stride + idx, mask=valid, other=float("inf"))
+        x0 = tl.load(boxes_ptr + idx, mask=valid, other=1)  # an empty box for the lanes past the list
+        x1 = tl.load(boxes_ptr + stride + idx, mask=valid, other=0)
+        y0 = tl.load(boxes_ptr + 2 * stride + idx, mask=valid, other=1)
+        y1 = tl.load(boxes_ptr + 3 * stride + idx, mask=valid, other=0)
+        dx = fx[:, None] - mx[None, :]
+        dy = fy[:, None] - my[None, :]
+        power = -0.5 * (ca[None, :] * dx * dx + 2.0 * cb[None, :] * dx * dy + cc[None, :] * dy * dy)
+        alpha = tl.minimum(opac[None, :] * tl.exp(power), ALPHA_MAX)
+        use = ((px[:, None] >= x0[None, :]) & (px[:, None] <= x1[None, :]) & (py[:, None] >= y0[None, :])
+               & (py[:, None] <= y1[None, :]) & (power <= 0.0) & (alpha >= ALPHA_MIN)
+               & (depth[None, :] < zbg[:, None]))
+        a = tl.where(use, alpha, 0.0)
+        one_minus = 1.0 - a
+        after = virt[:, None] * tl.cumprod(one_minus, axis=1)  # virt after each entry of the batch
+        keep = use & (after >= TRANSMITTANCE_MIN)
+        before = after / one_minus
+        w = tl.where(keep, a * before, 0.0)
+        r += tl.sum(w * tl.load(params_ptr + _RED * stride + idx, mask=valid, other=0.0)[None, :], 1)
+        g += tl.sum(w * tl.load(params_ptr + _GREEN * stride + idx, mask=valid, other=0.0)[None, :], 1)
+        b += tl.sum(w * tl.load(params_ptr + _BLUE * stride + idx, mask=valid, other=0.0)[None, :], 1)
+        cross = keep & (before > 0.5) & (after <= 0.5)  # the accumulated opacity reaches 0.5 here (once a pixel)
+        z = tl.minimum(z, tl.min(tl.where(cross, depth[None, :], float("inf")), 1))
+        if A_PAD == 1:
+            w_sum += tl.sum(w, 1)
+        else:
+            asset = tl.load(params_ptr + _ASSET * stride + idx, mask=valid, other=0.0).to(tl.int32) - 1
+            onehot = (asset[:, None] == cols[None, :]).to(tl.float32)
+            w_asset += tl.dot(w, onehot, input_precision="ieee")
+        trans = tl.minimum(trans, tl.min(tl.where(keep, after, 1.0), 1))
+        virt = tl.min(after, 1)  # non-increasing along the batch: its last value
+        e += BATCH
+        batches += 1
+        next_depth = tl.load(params_ptr + _DEPTH * stride + e, mask=e < last, other=float("inf"))
+        n_live = tl.sum((inside & (virt >= TRANSMITTANCE_MIN) & (next_depth < zbg)).to(tl.int32), 0)
+    tl.store(out_batches_ptr + t, batches)
     tl.store(out_c_ptr + pix * 3, r, mask=inside)
     tl.store(out_c_ptr + pix * 3 + 1, g, mask=inside)
     tl.store(out_c_ptr + pix * 3 + 2, b, mask=inside)
     tl.store(out_mask_ptr + pix, 1.0 - trans, mask=inside)
     tl.store(out_z_ptr + pix, z, mask=inside)
-    best_w = tl.max(w_asset, 1)
-    best = tl.min(tl.where(w_asset == best_w[:, None], cols[None, :], A_PAD), 1)  # the first maximum
-    tl.store(out_inst_ptr + pix, tl.where(best_w > trans, best + 1, 0), mask=inside)
+    if A_PAD == 1:
+        tl.store(out_inst_ptr + pix, tl.where(w_sum > trans, 1, 0), mask=inside)
+    else:
+        best_w = tl.max(w_asset, 1)
+        best = tl.min(tl.where(w_asset == best_w[:, None], cols[None, :], A_PAD), 1)  # the first maximum
+        tl.store(out_inst_ptr + pix, tl.where(best_w > trans, best + 1, 0), mask=inside)
 
 
-def composite(params, boxes, tile_start, bg, width, height, tiles_x, tile, n_assets=1):
-    """Run the kernel on CUDA tensors; returns (color (HW, 3), asset_mask (HW) = 1 - transmittance, depth (HW))
-    float32 and instance (HW) int32 for ``n_assets`` assets (ids 1..n_assets in params column 10)."""
+def a_pad(n_assets: int) -> int:
+    """The per-asset block's width: 1 for one asset (a plain sum), else a power of two ≥ n_assets and ≥ 16."""
+    return 1 if n_assets <= 1 else max(16, 1 << (int(n_assets) - 1).bit_length())
+
+
+def composite(params: torch.Tensor, boxes: torch.Tensor, tile_start: torch.Tensor, bg: torch.Tensor, width: int,
+              height: int, tiles_x: int, tile: int, n_assets: int = 1,
+              batches: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Run the kernel on ``tiles.kernel_inputs``' arrays (params (F32_ROWS, S) float32, boxes (4, S) int32, S a
+    multiple of ``STRIDE_ALIGN``); returns (color (HW, 3), asset_mask (HW) = 1 - transmittance, depth (HW))
+    float32 and instance (HW) int32 for ``n_assets`` assets (ids 1..n_assets in params row ``ASSET``).
+    ``batches`` (tiles,) int32, if given, receives how many batches each tile's program composited before it
+    left its loop (the work done: tests check the early exit with it, the bench reports it)."""
     dev = params.device
+    assert params.shape[0] == F32_ROWS and boxes.shape == (4, params.shape[1]) and params.shape[1] % STRIDE_ALIGN == 0
     out_c = torch.empty((height * width, 3), dtype=torch.float32, device=dev)
     out_mask = torch.empty(height * width, dtype=torch.float32, device=dev)
     out_z = torch.empty(height * width, dtype=torch.float32, device=dev)
     out_inst = torch.empty(height * width, dtype=torch.int32, device=dev)
     n_tiles = len(tile_start) - 1
-    a_pad = max(2, 1 << max(0, int(n_assets) - 1).bit_length())  # a power of two >= n_assets (2 at least)
-    _composite_kernel[(n_tiles,)](params, boxes, tile_start, bg, out_c, out_mask, out_z, out_inst, width, height,
-                                  tiles_x, TILE=tile, A_PAD=a_pad, ALPHA_MAX=ALPHA_MAX, ALPHA_MIN=ALPHA_MIN,
-                                  TRANSMITTANCE_MIN=TRANSMITTANCE_MIN, num_warps=4)
+    if batches is None:
+        batches = torch.empty(n_tiles, dtype=torch.int32, device=dev)
+    batch, warps = launch_config(tile)
+    _composite_kernel[(n_tiles,)](params, boxes, tile_start, bg, out_c, out_mask, out_z, out_inst, batches,
+                                  params.shape[1],
+                                  width, height, tiles_x, TILE=tile, BATCH=batch, A_PAD=a_pad(n_assets),
+                                  ALPHA_MAX=ALPHA_MAX, ALPHA_MIN=ALPHA_MIN, TRANSMITTANCE_MIN=TRANSMITTANCE_MIN,
+                                  num_warps=warps)
     return out_c, out_mask, out_z, out_inst

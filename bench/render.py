@@ -1,8 +1,10 @@
 """The condition renderer: today's code against a baseline revision, time per frame against error, the speed
 targets, and coverage on the ground-truth street.
 
-    .venv/bin/python bench/render.py [--devices cpu cuda] [--sections ab speed accuracy street] [--threads 2]
+    .venv/bin/python bench/render.py [--devices cpu cuda] [--sections ab speed accuracy choice street] [--threads 2]
                                      [--baseline 3fcda49] [--rounds 5] [--repeat 3] [--load-rounds 3]
+                                     [--smoke] [--out DIR]
+    GPU (bench/device_all.sh): python3 bench/render.py --devices cuda --sections speed accuracy choice
 
 ab        (CPU) the working tree against ``--baseline`` (a git revision, extracted with ``git archive`` into a temp
           folder), side by side in one run: each tree in its own worker process (``render_scene.py --worker``)
@@ -25,12 +27,21 @@ accuracy  each setting (tile size, rasterizer, device) timed on the speed scene 
           reference on a scene whose reference is affordable (1 M points + 20 k Gaussians, car 8 m ahead): the torch
           pair rasterizer in float64, whose per-axis extent holds every pixel with α >= 1/255 (the render without a
           cutoff).
+choice    the table ``backend/render/raster_choice.py``'s thresholds come from: for several Gaussian counts (the
+          car 8 m ahead, over the speed scene's points), the Gaussian pass (projection + compositing over the
+          points' depth) with each method and tile size: ms, error against the float64 pair rasterizer, which one
+          ``raster_choice.choose`` picks and which was fastest. On CUDA also the tile kernel's work (entries, and
+          the batches its programs composited before leaving early, against all of them).
 street    the ground-truth street (CPU, needs its cache or bpy to make it): for shifts 0, ±2, ±3 m, source windows
           0, ±2, ±8 frames and splat radius 0/1, the hole fraction and the PSNR of covered pixels against the
           Cycles renders of that view.
 
-Prints tables and writes bench/results/render_<devices>.json and a plot beside it. Timings on a shared machine are
-noisy: the ab section reports the spread of the per-round ratios beside their medians.
+Prints tables and writes <--out>/render_<devices>.json (default bench/results) and a plot beside it. Timings on a
+shared machine are noisy: the ab section reports the spread of the per-round ratios beside their medians.
+``--smoke``: every section but ab and street at 256 x 144 with tens of thousands of points and a few thousand
+Gaussians, on the CPU in seconds (the suite runs it: tests/bench/test_render.py); every code path of the CUDA
+rows that does not need a GPU runs too (the comparison code of the gsplat row against the pair rasterizer, the
+inputs gsplat would get, the CPU-vs-device point winners).
 """
 
 from __future__ import annotations
@@ -61,11 +72,18 @@ from backend.render import channels  # noqa: E402
 from backend.render import frames as fr  # noqa: E402
 from backend.render import gaussians as gs  # noqa: E402
 from backend.render import points as pts  # noqa: E402
+from backend.render import raster_choice  # noqa: E402
 from backend.render import tiles  # noqa: E402
 from scpainter_blender.core import job as job_mod  # noqa: E402
 from scpainter_blender.core import outputs  # noqa: E402
 
-W, H = 1024, 576
+W, H = 1024, 576  # set by main (--smoke: SMOKE_SIZE)
+SMOKE_SIZE = (256, 144)
+#: (points, Gaussians) of the speed scene, the accuracy scene and the choice section's Gaussian counts, per mode
+SIZES = {"cpu": {"speed": (1_000_000, 100_000), "accuracy": (1_000_000, 20_000), "choice": (2_000, 20_000, 100_000)},
+         "cuda": {"speed": (3_000_000, 200_000), "accuracy": (1_000_000, 20_000),
+                  "choice": (2_000, 20_000, 200_000, 1_000_000)},
+         "smoke": {"speed": (20_000, 2_000), "accuracy": (20_000, 1_000), "choice": (300, 3_000)}}
 
 
 def timed(fn, device, repeat=10, warmup=2):
@@ -93,12 +111,20 @@ def gaussians_world(scene, entry):
     return a.means @ At[:3, :3].T + At[:3, 3], At[:3, :3] @ a.factors, a.opacities, a.sh, w2c
 
 
-def gaussian_pass(scene, entry, tile=None, reference=False):
+def gaussian_pass(scene, entry, tile=None, reference=False, method="auto", background_depth=None):
+    """The Gaussian pass alone (projection + compositing): ``tiles.rasterize``' four layers (colour, asset mask,
+    depth, instance)."""
     means, factors, opac, sh, w2c = gaussians_world(scene, entry)
     proj = gs.project_factors(means, factors, opac, sh, entry.K, w2c, W, H)
     if reference:
-        return gs.rasterize(proj, W, H)
-    return tiles.rasterize(proj, W, H, tile=tile)
+        return gs.rasterize(proj, W, H, background_depth)
+    return tiles.rasterize(proj, W, H, background_depth, tile=tile, method=method)
+
+
+def gaussian_layers(scene, entry, **kw):
+    """(colour (H, W, 3), asset mask (H, W)) of ``gaussian_pass``: what the comparisons read."""
+    color, asset_mask, _depth, _instance = gaussian_pass(scene, entry, **kw)
+    return color, asset_mask
 
 
 def point_pass(scene, entry):
@@ -106,64 +132,117 @@ def point_pass(scene, entry):
     return pts.render_points(scene.xyz, scene.rgb, entry.K, w2c, W, H)
 
 
+def gsplat_inputs(scene, entry, quats, scales):
+    """The arguments of gsplat's ``rasterization`` for the scene's car, float32 on the scene's device: means (N, 3),
+    quats (N, 4), scales (N, 3), opacities (N,), colours (N, K, 3) SH, viewmats (1, 4, 4), Ks (1, 3, 3). Shapes are
+    checked here so the CPU smoke run catches a mismatch the GPU run would only meet after gsplat's build."""
+    means, _, opac, sh, w2c = (x.float() if torch.is_tensor(x) else x for x in gaussians_world(scene, entry))
+    dev = scene.device
+    args = {"means": means, "quats": quats.to(dev, torch.float32), "scales": scales.to(dev, torch.float32),
+            "opacities": opac, "colors": sh,
+            "viewmats": torch.as_tensor(w2c, dtype=torch.float32, device=dev)[None],
+            "Ks": torch.as_tensor(np.array(entry.K), dtype=torch.float32, device=dev)[None]}
+    n = len(means)
+    expect = {"means": (n, 3), "quats": (n, 4), "scales": (n, 3), "opacities": (n,), "viewmats": (1, 4, 4),
+              "Ks": (1, 3, 3)}
+    for k, shape in expect.items():
+        if tuple(args[k].shape) != shape:
+            raise ValueError(f"gsplat input {k}: shape {tuple(args[k].shape)}, expected {shape}")
+    if sh.ndim != 3 or sh.shape[0] != n or sh.shape[2] != 3:
+        raise ValueError(f"gsplat input colors: shape {tuple(sh.shape)}, expected ({n}, K, 3)")
+    return args
+
+
 def gsplat_pass(scene, entry, quats, scales):
     from gsplat import rasterization
 
-    means, _, opac, sh, w2c = (x.float() if torch.is_tensor(x) else x for x in gaussians_world(scene, entry))
-    dev = scene.device
-    view = torch.as_tensor(w2c, dtype=torch.float32, device=dev)[None]
-    K = torch.as_tensor(np.array(entry.K), dtype=torch.float32, device=dev)[None]
-    img, asset_mask, _ = rasterization(means, quats, scales, opac, sh, view, K, W, H, near_plane=0.05, eps2d=0.3,
-                                       sh_degree=0, packed=False, rasterize_mode="classic", tile_size=16)
+    a = gsplat_inputs(scene, entry, quats, scales)
+    img, asset_mask, _ = rasterization(a["means"], a["quats"], a["scales"], a["opacities"], a["colors"],
+                                       a["viewmats"], a["Ks"], W, H, near_plane=0.05, eps2d=0.3, sh_degree=0,
+                                       packed=False, rasterize_mode="classic", tile_size=16)
     return img[0], asset_mask[0, ..., 0]
 
 
-def section_speed(device, rows):
-    n_pts, n_gs = (1_000_000, 100_000) if device == "cpu" else (3_000_000, 200_000)
+def compare_layers(name, ours, theirs):
+    """{name_mean_abs_diff_rgb, name_max_abs_diff_asset_mask} between two (colour (H, W, 3), asset mask (H, W))."""
+    (oc, om), (tc, tm) = ours, theirs
+    if oc.shape != tc.shape or om.shape != tm.shape:
+        raise ValueError(f"{name}: layers of shapes {tuple(tc.shape)}, {tuple(tm.shape)}; ours "
+                         f"{tuple(oc.shape)}, {tuple(om.shape)}")
+    return {f"{name}_mean_abs_diff_rgb": float((oc.float() - tc.float()).abs().mean()),
+            f"{name}_max_abs_diff_asset_mask": float((om.float() - tm.float()).abs().max())}
+
+
+def kernel_work(scene, entry, tile=None):
+    """The CUDA tile kernel's work on the scene's Gaussian pass (``tiles.composite_triton``' stats): entries, the
+    batches its programs composited, and the batches of the whole lists (no early exit), over the points' depth."""
+    means, factors, opac, sh, w2c = gaussians_world(scene, entry)
+    proj = gs.project_factors(means, factors, opac, sh, entry.K, w2c, W, H)
+    tile = tile or raster_choice.choose(scene.device.type, len(proj["depth"]), W, H).tile
+    stats = {}
+    tiles.composite_triton(proj, W, H, point_pass(scene, entry)[1], tile, 1, stats)
+    from backend.render import tiles_cuda
+
+    batch = tiles_cuda.launch_config(tile)[0]
+    e = stats["entries"]
+    return {"kernel_tile": tile, "kernel_batch": batch, "kernel_entries": int(e.sum()),
+            "kernel_batches_done": int(stats["batches"].sum()),
+            "kernel_batches_full": int(((e + batch - 1) // batch).sum()),
+            "kernel_longest_list": int(e.max()) if len(e) else 0}
+
+
+def section_speed(device, rows, sizes):
+    n_pts, n_gs = sizes["speed"]
     scene, entry = render_scene.build(n_pts, n_gs, W, H, device=device)
     full = lambda: fr.render_frame(scene, entry, W, H, to_numpy=False)  # noqa: E731
     with_copy = lambda: fr.render_frame(scene, entry, W, H, to_numpy=True)  # noqa: E731
-    res = {"device": device, "points": n_pts, "gaussians": n_gs,
-           "frame_ms": timed(full, device), "frame_with_download_ms": timed(with_copy, device),
-           "points_ms": timed(lambda: point_pass(scene, entry), device),
-           "gaussians_ms": timed(lambda: gaussian_pass(scene, entry), device)}
+    repeat = sizes.get("repeat", 10)
+    res = {"device": device, "points": n_pts, "gaussians": n_gs, "size": [W, H],
+           "frame_ms": timed(full, device, repeat), "frame_with_download_ms": timed(with_copy, device, repeat),
+           "points_ms": timed(lambda: point_pass(scene, entry), device, repeat),
+           "gaussians_ms": timed(lambda: gaussian_pass(scene, entry), device, repeat)}
     layers = full()
     res["asset_pixels"] = int((layers[channels.ASSET_MASK] > 0.5).sum())
     res["hole_fraction"] = float(layers[channels.HOLE].mean())
+    # determinism across devices: the same points z-buffered on the CPU pick the same winners (on the CPU: the
+    # same code against itself, so the comparison runs wherever the bench does)
+    cpu_scene = fr.Scene(origin=scene.origin, device=torch.device("cpu"), xyz=scene.xyz.cpu(),
+                         rgb=scene.rgb.cpu(), frame=scene.frame.cpu())
+    win_dev = point_pass(scene, entry)[2].cpu()
+    win_cpu = point_pass(cpu_scene, entry)[2]
+    res["points_winner_mismatch_cpu_vs_device"] = int((win_dev != win_cpu).sum())
+    ours = gaussian_layers(scene, entry)
+    # the tile kernels against the pair rasterizer on the same float64 projection: the comparison the gsplat row
+    # makes, run on every device
+    res.update(compare_layers("pairs", ours, gaussian_layers(scene, entry, reference=True)))
+    g = render_scene.car_gaussians(n_gs)
+    quats, scales = torch.as_tensor(g.quats), torch.as_tensor(g.scales)
+    gsplat_inputs(scene, entry, quats, scales)  # shapes checked on every device
     if device == "cuda":
-        # determinism across devices: the same points z-buffered on the CPU pick the same winners
-        cpu_scene = fr.Scene(origin=scene.origin, device=torch.device("cpu"), xyz=scene.xyz.cpu(),
-                             rgb=scene.rgb.cpu(), frame=scene.frame.cpu())
-        win_gpu = point_pass(scene, entry)[2].cpu()
-        win_cpu = point_pass(cpu_scene, entry)[2]
-        res["points_winner_mismatch_cpu_vs_cuda"] = int((win_gpu != win_cpu).sum())
+        res.update(kernel_work(scene, entry))
         try:
             import gsplat  # noqa: F401
         except ImportError as e:
             res["gsplat"] = f"not available: {e}"
         else:
-            g = render_scene.car_gaussians(n_gs)
-            quats = torch.as_tensor(g.quats, device=device)
-            scales = torch.as_tensor(g.scales, device=device)
-            res["gsplat_ms"] = timed(lambda: gsplat_pass(scene, entry, quats, scales), device)
-            ours_c, ours_mask, _ = gaussian_pass(scene, entry)
-            gc, gmask = gsplat_pass(scene, entry, quats, scales)
-            res["gsplat_mean_abs_diff_rgb"] = float((ours_c - gc).abs().mean())
-            res["gsplat_max_abs_diff_asset_mask"] = float((ours_mask - gmask).abs().max())
+            res["gsplat_ms"] = timed(lambda: gsplat_pass(scene, entry, quats, scales), device, repeat)
+            res.update(compare_layers("gsplat", ours, gsplat_pass(scene, entry, quats, scales)))
             res["gaussians_vs_gsplat"] = res["gaussians_ms"] / res["gsplat_ms"]
     rows.append(res)
     return scene, entry
 
 
-def section_accuracy(device, rows, speed_scene):
-    acc_scene, acc_entry = render_scene.build(1_000_000, 20_000, W, H, device=device, car_distance=8.0)
+def section_accuracy(device, rows, speed_scene, sizes):
+    n_pts, n_gs = sizes["accuracy"]
+    acc_scene, acc_entry = render_scene.build(n_pts, n_gs, W, H, device=device, car_distance=8.0)
     ref = render_with(acc_scene, acc_entry, reference=True)
     scene, entry = speed_scene
-    settings = [("default (tiles, tile 8 CPU / 16 CUDA)", {}), ("tile 8", {"tile": 8}), ("tile 16", {"tile": 16}),
+    settings = [("default (raster_choice)", {}), ("tile 8", {"tile": 8}), ("tile 16", {"tile": 16}),
                 ("tile 32", {"tile": 32}), ("pair rasterizer (the reference)", {"reference": True})]
     for name, kw in settings:
         try:
-            ms = timed(lambda: render_with(scene, entry, **kw), device, repeat=3, warmup=1)
+            ms = timed(lambda: render_with(scene, entry, **kw), device, repeat=sizes.get("repeat_accuracy", 3),
+                       warmup=1)
         except MemoryError as e:  # the pair rasterizer refuses scenes over its pair budget
             ms = f"refused: {e}"
         out = render_with(acc_scene, acc_entry, **kw)
@@ -171,6 +250,47 @@ def section_accuracy(device, rows, speed_scene):
         rows.append({"device": device, "setting": name, "frame_ms": ms, "max_abs_err_I": float(dI.max()),
                      "mean_abs_err_I": float(dI.mean()),
                      "max_abs_err_asset_mask": float(np.abs(out["asset_mask"] - ref["asset_mask"]).max())})
+
+
+def section_choice(device, rows, sizes):
+    """Per Gaussian count (the car 8 m ahead over the speed scene's points): each method and tile size's Gaussian
+    pass (projection + compositing over the points' depth), its error against the float64 pair rasterizer, and
+    ``raster_choice.choose``'s pick (see the module docstring)."""
+    n_pts = sizes["speed"][0]
+    tiles_sizes = (4, 8, 16) if device == "cpu" else (8, 16, 32)
+    for n_gs in sizes["choice"]:
+        scene, entry = render_scene.build(n_pts, n_gs, W, H, device=device, car_distance=8.0)
+        bg = point_pass(scene, entry)[1]
+        means, factors, opac, sh, w2c = gaussians_world(scene, entry)
+        projected = len(gs.project_factors(means, factors, opac, sh, entry.K, w2c, W, H)["depth"])
+        pick = raster_choice.choose(device, projected, W, H)
+        try:
+            ref = gaussian_pass(scene, entry, reference=True, background_depth=bg)
+        except MemoryError:
+            ref = None
+        group = []
+        for method, tile in [("pairs", None)] + [("tiles", t) for t in tiles_sizes]:
+            kw = {"method": method, "tile": tile, "background_depth": bg}
+            row = {"device": device, "gaussians": n_gs, "projected": projected, "method": method, "tile": tile,
+                   "chosen": (method, tile) == (pick.method, pick.tile), "reason": pick.reason}
+            try:
+                row["gaussians_ms"] = timed(lambda: gaussian_pass(scene, entry, **kw), device,
+                                            repeat=sizes.get("repeat_accuracy", 3), warmup=1)
+                out = gaussian_pass(scene, entry, **kw)
+            except MemoryError as e:  # the pair rasterizer refuses scenes over its pair budget
+                row["gaussians_ms"] = None
+                row["refused"] = str(e)
+            else:
+                if ref is not None:
+                    row["max_abs_err_rgb"] = float((out[0].double() - ref[0].double()).abs().max())
+                    row["max_abs_err_asset_mask"] = float((out[1].double() - ref[1].double()).abs().max())
+                    row["instance_differing_pixels"] = int((out[3] != ref[3]).sum())
+            group.append(row)
+        timed_rows = [r for r in group if r["gaussians_ms"] is not None]
+        fastest = min(timed_rows, key=lambda r: r["gaussians_ms"])
+        for r in group:
+            r["fastest"] = r is fastest
+        rows.extend(group)
 
 
 def render_with(scene, entry, tile=None, reference=False):
@@ -526,7 +646,8 @@ def plot(result, path):
             twin.plot([r["shift_m"] for r in sel], [r["hole_fraction"] for r in sel], "x--", label=f"holes ±{window}")
         twin.set_ylabel("hole fraction")
         twin.legend(fontsize=7, loc="lower right")
-    ax.legend(fontsize=7, loc="lower left")
+    if result["street"]:
+        ax.legend(fontsize=7, loc="lower left")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
 
@@ -539,8 +660,8 @@ def keep_previous_sections(path, result, sections):
             previous = json.load(f)
     except (OSError, ValueError):
         return
-    for key, section in (("ab", "ab"), ("speed", "speed"), ("accuracy", "accuracy"), ("street", "street"),
-                         ("street_info", "street")):
+    for key, section in (("ab", "ab"), ("speed", "speed"), ("accuracy", "accuracy"), ("choice", "choice"),
+                         ("street", "street"), ("street_info", "street")):
         ran = section in sections or (key == "speed" and "accuracy" in sections)
         if not ran and key in previous:
             result[key] = previous[key]
@@ -549,8 +670,8 @@ def keep_previous_sections(path, result, sections):
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--devices", nargs="+", default=["cpu"], choices=["cpu", "cuda"])
-    p.add_argument("--sections", nargs="+", default=["ab", "speed", "accuracy", "street"],
-                   choices=["ab", "speed", "accuracy", "street"])
+    p.add_argument("--sections", nargs="+", default=None, choices=["ab", "speed", "accuracy", "choice", "street"],
+                   help="default: ab speed accuracy street (--smoke: speed accuracy choice)")
     p.add_argument("--threads", type=int, default=2, help="CPU threads (torch and numba); the target is 2 cores")
     p.add_argument("--baseline", default="3fcda49", help="ab: the git revision to compare with (before issue 16)")
     p.add_argument("--rounds", type=int, default=5, help="ab: interleaved A/B rounds")
@@ -560,8 +681,21 @@ def main(argv=None):
     p.add_argument("--ab-gaussians", type=int, default=100_000)
     p.add_argument("--ab-cars", type=int, default=1, choices=[1, 2, 3],
                    help="ab: the Gaussians split between this many cars (render_scene.CAR_OFFSETS)")
-    p.add_argument("--out", default=os.path.join(ROOT, "bench", "results"))
+    p.add_argument("--out", default=os.path.join(ROOT, "bench", "results"), help="where the JSON and plot go")
+    p.add_argument("--smoke", action="store_true",
+                   help="the smallest sizes on the CPU, in seconds (the suite's check that the bench still runs)")
     args = p.parse_args(argv)
+    global W, H
+    if args.smoke:
+        if args.devices != ["cpu"]:
+            p.error("--smoke runs on the CPU only")
+        W, H = SMOKE_SIZE
+        args.sections = args.sections or ["speed", "accuracy", "choice"]
+        if set(args.sections) & {"ab", "street"}:
+            p.error("--smoke has no ab or street section (worker processes, the ground-truth street)")
+    else:
+        W, H = 1024, 576
+        args.sections = args.sections or ["ab", "speed", "accuracy", "street"]
     torch.set_num_threads(args.threads)
     if "cpu" in args.devices:
         import numba
@@ -569,30 +703,44 @@ def main(argv=None):
         numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
     result = {"machine": platform.node(), "cpu_threads": args.threads, "cpus": os.cpu_count(),
               "torch": torch.__version__, "gpu": torch.cuda.get_device_name() if "cuda" in args.devices else None,
-              "wait_policy": os.environ.get("OMP_WAIT_POLICY"), "speed": [], "accuracy": [], "street": []}
+              "wait_policy": os.environ.get("OMP_WAIT_POLICY"), "smoke": args.smoke, "size": [W, H], "speed": [],
+              "accuracy": [], "choice": [], "street": []}
     if "ab" in args.sections and "cpu" in args.devices:
         section_ab(args, result)
     for device in args.devices:
-        speed_scene = section_speed(device, result["speed"]) if "speed" in args.sections or \
+        sizes = dict(SIZES["smoke" if args.smoke else device], **({"repeat": 2, "repeat_accuracy": 1}
+                                                                  if args.smoke else {}))
+        speed_scene = section_speed(device, result["speed"], sizes) if "speed" in args.sections or \
             "accuracy" in args.sections else None
         if "accuracy" in args.sections:
-            section_accuracy(device, result["accuracy"], speed_scene)
+            section_accuracy(device, result["accuracy"], speed_scene, sizes)
+        if "choice" in args.sections:
+            section_choice(device, result["choice"], sizes)
     if "street" in args.sections:
         result["street_info"] = section_street(result["street"])
     if "ab" in result:
         print_ab(result["ab"])
-    print_table("speed, 576 x 1024 (ms per frame; median of 10)", result["speed"],
+    print_table(f"speed, {H} x {W} (ms per frame; median of {2 if args.smoke else 10})", result["speed"],
                 ["device", "points", "gaussians", "frame_ms", "frame_with_download_ms", "points_ms", "gaussians_ms",
-                 "gsplat_ms", "gaussians_vs_gsplat", "gsplat_mean_abs_diff_rgb", "asset_pixels",
-                 "points_winner_mismatch_cpu_vs_cuda"])
-    print_table("error against run time (time: speed scene; error: 1 M points + 20 k Gaussians against the float64 "
-                "pair rasterizer)", result["accuracy"],
+                 "gsplat_ms", "gaussians_vs_gsplat", "gsplat_mean_abs_diff_rgb", "pairs_mean_abs_diff_rgb",
+                 "pairs_max_abs_diff_asset_mask", "asset_pixels", "points_winner_mismatch_cpu_vs_device"])
+    if any("kernel_entries" in r for r in result["speed"]):
+        print_table("CUDA tile kernel's work on the speed scene (batches composited before the early exit, of all)",
+                    result["speed"], ["device", "kernel_tile", "kernel_batch", "kernel_entries",
+                                      "kernel_longest_list", "kernel_batches_done", "kernel_batches_full"])
+    acc = SIZES["smoke" if args.smoke else "cpu"]["accuracy"]
+    print_table(f"error against run time (time: the speed scene; error: {acc[0]:,} points + {acc[1]:,} Gaussians, "
+                "car 8 m ahead, against the float64 pair rasterizer)", result["accuracy"],
                 ["device", "setting", "frame_ms", "max_abs_err_I", "mean_abs_err_I", "max_abs_err_asset_mask"])
+    print_table("compositor choice: the Gaussian pass per method and tile size (ms; max error against the float64 "
+                "pair rasterizer; raster_choice.choose's pick and the fastest)", result["choice"],
+                ["device", "gaussians", "projected", "method", "tile", "gaussians_ms", "max_abs_err_rgb",
+                 "max_abs_err_asset_mask", "instance_differing_pixels", "chosen", "fastest"])
     print_table("ground-truth street (16 frames 518 x 294, CPU)", result["street"],
                 ["confidence_percentile", "shift_m", "window", "point_radius_px", "hole_fraction", "psnr_covered_db",
                  "frame_ms"])
     os.makedirs(args.out, exist_ok=True)
-    stem = os.path.join(args.out, "render_" + "_".join(args.devices))
+    stem = os.path.join(args.out, "render_" + "_".join(args.devices) + ("_smoke" if args.smoke else ""))
     keep_previous_sections(stem + ".json", result, args.sections)
     outputs.write_json(stem + ".json", events.json_safe(result))  # a PSNR of a perfect match (inf) becomes null
     plot(result, stem + ".png")

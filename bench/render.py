@@ -173,22 +173,42 @@ def compare_layers(name, ours, theirs):
             f"{name}_max_abs_diff_asset_mask": float((om.float() - tm.float()).abs().max())}
 
 
-def kernel_work(scene, entry, tile=None):
-    """The CUDA tile kernel's work on the scene's Gaussian pass (``tiles.composite_triton``' stats): entries, the
-    batches its programs composited, and the batches of the whole lists (no early exit), over the points' depth."""
-    means, factors, opac, sh, w2c = gaussians_world(scene, entry)
-    proj = gs.project_factors(means, factors, opac, sh, entry.K, w2c, W, H)
-    tile = tile or raster_choice.choose(scene.device.type, len(proj["depth"]), W, H).tile
-    stats = {}
-    tiles.composite_triton(proj, W, H, point_pass(scene, entry)[1], tile, 1, stats)
+def kernel_work(scene, entry, device, repeat, tile=None):
+    """The CUDA tile path's parts on the scene's Gaussian pass, over the points' depth: ms of the projection, the
+    binning (``tiles.bin_tiles``), the kernel's inputs and the kernel; its work (``tiles.composite_triton``'
+    stats: entries, the batches its programs composited, and the batches of the whole lists, no early exit); and
+    ``kernel_sweep``: the kernel alone for tiles 8 and 16 and batches 16, 32, 64 (what retunes
+    ``tiles_cuda.launch_config``). Runs wherever Triton does (its interpreter on the CPU)."""
     from backend.render import tiles_cuda
 
+    means, factors, opac, sh, w2c = gaussians_world(scene, entry)
+    project = lambda: gs.project_factors(means, factors, opac, sh, entry.K, w2c, W, H)  # noqa: E731
+    proj = project()
+    bg = point_pass(scene, entry)[1]
+    tile = tile or raster_choice.choose(scene.device.type, len(proj["depth"]), W, H).tile
+    stats = {}
+    tiles.composite_triton(proj, W, H, bg, tile, 1, stats)
     batch = tiles_cuda.launch_config(tile)[0]
     e = stats["entries"]
-    return {"kernel_tile": tile, "kernel_batch": batch, "kernel_entries": int(e.sum()),
-            "kernel_batches_done": int(stats["batches"].sum()),
-            "kernel_batches_full": int(((e + batch - 1) // batch).sum()),
-            "kernel_longest_list": int(e.max()) if len(e) else 0}
+    out = {"kernel_tile": tile, "kernel_batch": batch, "kernel_entries": int(e.sum()),
+           "kernel_batches_done": int(stats["batches"].sum()),
+           "kernel_batches_full": int(((e + batch - 1) // batch).sum()),
+           "kernel_longest_list": int(e.max()) if len(e) else 0,
+           "projection_ms": timed(project, device, repeat),
+           "binning_ms": timed(lambda: tiles.bin_tiles(proj, W, H, tile), device, repeat)}
+    sweep = []
+    for t in (8, 16):
+        bins = tiles.bin_tiles(proj, W, H, t)
+        inputs = tiles.kernel_inputs(proj, bins, W, H, bg)
+        if t == tile:
+            out["inputs_ms"] = timed(lambda: tiles.kernel_inputs(proj, bins, W, H, bg), device, repeat)
+        for b in (16, 32, 64):
+            ms = timed(lambda: tiles_cuda.composite(*inputs, W, H, bins["tiles_x"], t, 1, batch=b), device, repeat)
+            sweep.append({"tile": t, "batch": b, "kernel_ms": ms, "default": (t, b) == (tile, batch)})
+            if (t, b) == (tile, batch):
+                out["kernel_ms"] = ms
+    out["kernel_sweep"] = sweep
+    return out
 
 
 def section_speed(device, rows, sizes):
@@ -219,7 +239,7 @@ def section_speed(device, rows, sizes):
     quats, scales = torch.as_tensor(g.quats), torch.as_tensor(g.scales)
     gsplat_inputs(scene, entry, quats, scales)  # shapes checked on every device
     if device == "cuda":
-        res.update(kernel_work(scene, entry))
+        res.update(kernel_work(scene, entry, device, repeat))
         try:
             import gsplat  # noqa: F401
         except ImportError as e:
@@ -632,7 +652,8 @@ def plot(result, path):
             ax.scatter(r["frame_ms"], max(r["max_abs_err_I"], 1e-8), label=f"{r['setting']} ({r['device']})")
     ax.set(xscale="log", yscale="log", xlabel="ms per frame (speed scene)", ylabel="max |ΔI| vs float64 reference",
            title="error against run time")
-    ax.legend(fontsize=6)
+    if result["accuracy"]:
+        ax.legend(fontsize=6)
     ax = axes[1]
     for window in (0, 2, 8):
         sel = street_curve(result, window)
@@ -725,9 +746,13 @@ def main(argv=None):
                  "gsplat_ms", "gaussians_vs_gsplat", "gsplat_mean_abs_diff_rgb", "pairs_mean_abs_diff_rgb",
                  "pairs_max_abs_diff_asset_mask", "asset_pixels", "points_winner_mismatch_cpu_vs_device"])
     if any("kernel_entries" in r for r in result["speed"]):
-        print_table("CUDA tile kernel's work on the speed scene (batches composited before the early exit, of all)",
-                    result["speed"], ["device", "kernel_tile", "kernel_batch", "kernel_entries",
-                                      "kernel_longest_list", "kernel_batches_done", "kernel_batches_full"])
+        print_table("CUDA tile path on the speed scene: its parts (ms) and the kernel's work (batches composited "
+                    "before the early exit, of all)", result["speed"],
+                    ["device", "projection_ms", "binning_ms", "inputs_ms", "kernel_ms", "kernel_tile", "kernel_batch",
+                     "kernel_entries", "kernel_longest_list", "kernel_batches_done", "kernel_batches_full"])
+        print_table("CUDA kernel alone per tile and batch size (ms)",
+                    [dict(r, device=s["device"]) for s in result["speed"] for r in s.get("kernel_sweep", [])],
+                    ["device", "tile", "batch", "kernel_ms", "default"])
     acc = SIZES["smoke" if args.smoke else "cpu"]["accuracy"]
     print_table(f"error against run time (time: the speed scene; error: {acc[0]:,} points + {acc[1]:,} Gaussians, "
                 "car 8 m ahead, against the float64 pair rasterizer)", result["accuracy"],

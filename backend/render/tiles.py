@@ -130,19 +130,20 @@ def rasterize(proj, width: int, height: int, background_depth=None, tile: int | 
 
 
 def composite_triton(proj: dict, width: int, height: int, background_depth: torch.Tensor | None, tile: int,
-                     n_assets: int, stats: dict | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor,
-                                                                        torch.Tensor]:
+                     n_assets: int, stats: dict | None = None,
+                     batch: int | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """The CUDA path of ``rasterize`` after the choice: binning, the kernel's inputs and the Triton kernel, on
     ``proj``'s device (CUDA; CPU tensors under Triton's interpreter, which the tests use). Returns (color (HW, 3),
     asset_mask (HW), depth (HW)) float32 and instance (HW) int32. ImportError where Triton is missing.
     ``stats``, a dict if given, receives ``entries`` (per tile list lengths, (tiles,) int64) and ``batches`` (the
-    batches each tile's program composited, (tiles,) int32; ``tiles_cuda.composite``)."""
+    batches each tile's program composited, (tiles,) int32; ``tiles_cuda.composite``). ``batch``: the kernel's
+    batch size (default: ``tiles_cuda.launch_config``'s)."""
     from . import tiles_cuda
 
     bins = bin_tiles(proj, width, height, tile)
     batches = torch.empty(bins["tiles_x"] * bins["tiles_y"], dtype=torch.int32, device=proj["mean2d"].device)
     out = tiles_cuda.composite(*kernel_inputs(proj, bins, width, height, background_depth), width, height,
-                               bins["tiles_x"], tile, n_assets, batches=batches)
+                               bins["tiles_x"], tile, n_assets, batches=batches, batch=batch)
     if stats is not None:
         stats.update(entries=torch.diff(bins["tile_start"]), batches=batches)
     return out

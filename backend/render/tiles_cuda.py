@@ -47,13 +47,14 @@ _MX, _MY, _CA, _CB, _CC, _OPACITY, _DEPTH, _RED, _GREEN, _BLUE, _ASSET = (tl.con
 
 
 def launch_config(tile: int) -> tuple[int, int]:
-    """(BATCH, num_warps) for a tile size: the [TILE², BATCH] block about 8192 lanes (32 values per thread of each
-    temporary at 8 warps; 4 warps below 8192), BATCH between 16 (``tl.dot``'s minimum, for the per-asset
-    weights) and 64. Chosen from the register budget, not measured on a GPU yet (bench/render.py's
-    accuracy table has the figures per tile size)."""
+    """(BATCH, num_warps) for a tile size: about 16 values of each [TILE², BATCH] temporary per thread (a dozen
+    such temporaries live in the loop body; more would spill registers), BATCH between 16 (``tl.dot``'s minimum,
+    for the per-asset weights) and 64, 4 to 16 warps: tiles of 8 → (32, 4), 16 → (16, 8). From the register
+    budget, not measured on a GPU yet: bench/render.py's speed row on CUDA times the kernel for other batch sizes
+    (``kernel_sweep``) so a device run can retune it."""
     pixels = tile * tile
-    batch = max(16, min(64, 8192 // pixels))
-    return batch, (8 if pixels * batch >= 8192 else 4)
+    batch = max(16, min(64, 2048 // pixels))
+    return batch, max(4, min(16, pixels * batch // 512))
 
 
 @triton.jit(do_not_specialize=["stride", "width", "height", "tiles_x"])
@@ -83,7 +84,7 @@ def _composite_kernel(params_ptr, boxes_ptr, tile_start_ptr, bg_ptr, out_c_ptr, 
     last = tl.load(tile_start_ptr + t + 1)
     first_depth = tl.load(params_ptr + _DEPTH * stride + e, mask=e < last, other=float("inf"))
     n_live = tl.sum((inside & (first_depth < zbg)).to(tl.int32), 0)
-    batches = 0
+    batches = tl.full([], 0, tl.int32)
     while (e < last) & (n_live > 0):
         idx = e + lanes
         valid = idx < last
@@ -149,12 +150,14 @@ def a_pad(n_assets: int) -> int:
 
 def composite(params: torch.Tensor, boxes: torch.Tensor, tile_start: torch.Tensor, bg: torch.Tensor, width: int,
               height: int, tiles_x: int, tile: int, n_assets: int = 1,
-              batches: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+              batches: torch.Tensor | None = None, batch: int | None = None,
+              num_warps: int | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """Run the kernel on ``tiles.kernel_inputs``' arrays (params (F32_ROWS, S) float32, boxes (4, S) int32, S a
     multiple of ``STRIDE_ALIGN``); returns (color (HW, 3), asset_mask (HW) = 1 - transmittance, depth (HW))
     float32 and instance (HW) int32 for ``n_assets`` assets (ids 1..n_assets in params row ``ASSET``).
     ``batches`` (tiles,) int32, if given, receives how many batches each tile's program composited before it
-    left its loop (the work done: tests check the early exit with it, the bench reports it)."""
+    left its loop (the work done: tests check the early exit with it, the bench reports it). ``batch`` (a power
+    of two ≥ 16) and ``num_warps`` override ``launch_config`` (the bench's sweep)."""
     dev = params.device
     assert params.shape[0] == F32_ROWS and boxes.shape == (4, params.shape[1]) and params.shape[1] % STRIDE_ALIGN == 0
     out_c = torch.empty((height * width, 3), dtype=torch.float32, device=dev)
@@ -164,7 +167,8 @@ def composite(params: torch.Tensor, boxes: torch.Tensor, tile_start: torch.Tenso
     n_tiles = len(tile_start) - 1
     if batches is None:
         batches = torch.empty(n_tiles, dtype=torch.int32, device=dev)
-    batch, warps = launch_config(tile)
+    default_batch, default_warps = launch_config(tile)
+    batch, warps = batch or default_batch, num_warps or default_warps
     _composite_kernel[(n_tiles,)](params, boxes, tile_start, bg, out_c, out_mask, out_z, out_inst, batches,
                                   params.shape[1],
                                   width, height, tiles_x, TILE=tile, BATCH=batch, A_PAD=a_pad(n_assets),

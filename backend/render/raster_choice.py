@@ -14,12 +14,14 @@ Sources of the thresholds (each a measurement, its machine and date):
   8 beat 16 and 32, so 8 is the CUDA tile. The pair rasterizer and tiles 8 were within 4 % (3 repeats): no size
   where the pairs are clearly faster was measured, and both costs grow with the pixel–Gaussian pairs, so
   their ratio, not a size, decides; the batched kernel cuts the tile path's per-entry cost (``tiles_cuda``), so
-  the pairs are not chosen on CUDA (``CUDA_PAIRS_MAX_GAUSSIANS`` = 0) until a device run's ``choice`` table
+  the pairs are not chosen on CUDA (``CUDA_PAIRS_MAX_GAUSSIANS_PER_MPIX`` = 0) until a device run's ``choice`` table
   shows a size where they win. The pair rasterizer also refuses frames over its pair budget (200 M), the tiles
   never do.
-* CPU, this project's 2-CPU machine, 2026-12-05 (``bench/render.py --sections choice``, 576 x 1024, 2 threads):
-  the numba tile kernel beat the pair rasterizer at every size measured and 8-px tiles beat 4 and 16 (figures in
-  design §10), so the CPU keeps tiles of 8 at every size.
+* CPU, this project's 2-CPU machine, 2026-12-05 (``bench/render.py --sections choice``, 576 x 1024, 2 threads,
+  1 M points, the car 8 m ahead; a machine shared with other work, so absolute times are inflated): Gaussian pass
+  ms at 2 k / 20 k / 100 k Gaussians: pairs 2100 / 2681 / 5981, tiles 4: 113 / 172 / 388, tiles 8: 77 / 162 / 372,
+  tiles 16: 78 / 175 / 456. The numba tiles beat the pairs 20-30x at every size and 8-px tiles were the fastest at
+  each (4 and 16 within 1-25 %), so the CPU keeps tiles of 8 at every size.
 """
 
 from __future__ import annotations
@@ -28,12 +30,13 @@ from typing import NamedTuple
 
 TILE_CUDA = 8   # H200, render_cuda.json: tiles 8 24.8 ms < 16 30.6 ms < 32 63.0 ms (3 M points + 200 k Gaussians)
 TILE_CPU = 8    # this machine's CPUs: 8 beats 4 and 16 (bench/render.py --sections choice)
-#: CUDA frames with at most this many Gaussians composite with the pair rasterizer (0: never; see the module
-#: docstring for why the H200 figures set no threshold yet).
-CUDA_PAIRS_MAX_GAUSSIANS = 0
-#: CPU frames with at most this many Gaussians composite with the pair rasterizer (0: never: the tiles won at every
-#: size measured, down to 1 k Gaussians).
-CPU_PAIRS_MAX_GAUSSIANS = 0
+#: CUDA frames with at most this many projected Gaussians per megapixel of the image composite with the pair
+#: rasterizer (0: never; see the module docstring for why the H200 figures set no threshold yet). Per megapixel:
+#: both methods' costs grow with the pixel–Gaussian pairs, which for a given asset grow with the image's area.
+CUDA_PAIRS_MAX_GAUSSIANS_PER_MPIX = 0.0
+#: The same for the CPU (0: never: the numba tiles were 20-30x faster than the pairs at every size measured, 2 k to
+#: 100 k Gaussians at 576 x 1024).
+CPU_PAIRS_MAX_GAUSSIANS_PER_MPIX = 0.0
 METHODS = ("auto", "tiles", "pairs")
 
 
@@ -52,8 +55,9 @@ def choose(device_type: str, n_gaussians: int, width: int, height: int, method: 
     "pairs" forces the method, ``tile`` the tile size (and with it the tiles)."""
     if method not in METHODS:
         raise ValueError(f"unknown Gaussian compositor {method!r}: one of {', '.join(METHODS)}")
-    if tile is not None and (int(tile) < 2 or int(tile) & (int(tile) - 1)):
-        raise ValueError(f"tile size {tile} must be a power of two >= 2 (the CUDA kernel's lanes)")
+    if tile is not None and (int(tile) < 1 or (device_type == "cuda" and int(tile) & (int(tile) - 1))):
+        raise ValueError(f"tile size {tile}: a positive number of pixels, on CUDA a power of two (the Triton "
+                         "kernel's lanes)")
     if method == "pairs":
         return Choice("pairs", None, "forced")
     if device_type not in ("cpu", "cuda"):
@@ -61,7 +65,8 @@ def choose(device_type: str, n_gaussians: int, width: int, height: int, method: 
     default_tile = TILE_CUDA if device_type == "cuda" else TILE_CPU
     if method == "tiles" or tile is not None:
         return Choice("tiles", int(tile or default_tile), "forced")
-    limit = CUDA_PAIRS_MAX_GAUSSIANS if device_type == "cuda" else CPU_PAIRS_MAX_GAUSSIANS
+    per_mpix = CUDA_PAIRS_MAX_GAUSSIANS_PER_MPIX if device_type == "cuda" else CPU_PAIRS_MAX_GAUSSIANS_PER_MPIX
+    limit = int(per_mpix * width * height / 1e6)
     if n_gaussians <= limit:
-        return Choice("pairs", None, f"{n_gaussians} Gaussians <= {limit} on {device_type}")
-    return Choice("tiles", default_tile, f"{device_type} default above {limit} Gaussians")
+        return Choice("pairs", None, f"{n_gaussians} Gaussians <= {limit} ({per_mpix:g}/Mpx) on {device_type}")
+    return Choice("tiles", default_tile, f"{device_type}: tiles of {default_tile} above {limit} Gaussians")

@@ -63,13 +63,15 @@ def _composite_kernel(params_ptr, boxes_ptr, tile_start_ptr, bg_ptr, out_c_ptr, 
                       ALPHA_MAX: tl.constexpr, ALPHA_MIN: tl.constexpr, TRANSMITTANCE_MIN: tl.constexpr):
     t = tl.program_id(0)
     offs = tl.arange(0, TILE * TILE)
-    px = (t % tiles_x) * TILE + offs % TILE
-    py = (t // tiles_x) * TILE + offs // TILE
+    lx = offs % TILE  # tile-relative, as the means and boxes are
+    ly = offs // TILE
+    px = (t % tiles_x) * TILE + lx
+    py = (t // tiles_x) * TILE + ly
     inside = (px < width) & (py < height)
     pix = py * width + px
     zbg = tl.load(bg_ptr + pix, mask=inside, other=float("-inf"))  # outside the image: everything is "behind"
-    fx = (offs % TILE).to(tl.float32) + 0.5  # tile-relative, as the means are
-    fy = (offs // TILE).to(tl.float32) + 0.5
+    fx = lx.to(tl.float32) + 0.5
+    fy = ly.to(tl.float32) + 0.5
     trans = tl.full([TILE * TILE], 1.0, tl.float32)
     virt = tl.full([TILE * TILE], 1.0, tl.float32)
     r = tl.zeros([TILE * TILE], tl.float32)
@@ -95,16 +97,17 @@ def _composite_kernel(params_ptr, boxes_ptr, tile_start_ptr, bg_ptr, out_c_ptr, 
         cc = tl.load(params_ptr + _CC * stride + idx, mask=valid, other=0.0)
         opac = tl.load(params_ptr + _OPACITY * stride + idx, mask=valid, other=0.0)
         depth = tl.load(params_ptr + _DEPTH * stride + idx, mask=valid, other=float("inf"))
-        x0 = tl.load(boxes_ptr + idx, mask=valid, other=1)  # an empty box for the lanes past the list
-        x1 = tl.load(boxes_ptr + stride + idx, mask=valid, other=0)
-        y0 = tl.load(boxes_ptr + 2 * stride + idx, mask=valid, other=1)
-        y1 = tl.load(boxes_ptr + 3 * stride + idx, mask=valid, other=0)
+        box = tl.load(boxes_ptr + idx, mask=valid, other=1)  # x0 1 > x1 0: an empty box past the list
+        x0 = box & 255
+        x1 = (box >> 8) & 255
+        y0 = (box >> 16) & 255
+        y1 = (box >> 24) & 255
         dx = fx[:, None] - mx[None, :]
         dy = fy[:, None] - my[None, :]
         power = -0.5 * (ca[None, :] * dx * dx + 2.0 * cb[None, :] * dx * dy + cc[None, :] * dy * dy)
         alpha = tl.minimum(opac[None, :] * tl.exp(power), ALPHA_MAX)
-        use = ((px[:, None] >= x0[None, :]) & (px[:, None] <= x1[None, :]) & (py[:, None] >= y0[None, :])
-               & (py[:, None] <= y1[None, :]) & (power <= 0.0) & (alpha >= ALPHA_MIN)
+        use = ((lx[:, None] >= x0[None, :]) & (lx[:, None] <= x1[None, :]) & (ly[:, None] >= y0[None, :])
+               & (ly[:, None] <= y1[None, :]) & (power <= 0.0) & (alpha >= ALPHA_MIN)
                & (depth[None, :] < zbg[:, None]))
         a = tl.where(use, alpha, 0.0)
         one_minus = 1.0 - a
@@ -152,14 +155,14 @@ def composite(params: torch.Tensor, boxes: torch.Tensor, tile_start: torch.Tenso
               height: int, tiles_x: int, tile: int, n_assets: int = 1,
               batches: torch.Tensor | None = None, batch: int | None = None,
               num_warps: int | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Run the kernel on ``tiles.kernel_inputs``' arrays (params (F32_ROWS, S) float32, boxes (4, S) int32, S a
-    multiple of ``STRIDE_ALIGN``); returns (color (HW, 3), asset_mask (HW) = 1 - transmittance, depth (HW))
+    """Run the kernel on ``tiles.kernel_inputs``' arrays (params (F32_ROWS, S) float32, boxes (S,) int32 packed
+    tile-relative boxes, S a multiple of ``STRIDE_ALIGN``); returns (color (HW, 3), asset_mask (HW) = 1 - transmittance, depth (HW))
     float32 and instance (HW) int32 for ``n_assets`` assets (ids 1..n_assets in params row ``ASSET``).
     ``batches`` (tiles,) int32, if given, receives how many batches each tile's program composited before it
     left its loop (the work done: tests check the early exit with it, the bench reports it). ``batch`` (a power
     of two ≥ 16) and ``num_warps`` override ``launch_config`` (the bench's sweep)."""
     dev = params.device
-    assert params.shape[0] == F32_ROWS and boxes.shape == (4, params.shape[1]) and params.shape[1] % STRIDE_ALIGN == 0
+    assert params.shape[0] == F32_ROWS and boxes.shape == (params.shape[1],) and params.shape[1] % STRIDE_ALIGN == 0
     out_c = torch.empty((height * width, 3), dtype=torch.float32, device=dev)
     out_mask = torch.empty(height * width, dtype=torch.float32, device=dev)
     out_z = torch.empty(height * width, dtype=torch.float32, device=dev)

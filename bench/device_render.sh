@@ -24,5 +24,4 @@ build=$!
 python3 -m pytest -q --noconftest -p no:cacheprovider tests/backend/render/test_gaussians.py -k cuda 2>&1 \
   | tail -15 | tee "$OUT/gpu_tests.log"
 wait $build; tail -3 "$OUT/gsplat_build.log"
-python3 bench/render.py --devices cuda --sections speed accuracy 2>&1 | tee "$OUT/bench_cuda.log"
-cp bench/results/render_cuda.json bench/results/render_cuda.png "$OUT"/ 2>/dev/null
+python3 bench/render.py --devices cuda --sections speed accuracy choice --out "$OUT" 2>&1 | tee "$OUT/bench_cuda.log"

@@ -88,7 +88,7 @@ def kernel_inputs(proj, bins, width, height, background_depth, dtype=torch.float
     e = bins["entries"].to(torch.int64)
     n = len(e)
     stride = max(STRIDE_ALIGN, -(-n // STRIDE_ALIGN) * STRIDE_ALIGN)
-    params = torch.zeros((F32_ROWS, stride), dtype=dt, device=dev)
+    params = torch.empty((F32_ROWS, stride), dtype=dt, device=dev)  # the columns past n are never read
     t, tile = bins["entry_tile"], bins["tile"]
     m2 = proj["mean2d"][e]                                # the projection's precision until the tile origin is off
     params[MX, :n] = m2[:, 0] - (t % bins["tiles_x"]) * tile
@@ -103,7 +103,7 @@ def kernel_inputs(proj, bins, width, height, background_depth, dtype=torch.float
     x0, x1 = ((box[:, 0:2] - ((t % bins["tiles_x"]) * tile)[:, None]).clamp(0, tile - 1)).unbind(1)
     y0, y1 = ((box[:, 2:4] - ((t // bins["tiles_x"]) * tile)[:, None]).clamp(0, tile - 1)).unbind(1)
     packed = x0 | (x1 << 8) | (y0 << 16) | (y1 << 24)
-    boxes = torch.zeros(stride, dtype=torch.int32, device=dev)
+    boxes = torch.empty(stride, dtype=torch.int32, device=dev)
     boxes[:n] = torch.where(packed >= 2 ** 31, packed - 2 ** 32, packed).to(torch.int32)  # the same 32 bits
     return params, boxes, bins["tile_start"].contiguous(), bg
 

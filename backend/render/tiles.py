@@ -13,7 +13,9 @@ by (tile, depth rank) and ``tile_start[t] .. tile_start[t + 1]`` delimits tile t
 torch (any device; the reference); on the CPU ``tiles_cpu`` does it in numba with a counting sort and gets the
 same lists. Compositing: numba on the CPU (``tiles_cpu``), Triton on CUDA (``tiles_cuda``, fed by
 ``kernel_inputs``); the reference is used on a CUDA machine without Triton, and on CUDA for more than
-``MAX_ASSETS_CUDA`` assets (the Triton kernel keeps one weight per pixel and asset in registers).
+``MAX_ASSETS_CUDA`` assets (the Triton kernel keeps one weight per pixel and asset in registers). The tile
+size, and whether a frame is composited with the tiles at all or with the pair rasterizer, is
+``raster_choice.choose``'s (by device and measured size; ``rasterize``' ``method`` and ``tile`` force it).
 
 Every path also returns the instance (``gaussians.rasterize``' rule: per pixel the asset with the largest
 Σ α·transmittance, ties to the lower id, where that weight exceeds the transmittance left; else 0), from each

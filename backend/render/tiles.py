@@ -33,9 +33,12 @@ from . import raster_choice
 #: per-asset accumulator is a [TILE², A_PAD] block, A_PAD the next power of two ≥ the number of assets).
 MAX_ASSETS_CUDA = 32
 #: Rows of ``kernel_inputs``' params (F32_ROWS, stride) float32, one column per tile entry: the mean relative to
-#: the entry's tile, conic, opacity, depth, colour, asset id (1-based, exact in float32 below 2^24).
-MX, MY, CA, CB, CC, OPACITY, DEPTH, RED, GREEN, BLUE, ASSET = range(11)
-F32_ROWS = 11
+#: the entry's tile, conic, opacity, depth, colour, asset id (1-based, exact in float32 below 2^24), and the pixel
+#: box as the bits of two int32 (x0 | x1 << 16, y0 | y1 << 16: one row gathers every field of an entry).
+MX, MY, CA, CB, CC, OPACITY, DEPTH, RED, GREEN, BLUE, ASSET, BOX_X, BOX_Y = range(13)
+F32_ROWS = 13
+#: The packed boxes' limit: pixel coordinates below 2^15 (the bits of x0 | x1 << 16 stay a positive int32).
+MAX_SIDE = 32767
 #: Row stride alignment of params (elements): every row starts 128-byte aligned whatever the frame's
 #: entry count, so Triton's alignment specialisation of the pointers never changes between frames.
 STRIDE_ALIGN = 32
@@ -74,40 +77,39 @@ def bin_tiles(proj, width: int, height: int, tile: int = raster_choice.TILE_CUDA
 
 def kernel_inputs(proj, bins, width, height, background_depth, dtype=torch.float32):
     """The arrays the Triton kernel reads (``tiles_cuda``), one column per tile entry in list order, fields in
-    rows so that a batch of entries is one contiguous load per field: ``params`` (F32_ROWS, S) =
-    mean x, mean y relative to the entry's tile origin, conic a b c, opacity, depth, r g b, the asset id
-    (1-based, ``gaussians.asset_ids``; exact in float32 below 2^24); ``boxes`` (S,) int32: each entry's pixel box
-    relative to its tile and clipped to it, x0 | x1 << 8 | y0 << 16 | y1 << 24 (one load instead of four; tiles
-    up to 256 px); ``tile_start``; the background depth (HW,). S is the entry count rounded up to
-    ``STRIDE_ALIGN`` (the columns past the entries are never read).
+    rows so that a batch of entries is one contiguous load per field: ``params`` (F32_ROWS, S) float32 = mean x,
+    mean y relative to the entry's tile origin, conic a b c, opacity, depth, r g b, the asset id (1-based,
+    ``gaussians.asset_ids``; exact in float32 below 2^24), then the pixel box (``bins["boxes"]``, absolute) as the
+    bits of two int32, x0 | x1 << 16 and y0 | y1 << 16 (read back with a bitcast; a gather copies bits exactly);
+    ``tile_start``; the background depth (HW,). S is the entry count rounded up to ``STRIDE_ALIGN`` (the columns
+    past the entries are never read). Every field but the means is one gather of a per-Gaussian table.
 
     Precision: the projection arrives in float64 (``frames.render_frame``); the kernel gets float32 (``dtype``)
     with means made relative to the tile in the projection's precision (values below the tile size: ~1e-6 px of
     rounding instead of ~6e-5 px at x ~ 1000, which thin, edge-on Gaussians would turn into ~1e-4 of α)."""
+    if dtype != torch.float32:
+        raise ValueError(f"the Triton kernel reads float32 params, not {dtype}")
+    if max(width, height) > MAX_SIDE:
+        raise ValueError(f"{width} x {height}: the CUDA kernel's packed pixel boxes hold sides up to {MAX_SIDE} px")
     dev, dt = proj["mean2d"].device, dtype
     bg = (torch.full((height * width,), float("inf"), dtype=dt, device=dev) if background_depth is None
           else background_depth.reshape(-1).to(dt).contiguous())
+    G = len(proj["depth"])
+    table = torch.empty((G, F32_ROWS), dtype=dt, device=dev)  # per Gaussian, in proj rows
+    table[:, CA:BOX_X] = torch.cat([proj["conic"], proj["opacity"][:, None], proj["depth"][:, None], proj["color"],
+                                    gs.asset_ids(proj)[:, None].to(proj["conic"].dtype)], 1)
+    box = bins["boxes"]
+    table[:, BOX_X:] = (box[:, 0::2] | (box[:, 1::2] << 16)).view(dt)  # (x0, y0) | (x1, y1) << 16, as bits
     e = bins["entries"].to(torch.int64)
     n = len(e)
     stride = max(STRIDE_ALIGN, -(-n // STRIDE_ALIGN) * STRIDE_ALIGN)
     params = torch.empty((F32_ROWS, stride), dtype=dt, device=dev)  # the columns past n are never read
-    t, tile = bins["entry_tile"], bins["tile"]
-    m2 = proj["mean2d"][e]                                # the projection's precision until the tile origin is off
-    params[MX, :n] = m2[:, 0] - (t % bins["tiles_x"]) * tile
-    params[MY, :n] = m2[:, 1] - (t // bins["tiles_x"]) * tile
-    per_gaussian = torch.cat([proj["conic"], proj["opacity"][:, None], proj["depth"][:, None], proj["color"],
-                              gs.asset_ids(proj)[:, None].to(proj["conic"].dtype)], 1).to(dt)
-    params[CA:, :n] = per_gaussian.index_select(0, e).T  # rows CA..ASSET; one gather, in entry order
-    if tile > 256:
-        raise ValueError(f"tile {tile}: the CUDA kernel's packed boxes hold tiles up to 256 px")
-    # an entry exists only in the tiles its box touches, so the clipped box is never empty
-    box = bins["boxes"].index_select(0, e).to(torch.int64)
-    x0, x1 = ((box[:, 0:2] - ((t % bins["tiles_x"]) * tile)[:, None]).clamp(0, tile - 1)).unbind(1)
-    y0, y1 = ((box[:, 2:4] - ((t // bins["tiles_x"]) * tile)[:, None]).clamp(0, tile - 1)).unbind(1)
-    packed = x0 | (x1 << 8) | (y0 << 16) | (y1 << 24)
-    boxes = torch.empty(stride, dtype=torch.int32, device=dev)
-    boxes[:n] = torch.where(packed >= 2 ** 31, packed - 2 ** 32, packed).to(torch.int32)  # the same 32 bits
-    return params, boxes, bins["tile_start"].contiguous(), bg
+    params[:, :n] = table.index_select(0, e).T               # one gather, in entry order
+    t, tile, tiles_x = bins["entry_tile"], bins["tile"], bins["tiles_x"]
+    m2 = proj["mean2d"][e]                                   # the projection's precision until the tile origin is off
+    params[MX, :n] = m2[:, 0] - (t % tiles_x) * tile
+    params[MY, :n] = m2[:, 1] - (t // tiles_x) * tile
+    return params, bins["tile_start"].contiguous(), bg
 
 
 def rasterize(proj, width: int, height: int, background_depth=None, tile: int | None = None,

@@ -41,9 +41,9 @@ from . import tiles
 from .tiles import F32_ROWS, STRIDE_ALIGN
 
 # kernel_inputs' rows, as the compile-time constants a kernel may read
-_MX, _MY, _CA, _CB, _CC, _OPACITY, _DEPTH, _RED, _GREEN, _BLUE, _ASSET = (tl.constexpr(v) for v in (
+_MX, _MY, _CA, _CB, _CC, _OPACITY, _DEPTH, _RED, _GREEN, _BLUE, _ASSET, _BOX_X, _BOX_Y = (tl.constexpr(v) for v in (
     tiles.MX, tiles.MY, tiles.CA, tiles.CB, tiles.CC, tiles.OPACITY, tiles.DEPTH, tiles.RED, tiles.GREEN, tiles.BLUE,
-    tiles.ASSET))
+    tiles.ASSET, tiles.BOX_X, tiles.BOX_Y))
 
 
 def launch_config(tile: int) -> tuple[int, int]:
@@ -58,15 +58,17 @@ def launch_config(tile: int) -> tuple[int, int]:
 
 
 @triton.jit(do_not_specialize=["stride", "width", "height", "tiles_x"])
-def _composite_kernel(params_ptr, boxes_ptr, tile_start_ptr, bg_ptr, out_c_ptr, out_mask_ptr, out_z_ptr, out_inst_ptr,
+def _composite_kernel(params_ptr, tile_start_ptr, bg_ptr, out_c_ptr, out_mask_ptr, out_z_ptr, out_inst_ptr,
                       out_batches_ptr, stride, width, height, tiles_x, TILE: tl.constexpr, BATCH: tl.constexpr, A_PAD: tl.constexpr,
                       ALPHA_MAX: tl.constexpr, ALPHA_MIN: tl.constexpr, TRANSMITTANCE_MIN: tl.constexpr):
     t = tl.program_id(0)
     offs = tl.arange(0, TILE * TILE)
-    lx = offs % TILE  # tile-relative, as the means and boxes are
+    lx = offs % TILE  # tile-relative, as the means are
     ly = offs // TILE
-    px = (t % tiles_x) * TILE + lx
-    py = (t // tiles_x) * TILE + ly
+    ox = (t % tiles_x) * TILE
+    oy = (t // tiles_x) * TILE
+    px = ox + lx
+    py = oy + ly
     inside = (px < width) & (py < height)
     pix = py * width + px
     zbg = tl.load(bg_ptr + pix, mask=inside, other=float("-inf"))  # outside the image: everything is "behind"
@@ -97,11 +99,13 @@ def _composite_kernel(params_ptr, boxes_ptr, tile_start_ptr, bg_ptr, out_c_ptr, 
         cc = tl.load(params_ptr + _CC * stride + idx, mask=valid, other=0.0)
         opac = tl.load(params_ptr + _OPACITY * stride + idx, mask=valid, other=0.0)
         depth = tl.load(params_ptr + _DEPTH * stride + idx, mask=valid, other=float("inf"))
-        box = tl.load(boxes_ptr + idx, mask=valid, other=1)  # x0 1 > x1 0: an empty box past the list
-        x0 = box & 255
-        x1 = (box >> 8) & 255
-        y0 = (box >> 16) & 255
-        y1 = (box >> 24) & 255
+        # the box's bits (past the list: 0, a one-pixel box, but opacity 0 there: α < 1/255, never used)
+        box_x = tl.load(params_ptr + _BOX_X * stride + idx, mask=valid, other=0.0).to(tl.int32, bitcast=True)
+        box_y = tl.load(params_ptr + _BOX_Y * stride + idx, mask=valid, other=0.0).to(tl.int32, bitcast=True)
+        x0 = (box_x & 0xFFFF) - ox  # relative to the tile: the loop keeps only lx, ly per pixel live
+        x1 = (box_x >> 16) - ox
+        y0 = (box_y & 0xFFFF) - oy
+        y1 = (box_y >> 16) - oy
         dx = fx[:, None] - mx[None, :]
         dy = fy[:, None] - my[None, :]
         power = -0.5 * (ca[None, :] * dx * dx + 2.0 * cb[None, :] * dx * dy + cc[None, :] * dy * dy)
@@ -151,18 +155,18 @@ def a_pad(n_assets: int) -> int:
     return 1 if n_assets <= 1 else max(16, 1 << (int(n_assets) - 1).bit_length())
 
 
-def composite(params: torch.Tensor, boxes: torch.Tensor, tile_start: torch.Tensor, bg: torch.Tensor, width: int,
+def composite(params: torch.Tensor, tile_start: torch.Tensor, bg: torch.Tensor, width: int,
               height: int, tiles_x: int, tile: int, n_assets: int = 1,
               batches: torch.Tensor | None = None, batch: int | None = None,
               num_warps: int | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Run the kernel on ``tiles.kernel_inputs``' arrays (params (F32_ROWS, S) float32, boxes (S,) int32 packed
-    tile-relative boxes, S a multiple of ``STRIDE_ALIGN``); returns (color (HW, 3), asset_mask (HW) = 1 - transmittance, depth (HW))
+    """Run the kernel on ``tiles.kernel_inputs``' arrays (params (F32_ROWS, S) float32, S a multiple of
+    ``STRIDE_ALIGN``; tile_start (tiles + 1,) int64; bg (HW,) float32); returns (color (HW, 3), asset_mask (HW) = 1 - transmittance, depth (HW))
     float32 and instance (HW) int32 for ``n_assets`` assets (ids 1..n_assets in params row ``ASSET``).
     ``batches`` (tiles,) int32, if given, receives how many batches each tile's program composited before it
     left its loop (the work done: tests check the early exit with it, the bench reports it). ``batch`` (a power
     of two ≥ 16) and ``num_warps`` override ``launch_config`` (the bench's sweep)."""
     dev = params.device
-    assert params.shape[0] == F32_ROWS and boxes.shape == (params.shape[1],) and params.shape[1] % STRIDE_ALIGN == 0
+    assert params.shape[0] == F32_ROWS and params.dtype == torch.float32 and params.shape[1] % STRIDE_ALIGN == 0
     out_c = torch.empty((height * width, 3), dtype=torch.float32, device=dev)
     out_mask = torch.empty(height * width, dtype=torch.float32, device=dev)
     out_z = torch.empty(height * width, dtype=torch.float32, device=dev)
@@ -172,7 +176,7 @@ def composite(params: torch.Tensor, boxes: torch.Tensor, tile_start: torch.Tenso
         batches = torch.empty(n_tiles, dtype=torch.int32, device=dev)
     default_batch, default_warps = launch_config(tile)
     batch, warps = batch or default_batch, num_warps or default_warps
-    _composite_kernel[(n_tiles,)](params, boxes, tile_start, bg, out_c, out_mask, out_z, out_inst, batches,
+    _composite_kernel[(n_tiles,)](params, tile_start, bg, out_c, out_mask, out_z, out_inst, batches,
                                   params.shape[1],
                                   width, height, tiles_x, TILE=tile, BATCH=batch, A_PAD=a_pad(n_assets),
                                   ALPHA_MAX=ALPHA_MAX, ALPHA_MIN=ALPHA_MIN, TRANSMITTANCE_MIN=TRANSMITTANCE_MIN,

@@ -61,8 +61,9 @@ def launch_config(tile: int) -> tuple[int, int]:
 
 @triton.jit(do_not_specialize=["stride", "width", "height", "tiles_x"])
 def _composite_kernel(params_ptr, tile_start_ptr, bg_ptr, out_c_ptr, out_mask_ptr, out_z_ptr, out_inst_ptr,
-                      out_batches_ptr, stride, width, height, tiles_x, TILE: tl.constexpr, BATCH: tl.constexpr, A_PAD: tl.constexpr,
-                      ALPHA_MAX: tl.constexpr, ALPHA_MIN: tl.constexpr, TRANSMITTANCE_MIN: tl.constexpr):
+                      out_batches_ptr, stride, width, height, tiles_x, TILE: tl.constexpr, BATCH: tl.constexpr,
+                      A_PAD: tl.constexpr, ALPHA_MAX: tl.constexpr, ALPHA_MIN: tl.constexpr,
+                      TRANSMITTANCE_MIN: tl.constexpr):
     t = tl.program_id(0)
     offs = tl.arange(0, TILE * TILE)
     lx = offs % TILE  # tile-relative, as the means are
@@ -162,8 +163,8 @@ def composite(params: torch.Tensor, tile_start: torch.Tensor, bg: torch.Tensor, 
               batches: torch.Tensor | None = None, batch: int | None = None,
               num_warps: int | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """Run the kernel on ``tiles.kernel_inputs``' arrays (params (F32_ROWS, S) float32, S a multiple of
-    ``STRIDE_ALIGN``; tile_start (tiles + 1,) int64; bg (HW,) float32); returns (color (HW, 3), asset_mask (HW) = 1 - transmittance, depth (HW))
-    float32 and instance (HW) int32 for ``n_assets`` assets (ids 1..n_assets in params row ``ASSET``).
+    ``STRIDE_ALIGN``; tile_start (tiles + 1,) int64; bg (HW,) float32); returns (color (HW, 3), asset_mask (HW) =
+    1 - transmittance, depth (HW)) float32 and instance (HW) int32 for ``n_assets`` assets (ids 1..n_assets in params row ``ASSET``).
     ``batches`` (tiles,) int32, if given, receives how many batches each tile's program composited before it
     left its loop (the work done: tests check the early exit with it, the bench reports it). ``batch`` (a power
     of two ≥ 16) and ``num_warps`` override ``launch_config`` (the bench's sweep)."""

@@ -164,6 +164,8 @@ CROSS_CUTTING = {
     "tests/test_docs.py": "the documents' lists (design §2's module table, both programs' commands, the README's "
                           "format table) against the code",
     "tests/test_annotations.py": "the share of fully annotated public functions of core/ and backend/",
+    "tests/bench/test_device_all.py": "bench/device_all.sh's command lines parse with each bench's parser; its dry "
+                                      "run writes each part's JSON and summary.json",
     "tests/street/test_street.py": "the ground-truth street end to end: build, render, predictions, dataset cache",
     "tests/backend/test_fuzz_inputs.py": "hostile input files of every kind through every command "
                                          "(tests/fuzz_inputs.py, tests/fuzz_surfaces.py, tests/fuzz_round3.py)",
@@ -184,19 +186,6 @@ BENCH_SMOKE_PENDING = {
     "bench/render.py": "issue 44's Gaussians part adds --smoke and its test",
     "bench/bench_gaussians.py": "issue 44's Gaussians part adds --smoke and its test",
     "bench/train_throughput.py": "issue 44's training part adds --smoke and its test",
-    "bench/artist_loop.py": "H1 WIP",
-    "bench/baseline_inpaint.py": "H1 WIP",
-    "bench/batch_ray.py": "H1 WIP",
-    "bench/bench_import.py": "H1 WIP",
-    "bench/clean_points.py": "H1 WIP",
-    "bench/export_dataset.py": "H1 WIP",
-    "bench/fuzz_case_cost.py": "H1 WIP",
-    "bench/fuzz_inputs.py": "H1 WIP",
-    "bench/input_kinds.py": "H1 WIP",
-    "bench/inputs_round2.py": "H1 WIP",
-    "bench/inputs_round3.py": "H1 WIP",
-    "bench/proposals.py": "H1 WIP",
-    "bench/render_writes.py": "H1 WIP",
 }
 
 # Test files other branches are moving or rewriting now; the merge places them (then each leaves this list).
@@ -363,6 +352,8 @@ def test_every_bench_script_has_a_smoke_test_that_runs_it_small():
         text = _read(script)
         if '"--smoke"' not in text and "add_smoke_and_out" not in text:
             problems.append(f"{script}: no --smoke option")
+        if '"--out"' not in text and "add_smoke_and_out" not in text:
+            problems.append(f"{script}: no --out option")
         if test not in files:
             problems.append(f"{script}: no {test}")
         elif "smoke" not in _read(test):

@@ -19,7 +19,7 @@
 # Environment: OUT (default /tmp/device_all), PYTHON (default python3; the dry run's .venv/bin/python),
 # DEVICE_ALL_PARTS (the parts to run, default all, in the order above), DEVICE_ALL_BUDGET_S (default 470: what is left
 # of it caps each part's timeout), <PART>_TIMEOUT_S (one part's own limit, e.g. GENERATE_TIMEOUT_S=200), GPU_TESTS
-# (the test paths of gpu_tests, default tests/backend/render: where the gpu-marked tests are).
+# (the test paths of gpu_tests, default: every test file that marks a test gpu).
 set -u -o pipefail
 cd "$(dirname "$0")/.."
 mode=gpu print=0
@@ -35,6 +35,9 @@ OUT=${OUT:-/tmp/device_all}
 if [ "$mode" = dry ] && [ -x .venv/bin/python ]; then PY=${PYTHON:-.venv/bin/python}; else PY=${PYTHON:-python3}; fi
 PARTS=${DEVICE_ALL_PARTS:-generate render train gpu_tests}
 tmp=${TMPDIR:-/tmp}
+# the test files that hold gpu-marked tests (collecting only them: the other test modules may import what the
+# device machine lacks)
+gpu_tests=${GPU_TESTS:-$(grep -rl --include='test_*.py' -e 'mark\.gpu' tests | sort | tr '\n' ' ')}
 budget=${DEVICE_ALL_BUDGET_S:-470}
 
 # One part's command line (the array CMD) and its own time limit (LIMIT). Its JSON: the .json files it wrote in $OUT.
@@ -57,7 +60,8 @@ part() {
       else CMD=("$PY" bench/train_throughput.py --smoke --device cpu --out "$OUT"); fi ;;
     gpu_tests)
       LIMIT=${GPU_TESTS_TIMEOUT_S:-60}
-      CMD=("$PY" -m pytest -m gpu -q -p no:cacheprovider --junitxml="$tmp/gpu_tests.xml" ${GPU_TESTS:-tests/backend/render}) ;;
+      # shellcheck disable=SC2206  (the paths split on spaces)
+      CMD=("$PY" -m pytest -m gpu -q -p no:cacheprovider --junitxml="$tmp/gpu_tests.xml" $gpu_tests) ;;
     *) echo "device_all.sh: no part named $1 (parts: generate render train gpu_tests)" >&2; return 1 ;;
   esac
 }

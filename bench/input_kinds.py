@@ -6,8 +6,7 @@ Synthetic files are written here with numpy alone (the VGGT cases on an analytic
 the truth), real ones are read from ``../shared/realdata`` (PROVENANCE.md there; skipped when absent). The same
 script run on an older checkout gives the "before" column of the closing note. Not a test: it prints a table and
 saves a JSON (``--out DIR``, or a path ending in .json). ``--smoke``: the synthetic files alone, the mesh car
-converted to 5,000 Gaussians. It imports bpy
-with a private user folder: run it in a process of its own.
+converted to 5,000 Gaussians. It imports bpy with a private user folder: run it in a process of its own.
 """
 
 import argparse

@@ -122,7 +122,8 @@ def main(argv=None):
         args.counts, args.factor_counts, args.factors = [2000], [2000], [0.7]
         args.resolutions, args.views = ["128x72"], 2
     args.json = args.json or bench_cli.json_path(args.out, "mesh_assets")
-    torch.set_num_threads(args.threads)
+    if not args.smoke:   # (the smoke runs inside the test process: its thread count is left as it is)
+        torch.set_num_threads(args.threads)
     res_list = [tuple(int(v) for v in r.split("x")) for r in args.resolutions]
     rows = []
     head = ["mesh", "res", "c", "count", "sigma_px", "iou", "iou_min", "mean_abs", "leak", "spill", "boundary_px",

@@ -4,7 +4,7 @@
 # install), writing one JSON per part and a summary into $OUT:
 #
 #   generate     bench/generate.py: our pipeline against stock diffusers, full SVD architecture   generate_full_cuda.json
-#   render       bench/render.py: the renderer's speed and error, gsplat side by side             render_cuda.json
+#   render       bench/render.py: the renderer's speed, error and choice, gsplat side by side     render_cuda.json
 #   train        bench/train_throughput.py: training samples/s and peak memory                     train_full_cuda.json
 #   gpu_tests    pytest -m gpu (the CUDA kernels against the float64 references)                   gpu_tests.json
 #   (all)        which parts ran, their exit status, seconds and JSON                              summary.json
@@ -46,15 +46,15 @@ budget=${DEVICE_ALL_BUDGET_S:-470}
 part() {
   case $1 in
     generate)
-      LIMIT=${GENERATE_TIMEOUT_S:-180}
+      LIMIT=${GENERATE_TIMEOUT_S:-170}
       if [ "$mode" = gpu ]; then CMD=("$PY" bench/generate.py --size full --device cuda --frames 14 25 --out "$OUT")
       else CMD=("$PY" bench/generate.py --smoke --device cpu --out "$OUT"); fi ;;
     render)
-      LIMIT=${RENDER_TIMEOUT_S:-110}
-      if [ "$mode" = gpu ]; then CMD=("$PY" bench/render.py --devices cuda --sections speed accuracy --out "$OUT")
+      LIMIT=${RENDER_TIMEOUT_S:-130}
+      if [ "$mode" = gpu ]; then CMD=("$PY" bench/render.py --devices cuda --sections speed accuracy choice --out "$OUT")
       else CMD=("$PY" bench/render.py --smoke --devices cpu --out "$OUT"); fi ;;
     train)
-      LIMIT=${TRAIN_TIMEOUT_S:-110}
+      LIMIT=${TRAIN_TIMEOUT_S:-100}
       if [ "$mode" = gpu ]; then CMD=("$PY" bench/train_throughput.py --size full --device cuda --frames 14
                                       --resolutions 1024x576 --batches 1 2 --checkpointing both --steps 3 --out "$OUT")
       else CMD=("$PY" bench/train_throughput.py --smoke --device cpu --out "$OUT"); fi ;;

@@ -1,8 +1,8 @@
 """The artist's loop through the real operators (bpy, background mode): a baseline revision and the working tree,
 side by side in one run, on the street at 518 x 294, 16 frames, a parked car and a camera path 2 m left.
 
-    .venv/bin/python bench/artist_loop.py [--baseline ebbfdbb] [--out build/bench_artist_loop]
-                                          [--json bench/results/artist_loop.json]
+    .venv/bin/python bench/artist_loop.py [--baseline ebbfdbb] [--work build/bench_artist_loop]
+                                          [--out bench/results] [--json FILE] [--smoke]
 
 Each arm runs in its own process (its own add-on, built from its tree and installed in a private Blender user
 folder; the baseline's tree extracted with ``git archive``). The clicks, in order, each *Render Conditions*
@@ -19,7 +19,9 @@ and for each click the time from the click to the start of the first frame rende
 frame's last write, minus its logged render and write seconds).
 
 Prints a table and saves JSON. Not a test. Targets (issue 29): unchanged <= 0.5 s; moved: only the frames it
-touches, overhead <= 1.5 s; moved back: first frame <= 1 s after the click.
+touches, overhead <= 1.5 s; moved back: first frame <= 1 s after the click. ``--baseline ''`` leaves the baseline
+arm out; ``--smoke``: the working tree alone on two synthetic 64 x 48 frames (not the street: its first click
+alone takes ~45 s), a 2,000-Gaussian car, in a temporary work folder. It imports bpy with a private user folder: run it in a process of its own.
 """
 
 from __future__ import annotations
@@ -68,8 +70,10 @@ def _frame_seconds(log_path: str, offset: int) -> dict:
     return out
 
 
-def worker(tree: str, work: str, out_json: str) -> None:
-    """One arm: the scenario in this process, with the add-on of ``tree``."""
+def worker(tree: str, work: str, out_json: str, smoke: bool = False) -> None:
+    """One arm: the scenario in this process, with the add-on of ``tree`` (``smoke``: two synthetic frames, a
+    2,000-Gaussian car)."""
+    frames, count = (2, 2000) if smoke else (FRAMES, 20000)
     sys.path.insert(0, tree)
     sys.path.insert(0, os.path.join(tree, "tests"))
     from tools import blender_env
@@ -81,18 +85,26 @@ def worker(tree: str, work: str, out_json: str) -> None:
     from scpainter_blender.core.output_layout import OutputLayout
     from scpainter_blender.street.dataset import ensure_street
 
-    street = ensure_street()
     bpy.ops.wm.read_homefile(use_empty=True)
-    bpy.ops.scpainter.import_vggt(filepath=street.predictions_path, scale_mode="TRAJECTORY",
-                                  trajectory_path=os.path.join(street.root, "metric.npz"))
+    if smoke:  # two synthetic frames (bench_import's): the street's first click costs ~45 s on 2 cores
+        sys.path.insert(0, os.path.join(ROOT, "bench"))
+        from bench_import import make_predictions
+
+        make_predictions(os.path.join(work, "pred.npz"), 2, H=48, W=64)
+        assert bpy.ops.scpainter.import_vggt(filepath=os.path.join(work, "pred.npz"),
+                                             scale_mode="FACTOR") == {"FINISHED"}
+    else:
+        street = ensure_street()
+        bpy.ops.scpainter.import_vggt(filepath=street.predictions_path, scale_mode="TRAJECTORY",
+                                      trajectory_path=os.path.join(street.root, "metric.npz"))
     ply = os.path.join(work, "car.ply")
-    shapes.save_as_amodal3r(ply, shapes.procedural_car_gaussians(count=20000, seed=7, paint=(0.1, 0.3, 0.8)))
+    shapes.save_as_amodal3r(ply, shapes.procedural_car_gaussians(count=count, seed=7, paint=(0.1, 0.3, 0.8)))
     scene = bpy.context.scene
     scene.cursor.location = CAR_AT
     bpy.ops.scpainter.import_gaussians(filepath=ply)
     car = bpy.context.active_object
     bpy.ops.scpainter.new_camera_path(shift=2.0)
-    scene.frame_start, scene.frame_end = 1, FRAMES
+    scene.frame_start, scene.frame_end = 1, frames
     scene.render.resolution_percentage = 100
     scene.scpainter_output_dir = os.path.join(work, "out")
     prefs = bpy.context.preferences.addons[pkg].preferences
@@ -102,7 +114,7 @@ def worker(tree: str, work: str, out_json: str) -> None:
     def click():
         log_at = os.path.getsize(layout.log) if os.path.isfile(layout.log) else 0
         exr = {f: os.stat(layout.condition_exr(f)).st_mtime_ns if os.path.isfile(layout.condition_exr(f)) else 0
-               for f in range(1, FRAMES + 1)}
+               for f in range(1, frames + 1)}
         t0 = time.time()
         assert bpy.ops.scpainter.render_conditions() == {"FINISHED"}
         seconds = time.time() - t0
@@ -129,27 +141,39 @@ def worker(tree: str, work: str, out_json: str) -> None:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--baseline", default="ebbfdbb")
-    p.add_argument("--out", default=os.path.join(ROOT, "build", "bench_artist_loop"))
-    p.add_argument("--json", default=os.path.join(ROOT, "bench", "results", "artist_loop.json"))
+    p.add_argument("--baseline", default="ebbfdbb", help="git revision of the baseline arm ('' leaves it out)")
+    p.add_argument("--work", help="the arms' folders (default build/bench_artist_loop; with --smoke a temporary one)")
+    p.add_argument("--json", help="the JSON file (default: artist_loop.json in --out)")
     p.add_argument("--worker", nargs=3, metavar=("TREE", "WORK", "OUT_JSON"), help=argparse.SUPPRESS)
+    sys.path.insert(0, os.path.join(ROOT, "bench"))
+    import bench_cli  # bench/, the script's folder
+
+    bench_cli.add_smoke_and_out(p, "the working tree alone, two synthetic frames, a 2,000-Gaussian car")
     args = p.parse_args(argv)
     if args.worker:
-        worker(*args.worker)
+        worker(*args.worker, smoke=args.smoke)
         return 0
     import shutil
 
-    base_tree, sha = tree_of(args.baseline)
-    arms = {f"baseline {sha[:7]}": base_tree, "now": ROOT}
+    temporary = args.smoke and not args.work
+    if args.smoke:
+        args.baseline = ""
+        args.work = args.work or tempfile.mkdtemp(prefix="bench_artist_loop_")
+    args.work = os.path.abspath(args.work or os.path.join(ROOT, "build", "bench_artist_loop"))
+    args.json = args.json or bench_cli.json_path(args.out, "artist_loop")
+    arms = {"now": ROOT}
+    if args.baseline:
+        base_tree, sha = tree_of(args.baseline)
+        arms = {f"baseline {sha[:7]}": base_tree, "now": ROOT}
     results = {}
     for name, tree in arms.items():
-        work = os.path.join(os.path.abspath(args.out), name.split()[0])
+        work = os.path.join(args.work, name.split()[0])
         shutil.rmtree(work, ignore_errors=True)
         os.makedirs(work)
         out_json = os.path.join(work, "rows.json")
         env = {**os.environ, "PYTHONPATH": tree}
-        subprocess.run([sys.executable, os.path.abspath(__file__), "--worker", tree, work, out_json], check=True,
-                       env=env, cwd=tree)
+        subprocess.run([sys.executable, os.path.abspath(__file__), "--worker", tree, work, out_json,
+                        *(["--smoke"] if args.smoke else [])], check=True, env=env, cwd=tree)
         with open(out_json) as f:
             results[name] = json.load(f)
     header = f"{'click':<12}" + "".join(f"{arm:>44}" for arm in results)
@@ -165,10 +189,12 @@ def main(argv=None) -> int:
     sys.path.insert(0, ROOT)
     from tools import blender_env
 
-    blender_env.use_private_user_resources(os.path.join(os.path.abspath(args.out), "blender-user"))
+    blender_env.use_private_user_resources(os.path.join(args.work, "blender-user"))
     blender_env.write_bench_json(args.json, [{"arm": arm, "click": click, **r} for arm, rows in results.items()
                                              for click, r in rows.items()])
     print(f"saved {args.json}")
+    if temporary:
+        shutil.rmtree(args.work, ignore_errors=True)
     return 0
 
 

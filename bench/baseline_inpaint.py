@@ -1,6 +1,7 @@
 """The inpainting baseline (``backend/generate/baseline.py``) on the ground-truth street: its error against run time.
 
     .venv/bin/python bench/baseline_inpaint.py [--resolution 518 294] [--frames 16] [--radii 3 8] [--repeats 3]
+                                               [--out bench/results] [--smoke]
 
 The street exported as an evaluation clip (``backend.train.street_clip``), each evaluation task's job
 (``evaluate.protocol.task_job``: the drive shifted ±2, ±3 m, points of frames t ± 8) rendered through the real
@@ -12,14 +13,14 @@ The street exported as an evaluation clip (``backend.train.street_clip``), each 
 
 The row "naive" is the condition image with black holes (what ``evaluate`` calls naive), for scale. Timings on a
 shared 2-core machine are noisy; compare the ratios of one run. Prints a table; writes
-bench/results/baseline_inpaint.json.
+bench/results/baseline_inpaint.json (``--out DIR``). ``--smoke``: 2 frames at 64 x 36, radius 3, one pass.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import os
+import shutil
 import sys
 import tempfile
 import time
@@ -28,6 +29,9 @@ import numpy as np
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
+sys.path.insert(0, os.path.join(ROOT, "bench"))
+
+import bench_cli  # noqa: E402  (bench/, the script's folder)
 
 
 def main(argv=None) -> None:
@@ -37,7 +41,10 @@ def main(argv=None) -> None:
     ap.add_argument("--radii", type=int, nargs="+", default=[3, 8])
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--work", help="folder for the clip and the rendered tasks (default: a temporary one)")
+    bench_cli.add_smoke_and_out(ap, "2 frames at 64 x 36, radius 3, one pass")
     args = ap.parse_args(argv)
+    if args.smoke:
+        args.resolution, args.frames, args.radii, args.repeats = [64, 36], 2, [3], 1
     import torch
 
     from backend.generate import baseline
@@ -102,10 +109,13 @@ def main(argv=None) -> None:
     for r in rows:
         print(f"| {r['output']} | {r['psnr']:.2f} | {r['psnr_holes']:.2f} | {r['warping_error']:.5f} | "
               f"{r['ms_per_frame']:.1f} |")
-    os.makedirs(os.path.join(ROOT, "bench", "results"), exist_ok=True)
-    with open(os.path.join(ROOT, "bench", "results", "baseline_inpaint.json"), "w") as f:
-        json.dump({"resolution": [W, H], "frames": len(frames), "shifts": shifts, "hole_fraction": holes,
-                   "ground_truth_warping_error": floor, "repeats": args.repeats, "rows": rows}, f, indent=1)
+    from scpainter_blender.core import outputs
+
+    outputs.write_json(bench_cli.json_path(args.out, "baseline_inpaint"), {
+        "resolution": [W, H], "frames": len(frames), "shifts": shifts, "hole_fraction": holes,
+        "ground_truth_warping_error": floor, "repeats": args.repeats, "rows": rows})
+    if not args.work:
+        shutil.rmtree(work, ignore_errors=True)
 
 
 if __name__ == "__main__":

@@ -1,10 +1,12 @@
 """Import throughput: VGGT predictions -> Blender point cloud + camera, through the real operator.
 
-    .venv/bin/python bench/bench_import.py [--frames 20 100] [--out build/bench]
+    .venv/bin/python bench/bench_import.py [--frames 20 100] [--out bench/results] [--json FILE]
+    .venv/bin/python bench/bench_import.py --smoke --out /tmp/x      # 2 frames, percentile 50, one repeat
 
 Synthetic predictions at VGGT's working size (518 x 294, ~152 k pixels a frame), saved as VGGT's demo saves them
 (np.savez, with world_points). Reports the whole operator (load, unproject, filter, mesh, camera) and its phases,
-in points per second; prints a table and writes bench/results/import.json (or --json).
+in points per second; prints a table and writes bench/results/import.json (or --json). It imports bpy with a
+private user folder: run it in a process of its own.
 """
 
 import argparse
@@ -15,7 +17,9 @@ import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
+sys.path.insert(0, os.path.join(ROOT, "bench"))
 
+import bench_cli  # noqa: E402  (bench/, the script's folder)
 from tools import blender_env  # noqa: E402
 
 
@@ -26,10 +30,16 @@ def make_predictions(path, S, H=294, W=518, seed=0):
     ext = np.tile(np.eye(3, 4, dtype=np.float32), (S, 1, 1))
     ext[:, 2, 3] = -np.arange(S, dtype=np.float32) * 0.05  # driving forward
     intr = np.tile(np.array([[300, 0, W / 2], [0, 300, H / 2], [0, 0, 1]], np.float32), (S, 1, 1))
-    np.savez(path, images=rng.random((S, 3, H, W), dtype=np.float32),
-             depth=rng.uniform(0.2, 3.0, (S, H, W, 1)).astype(np.float32),
+    # smooth depth from 0.2 to 3 (per-pixel noise would make every pixel a depth edge, which cleaning removes)
+    v, u = np.mgrid[0:H, 0:W].astype(np.float32) + 0.5
+    depth = np.broadcast_to((0.2 + 2.8 * v / H + 0.05 * np.sin(u / 40))[None, :, :, None], (S, H, W, 1))
+    depth = depth.astype(np.float32)
+    # world_points: the depth unprojected through the same cameras (the import checks that they agree)
+    cam = np.stack([(u - W / 2) / 300, (v - H / 2) / 300, np.ones_like(u)], -1)[None] * depth    # (S, H, W, 3)
+    world = np.einsum("sji,shwj->shwi", ext[:, :, :3], cam - ext[:, None, None, :, 3])         # R^T (x - t)
+    np.savez(path, images=rng.random((S, 3, H, W), dtype=np.float32), depth=depth,
              depth_conf=(1 + rng.exponential(2.0, (S, H, W))).astype(np.float32), extrinsic=ext, intrinsic=intr,
-             world_points=rng.normal(size=(S, H, W, 3)).astype(np.float32),
+             world_points=world.astype(np.float32),
              world_points_conf=(1 + rng.exponential(2.0, (S, H, W))).astype(np.float32))
 
 
@@ -38,8 +48,12 @@ def main(argv=None):
     p.add_argument("--frames", type=int, nargs="+", default=[20, 100])
     p.add_argument("--percentiles", type=float, nargs="+", default=[0.0, 50.0])
     p.add_argument("--repeats", type=int, default=2)
-    p.add_argument("--json", default=os.path.join(ROOT, "bench", "results", "import.json"))
+    p.add_argument("--json", help="the JSON file (default: import.json in --out)")
+    bench_cli.add_smoke_and_out(p, "2 frames, percentile 50, one repeat")
     args = p.parse_args(argv)
+    if args.smoke:
+        args.frames, args.percentiles, args.repeats = [2], [50.0], 1
+    args.json = args.json or bench_cli.json_path(args.out, "import")
     work = tempfile.mkdtemp(prefix="scpainter-bench-")
     pkg = blender_env.install_for_script(work)
     import bpy

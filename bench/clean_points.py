@@ -1,7 +1,7 @@
 """Point cleaning and frame culling on the ground-truth street: error against run time.
 
     .venv/bin/python bench/clean_points.py [--sections cleaning sweep timing skip] [--threads 2] [--window 8]
-                                           [--percentiles 50 0]
+                                           [--percentiles 50 0] [--out bench/results] [--smoke]
 
 cleaning  the street's exact depth made VGGT-like (``vggt_like``, below), then rendered through the real job path
           (``job.save`` → ``frames.load_scene`` → ``frames.render_frame``) into the recorded drive and the drive
@@ -35,7 +35,9 @@ The colour images are the Cycles renders, unchanged. Seeded (``SEED``).
 
 Timings on a shared 2-core machine are noisy: the timing and skip sections alternate the settings and report
 medians (skip: the paired ratio's quartiles too); compare ratios within one run. Prints tables, writes
-bench/results/clean_points.json (a run keeps the sections it does not redo).
+bench/results/clean_points.json (``--out DIR``; a run keeps the sections it does not redo). ``--smoke``: the
+cleaning section alone on the street's first 2 frames, window ±1, the recorded and the 2 m left view, three settings
+(exact depth, VGGT-like, VGGT-like with the depth-edge filter), percentile 50.
 """
 
 from __future__ import annotations
@@ -51,6 +53,7 @@ import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
+sys.path.insert(0, os.path.join(ROOT, "bench"))
 
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
@@ -60,6 +63,7 @@ from backend.render import frames as fr  # noqa: E402
 from scpainter_blender.core import job as job_mod  # noqa: E402
 from scpainter_blender.core import outputs, shapes
 from scpainter_blender.core.vggt import npz as vggt_io  # noqa: E402
+import bench_cli  # noqa: E402  (bench/, the script's folder)
 
 BLUR_PX = 1.5
 FIELD_PX = 8.0
@@ -70,6 +74,8 @@ CONF_ERROR = 0.05
 SEED = 0
 SHIFTS = (0.0, 2.0, -2.0, 3.0, -3.0)
 WRONG_DEPTH = 0.05  # relative depth error that counts a covered pixel as showing the wrong surface
+SMOKE = {"frames": 2, "window": 1, "shifts": (0.0, 2.0), "settings": 3}   # what --smoke keeps
+_frames = None   # the street's first N frames only (--smoke), else all
 
 
 def vggt_like(depth, conf, seed=SEED):
@@ -104,7 +110,7 @@ def write_predictions(street, folder, noisy: bool) -> str:
 
 def street_job(metric, predictions, cams, window, cleaning, folder, assets=(), confidence_percentile=50.0):
     """A job over the street's 16 frames with cameras ``cams`` (S, 4, 4), saved (validated) into ``folder``."""
-    S = len(cams)
+    S = len(cams) if _frames is None else min(len(cams), _frames)
     frames = [job_mod.Frame(i, metric["K"][i], cams[i], list(range(max(0, i - window), min(S, i + window + 1))))
               for i in range(S)]
     scene = job_mod.Scene(predictions, metric["vggt_to_world"], confidence_percentile, point_cleaning=cleaning)
@@ -201,7 +207,7 @@ def _view(shift):
     return view_name(shift)
 
 
-def section_cleaning(street, metric, truths, refs, folder, window, percentiles):
+def section_cleaning(street, metric, truths, refs, folder, window, percentiles, shifts=SHIFTS, settings_kept=None):
     exact = write_predictions(street, folder, noisy=False)
     noisy = write_predictions(street, folder, noisy=True)
     d = job_mod.POINT_CLEANING
@@ -225,9 +231,9 @@ def section_cleaning(street, metric, truths, refs, folder, window, percentiles):
     settings.append(("exact depth, defaults", exact, d["depth_edge_ratio"], d["outliers"]))
     rows = []
     for pct in percentiles:
-        for label, pred, edge, outl in settings:
+        for label, pred, edge, outl in settings[:settings_kept]:
             rows += run_setting(street, metric, truths, refs, folder, pred, label, cleaning_setting(edge, outl),
-                                window, SHIFTS, pct)
+                                window, shifts, pct)
     return rows
 
 
@@ -398,7 +404,7 @@ def summary(rows):
     return out
 
 
-def main():
+def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--sections", nargs="+", default=["cleaning", "sweep", "timing", "skip"],
                    choices=["cleaning", "sweep", "timing", "skip"])
@@ -406,32 +412,41 @@ def main():
     p.add_argument("--window", type=int, default=8, help="source frames t ± window (the evaluation's default, 8)")
     p.add_argument("--percentiles", type=float, nargs="+", default=[50.0, 0.0],
                    help="confidence percentiles (the job's default 50; 0 keeps every pixel)")
-    p.add_argument("--out", default=os.path.join(ROOT, "bench", "results", "clean_points.json"))
-    args = p.parse_args()
-    torch.set_num_threads(args.threads)
+    bench_cli.add_smoke_and_out(p, "the cleaning section on 2 frames, 2 views, 3 settings")
+    args = p.parse_args(argv)
+    global _frames
+    shifts, kept, _frames = SHIFTS, None, None
+    if args.smoke:
+        args.sections, args.window, args.percentiles = ["cleaning"], SMOKE["window"], [50.0]
+        shifts, kept, _frames = SMOKE["shifts"], SMOKE["settings"], SMOKE["frames"]
+    args.out = bench_cli.json_path(args.out, "clean_points")
+    if not args.smoke:   # (the smoke runs inside the test process: its thread count is left as it is)
+        torch.set_num_threads(args.threads)
     from scpainter_blender.street.dataset import ensure_street
 
     street = ensure_street(log=lambda m: None)
     metric = street.metric()
     S = len(metric["world_to_camera"])
-    truths = {("recorded" if s == 0 else _view(s)): truth_images(street, "recorded" if s == 0 else _view(s), S)
-              for s in SHIFTS}
+    truths = {("recorded" if s == 0 else _view(s)): truth_images(street, "recorded" if s == 0 else _view(s),
+                                                                  S if _frames is None else min(S, _frames))
+              for s in shifts}
     result = {"machine": platform.node(), "threads": args.threads, "torch": torch.__version__,
-              "window": args.window, "frames": S, "resolution": [518, 294],
+              "window": args.window, "frames": S if _frames is None else min(S, _frames), "resolution": [518, 294],
               "noise": {"blur_px": BLUR_PX, "field_px": FIELD_PX, "field_std": FIELD_STD, "pixel_std": PIXEL_STD,
                         "floaters": FLOATERS, "conf_error": CONF_ERROR, "seed": SEED},
               "defaults": job_mod.POINT_CLEANING}
-    if os.path.exists(args.out):  # keep the sections this run does not redo
+    if os.path.exists(args.out) and not args.smoke:  # keep the sections this run does not redo
         with open(args.out) as f:
             old = json.load(f)
         result.update({k: old[k] for k in ("cleaning", "cleaning_summary", "sweep", "sweep_summary", "timing",
                                            "skip") if k in old})
     with tempfile.TemporaryDirectory() as folder:
         if "cleaning" in args.sections or "sweep" in args.sections:
-            refs = reference_depths(metric, folder, write_predictions(street, folder, noisy=False), args.window)
+            refs = reference_depths(metric, folder, write_predictions(street, folder, noisy=False), args.window,
+                                    shifts)
         if "cleaning" in args.sections:
             result["cleaning"] = section_cleaning(street, metric, truths, refs, folder, args.window,
-                                                  args.percentiles)
+                                                  args.percentiles, shifts, kept)
             result["cleaning_summary"] = summary(result["cleaning"])
         if "sweep" in args.sections:
             result["sweep"] = section_sweep(street, metric, truths, refs, folder, args.window, args.percentiles)

@@ -3,8 +3,9 @@ merged export (``export --list … --format kitti,coco,openlabel --out DATASET``
 format, backend/export/dataset.py).
 
     .venv/bin/python bench/export_dataset.py [--variants 100] [--frames 16] [--resolution 128x72]
-                                             [--before-calls N (default: every variant)] [--out build/bench_export]
-                                             [--json bench/results/export_dataset.json] [--label TEXT]
+                                             [--before-calls N (default: every variant)] [--work build/bench_export]
+                                             [--out bench/results] [--json FILE] [--label TEXT]
+    .venv/bin/python bench/export_dataset.py --smoke --out /tmp/x   # 2 variants x 2 frames at 32 x 18, 1 call
 
 The variants are real: ``vary`` on the street's recorded drive (the street's ground truth, cached; each variant's
 first ``--frames`` frames, ``--resolution`` small), rendered on the CPU by one ``batch --list variants.txt --command render``
@@ -18,7 +19,7 @@ after a batch render):
   estimated as (the mean seconds of a call) x variants x 3;
 - after: one merged export of every variant in all three formats.
 
-Prints a table and saves it as JSON. Not a test (tests/bench/test_export_dataset.py runs it tiny). The street is one
+Prints a table and saves it as JSON. Not a test (tests/bench/test_export_dataset.py runs it with ``--smoke``). The street is one
 recording, so the whole run is one drive: no ``--split`` (the split is a sort of the drives, no measurable time).
 """
 
@@ -31,11 +32,13 @@ import platform
 import shutil
 import subprocess
 import sys
+import tempfile
 import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 sys.path.insert(0, os.path.join(ROOT, "tests"))
+sys.path.insert(0, os.path.join(ROOT, "bench"))
 
 from scpainter_blender.core import job as job_mod, outputs, shapes  # noqa: E402
 from scpainter_blender.core.backend_protocol import EXPORT_FORMAT_NAMES  # noqa: E402
@@ -44,6 +47,7 @@ from scpainter_blender.core.output_layout import VariationLayout  # noqa: E402
 from scpainter_blender.core.variation import spec as spec_mod, variants  # noqa: E402
 from scpainter_blender.street.dataset import ensure_street  # noqa: E402
 from tests_support import street_base_job  # noqa: E402
+import bench_cli  # noqa: E402  (bench/, the script's folder)
 
 
 def backend(*args: str) -> tuple:
@@ -99,14 +103,31 @@ def main(argv=None) -> int:
     p.add_argument("--resolution", default="128x72")
     p.add_argument("--before-calls", type=int, default=None, help="single-job exports to time (default: one per "
                                                                   "variant)")
-    p.add_argument("--out", default=os.path.join(ROOT, "build", "bench_export"))
-    p.add_argument("--json", default=os.path.join(ROOT, "bench", "results", "export_dataset.json"))
+    p.add_argument("--work", help="the variants and exports (emptied first; default build/bench_export, with "
+                                  "--smoke a temporary folder)")
+    p.add_argument("--json", help="the JSON file (default: export_dataset.json in --out)")
     p.add_argument("--label", default="")
+    bench_cli.add_smoke_and_out(p, "2 variants x 2 frames at 32 x 18, one single-job export")
     args = p.parse_args(argv)
+    if args.smoke:
+        args.variants, args.frames, args.resolution, args.before_calls = 2, 2, "32x18", 1
+        args.label = args.label or "smoke"
+    args.json = args.json or bench_cli.json_path(args.out, "export_dataset")
     W, H = (int(v) for v in args.resolution.split("x"))
-    out = os.path.abspath(args.out)
+    temporary = args.work is None and args.smoke
+    out = tempfile.mkdtemp(prefix="bench_export_") if temporary else \
+        os.path.abspath(args.work or os.path.join(ROOT, "build", "bench_export"))
     shutil.rmtree(out, ignore_errors=True)  # this bench's own folder: nothing reused
     os.makedirs(out)
+    try:
+        return measure(args, out, W, H)
+    finally:
+        if temporary:
+            shutil.rmtree(out, ignore_errors=True)
+
+
+def measure(args, out: str, W: int, H: int) -> int:
+    """The build, the single-job exports and the merged one in ``out``; prints the table, writes ``args.json``."""
     listed, t_vary, t_render = build(out, args.variants, args.frames, W, H)
     lst, jobs = listed.path, listed.paths
     roots = [a for r in listed.data_roots for a in ("--data-root", r)]   # the list's data-root: lines

@@ -1,7 +1,8 @@
 """Condition EXR size and speed by compression and precision, on the demo's 16 frames.
 
     .venv/bin/python tools/demo.py --out build/demo        # once: the README's demo, its conditions/
-    .venv/bin/python bench/exr_sizes.py [--demo build/demo] [--repeats 3]
+    .venv/bin/python bench/exr_sizes.py [--demo build/demo] [--repeats 3] [--out bench/results]
+    .venv/bin/python bench/exr_sizes.py --smoke --out /tmp/x       # two synthetic 64 x 48 frames, one repeat
 
 The layers are the demo's own condition frames (the ground-truth street seen from the camera path 2 m to the left,
 a procedural Gaussian car parked beside the road; ``tools/demo.py``), read with ``channels.read`` and written
@@ -28,6 +29,7 @@ import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
+sys.path.insert(0, os.path.join(ROOT, "bench"))
 
 import numpy as np  # noqa: E402
 import OpenEXR  # noqa: E402
@@ -35,6 +37,7 @@ import OpenEXR  # noqa: E402
 from backend.render import channels  # noqa: E402
 from scpainter_blender.core import outputs  # noqa: E402
 from scpainter_blender.core.output_layout import CONDITION_EXR, OutputLayout  # noqa: E402
+import bench_cli  # noqa: E402  (bench/, the script's folder)
 
 #: name -> (OpenEXR compression, half): the variants measured.
 VARIANTS = {
@@ -63,17 +66,37 @@ def max_abs_error(a, b) -> float:
         return float(np.max(np.where(same, 0.0, np.abs(a.astype(np.float64) - b))))
 
 
+def synthetic_frames(count: int = 2, width: int = 64, height: int = 48) -> list:
+    """``count`` condition frames (``channels.CHANNELS`` -> (H, W) float32) of a smooth image with a hole, a car
+    mask, depth with empty (inf) pixels and instance ids: what ``--smoke`` measures instead of the demo's frames."""
+    yy, xx = np.mgrid[0:height, 0:width].astype(np.float32)
+    frames = []
+    for i in range(count):
+        hole = ((xx - width * (0.3 + 0.1 * i)) ** 2 + (yy - height / 2) ** 2 < (height / 4) ** 2).astype(np.float32)
+        car = ((abs(xx - width * 0.7) < width / 8) & (abs(yy - height * 0.6) < height / 6)).astype(np.float32)
+        image = {c: (0.5 + 0.5 * np.sin(xx / (7 + k) + yy / 11 + i)) * (1 - hole) for k, c in enumerate(channels.IMAGE)}
+        depth = np.where(hole > 0, np.inf, 5.0 + yy / height * 20).astype(np.float32)
+        frames.append({**{c: v.astype(np.float32) for c, v in image.items()}, channels.HOLE: hole,
+                       channels.ASSET_MASK: car, channels.DEPTH: depth, channels.INSTANCE: car * 1.0})
+    return frames
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--demo", default=os.path.join(ROOT, "build", "demo"), help="tools/demo.py's --out folder")
     p.add_argument("--repeats", type=int, default=3)
-    p.add_argument("--json", default=os.path.join(ROOT, "bench", "results", "exr_sizes.json"))
+    p.add_argument("--json", help="the JSON file (default: exr_sizes.json in --out)")
+    bench_cli.add_smoke_and_out(p, "two synthetic 64 x 48 frames, one repeat")
     args = p.parse_args(argv)
-    folder = OutputLayout(args.demo).conditions
-    sources = CONDITION_EXR.in_folder(folder)
-    if not sources:
-        raise SystemExit(f"no condition frames in {folder}: run tools/demo.py --out {args.demo}")
-    frames = [channels.read(f) for f in sources]
+    args.json = args.json or bench_cli.json_path(args.out, "exr_sizes")
+    if args.smoke:
+        args.repeats, args.demo, frames = 1, "synthetic (--smoke)", synthetic_frames()
+    else:
+        folder = OutputLayout(args.demo).conditions
+        sources = CONDITION_EXR.in_folder(folder)
+        if not sources:
+            raise SystemExit(f"no condition frames in {folder}: run tools/demo.py --out {args.demo}")
+        frames = [channels.read(f) for f in sources]
     H, W = frames[0]["R"].shape
     print(f"{len(frames)} demo frames {W}x{H} from {args.demo}; {args.repeats} repeats", file=sys.stderr)
     times = {v: {"write": [], "read": []} for v in VARIANTS}
@@ -115,7 +138,7 @@ def main(argv=None) -> int:
               + " ".join(f"{e[c]:.1e}" if e[c] else "0" for c in channels.CHANNELS))
     outputs.write_json(args.json, {
         "what": "condition EXR size and speed per compression/precision on the demo's frames (bench/exr_sizes.py)",
-        "source": os.path.abspath(args.demo), "frames": len(frames), "width": W, "height": H,
+        "source": args.demo if args.smoke else os.path.abspath(args.demo), "frames": len(frames), "width": W, "height": H,
         "repeats": args.repeats, "openexr": OpenEXR.__version__, "machine": platform.machine(),
         "cpus": os.cpu_count(), "python": platform.python_version(), "rows": rows})
     print(f"wrote {args.json}", file=sys.stderr)

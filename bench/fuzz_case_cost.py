@@ -2,7 +2,7 @@
 same PLY", "50 assets on the same PLY" and "two assets on one PLY", run the way ``tests/fuzz_inputs.py`` runs them.
 
     .venv/bin/python bench/fuzz_case_cost.py [--label before|after] [--cases 100 50 2] [--job-index N ...]
-                                             [--rounds 3] [--seed 14] [--out bench/results/fuzz_case_cost.json]
+                                             [--rounds 3] [--seed 14] [--out bench/results] [--smoke]
 
 Each case is built by ``tests/fuzz_inputs.py``'s own machinery (``Base``, ``make_case`` at the first ``job`` index
 whose description is the case's, ``prepare``, ``command``) and run in this process through ``invoke`` (its
@@ -11,8 +11,9 @@ worker is: one torch, numba and OpenMP thread, the valid job run once first, unt
 done). CPU seconds = ``time.process_time`` around ``invoke`` (user + system of every thread: what the fuzz's SIGPROF
 timer counts); wall seconds = ``time.perf_counter``. The table gives the median and the worst of ``--rounds`` runs
 per case, the fuzz budget (``TIMEOUT_S`` CPU s) and the worst's share of it, and each case's outcome (it must stay
-``accepted``). ``--job-index`` adds any other ``job`` case by its index (the costliest of a fuzz run, say). Saves the table under bench/results/. Not a test (``tests/test_bench_fuzz_case_cost.py`` runs it on
-the 2-asset case so it keeps working).
+``accepted``). ``--job-index`` adds any other ``job`` case by its index (the costliest of a fuzz run, say). Saves the table under bench/results/ (``--out DIR``; a path ending in .json names the file). Not a test
+(``tests/bench/test_fuzz_case_cost.py`` runs ``--smoke``: the 2-asset case, one round, so it keeps working). It sets
+its process's thread counts as a fuzz worker's: run it in a process of its own.
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ sys.path.insert(0, os.path.join(ROOT, "tests"))
 
 import fuzz_inputs as F  # noqa: E402
 from scpainter_blender.core import outputs  # noqa: E402
+import bench_cli  # noqa: E402  (bench/, the script's folder)
 import provenance  # noqa: E402  (bench/, the script's folder)
 
 #: --cases value -> the fuzz case's description (tests/fuzz_inputs.JOB_FAMILIES, family "assets")
@@ -118,8 +120,11 @@ def main(argv=None) -> int:
     p.add_argument("--job-index", nargs="*", type=int, default=[], help="more job cases, by index")
     p.add_argument("--rounds", type=int, default=3)
     p.add_argument("--seed", type=int, default=F.SEED)
-    p.add_argument("--out", default=os.path.join(ROOT, "bench", "results", "fuzz_case_cost.json"))
+    bench_cli.add_smoke_and_out(p, "the 2-asset case, one round")
     args = p.parse_args(argv)
+    if args.smoke:
+        args.cases, args.rounds, args.job_index = [2], 1, []
+    args.out = bench_cli.json_path(args.out, "fuzz_case_cost")
 
     rows = measure(args.cases, args.rounds, args.seed, args.job_index)
     commit, dirty = provenance.commit_and_dirty(ROOT)

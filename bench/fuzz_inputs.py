@@ -2,7 +2,7 @@
 
     .venv/bin/python bench/fuzz_inputs.py [--label before|after] [--kinds job npz ply checkpoint mesh splat exr clip kill
                                           links races lists serve numerics names diskfull varykill] [--seed 14]
-                                          [--timeout 5] [--out bench/results/fuzz_inputs.json]
+                                          [--timeout 5] [--out bench/results] [--smoke]
 
 Issue 42's kinds alone, as the closing note's before/after table (``tests/fuzz_round3.py``; diskfull needs root)::
 
@@ -17,7 +17,9 @@ outcome, the message with paths and numbers blanked: one line per defect). Outco
 ``traceback`` = exit 1 or a traceback; ``hang`` = no answer within the timeout; ``escape`` = a file outside the
 job folder created, changed or deleted; ``misread`` = a PLY rewritten without changing its Gaussians, accepted with
 other values (issue 30's kinds: as tests/fuzz_surfaces.py defines it). Run from any checkout's root (an older one
-gives the "before" column: copy this file, tests/fuzz_inputs.py and tests/fuzz_surfaces.py into it). Saves the table and the failing cases to the JSON. Not a test.
+gives the "before" column: copy this file, tests/fuzz_inputs.py and tests/fuzz_surfaces.py into it). Saves the table and the failing cases to the JSON (``--out DIR``, or a path ending in .json). Not a test;
+``--smoke``: the first two ply cases on one worker (``tests/bench/test_fuzz_inputs.py``). It sets its
+process's thread counts as the fuzz's workers': run it in a process of its own.
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ import fuzz_inputs as F  # noqa: E402
 import fuzz_round3  # noqa: E402
 import fuzz_surfaces  # noqa: E402
 from scpainter_blender.core import outputs  # noqa: E402
+import bench_cli  # noqa: E402  (bench/, the script's folder)
 import provenance  # noqa: E402  (bench/, the script's folder)
 
 
@@ -47,7 +50,7 @@ def compact(r: dict) -> dict:
     return out
 
 
-def main() -> int:
+def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--label", default="after", help="before | after (recorded in the JSON)")
     p.add_argument("--kinds", nargs="+", choices=F.KINDS,
@@ -55,9 +58,14 @@ def main() -> int:
                    help="default: the kinds the test runs (all; diskfull where a tmpfs can be mounted)")
     p.add_argument("--seed", type=int, default=F.SEED)
     p.add_argument("--timeout", type=float, default=F.TIMEOUT_S, help="seconds per case before it is a hang")
-    p.add_argument("--out", default=os.path.join(ROOT, "bench", "results", "fuzz_inputs.json"))
     p.add_argument("--quiet", action="store_true", help="no line per failing case while running")
-    args = p.parse_args()
+    bench_cli.add_smoke_and_out(p, "the first two ply cases, one worker")
+    args = p.parse_args(argv)
+    args.out = bench_cli.json_path(args.out, "fuzz_inputs")
+    indices, workers = None, 2
+    if args.smoke:
+        args.kinds = ["ply"]
+        indices, workers = [("ply", i) for i in range(2)], 1
 
     def on_result(r):
         if not args.quiet and r["outcome"] in F.FAILURES:
@@ -68,7 +76,8 @@ def main() -> int:
         print("diskfull left out: it needs root and `mount -t tmpfs` (fuzz_round3.can_mount)")
         args.kinds = [k for k in args.kinds if k != "diskfull"]
     t0 = time.perf_counter()
-    run = F.run(args.kinds, seed=args.seed, timeout=args.timeout, on_result=on_result)
+    run = F.run(args.kinds, seed=args.seed, timeout=args.timeout, indices=indices, on_result=on_result,
+                workers=workers)
     seconds = time.perf_counter() - t0
     results = run["results"]
     summary = F.summarize(results)

@@ -1,6 +1,6 @@
 """The ground plane behind the camera-height scale: the core numpy RANSAC against open3d's ``segment_plane``.
 
-    .venv/bin/python bench/ground_plane.py [--repeats 5] [--seeds 0 1 2 3 4]
+    .venv/bin/python bench/ground_plane.py [--repeats 5] [--seeds 0 1 2 3 4] [--smoke] [--out bench/results]
 
 Both fit the same ground candidates of the ground-truth street (``point_cloud.ground_candidates``: the confident
 pixels of the lower 40 % of each image, as the import takes them) with the same inlier threshold (1 % of the
@@ -11,7 +11,8 @@ known metres per unit (via ``vggt_to_world_by_camera_height`` with the street's 
 count. The ratio of the two times is what carries to other machines. open3d is a benchmark-only comparison
 here: the add-on fits in Blender's own process with the core fit.
 
-Prints a table and writes bench/results/ground_plane.json.
+Prints a table and writes bench/results/ground_plane.json. ``--smoke``: one seed, one run, 200 iterations on a
+tenth of the candidates.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
+sys.path.insert(0, os.path.join(ROOT, "bench"))
 
 import numpy as np  # noqa: E402
 
@@ -32,6 +34,7 @@ from scpainter_blender.core.geometry import cameras, fits as geometry, metric_sc
 from scpainter_blender.core import outputs
 from scpainter_blender.core.vggt import npz as vggt_io  # noqa: E402
 from scpainter_blender.street.dataset import ensure_street  # noqa: E402
+import bench_cli  # noqa: E402  (bench/, the script's folder)
 
 
 def open3d_fit(points, threshold, iterations, seed, up):
@@ -59,12 +62,15 @@ def timed(fn, repeats):
     return statistics.median(times), out
 
 
-def main() -> None:
+def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
     ap.add_argument("--iterations", type=int, default=2000)
-    args = ap.parse_args()
+    bench_cli.add_smoke_and_out(ap, "one seed, one run, 200 iterations")
+    args = ap.parse_args(argv)
+    if args.smoke:
+        args.repeats, args.seeds, args.iterations = 1, args.seeds[:1], 200
 
     street = ensure_street()
     metric = street.metric()
@@ -79,6 +85,8 @@ def main() -> None:
     t0 = time.perf_counter()
     points = point_cloud.ground_candidates(pred, 50.0, seed=0)
     candidates_s = time.perf_counter() - t0
+    if args.smoke:  # a tenth of the candidates: open3d's fit alone takes seconds on all of them
+        points = points[::10]
     up = geometry.cameras_up(w2c)
     depth = float(np.median(np.linalg.norm(points - cameras.camera_centers(w2c).mean(axis=0), axis=1)))
     threshold = 0.01 * depth
@@ -109,7 +117,7 @@ def main() -> None:
     print(f"median time: core {core_t:.3f} s, open3d {o3d_t:.3f} s (open3d / core = {o3d_t / core_t:.2f})")
     import open3d
 
-    outputs.write_json(os.path.join(ROOT, "bench", "results", "ground_plane.json"), {
+    outputs.write_json(bench_cli.json_path(args.out, "ground_plane"), {
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "open3d": open3d.__version__,
                     "numpy": np.__version__},
         "candidates": len(points), "candidates_seconds": candidates_s, "threshold": threshold,

@@ -1,11 +1,12 @@
 """Every input kind of issue 13 through the add-on's real import operators, one row each: what happens.
 
-    .venv/bin/python bench/input_kinds.py [--out bench/results/input_kinds.json] [--realdata DIR]
+    .venv/bin/python bench/input_kinds.py [--out bench/results] [--realdata DIR] [--smoke]
 
 Synthetic files are written here with numpy alone (the VGGT cases on an analytic scene, so ``world_points`` is
 the truth), real ones are read from ``../shared/realdata`` (PROVENANCE.md there; skipped when absent). The same
 script run on an older checkout gives the "before" column of the closing note. Not a test: it prints a table and
-saves a JSON.
+saves a JSON (``--out DIR``, or a path ending in .json). ``--smoke``: the synthetic files alone, the mesh car
+converted to 5,000 Gaussians. It imports bpy with a private user folder: run it in a process of its own.
 """
 
 import argparse
@@ -17,8 +18,10 @@ import numpy as np
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
+sys.path.insert(0, os.path.join(ROOT, "bench"))
 
 from scpainter_blender.core import outputs  # noqa: E402
+import bench_cli  # noqa: E402  (bench/, the script's folder)
 from scpainter_blender.scene import keys, kinds  # noqa: E402
 from tools import blender_env  # noqa: E402
 
@@ -187,9 +190,10 @@ def point_error(path):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", default=os.path.join(ROOT, "bench", "results", "input_kinds.json"))
     ap.add_argument("--realdata", default=os.path.join(ROOT, "..", "shared", "realdata"))
+    bench_cli.add_smoke_and_out(ap, "the synthetic files alone, a mesh car of 5,000 Gaussians")
     args = ap.parse_args(argv)
+    args.out = bench_cli.json_path(args.out, "input_kinds")
     work = tempfile.mkdtemp(prefix="scpainter-kinds-")
     blender_env.install_for_script(work)
     import bpy
@@ -205,9 +209,10 @@ def main(argv=None):
         rows.append({"kind": kind, "status": status, "what": facts})
     cases = {**write_splat_cases(d), **write_mesh_cases(d)}
     cases.update({k: os.path.join(args.realdata, v) for k, v in REAL.items()
-                  if os.path.isfile(os.path.join(args.realdata, v))})
-    for kind, name in cases.items():
-        status, facts = run(bpy.ops.scpainter.import_gaussians, os.path.join(d, name))
+                  if not args.smoke and os.path.isfile(os.path.join(args.realdata, v))})
+    for kind, name in cases.items():   # (--smoke: a mesh car of 5,000 Gaussians, not the default 200,000)
+        status, facts = run(bpy.ops.scpainter.import_gaussians, os.path.join(d, name),
+                            **({"mesh_count": 5000} if args.smoke else {}))
         rows.append({"kind": kind, "status": status, "what": facts})
     w = max(len(r["kind"]) for r in rows)
     for r in rows:

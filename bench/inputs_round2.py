@@ -1,6 +1,6 @@
 """Issue 31's input classes, each through the product's stable entry points, one row per case: what happens.
 
-    .venv/bin/python bench/inputs_round2.py --label before|after [--out PATH] [--realdata DIR] [--keep DIR]
+    .venv/bin/python bench/inputs_round2.py --label before|after [--out DIR] [--realdata DIR] [--keep DIR] [--smoke]
 
 Every input is generated here, in a temporary folder, from ground truth the generator keeps (no network):
 
@@ -31,7 +31,9 @@ uncaught exception), ``timeout``. ``expected`` is the outcome the issue asks for
 Controls (``control:`` cases) are inputs today's code already reads: they check the harness itself.
 
 Not a test: prints a table and saves bench/results/inputs_round2_before.json (``--label before``) or
-inputs_round2.json. The same script on the old and the new code gives the closing note's before/after table.
+inputs_round2.json (in ``--out DIR``; a path ending in .json names the file). The same script on the old and the new
+code gives the closing note's before/after table. ``--smoke``: the first glTF case and the first clip case (the
+splat conversions need the real data and Node; left out), what tests/bench/test_inputs_round2.py runs.
 """
 
 import argparse
@@ -857,25 +859,28 @@ def guarded(cls, case, expected, fn, *a):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--label", default="after", help="'before' writes inputs_round2_before.json")
-    ap.add_argument("--out", default=None)
     ap.add_argument("--realdata", default=os.path.join(ROOT, "..", "shared", "realdata"))
     if not os.path.isdir(os.path.join(ROOT, "..", "shared", "realdata")) and os.path.isdir("/work/shared/realdata"):
         ap.set_defaults(realdata="/work/shared/realdata")
     ap.add_argument("--keep", default=None, help="write the inputs here (kept) instead of a temporary folder")
+    sys.path.insert(0, os.path.join(ROOT, "bench"))
+    import bench_cli  # bench/, the script's folder
+
+    bench_cli.add_smoke_and_out(ap, "the first glTF case and the first clip case")
     args = ap.parse_args(argv)
-    out = args.out or os.path.join(ROOT, "bench", "results",
-                                   "inputs_round2_before.json" if args.label == "before" else "inputs_round2.json")
+    out = bench_cli.json_path(args.out, "inputs_round2_before" if args.label == "before" else "inputs_round2")
+    first = (lambda cases: list(cases)[:1]) if args.smoke else list
     work = args.keep or tempfile.mkdtemp(prefix="scpainter-round2-")
     os.makedirs(work, exist_ok=True)
     t0 = time.time()
     rows = []
     d = os.path.join(work, "gltf")
     os.makedirs(d, exist_ok=True)
-    for case, path, expected in gltf_cases(d):
+    for case, path, expected in first(gltf_cases(d)):
         rows.append(guarded("glTF", case, expected, run_mesh, case, path, expected, work))
     d = os.path.join(work, "splats")
     os.makedirs(d, exist_ok=True)
-    made, why = splat_cases(d, args.realdata)
+    made, why = (None, "--smoke leaves the splat conversions out") if args.smoke else splat_cases(d, args.realdata)
     if made is None:
         rows.append(row("splats", "(all)", "correct", "skipped", why))
     else:
@@ -885,7 +890,7 @@ def main(argv=None):
             rows.append(guarded("splats", case, expected, run_splat, case, path, expected, note, case_truth, work))
     d = os.path.join(work, "clips")
     os.makedirs(d, exist_ok=True)
-    for case, path, expected, judge, size, note in clip_cases(d):
+    for case, path, expected, judge, size, note in first(clip_cases(d)):
         rows.append(guarded("clips", case, expected, run_clip, case, path, expected, judge, size, note, work))
     for r in rows:  # the temporary folder's name would make every run's JSON differ
         r["detail"] = r["detail"].replace(os.path.realpath(work), "<tmp>").replace(work, "<tmp>")

@@ -1,6 +1,6 @@
 """Issue 42's inputs from the field, each through the product's entry point, one row per case: what happens.
 
-    .venv/bin/python bench/inputs_round3.py --label before|after [--json PATH] [--code DIR]
+    .venv/bin/python bench/inputs_round3.py --label before|after [--out DIR] [--json PATH] [--code DIR] [--smoke]
 
 Every input is made here, in a temporary folder, with the truth kept (no network): a losslessly trimmed MP4 (an
 edit list, written with PyAV) through ``backend.train.camera_frames`` (the count ``clip.load`` compares with the
@@ -262,8 +262,12 @@ def run_case(name, fn, expected, must_name) -> dict:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--label", default="after", help="before|after (names the default JSON)")
-    p.add_argument("--json", help="where to write the rows (default bench/results/inputs_round3[_before].json)")
+    p.add_argument("--json", help="where to write the rows (default inputs_round3[_before].json in --out)")
     p.add_argument("--code", help="import the product from this folder (the before table)")
+    sys.path.insert(0, os.path.join(ROOT, "bench"))
+    import bench_cli  # bench/, the script's folder (argparse only: the product is imported after --code)
+
+    bench_cli.add_smoke_and_out(p, "the same ten cases: they take seconds")
     args = p.parse_args(argv)
     _setup_path(args.code)
     rows = [run_case(*case) for case in CASES]
@@ -271,8 +275,7 @@ def main(argv=None) -> int:
         print(f"{'ok ' if r['ok'] else 'NO '} {r['outcome']:<12} (want {r['expected']:<8}) {r['case']}: "
               f"{r['detail'][:150]}")
     print(f"{sum(r['ok'] for r in rows)} of {len(rows)} cases as the issue asks ({args.label})")
-    out = args.json or os.path.join(ROOT, "bench", "results",
-                                    f"inputs_round3{'_before' if args.label == 'before' else ''}.json")
+    out = args.json or os.path.join(args.out, f"inputs_round3{'_before' if args.label == 'before' else ''}.json")
     os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
     with open(out, "w") as f:
         json.dump({"label": args.label, "rows": rows}, f, indent=1)

@@ -1,6 +1,6 @@
 """The simulated LiDAR (``backend/lidar``): its error against its time, and its speed on a street-sized scene.
 
-    .venv/bin/python bench/lidar.py [--smoke] [--repeats 5] [--json bench/results/lidar.json]
+    .venv/bin/python bench/lidar.py [--smoke] [--repeats 5] [--out bench/results] [--json FILE]
 
 (a) **Error against time** on the plane-and-box scene of the tests (``tests/backend/lidar/lidar_scenes.py``: a
     60 m square of ground and a 1.8 x 4.5 x 1.5 m box 9.5 m away, sampled as points, the ground's density ∝ 1/r³
@@ -34,6 +34,7 @@ import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
+sys.path.insert(0, os.path.join(ROOT, "bench"))
 
 import backend  # noqa: E402,F401  (NUMBA_CACHE_DIR, OMP_WAIT_POLICY before numba loads)
 import numpy as np  # noqa: E402
@@ -43,6 +44,7 @@ from backend.lidar.sweep import counts  # noqa: E402
 from scpainter_blender.core import outputs, shapes  # noqa: E402
 from scpainter_blender.core.lidar_model import MODELS  # noqa: E402
 from tests.backend.lidar.lidar_scenes import PlaneBox, edge_clearance  # noqa: E402
+import bench_cli  # noqa: E402  (bench/, the script's folder)
 
 
 
@@ -163,10 +165,13 @@ def speed_table(smoke: bool, repeats: int) -> list:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--smoke", action="store_true", help="the smallest sizes, one setting each (seconds)")
-    ap.add_argument("--repeats", type=int, default=5)
-    ap.add_argument("--json", default=os.path.join(ROOT, "bench", "results", "lidar.json"))
+    ap.add_argument("--repeats", type=int, default=5, help="(--smoke: 1)")
+    ap.add_argument("--json", help="the JSON file (default: lidar.json in --out)")
+    bench_cli.add_smoke_and_out(ap, "the smallest sizes, one setting each, one repeat")
     args = ap.parse_args(argv)
+    if args.smoke:
+        args.repeats = 1
+    args.json = args.json or bench_cli.json_path(args.out, "lidar")
     import numba
 
     t = time.perf_counter()

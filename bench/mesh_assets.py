@@ -1,6 +1,7 @@
 """Mesh -> Gaussian assets: the rendered asset mask against the mesh's own silhouette, by Gaussian count and σ factor.
 
     .venv/bin/python bench/mesh_assets.py [--counts 5000 20000 ...] [--factors 0.5 0.7 1.0 1.4] [--views 6]
+    .venv/bin/python bench/mesh_assets.py --smoke --out /tmp/x   # the procedural car, 2,000 Gaussians, 2 views
 
 Meshes: the procedural test car (``core.shapes.add_car``, 4.4 m, face colours) and, when ``shared/realdata/trellis``
 (or ``$SCPAINTER_REALDATA/trellis``) holds them, the real TRELLIS GLBs. Each is converted with
@@ -17,7 +18,8 @@ distance in pixels between the two masks' boundaries, both directions) and its 9
 object's distance, conversion time (sampling, colours, rotations; the file load is apart) and the median render
 time per view. Two sweeps: counts at the default c (512 x 288 and 1024 x 576), and c at a few counts (1024 x 576).
 
-Prints tables and writes bench/results/mesh_assets.json. Not a test.
+Prints tables and writes bench/results/mesh_assets.json (``--out DIR``). Not a test; ``--smoke``: the procedural
+car alone at 128 x 72, 2,000 Gaussians, two σ factors, two views (what its smoke test runs).
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
+sys.path.insert(0, os.path.join(ROOT, "bench"))
 
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
@@ -41,6 +44,7 @@ from backend.mesh import asset as ma  # noqa: E402
 from backend.mesh import load as mesh_load  # noqa: E402
 from backend.mesh import silhouette as ms  # noqa: E402
 from scpainter_blender.core import outputs, shapes  # noqa: E402
+import bench_cli  # noqa: E402  (bench/, the script's folder)
 
 REALDATA = os.environ.get("SCPAINTER_REALDATA") or os.path.join(ROOT, "..", "shared", "realdata")
 
@@ -57,8 +61,11 @@ def procedural_car() -> mesh_load.MeshAsset:
     return mesh_load.MeshAsset("procedural car", [mesh], "z")
 
 
-def meshes():
+def meshes(real: bool = True):
+    """[(name, loader)]: the procedural car, then the real TRELLIS GLBs where ``real`` and they are there."""
     out = [("procedural car", procedural_car)]
+    if not real:
+        return out
     folder = os.path.join(REALDATA, "trellis")
     if os.path.isdir(folder):
         for f in sorted(os.listdir(folder)):
@@ -108,9 +115,15 @@ def main(argv=None):
     p.add_argument("--resolutions", nargs="+", default=["512x288", "1024x576"])
     p.add_argument("--views", type=int, default=6)
     p.add_argument("--threads", type=int, default=2)
-    p.add_argument("--json", default=os.path.join(ROOT, "bench", "results", "mesh_assets.json"))
+    p.add_argument("--json", help="the JSON file (default: mesh_assets.json in --out)")
+    bench_cli.add_smoke_and_out(p, "the procedural car at 128 x 72, 2,000 Gaussians, two σ factors, two views")
     args = p.parse_args(argv)
-    torch.set_num_threads(args.threads)
+    if args.smoke:
+        args.counts, args.factor_counts, args.factors = [2000], [2000], [0.7]
+        args.resolutions, args.views = ["128x72"], 2
+    args.json = args.json or bench_cli.json_path(args.out, "mesh_assets")
+    if not args.smoke:   # (the smoke runs inside the test process: its thread count is left as it is)
+        torch.set_num_threads(args.threads)
     res_list = [tuple(int(v) for v in r.split("x")) for r in args.resolutions]
     rows = []
     head = ["mesh", "res", "c", "count", "sigma_px", "iou", "iou_min", "mean_abs", "leak", "spill", "boundary_px",
@@ -125,7 +138,7 @@ def main(argv=None):
                      + [f"{k:>{max(len(k), 8)}}" for k in head[4:]]))
     warm = procedural_car()
     ms.render_mask(ma.mesh_to_gaussians(warm, 1000), *ms.orbit_cameras((0, 0, 0.7), 8, 64, 36, 1)[0], 64, 36)
-    for name, make in meshes():
+    for name, make in meshes(real=not args.smoke):
         t = time.perf_counter()
         asset = make()
         t_load = time.perf_counter() - t

@@ -1,6 +1,7 @@
 """Loading a 1 M-Gaussian INRIA PLY: our reader against INRIA's own loader (plyfile) and Open3D, side by side.
 
-    .venv/bin/python bench/ply_load.py [--gaussians 1000000] [--rounds 5] [--baseline ebbfdbb]
+    .venv/bin/python bench/ply_load.py [--gaussians 1000000] [--rounds 5] [--baseline ebbfdbb] [--out bench/results]
+    .venv/bin/python bench/ply_load.py --smoke --out /tmp/x    # 2,000 Gaussians, one round, no baseline
 
 The file: ``--gaussians`` random Gaussians of SH degree 3 with normals, as INRIA's ``save_ply`` writes them (62
 float properties, ~250 MB), generated in a temp folder and read from the page cache (a warm-up read first). Each
@@ -38,12 +39,14 @@ import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
+sys.path.insert(0, os.path.join(ROOT, "bench"))
 
 import numpy as np  # noqa: E402
 
 from scpainter_blender.core import outputs  # noqa: E402
 from scpainter_blender.core.splats import gaussians as G  # noqa: E402
 from scpainter_blender.core.splats import inria, reader  # noqa: E402
+import bench_cli  # noqa: E402  (bench/, the script's folder)
 
 
 def make_file(path: str, n: int, seed: int = 0) -> None:
@@ -157,8 +160,11 @@ def main(argv=None):
     p.add_argument("--gaussians", type=int, default=1_000_000)
     p.add_argument("--rounds", type=int, default=5)
     p.add_argument("--baseline", default="ebbfdbb", help="git revision of 'ours load (before)' ('' leaves it out)")
-    p.add_argument("--out", default=os.path.join(ROOT, "bench", "results", "ply_load.json"))
+    bench_cli.add_smoke_and_out(p, "2,000 Gaussians, one round, no baseline")
     args = p.parse_args(argv)
+    if args.smoke:
+        args.gaussians, args.rounds, args.baseline = 2000, 1, ""
+    args.out = bench_cli.json_path(args.out, "ply_load")
 
     loaders = {"ours read": reader.read, "ours load": reader.load}
     try:

@@ -3,11 +3,11 @@ loads them (``variants.scene_points``) and ``core.variation.proposals.propose`` 
 street's recorded drive without labels (its parked cars are what is proposed) and with the street's own cars as
 recorded objects (everything covered: nothing proposed).
 
-    .venv/bin/python bench/proposals.py [--rounds 5] [--json bench/results/proposals.json] [--label TEXT]
+    .venv/bin/python bench/proposals.py [--rounds 5] [--out bench/results] [--json FILE] [--label TEXT] [--smoke]
 
 Each round starts cold (no cache: ``propose`` is called directly, not through the per-process cache of
 ``with_proposals``). Prints a table (median and worst of the rounds, seconds) and saves it as JSON. Not a test
-(tests/bench/test_proposals.py runs it with one round).
+(tests/bench/test_proposals.py runs ``--smoke``: one round).
 """
 
 from __future__ import annotations
@@ -22,9 +22,11 @@ import time
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 sys.path.insert(0, os.path.join(ROOT, "tests"))
+sys.path.insert(0, os.path.join(ROOT, "bench"))
 
 import numpy as np  # noqa: E402
 
+import bench_cli  # noqa: E402  (bench/, the script's folder)
 import provenance  # noqa: E402  (bench/, the script's folder)
 from scpainter_blender.core import job as job_mod, outputs  # noqa: E402
 from scpainter_blender.core.variation import proposals, variants  # noqa: E402
@@ -57,9 +59,13 @@ def measure(job_path: str, rounds: int) -> dict:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--rounds", type=int, default=5)
-    p.add_argument("--json", default=os.path.join(ROOT, "bench", "results", "proposals.json"))
+    p.add_argument("--json", help="the JSON file (default: proposals.json in --out)")
     p.add_argument("--label", default="")
+    bench_cli.add_smoke_and_out(p, "one round")
     args = p.parse_args(argv)
+    if args.smoke:
+        args.rounds, args.label = 1, args.label or "smoke"
+    args.json = args.json or bench_cli.json_path(args.out, "proposals")
     street = ensure_street()
     commit, dirty = provenance.commit_and_dirty(ROOT)
     cases = {}

@@ -4,7 +4,8 @@ alone, before (every file written inline, the preview at zlib level 6) and after
 
     SCPAINTER_CACHE_DIR=... .venv/bin/python bench/render_writes.py [--baseline ebbfdbb] [--rounds 3]
                                                                    [--frames 16] [--car 100000]
-                                                                   [--render-threads N] [--out JSON]
+                                                                   [--render-threads N] [--out DIR]
+    .venv/bin/python bench/render_writes.py --smoke --out /tmp/x   # the working tree alone, 2 frames at 128 x 72
 
 The jobs: the ground-truth street's recorded drive (its cache, or bpy to make it: ``tests_support.street_base_job``)
 with a procedural car of ``--car`` Gaussians parked beside the road, at 518 × 294 (the street's own size) and at
@@ -24,7 +25,8 @@ is kept waiting while each encoder runs on another (a call that holds the GIL ke
 call; one that releases it, for a few ms of switching).
 
 Prints a table (medians and minima over rounds; this machine is shared, the minima are the least disturbed) and writes bench/results/render_writes.json. The ratio render / frame alone
-is the number to read: 1.0 would be writing for free.
+is the number to read: 1.0 would be writing for free. ``--baseline ''`` leaves the before arm out; ``--smoke``: the
+working tree's arm alone, one round, 2 frames at 128 x 72 with a 2,000-Gaussian car.
 """
 
 from __future__ import annotations
@@ -47,8 +49,8 @@ RESOLUTIONS = {"518x294": (518, 294), "576x1024": (1024, 576)}
 
 # ---------------------------------------------------------------------------------------------------- jobs
 
-def make_jobs(folder: str, frames: int, car: int) -> dict:
-    """{resolution name: job path}: the street's drive with a parked car, at each of ``RESOLUTIONS``."""
+def make_jobs(folder: str, frames: int, car: int, resolutions: dict = RESOLUTIONS) -> dict:
+    """{resolution name: job path}: the street's drive with a parked car, at each of ``resolutions``."""
     sys.path.insert(0, os.path.join(ROOT, "tests"))
     sys.path.insert(0, ROOT)
     import numpy as np
@@ -65,7 +67,7 @@ def make_jobs(folder: str, frames: int, car: int) -> dict:
     place = np.eye(4)
     place[:3, 3] = (-3.5, 9.0, 0.0)  # beside the road, in view of the first frames (tests' street_with_car)
     out = {}
-    for name, (W, H) in RESOLUTIONS.items():
+    for name, (W, H) in resolutions.items():
         path = os.path.join(folder, name, "job.json")
         job = street_base_job(street, path)
         sx, sy = W / job.resolution[0], H / job.resolution[1]
@@ -221,8 +223,15 @@ def main(argv=None):
     p.add_argument("--render-threads", type=int, default=0,
                    help="threads the renderer may use (numba, torch, OpenMP; 0: all the CPUs): with fewer than the "
                         "CPUs, the writers have a core of their own, as on a machine with cores to spare")
-    p.add_argument("--out", default=os.path.join(ROOT, "bench", "results", "render_writes.json"))
+    sys.path.insert(0, os.path.join(ROOT, "bench"))
+    import bench_cli  # bench/, the script's folder
+
+    bench_cli.add_smoke_and_out(p, "the working tree alone, one round, 2 frames at 128 x 72, a 2,000-Gaussian car")
     args = p.parse_args(argv)
+    resolutions = RESOLUTIONS
+    if args.smoke:
+        args.baseline, args.rounds, args.frames, args.car = "", 1, 2, 2000
+        resolutions = {"128x72": (128, 72)}
     if args.worker:
         tree, job_path, components = args.worker
         print(json.dumps(worker(tree, job_path, components == "1")))
@@ -232,13 +241,15 @@ def main(argv=None):
     if args.render_threads:
         env.update({k: str(args.render_threads) for k in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")})
     with tempfile.TemporaryDirectory() as tmp:
-        jobs = make_jobs(tmp, args.frames, args.car)
-        before_tree, sha = baseline_tree(args.baseline, os.path.join(tmp, "baseline"))
-        trees = {"before": before_tree, "after": ROOT}
+        jobs = make_jobs(tmp, args.frames, args.car, resolutions)
+        trees, sha = {"after": ROOT}, None
+        if args.baseline:
+            before_tree, sha = baseline_tree(args.baseline, os.path.join(tmp, "baseline"))
+            trees = {"before": before_tree, "after": ROOT}
         runs = {(res, arm): [] for res in jobs for arm in trees}
         for r in range(args.rounds):
             for res, job_path in jobs.items():
-                for arm in (("before", "after") if r % 2 == 0 else ("after", "before")):
+                for arm in [a for a in (("before", "after") if r % 2 == 0 else ("after", "before")) if a in trees]:
                     components = "1" if arm == "after" else "0"
                     got = subprocess.run([sys.executable, os.path.abspath(__file__), "--worker", trees[arm], job_path,
                                           components], capture_output=True, text=True, cwd=trees[arm], env=env)
@@ -269,7 +280,7 @@ def main(argv=None):
     print(f"\nper frame, {len(ratios)} samples per row ({args.rounds} rounds x 2; {args.frames} frames, car "
           f"{args.car:,} Gaussians, {os.cpu_count()} CPUs, render threads {args.render_threads or 'all'}, load "
           f"average {os.getloadavg()[0]:.1f}); "
-          f"before = {sha[:10]}")
+          f"before = {sha[:10] if sha else '(left out)'}")
     print(f"{'resolution':10s} {'arm':7s} {'alone ms':>9s} {'(min)':>6s} {'render ms':>10s} {'(min)':>6s} "
           f"{'CPU ms':>7s} {'render/alone':>13s} {'(range)':>10s} {'min/min':>8s}")
     for row in rows:
@@ -291,6 +302,7 @@ def main(argv=None):
     sys.path.insert(0, ROOT)
     from scpainter_blender.core import outputs
 
+    args.out = bench_cli.json_path(args.out, "render_writes")
     outputs.write_json(args.out, {"baseline": sha, "rounds": args.rounds, "frames": args.frames, "car": args.car,
                                   "render_threads": args.render_threads or os.cpu_count(),
                                   "cpus": os.cpu_count(), "load_average": os.getloadavg()[0], "rows": rows,

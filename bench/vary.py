@@ -2,8 +2,9 @@
 condition layers rendered at low resolution by ``batch`` on W local workers (static shards, as torchrun would
 give them), and each worker's idle time (the wall time it waited for the slowest shard).
 
-    .venv/bin/python bench/vary.py [--variants 1000] [--workers 2] [--resolution 128x72] [--out build/bench_vary]
-                                   [--render-variants N (default: all)] [--json bench/results/vary.json]
+    .venv/bin/python bench/vary.py [--variants 1000] [--workers 2] [--resolution 128x72] [--work build/bench_vary]
+                                   [--render-variants N (default: all)] [--out bench/results] [--json FILE]
+    .venv/bin/python bench/vary.py --smoke --out /tmp/x   # 4 variants, 2 rendered at 32 x 18 by one worker
 
 Prints a table and saves it as JSON. Not a test. The base job is the street's recorded drive (its true metric
 cameras), the library two procedural cars saved as Amodal3R saves them.
@@ -18,11 +19,13 @@ import platform
 import shutil
 import subprocess
 import sys
+import tempfile
 import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 sys.path.insert(0, os.path.join(ROOT, "tests"))
+sys.path.insert(0, os.path.join(ROOT, "bench"))
 
 from scpainter_blender.core import outputs, shapes  # noqa: E402
 from scpainter_blender.core.batch_items import DATA_ROOT_DIRECTIVE  # noqa: E402
@@ -30,6 +33,7 @@ from scpainter_blender.core.output_layout import VariationLayout  # noqa: E402
 from scpainter_blender.core.variation import spec as spec_mod, variants  # noqa: E402
 from scpainter_blender.street.dataset import ensure_street  # noqa: E402
 from tests_support import street_base_job  # noqa: E402
+import bench_cli  # noqa: E402  (bench/, the script's folder)
 
 
 def main(argv=None) -> int:
@@ -38,11 +42,27 @@ def main(argv=None) -> int:
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--resolution", default="128x72")
     p.add_argument("--render-variants", type=int, default=None, help="render only the first N placed variants")
-    p.add_argument("--out", default=os.path.join(ROOT, "build", "bench_vary"))
-    p.add_argument("--json", default=os.path.join(ROOT, "bench", "results", "vary.json"))
+    p.add_argument("--work", help="the library, variants and worker logs (default build/bench_vary, with --smoke a "
+                                  "temporary folder)")
+    p.add_argument("--json", help="the JSON file (default: vary.json in --out)")
+    bench_cli.add_smoke_and_out(p, "4 variants, 2 of them rendered at 32 x 18 by one worker")
     args = p.parse_args(argv)
+    if args.smoke:
+        args.variants, args.workers, args.resolution, args.render_variants = 4, 1, "32x18", 2
+    args.json = args.json or bench_cli.json_path(args.out, "vary")
+    temporary = args.work is None and args.smoke
+    out = tempfile.mkdtemp(prefix="bench_vary_") if temporary else \
+        os.path.abspath(args.work or os.path.join(ROOT, "build", "bench_vary"))
+    try:
+        return measure(args, out)
+    finally:
+        if temporary:
+            shutil.rmtree(out, ignore_errors=True)
+
+
+def measure(args, out: str) -> int:
+    """``vary`` then the batch render in ``out``; prints the table, writes ``args.json``."""
     W, H = (int(v) for v in args.resolution.split("x"))
-    out = os.path.abspath(args.out)
     shutil.rmtree(os.path.join(out, "variants"), ignore_errors=True)  # this bench's own folder: nothing reused
     street = ensure_street()
     lib = os.path.join(out, "cars")

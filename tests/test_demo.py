@@ -96,15 +96,20 @@ def test_demo_writes_blend_and_preview(street, tmp_path):
 def test_demo_generates_when_a_checkpoint_is_configured(street, tiny_checkpoint, tmp_path):
     out = tmp_path / "demo"
     proc = subprocess.run([sys.executable, os.path.join(ROOT, "tools", "demo.py"), "--out", str(out),
-                           "--samples", "1", "--checkpoint", tiny_checkpoint, "--steps", "2", "--device", "cpu"],
+                           "--checkpoint", tiny_checkpoint, "--steps", "2", "--device", "cpu", "--frames", "8",
+                           "--no-exports", "--no-preview"],
                           capture_output=True, text=True, timeout=900)
     assert proc.returncode == 0, proc.stderr[-3000:]
     summary = json.loads(proc.stdout[proc.stdout.index("{"):])
     gen = summary["generation"]
     assert gen["skipped"] is False and os.path.getsize(gen["video"]) > 1000 and gen["model"] == "scpainter"
     assert "use_a_checkpoint" not in gen and "not the model" not in proc.stderr
-    assert len([f for f in os.listdir(gen["frames_dir"]) if f.endswith(".png")]) == 16
+    assert len([f for f in os.listdir(gen["frames_dir"]) if f.endswith(".png")]) == 8   # every frame of --frames 8
     assert "generate 2/2" in proc.stdout
+    # the drive's first 8 frames (one sampler window), the exports and the preview left out: the plain demo's test
+    # checks those on all 16 frames (the suite's time)
+    assert summary["conditions"]["frames"] == 8
+    assert summary["exports"] == {} and summary["preview"] is None and not os.path.exists(out / "preview.png")
 
 
 def test_demo_surround_renders_the_rig_and_its_nuscenes_export_keeps_every_inserted_box(street, tmp_path):

@@ -7,6 +7,7 @@ OpenCV inpainting baseline, saying so and how to use a checkpoint instead —, e
 format (``EXPORT_FORMATS``) and render a Cycles preview.
 
     .venv/bin/python tools/demo.py [--out build/demo] [--scale camera_height|trajectory|factor]
+                                   [--checkpoint DIR --steps N] [--frames N] [--no-exports] [--no-preview]
     .venv/bin/python tools/demo.py --surround [--rig-scale 0.2]
 
 ``--surround`` (docs/design.md §17) is the surround variant: the same street, car and camera path, then *Add Camera
@@ -15,7 +16,9 @@ Rig* mounts nuScenes' six cameras and its 32-beam top LiDAR on the path (the cam
 nuScenes dataset (``export/nuscenes``); it leaves out the generation, the single-camera exports and the preview.
 
 Prints one JSON object at the end: where the .blend and the preview are, the metric scale found against the
-street's ground truth, and timings. Blender's own configuration is not touched: the add-on is built with
+street's ground truth, and timings (``--frames N``: the drive's first N frames; ``--no-exports``, ``--no-preview``:
+without those steps, ``exports`` empty and ``preview`` null: what the test of the checkpoint's generation runs, the
+plain demo's test checking the rest). Blender's own configuration is not touched: the add-on is built with
 Blender's extension tool and installed into a private user folder under --out.
 """
 
@@ -52,6 +55,9 @@ def main(argv=None):
     p.add_argument("--surround", action="store_true",
                    help="the surround variant: nuScenes' six cameras and LiDAR on the camera path, rendered and "
                         "exported as a nuScenes dataset (no generation, no other exports, no preview)")
+    p.add_argument("--frames", type=int, help="the drive's first N frames only (default: all 16)")
+    p.add_argument("--no-exports", action="store_true", help="leave out the labels' dataset exports")
+    p.add_argument("--no-preview", action="store_true", help="leave out the Cycles preview")
     p.add_argument("--rig-scale", type=float, default=0.2,
                    help="--surround: each camera's resolution as a share of nuScenes' 1600 x 900 (default 0.2)")
     args = p.parse_args(argv)
@@ -95,6 +101,8 @@ def main(argv=None):
     if bpy.ops.scpainter.import_vggt(filepath=street.predictions_path, **kw) != {"FINISHED"}:
         raise SystemExit("import failed")
     t_import = time.perf_counter() - t_import
+    if args.frames:  # the scene's range, which the camera path, the job and every result follow
+        scene.frame_end = min(scene.frame_end, scene.frame_start + max(1, args.frames) - 1)
     from scpainter_blender.scene import kinds
 
     pts, cam = kinds.point_cloud(scene), kinds.recorded_camera(scene)
@@ -154,7 +162,7 @@ def main(argv=None):
     # the labels as datasets: every frame's boxes, masks and camera (rendered with the conditions) in each format
     t_export = time.perf_counter()
     exports = {}
-    for fmt in EXPORT_FORMATS:
+    for fmt in () if args.no_exports else EXPORT_FORMATS:
         log(f"backend: exporting the labels as {fmt} ...")
         if bpy.ops.scpainter.export_labels(format=fmt) != {"FINISHED"}:
             raise SystemExit(f"the {fmt} export failed: see the message above")
@@ -163,22 +171,7 @@ def main(argv=None):
     labels = labels_summary(cam_out)
     bpy.ops.wm.save_mainfile()  # again, now with the results loaded behind the camera path
 
-    # a viewport-free preview: Cycles on the CPU from the recorded camera, points in their own colours
-    scene.render.engine = "CYCLES"
-    scene.cycles.device = "CPU"
-    scene.cycles.samples = args.samples
-    scene.cycles.use_denoising = False
-    scene.view_settings.view_transform = "Standard"  # emission colour = source image colour
-    world = bpy.data.worlds.new("preview background")
-    world.color = (0.05, 0.05, 0.05)
-    scene.world = world
-    scene.frame_set(scene.frame_start)
-    scene.render.image_settings.file_format = "PNG"
-    preview = os.path.join(out, "preview.png")
-    scene.render.filepath = preview
-    t_render = time.perf_counter()
-    bpy.ops.render.render(write_still=True)
-    t_render = time.perf_counter() - t_render
+    preview, t_render = (None, 0.0) if args.no_preview else render_preview(bpy, scene, out, args.samples)
 
     summary = {"blend": blend, "preview": preview, "job": job_path, "asset": car_ply,
                "recorded_objects": [o.name for o in kinds.recorded_objects(scene)],
@@ -194,7 +187,8 @@ def main(argv=None):
                            "exports": t_export, "preview": t_render,
                            "total": time.perf_counter() - t0}}
     print(json.dumps(summary, indent=1))
-    log(f"\nSaved {blend}\n      {preview}\n      {cond['folder']} ({cond['frames']} frames of condition layers)"
+    log(f"\nSaved {blend}" + (f"\n      {preview}" if preview else "")
+        + f"\n      {cond['folder']} ({cond['frames']} frames of condition layers)"
         f"\n      {generation['video']} ({generation['description']})"
         f"\n      {labels['labelled_previews'][0] if labels['labelled_previews'] else ''} (labels drawn; "
         f"{len(labels['labelled_previews'])} frames)"
@@ -270,6 +264,26 @@ def generation_summary(output_dir: str) -> dict:
     if manifest["model"] == "baseline":
         summary["use_a_checkpoint"] = USE_A_CHECKPOINT
     return summary
+
+
+def render_preview(bpy, scene, out: str, samples: int) -> tuple[str, float]:
+    """A viewport-free preview: Cycles on the CPU from the recorded camera, points in their own colours, saved as
+    ``out/preview.png``; (its path, seconds)."""
+    scene.render.engine = "CYCLES"
+    scene.cycles.device = "CPU"
+    scene.cycles.samples = samples
+    scene.cycles.use_denoising = False
+    scene.view_settings.view_transform = "Standard"  # emission colour = source image colour
+    world = bpy.data.worlds.new("preview background")
+    world.color = (0.05, 0.05, 0.05)
+    scene.world = world
+    scene.frame_set(scene.frame_start)
+    scene.render.image_settings.file_format = "PNG"
+    preview = os.path.join(out, "preview.png")
+    scene.render.filepath = preview
+    t_render = time.perf_counter()
+    bpy.ops.render.render(write_still=True)
+    return preview, time.perf_counter() - t_render
 
 
 def labels_summary(output_dir: str) -> dict:

@@ -3,7 +3,7 @@
 ``estimate`` builds the models of one size (``configs.SIZES``: "full" is SVD's architecture) on the meta device,
 materialises them as ``FakeTensorMode`` tensors (shapes, dtypes and storages, no data: the full 1.56 B-parameter
 model costs nothing), and runs ``step`` — the trainer's step: ``objective.loss``, backward, gradient clipping,
-AdamW, EMA — twice (the second has the AdamW state) under ``AllocationTracker``, which follows every storage the
+AdamW, EMA — under ``AllocationTracker`` (AdamW's state made beforehand), which follows every storage the
 step creates and frees and labels it by what made it. The result is the peak of live bytes and what was live at
 that moment, by label (``LABELS``), plus what the forward pass kept for backward and the peak of each phase.
 
@@ -308,49 +308,66 @@ class Estimate:
                 **self.extra}
 
 
-def estimate(setting: Setting, size: str = "full", frames: int = 14, width: int = 1024, height: int = 576,
-             frozen_dtype=torch.bfloat16, autocast=torch.bfloat16, cuda_autocast: bool = True,
-             models: dict | None = None) -> Estimate:
-    """The memory of two training steps of ``setting`` at ``size`` on fake tensors (module docstring). Defaults:
-    what bench/train_throughput.py runs on CUDA (full size, 14 frames at 1024×576, frozen VAE and CLIP in bf16, bf16
-    autocast). ``models``: a fake ``build`` to reuse (its UNet's checkpointing is reset by this setting)."""
+def tracked(models: dict, prepared: tuple, setting: Setting, frames: int, width: int, height: int, device,
+            autocast, cuda_autocast: bool = False, steps: int = 1, seed: int = 0) -> Estimate:
+    """Run ``steps`` steps of ``setting`` under an ``AllocationTracker`` (real or fake tensors) and return what it saw.
+    ``models``: ``build``'s; ``prepared``: ``prepare``'s result for this setting (its AdamW state, if any, is
+    counted as such); ``cuda_autocast``: ``cuda_autocast_norms`` (for the CPU standing in for CUDA)."""
     t0 = time.perf_counter()
-    models = models or build(size, "cpu", frozen_dtype, fake=True)
-    mode = models["fake_mode"]
-    tracker = AllocationTracker()
-    kept: dict = {}
-    with mode:
-        step_models, named, opt, ema, cfg = prepare(models, setting, "cpu")
-        trained = list(named.values())
-        tracker.label(trained, "weights (trained)")
-        tracker.label(list(models["vae"].parameters()) + list(models["image_encoder"].parameters()),
-                      "weights (frozen)")
-        if ema is not None:
-            tracker.label(ema.shadow, "EMA")
-        hooks = [p.register_post_accumulate_grad_hook(lambda q: tracker.label(q.grad, "gradients")) for p in trained]
-        for name, phase in (("unet", "UNet"), ("image_encoder", "CLIP")):
-            hooks += tracker.label_module(models[name], phase)
-        hooks += tracker.label_module(models["condition_encoder"], "condition encoder")
-        hooks += tracker.label_module(models["vae"].encoder, "target encoding (VAE)")
-        hooks += tracker.label_module(models["vae"].quant_conv, "target encoding (VAE)")
-        norms = (cuda_autocast_norms(*(models[m] for m in ("unet", "condition_encoder", "vae", "image_encoder")))
-                 if cuda_autocast else contextlib.nullcontext())
+    step_models, named, opt, ema, cfg = prepared
+    tracker, kept = AllocationTracker(), {}
+    trained = list(named.values())
+    tracker.label(trained, "weights (trained)")
+    tracker.label(list(models["vae"].parameters()) + list(models["image_encoder"].parameters()), "weights (frozen)")
+    tracker.label([t for s in opt.state.values() for t in s.values() if isinstance(t, torch.Tensor)], "AdamW state")
+    if ema is not None:
+        tracker.label(ema.shadow, "EMA")
+    hooks = [p.register_post_accumulate_grad_hook(lambda q: tracker.label(q.grad, "gradients")) for p in trained]
+    for name, phase in (("unet", "UNet"), ("image_encoder", "CLIP"), ("condition_encoder", "condition encoder")):
+        hooks += tracker.label_module(models[name], phase)
+    hooks += tracker.label_module(models["vae"].encoder, "target encoding (VAE)")
+    hooks += tracker.label_module(models["vae"].quant_conv, "target encoding (VAE)")
+    norms = (cuda_autocast_norms(*(models[m] for m in ("unet", "condition_encoder", "vae", "image_encoder")))
+             if cuda_autocast else contextlib.nullcontext())
 
-        def after_forward():
-            kept.clear()
-            kept.update({k: v for k, v in tracker.now.items() if v})
+    def after_forward():
+        kept.clear()
+        kept.update({k: v for k, v in tracker.now.items() if v})
 
-        try:
-            with norms:
-                for i in range(2):
-                    with tracker:
-                        with tracker.in_phase("batch"):
-                            batch = random_batch(setting.batch, frames, height, width, "cpu", seed=i)
-                        gens = [torch.Generator().manual_seed(1000 * i + b) for b in range(setting.batch)]
-                        step(step_models, named, opt, ema, batch, cfg, gens, "cpu", autocast, tracker, after_forward)
-                        del batch
-        finally:
-            for h in hooks:
-                h.remove()
+    try:
+        with norms:
+            for i in range(steps):
+                with tracker:
+                    with tracker.in_phase("batch"):
+                        batch = random_batch(setting.batch, frames, height, width, device, seed=seed + i)
+                    gens = [torch.Generator().manual_seed(1000 * (seed + i) + b) for b in range(setting.batch)]
+                    step(step_models, named, opt, ema, batch, cfg, gens, device, autocast, tracker, after_forward)
+                    del batch
+    finally:
+        for h in hooks:
+            h.remove()
     return Estimate(setting, tracker.peak, dict(tracker.at_peak), kept, dict(tracker.phase_peak),
                     time.perf_counter() - t0)
+
+
+def estimate(setting: Setting, size: str = "full", frames: int = 14, width: int = 1024, height: int = 576,
+             frozen_dtype=torch.bfloat16, autocast=torch.bfloat16, cuda_autocast: bool = True,
+             models: dict | None = None, steps: int = 1) -> Estimate:
+    """The memory of ``steps`` training steps of ``setting`` at ``size`` on fake tensors (module docstring), AdamW's
+    state made beforehand (so the first step is the steady state). Defaults: what bench/train_throughput.py runs
+    on CUDA (full size, 14 frames at 1024×576, frozen VAE and CLIP in bf16, bf16 autocast). ``models``: a fake
+    ``build`` to reuse (its UNet's checkpointing is reset by this setting)."""
+    t0 = time.perf_counter()
+    models = models or build(size, "cpu", frozen_dtype, fake=True)
+    with models["fake_mode"]:
+        prepared = prepare(models, setting, "cpu")
+        # AdamW's state exists from the first step on: make it with one step on zero gradients (no forward pass;
+        # on fake tensors the values do not matter), so one tracked step shows the steady state
+        params = list(prepared[1].values())
+        for p in params:
+            p.grad = torch.zeros_like(p)
+        prepared[2].step()
+        prepared[2].zero_grad(set_to_none=True)
+        e = tracked(models, prepared, setting, frames, width, height, "cpu", autocast, cuda_autocast, steps)
+    e.seconds = time.perf_counter() - t0
+    return e

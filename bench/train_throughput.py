@@ -83,8 +83,10 @@ def timed(models, device, setting, frames, W, H, steps) -> dict:
 
 
 def print_breakdown(estimates: list) -> None:
-    """What is live at each estimate's peak (GiB per ``memory.LABELS``), then what the forward pass kept."""
-    names = [f"{e['setting']['name']} b{e['setting']['batch']}" for e in estimates]
+    """What is live at each estimate's peak (GiB per ``memory.LABELS``), then what the forward pass kept; a column
+    is "<setting> b<batch>", "off" without checkpointing."""
+    names = [f"{e['setting']['name']} b{e['setting']['batch']}{'' if e['setting']['checkpointing'] else ' off'}"
+             for e in estimates]
     for title, key in (("live at the peak (GiB)", "at_peak_gib"), ("kept by the forward pass for backward (GiB)",
                                                                      "kept_gib")):
         print(f"\n{title:<44}" + "".join(f"{n:>14}" for n in names))

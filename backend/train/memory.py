@@ -290,7 +290,8 @@ def random_batch(batch: int, frames: int, height: int, width: int, device, seed:
 class Estimate:
     """What ``estimate`` measured, in bytes: ``peak`` and ``at_peak`` (label → bytes live at the peak, ``LABELS``),
     ``kept`` (label → bytes live when the forward pass ended: what it keeps for backward, beside the persistent
-    state), ``phase_peak`` (phase → highest total during it), ``seconds`` (wall time of the estimate)."""
+    state), ``phase_peak`` (phase → highest total during it), ``seconds`` (wall time of the estimate), ``extra``:
+    ``left_after_step`` (label → bytes live after the last step: what a step carries into the next)."""
 
     setting: Setting
     peak: int
@@ -305,7 +306,7 @@ class Estimate:
         g = lambda d: {k: round(v / GIB, 3) for k, v in d.items() if v}  # noqa: E731
         return {"setting": self.setting.__dict__, "peak_gib": round(self.peak / GIB, 3), "at_peak_gib": g(self.at_peak),
                 "kept_gib": g(self.kept), "phase_peak_gib": g(self.phase_peak), "seconds": round(self.seconds, 1),
-                **self.extra}
+                "left_after_step_gib": g(self.extra.get("left_after_step", {}))}
 
 
 def tracked(models: dict, prepared: tuple, setting: Setting, frames: int, width: int, height: int, device,
@@ -346,8 +347,10 @@ def tracked(models: dict, prepared: tuple, setting: Setting, frames: int, width:
     finally:
         for h in hooks:
             h.remove()
+    # what a step leaves live for the next one: the persistent state only (plus the returned loss, a scalar)
+    left = {k: v for k, v in tracker.now.items() if v}
     return Estimate(setting, tracker.peak, dict(tracker.at_peak), kept, dict(tracker.phase_peak),
-                    time.perf_counter() - t0)
+                    time.perf_counter() - t0, {"left_after_step": left})
 
 
 def estimate(setting: Setting, size: str = "full", frames: int = 14, width: int = 1024, height: int = 576,

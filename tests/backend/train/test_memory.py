@@ -37,3 +37,7 @@ def test_estimate_of_a_tiny_step_counts_the_state_exactly():
     assert e.peak == sum(e.at_peak.values()) and e.phase_peak["backward"] == e.peak
     assert e.kept["weights (frozen)"] == 2 * sum(p.numel() for m in ("vae", "image_encoder")
                                                  for p in models[m].parameters())
+    # a step carries nothing into the next but the persistent state and its loss (a scalar)
+    left = e.extra["left_after_step"]
+    assert set(left) - {"other"} == {"weights (trained)", "weights (frozen)", "AdamW state", "EMA"}
+    assert left.get("other", 0) <= 16

@@ -55,8 +55,8 @@ part() {
       else CMD=("$PY" bench/render.py --smoke --devices cpu --out "$OUT"); fi ;;
     train)
       LIMIT=${TRAIN_TIMEOUT_S:-100}
-      if [ "$mode" = gpu ]; then CMD=("$PY" bench/train_throughput.py --size full --device cuda --frames 14
-                                      --resolutions 1024x576 --batches 1 2 --checkpointing both --steps 3 --out "$OUT")
+      if [ "$mode" = gpu ]; then CMD=("$PY" bench/train_throughput.py --size full --device cuda --resolutions 1024x576
+                                      --batches 1 2 --checkpointing on --settings before after --steps 3 --out "$OUT")
       else CMD=("$PY" bench/train_throughput.py --smoke --device cpu --out "$OUT"); fi ;;
     gpu_tests)
       LIMIT=${GPU_TESTS_TIMEOUT_S:-60}

@@ -17,6 +17,8 @@ from scpainter_blender.core import job as job_mod
 from .pairs import PairSettings
 
 SCHEMA = "scpainter.train/1"
+#: ``checkpointing_units``: the UNet's checkpointed units (backend/train/checkpointing.py says what each keeps)
+CHECKPOINTING_UNITS = ("blocks", "diffusers")
 
 
 class TrainConfigError(errors.InputError):
@@ -49,6 +51,9 @@ class TrainConfig:
     ema_decay: float = 0.9999           # 0: no EMA (checkpoints hold the raw weights)
     mixed_precision: str = "auto"       # auto (bf16 on CUDA, none on CPU) | no | bf16
     gradient_checkpointing: bool = False
+    checkpointing_units: str = "blocks"  # blocks | diffusers: the UNet's checkpointed units (train/checkpointing.py)
+    condition_chunk_frames: int = 1     # frames per condition-encoder chunk (one checkpointed unit each); 0: all
+    encode_chunk_frames: int = 1        # frames per chunk of the frozen VAE's target encoding; 0: all
     optimizer: str = "adamw"            # adamw | adamw8bit (bitsandbytes)
     train_condition_encoder: bool = True
     save_every: int = 1000
@@ -122,7 +127,8 @@ def _check(cfg: TrainConfig, path: str) -> TrainConfig:
     for name in ("steps", "batch_size", "gradient_accumulation", "save_every", "keep_checkpoints", "log_every",
                  "sample_steps"):
         integer(name, getattr(cfg, name), 1)
-    for name in ("warmup_steps", "sample_every", "num_workers", "seed"):
+    for name in ("warmup_steps", "sample_every", "num_workers", "seed", "condition_chunk_frames",
+                 "encode_chunk_frames"):
         integer(name, getattr(cfg, name), 0)
     for name in ("drop_clip", "drop_condition", "ema_decay"):
         number(name, getattr(cfg, name), 0.0, 1.0, hi_open=True, what="a number in [0, 1)")
@@ -142,6 +148,8 @@ def _check(cfg: TrainConfig, path: str) -> TrainConfig:
             err(name, f"expected true or false, got {_short(getattr(cfg, name))}")
     if not isinstance(cfg.mixed_precision, str) or cfg.mixed_precision not in ("auto", "no", "bf16"):
         err("mixed_precision", f"expected auto, no or bf16, got {_short(cfg.mixed_precision)}")
+    if not isinstance(cfg.checkpointing_units, str) or cfg.checkpointing_units not in CHECKPOINTING_UNITS:
+        err("checkpointing_units", f"expected {' or '.join(CHECKPOINTING_UNITS)}, got {_short(cfg.checkpointing_units)}")
     if not isinstance(cfg.optimizer, str) or cfg.optimizer not in ("adamw", "adamw8bit"):
         err("optimizer", f"expected adamw or adamw8bit, got {_short(cfg.optimizer)}")
     for name in ("checkpoint", "output_dir"):

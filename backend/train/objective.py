@@ -29,8 +29,8 @@ from typing import TYPE_CHECKING
 import torch
 
 from ..model import edm
-from ..model.condition import encode_conditions
 from ..model.pipeline import clip_embeddings
+from .checkpointing import condition_latents
 
 if TYPE_CHECKING:
     from collections.abc import Iterable
@@ -60,14 +60,24 @@ def randn(gens: list, shape: tuple) -> torch.Tensor:
 
 
 @torch.no_grad()
-def target_latents(vae: torch.nn.Module, target: torch.Tensor, gens: list) -> torch.Tensor:
+def target_latents(vae: torch.nn.Module, target: torch.Tensor, gens: list, chunk: int = 0) -> torch.Tensor:
     """x_0 (B, F, C, h, w) float32: a sample of the VAE posterior of the frames (B, F, 3, H, W) in [0, 1], times
-    the scaling factor (each sample's posterior noise from its generator)."""
+    the scaling factor (each sample's posterior noise from its generator). The encoder runs over ``chunk`` frames at
+    a time (0: all B·F at once), each chunk's activations freed before the next; the result does not depend on it
+    (the encoder works frame by frame)."""
     B, F = target.shape[:2]
-    x = (target.flatten(0, 1) * 2.0 - 1.0).to(next(vae.parameters()).dtype)
-    dist = vae.encode(x).latent_dist
-    eps = randn(gens, (F, *dist.mean.shape[1:])).flatten(0, 1).to(dist.mean)
-    z = (dist.mean + dist.std * eps).float() * vae.config.scaling_factor
+    frames = target.flatten(0, 1)
+    step = chunk if chunk > 0 else B * F
+    dtype = next(vae.parameters()).dtype
+    means, stds = [], []
+    for s in range(0, B * F, step):
+        dist = vae.encode((frames[s:s + step] * 2.0 - 1.0).to(dtype)).latent_dist
+        means.append(dist.mean)
+        stds.append(dist.std)
+        del dist
+    mean, std = (means[0], stds[0]) if len(means) == 1 else (torch.cat(means), torch.cat(stds))
+    eps = randn(gens, (F, *mean.shape[1:])).flatten(0, 1).to(mean)
+    z = (mean + std * eps).float() * vae.config.scaling_factor
     return z.view(B, F, *z.shape[1:])
 
 
@@ -84,7 +94,7 @@ def loss(models: dict, batch: dict, cfg: TrainConfig, gens: list, device: str | 
     if len(gens) != B:
         raise ValueError(f"{len(gens)} generators for a batch of {B}")
     r = draw(gens, cfg)
-    x0 = target_latents(models["vae"], target, gens)
+    x0 = target_latents(models["vae"], target, gens, cfg.encode_chunk_frames)
     eps = randn(gens, tuple(x0.shape[1:])).to(device)
     aug = randn(gens, tuple(batch["image"].shape[1:])).flatten(0, 1)
     sigma = r["sigma"].to(device).view(B, 1, 1, 1, 1)
@@ -94,9 +104,9 @@ def loss(models: dict, batch: dict, cfg: TrainConfig, gens: list, device: str | 
     clip = clip * r["keep_clip"].to(device).view(B, 1, 1)
     with torch.autocast(device_type=torch.device(device).type, dtype=autocast_dtype or torch.float32,
                         enabled=autocast_dtype is not None):
-        cond = encode_conditions(cond_enc, batch["image"].to(device).flatten(0, 1),
+        cond = condition_latents(cond_enc, batch["image"].to(device).flatten(0, 1),
                                  batch["asset_mask"].to(device).flatten(0, 1),
-                                 batch["valid"].to(device).flatten(0, 1), config.noise_aug_strength, noise=aug)
+                                 batch["valid"].to(device).flatten(0, 1), config.noise_aug_strength, aug)
         cond = cond.float().view(B, F, *cond.shape[1:]) * r["keep_cond"].to(device).view(B, 1, 1, 1, 1)
         x0_hat = denoiser(x_sigma, sigma.view(B), cond, clip, edm.time_ids(config, B, device))
     weight = (sigma.view(B) ** 2 + 1.0) / sigma.view(B) ** 2

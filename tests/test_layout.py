@@ -145,8 +145,6 @@ UNMIRRORED = {
     "backend/render/labelled.py": "tested by tests/backend/render/test_command_labels.py: labelled previews of a "
                                   "render",
     "backend/render/points.py": "tested by tests/backend/render/test_points_cpu.py: the torch reference z-buffer",
-    "backend/render/scene_cache.py": "exercised by tests/backend/test_serve.py: a warm backend keeps the points and "
-                                     "assets it loaded (bit-identical layers)",
     "backend/render/tiles.py": "tested by tests/backend/render/test_gaussians.py: tile binning, against the dense "
                                "render",
     "backend/render/tiles_cpu.py": "tested by tests/backend/render/test_project_cpu.py: the counting sort's tile lists",
@@ -170,6 +168,7 @@ CROSS_CUTTING = {
     "tests/bench/test_inputs_round3.py": "bench/inputs_round3.py keeps running (a benchmark's smoke test)",
     "tests/bench/test_vary.py": "bench/vary.py keeps running (a benchmark's smoke test)",
     "tests/bench/test_lidar.py": "bench/lidar.py keeps running (a benchmark's smoke test)",
+    "tests/bench/test_labels_cost.py": "bench/labels_cost.py keeps running (a benchmark's smoke test)",
     "tests/street/test_street.py": "the ground-truth street end to end: build, render, predictions, dataset cache",
     "tests/backend/test_fuzz_inputs.py": "hostile input files of every kind through every command "
                                          "(tests/fuzz_inputs.py, tests/fuzz_surfaces.py, tests/fuzz_round3.py)",

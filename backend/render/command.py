@@ -291,7 +291,7 @@ def _render(job_path, job, device, force, point_radius, stop, log, out, allow_ou
                 t = time.perf_counter()
                 kept = {}
                 layers = fr.render_frame(scene, entry, W, H, point_radius, keep=kept)
-                amodal = fr.amodal_pixels(scene, entry, W, H, projection=kept["projection"])
+                amodal = fr.frame_amodal(scene, entry, W, H, kept)  # from the frame's own walk on the CPU
                 render_s = time.perf_counter() - t
 
                 def finish(written, f=f, exr_path=exr_path, png_path=png_path, hole=layers[channels.HOLE].mean(),

@@ -9,9 +9,10 @@ Two parts, each timed in two source trees, the requests interleaved (before, aft
   Gaussians in all, one partly behind another, at 1024 x 576, saved as a job with three PLY files): per frame,
   what ``render`` computes: ``render_frame`` (with its instance pass), the amodal counts (the tree's way: a
   render per car (``frames.amodal_pixels``) before, the frame's own kernel walk (``frames.frame_amodal``) after),
-  the labels (``core.labels.frame_labels``, the labelled preview, the labels JSON) and the condition EXR and
-  preview PNG. Against it the render alone: the same frame with the three cars as one asset (no instance work, no
-  amodal, no labels) and the same EXR and PNG. ``labels %`` = (frame - alone) / frame; ``ratio`` = frame / alone.
+  and the frame's files as the tree's ``render`` writes them (``command._write_frame``: the condition EXR, its
+  preview, the labelled preview, the labels JSON; ``labels`` times ``write_files``, the labels' part, apart).
+  Against it the render alone: the same frame with the three cars as one asset (no instance work, no amodal, no
+  labels) and its EXR and preview. ``labels %`` = (frame - alone) / frame; ``ratio`` = frame / alone.
   The after tree's amodal counts must equal the before tree's (printed).
 * **Batch**: ``--variants`` variants of the ground-truth street (``core.variation``, two library cars, 128 x 72,
   16 frames each) rendered by ``python -m backend batch --shard 0/1`` (one process, one thread, as ``bench/vary.py``
@@ -83,10 +84,9 @@ class FrameWork:
 
         from backend import png
         from backend.render import channels, command, frames as fr, labelled
-        from scpainter_blender.core import job as J, labels, outputs
+        from scpainter_blender.core import job as J
 
         self.torch, self.png, self.channels, self.fr, self.labelled = torch, png, channels, fr, labelled
-        self.labels, self.outputs = labels, outputs
         self.job = J.load(job_path)
         self.scene = fr.load_scene(self.job, job_path, "cpu", points=False)
         with np.load(npz, allow_pickle=False) as z:
@@ -110,17 +110,25 @@ class FrameWork:
         merged = fr.Asset("cars", means, factors, opac, sh, {self.entry.frame: np.eye(4)})
         one.assets = [merged]
         self.alone_scene = one
-        self.boxes = command.asset_boxes(self.job, self.scene, lambda *_: None)
-        self.hashes = ["0" * 64] * len(self.job.assets)
-        self.amodal_mode = amodal if hasattr(fr, "frame_amodal") else "second_render"
+        from scpainter_blender.core.output_layout import OutputLayout
+
+        self.command = command
         self.tmp = tempfile.mkdtemp(prefix="labels_cost_")
+        layout = OutputLayout(self.tmp)
+        os.makedirs(os.path.join(self.tmp, OutputLayout.CONDITIONS))
+        self.labelling = command._Labelling(self.job, layout, command.asset_boxes(self.job, self.scene,
+                                                                                 lambda *_: None),
+                                            ["0" * 64] * len(self.job.assets), {0: "layers"}, {0: "labels"})
+        self.amodal_mode = amodal if hasattr(fr, "frame_amodal") else "second_render"
 
     def _files(self, layers) -> None:
         self.channels.write(os.path.join(self.tmp, "c.exr"), layers)
         self.png.write_png(os.path.join(self.tmp, "c.png"), np.stack([layers[c] for c in self.channels.IMAGE], -1))
 
     def frame(self) -> dict:
-        """ms of each part of one frame: render (``render_frame``), amodal, labels, files; and the amodal counts."""
+        """ms of each part of one frame as ``render`` computes it: render (``render_frame``), amodal, writes (the
+        command's own ``_write_frame``: EXR, preview, labelled preview, labels JSON); labels (``write_files``
+        alone, timed apart: the labels' share of the writes) and the amodal counts."""
         out, t = {}, time.perf_counter()
         kept = {}
         layers = self.fr.render_frame(self.scene, self.entry, self.W, self.H, keep=kept)
@@ -132,17 +140,13 @@ class FrameWork:
             amodal = self.fr.amodal_pixels(self.scene, self.entry, self.W, self.H, projection=kept["projection"])
         out["amodal_ms"] = 1e3 * (time.perf_counter() - t)
         t = time.perf_counter()
-        lab = self.labels.frame_labels(self.job, 0, instance=layers[self.channels.INSTANCE],
-                                       hole=layers[self.channels.HOLE], depth=layers[self.channels.DEPTH],
-                                       amodal_pixels=amodal, asset_boxes=self.boxes, asset_hashes=self.hashes)
-        self.labelled.write(os.path.join(self.tmp, "l.png"),
-                            np.stack([layers[c] for c in self.channels.IMAGE], -1), lab)
-        self.outputs.write_json(os.path.join(self.tmp, "l.json"), lab)
-        out["labels_ms"] = 1e3 * (time.perf_counter() - t)
+        self.command._write_frame(self.labelling, 0, layers, amodal, False, os.path.join(self.tmp, "f.exr"),
+                                  os.path.join(self.tmp, "f.png"))
+        out["writes_ms"] = 1e3 * (time.perf_counter() - t)
         t = time.perf_counter()
-        self._files(layers)
-        out["files_ms"] = 1e3 * (time.perf_counter() - t)
-        out["total_ms"] = out["render_ms"] + out["amodal_ms"] + out["labels_ms"] + out["files_ms"]
+        self.labelling.write_files(0, layers, amodal)
+        out["labels_ms"] = 1e3 * (time.perf_counter() - t)
+        out["total_ms"] = out["render_ms"] + out["amodal_ms"] + out["writes_ms"]
         out["amodal"] = [int(v) for v in amodal]
         return out
 
@@ -218,7 +222,7 @@ class Worker:
 def summarise(frames: list, alones: list) -> dict:
     """Medians of each part over the rounds, the labels' share and the ratio frame / alone."""
     med = lambda rows, k: statistics.median(r[k] for r in rows)  # noqa: E731
-    out = {k: med(frames, k) for k in ("render_ms", "amodal_ms", "labels_ms", "files_ms", "total_ms")}
+    out = {k: med(frames, k) for k in ("render_ms", "amodal_ms", "writes_ms", "labels_ms", "total_ms")}
     out.update(alone_render_ms=med(alones, "render_ms"), alone_files_ms=med(alones, "files_ms"),
                alone_total_ms=med(alones, "total_ms"))
     out["labels_share"] = (out["total_ms"] - out["alone_total_ms"]) / out["total_ms"]
@@ -388,7 +392,7 @@ def main(argv=None) -> int:
     W, H = result["size"]
     print(f"\nframe: {result['points']:,} points, 3 cars ({result['gaussians']:,} Gaussians), {W}x{H} "
           f"(ms, medians)")
-    cols = ("render_ms", "amodal_ms", "labels_ms", "files_ms", "total_ms", "alone_total_ms")
+    cols = ("render_ms", "amodal_ms", "writes_ms", "labels_ms", "total_ms", "alone_total_ms")
     print(f"{'tree':>7} " + " ".join(f"{c[:-3]:>9}" for c in cols) + f" {'labels %':>9} {'ratio':>6}  amodal")
     for name in ("before", "after"):
         r = f[name]

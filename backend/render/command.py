@@ -338,14 +338,16 @@ class _Labelling:
         events.artifact(self.layout.labelled_preview(f), frame=f, kind="labelled")
         events.artifact(self.layout.frame_labels(f), frame=f, kind="labels")
 
-    def write_files(self, index: int, layers: dict, amodal) -> dict:
-        """``write`` without its events (for a writer thread: ``report`` says them on the events' thread)."""
+    def write_files(self, index: int, layers: dict, amodal, image=None) -> dict:
+        """``write`` without its events (for a writer thread: ``report`` says them on the events' thread).
+        ``image``: the condition image as the preview wrote it ((H, W, 3) uint8), else made from ``layers``."""
         f = self.job.frames[index].frame
         lab = labels_mod.frame_labels(self.job, index, instance=layers[channels.INSTANCE],
                                       hole=layers[channels.HOLE], depth=layers[channels.DEPTH], amodal_pixels=amodal,
                                       asset_boxes=self.boxes, asset_hashes=self.hashes, key=self.keys[f],
                                       layers_key=self.layers_keys[f])
-        labelled.write(self.layout.labelled_preview(f), np.stack([layers[c] for c in channels.IMAGE], -1), lab)
+        labelled.write(self.layout.labelled_preview(f),
+                       np.stack([layers[c] for c in channels.IMAGE], -1) if image is None else image, lab)
         outputs.write_json(self.layout.frame_labels(f), lab)
         return lab
 
@@ -359,8 +361,10 @@ def _write_frame(labelling: _Labelling, index: int, layers: dict, amodal, half: 
     entry = labelling.job.frames[index]
     W, H = labelling.job.resolution
     channels.write(exr_path, layers, half=half, camera=channels.camera_attributes(entry.K, entry.world_to_camera, W, H))
-    png.write_png(png_path, np.stack([layers[c] for c in channels.IMAGE], axis=-1))
-    return labelling.write_files(index, layers, amodal), time.perf_counter() - t
+    # the 8-bit image once, for the preview and the labelled preview (write_png's rounding)
+    image = png.eight_bit(np.stack([layers[c] for c in channels.IMAGE], axis=-1))
+    png.write_png(png_path, image)
+    return labelling.write_files(index, layers, amodal, image), time.perf_counter() - t
 
 
 def _relabel(labelling: _Labelling, index: int, old: dict) -> int:

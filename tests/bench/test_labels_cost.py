@@ -21,7 +21,7 @@ def test_labels_cost_smoke_prints_and_saves_its_rows(tmp_path, capsys):
     assert got["amodal_equal"] is True and got["batch"] is None
     for name in ("before", "after"):
         row = got["frame"][name]
-        for k in ("render_ms", "amodal_ms", "labels_ms", "files_ms", "total_ms", "alone_total_ms", "labels_share",
+        for k in ("render_ms", "amodal_ms", "writes_ms", "labels_ms", "total_ms", "alone_total_ms", "labels_share",
                   "ratio_to_alone"):
             assert math.isfinite(row[k]) and (row[k] > 0 or k in ("amodal_ms", "labels_share")), (name, k, row)
         assert len(row["amodal"]) == 3 and sum(row["amodal"]) > 0

@@ -2,6 +2,7 @@
 
     .venv/bin/python bench/labels_cost.py [--before-tree DIR] [--rounds 5] [--variants 40] [--out bench/results]
     .venv/bin/python bench/labels_cost.py --smoke --out DIR        # seconds: the current tree alone, tiny sizes
+    python bench/labels_cost.py --device cuda --variants 0 --before-tree MAIN --out DIR   # the frame on a GPU
 
 Two parts, each timed in two source trees, the requests interleaved (before, after, after, before, ...):
 
@@ -21,7 +22,9 @@ Two parts, each timed in two source trees, the requests interleaved (before, aft
 
 The before tree: ``--before-tree DIR``, else ``git archive main`` into a temporary folder. ``--smoke``: the
 current tree only, in this process, at tiny sizes, its "before" being the second render that ``amodal_pixels``
-still does (the same code as main's); no batch. Prints a table and saves ``labels_cost.json`` in ``--out``.
+still does (the same code as main's); no batch. ``--device cuda``: the frame part on the GPU, where both trees
+still count amodal pixels with ``amodal_pixels``' render per car (the Triton kernel counts nothing), so it measures
+what that costs there. Prints a table and saves ``labels_cost.json`` in ``--out``.
 """
 
 from __future__ import annotations
@@ -79,7 +82,7 @@ class FrameWork:
     ``backend`` is first on sys.path. ``amodal``: "tree" (``frame_amodal`` where the tree has it, else the render
     per car) or "second_render" (``amodal_pixels`` always)."""
 
-    def __init__(self, job_path: str, npz: str, amodal: str = "tree"):
+    def __init__(self, job_path: str, npz: str, amodal: str = "tree", device: str = "cpu"):
         import torch
 
         from backend import png
@@ -88,12 +91,12 @@ class FrameWork:
 
         self.torch, self.png, self.channels, self.fr, self.labelled = torch, png, channels, fr, labelled
         self.job = J.load(job_path)
-        self.scene = fr.load_scene(self.job, job_path, "cpu", points=False)
+        self.scene = fr.load_scene(self.job, job_path, device, points=False)
         with np.load(npz, allow_pickle=False) as z:
             xyz, rgb, frame = z["xyz"], z["rgb"], z["frame"]
         for s in (self.scene,):
-            s.xyz, s.rgb = torch.as_tensor(xyz), torch.as_tensor(rgb)
-            s.frame = torch.as_tensor(frame)
+            s.xyz, s.rgb = torch.as_tensor(xyz, device=device), torch.as_tensor(rgb, device=device)
+            s.frame = torch.as_tensor(frame, device=device)
             s.frames_present = frozenset(np.unique(frame).tolist())
             s.frame_slices, s.frame_boxes = fr.frame_index(frame, xyz)
         self.entry = self.job.frames[0]
@@ -104,7 +107,7 @@ class FrameWork:
                        frame_slices=self.scene.frame_slices, frame_boxes=self.scene.frame_boxes)
         parts = []
         for a in self.scene.assets:
-            A = torch.as_tensor(np.asarray(a.object_to_world[self.entry.frame], np.float64))
+            A = torch.as_tensor(np.asarray(a.object_to_world[self.entry.frame], np.float64), device=device)
             parts.append((a.means @ A[:3, :3].T + A[:3, 3], A[:3, :3] @ a.factors, a.opacities, a.sh))
         means, factors, opac, sh = (torch.cat(x) for x in zip(*parts))
         merged = fr.Asset("cars", means, factors, opac, sh, {self.entry.frame: np.eye(4)})
@@ -174,6 +177,7 @@ def worker_main(argv) -> int:
     p.add_argument("--job", required=True)
     p.add_argument("--data", required=True)
     p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--device", default="cpu")
     args = p.parse_args(argv)
     reply = os.fdopen(os.dup(1), "w")  # standard output is the reply channel; anything printed goes to stderr
     os.dup2(2, 1)
@@ -185,7 +189,7 @@ def worker_main(argv) -> int:
 
     torch.set_num_threads(args.threads)
     numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
-    work = FrameWork(args.job, args.data)
+    work = FrameWork(args.job, args.data, device=args.device)
     work.frame()  # the kernels loaded (or compiled) before any timing
     work.alone()
     reply.write(json.dumps({"ready": True, "tree": os.path.abspath(backend.__file__),
@@ -202,9 +206,9 @@ def worker_main(argv) -> int:
 
 
 class Worker:
-    def __init__(self, tree: str, job: str, data: str, threads: int):
+    def __init__(self, tree: str, job: str, data: str, threads: int, device: str = "cpu"):
         self.proc = subprocess.Popen([sys.executable, os.path.abspath(__file__), "--worker", "--tree", tree,
-                                      "--job", job, "--data", data, "--threads", str(threads)],
+                                      "--job", job, "--data", data, "--threads", str(threads), "--device", device],
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=tree)
         self.hello = json.loads(self.proc.stdout.readline())
 
@@ -231,9 +235,9 @@ def summarise(frames: list, alones: list) -> dict:
     return out
 
 
-def frame_part(trees: dict, job: str, data: str, rounds: int, threads: int) -> dict:
+def frame_part(trees: dict, job: str, data: str, rounds: int, threads: int, device: str = "cpu") -> dict:
     """Both trees' workers, their requests interleaved round by round (the order alternating)."""
-    workers = {name: Worker(tree, job, data, threads) for name, tree in trees.items()}
+    workers = {name: Worker(tree, job, data, threads, device) for name, tree in trees.items()}
     rows = {name: {"frame": [], "alone": []} for name in trees}
     try:
         names = list(trees)
@@ -362,6 +366,8 @@ def main(argv=None) -> int:
     p.add_argument("--gaussians", type=int, default=100_000)
     p.add_argument("--resolution", default="1024x576")
     p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--device", default="cpu", help="the frame part's device (cuda: amodal_pixels renders each car "
+                                                   "again there, the kernel's count is the CPU's)")
     p.add_argument("--variants", type=int, default=40, help="variants per tree (0: no batch part)")
     p.add_argument("--chunks", type=int, default=2, help="batch processes per tree, alternating trees")
     args = p.parse_args(argv)
@@ -374,7 +380,8 @@ def main(argv=None) -> int:
             trees = {"before": os.path.abspath(args.before_tree or before_tree(work)), "after": ROOT}
             sys.path.insert(0, ROOT)
             job, data = make_frame_inputs(work, args.points, args.gaussians, W, H)
-            result = {"frame": frame_part(trees, job, data, args.rounds, args.threads), "size": [W, H],
+            result = {"frame": frame_part(trees, job, data, args.rounds, args.threads, args.device),
+                      "device": args.device, "size": [W, H],
                       "points": args.points, "gaussians": args.gaussians, "rounds": args.rounds}
             result["batch"] = (batch_part(trees, args.variants, args.chunks, work) if args.variants else None)
             result["trees"] = trees

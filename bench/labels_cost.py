@@ -20,7 +20,8 @@ Two parts, each timed in two source trees, the requests interleaved (before, aft
   runs its workers) from each tree, in ``--chunks`` chunks alternating trees (each tree renders its own copy of the
   variants); per variant seconds (the batch's own ``seconds`` per job) and the wall time of each process.
 
-The before tree: ``--before-tree DIR``, else ``git archive main`` into a temporary folder. ``--smoke``: the
+The before tree: ``--before-tree DIR``, else ``git archive`` of the merge base of ``main`` and HEAD into a
+temporary folder. ``--smoke``: the
 current tree only, in this process, at tiny sizes, its "before" being the second render that ``amodal_pixels``
 still does (the same code as main's); no batch. ``--device cuda``: the frame part on the GPU, where both trees
 still count amodal pixels with ``amodal_pixels``' render per car (the Triton kernel counts nothing), so it measures
@@ -329,10 +330,13 @@ def batch_part(trees: dict, n: int, chunks: int, folder: str) -> dict:
 # -- main ------------------------------------------------------------------------------------------------------
 
 def before_tree(folder: str) -> str:
-    """A copy of branch ``main`` of this repository (``git archive``), with this tree's .venv link."""
+    """A copy (``git archive``) of where this branch left ``main`` (their merge base: this branch's changes alone,
+    not what ``main`` merged since)."""
     dest = os.path.join(folder, "main")
     os.makedirs(dest, exist_ok=True)
-    archive = subprocess.run(["git", "-C", ROOT, "archive", "main"], check=True, capture_output=True).stdout
+    base = subprocess.run(["git", "-C", ROOT, "merge-base", "main", "HEAD"], check=True, capture_output=True,
+                          text=True).stdout.strip()
+    archive = subprocess.run(["git", "-C", ROOT, "archive", base], check=True, capture_output=True).stdout
     subprocess.run(["tar", "-x", "-C", dest], input=archive, check=True)
     return dest
 
@@ -360,7 +364,8 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--smoke", action="store_true")
     p.add_argument("--out", default=os.path.join(ROOT, "bench", "results"))
-    p.add_argument("--before-tree", default=None, help="the tree to compare with (default: git archive main)")
+    p.add_argument("--before-tree", default=None,
+                   help="the tree to compare with (default: git archive of merge-base main HEAD)")
     p.add_argument("--rounds", type=int, default=5)
     p.add_argument("--points", type=int, default=1_000_000)
     p.add_argument("--gaussians", type=int, default=100_000)

@@ -251,6 +251,10 @@ def _render(job_path, job, device, force, point_radius, stop, log, out, allow_ou
         log(f"render: {len(plan.render)} of {total} frames changed since they were rendered (their cameras, or "
             f"the assets they can see); the other {total - len(plan.render)} are kept")
     warned = sum(_warn(plan.done[e.frame]) for e in job.frames if e.frame in plan.done)  # said again every run
+    # the labels of the frames to render go first, all at once (one folder walk, not one per frame): a kill before a
+    # frame's new labels are written leaves it unfinished, never its new EXR under its old labels' key (a frame in
+    # the plan is out of date already: without its labels it is rendered again, as it would have been)
+    outputs.remove_listed(cond, [FRAME_LABELS.name(e.frame) for e in job.frames if e.frame in plan.render])
     labelling = None
     relabelled = 0
     # the frames' files are written while the next frame renders; on leaving, every frame started is whole and
@@ -285,9 +289,6 @@ def _render(job_path, job, device, force, point_radius, stop, log, out, allow_ou
             elif f not in plan.render:
                 skipped += 1
             else:
-                # its labels go first: a kill before its new labels are written leaves the frame unfinished, never
-                # the new EXR under the old frame's key
-                outputs.remove_listed(cond, [FRAME_LABELS.name(f)])
                 t = time.perf_counter()
                 kept = {}
                 layers = fr.render_frame(scene, entry, W, H, point_radius, keep=kept)

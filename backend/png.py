@@ -21,12 +21,17 @@ def _chunk(kind: bytes, data: bytes) -> bytes:
     return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
 
 
+def eight_bit(rgb: np.ndarray) -> np.ndarray:
+    """``rgb`` as ``write_png`` writes it: float in [0, 1] rounded to uint8 (clipped first); uint8 as it is."""
+    return rgb if rgb.dtype == np.uint8 else (np.clip(rgb, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+
+
 def write_png(path, rgb, text: dict | None = None) -> None:
     """8-bit RGB PNG (the condition image is display-referred already), written atomically. rgb:
     (H, W, 3) float in [0, 1] (rounded to 8 bits) or uint8 (written as it is); (H, W): an 8-bit greyscale PNG (a
     nuScenes map). ``text``: Latin-1 keyword -> value pairs written as ``tEXt`` chunks before the pixels
     (``has_text`` reads them back)."""
-    a = rgb if rgb.dtype == np.uint8 else (np.clip(rgb, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+    a = eight_bit(rgb)
     H, W = a.shape[:2]
     channels = 1 if a.ndim == 2 else 3
     raw = np.concatenate([np.zeros((H, 1), np.uint8), a.reshape(H, W * channels)], axis=1).tobytes()

@@ -145,8 +145,6 @@ UNMIRRORED = {
     "backend/render/labelled.py": "tested by tests/backend/render/test_command_labels.py: labelled previews of a "
                                   "render",
     "backend/render/points.py": "tested by tests/backend/render/test_points_cpu.py: the torch reference z-buffer",
-    "backend/render/scene_cache.py": "exercised by tests/backend/test_serve.py: a warm backend keeps the points and "
-                                     "assets it loaded (bit-identical layers)",
     "backend/render/tiles.py": "tested by tests/backend/render/test_gaussians.py: tile binning, against the dense "
                                "render",
     "backend/render/tiles_cpu.py": "tested by tests/backend/render/test_project_cpu.py: the counting sort's tile lists",

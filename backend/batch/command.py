@@ -148,7 +148,11 @@ def run_batch(items: list[str], command: str, device: str, checkpoint: str | Non
     results, result_of = [], {}   # item index -> its result, for the copies that follow it
     # Ctrl-C too (a second one aborts): the running job stops after its current frame or step, the rest are not
     # run, and the summary still says what ran
-    with events.stop_on_sigterm(sigint=True) as stop:
+    # the jobs of this process share what they load (``render.scene_cache``): variants of one recording clean its
+    # points once, not once per job; a changed file is read again (its identity is in the key)
+    from ..render import scene_cache
+
+    with events.stop_on_sigterm(sigint=True) as stop, scene_cache.shared("batch", "an earlier job of this batch"):
         for n, k in enumerate(mine):
             path = items[k]
             if first[k] != k:  # the same job as an earlier item of this rank: its result, saying which item ran it

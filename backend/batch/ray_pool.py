@@ -212,6 +212,11 @@ def _run_job(path: str, command: str, device: str, options: dict, task: str, job
 
         yield {STARTED: worker, "node": ray.get_runtime_context().get_node_id(), "pid": os.getpid()}
         os.environ[locking.TASK_ENV] = task
+        # a worker runs many jobs: what they load is kept for the next (``render.scene_cache``, bounded; a changed
+        # file is read again), so variants of one recording clean its points once per worker, not once per job
+        from ..render import scene_cache
+
+        scene_cache.enable(("Ray worker", "an earlier job on this worker"))
         t0, started = time.perf_counter(), time.time()
         try:
             with events.log_scope():  # a bug's traceback goes to this job's backend.log

@@ -251,6 +251,10 @@ def _render(job_path, job, device, force, point_radius, stop, log, out, allow_ou
         log(f"render: {len(plan.render)} of {total} frames changed since they were rendered (their cameras, or "
             f"the assets they can see); the other {total - len(plan.render)} are kept")
     warned = sum(_warn(plan.done[e.frame]) for e in job.frames if e.frame in plan.done)  # said again every run
+    # the labels of the frames to render go first, all at once (one folder walk, not one per frame): a kill before a
+    # frame's new labels are written leaves it unfinished, never its new EXR under its old labels' key (a frame in
+    # the plan is out of date already: without its labels it is rendered again, as it would have been)
+    outputs.remove_listed(cond, [FRAME_LABELS.name(e.frame) for e in job.frames if e.frame in plan.render])
     labelling = None
     relabelled = 0
     # the frames' files are written while the next frame renders; on leaving, every frame started is whole and
@@ -285,13 +289,10 @@ def _render(job_path, job, device, force, point_radius, stop, log, out, allow_ou
             elif f not in plan.render:
                 skipped += 1
             else:
-                # its labels go first: a kill before its new labels are written leaves the frame unfinished, never
-                # the new EXR under the old frame's key
-                outputs.remove_listed(cond, [FRAME_LABELS.name(f)])
                 t = time.perf_counter()
                 kept = {}
                 layers = fr.render_frame(scene, entry, W, H, point_radius, keep=kept)
-                amodal = fr.amodal_pixels(scene, entry, W, H, projection=kept["projection"])
+                amodal = fr.frame_amodal(scene, entry, W, H, kept)  # from the frame's own walk on the CPU
                 render_s = time.perf_counter() - t
 
                 def finish(written, f=f, exr_path=exr_path, png_path=png_path, hole=layers[channels.HOLE].mean(),
@@ -338,14 +339,16 @@ class _Labelling:
         events.artifact(self.layout.labelled_preview(f), frame=f, kind="labelled")
         events.artifact(self.layout.frame_labels(f), frame=f, kind="labels")
 
-    def write_files(self, index: int, layers: dict, amodal) -> dict:
-        """``write`` without its events (for a writer thread: ``report`` says them on the events' thread)."""
+    def write_files(self, index: int, layers: dict, amodal, image=None) -> dict:
+        """``write`` without its events (for a writer thread: ``report`` says them on the events' thread).
+        ``image``: the condition image as the preview wrote it ((H, W, 3) uint8), else made from ``layers``."""
         f = self.job.frames[index].frame
         lab = labels_mod.frame_labels(self.job, index, instance=layers[channels.INSTANCE],
                                       hole=layers[channels.HOLE], depth=layers[channels.DEPTH], amodal_pixels=amodal,
                                       asset_boxes=self.boxes, asset_hashes=self.hashes, key=self.keys[f],
                                       layers_key=self.layers_keys[f])
-        labelled.write(self.layout.labelled_preview(f), np.stack([layers[c] for c in channels.IMAGE], -1), lab)
+        labelled.write(self.layout.labelled_preview(f),
+                       np.stack([layers[c] for c in channels.IMAGE], -1) if image is None else image, lab)
         outputs.write_json(self.layout.frame_labels(f), lab)
         return lab
 
@@ -359,8 +362,10 @@ def _write_frame(labelling: _Labelling, index: int, layers: dict, amodal, half: 
     entry = labelling.job.frames[index]
     W, H = labelling.job.resolution
     channels.write(exr_path, layers, half=half, camera=channels.camera_attributes(entry.K, entry.world_to_camera, W, H))
-    png.write_png(png_path, np.stack([layers[c] for c in channels.IMAGE], axis=-1))
-    return labelling.write_files(index, layers, amodal), time.perf_counter() - t
+    # the 8-bit image once, for the preview and the labelled preview (write_png's rounding)
+    image = png.eight_bit(np.stack([layers[c] for c in channels.IMAGE], axis=-1))
+    png.write_png(png_path, image)
+    return labelling.write_files(index, layers, amodal, image), time.perf_counter() - t
 
 
 def _relabel(labelling: _Labelling, index: int, old: dict) -> int:

@@ -99,6 +99,52 @@ def load_asset(path: str, name: str, object_to_world: dict, device: str | torch.
     return dataclasses.replace(made, name=name, object_to_world=object_to_world)
 
 
+@dataclass(frozen=True)
+class KeptCloud:
+    """A scene's cleaned points in world metres, as ``scene_cache`` keeps them (only ever read): ``positions``
+    (P, 3) float64, ``colors`` (P, 3), ``frame`` (P,) int64 source frame, in the cloud's order; ``frames_present``;
+    ``slices`` {frame: (start, stop)} (None: a frame's points are not contiguous) and ``lows``, ``highs`` {frame:
+    (3,) float64 world corners of its points}; ``removed_points`` and the cleaning's ``stats``. Whatever does not
+    depend on a job's scene origin, made once per cloud: a batch's jobs on one recording (cameras moved, cars
+    changed) place it with ``place`` alone."""
+    positions: np.ndarray
+    colors: np.ndarray
+    frame: np.ndarray
+    frames_present: frozenset
+    slices: dict | None
+    lows: dict
+    highs: dict
+    removed_points: int
+    stats: dict
+
+    @classmethod
+    def of(cls, cloud, keep: np.ndarray, stats: dict) -> KeptCloud:
+        """From ``cleaning.clean_cloud``'s (cloud, keep, stats)."""
+        positions = np.asarray(cloud.positions[keep], np.float64)
+        frame = np.asarray(cloud.frame[keep]).astype(np.int64)
+        slices, lows, highs = None, {}, {}
+        if not (len(frame) and np.any(np.diff(frame) < 0)):  # frame_index's rule: contiguous frames only
+            values, starts = np.unique(frame, return_index=True)
+            stops = np.append(starts[1:], len(frame))
+            slices = {}
+            for f, a, b in zip(values.tolist(), starts.tolist(), stops.tolist()):
+                slices[f] = (a, b)
+                lows[f], highs[f] = positions[a:b].min(0), positions[a:b].max(0)
+        stats = dict(stats)
+        removed = stats.pop("removed_points")
+        return cls(positions, cloud.colors[keep], frame, frozenset(np.unique(frame).tolist()), slices, lows, highs,
+                   removed, stats)
+
+    def boxes(self, origin: np.ndarray) -> dict | None:
+        """``frame_index``' boxes of the points placed at ``origin`` ((2, 3) float64 per frame), from the world
+        corners: float32(p - origin) is monotone in p (each rounding is), so its per-frame min and max are those
+        of the corners, bit for bit."""
+        if self.slices is None:
+            return None
+        return {f: np.stack([(self.lows[f] - origin).astype(np.float32),
+                             (self.highs[f] - origin).astype(np.float32)]).astype(np.float64) for f in self.slices}
+
+
 def load_points(scene: Scene, job: job_mod.Job, job_path: str) -> Scene:
     """Load the job's cleaned points into ``scene`` (``load_scene``'s first half; nothing without a job scene)."""
     if job.scene is None:
@@ -107,22 +153,20 @@ def load_points(scene: Scene, job: job_mod.Job, job_path: str) -> Scene:
     # as the import loaded it: the same reading of the poses, the same crop (NaN/inf pixels are dropped)
     def clean():
         pred = job_inputs.scene_predictions(job_path, sc)
-        return cleaning.clean_cloud(pred, sc.confidence_percentile, sc.vggt_to_world, sc.point_cleaning,
-                                    sc.removal_boxes)
+        return KeptCloud.of(*cleaning.clean_cloud(pred, sc.confidence_percentile, sc.vggt_to_world,
+                                                  sc.point_cleaning, sc.removal_boxes))
 
-    # a warm backend keeps the cleaned cloud (scene_cache): everything below copies out of it, never into it
-    cloud, keep, stats = scene_cache.points(job_mod.resolve(job_path, sc.predictions), job.layers_dict()["scene"],
-                                            clean)
-    stats = dict(stats)
-    scene.removed_points = stats.pop("removed_points")
-    scene.cleaning = stats
-    xyz = cloud.positions[keep] - origin
-    frame = cloud.frame[keep]
-    scene.xyz = torch.as_tensor(xyz.astype(np.float32), device=device)
-    scene.rgb = torch.as_tensor(cloud.colors[keep], device=device)
-    scene.frame = torch.as_tensor(frame.astype(np.int64), device=device)
-    scene.frames_present = frozenset(np.unique(frame).tolist())
-    scene.frame_slices, scene.frame_boxes = frame_index(frame, scene.xyz.cpu().numpy())
+    # a warm backend, a batch's worker and a rig job keep the cleaned cloud (scene_cache): everything below copies
+    # out of it, never into it
+    kept = scene_cache.points(job_mod.resolve(job_path, sc.predictions), job.layers_dict()["scene"], clean)
+    scene.removed_points = kept.removed_points
+    scene.cleaning = dict(kept.stats)
+    scene.xyz = torch.as_tensor((kept.positions - origin).astype(np.float32), device=device)
+    scene.rgb = torch.as_tensor(np.array(kept.colors), device=device)
+    scene.frame = torch.as_tensor(np.array(kept.frame), device=device)
+    scene.frames_present = kept.frames_present
+    scene.frame_slices = None if kept.slices is None else dict(kept.slices)
+    scene.frame_boxes = kept.boxes(origin)
     return scene
 
 
@@ -221,7 +265,9 @@ def render_frame(scene: Scene, entry: job_mod.Frame, width: int, height: int, po
     ``scene.skip_unseen`` the source frames ``visible_frames`` rules out are not projected and the Gaussian pass
     is skipped when ``asset_unseen`` holds for every asset: the same layers, less work. ``keep``: a dict that
     receives the Gaussians' projection as ``keep["projection"]`` (None when the pass was skipped), for
-    ``amodal_pixels``."""
+    ``amodal_pixels``, and, where the CPU tile kernel composited the frame, ``keep["amodal"]``: ``amodal_pixels``'
+    counts from the same walk (``tiles_cpu.rasterize_amodal``: exact, no second render); ``frame_amodal`` takes
+    whichever the frame left."""
     dev = scene.device
     warmup.ensure(dev.type)  # the kernels compiled before the first frame, saying so (not cached yet) or loaded
     K = np.asarray(entry.K, np.float64)
@@ -237,15 +283,19 @@ def render_frame(scene: Scene, entry: job_mod.Frame, width: int, height: int, po
     zmed = torch.full((height, width), float("inf"), device=dev)
     instance = torch.zeros((height, width), dtype=torch.int32, device=dev)
     if keep is not None:
-        keep["projection"] = None
+        keep["projection"] = keep["amodal"] = None
     # no Gaussian pass when no asset can reach a pixel: its output would be no colour, M_a = 0, no depth
     if scene.assets and not (scene.skip_unseen and all(
             asset_unseen(a, entry.frame, scene.origin, K, w2c, width, height) for a in scene.assets)):
         proj = project_assets(scene, range(len(scene.assets)), entry.frame, K, w2c, width, height)
         if keep is not None:
             keep["projection"] = proj
-        rasterize = gs.rasterize if reference else functools.partial(tiles.rasterize, tile=tile)
-        color_g, asset_mask, zmed, instance = rasterize(proj, width, height, background_depth=depth)
+        if keep is not None and not reference and dev.type == "cpu" and len(proj["depth"]):
+            color_g, asset_mask, zmed, instance, keep["amodal"] = _rasterize_amodal(
+                proj, width, height, depth, tile, len(scene.assets))
+        else:
+            rasterize = gs.rasterize if reference else functools.partial(tiles.rasterize, tile=tile)
+            color_g, asset_mask, zmed, instance = rasterize(proj, width, height, background_depth=depth)
         image = color_g + (1.0 - asset_mask)[..., None] * image
     hole = torch.isinf(depth) & (asset_mask < gs.ALPHA_MIN)
     z = torch.where(zmed < depth, zmed, depth)
@@ -253,6 +303,30 @@ def render_frame(scene: Scene, entry: job_mod.Frame, width: int, height: int, po
     layers = dict(zip(ch.CHANNELS, (img[..., 0], img[..., 1], img[..., 2], hole, asset_mask, z, instance)))
     layers = {k: v.to(torch.float32) for k, v in layers.items()}
     return {k: v.cpu().numpy() for k, v in layers.items()} if to_numpy else layers
+
+
+def _rasterize_amodal(proj: dict, width: int, height: int, depth: torch.Tensor, tile: int | None,
+                      n_assets: int) -> tuple:
+    """``tiles.rasterize`` on the CPU (its tile kernel, its default tile, its shapes and dtype) with the amodal
+    counts of the same walk (``tiles_cpu.rasterize_amodal``), as (A,) int64 for the scene's A assets. The CUDA and
+    reference paths keep ``amodal_pixels``' second render (their kernels do not count it)."""
+    from . import raster_choice, tiles_cpu
+
+    tile = raster_choice.choose("cpu", len(proj["depth"]), width, height, method="tiles", tile=tile).tile
+    color, asset_mask, zmed, instance, amodal = tiles_cpu.rasterize_amodal(proj, width, height, depth, tile)
+    counts = np.zeros(n_assets, np.int64)
+    counts[:len(amodal)] = amodal
+    dt = proj["mean2d"].dtype
+    return (color.reshape(height, width, 3).to(dt), asset_mask.reshape(height, width).to(dt),
+            zmed.reshape(height, width).to(dt), instance.reshape(height, width), counts)
+
+
+def frame_amodal(scene: Scene, entry: job_mod.Frame, width: int, height: int, kept: dict) -> np.ndarray:
+    """``amodal_pixels`` of a frame ``render_frame(keep=kept)`` rendered: the counts its kernel made on the way
+    (``kept["amodal"]``, the CPU tile kernel), else ``amodal_pixels`` on its projection (a render per asset)."""
+    if kept.get("amodal") is not None:
+        return kept["amodal"]
+    return amodal_pixels(scene, entry, width, height, projection=kept["projection"])
 
 
 def project_assets(scene: Scene, which: Sequence[int], frame: int, K: np.ndarray, w2c: np.ndarray, width: int,

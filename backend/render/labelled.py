@@ -27,6 +27,8 @@ IGNORE_COLOUR, HATCH_COLOUR, HATCH_PERIOD = (170, 170, 170), (60, 60, 60), 6
 def hatch(img: np.ndarray, regions: list) -> None:
     """Grey out and hatch ``regions`` ([x0, y0, x1, y1] continuous pixel boxes) of (H, W, 3) uint8 ``img`` in place:
     the pixels whose centres they hold, each once however many regions cover it."""
+    if not regions:  # nothing to grey: no full-image mask and diagonal pattern
+        return
     H, W = img.shape[:2]
     mask = np.zeros((H, W), bool)
     for x0, y0, x1, y1 in regions:
@@ -85,8 +87,7 @@ def draw(rgb, labels: dict) -> np.ndarray:
     """(H, W, 3) uint8: ``rgb`` (float [0, 1] or uint8) with ``labels`` (``core.labels``) drawn on it."""
     import cv2
 
-    img = rgb if rgb.dtype == np.uint8 else (np.clip(rgb, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
-    img = np.ascontiguousarray(img.copy())
+    img = np.ascontiguousarray(png.eight_bit(rgb).copy())
     H, W = img.shape[:2]
     K = np.asarray(labels["camera"]["K"], np.float64)
     scale = max(0.4, min(W, H) / 600.0)   # OpenCV's font scale: ~0.4 keeps 10 px letters legible at 518 x 294

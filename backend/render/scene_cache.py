@@ -5,13 +5,16 @@ loads everything once anyway); ``frames.load_points`` and ``frames.load_asset`` 
 
 Keys (what the cached value depends on, and nothing a request can change without changing the key):
 
-- points: the predictions file (real path, size, mtime in ns: ``core.frame_keys.stamp``, what the frame keys take
-  of it) and the job's scene settings the cloud is made from (``Job.layers_dict()["scene"]`` without the path as
-  the job wrote it: ``vggt_to_world``, confidence, extrinsic convention, crop, removal boxes, point cleaning). The
-  value is ``cleaning.clean_cloud``'s result; each job then takes its own copy relative to its own scene origin on
-  its device (``frames.load_points``), so a moved camera path or another device still finds the cloud.
-- assets: the file (real path, size, mtime) and the device; the value is ``frames.make_asset``'s, whose tensors
-  are only ever read (each job's ``Asset`` gets its own name and transforms).
+- points: the predictions file (``identity``: real path, device and inode, size, mtime and ctime in ns) and the
+  job's scene settings the cloud is made from (``Job.layers_dict()["scene"]`` without the path as the job wrote it:
+  ``vggt_to_world``, confidence, extrinsic convention, crop, removal boxes, point cleaning). The value is
+  ``frames.KeptCloud`` (``cleaning.clean_cloud``'s points); each job then takes its own copy relative to its own
+  scene origin on its device (``frames.load_points``), so a moved camera path or another device still finds it.
+- assets: the file (``identity``) and the device; the value is ``frames.make_asset``'s, whose tensors are only
+  ever read (each job's ``Asset`` gets its own name and transforms).
+
+A file replaced (a new inode) or written again in place (a new ctime, which no program can set back, even with
+the same size and a restored mtime) is read again.
 
 Bounded: the last ``POINTS_KEPT`` clouds and ``ASSETS_KEPT`` assets used. A hit is logged to the log of the
 command running (``events.log_here``: the output folder's ``backend.log``).
@@ -24,8 +27,6 @@ import contextlib
 import json
 import os
 from typing import TYPE_CHECKING
-
-from scpainter_blender.core import frame_keys
 
 from .. import events
 
@@ -41,9 +42,12 @@ _kept: dict | None = None
 _source = ("warm backend", "an earlier request")
 
 
-def enable() -> None:
-    """Keep what is loaded from now on (the warm backend, at its start)."""
-    global _kept
+def enable(source: tuple[str, str] | None = None) -> None:
+    """Keep what is loaded from now on (the warm backend, at its start; a Ray worker of a batch). ``source``: the
+    words of a hit's log line (whose memory, who loaded it), default a warm backend's."""
+    global _kept, _source
+    if source is not None:
+        _source = source
     if _kept is None:
         _kept = {"points": collections.OrderedDict(), "assets": collections.OrderedDict()}
 
@@ -88,17 +92,24 @@ def _get(kind: str, key: str, make, limit: int, what: str):
     return value
 
 
+def identity(path: str) -> list[int]:
+    """What a kept value takes of an input file: [st_dev, st_ino, size, mtime ns, ctime ns] of its real path
+    (``os.stat``; OSError when it is gone)."""
+    st = os.stat(path)
+    return [int(st.st_dev), int(st.st_ino), int(st.st_size), int(st.st_mtime_ns), int(st.st_ctime_ns)]
+
+
 def points(path: str, scene_settings: dict, make):
     """The cleaned cloud of the predictions at ``path`` under ``scene_settings`` (the job's ``layers_dict``
     scene): ``make()``'s result, or the one kept for the same file and settings."""
     real = os.path.realpath(path)
     settings = {k: v for k, v in scene_settings.items() if k != "predictions"}  # the file is named by ``real``
-    key = json.dumps([real, frame_keys.stamp(real), settings], sort_keys=True)
+    key = json.dumps([real, identity(real), settings], sort_keys=True)
     return _get("points", key, make, POINTS_KEPT, f"the points of {path}")
 
 
 def asset(path: str, device, make):
     """The asset made from the Gaussian file at ``path`` on ``device``: ``make()``'s result, or the one kept."""
     real = os.path.realpath(path)
-    key = json.dumps([real, frame_keys.stamp(real), str(device)])
+    key = json.dumps([real, identity(real), str(device)])
     return _get("assets", key, make, ASSETS_KEPT, f"the Gaussians of {path}")

@@ -101,11 +101,20 @@ def _bin(boxes, tile, tiles_x, n_tiles):
 
 @njit(parallel=True, cache=True, nogil=True)
 def _composite(params, colors, boxes, entries, tile_start, bg, width, height, tiles_x, tile, n_assets, out_c,
-               out_mask, out_z, out_inst):
+               out_mask, out_z, out_inst, amodal, out_amodal):
     """Run under ``numba.set_parallel_chunksize(CHUNK_TILES)`` (``rasterize``): tiles handed out dynamically.
     ``out_inst`` (HW,) int32 must hold 0 on entry (tiles without Gaussians are not written). The instance: per
     pixel a small per-asset accumulator w[a] (``n_assets`` entries, allocated per tile, reset per pixel), then the
-    first maximum; with one asset only the sum of the weights (the same additions in the same order)."""
+    first maximum; with one asset only the sum of the weights (the same additions in the same order).
+
+    ``amodal`` (``rasterize_amodal``): also each asset's pixels as it would be alone, into ``out_amodal``
+    (n_tiles, n_assets) int64, zero on entry. Per pixel and asset a the alone pass's state (its transmittance
+    T_a, weight W_a, stopped) follows a's entries of the tile list, which are the alone render's list in the same
+    order with the same numbers (the same rows, depth ranks and tile): the same operations give the same floats,
+    without the points' depth and the other assets. W_a only grows and T_a only falls, so once W_a > T_a (the
+    alone instance rule) the pixel is a's whatever follows: a's walk ends there, or at its stop, or after its last
+    entry in the tile. Where the frame's own walk ends early (behind the pixel's point, or saturated) the alone
+    walks still open go on from there, alone."""
     n_tiles = len(tile_start) - 1
     for t in prange(n_tiles):
         first, last = tile_start[t], tile_start[t + 1]
@@ -129,6 +138,15 @@ def _composite(params, colors, boxes, entries, tile_start, bg, width, height, ti
             loc[j, 7], loc[j, 8], loc[j, 9] = colors[k, 0], colors[k, 1], colors[k, 2]
             for c in range(4):
                 loc_box[j, c] = boxes[k, c]
+        # the alone passes: per asset its last entry in this tile (-1: none) and, per pixel, T_a, W_a and its state
+        # (0 open, 1 stopped, 2 decided (W_a > T_a), 3 past its last entry)
+        n_alone = n_assets if amodal else 0
+        last = np.full(n_alone, -1, np.int64)
+        t_alone = np.empty(n_alone, np.float64)
+        w_alone = np.empty(n_alone, np.float64)
+        state = np.empty(n_alone, np.int8)
+        for j in range(n if amodal else 0):
+            last[loc_asset[j]] = j
         for py in range(ty0, min(ty0 + tile, height)):
             for px in range(tx0, min(tx0 + tile, width)):
                 pix = py * width + px
@@ -137,8 +155,15 @@ def _composite(params, colors, boxes, entries, tile_start, bg, width, height, ti
                     w_asset[:] = 0.0
                 fx, fy = px - tx0 + 0.5, py - ty0 + 0.5  # tile-relative, as the means are
                 zbg = bg[pix]
+                n_open = 0
+                for a in range(n_alone):
+                    t_alone[a], w_alone[a] = 1.0, 0.0
+                    state[a] = 0 if last[a] >= 0 else 3
+                    n_open += last[a] >= 0
+                stop = n  # the first entry the frame's walk did not take
                 for e in range(n):
                     if loc[e, 0] >= zbg:
+                        stop = e
                         break  # depth order: this and every later Gaussian are behind the pixel's point
                     if px < loc_box[e, 0] or px > loc_box[e, 1] or py < loc_box[e, 2] or py > loc_box[e, 3]:
                         continue
@@ -149,8 +174,11 @@ def _composite(params, colors, boxes, entries, tile_start, bg, width, height, ti
                     alpha = min(ALPHA_MAX, loc[e, 6] * math.exp(power))
                     if alpha < ALPHA_MIN:
                         continue
+                    if amodal:
+                        n_open -= _alone_step(loc_asset[e], alpha, t_alone, w_alone, state)
                     trans_next = trans * (1.0 - alpha)
                     if trans_next < TRANSMITTANCE_MIN:
+                        stop = e + 1
                         break
                     w = alpha * trans
                     r += w * loc[e, 7]
@@ -175,6 +203,50 @@ def _composite(params, colors, boxes, entries, tile_start, bg, width, height, ti
                         out_inst[pix] = best + 1
                 elif w_sum > trans:
                     out_inst[pix] = 1
+                if not amodal:
+                    continue
+                for a in range(n_alone):  # open assets with no entry left after the frame's walk: done
+                    if state[a] == 0 and last[a] < stop:
+                        state[a] = 3
+                        n_open -= 1
+                for e in range(stop, n):  # the alone walks the frame's walk left open
+                    if n_open == 0:
+                        break
+                    a = loc_asset[e]
+                    if state[a] != 0:
+                        continue
+                    if not (px < loc_box[e, 0] or px > loc_box[e, 1] or py < loc_box[e, 2] or py > loc_box[e, 3]):
+                        dx, dy = fx - loc[e, 1], fy - loc[e, 2]
+                        power = -0.5 * (loc[e, 3] * dx * dx + 2.0 * loc[e, 4] * dx * dy + loc[e, 5] * dy * dy)
+                        if power <= 0.0:
+                            alpha = min(ALPHA_MAX, loc[e, 6] * math.exp(power))
+                            if alpha >= ALPHA_MIN:
+                                n_open -= _alone_step(a, alpha, t_alone, w_alone, state)
+                    if state[a] == 0 and e == last[a]:
+                        state[a] = 3
+                        n_open -= 1
+                for a in range(n_alone):
+                    if last[a] >= 0 and w_alone[a] > t_alone[a]:
+                        out_amodal[t, a] += 1
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _alone_step(a, alpha, t_alone, w_alone, state):
+    """One Gaussian of asset ``a`` (its α at the pixel) in a's alone pass, as the kernel composites a single asset
+    with no point behind (the same operations in the same order); 1 when it closes a's walk (stopped or decided),
+    else 0."""
+    if state[a] != 0:
+        return 0
+    trans_next = t_alone[a] * (1.0 - alpha)
+    if trans_next < TRANSMITTANCE_MIN:
+        state[a] = 1
+        return 1
+    w_alone[a] += alpha * t_alone[a]
+    t_alone[a] = trans_next
+    if w_alone[a] > t_alone[a]:
+        state[a] = 2
+        return 1
+    return 0
 
 
 @njit(cache=True, nogil=True)
@@ -235,6 +307,20 @@ def rasterize(proj: dict, width: int, height: int, background_depth: torch.Tenso
               tile: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """``tiles.rasterize`` on CPU tensors: (color (HW, 3), asset_mask (HW) = 1 - transmittance, depth (HW)) float32
     and instance (HW) int32 (``gaussians.rasterize``' rule; T_rest is the running product of (1 - α))."""
+    return _rasterize(proj, width, height, background_depth, tile, False)[:4]
+
+
+def rasterize_amodal(proj: dict, width: int, height: int, background_depth: torch.Tensor | None,
+                     tile: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, np.ndarray]:
+    """``rasterize``'s four layers and, from the same walk, amodal (A,) int64, A = the largest asset id: for each
+    asset the pixels it would be the instance of if it were rendered alone (no background depth, no other asset),
+    i.e. what ``rasterize`` of its own rows of ``proj`` with no background counts as instance > 0 with the same
+    ``tile``: exactly the same count (the same numbers in the same order, see ``_composite``), without rendering
+    it again (``frames.amodal_pixels`` renders each asset alone)."""
+    return _rasterize(proj, width, height, background_depth, tile, True)
+
+
+def _rasterize(proj, width, height, background_depth, tile, amodal):
     _, params, colors, boxes, tile_start, entries, tiles_x = prepare(proj, width, height, tile)
     n_assets = int(params[:, _ASSET].max()) if len(params) else 1
     bg = (np.full(height * width, np.inf) if background_depth is None
@@ -243,11 +329,13 @@ def rasterize(proj: dict, width: int, height: int, background_depth: torch.Tenso
     out_mask = torch.zeros(height * width, dtype=torch.float32)
     out_z = torch.full((height * width,), float("inf"), dtype=torch.float32)
     out_inst = torch.zeros(height * width, dtype=torch.int32)
+    # per tile and asset (summed after): the tiles run in parallel, each writes only its own row
+    out_amodal = np.zeros((len(tile_start) - 1 if amodal else 0, n_assets), np.int64)
     # dynamic scheduling: an asset fills a few neighbouring tiles, which static halves would leave to one thread
     previous = set_parallel_chunksize(CHUNK_TILES)
     try:
         _composite(params, colors, boxes, entries, tile_start, bg, width, height, tiles_x, tile, n_assets,
-                   out_c.numpy(), out_mask.numpy(), out_z.numpy(), out_inst.numpy())
+                   out_c.numpy(), out_mask.numpy(), out_z.numpy(), out_inst.numpy(), amodal, out_amodal)
     finally:
         set_parallel_chunksize(previous)
-    return out_c, out_mask, out_z, out_inst
+    return out_c, out_mask, out_z, out_inst, out_amodal.sum(0)

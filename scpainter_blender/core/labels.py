@@ -202,6 +202,14 @@ def pixel_box(mask) -> list | None:
     return [float(xs.min()), float(ys.min()), float(xs.max() + 1), float(ys.max() + 1)]
 
 
+def _id_box(ys: np.ndarray, xs: np.ndarray, sel: np.ndarray) -> list | None:
+    """``pixel_box`` of the pixels (ys[sel], xs[sel]) (the same numbers as of their mask)."""
+    if not sel.any():
+        return None
+    ys, xs = ys[sel], xs[sel]
+    return [float(xs.min()), float(ys.min()), float(xs.max() + 1), float(ys.max() + 1)]
+
+
 def _box_dict(pose: dict, yaw: float) -> dict:
     return {"center": [float(v) for v in pose["center"]], "size": [float(v) for v in pose["size"]],
             "yaw": float(yaw), "quaternion": [float(v) for v in pose["quaternion"]]}
@@ -414,6 +422,9 @@ def frame_labels(job: job_mod.Job, index: int, *, instance, hole, depth, amodal_
     objects = []
     ids = np.rint(instance).astype(np.int64)
     visible_counts = np.bincount(ids.ravel(), minlength=len(job.assets) + 1)
+    # the labelled pixels' coordinates once (a car covers a few % of the image), each asset's box from its own
+    ys, xs = np.nonzero(ids)
+    labelled = ids[ys, xs]
     hole_counts = np.bincount(ids[hole], minlength=len(job.assets) + 1)
     for a_i, (asset, (box_to_file, size, source)) in enumerate(zip(job.assets, asset_boxes)):
         track = a_i + 1
@@ -424,7 +435,8 @@ def frame_labels(job: job_mod.Job, index: int, *, instance, hole, depth, amodal_
                          index=index, fps=fps, centres=centres)
         visible, amodal = int(visible_counts[track]), int(amodal_pixels[a_i])
         obj.update({"asset": {"file": asset.ply, "sha256": asset_hashes[a_i]}, "box_source": source,
-                    "removed": False, **_pixel_fields(pixel_box(ids == track) if visible else None, visible, amodal),
+                    "removed": False, **_pixel_fields(_id_box(ys, xs, labelled == track) if visible else None, visible,
+                                                   amodal),
                     "ignore": False, "points_missing": False,
                     "hole_fraction": int(hole_counts[track]) / visible if visible else None})
         objects.append(_ordered(obj))

@@ -224,3 +224,33 @@ def test_a_job_listed_again_runs_once_and_each_rank_refuses_the_same_items(tmp_p
     rank0, _ = batch.run_batch(items, "render", "cpu", shard_of=(0, 2))   # items 0 and 2, and 3 (a copy of 0)
     assert [r["job"] for r in rank0] == [items[0], items[2], items[3]], rank0
     assert [r["status"] for r in rank0] == ["ok"] * 3 and rank0[2]["duplicate_of"] == 0 and rank0[0]["rendered"] == 3
+
+
+def test_the_jobs_of_one_process_clean_their_shared_points_once(tmp_path):
+    """Variants of one recording in one batch process: the second job takes the points the first cleaned (its
+    backend.log says so) and renders the same layers as the job run alone. Nothing stays kept after the batch (a
+    changed file is read again: tests/backend/render/test_scene_cache.py)."""
+    from backend.render import channels, scene_cache
+    from backend.render import command as render_cmd
+    from tests_support import variant_jobs
+
+    shared, jobs = variant_jobs(tmp_path)
+    served = "batch: the points of"
+
+    def log(job):
+        with open(os.path.join(os.path.dirname(job), "out", "backend.log")) as f:
+            return f.read()
+
+    results, _ = batch.run_batch(jobs, "render", "cpu", shard_of=(0, 1), data_roots={j: (shared,) for j in jobs})
+    assert [r["status"] for r in results] == ["ok", "ok"], results
+    assert served not in log(jobs[0])
+    assert served in log(jobs[1]) and "served from memory (loaded by an earlier job of this batch)" in log(jobs[1])
+    assert scene_cache._kept is None
+    alone = tmp_path / "alone"
+    os.makedirs(alone)
+    J.save(alone / "job.json", J.load(jobs[1]).to_dict())
+    render_cmd.render_job(str(alone / "job.json"), J.load(alone / "job.json"), "cpu", data_roots=(shared,))
+    for f in (1, 2):
+        name = os.path.join("out", "conditions", f"frame_{f:06d}.exr")
+        got, want = (channels.read(os.path.join(d, name)) for d in (os.path.dirname(jobs[1]), str(alone)))
+        assert all(np.array_equal(got[k], want[k], equal_nan=True) for k in want)

@@ -103,7 +103,7 @@ def test_kernel_gives_identical_layers_from_either_list():
             out = (np.zeros((48 * 64, 3), np.float32), np.zeros(48 * 64, np.float32), np.zeros(48 * 64, np.float32),
                    np.zeros(48 * 64, np.int32))
             tiles_cpu._composite(params, colors, boxes, np.ascontiguousarray(ent), np.ascontiguousarray(start),
-                                 background, 64, 48, tiles_x, 8, 1, *out)
+                                 background, 64, 48, tiles_x, 8, 1, *out, False, np.zeros((0, 1), np.int64))
             outs.append(out)
         assert all(np.array_equal(a, b) for a, b in zip(*outs))
         assert outs[0][1].max() > 0.5

@@ -234,8 +234,9 @@ def check_svd_folder(path: str) -> None:
 # -------------------------------------------------------------------------------------------------- loading
 
 def load(path: str, device="cpu", dtype=None) -> dict:
-    """The checkpoint's components on ``device``: UNet and CLIP in ``dtype`` (float32 when None); the VAE and the
-    condition encoder in ``dtype`` too, except float16 on a VAE that asks for upcasting (SVD's does); ``config``
+    """The checkpoint's components on ``device``: UNet, CLIP and the VAE (which only decodes here, as stock SVD
+    decodes: in the model's dtype) in ``dtype`` (float32 when None); the condition encoder in ``dtype`` too, except
+    float32 for float16 when the VAE asks for upcasting (SVD's does: stock SVD encodes in float32); ``config``
     (ScpainterConfig), ``clip_mean``/``clip_std``, ``schedule`` (``edm.Schedule`` from
     ``scheduler/scheduler_config.json``: what the pipeline samples with and training's denoiser holds) and
     ``path``. The folder passes ``check`` first, so only safetensors are ever read."""
@@ -248,16 +249,16 @@ def load(path: str, device="cpu", dtype=None) -> dict:
     path = resolve(path)
     info = _check(path)
     dtype = dtype or torch.float32
-    vae_dtype = torch.float32 if (dtype == torch.float16 and info["force_upcast"]) else dtype
+    encoder_dtype = torch.float32 if (dtype == torch.float16 and info["force_upcast"]) else dtype
     loaders = {
         "unet": lambda: UNetSpatioTemporalConditionModel.from_pretrained(
             path, local_files_only=True, use_safetensors=True, subfolder="unet", torch_dtype=dtype),
         "vae": lambda: AutoencoderKLTemporalDecoder.from_pretrained(
-            path, local_files_only=True, use_safetensors=True, subfolder="vae", torch_dtype=vae_dtype),
+            path, local_files_only=True, use_safetensors=True, subfolder="vae", torch_dtype=dtype),
         "image_encoder": lambda: CLIPVisionModelWithProjection.from_pretrained(
             os.path.join(path, "image_encoder"), local_files_only=True, use_safetensors=True, dtype=dtype),
         "condition_encoder": lambda: ConditionEncoder.from_pretrained(
-            path, local_files_only=True, use_safetensors=True, subfolder="condition_encoder", torch_dtype=vae_dtype),
+            path, local_files_only=True, use_safetensors=True, subfolder="condition_encoder", torch_dtype=encoder_dtype),
     }
     models = {}
     for comp, make in loaders.items():

@@ -27,8 +27,8 @@ Sections (all by default):
   was (float32 VAE decode, condition encoder 8 frames at a time, CLIP and encoder kept) and as it is (decode in the
   model's dtype, one frame at a time, CLIP and encoder released after use), at the size asked for (the issue's:
   ``--size full --frames 14 --height 576 --width 1024 --precision fp16``); weights resident on the device included.
-* ``decode``: the decoder's error in the model's dtype against a float32 decode (mean and max abs, frames in
-  [0, 1]); on the CPU bf16 (PyTorch's fp16 convolutions on the CPU are a slow reference path: minutes).
+* ``decode``: the decoder's error in fp16 and in bf16 against a float32 decode (mean and max abs, frames in [0, 1];
+  on the CPU at a small size: PyTorch's fp16 convolutions there are a slow reference path).
 
 Writes ``<out>/generate_<size>_<device>.json`` (``--out``, default bench/results). ``--smoke``: the tiny model on the
 CPU at 2 frames of 32 x 64, every section, in seconds (tests/bench/test_generate.py). Random weights: a trained
@@ -80,7 +80,7 @@ SPEED_ROWS = [
     ("guidance σ ≥ 1", {"guidance_sigma_min": 1.0}),
     ("drop guidance-1 frames", {"drop_unguided": True}),
 ]
-SMOKE_ROWS = ("stock-equivalent", "default", "euler 8", "dpmpp2m 8", "feature reuse 2", "drop guidance-1 frames")
+SMOKE_ROWS = ("stock-equivalent", "default", "euler 8", "feature reuse 2")
 
 
 def sync(device):
@@ -248,7 +248,8 @@ def section_speed(args, ours, log, rows=SPEED_ROWS):
 
 class LiveBytes(TorchDispatchMode):
     """Bytes of the tensor storages that operators allocate inside the ``with`` block and still alive (``live``), and
-    their maximum (``peak``): a storage counts from the operator that made it until it is freed. Works on fake
+    their maximum (``peak``): a storage counts from the operator that made it until it is freed; storages an
+    operator receives that were made before (inputs, weights, and views of them) do not count. Works on fake
     tensors (their storages have sizes, no memory); a number the host reads from one (``float(t)``, ``bool(t)``: the
     pipeline's guidance and NaN checks) is ``SCALAR``: guidance above 1, checks passed."""
 
@@ -265,6 +266,9 @@ class LiveBytes(TorchDispatchMode):
     def __torch_dispatch__(self, func, types, args=(), kwargs=None):
         if func is torch.ops.aten._local_scalar_dense.default:
             return self.SCALAR
+        for t in tree_flatten((args, kwargs))[0]:   # storages made before the block (inputs, weights): not counted
+            if isinstance(t, torch.Tensor) and t.untyped_storage() not in self.seen:
+                self.seen[t.untyped_storage()] = 0
         out = func(*args, **(kwargs or {}))
         for t in tree_flatten(out)[0]:
             if isinstance(t, torch.Tensor):
@@ -318,23 +322,28 @@ def section_memory(args, log):
         stock = types.SimpleNamespace(vae=vae[dt])   # what StableVideoDiffusionPipeline.decode_latents reads
         size = cfg["clip"]["image_size"]
         ehs = cfg["unet"]["cross_attention_dim"]
+        # each stage's inputs exist before it (not counted: ours keeps the conditions and the frames on the host)
+        pixels, image = torch.randn(1, 3, size, size, dtype=dt), torch.rand(1, 3, H, W)
+        conditions = (torch.rand(F, 3, H, W), torch.rand(F, 1, H, W), torch.rand(F, 1, H, W))
+        stock_step = (torch.randn(2, F, 8, h, w, dtype=dt), torch.ones(2, dtype=dt), torch.randn(2, 1, ehs, dtype=dt),
+                      torch.randn(2, 3, dtype=dt))
+        our_step = (torch.randn(F, 4, h, w), torch.tensor(1.0), torch.randn(F, 4, h, w), torch.randn(1, 1, ehs),
+                    edm.guidance_ramp(F, 1.0, 3.0))
+        stock_latents, latents = torch.randn(1, F, 4, h, w, dtype=dt), torch.randn(F, 4, h, w)
         stages = {
             "CLIP embedding": (
-                lambda: clip(torch.randn(1, 3, size, size, dtype=dt)).image_embeds,
-                lambda p: clip_embeddings(clip, torch.rand(1, 3, H, W), p.clip_mean, p.clip_std)),
+                lambda: clip(pixels).image_embeds,
+                lambda p: clip_embeddings(clip, image, p.clip_mean, p.clip_std)),
             "condition encode (stock: one image, float32)": (
-                lambda: vae[torch.float32].encode(torch.randn(1, 3, H, W)).latent_dist.mode(),
-                lambda p: p.condition_latents(torch.rand(F, 3, H, W), torch.rand(F, 1, H, W), torch.rand(F, 1, H, W),
-                                              chunk=8 if p is before else CONDITION_CHUNK)),
+                lambda: vae[torch.float32].encode(image).latent_dist.mode(),
+                lambda p: p.condition_latents(*conditions, chunk=8 if p is before else CONDITION_CHUNK)),
             "UNet step (guidance batch of 2)": (
-                lambda: unet(torch.randn(2, F, 8, h, w, dtype=dt), torch.ones(2, dtype=dt),
-                             encoder_hidden_states=torch.randn(2, 1, ehs, dtype=dt),
-                             added_time_ids=torch.randn(2, 3, dtype=dt)),
-                lambda p: p.predict_x0(torch.randn(F, 4, h, w), torch.tensor(1.0), torch.randn(F, 4, h, w),
-                                       torch.randn(1, 1, ehs), edm.guidance_ramp(F, 1.0, 3.0))),
+                lambda: unet(stock_step[0], stock_step[1], encoder_hidden_states=stock_step[2],
+                             added_time_ids=stock_step[3]),
+                lambda p: p.predict_x0(*our_step)),
             "decode (chunk 8)": (
-                lambda: StableVideoDiffusionPipeline.decode_latents(stock, torch.randn(1, F, 4, h, w, dtype=dt), F, 8),
-                lambda p: p.decode(torch.randn(F, 4, h, w), chunk=8)),
+                lambda: StableVideoDiffusionPipeline.decode_latents(stock, stock_latents, F, 8),
+                lambda p: p.decode(latents, chunk=8)),
         }
         table = []
         for i, (name, (run_stock, run_ours)) in enumerate(stages.items()):
@@ -358,23 +367,26 @@ def section_memory(args, log):
 # ------------------------------------------------------------------------------------------------ decode
 
 def section_decode(args, comps, log):
-    """The VAE decoder in the model's dtype (bf16 on the CPU) against float32."""
+    """The VAE decoder in fp16 and bf16 against float32 (``pipeline.decode_dtype`` chooses fp16 on CUDA)."""
     dev = args.device
-    dt = DTYPES[args.precision] if dev == "cuda" else torch.bfloat16
     vae = copy.deepcopy(comps["vae"]).float().to(dev).eval()
     F, h, w = args.decode_frames, args.decode_height // 8, args.decode_width // 8
     z = torch.randn(F, 4, h, w, generator=torch.Generator().manual_seed(2)).to(dev)
+    rows = []
     with torch.no_grad():
         ref = ((vae.decode(z, num_frames=F).sample.float() + 1) / 2).clamp(0, 1)
-        low = copy.deepcopy(vae).to(dt)
-        out = ((low.decode(z.to(dt), num_frames=F).sample.float() + 1) / 2).clamp(0, 1)
-    row = {"dtype": {v: k for k, v in DTYPES.items()}[dt], "frames": F, "height": args.decode_height,
-           "width": args.decode_width, "size": args.size, "mean_abs_error": float((out - ref).abs().mean()),
-           "max_abs_error": float((out - ref).abs().max())}
-    log(f"\ndecode in {row['dtype']} vs float32 ({args.size} VAE, random weights, {F} frames "
-        f"{args.decode_width}x{args.decode_height}): mean |Δ| {row['mean_abs_error']:.2e}, "
-        f"max |Δ| {row['max_abs_error']:.2e}")
-    return [row]
+        for name in ("fp16", "bf16"):
+            low = copy.deepcopy(vae).to(DTYPES[name])
+            out, t, _ = timed(lambda: ((low.decode(z.to(DTYPES[name]), num_frames=F).sample.float() + 1) / 2)
+                              .clamp(0, 1), dev)
+            rows.append({"dtype": name, "frames": F, "height": args.decode_height, "width": args.decode_width,
+                         "size": args.size, "seconds": t, "mean_abs_error": float((out - ref).abs().mean()),
+                         "max_abs_error": float((out - ref).abs().max())})
+    for r in rows:
+        log(f"\ndecode in {r['dtype']} vs float32 ({args.size} VAE, random weights, {F} frames "
+            f"{args.decode_width}x{args.decode_height}): mean |Δ| {r['mean_abs_error']:.2e}, "
+            f"max |Δ| {r['max_abs_error']:.2e}, {r['seconds']:.2f} s")
+    return rows
 
 
 def main(argv=None):
@@ -406,8 +418,8 @@ def main(argv=None):
                                 else (args.frames[0], args.height, args.width))
     args.speed_frames, args.speed_height, args.speed_width = speed
     args.memory_frames = args.frames[0]
-    args.decode_frames, args.decode_height, args.decode_width = (2, 32, 64) if args.smoke else (
-        (2, 128, 128) if args.device == "cpu" else (8, args.height, args.width))
+    args.decode_frames, args.decode_height, args.decode_width = (1, 32, 32) if args.smoke else (
+        (2, 64, 64) if args.device == "cpu" else (8, args.height, args.width))
     lines = []
 
     def log(line=""):

@@ -1,0 +1,43 @@
+"""The generate settings ``compile`` and ``gpu_tuning`` run: torch.compile of the tiny UNet on the CPU (inductor's
+cache in the user's cache folder unless set), the same latents up to rounding; tuning changes nothing on the CPU."""
+
+import os
+
+import pytest
+import torch
+
+from backend.model import gpu_speed
+from backend.model.pipeline import SCPainterPipeline
+
+
+def test_gpu_tuning_is_a_no_op_on_the_cpu():
+    net = torch.nn.Conv2d(3, 4, 3)
+    assert gpu_speed.tune_unet(net, "cpu", "on") is net and net.weight.is_contiguous()
+    before = torch.backends.cudnn.benchmark
+    with gpu_speed.tuned("cpu", "on"):
+        assert torch.backends.cudnn.benchmark == before
+
+
+def test_the_inductor_cache_is_the_users_unless_set(monkeypatch, tmp_path):
+    monkeypatch.delenv(gpu_speed.INDUCTOR_CACHE, raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    assert gpu_speed.inductor_cache_dir() == os.path.join(str(tmp_path), "scpainter", "inductor")
+    monkeypatch.setenv(gpu_speed.INDUCTOR_CACHE, str(tmp_path / "mine"))
+    assert gpu_speed.inductor_cache_dir() == str(tmp_path / "mine")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("feature_reuse", [1, 2])
+def test_a_compiled_unet_samples_the_same_latents(tiny_checkpoint, monkeypatch, tmp_path, feature_reuse):
+    """torch.compile (default mode) of the whole UNet, or of the written-out forward with feature reuse; on the CPU
+    (inductor's C++ kernels): the latents agree with eager to rounding. Slow: compiling takes ~1 min here."""
+    monkeypatch.setenv(gpu_speed.INDUCTOR_CACHE, str(tmp_path / "inductor"))
+    pipe = SCPainterPipeline.from_checkpoint(tiny_checkpoint)
+    gen = torch.Generator().manual_seed(0)
+    cond, clip = torch.randn(2, 4, 4, 4, generator=gen), torch.randn(1, 1, 32, generator=gen)
+    kw = dict(steps=2, seed=1, feature_reuse=feature_reuse, guidance_sigma_max=1e10)
+    eager = pipe.sample(cond, clip, **kw)
+    pipe.set_speed("default", "on")
+    compiled = pipe.sample(cond, clip, **kw)
+    assert torch.allclose(compiled, eager, rtol=1e-4, atol=1e-4)
+    assert os.listdir(tmp_path / "inductor")      # kernels cached for the next process

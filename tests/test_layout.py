@@ -170,6 +170,7 @@ CROSS_CUTTING = {
     "tests/bench/test_inputs_round3.py": "bench/inputs_round3.py keeps running (a benchmark's smoke test)",
     "tests/bench/test_vary.py": "bench/vary.py keeps running (a benchmark's smoke test)",
     "tests/bench/test_lidar.py": "bench/lidar.py keeps running (a benchmark's smoke test)",
+    "tests/bench/test_generate.py": "bench/generate.py keeps running (a benchmark's smoke test)",
     "tests/street/test_street.py": "the ground-truth street end to end: build, render, predictions, dataset cache",
     "tests/backend/test_fuzz_inputs.py": "hostile input files of every kind through every command "
                                          "(tests/fuzz_inputs.py, tests/fuzz_surfaces.py, tests/fuzz_round3.py)",

@@ -241,7 +241,7 @@ class SCPainterPipeline:
         starts = window_starts(frames, window, overlap)
         ramps = {s: edm.guidance_ramp(min(s + window, frames) - s, g_min, g_max, device=self.device) for s in starts}
         reuse = FeatureReuse(self.unet, compile=self.compile) if feature_reuse > 1 else None
-        denoiser = edm.Denoiser(reuse, self.schedule, self.denoiser.dtype) if reuse else self.denoiser
+        denoiser = self.denoiser   # the one denoiser; with feature reuse its net is the FeatureReuse while sampling
         x0_prev = None if not history or history.get("x0_prev") is None else history["x0_prev"].to(self.device)
 
         def denoise(x, sigma, full):
@@ -258,9 +258,14 @@ class SCPainterPipeline:
                 count[s:e] += 1
             return acc / count
 
-        with gpu_speed.tuned(self.device, self.gpu_tuning):
-            return self._steps(x, sigmas, steps, start_step, sampler, feature_reuse, reuse, denoise, x0_prev,
-                               on_step)
+        net = denoiser.net
+        try:
+            denoiser.net = reuse or net
+            with gpu_speed.tuned(self.device, self.gpu_tuning):
+                return self._steps(x, sigmas, steps, start_step, sampler, feature_reuse, reuse, denoise, x0_prev,
+                                   on_step)
+        finally:
+            denoiser.net = net
 
     def _steps(self, x, sigmas, steps, start_step, sampler, feature_reuse, reuse, denoise, x0_prev, on_step):
         """``sample``'s loop over the steps (its docstring)."""

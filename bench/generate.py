@@ -71,16 +71,16 @@ DEFAULT_SAMPLING = {k: GENERATE_DEFAULTS[k] for k in SPEED_KEYS}
 SPEED_ROWS = [
     ("stock-equivalent", {}),
     ("default", DEFAULT_SAMPLING),
-    *[(f"euler {n}", {"steps": n}) for n in (8, 12, 14, 16)],
-    *[(f"dpmpp2m {n}", {"sampler": "dpmpp2m", "steps": n}) for n in (8, 12)],
-    *[(f"heun {n}", {"sampler": "heun", "steps": n}) for n in (6, 8)],
-    *[(f"feature reuse {n}", {"feature_reuse": n}) for n in (2, 3)],
-    ("euler 16, feature reuse 2", {"steps": 16, "feature_reuse": 2}),
-    *[(f"guidance σ ≤ {s:g}", {"guidance_sigma_max": s}) for s in (100.0, 30.0)],
-    ("guidance σ ≥ 1", {"guidance_sigma_min": 1.0}),
-    ("drop guidance-1 frames", {"drop_unguided": True}),
+    *[(f"euler-{n}", {"steps": n}) for n in (8, 12, 14, 16)],
+    *[(f"dpmpp2m-{n}", {"sampler": "dpmpp2m", "steps": n}) for n in (8, 12)],
+    *[(f"heun-{n}", {"sampler": "heun", "steps": n}) for n in (6, 8)],
+    *[(f"reuse-{n}", {"feature_reuse": n}) for n in (2, 3)],
+    ("euler-16-reuse-2", {"steps": 16, "feature_reuse": 2}),
+    *[(f"guidance-sigma-max-{s:g}", {"guidance_sigma_max": s}) for s in (100.0, 30.0)],
+    ("guidance-sigma-min-1", {"guidance_sigma_min": 1.0}),
+    ("drop-guidance-1-frames", {"drop_unguided": True}),
 ]
-SMOKE_ROWS = ("stock-equivalent", "default", "euler 8", "feature reuse 2")
+SMOKE_ROWS = ("stock-equivalent", "default", "euler-8", "reuse-2")
 
 
 def sync(device):
@@ -406,6 +406,9 @@ def main(argv=None):
     p.add_argument("--speed-size", type=int, nargs=3, metavar=("FRAMES", "HEIGHT", "WIDTH"),
                    help="the speed table's video (default: 8 64 96 on the CPU, the first --frames at --height x "
                         "--width on CUDA)")
+    p.add_argument("--speed-rows", nargs="+", metavar="NAME",
+                   help="the speed table's rows by name (default: all; stock-equivalent always): "
+                        + "; ".join(name for name, _ in SPEED_ROWS))
     p.add_argument("--smoke", action="store_true", help="tiny model, CPU, 2 frames of 32 x 64: seconds")
     p.add_argument("--out", default=os.path.join(ROOT, "bench", "results"))
     args = p.parse_args(argv)
@@ -443,8 +446,12 @@ def main(argv=None):
         args.shallow_flops = SHALLOW_FLOPS
         result["shallow_flops"] = {"architecture": "tiny" if args.smoke else "full", "share": share,
                                    "share_used": SHALLOW_FLOPS, "seconds": time.perf_counter() - t}
-        result["speed"] = section_speed(args, ours, log, [r for r in SPEED_ROWS if not args.smoke
-                                                          or r[0] in SMOKE_ROWS])
+        chosen = SMOKE_ROWS if args.smoke else args.speed_rows or [name for name, _ in SPEED_ROWS]
+        unknown = set(chosen) - {name for name, _ in SPEED_ROWS}
+        if unknown:
+            p.error(f"--speed-rows: no row named {sorted(unknown)}")
+        result["speed"] = section_speed(args, ours, log, [r for r in SPEED_ROWS if r[0] in chosen
+                                                          or r[0] == "stock-equivalent"])
     if "memory" in args.sections:
         result["memory"] = section_memory(args, log)
     if "decode" in args.sections:

@@ -103,7 +103,7 @@ class FeatureReuse:
         full = self.full or self.key not in self.kept
         out, h_deep = self.forward(self.unet, sample, timestep, encoder_hidden_states, added_time_ids, self.depth,
                                    None if full else self.kept[self.key])
-        if full:
-            self.kept[self.key] = h_deep
+        if full:   # a copy: a CUDA-graph replay (compile reduce-overhead) overwrites its outputs in place
+            self.kept[self.key] = h_deep if self.forward is unet_forward else h_deep.clone()
         self.last_shallow = not full
         return (out,)

@@ -44,10 +44,19 @@ def compile_fn(fn, mode: str):
     return torch.compile(fn, mode=None if mode == "default" else mode, dynamic=False)
 
 
+def channels_last(net: torch.nn.Module) -> torch.nn.Module:
+    """The weights of ``net``'s 2D convolutions made channels-last, in place (``Module.to(memory_format=...)``
+    would refuse SVD's UNet: its temporal layers are 3D convolutions, whose 5D weights have no channels-last)."""
+    for m in net.modules():
+        if isinstance(m, torch.nn.Conv2d):
+            m.weight.data = m.weight.data.contiguous(memory_format=torch.channels_last)
+    return net
+
+
 def tune_unet(unet: torch.nn.Module, device: str | torch.device, setting: str) -> torch.nn.Module:
-    """``unet`` made channels-last on CUDA when ``setting`` is ``on`` (in place; nothing elsewhere)."""
+    """``unet`` made channels-last (``channels_last``) on CUDA when ``setting`` is ``on``; nothing elsewhere."""
     if setting == "on" and torch.device(device).type == "cuda":
-        unet.to(memory_format=torch.channels_last)
+        channels_last(getattr(unet, "_orig_mod", unet))
     return unet
 
 

@@ -170,6 +170,8 @@ class SCPainterPipeline:
         frames whose guidance is > 1, in a second call (the UNet is temporal: the frames it drops change the
         others' unconditional estimates, so this is not exact). Adds the frame-evaluations to ``evaluations``."""
         denoiser = denoiser or self.denoiser
+        if self.compile == "reduce-overhead":   # CUDA graphs: the outputs of earlier replays are consumed by now
+            torch.compiler.cudagraph_mark_step_begin()
         ids = edm.time_ids(self.config, 1, self.device, self.dtype)
         frames = len(x)
         if float(guidance.max()) <= 1.0:

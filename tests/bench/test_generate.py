@@ -37,7 +37,7 @@ def test_generate_bench_smoke(tmp_path):
     assert list(speed) == list(bench.SMOKE_ROWS)
     assert speed["stock-equivalent"]["cost"] == 1.0 and speed["stock-equivalent"]["mean_abs_error"] == 0.0
     assert all(finite(r["cost"], r["seconds"], r["mean_abs_error"], r["evaluations"]) for r in got["speed"])
-    assert speed["default"]["cost"] <= 0.5 and speed["feature reuse 2"]["shallow_evaluations"] > 0
+    assert speed["default"]["cost"] <= 0.5 and speed["reuse-2"]["shallow_evaluations"] > 0
     assert 0 < got["shallow_flops"]["share"] < 1
     # memory: each stage for stock, ours before and ours now; decode: fp16 and bf16 against float32
     stages = [r["stage"] for r in got["memory"]]

@@ -18,6 +18,25 @@ def test_gpu_tuning_is_a_no_op_on_the_cpu():
         assert torch.backends.cudnn.benchmark == before
 
 
+def test_a_channels_last_unet_computes_the_same():
+    """gpu_tuning's channels-last conversion on SVD's UNet class (2D and 3D convolutions): same output."""
+    from diffusers import UNetSpatioTemporalConditionModel
+
+    from backend.model import configs
+
+    torch.manual_seed(0)
+    unet = UNetSpatioTemporalConditionModel(**configs.TINY["unet"]).eval()
+    g = torch.Generator().manual_seed(1)
+    args = (torch.randn(1, 3, 8, 8, 8, generator=g), torch.rand(1, generator=g), torch.randn(1, 1, 32, generator=g),
+            torch.randn(1, 3, generator=g))
+    with torch.no_grad():
+        ref = unet(*args[:2], encoder_hidden_states=args[2], added_time_ids=args[3], return_dict=False)[0]
+        gpu_speed.channels_last(unet)
+        assert unet.conv_in.weight.is_contiguous(memory_format=torch.channels_last)
+        out = unet(*args[:2], encoder_hidden_states=args[2], added_time_ids=args[3], return_dict=False)[0]
+    assert torch.allclose(out, ref, atol=1e-5)
+
+
 def test_the_inductor_cache_is_the_users_unless_set(monkeypatch, tmp_path):
     monkeypatch.delenv(gpu_speed.INDUCTOR_CACHE, raising=False)
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))

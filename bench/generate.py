@@ -398,7 +398,8 @@ def main(argv=None):
     p.add_argument("--height", type=int, default=576)
     p.add_argument("--width", type=int, default=1024)
     p.add_argument("--steps", type=int, default=STOCK_SAMPLING["steps"])
-    p.add_argument("--precision", choices=list(DTYPES), default="fp16")
+    p.add_argument("--precision", choices=list(DTYPES),
+                   help="the models' dtype (default: fp16 on CUDA, fp32 on the CPU, whose fp16 kernels are slow)")
     p.add_argument("--compile", choices=GENERATE_COMPILE, default="off",
                    help="torch.compile of our UNet for the default-settings row (reduce-overhead: CUDA graphs)")
     p.add_argument("--gpu-tuning", choices=("on", "off"), default=GENERATE_DEFAULTS["gpu_tuning"])
@@ -415,6 +416,7 @@ def main(argv=None):
     if args.smoke:
         args.size, args.device, args.frames, args.height, args.width = "tiny", "cpu", [2], 32, 64
         args.steps, args.steps_sweep, args.precision = 3, [2], "fp32"
+    args.precision = args.precision or ("fp16" if args.device == "cuda" else "fp32")
     if args.device == "cuda" and not torch.cuda.is_available():
         p.error("--device cuda: no CUDA device here (use --device cpu, or --smoke)")
     speed = args.speed_size or ((2, 32, 64) if args.smoke else (8, 64, 96) if args.device == "cpu"

@@ -434,7 +434,8 @@ def main(argv=None):
     result = {"device": torch.cuda.get_device_name() if args.device == "cuda" else "cpu", "size": args.size,
               "smoke": args.smoke, "defaults": {k: GENERATE_DEFAULTS[k] for k in (*SPEED_KEYS, "compile",
                                                                                    "gpu_tuning")}}
-    comps = configs.build_components(args.size, seed=0)
+    # real weights only where a section computes (memory runs on fake tensors)
+    comps = configs.build_components(args.size, seed=0) if set(args.sections) - {"memory"} else None
     dt = DTYPES[args.precision]
     if "speed" in args.sections or "compare" in args.sections:
         for m in (comps["unet"], comps["image_encoder"]):

@@ -30,6 +30,9 @@ Sections (all by default):
 * ``decode``: the decoder's error in fp16 and in bf16 against a float32 decode (mean and max abs, frames in [0, 1];
   on the CPU at a small size: PyTorch's fp16 convolutions there are a slow reference path).
 
+On a CPU: ``--size tiny --device cpu --sections speed decode`` (the speed table with the tiny model) and ``--size
+full --device cpu --sections memory decode --precision fp16 --frames 14`` (the memory breakdown and the decode error
+at SVD's architecture; no UNet weights are made). On a GPU: ``--device cuda --size full --frames 14``.
 Writes ``<out>/generate_<size>_<device>.json`` (``--out``, default bench/results). ``--smoke``: the tiny model on the
 CPU at 2 frames of 32 x 64, every section, in seconds (tests/bench/test_generate.py). Random weights: a trained
 model's errors against steps can differ (its denoiser is smoother in σ than a random network's).
@@ -366,10 +369,14 @@ def section_memory(args, log):
 
 # ------------------------------------------------------------------------------------------------ decode
 
-def section_decode(args, comps, log):
-    """The VAE decoder in fp16 and bf16 against float32 (``pipeline.decode_dtype`` chooses fp16 on CUDA)."""
+def section_decode(args, log):
+    """The VAE decoder (``--size``'s, random weights) in fp16 and bf16 against float32 (``pipeline.decode_dtype``
+    chooses fp16 on CUDA)."""
+    from diffusers import AutoencoderKLTemporalDecoder
+
     dev = args.device
-    vae = copy.deepcopy(comps["vae"]).float().to(dev).eval()
+    torch.manual_seed(0)
+    vae = AutoencoderKLTemporalDecoder(**configs.SIZES[args.size]["vae"]).to(dev).eval()
     F, h, w = args.decode_frames, args.decode_height // 8, args.decode_width // 8
     z = torch.randn(F, 4, h, w, generator=torch.Generator().manual_seed(2)).to(dev)
     rows = []
@@ -435,7 +442,7 @@ def main(argv=None):
               "smoke": args.smoke, "defaults": {k: GENERATE_DEFAULTS[k] for k in (*SPEED_KEYS, "compile",
                                                                                    "gpu_tuning")}}
     # real weights only where a section computes (memory runs on fake tensors)
-    comps = configs.build_components(args.size, seed=0) if set(args.sections) - {"memory"} else None
+    comps = configs.build_components(args.size, seed=0) if {"compare", "speed"} & set(args.sections) else None
     dt = DTYPES[args.precision]
     if "speed" in args.sections or "compare" in args.sections:
         for m in (comps["unet"], comps["image_encoder"]):
@@ -458,7 +465,7 @@ def main(argv=None):
     if "memory" in args.sections:
         result["memory"] = section_memory(args, log)
     if "decode" in args.sections:
-        result["decode"] = section_decode(args, comps, log)
+        result["decode"] = section_decode(args, log)
     if "compare" in args.sections:
         result["rows"], result["steps_sweep"] = section_compare(args, comps, ours, log)
     os.makedirs(args.out, exist_ok=True)

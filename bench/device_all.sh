@@ -47,7 +47,9 @@ part() {
   case $1 in
     generate)
       LIMIT=${GENERATE_TIMEOUT_S:-170}
-      if [ "$mode" = gpu ]; then CMD=("$PY" bench/generate.py --size full --device cuda --frames 14 25 --out "$OUT")
+      if [ "$mode" = gpu ]; then CMD=("$PY" bench/generate.py --size full --device cuda --frames 14 --sections compare speed decode
+                                      --steps-sweep 12 --speed-rows default euler-12 euler-16-reuse-2 reuse-2
+                                      guidance-sigma-max-30 dpmpp2m-12 --out "$OUT")
       else CMD=("$PY" bench/generate.py --smoke --device cpu --out "$OUT"); fi ;;
     render)
       LIMIT=${RENDER_TIMEOUT_S:-130}

@@ -180,7 +180,6 @@ CROSS_CUTTING = {
 # -- benchmarks: bench/<name>.py (a script with main) is smoke-tested by tests/bench/test_<name>.py -------------------
 # Scripts without a smoke test yet, and why (the list can only shrink: an entry whose test exists fails).
 BENCH_SMOKE_PENDING = {
-    "bench/generate.py": "issue 44's generation part adds --smoke and its test",
 }
 
 # Test files other branches are moving or rewriting now; the merge places them (then each leaves this list).

@@ -14,12 +14,15 @@ from .. import events
 from . import options
 
 NAME = "generate"
+#: The speed settings' options (``core.job.GENERATE_DEFAULTS``; docs/design.md §11), each the job's key of its name.
+SPEED_OPTIONS = ("sampler", "feature_reuse", "guidance_sigma_min", "guidance_sigma_max", "compile", "gpu_tuning")
 ORDER = 30
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """``generate``'s parser; the defaults it names are the job's (``core.job``)."""
-    from scpainter_blender.core.job import BASELINE_DEFAULTS, GENERATE_DEFAULTS, GENERATE_MODELS, INPAINT_METHODS
+    from scpainter_blender.core.job import (BASELINE_DEFAULTS, GENERATE_COMPILE, GENERATE_DEFAULTS, GENERATE_MODELS,
+                                            GENERATE_SAMPLERS, INPAINT_METHODS, STOCK_SAMPLING)
 
     n = sub.add_parser(NAME, help="render missing conditions, then generate the video: with a checkpoint "
                                   "the SCPainter model, without one the OpenCV inpainting baseline")
@@ -40,6 +43,25 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     n.add_argument("--steps", type=int,
                    help=f"sampler steps (default: the job's, else {GENERATE_DEFAULTS['steps']})")
     n.add_argument("--seed", type=int, help=f"seed (default: the job's, else {GENERATE_DEFAULTS['seed']})")
+    n.add_argument("--sampler", choices=GENERATE_SAMPLERS,
+                   help=f"the ODE sampler (default: the job's, else {GENERATE_DEFAULTS['sampler']}; stock SVD: "
+                        f"{STOCK_SAMPLING['sampler']} with --steps {STOCK_SAMPLING['steps']} --feature-reuse 1 "
+                        f"--guidance-sigma-max {STOCK_SAMPLING['guidance_sigma_max']:g})")
+    n.add_argument("--feature-reuse", type=int, metavar="N",
+                   help=f"run the whole UNet every N-th step, reusing its deep features between (1: every step; "
+                        f"default: the job's, else {GENERATE_DEFAULTS['feature_reuse']})")
+    n.add_argument("--guidance-sigma-min", type=float, metavar="SIGMA",
+                   help=f"no classifier-free guidance below this noise level (default: the job's, else "
+                        f"{GENERATE_DEFAULTS['guidance_sigma_min']:g})")
+    n.add_argument("--guidance-sigma-max", type=float, metavar="SIGMA",
+                   help=f"no classifier-free guidance above this noise level (default: the job's, else "
+                        f"{GENERATE_DEFAULTS['guidance_sigma_max']:g})")
+    n.add_argument("--compile", choices=GENERATE_COMPILE,
+                   help=f"torch.compile the UNet on CUDA (reduce-overhead: with CUDA graphs; the first run compiles, "
+                        f"kernels are cached; default: the job's, else {GENERATE_DEFAULTS['compile']})")
+    n.add_argument("--gpu-tuning", choices=("on", "off"),
+                   help=f"cuDNN autotuning, channels-last UNet and fused attention kernels on CUDA (default: the "
+                        f"job's, else {GENERATE_DEFAULTS['gpu_tuning']})")
     n.add_argument("--force", action="store_true", help="generate again even if the video is up to date")
     options.input_options(n)
     options.proposals_option(n)
@@ -61,13 +83,15 @@ def run(args: argparse.Namespace) -> int:
     roots = outputs.data_roots_option(args.data_root)
     job = job_mod.load(args.job)
     overrides = {"steps": args.steps, "seed": args.seed, "model": args.model, "inpaint": args.inpaint,
-                 "inpaint_radius": args.inpaint_radius}
+                 "inpaint_radius": args.inpaint_radius, **{k: getattr(args, k) for k in SPEED_OPTIONS}}
     # everything is checked before anything is rendered or loaded: the job, the overrides, the checkpoint (its
     # config and that it holds only safetensors), the settings they make together, and the input files
     plan = generate.prepare(args.job, job, args.checkpoint, overrides, args.allow_outside, roots)
     # the model's settings mean nothing to the baseline: said, rather than silently dropped
     ignored = [o for o, v in (("--checkpoint", args.checkpoint), ("--steps", args.steps), ("--seed", args.seed),
-                              ("--precision", args.precision != "auto" or None)) if v is not None]
+                              ("--precision", args.precision != "auto" or None),
+                              *((f"--{k.replace('_', '-')}", getattr(args, k)) for k in SPEED_OPTIONS))
+               if v is not None]
     ignored = ignored if plan.model == "baseline" else []
     if ignored:
         events.log(f"generate: the baseline ignores {', '.join(ignored)} (model settings; the baseline is OpenCV "

@@ -47,6 +47,8 @@ if TYPE_CHECKING:
     from collections.abc import Sequence
 
 PRECISIONS = {"fp32": torch.float32, "bf16": torch.bfloat16, "fp16": torch.float16}
+#: The settings that go to ``SCPainterPipeline.sample`` by name (``compile`` and ``gpu_tuning``: ``set_speed``).
+SAMPLING = ("sampler", "feature_reuse", "guidance_sigma_min", "guidance_sigma_max")
 
 
 @dataclass
@@ -200,16 +202,24 @@ def state_key(ckpt: str, s: dict, precision: str, image: torch.Tensor, asset_mas
                           image, asset_mask, valid)
 
 
-def save_state(path: str, latents: torch.Tensor, step: int, key: str) -> None:
+HISTORY = "history."   # the prefix of the sampler's history tensors in a state file (DPM-Solver++(2M)'s x0_prev)
+
+
+def save_state(path: str, latents: torch.Tensor, step: int, key: str, history: dict | None = None) -> None:
+    """The latents after ``step`` and the sampler's ``history`` (what ``SCPainterPipeline.sample`` hands its
+    ``on_step`` at a resume point), atomically, under ``key``."""
     from safetensors.torch import save_file
 
+    tensors = {"latents": latents}
+    tensors.update({HISTORY + k: v for k, v in (history or {}).items() if v is not None})
     with outputs.atomic_path(path) as tmp:
-        save_file({"latents": latents.detach().float().cpu().contiguous()}, tmp,
+        save_file({k: v.detach().float().cpu().contiguous() for k, v in tensors.items()}, tmp,
                   metadata={"key": key, "step": str(step)})
 
 
-def load_state(path: str, key: str) -> tuple[torch.Tensor | None, int]:
-    """(latents, step) saved under the same key, else (None, 0)."""
+def load_state(path: str, key: str, history: dict | None = None) -> tuple[torch.Tensor | None, int]:
+    """(latents, step) saved under the same key, else (None, 0); the saved history goes into ``history`` (a dict
+    the caller passes) when there is a state. A state with NaN/inf in any tensor is none."""
     from safetensors import safe_open
 
     if not os.path.isfile(path):
@@ -220,10 +230,14 @@ def load_state(path: str, key: str) -> tuple[torch.Tensor | None, int]:
             if meta.get("key") != key:
                 return None, 0
             latents, step = f.get_tensor("latents"), int(meta["step"])
+            saved = {k[len(HISTORY):]: f.get_tensor(k) for k in f.keys() if k.startswith(HISTORY)}
     except Exception:  # a damaged state file only costs the steps it held
         return None, 0
-    if not bool(torch.isfinite(latents).all()):  # never resumed from (or decoded): the sampler never saves one
+    # never resumed from (or decoded): the sampler never saves one
+    if not all(bool(torch.isfinite(t).all()) for t in (latents, *saved.values())):
         return None, 0
+    if history is not None:
+        history.update(saved)
     return latents, step
 
 
@@ -327,14 +341,18 @@ def _generate(job_path, job, device, plan: Plan, precision, force, stop, lock) -
     cond = pipe.condition_latents(pad_to_multiple(image, m), pad_to_multiple(asset_mask, m),
                                   pad_to_multiple(valid, m, 0.0), seed=s["seed"])
     clip = pipe.clip_embedding(clip_source(job_path, job, image[0]))
+    pipe.release_encoders()   # CLIP and the condition encoder are done: their memory goes before the UNet runs
+    pipe.set_speed(s["compile"], s["gpu_tuning"])
     state_path = layout.state
-    latents, start = (None, 0) if force else load_state(state_path, key)
+    history: dict = {}
+    latents, start = (None, 0) if force else load_state(state_path, key, history)
     if start:
         log(f"generate: resuming after step {start} of {s['steps']}")
     stopped_at = []
 
-    def on_step(i, n, x):
-        save_state(state_path, x, i, key)
+    def on_step(i, n, x, state):
+        if state is not None:   # a resume point: the latents and the sampler's history are all the next step needs
+            save_state(state_path, x, i, key, state)
         events.progress("generate", i, n)
         if stop and i < n:
             stopped_at.append(i)
@@ -345,9 +363,9 @@ def _generate(job_path, job, device, plan: Plan, precision, force, stop, lock) -
     if start < s["steps"]:
         x = pipe.sample(cond, clip, steps=s["steps"], seed=s["seed"], window=s["window"], overlap=s["overlap"],
                         min_guidance=s["min_guidance"], max_guidance=s["max_guidance"], latents=latents,
-                        start_step=start, on_step=on_step)
+                        start_step=start, on_step=on_step, history=history, **{k: s[k] for k in SAMPLING})
     if stopped_at:
-        return {"stopped": True, "stage": "generate", "steps_done": stopped_at[0], "steps": s["steps"]}
+        return {"stopped": True, "stage": "generate", "steps_done": stopped_at[-1], "steps": s["steps"]}
     video = pipe.decode(x, chunk=s["decode_chunk"])[:, :, :H, :W]
     rgb = baseline.to_uint8(video.permute(0, 2, 3, 1).numpy())
     _write_outputs(job, plan, rgb, mp4, {"key": key, "checkpoint": ckpt, "settings": s, "precision": precision})

@@ -234,8 +234,10 @@ def check_svd_folder(path: str) -> None:
 # -------------------------------------------------------------------------------------------------- loading
 
 def load(path: str, device="cpu", dtype=None) -> dict:
-    """The checkpoint's components on ``device``: UNet and CLIP in ``dtype`` (float32 when None); the VAE and the
-    condition encoder in ``dtype`` too, except float16 on a VAE that asks for upcasting (SVD's does); ``config``
+    """The checkpoint's components on ``device``: UNet and CLIP in ``dtype`` (float32 when None); the VAE (which only
+    decodes at inference) in ``pipeline.decode_dtype`` (fp16 for a 16-bit model on CUDA, as stock SVD decodes); the
+    condition encoder in ``dtype`` too, except float32 for float16 when the VAE asks for upcasting (SVD's does:
+    stock SVD encodes in float32); ``config``
     (ScpainterConfig), ``clip_mean``/``clip_std``, ``schedule`` (``edm.Schedule`` from
     ``scheduler/scheduler_config.json``: what the pipeline samples with and training's denoiser holds) and
     ``path``. The folder passes ``check`` first, so only safetensors are ever read."""
@@ -244,20 +246,22 @@ def load(path: str, device="cpu", dtype=None) -> dict:
     from transformers import CLIPVisionModelWithProjection
 
     from .condition import ConditionEncoder
+    from .pipeline import decode_dtype
 
     path = resolve(path)
     info = _check(path)
     dtype = dtype or torch.float32
-    vae_dtype = torch.float32 if (dtype == torch.float16 and info["force_upcast"]) else dtype
+    encoder_dtype = torch.float32 if (dtype == torch.float16 and info["force_upcast"]) else dtype
     loaders = {
         "unet": lambda: UNetSpatioTemporalConditionModel.from_pretrained(
             path, local_files_only=True, use_safetensors=True, subfolder="unet", torch_dtype=dtype),
         "vae": lambda: AutoencoderKLTemporalDecoder.from_pretrained(
-            path, local_files_only=True, use_safetensors=True, subfolder="vae", torch_dtype=vae_dtype),
+            path, local_files_only=True, use_safetensors=True, subfolder="vae",
+            torch_dtype=decode_dtype(dtype, device)),
         "image_encoder": lambda: CLIPVisionModelWithProjection.from_pretrained(
             os.path.join(path, "image_encoder"), local_files_only=True, use_safetensors=True, dtype=dtype),
         "condition_encoder": lambda: ConditionEncoder.from_pretrained(
-            path, local_files_only=True, use_safetensors=True, subfolder="condition_encoder", torch_dtype=vae_dtype),
+            path, local_files_only=True, use_safetensors=True, subfolder="condition_encoder", torch_dtype=encoder_dtype),
     }
     models = {}
     for comp, make in loaders.items():

@@ -39,6 +39,8 @@ from dataclasses import dataclass
 
 import torch
 
+from scpainter_blender.core.job import GENERATE_SAMPLERS as SAMPLERS
+
 from .checkpoint_config import CheckpointError, json_object, show_value
 
 SCHEDULER_FILE = os.path.join("scheduler", "scheduler_config.json")   # in a checkpoint or SVD snapshot folder
@@ -196,9 +198,46 @@ class Denoiser:
 
 # ------------------------------------------------------------------------------------------------- the sampler
 
+# Three samplers of the same probability-flow ODE dx/dσ = (x − D(x, σ))/σ over the same Karras noise levels
+# (``SAMPLERS`` in core/job.py names them). One step goes from σ = σ_i to σ_next = σ_{i+1}; x0 = D(x, σ).
+#
+#   euler    one evaluation a step (stock SVD's, diffusers' EulerDiscreteScheduler):
+#            x ← x + (σ_next − σ)·(x − x0)/σ.
+#   heun     Karras et al. 2022, Algorithm 1 without churn: the Euler step as a predictor x', then the trapezoid rule
+#            with the slope at x' (a second evaluation, D(x', σ_next)); the last step (σ_next = 0) stays Euler.
+#            Two evaluations a step except the last: 2n − 1 for n steps.
+#   dpmpp2m  DPM-Solver++(2M) (Lu et al. 2022, the multistep second-order solver in the data-prediction form), in
+#            σ: with λ = −ln σ, h = λ_next − λ and r = h_prev/h,
+#                x ← (σ_next/σ)·x + (1 − σ_next/σ)·D,   D = (1 + 1/(2r))·x0 − (1/(2r))·x0_prev,
+#            where x0_prev is the previous step's x0; the first step (no x0_prev) and the last (σ_next = 0, whose
+#            result is x0 itself) use D = x0 (a first-order DDIM step), as k-diffusion's sample_dpmpp_2m does. One
+#            evaluation a step; a step needs x0_prev (and the previous σ), so a resume state holds x0_prev.
+
+
 def euler_step(x, x0, sigma, sigma_next):
     """One Euler step of the probability-flow ODE from σ to σ_next given the denoised estimate."""
     return x + (sigma_next - sigma) * ((x - x0) / sigma)
+
+
+def heun_correct(x, x0, x_pred, x0_pred, sigma, sigma_next):
+    """Heun's corrector (Karras et al. 2022, Alg. 1): the step from x at σ to σ_next > 0 with the mean of the slopes
+    at x (denoised ``x0``) and at the Euler prediction ``x_pred`` (denoised ``x0_pred`` at σ_next)."""
+    d, d_next = (x - x0) / sigma, (x_pred - x0_pred) / sigma_next
+    return x + (sigma_next - sigma) * 0.5 * (d + d_next)
+
+
+def dpmpp_2m_step(x, x0, sigma, sigma_next, x0_prev=None, sigma_prev=None):
+    """One DPM-Solver++(2M) step from σ to σ_next (comment above): ``x0_prev`` and ``sigma_prev`` are the previous
+    step's denoised estimate and starting σ (None on the first step: a first-order step)."""
+    if float(sigma_next) == 0.0:
+        return x0.clone()
+    ratio = sigma_next / sigma
+    denoised = x0
+    if x0_prev is not None:
+        h = torch.log(sigma / sigma_next)
+        r = torch.log(sigma_prev / sigma) / h
+        denoised = (1 + 1 / (2 * r)) * x0 - (1 / (2 * r)) * x0_prev
+    return ratio * x + (1 - ratio) * denoised
 
 
 def guidance_ramp(frames: int, g_min: float, g_max: float, device=None, dtype=torch.float32) -> torch.Tensor:

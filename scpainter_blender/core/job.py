@@ -57,8 +57,9 @@ MAX_SOURCE_FRAME = 1_000_000
 MAX_SEED = 2 ** 63 - 1
 #: ``generate`` settings: (low, high) of each; the checkpoint's own values obey the same (backend.model.checkpoint)
 GENERATE_INT_BOUNDS = {"steps": (1, 1000), "window": (1, 256), "overlap": (0, 255), "seed": (0, MAX_SEED),
-                       "decode_chunk": (1, 256)}
-GENERATE_NUMBER_BOUNDS = {"min_guidance": (0.0, 100.0), "max_guidance": (0.0, 100.0), "fps": (1.0, 240.0)}
+                       "decode_chunk": (1, 256), "feature_reuse": (1, 16)}
+GENERATE_NUMBER_BOUNDS = {"min_guidance": (0.0, 100.0), "max_guidance": (0.0, 100.0), "fps": (1.0, 240.0),
+                          "guidance_sigma_min": (0.0, 1e10), "guidance_sigma_max": (0.0, 1e10)}
 
 #: ``scene.point_cleaning``'s defaults, the only place they are written (bench/clean_points.py, measured on the
 #: ground-truth street with VGGT-like depth errors; the table is in docs/design.md §4.2): the depth-edge test at
@@ -486,7 +487,23 @@ class RecordedObject:
 
 #: The generation settings' defaults, the only place they are written. ``window``, ``min_guidance``,
 #: ``max_guidance`` and ``fps`` have none here: they default to the checkpoint's own (its ``scpainter.json``).
-GENERATE_DEFAULTS = {"steps": 25, "overlap": 4, "seed": 0, "decode_chunk": 8}
+#: The speed settings (docs/design.md §11; chosen from bench/generate.py's error-against-time table): ``sampler``
+#: (``GENERATE_SAMPLERS``, backend/model/edm.py), ``feature_reuse`` N (the whole UNet every N-th step, deep features
+#: reused between; 1 = off), ``guidance_sigma_min``/``guidance_sigma_max`` (a guidance interval: no unconditional
+#: branch at σ outside it; 0 and 1e10 = guidance at every step), ``compile`` (``GENERATE_COMPILE``: torch.compile of the UNet on CUDA, ``reduce-overhead`` with CUDA graphs)
+#: and ``gpu_tuning`` (cuDNN autotuning, channels-last UNet, SDPA kernel order; CUDA only).
+GENERATE_DEFAULTS = {"steps": 18, "overlap": 4, "seed": 0, "decode_chunk": 8, "sampler": "euler",
+                     "feature_reuse": 2, "guidance_sigma_min": 0.0, "guidance_sigma_max": 30.0, "compile": "off",
+                     "gpu_tuning": "on"}
+#: The settings that make stock SVD's sampler (diffusers' StableVideoDiffusionPipeline: Euler, 25 steps, guidance
+#: at every step, the whole UNet at every step): tests/backend/model/test_pipeline.py compares against diffusers
+#: with them, and bench/generate.py measures every other setting against this video.
+STOCK_SAMPLING = {"sampler": "euler", "steps": 25, "feature_reuse": 1, "guidance_sigma_min": 0.0,
+                  "guidance_sigma_max": 1e10}
+GENERATE_SAMPLERS = ("euler", "heun", "dpmpp2m")
+GENERATE_COMPILE = ("off", "default", "reduce-overhead", "max-autotune")
+#: The generate settings that take one of a list of words.
+GENERATE_CHOICES = {"sampler": GENERATE_SAMPLERS, "compile": GENERATE_COMPILE, "gpu_tuning": ("on", "off")}
 CHECKPOINT_SETTINGS = ("window", "min_guidance", "max_guidance", "fps")
 #: ``generate.model``: ``scpainter`` needs a checkpoint; ``baseline`` fills the condition holes by OpenCV inpainting
 #: (backend/generate/baseline.py) and needs none; ``auto`` (the default) is ``scpainter`` when a checkpoint is
@@ -513,6 +530,12 @@ class GenerateSettings:
     max_guidance: float | None = None
     fps: float | None = None
     decode_chunk: int | None = None
+    sampler: str | None = None         # GENERATE_SAMPLERS
+    feature_reuse: int | None = None
+    guidance_sigma_min: float | None = None
+    guidance_sigma_max: float | None = None
+    compile: str | None = None         # GENERATE_COMPILE
+    gpu_tuning: str | None = None      # "on" | "off"
     model: str | None = None           # GENERATE_MODELS; None: auto
     inpaint: str | None = None         # INPAINT_METHODS (the baseline's)
     inpaint_radius: int | None = None
@@ -548,8 +571,12 @@ class GenerateSettings:
             if value is None and key in CHECKPOINT_SETTINGS:
                 value = getattr(checkpoint_config, key)
             out[key] = float(value) if key in GENERATE_NUMBER_BOUNDS else int(value)
+        for key in GENERATE_CHOICES:
+            out[key] = str(chosen.get(key, GENERATE_DEFAULTS[key]))
         out = {k: out[k] for k in ("steps", "window", "overlap", "seed", "min_guidance", "max_guidance", "fps",
-                                   "decode_chunk")}
+                                   "decode_chunk", "sampler", "feature_reuse", "guidance_sigma_min",
+                                   "guidance_sigma_max", "compile",
+                                   "gpu_tuning")}
         try:
             check_generate_settings(out, path)
         except JobError as e:
@@ -765,7 +792,7 @@ def check_generate_settings(gen: dict, path: str | os.PathLike = "job.json", whe
     for key, (lo, hi) in GENERATE_NUMBER_BOUNDS.items():
         if gen.get(key) is not None:
             _number(gen[key], path, name(key), lo, hi)
-    for key, allowed in (("model", GENERATE_MODELS), ("inpaint", INPAINT_METHODS)):
+    for key, allowed in (("model", GENERATE_MODELS), ("inpaint", INPAINT_METHODS), *GENERATE_CHOICES.items()):
         if gen.get(key) is not None and gen[key] not in allowed:
             raise JobError(path, name(key), f"expected one of {list(allowed)}, got {_short(gen[key])}")
     if gen.get("inpaint_radius") is not None:
@@ -776,6 +803,9 @@ def check_generate_settings(gen: dict, path: str | os.PathLike = "job.json", whe
     if gen.get("min_guidance") is not None and gen.get("max_guidance") is not None and \
             gen["min_guidance"] > gen["max_guidance"]:
         raise JobError(path, name("min_guidance"), f"must not exceed {name('max_guidance')}")
+    if gen.get("guidance_sigma_min") is not None and gen.get("guidance_sigma_max") is not None and \
+            gen["guidance_sigma_min"] > gen["guidance_sigma_max"]:
+        raise JobError(path, name("guidance_sigma_min"), f"must not exceed {name('guidance_sigma_max')}")
     return gen
 
 

@@ -285,8 +285,9 @@ def test_generation_settings_resolve_once():
         window, min_guidance, max_guidance, fps = 8, 1.5, 2.5, 10.0
 
     s = J.GenerateSettings().resolve(Config())
-    assert s == {"steps": 25, "window": 8, "overlap": 4, "seed": 0, "min_guidance": 1.5, "max_guidance": 2.5,
-                 "fps": 10.0, "decode_chunk": 8}
+    assert s == {"steps": 18, "window": 8, "overlap": 4, "seed": 0, "min_guidance": 1.5, "max_guidance": 2.5,
+                 "fps": 10.0, "decode_chunk": 8, "sampler": "euler", "feature_reuse": 2, "guidance_sigma_min": 0.0,
+                 "guidance_sigma_max": 30.0, "compile": "off", "gpu_tuning": "on"}
     assert {k: s[k] for k in J.GENERATE_DEFAULTS} == J.GENERATE_DEFAULTS
     s = J.GenerateSettings(steps=3, window=12).resolve(Config(), {"steps": 5, "seed": None})
     assert (s["steps"], s["window"], s["seed"]) == (5, 12, 0)         # command line > job > checkpoint > default
@@ -299,6 +300,18 @@ def test_generation_settings_resolve_once():
     with pytest.raises(J.JobError) as e:                               # overrides are named as flags
         J.check_generate_settings({"steps": 0}, "(command line)", "--")
     assert e.value.field == "--steps"
+    # the speed settings (issue 44): validated like the others, the stock sampler reachable
+    s = J.GenerateSettings(sampler="dpmpp2m").resolve(Config(), J.STOCK_SAMPLING)
+    assert {k: s[k] for k in J.STOCK_SAMPLING} == J.STOCK_SAMPLING
+    assert J.GenerateSettings.from_dict({"sampler": "heun", "feature_reuse": 3, "compile": "reduce-overhead"},
+                                        "job.json").resolve(Config())["feature_reuse"] == 3
+    for bad, field in (({"sampler": "ddim"}, "generate.sampler"), ({"feature_reuse": 0}, "generate.feature_reuse"),
+                       ({"compile": True}, "generate.compile"), ({"gpu_tuning": "yes"}, "generate.gpu_tuning"),
+                       ({"guidance_sigma_min": 5.0, "guidance_sigma_max": 1.0}, "generate.guidance_sigma_min"),
+                       ({"guidance_sigma_max": -1.0}, "generate.guidance_sigma_max")):
+        with pytest.raises(J.JobError) as e:
+            J.GenerateSettings.from_dict(bad, "job.json")
+        assert e.value.field == field
 
 
 def test_job_built_in_code_is_validated_on_save(tmp_path):

@@ -185,6 +185,20 @@ def test_generate_checks_everything_before_any_work(tiny_checkpoint, tmp_path):
     assert code == 2 and ev[-1]["field"] == "frames[1].source_frames" and "has 2 frames" in ev[-1]["message"]
     code, ev, _ = backend("generate", job_path, "--steps", "0")
     assert code == 2 and ev[-1]["field"] == "--steps"
+    # the speed settings (issue 44): checked the same way, and the command line reaches the run's settings
+    code, ev, _ = backend("generate", job_path, "--feature-reuse", "0")
+    assert code == 2 and ev[-1]["field"] == "--feature-reuse"
+    code, ev, _ = backend("generate", job_path, "--guidance-sigma-min", "50", "--guidance-sigma-max", "5")
+    assert code == 2 and ev[-1]["field"] == "--guidance-sigma-min"
+    job["frames"][1]["source_frames"] = [1]
+    J.save(job_path, job)
+    code, ev, err = backend("generate", job_path, "--check", "--sampler", "dpmpp2m", "--feature-reuse", "3",
+                            "--compile", "reduce-overhead", "--gpu-tuning", "off")
+    assert code == 0, err[-2000:]
+    got = ev[-1]["settings"]
+    assert (got["sampler"], got["feature_reuse"], got["compile"], got["gpu_tuning"]) == \
+        ("dpmpp2m", 3, "reduce-overhead", "off") and got["guidance_sigma_max"] == J.GENERATE_DEFAULTS[
+            "guidance_sigma_max"]
     assert not (tmp_path / "job" / "out").exists()
 
 

@@ -17,6 +17,9 @@ from backend.model.checkpoint_config import CheckpointError
 from backend.model.pipeline import SCPainterPipeline
 from backend.train import objective
 from backend.train.config import TrainConfig
+from scpainter_blender.core.job import STOCK_SAMPLING
+
+STOCK = {k: v for k, v in STOCK_SAMPLING.items() if k != "steps"}   # the hand-written loops below are stock's Euler
 
 
 @pytest.fixture
@@ -61,7 +64,7 @@ def test_training_and_sampling_call_the_same_denoiser(tiny_checkpoint, calls):
     image = torch.rand(F, 3, H, W, generator=g)
     cond = pipe.condition_latents(image, torch.zeros(F, 1, H, W), torch.ones(F, 1, H, W))
     clip = pipe.clip_embedding(image[0])
-    before = pipe.sample(cond, clip, steps=steps, seed=3, max_guidance=1.0)
+    before = pipe.sample(cond, clip, steps=steps, seed=3, max_guidance=1.0, **STOCK)
     calls.clear()
 
     # -- train: two AdamW steps through objective.loss
@@ -95,7 +98,7 @@ def test_training_and_sampling_call_the_same_denoiser(tiny_checkpoint, calls):
     calls.clear()
 
     # -- sample with the same object: one window, no guidance, one denoiser call per step
-    out = pipe.sample(cond, clip, steps=steps, seed=3, max_guidance=1.0)
+    out = pipe.sample(cond, clip, steps=steps, seed=3, max_guidance=1.0, **STOCK)
     assert len(calls) == steps and all(d is denoiser for d, _, _ in calls)
     sigmas = c["schedule"].sigmas(steps)
     assert [float(s) for _, s, _ in calls] == [float(s) for s in sigmas[:-1]]
@@ -108,7 +111,7 @@ def test_training_and_sampling_call_the_same_denoiser(tiny_checkpoint, calls):
     assert not torch.allclose(out, before)   # sampling used the trained weights
     # with guidance: still one call per step, both branches in it
     calls.clear()
-    pipe.sample(cond, clip, steps=steps, seed=3, max_guidance=3.0)
+    pipe.sample(cond, clip, steps=steps, seed=3, max_guidance=3.0, **STOCK)
     assert len(calls) == steps and all(d is denoiser and len(s) == 2 for d, s, _ in calls)
 
 
@@ -129,7 +132,7 @@ def test_sigma_max_comes_from_the_checkpoints_scheduler_config(tiny_checkpoint, 
     for p in (stock, pipe):
         h = p.unet.register_forward_pre_hook(hook, with_kwargs=True)
         try:
-            p.sample(cond, clip, steps=3, seed=1, max_guidance=1.0, on_step=lambda i, n, x: True)  # one step
+            p.sample(cond, clip, steps=3, seed=1, max_guidance=1.0, on_step=lambda i, n, x, h: True, **STOCK)  # 1 step
         finally:
             h.remove()
     assert first == [pytest.approx(0.25 * math.log(700.0), rel=1e-6), pytest.approx(0.25 * math.log(80.0), rel=1e-6)]

@@ -10,6 +10,7 @@ import torch
 
 from backend.errors import NonFiniteError
 from backend.model.pipeline import SCPainterPipeline, precision_hint
+from scpainter_blender.core.job import STOCK_SAMPLING
 
 FRAMES, H, W, STEPS = 4, 32, 32, 3
 
@@ -44,9 +45,11 @@ def _poison_from(module, call: int, value=math.nan, rows=slice(None)):
 
 
 def _sample(pipe, inputs, seen, **kw):
+    """Stock's sampler (every evaluation through the UNet's own forward, where the poisoning hook sits)."""
     cond, clip = inputs
+    kw = {**{k: v for k, v in STOCK_SAMPLING.items() if k != "steps"}, **kw}
     return pipe.sample(cond, clip, steps=STEPS, seed=1, window=FRAMES,
-                       on_step=lambda i, n, x: seen.append((i, bool(torch.isfinite(x).all()))), **kw)
+                       on_step=lambda i, n, x, h: seen.append((i, bool(torch.isfinite(x).all()))), **kw)
 
 
 def test_nan_at_the_first_step_names_step_one_and_sigma_max(pipe, inputs):

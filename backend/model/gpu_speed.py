@@ -29,8 +29,15 @@ INDUCTOR_CACHE = "TORCHINDUCTOR_CACHE_DIR"
 
 def inductor_cache_dir() -> str:
     """Where compiled kernels are kept across runs: ``$TORCHINDUCTOR_CACHE_DIR``, set to the user's cache folder
-    (``~/.cache/scpainter/inductor``) when missing; inductor's FX graph cache is switched on there."""
-    os.environ.setdefault(INDUCTOR_CACHE, user_cache_dir("inductor"))
+    (``~/.cache/scpainter/inductor``) when the user did not set it; inductor's FX graph cache is switched on there.
+    Not set by the user includes set to torch's own default (``/tmp/torchinductor_<user>``, which a reboot empties):
+    inductor writes that default into the environment the first time it asks for its cache folder, which importing
+    diffusers already does, so by the time a UNet is compiled the variable is always present."""
+    from torch._inductor.runtime.cache_dir_utils import default_cache_dir
+
+    chosen = os.environ.get(INDUCTOR_CACHE)
+    if not chosen or os.path.abspath(chosen) == os.path.abspath(default_cache_dir()):
+        os.environ[INDUCTOR_CACHE] = user_cache_dir("inductor")
     os.environ.setdefault("TORCHINDUCTOR_FX_GRAPH_CACHE", "1")
     return os.environ[INDUCTOR_CACHE]
 

@@ -45,6 +45,19 @@ def test_the_inductor_cache_is_the_users_unless_set(monkeypatch, tmp_path):
     assert gpu_speed.inductor_cache_dir() == str(tmp_path / "mine")
 
 
+def test_the_inductor_cache_is_the_users_after_diffusers_set_torchs_default(monkeypatch, tmp_path):
+    """Importing diffusers makes inductor write its own default (/tmp/torchinductor_<user>) into
+    $TORCHINDUCTOR_CACHE_DIR before any UNet is compiled: that is not the user's choice, so the kernels still go to
+    the user's cache folder (they went to /tmp, emptied by a reboot, before)."""
+    from torch._inductor.runtime.cache_dir_utils import cache_dir, default_cache_dir
+
+    monkeypatch.delenv(gpu_speed.INDUCTOR_CACHE, raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    assert cache_dir() == os.path.abspath(default_cache_dir())      # what `import diffusers` does on the way
+    assert gpu_speed.inductor_cache_dir() == os.path.join(str(tmp_path), "scpainter", "inductor")
+    assert cache_dir() == os.path.join(str(tmp_path), "scpainter", "inductor")   # where inductor now writes
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("feature_reuse", [1, 2])
 def test_a_compiled_unet_samples_the_same_latents(tiny_checkpoint, monkeypatch, tmp_path, feature_reuse):

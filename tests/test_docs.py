@@ -337,3 +337,27 @@ def test_the_readmes_sidecar_and_rig_file_examples_are_read_by_their_readers():
     assert sensors.from_dict(sidecar, "README.md").sensor == ["CAM_FRONT", "CAM_BACK"]
     assert rig_file.pop("schema") == rig.RIG_SCHEMA
     assert rig.Rig.from_dict(rig_file, "README.md").lidar.model == "nuscenes-32"
+
+
+# -- generation defaults --------------------------------------------------------------------------------------------
+
+def test_the_readmes_generate_defaults_are_the_code():
+    """The README's "defaults (N steps, overlap N, seed N" and the speed settings' "default X" are
+    ``job.GENERATE_DEFAULTS`` (they said 25 steps after the default became 18); the documents' stock-sampler command
+    line parses (the backend's own parser) to ``job.STOCK_SAMPLING``."""
+    from scpainter_blender.core import job as J
+
+    text = _read("README.md")
+    m = re.search(r"from the defaults \((\d+) steps, overlap (\d+), seed (\d+)", text)
+    assert m, "README.md: the generate defaults sentence ('from the defaults (N steps, overlap N, seed N') is gone"
+    assert [int(v) for v in m.groups()] == [J.GENERATE_DEFAULTS[k] for k in ("steps", "overlap", "seed")], m.group(0)
+    for name in ("sampler", "feature-reuse", "compile", "gpu-tuning"):
+        said = re.search(rf"`--{name}[^`]*` \([^`]*?default (\w+)", text)
+        assert said and said.group(1) == str(J.GENERATE_DEFAULTS[name.replace("-", "_")]), (name, said)
+    gen = backend_parsers()["generate"]
+    for doc in ("README.md", "docs/design.md"):
+        m = re.search(r"`(--sampler euler\s+--steps[^`]*)`", _read(doc))
+        assert m, f"{doc}: stock SVD's sampler as a command line is gone"
+        args = vars(gen.parse_args(["job.json", *m.group(1).split()]))
+        got = {k: args[k] if args[k] is not None else J.GENERATE_DEFAULTS[k] for k in J.STOCK_SAMPLING}
+        assert got == J.STOCK_SAMPLING, (doc, m.group(1))

@@ -1,6 +1,6 @@
 """What the labels cost a CPU frame and a variant batch, before and after (issue 44 item 6), measured side by side.
 
-    .venv/bin/python bench/labels_cost.py [--before-tree DIR] [--rounds 5] [--variants 40] [--out bench/results]
+    .venv/bin/python bench/labels_cost.py [--before REV | --before-tree DIR] [--rounds 5] [--variants 40] [--out bench/results]
     .venv/bin/python bench/labels_cost.py --smoke --out DIR        # seconds: the current tree alone, tiny sizes
     python bench/labels_cost.py --device cuda --variants 0 --before-tree MAIN --out DIR   # the frame on a GPU
 
@@ -20,8 +20,10 @@ Two parts, each timed in two source trees, the requests interleaved (before, aft
   runs its workers) from each tree, in ``--chunks`` chunks alternating trees (each tree renders its own copy of the
   variants); per variant seconds (the batch's own ``seconds`` per job) and the wall time of each process.
 
-The before tree: ``--before-tree DIR``, else ``git archive`` of the merge base of ``main`` and HEAD into a
-temporary folder. ``--smoke``: the
+The before tree: ``--before-tree DIR``, else ``git archive`` of ``--before REV`` (default: the merge base of
+``main`` and HEAD, i.e. a branch's changes alone) into a temporary folder; a revision whose code is HEAD's (on
+``main`` itself, or once the branch is merged, the merge base is HEAD) is refused, since the run would compare the
+code with itself. ``--smoke``: the
 current tree only, in this process, at tiny sizes, its "before" being the second render that ``amodal_pixels``
 still does (the same code as main's); no batch. ``--device cuda``: the frame part on the GPU, where both trees
 still count amodal pixels with ``amodal_pixels``' render per car (the Triton kernel counts nothing), so it measures
@@ -329,14 +331,33 @@ def batch_part(trees: dict, n: int, chunks: int, folder: str) -> dict:
 
 # -- main ------------------------------------------------------------------------------------------------------
 
-def before_tree(folder: str) -> str:
-    """A copy (``git archive``) of where this branch left ``main`` (their merge base: this branch's changes alone,
-    not what ``main`` merged since)."""
-    dest = os.path.join(folder, "main")
+def _git(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(["git", "-C", ROOT, *args], capture_output=True, text=True)
+
+
+def before_revision(rev: str | None) -> tuple[str | None, str]:
+    """(the commit of ``rev``, None for a problem; the problem or ""): ``rev`` None is where this branch left
+    ``main`` (their merge base: this branch's changes alone, not what ``main`` merged since). A revision git does
+    not know, or whose tree is HEAD's (``main`` itself, or a branch already merged: its merge base is HEAD), is a
+    problem: the run would compare the code with itself."""
+    what = f"--before {rev}" if rev else "the default before (git merge-base main HEAD)"
+    got = _git("rev-parse", "--verify", "--quiet", f"{rev}^{{commit}}") if rev else _git("merge-base", "main", "HEAD")
+    commit = got.stdout.strip()
+    if got.returncode or not commit:
+        return None, f"{what}: git finds no such commit here ({got.stderr.strip() or 'no output'})"
+    trees = [_git("rev-parse", f"{c}^{{tree}}").stdout.strip() for c in (commit, "HEAD")]
+    if trees[0] == trees[1]:
+        return None, (f"{what} is {commit[:12]}, whose code is HEAD's: the run would compare the code with itself; "
+                      "name the code to compare with: --before REV (e.g. the commit before the change measured) "
+                      "or --before-tree DIR")
+    return commit, ""
+
+
+def before_tree(folder: str, commit: str) -> str:
+    """A copy (``git archive``) of ``commit`` (``before_revision``'s) in ``folder``/before."""
+    dest = os.path.join(folder, "before")
     os.makedirs(dest, exist_ok=True)
-    base = subprocess.run(["git", "-C", ROOT, "merge-base", "main", "HEAD"], check=True, capture_output=True,
-                          text=True).stdout.strip()
-    archive = subprocess.run(["git", "-C", ROOT, "archive", base], check=True, capture_output=True).stdout
+    archive = subprocess.run(["git", "-C", ROOT, "archive", commit], check=True, capture_output=True).stdout
     subprocess.run(["tar", "-x", "-C", dest], input=archive, check=True)
     return dest
 
@@ -364,8 +385,11 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--smoke", action="store_true")
     p.add_argument("--out", default=os.path.join(ROOT, "bench", "results"))
-    p.add_argument("--before-tree", default=None,
-                   help="the tree to compare with (default: git archive of merge-base main HEAD)")
+    before = p.add_mutually_exclusive_group()
+    before.add_argument("--before-tree", default=None, help="the tree to compare with (a folder)")
+    before.add_argument("--before", default=None, metavar="REV",
+                        help="the git revision to compare with (default: merge-base main HEAD; refused when its "
+                             "code is HEAD's)")
     p.add_argument("--rounds", type=int, default=5)
     p.add_argument("--points", type=int, default=1_000_000)
     p.add_argument("--gaussians", type=int, default=100_000)
@@ -376,13 +400,18 @@ def main(argv=None) -> int:
     p.add_argument("--variants", type=int, default=40, help="variants per tree (0: no batch part)")
     p.add_argument("--chunks", type=int, default=2, help="batch processes per tree, alternating trees")
     args = p.parse_args(argv)
+    commit = None
+    if not args.smoke and not args.before_tree:
+        commit, problem = before_revision(args.before)
+        if problem:
+            p.error(problem)
     if args.smoke:
         result = smoke(args.out)
     else:
         W, H = (int(v) for v in args.resolution.split("x"))
         work = tempfile.mkdtemp(prefix="labels_cost_")
         try:
-            trees = {"before": os.path.abspath(args.before_tree or before_tree(work)), "after": ROOT}
+            trees = {"before": os.path.abspath(args.before_tree or before_tree(work, commit)), "after": ROOT}
             sys.path.insert(0, ROOT)
             job, data = make_frame_inputs(work, args.points, args.gaussians, W, H)
             result = {"frame": frame_part(trees, job, data, args.rounds, args.threads, args.device),
@@ -390,6 +419,7 @@ def main(argv=None) -> int:
                       "points": args.points, "gaussians": args.gaussians, "rounds": args.rounds}
             result["batch"] = (batch_part(trees, args.variants, args.chunks, work) if args.variants else None)
             result["trees"] = trees
+            result["before_commit"] = commit
         finally:
             shutil.rmtree(work, ignore_errors=True)
     result["machine"] = {"cpus": os.cpu_count(), "python": platform.python_version()}

@@ -28,3 +28,21 @@ def test_labels_cost_smoke_prints_and_saves_its_rows(tmp_path, capsys):
     assert got["frame"]["before"]["amodal_method"] == "second_render"
     assert got["frame"]["after"]["amodal_method"] == "tree"
     assert set(got["targets"]) == {"labels_share_le_0.10", "ratio_to_alone_le_1.3"}
+
+
+def test_labels_cost_refuses_to_compare_the_code_with_itself(capsys):
+    """On main, or once a branch is merged, the default before (merge-base main HEAD) is HEAD: the run compared the
+    code with itself and printed a before/after table of noise. A before whose code is HEAD's is refused at once
+    (exit 2 naming the option), before anything is built."""
+    import pytest
+
+    spec = importlib.util.spec_from_file_location("labels_cost", os.path.join(ROOT, "bench", "labels_cost.py"))
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    with pytest.raises(SystemExit) as stop:
+        bench.main(["--before", "HEAD", "--variants", "0"])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert "--before HEAD" in err and "compare the code with itself" in err and "--before-tree" in err
+    commit, problem = bench.before_revision("no-such-revision-here")
+    assert commit is None and "no such commit" in problem

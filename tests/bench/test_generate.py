@@ -38,6 +38,9 @@ def test_generate_bench_smoke(tmp_path):
     assert speed["stock-equivalent"]["cost"] == 1.0 and speed["stock-equivalent"]["mean_abs_error"] == 0.0
     assert all(finite(r["cost"], r["seconds"], r["mean_abs_error"], r["evaluations"]) for r in got["speed"])
     assert speed["default"]["cost"] <= 0.5 and speed["reuse-2"]["shallow_evaluations"] > 0
+    # the rows are timed warm: an untimed sample through the whole and the shallow UNet comes first (section speed
+    # runs first, so on a GPU the reference row alone paid CUDA's first calls, and every time ratio was flattered)
+    assert got["speed_warmup"]["full"] > 0 and got["speed_warmup"]["shallow"] > 0
     assert 0 < got["shallow_flops"]["share"] < 1
     # memory: each stage for stock, ours before and ours now; decode: fp16 and bf16 against float32
     stages = [r["stage"] for r in got["memory"]]

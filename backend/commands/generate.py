@@ -57,8 +57,10 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                    help=f"no classifier-free guidance above this noise level (default: the job's, else "
                         f"{GENERATE_DEFAULTS['guidance_sigma_max']:g})")
     n.add_argument("--compile", choices=GENERATE_COMPILE,
-                   help=f"torch.compile the UNet on CUDA (reduce-overhead: with CUDA graphs; the first run compiles, "
-                        f"kernels are cached; default: the job's, else {GENERATE_DEFAULTS['compile']})")
+                   help=f"torch.compile the UNet, on any device (reduce-overhead: with CUDA graphs); the first run "
+                        f"compiles, for minutes (on the CPU too, even for a small model), and later runs load the "
+                        f"kernels from $TORCHINDUCTOR_CACHE_DIR, else ~/.cache/scpainter/inductor (default: the "
+                        f"job's, else {GENERATE_DEFAULTS['compile']})")
     n.add_argument("--gpu-tuning", choices=("on", "off"),
                    help=f"cuDNN autotuning, channels-last UNet and fused attention kernels on CUDA (default: the "
                         f"job's, else {GENERATE_DEFAULTS['gpu_tuning']})")

@@ -59,7 +59,7 @@ def pipe(tiny_checkpoint):
 
 
 def test_the_condition_encoders_peak_does_not_grow_with_the_frames(pipe):
-    """Issue 44: the condition encoder ran 8 frames at a time in float32 (16.1 GiB of stock's 5.8 at 576 x 1024 x 14,
+    """Issue 44: the condition encoder ran 8 frames at a time in float32 (16.0 GiB of stock's 5.8 at 576 x 1024 x 14,
     section memory); now one frame at a time, so 6 frames peak no higher than 2 (plus their latents' bytes)."""
     H = W = 128
     peaks = {}

@@ -23,6 +23,7 @@ each source frame (``core.geometry.point_cloud.depth_edges``), then outliers of 
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import functools
 from dataclasses import dataclass, field
@@ -76,6 +77,9 @@ class Scene:
     frame_boxes: dict | None = None
     skip_unseen: bool = True              # leave out source frames and assets the frame cannot see (same layers)
     cleaning: dict = field(default_factory=dict)  # what load_scene's point cleaning dropped, and its time
+    # the z-buffers of these points already made (``PointLayers``, shared by the jobs placing one kept cloud at one
+    # origin); None: every frame projects its points
+    point_layers: PointLayers | None = None
 
 
 def load_scene(job: job_mod.Job, job_path: str, device: str | torch.device, points: bool = True) -> Scene:
@@ -99,6 +103,47 @@ def load_asset(path: str, name: str, object_to_world: dict, device: str | torch.
     return dataclasses.replace(made, name=name, object_to_world=object_to_world)
 
 
+class PointLayers:
+    """The points' z-buffers (image (H, W, 3), depth (H, W) float32) already made for one placed cloud, by what
+    they are a function of: the source frames projected, K, the camera (relative to the placement's origin), the
+    size and the splat radius. A batch's variants share camera paths (the same lateral shifts, the same frames
+    before a lane change), so a worker renders each distinct view of the points once and copies it after. The
+    newest first kept, the oldest dropped beyond ``ZBUFFER_BYTES`` in all."""
+
+    def __init__(self):
+        self._kept: collections.OrderedDict = collections.OrderedDict()
+        self._bytes = 0
+
+    @staticmethod
+    def key(frames: list, K: np.ndarray, w2c: np.ndarray, width: int, height: int, radius_px: int) -> tuple:
+        """What a z-buffer is a function of (besides the placed points): exact bytes, no rounding."""
+        return (tuple(frames), np.asarray(K, np.float64).tobytes(), np.asarray(w2c, np.float64).tobytes(),
+                int(width), int(height), int(radius_px))
+
+    def get(self, key: tuple) -> tuple | None:
+        """Copies of the (image, depth) kept under ``key`` (the caller may write into them), or None."""
+        hit = self._kept.get(key)
+        if hit is None:
+            return None
+        self._kept.move_to_end(key)
+        return hit[0].clone(), hit[1].clone()
+
+    def put(self, key: tuple, image: torch.Tensor, depth: torch.Tensor) -> None:
+        """Keep copies of ``image`` and ``depth`` under ``key``, dropping the oldest beyond ``ZBUFFER_BYTES``."""
+        size = image.numel() * image.element_size() + depth.numel() * depth.element_size()
+        if size > ZBUFFER_BYTES or key in self._kept:
+            return
+        self._kept[key] = (image.clone(), depth.clone())
+        self._bytes += size
+        while self._bytes > ZBUFFER_BYTES:
+            _, (i, d) = self._kept.popitem(last=False)
+            self._bytes -= i.numel() * i.element_size() + d.numel() * d.element_size()
+
+
+#: The bytes of point z-buffers one kept cloud keeps (``PointLayers``): ~450 views at 128 x 72, 6 at 1024 x 576.
+ZBUFFER_BYTES = 64 * 2 ** 20
+
+
 @dataclass(frozen=True)
 class KeptCloud:
     """A scene's cleaned points in world metres, as ``scene_cache`` keeps them (only ever read): ``positions``
@@ -116,6 +161,15 @@ class KeptCloud:
     highs: dict
     removed_points: int
     stats: dict
+    # origin bytes and device -> PointLayers: the z-buffers of the jobs that placed this cloud there
+    layers: dict = field(default_factory=dict, compare=False, repr=False)
+
+    def point_layers(self, origin: np.ndarray, device: torch.device) -> PointLayers:
+        """The ``PointLayers`` of this cloud placed at ``origin`` on ``device`` (made on first use)."""
+        key = (np.asarray(origin, np.float64).tobytes(), str(device))
+        if key not in self.layers:
+            self.layers[key] = PointLayers()
+        return self.layers[key]
 
     @classmethod
     def of(cls, cloud, keep: np.ndarray, stats: dict) -> KeptCloud:
@@ -167,6 +221,7 @@ def load_points(scene: Scene, job: job_mod.Job, job_path: str) -> Scene:
     scene.frames_present = kept.frames_present
     scene.frame_slices = None if kept.slices is None else dict(kept.slices)
     scene.frame_boxes = kept.boxes(origin)
+    scene.point_layers = kept.point_layers(origin, device)
     return scene
 
 
@@ -277,8 +332,7 @@ def render_frame(scene: Scene, entry: job_mod.Frame, width: int, height: int, po
     if scene.xyz is not None and entry.source_frames:
         frames = visible_frames(scene, entry.source_frames, K, w2c, width, height, point_radius_px)
         if frames:  # none: no point could land (the z-buffer of nothing is this image and depth)
-            xyz, rgb = select_points(scene, frames)
-            image, depth, _ = pts.render_points(xyz, rgb, K, w2c, width, height, radius_px=point_radius_px)
+            image, depth = _point_layers(scene, frames, K, w2c, width, height, point_radius_px)
     asset_mask = torch.zeros((height, width), device=dev)
     zmed = torch.full((height, width), float("inf"), device=dev)
     instance = torch.zeros((height, width), dtype=torch.int32, device=dev)
@@ -303,6 +357,22 @@ def render_frame(scene: Scene, entry: job_mod.Frame, width: int, height: int, po
     layers = dict(zip(ch.CHANNELS, (img[..., 0], img[..., 1], img[..., 2], hole, asset_mask, z, instance)))
     layers = {k: v.to(torch.float32) for k, v in layers.items()}
     return {k: v.cpu().numpy() for k, v in layers.items()} if to_numpy else layers
+
+
+def _point_layers(scene: Scene, frames: list, K: np.ndarray, w2c: np.ndarray, width: int, height: int,
+                  radius_px: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """(image (H, W, 3), depth (H, W)) of the points of ``frames``: ``pts.render_points``', or a copy of the same
+    z-buffer an earlier job of this worker made of the same placed cloud (``Scene.point_layers``)."""
+    kept = scene.point_layers
+    key = None if kept is None else PointLayers.key(frames, K, w2c, width, height, radius_px)
+    hit = None if key is None else kept.get(key)
+    if hit is not None:
+        return hit
+    xyz, rgb = select_points(scene, frames)
+    image, depth, _ = pts.render_points(xyz, rgb, K, w2c, width, height, radius_px=radius_px)
+    if key is not None:
+        kept.put(key, image, depth)
+    return image, depth
 
 
 def _rasterize_amodal(proj: dict, width: int, height: int, depth: torch.Tensor, tile: int | None,

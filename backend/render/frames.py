@@ -23,6 +23,7 @@ each source frame (``core.geometry.point_cloud.depth_edges``), then outliers of 
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import functools
 from dataclasses import dataclass, field
@@ -76,6 +77,10 @@ class Scene:
     frame_boxes: dict | None = None
     skip_unseen: bool = True              # leave out source frames and assets the frame cannot see (same layers)
     cleaning: dict = field(default_factory=dict)  # what load_scene's point cleaning dropped, and its time
+    # the z-buffers of these points already made (``PointLayers``, shared by the jobs placing one kept cloud) and
+    # this placement's part of their key (origin, device); None: every frame projects its points
+    point_layers: PointLayers | None = None
+    placement: tuple = ()
 
 
 def load_scene(job: job_mod.Job, job_path: str, device: str | torch.device, points: bool = True) -> Scene:
@@ -99,6 +104,53 @@ def load_asset(path: str, name: str, object_to_world: dict, device: str | torch.
     return dataclasses.replace(made, name=name, object_to_world=object_to_world)
 
 
+class PointLayers:
+    """The points' z-buffers (image (H, W, 3), depth (H, W) float32) already made of one kept cloud, by what they
+    are a function of: the placement (origin, device: the points' float32 coordinates), the source frames
+    projected, K, the camera (relative to that origin), the size and the splat radius. A batch's variants share
+    camera paths (the same lateral shifts, the same frames before a lane change), so a worker renders each
+    distinct view of the points once and copies it after. The last used kept, the oldest dropped beyond
+    ``ZBUFFER_BYTES`` in all."""
+
+    def __init__(self):
+        self._kept: collections.OrderedDict = collections.OrderedDict()
+        self._bytes = 0
+
+    @staticmethod
+    def key(placement: tuple, frames: list, K: np.ndarray, w2c: np.ndarray, width: int, height: int,
+            radius_px: int) -> tuple:
+        """What a z-buffer of the cloud is a function of (``placement``: ``KeptCloud.placement``'s key): exact
+        bytes, no rounding."""
+        return (placement, tuple(frames), np.asarray(K, np.float64).tobytes(),
+                np.asarray(w2c, np.float64).tobytes(), int(width), int(height), int(radius_px))
+
+    def get(self, key: tuple) -> tuple | None:
+        """Copies of the (image, depth) kept under ``key`` (the caller may write into them), or None."""
+        hit = self._kept.get(key)
+        if hit is None:
+            return None
+        self._kept.move_to_end(key)
+        return hit[0].clone(), hit[1].clone()
+
+    def put(self, key: tuple, image: torch.Tensor, depth: torch.Tensor) -> None:
+        """Keep copies of ``image`` and ``depth`` under ``key``, dropping the oldest beyond ``ZBUFFER_BYTES``."""
+        size = image.numel() * image.element_size() + depth.numel() * depth.element_size()
+        if size > ZBUFFER_BYTES or key in self._kept:
+            return
+        self._kept[key] = (image.clone(), depth.clone())
+        self._bytes += size
+        while self._bytes > ZBUFFER_BYTES:
+            _, (i, d) = self._kept.popitem(last=False)
+            self._bytes -= i.numel() * i.element_size() + d.numel() * d.element_size()
+
+
+#: The bytes of point z-buffers one kept cloud keeps (``PointLayers``): ~450 views at 128 x 72, 6 at 1024 x 576.
+ZBUFFER_BYTES = 64 * 2 ** 20
+#: The bytes of placed positions one kept cloud keeps (``KeptCloud.place``): 5 placements of 2 M points, about
+#: the lateral shifts of a variant batch (each variant's origin is its first camera).
+PLACED_BYTES = 128 * 2 ** 20
+
+
 @dataclass(frozen=True)
 class KeptCloud:
     """A scene's cleaned points in world metres, as ``scene_cache`` keeps them (only ever read): ``positions``
@@ -116,6 +168,37 @@ class KeptCloud:
     highs: dict
     removed_points: int
     stats: dict
+    # what the jobs placing this cloud share (``place``), only ever read: the z-buffers they made, the positions
+    # placed at the last origins used ((origin, device) -> (P, 3) float32 tensor) and the colours and source frames
+    # on each device (independent of the origin)
+    views: PointLayers = field(default_factory=PointLayers, compare=False, repr=False)
+    _placed: collections.OrderedDict = field(default_factory=collections.OrderedDict, compare=False, repr=False)
+    _on_device: dict = field(default_factory=dict, compare=False, repr=False)
+
+    @staticmethod
+    def placement(origin: np.ndarray, device: torch.device) -> tuple:
+        """The key of a placement: the origin's exact float64 bytes and the device."""
+        return (np.asarray(origin, np.float64).tobytes(), str(device))
+
+    def place(self, origin: np.ndarray, device: torch.device) -> tuple:
+        """(xyz (P, 3) float32 relative to ``origin``, rgb, frame (P,)) tensors on ``device``: float32(positions -
+        origin) made once per origin (the last ones within ``PLACED_BYTES`` kept), the colours and frames once
+        per device. Shared by every job that places the cloud there: read only."""
+        key = self.placement(origin, device)
+        xyz = self._placed.get(key)
+        if xyz is None:
+            xyz = torch.as_tensor((self.positions - origin).astype(np.float32), device=device)
+            size = xyz.numel() * xyz.element_size()
+            if size <= PLACED_BYTES:
+                self._placed[key] = xyz
+                while sum(x.numel() * x.element_size() for x in self._placed.values()) > PLACED_BYTES:
+                    self._placed.popitem(last=False)
+        else:
+            self._placed.move_to_end(key)
+        if str(device) not in self._on_device:
+            self._on_device[str(device)] = (torch.as_tensor(np.array(self.colors), device=device),
+                                            torch.as_tensor(np.array(self.frame), device=device))
+        return (xyz, *self._on_device[str(device)])
 
     @classmethod
     def of(cls, cloud, keep: np.ndarray, stats: dict) -> KeptCloud:
@@ -161,12 +244,12 @@ def load_points(scene: Scene, job: job_mod.Job, job_path: str) -> Scene:
     kept = scene_cache.points(job_mod.resolve(job_path, sc.predictions), job.layers_dict()["scene"], clean)
     scene.removed_points = kept.removed_points
     scene.cleaning = dict(kept.stats)
-    scene.xyz = torch.as_tensor((kept.positions - origin).astype(np.float32), device=device)
-    scene.rgb = torch.as_tensor(np.array(kept.colors), device=device)
-    scene.frame = torch.as_tensor(np.array(kept.frame), device=device)
+    # the jobs of a worker that place the cloud at one origin share these tensors and the z-buffers made of them
+    scene.xyz, scene.rgb, scene.frame = kept.place(origin, device)
     scene.frames_present = kept.frames_present
     scene.frame_slices = None if kept.slices is None else dict(kept.slices)
     scene.frame_boxes = kept.boxes(origin)
+    scene.point_layers, scene.placement = kept.views, kept.placement(origin, device)
     return scene
 
 
@@ -277,8 +360,7 @@ def render_frame(scene: Scene, entry: job_mod.Frame, width: int, height: int, po
     if scene.xyz is not None and entry.source_frames:
         frames = visible_frames(scene, entry.source_frames, K, w2c, width, height, point_radius_px)
         if frames:  # none: no point could land (the z-buffer of nothing is this image and depth)
-            xyz, rgb = select_points(scene, frames)
-            image, depth, _ = pts.render_points(xyz, rgb, K, w2c, width, height, radius_px=point_radius_px)
+            image, depth = _point_layers(scene, frames, K, w2c, width, height, point_radius_px)
     asset_mask = torch.zeros((height, width), device=dev)
     zmed = torch.full((height, width), float("inf"), device=dev)
     instance = torch.zeros((height, width), dtype=torch.int32, device=dev)
@@ -303,6 +385,22 @@ def render_frame(scene: Scene, entry: job_mod.Frame, width: int, height: int, po
     layers = dict(zip(ch.CHANNELS, (img[..., 0], img[..., 1], img[..., 2], hole, asset_mask, z, instance)))
     layers = {k: v.to(torch.float32) for k, v in layers.items()}
     return {k: v.cpu().numpy() for k, v in layers.items()} if to_numpy else layers
+
+
+def _point_layers(scene: Scene, frames: list, K: np.ndarray, w2c: np.ndarray, width: int, height: int,
+                  radius_px: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """(image (H, W, 3), depth (H, W)) of the points of ``frames``: ``pts.render_points``', or a copy of the same
+    z-buffer an earlier job of this worker made of the same placed cloud (``Scene.point_layers``)."""
+    kept = scene.point_layers
+    key = None if kept is None else PointLayers.key(scene.placement, frames, K, w2c, width, height, radius_px)
+    hit = None if key is None else kept.get(key)
+    if hit is not None:
+        return hit
+    xyz, rgb = select_points(scene, frames)
+    image, depth, _ = pts.render_points(xyz, rgb, K, w2c, width, height, radius_px=radius_px)
+    if key is not None:
+        kept.put(key, image, depth)
+    return image, depth
 
 
 def _rasterize_amodal(proj: dict, width: int, height: int, depth: torch.Tensor, tile: int | None,

@@ -262,6 +262,7 @@ def make_variants(folder: str, n: int) -> str:
     sys.path.insert(0, os.path.join(ROOT, "tests"))
     from scpainter_blender.core import shapes
     from scpainter_blender.core.variation import spec as spec_mod, variants
+    from scpainter_blender.core.output_layout import VariationLayout
     from scpainter_blender.street.dataset import ensure_street
     from tests_support import street_base_job
 
@@ -276,7 +277,7 @@ def make_variants(folder: str, n: int) -> str:
     spec = spec_mod.VariationSpec(variants=n, seed=0, library=lib, resolution=(128, 72),
                                   shifts_m=(-3.0, -2.0, 0.0, 2.0, 3.0), lane_change_probability=0.2)
     variants.make_variants(base, spec, os.path.join(folder, "variants"), data_roots=(street.root,))
-    return os.path.join(folder, "variants", "variants.txt")
+    return os.path.join(folder, "variants", VariationLayout.LIST)
 
 
 def chunk_lists(listing: str, chunks: int) -> list:

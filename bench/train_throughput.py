@@ -104,7 +104,7 @@ def run_estimates(size, frames, W, H, batches, names, checkpointing) -> list:
     for b in batches:
         for ck in checkpointing:
             for s in settings(names, b, ck):
-                e = memory.estimate(s, size, frames, W, H, models=models).gib()
+                e = memory.estimate(s, size, frames, (W, H), models=models).gib()
                 e.update({"resolution": f"{W}x{H}", "frames": frames, "size": size})
                 rows.append(e)
                 print(f"estimate {s.name:>6} batch {b} checkpointing {ck!s:5}: peak {e['peak_gib']:.2f} GiB "

@@ -31,6 +31,12 @@ import torch
 from torch.utils._python_dispatch import TorchDispatchMode
 from torch.utils._pytree import tree_leaves
 
+from .view_settings import ViewSettings
+
+#: (width, height) pixels of ``estimate``'s default: the paper's 1024 x 576, what bench/train_throughput.py and
+#: the H200 run measured on CUDA (the training view's own default is ``ViewSettings``')
+FULL_RESOLUTION = (1024, 576)
+
 GIB = 2 ** 30
 
 #: Labels of live memory, in the order tables print them. Persistent: the trained weights (float32 masters), the
@@ -353,14 +359,16 @@ def tracked(models: dict, prepared: tuple, setting: Setting, frames: int, width:
                     time.perf_counter() - t0, {"left_after_step": left})
 
 
-def estimate(setting: Setting, size: str = "full", frames: int = 14, width: int = 1024, height: int = 576,
-             frozen_dtype=torch.bfloat16, autocast=torch.bfloat16, cuda_autocast: bool = True,
+def estimate(setting: Setting, size: str = "full", frames: int | None = None,
+             resolution: tuple[int, int] = FULL_RESOLUTION, frozen_dtype=torch.bfloat16, autocast=torch.bfloat16, cuda_autocast: bool = True,
              models: dict | None = None, steps: int = 1) -> Estimate:
     """The memory of ``steps`` training steps of ``setting`` at ``size`` on fake tensors (module docstring), AdamW's
     state made beforehand (so the first step is the steady state). Defaults: what bench/train_throughput.py runs
     on CUDA (full size, 14 frames at 1024×576, frozen VAE and CLIP in bf16, bf16 autocast). ``models``: a fake
     ``build`` to reuse (its UNet's checkpointing is reset by this setting)."""
     t0 = time.perf_counter()
+    frames = frames or ViewSettings.frames
+    width, height = resolution
     models = models or build(size, "cpu", frozen_dtype, fake=True)
     with models["fake_mode"]:
         prepared = prepare(models, setting, "cpu")

@@ -29,7 +29,7 @@ def test_estimate_of_a_tiny_step_counts_the_state_exactly():
     own for backward (they are checkpointed), the peak is what was live at it."""
     models = memory.build("tiny", "cpu", torch.bfloat16, fake=True)
     n = sum(p.numel() for m in ("unet", "condition_encoder") for p in models[m].parameters())
-    e = memory.estimate(memory.Setting(2), "tiny", 2, 128, 64, models=models)
+    e = memory.estimate(memory.Setting(2), "tiny", 2, (128, 64), models=models)
     assert e.kept["weights (trained)"] == 4 * n and e.kept["EMA"] == 4 * n
     assert e.kept["AdamW state"] == 8 * n + 4 * len(list(models["unet"].parameters()) +
                                                    list(models["condition_encoder"].parameters()))

@@ -40,7 +40,7 @@ sys.path.insert(0, ROOT)
 sys.path.insert(0, os.path.join(ROOT, "tests"))
 sys.path.insert(0, os.path.join(ROOT, "bench"))
 
-from scpainter_blender.core import job as job_mod, outputs, shapes  # noqa: E402
+from scpainter_blender.core import job as job_mod, outputs  # noqa: E402
 from scpainter_blender.core.backend_protocol import EXPORT_FORMAT_NAMES  # noqa: E402
 from scpainter_blender.core.batch_items import DATA_ROOT_DIRECTIVE, read_job_list  # noqa: E402
 from scpainter_blender.core.output_layout import VariationLayout  # noqa: E402
@@ -48,6 +48,7 @@ from scpainter_blender.core.variation import spec as spec_mod, variants  # noqa:
 from scpainter_blender.street.dataset import ensure_street  # noqa: E402
 from tests_support import street_base_job  # noqa: E402
 import bench_cli  # noqa: E402  (bench/, the script's folder)
+import render_scene  # noqa: E402
 
 
 def backend(*args: str) -> tuple:
@@ -68,11 +69,7 @@ def build(out: str, count: int, frames: int, W: int, H: int) -> tuple:
     """(variants.txt as ``batch_items.JobList``, vary seconds, render seconds): the variants of the street's drive,
     rendered."""
     street = ensure_street()
-    lib = os.path.join(out, "cars")
-    os.makedirs(lib, exist_ok=True)
-    for name, seed, paint in (("blue", 7, (0.1, 0.3, 0.8)), ("red", 8, (0.8, 0.1, 0.1))):
-        shapes.save_as_amodal3r(os.path.join(lib, f"{name}.ply"),
-                                shapes.procedural_car_gaussians(count=8000, seed=seed, paint=paint))
+    lib = render_scene.car_library(os.path.join(out, "cars"), 8000)
     base = os.path.join(out, "base", "job.json")
     street_base_job(street, base, recorded_cars=True)
     # a few more drawn than wanted: some find no place (reported by vary); the first ``count`` placed are kept

@@ -260,18 +260,14 @@ def frame_part(trees: dict, job: str, data: str, rounds: int, threads: int, devi
 def make_variants(folder: str, n: int) -> str:
     """``n`` variants of the street at 128 x 72 in ``folder`` (bench/vary.py's spec); their batch list's path."""
     sys.path.insert(0, os.path.join(ROOT, "tests"))
-    from scpainter_blender.core import shapes
-    from scpainter_blender.core.variation import spec as spec_mod, variants
+    import render_scene
     from scpainter_blender.core.output_layout import VariationLayout
+    from scpainter_blender.core.variation import spec as spec_mod, variants
     from scpainter_blender.street.dataset import ensure_street
     from tests_support import street_base_job
 
     street = ensure_street()
-    lib = os.path.join(folder, "cars")
-    os.makedirs(lib, exist_ok=True)
-    for name, seed, paint in (("blue", 7, (0.1, 0.3, 0.8)), ("red", 8, (0.8, 0.1, 0.1))):
-        shapes.save_as_amodal3r(os.path.join(lib, f"{name}.ply"),
-                                shapes.procedural_car_gaussians(count=20000, seed=seed, paint=paint))
+    lib = render_scene.car_library(os.path.join(folder, "cars"), 20000)
     base = os.path.join(folder, "base", "job.json")
     street_base_job(street, base)
     spec = spec_mod.VariationSpec(variants=n, seed=0, library=lib, resolution=(128, 72),

@@ -92,6 +92,23 @@ def car_gaussians(n: int, seed: int = 0):
     return shapes.procedural_car_gaussians(count=n, seed=seed, paint=(0.7, 0.1, 0.1))
 
 
+#: The variation benches' library: (file stem, seed, paint) of each procedural car
+LIBRARY_CARS = (("blue", 7, (0.1, 0.3, 0.8)), ("red", 8, (0.8, 0.1, 0.1)))
+
+
+def car_library(folder: str, count: int) -> str:
+    """``folder`` holding ``LIBRARY_CARS`` as Amodal3R PLYs of ``count`` Gaussians each (kept when already there);
+    returns ``folder``."""
+    from scpainter_blender.core import shapes
+
+    os.makedirs(folder, exist_ok=True)
+    for name, seed, paint in LIBRARY_CARS:
+        path = os.path.join(folder, f"{name}.ply")
+        if not os.path.isfile(path):
+            shapes.save_as_amodal3r(path, shapes.procedural_car_gaussians(count=count, seed=seed, paint=paint))
+    return folder
+
+
 #: Where the cars of ``scene_arrays(..., cars=n)`` stand, relative to (0, car_distance): the first in the right
 #: lane; the second 7 m behind it and 1 m further left (half hidden by the first); the third in the left lane.
 CAR_OFFSETS = ((3.5, 0.0), (2.5, 7.0), (-3.5, -3.0))

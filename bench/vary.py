@@ -27,13 +27,14 @@ sys.path.insert(0, ROOT)
 sys.path.insert(0, os.path.join(ROOT, "tests"))
 sys.path.insert(0, os.path.join(ROOT, "bench"))
 
-from scpainter_blender.core import outputs, shapes  # noqa: E402
+from scpainter_blender.core import outputs  # noqa: E402
 from scpainter_blender.core.batch_items import DATA_ROOT_DIRECTIVE  # noqa: E402
 from scpainter_blender.core.output_layout import VariationLayout  # noqa: E402
 from scpainter_blender.core.variation import spec as spec_mod, variants  # noqa: E402
 from scpainter_blender.street.dataset import ensure_street  # noqa: E402
 from tests_support import street_base_job  # noqa: E402
 import bench_cli  # noqa: E402  (bench/, the script's folder)
+import render_scene  # noqa: E402
 
 
 def main(argv=None) -> int:
@@ -65,12 +66,7 @@ def measure(args, out: str) -> int:
     W, H = (int(v) for v in args.resolution.split("x"))
     shutil.rmtree(os.path.join(out, "variants"), ignore_errors=True)  # this bench's own folder: nothing reused
     street = ensure_street()
-    lib = os.path.join(out, "cars")
-    os.makedirs(lib, exist_ok=True)
-    for name, seed, paint in (("blue", 7, (0.1, 0.3, 0.8)), ("red", 8, (0.8, 0.1, 0.1))):
-        if not os.path.isfile(os.path.join(lib, f"{name}.ply")):
-            shapes.save_as_amodal3r(os.path.join(lib, f"{name}.ply"),
-                                    shapes.procedural_car_gaussians(count=20000, seed=seed, paint=paint))
+    lib = render_scene.car_library(os.path.join(out, "cars"), 20000)
     base = os.path.join(out, "base", "job.json")
     street_base_job(street, base)
     spec = spec_mod.VariationSpec(variants=args.variants, seed=0, library=lib, resolution=(W, H),

@@ -35,3 +35,15 @@ def run_smoke(name: str, tmp_path, *extra) -> dict:
 def finite(*values) -> bool:
     """All ``values`` are real numbers (not bool, not None) and finite."""
     return all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in values)
+
+
+def run_smoke_process(name: str, tmp_path, *extra, timeout: int = 600):
+    """``bench/<name>.py --smoke [extra] --out tmp_path`` in a process of its own (a bench that must own its
+    process: bpy's user folder set before import, its own Ray or signal handling); the finished
+    ``subprocess.CompletedProcess`` (text), after asserting it exited 0."""
+    import subprocess
+
+    r = subprocess.run([sys.executable, os.path.join(ROOT, "bench", f"{name}.py"), "--smoke", *extra, "--out",
+                        str(tmp_path)], cwd=ROOT, capture_output=True, text=True, timeout=timeout)
+    assert r.returncode == 0, f"bench/{name}.py --smoke exited {r.returncode}:\n{r.stderr[-3000:]}"
+    return r

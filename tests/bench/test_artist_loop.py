@@ -5,21 +5,16 @@ rendering nothing. Marked slow (run with --run-slow): the first click starts the
 folder)."""
 
 import json
-import os
-import subprocess
-import sys
 
 import pytest
 
-from bench_support import ROOT, finite
+from bench_support import finite, run_smoke_process
 
 
 @pytest.mark.slow
 def test_artist_loop_smoke(tmp_path):
     pytest.importorskip("bpy")
-    r = subprocess.run([sys.executable, os.path.join(ROOT, "bench", "artist_loop.py"), "--smoke", "--out",
-                        str(tmp_path)], cwd=ROOT, capture_output=True, text=True, timeout=600)
-    assert r.returncode == 0, r.stderr[-3000:]
+    r = run_smoke_process("artist_loop", tmp_path)
     rows = {row["click"]: row for row in json.loads((tmp_path / "artist_loop.json").read_text())["rows"]}
     assert list(rows) == ["cold", "unchanged", "moved", "moved back"] and {r["arm"] for r in rows.values()} == {"now"}
     assert all(finite(r["seconds"], r["overhead_s"]) for r in rows.values())

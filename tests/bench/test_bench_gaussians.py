@@ -3,17 +3,12 @@ and evaluates both previews, in a process of its own (Blender's user folder is s
 
 import json
 import math
-import os
-import subprocess
-import sys
 
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from bench_support import run_smoke_process
 
 
 def test_bench_gaussians_smoke(tmp_path):
-    r = subprocess.run([sys.executable, os.path.join(ROOT, "bench", "bench_gaussians.py"), "--smoke", "--out",
-                        str(tmp_path)], cwd=ROOT, capture_output=True, text=True, timeout=300)
-    assert r.returncode == 0, r.stderr[-3000:]
+    r = run_smoke_process("bench_gaussians", tmp_path, timeout=300)
     assert "ellipsoids_eval_s" in r.stdout
     got = json.loads((tmp_path / "gaussians.json").read_text())
     (row,) = got["rows"]

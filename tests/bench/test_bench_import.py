@@ -5,20 +5,15 @@ no longer passed the import's check against the depth, and its per-pixel random 
 cleaning.)"""
 
 import json
-import os
-import subprocess
-import sys
 
 import pytest
 
-from bench_support import ROOT, finite
+from bench_support import finite, run_smoke_process
 
 
 def test_bench_import_smoke(tmp_path):
     pytest.importorskip("bpy")
-    r = subprocess.run([sys.executable, os.path.join(ROOT, "bench", "bench_import.py"), "--smoke", "--out",
-                        str(tmp_path)], cwd=ROOT, capture_output=True, text=True, timeout=300)
-    assert r.returncode == 0, r.stderr[-3000:]
+    r = run_smoke_process("bench_import", tmp_path, timeout=300)
     (row,) = json.loads((tmp_path / "import.json").read_text())["rows"]
     assert row["frames"] == 2 and row["percentile"] == 50.0
     assert 0.3 * 2 * 518 * 294 < row["points"] <= 0.5 * 2 * 518 * 294 + 1   # the confidence median keeps half

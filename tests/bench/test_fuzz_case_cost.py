@@ -3,17 +3,12 @@ as accepted, prints its table and writes its JSON (the many-asset cases themselv
 A process of its own: the bench sets its thread counts as a fuzz worker's."""
 
 import json
-import os
-import subprocess
-import sys
 
-from bench_support import ROOT, finite
+from bench_support import finite, run_smoke_process
 
 
 def test_fuzz_case_cost_bench_measures_the_two_asset_case(tmp_path):
-    r = subprocess.run([sys.executable, os.path.join(ROOT, "bench", "fuzz_case_cost.py"), "--smoke", "--label",
-                        "smoke", "--out", str(tmp_path)], cwd=ROOT, capture_output=True, text=True, timeout=600)
-    assert r.returncode == 0, r.stderr[-3000:]
+    r = run_smoke_process("fuzz_case_cost", tmp_path, "--label", "smoke")
     assert "assets: two assets on one PLY" in r.stdout
     got = json.loads((tmp_path / "fuzz_case_cost.json").read_text())
     assert got["label"] == "smoke" and got["budget_cpu_s"] > 0

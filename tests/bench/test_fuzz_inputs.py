@@ -3,17 +3,12 @@ its JSON written with the summary row per kind and the valid job accepted. A pro
 thread counts as the fuzz's workers' before torch loads."""
 
 import json
-import os
-import subprocess
-import sys
 
-from bench_support import ROOT, finite
+from bench_support import finite, run_smoke_process
 
 
 def test_fuzz_inputs_bench_smoke(tmp_path):
-    r = subprocess.run([sys.executable, os.path.join(ROOT, "bench", "fuzz_inputs.py"), "--smoke", "--quiet",
-                        "--out", str(tmp_path)], cwd=ROOT, capture_output=True, text=True, timeout=600)
-    assert r.returncode == 0, r.stderr[-3000:]
+    r = run_smoke_process("fuzz_inputs", tmp_path, "--quiet")
     assert "| input kind | cases | accepted |" in r.stdout
     got = json.loads((tmp_path / "fuzz_inputs.json").read_text())
     assert got["summary"]["ply"]["cases"] == got["summary"]["total"]["cases"] == 2

@@ -3,20 +3,15 @@ import operators in Blender, one row each with what happened: the well-formed ki
 ones refused with the file named. A process of its own: the bench imports bpy with a private user folder."""
 
 import json
-import os
-import subprocess
-import sys
 
 import pytest
 
-from bench_support import ROOT
+from bench_support import run_smoke_process
 
 
 def test_input_kinds_smoke(tmp_path):
     pytest.importorskip("bpy")
-    r = subprocess.run([sys.executable, os.path.join(ROOT, "bench", "input_kinds.py"), "--smoke", "--out",
-                        str(tmp_path)], cwd=ROOT, capture_output=True, text=True, timeout=300)
-    assert r.returncode == 0, r.stderr[-3000:]
+    r = run_smoke_process("input_kinds", tmp_path, timeout=300)
     rows = {row["kind"]: row for row in json.loads((tmp_path / "input_kinds.json").read_text())["rows"]}
     refused = {k for k, row in rows.items() if row["status"] == "refused"}
     assert len(rows) >= 10 and refused == {"VGGT camera-to-world under 'extrinsic'",

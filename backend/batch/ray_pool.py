@@ -49,6 +49,10 @@ dead worker run again elsewhere.
   path (the tasks get the job's path, a string, and open the files themselves; each worker imports this code from
   the driver's ``PYTHONPATH``). Nothing from a user's file is pickled: tasks take strings and numbers and return
   plain dicts.
+
+(Just over 400 lines: the worker's task (``_run_job``) and the driver's loop (``run_ray_batch``) are two sides of
+one protocol, the task's first yielded item (``STARTED``), its statuses and the driver's retry and stop rules, kept
+in one module so that a change to one side is read beside the other.)
 """
 
 from __future__ import annotations

@@ -19,6 +19,10 @@ reach no pixel the Gaussian pass is skipped; both tests are conservative, so the
 
 The scene's points are cleaned once, at load (``scene.point_cleaning``): pixels on depth edges are left out of
 each source frame (``core.geometry.point_cloud.depth_edges``), then outliers of the whole cloud (``cleaning``).
+
+(About 500 lines: what a worker keeps between jobs (``KeptCloud``'s placed points, ``PointLayers``' z-buffers) is
+keyed on the ``Scene``'s placement and read only by ``render_frame``; a module of its own for the two caches is the
+next split, once the Scene's fields they key on settle.)
 """
 
 from __future__ import annotations
